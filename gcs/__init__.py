@@ -1,0 +1,1 @@
+"""The ground station: spawns drones, flies formations, relays neighbour positions."""

@@ -1,0 +1,1 @@
+"""One simulated drone: JSBSim flight model, sensors, PX4-style autopilot and MAVLink endpoint."""

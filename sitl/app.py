@@ -1,0 +1,49 @@
+"""Composition of one drone process: build the simulation, attach the demo, run the paced loop."""
+
+from __future__ import annotations
+
+import sys
+
+from sitl.airframe import Airframe
+from sitl.demo import DemoFlight
+from sitl.dynamics.plant import GeoPoint
+from sitl.runtime import RunOptions, StopFlag, run_loop
+from sitl.simulation import SimConfig, Simulation
+from sitl.wind import WindConfig
+
+
+def _say(text: str) -> None:
+    print(text, flush=True)
+
+
+def run(
+    *,
+    instance: int,
+    airframe: Airframe,
+    seed: int,
+    speed_factor: float,
+    home: GeoPoint,
+    wind: WindConfig,
+    duration_s: float | None,
+    demo: bool,
+) -> int:
+    stop = StopFlag()
+    stop.install()
+    sim = Simulation(SimConfig(airframe=airframe, seed=seed, home=home, wind=wind))
+    speed = "unpaced" if speed_factor == 0 else f"{speed_factor:g}x real time"
+    _say(
+        f"sitl {instance}: airframe {airframe.name} ({airframe.mass_kg:.2f} kg, hover at "
+        f"{airframe.hover_thrust_fraction:.0%} of max thrust), seed {seed}, {speed}, "
+        f"physics {1 / sim.dt_s:.0f} Hz, home {home.lat_deg:.6f}, {home.lon_deg:.6f}, {home.alt_amsl_m:.1f} m"
+    )
+    flight = DemoFlight(sim, _say) if demo else None
+    run_loop(
+        sim,
+        RunOptions(speed_factor=speed_factor, duration_s=duration_s),
+        stop,
+        on_step=flight.tick if flight is not None else None,
+        finished=(lambda: flight.done) if flight is not None else None,
+    )
+    if stop.stopped:
+        print(f"sitl {instance}: stopped by {stop.signal_name} at t={sim.time_s:.2f} s", file=sys.stderr)
+    return 0

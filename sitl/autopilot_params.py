@@ -1,0 +1,45 @@
+"""Parameters of the autopilot's mode logic (takeoff, land, RTL, failsafes, arming), PX4 names and defaults."""
+
+from __future__ import annotations
+
+from sitl.params import ParamDef, ParamType
+
+AUTOPILOT_PARAMS: tuple[ParamDef, ...] = (
+    ParamDef(name="MIS_TAKEOFF_ALT", default=2.5, min=0.5, max=100.0, unit="m",
+             description="Takeoff altitude above home when the takeoff command gives none"),
+    ParamDef(name="RTL_RETURN_ALT", default=30.0, min=0.0, max=150.0, unit="m",
+             description="Return-to-launch cruise altitude above home (climbs to it if lower)"),
+    ParamDef(name="RTL_DESCEND_ALT", default=10.0, min=2.0, max=100.0, unit="m",
+             description="RTL: altitude above home to descend to over home before landing"),
+    ParamDef(name="MPC_TKO_SPEED", default=1.5, min=0.5, max=5.0, unit="m/s", description="Takeoff climb rate"),
+    ParamDef(name="MPC_LAND_SPEED", default=0.7, min=0.2, max=2.0, unit="m/s",
+             description="Landing descent rate below MPC_LAND_ALT2"),
+    ParamDef(name="MPC_LAND_ALT2", default=5.0, min=0.0, max=50.0, unit="m",
+             description="Below this altitude above home, landing descends at MPC_LAND_SPEED"),
+    ParamDef(name="MPC_XY_CRUISE", default=5.0, min=0.5, max=20.0, unit="m/s",
+             description="Horizontal cruise speed in auto modes (goto, RTL, mission)"),
+    ParamDef(name="MPC_Z_V_AUTO_UP", default=3.0, min=0.5, max=8.0, unit="m/s",
+             description="Climb speed in auto modes"),
+    ParamDef(name="MPC_Z_V_AUTO_DN", default=1.5, min=0.5, max=4.0, unit="m/s",
+             description="Descent speed in auto modes"),
+    ParamDef(name="MPC_ACC_HOR", default=3.0, min=1.0, max=15.0, unit="m/s^2",
+             description="Horizontal acceleration of auto-mode trajectories"),
+    ParamDef(name="MPC_ACC_UP_MAX", default=3.0, min=1.0, max=15.0, unit="m/s^2",
+             description="Vertical acceleration of auto-mode trajectories"),
+    ParamDef(name="NAV_ACC_RAD", default=1.0, min=0.05, max=50.0, unit="m",
+             description="Default mission waypoint acceptance radius"),
+    ParamDef(name="COM_DISARM_LAND", default=2.0, min=-1.0, max=20.0, unit="s",
+             description="Auto-disarm delay after touchdown (-1: never)"),
+    ParamDef(name="COM_DISARM_PRFLT", default=10.0, min=-1.0, max=60.0, unit="s",
+             description="Auto-disarm when armed on the ground without taking off (-1: never)"),
+    ParamDef(name="COM_OF_LOSS_T", default=1.0, min=0.0, max=60.0, unit="s",
+             description="Offboard setpoint loss timeout before the failsafe (Hold, then land)"),
+    ParamDef(name="COM_FAIL_ACT_T", default=5.0, min=0.0, max=60.0, unit="s",
+             description="Failsafe: time in Hold before the failsafe action (land)"),
+    ParamDef(name="BAT_LOW_THR", default=0.15, min=0.05, max=0.5, unit="",
+             description="Low battery warning threshold (fraction remaining)"),
+    ParamDef(name="BAT_CRIT_THR", default=0.07, min=0.01, max=0.5, unit="",
+             description="Critical battery: arming refused, RTL in flight"),
+    ParamDef(name="COM_ARM_WO_GPS", default=0, min=0, max=1, unit="", type=ParamType.INT,
+             description="Allow arming without a GPS fix (1) or not (0)"),
+)

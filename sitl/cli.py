@@ -1,0 +1,116 @@
+"""``sitl``: run one simulated drone as a process.
+
+The command line only parses and validates arguments, then calls ``run(...)``; tests call the same entry point.
+User mistakes end with one line on stderr and exit code 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import os
+import sys
+from collections.abc import Sequence
+from typing import NoReturn
+
+from sitl.airframe import DEFAULT_AIRFRAME, AirframeError, load_airframe
+from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
+from sitl.wind import WindConfig
+
+EXIT_USAGE = 2
+SPEED_ENV = "PX4_SIM_SPEED_FACTOR"
+
+
+class UsageError(Exception):
+    """A bad argument or input file, reported as one line with exit code 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> NoReturn:
+        raise UsageError(message)
+
+
+def _float_list(text: str, count: int, what: str) -> tuple[float, ...]:
+    parts = text.split(",")
+    try:
+        values = tuple(float(p) for p in parts)
+    except ValueError:
+        raise UsageError(f"{what} must be {count} comma-separated numbers, got {text!r}") from None
+    if len(values) != count or not all(math.isfinite(v) for v in values):
+        raise UsageError(f"{what} must be {count} comma-separated finite numbers, got {text!r}")
+    return values
+
+
+def _speed_factor(arg: str | None) -> float:
+    source, text = ("--speed", arg) if arg is not None else (SPEED_ENV, os.environ.get(SPEED_ENV))
+    if text is None or text == "":
+        return 1.0
+    try:
+        value = float(text)
+    except ValueError:
+        raise UsageError(f"{source} must be a number, got {text!r}") from None
+    if not math.isfinite(value) or value < 0:
+        raise UsageError(f"{source} must be a finite number >= 0 (0 = as fast as possible), got {text!r}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="sitl", description="Run one simulated quadrotor (JSBSim + PX4-style autopilot).")
+    parser.add_argument("--instance", type=int, default=0, help="instance number i >= 0 (MAVLink sysid i+1)")
+    parser.add_argument("--airframe", default=DEFAULT_AIRFRAME, help="airframe name in airframes/ or a .toml path")
+    parser.add_argument("--speed", default=None,
+                        help=f"simulation speed factor (default: ${SPEED_ENV} or 1.0; 0 = unpaced)")
+    parser.add_argument("--seed", type=int, default=None, help="random seed (default: the instance number)")
+    parser.add_argument("--home", default=None, help="home as LAT,LON,ALT_AMSL (default: PX4 SITL home)")
+    parser.add_argument("--wind", default="0,0,0", help="steady wind N,E,D in m/s (the direction it blows to)")
+    parser.add_argument("--gust", type=float, default=0.0, help="gust RMS intensity in m/s")
+    parser.add_argument("--duration", type=float, default=None, help="exit after this many simulated seconds")
+    parser.add_argument("--demo", action="store_true", help="take off to 3 m, hover, land and exit, printing progress")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    try:
+        return _main(argv)
+    except (UsageError, AirframeError) as exc:
+        print(f"sitl: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+
+
+def _main(argv: Sequence[str] | None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.instance < 0 or args.instance > 254:
+        raise UsageError(f"--instance must be in 0..254, got {args.instance}")
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+        raise UsageError(f"--duration must be a positive number of seconds, got {args.duration}")
+    if not (math.isfinite(args.gust) and args.gust >= 0):
+        raise UsageError(f"--gust must be >= 0, got {args.gust}")
+    home = DEFAULT_HOME
+    if args.home is not None:
+        lat, lon, alt = _float_list(args.home, 3, "--home")
+        if not (-90 < lat < 90 and -180 <= lon <= 180):
+            raise UsageError(f"--home latitude/longitude out of range: {args.home!r}")
+        home = GeoPoint(lat_deg=lat, lon_deg=lon, alt_amsl_m=alt)
+    wind = _float_list(args.wind, 3, "--wind")
+    speed = _speed_factor(args.speed)
+    airframe = load_airframe(args.airframe)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(name)s: %(message)s")
+
+    from sitl.app import run  # heavy imports (jsbsim) only after the arguments are known to be good
+
+    return run(
+        instance=args.instance,
+        airframe=airframe,
+        seed=args.seed if args.seed is not None else args.instance,
+        speed_factor=speed,
+        home=home,
+        wind=WindConfig(steady_ned_mps=(wind[0], wind[1], wind[2]), gust_rms_mps=args.gust),
+        duration_s=args.duration,
+        demo=args.demo,
+    )
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Flight dynamics: the Plant interface and its JSBSim implementation."""

@@ -1,0 +1,110 @@
+"""Small rotation helpers shared by the plant, sensors, estimator and controllers.
+
+Conventions used everywhere in the project:
+- World frame is local NED (north, east, down) anchored at home; body frame is FRD (forward, right, down).
+- Quaternions are (w, x, y, z) numpy arrays rotating body-frame vectors into NED: v_ned = R(q) @ v_frd.
+- Euler angles are ZYX (yaw, pitch, roll) in radians, as in PX4 and MAVLink ATTITUDE.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+
+Vec3 = npt.NDArray[np.float64]
+Quat = npt.NDArray[np.float64]
+Mat3 = npt.NDArray[np.float64]
+
+GRAVITY_MPS2 = 9.80665
+
+
+def vec3(x: float, y: float, z: float) -> Vec3:
+    return np.array((x, y, z), dtype=np.float64)
+
+
+def quat_to_dcm(q: Quat) -> Mat3:
+    """Rotation matrix body->NED for a unit quaternion (w, x, y, z)."""
+    w, x, y, z = q
+    return np.array(
+        (
+            (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+            (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+            (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)),
+        )
+    )
+
+
+def dcm_to_quat(r: Mat3) -> Quat:
+    """Unit quaternion (w, x, y, z, w >= 0) from a rotation matrix, numerically robust branch selection."""
+    tr = r[0, 0] + r[1, 1] + r[2, 2]
+    if tr > 0.0:
+        s = math.sqrt(tr + 1.0) * 2.0
+        q = (0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s)
+    elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
+        s = math.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2]) * 2.0
+        q = ((r[2, 1] - r[1, 2]) / s, 0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s)
+    elif r[1, 1] > r[2, 2]:
+        s = math.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2]) * 2.0
+        q = ((r[0, 2] - r[2, 0]) / s, (r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s)
+    else:
+        s = math.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1]) * 2.0
+        q = ((r[1, 0] - r[0, 1]) / s, (r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s)
+    out = np.array(q)
+    out /= np.linalg.norm(out)
+    return out if out[0] >= 0.0 else -out
+
+
+def quat_mul(a: Quat, b: Quat) -> Quat:
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return np.array(
+        (
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        )
+    )
+
+
+def quat_conj(q: Quat) -> Quat:
+    return np.array((q[0], -q[1], -q[2], -q[3]))
+
+
+def quat_from_euler(roll_rad: float, pitch_rad: float, yaw_rad: float) -> Quat:
+    cr, sr = math.cos(roll_rad / 2), math.sin(roll_rad / 2)
+    cp, sp = math.cos(pitch_rad / 2), math.sin(pitch_rad / 2)
+    cy, sy = math.cos(yaw_rad / 2), math.sin(yaw_rad / 2)
+    return np.array(
+        (
+            cr * cp * cy + sr * sp * sy,
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+        )
+    )
+
+
+def quat_to_euler(q: Quat) -> tuple[float, float, float]:
+    """(roll, pitch, yaw) in radians, ZYX convention."""
+    w, x, y, z = q
+    roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return roll, pitch, yaw
+
+
+def quat_from_axis_angle(rotvec: Vec3) -> Quat:
+    """Quaternion for a rotation vector (axis * angle, radians)."""
+    angle = float(np.linalg.norm(rotvec))
+    if angle < 1e-12:
+        return np.array((1.0, 0.5 * rotvec[0], 0.5 * rotvec[1], 0.5 * rotvec[2]))
+    s = math.sin(angle / 2) / angle
+    return np.array((math.cos(angle / 2), rotvec[0] * s, rotvec[1] * s, rotvec[2] * s))
+
+
+def wrap_pi(angle_rad: float) -> float:
+    """Wrap an angle to [-pi, pi)."""
+    return (angle_rad + math.pi) % (2 * math.pi) - math.pi

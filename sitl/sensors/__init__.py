@@ -1,0 +1,1 @@
+"""Sensor models with seeded noise: IMU, GPS, barometer, magnetometer."""

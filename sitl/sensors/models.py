@@ -1,0 +1,202 @@
+"""Sensor models: what the autopilot sees of the true state.
+
+Each model is pure apart from its own seeded noise stream: ``sample(truth) -> reading or None`` when it has no new
+sample this step (GPS and barometer run slower than the physics). Noise figures are typical of the parts on a
+PX4-class flight controller (ICM-42688 IMU, MS5611 barometer, u-blox M8/M9 GPS) and of PX4 SITL's own sensor
+plugins, chosen so that a well-tuned vehicle holds position to a few centimetres, as PX4 SITL does.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from sitl.dynamics.plant import PlantState
+from sitl.mathutil import GRAVITY_MPS2, Vec3, quat_to_dcm, vec3
+from sitl.sensors.noise import NoiseSource
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SensorConfig:
+    gyro_noise_radps: float = 0.003  # per sample, 1 sigma
+    gyro_bias_max_radps: float = 0.005  # initial bias drawn uniformly in +-this, per axis
+    accel_noise_mps2: float = 0.03
+    accel_bias_max_mps2: float = 0.05
+    gps_rate_hz: float = 10.0
+    gps_time_to_fix_s: float = 1.5  # from boot; pre-arm checks wait for it like on a real vehicle
+    gps_pos_noise_h_m: float = 0.04
+    gps_pos_noise_v_m: float = 0.08
+    gps_pos_drift_h_m: float = 0.03  # 1 sigma of a slow Gauss-Markov wander (multipath, atmosphere)
+    gps_drift_time_s: float = 60.0
+    gps_vel_noise_mps: float = 0.04
+    gps_satellites: int = 12
+    baro_rate_hz: float = 50.0
+    baro_noise_m: float = 0.05
+    mag_noise_gauss: float = 0.005
+    # Earth field at the default home (Zurich): 0.48 gauss total, inclination 63.5 deg, declination 2.8 deg.
+    mag_field_ned_gauss: tuple[float, float, float] = (0.2137, 0.0104, 0.4296)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ImuSample:
+    gyro_frd_radps: Vec3
+    accel_frd_mps2: Vec3
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class GpsSample:
+    time_s: float
+    fix_type: int  # MAVLink GPS_FIX_TYPE: 0 no GPS, 1 no fix, 3 3D fix
+    satellites: int
+    lat_deg: float
+    lon_deg: float
+    alt_amsl_m: float
+    pos_ned_m: Vec3  # the same fix expressed in the local frame around home
+    vel_ned_mps: Vec3
+    eph_m: float
+    epv_m: float
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class BaroSample:
+    alt_amsl_m: float
+    pressure_hpa: float
+    temperature_c: float
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MagSample:
+    field_frd_gauss: Vec3
+
+
+def _isa_pressure_hpa(alt_amsl_m: float) -> float:
+    """ISA troposphere pressure at a geometric altitude (close enough to geopotential at these heights)."""
+    return 1013.25 * (1.0 - 2.25577e-5 * alt_amsl_m) ** 5.25588
+
+
+class Imu:
+    def __init__(self, config: SensorConfig, rng: np.random.Generator) -> None:
+        self._cfg = config
+        self._gyro_bias = rng.uniform(-config.gyro_bias_max_radps, config.gyro_bias_max_radps, 3)
+        self._accel_bias = rng.uniform(-config.accel_bias_max_mps2, config.accel_bias_max_mps2, 3)
+        self._noise = NoiseSource(rng)
+
+    def sample(self, truth: PlantState) -> ImuSample:
+        gyro = truth.rates_frd_radps + self._gyro_bias + self._cfg.gyro_noise_radps * self._noise.vec3()
+        accel = truth.specific_force_frd_mps2 + self._accel_bias + self._cfg.accel_noise_mps2 * self._noise.vec3()
+        return ImuSample(gyro_frd_radps=gyro, accel_frd_mps2=accel)
+
+
+class _Periodic:
+    """Fires at a fixed rate in simulation time, aligned to multiples of the period."""
+
+    def __init__(self, rate_hz: float) -> None:
+        self._period_s = 1.0 / rate_hz
+        self._next_s = 0.0
+
+    def due(self, time_s: float) -> bool:
+        if time_s + 1e-9 < self._next_s:
+            return False
+        self._next_s += self._period_s * max(1, math.floor((time_s - self._next_s) / self._period_s) + 1)
+        return True
+
+
+class Gps:
+    def __init__(self, config: SensorConfig, rng: np.random.Generator) -> None:
+        self._cfg = config
+        self._noise = NoiseSource(rng)
+        self._clock = _Periodic(config.gps_rate_hz)
+        self._drift_ne_m = np.zeros(2)
+        self._alpha = math.exp(-1.0 / (config.gps_rate_hz * config.gps_drift_time_s))
+
+    def sample(self, truth: PlantState) -> GpsSample | None:
+        if not self._clock.due(truth.time_s):
+            return None
+        cfg = self._cfg
+        if truth.time_s < cfg.gps_time_to_fix_s:
+            nan3 = vec3(math.nan, math.nan, math.nan)
+            return GpsSample(time_s=truth.time_s, fix_type=1, satellites=3, lat_deg=math.nan, lon_deg=math.nan,
+                             alt_amsl_m=math.nan, pos_ned_m=nan3, vel_ned_mps=nan3, eph_m=99.0, epv_m=99.0)
+        n_pos, n_vel, n_drift = self._noise.vec3(), self._noise.vec3(), self._noise.vec3()
+        self._drift_ne_m = self._alpha * self._drift_ne_m + math.sqrt(1 - self._alpha**2) * cfg.gps_pos_drift_h_m * n_drift[:2]
+        err_ned = vec3(
+            self._drift_ne_m[0] + cfg.gps_pos_noise_h_m * n_pos[0],
+            self._drift_ne_m[1] + cfg.gps_pos_noise_h_m * n_pos[1],
+            cfg.gps_pos_noise_v_m * n_pos[2],
+        )
+        pos = truth.pos_ned_m + err_ned
+        # Geodetic of the noisy fix: offset the true geodetic by the same error (metres to degrees, local scale).
+        lat = truth.geo.lat_deg + math.degrees(err_ned[0] / 6378137.0)
+        lon = truth.geo.lon_deg + math.degrees(err_ned[1] / (6378137.0 * math.cos(math.radians(truth.geo.lat_deg))))
+        return GpsSample(
+            time_s=truth.time_s,
+            fix_type=3,
+            satellites=cfg.gps_satellites,
+            lat_deg=lat,
+            lon_deg=lon,
+            alt_amsl_m=truth.geo.alt_amsl_m - err_ned[2],
+            pos_ned_m=pos,
+            vel_ned_mps=truth.vel_ned_mps + cfg.gps_vel_noise_mps * n_vel,
+            eph_m=max(0.3, 3 * cfg.gps_pos_noise_h_m),
+            epv_m=max(0.4, 3 * cfg.gps_pos_noise_v_m),
+        )
+
+
+class Barometer:
+    def __init__(self, config: SensorConfig, rng: np.random.Generator) -> None:
+        self._cfg = config
+        self._noise = NoiseSource(rng)
+        self._clock = _Periodic(config.baro_rate_hz)
+
+    def sample(self, truth: PlantState) -> BaroSample | None:
+        if not self._clock.due(truth.time_s):
+            return None
+        alt = truth.geo.alt_amsl_m + self._cfg.baro_noise_m * self._noise.scalar()
+        return BaroSample(alt_amsl_m=alt, pressure_hpa=_isa_pressure_hpa(alt), temperature_c=15.0 - 0.0065 * alt)
+
+
+class Magnetometer:
+    def __init__(self, config: SensorConfig, rng: np.random.Generator) -> None:
+        self._cfg = config
+        self._noise = NoiseSource(rng)
+        self._field_ned = np.array(config.mag_field_ned_gauss)
+        self._clock = _Periodic(config.baro_rate_hz)
+
+    def sample(self, truth: PlantState) -> MagSample | None:
+        if not self._clock.due(truth.time_s):
+            return None
+        field = quat_to_dcm(truth.att_q_frd_to_ned).T @ self._field_ned
+        return MagSample(field_frd_gauss=field + self._cfg.mag_noise_gauss * self._noise.vec3())
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SensorReadings:
+    imu: ImuSample
+    gps: GpsSample | None
+    baro: BaroSample | None
+    mag: MagSample | None
+
+
+class SensorSuite:
+    """All sensors of one drone, each with an independent stream spawned from one seed."""
+
+    def __init__(self, config: SensorConfig, seed: int) -> None:
+        streams = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(4)]
+        self.config = config
+        self.imu = Imu(config, streams[0])
+        self.gps = Gps(config, streams[1])
+        self.baro = Barometer(config, streams[2])
+        self.mag = Magnetometer(config, streams[3])
+
+    def sample(self, truth: PlantState) -> SensorReadings:
+        return SensorReadings(
+            imu=self.imu.sample(truth),
+            gps=self.gps.sample(truth),
+            baro=self.baro.sample(truth),
+            mag=self.mag.sample(truth),
+        )
+
+
+__all__ = ["GRAVITY_MPS2", "SensorConfig", "SensorReadings", "SensorSuite"]

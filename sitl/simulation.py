@@ -1,0 +1,100 @@
+"""One drone's closed loop without any IO: plant -> sensors -> estimator -> autopilot -> plant.
+
+Tests fly this directly (no sockets, no clock); the process runtime (sitl/runtime.py) wraps it with pacing and
+MAVLink. Everything random is drawn from streams spawned from one seed, so a seed fixes the whole flight.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sitl.airframe import Airframe
+from sitl.autopilot_params import AUTOPILOT_PARAMS
+from sitl.battery import Battery, BatteryConfig
+from sitl.control.cascade import Cascade
+from sitl.control.params import CONTROL_PARAMS
+from sitl.dynamics.jsbsim_plant import JsbsimPlant
+from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint, PlantState
+from sitl.estimation import Estimate, Estimator, EstimatorConfig
+from sitl.params import ParamStore
+from sitl.sensors.models import SensorConfig, SensorReadings, SensorSuite
+from sitl.vehicle import Vehicle
+from sitl.wind import WindConfig, WindModel
+
+PHYSICS_RATE_HZ = 400.0
+
+
+def build_param_store() -> ParamStore:
+    """Every parameter of one drone, in the order the MAVLink parameter protocol indexes them."""
+    return ParamStore((*CONTROL_PARAMS, *AUTOPILOT_PARAMS))
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SimConfig:
+    airframe: Airframe
+    seed: int = 0
+    home: GeoPoint = DEFAULT_HOME
+    initial_yaw_rad: float = 0.0
+    physics_rate_hz: float = PHYSICS_RATE_HZ
+    sensors: SensorConfig = field(default_factory=SensorConfig)
+    estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
+    wind: WindConfig = field(default_factory=WindConfig)
+    battery: BatteryConfig = field(default_factory=BatteryConfig)
+
+
+class Simulation:
+    def __init__(self, config: SimConfig, params: ParamStore | None = None) -> None:
+        self.config = config
+        self.dt_s = 1.0 / config.physics_rate_hz
+        self.params = params if params is not None else build_param_store()
+        seeds = np.random.SeedSequence(config.seed).spawn(2)
+        self.plant = JsbsimPlant(config.airframe, home=config.home, dt_s=self.dt_s,
+                                 initial_yaw_rad=config.initial_yaw_rad)
+        self.sensors = SensorSuite(config.sensors, seed=int(seeds[0].generate_state(1)[0]))
+        self.wind = WindModel(config.wind, np.random.default_rng(seeds[1]))
+        self.estimator = Estimator(config.estimator, origin_alt_amsl_m=self.plant.state().geo.alt_amsl_m)
+        self.estimator.set_mag_reference(np.array(config.sensors.mag_field_ned_gauss))
+        self.battery = Battery(config.battery)
+        self.vehicle = Vehicle(config.airframe, self.params, Cascade(config.airframe, self.params),
+                               battery_remaining=lambda: self.battery.state().remaining)
+        self.truth: PlantState = self.plant.state()
+        self.readings: SensorReadings | None = None
+        self.estimate: Estimate | None = None
+        self.time_s = 0.0
+        self._boot_down_m = float(self.truth.pos_ned_m[2])
+        self._k_q = config.airframe.torque_coeff_nm_per_radps2
+
+    def step(self) -> PlantState:
+        """Advance one physics step (sensors, estimator and control run at the physics rate)."""
+        self.readings = self.sensors.sample(self.truth)
+        self.estimate = self.estimator.update(self.readings, self.time_s, self.dt_s)
+        motors = self.vehicle.step(self.estimate, self.time_s, self.dt_s)
+        if not self.wind.calm:
+            self.plant.set_wind(self.wind.update(self.dt_s))
+        self.truth = self.plant.step(motors)
+        self.time_s = self.truth.time_s
+        power_w = sum(self._k_q * w * w * w for w in self.truth.motor_speeds_radps)
+        self.battery.update(power_w, self.dt_s)
+        return self.truth
+
+    def run_for(self, duration_s: float, on_step: Callable[[Simulation], None] | None = None) -> None:
+        for _ in range(int(round(duration_s / self.dt_s))):
+            self.step()
+            if on_step is not None:
+                on_step(self)
+
+    def run_until(self, condition: Callable[[Simulation], bool], timeout_s: float) -> bool:
+        """Step until the condition holds (checked after each step); False if the timeout passes first."""
+        end = self.time_s + timeout_s
+        while self.time_s < end - 1e-9:
+            self.step()
+            if condition(self):
+                return True
+        return False
+
+    def altitude_above_start_m(self) -> float:
+        """True CG height above where it rested at boot (for tests and reports; the autopilot never sees it)."""
+        return self._boot_down_m - float(self.truth.pos_ned_m[2])

@@ -1,0 +1,473 @@
+"""The autopilot: arming, flight modes, failsafes. Pure: estimate and time in, motor commands out.
+
+This is the drone's "commander + navigator" in PX4 terms. It owns the mode machine and turns the active mode into a
+trajectory setpoint for the controller cascade (sitl/control), and it decides when the motors may spin. It never
+reads ground truth, a clock or a socket: the simulation loop passes the estimate and the simulation time, and the
+MAVLink layer calls the request methods (arm, takeoff, set_mode, ...), each answering with an ``Outcome``.
+
+Behaviour follows PX4 where a client could notice: takeoff climbs to MIS_TAKEOFF_ALT and switches to Hold; land
+descends and auto-disarms COM_DISARM_LAND seconds after touchdown; RTL climbs to RTL_RETURN_ALT, returns and lands;
+offboard needs a live setpoint stream and falls back to Hold, then lands, when it stops.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+
+from sitl.airframe import Airframe
+from sitl.control.cascade import Cascade, Setpoint
+from sitl.estimation import Estimate
+from sitl.guidance import MotionLimits, StraightLineTrajectory
+from sitl.land_detector import LandDetector, LandDetectorConfig
+from sitl.mathutil import Vec3, vec3
+from sitl.params import ParamStore
+
+NAN3 = (math.nan, math.nan, math.nan)
+
+
+class FlightMode(Enum):
+    """PX4 navigation states this autopilot implements (wire encoding lives in sitl/protocol/modes.py)."""
+
+    POSCTL = "POSCTL"
+    HOLD = "AUTO.LOITER"
+    TAKEOFF = "AUTO.TAKEOFF"
+    LAND = "AUTO.LAND"
+    RTL = "AUTO.RTL"
+    MISSION = "AUTO.MISSION"
+    OFFBOARD = "OFFBOARD"
+
+
+class LandedState(Enum):
+    """MAVLink MAV_LANDED_STATE values."""
+
+    ON_GROUND = 1
+    IN_AIR = 2
+    TAKEOFF = 3
+    LANDING = 4
+
+
+class Result(Enum):
+    ACCEPTED = "accepted"
+    DENIED = "denied"
+    TEMPORARILY_REJECTED = "temporarily rejected"
+    FAILED = "failed"
+
+
+@dataclass(frozen=True, slots=True)
+class Outcome:
+    result: Result
+    reason: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return self.result is Result.ACCEPTED
+
+
+ACCEPTED = Outcome(Result.ACCEPTED)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class OffboardSetpoint:
+    """A raw setpoint as offboard control streams it; NaN fields are "not set" (MAVLink type_mask)."""
+
+    pos_ned_m: tuple[float, float, float] = NAN3
+    vel_ned_mps: tuple[float, float, float] = NAN3
+    acc_ned_mps2: tuple[float, float, float] = NAN3
+    yaw_rad: float = math.nan
+    yaw_rate_radps: float = math.nan
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class VehicleEvent:
+    """Something a ground station should hear about (becomes a STATUSTEXT)."""
+
+    severity: int  # MAV_SEVERITY: 2 critical, 4 warning, 6 info
+    text: str
+
+
+@dataclass(slots=True)
+class _RtlPlan:
+    phase: str  # "climb", "return", "descend"
+    cruise_down_m: float
+
+
+@dataclass(slots=True)
+class _Failsafe:
+    since_s: float
+    reason: str
+
+
+@dataclass(slots=True)
+class VehicleStatus:
+    """Mutable view of the autopilot's state, read by telemetry."""
+
+    armed: bool = False
+    mode: FlightMode = FlightMode.HOLD
+    landed_state: LandedState = LandedState.ON_GROUND
+    failsafe: bool = False
+    thrust_n: float = 0.0
+    setpoint_pos_ned_m: Vec3 = field(default_factory=lambda: np.zeros(3))
+
+
+class Vehicle:
+    def __init__(
+        self,
+        airframe: Airframe,
+        params: ParamStore,
+        cascade: Cascade,
+        *,
+        battery_remaining: Callable[[], float] = lambda: 1.0,
+    ) -> None:
+        self.airframe = airframe
+        self.params = params
+        self.cascade = cascade
+        self.status = VehicleStatus()
+        self.events: list[VehicleEvent] = []
+        self._battery_remaining = battery_remaining
+        self._hover_thrust_n = airframe.mass_kg * 9.80665
+        self._land_detector = LandDetector(LandDetectorConfig())
+        self._trajectory = StraightLineTrajectory(np.zeros(3))
+        self._target_ned_m: Vec3 = np.zeros(3)
+        self._target_yaw_rad = math.nan
+        self._speed_override_mps = math.inf
+        self._offboard: OffboardSetpoint | None = None
+        self._offboard_time_s = -math.inf
+        self._rtl: _RtlPlan | None = None
+        self._failsafe: _Failsafe | None = None
+        self._est: Estimate | None = None
+        self._now_s = 0.0
+        self._landed_since_s: float | None = 0.0
+        self._armed_since_s = 0.0
+        self._home_ned_m = np.zeros(3)
+        self._home_yaw_rad = 0.0
+
+    # ---- helpers ---------------------------------------------------------------------------------------------------
+    def _event(self, severity: int, text: str) -> None:
+        self.events.append(VehicleEvent(severity=severity, text=text))
+
+    def _p(self, name: str) -> float:
+        return self.params[name]
+
+    def _limits(self) -> MotionLimits:
+        return MotionLimits(
+            speed_xy_mps=self._p("MPC_XY_CRUISE"),
+            speed_up_mps=self._p("MPC_Z_V_AUTO_UP"),
+            speed_down_mps=self._p("MPC_Z_V_AUTO_DN"),
+            accel_xy_mps2=self._p("MPC_ACC_HOR"),
+            accel_z_mps2=self._p("MPC_ACC_UP_MAX"),
+        )
+
+    @property
+    def estimate(self) -> Estimate | None:
+        return self._est
+
+    @property
+    def home_ned_m(self) -> Vec3:
+        return self._home_ned_m
+
+    @property
+    def landed(self) -> bool:
+        return self._land_detector.landed
+
+    def altitude_above_home_m(self) -> float:
+        return 0.0 if self._est is None else float(self._home_ned_m[2] - self._est.pos_ned_m[2])
+
+    def _current_pos(self) -> Vec3:
+        return np.zeros(3) if self._est is None else self._est.pos_ned_m.copy()
+
+    def _enter(self, mode: FlightMode) -> None:
+        if mode is not self.status.mode:
+            self.status.mode = mode
+            self._event(6, f"Mode {mode.value}")
+
+    def _start_goto(self, target_ned_m: Vec3, yaw_rad: float = math.nan) -> None:
+        """Fly to a point on a smooth trajectory, starting from where the reference currently is."""
+        self._target_ned_m = np.array(target_ned_m, dtype=np.float64)
+        self._target_yaw_rad = yaw_rad
+
+    def _hold_here(self) -> None:
+        """Hold at the point where the vehicle can stop without a jerk (braking distance included)."""
+        pos = self._current_pos()
+        if self._est is not None and self.status.armed and not self.landed:
+            vel = self._est.vel_ned_mps
+            speed = float(np.linalg.norm(vel))
+            if speed > 0.1:
+                pos = pos + vel * (speed / (2.0 * self._p("MPC_ACC_HOR")))
+            self._trajectory.reset(self._current_pos())
+        self._start_goto(pos, self._est.yaw_rad if self._est is not None else math.nan)
+
+    # ---- requests (called by the MAVLink layer or by tests) --------------------------------------------------------
+    def preflight_problem(self) -> str | None:
+        """The first failing pre-arm check, or None when the vehicle may arm."""
+        est = self._est
+        if est is None or not est.attitude_valid:
+            return "Preflight Fail: attitude estimate not converged"
+        if not est.altitude_valid:
+            return "Preflight Fail: no altitude estimate"
+        if not est.position_valid and self._p("COM_ARM_WO_GPS") == 0:
+            return "Preflight Fail: no GPS fix yet"
+        if self._battery_remaining() < self._p("BAT_CRIT_THR"):
+            return "Preflight Fail: battery too low"
+        return None
+
+    def arm(self, force: bool = False) -> Outcome:
+        if self.status.armed:
+            return ACCEPTED
+        if not self.landed:
+            return Outcome(Result.DENIED, "Arming denied: vehicle in the air")
+        problem = None if force else self.preflight_problem()
+        if problem is not None:
+            self._event(4, problem)
+            return Outcome(Result.DENIED, problem)
+        if self.status.mode not in (FlightMode.HOLD, FlightMode.POSCTL, FlightMode.MISSION, FlightMode.OFFBOARD,
+                                    FlightMode.TAKEOFF):
+            return Outcome(Result.DENIED, f"Arming denied: not possible in {self.status.mode.value}")
+        self.status.armed = True
+        self._armed_since_s = self._now_s
+        self._landed_since_s = self._now_s
+        self.cascade.reset()
+        pos = self._current_pos()
+        self._home_ned_m = pos.copy()  # PX4 sets home on arming
+        self._home_yaw_rad = self._est.yaw_rad if self._est is not None else 0.0
+        self._trajectory.reset(pos)
+        self._start_goto(pos, self._home_yaw_rad)
+        self._event(6, "Armed")
+        return ACCEPTED
+
+    def disarm(self, force: bool = False) -> Outcome:
+        if not self.status.armed:
+            return ACCEPTED
+        if not force and not self.landed:
+            return Outcome(Result.DENIED, "Disarming denied: vehicle in the air")
+        self._disarm("Disarmed" if not force else "Disarmed (forced)")
+        return ACCEPTED
+
+    def kill(self) -> Outcome:
+        if self.status.armed:
+            self._disarm("Motors killed")
+        return ACCEPTED
+
+    def _disarm(self, text: str) -> None:
+        self.status.armed = False
+        self._rtl = None
+        self._failsafe = None
+        self.status.failsafe = False
+        self.cascade.reset()
+        if self.status.mode is not FlightMode.OFFBOARD:
+            self._enter(FlightMode.HOLD)
+        self._event(6, text)
+
+    def takeoff(self, altitude_above_home_m: float = math.nan) -> Outcome:
+        """Climb above home to the altitude (MIS_TAKEOFF_ALT when NaN), then hold."""
+        alt = self._p("MIS_TAKEOFF_ALT") if not math.isfinite(altitude_above_home_m) else altitude_above_home_m
+        if alt <= 0.0:
+            return Outcome(Result.DENIED, "Takeoff denied: altitude must be above home")
+        if not self.status.armed:
+            return Outcome(Result.DENIED, "Takeoff denied: disarmed")
+        if not self.landed and self.status.mode is FlightMode.TAKEOFF:
+            return ACCEPTED
+        pos = self._current_pos()
+        if self.landed:
+            self._trajectory.reset(pos)
+        self._start_goto(vec3(pos[0], pos[1], self._home_ned_m[2] - alt), self._target_yaw_rad)
+        self._enter(FlightMode.TAKEOFF)
+        return ACCEPTED
+
+    def land(self) -> Outcome:
+        if not self.status.armed:
+            return Outcome(Result.DENIED, "Land denied: disarmed")
+        if self.status.mode is not FlightMode.LAND:
+            self._hold_here()
+            self._enter(FlightMode.LAND)
+        return ACCEPTED
+
+    def hold(self) -> Outcome:
+        if self.status.mode is not FlightMode.HOLD:
+            self._hold_here()
+            self._enter(FlightMode.HOLD)
+        self._failsafe = None
+        self.status.failsafe = False
+        return ACCEPTED
+
+    def return_to_launch(self) -> Outcome:
+        if not self.status.armed or self.landed:
+            return Outcome(Result.DENIED, "RTL denied: not flying")
+        if self.status.mode is not FlightMode.RTL:
+            cruise = min(self._current_pos()[2], self._home_ned_m[2] - self._p("RTL_RETURN_ALT"))
+            self._rtl = _RtlPlan(phase="climb", cruise_down_m=cruise)
+            self._hold_here()
+            pos = self._current_pos()
+            self._start_goto(vec3(pos[0], pos[1], cruise))
+            self._enter(FlightMode.RTL)
+        return ACCEPTED
+
+    def goto(self, target_ned_m: Vec3, yaw_rad: float = math.nan) -> Outcome:
+        """Reposition: fly to a local point on a smooth trajectory and hold there (PX4 DO_REPOSITION)."""
+        if not self.status.armed or self.landed:
+            return Outcome(Result.DENIED, "Reposition denied: not flying")
+        if not np.all(np.isfinite(target_ned_m)):
+            return Outcome(Result.DENIED, "Reposition denied: target not finite")
+        self._enter(FlightMode.HOLD)
+        self._failsafe = None
+        self.status.failsafe = False
+        self._start_goto(np.asarray(target_ned_m, dtype=np.float64), yaw_rad)
+        return ACCEPTED
+
+    def set_speed(self, ground_speed_mps: float) -> Outcome:
+        """DO_CHANGE_SPEED: limit auto-mode speed; a negative value restores the default."""
+        if not math.isfinite(ground_speed_mps):
+            return Outcome(Result.DENIED, "Speed change denied: not a number")
+        self._speed_override_mps = math.inf if ground_speed_mps <= 0 else ground_speed_mps
+        return ACCEPTED
+
+    def set_offboard_setpoint(self, setpoint: OffboardSetpoint, now_s: float) -> None:
+        self._offboard = setpoint
+        self._offboard_time_s = now_s
+
+    def _offboard_alive(self, now_s: float) -> bool:
+        return self._offboard is not None and now_s - self._offboard_time_s <= self._p("COM_OF_LOSS_T")
+
+    def start_offboard(self, now_s: float) -> Outcome:
+        if not self._offboard_alive(now_s):
+            return Outcome(Result.DENIED, "Offboard denied: no setpoint stream")
+        self._failsafe = None
+        self.status.failsafe = False
+        self._enter(FlightMode.OFFBOARD)
+        return ACCEPTED
+
+    # ---- the step --------------------------------------------------------------------------------------------------
+    def _setpoint_for_mode(self, est: Estimate, now_s: float, dt_s: float) -> Setpoint:
+        mode = self.status.mode
+        if mode is FlightMode.OFFBOARD and self._offboard is not None:
+            sp = self._offboard
+            self._trajectory.reset(est.pos_ned_m)
+            return Setpoint(
+                pos_ned_m=np.array(sp.pos_ned_m),
+                vel_ned_mps=np.array(sp.vel_ned_mps),
+                acc_ned_mps2=np.array(sp.acc_ned_mps2),
+                yaw_rad=sp.yaw_rad,
+                yaw_rate_radps=sp.yaw_rate_radps,
+            )
+        limits = self._limits()
+        max_speed = self._speed_override_mps
+        if mode is FlightMode.TAKEOFF:
+            max_speed = min(max_speed, self._p("MPC_TKO_SPEED"))
+            limits = MotionLimits(speed_xy_mps=limits.speed_xy_mps, speed_up_mps=self._p("MPC_TKO_SPEED"),
+                                  speed_down_mps=limits.speed_down_mps, accel_xy_mps2=limits.accel_xy_mps2,
+                                  accel_z_mps2=limits.accel_z_mps2)
+        if mode is FlightMode.LAND or (self._rtl is not None and self._rtl.phase == "land"):
+            land_speed = self._p("MPC_LAND_SPEED")
+            if self.altitude_above_home_m() > self._p("MPC_LAND_ALT2"):
+                land_speed = self._p("MPC_Z_V_AUTO_DN")
+            # Descend at the landing speed into the ground: the land detector ends the descent, not a target.
+            return Setpoint(
+                pos_ned_m=vec3(self._target_ned_m[0], self._target_ned_m[1], math.nan),
+                vel_ned_mps=vec3(0.0, 0.0, land_speed),
+                acc_ned_mps2=np.array(NAN3),
+                yaw_rad=self._target_yaw_rad,
+                yaw_rate_radps=math.nan,
+            )
+        ref = self._trajectory.update(self._target_ned_m, limits, dt_s, max_speed)
+        return Setpoint(
+            pos_ned_m=ref.pos_ned_m,
+            vel_ned_mps=ref.vel_ned_mps,
+            acc_ned_mps2=ref.acc_ned_mps2,
+            yaw_rad=self._target_yaw_rad,
+            yaw_rate_radps=math.nan,
+        )
+
+    def _advance_modes(self, est: Estimate, now_s: float) -> None:
+        mode = self.status.mode
+        if mode is FlightMode.TAKEOFF and abs(est.pos_ned_m[2] - self._target_ned_m[2]) < 0.15 and \
+                float(np.linalg.norm(self._trajectory.position - self._target_ned_m)) < 1e-3:
+            self._event(6, "Takeoff complete")
+            self._enter(FlightMode.HOLD)
+        elif mode is FlightMode.RTL and self._rtl is not None:
+            arrived = float(np.linalg.norm(self._trajectory.position - self._target_ned_m)) < 1e-3
+            if self._rtl.phase == "climb" and arrived:
+                self._rtl.phase = "return"
+                self._start_goto(vec3(self._home_ned_m[0], self._home_ned_m[1], self._rtl.cruise_down_m),
+                                 self._home_yaw_rad)
+            elif self._rtl.phase == "return" and arrived:
+                self._rtl.phase = "descend"
+                descend_down = max(self._rtl.cruise_down_m, self._home_ned_m[2] - self._p("RTL_DESCEND_ALT"))
+                self._start_goto(vec3(self._home_ned_m[0], self._home_ned_m[1], descend_down), self._home_yaw_rad)
+            elif self._rtl.phase == "descend" and arrived:
+                self._rtl.phase = "land"
+        elif mode is FlightMode.OFFBOARD and not self._offboard_alive(now_s):
+            self._event(2, "Failsafe: offboard setpoints lost, holding")
+            self._failsafe = _Failsafe(since_s=now_s, reason="offboard loss")
+            self.status.failsafe = True
+            self._hold_here()
+            self._enter(FlightMode.HOLD)
+        if self._failsafe is not None and self.status.mode is FlightMode.HOLD and \
+                now_s - self._failsafe.since_s >= self._p("COM_FAIL_ACT_T"):
+            self._failsafe = None
+            self._event(2, "Failsafe: landing")
+            self._hold_here()
+            self._enter(FlightMode.LAND)
+
+    def step(self, est: Estimate, now_s: float, dt_s: float) -> tuple[float, ...]:
+        """One control step: returns motor commands in [0, 1] (all zero when disarmed)."""
+        self._est = est
+        self._now_s = now_s
+        n = len(self.airframe.rotors)
+        if not self.status.armed:
+            self.status.landed_state = LandedState.ON_GROUND if self.landed else LandedState.IN_AIR
+            self.status.thrust_n = 0.0
+            return (0.0,) * n
+        self._advance_modes(est, now_s)
+        mode = self.status.mode
+        wants_air = mode in (FlightMode.TAKEOFF, FlightMode.OFFBOARD) or (
+            mode in (FlightMode.HOLD, FlightMode.RTL, FlightMode.MISSION) and not self.landed
+        )
+        if self.landed and not wants_air:
+            # Armed on the ground: motors idle, controllers held at rest so nothing winds up.
+            self.cascade.reset()
+            self._trajectory.reset(est.pos_ned_m)
+            self._target_ned_m = est.pos_ned_m.copy()
+            self.status.thrust_n = 0.0
+            self._check_auto_disarm(now_s)
+            self.status.landed_state = LandedState.ON_GROUND
+            return self.cascade.idle_motor_commands()
+        setpoint = self._setpoint_for_mode(est, now_s, dt_s)
+        self.status.setpoint_pos_ned_m = setpoint.pos_ned_m
+        out = self.cascade.update(est, setpoint, dt_s)
+        self.status.thrust_n = out.thrust_n
+        was_landed = self.landed
+        landed = self._land_detector.update(
+            now_s, float(est.vel_ned_mps[2]), out.thrust_n / self._hover_thrust_n, self.altitude_above_home_m()
+        )
+        if was_landed and not landed:
+            self._event(6, "Takeoff detected")
+        elif landed and not was_landed:
+            self._event(6, "Landing detected")
+            self._landed_since_s = now_s
+            self._rtl = None
+            if mode is not FlightMode.LAND:
+                self._enter(FlightMode.LAND)
+            self.cascade.reset()
+            return self.cascade.idle_motor_commands()
+        self.status.landed_state = self._landed_state(mode, landed)
+        return out.motor_cmds
+
+    def _landed_state(self, mode: FlightMode, landed: bool) -> LandedState:
+        if landed:
+            return LandedState.TAKEOFF if mode is FlightMode.TAKEOFF else LandedState.ON_GROUND
+        if mode is FlightMode.TAKEOFF:
+            return LandedState.TAKEOFF
+        if mode is FlightMode.LAND or (self._rtl is not None and self._rtl.phase == "land"):
+            return LandedState.LANDING
+        return LandedState.IN_AIR
+
+    def _check_auto_disarm(self, now_s: float) -> None:
+        since = self._landed_since_s if self._landed_since_s is not None else now_s
+        took_off = since > self._armed_since_s
+        delay = self._p("COM_DISARM_LAND") if took_off else self._p("COM_DISARM_PRFLT")
+        if delay >= 0 and now_s - since >= delay:
+            self._disarm("Auto-disarmed after landing" if took_off else "Auto-disarmed: no takeoff")
