@@ -38,6 +38,7 @@ class EstimatorConfig:
     gps_vel_gain: float = 0.35  # fraction of GPS velocity innovation applied per fix
     acc_lpf_tau_s: float = 0.15  # low-pass on the GPS-derived acceleration used for tilt compensation
     converge_s: float = 1.0  # attitude settling time after the first heading measurement
+    gps_converge_s: float = 2.5  # position settling after the first fix (~3 tau_xy): before it, not valid
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -72,6 +73,7 @@ class Estimator:
         self._att_initialised = False
         self._att_since_s = math.inf
         self._have_gps = False
+        self._gps_since_s = math.inf
         self._have_baro = False
         self._mag_ref_ned = np.array((1.0, 0.0, 0.0))
         self._rates = np.zeros(3)
@@ -146,6 +148,7 @@ class Estimator:
                 self._pos[:2] = gps.pos_ned_m[:2]
                 self._vel[:] = gps.vel_ned_mps
                 self._have_gps = True
+                self._gps_since_s = gps.time_s
             else:
                 gps_dt = gps.time_s - self._last_gps_time_s
                 self._correct(slice(0, 2), gps.pos_ned_m[:2] - self._pos[:2], cfg.tau_xy_s, gps_dt)
@@ -180,6 +183,6 @@ class Estimator:
             pitch_rad=pitch,
             yaw_rad=yaw,
             attitude_valid=self._att_initialised and time_s - self._att_since_s >= cfg.converge_s,
-            position_valid=self._have_gps,
+            position_valid=time_s - self._gps_since_s >= cfg.gps_converge_s,
             altitude_valid=self._have_baro,
         )

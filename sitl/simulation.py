@@ -64,7 +64,7 @@ class Simulation:
         self.readings: SensorReadings | None = None
         self.estimate: Estimate | None = None
         self.time_s = 0.0
-        self._boot_down_m = float(self.truth.pos_ned_m[2])
+        self.truth_at_boot_ned_m = self.truth.pos_ned_m.copy()
         self._k_q = config.airframe.torque_coeff_nm_per_radps2
 
     def step(self) -> PlantState:
@@ -97,4 +97,4 @@ class Simulation:
 
     def altitude_above_start_m(self) -> float:
         """True CG height above where it rested at boot (for tests and reports; the autopilot never sees it)."""
-        return self._boot_down_m - float(self.truth.pos_ned_m[2])
+        return float(self.truth_at_boot_ned_m[2] - self.truth.pos_ned_m[2])

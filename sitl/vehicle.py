@@ -20,7 +20,7 @@ from enum import Enum
 import numpy as np
 
 from sitl.airframe import Airframe
-from sitl.control.cascade import Cascade, Setpoint
+from sitl.control.cascade import Cascade, TrajectorySetpoint
 from sitl.estimation import Estimate
 from sitl.guidance import MotionLimits, StraightLineTrajectory
 from sitl.land_detector import LandDetector, LandDetectorConfig
@@ -28,6 +28,12 @@ from sitl.mathutil import Vec3, vec3
 from sitl.params import ParamStore
 
 NAN3 = (math.nan, math.nan, math.nan)
+# Armed on the ground the rotors spin at idle so a person sees the vehicle is live (PX4 and ArduPilot do this).
+ARMED_IDLE_CMD = 0.15
+
+
+def _tuple3(v: Vec3) -> tuple[float, float, float]:
+    return (float(v[0]), float(v[1]), float(v[2]))
 
 
 class FlightMode(Enum):
@@ -69,17 +75,6 @@ class Outcome:
 
 
 ACCEPTED = Outcome(Result.ACCEPTED)
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class OffboardSetpoint:
-    """A raw setpoint as offboard control streams it; NaN fields are "not set" (MAVLink type_mask)."""
-
-    pos_ned_m: tuple[float, float, float] = NAN3
-    vel_ned_mps: tuple[float, float, float] = NAN3
-    acc_ned_mps2: tuple[float, float, float] = NAN3
-    yaw_rad: float = math.nan
-    yaw_rate_radps: float = math.nan
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -130,12 +125,13 @@ class Vehicle:
         self.events: list[VehicleEvent] = []
         self._battery_remaining = battery_remaining
         self._hover_thrust_n = airframe.mass_kg * 9.80665
+        self._idle = (ARMED_IDLE_CMD,) * len(airframe.rotors)
         self._land_detector = LandDetector(LandDetectorConfig())
         self._trajectory = StraightLineTrajectory(np.zeros(3))
         self._target_ned_m: Vec3 = np.zeros(3)
         self._target_yaw_rad = math.nan
         self._speed_override_mps = math.inf
-        self._offboard: OffboardSetpoint | None = None
+        self._offboard: TrajectorySetpoint | None = None
         self._offboard_time_s = -math.inf
         self._rtl: _RtlPlan | None = None
         self._failsafe: _Failsafe | None = None
@@ -325,7 +321,7 @@ class Vehicle:
         self._speed_override_mps = math.inf if ground_speed_mps <= 0 else ground_speed_mps
         return ACCEPTED
 
-    def set_offboard_setpoint(self, setpoint: OffboardSetpoint, now_s: float) -> None:
+    def set_offboard_setpoint(self, setpoint: TrajectorySetpoint, now_s: float) -> None:
         self._offboard = setpoint
         self._offboard_time_s = now_s
 
@@ -341,18 +337,11 @@ class Vehicle:
         return ACCEPTED
 
     # ---- the step --------------------------------------------------------------------------------------------------
-    def _setpoint_for_mode(self, est: Estimate, now_s: float, dt_s: float) -> Setpoint:
+    def _setpoint_for_mode(self, est: Estimate, now_s: float, dt_s: float) -> TrajectorySetpoint:
         mode = self.status.mode
         if mode is FlightMode.OFFBOARD and self._offboard is not None:
-            sp = self._offboard
             self._trajectory.reset(est.pos_ned_m)
-            return Setpoint(
-                pos_ned_m=np.array(sp.pos_ned_m),
-                vel_ned_mps=np.array(sp.vel_ned_mps),
-                acc_ned_mps2=np.array(sp.acc_ned_mps2),
-                yaw_rad=sp.yaw_rad,
-                yaw_rate_radps=sp.yaw_rate_radps,
-            )
+            return self._offboard
         limits = self._limits()
         max_speed = self._speed_override_mps
         if mode is FlightMode.TAKEOFF:
@@ -365,20 +354,17 @@ class Vehicle:
             if self.altitude_above_home_m() > self._p("MPC_LAND_ALT2"):
                 land_speed = self._p("MPC_Z_V_AUTO_DN")
             # Descend at the landing speed into the ground: the land detector ends the descent, not a target.
-            return Setpoint(
-                pos_ned_m=vec3(self._target_ned_m[0], self._target_ned_m[1], math.nan),
-                vel_ned_mps=vec3(0.0, 0.0, land_speed),
-                acc_ned_mps2=np.array(NAN3),
+            return TrajectorySetpoint(
+                pos_ned_m=(float(self._target_ned_m[0]), float(self._target_ned_m[1]), math.nan),
+                vel_ned_mps=(0.0, 0.0, land_speed),
                 yaw_rad=self._target_yaw_rad,
-                yaw_rate_radps=math.nan,
             )
         ref = self._trajectory.update(self._target_ned_m, limits, dt_s, max_speed)
-        return Setpoint(
-            pos_ned_m=ref.pos_ned_m,
-            vel_ned_mps=ref.vel_ned_mps,
-            acc_ned_mps2=ref.acc_ned_mps2,
+        return TrajectorySetpoint(
+            pos_ned_m=_tuple3(ref.pos_ned_m),
+            vel_ned_mps=_tuple3(ref.vel_ned_mps),
+            acc_ned_mps2=_tuple3(ref.acc_ned_mps2),
             yaw_rad=self._target_yaw_rad,
-            yaw_rate_radps=math.nan,
         )
 
     def _advance_modes(self, est: Estimate, now_s: float) -> None:
@@ -434,14 +420,14 @@ class Vehicle:
             self.status.thrust_n = 0.0
             self._check_auto_disarm(now_s)
             self.status.landed_state = LandedState.ON_GROUND
-            return self.cascade.idle_motor_commands()
+            return self._idle
         setpoint = self._setpoint_for_mode(est, now_s, dt_s)
-        self.status.setpoint_pos_ned_m = setpoint.pos_ned_m
-        out = self.cascade.update(est, setpoint, dt_s)
-        self.status.thrust_n = out.thrust_n
+        self.status.setpoint_pos_ned_m = np.array(setpoint.pos_ned_m)
+        out = self.cascade.update(est, setpoint, dt_s, landed=self.landed)
+        self.status.thrust_n = out.collective_sp_n
         was_landed = self.landed
         landed = self._land_detector.update(
-            now_s, float(est.vel_ned_mps[2]), out.thrust_n / self._hover_thrust_n, self.altitude_above_home_m()
+            now_s, float(est.vel_ned_mps[2]), out.collective_sp_n / self._hover_thrust_n, self.altitude_above_home_m()
         )
         if was_landed and not landed:
             self._event(6, "Takeoff detected")
@@ -452,7 +438,7 @@ class Vehicle:
             if mode is not FlightMode.LAND:
                 self._enter(FlightMode.LAND)
             self.cascade.reset()
-            return self.cascade.idle_motor_commands()
+            return self._idle
         self.status.landed_state = self._landed_state(mode, landed)
         return out.motor_cmds
 

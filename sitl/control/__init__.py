@@ -5,9 +5,9 @@ N m) -> control allocation (motor commands from the airframe geometry). Each sta
 ``update(...)`` and ``reset()`` holding a frozen config; none of them reads the parameter store, a clock or a
 socket. ``cascade.Cascade`` composes them and owns the parameter -> config refresh.
 
-Vectors travel between stages as tuples of Python floats: the stages do a few dozen multiplications per step, and
-at that size plain float arithmetic is several times faster than numpy (the cascade runs 400 times a second for
-every drone of the swarm).
+Vectors travel between stages as tuples of Python floats: the stages do a few dozen multiplications per step,
+and at that size plain float arithmetic is several times faster than numpy (the cascade runs 400 times a
+second for every drone of the swarm).
 """
 
 Vec3f = tuple[float, float, float]

@@ -1,19 +1,19 @@
 """Control allocation: body torque and collective thrust to motor commands, from the airframe geometry.
 
-The effectiveness matrix B maps rotor thrusts T_i (N) to [roll, pitch, yaw torque (N m, FRD), collective thrust
-(N)]: a rotor at (x_i, y_i) pushing up (-z) gives roll -y_i T_i and pitch x_i T_i, its drag torque is
-spin_dir_i (k_q / k_t) T_i about +z, and the thrusts add up. It is computed from the airframe file, never typed
-in, and inverted once with a pseudo-inverse (exact for a quad, least-squares for more rotors).
+The effectiveness matrix B maps rotor thrusts T_i (N) to [roll, pitch, yaw torque (N m, FRD), collective
+thrust (N)]: a rotor at (x_i, y_i) pushing up (-z) gives roll -y_i T_i and pitch x_i T_i, its drag torque is
+spin_dir_i (k_q / k_t) T_i about +z, and the thrusts add up. It is computed from the airframe file, never
+typed in, and inverted once with a pseudo-inverse (exact for a quad, least-squares for more rotors).
 
-Rotors only push, and only so hard, so a demand may not fit in [0, T_max] per rotor. Priorities, as a multicopter
-needs them to stay upright:
-  (a) roll/pitch alone wider than the rotors' range -> scale roll and pitch down together (keeps the axis of the
-      correction);
+Rotors only push, and only so hard, so a demand may not fit in [0, T_max] per rotor. Priorities, as a
+multicopter needs them to stay upright:
+  (a) roll/pitch alone wider than the rotors' range -> scale roll and pitch down together (keeps the axis of
+      the correction);
   (b) shift the collective (along the pseudo-inverse's thrust column, which changes no torque) to the value
       nearest the demand at which roll/pitch fit;
   (c) add yaw with the largest factor in [0, 1] that still fits.
-The result reports which torque axes were cut and in which direction, which the rate controller uses to stop its
-integrator winding up against a limit it cannot push.
+The result reports which torque axes were cut and in which direction, which the rate controller uses to stop
+its integrator winding up against a limit it cannot push.
 
 Motor commands are ``u = sqrt(T / T_max)``: the flight model commands rotor speed ``u * omega_max`` and thrust
 goes with speed squared.
@@ -48,7 +48,8 @@ def effectiveness_matrix(airframe: Airframe) -> np.ndarray:
     """B (4 x n): rotor thrusts (N) -> [roll, pitch, yaw torque (N m, FRD), collective thrust (N)]."""
     yaw_per_thrust_m = airframe.torque_coeff_nm_per_radps2 / airframe.thrust_coeff_n_per_radps2
     columns = [
-        (-rotor.pos_frd_m[1], rotor.pos_frd_m[0], rotor.spin_dir * yaw_per_thrust_m, 1.0) for rotor in airframe.rotors
+        (-rotor.pos_frd_m[1], rotor.pos_frd_m[0], rotor.spin_dir * yaw_per_thrust_m, 1.0)
+        for rotor in airframe.rotors
     ]
     return np.array(columns, dtype=np.float64).T
 
@@ -59,7 +60,9 @@ class ControlAllocator:
     def __init__(self, airframe: Airframe) -> None:
         self.effectiveness = effectiveness_matrix(airframe)
         if np.linalg.matrix_rank(self.effectiveness) < 4:
-            raise ValueError(f"airframe {airframe.name}: rotor layout cannot control roll, pitch, yaw and thrust")
+            raise ValueError(
+                f"airframe {airframe.name}: rotor layout cannot control roll, pitch, yaw and thrust"
+            )
         mix = np.linalg.pinv(self.effectiveness)  # n x 4
         self.rotor_count = len(airframe.rotors)
         self.thrust_max_n = airframe.max_thrust_per_rotor_n

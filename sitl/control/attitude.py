@@ -2,13 +2,14 @@
 
 Two PX4 pieces, in plain float arithmetic:
 
-- ``thrust_to_attitude`` is ``ControlMath::bodyzToAttitude``: the body z axis points against the thrust vector and
-  the nose is turned towards the yaw setpoint as far as the tilt allows.
-- ``AttitudeController`` is ``AttitudeControl::update`` (Brescianini, Hehn, D'Andrea 2013, "Nonlinear quadrocopter
-  attitude control"): the error is split into a reduced attitude (the tilt that aligns the thrust axis) and the
-  remaining yaw, and only a fraction ``MC_YAW_WEIGHT`` of the yaw error is used, so that a large heading change
-  never steals the roll/pitch authority that keeps the vehicle in the air (yaw is the weakest axis of a
-  multirotor). The yaw gain is divided by the weight so the small-error yaw response is still ``MC_YAW_P``.
+- ``thrust_to_attitude`` is ``ControlMath::bodyzToAttitude``: the body z axis points against the thrust vector
+  and the nose is turned towards the yaw setpoint as far as the tilt allows.
+- ``AttitudeController`` is ``AttitudeControl::update`` (Brescianini, Hehn, D'Andrea 2013, "Nonlinear
+  quadrocopter attitude control"): the error is split into a reduced attitude (the tilt that aligns the thrust
+  axis) and the remaining yaw, and only a fraction ``MC_YAW_WEIGHT`` of the yaw error is used, so that a large
+  heading change never steals the roll/pitch authority that keeps the vehicle in the air (yaw is the weakest
+  axis of a multirotor). The yaw gain is divided by the weight so the small-error yaw response is still
+  ``MC_YAW_P``.
 
 Quaternions are (w, x, y, z) tuples rotating FRD body vectors into NED.
 """
@@ -62,7 +63,7 @@ def dcm_columns_to_quat(
     c1: Vec3f,
     c2: Vec3f,
 ) -> Quat4f:
-    """Unit quaternion (w >= 0) of the rotation matrix with columns c0, c1, c2 (Shepperd's branch selection)."""
+    """Unit quaternion (w >= 0) of the rotation matrix with columns c0, c1, c2 (Shepperd's method)."""
     r00, r10, r20 = c0
     r01, r11, r21 = c1
     r02, r12, r22 = c2
@@ -138,7 +139,8 @@ def _quat_between(src: Vec3f, dst: Vec3f) -> Quat4f:
 
 
 class AttitudeController:
-    """Quaternion attitude P controller with roll/pitch priority; ``update`` returns FRD body-rate setpoints."""
+    """Quaternion attitude P controller with roll/pitch priority; ``update`` returns FRD body-rate
+    setpoints."""
 
     def __init__(self, config: AttitudeConfig) -> None:
         self.config = config
@@ -147,7 +149,8 @@ class AttitudeController:
         """Nothing to forget: the attitude loop has no memory."""
 
     def update(self, att_q: Quat4f, att_sp_q: Quat4f, yawspeed_ff_radps: float = math.nan) -> Vec3f:
-        """Body-rate setpoint (rad/s, FRD) steering ``att_q`` to ``att_sp_q``; NaN yaw-rate feed-forward = none.
+        """Body-rate setpoint (rad/s, FRD) steering ``att_q`` to ``att_sp_q``; NaN yaw-rate feed-forward =
+        none.
 
         The yaw-rate feed-forward is about the NED down axis (a heading rate), projected into the body frame.
         """
@@ -159,11 +162,10 @@ class AttitudeController:
         ez_d = (2.0 * (dx * dz + dw * dy), 2.0 * (dy * dz - dw * dx), 1.0 - 2.0 * (dx * dx + dy * dy))
 
         # Reduced setpoint: the current attitude tilted (in the world frame) so that its thrust axis matches.
+        # When the thrust axes are exactly opposed, full attitude control gives no yaw input anyway.
         red = _quat_between(ez, ez_d)
-        if abs(red[1]) > 1.0 - 1e-5 or abs(red[2]) > 1.0 - 1e-5:
-            red = att_sp_q  # thrust axes exactly opposed: full attitude control gives no yaw input anyway
-        else:
-            red = quat_mul(red, att_q)
+        opposed = abs(red[1]) > 1.0 - 1e-5 or abs(red[2]) > 1.0 - 1e-5
+        red = att_sp_q if opposed else quat_mul(red, att_q)
 
         # Blend in a fraction of the remaining yaw rotation between reduced and full setpoint.
         mw, _, _, mz = _conj_mul(red, att_sp_q)

@@ -1,10 +1,10 @@
 """Position stage: a proportional position loop that turns a position error into a velocity setpoint.
 
-Follows PX4's ``PositionControl::_positionControl``. Each axis is controlled independently and a NaN field means
-"not set" (MAVLink ``type_mask``): with no position on an axis the velocity setpoint passes straight through
-(velocity control), with both a position and a velocity the velocity is a feed-forward. The horizontal speed limit
-is applied to the horizontal vector (never per axis, which would bend the flight path), and gives the position
-correction priority over the feed-forward, as PX4's ``ControlMath::constrainXY`` does.
+Follows PX4's ``PositionControl::_positionControl``. Each axis is controlled independently and a NaN field
+means "not set" (MAVLink ``type_mask``): with no position on an axis the velocity setpoint passes straight
+through (velocity control), with both a position and a velocity the velocity is a feed-forward. The horizontal
+speed limit is applied to the horizontal vector (never per axis, which would bend the flight path), and gives
+the position correction priority over the feed-forward, as PX4's ``ControlMath::constrainXY`` does.
 """
 
 from __future__ import annotations
@@ -61,7 +61,8 @@ def _axis(pos_sp: float, pos: float, vel_ff: float, gain: float) -> tuple[float,
 
 
 class PositionController:
-    """Stateless P loop; ``update`` returns the NED velocity setpoint, NaN on axes left to acceleration control."""
+    """Stateless P loop; ``update`` returns the NED velocity setpoint, NaN on axes left to acceleration
+    control."""
 
     def __init__(self, config: PositionConfig) -> None:
         self.config = config

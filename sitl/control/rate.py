@@ -1,11 +1,12 @@
 """Body-rate stage: a PID on the FRD body rates whose output is a physical torque in newton metres.
 
-Follows PX4's ``RateControl`` (P and I on the error, D on the measured rate through a low-pass, integrator bounds,
-and no integration towards an axis the control allocation reports saturated), with one deliberate difference in
-units: the PID computes an angular-acceleration demand in rad/s^2 and the torque is ``J * alpha + w x (J w)``
-(Euler's rigid-body equation, J the airframe's diagonal inertia). So ``MC_ROLLRATE_P`` here is (rad/s^2) per
-(rad/s), i.e. 1/s, ``MC_*RATE_I`` is 1/s^2, ``MC_*RATE_D`` is dimensionless and ``MC_*_INT_LIM`` is rad/s^2:
-the same gains fit any vehicle size, unlike PX4's normalised torque units, and PX4 values do not carry over.
+Follows PX4's ``RateControl`` (P and I on the error, D on the measured rate through a low-pass, integrator
+bounds, and no integration towards an axis the control allocation reports saturated), with one deliberate
+difference in units: the PID computes an angular-acceleration demand in rad/s^2 and the torque is ``J * alpha
++ w x (J w)`` (Euler's rigid-body equation, J the airframe's diagonal inertia). So ``MC_ROLLRATE_P`` here is
+(rad/s^2) per (rad/s), i.e. 1/s, ``MC_*RATE_I`` is 1/s^2, ``MC_*RATE_D`` is dimensionless and ``MC_*_INT_LIM``
+is rad/s^2: the same gains fit any vehicle size, unlike PX4's normalised torque units, and PX4 values do not
+carry over.
 """
 
 from __future__ import annotations
@@ -15,8 +16,8 @@ from dataclasses import dataclass
 
 from sitl.control import Vec3f
 
-# PX4's I-term attenuation: the integration rate shrinks smoothly for large rate errors (flips, big steps), which
-# otherwise wind the integrator up during the manoeuvre and make it bounce back afterwards.
+# PX4's I-term attenuation: the integration rate shrinks smoothly for large rate errors (flips, big steps),
+# which otherwise wind the integrator up during the manoeuvre and make it bounce back afterwards.
 _I_ATTENUATION_RATE_RADPS = math.radians(400.0)
 
 NO_SATURATION: tuple[bool, bool, bool] = (False, False, False)
@@ -74,9 +75,7 @@ class RateController:
             demand[i] = p[i] * err + integ[i] - d[i] * ang_acc[i]
             if freeze_integrator or dt_s <= 0.0:
                 continue
-            if saturated_pos[i] and err > 0.0:
-                err = 0.0
-            elif saturated_neg[i] and err < 0.0:
+            if (saturated_pos[i] and err > 0.0) or (saturated_neg[i] and err < 0.0):
                 err = 0.0
             factor = err / _I_ATTENUATION_RATE_RADPS
             factor = 1.0 - factor * factor
@@ -87,8 +86,8 @@ class RateController:
 
         jx, jy, jz = cfg.inertia_kg_m2
         wx, wy, wz = rates_frd_radps
-        # Euler's equation: J dw/dt = tau - w x (J w), so the torque that yields the demanded acceleration adds
-        # the gyroscopic term back.
+        # Euler's equation: J dw/dt = tau - w x (J w), so the torque that yields the demanded acceleration
+        # adds the gyroscopic term back.
         return (
             jx * demand[0] + (jz - jy) * wy * wz,
             jy * demand[1] + (jx - jz) * wz * wx,

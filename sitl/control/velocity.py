@@ -1,13 +1,13 @@
 """Velocity stage: velocity PID to an acceleration setpoint, then to a thrust vector in newtons.
 
-Follows PX4's ``PositionControl::_velocityControl`` and ``_accelerationControl`` with physical units: the PID gains
-are PX4's ``MPC_*_VEL_*_ACC`` (m/s^2 of demand per m/s of error), and where PX4 scales acceleration by a hover
-thrust estimate this stage multiplies by the airframe mass, ``F = m (a_sp - g)``; the integrator absorbs any
-mismatch (payload, battery sag, a different real mass).
+Follows PX4's ``PositionControl::_velocityControl`` and ``_accelerationControl`` with physical units: the PID
+gains are PX4's ``MPC_*_VEL_*_ACC`` (m/s^2 of demand per m/s of error), and where PX4 scales acceleration by a
+hover thrust estimate this stage multiplies by the airframe mass, ``F = m (a_sp - g)``; the integrator absorbs
+any mismatch (payload, battery sag, a different real mass).
 
 Limits, in PX4's order: tilt (the thrust direction stays within ``MPC_TILTMAX_AIR`` of vertical, keeping the
-vertical force), minimum collective thrust, then maximum thrust with vertical priority: the vertical component may
-use everything but a horizontal margin (``MPC_THR_XY_MARG``), the horizontal component gets what is left.
+vertical force), minimum collective thrust, then maximum thrust with vertical priority: the vertical component
+may use everything but a horizontal margin (``MPC_THR_XY_MARG``), the horizontal component gets what is left.
 Anti-windup: the vertical integrator stops integrating towards a saturated thrust and is bounded by +-g, the
 horizontal integrator uses PX4's tracking anti-reset-windup (the unachieved acceleration bleeds it).
 """
@@ -79,7 +79,7 @@ class VelocityController:
         *,
         freeze_integrator: bool = False,
     ) -> VelocityOutput:
-        """One control step; an axis with neither a velocity nor an acceleration setpoint holds zero velocity."""
+        """One control step; an axis with neither velocity nor acceleration setpoint holds zero velocity."""
         cfg = self.config
         integ = self.integral_ned_mps2
         deriv = self._velocity_derivative(vel_ned_mps, dt_s)
@@ -103,8 +103,8 @@ class VelocityController:
             acc[i] = pid + acc_ff if acc_ff == acc_ff else pid
         acc_x, acc_y, acc_z = acc
 
-        # Thrust direction (body z axis, pointing down through the vehicle) from a_sp - g, tilt-limited. A demand to
-        # fall faster than gravity cannot be met by rotors: it is flown level-ish at minimum thrust.
+        # Thrust direction (body z axis, pointing down through the vehicle) from a_sp - g, tilt-limited. A
+        # demand to fall faster than gravity cannot be met by rotors: it is flown level-ish at minimum thrust.
         up_component = GRAVITY_MPS2 - acc_z
         if up_component < 0.0:
             up_component = 0.0
@@ -123,7 +123,8 @@ class VelocityController:
                     bz_x, bz_y = bz_x / horiz * sin_max, bz_y / horiz * sin_max
                 bz_z = cos_max
 
-        # Collective thrust keeps the demanded vertical force through any tilt limit (PX4 projects the same way).
+        # Collective thrust keeps the demanded vertical force through any tilt limit (PX4 projects the same
+        # way).
         collective = cfg.mass_kg * (GRAVITY_MPS2 - acc_z) / bz_z
         if collective < cfg.thrust_min_n:
             collective = cfg.thrust_min_n

@@ -12,8 +12,8 @@ What the generated model contains:
 - One ``STRUCTURE`` ground contact below each rotor at the gear height, spring and damping from the airframe
   and isotropic Coulomb friction (JSBSim resolves static friction exactly, so a landed vehicle does not creep).
 - A ``motors`` system: per rotor, the normalised command ``fcs/motor-cmd-norm[i]`` in [0, 1] is scaled to a
-  rotor-speed command and passed through a first-order lag (the motor time constant) to give
-  ``fcs/rotor-speed-radps[i]``. There is no other flight control: the Python cascade is the only controller.
+  rotor-speed command (0 to the maximum rotor speed) and passed through a first-order lag (the motor time
+  constant) to give ``fcs/rotor-speed-radps[i]``. There is no other flight control: the Python cascade is the only controller.
 - External reactions: each rotor's thrust ``k_t * omega^2`` along body -z at the rotor position (so roll and
   pitch moments come from the geometry), the summed rotor drag torque ``spin_dir * k_q * omega^2`` about body z,
   and quadratic airframe drag ``-c * v * |v|`` per body axis against the air-relative velocity, so wind pushes
@@ -47,6 +47,7 @@ GROUND_DYNAMIC_FRICTION = 0.8
 MOTOR_CMD_PROPERTY = "fcs/motor-cmd-norm[{index}]"
 ROTOR_SPEED_CMD_PROPERTY = "fcs/rotor-speed-cmd-radps[{index}]"
 ROTOR_SPEED_PROPERTY = "fcs/rotor-speed-radps[{index}]"
+MOTOR_LAG_BLEND_PROPERTY = "fcs/motor-lag-blend"
 # JSBSim binds STRUCTURE contacts under contact/unit[i] (BOGEY wheels would be gear/unit[i]).
 CONTACT_WOW_PROPERTY = "contact/unit[{index}]/WOW"
 
@@ -136,21 +137,38 @@ def _motors_system(root: ET.Element, airframe: Airframe) -> None:
     system = _sub(root, "system", name="motors")
     for i in range(len(airframe.rotors)):
         _sub(system, "property", motor_cmd_property(i), value="0")
+        _sub(system, "property", rotor_speed_property(i), value="0")
+    # Exact discretisation of d(omega)/dt = (omega_cmd - omega) / tau over one step of length dt:
+    # omega += (1 - exp(-dt / tau)) * (omega_cmd - omega). It reaches 63.2 % of a step in one time constant
+    # whatever the step, and its state is the rotor-speed property itself, so a plant can start with the rotors
+    # spinning by writing that property (unlike JSBSim's lag_filter, which restarts from zero on run_ic). While
+    # JSBSim initialises, simulation/dt is 0 and the speed does not move.
+    lag = _sub(_sub(system, "channel", name="motor-lag"), "fcs_function", name="motor-lag-blend")
+    blend = _sub(_sub(lag, "function"), "difference")
+    _sub(blend, "value", "1")
+    exponent = _sub(_sub(blend, "exp"), "product")
+    _sub(exponent, "value", _num(-1.0 / airframe.motor_time_constant_s))
+    _sub(exponent, "property", "simulation/dt")
+    _sub(lag, "output", MOTOR_LAG_BLEND_PROPERTY)
     max_speed = airframe.motor_max_speed_radps
     for i in range(len(airframe.rotors)):
         channel = _sub(system, "channel", name=f"motor-{i}")
-        gain = _sub(channel, "pure_gain", name=f"motor-{i}-speed-command")
-        _sub(gain, "input", motor_cmd_property(i))
-        _sub(gain, "gain", _num(max_speed))
-        clip = _sub(gain, "clipto")
+        command = _sub(channel, "pure_gain", name=f"motor-{i}-speed-command")
+        _sub(command, "input", motor_cmd_property(i))
+        _sub(command, "gain", _num(max_speed))
+        clip = _sub(command, "clipto")
         _sub(clip, "min", "0")
         _sub(clip, "max", _num(max_speed))
-        _sub(gain, "output", ROTOR_SPEED_CMD_PROPERTY.format(index=i))
-        lag = _sub(channel, "lag_filter", name=f"motor-{i}-speed")
-        _sub(lag, "input", ROTOR_SPEED_CMD_PROPERTY.format(index=i))
-        # JSBSim's lag filter is c1 / (s + c1): c1 is the inverse time constant.
-        _sub(lag, "c1", _num(1.0 / airframe.motor_time_constant_s))
-        _sub(lag, "output", rotor_speed_property(i))
+        _sub(command, "output", ROTOR_SPEED_CMD_PROPERTY.format(index=i))
+        speed = _sub(channel, "fcs_function", name=f"motor-{i}-speed")
+        total = _sub(_sub(speed, "function"), "sum")
+        _sub(total, "property", rotor_speed_property(i))
+        step = _sub(total, "product")
+        _sub(step, "property", MOTOR_LAG_BLEND_PROPERTY)
+        error = _sub(step, "difference")
+        _sub(error, "property", ROTOR_SPEED_CMD_PROPERTY.format(index=i))
+        _sub(error, "property", rotor_speed_property(i))
+        _sub(speed, "output", rotor_speed_property(i))
 
 
 def _external_reactions(root: ET.Element, airframe: Airframe) -> None:

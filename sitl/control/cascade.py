@@ -1,0 +1,247 @@
+"""The controller cascade of one drone: estimated state + setpoint in, motor commands out.
+
+A thin composition of the pure stages (position -> velocity -> attitude -> rate -> allocation). It owns the
+two things the stages must not: the parameter store (configs are rebuilt when ``ParamStore.version`` changes,
+so a gain set in flight takes effect at the next step) and the little memory that sits between stages (the
+allocation's saturation report fed back to the rate integrator, the held heading).
+
+Two entry points, matching the MAVLink setpoints a PX4 vehicle accepts:
+- ``update`` with a ``TrajectorySetpoint`` (SET_POSITION_TARGET_*: position, velocity, acceleration, yaw, yaw
+  rate, any field NaN = not set), used by every autopilot mode;
+- ``update_attitude`` with an ``AttitudeSetpoint`` (SET_ATTITUDE_TARGET: attitude or body rates, and thrust).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+from sitl.airframe import Airframe
+from sitl.control import Vec3f
+from sitl.control.allocation import AllocationResult, ControlAllocator
+from sitl.control.attitude import AttitudeController, Quat4f, thrust_to_attitude
+from sitl.control.params import attitude_config, position_config, rate_config, velocity_config
+from sitl.control.position import PositionController
+from sitl.control.rate import NO_SATURATION, RateController
+from sitl.control.velocity import VelocityController
+from sitl.params import ParamStore
+
+_NAN = math.nan
+NAN3: Vec3f = (_NAN, _NAN, _NAN)
+
+VecLike = npt.NDArray[np.float64] | Sequence[float]
+
+
+class EstimatedState(Protocol):
+    """What the cascade flies on: the estimator's output (``PlantState`` also fits, for truth-fed tests)."""
+
+    @property
+    def pos_ned_m(self) -> VecLike: ...
+
+    @property
+    def vel_ned_mps(self) -> VecLike: ...
+
+    @property
+    def att_q_frd_to_ned(self) -> VecLike: ...  # (w, x, y, z)
+
+    @property
+    def rates_frd_radps(self) -> VecLike: ...
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TrajectorySetpoint:
+    """Position/velocity/acceleration/heading target in local NED. NaN = not set (MAVLink type_mask).
+
+    Per axis: a position is tracked with the velocity as feed-forward; without a position the velocity is
+    tracked; with neither, the acceleration is flown open loop; with nothing at all the axis holds zero
+    velocity. The acceleration, when set, is always a feed-forward. Yaw NaN with a yaw rate = turn at that
+    rate; both NaN = keep the last heading setpoint (or the current heading if there was none).
+    """
+
+    pos_ned_m: Vec3f = NAN3
+    vel_ned_mps: Vec3f = NAN3
+    acc_ned_mps2: Vec3f = NAN3
+    yaw_rad: float = _NAN
+    yawspeed_radps: float = _NAN
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class AttitudeSetpoint:
+    """SET_ATTITUDE_TARGET: an attitude (or None for body-rate control) and a collective thrust in newtons.
+
+    MAVLink's normalised thrust t in [0, 1] is ``t * Cascade.collective_max_n`` newtons.
+    """
+
+    att_q: Quat4f | None
+    thrust_n: float
+    yawspeed_ff_radps: float = _NAN  # heading-rate feed-forward when att_q is set
+    rates_sp_frd_radps: Vec3f = (0.0, 0.0, 0.0)  # the setpoint when att_q is None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CascadeOutput:
+    motor_cmds: tuple[float, ...]  # in [0, 1], airframe rotor order: what the plant takes
+    vel_sp_ned_mps: Vec3f  # NaN on axes not under velocity control, and in attitude mode
+    acc_sp_ned_mps2: Vec3f
+    thrust_sp_ned_n: Vec3f
+    att_sp_q: Quat4f
+    rates_sp_frd_radps: Vec3f
+    torque_sp_frd_nm: Vec3f
+    collective_sp_n: float
+    allocation: AllocationResult
+
+
+def _floats(v: VecLike) -> Sequence[float]:
+    # Python floats do arithmetic several times faster than numpy scalars.
+    return v.tolist() if isinstance(v, np.ndarray) else v
+
+
+class Cascade:
+    """The full multicopter controller for one airframe; call one of the update methods every control step."""
+
+    def __init__(self, airframe: Airframe, params: ParamStore) -> None:
+        self.airframe = airframe
+        self.params = params
+        self.position = PositionController(position_config(params))
+        self.velocity = VelocityController(velocity_config(params, airframe))
+        self.attitude = AttitudeController(attitude_config(params))
+        self.rate = RateController(rate_config(params, airframe))
+        self.allocator = ControlAllocator(airframe)
+        self._params_version = params.version
+        self.reset()
+
+    @property
+    def collective_max_n(self) -> float:
+        return self.allocator.collective_max_n
+
+    def reset(self) -> None:
+        """Forget integrators, filters, held heading and saturation feedback (e.g. before take-off)."""
+        self.position.reset()
+        self.velocity.reset()
+        self.attitude.reset()
+        self.rate.reset()
+        self.allocator.reset()
+        self._yaw_sp_prev = _NAN
+        self._sat_pos = NO_SATURATION
+        self._sat_neg = NO_SATURATION
+
+    def _refresh_configs(self) -> None:
+        store = self.params
+        if store.version == self._params_version:
+            return
+        self._params_version = store.version
+        self.position.config = position_config(store)
+        self.velocity.config = velocity_config(store, self.airframe)
+        self.attitude.config = attitude_config(store)
+        self.rate.config = rate_config(store, self.airframe)
+
+    def _heading_setpoint(self, att_q: Sequence[float], setpoint: TrajectorySetpoint) -> float:
+        yaw_sp = setpoint.yaw_rad
+        if yaw_sp != yaw_sp:
+            if setpoint.yawspeed_radps == setpoint.yawspeed_radps or self._yaw_sp_prev != self._yaw_sp_prev:
+                # Rate-only heading control (or nothing to hold yet): the current heading, no yaw error.
+                w, x, y, z = att_q
+                yaw_sp = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+            else:
+                yaw_sp = self._yaw_sp_prev
+        self._yaw_sp_prev = yaw_sp
+        return yaw_sp
+
+    def update(
+        self, state: EstimatedState, setpoint: TrajectorySetpoint, dt_s: float, *, landed: bool = False
+    ) -> CascadeOutput:
+        """One control step towards a trajectory setpoint. ``landed`` freezes the integrators."""
+        self._refresh_configs()
+        pos = _floats(state.pos_ned_m)
+        vel = _floats(state.vel_ned_mps)
+        att_q = _floats(state.att_q_frd_to_ned)
+        vel_sp = self.position.update((pos[0], pos[1], pos[2]), setpoint.pos_ned_m, setpoint.vel_ned_mps)
+        out = self.velocity.update(
+            (vel[0], vel[1], vel[2]), vel_sp, setpoint.acc_ned_mps2, dt_s, freeze_integrator=landed
+        )
+        thrust = out.thrust_sp_ned_n
+        att_sp_q = thrust_to_attitude(thrust, self._heading_setpoint(att_q, setpoint))
+        collective = math.sqrt(thrust[0] * thrust[0] + thrust[1] * thrust[1] + thrust[2] * thrust[2])
+        rates_sp, torque, alloc = self._inner(
+            state, att_q, att_sp_q, setpoint.yawspeed_radps, None, collective, dt_s, landed
+        )
+        return CascadeOutput(
+            motor_cmds=alloc.motor_cmds,
+            vel_sp_ned_mps=vel_sp,
+            acc_sp_ned_mps2=out.acc_sp_ned_mps2,
+            thrust_sp_ned_n=thrust,
+            att_sp_q=att_sp_q,
+            rates_sp_frd_radps=rates_sp,
+            torque_sp_frd_nm=torque,
+            collective_sp_n=collective,
+            allocation=alloc,
+        )
+
+    def update_attitude(
+        self, state: EstimatedState, setpoint: AttitudeSetpoint, dt_s: float, *, landed: bool = False
+    ) -> CascadeOutput:
+        """One control step towards an attitude (or body-rate) setpoint with a given collective thrust."""
+        self._refresh_configs()
+        att_q = _floats(state.att_q_frd_to_ned)
+        self._yaw_sp_prev = _NAN
+        collective = setpoint.thrust_n
+        if setpoint.att_q is None:
+            att_sp_q = (att_q[0], att_q[1], att_q[2], att_q[3])
+            rates_sp: Vec3f | None = setpoint.rates_sp_frd_radps
+        else:
+            att_sp_q = setpoint.att_q
+            rates_sp = None
+        w, x, y, z = att_sp_q
+        # The thrust vector this attitude and collective produce, for telemetry.
+        thrust = (
+            -2.0 * (x * z + w * y) * collective,
+            -2.0 * (y * z - w * x) * collective,
+            -(1.0 - 2.0 * (x * x + y * y)) * collective,
+        )
+        rates_sp, torque, alloc = self._inner(
+            state, att_q, att_sp_q, setpoint.yawspeed_ff_radps, rates_sp, collective, dt_s, landed
+        )
+        return CascadeOutput(
+            motor_cmds=alloc.motor_cmds,
+            vel_sp_ned_mps=NAN3,
+            acc_sp_ned_mps2=NAN3,
+            thrust_sp_ned_n=thrust,
+            att_sp_q=att_sp_q,
+            rates_sp_frd_radps=rates_sp,
+            torque_sp_frd_nm=torque,
+            collective_sp_n=collective,
+            allocation=alloc,
+        )
+
+    def _inner(
+        self,
+        state: EstimatedState,
+        att_q: Sequence[float],
+        att_sp_q: Quat4f,
+        yawspeed_ff: float,
+        rates_sp: Vec3f | None,
+        collective: float,
+        dt_s: float,
+        landed: bool,
+    ) -> tuple[Vec3f, Vec3f, AllocationResult]:
+        """Attitude (unless rates are given), rate and allocation stages; keeps the saturation feedback."""
+        if rates_sp is None:
+            rates_sp = self.attitude.update((att_q[0], att_q[1], att_q[2], att_q[3]), att_sp_q, yawspeed_ff)
+        rates = _floats(state.rates_frd_radps)
+        torque = self.rate.update(
+            (rates[0], rates[1], rates[2]),
+            rates_sp,
+            dt_s,
+            saturated_pos=self._sat_pos,
+            saturated_neg=self._sat_neg,
+            freeze_integrator=landed,
+        )
+        alloc = self.allocator.allocate(torque, collective)
+        self._sat_pos = alloc.saturated_pos
+        self._sat_neg = alloc.saturated_neg
+        return rates_sp, torque, alloc

@@ -1,0 +1,129 @@
+"""Controller parameters: the declarations of every cascade gain and limit, and the builders of stage configs.
+
+Names, meanings and (where the units agree) defaults follow PX4, so a PX4 user finds the knob they expect. The
+exceptions are written in the descriptions: the rate-loop gains are in physical units (angular acceleration
+per rate error, see sitl/control/rate.py), and there is no hover-thrust parameter because the velocity stage
+converts acceleration to force with the airframe mass. Defaults are tuned for airframes/quad_x_f450.toml at a
+400 Hz loop.
+
+The builders turn a ParamStore (plus the airframe's physical constants) into the frozen config of each stage;
+the stages themselves never see the store.
+"""
+
+from __future__ import annotations
+
+import math
+
+from sitl.airframe import Airframe
+from sitl.control.attitude import AttitudeConfig
+from sitl.control.position import PositionConfig
+from sitl.control.rate import RateConfig
+from sitl.control.velocity import VelocityConfig
+from sitl.params import ParamDef, ParamStore
+
+
+def _p(name: str, default: float, lo: float, hi: float, unit: str, description: str) -> ParamDef:
+    return ParamDef(name=name, default=default, min=lo, max=hi, unit=unit, description=description)
+
+
+_RATE_UNITS = " Physical units: (rad/s^2) of angular acceleration demand, unlike PX4's normalised torque."
+
+CONTROL_PARAMS: tuple[ParamDef, ...] = (
+    # Position loop.
+    _p("MPC_XY_P", 0.95, 0.0, 2.0, "1/s", "Horizontal position P gain: velocity setpoint per metre of error"),
+    _p("MPC_Z_P", 1.0, 0.0, 1.5, "1/s", "Vertical position P gain: velocity setpoint per metre of error"),
+    _p("MPC_XY_VEL_MAX", 12.0, 0.5, 20.0, "m/s", "Maximum horizontal velocity setpoint (limits the vector)"),
+    _p("MPC_Z_VEL_MAX_UP", 3.0, 0.5, 8.0, "m/s", "Maximum climb rate setpoint"),
+    _p("MPC_Z_VEL_MAX_DN", 1.5, 0.5, 4.0, "m/s", "Maximum descent rate setpoint"),
+    # Velocity loop (acceleration units, as PX4).
+    _p("MPC_XY_VEL_P_ACC", 1.8, 1.2, 5.0, "1/s", "Horizontal velocity P gain: m/s^2 per m/s of error"),
+    _p("MPC_XY_VEL_I_ACC", 0.4, 0.0, 60.0, "1/s^2", "Horizontal velocity I gain: m/s^2 per m/s per second"),
+    _p("MPC_XY_VEL_D_ACC", 0.2, 0.0, 2.0, "", "Horizontal velocity D gain on measured acceleration"),
+    _p("MPC_Z_VEL_P_ACC", 4.0, 2.0, 15.0, "1/s", "Vertical velocity P gain: m/s^2 per m/s of error"),
+    _p("MPC_Z_VEL_I_ACC", 2.0, 0.2, 3.0, "1/s^2", "Vertical velocity I gain: m/s^2 per m/s per second"),
+    _p("MPC_Z_VEL_D_ACC", 0.0, 0.0, 2.0, "", "Vertical velocity D gain on measured acceleration"),
+    _p("MPC_VELD_LP", 5.0, 0.0, 50.0, "Hz", "Low-pass cutoff of the velocity derivative (D term); 0 = off"),
+    _p("MPC_TILTMAX_AIR", 45.0, 20.0, 89.0, "deg", "Maximum tilt of the thrust vector in flight"),
+    _p("MPC_THR_MIN", 0.12, 0.05, 0.5, "", "Minimum collective thrust in flight, fraction of maximum"),
+    _p("MPC_THR_MAX", 1.0, 0.0, 1.0, "", "Maximum collective thrust, fraction of maximum"),
+    _p("MPC_THR_XY_MARG", 0.3, 0.0, 0.5, "", "Thrust kept for horizontal control at full climb, fraction"),
+    # Attitude loop.
+    _p("MC_ROLL_P", 6.5, 0.0, 12.0, "1/s", "Roll attitude P gain: rate setpoint per radian of error"),
+    _p("MC_PITCH_P", 6.5, 0.0, 12.0, "1/s", "Pitch attitude P gain: rate setpoint per radian of error"),
+    _p("MC_YAW_P", 2.8, 0.0, 5.0, "1/s", "Yaw attitude P gain: rate setpoint per radian of error"),
+    _p("MC_YAW_WEIGHT", 0.4, 0.0, 1.0, "", "Share of the yaw error used beside roll/pitch (priority)"),
+    _p("MC_ROLLRATE_MAX", 220.0, 0.0, 1800.0, "deg/s", "Maximum roll rate setpoint"),
+    _p("MC_PITCHRATE_MAX", 220.0, 0.0, 1800.0, "deg/s", "Maximum pitch rate setpoint"),
+    _p("MC_YAWRATE_MAX", 200.0, 0.0, 1800.0, "deg/s", "Maximum yaw rate setpoint"),
+    # Rate loop (physical units).
+    _p("MC_ROLLRATE_P", 18.0, 0.0, 100.0, "1/s", "Roll rate P gain." + _RATE_UNITS),
+    _p("MC_ROLLRATE_I", 20.0, 0.0, 200.0, "1/s^2", "Roll rate I gain." + _RATE_UNITS),
+    _p("MC_ROLLRATE_D", 0.3, 0.0, 2.0, "", "Roll rate D gain on measured rate." + _RATE_UNITS),
+    _p("MC_PITCHRATE_P", 18.0, 0.0, 100.0, "1/s", "Pitch rate P gain." + _RATE_UNITS),
+    _p("MC_PITCHRATE_I", 20.0, 0.0, 200.0, "1/s^2", "Pitch rate I gain." + _RATE_UNITS),
+    _p("MC_PITCHRATE_D", 0.3, 0.0, 2.0, "", "Pitch rate D gain on measured rate." + _RATE_UNITS),
+    _p("MC_YAWRATE_P", 6.0, 0.0, 100.0, "1/s", "Yaw rate P gain." + _RATE_UNITS),
+    _p("MC_YAWRATE_I", 5.0, 0.0, 200.0, "1/s^2", "Yaw rate I gain." + _RATE_UNITS),
+    _p("MC_YAWRATE_D", 0.0, 0.0, 2.0, "", "Yaw rate D gain on measured rate." + _RATE_UNITS),
+    _p("MC_RR_INT_LIM", 30.0, 0.0, 500.0, "rad/s^2", "Roll rate integrator limit (angular acceleration)"),
+    _p("MC_PR_INT_LIM", 30.0, 0.0, 500.0, "rad/s^2", "Pitch rate integrator limit (angular acceleration)"),
+    _p("MC_YR_INT_LIM", 5.0, 0.0, 500.0, "rad/s^2", "Yaw rate integrator limit (angular acceleration)"),
+    _p(
+        "IMU_DGYRO_CUTOFF", 30.0, 0.0, 200.0, "Hz", "Low-pass cutoff of the rate derivative (D term); 0 = off"
+    ),
+)
+
+
+def position_config(store: ParamStore) -> PositionConfig:
+    return PositionConfig(
+        xy_p_per_s=store["MPC_XY_P"],
+        z_p_per_s=store["MPC_Z_P"],
+        xy_vel_max_mps=store["MPC_XY_VEL_MAX"],
+        z_vel_max_up_mps=store["MPC_Z_VEL_MAX_UP"],
+        z_vel_max_dn_mps=store["MPC_Z_VEL_MAX_DN"],
+    )
+
+
+def velocity_config(store: ParamStore, airframe: Airframe) -> VelocityConfig:
+    collective_max_n = airframe.max_thrust_per_rotor_n * len(airframe.rotors)
+    thrust_min = store["MPC_THR_MIN"]
+    # Each value is valid alone; an inverted pair (minimum above maximum) resolves in favour of the minimum.
+    thrust_max = max(store["MPC_THR_MAX"], thrust_min)
+    return VelocityConfig(
+        xy_p_per_s=store["MPC_XY_VEL_P_ACC"],
+        xy_i_per_s2=store["MPC_XY_VEL_I_ACC"],
+        xy_d=store["MPC_XY_VEL_D_ACC"],
+        z_p_per_s=store["MPC_Z_VEL_P_ACC"],
+        z_i_per_s2=store["MPC_Z_VEL_I_ACC"],
+        z_d=store["MPC_Z_VEL_D_ACC"],
+        vel_deriv_cutoff_hz=store["MPC_VELD_LP"],
+        tilt_max_rad=math.radians(store["MPC_TILTMAX_AIR"]),
+        thrust_min_n=thrust_min * collective_max_n,
+        thrust_max_n=thrust_max * collective_max_n,
+        thrust_xy_margin_n=store["MPC_THR_XY_MARG"] * collective_max_n,
+        mass_kg=airframe.mass_kg,
+    )
+
+
+def attitude_config(store: ParamStore) -> AttitudeConfig:
+    return AttitudeConfig(
+        roll_p_per_s=store["MC_ROLL_P"],
+        pitch_p_per_s=store["MC_PITCH_P"],
+        yaw_p_per_s=store["MC_YAW_P"],
+        yaw_weight=store["MC_YAW_WEIGHT"],
+        roll_rate_max_radps=math.radians(store["MC_ROLLRATE_MAX"]),
+        pitch_rate_max_radps=math.radians(store["MC_PITCHRATE_MAX"]),
+        yaw_rate_max_radps=math.radians(store["MC_YAWRATE_MAX"]),
+    )
+
+
+def rate_config(store: ParamStore, airframe: Airframe) -> RateConfig:
+    ixx, iyy, izz = airframe.inertia_diag_kg_m2
+    return RateConfig(
+        p_per_s=(store["MC_ROLLRATE_P"], store["MC_PITCHRATE_P"], store["MC_YAWRATE_P"]),
+        i_per_s2=(store["MC_ROLLRATE_I"], store["MC_PITCHRATE_I"], store["MC_YAWRATE_I"]),
+        d=(store["MC_ROLLRATE_D"], store["MC_PITCHRATE_D"], store["MC_YAWRATE_D"]),
+        int_lim_radps2=(store["MC_RR_INT_LIM"], store["MC_PR_INT_LIM"], store["MC_YR_INT_LIM"]),
+        deriv_cutoff_hz=store["IMU_DGYRO_CUTOFF"],
+        inertia_kg_m2=(ixx, iyy, izz),
+    )

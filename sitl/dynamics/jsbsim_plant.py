@@ -1,0 +1,290 @@
+"""The JSBSim flight model of one multirotor behind the Plant interface.
+
+This is the only module that imports jsbsim. It generates the aircraft definition from the airframe data file
+(sitl/dynamics/jsbsim_model.py), loads it, places the vehicle at home and steps it at a fixed rate, converting
+JSBSim's English units and geodetic position into the SI, NED and FRD quantities of ``PlantState``.
+
+Position convention: ``pos_ned_m`` is the centre of gravity relative to home, whose down = 0 is the ground
+(see sitl/dynamics/geodesy.py). A vehicle resting on the ground therefore reports down = -``rest_height_m``, the
+gear height plus the static compression of the contact springs (about -0.116 m for the F450).
+
+Per-step cost matters (a swarm of dozens of drones shares two cores), so every property is bound once to a
+property node and read with ``get_double_value``, which is several times cheaper than ``fdm[name]``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import tempfile
+import threading
+from collections.abc import Sequence
+from pathlib import Path
+
+import jsbsim
+import numpy as np
+
+from sitl.airframe import Airframe
+from sitl.dynamics.geodesy import LocalFrame
+from sitl.dynamics.jsbsim_model import (
+    M_PER_FT,
+    N_PER_LBF,
+    contact_wow_property,
+    model_name,
+    motor_cmd_property,
+    rotor_speed_property,
+    write_model,
+)
+from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint, PlantState
+from sitl.mathutil import GRAVITY_MPS2, Vec3
+
+_log = logging.getLogger(__name__)
+
+_FT_PER_M = 1.0 / M_PER_FT
+
+
+class PlantError(RuntimeError):
+    """JSBSim refused the generated model or its initial conditions, or stopped stepping."""
+
+
+class _LogBridge(jsbsim.FGLogger):  # type: ignore[misc]
+    """Routes JSBSim's own messages to ``logging``: warnings and errors kept, start-up chatter dropped."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._level = int(jsbsim.LogLevel.INFO)
+        self._parts: list[str] = []
+
+    def set_level(self, level: jsbsim.LogLevel) -> None:
+        self._level = int(level)
+        self._parts.clear()
+
+    def file_location(self, filename: str, line: int) -> None:
+        pass
+
+    def message(self, message: str) -> None:
+        if self._level >= jsbsim.LogLevel.WARN:
+            self._parts.append(message)
+
+    def format(self, format: jsbsim.LogFormat) -> None:
+        pass
+
+    def flush(self) -> None:
+        text = "".join(self._parts).strip()
+        self._parts.clear()
+        if not text:
+            return
+        if self._level >= jsbsim.LogLevel.ERROR:
+            _log.error("JSBSim: %s", text)
+        else:
+            _log.warning("JSBSim: %s", text)
+
+
+# JSBSim keeps its logger per thread; install ours once in every thread that builds a plant.
+_thread_state = threading.local()
+
+
+def _install_log_bridge() -> None:
+    if getattr(_thread_state, "bridge", None) is None:
+        _thread_state.bridge = _LogBridge()
+        jsbsim.set_logger(_thread_state.bridge)
+
+
+def _clamp_cmd(value: float) -> float:
+    # NaN fails every comparison, so it lands on 0 (motor stopped) like a negative command.
+    value = float(value)
+    if value > 1.0:
+        return 1.0
+    if value > 0.0:
+        return value
+    return 0.0
+
+
+class JsbsimPlant:
+    """A multirotor simulated by JSBSim, stepped at a fixed ``dt_s`` with normalised motor commands.
+
+    ``initial_pos_ned_m`` is the initial centre-of-gravity position relative to home; a down coordinate lower
+    than resting on the ground (for example the default (0, 0, 0)) places the vehicle at rest on the ground.
+    ``initial_motor_cmds`` starts the rotors already spinning at the speeds those commands settle to, so a
+    vehicle can begin in steady flight; by default the motors are stopped.
+    """
+
+    def __init__(
+        self,
+        airframe: Airframe,
+        home: GeoPoint = DEFAULT_HOME,
+        dt_s: float = 1.0 / 400.0,
+        initial_pos_ned_m: Sequence[float] = (0.0, 0.0, 0.0),
+        initial_yaw_rad: float = 0.0,
+        *,
+        initial_motor_cmds: Sequence[float] | None = None,
+    ) -> None:
+        if not (math.isfinite(dt_s) and 0.0 < dt_s <= 0.05):
+            raise ValueError(f"dt_s must be in (0, 0.05] s, got {dt_s!r}")
+        if len(initial_pos_ned_m) != 3 or not all(math.isfinite(float(v)) for v in initial_pos_ned_m):
+            raise ValueError(f"initial_pos_ned_m must be three finite numbers, got {initial_pos_ned_m!r}")
+        if not math.isfinite(initial_yaw_rad):
+            raise ValueError(f"initial_yaw_rad must be finite, got {initial_yaw_rad!r}")
+        self._airframe = airframe
+        self._home = home
+        self._frame = LocalFrame(home)
+        self._dt_s = float(dt_s)
+        self._n_rotors = len(airframe.rotors)
+        self._sf_scale = N_PER_LBF / airframe.mass_kg  # lbf -> specific force in m/s^2
+        # The contact springs compress under the weight, shared equally by one contact per rotor.
+        self._rest_height_m = airframe.gear_height_m - airframe.mass_kg * GRAVITY_MPS2 / (
+            self._n_rotors * airframe.gear_spring_n_per_m
+        )
+        self._wind_ned_mps = np.zeros(3)
+        self._steps = 0
+
+        _install_log_bridge()
+        self._fdm = self._load(airframe)
+        self._fdm.set_dt(self._dt_s)
+        pm = self._fdm.get_property_manager()
+
+        def node(name: str) -> jsbsim.FGPropertyNode:
+            found = pm.get_node(name)
+            if found is None:
+                raise PlantError(f"JSBSim model {model_name(airframe)!r} has no property {name!r}")
+            return found
+
+        self._cmd_setters = tuple(node(motor_cmd_property(i)).set_double_value for i in range(self._n_rotors))
+        self._speed_getters = tuple(node(rotor_speed_property(i)).get_double_value for i in range(self._n_rotors))
+        self._wow_getters = tuple(node(contact_wow_property(i)).get_double_value for i in range(self._n_rotors))
+        self._get_lat = node("position/lat-geod-rad").get_double_value
+        self._get_lon = node("position/long-gc-rad").get_double_value
+        self._get_alt = node("position/geod-alt-ft").get_double_value
+        self._vel_getters = tuple(
+            node(f"velocities/{c}-fps").get_double_value for c in ("v-north", "v-east", "v-down")
+        )
+        self._euler_getters = tuple(node(f"attitude/{c}-rad").get_double_value for c in ("phi", "theta", "psi"))
+        self._rate_getters = tuple(node(f"velocities/{c}-rad_sec").get_double_value for c in ("p", "q", "r"))
+        self._force_getters = tuple(node(f"forces/fb{c}-total-lbs").get_double_value for c in ("x", "y", "z"))
+        self._wind_setters = tuple(
+            node(f"atmosphere/wind-{c}-fps").set_double_value for c in ("north", "east", "down")
+        )
+
+        self._initialise(initial_pos_ned_m, initial_yaw_rad, initial_motor_cmds)
+        self._state = self._read_state()
+
+    @staticmethod
+    def _load(airframe: Airframe) -> jsbsim.FGFDMExec:
+        # JSBSim reads the model only while loading, so the generated files can go right after.
+        with tempfile.TemporaryDirectory(prefix="sitl-jsbsim-") as root:
+            write_model(airframe, Path(root))
+            fdm = jsbsim.FGFDMExec(root)
+            fdm.set_debug_level(0)
+            if not fdm.load_model(model_name(airframe)):
+                raise PlantError(f"JSBSim could not load the model generated from {airframe.source_path}")
+        fdm.disable_output()
+        return fdm
+
+    def _initialise(
+        self, pos_ned_m: Sequence[float], yaw_rad: float, motor_cmds: Sequence[float] | None
+    ) -> None:
+        fdm = self._fdm
+        north, east, down = (float(v) for v in pos_ned_m)
+        down = min(down, -self._rest_height_m)
+        start = self._frame.geo_from_ned((north, east, down))
+        # Turbulence is the caller's business (set_wind with gusts), never JSBSim's random model.
+        fdm["atmosphere/turb-type"] = 0
+        fdm["ic/terrain-elevation-ft"] = self._home.alt_amsl_m * _FT_PER_M
+        fdm["ic/lat-geod-deg"] = start.lat_deg
+        fdm["ic/long-gc-deg"] = start.lon_deg
+        fdm["ic/h-agl-ft"] = -down * _FT_PER_M
+        for name in ("ic/u-fps", "ic/v-fps", "ic/w-fps", "ic/p-rad_sec", "ic/q-rad_sec", "ic/r-rad_sec"):
+            fdm[name] = 0.0
+        fdm["ic/phi-rad"] = 0.0
+        fdm["ic/theta-rad"] = 0.0
+        fdm["ic/psi-true-rad"] = yaw_rad % (2.0 * math.pi)
+        cmds = motor_cmds if motor_cmds is not None else (0.0,) * self._n_rotors
+        self._write_cmds(cmds)
+        # The motor lag's state is the rotor-speed property, and JSBSim holds it while initialising.
+        pm = fdm.get_property_manager()
+        for i, cmd in enumerate(cmds):
+            pm.get_node(rotor_speed_property(i)).set_double_value(
+                _clamp_cmd(cmd) * self._airframe.motor_max_speed_radps
+            )
+        if not fdm.run_ic():
+            raise PlantError("JSBSim rejected the initial conditions")
+
+    @property
+    def dt_s(self) -> float:
+        return self._dt_s
+
+    @property
+    def airframe(self) -> Airframe:
+        return self._airframe
+
+    @property
+    def home(self) -> GeoPoint:
+        return self._home
+
+    @property
+    def rest_height_m(self) -> float:
+        """Height of the centre of gravity above the ground when resting on the gear."""
+        return self._rest_height_m
+
+    @property
+    def wind_ned_mps(self) -> Vec3:
+        return self._wind_ned_mps.copy()
+
+    def state(self) -> PlantState:
+        return self._state
+
+    def step(self, motor_cmds: tuple[float, ...] | list[float]) -> PlantState:
+        self._write_cmds(motor_cmds)
+        if not self._fdm.run():
+            raise PlantError(f"JSBSim stopped at t={self._steps * self._dt_s:.4f} s")
+        self._steps += 1
+        self._state = self._read_state()
+        return self._state
+
+    def set_wind(self, wind_ned_mps: Vec3) -> None:
+        wind = np.asarray(wind_ned_mps, dtype=np.float64).reshape(3)
+        if not np.all(np.isfinite(wind)):
+            raise ValueError(f"wind must be finite, got {wind_ned_mps!r}")
+        self._wind_ned_mps = wind.copy()
+        for setter, value in zip(self._wind_setters, wind, strict=True):
+            setter(float(value) * _FT_PER_M)
+
+    def _write_cmds(self, motor_cmds: Sequence[float]) -> None:
+        if len(motor_cmds) != self._n_rotors:
+            raise ValueError(f"expected {self._n_rotors} motor commands, got {len(motor_cmds)}")
+        for setter, value in zip(self._cmd_setters, motor_cmds, strict=True):
+            setter(_clamp_cmd(value))
+
+    def _read_state(self) -> PlantState:
+        lat = self._get_lat()
+        lon = self._get_lon()
+        alt_m = self._get_alt() * M_PER_FT
+        north, east, down = self._frame.ned_from_geodetic_rad(lat, lon, alt_m)
+        gn, ge, gd = self._vel_getters
+        gphi, gtheta, gpsi = self._euler_getters
+        gp, gq, gr = self._rate_getters
+        gfx, gfy, gfz = self._force_getters
+        # ZYX Euler to quaternion inline: this runs every physics step.
+        half_roll, half_pitch, half_yaw = 0.5 * gphi(), 0.5 * gtheta(), 0.5 * gpsi()
+        cr, sr = math.cos(half_roll), math.sin(half_roll)
+        cp, sp = math.cos(half_pitch), math.sin(half_pitch)
+        cy, sy = math.cos(half_yaw), math.sin(half_yaw)
+        qw = cr * cp * cy + sr * sp * sy
+        qx = sr * cp * cy - cr * sp * sy
+        qy = cr * sp * cy + sr * cp * sy
+        qz = cr * cp * sy - sr * sp * cy
+        if qw < 0.0:  # JSBSim reports yaw in [0, 2 pi); keep the project's w >= 0 form
+            qw, qx, qy, qz = -qw, -qx, -qy, -qz
+        sf = self._sf_scale
+        return PlantState(
+            time_s=self._steps * self._dt_s,
+            pos_ned_m=np.array((north, east, down)),
+            vel_ned_mps=np.array((gn() * M_PER_FT, ge() * M_PER_FT, gd() * M_PER_FT)),
+            att_q_frd_to_ned=np.array((qw, qx, qy, qz)),
+            rates_frd_radps=np.array((gp(), gq(), gr())),
+            specific_force_frd_mps2=np.array((gfx() * sf, gfy() * sf, gfz() * sf)),
+            geo=GeoPoint(lat_deg=math.degrees(lat), lon_deg=math.degrees(lon), alt_amsl_m=alt_m),
+            on_ground=any(g() > 0.5 for g in self._wow_getters),
+            motor_speeds_radps=tuple(g() for g in self._speed_getters),
+        )
+
