@@ -73,8 +73,10 @@ def main() -> None:
     loop = closed_loop(args.sim_seconds)
     print(f"physics 400 Hz, {args.sim_seconds:.0f} simulated seconds each")
     print(f"bare JSBSim plant : {1 / bare:7.1f} sim s per CPU s  ({bare * 1e3:6.1f} ms CPU per sim s)")
-    print(f"full closed loop  : {1 / loop['total']:7.1f} sim s per CPU s  ({loop['total'] * 1e3:6.1f} ms CPU per sim s,"
-          f" {loop['total'] / bare:.1f}x bare JSBSim)")
+    print(
+        f"full closed loop  : {1 / loop['total']:7.1f} sim s per CPU s  ({loop['total'] * 1e3:6.1f} ms CPU per sim s,"
+        f" {loop['total'] / bare:.1f}x bare JSBSim)"
+    )
     for part in ("jsbsim", "sensors", "estimator", "autopilot+control", "other"):
         print(f"  {part:<18} {loop[part] * 1e3:6.1f} ms per sim s  {loop[part] / loop['total']:5.1%}")
 

@@ -24,7 +24,10 @@ PLANNED = (
 def main(argv: Sequence[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     if args and args[0] not in ("-h", "--help"):
-        print(f"swarm: error: '{args[0]}' is not available yet; run 'swarm --help' for the plan", file=sys.stderr)
+        print(
+            f"swarm: error: '{args[0]}' is not available yet; run 'swarm --help' for the plan",
+            file=sys.stderr,
+        )
         return 2
     print("usage: swarm COMMAND [options]   (ground station; not yet implemented)\n\nplanned commands:")
     for command, text in PLANNED:

@@ -102,7 +102,7 @@ def parse_airframe(data: dict[str, Any], path: Path) -> Airframe:
         pos = _vector(entry, "pos_frd_m", where, path, positive=False)
         spin = _require(entry, "spin", where, path)
         if spin not in ("ccw", "cw"):
-            raise AirframeError(f"{path}: field '{where}spin' must be \"ccw\" or \"cw\", got {spin!r}")
+            raise AirframeError(f'{path}: field \'{where}spin\' must be "ccw" or "cw", got {spin!r}')
         rotors.append(Rotor(pos_frd_m=(pos[0], pos[1], pos[2]), spin_dir=1 if spin == "ccw" else -1))
     inertia = _vector(body, "inertia_diag_kg_m2", "body.", path, positive=True)
     drag = _vector(body, "drag_coeff_frd_n_per_mps2", "body.", path, positive=True)

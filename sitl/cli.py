@@ -59,8 +59,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="sitl", description="Run one simulated quadrotor (JSBSim + PX4-style autopilot).")
     parser.add_argument("--instance", type=int, default=0, help="instance number i >= 0 (MAVLink sysid i+1)")
     parser.add_argument("--airframe", default=DEFAULT_AIRFRAME, help="airframe name in airframes/ or a .toml path")
-    parser.add_argument("--speed", default=None,
-                        help=f"simulation speed factor (default: ${SPEED_ENV} or 1.0; 0 = unpaced)")
+    parser.add_argument(
+        "--speed", default=None, help=f"simulation speed factor (default: ${SPEED_ENV} or 1.0; 0 = unpaced)"
+    )
     parser.add_argument("--seed", type=int, default=None, help="random seed (default: the instance number)")
     parser.add_argument("--home", default=None, help="home as LAT,LON,ALT_AMSL (default: PX4 SITL home)")
     parser.add_argument("--wind", default="0,0,0", help="steady wind N,E,D in m/s (the direction it blows to)")

@@ -85,9 +85,9 @@ class Estimator:
     # -- attitude -------------------------------------------------------------------------------------------------
     def _init_attitude(self, accel_frd: Vec3, mag_frd: Vec3) -> None:
         """Level from gravity, heading from the magnetometer (TRIAD)."""
-        down = -accel_frd / max(np.linalg.norm(accel_frd), 1e-6)  # body-frame direction of NED down
+        down = -accel_frd / max(float(np.linalg.norm(accel_frd)), 1e-6)  # body-frame direction of NED down
         east = np.cross(down, mag_frd)
-        east /= max(np.linalg.norm(east), 1e-9)
+        east /= max(float(np.linalg.norm(east)), 1e-9)
         north = np.cross(east, down)
         body_to_ned_meas = np.vstack((north, east, down))  # rows: NED axes in body coordinates
         # Correct for the magnetic declination: the reference field's horizontal direction is not true north.

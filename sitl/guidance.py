@@ -68,7 +68,9 @@ class StraightLineTrajectory:
         self._speed = 0.0
         self._acc = np.zeros(3)
 
-    def update(self, target_ned_m: Vec3, limits: MotionLimits, dt_s: float, max_speed_mps: float = math.inf) -> Reference:
+    def update(
+        self, target_ned_m: Vec3, limits: MotionLimits, dt_s: float, max_speed_mps: float = math.inf
+    ) -> Reference:
         delta = target_ned_m - self._pos
         dist = float(np.linalg.norm(delta))
         if dist < 1e-4 and self._speed < 1e-3:
@@ -81,8 +83,10 @@ class StraightLineTrajectory:
         if self._speed > 0.0:
             self._speed = max(0.0, self._speed * float(direction @ self._dir))
         self._dir = direction
-        v_max = min(max_speed_mps, _component_scale(direction, limits.speed_xy_mps, limits.speed_up_mps,
-                                                      limits.speed_down_mps))
+        v_max = min(
+            max_speed_mps,
+            _component_scale(direction, limits.speed_xy_mps, limits.speed_up_mps, limits.speed_down_mps),
+        )
         a_max = _component_scale(direction, limits.accel_xy_mps2, limits.accel_z_mps2, limits.accel_z_mps2)
         stopping_speed = math.sqrt(2.0 * a_max * dist)
         desired = min(v_max, stopping_speed)

@@ -51,15 +51,20 @@ class Simulation:
         self.dt_s = 1.0 / config.physics_rate_hz
         self.params = params if params is not None else build_param_store()
         seeds = np.random.SeedSequence(config.seed).spawn(2)
-        self.plant = JsbsimPlant(config.airframe, home=config.home, dt_s=self.dt_s,
-                                 initial_yaw_rad=config.initial_yaw_rad)
+        self.plant = JsbsimPlant(
+            config.airframe, home=config.home, dt_s=self.dt_s, initial_yaw_rad=config.initial_yaw_rad
+        )
         self.sensors = SensorSuite(config.sensors, seed=int(seeds[0].generate_state(1)[0]))
         self.wind = WindModel(config.wind, np.random.default_rng(seeds[1]))
         self.estimator = Estimator(config.estimator, origin_alt_amsl_m=self.plant.state().geo.alt_amsl_m)
         self.estimator.set_mag_reference(np.array(config.sensors.mag_field_ned_gauss))
         self.battery = Battery(config.battery)
-        self.vehicle = Vehicle(config.airframe, self.params, Cascade(config.airframe, self.params),
-                               battery_remaining=lambda: self.battery.state().remaining)
+        self.vehicle = Vehicle(
+            config.airframe,
+            self.params,
+            Cascade(config.airframe, self.params),
+            battery_remaining=lambda: self.battery.state().remaining,
+        )
         self.truth: PlantState = self.plant.state()
         self.readings: SensorReadings | None = None
         self.estimate: Estimate | None = None
@@ -81,7 +86,7 @@ class Simulation:
         return self.truth
 
     def run_for(self, duration_s: float, on_step: Callable[[Simulation], None] | None = None) -> None:
-        for _ in range(int(round(duration_s / self.dt_s))):
+        for _ in range(round(duration_s / self.dt_s)):
             self.step()
             if on_step is not None:
                 on_step(self)

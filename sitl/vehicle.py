@@ -220,8 +220,13 @@ class Vehicle:
         if problem is not None:
             self._event(4, problem)
             return Outcome(Result.DENIED, problem)
-        if self.status.mode not in (FlightMode.HOLD, FlightMode.POSCTL, FlightMode.MISSION, FlightMode.OFFBOARD,
-                                    FlightMode.TAKEOFF):
+        if self.status.mode not in (
+            FlightMode.HOLD,
+            FlightMode.POSCTL,
+            FlightMode.MISSION,
+            FlightMode.OFFBOARD,
+            FlightMode.TAKEOFF,
+        ):
             return Outcome(Result.DENIED, f"Arming denied: not possible in {self.status.mode.value}")
         self.status.armed = True
         self._armed_since_s = self._now_s
@@ -346,9 +351,13 @@ class Vehicle:
         max_speed = self._speed_override_mps
         if mode is FlightMode.TAKEOFF:
             max_speed = min(max_speed, self._p("MPC_TKO_SPEED"))
-            limits = MotionLimits(speed_xy_mps=limits.speed_xy_mps, speed_up_mps=self._p("MPC_TKO_SPEED"),
-                                  speed_down_mps=limits.speed_down_mps, accel_xy_mps2=limits.accel_xy_mps2,
-                                  accel_z_mps2=limits.accel_z_mps2)
+            limits = MotionLimits(
+                speed_xy_mps=limits.speed_xy_mps,
+                speed_up_mps=self._p("MPC_TKO_SPEED"),
+                speed_down_mps=limits.speed_down_mps,
+                accel_xy_mps2=limits.accel_xy_mps2,
+                accel_z_mps2=limits.accel_z_mps2,
+            )
         if mode is FlightMode.LAND or (self._rtl is not None and self._rtl.phase == "land"):
             land_speed = self._p("MPC_LAND_SPEED")
             if self.altitude_above_home_m() > self._p("MPC_LAND_ALT2"):
@@ -369,16 +378,21 @@ class Vehicle:
 
     def _advance_modes(self, est: Estimate, now_s: float) -> None:
         mode = self.status.mode
-        if mode is FlightMode.TAKEOFF and abs(est.pos_ned_m[2] - self._target_ned_m[2]) < 0.15 and \
-                float(np.linalg.norm(self._trajectory.position - self._target_ned_m)) < 1e-3:
+        if (
+            mode is FlightMode.TAKEOFF
+            and abs(est.pos_ned_m[2] - self._target_ned_m[2]) < 0.15
+            and float(np.linalg.norm(self._trajectory.position - self._target_ned_m)) < 1e-3
+        ):
             self._event(6, "Takeoff complete")
             self._enter(FlightMode.HOLD)
         elif mode is FlightMode.RTL and self._rtl is not None:
             arrived = float(np.linalg.norm(self._trajectory.position - self._target_ned_m)) < 1e-3
             if self._rtl.phase == "climb" and arrived:
                 self._rtl.phase = "return"
-                self._start_goto(vec3(self._home_ned_m[0], self._home_ned_m[1], self._rtl.cruise_down_m),
-                                 self._home_yaw_rad)
+                self._start_goto(
+                    vec3(self._home_ned_m[0], self._home_ned_m[1], self._rtl.cruise_down_m),
+                    self._home_yaw_rad,
+                )
             elif self._rtl.phase == "return" and arrived:
                 self._rtl.phase = "descend"
                 descend_down = max(self._rtl.cruise_down_m, self._home_ned_m[2] - self._p("RTL_DESCEND_ALT"))
@@ -391,8 +405,11 @@ class Vehicle:
             self.status.failsafe = True
             self._hold_here()
             self._enter(FlightMode.HOLD)
-        if self._failsafe is not None and self.status.mode is FlightMode.HOLD and \
-                now_s - self._failsafe.since_s >= self._p("COM_FAIL_ACT_T"):
+        if (
+            self._failsafe is not None
+            and self.status.mode is FlightMode.HOLD
+            and now_s - self._failsafe.since_s >= self._p("COM_FAIL_ACT_T")
+        ):
             self._failsafe = None
             self._event(2, "Failsafe: landing")
             self._hold_here()
@@ -427,7 +444,10 @@ class Vehicle:
         self.status.thrust_n = out.collective_sp_n
         was_landed = self.landed
         landed = self._land_detector.update(
-            now_s, float(est.vel_ned_mps[2]), out.collective_sp_n / self._hover_thrust_n, self.altitude_above_home_m()
+            now_s,
+            float(est.vel_ned_mps[2]),
+            out.collective_sp_n / self._hover_thrust_n,
+            self.altitude_above_home_m(),
         )
         if was_landed and not landed:
             self._event(6, "Takeoff detected")

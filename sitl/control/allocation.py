@@ -63,15 +63,16 @@ class ControlAllocator:
             raise ValueError(
                 f"airframe {airframe.name}: rotor layout cannot control roll, pitch, yaw and thrust"
             )
-        mix = np.linalg.pinv(self.effectiveness)  # n x 4
+        mix = np.linalg.pinv(self.effectiveness)  # n x 4: columns roll, pitch, yaw, collective
         self.rotor_count = len(airframe.rotors)
         self.thrust_max_n = airframe.max_thrust_per_rotor_n
-        self._roll: tuple[float, ...] = tuple(mix[:, 0].tolist())
-        self._pitch: tuple[float, ...] = tuple(mix[:, 1].tolist())
-        self._yaw: tuple[float, ...] = tuple(mix[:, 2].tolist())
-        self._collective: tuple[float, ...] = tuple(mix[:, 3].tolist())
-        if min(self._collective) <= 0.0:
+        if mix[:, 3].min() <= 0.0:
             raise ValueError(f"airframe {airframe.name}: some rotor does not add to the collective thrust")
+        # Per rotor i, everything measured in units of its collective share c_i: roll and pitch coefficients
+        # divided by c_i, the yaw coefficient, c_i, and T_max / c_i (the most collective this rotor allows).
+        self._rows: tuple[tuple[float, float, float, float, float], ...] = tuple(
+            (r / c, p / c, y, c, self.thrust_max_n / c) for r, p, y, c in mix.tolist()
+        )
 
     @property
     def collective_max_n(self) -> float:
@@ -88,25 +89,21 @@ class ControlAllocator:
     def allocate(self, torque_frd_nm: Vec3f, thrust_n: float) -> AllocationResult:
         t_max = self.thrust_max_n
         roll_t, pitch_t, yaw_t = torque_frd_nm
-        mix_r, mix_p, mix_y, mix_c = self._roll, self._pitch, self._yaw, self._collective
-        idx = range(self.rotor_count)
+        rows = self._rows
 
-        # Roll/pitch part per rotor, measured in units of the collective direction (a_i = rp_i / c_i): the
-        # collective k fits roll/pitch iff max(-a_i) <= k <= min(T_max / c_i - a_i).
-        ratio = [(mix_r[i] * roll_t + mix_p[i] * pitch_t) / mix_c[i] for i in idx]
-        k_lo = max(-a for a in ratio)
-        k_hi = min(t_max / mix_c[i] - ratio[i] for i in idx)
+        # Roll/pitch part of rotor i in collective units, a_i = rp_i / c_i: a collective k fits roll/pitch iff
+        # max(-a_i) <= k <= min(T_max / c_i - a_i).
+        ratio = [r * roll_t + p * pitch_t for r, p, _, _, _ in rows]
+        k_lo, k_hi = self._collective_range(ratio)
         rp_scale = 1.0
         if k_lo > k_hi:
             # (a) Scale roll/pitch by the largest s with s (a_j - a_i) <= T_max / c_j for every pair i, j.
-            for j in idx:
-                for i in idx:
-                    spread = ratio[j] - ratio[i]
-                    if spread > 0.0:
-                        rp_scale = min(rp_scale, t_max / (mix_c[j] * spread))
+            for a_j, row_j in zip(ratio, rows, strict=True):
+                for a_i in ratio:
+                    if a_j > a_i:
+                        rp_scale = min(rp_scale, row_j[4] / (a_j - a_i))
             ratio = [a * rp_scale for a in ratio]
-            k_lo = max(-a for a in ratio)
-            k_hi = min(t_max / mix_c[i] - ratio[i] for i in idx)
+            k_lo, k_hi = self._collective_range(ratio)
             k_hi = max(k_hi, k_lo)  # rounding
         # (b) Collective nearest to the demand that keeps roll/pitch inside the rotor range.
         collective = thrust_n
@@ -117,15 +114,17 @@ class ControlAllocator:
         elif collective > k_hi:
             collective = k_hi
             thrust_saturation = 1
-        base = [(ratio[i] + collective) * mix_c[i] for i in idx]
         # (c) Yaw: the largest share in [0, 1] that keeps every rotor inside [0, T_max].
+        base = []
         yaw_scale = 1.0
-        for i in idx:
-            y = mix_y[i] * yaw_t
+        for a, (_, _, y_coef, c, _) in zip(ratio, rows, strict=True):
+            b = (a + collective) * c
+            base.append(b)
+            y = y_coef * yaw_t
             if y > 0.0:
-                room = (t_max - base[i]) / y
+                room = (t_max - b) / y
             elif y < 0.0:
-                room = -base[i] / y
+                room = -b / y
             else:
                 continue
             if room < yaw_scale:
@@ -134,8 +133,9 @@ class ControlAllocator:
             yaw_scale = 0.0
         thrusts = []
         cmds = []
-        for i in idx:
-            t = base[i] + yaw_scale * mix_y[i] * yaw_t
+        yaw_part = yaw_scale * yaw_t
+        for b, row in zip(base, rows, strict=True):
+            t = b + yaw_part * row[2]
             t = 0.0 if t < 0.0 else (t_max if t > t_max else t)
             thrusts.append(t)
             cmds.append(math.sqrt(t / t_max))
@@ -149,3 +149,13 @@ class ControlAllocator:
             saturated_neg=(rp_cut and roll_t < 0.0, rp_cut and pitch_t < 0.0, yaw_cut and yaw_t < 0.0),
             thrust_saturation=thrust_saturation,
         )
+
+    def _collective_range(self, ratio: list[float]) -> tuple[float, float]:
+        k_lo = -math.inf
+        k_hi = math.inf
+        for a, row in zip(ratio, self._rows, strict=True):
+            if -a > k_lo:
+                k_lo = -a
+            if row[4] - a < k_hi:
+                k_hi = row[4] - a
+        return k_lo, k_hi

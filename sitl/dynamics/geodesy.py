@@ -24,6 +24,7 @@ import math
 from collections.abc import Sequence
 
 from sitl.dynamics.plant import GeoPoint
+from sitl.mathutil import Vec3
 
 WGS84_A_M = 6378137.0
 WGS84_F = 1.0 / 298.257223563
@@ -39,8 +40,14 @@ class LocalFrame:
     __slots__ = ("_alt0", "_cos_lat0", "_cos_lon0", "_home", "_sin_lat0", "_sin_lon0", "_x0", "_y0", "_z0")
 
     def __init__(self, home: GeoPoint) -> None:
-        if not (-90.0 < home.lat_deg < 90.0) or not math.isfinite(home.lon_deg) or not math.isfinite(home.alt_amsl_m):
-            raise ValueError(f"home must have a latitude strictly between the poles and finite values: {home}")
+        if (
+            not (-90.0 < home.lat_deg < 90.0)
+            or not math.isfinite(home.lon_deg)
+            or not math.isfinite(home.alt_amsl_m)
+        ):
+            raise ValueError(
+                f"home must have a latitude strictly between the poles and finite values: {home}"
+            )
         self._home = home
         self._alt0 = home.alt_amsl_m
         lat0 = math.radians(home.lat_deg)
@@ -49,13 +56,17 @@ class LocalFrame:
         self._cos_lat0 = math.cos(lat0)
         self._sin_lon0 = math.sin(lon0)
         self._cos_lon0 = math.cos(lon0)
-        self._x0, self._y0, self._z0 = _ecef(self._sin_lat0, self._cos_lat0, self._sin_lon0, self._cos_lon0, self._alt0)
+        self._x0, self._y0, self._z0 = _ecef(
+            self._sin_lat0, self._cos_lat0, self._sin_lon0, self._cos_lon0, self._alt0
+        )
 
     @property
     def home(self) -> GeoPoint:
         return self._home
 
-    def ned_from_geodetic_rad(self, lat_rad: float, lon_rad: float, alt_m: float) -> tuple[float, float, float]:
+    def ned_from_geodetic_rad(
+        self, lat_rad: float, lon_rad: float, alt_m: float
+    ) -> tuple[float, float, float]:
         """NED metres of a geodetic position given in radians (the plant's per-step path)."""
         sin_lat = math.sin(lat_rad)
         cos_lat = math.cos(lat_rad)
@@ -69,15 +80,19 @@ class LocalFrame:
         return (north, east, self._alt0 - alt_m)
 
     def ned_from_geo(self, point: GeoPoint) -> tuple[float, float, float]:
-        return self.ned_from_geodetic_rad(math.radians(point.lat_deg), math.radians(point.lon_deg), point.alt_amsl_m)
+        return self.ned_from_geodetic_rad(
+            math.radians(point.lat_deg), math.radians(point.lon_deg), point.alt_amsl_m
+        )
 
-    def geo_from_ned(self, ned_m: Sequence[float]) -> GeoPoint:
+    def geo_from_ned(self, ned_m: Sequence[float] | Vec3) -> GeoPoint:
         north, east, down = float(ned_m[0]), float(ned_m[1]), float(ned_m[2])
         if not (math.isfinite(north) and math.isfinite(east) and math.isfinite(down)):
             raise ValueError(f"NED position must be finite, got {(north, east, down)}")
         lat0 = math.radians(self._home.lat_deg)
         lat = lat0 + north / (_meridian_radius(self._sin_lat0) + self._alt0)
-        lon = math.radians(self._home.lon_deg) + east / ((_normal_radius(self._sin_lat0) + self._alt0) * self._cos_lat0)
+        lon = math.radians(self._home.lon_deg) + east / (
+            (_normal_radius(self._sin_lat0) + self._alt0) * self._cos_lat0
+        )
         for _ in range(_INVERSE_MAX_ITERATIONS):
             n_est, e_est, _ = self.ned_from_geodetic_rad(lat, lon, self._alt0)
             dn = north - n_est
@@ -102,7 +117,9 @@ def _meridian_radius(sin_lat: float) -> float:
     return WGS84_A_M * (1.0 - WGS84_E2) / (w2 * math.sqrt(w2))
 
 
-def _ecef(sin_lat: float, cos_lat: float, sin_lon: float, cos_lon: float, alt_m: float) -> tuple[float, float, float]:
+def _ecef(
+    sin_lat: float, cos_lat: float, sin_lon: float, cos_lon: float, alt_m: float
+) -> tuple[float, float, float]:
     n = _normal_radius(sin_lat)
     r = (n + alt_m) * cos_lat
     return (r * cos_lon, r * sin_lon, (n * (1.0 - WGS84_E2) + alt_m) * sin_lat)
@@ -120,6 +137,6 @@ def ned_from_geo(point: GeoPoint, home: GeoPoint) -> tuple[float, float, float]:
     return LocalFrame(home).ned_from_geo(point)
 
 
-def geo_from_ned(ned_m: Sequence[float], home: GeoPoint) -> GeoPoint:
-    """Geodetic position of a NED offset from ``home``. Build a LocalFrame once instead when converting often."""
+def geo_from_ned(ned_m: Sequence[float] | Vec3, home: GeoPoint) -> GeoPoint:
+    """Geodetic position of a NED offset from ``home``. Build a LocalFrame once when converting often."""
     return LocalFrame(home).geo_from_ned(ned_m)

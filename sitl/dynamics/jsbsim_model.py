@@ -9,15 +9,17 @@ explicit factors below.
 What the generated model contains:
 
 - Mass and diagonal inertia, centre of gravity at the structural origin.
-- One ``STRUCTURE`` ground contact below each rotor at the gear height, spring and damping from the airframe
-  and isotropic Coulomb friction (JSBSim resolves static friction exactly, so a landed vehicle does not creep).
+- One ``STRUCTURE`` ground contact below each rotor at the gear height, spring and damping from the
+  airframe and isotropic Coulomb friction (JSBSim resolves static friction exactly, so a landed vehicle does
+  not creep), plus one at each motor so a vehicle that tips over rests on its arms.
 - A ``motors`` system: per rotor, the normalised command ``fcs/motor-cmd-norm[i]`` in [0, 1] is scaled to a
   rotor-speed command (0 to the maximum rotor speed) and passed through a first-order lag (the motor time
-  constant) to give ``fcs/rotor-speed-radps[i]``. There is no other flight control: the Python cascade is the only controller.
-- External reactions: each rotor's thrust ``k_t * omega^2`` along body -z at the rotor position (so roll and
-  pitch moments come from the geometry), the summed rotor drag torque ``spin_dir * k_q * omega^2`` about body z,
-  and quadratic airframe drag ``-c * v * |v|`` per body axis against the air-relative velocity, so wind pushes
-  the vehicle.
+  constant) to give ``fcs/rotor-speed-radps[i]``. There is no other flight control: the Python cascade is
+  the only controller.
+- External reactions: each rotor's thrust ``k_t * omega^2`` along body -z at the rotor position (so roll
+  and pitch moments come from the geometry), the summed rotor drag torque ``spin_dir * k_q * omega^2`` about
+  body z, and quadratic airframe drag ``-c * v * |v|`` per body axis against the air-relative velocity, so
+  wind pushes the vehicle.
 
 Gravity, the standard atmosphere and the rotating WGS84 Earth are JSBSim's defaults.
 
@@ -62,6 +64,11 @@ def rotor_speed_property(index: int) -> str:
 
 def contact_wow_property(index: int) -> str:
     return CONTACT_WOW_PROPERTY.format(index=index)
+
+
+def contact_count(airframe: Airframe) -> int:
+    """Ground contacts in the model: a skid below every rotor, then every motor itself."""
+    return 2 * len(airframe.rotors)
 
 
 def model_name(airframe: Airframe) -> str:
@@ -121,16 +128,26 @@ def _mass_balance(root: ET.Element, airframe: Airframe) -> None:
     _triplet(mass, "location", (0.0, 0.0, 0.0), name="CG", unit="M")
 
 
+def _contact(
+    ground: ET.Element, name: str, pos_frd_m: tuple[float, float, float], airframe: Airframe
+) -> None:
+    contact = _sub(ground, "contact", type="STRUCTURE", name=name)
+    _triplet(contact, "location", _structural_m(pos_frd_m), unit="M")
+    _sub(contact, "static_friction", _num(GROUND_STATIC_FRICTION))
+    _sub(contact, "dynamic_friction", _num(GROUND_DYNAMIC_FRICTION))
+    _sub(contact, "spring_coeff", _num(airframe.gear_spring_n_per_m), unit="N/M")
+    _sub(contact, "damping_coeff", _num(airframe.gear_damping_n_per_mps), unit="N/M/SEC")
+
+
 def _ground_reactions(root: ET.Element, airframe: Airframe) -> None:
     ground = _sub(root, "ground_reactions")
     for i, rotor in enumerate(airframe.rotors):
-        contact = _sub(ground, "contact", type="STRUCTURE", name=f"skid-{i}")
         x, y, _ = rotor.pos_frd_m
-        _triplet(contact, "location", _structural_m((x, y, airframe.gear_height_m)), unit="M")
-        _sub(contact, "static_friction", _num(GROUND_STATIC_FRICTION))
-        _sub(contact, "dynamic_friction", _num(GROUND_DYNAMIC_FRICTION))
-        _sub(contact, "spring_coeff", _num(airframe.gear_spring_n_per_m), unit="N/M")
-        _sub(contact, "damping_coeff", _num(airframe.gear_damping_n_per_mps), unit="N/M/SEC")
+        _contact(ground, f"skid-{i}", (x, y, airframe.gear_height_m), airframe)
+    # The motors are the other hard points: a vehicle that tips over or lands inverted rests on them instead
+    # of sinking its centre of gravity into the ground.
+    for i, rotor in enumerate(airframe.rotors):
+        _contact(ground, f"motor-{i}", rotor.pos_frd_m, airframe)
 
 
 def _motors_system(root: ET.Element, airframe: Airframe) -> None:
@@ -140,8 +157,8 @@ def _motors_system(root: ET.Element, airframe: Airframe) -> None:
         _sub(system, "property", rotor_speed_property(i), value="0")
     # Exact discretisation of d(omega)/dt = (omega_cmd - omega) / tau over one step of length dt:
     # omega += (1 - exp(-dt / tau)) * (omega_cmd - omega). It reaches 63.2 % of a step in one time constant
-    # whatever the step, and its state is the rotor-speed property itself, so a plant can start with the rotors
-    # spinning by writing that property (unlike JSBSim's lag_filter, which restarts from zero on run_ic). While
+    # whatever the step, and its state is the rotor-speed property itself, so a plant can start with the
+    # rotors spinning by writing that property (JSBSim's lag_filter restarts from zero on run_ic). While
     # JSBSim initialises, simulation/dt is 0 and the speed does not move.
     lag = _sub(_sub(system, "channel", name="motor-lag"), "fcs_function", name="motor-lag-blend")
     blend = _sub(_sub(lag, "function"), "difference")

@@ -117,10 +117,22 @@ class Gps:
         cfg = self._cfg
         if truth.time_s < cfg.gps_time_to_fix_s:
             nan3 = vec3(math.nan, math.nan, math.nan)
-            return GpsSample(time_s=truth.time_s, fix_type=1, satellites=3, lat_deg=math.nan, lon_deg=math.nan,
-                             alt_amsl_m=math.nan, pos_ned_m=nan3, vel_ned_mps=nan3, eph_m=99.0, epv_m=99.0)
+            return GpsSample(
+                time_s=truth.time_s,
+                fix_type=1,
+                satellites=3,
+                lat_deg=math.nan,
+                lon_deg=math.nan,
+                alt_amsl_m=math.nan,
+                pos_ned_m=nan3,
+                vel_ned_mps=nan3,
+                eph_m=99.0,
+                epv_m=99.0,
+            )
         n_pos, n_vel, n_drift = self._noise.vec3(), self._noise.vec3(), self._noise.vec3()
-        self._drift_ne_m = self._alpha * self._drift_ne_m + math.sqrt(1 - self._alpha**2) * cfg.gps_pos_drift_h_m * n_drift[:2]
+        self._drift_ne_m = (
+            self._alpha * self._drift_ne_m + math.sqrt(1 - self._alpha**2) * cfg.gps_pos_drift_h_m * n_drift[:2]
+        )
         err_ned = vec3(
             self._drift_ne_m[0] + cfg.gps_pos_noise_h_m * n_pos[0],
             self._drift_ne_m[1] + cfg.gps_pos_noise_h_m * n_pos[1],

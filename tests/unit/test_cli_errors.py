@@ -39,7 +39,10 @@ def test_unknown_airframe_names_the_file() -> None:
         (lambda text: text.replace('spin = "cw"', 'spin = "sideways"', 1), "spin"),
         (lambda text: text.replace("[rotor]", "[rotor"), "not valid TOML"),
         (lambda text: text.replace("max_speed_radps = 1100.0", "max_speed_radps = 300.0"), "cannot lift"),
-        (lambda text: text.replace("inertia_diag_kg_m2 = [", "inertia_diag_kg_m2 = [1, "), "inertia_diag_kg_m2"),
+        (
+            lambda text: text.replace("inertia_diag_kg_m2 = [", "inertia_diag_kg_m2 = [1, "),
+            "inertia_diag_kg_m2",
+        ),
     ],
 )
 def test_malformed_airframe_file_names_file_and_problem(tmp_path: Path, mutate, expected: str) -> None:  # type: ignore[no-untyped-def]

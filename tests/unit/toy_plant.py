@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -33,8 +35,8 @@ class ToyState:
 
 
 def _quat_derivative(q: np.ndarray, w: np.ndarray) -> np.ndarray:
-    qw, qx, qy, qz = q
-    wx, wy, wz = w
+    qw, qx, qy, qz = q.tolist()
+    wx, wy, wz = w.tolist()
     return 0.5 * np.array(
         (
             -qx * wx - qy * wy - qz * wz,
@@ -59,7 +61,9 @@ class ToyPlant:
         self.dt_s = dt_s
         self.mass_kg = airframe.mass_kg * mass_scale  # a scale != 1 models an unknown payload
         self.inertia = np.array(airframe.inertia_diag_kg_m2)
-        self.rotor_pos = np.array([r.pos_frd_m for r in airframe.rotors])
+        rotor_pos = np.array([r.pos_frd_m for r in airframe.rotors])
+        # Torque (N m, FRD) per newton of each rotor's thrust, which acts along -z at the rotor: r x (0, 0, -1).
+        self._torque_per_thrust = np.cross(rotor_pos, np.array((0.0, 0.0, -1.0))).T
         self.spin = np.array([float(r.spin_dir) for r in airframe.rotors])
         self.drag = np.array(airframe.drag_coeff_frd_n_per_mps2)
         self.time_s = 0.0
@@ -67,7 +71,9 @@ class ToyPlant:
         self.vel = np.zeros(3)
         self.q = quat_from_euler(0.0, 0.0, yaw_rad)
         self.rates = np.zeros(3)
-        hover_speed = math.sqrt(self.mass_kg * GRAVITY_MPS2 / len(airframe.rotors) / airframe.thrust_coeff_n_per_radps2)
+        hover_speed = math.sqrt(
+            self.mass_kg * GRAVITY_MPS2 / len(airframe.rotors) / airframe.thrust_coeff_n_per_radps2
+        )
         airborne = pos_ned_m[2] < 0.0
         self.rotor_speeds = np.full(len(airframe.rotors), hover_speed if airborne else 0.0)
         self.wind_ned_mps = np.zeros(3)
@@ -83,19 +89,18 @@ class ToyPlant:
         )
 
     def _derivative(
-        self, vel: np.ndarray, q: np.ndarray, rates: np.ndarray, thrusts: np.ndarray, rotor_yaw_nm: float
+        self, vel: np.ndarray, q: np.ndarray, rates: np.ndarray, thrust_n: float, torque_nm: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        dcm = quat_to_dcm(q / np.linalg.norm(q))
+        dcm = quat_to_dcm((q / np.linalg.norm(q)).tolist())
         air_body = dcm.T @ (vel - self.wind_ned_mps)
         force_body = -self.drag * air_body * np.abs(air_body)
-        force_body[2] -= thrusts.sum()
+        force_body[2] -= thrust_n
         acc = dcm @ force_body / self.mass_kg
         acc[2] += GRAVITY_MPS2
-        rotor_forces = np.zeros((len(thrusts), 3))
-        rotor_forces[:, 2] = -thrusts
-        torque = np.cross(self.rotor_pos, rotor_forces).sum(axis=0)
-        torque[2] += rotor_yaw_nm
-        rate_dot = (torque - np.cross(rates, self.inertia * rates)) / self.inertia
+        wx, wy, wz = rates.tolist()
+        jx, jy, jz = self.airframe.inertia_diag_kg_m2
+        gyroscopic = np.array(((jz - jy) * wy * wz, (jx - jz) * wz * wx, (jy - jx) * wx * wy))
+        rate_dot = (torque_nm - gyroscopic) / self.inertia
         return vel, acc, _quat_derivative(q, rates), rate_dot
 
     def step(self, motor_cmds: tuple[float, ...] | list[float]) -> ToyState:
@@ -104,14 +109,20 @@ class ToyPlant:
         self.rotor_speeds += self._motor_alpha * (cmds * af.motor_max_speed_radps - self.rotor_speeds)
         speed_sq = self.rotor_speeds**2
         thrusts = af.thrust_coeff_n_per_radps2 * speed_sq
-        rotor_yaw = float(np.dot(self.spin, speed_sq)) * af.torque_coeff_nm_per_radps2
+        torque = self._torque_per_thrust @ thrusts
+        torque[2] += float(np.dot(self.spin, speed_sq)) * af.torque_coeff_nm_per_radps2
+        total = float(thrusts.sum())
 
         dt = self.dt_s
         p0, v0, q0, w0 = self.pos, self.vel, self.q, self.rates
-        k1 = self._derivative(v0, q0, w0, thrusts, rotor_yaw)
-        k2 = self._derivative(v0 + 0.5 * dt * k1[1], q0 + 0.5 * dt * k1[2], w0 + 0.5 * dt * k1[3], thrusts, rotor_yaw)
-        k3 = self._derivative(v0 + 0.5 * dt * k2[1], q0 + 0.5 * dt * k2[2], w0 + 0.5 * dt * k2[3], thrusts, rotor_yaw)
-        k4 = self._derivative(v0 + dt * k3[1], q0 + dt * k3[2], w0 + dt * k3[3], thrusts, rotor_yaw)
+        k1 = self._derivative(v0, q0, w0, total, torque)
+        k2 = self._derivative(
+            v0 + 0.5 * dt * k1[1], q0 + 0.5 * dt * k1[2], w0 + 0.5 * dt * k1[3], total, torque
+        )
+        k3 = self._derivative(
+            v0 + 0.5 * dt * k2[1], q0 + 0.5 * dt * k2[2], w0 + 0.5 * dt * k2[3], total, torque
+        )
+        k4 = self._derivative(v0 + dt * k3[1], q0 + dt * k3[2], w0 + dt * k3[3], total, torque)
         self.pos = p0 + dt / 6.0 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
         self.vel = v0 + dt / 6.0 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
         q = q0 + dt / 6.0 * (k1[2] + 2 * k2[2] + 2 * k3[2] + k4[2])
@@ -175,3 +186,72 @@ class NoisyEstimate:
         if len(self._queue) > self.delay_steps:
             return self._queue.popleft()
         return self._queue[0]
+
+
+@dataclass
+class GustyWind:
+    """Steady wind plus first-order Gauss-Markov gusts (seeded), sampled once per control step."""
+
+    mean_ned_mps: tuple[float, float, float]
+    gust_sigma_mps: float = 1.5
+    gust_time_constant_s: float = 2.0
+    seed: int = 0
+    _rng: np.random.Generator = field(init=False)
+    _gust: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        self._rng = np.random.default_rng(self.seed)
+        self._gust = np.zeros(3)
+
+    def sample(self, dt_s: float) -> np.ndarray:
+        tau = self.gust_time_constant_s
+        decay = math.exp(-dt_s / tau)
+        spread = self.gust_sigma_mps * math.sqrt(1.0 - decay * decay)
+        self._gust = decay * self._gust + spread * self._rng.normal(0.0, 1.0, 3)
+        return np.array(self.mean_ned_mps) + self._gust * np.array((1.0, 1.0, 0.3))
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Flight:
+    """What a closed-loop run recorded, one row per control step."""
+
+    time_s: np.ndarray
+    pos_ned_m: np.ndarray  # (n, 3), true
+    tilt_rad: np.ndarray
+    yaw_rad: np.ndarray  # unwrapped
+    motor_cmds: np.ndarray  # (n, rotors)
+
+
+def fly(
+    cascade: Any,
+    plant: ToyPlant,
+    setpoint_at: Callable[[float], Any],
+    duration_s: float,
+    *,
+    estimate: Callable[[ToyState], ToyState] | None = None,
+    wind: GustyWind | None = None,
+) -> Flight:
+    """Close the loop: estimate -> cascade.update -> plant.step, at the plant's rate."""
+    steps = round(duration_s / plant.dt_s)
+    pos = np.empty((steps, 3))
+    tilt = np.empty(steps)
+    yaw = np.empty(steps)
+    cmds = np.empty((steps, len(plant.airframe.rotors)))
+    state = plant.truth()
+    for i in range(steps):
+        if wind is not None:
+            plant.wind_ned_mps = wind.sample(plant.dt_s)
+        seen = estimate(state) if estimate is not None else state
+        out = cascade.update(seen, setpoint_at(state.time_s), plant.dt_s)
+        state = plant.step(out.motor_cmds)
+        pos[i] = state.pos_ned_m
+        tilt[i] = plant.tilt_rad
+        yaw[i] = quat_to_euler(plant.q)[2]
+        cmds[i] = out.motor_cmds
+    return Flight(
+        time_s=(np.arange(steps) + 1) * plant.dt_s,
+        pos_ned_m=pos,
+        tilt_rad=tilt,
+        yaw_rad=np.unwrap(yaw),
+        motor_cmds=cmds,
+    )
