@@ -30,13 +30,14 @@ _G_NED = vec3(0.0, 0.0, GRAVITY_MPS2)
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class EstimatorConfig:
-    att_kp_acc: float = 0.4  # rad/s per unit of gravity-direction error
+    att_kp_acc: float = 0.15  # rad/s per unit of gravity-direction error
     att_kp_mag: float = 0.3  # rad/s per rad of heading error
     att_ki: float = 0.02  # gyro bias learning rate
     tau_xy_s: float = 0.8
     tau_z_s: float = 0.6
     gps_vel_gain: float = 0.35  # fraction of GPS velocity innovation applied per fix
-    acc_lpf_tau_s: float = 0.15  # low-pass on the GPS-derived acceleration used for tilt compensation
+    acc_lpf_tau_s: float = 0.05  # low-pass on the GPS-derived acceleration used for tilt compensation
+    acc_gate_mps2: float = 1.0  # gravity correction weight halves at this manoeuvring acceleration
     converge_s: float = 1.0  # attitude settling time after the first heading measurement
     gps_converge_s: float = 2.5  # position settling after the first fix (~3 tau_xy): before it, not valid
 
@@ -106,7 +107,10 @@ class Estimator:
         f_pred = r.T @ f_pred_ned
         n_meas, n_pred = np.linalg.norm(accel), np.linalg.norm(f_pred)
         if n_meas > 1e-3 and n_pred > 1e-3:
-            correction += cfg.att_kp_acc * np.cross(accel / n_meas, f_pred / n_pred)
+            # The compensation lags the true acceleration (10 Hz GPS), so trust gravity less while manoeuvring.
+            acc = self._acc_ned_lpf
+            weight = 1.0 / (1.0 + (acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2]) / cfg.acc_gate_mps2**2)
+            correction += cfg.att_kp_acc * weight * np.cross(accel / n_meas, f_pred / n_pred)
         if mag is not None:
             m_ned = r @ mag
             heading_err = math.atan2(m_ned[1], m_ned[0]) - math.atan2(self._mag_ref_ned[1], self._mag_ref_ned[0])

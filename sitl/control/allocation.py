@@ -5,15 +5,17 @@ thrust (N)]: a rotor at (x_i, y_i) pushing up (-z) gives roll -y_i T_i and pitch
 spin_dir_i (k_q / k_t) T_i about +z, and the thrusts add up. It is computed from the airframe file, never
 typed in, and inverted once with a pseudo-inverse (exact for a quad, least-squares for more rotors).
 
-Rotors only push, and only so hard, so a demand may not fit in [0, T_max] per rotor. Priorities, as a
-multicopter needs them to stay upright:
-  (a) roll/pitch alone wider than the rotors' range -> scale roll and pitch down together (keeps the axis of
-      the correction);
-  (b) shift the collective (along the pseudo-inverse's thrust column, which changes no torque) to the value
-      nearest the demand at which roll/pitch fit;
-  (c) add yaw with the largest factor in [0, 1] that still fits.
-The result reports which torque axes were cut and in which direction, which the rate controller uses to stop
-its integrator winding up against a limit it cannot push.
+Rotors only push, and only so hard, so a demand may not fit in [0, T_max] per rotor. A demand that fits is
+reproduced exactly. Otherwise, priorities as a multicopter needs them to stay upright:
+  (a) roll/pitch that fit with no yaw share at all (judged alone, as PX4 does) are scaled down together,
+      which keeps the axis of the correction;
+  (b) the collective moves (along the pseudo-inverse's thrust column, which changes no torque) to the value
+      nearest the demand at which roll/pitch fit with some share of the yaw demand;
+  (c) yaw gets the largest share in [0, 1] that fits at that collective.
+(b) and (c) form a two-variable linear programme (collective k, yaw share g) with one pair of bounds per
+rotor, solved exactly, so the output moves continuously with the demand (no motor-command jumps when a limit
+is reached). The result reports which torque axes were cut and in which direction, which the rate controller
+uses to stop its integrator winding up against a limit.
 
 Motor commands are ``u = sqrt(T / T_max)``: the flight model commands rotor speed ``u * omega_max`` and thrust
 goes with speed squared.
@@ -30,6 +32,10 @@ from sitl.airframe import Airframe
 from sitl.control import Vec3f
 
 Bool3 = tuple[bool, bool, bool]
+
+# Rounding slack (N, in collective units) when testing whether a demand fits: bounds are compared in thrust
+# units, never after dividing by a possibly tiny yaw coefficient.
+_TOL = 1e-9
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -48,10 +54,70 @@ def effectiveness_matrix(airframe: Airframe) -> np.ndarray:
     """B (4 x n): rotor thrusts (N) -> [roll, pitch, yaw torque (N m, FRD), collective thrust (N)]."""
     yaw_per_thrust_m = airframe.torque_coeff_nm_per_radps2 / airframe.thrust_coeff_n_per_radps2
     columns = [
-        (-rotor.pos_frd_m[1], rotor.pos_frd_m[0], rotor.spin_dir * yaw_per_thrust_m, 1.0)
-        for rotor in airframe.rotors
+        (-rotor.pos_frd_m[1], rotor.pos_frd_m[0], rotor.spin_dir * yaw_per_thrust_m, 1.0) for rotor in airframe.rotors
     ]
     return np.array(columns, dtype=np.float64).T
+
+
+# In the helpers below, rotor i must satisfy lo_i <= k + g * yaw_i <= hi_i: k the collective, g the yaw share.
+
+
+def _shares_at(lo: list[float], hi: list[float], yaw: list[float], k: float) -> tuple[float, float]:
+    """Interval of yaw shares in [0, 1] that fit at collective k (empty when first > second)."""
+    g_lo = 0.0
+    g_hi = 1.0
+    for lo_i, hi_i, y in zip(lo, hi, yaw, strict=True):
+        if y > 0.0:
+            bound_lo = (lo_i - _TOL - k) / y
+            bound_hi = (hi_i + _TOL - k) / y
+        elif y < 0.0:
+            bound_lo = (hi_i + _TOL - k) / y
+            bound_hi = (lo_i - _TOL - k) / y
+        elif lo_i - _TOL <= k <= hi_i + _TOL:
+            continue
+        else:
+            return 1.0, 0.0
+        if bound_lo > g_lo:
+            g_lo = bound_lo
+        if bound_hi < g_hi:
+            g_hi = bound_hi
+    return g_lo, g_hi
+
+
+def _feasible_shares(lo: list[float], hi: list[float], yaw: list[float]) -> tuple[float, float]:
+    """Interval of yaw shares in [0, 1] that fit at some collective: g (yaw_j - yaw_i) <= hi_j - lo_i."""
+    g_start = 0.0
+    g_end = 1.0
+    for lo_i, y_i in zip(lo, yaw, strict=True):
+        for hi_j, y_j in zip(hi, yaw, strict=True):
+            room = hi_j - lo_i + _TOL
+            slope = y_j - y_i
+            if slope > 0.0:
+                if room < g_end * slope:
+                    g_end = room / slope
+            elif slope < 0.0:
+                if room < g_start * slope:  # i.e. room / slope > g_start, slope being negative
+                    g_start = room / slope
+            elif room < 0.0:
+                return 1.0, 0.0
+    return g_start, g_end
+
+
+def _max_collective(hi: list[float], yaw: list[float], g_start: float, g_end: float) -> float:
+    """Largest k that fits with some share in [g_start, g_end]: the maximum of min_i(hi_i - g * yaw_i).
+
+    That function is concave and piecewise linear in g, so its maximum is at an end of the interval or where a
+    falling bound (yaw_i > 0) crosses a rising one (yaw_j < 0).
+    """
+    candidates = [g_start, g_end]
+    for hi_i, y_i in zip(hi, yaw, strict=True):
+        if y_i > 0.0:
+            for hi_j, y_j in zip(hi, yaw, strict=True):
+                if y_j < 0.0:
+                    g = (hi_i - hi_j) / (y_i - y_j)
+                    if g_start < g < g_end:
+                        candidates.append(g)
+    return max(min(h - g * y for h, y in zip(hi, yaw, strict=True)) for g in candidates)
 
 
 class ControlAllocator:
@@ -60,18 +126,16 @@ class ControlAllocator:
     def __init__(self, airframe: Airframe) -> None:
         self.effectiveness = effectiveness_matrix(airframe)
         if np.linalg.matrix_rank(self.effectiveness) < 4:
-            raise ValueError(
-                f"airframe {airframe.name}: rotor layout cannot control roll, pitch, yaw and thrust"
-            )
+            raise ValueError(f"airframe {airframe.name}: rotor layout cannot control roll, pitch, yaw and thrust")
         mix = np.linalg.pinv(self.effectiveness)  # n x 4: columns roll, pitch, yaw, collective
         self.rotor_count = len(airframe.rotors)
         self.thrust_max_n = airframe.max_thrust_per_rotor_n
         if mix[:, 3].min() <= 0.0:
             raise ValueError(f"airframe {airframe.name}: some rotor does not add to the collective thrust")
-        # Per rotor i, everything measured in units of its collective share c_i: roll and pitch coefficients
-        # divided by c_i, the yaw coefficient, c_i, and T_max / c_i (the most collective this rotor allows).
+        # Per rotor i, everything in units of its collective share c_i (so that a collective k adds k to every
+        # rotor): roll, pitch and yaw coefficients divided by c_i, c_i itself, and T_max / c_i.
         self._rows: tuple[tuple[float, float, float, float, float], ...] = tuple(
-            (r / c, p / c, y, c, self.thrust_max_n / c) for r, p, y, c in mix.tolist()
+            (r / c, p / c, y / c, c, self.thrust_max_n / c) for r, p, y, c in mix.tolist()
         )
 
     @property
@@ -87,61 +151,68 @@ class ControlAllocator:
         return float(out[0]), float(out[1]), float(out[2]), float(out[3])
 
     def allocate(self, torque_frd_nm: Vec3f, thrust_n: float) -> AllocationResult:
+        """Rotor commands for a torque (N m, FRD) and collective thrust (N) demand, saturating by priority."""
         t_max = self.thrust_max_n
         roll_t, pitch_t, yaw_t = torque_frd_nm
         rows = self._rows
 
-        # Roll/pitch part of rotor i in collective units, a_i = rp_i / c_i: a collective k fits roll/pitch iff
-        # max(-a_i) <= k <= min(T_max / c_i - a_i).
-        ratio = [r * roll_t + p * pitch_t for r, p, _, _, _ in rows]
-        k_lo, k_hi = self._collective_range(ratio)
-        rp_scale = 1.0
-        if k_lo > k_hi:
-            # (a) Scale roll/pitch by the largest s with s (a_j - a_i) <= T_max / c_j for every pair i, j.
-            for a_j, row_j in zip(ratio, rows, strict=True):
-                for a_i in ratio:
-                    if a_j > a_i:
-                        rp_scale = min(rp_scale, row_j[4] / (a_j - a_i))
-            ratio = [a * rp_scale for a in ratio]
-            k_lo, k_hi = self._collective_range(ratio)
-            k_hi = max(k_hi, k_lo)  # rounding
-        # (b) Collective nearest to the demand that keeps roll/pitch inside the rotor range.
+        # Rotor i takes c_i * (rp_i + k + g * yaw_i): rp_i and yaw_i are its roll/pitch and yaw parts in
+        # collective units, k the collective, g the yaw share. Staying inside [0, T_max] means
+        # lo_i = -rp_i <= k + g * yaw_i <= T_max / c_i - rp_i = hi_i.
+        rp = [r * roll_t + p * pitch_t for r, p, _, _, _ in rows]
+        yaw = [row[2] * yaw_t for row in rows]
+        lo = [-a for a in rp]
+        hi = [row[4] - a for a, row in zip(rp, rows, strict=True)]
         collective = thrust_n
+        rp_scale = 1.0
         thrust_saturation = 0
-        if collective < k_lo:
-            collective = k_lo
-            thrust_saturation = -1
-        elif collective > k_hi:
-            collective = k_hi
-            thrust_saturation = 1
-        # (c) Yaw: the largest share in [0, 1] that keeps every rotor inside [0, T_max].
-        base = []
-        yaw_scale = 1.0
-        for a, (_, _, y_coef, c, _) in zip(ratio, rows, strict=True):
-            b = (a + collective) * c
-            base.append(b)
-            y = y_coef * yaw_t
-            if y > 0.0:
-                room = (t_max - b) / y
-            elif y < 0.0:
-                room = -b / y
-            else:
-                continue
-            if room < yaw_scale:
-                yaw_scale = room
-        if yaw_scale < 0.0:
-            yaw_scale = 0.0
+        # The common case first: everything fits as demanded.
+        fits = True
+        for lo_i, hi_i, y in zip(lo, hi, yaw, strict=True):
+            if not lo_i - _TOL <= collective + y <= hi_i + _TOL:
+                fits = False
+                break
+        if fits:
+            yaw_share = 1.0
+        else:
+            # The demanded collective with a reduced yaw share (roll/pitch then fit too)?
+            g_lo, g_hi = _shares_at(lo, hi, yaw, collective)
+            if g_lo > g_hi:
+                g_start, g_end = _feasible_shares(lo, hi, yaw)
+                if g_start > g_end:
+                    # (a) Scale roll/pitch by the largest s with s * (rp_j - rp_i) <= T_max / c_j for all i, j.
+                    for a_j, row_j in zip(rp, rows, strict=True):
+                        for a_i in rp:
+                            if a_j > a_i:
+                                rp_scale = min(rp_scale, row_j[4] / (a_j - a_i))
+                    rp = [a * rp_scale for a in rp]
+                    lo = [-a for a in rp]
+                    hi = [row[4] - a for a, row in zip(rp, rows, strict=True)]
+                    g_start, g_end = 0.0, max(0.0, _feasible_shares(lo, hi, yaw)[1])
+                # (b) The collective nearest to the demand at which roll/pitch fit with some yaw share.
+                g_lo, g_hi = _shares_at(lo, hi, yaw, collective)
+                if g_lo > g_hi:
+                    if collective > min(h - g_start * y for h, y in zip(hi, yaw, strict=True)):
+                        collective = _max_collective(hi, yaw, g_start, g_end)
+                        thrust_saturation = 1
+                    else:  # the mirror image: the smallest collective, via negated bounds
+                        neg_lo = [-v for v in lo]
+                        collective = -_max_collective(neg_lo, [-y for y in yaw], g_start, g_end)
+                        thrust_saturation = -1
+                    g_hi = _shares_at(lo, hi, yaw, collective)[1]
+            # (c) The largest yaw share at that collective.
+            yaw_share = min(max(g_hi, 0.0), 1.0)
+
         thrusts = []
         cmds = []
-        yaw_part = yaw_scale * yaw_t
-        for b, row in zip(base, rows, strict=True):
-            t = b + yaw_part * row[2]
+        for a, y, row in zip(rp, yaw, rows, strict=True):
+            t = row[3] * (a + collective + yaw_share * y)
             t = 0.0 if t < 0.0 else (t_max if t > t_max else t)
             thrusts.append(t)
             cmds.append(math.sqrt(t / t_max))
 
-        rp_cut = rp_scale < 1.0
-        yaw_cut = yaw_scale < 1.0
+        rp_cut = rp_scale < 1.0 - _TOL
+        yaw_cut = yaw_share < 1.0 - _TOL
         return AllocationResult(
             motor_cmds=tuple(cmds),
             rotor_thrusts_n=tuple(thrusts),
@@ -149,13 +220,3 @@ class ControlAllocator:
             saturated_neg=(rp_cut and roll_t < 0.0, rp_cut and pitch_t < 0.0, yaw_cut and yaw_t < 0.0),
             thrust_saturation=thrust_saturation,
         )
-
-    def _collective_range(self, ratio: list[float]) -> tuple[float, float]:
-        k_lo = -math.inf
-        k_hi = math.inf
-        for a, row in zip(ratio, self._rows, strict=True):
-            if -a > k_lo:
-                k_lo = -a
-            if row[4] - a < k_hi:
-                k_hi = row[4] - a
-        return k_lo, k_hi

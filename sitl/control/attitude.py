@@ -4,12 +4,16 @@ Two PX4 pieces, in plain float arithmetic:
 
 - ``thrust_to_attitude`` is ``ControlMath::bodyzToAttitude``: the body z axis points against the thrust vector
   and the nose is turned towards the yaw setpoint as far as the tilt allows.
-- ``AttitudeController`` is ``AttitudeControl::update`` (Brescianini, Hehn, D'Andrea 2013, "Nonlinear
+- ``AttitudeController`` follows ``AttitudeControl::update`` (Brescianini, Hehn, D'Andrea 2013, "Nonlinear
   quadrocopter attitude control"): the error is split into a reduced attitude (the tilt that aligns the thrust
-  axis) and the remaining yaw, and only a fraction ``MC_YAW_WEIGHT`` of the yaw error is used, so that a large
+  axis) and the remaining heading error, of which only a share ``MC_YAW_WEIGHT`` is used, so that a large
   heading change never steals the roll/pitch authority that keeps the vehicle in the air (yaw is the weakest
   axis of a multirotor). The yaw gain is divided by the weight so the small-error yaw response is still
-  ``MC_YAW_P``.
+  ``MC_YAW_P``. One deliberate difference: PX4 multiplies the tilt and the weighted heading rotations into one
+  error quaternion, whose cross term turns the tilt correction about the thrust axis by half the weighted
+  heading error; with a 5 m step flown together with a 180 degree heading change that swung the true tilt 5
+  degrees past MPC_TILTMAX_AIR on the toy plant. Here the tilt error drives roll/pitch rates and the heading
+  error drives the yaw rate, separately, which keeps the tilt correction on the shortest path.
 
 Quaternions are (w, x, y, z) tuples rotating FRD body vectors into NED.
 """
@@ -162,27 +166,28 @@ class AttitudeController:
         ez_d = (2.0 * (dx * dz + dw * dy), 2.0 * (dy * dz - dw * dx), 1.0 - 2.0 * (dx * dx + dy * dy))
 
         # Reduced setpoint: the current attitude tilted (in the world frame) so that its thrust axis matches.
-        # When the thrust axes are exactly opposed, full attitude control gives no yaw input anyway.
-        red = _quat_between(ez, ez_d)
-        opposed = abs(red[1]) > 1.0 - 1e-5 or abs(red[2]) > 1.0 - 1e-5
-        red = att_sp_q if opposed else quat_mul(red, att_q)
-
-        # Blend in a fraction of the remaining yaw rotation between reduced and full setpoint.
-        mw, _, _, mz = _conj_mul(red, att_sp_q)
-        if mw < 0.0:
-            mw, mz = -mw, -mz
-        mw = min(1.0, max(-1.0, mw))
-        mz = min(1.0, max(-1.0, mz))
+        tilt = _quat_between(ez, ez_d)
         weight = cfg.yaw_weight
-        target = quat_mul(red, (math.cos(weight * math.acos(mw)), 0.0, 0.0, math.sin(weight * math.asin(mz))))
-
-        # Error rotation from the current attitude to the target, as 2 * sin(angle/2) * axis (antipode-safe).
-        ew, ex, ey, ez_ = _conj_mul(att_q, target)
-        sign = 2.0 if ew >= 0.0 else -2.0
         yaw_gain = cfg.yaw_p_per_s / weight if weight > 1e-4 else cfg.yaw_p_per_s
-        rate_x = sign * ex * cfg.roll_p_per_s
-        rate_y = sign * ey * cfg.pitch_p_per_s
-        rate_z = sign * ez_ * yaw_gain
+        if abs(tilt[1]) > 1.0 - 1e-5 or abs(tilt[2]) > 1.0 - 1e-5:
+            # Thrust axes exactly opposed: no preferred tilt axis, so steer by the full attitude error.
+            ew, ex, ey, ez_ = _conj_mul(att_q, att_sp_q)
+            sign = 2.0 if ew >= 0.0 else -2.0
+            rate_x = sign * ex * cfg.roll_p_per_s
+            rate_y = sign * ey * cfg.pitch_p_per_s
+            rate_z = sign * ez_ * cfg.yaw_p_per_s
+        else:
+            reduced = quat_mul(tilt, att_q)
+            # Tilt error in the body frame (its axis lies in the body x-y plane), as 2 sin(angle / 2) * axis.
+            _, ex, ey, _ = _conj_mul(att_q, reduced)
+            rate_x = 2.0 * ex * cfg.roll_p_per_s
+            rate_y = 2.0 * ey * cfg.pitch_p_per_s
+            # Remaining heading error about the thrust axis, of which only the weighted share is used.
+            mw, _, _, mz = _conj_mul(reduced, att_sp_q)
+            if mw < 0.0:
+                mz = -mz
+            mz = min(1.0, max(-1.0, mz))
+            rate_z = 2.0 * math.sin(weight * math.asin(mz)) * yaw_gain
 
         if yawspeed_ff_radps == yawspeed_ff_radps:
             # NED down axis seen from the body: third row of the body->NED rotation matrix.

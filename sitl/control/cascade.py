@@ -194,7 +194,9 @@ class Cascade:
             att_sp_q = (att_q[0], att_q[1], att_q[2], att_q[3])
             rates_sp: Vec3f | None = setpoint.rates_sp_frd_radps
         else:
-            att_sp_q = setpoint.att_q
+            w, x, y, z = setpoint.att_q
+            norm = math.sqrt(w * w + x * x + y * y + z * z)  # as received: not necessarily unit length
+            att_sp_q = (w / norm, x / norm, y / norm, z / norm)
             rates_sp = None
         w, x, y, z = att_sp_q
         # The thrust vector this attitude and collective produce, for telemetry.

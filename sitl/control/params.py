@@ -35,7 +35,9 @@ CONTROL_PARAMS: tuple[ParamDef, ...] = (
     _p("MPC_XY_VEL_MAX", 12.0, 0.5, 20.0, "m/s", "Maximum horizontal velocity setpoint (limits the vector)"),
     _p("MPC_Z_VEL_MAX_UP", 3.0, 0.5, 8.0, "m/s", "Maximum climb rate setpoint"),
     _p("MPC_Z_VEL_MAX_DN", 1.5, 0.5, 4.0, "m/s", "Maximum descent rate setpoint"),
-    # Velocity loop (acceleration units, as PX4).
+    # Velocity loop (acceleration units, as PX4). The horizontal P is above PX4's 1.8 because offboard and goto
+    # position setpoints reach this loop as raw steps: on the toy plant 1.8 overshoots a 5 m step by 13 %, 3.0 by
+    # under 1 % and settles in 2.1 s instead of 3.9 s.
     _p("MPC_XY_VEL_P_ACC", 3.0, 1.2, 5.0, "1/s", "Horizontal velocity P gain: m/s^2 per m/s of error"),
     _p("MPC_XY_VEL_I_ACC", 0.4, 0.0, 60.0, "1/s^2", "Horizontal velocity I gain: m/s^2 per m/s per second"),
     _p("MPC_XY_VEL_D_ACC", 0.2, 0.0, 2.0, "", "Horizontal velocity D gain on measured acceleration"),
@@ -54,6 +56,8 @@ CONTROL_PARAMS: tuple[ParamDef, ...] = (
     _p("MC_YAW_WEIGHT", 0.4, 0.0, 1.0, "", "Share of the yaw error used beside roll/pitch (priority)"),
     _p("MC_ROLLRATE_MAX", 220.0, 0.0, 1800.0, "deg/s", "Maximum roll rate setpoint"),
     _p("MC_PITCHRATE_MAX", 220.0, 0.0, 1800.0, "deg/s", "Maximum pitch rate setpoint"),
+    # Below PX4's 200 deg/s: an F450 has about 4 rad/s^2 of yaw authority at hover, too little to stop a
+    # 200 deg/s turn on the attitude loop's approach (a 180 degree heading step overshot by 20 degrees).
     _p("MC_YAWRATE_MAX", 120.0, 0.0, 1800.0, "deg/s", "Maximum yaw rate setpoint"),
     # Rate loop (physical units).
     _p("MC_ROLLRATE_P", 25.0, 0.0, 100.0, "1/s", "Roll rate P gain." + _RATE_UNITS),
@@ -68,9 +72,7 @@ CONTROL_PARAMS: tuple[ParamDef, ...] = (
     _p("MC_RR_INT_LIM", 30.0, 0.0, 500.0, "rad/s^2", "Roll rate integrator limit (angular acceleration)"),
     _p("MC_PR_INT_LIM", 30.0, 0.0, 500.0, "rad/s^2", "Pitch rate integrator limit (angular acceleration)"),
     _p("MC_YR_INT_LIM", 5.0, 0.0, 500.0, "rad/s^2", "Yaw rate integrator limit (angular acceleration)"),
-    _p(
-        "IMU_DGYRO_CUTOFF", 30.0, 0.0, 200.0, "Hz", "Low-pass cutoff of the rate derivative (D term); 0 = off"
-    ),
+    _p("IMU_DGYRO_CUTOFF", 30.0, 0.0, 200.0, "Hz", "Low-pass cutoff of the rate derivative (D term); 0 = off"),
 )
 
 

@@ -26,9 +26,7 @@ class PositionConfig:
     z_vel_max_dn_mps: float  # MPC_Z_VEL_MAX_DN
 
 
-def constrain_xy(
-    prio_x: float, prio_y: float, extra_x: float, extra_y: float, max_norm: float
-) -> tuple[float, float]:
+def constrain_xy(prio_x: float, prio_y: float, extra_x: float, extra_y: float, max_norm: float) -> tuple[float, float]:
     """Limit |prio + extra| to max_norm, keeping as much of the priority vector as fits (PX4 constrainXY)."""
     sum_x = prio_x + extra_x
     sum_y = prio_y + extra_y

@@ -2,11 +2,11 @@
 
 Follows PX4's ``RateControl`` (P and I on the error, D on the measured rate through a low-pass, integrator
 bounds, and no integration towards an axis the control allocation reports saturated), with one deliberate
-difference in units: the PID computes an angular-acceleration demand in rad/s^2 and the torque is ``J * alpha
-+ w x (J w)`` (Euler's rigid-body equation, J the airframe's diagonal inertia). So ``MC_ROLLRATE_P`` here is
-(rad/s^2) per (rad/s), i.e. 1/s, ``MC_*RATE_I`` is 1/s^2, ``MC_*RATE_D`` is dimensionless and ``MC_*_INT_LIM``
-is rad/s^2: the same gains fit any vehicle size, unlike PX4's normalised torque units, and PX4 values do not
-carry over.
+difference in units: the PID computes an angular-acceleration demand in rad/s^2 and the torque is
+``J * alpha + w x (J w)`` (Euler's rigid-body equation, J the airframe's diagonal inertia). So
+``MC_ROLLRATE_P`` here is (rad/s^2) per (rad/s), i.e. 1/s, ``MC_*RATE_I`` is 1/s^2, ``MC_*RATE_D`` is
+dimensionless and ``MC_*_INT_LIM`` is rad/s^2: the same gains fit any vehicle size, unlike PX4's normalised
+torque units, and PX4 values do not carry over.
 """
 
 from __future__ import annotations

@@ -123,8 +123,7 @@ class VelocityController:
                     bz_x, bz_y = bz_x / horiz * sin_max, bz_y / horiz * sin_max
                 bz_z = cos_max
 
-        # Collective thrust keeps the demanded vertical force through any tilt limit (PX4 projects the same
-        # way).
+        # The collective keeps the demanded vertical force through the tilt limit (PX4 projects it the same way).
         collective = cfg.mass_kg * (GRAVITY_MPS2 - acc_z) / bz_z
         if collective < cfg.thrust_min_n:
             collective = cfg.thrust_min_n
@@ -141,10 +140,10 @@ class VelocityController:
         # Vertical priority with a horizontal margin, then the horizontal part gets what remains.
         thr_xy = math.hypot(thr_x, thr_y)
         allocated_xy = min(thr_xy, cfg.thrust_xy_margin_n)
-        thr_z_max_sq = thrust_max * thrust_max - allocated_xy * allocated_xy
-        thr_z_min = -math.sqrt(thr_z_max_sq) if thr_z_max_sq > 0.0 else 0.0
-        if thr_z < thr_z_min:
-            thr_z = thr_z_min
+        thr_up_max_sq = thrust_max * thrust_max - allocated_xy * allocated_xy
+        thr_up_max = math.sqrt(thr_up_max_sq) if thr_up_max_sq > 0.0 else 0.0
+        if -thr_z > thr_up_max:
+            thr_z = -thr_up_max
         thr_xy_max_sq = thrust_max * thrust_max - thr_z * thr_z
         thr_xy_max = math.sqrt(thr_xy_max_sq) if thr_xy_max_sq > 0.0 else 0.0
         if thr_xy > thr_xy_max:

@@ -87,7 +87,7 @@ class Service(Protocol):
     def poll(self, now_s: float) -> list[Effect]: ...
 
 
-# ---- checks on what our own caller passes ---------------------------------------------------------------------------
+# ---- checks on what our own caller passes ------------------------------------------------------------------
 def check_now(now_s: float) -> float:
     """Validate a time argument: simulation seconds, finite."""
     if isinstance(now_s, bool) or not isinstance(now_s, int | float) or not math.isfinite(now_s):
@@ -117,7 +117,7 @@ def source_of(msg: MAVLinkMessage) -> Peer:
     return Peer(sysid, compid)
 
 
-# ---- reading peer fields defensively ----------------------------------------------------------------------------------
+# ---- reading peer fields defensively -----------------------------------------------------------------------
 def read_int(msg: MAVLinkMessage, name: str, *, lo: int | None = None, hi: int | None = None) -> int:
     """An integer field; PeerInputError if missing, of another type or outside [lo, hi]."""
     value = getattr(msg, name, None)
@@ -175,7 +175,7 @@ def addressed_to(
     return target_component in (0, identity.compid) or target_component in also_components
 
 
-# ---- values for outgoing fields (struct.pack raises on out-of-range values, so clamp before building) ---------------
+# ---- values for outgoing fields (struct.pack raises on out-of-range values, so clamp before building) ------
 def f32(value: float) -> float:
     """A float32-packable value: NaN and infinities pass, finite values beyond float32 saturate."""
     if math.isnan(value) or math.isinf(value):

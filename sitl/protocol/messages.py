@@ -80,7 +80,7 @@ def _all_finite(values: tuple[float, ...]) -> bool:
     return all(math.isfinite(v) for v in values)
 
 
-# ---- one builder per message --------------------------------------------------------------------------------------------
+# ---- one builder per message -------------------------------------------------------------------------------
 def heartbeat(snap: VehicleSnapshot, ident: Identity) -> MAVLinkMessage:
     return mavlink.MAVLink_heartbeat_message(
         ident.mav_type,
@@ -224,8 +224,9 @@ def battery_status(snap: VehicleSnapshot, ident: Identity) -> MAVLinkMessage:
     if math.isfinite(bat.voltage_v):
         # MAVSDK adds up the valid cell entries, so the pack voltage is split over the cells it is made of.
         n = bat.cell_count if 1 <= bat.cell_count <= 10 else 1
-        per_cell = to_int(bat.voltage_v * 1000.0 / n, 0, UINT16_MAX - 1, UINT16_MAX)
-        cells[:n] = [per_cell] * n
+        total_mv = to_int(bat.voltage_v * 1000.0, 0, n * (UINT16_MAX - 1), 0)
+        cells[:n] = [total_mv // n] * n
+        cells[0] += total_mv - n * (total_mv // n)  # the rounding remainder, so the cells add up exactly
     return mavlink.MAVLink_battery_status_message(
         0,
         mavlink.MAV_BATTERY_FUNCTION_ALL,
@@ -237,7 +238,9 @@ def battery_status(snap: VehicleSnapshot, ident: Identity) -> MAVLinkMessage:
         -1,
         to_int(bat.remaining * 100.0, 0, 100, -1),
         0,
-        mavlink.MAV_BATTERY_CHARGE_STATE_OK if math.isfinite(bat.remaining) else mavlink.MAV_BATTERY_CHARGE_STATE_UNDEFINED,
+        mavlink.MAV_BATTERY_CHARGE_STATE_OK
+        if math.isfinite(bat.remaining)
+        else mavlink.MAV_BATTERY_CHARGE_STATE_UNDEFINED,
         (0, 0, 0, 0),
         0,
         0,
@@ -271,10 +274,8 @@ def mission_current(snap: VehicleSnapshot, ident: Identity, *, seq: int | None =
     current = progress.current_seq if seq is None else seq
     in_mission = snap.mode is Px4Mode.AUTO_MISSION
     state = progress.state
-    if state is MissionState.NO_MISSION:
-        mode_field = 0
-    else:
-        mode_field = 1 if in_mission else 2  # 1: executing mission items, 2: suspended (another mode)
+    # mission_mode: 1 executing mission items, 2 suspended in another mode, 0 unknown (no mission)
+    mode_field = 0 if state is MissionState.NO_MISSION else 1 if in_mission else 2
     return mavlink.MAVLink_mission_current_message(
         max(0, min(UINT16_MAX, current)),
         max(0, min(UINT16_MAX - 1, progress.total)),

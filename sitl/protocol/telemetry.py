@@ -44,7 +44,7 @@ DEFAULT_RATES_HZ: Final[Mapping[int, float]] = {
     mavlink.MAVLINK_MSG_ID_SYSTEM_TIME: 1.0,
 }
 MAX_RATE_HZ: Final = 250.0  # SET_MESSAGE_INTERVAL faster than this is clamped
-MIN_EXTRA_HEARTBEAT_INTERVAL_S: Final = 0.05  # extra heartbeats on state changes, at most this often
+MIN_EXTRA_HEARTBEAT_INTERVAL_S: Final = 0.05  # extra heartbeats on state changes at most this often (flapping)
 
 
 @dataclass(slots=True)
@@ -72,13 +72,14 @@ class TelemetryScheduler:
         self._streams: dict[int, _Stream] = {mid: _Stream(1.0 / hz, None) for mid, hz in self._defaults.items()}
         self._statustext = statustext or StatusTextEncoder()
         self._last_heartbeat_key: tuple[int, int, int] | None = None
-        self._last_heartbeat_s = -math.inf
+        self._last_extra_heartbeat_s = -math.inf
         self._last_mission_key: tuple[int, int, int] | None = None
         self._last_reached: int | None = None
         self._last_home_key: tuple[float, float, float] | None = None
         self._last_landed: int | None = None
+        self._primed = False
 
-    # ---- the service interface --------------------------------------------------------------------------------------
+    # ---- the service interface -----------------------------------------------------------------------------
     def handle(self, msg: MAVLinkMessage, now_s: float) -> list[Effect]:
         """Telemetry consumes no messages; rate changes arrive as commands (see CommandService)."""
         check_now(now_s)
@@ -104,7 +105,7 @@ class TelemetryScheduler:
         now_s = check_now(now_s)
         return self._events(self._vehicle.snapshot(), now_s)
 
-    # ---- rate control -----------------------------------------------------------------------------------------------
+    # ---- rate control --------------------------------------------------------------------------------------
     def set_message_interval(self, msg_id: int, interval_us: float, now_s: float) -> CommandResult:
         """MAV_CMD_SET_MESSAGE_INTERVAL: 0 = default rate, -1 = off, > 0 = interval in microseconds."""
         check_now(now_s)
@@ -148,7 +149,7 @@ class TelemetryScheduler:
         """STATUSTEXT effects for an event of the vehicle (the shell forwards the autopilot's events with this)."""
         return [Send(m) for m in self._statustext.encode(severity, text)]
 
-    # ---- internals --------------------------------------------------------------------------------------------------
+    # ---- internals -----------------------------------------------------------------------------------------
     @staticmethod
     def _next_due(stream: _Stream, now_s: float) -> float:
         if stream.next_due_s is None or now_s - stream.next_due_s >= stream.interval_s:
@@ -161,36 +162,43 @@ class TelemetryScheduler:
 
     def _note_heartbeat(self, snap: VehicleSnapshot, now_s: float) -> None:
         self._last_heartbeat_key = self._heartbeat_key(snap)
-        self._last_heartbeat_s = now_s
 
     def _events(self, snap: VehicleSnapshot, now_s: float) -> list[Effect]:
+        home = snap.home
+        home_key = (
+            (home.position.lat_deg, home.position.lon_deg, home.position.alt_amsl_m) if home is not None else None
+        )
+        progress = snap.mission
+        mission_key = (progress.current_seq, progress.total, int(progress.state))
+        if not self._primed:  # the periodic streams report the initial state; events are changes only
+            self._primed = True
+            self._last_heartbeat_key = self._heartbeat_key(snap)
+            self._last_mission_key = mission_key
+            self._last_reached = progress.reached_seq
+            self._last_home_key = home_key
+            self._last_landed = int(snap.landed_state)
+            return []
+
         out: list[Effect] = []
         key = self._heartbeat_key(snap)
-        if self._last_heartbeat_key is None:
-            self._last_heartbeat_key = key
-        elif key != self._last_heartbeat_key and now_s - self._last_heartbeat_s >= MIN_EXTRA_HEARTBEAT_INTERVAL_S:
+        if key != self._last_heartbeat_key and now_s - self._last_extra_heartbeat_s >= MIN_EXTRA_HEARTBEAT_INTERVAL_S:
             out.append(Send(messages.heartbeat(snap, self._identity)))
             self._note_heartbeat(snap, now_s)
+            self._last_extra_heartbeat_s = now_s
             stream = self._streams.get(mavlink.MAVLINK_MSG_ID_HEARTBEAT)
             if stream is not None:
                 stream.next_due_s = now_s + stream.interval_s
 
-        progress = snap.mission
-        mission_key = (progress.current_seq, progress.total, int(progress.state))
-        if self._last_mission_key is not None and mission_key != self._last_mission_key:
+        if mission_key != self._last_mission_key:
             out.append(Send(messages.mission_current(snap, self._identity)))
         self._last_mission_key = mission_key
 
-        if self._last_reached is not None and progress.reached_seq != self._last_reached:
+        if progress.reached_seq != self._last_reached:
             reached = messages.mission_item_reached(snap, self._identity)
             if reached is not None:
                 out.append(Send(reached))
         self._last_reached = progress.reached_seq
 
-        home = snap.home
-        home_key = (
-            (home.position.lat_deg, home.position.lon_deg, home.position.alt_amsl_m) if home is not None else None
-        )
         if home_key != self._last_home_key:
             msg = messages.home_position(snap, self._identity)
             if msg is not None:
@@ -198,7 +206,7 @@ class TelemetryScheduler:
         self._last_home_key = home_key
 
         landed = int(snap.landed_state)
-        if self._last_landed is not None and landed != self._last_landed:
+        if landed != self._last_landed:
             out.append(Send(messages.extended_sys_state(snap, self._identity)))
         self._last_landed = landed
         return out

@@ -31,7 +31,7 @@ Vec3: TypeAlias = tuple[float, float, float]
 QuatWxyz: TypeAlias = tuple[float, float, float, float]
 
 
-# ---- outcomes -----------------------------------------------------------------------------------------------------------
+# ---- outcomes ----------------------------------------------------------------------------------------------
 class CommandResult(IntEnum):
     """The autopilot's answer; values are MAV_RESULT so they go on the wire unchanged."""
 
@@ -66,7 +66,7 @@ class CommandOutcome:
         return cls(CommandResult.TEMPORARILY_REJECTED, reason)
 
 
-# ---- mission items ------------------------------------------------------------------------------------------------------
+# ---- mission items -----------------------------------------------------------------------------------------
 GLOBAL_FRAMES = frozenset(
     {
         mavlink.MAV_FRAME_GLOBAL,
@@ -126,7 +126,7 @@ class MissionItem:
         return self.frame in RELATIVE_ALT_FRAMES
 
 
-# ---- offboard setpoints -------------------------------------------------------------------------------------------------
+# ---- offboard setpoints ------------------------------------------------------------------------------------
 @dataclass(frozen=True, slots=True, kw_only=True)
 class OffboardSetpoint:
     """A trajectory setpoint in the local NED frame; NaN components are "not controlled" (type_mask).
@@ -151,7 +151,7 @@ class AttitudeSetpoint:
     thrust: float = NAN  # normalised collective thrust, 0..1 (upwards)
 
 
-# ---- requests -----------------------------------------------------------------------------------------------------------
+# ---- requests ----------------------------------------------------------------------------------------------
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Arm:
     force: bool = False  # param2 = 21196: skip pre-arm checks
@@ -265,7 +265,7 @@ VehicleRequest: TypeAlias = (
 )
 
 
-# ---- snapshot -----------------------------------------------------------------------------------------------------------
+# ---- snapshot ----------------------------------------------------------------------------------------------
 class LandedState(IntEnum):
     """MAV_LANDED_STATE."""
 

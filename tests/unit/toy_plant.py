@@ -71,9 +71,7 @@ class ToyPlant:
         self.vel = np.zeros(3)
         self.q = quat_from_euler(0.0, 0.0, yaw_rad)
         self.rates = np.zeros(3)
-        hover_speed = math.sqrt(
-            self.mass_kg * GRAVITY_MPS2 / len(airframe.rotors) / airframe.thrust_coeff_n_per_radps2
-        )
+        hover_speed = math.sqrt(self.mass_kg * GRAVITY_MPS2 / len(airframe.rotors) / airframe.thrust_coeff_n_per_radps2)
         airborne = pos_ned_m[2] < 0.0
         self.rotor_speeds = np.full(len(airframe.rotors), hover_speed if airborne else 0.0)
         self.wind_ned_mps = np.zeros(3)
@@ -116,12 +114,8 @@ class ToyPlant:
         dt = self.dt_s
         p0, v0, q0, w0 = self.pos, self.vel, self.q, self.rates
         k1 = self._derivative(v0, q0, w0, total, torque)
-        k2 = self._derivative(
-            v0 + 0.5 * dt * k1[1], q0 + 0.5 * dt * k1[2], w0 + 0.5 * dt * k1[3], total, torque
-        )
-        k3 = self._derivative(
-            v0 + 0.5 * dt * k2[1], q0 + 0.5 * dt * k2[2], w0 + 0.5 * dt * k2[3], total, torque
-        )
+        k2 = self._derivative(v0 + 0.5 * dt * k1[1], q0 + 0.5 * dt * k1[2], w0 + 0.5 * dt * k1[3], total, torque)
+        k3 = self._derivative(v0 + 0.5 * dt * k2[1], q0 + 0.5 * dt * k2[2], w0 + 0.5 * dt * k2[3], total, torque)
         k4 = self._derivative(v0 + dt * k3[1], q0 + dt * k3[2], w0 + dt * k3[3], total, torque)
         self.pos = p0 + dt / 6.0 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
         self.vel = v0 + dt / 6.0 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
