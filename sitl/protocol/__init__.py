@@ -1,8 +1,18 @@
 """Pure MAVLink microservices that make a simulated drone look like a PX4 SITL vehicle on the wire.
 
-Each service is a sans-IO state machine (``handle(msg, now_s)`` and ``poll(now_s)`` return effects; time is
-injected, nothing here opens a socket or reads a clock). ``LinkServices`` composes them for one link and is what the
-IO shell drives; ``VehicleApi`` (vehicle_api.py) is everything the services need from the autopilot.
+Each service is a sans-IO state machine: ``handle(msg, now_s)`` and ``poll(now_s)`` return effects, time is
+injected (simulation seconds), and nothing here opens a socket or reads a clock. ``VehicleApi`` (vehicle_api.py) is
+everything the services need from the autopilot; ``LinkServices`` (link.py) composes all services for one link and is
+the only object an IO shell has to drive:
+
+    link = LinkServices(Identity(sysid=i + 1), vehicle, param_store)      # one per link (API port, GCS port)
+    mav = pymavlink.dialects.v20.common.MAVLink(None, srcSystem=i + 1, srcComponent=1)
+    for msg in parser.parse_buffer(datagram) or []:                        # robust_parsing = True
+        send_all(link.handle(msg, sim_time_s))
+    send_all(link.poll(sim_time_s))                                        # every loop turn, >= 2x the fastest stream
+    send_all(link.statustext(event.severity, event.text))                  # autopilot events, on every link
+
+where ``send_all`` packs each ``Send(msg)`` effect with ``mav`` and writes it to the link's remote address.
 """
 
 from sitl.protocol.core import (
