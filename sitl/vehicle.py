@@ -25,6 +25,8 @@ from sitl.estimation import Estimate
 from sitl.guidance import MotionLimits, StraightLineTrajectory
 from sitl.land_detector import LandDetector, LandDetectorConfig
 from sitl.mathutil import Vec3, vec3
+from sitl.mission_exec import MissionAction, MissionExecutor, MissionRun
+from sitl.mission_plan import NavItem, NavKind
 from sitl.params import ParamStore
 
 NAN3 = (math.nan, math.nan, math.nan)
@@ -141,6 +143,9 @@ class Vehicle:
         self._armed_since_s = 0.0
         self._home_ned_m = np.zeros(3)
         self._home_yaw_rad = 0.0
+        self.mission = MissionExecutor()
+        self._mission_climb_down_m: float | None = None  # auto takeoff before the first mission item
+        self._mission_landing = False
 
     # ---- helpers ---------------------------------------------------------------------------------------------------
     def _event(self, severity: int, text: str) -> None:
@@ -178,6 +183,10 @@ class Vehicle:
 
     def _enter(self, mode: FlightMode) -> None:
         if mode is not self.status.mode:
+            if self.status.mode is FlightMode.MISSION:
+                self.mission.pause()
+                self._mission_landing = False
+                self._mission_climb_down_m = None
             self.status.mode = mode
             self._event(6, f"Mode {mode.value}")
 
@@ -326,6 +335,65 @@ class Vehicle:
         self._speed_override_mps = math.inf if ground_speed_mps <= 0 else ground_speed_mps
         return ACCEPTED
 
+    def set_mission(self, items: tuple[NavItem, ...]) -> Outcome:
+        """Replace the mission; flying it continues from the first item if the vehicle is in AUTO.MISSION."""
+        self.mission.load(items)
+        self._mission_landing = False
+        if self.status.mode is FlightMode.MISSION and items:
+            self.mission.start()
+        return ACCEPTED
+
+    def set_mission_current(self, seq: int) -> Outcome:
+        if not self.mission.set_current(seq):
+            return Outcome(Result.DENIED, f"Mission item {seq} does not exist")
+        if self.status.mode is FlightMode.MISSION:
+            self.mission.start()
+        return ACCEPTED
+
+    def start_mission(self) -> Outcome:
+        """Enter AUTO.MISSION (allowed on the ground: arming then takes off, as in PX4)."""
+        if not self.mission.items:
+            return Outcome(Result.DENIED, "Mission rejected: no mission uploaded")
+        if self.status.mode is FlightMode.MISSION and self.mission.state is MissionRun.ACTIVE:
+            return ACCEPTED
+        self._enter(FlightMode.MISSION)
+        self.mission.start()
+        self._failsafe = None
+        self.status.failsafe = False
+        return ACCEPTED
+
+    def _mission_step(self, est: Estimate, now_s: float) -> None:
+        if self.landed and self.mission.state is MissionRun.ACTIVE and self._mission_climb_down_m is None:
+            first = self.mission.items[self.mission.index]
+            if first.kind is not NavKind.TAKEOFF:
+                # PX4 takes off to MIS_TAKEOFF_ALT before flying a mission started on the ground.
+                pos = self._current_pos()
+                self._mission_climb_down_m = float(self._home_ned_m[2] - self._p("MIS_TAKEOFF_ALT"))
+                self._trajectory.reset(pos)
+                self._start_goto(vec3(pos[0], pos[1], self._mission_climb_down_m), self._target_yaw_rad)
+                return
+        if self._mission_climb_down_m is not None:
+            if self.landed or abs(est.pos_ned_m[2] - self._mission_climb_down_m) > 0.3:
+                return
+            self._mission_climb_down_m = None
+        action = self.mission.step(now_s, est.pos_ned_m, self.landed, self._p("NAV_ACC_RAD"))
+        if action is not None:
+            self._apply_mission_action(action)
+
+    def _apply_mission_action(self, action: MissionAction) -> None:
+        target = np.array(action.target_ned_m, dtype=np.float64)
+        if action.kind is NavKind.SPEED:
+            self.set_speed(action.speed_mps if math.isfinite(action.speed_mps) else -1.0)
+        elif action.kind is NavKind.RTL:
+            self.return_to_launch()
+        elif action.kind is NavKind.LAND:
+            self._mission_landing = True
+            self._start_goto(target, action.yaw_rad)
+        else:
+            if self.landed:
+                self._trajectory.reset(self._current_pos())
+            self._start_goto(target, action.yaw_rad)
+
     def set_offboard_setpoint(self, setpoint: TrajectorySetpoint, now_s: float) -> None:
         self._offboard = setpoint
         self._offboard_time_s = now_s
@@ -358,7 +426,7 @@ class Vehicle:
                 accel_xy_mps2=limits.accel_xy_mps2,
                 accel_z_mps2=limits.accel_z_mps2,
             )
-        if mode is FlightMode.LAND or (self._rtl is not None and self._rtl.phase == "land"):
+        if self._descending_to_land():
             land_speed = self._p("MPC_LAND_SPEED")
             if self.altitude_above_home_m() > self._p("MPC_LAND_ALT2"):
                 land_speed = self._p("MPC_Z_V_AUTO_DN")
@@ -378,6 +446,8 @@ class Vehicle:
 
     def _advance_modes(self, est: Estimate, now_s: float) -> None:
         mode = self.status.mode
+        if mode is FlightMode.MISSION:
+            self._mission_step(est, now_s)
         if (
             mode is FlightMode.TAKEOFF
             and abs(est.pos_ned_m[2] - self._target_ned_m[2]) < 0.15
@@ -426,8 +496,11 @@ class Vehicle:
             return (0.0,) * n
         self._advance_modes(est, now_s)
         mode = self.status.mode
-        wants_air = mode in (FlightMode.TAKEOFF, FlightMode.OFFBOARD) or (
-            mode in (FlightMode.HOLD, FlightMode.RTL, FlightMode.MISSION) and not self.landed
+        mission_flying = mode is FlightMode.MISSION and self.mission.state is MissionRun.ACTIVE
+        wants_air = (
+            mode in (FlightMode.TAKEOFF, FlightMode.OFFBOARD)
+            or (mode in (FlightMode.HOLD, FlightMode.RTL, FlightMode.MISSION) and not self.landed)
+            or (mission_flying and not self._mission_landing)
         )
         if self.landed and not wants_air:
             # Armed on the ground: motors idle, controllers held at rest so nothing winds up.
@@ -455,19 +528,29 @@ class Vehicle:
             self._event(6, "Landing detected")
             self._landed_since_s = now_s
             self._rtl = None
-            if mode is not FlightMode.LAND:
+            if mode is FlightMode.MISSION and self._mission_landing:
+                self.mission.step(now_s, est.pos_ned_m, True, self._p("NAV_ACC_RAD"))
+            elif mode is not FlightMode.LAND:
                 self._enter(FlightMode.LAND)
             self.cascade.reset()
             return self._idle
         self.status.landed_state = self._landed_state(mode, landed)
         return out.motor_cmds
 
+    def _descending_to_land(self) -> bool:
+        mode = self.status.mode
+        return (
+            mode is FlightMode.LAND
+            or (mode is FlightMode.RTL and self._rtl is not None and self._rtl.phase == "land")
+            or (mode is FlightMode.MISSION and self._mission_landing)
+        )
+
     def _landed_state(self, mode: FlightMode, landed: bool) -> LandedState:
         if landed:
             return LandedState.TAKEOFF if mode is FlightMode.TAKEOFF else LandedState.ON_GROUND
         if mode is FlightMode.TAKEOFF:
             return LandedState.TAKEOFF
-        if mode is FlightMode.LAND or (self._rtl is not None and self._rtl.phase == "land"):
+        if self._descending_to_land():
             return LandedState.LANDING
         return LandedState.IN_AIR
 

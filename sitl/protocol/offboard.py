@@ -6,8 +6,8 @@ with NaN for every component the ``type_mask`` ignores, so the autopilot never d
 - frame 7 LOCAL_OFFSET_NED: position is an offset from the current position, velocity/acceleration are NED;
 - frame 8 BODY_NED: velocity/acceleration rotated from the heading frame into NED, position ignored (PX4);
 - frame 9 BODY_OFFSET_NED: position offset and velocity/acceleration rotated by the heading, offset added;
-- SET_POSITION_TARGET_GLOBAL_INT: lat/lon/alt (AMSL, or above home in the RELATIVE_ALT frames) projected onto
-  the local frame around ``local_origin`` with PX4's projection.
+- SET_POSITION_TARGET_GLOBAL_INT: lat/lon/alt (AMSL, or above home in the RELATIVE_ALT frames) converted to the
+  local frame around ``local_origin`` with sitl/dynamics/geodesy.py, the same conversion the vehicle reports with.
 "Heading frame" means rotation by yaw only, as PX4 does for body-frame setpoints.
 
 A setpoint is rejected (``SetpointRejected``) when a component it asks for is not finite, when it asks for nothing
@@ -24,6 +24,7 @@ from typing import Final
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.dynamics.geodesy import ned_from_geo
 from sitl.protocol.core import (
     Effect,
     Identity,
@@ -37,12 +38,11 @@ from sitl.protocol.core import (
     read_floats,
     read_int,
 )
-from sitl.protocol.geo import geo_to_ned
 from sitl.protocol.statustext import Severity, StatusTextEncoder
 from sitl.protocol.vehicle_api import (
     NAN3,
     AttitudeSetpoint,
-    GeoPosition,
+    GeoPoint,
     OffboardSetpoint,
     Vec3,
     VehicleApi,
@@ -93,7 +93,7 @@ class VehiclePose:
 
     pos_ned_m: Vec3 = NAN3
     yaw_rad: float = NAN
-    local_origin: GeoPosition | None = None
+    local_origin: GeoPoint | None = None
     home_alt_amsl_m: float = NAN
 
     @classmethod
@@ -232,9 +232,8 @@ def decode_global_int(msg: MAVLinkMessage, pose: VehiclePose) -> OffboardSetpoin
         if use_lat:
             if not (-900_000_000 <= lat_e7 <= 900_000_000 and -1_800_000_000 <= lon_e7 <= 1_800_000_000):
                 raise SetpointRejected("latitude/longitude out of range")
-            north, east, _ = geo_to_ned(
-                lat_e7 * 1e-7, lon_e7 * 1e-7, origin.alt_amsl_m, origin.lat_deg, origin.lon_deg, origin.alt_amsl_m
-            )
+            target = GeoPoint(lat_deg=lat_e7 * 1e-7, lon_deg=lon_e7 * 1e-7, alt_amsl_m=origin.alt_amsl_m)
+            north, east, _ = ned_from_geo(target, origin)
         if use_alt:
             if not math.isfinite(alt):
                 raise SetpointRejected("altitude is not a finite number")

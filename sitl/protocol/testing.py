@@ -15,6 +15,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.dynamics.plant import DEFAULT_HOME
 from sitl.protocol.core import Effect, MAVLinkMessage, Send
 from sitl.protocol.modes import Px4Mode
 from sitl.protocol.vehicle_api import (
@@ -24,7 +25,6 @@ from sitl.protocol.vehicle_api import (
     CommandOutcome,
     CommandResult,
     Disarm,
-    GeoPosition,
     GpsFixType,
     GpsStatus,
     HomePosition,
@@ -41,7 +41,7 @@ from sitl.protocol.vehicle_api import (
     VehicleSnapshot,
 )
 
-HOME = GeoPosition(lat_deg=47.397742, lon_deg=8.545594, alt_amsl_m=488.0)
+HOME = DEFAULT_HOME  # PX4 SITL's default home
 
 
 def make_snapshot(**overrides: Any) -> VehicleSnapshot:

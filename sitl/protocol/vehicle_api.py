@@ -7,7 +7,8 @@ The services never reach into the autopilot. They call the four methods of ``Veh
 - ``mission_items()`` for mission download;
 - ``set_offboard_setpoint(setpoint, now_s)`` for every accepted offboard setpoint.
 
-Conventions: SI units with the unit in the name; NED local frame anchored at ``local_origin``; body frame FRD;
+Conventions: SI units with the unit in the name; NED local frame anchored at ``local_origin`` and converted to and
+from geodetic coordinates by sitl/dynamics/geodesy.py, the project's single definition; body frame FRD;
 quaternions (w, x, y, z) rotating body vectors into NED; NaN means "not set / unknown" for a float, None for a
 missing group. Requests must be idempotent: a client retries a command whose ACK it missed, and a retried arm while
 armed must be ACCEPTED (pymavlink retries look like new commands; only MAVSDK marks retries).
@@ -23,6 +24,7 @@ from typing import Protocol, TypeAlias
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.dynamics.plant import GeoPoint
 from sitl.protocol.modes import Px4Mode
 
 NAN = math.nan
@@ -317,13 +319,6 @@ SIM_SENSOR_BITS = (
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class GeoPosition:
-    lat_deg: float
-    lon_deg: float
-    alt_amsl_m: float
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
 class SensorHealth:
     """SYS_STATUS bitmasks (MAV_SYS_STATUS_SENSOR); PREARM_CHECK is added by the services from ``prearm_ok``."""
 
@@ -340,7 +335,7 @@ class GpsStatus:
     satellites_visible: int  # 255: unknown
     eph_m: float  # horizontal dilution / accuracy as PX4 reports it; NaN unknown
     epv_m: float
-    position: GeoPosition | None
+    position: GeoPoint | None
     ground_speed_mps: float = NAN
     course_over_ground_rad: float = NAN
     h_acc_m: float = NAN
@@ -359,7 +354,7 @@ class BatteryStatus:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class HomePosition:
-    position: GeoPosition
+    position: GeoPoint
     pos_ned_m: Vec3  # home in the local frame
     yaw_rad: float = 0.0
 
@@ -386,14 +381,14 @@ class VehicleSnapshot:
     pos_ned_m: Vec3
     vel_ned_mps: Vec3
     # Estimate, global (None when there is no global position yet).
-    global_position: GeoPosition | None
+    global_position: GeoPoint | None
     # Attitude estimate; NaN quaternion when attitude is not valid.
     att_q_wxyz: QuatWxyz
     rates_frd_radps: Vec3
     gps: GpsStatus
     battery: BatteryStatus
     home: HomePosition | None  # None until home is set (PX4 sets it on arming, or at the first valid position)
-    local_origin: GeoPosition | None  # geodetic point of NED (0, 0, 0); needed for global offboard setpoints
+    local_origin: GeoPoint | None  # geodetic point of NED (0, 0, 0); needed for global offboard setpoints
     mission: MissionProgress = field(default_factory=MissionProgress)
     sensors: SensorHealth = field(default_factory=SensorHealth)
     flight_terminated: bool = False

@@ -7,8 +7,8 @@ import math
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.dynamics.geodesy import geo_from_ned
 from sitl.protocol.core import Identity, MAVLinkMessage
-from sitl.protocol.geo import geo_to_ned, ned_to_geo
 from sitl.protocol.offboard import (
     OffboardService,
     SetpointRejected,
@@ -125,10 +125,13 @@ def test_offset_without_a_local_position_is_rejected() -> None:
 
 
 # ---- global ------------------------------------------------------------------------------------------------
-def test_global_setpoint_is_projected_onto_the_local_frame() -> None:
-    north, east, _ = geo_to_ned(47.3987, 8.5470, 0, HOME.lat_deg, HOME.lon_deg, 0)
-    sp = decode_global_int(global_int(mavlink.MAV_FRAME_GLOBAL_INT, POSITION_YAW, 473987000, 85470000, 500.0), POSE)
-    assert sp.pos_ned_m == pytest.approx((north, east, HOME.alt_amsl_m - 500.0), abs=1e-3)
+def test_global_setpoint_lands_where_the_project_geodesy_puts_that_point() -> None:
+    # GIVEN a point 120 m north and 80 m west of the origin, as the vehicle would report it
+    target = geo_from_ned((120.0, -80.0, 0.0), HOME)
+    lat_e7, lon_e7 = round(target.lat_deg * 1e7), round(target.lon_deg * 1e7)
+    # WHEN a client sends it as a global setpoint  THEN the local setpoint is that point (to degE7 resolution)
+    sp = decode_global_int(global_int(mavlink.MAV_FRAME_GLOBAL_INT, POSITION_YAW, lat_e7, lon_e7, 500.0), POSE)
+    assert sp.pos_ned_m == pytest.approx((120.0, -80.0, HOME.alt_amsl_m - 500.0), abs=0.01)
     assert sp.yaw_rad == pytest.approx(0.3)
 
 
@@ -152,13 +155,6 @@ def test_global_relative_altitude_is_above_home() -> None:
 def test_unusable_global_setpoints_are_rejected(msg: MAVLinkMessage, pose: VehiclePose) -> None:
     with pytest.raises(SetpointRejected):
         decode_global_int(msg, pose)
-
-
-def test_projection_round_trip() -> None:
-    lat, lon, alt = ned_to_geo(120.0, -80.0, -15.0, HOME.lat_deg, HOME.lon_deg, HOME.alt_amsl_m)
-    assert geo_to_ned(lat, lon, alt, HOME.lat_deg, HOME.lon_deg, HOME.alt_amsl_m) == pytest.approx(
-        (120.0, -80.0, -15.0)
-    )
 
 
 # ---- attitude ----------------------------------------------------------------------------------------------
