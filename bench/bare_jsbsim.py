@@ -100,9 +100,7 @@ def main() -> None:
         bare = bare_step_us(args.steps, on_ground=on_ground)
         full = plant_step_us(args.steps, on_ground=on_ground)
         added = full - bare
-        print(
-            f"  {where:9s}: fdm.run {bare:6.2f} us, JsbsimPlant.step {full:6.2f} us (Python adds {added:.2f})"
-        )
+        print(f"  {where:9s}: fdm.run {bare:6.2f} us, JsbsimPlant.step {full:6.2f} us (Python adds {added:.2f})")
     for name, ns in property_access_ns().items():
         print(f"  {name:14s}: {ns:6.0f} ns")
 

@@ -40,14 +40,8 @@ class LocalFrame:
     __slots__ = ("_alt0", "_cos_lat0", "_cos_lon0", "_home", "_sin_lat0", "_sin_lon0", "_x0", "_y0", "_z0")
 
     def __init__(self, home: GeoPoint) -> None:
-        if (
-            not (-90.0 < home.lat_deg < 90.0)
-            or not math.isfinite(home.lon_deg)
-            or not math.isfinite(home.alt_amsl_m)
-        ):
-            raise ValueError(
-                f"home must have a latitude strictly between the poles and finite values: {home}"
-            )
+        if not (-90.0 < home.lat_deg < 90.0) or not math.isfinite(home.lon_deg) or not math.isfinite(home.alt_amsl_m):
+            raise ValueError(f"home must have a latitude strictly between the poles and finite values: {home}")
         self._home = home
         self._alt0 = home.alt_amsl_m
         lat0 = math.radians(home.lat_deg)
@@ -56,17 +50,13 @@ class LocalFrame:
         self._cos_lat0 = math.cos(lat0)
         self._sin_lon0 = math.sin(lon0)
         self._cos_lon0 = math.cos(lon0)
-        self._x0, self._y0, self._z0 = _ecef(
-            self._sin_lat0, self._cos_lat0, self._sin_lon0, self._cos_lon0, self._alt0
-        )
+        self._x0, self._y0, self._z0 = _ecef(self._sin_lat0, self._cos_lat0, self._sin_lon0, self._cos_lon0, self._alt0)
 
     @property
     def home(self) -> GeoPoint:
         return self._home
 
-    def ned_from_geodetic_rad(
-        self, lat_rad: float, lon_rad: float, alt_m: float
-    ) -> tuple[float, float, float]:
+    def ned_from_geodetic_rad(self, lat_rad: float, lon_rad: float, alt_m: float) -> tuple[float, float, float]:
         """NED metres of a geodetic position given in radians (the plant's per-step path)."""
         sin_lat = math.sin(lat_rad)
         cos_lat = math.cos(lat_rad)
@@ -80,9 +70,7 @@ class LocalFrame:
         return (north, east, self._alt0 - alt_m)
 
     def ned_from_geo(self, point: GeoPoint) -> tuple[float, float, float]:
-        return self.ned_from_geodetic_rad(
-            math.radians(point.lat_deg), math.radians(point.lon_deg), point.alt_amsl_m
-        )
+        return self.ned_from_geodetic_rad(math.radians(point.lat_deg), math.radians(point.lon_deg), point.alt_amsl_m)
 
     def geo_from_ned(self, ned_m: Sequence[float] | Vec3) -> GeoPoint:
         north, east, down = float(ned_m[0]), float(ned_m[1]), float(ned_m[2])
@@ -90,9 +78,7 @@ class LocalFrame:
             raise ValueError(f"NED position must be finite, got {(north, east, down)}")
         lat0 = math.radians(self._home.lat_deg)
         lat = lat0 + north / (_meridian_radius(self._sin_lat0) + self._alt0)
-        lon = math.radians(self._home.lon_deg) + east / (
-            (_normal_radius(self._sin_lat0) + self._alt0) * self._cos_lat0
-        )
+        lon = math.radians(self._home.lon_deg) + east / ((_normal_radius(self._sin_lat0) + self._alt0) * self._cos_lat0)
         for _ in range(_INVERSE_MAX_ITERATIONS):
             n_est, e_est, _ = self.ned_from_geodetic_rad(lat, lon, self._alt0)
             dn = north - n_est
@@ -117,9 +103,7 @@ def _meridian_radius(sin_lat: float) -> float:
     return WGS84_A_M * (1.0 - WGS84_E2) / (w2 * math.sqrt(w2))
 
 
-def _ecef(
-    sin_lat: float, cos_lat: float, sin_lon: float, cos_lon: float, alt_m: float
-) -> tuple[float, float, float]:
+def _ecef(sin_lat: float, cos_lat: float, sin_lon: float, cos_lon: float, alt_m: float) -> tuple[float, float, float]:
     n = _normal_radius(sin_lat)
     r = (n + alt_m) * cos_lat
     return (r * cos_lon, r * sin_lon, (n * (1.0 - WGS84_E2) + alt_m) * sin_lat)

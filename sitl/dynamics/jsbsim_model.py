@@ -128,9 +128,7 @@ def _mass_balance(root: ET.Element, airframe: Airframe) -> None:
     _triplet(mass, "location", (0.0, 0.0, 0.0), name="CG", unit="M")
 
 
-def _contact(
-    ground: ET.Element, name: str, pos_frd_m: tuple[float, float, float], airframe: Airframe
-) -> None:
+def _contact(ground: ET.Element, name: str, pos_frd_m: tuple[float, float, float], airframe: Airframe) -> None:
     contact = _sub(ground, "contact", type="STRUCTURE", name=name)
     _triplet(contact, "location", _structural_m(pos_frd_m), unit="M")
     _sub(contact, "static_friction", _num(GROUND_STATIC_FRICTION))

@@ -160,17 +160,11 @@ class JsbsimPlant:
         self._get_lat = node("position/lat-geod-rad").get_double_value
         self._get_lon = node("position/long-gc-rad").get_double_value
         self._get_alt = node("position/geod-alt-ft").get_double_value
-        self._vel_getters = tuple(
-            node(f"velocities/{c}-fps").get_double_value for c in ("v-north", "v-east", "v-down")
-        )
-        self._euler_getters = tuple(
-            node(f"attitude/{c}-rad").get_double_value for c in ("phi", "theta", "psi")
-        )
+        self._vel_getters = tuple(node(f"velocities/{c}-fps").get_double_value for c in ("v-north", "v-east", "v-down"))
+        self._euler_getters = tuple(node(f"attitude/{c}-rad").get_double_value for c in ("phi", "theta", "psi"))
         self._rate_getters = tuple(node(f"velocities/{c}-rad_sec").get_double_value for c in ("p", "q", "r"))
         self._force_getters = tuple(node(f"forces/fb{c}-total-lbs").get_double_value for c in ("x", "y", "z"))
-        self._wind_setters = tuple(
-            node(f"atmosphere/wind-{c}-fps").set_double_value for c in ("north", "east", "down")
-        )
+        self._wind_setters = tuple(node(f"atmosphere/wind-{c}-fps").set_double_value for c in ("north", "east", "down"))
 
         self._initialise(initial_pos_ned_m, initial_yaw_rad, initial_motor_cmds)
         self._state = self._read_state()
@@ -187,9 +181,7 @@ class JsbsimPlant:
         fdm.disable_output()
         return fdm
 
-    def _initialise(
-        self, pos_ned_m: Sequence[float], yaw_rad: float, motor_cmds: Sequence[float] | None
-    ) -> None:
+    def _initialise(self, pos_ned_m: Sequence[float], yaw_rad: float, motor_cmds: Sequence[float] | None) -> None:
         fdm = self._fdm
         north, east, down = (float(v) for v in pos_ned_m)
         down = min(down, -self._rest_height_m)
