@@ -7,6 +7,9 @@ import sys
 from sitl.airframe import Airframe
 from sitl.demo import DemoFlight
 from sitl.dynamics.plant import GeoPoint
+from sitl.mav_vehicle import SimVehicleApi
+from sitl.mavlink_io import LinkConfig, MavlinkEndpoint
+from sitl.protocol import Identity
 from sitl.runtime import RunOptions, StopFlag, run_loop
 from sitl.simulation import SimConfig, Simulation
 from sitl.wind import WindConfig
@@ -26,6 +29,7 @@ def run(
     wind: WindConfig,
     duration_s: float | None,
     demo: bool,
+    links: list[LinkConfig],
 ) -> int:
     stop = StopFlag()
     stop.install()
@@ -37,13 +41,26 @@ def run(
         f"physics {1 / sim.dt_s:.0f} Hz, home {home.lat_deg:.6f}, {home.lon_deg:.6f}, {home.alt_amsl_m:.1f} m"
     )
     flight = DemoFlight(sim, _say) if demo else None
-    run_loop(
-        sim,
-        RunOptions(speed_factor=speed_factor, duration_s=duration_s),
-        stop,
-        on_step=flight.tick if flight is not None else None,
-        finished=(lambda: flight.done) if flight is not None else None,
-    )
+    endpoint = MavlinkEndpoint(Identity(sysid=instance + 1), SimVehicleApi(sim), sim.params, links) if links else None
+    for link in endpoint.links if endpoint is not None else []:
+        remote = link.config.remote
+        _say(
+            f"sitl {instance}: MAVLink {link.config.name} link on udp {link.config.bind[0]}:{link.port}"
+            + (f", streaming to {remote[0]}:{remote[1]}" if remote else "")
+        )
+    try:
+        run_loop(
+            sim,
+            RunOptions(speed_factor=speed_factor, duration_s=duration_s),
+            stop,
+            endpoint=endpoint,
+            on_step=flight.tick if flight is not None else None,
+            on_event=(lambda e: flight.event(e.text)) if flight is not None else None,
+            finished=(lambda: flight.done) if flight is not None else None,
+        )
+    finally:
+        if endpoint is not None:
+            endpoint.close()
     if stop.stopped:
         print(f"sitl {instance}: stopped by {stop.signal_name} at t={sim.time_s:.2f} s", file=sys.stderr)
     return 0

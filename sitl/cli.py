@@ -16,6 +16,7 @@ from typing import NoReturn
 
 from sitl.airframe import DEFAULT_AIRFRAME, AirframeError, load_airframe
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
+from sitl.mavlink_io import LinkConfig, LinkError
 from sitl.wind import WindConfig
 
 EXIT_USAGE = 2
@@ -55,6 +56,43 @@ def _speed_factor(arg: str | None) -> float:
     return value
 
 
+def _address(text: str, what: str) -> tuple[str, int]:
+    host, sep, port_text = text.rpartition(":")
+    if not sep or not host or not port_text.isdigit() or not 0 < int(port_text) < 65536:
+        raise UsageError(f"{what} must be HOST:PORT with a port in 1..65535, got {text!r}")
+    return host, int(port_text)
+
+
+def _port(value: int | None, default: int, what: str) -> int:
+    port = default if value is None else value
+    if not 0 <= port < 65536:
+        raise UsageError(f"{what} must be in 0..65535, got {port}")
+    return port
+
+
+def _links(args: argparse.Namespace) -> list[LinkConfig]:
+    """PX4 SITL's port convention for instance i: API 14580+i -> 14540+i, ground station 18570+i -> 14550."""
+    if args.no_mavlink:
+        return []
+    i = args.instance
+    links = [
+        LinkConfig(
+            name="API",
+            bind=(args.host, _port(args.api_port, 14580 + i, "--api-port")),
+            remote=_address(args.api_remote or f"127.0.0.1:{14540 + i}", "--api-remote"),
+        )
+    ]
+    if not args.no_gcs:
+        links.append(
+            LinkConfig(
+                name="GCS",
+                bind=(args.host, _port(args.gcs_port, 18570 + i, "--gcs-port")),
+                remote=_address(args.gcs_remote, "--gcs-remote"),
+            )
+        )
+    return links
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="sitl", description="Run one simulated quadrotor (JSBSim + PX4-style autopilot).")
     parser.add_argument("--instance", type=int, default=0, help="instance number i >= 0 (MAVLink sysid i+1)")
@@ -66,6 +104,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--home", default=None, help="home as LAT,LON,ALT_AMSL (default: PX4 SITL home)")
     parser.add_argument("--wind", default="0,0,0", help="steady wind N,E,D in m/s (the direction it blows to)")
     parser.add_argument("--gust", type=float, default=0.0, help="gust RMS intensity in m/s")
+    parser.add_argument("--host", default="127.0.0.1", help="address the MAVLink links bind (default loopback)")
+    parser.add_argument("--api-port", type=int, default=None, help="API link UDP port (default 14580+instance)")
+    parser.add_argument(
+        "--api-remote", default=None, help="HOST:PORT the API link streams to (default 127.0.0.1:14540+instance)"
+    )
+    parser.add_argument("--gcs-port", type=int, default=None, help="ground-station link port (default 18570+instance)")
+    parser.add_argument("--gcs-remote", default="127.0.0.1:14550", help="HOST:PORT of the ground station")
+    parser.add_argument("--no-gcs", action="store_true", help="no ground-station link")
+    parser.add_argument("--no-mavlink", action="store_true", help="no MAVLink links at all (e.g. for --demo)")
     parser.add_argument("--duration", type=float, default=None, help="exit after this many simulated seconds")
     parser.add_argument("--demo", action="store_true", help="take off to 3 m, hover, land and exit, printing progress")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
@@ -78,6 +125,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (UsageError, AirframeError) as exc:
         print(f"sitl: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except LinkError as exc:
+        print(f"sitl: error: {exc}", file=sys.stderr)
+        return 1
 
 
 def _main(argv: Sequence[str] | None) -> int:
@@ -96,6 +146,7 @@ def _main(argv: Sequence[str] | None) -> int:
         home = GeoPoint(lat_deg=lat, lon_deg=lon, alt_amsl_m=alt)
     wind = _float_list(args.wind, 3, "--wind")
     speed = _speed_factor(args.speed)
+    links = _links(args)
     airframe = load_airframe(args.airframe)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(name)s: %(message)s")
 
@@ -110,6 +161,7 @@ def _main(argv: Sequence[str] | None) -> int:
         wind=WindConfig(steady_ned_mps=(wind[0], wind[1], wind[2]), gust_rms_mps=args.gust),
         duration_s=args.duration,
         demo=args.demo,
+        links=links,
     )
 
 

@@ -10,8 +10,8 @@ import math
 from collections.abc import Callable
 from enum import Enum, auto
 
+from sitl.protocol.modes import Px4Mode
 from sitl.simulation import Simulation
-from sitl.vehicle import FlightMode
 
 DEMO_ALT_M = 3.0
 DEMO_HOVER_S = 5.0
@@ -51,11 +51,12 @@ class DemoFlight:
     def _line(self, text: str) -> None:
         self._say(f"[{self._sim.time_s:7.2f} s] {text}")
 
+    def event(self, text: str) -> None:
+        """An autopilot event (also sent as STATUSTEXT), shown in the demo's log."""
+        self._line(f"autopilot: {text}")
+
     def tick(self) -> None:
         sim, vehicle = self._sim, self._sim.vehicle
-        for event in vehicle.events:
-            self._line(f"autopilot: {event.text}")
-        vehicle.events.clear()
         alt = sim.altitude_above_start_m()
         if not sim.truth.on_ground:
             self._last_airborne_vz_mps = float(sim.truth.vel_ned_mps[2])
@@ -70,7 +71,7 @@ class DemoFlight:
             elif problem != self._last_problem:
                 self._line(f"waiting: {problem}")
                 self._last_problem = problem
-        elif self._phase is _Phase.CLIMB and vehicle.status.mode is FlightMode.HOLD:
+        elif self._phase is _Phase.CLIMB and vehicle.status.mode is Px4Mode.AUTO_LOITER:
             self._line(f"reached {alt:.2f} m; hovering for {DEMO_HOVER_S:.0f} s")
             self._to(_Phase.HOVER)
         elif self._phase is _Phase.HOVER:
@@ -95,7 +96,7 @@ class DemoFlight:
             battery = sim.battery.state()
             est_alt = vehicle.altitude_above_home_m() if est is not None else math.nan
             self._line(
-                f"{vehicle.status.mode.value:<12} alt {alt:5.2f} m (est {est_alt:5.2f})  climb {climb:+5.2f} m/s  "
+                f"{vehicle.status.mode.px4_name:<12} alt {alt:5.2f} m (est {est_alt:5.2f})  climb {climb:+5.2f} m/s  "
                 f"battery {battery.voltage_v:5.2f} V {battery.remaining:4.0%}"
             )
 

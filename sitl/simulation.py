@@ -20,7 +20,7 @@ from sitl.dynamics.jsbsim_plant import JsbsimPlant
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint, PlantState
 from sitl.estimation import Estimate, Estimator, EstimatorConfig
 from sitl.params import ParamStore
-from sitl.sensors.models import SensorConfig, SensorReadings, SensorSuite
+from sitl.sensors.models import GpsSample, SensorConfig, SensorReadings, SensorSuite
 from sitl.vehicle import Vehicle
 from sitl.wind import WindConfig, WindModel
 
@@ -67,6 +67,7 @@ class Simulation:
         )
         self.truth: PlantState = self.plant.state()
         self.readings: SensorReadings | None = None
+        self.last_gps: GpsSample | None = None  # the receiver's latest report, for GPS_RAW_INT
         self.estimate: Estimate | None = None
         self.time_s = 0.0
         self.truth_at_boot_ned_m = self.truth.pos_ned_m.copy()
@@ -75,6 +76,8 @@ class Simulation:
     def step(self) -> PlantState:
         """Advance one physics step (sensors, estimator and control run at the physics rate)."""
         self.readings = self.sensors.sample(self.truth)
+        if self.readings.gps is not None:
+            self.last_gps = self.readings.gps
         self.estimate = self.estimator.update(self.readings, self.time_s, self.dt_s)
         motors = self.vehicle.step(self.estimate, self.time_s, self.dt_s)
         if not self.wind.calm:

@@ -15,12 +15,11 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from enum import Enum
 
 import numpy as np
 
 from sitl.airframe import Airframe
-from sitl.control.cascade import Cascade, TrajectorySetpoint
+from sitl.control.cascade import AttitudeSetpoint, Cascade, CascadeOutput, TrajectorySetpoint
 from sitl.estimation import Estimate
 from sitl.guidance import MotionLimits, StraightLineTrajectory
 from sitl.land_detector import LandDetector, LandDetectorConfig
@@ -28,6 +27,8 @@ from sitl.mathutil import Vec3, vec3
 from sitl.mission_exec import MissionAction, MissionExecutor, MissionRun
 from sitl.mission_plan import NavItem, NavKind
 from sitl.params import ParamStore
+from sitl.protocol.modes import Px4Mode
+from sitl.protocol.vehicle_api import CommandOutcome, CommandResult, LandedState
 
 NAN3 = (math.nan, math.nan, math.nan)
 # Armed on the ground the rotors spin at idle so a person sees the vehicle is live (PX4 and ArduPilot do this).
@@ -38,45 +39,7 @@ def _tuple3(v: Vec3) -> tuple[float, float, float]:
     return (float(v[0]), float(v[1]), float(v[2]))
 
 
-class FlightMode(Enum):
-    """PX4 navigation states this autopilot implements (wire encoding lives in sitl/protocol/modes.py)."""
-
-    POSCTL = "POSCTL"
-    HOLD = "AUTO.LOITER"
-    TAKEOFF = "AUTO.TAKEOFF"
-    LAND = "AUTO.LAND"
-    RTL = "AUTO.RTL"
-    MISSION = "AUTO.MISSION"
-    OFFBOARD = "OFFBOARD"
-
-
-class LandedState(Enum):
-    """MAVLink MAV_LANDED_STATE values."""
-
-    ON_GROUND = 1
-    IN_AIR = 2
-    TAKEOFF = 3
-    LANDING = 4
-
-
-class Result(Enum):
-    ACCEPTED = "accepted"
-    DENIED = "denied"
-    TEMPORARILY_REJECTED = "temporarily rejected"
-    FAILED = "failed"
-
-
-@dataclass(frozen=True, slots=True)
-class Outcome:
-    result: Result
-    reason: str = ""
-
-    @property
-    def ok(self) -> bool:
-        return self.result is Result.ACCEPTED
-
-
-ACCEPTED = Outcome(Result.ACCEPTED)
+ACCEPTED = CommandOutcome.accepted()
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -104,7 +67,7 @@ class VehicleStatus:
     """Mutable view of the autopilot's state, read by telemetry."""
 
     armed: bool = False
-    mode: FlightMode = FlightMode.HOLD
+    mode: Px4Mode = Px4Mode.AUTO_LOITER
     landed_state: LandedState = LandedState.ON_GROUND
     failsafe: bool = False
     thrust_n: float = 0.0
@@ -133,7 +96,7 @@ class Vehicle:
         self._target_ned_m: Vec3 = np.zeros(3)
         self._target_yaw_rad = math.nan
         self._speed_override_mps = math.inf
-        self._offboard: TrajectorySetpoint | None = None
+        self._offboard: TrajectorySetpoint | AttitudeSetpoint | None = None
         self._offboard_time_s = -math.inf
         self._rtl: _RtlPlan | None = None
         self._failsafe: _Failsafe | None = None
@@ -172,6 +135,20 @@ class Vehicle:
         return self._home_ned_m
 
     @property
+    def home_yaw_rad(self) -> float:
+        return self._home_yaw_rad
+
+    def set_home(self, home_ned_m: Vec3 | None) -> CommandOutcome:
+        """DO_SET_HOME: the current position (None) or a given local point becomes home."""
+        if home_ned_m is None:
+            if self._est is None or not self._est.position_valid:
+                return CommandOutcome(CommandResult.DENIED, "Set home denied: no position")
+            home_ned_m = self._est.pos_ned_m
+        self._home_ned_m = np.array(home_ned_m, dtype=np.float64)
+        self._event(6, "Home position set")
+        return ACCEPTED
+
+    @property
     def landed(self) -> bool:
         return self._land_detector.landed
 
@@ -181,14 +158,14 @@ class Vehicle:
     def _current_pos(self) -> Vec3:
         return np.zeros(3) if self._est is None else self._est.pos_ned_m.copy()
 
-    def _enter(self, mode: FlightMode) -> None:
+    def _enter(self, mode: Px4Mode) -> None:
         if mode is not self.status.mode:
-            if self.status.mode is FlightMode.MISSION:
+            if self.status.mode is Px4Mode.AUTO_MISSION:
                 self.mission.pause()
                 self._mission_landing = False
                 self._mission_climb_down_m = None
             self.status.mode = mode
-            self._event(6, f"Mode {mode.value}")
+            self._event(6, f"Mode {mode.px4_name}")
 
     def _start_goto(self, target_ned_m: Vec3, yaw_rad: float = math.nan) -> None:
         """Fly to a point on a smooth trajectory, starting from where the reference currently is."""
@@ -215,28 +192,28 @@ class Vehicle:
         if not est.altitude_valid:
             return "Preflight Fail: no altitude estimate"
         if not est.position_valid and self._p("COM_ARM_WO_GPS") == 0:
-            return "Preflight Fail: no GPS fix yet"
+            return "Preflight Fail: no valid global position yet (GPS)"
         if self._battery_remaining() < self._p("BAT_CRIT_THR"):
             return "Preflight Fail: battery too low"
         return None
 
-    def arm(self, force: bool = False) -> Outcome:
+    def arm(self, force: bool = False) -> CommandOutcome:
         if self.status.armed:
             return ACCEPTED
         if not self.landed:
-            return Outcome(Result.DENIED, "Arming denied: vehicle in the air")
+            return CommandOutcome(CommandResult.DENIED, "Arming denied: vehicle in the air")
         problem = None if force else self.preflight_problem()
         if problem is not None:
             self._event(4, problem)
-            return Outcome(Result.DENIED, problem)
+            return CommandOutcome(CommandResult.DENIED, problem)
         if self.status.mode not in (
-            FlightMode.HOLD,
-            FlightMode.POSCTL,
-            FlightMode.MISSION,
-            FlightMode.OFFBOARD,
-            FlightMode.TAKEOFF,
+            Px4Mode.AUTO_LOITER,
+            Px4Mode.POSCTL,
+            Px4Mode.AUTO_MISSION,
+            Px4Mode.OFFBOARD,
+            Px4Mode.AUTO_TAKEOFF,
         ):
-            return Outcome(Result.DENIED, f"Arming denied: not possible in {self.status.mode.value}")
+            return CommandOutcome(CommandResult.DENIED, f"Arming denied: not possible in {self.status.mode.px4_name}")
         self.status.armed = True
         self._armed_since_s = self._now_s
         self._landed_since_s = self._now_s
@@ -249,15 +226,15 @@ class Vehicle:
         self._event(6, "Armed")
         return ACCEPTED
 
-    def disarm(self, force: bool = False) -> Outcome:
+    def disarm(self, force: bool = False) -> CommandOutcome:
         if not self.status.armed:
             return ACCEPTED
         if not force and not self.landed:
-            return Outcome(Result.DENIED, "Disarming denied: vehicle in the air")
+            return CommandOutcome(CommandResult.DENIED, "Disarming denied: vehicle in the air")
         self._disarm("Disarmed" if not force else "Disarmed (forced)")
         return ACCEPTED
 
-    def kill(self) -> Outcome:
+    def kill(self) -> CommandOutcome:
         if self.status.armed:
             self._disarm("Motors killed")
         return ACCEPTED
@@ -268,95 +245,98 @@ class Vehicle:
         self._failsafe = None
         self.status.failsafe = False
         self.cascade.reset()
-        if self.status.mode is not FlightMode.OFFBOARD:
-            self._enter(FlightMode.HOLD)
+        if self.status.mode is not Px4Mode.OFFBOARD:
+            self._enter(Px4Mode.AUTO_LOITER)
         self._event(6, text)
 
-    def takeoff(self, altitude_above_home_m: float = math.nan) -> Outcome:
+    def takeoff(self, altitude_above_home_m: float = math.nan) -> CommandOutcome:
         """Climb above home to the altitude (MIS_TAKEOFF_ALT when NaN), then hold."""
         alt = self._p("MIS_TAKEOFF_ALT") if not math.isfinite(altitude_above_home_m) else altitude_above_home_m
         if alt <= 0.0:
-            return Outcome(Result.DENIED, "Takeoff denied: altitude must be above home")
+            return CommandOutcome(CommandResult.DENIED, "Takeoff denied: altitude must be above home")
         if not self.status.armed:
-            return Outcome(Result.DENIED, "Takeoff denied: disarmed")
-        if not self.landed and self.status.mode is FlightMode.TAKEOFF:
+            return CommandOutcome(CommandResult.DENIED, "Takeoff denied: disarmed")
+        if not self.landed and self.status.mode is Px4Mode.AUTO_TAKEOFF:
             return ACCEPTED
         pos = self._current_pos()
         if self.landed:
             self._trajectory.reset(pos)
         self._start_goto(vec3(pos[0], pos[1], self._home_ned_m[2] - alt), self._target_yaw_rad)
-        self._enter(FlightMode.TAKEOFF)
+        self._enter(Px4Mode.AUTO_TAKEOFF)
         return ACCEPTED
 
-    def land(self) -> Outcome:
+    def land(self, at_ned_m: tuple[float, float, float] | None = None) -> CommandOutcome:
+        """Land here, or fly to ``at_ned_m`` (north/east; down is ignored) while descending and land there."""
         if not self.status.armed:
-            return Outcome(Result.DENIED, "Land denied: disarmed")
-        if self.status.mode is not FlightMode.LAND:
+            return CommandOutcome(CommandResult.DENIED, "Land denied: disarmed")
+        if self.status.mode is not Px4Mode.AUTO_LAND or at_ned_m is not None:
             self._hold_here()
-            self._enter(FlightMode.LAND)
+            if at_ned_m is not None:
+                self._target_ned_m[0], self._target_ned_m[1] = at_ned_m[0], at_ned_m[1]
+            self._enter(Px4Mode.AUTO_LAND)
         return ACCEPTED
 
-    def hold(self) -> Outcome:
-        if self.status.mode is not FlightMode.HOLD:
+    def hold(self) -> CommandOutcome:
+        if self.status.mode is not Px4Mode.AUTO_LOITER:
             self._hold_here()
-            self._enter(FlightMode.HOLD)
+            self._enter(Px4Mode.AUTO_LOITER)
         self._failsafe = None
         self.status.failsafe = False
         return ACCEPTED
 
-    def return_to_launch(self) -> Outcome:
+    def return_to_launch(self) -> CommandOutcome:
         if not self.status.armed or self.landed:
-            return Outcome(Result.DENIED, "RTL denied: not flying")
-        if self.status.mode is not FlightMode.RTL:
+            return CommandOutcome(CommandResult.DENIED, "RTL denied: not flying")
+        if self.status.mode is not Px4Mode.AUTO_RTL:
             cruise = min(self._current_pos()[2], self._home_ned_m[2] - self._p("RTL_RETURN_ALT"))
             self._rtl = _RtlPlan(phase="climb", cruise_down_m=cruise)
             self._hold_here()
             pos = self._current_pos()
             self._start_goto(vec3(pos[0], pos[1], cruise))
-            self._enter(FlightMode.RTL)
+            self._enter(Px4Mode.AUTO_RTL)
         return ACCEPTED
 
-    def goto(self, target_ned_m: Vec3, yaw_rad: float = math.nan) -> Outcome:
+    def goto(self, target_ned_m: Vec3, yaw_rad: float = math.nan) -> CommandOutcome:
         """Reposition: fly to a local point on a smooth trajectory and hold there (PX4 DO_REPOSITION)."""
         if not self.status.armed or self.landed:
-            return Outcome(Result.DENIED, "Reposition denied: not flying")
+            return CommandOutcome(CommandResult.DENIED, "Reposition denied: not flying")
         if not np.all(np.isfinite(target_ned_m)):
-            return Outcome(Result.DENIED, "Reposition denied: target not finite")
-        self._enter(FlightMode.HOLD)
+            return CommandOutcome(CommandResult.DENIED, "Reposition denied: target not finite")
+        self._enter(Px4Mode.AUTO_LOITER)
         self._failsafe = None
         self.status.failsafe = False
         self._start_goto(np.asarray(target_ned_m, dtype=np.float64), yaw_rad)
         return ACCEPTED
 
-    def set_speed(self, ground_speed_mps: float) -> Outcome:
+    def set_speed(self, ground_speed_mps: float) -> CommandOutcome:
         """DO_CHANGE_SPEED: limit auto-mode speed; a negative value restores the default."""
         if not math.isfinite(ground_speed_mps):
-            return Outcome(Result.DENIED, "Speed change denied: not a number")
+            return CommandOutcome(CommandResult.DENIED, "Speed change denied: not a number")
         self._speed_override_mps = math.inf if ground_speed_mps <= 0 else ground_speed_mps
         return ACCEPTED
 
-    def set_mission(self, items: tuple[NavItem, ...]) -> Outcome:
+    def set_mission(self, items: tuple[NavItem, ...]) -> CommandOutcome:
         """Replace the mission; flying it continues from the first item if the vehicle is in AUTO.MISSION."""
         self.mission.load(items)
         self._mission_landing = False
-        if self.status.mode is FlightMode.MISSION and items:
+        if self.status.mode is Px4Mode.AUTO_MISSION and items:
             self.mission.start()
         return ACCEPTED
 
-    def set_mission_current(self, seq: int) -> Outcome:
+    def set_mission_current(self, seq: int) -> CommandOutcome:
         if not self.mission.set_current(seq):
-            return Outcome(Result.DENIED, f"Mission item {seq} does not exist")
-        if self.status.mode is FlightMode.MISSION:
+            return CommandOutcome(CommandResult.DENIED, f"Mission item {seq} does not exist")
+        if self.status.mode is Px4Mode.AUTO_MISSION:
             self.mission.start()
         return ACCEPTED
 
-    def start_mission(self) -> Outcome:
+    def start_mission(self) -> CommandOutcome:
         """Enter AUTO.MISSION (allowed on the ground: arming then takes off, as in PX4)."""
         if not self.mission.items:
-            return Outcome(Result.DENIED, "Mission rejected: no mission uploaded")
-        if self.status.mode is FlightMode.MISSION and self.mission.state is MissionRun.ACTIVE:
+            return CommandOutcome(CommandResult.DENIED, "Mission rejected: no mission uploaded")
+        if self.status.mode is Px4Mode.AUTO_MISSION and self.mission.state is MissionRun.ACTIVE:
             return ACCEPTED
-        self._enter(FlightMode.MISSION)
+        self._enter(Px4Mode.AUTO_MISSION)
         self.mission.start()
         self._failsafe = None
         self.status.failsafe = False
@@ -394,30 +374,30 @@ class Vehicle:
                 self._trajectory.reset(self._current_pos())
             self._start_goto(target, action.yaw_rad)
 
-    def set_offboard_setpoint(self, setpoint: TrajectorySetpoint, now_s: float) -> None:
+    def set_offboard_setpoint(self, setpoint: TrajectorySetpoint | AttitudeSetpoint, now_s: float) -> None:
         self._offboard = setpoint
         self._offboard_time_s = now_s
 
     def _offboard_alive(self, now_s: float) -> bool:
         return self._offboard is not None and now_s - self._offboard_time_s <= self._p("COM_OF_LOSS_T")
 
-    def start_offboard(self, now_s: float) -> Outcome:
+    def start_offboard(self, now_s: float) -> CommandOutcome:
         if not self._offboard_alive(now_s):
-            return Outcome(Result.DENIED, "Offboard denied: no setpoint stream")
+            return CommandOutcome(CommandResult.DENIED, "Offboard denied: no setpoint stream")
         self._failsafe = None
         self.status.failsafe = False
-        self._enter(FlightMode.OFFBOARD)
+        self._enter(Px4Mode.OFFBOARD)
         return ACCEPTED
 
     # ---- the step --------------------------------------------------------------------------------------------------
     def _setpoint_for_mode(self, est: Estimate, now_s: float, dt_s: float) -> TrajectorySetpoint:
         mode = self.status.mode
-        if mode is FlightMode.OFFBOARD and self._offboard is not None:
+        if mode is Px4Mode.OFFBOARD and isinstance(self._offboard, TrajectorySetpoint):
             self._trajectory.reset(est.pos_ned_m)
             return self._offboard
         limits = self._limits()
         max_speed = self._speed_override_mps
-        if mode is FlightMode.TAKEOFF:
+        if mode is Px4Mode.AUTO_TAKEOFF:
             max_speed = min(max_speed, self._p("MPC_TKO_SPEED"))
             limits = MotionLimits(
                 speed_xy_mps=limits.speed_xy_mps,
@@ -431,9 +411,13 @@ class Vehicle:
             if self.altitude_above_home_m() > self._p("MPC_LAND_ALT2"):
                 land_speed = self._p("MPC_Z_V_AUTO_DN")
             # Descend at the landing speed into the ground: the land detector ends the descent, not a target.
+            # Horizontally the reference glides to the landing point (it is already there when landing in place).
+            ref_z = float(self._trajectory.position[2])
+            goal = vec3(self._target_ned_m[0], self._target_ned_m[1], ref_z)
+            ref = self._trajectory.update(goal, limits, dt_s, max_speed)
             return TrajectorySetpoint(
-                pos_ned_m=(float(self._target_ned_m[0]), float(self._target_ned_m[1]), math.nan),
-                vel_ned_mps=(0.0, 0.0, land_speed),
+                pos_ned_m=(float(ref.pos_ned_m[0]), float(ref.pos_ned_m[1]), math.nan),
+                vel_ned_mps=(float(ref.vel_ned_mps[0]), float(ref.vel_ned_mps[1]), land_speed),
                 yaw_rad=self._target_yaw_rad,
             )
         ref = self._trajectory.update(self._target_ned_m, limits, dt_s, max_speed)
@@ -446,16 +430,16 @@ class Vehicle:
 
     def _advance_modes(self, est: Estimate, now_s: float) -> None:
         mode = self.status.mode
-        if mode is FlightMode.MISSION:
+        if mode is Px4Mode.AUTO_MISSION:
             self._mission_step(est, now_s)
         if (
-            mode is FlightMode.TAKEOFF
+            mode is Px4Mode.AUTO_TAKEOFF
             and abs(est.pos_ned_m[2] - self._target_ned_m[2]) < 0.15
             and float(np.linalg.norm(self._trajectory.position - self._target_ned_m)) < 1e-3
         ):
             self._event(6, "Takeoff complete")
-            self._enter(FlightMode.HOLD)
-        elif mode is FlightMode.RTL and self._rtl is not None:
+            self._enter(Px4Mode.AUTO_LOITER)
+        elif mode is Px4Mode.AUTO_RTL and self._rtl is not None:
             arrived = float(np.linalg.norm(self._trajectory.position - self._target_ned_m)) < 1e-3
             if self._rtl.phase == "climb" and arrived:
                 self._rtl.phase = "return"
@@ -469,21 +453,21 @@ class Vehicle:
                 self._start_goto(vec3(self._home_ned_m[0], self._home_ned_m[1], descend_down), self._home_yaw_rad)
             elif self._rtl.phase == "descend" and arrived:
                 self._rtl.phase = "land"
-        elif mode is FlightMode.OFFBOARD and not self._offboard_alive(now_s):
+        elif mode is Px4Mode.OFFBOARD and not self._offboard_alive(now_s):
             self._event(2, "Failsafe: offboard setpoints lost, holding")
             self._failsafe = _Failsafe(since_s=now_s, reason="offboard loss")
             self.status.failsafe = True
             self._hold_here()
-            self._enter(FlightMode.HOLD)
+            self._enter(Px4Mode.AUTO_LOITER)
         if (
             self._failsafe is not None
-            and self.status.mode is FlightMode.HOLD
+            and self.status.mode is Px4Mode.AUTO_LOITER
             and now_s - self._failsafe.since_s >= self._p("COM_FAIL_ACT_T")
         ):
             self._failsafe = None
             self._event(2, "Failsafe: landing")
             self._hold_here()
-            self._enter(FlightMode.LAND)
+            self._enter(Px4Mode.AUTO_LAND)
 
     def step(self, est: Estimate, now_s: float, dt_s: float) -> tuple[float, ...]:
         """One control step: returns motor commands in [0, 1] (all zero when disarmed)."""
@@ -496,10 +480,10 @@ class Vehicle:
             return (0.0,) * n
         self._advance_modes(est, now_s)
         mode = self.status.mode
-        mission_flying = mode is FlightMode.MISSION and self.mission.state is MissionRun.ACTIVE
+        mission_flying = mode is Px4Mode.AUTO_MISSION and self.mission.state is MissionRun.ACTIVE
         wants_air = (
-            mode in (FlightMode.TAKEOFF, FlightMode.OFFBOARD)
-            or (mode in (FlightMode.HOLD, FlightMode.RTL, FlightMode.MISSION) and not self.landed)
+            mode in (Px4Mode.AUTO_TAKEOFF, Px4Mode.OFFBOARD)
+            or (mode in (Px4Mode.AUTO_LOITER, Px4Mode.AUTO_RTL, Px4Mode.AUTO_MISSION) and not self.landed)
             or (mission_flying and not self._mission_landing)
         )
         if self.landed and not wants_air:
@@ -511,9 +495,7 @@ class Vehicle:
             self._check_auto_disarm(now_s)
             self.status.landed_state = LandedState.ON_GROUND
             return self._idle
-        setpoint = self._setpoint_for_mode(est, now_s, dt_s)
-        self.status.setpoint_pos_ned_m = np.array(setpoint.pos_ned_m)
-        out = self.cascade.update(est, setpoint, dt_s, landed=self.landed)
+        out = self._control(est, now_s, dt_s)
         self.status.thrust_n = out.collective_sp_n
         was_landed = self.landed
         landed = self._land_detector.update(
@@ -528,27 +510,35 @@ class Vehicle:
             self._event(6, "Landing detected")
             self._landed_since_s = now_s
             self._rtl = None
-            if mode is FlightMode.MISSION and self._mission_landing:
+            if mode is Px4Mode.AUTO_MISSION and self._mission_landing:
                 self.mission.step(now_s, est.pos_ned_m, True, self._p("NAV_ACC_RAD"))
-            elif mode is not FlightMode.LAND:
-                self._enter(FlightMode.LAND)
+            elif mode is not Px4Mode.AUTO_LAND:
+                self._enter(Px4Mode.AUTO_LAND)
             self.cascade.reset()
             return self._idle
         self.status.landed_state = self._landed_state(mode, landed)
         return out.motor_cmds
 
+    def _control(self, est: Estimate, now_s: float, dt_s: float) -> CascadeOutput:
+        if self.status.mode is Px4Mode.OFFBOARD and isinstance(self._offboard, AttitudeSetpoint):
+            self._trajectory.reset(est.pos_ned_m)
+            return self.cascade.update_attitude(est, self._offboard, dt_s, landed=self.landed)
+        setpoint = self._setpoint_for_mode(est, now_s, dt_s)
+        self.status.setpoint_pos_ned_m = np.array(setpoint.pos_ned_m)
+        return self.cascade.update(est, setpoint, dt_s, landed=self.landed)
+
     def _descending_to_land(self) -> bool:
         mode = self.status.mode
         return (
-            mode is FlightMode.LAND
-            or (mode is FlightMode.RTL and self._rtl is not None and self._rtl.phase == "land")
-            or (mode is FlightMode.MISSION and self._mission_landing)
+            mode is Px4Mode.AUTO_LAND
+            or (mode is Px4Mode.AUTO_RTL and self._rtl is not None and self._rtl.phase == "land")
+            or (mode is Px4Mode.AUTO_MISSION and self._mission_landing)
         )
 
-    def _landed_state(self, mode: FlightMode, landed: bool) -> LandedState:
+    def _landed_state(self, mode: Px4Mode, landed: bool) -> LandedState:
         if landed:
-            return LandedState.TAKEOFF if mode is FlightMode.TAKEOFF else LandedState.ON_GROUND
-        if mode is FlightMode.TAKEOFF:
+            return LandedState.TAKEOFF if mode is Px4Mode.AUTO_TAKEOFF else LandedState.ON_GROUND
+        if mode is Px4Mode.AUTO_TAKEOFF:
             return LandedState.TAKEOFF
         if self._descending_to_land():
             return LandedState.LANDING

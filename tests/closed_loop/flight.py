@@ -9,8 +9,8 @@ import numpy as np
 
 from sitl.airframe import load_airframe
 from sitl.mathutil import quat_to_dcm
+from sitl.protocol.modes import Px4Mode
 from sitl.simulation import SimConfig, Simulation
-from sitl.vehicle import FlightMode
 from sitl.wind import WindConfig
 
 
@@ -44,7 +44,7 @@ def arm_when_ready(sim: Simulation, timeout_s: float = 5.0) -> None:
 def take_off(sim: Simulation, alt_m: float, timeout_s: float = 15.0) -> None:
     arm_when_ready(sim)
     assert sim.vehicle.takeoff(alt_m).ok
-    assert sim.run_until(lambda s: s.vehicle.status.mode is FlightMode.HOLD, timeout_s), "takeoff did not complete"
+    assert sim.run_until(lambda s: s.vehicle.status.mode is Px4Mode.AUTO_LOITER, timeout_s), "takeoff did not complete"
 
 
 def boot_position(sim: Simulation) -> np.ndarray:

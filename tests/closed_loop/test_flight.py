@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from sitl.control.cascade import TrajectorySetpoint
-from sitl.vehicle import FlightMode
+from sitl.protocol.modes import Px4Mode
 from sitl.wind import WindConfig
 from tests.closed_loop.flight import Trace, arm_when_ready, boot_position, make_sim, take_off
 
@@ -34,7 +34,7 @@ def test_takeoff_reaches_3m_within_5s_without_overshoot() -> None:
     settled_after_s = t[outside[-1]] - t0 if len(outside) else 0.0
     assert settled_after_s <= 5.0, f"settled after {settled_after_s:.2f} s"
     assert alt.max() - ALT_M < 0.3, f"overshoot {alt.max() - ALT_M:.3f} m"
-    assert sim.vehicle.status.mode is FlightMode.HOLD
+    assert sim.vehicle.status.mode is Px4Mode.AUTO_LOITER
 
 
 def test_hover_20s_rms_error_below_10cm() -> None:

@@ -1,0 +1,236 @@
+"""The autopilot as the MAVLink services see it: ``VehicleApi`` implemented over one ``Simulation``.
+
+This is the translation layer between wire concepts (geodetic coordinates, AMSL altitudes, PX4 modes, MISSION_ITEM_INT)
+and the autopilot's local-frame requests. It is pure: it reads the simulation's estimate and sensor samples (never
+ground truth) and calls the vehicle's request methods; the IO shell owns the sockets.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+from sitl.control.cascade import AttitudeSetpoint as CascadeAttitudeSetpoint
+from sitl.control.cascade import TrajectorySetpoint
+from sitl.dynamics.geodesy import LocalFrame
+from sitl.dynamics.plant import GeoPoint
+from sitl.mathutil import Vec3, vec3
+from sitl.mission_exec import MissionRun
+from sitl.mission_plan import to_nav_items
+from sitl.protocol import vehicle_api as api
+from sitl.protocol.modes import Px4Mode
+from sitl.simulation import Simulation
+
+_MISSION_STATE = {
+    MissionRun.NO_MISSION: api.MissionState.NO_MISSION,
+    MissionRun.NOT_STARTED: api.MissionState.NOT_STARTED,
+    MissionRun.ACTIVE: api.MissionState.ACTIVE,
+    MissionRun.PAUSED: api.MissionState.PAUSED,
+    MissionRun.COMPLETE: api.MissionState.COMPLETE,
+}
+NO_RC_MODES = frozenset(
+    {Px4Mode.MANUAL, Px4Mode.ALTCTL, Px4Mode.POSCTL, Px4Mode.STABILIZED, Px4Mode.ACRO, Px4Mode.AUTO_READY}
+)
+
+
+def _nan_if_invalid(values: Vec3, valid: bool) -> tuple[float, float, float]:
+    return (float(values[0]), float(values[1]), float(values[2])) if valid else api.NAN3
+
+
+class SimVehicleApi:
+    """``VehicleApi`` for a simulated drone. One instance serves every MAVLink link of the process."""
+
+    def __init__(self, sim: Simulation) -> None:
+        self.sim = sim
+        self.vehicle = sim.vehicle
+        # The estimator's frame starts at the resting CG at boot: that point, in geodetic terms, is the origin.
+        self.origin = sim.truth.geo
+        self.frame = LocalFrame(self.origin)
+        self._mission_items: tuple[api.MissionItem, ...] = ()
+        self._snapshot: api.VehicleSnapshot | None = None
+        self._snapshot_time_s = -1.0
+
+    # ---- conversions --------------------------------------------------------------------------------------------
+    def home_alt_amsl_m(self) -> float:
+        return self.origin.alt_amsl_m - float(self.vehicle.home_ned_m[2])
+
+    def _local_of(self, lat_deg: float, lon_deg: float, alt_amsl_m: float) -> tuple[float, float, float]:
+        """Local NED of a geodetic point; NaN inputs keep the vehicle's current coordinate."""
+        est = self.vehicle.estimate
+        current = est.pos_ned_m if est is not None else vec3(0.0, 0.0, 0.0)
+        north, east = float(current[0]), float(current[1])
+        if math.isfinite(lat_deg) and math.isfinite(lon_deg):
+            north, east, _ = self.frame.ned_from_geo(
+                GeoPoint(lat_deg=lat_deg, lon_deg=lon_deg, alt_amsl_m=self.origin.alt_amsl_m)
+            )
+        down = self.origin.alt_amsl_m - alt_amsl_m if math.isfinite(alt_amsl_m) else float(current[2])
+        return (north, east, down)
+
+    # ---- VehicleApi ---------------------------------------------------------------------------------------------
+    def mission_items(self) -> Sequence[api.MissionItem]:
+        return self._mission_items
+
+    def set_offboard_setpoint(self, setpoint: api.OffboardSetpoint | api.AttitudeSetpoint, now_s: float) -> None:
+        if isinstance(setpoint, api.OffboardSetpoint):
+            self.vehicle.set_offboard_setpoint(
+                TrajectorySetpoint(
+                    pos_ned_m=setpoint.pos_ned_m,
+                    vel_ned_mps=setpoint.vel_ned_mps,
+                    acc_ned_mps2=setpoint.acc_ned_mps2,
+                    yaw_rad=setpoint.yaw_rad,
+                    yawspeed_radps=setpoint.yaw_rate_radps,
+                ),
+                now_s,
+            )
+            return
+        q = setpoint.q_wxyz
+        rates = setpoint.body_rates_frd_radps
+        thrust = setpoint.thrust if math.isfinite(setpoint.thrust) else 0.0
+        attitude = CascadeAttitudeSetpoint(
+            att_q=q if all(math.isfinite(c) for c in q) else None,
+            thrust_n=thrust * self.vehicle.cascade.collective_max_n,
+            rates_sp_frd_radps=tuple(r if math.isfinite(r) else 0.0 for r in rates),  # type: ignore[arg-type]
+        )
+        self.vehicle.set_offboard_setpoint(attitude, now_s)
+
+    def command(self, request: api.VehicleRequest, now_s: float) -> api.CommandOutcome:
+        v = self.vehicle
+        match request:
+            case api.Arm(force=force):
+                return v.arm(force)
+            case api.Disarm(force=force):
+                return v.kill() if force else v.disarm()
+            case api.Kill():
+                return v.kill()
+            case api.Takeoff(alt_amsl_m=alt):
+                minimum = self.sim.params["MIS_TAKEOFF_ALT"]
+                relative = alt - self.home_alt_amsl_m() if math.isfinite(alt) else minimum
+                return v.takeoff(max(relative, minimum))
+            case api.Land(lat_deg=lat, lon_deg=lon):
+                return v.land(self._local_of(lat, lon, math.nan) if math.isfinite(lat) else None)
+            case api.ReturnToLaunch():
+                return v.return_to_launch()
+            case api.SetMode(mode=mode):
+                return self._set_mode(mode, now_s)
+            case api.Reposition():
+                if math.isfinite(request.ground_speed_mps):
+                    v.set_speed(request.ground_speed_mps)
+                target = self._local_of(request.lat_deg, request.lon_deg, request.alt_amsl_m)
+                return v.goto(vec3(*target), request.yaw_rad)
+            case api.ChangeSpeed(kind=kind, speed_mps=speed):
+                if kind is not api.SpeedKind.HORIZONTAL:
+                    return api.CommandOutcome(api.CommandResult.UNSUPPORTED, "Only horizontal speed can change")
+                return v.set_speed(speed if math.isfinite(speed) else -1.0)
+            case api.SetHome(use_current=True):
+                return v.set_home(None)
+            case api.SetHome(lat_deg=lat, lon_deg=lon, alt_amsl_m=alt):
+                if not (math.isfinite(lat) and math.isfinite(lon) and math.isfinite(alt)):
+                    return api.CommandOutcome.denied("Set home denied: position incomplete")
+                return v.set_home(vec3(*self._local_of(lat, lon, alt)))
+            case api.MissionStart(first_seq=first):
+                if first is not None and not (outcome := v.set_mission_current(first)).ok:
+                    return outcome
+                return v.start_mission()
+            case api.SetMissionCurrent(seq=seq):
+                return v.set_mission_current(seq)
+            case api.SetMission(items=items):
+                self._mission_items = items
+                return v.set_mission(to_nav_items(items, self.origin, self.home_alt_amsl_m()))
+        return api.CommandOutcome(api.CommandResult.UNSUPPORTED, "Not supported")
+
+    def _set_mode(self, mode: Px4Mode, now_s: float) -> api.CommandOutcome:
+        v = self.vehicle
+        if mode in NO_RC_MODES:
+            return api.CommandOutcome.temporarily_rejected(f"{mode.px4_name} needs manual control: no RC")
+        if mode is Px4Mode.AUTO_LOITER:
+            outcome = v.hold()
+        elif mode is Px4Mode.AUTO_TAKEOFF:
+            outcome = v.takeoff()
+        elif mode is Px4Mode.AUTO_LAND:
+            outcome = v.land()
+        elif mode is Px4Mode.AUTO_RTL:
+            outcome = v.return_to_launch()
+        elif mode is Px4Mode.AUTO_MISSION:
+            outcome = v.start_mission()
+        elif mode is Px4Mode.OFFBOARD:
+            outcome = v.start_offboard(now_s)
+        else:
+            return api.CommandOutcome.temporarily_rejected(f"{mode.px4_name} is not supported")
+        # PX4 answers a refused mode change with TEMPORARILY_REJECTED.
+        if outcome.result is api.CommandResult.DENIED:
+            return api.CommandOutcome.temporarily_rejected(outcome.reason)
+        return outcome
+
+    def snapshot(self) -> api.VehicleSnapshot:
+        sim = self.sim
+        if self._snapshot is not None and self._snapshot_time_s == sim.time_s:
+            return self._snapshot
+        v = self.vehicle
+        est = v.estimate
+        status = v.status
+        pos_valid = est is not None and est.position_valid and est.altitude_valid
+        att_valid = est is not None and est.attitude_valid
+        global_position = self.frame.geo_from_ned(est.pos_ned_m) if pos_valid and est is not None else None
+        home = None
+        if pos_valid or status.armed:
+            home_ned = v.home_ned_m
+            home = api.HomePosition(
+                position=self.frame.geo_from_ned(home_ned),
+                pos_ned_m=(float(home_ned[0]), float(home_ned[1]), float(home_ned[2])),
+                yaw_rad=v.home_yaw_rad,
+            )
+        battery = sim.battery.state()
+        mission = v.mission
+        self._snapshot = api.VehicleSnapshot(
+            time_boot_us=round(sim.time_s * 1e6),
+            armed=status.armed,
+            mode=status.mode,
+            landed_state=status.landed_state,
+            failsafe=status.failsafe,
+            prearm_ok=v.preflight_problem() is None,
+            pos_ned_m=_nan_if_invalid(est.pos_ned_m, pos_valid) if est is not None else api.NAN3,
+            vel_ned_mps=_nan_if_invalid(est.vel_ned_mps, pos_valid) if est is not None else api.NAN3,
+            global_position=global_position,
+            att_q_wxyz=tuple(float(c) for c in est.att_q_frd_to_ned)  # type: ignore[arg-type]
+            if att_valid and est is not None
+            else (math.nan,) * 4,
+            rates_frd_radps=_nan_if_invalid(est.rates_frd_radps, att_valid) if est is not None else api.NAN3,
+            gps=self._gps_status(),
+            battery=api.BatteryStatus(
+                voltage_v=battery.voltage_v,
+                current_a=battery.current_a,
+                remaining=battery.remaining,
+                consumed_mah=battery.consumed_mah,
+                cell_count=sim.config.battery.cells,
+            ),
+            home=home,
+            local_origin=self.origin,
+            mission=api.MissionProgress(
+                current_seq=mission.current_seq,
+                total=len(mission.items),
+                state=_MISSION_STATE[mission.state],
+                reached_seq=mission.reached_seq,
+            ),
+            throttle=status.thrust_n / max(v.cascade.collective_max_n, 1e-9),
+        )
+        self._snapshot_time_s = sim.time_s
+        return self._snapshot
+
+    def _gps_status(self) -> api.GpsStatus:
+        gps = self.sim.last_gps
+        if gps is None:
+            return api.GpsStatus(
+                fix_type=api.GpsFixType.NO_GPS, satellites_visible=0, eph_m=math.nan, epv_m=math.nan, position=None
+            )
+        fixed = gps.fix_type >= 3
+        return api.GpsStatus(
+            fix_type=api.GpsFixType(gps.fix_type),
+            satellites_visible=gps.satellites,
+            eph_m=gps.eph_m,
+            epv_m=gps.epv_m,
+            position=GeoPoint(lat_deg=gps.lat_deg, lon_deg=gps.lon_deg, alt_amsl_m=gps.alt_amsl_m) if fixed else None,
+            ground_speed_mps=math.hypot(gps.vel_ned_mps[0], gps.vel_ned_mps[1]) if fixed else math.nan,
+            course_over_ground_rad=math.atan2(gps.vel_ned_mps[1], gps.vel_ned_mps[0]) if fixed else math.nan,
+            h_acc_m=gps.eph_m / 3 if fixed else math.nan,
+            v_acc_m=gps.epv_m / 3 if fixed else math.nan,
+        )

@@ -1,0 +1,152 @@
+"""MAVLink over UDP for one drone: sockets, framing, and the routing of effects. The only IO of the protocol stack.
+
+Each link (the API link on 14580+i and the ground-station link on 18570+i, PX4's SITL convention) is a non-blocking
+UDP socket with its own ``LinkServices``. A link streams to its configured remote from boot and also answers every
+address that has sent it something (PX4's behaviour), so a client on any port is heard. Datagrams are parsed with
+pymavlink's robust parser: garbage becomes "bad data" and is dropped; nothing a peer sends can raise out of here.
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from sitl.params import ParamStore
+from sitl.protocol import Identity, LinkServices, Send, VehicleApi
+from sitl.protocol.core import Effect, MAVLinkMessage
+
+log = logging.getLogger(__name__)
+
+Address = tuple[str, int]
+MAX_DATAGRAM = 65535
+MAX_LEARNED_PEERS = 8  # a few clients per link; the oldest is forgotten first
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LinkConfig:
+    name: str
+    bind: Address
+    remote: Address | None  # where to stream before anyone has spoken to us
+
+
+class LinkError(OSError):
+    """A link could not be opened (port in use, bad address); reported as one line by the CLI."""
+
+
+class UdpLink:
+    def __init__(self, config: LinkConfig, identity: Identity, services: LinkServices) -> None:
+        self.config = config
+        self.services = services
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+            self.sock.bind(config.bind)
+        except OSError as exc:
+            self.sock.close()
+            host, port = config.bind
+            raise LinkError(f"{config.name} link cannot bind {host}:{port}: {exc.strerror}") from None
+        self.sock.setblocking(False)
+        self._encoder = mavlink.MAVLink(None, srcSystem=identity.sysid, srcComponent=identity.compid)
+        self._parser = self._new_parser()
+        self._peers: list[Address] = [config.remote] if config.remote is not None else []
+        self.sent = 0
+        self.received = 0
+        self.bad = 0
+
+    @staticmethod
+    def _new_parser() -> mavlink.MAVLink:
+        parser = mavlink.MAVLink(None)
+        parser.robust_parsing = True
+        return parser
+
+    @property
+    def port(self) -> int:
+        return int(self.sock.getsockname()[1])
+
+    def _learn(self, address: Address) -> None:
+        if address in self._peers:
+            return
+        self._peers.append(address)
+        if len(self._peers) > MAX_LEARNED_PEERS:
+            del self._peers[1 if self.config.remote is not None else 0]
+
+    def receive(self) -> list[MAVLinkMessage]:
+        """Every message that arrived since the last call (drains the socket)."""
+        out: list[MAVLinkMessage] = []
+        while True:
+            try:
+                data, address = self.sock.recvfrom(MAX_DATAGRAM)
+            except (BlockingIOError, InterruptedError):
+                return out
+            except OSError:  # e.g. ICMP port unreachable reported on a later call: not our problem
+                continue
+            self._learn((address[0], address[1]))
+            try:
+                messages = self._parser.parse_buffer(data) or []
+            except Exception:  # a peer's bytes must never take the drone down
+                self.bad += 1
+                self._parser = self._new_parser()
+                continue
+            for msg in messages:
+                if msg.get_type() == "BAD_DATA":
+                    self.bad += 1
+                else:
+                    self.received += 1
+                    out.append(msg)
+
+    def send(self, effects: Iterable[Effect]) -> None:
+        for effect in effects:
+            if not isinstance(effect, Send):
+                continue
+            try:
+                data = effect.msg.pack(self._encoder)
+            except Exception:  # a message that cannot be packed is a bug, but not a crash
+                log.exception("cannot pack %s", effect.msg.get_type())
+                continue
+            self._encoder.seq = (self._encoder.seq + 1) % 256
+            for address in self._peers:
+                try:
+                    self.sock.sendto(data, address)
+                    self.sent += 1
+                except OSError:  # the peer's port is closed or the buffer is full: UDP drops, as the wire would
+                    pass
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+class MavlinkEndpoint:
+    """All links of one drone, driven by the runtime once per wake-up with the simulation time."""
+
+    def __init__(self, identity: Identity, vehicle: VehicleApi, params: ParamStore, links: list[LinkConfig]) -> None:
+        self.links: list[UdpLink] = []
+        try:
+            for config in links:
+                self.links.append(UdpLink(config, identity, LinkServices(identity, vehicle, params)))
+        except LinkError:
+            self.close()
+            raise
+
+    def sockets(self) -> list[socket.socket]:
+        return [link.sock for link in self.links]
+
+    def receive(self, now_s: float) -> None:
+        for link in self.links:
+            for msg in link.receive():
+                link.send(link.services.handle(msg, now_s))
+
+    def poll(self, now_s: float) -> None:
+        for link in self.links:
+            link.send(link.services.poll(now_s))
+
+    def statustext(self, severity: int, text: str) -> None:
+        for link in self.links:
+            link.send(link.services.statustext(severity, text))
+
+    def close(self) -> None:
+        for link in self.links:
+            link.close()
