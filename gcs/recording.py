@@ -1,0 +1,53 @@
+"""What a flight records, in one place: the data model the mission runner fills and the flight report reads.
+
+Positions are in the swarm frame: local NED in metres around the swarm's geographic origin (see gcs/frames.py),
+the frame formations are defined in. Times are seconds since the mission started (the supervisor's clock).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+Vec3 = tuple[float, float, float]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DroneSample:
+    """One drone's reported state (from its MAVLink telemetry) at one instant."""
+
+    time_s: float
+    sysid: int
+    pos_ned_m: Vec3  # swarm frame
+    vel_ned_mps: Vec3
+    armed: bool
+    mode: str  # PX4 mode name, e.g. "OFFBOARD"
+    target_ned_m: Vec3 | None = None  # the formation slot commanded at that instant (swarm frame), if any
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StepRecord:
+    """One mission step (takeoff, a formation, land ...) with its time span."""
+
+    index: int
+    name: str  # e.g. "circle"
+    kind: str  # "takeoff", "formation", "land", "hold", ...
+    start_s: float
+    end_s: float
+    target_alt_m: float | None = None  # for takeoff: the commanded altitude above the swarm origin
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class EventRecord:
+    time_s: float
+    sysid: int | None  # None: swarm-wide
+    text: str  # e.g. a STATUSTEXT: "Collision with drone 3", "Avoidance: ..."
+
+
+@dataclass(slots=True)
+class FlightRecording:
+    mission_name: str
+    n_drones: int
+    collision_radius_m: float
+    samples: list[DroneSample] = field(default_factory=list)
+    steps: list[StepRecord] = field(default_factory=list)
+    events: list[EventRecord] = field(default_factory=list)

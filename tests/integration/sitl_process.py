@@ -1,0 +1,284 @@
+"""Start, watch and stop `sitl` drone processes for the integration tests.
+
+Policy, so that a suite run never disturbs anything else on the machine:
+- loopback only: the drone binds 127.0.0.1 and streams to 127.0.0.1; the ground-station link streams to a sink
+  socket this module owns, never to 14550 where a user's QGroundControl may listen;
+- instance numbers come from a range far from the default instance 0 (see ``InstanceAllocator``), and an instance
+  is used only after its three UDP ports were found free;
+- readiness is the drone's first HEARTBEAT on its API port, never a sleep;
+- every process started here is stopped by its PID (SIGTERM, then SIGKILL after a grace period) and reaped. The
+  process also gets a parent-death signal, so a test runner killed with SIGKILL does not leave drones flying.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Final
+
+from pymavlink.dialects.v20 import common as mavlink
+
+LOOPBACK: Final = "127.0.0.1"
+API_REMOTE_BASE_PORT: Final = 14540  # the drone streams to 14540+i (PX4 SITL convention)
+API_BIND_BASE_PORT: Final = 14580  # and listens on 14580+i
+GCS_BIND_BASE_PORT: Final = 18570  # ground-station link listens on 18570+i
+AUTOPILOT_COMPID: Final = 1
+READY_TIMEOUT_S: Final = 30.0  # wall clock: Python + JSBSim start-up on a loaded 2-core machine
+STOP_GRACE_S: Final = 10.0  # SIGTERM is answered within a loop iteration; SIGKILL after this
+PR_SET_PDEATHSIG: Final = 1
+
+# Runs in the child before the drone: ask the kernel for SIGTERM when the parent dies, then become the drone (same
+# PID, so stopping by PID still works). The check of the parent PID closes the race of a parent dying before prctl.
+_PDEATHSIG_EXEC: Final = (
+    "import ctypes, os, signal, sys\n"
+    f"ctypes.CDLL(None, use_errno=True).prctl({PR_SET_PDEATHSIG}, int(signal.SIGTERM), 0, 0, 0)\n"
+    "if os.getppid() != int(sys.argv[1]):\n"
+    "    sys.exit(3)\n"
+    "os.execv(sys.argv[2], sys.argv[2:])\n"
+)
+
+
+class SitlStartError(RuntimeError):
+    """The drone process exited or stayed silent instead of becoming ready."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DronePorts:
+    """The UDP ports of one instance, by the PX4 SITL convention."""
+
+    instance: int
+
+    @property
+    def sysid(self) -> int:
+        return self.instance + 1
+
+    @property
+    def api_remote(self) -> int:
+        return API_REMOTE_BASE_PORT + self.instance
+
+    @property
+    def api_bind(self) -> int:
+        return API_BIND_BASE_PORT + self.instance
+
+    @property
+    def gcs_bind(self) -> int:
+        return GCS_BIND_BASE_PORT + self.instance
+
+    def all(self) -> tuple[int, int, int]:
+        return (self.api_remote, self.api_bind, self.gcs_bind)
+
+
+def udp_port_is_free(port: int) -> bool:
+    """True if nobody holds ``port`` on loopback (a bind to 127.0.0.1 also fails against a 0.0.0.0 holder)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        try:
+            probe.bind((LOOPBACK, port))
+        except OSError:
+            return False
+    return True
+
+
+class InstanceAllocator:
+    """Hands out instance numbers from ``[base, base + span)`` round robin, skipping those with a busy port.
+
+    Round robin rather than always the lowest free number, so that a test never receives stray datagrams still in
+    flight to the ports of the previous test's drone.
+    """
+
+    def __init__(self, base: int, span: int) -> None:
+        if base < 1 or span < 2 or base + span > 255:
+            raise ValueError(f"instance range {base}..{base + span - 1} must lie within 1..254")
+        self._base = base
+        self._span = span
+        self._next = 0
+        self._taken: set[int] = set()
+
+    def take(self) -> int:
+        for _ in range(self._span):
+            instance = self._base + self._next
+            self._next = (self._next + 1) % self._span
+            # 14540+i must never be 14550, the ground-station port of the machine
+            if instance in self._taken or API_REMOTE_BASE_PORT + instance == 14550:
+                continue
+            if all(udp_port_is_free(p) for p in DronePorts(instance=instance).all()):
+                self._taken.add(instance)
+                return instance
+        raise SitlStartError(f"no instance in {self._base}..{self._base + self._span - 1} has its UDP ports free")
+
+    def give_back(self, instance: int) -> None:
+        self._taken.discard(instance)
+
+
+def sitl_command() -> list[str]:
+    """The venv's ``sitl`` console script next to this interpreter, else the module."""
+    script = Path(sys.executable).with_name("sitl")
+    if script.exists():
+        return [str(script)]
+    return [sys.executable, "-m", "sitl.cli"]
+
+
+def first_heartbeat(sock: socket.socket, sysid: int, deadline: float, alive: Process | None = None) -> bytes:
+    """Wait on ``sock`` for a HEARTBEAT from ``sysid``/compid 1; returns its raw datagram."""
+    parser = mavlink.MAVLink(None)
+    parser.robust_parsing = True
+    while (remaining := deadline - time.monotonic()) > 0:
+        if alive is not None:
+            alive.raise_if_exited()
+        sock.settimeout(min(remaining, 0.2))
+        try:
+            data, _ = sock.recvfrom(65535)
+        except TimeoutError:
+            continue
+        for msg in parser.parse_buffer(data) or []:
+            if (
+                msg.get_type() == "HEARTBEAT"
+                and msg.get_srcSystem() == sysid
+                and msg.get_srcComponent() == AUTOPILOT_COMPID
+            ):
+                return data
+    raise TimeoutError(f"no HEARTBEAT from sysid {sysid} within the deadline")
+
+
+class Process:
+    """One running ``sitl``; stop() is idempotent and always reaps."""
+
+    def __init__(self, popen: subprocess.Popen[bytes], log_path: Path, log_file: IO[bytes]) -> None:
+        self.popen = popen
+        self.log_path = log_path
+        self._log_file = log_file
+
+    @property
+    def pid(self) -> int:
+        return self.popen.pid
+
+    def alive(self) -> bool:
+        return self.popen.poll() is None
+
+    def log_tail(self, lines: int = 30) -> str:
+        self._log_file.flush()
+        text = self.log_path.read_text(errors="replace")
+        return "\n".join(text.splitlines()[-lines:])
+
+    def raise_if_exited(self) -> None:
+        code = self.popen.poll()
+        if code is not None:
+            raise SitlStartError(f"sitl (pid {self.pid}) exited with code {code}; log:\n{self.log_tail()}")
+
+    def signal(self, sig: signal.Signals) -> None:
+        if self.alive():
+            self.popen.send_signal(sig)
+
+    def wait(self, timeout_s: float) -> int:
+        return self.popen.wait(timeout=timeout_s)
+
+    def stop(self, grace_s: float = STOP_GRACE_S) -> int:
+        """SIGTERM, wait up to ``grace_s``, then SIGKILL; returns the exit code (negative: killed by a signal)."""
+        try:
+            if self.alive():
+                self.popen.send_signal(signal.SIGTERM)
+                try:
+                    return self.popen.wait(timeout=grace_s)
+                except subprocess.TimeoutExpired:
+                    self.popen.kill()
+            return self.popen.wait(timeout=grace_s)
+        finally:
+            self._log_file.close()
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SitlDrone:
+    """A started, ready drone and everything needed to talk to it and to stop it."""
+
+    ports: DronePorts
+    process: Process
+    speed_factor: float
+    gcs_sink: socket.socket  # receives the ground-station link's stream, so it never reaches 14550
+
+    @property
+    def sysid(self) -> int:
+        return self.ports.sysid
+
+
+def start_drone(
+    *,
+    instance: int,
+    speed_factor: float,
+    seed: int,
+    log_dir: Path,
+    extra_args: tuple[str, ...] = (),
+    ready_timeout_s: float = READY_TIMEOUT_S,
+) -> SitlDrone:
+    """Start ``sitl --instance instance`` and return once its first HEARTBEAT arrived on 127.0.0.1:14540+i.
+
+    The caller owns the result and must pass it to ``stop_drone``; if start-up fails, everything started here is
+    stopped and reaped before the error propagates.
+    """
+    ports = DronePorts(instance=instance)
+    with contextlib.ExitStack() as on_failure:
+        # Bound before the drone starts, so its very first datagram is not lost to an unbound port.
+        listener = on_failure.enter_context(socket.socket(socket.AF_INET, socket.SOCK_DGRAM))
+        listener.bind((LOOPBACK, ports.api_remote))
+        gcs_sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        on_failure.callback(gcs_sink.close)
+        gcs_sink.bind((LOOPBACK, 0))
+        gcs_port = gcs_sink.getsockname()[1]
+
+        log_path = log_dir / f"sitl-{instance}.log"
+        log_file = log_path.open("wb")
+        argv = [
+            *sitl_command(),
+            "--instance",
+            str(instance),
+            "--speed",
+            f"{speed_factor:g}",
+            "--seed",
+            str(seed),
+            "--gcs-remote",
+            f"{LOOPBACK}:{gcs_port}",
+            *extra_args,
+        ]
+        env = {k: v for k, v in os.environ.items() if k != "PX4_SIM_SPEED_FACTOR"}
+        popen = subprocess.Popen(
+            [sys.executable, "-c", _PDEATHSIG_EXEC, str(os.getpid()), *argv],
+            stdin=subprocess.DEVNULL,
+            stdout=log_file,
+            stderr=subprocess.STDOUT,
+            env=env,
+        )
+        process = Process(popen, log_path, log_file)
+        on_failure.callback(process.stop)
+        try:
+            first_heartbeat(listener, ports.sysid, time.monotonic() + ready_timeout_s, alive=process)
+        except TimeoutError:
+            raise SitlStartError(
+                f"sitl --instance {instance} (pid {process.pid}) sent no HEARTBEAT to 127.0.0.1:{ports.api_remote} "
+                f"within {ready_timeout_s:.0f} s; log:\n{process.log_tail()}"
+            ) from None
+        on_failure.pop_all()
+    listener.close()
+    return SitlDrone(ports=ports, process=process, speed_factor=speed_factor, gcs_sink=gcs_sink)
+
+
+def stop_drone(drone: SitlDrone) -> int:
+    """Stop and reap the drone's process; returns its exit code."""
+    try:
+        return drone.process.stop()
+    finally:
+        drone.gcs_sink.close()
+
+
+@contextlib.contextmanager
+def running_drone(**kwargs: object) -> Iterator[SitlDrone]:
+    drone = start_drone(**kwargs)  # type: ignore[arg-type]
+    try:
+        yield drone
+    finally:
+        stop_drone(drone)
