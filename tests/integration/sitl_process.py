@@ -163,7 +163,8 @@ class Process:
         return self.popen.poll() is None
 
     def log_tail(self, lines: int = 30) -> str:
-        self._log_file.flush()
+        if not self._log_file.closed:
+            self._log_file.flush()
         text = self.log_path.read_text(errors="replace")
         return "\n".join(text.splitlines()[-lines:])
 
