@@ -50,6 +50,20 @@ def _component_scale(direction: Vec3, limit_xy: float, limit_up: float, limit_do
     return scale
 
 
+def _stoppable_speed(dist_m: float, previous_mps: float, accel_mps2: float, dt_s: float) -> float:
+    """Largest speed v for this step from which the vehicle can still stop at the target.
+
+    The step moves (previous + v) / 2 * dt, and what is left must satisfy v^2 <= 2 a (distance left). Judging by the
+    distance before the step instead lets the speed run one step ahead of the braking curve at every step, and the
+    reference then reaches the target still moving (about 0.3 m/s at 5 m/s cruise and 400 Hz) and stops dead.
+    """
+    a_dt = accel_mps2 * dt_s
+    discriminant = a_dt * a_dt + 8.0 * accel_mps2 * dist_m - 4.0 * accel_mps2 * previous_mps * dt_s
+    if discriminant <= 0.0:
+        return 0.0
+    return max(0.0, 0.5 * (math.sqrt(discriminant) - a_dt))
+
+
 class StraightLineTrajectory:
     """Moves a reference point toward a target along a straight line with bounded speed and acceleration."""
 
@@ -79,18 +93,19 @@ class StraightLineTrajectory:
             self._acc = np.zeros(3)
             return Reference(pos_ned_m=self._pos.copy(), vel_ned_mps=np.zeros(3), acc_ned_mps2=np.zeros(3))
         direction = delta / dist if dist > 1e-9 else self._dir
-        # A new direction (target moved) carries over only the speed component along it.
+        line_limit = _component_scale(direction, limits.speed_xy_mps, limits.speed_up_mps, limits.speed_down_mps)
+        # A new direction (target moved) carries over only the speed component along it, and no more than the new
+        # line allows: 5 m/s of horizontal cruise turned 45 degrees downward would otherwise descend at 2.5 m/s.
+        # (A lower speed limit on the same line is approached with the allowed deceleration instead.)
         if self._speed > 0.0:
-            self._speed = max(0.0, self._speed * float(direction @ self._dir))
+            cos_turn = float(direction @ self._dir)
+            if cos_turn < 1.0 - 1e-9:
+                self._speed = min(max(0.0, self._speed * cos_turn), line_limit)
         self._dir = direction
-        v_max = min(
-            max_speed_mps,
-            _component_scale(direction, limits.speed_xy_mps, limits.speed_up_mps, limits.speed_down_mps),
-        )
+        v_max = min(max_speed_mps, line_limit)
         a_max = _component_scale(direction, limits.accel_xy_mps2, limits.accel_z_mps2, limits.accel_z_mps2)
-        stopping_speed = math.sqrt(2.0 * a_max * dist)
-        desired = min(v_max, stopping_speed)
         previous = self._speed
+        desired = min(v_max, _stoppable_speed(dist, previous, a_max, dt_s))
         self._speed = max(previous - a_max * dt_s, min(previous + a_max * dt_s, desired))
         step = min(dist, 0.5 * (previous + self._speed) * dt_s)
         self._pos = self._pos + direction * step

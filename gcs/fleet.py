@@ -1,0 +1,95 @@
+"""The ground station's picture of the swarm, built only from MAVLink telemetry (pure: messages and time in).
+
+One ``DroneView`` per system id with what PX4 telemetry says: mode, armed, position, home, battery, landed state,
+and when it was last heard. The supervisor uses it for readiness and liveness, the CLI prints it, the relay and the
+formation engine read positions from it. Nothing here knows the drones are simulated.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from sitl.protocol.modes import Px4Mode
+
+LINK_LOST_S = 3.0  # MAVSDK and QGroundControl call a system lost after 3 s without a heartbeat
+
+_MODES_BY_CUSTOM = {mode.custom_mode: mode for mode in Px4Mode}
+
+
+@dataclass(slots=True)
+class DroneView:
+    sysid: int
+    first_heartbeat_s: float
+    last_heartbeat_s: float
+    armed: bool = False
+    mode: str = "UNKNOWN"
+    system_status: int = 0
+    lat_deg: float = math.nan
+    lon_deg: float = math.nan
+    alt_amsl_m: float = math.nan
+    relative_alt_m: float = math.nan
+    vel_ned_mps: tuple[float, float, float] = (math.nan, math.nan, math.nan)
+    local_ned_m: tuple[float, float, float] = (math.nan, math.nan, math.nan)
+    home: tuple[float, float, float] | None = None  # lat, lon, alt AMSL
+    battery_remaining: float = math.nan  # 0..1
+    battery_voltage_v: float = math.nan
+    landed_state: int = 0  # MAV_LANDED_STATE
+    prearm_ok: bool = False
+    position_time_s: float = -math.inf
+    texts: list[tuple[float, int, str]] = field(default_factory=list)  # (time, severity, text), newest last
+
+    def link_age_s(self, now_s: float) -> float:
+        return now_s - self.last_heartbeat_s
+
+    def lost(self, now_s: float) -> bool:
+        return self.link_age_s(now_s) > LINK_LOST_S
+
+
+PREARM_BIT = 0x10000000  # MAV_SYS_STATUS_PREARM_CHECK
+
+
+class Fleet:
+    def __init__(self) -> None:
+        self.drones: dict[int, DroneView] = {}
+
+    def handle(self, msg: Any, now_s: float) -> None:
+        """Update from one message of any system (messages from other components than the autopilot are ignored)."""
+        if msg.get_srcComponent() != 1:
+            return
+        sysid = msg.get_srcSystem()
+        kind = msg.get_type()
+        view = self.drones.get(sysid)
+        if kind == "HEARTBEAT":
+            if view is None:
+                view = self.drones[sysid] = DroneView(sysid=sysid, first_heartbeat_s=now_s, last_heartbeat_s=now_s)
+            view.last_heartbeat_s = now_s
+            view.armed = bool(msg.base_mode & 128)
+            mode = _MODES_BY_CUSTOM.get(msg.custom_mode)
+            view.mode = mode.px4_name if mode is not None else f"custom {msg.custom_mode}"
+            view.system_status = msg.system_status
+            return
+        if view is None:
+            return
+        if kind == "GLOBAL_POSITION_INT":
+            view.lat_deg, view.lon_deg = msg.lat * 1e-7, msg.lon * 1e-7
+            view.alt_amsl_m, view.relative_alt_m = msg.alt * 1e-3, msg.relative_alt * 1e-3
+            view.vel_ned_mps = (msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
+            view.position_time_s = now_s
+        elif kind == "LOCAL_POSITION_NED":
+            view.local_ned_m = (msg.x, msg.y, msg.z)
+        elif kind == "HOME_POSITION":
+            view.home = (msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3)
+        elif kind == "SYS_STATUS":
+            view.battery_voltage_v = msg.voltage_battery * 1e-3 if msg.voltage_battery != 0xFFFF else math.nan
+            view.battery_remaining = msg.battery_remaining / 100.0 if msg.battery_remaining >= 0 else math.nan
+            view.prearm_ok = bool(msg.onboard_control_sensors_health & PREARM_BIT)
+        elif kind == "EXTENDED_SYS_STATE":
+            view.landed_state = msg.landed_state
+        elif kind == "STATUSTEXT":
+            view.texts.append((now_s, msg.severity, msg.text))
+            del view.texts[:-50]
+
+    def lost(self, now_s: float) -> list[int]:
+        return sorted(s for s, v in self.drones.items() if v.lost(now_s))

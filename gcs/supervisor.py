@@ -1,0 +1,164 @@
+"""Spawns and supervises drone processes: readiness by first HEARTBEAT, liveness, and a shutdown with no orphans.
+
+Three layers make sure no ``sitl`` outlives its supervisor:
+- a normal exit (Ctrl-C, ``swarm down``, an error) lands or disarms every drone over MAVLink, then sends SIGTERM,
+  waits, SIGKILLs what is left and reaps every child;
+- children run in their own session, so a Ctrl-C typed in the terminal reaches only the supervisor, which then
+  shuts them down in order instead of leaving them mid-flight;
+- each child asks the kernel for SIGTERM when its parent dies (Linux ``PR_SET_PDEATHSIG``), which covers a
+  supervisor killed with SIGKILL, where no Python code runs at all.
+Processes are only ever signalled by the PIDs this supervisor started.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from sitl.dynamics.geodesy import geo_from_ned
+from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
+
+PR_SET_PDEATHSIG = 1
+TERMINATE_WAIT_S = 5.0
+
+
+class SpawnError(RuntimeError):
+    """A drone did not come up; the message names it and says why, in one line."""
+
+
+def _die_with_parent() -> None:  # runs in the child between fork and exec
+    with contextlib.suppress(OSError):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+
+
+def grid_layout(n: int, spacing_m: float) -> list[tuple[float, float]]:
+    """North/east spawn offsets on a square-ish grid centred on the origin, row by row."""
+    cols = max(1, math.ceil(math.sqrt(n)))
+    rows = math.ceil(n / cols)
+    out = []
+    for i in range(n):
+        r, c = divmod(i, cols)
+        out.append(((r - (rows - 1) / 2) * spacing_m, (c - (cols - 1) / 2) * spacing_m))
+    return out
+
+
+def line_layout(n: int, spacing_m: float) -> list[tuple[float, float]]:
+    return [(0.0, (i - (n - 1) / 2) * spacing_m) for i in range(n)]
+
+
+LAYOUTS = {"grid": grid_layout, "line": line_layout}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SpawnPlan:
+    n_drones: int
+    spacing_m: float = 2.0
+    layout: str = "grid"
+    origin: GeoPoint = DEFAULT_HOME
+    speed_factor: float = 1.0
+    first_instance: int = 0
+    airframe: str | None = None
+    seed: int = 0
+    log_dir: Path | None = None  # each drone's stdout/stderr goes to drone-<i>.log here
+
+    def homes(self) -> list[GeoPoint]:
+        offsets = LAYOUTS[self.layout](self.n_drones, self.spacing_m)
+        return [geo_from_ned((north, east, 0.0), self.origin) for north, east in offsets]
+
+
+@dataclass(slots=True)
+class DroneProcess:
+    instance: int
+    sysid: int
+    home: GeoPoint
+    process: subprocess.Popen[bytes]
+    log_path: Path | None
+
+    def last_log_line(self) -> str:
+        if self.log_path is None or not self.log_path.exists():
+            return ""
+        lines = [ln for ln in self.log_path.read_text(errors="replace").splitlines() if ln.strip()]
+        return lines[-1] if lines else ""
+
+
+def sitl_command(plan: SpawnPlan, instance: int, home: GeoPoint, gcs_port: int) -> list[str]:
+    cmd = [
+        sys.executable, "-m", "sitl.cli",
+        "--instance", str(instance),
+        "--speed", f"{plan.speed_factor:g}",
+        "--seed", str(plan.seed + instance),
+        "--home", f"{home.lat_deg:.9f},{home.lon_deg:.9f},{home.alt_amsl_m:.3f}",
+        "--gcs-remote", f"127.0.0.1:{gcs_port}",
+    ]  # fmt: skip
+    if plan.airframe is not None:
+        cmd += ["--airframe", plan.airframe]
+    return cmd
+
+
+class ProcessGroup:
+    """The drone processes of one swarm."""
+
+    def __init__(self) -> None:
+        self.drones: list[DroneProcess] = []
+
+    def spawn(self, plan: SpawnPlan, gcs_port: int) -> None:
+        if plan.log_dir is not None:
+            plan.log_dir.mkdir(parents=True, exist_ok=True)
+        for k, home in enumerate(plan.homes()):
+            instance = plan.first_instance + k
+            log_path = plan.log_dir / f"drone-{instance}.log" if plan.log_dir is not None else None
+            out = log_path.open("wb") if log_path is not None else subprocess.DEVNULL
+            try:
+                process = subprocess.Popen(
+                    sitl_command(plan, instance, home, gcs_port),
+                    stdin=subprocess.DEVNULL,
+                    stdout=out,
+                    stderr=subprocess.STDOUT,
+                    start_new_session=True,
+                    preexec_fn=_die_with_parent,  # PR_SET_PDEATHSIG
+                )
+            finally:
+                if log_path is not None:
+                    out.close()  # type: ignore[union-attr]
+            self.drones.append(
+                DroneProcess(instance=instance, sysid=instance + 1, home=home, process=process, log_path=log_path)
+            )
+
+    def exited(self) -> list[DroneProcess]:
+        return [d for d in self.drones if d.process.poll() is not None]
+
+    def terminate(self, wait_s: float = TERMINATE_WAIT_S) -> None:
+        """SIGTERM every child still running, then SIGKILL after ``wait_s``; always reaps."""
+        for d in self.drones:
+            if d.process.poll() is None:
+                d.process.send_signal(signal.SIGTERM)
+        deadline = time.monotonic() + wait_s
+        for d in self.drones:
+            remaining = max(0.0, deadline - time.monotonic())
+            try:
+                d.process.wait(timeout=remaining)
+            except subprocess.TimeoutExpired:
+                d.process.kill()
+                d.process.wait()
+
+    @property
+    def pids(self) -> list[int]:
+        return [d.process.pid for d in self.drones]
+
+
+def pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True

@@ -1,0 +1,197 @@
+"""Integration tests: real ``sitl`` processes on the wire with unchanged MAVSDK and pymavlink clients.
+
+Policy:
+- Loopback only. Drones this suite starts bind 127.0.0.1 and stream to 127.0.0.1; clients bind 127.0.0.1.
+- Instances start at ``--sitl-instance-base`` (default 20, plus 10 per pytest-xdist worker), never the default
+  instance 0, and an instance is used only while its UDP ports are free, so a user's own simulator is untouched.
+- A drone is ready when its first HEARTBEAT arrived; nothing sleeps and hopes.
+- Every process started here is stopped by PID (SIGTERM, then SIGKILL) and reaped; after each test no child
+  process and no extra thread (MAVSDK's native ones included) may remain.
+- Every test has a time limit (pytest-timeout, 120 s by default in pyproject.toml, tighter per test).
+- ``pytest tests/integration --vehicle udpin://0.0.0.0:14540`` flies the flight tests against that vehicle
+  instead (a PX4 SITL, or a ``sitl`` started by hand); nothing is spawned and ``sim_only`` tests are skipped.
+
+Coroutine test functions are run here with ``asyncio.run`` (one event loop per test), so no asyncio plugin is
+needed.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import inspect
+import os
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.integration.sitl_process import InstanceAllocator, SitlDrone, start_drone, stop_drone
+from tests.integration.vehicle_link import VehicleLink, VehicleUrlError, pymavlink_url
+
+DEFAULT_SPEED_FACTOR = 4.0
+INSTANCES_PER_WORKER = 10
+LEAK_SETTLE_S = 5.0
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    group = parser.getgroup("sitl integration")
+    group.addoption(
+        "--vehicle",
+        metavar="URL",
+        default=None,
+        help="fly the flight tests against this vehicle (MAVSDK URL, e.g. udpin://0.0.0.0:14540) instead of "
+        "spawning sitl; sim_only tests are skipped",
+    )
+    group.addoption(
+        "--vehicle-speed",
+        type=float,
+        default=1.0,
+        metavar="F",
+        help="speed factor of the --vehicle simulator, to scale wall-clock waits (default 1)",
+    )
+    group.addoption(
+        "--sitl-speed",
+        type=float,
+        default=DEFAULT_SPEED_FACTOR,
+        metavar="F",
+        help=f"speed factor of spawned sitl drones (default {DEFAULT_SPEED_FACTOR:g})",
+    )
+    group.addoption(
+        "--sitl-instance-base",
+        type=int,
+        default=20,
+        metavar="I",
+        help="first sitl instance number this run may use (default 20; ports 14540+I, 14580+I, 18570+I)",
+    )
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    url = config.getoption("--vehicle")
+    if url is not None:
+        try:
+            pymavlink_url(url)
+        except VehicleUrlError as exc:
+            raise pytest.UsageError(str(exc)) from None
+    speed = config.getoption("--sitl-speed")
+    if not (0 < speed <= 20):
+        raise pytest.UsageError(f"--sitl-speed must be in (0, 20], got {speed}")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    if config.getoption("--vehicle") is None:
+        return
+    skip = pytest.mark.skip(reason="sim_only: needs a drone this suite starts itself (--vehicle given)")
+    for item in items:
+        if "sim_only" in item.keywords:
+            item.add_marker(skip)
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_pyfunc_call(pyfuncitem: pytest.Function) -> bool | None:
+    """Run ``async def`` tests to completion in a fresh event loop."""
+    if not inspect.iscoroutinefunction(pyfuncitem.obj):
+        return None
+    kwargs = {name: pyfuncitem.funcargs[name] for name in pyfuncitem._fixtureinfo.argnames}
+    asyncio.run(pyfuncitem.obj(**kwargs))
+    return True
+
+
+def _worker_index() -> int:
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
+    digits = worker.removeprefix("gw")
+    return int(digits) if digits.isdigit() else 0
+
+
+@pytest.fixture(scope="session")
+def instance_allocator(pytestconfig: pytest.Config) -> InstanceAllocator:
+    base = pytestconfig.getoption("--sitl-instance-base") + INSTANCES_PER_WORKER * _worker_index()
+    return InstanceAllocator(base, INSTANCES_PER_WORKER)
+
+
+@pytest.fixture
+def spawn_drone(
+    request: pytest.FixtureRequest, instance_allocator: InstanceAllocator, tmp_path: Path
+) -> Iterator[Callable[..., SitlDrone]]:
+    """Factory: ``spawn_drone()`` starts a ready drone on a free instance; all are stopped and reaped at teardown."""
+    if request.config.getoption("--vehicle") is not None:
+        pytest.skip("spawning sitl is disabled when --vehicle is given")
+    speed = request.config.getoption("--sitl-speed")
+    started: list[SitlDrone] = []
+
+    def spawn(*, speed_factor: float = speed, extra_args: tuple[str, ...] = ()) -> SitlDrone:
+        instance = instance_allocator.take()
+        try:
+            drone = start_drone(
+                instance=instance, speed_factor=speed_factor, seed=instance, log_dir=tmp_path, extra_args=extra_args
+            )
+        except BaseException:
+            instance_allocator.give_back(instance)
+            raise
+        started.append(drone)
+        return drone
+
+    try:
+        yield spawn
+    finally:
+        for drone in reversed(started):
+            try:
+                stop_drone(drone)
+            finally:
+                instance_allocator.give_back(drone.ports.instance)
+        for drone in started:
+            print(f"--- sitl instance {drone.ports.instance} log ---\n{drone.process.log_tail()}")
+
+
+@pytest.fixture
+def vehicle(request: pytest.FixtureRequest) -> VehicleLink:
+    """The vehicle a flight test flies: ``--vehicle`` if given, else a fresh drone of our own."""
+    url = request.config.getoption("--vehicle")
+    if url is not None:
+        return VehicleLink.external(url, request.config.getoption("--vehicle-speed"))
+    spawn: Callable[..., SitlDrone] = request.getfixturevalue("spawn_drone")
+    return VehicleLink.of(spawn())
+
+
+def _child_pids() -> set[int]:
+    me = os.getpid()
+    children: set[int] = set()
+    for entry in os.scandir("/proc"):
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = Path(entry.path, "stat").read_text()
+        except OSError:
+            continue
+        # the command name (field 2) may contain spaces; the parent PID is the 2nd field after its ")"
+        if int(stat.rpartition(")")[2].split()[1]) == me:
+            children.add(int(entry.name))
+    return children
+
+
+def _os_thread_count() -> int:
+    return len(os.listdir("/proc/self/task"))
+
+
+@pytest.fixture(autouse=True)
+def no_leftover_processes_or_threads() -> Iterator[None]:
+    """After a test, every process it started is reaped and every thread it started (native too) has ended."""
+    children_before = _child_pids()
+    threads_before = _os_thread_count()
+    py_threads_before = set(threading.enumerate())
+    yield
+    deadline = time.monotonic() + LEAK_SETTLE_S
+    while True:
+        children = _child_pids() - children_before
+        extra_threads = _os_thread_count() - threads_before
+        py_threads = [t.name for t in threading.enumerate() if t not in py_threads_before]
+        if not children and extra_threads <= 0 and not py_threads:
+            return
+        if time.monotonic() > deadline:
+            pytest.fail(
+                f"left behind: child processes {sorted(children)}, {extra_threads} extra OS threads, "
+                f"Python threads {py_threads}",
+                pytrace=False,
+            )
+        time.sleep(0.05)
