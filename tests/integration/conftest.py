@@ -111,37 +111,44 @@ def instance_allocator(pytestconfig: pytest.Config) -> InstanceAllocator:
 
 
 @pytest.fixture
-def spawn_drone(
+def spawn_drones(
     request: pytest.FixtureRequest, instance_allocator: InstanceAllocator, tmp_path: Path
-) -> Iterator[Callable[..., SitlDrone]]:
-    """Factory: ``spawn_drone()`` starts a ready drone on a free instance; all are stopped and reaped at teardown."""
+) -> Iterator[Callable[..., list[SitlDrone]]]:
+    """Factory: ``spawn_drones(n)`` starts n ready drones on adjacent free instances; all are stopped and reaped
+    at teardown, and their logs are printed (pytest shows them for failed tests)."""
     if request.config.getoption("--vehicle") is not None:
         pytest.skip("spawning sitl is disabled when --vehicle is given")
-    speed = request.config.getoption("--sitl-speed")
+    default_speed = request.config.getoption("--sitl-speed")
     started: list[SitlDrone] = []
 
-    def spawn(*, speed_factor: float = speed, extra_args: tuple[str, ...] = ()) -> SitlDrone:
-        instance = instance_allocator.take()
+    def spawn(count: int = 1, *, speed_factor: float = default_speed) -> list[SitlDrone]:
+        instances = instance_allocator.take(count)
+        drones: list[SitlDrone] = []
         try:
-            drone = start_drone(
-                instance=instance, speed_factor=speed_factor, seed=instance, log_dir=tmp_path, extra_args=extra_args
-            )
-        except BaseException:
-            instance_allocator.give_back(instance)
-            raise
-        started.append(drone)
-        return drone
+            for instance in instances:
+                drones.append(
+                    start_drone(instance=instance, speed_factor=speed_factor, seed=instance, log_dir=tmp_path)
+                )
+                started.append(drones[-1])
+        finally:
+            for instance in instances[len(drones) :]:
+                instance_allocator.give_back(instance)
+        return drones
 
     try:
         yield spawn
     finally:
-        for drone in reversed(started):
-            try:
+        try:
+            for drone in reversed(started):
+                try:
+                    exit_code = stop_drone(drone)
+                finally:
+                    instance_allocator.give_back(drone.ports.instance)
+                print(f"--- sitl instance {drone.ports.instance}, exit code {exit_code} ---")
+                print(drone.process.log_tail())
+        finally:
+            for drone in started:  # a failure above must not leave any process running
                 stop_drone(drone)
-            finally:
-                instance_allocator.give_back(drone.ports.instance)
-        for drone in started:
-            print(f"--- sitl instance {drone.ports.instance} log ---\n{drone.process.log_tail()}")
 
 
 @pytest.fixture
@@ -150,8 +157,8 @@ def vehicle(request: pytest.FixtureRequest) -> VehicleLink:
     url = request.config.getoption("--vehicle")
     if url is not None:
         return VehicleLink.external(url, request.config.getoption("--vehicle-speed"))
-    spawn: Callable[..., SitlDrone] = request.getfixturevalue("spawn_drone")
-    return VehicleLink.of(spawn())
+    spawn: Callable[..., list[SitlDrone]] = request.getfixturevalue("spawn_drones")
+    return VehicleLink.of(spawn()[0])
 
 
 def _child_pids() -> set[int]:

@@ -19,7 +19,6 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Final
@@ -101,17 +100,25 @@ class InstanceAllocator:
         self._next = 0
         self._taken: set[int] = set()
 
-    def take(self) -> int:
+    def take(self, count: int = 1) -> list[int]:
+        """``count`` adjacent instances whose ports are all free."""
         for _ in range(self._span):
-            instance = self._base + self._next
+            first = self._base + self._next
             self._next = (self._next + 1) % self._span
-            # 14540+i must never be 14550, the ground-station port of the machine
-            if instance in self._taken or API_REMOTE_BASE_PORT + instance == 14550:
+            block = list(range(first, first + count))
+            if block[-1] >= self._base + self._span or any(self._unusable(i) for i in block):
                 continue
-            if all(udp_port_is_free(p) for p in DronePorts(instance=instance).all()):
-                self._taken.add(instance)
-                return instance
-        raise SitlStartError(f"no instance in {self._base}..{self._base + self._span - 1} has its UDP ports free")
+            self._taken.update(block)
+            return block
+        raise SitlStartError(
+            f"no {count} adjacent instances in {self._base}..{self._base + self._span - 1} have their UDP ports free"
+        )
+
+    def _unusable(self, instance: int) -> bool:
+        # 14540+i must never be 14550, the machine's ground-station port
+        if instance in self._taken or API_REMOTE_BASE_PORT + instance == 14550:
+            return True
+        return not all(udp_port_is_free(p) for p in DronePorts(instance=instance).all())
 
     def give_back(self, instance: int) -> None:
         self._taken.discard(instance)
@@ -274,12 +281,3 @@ def stop_drone(drone: SitlDrone) -> int:
         return drone.process.stop()
     finally:
         drone.gcs_sink.close()
-
-
-@contextlib.contextmanager
-def running_drone(**kwargs: object) -> Iterator[SitlDrone]:
-    drone = start_drone(**kwargs)  # type: ignore[arg-type]
-    try:
-        yield drone
-    finally:
-        stop_drone(drone)

@@ -1,0 +1,167 @@
+"""A running swarm as the ground station sees it: the processes, the MAVLink socket and the fleet view.
+
+``Swarm`` brings drones up (spawn, then wait for each one's first HEARTBEAT; never sleep-and-hope), pumps
+telemetry into the fleet view, sends commands with PX4-client retry rules, and shuts everything down in order:
+land or disarm over MAVLink, then terminate and reap every process. Times are the supervisor's monotonic clock.
+"""
+
+from __future__ import annotations
+
+import selectors
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Any
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from gcs.fleet import Fleet
+from gcs.supervisor import ProcessGroup, SpawnError, SpawnPlan
+from gcs.transport import GcsSocket
+
+COMMAND_TIMEOUT_S = 0.5  # MAVSDK's per-try timeout
+COMMAND_RETRIES = 3
+
+
+@dataclass(frozen=True, slots=True)
+class Ack:
+    sysid: int
+    result: int | None  # MAV_RESULT, None when no answer came
+
+    @property
+    def ok(self) -> bool:
+        return self.result == mavlink.MAV_RESULT_ACCEPTED
+
+
+class Swarm:
+    def __init__(self, plan: SpawnPlan, clock: Callable[[], float] = time.monotonic) -> None:
+        self.plan = plan
+        self.clock = clock
+        self.link = GcsSocket()
+        self.fleet = Fleet()
+        self.processes = ProcessGroup()
+        self.listeners: list[Callable[[Any, float], None]] = []  # e.g. the flight recorder, the relay
+        self._selector = selectors.DefaultSelector()
+        self._selector.register(self.link.sock, selectors.EVENT_READ)
+        self._acks: list[Any] = []
+
+    @property
+    def sysids(self) -> list[int]:
+        return [d.sysid for d in self.processes.drones]
+
+    # ---- IO --------------------------------------------------------------------------------------------------------
+    def pump(self, wait_s: float = 0.0) -> None:
+        """Handle every waiting message, waiting up to ``wait_s`` for the first."""
+        if wait_s > 0:
+            self._selector.select(wait_s)
+        now = self.clock()
+        for msg in self.link.receive():
+            self.fleet.handle(msg, now)
+            if msg.get_type() == "COMMAND_ACK":
+                self._acks.append(msg)
+            for listener in self.listeners:
+                listener(msg, now)
+
+    def run_for(self, seconds: float, tick: Callable[[float], None] | None = None, tick_s: float = 0.05) -> None:
+        """Pump telemetry for a while, calling ``tick(now)`` every ``tick_s``."""
+        end = self.clock() + seconds
+        next_tick = self.clock()
+        while (now := self.clock()) < end:
+            if tick is not None and now >= next_tick:
+                tick(now)
+                next_tick = now + tick_s
+            self.pump(max(0.0, min(next_tick, end) - self.clock()))
+
+    def wait_until(
+        self,
+        condition: Callable[[], bool],
+        timeout_s: float,
+        tick: Callable[[float], None] | None = None,
+    ) -> bool:
+        end = self.clock() + timeout_s
+        next_tick = self.clock()
+        while self.clock() < end:
+            now = self.clock()
+            if tick is not None and now >= next_tick:
+                tick(now)
+                next_tick = now + 0.05
+            if condition():
+                return True
+            self.pump(min(0.05, max(0.0, end - self.clock())))
+        return condition()
+
+    # ---- lifecycle -------------------------------------------------------------------------------------------------
+    def up(self, ready_timeout_s: float = 30.0) -> None:
+        """Spawn every drone and wait for its first HEARTBEAT; SpawnError names the first that does not come up."""
+        self.processes.spawn(self.plan, self.link.port)
+        expected = set(self.sysids)
+        end = self.clock() + ready_timeout_s
+        while not expected <= set(self.fleet.drones):
+            for d in self.processes.exited():
+                detail = d.last_log_line() or "no output"
+                raise SpawnError(
+                    f"drone {d.instance} (sysid {d.sysid}) exited with code {d.process.returncode}: {detail}"
+                )
+            if self.clock() > end:
+                missing = sorted(expected - set(self.fleet.drones))
+                raise SpawnError(f"no HEARTBEAT within {ready_timeout_s:g} s from sysid {', '.join(map(str, missing))}")
+            self.pump(0.05)
+
+    def wait_armable(self, timeout_s: float) -> bool:
+        return self.wait_until(lambda: all(self.fleet.drones[s].prearm_ok for s in self.sysids), timeout_s)
+
+    def shutdown(self, land_timeout_s: float = 30.0) -> None:
+        """Land what flies, disarm, then terminate and reap every process (also after errors)."""
+        try:
+            flying = [
+                s
+                for s in self.sysids
+                if s in self.fleet.drones and self.fleet.drones[s].armed and not self.fleet.drones[s].lost(self.clock())
+            ]
+            if flying:
+                self.command_all(mavlink.MAV_CMD_NAV_LAND, sysids=flying)
+                self.wait_until(lambda: not any(self.fleet.drones[s].armed for s in flying), land_timeout_s)
+                still = [s for s in flying if self.fleet.drones[s].armed]
+                if still:  # a drone that cannot land in time is disarmed where it is
+                    self.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196, sysids=still)
+        finally:
+            self.processes.terminate()
+            self._selector.close()
+            self.link.close()
+
+    # ---- commands --------------------------------------------------------------------------------------------------
+    def command_all(self, command: int, *params: float, sysids: Iterable[int] | None = None) -> list[Ack]:
+        """COMMAND_LONG to several drones at once, each retried until acknowledged (as MAVSDK does)."""
+        targets = list(self.sysids if sysids is None else sysids)
+        p = [*params, *([0.0] * (7 - len(params)))]
+        results: dict[int, int | None] = {s: None for s in targets}
+        for attempt in range(COMMAND_RETRIES):
+            pending = [s for s in targets if results[s] is None]
+            if not pending:
+                break
+            for s in pending:
+                self.link.send(s, mavlink.MAVLink_command_long_message(s, 1, command, attempt, *p))
+            end = self.clock() + COMMAND_TIMEOUT_S
+            while any(results[s] is None for s in pending) and self.clock() < end:
+                self.pump(0.02)
+                for ack in self._acks:
+                    src = ack.get_srcSystem()
+                    if ack.command == command and src in results and results[src] is None:
+                        results[src] = ack.result
+                self._acks.clear()
+        return [Ack(s, results[s]) for s in targets]
+
+    def send(self, sysid: int, msg: Any) -> None:
+        self.link.send(sysid, msg)
+
+
+def check(acks: list[Ack], what: str) -> None:
+    """Raise one clear line naming every drone that refused or did not answer."""
+    bad = [a for a in acks if not a.ok]
+    if bad:
+        names = ", ".join(f"sysid {a.sysid} ({'no answer' if a.result is None else f'result {a.result}'})" for a in bad)
+        raise SwarmError(f"{what} failed for {names}")
+
+
+class SwarmError(RuntimeError):
+    """A swarm-level operation failed; the message is one line for the user."""

@@ -1,0 +1,142 @@
+"""pymavlink helpers for the tests that talk MAVLink directly, the way classic scripts and MAVProxy do.
+
+pymavlink's own waits (``motors_armed_wait``, ``recv_match(blocking=True)``) have no deadline; a drone that never
+answers would hang the test until its global timeout with no hint of what was missing. These helpers wrap them
+with a wall-clock deadline and fail with the last message seen.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Callable, Iterator
+from typing import Any, Final
+
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mavlink
+
+PREARM_CHECK_BIT: Final = mavlink.MAV_SYS_STATUS_PREARM_CHECK  # 0x10000000: "armable" in SYS_STATUS health
+ARMED_FLAG: Final = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+AUTOPILOT_COMPID: Final = 1
+RESEND_INTERVAL_S: Final = 1.0
+
+Message = Any  # pymavlink message objects are dynamically typed
+
+
+@contextlib.contextmanager
+def mavlink_connection(url: str) -> Iterator[mavutil.mavfile]:
+    """``mavutil.mavlink_connection`` that is always closed, so its UDP port is free for the next test."""
+    conn = mavutil.mavlink_connection(url)
+    try:
+        yield conn
+    finally:
+        conn.close()
+
+
+def wait_vehicle_heartbeat(conn: mavutil.mavfile, sysid: int | None, timeout_s: float) -> Message:
+    """``wait_heartbeat`` for the autopilot (compid 1) of ``sysid`` (None: the first autopilot heard); locks onto it."""
+
+    def is_vehicle(msg: Message) -> bool:
+        return (
+            msg.get_srcComponent() == AUTOPILOT_COMPID
+            and msg.autopilot != mavlink.MAV_AUTOPILOT_INVALID
+            and (sysid is None or msg.get_srcSystem() == sysid)
+        )
+
+    hb = recv_until(conn, "HEARTBEAT", is_vehicle, timeout_s, f"HEARTBEAT from sysid {sysid or 'any'}, compid 1")
+    conn.target_system = hb.get_srcSystem()  # target_component stays 0, as in plain pymavlink scripts
+    return hb
+
+
+def recv_until(
+    conn: mavutil.mavfile,
+    msg_type: str | list[str],
+    predicate: Callable[[Message], bool],
+    timeout_s: float,
+    what: str,
+) -> Message:
+    """The first message of ``msg_type`` from the target system that satisfies ``predicate``."""
+    deadline = time.monotonic() + timeout_s
+    last: Message | None = None
+    while (remaining := deadline - time.monotonic()) > 0:
+        msg = conn.recv_match(type=msg_type, blocking=True, timeout=min(remaining, 0.5))
+        if msg is None:
+            continue
+        if conn.target_system and msg.get_srcSystem() != conn.target_system:
+            continue
+        last = msg
+        if predicate(msg):
+            return msg
+    raise AssertionError(f"{what}: not within {timeout_s:.1f} s (last {msg_type}: {last})")
+
+
+def command_long(conn: mavutil.mavfile, command: int, params: tuple[float, ...], timeout_s: float = 5.0) -> Message:
+    """Send COMMAND_LONG, resending once a second like a ground station (confirmation counting up), until its
+    COMMAND_ACK arrives; returns the ACK."""
+    padded = (*params, *([0.0] * (7 - len(params))))
+    deadline = time.monotonic() + timeout_s
+    confirmation = 0
+    while True:
+        conn.mav.command_long_send(conn.target_system, conn.target_component, command, confirmation, *padded)
+        with contextlib.suppress(AssertionError):
+            return recv_until(conn, "COMMAND_ACK", lambda m: m.command == command, RESEND_INTERVAL_S, "ack")
+        confirmation = min(confirmation + 1, 255)
+        if time.monotonic() >= deadline:
+            raise AssertionError(f"no COMMAND_ACK for command {command} {padded} within {timeout_s:.1f} s")
+
+
+def wait_armable(conn: mavutil.mavfile, timeout_s: float) -> Message:
+    return recv_until(
+        conn,
+        "SYS_STATUS",
+        lambda m: bool(m.onboard_control_sensors_health & PREARM_CHECK_BIT),
+        timeout_s,
+        "SYS_STATUS with the pre-arm check bit healthy",
+    )
+
+
+def heartbeat_armed(hb: Message) -> bool:
+    return bool(hb.base_mode & ARMED_FLAG)
+
+
+def wait_armed_state(conn: mavutil.mavfile, armed: bool, timeout_s: float) -> Message:
+    return recv_until(
+        conn,
+        "HEARTBEAT",
+        lambda m: m.get_srcComponent() == AUTOPILOT_COMPID and heartbeat_armed(m) == armed,
+        timeout_s,
+        "HEARTBEAT armed" if armed else "HEARTBEAT disarmed",
+    )
+
+
+def wait_relative_alt(conn: mavutil.mavfile, target_m: float, tolerance_m: float, timeout_s: float) -> Message:
+    return recv_until(
+        conn,
+        "GLOBAL_POSITION_INT",
+        lambda m: abs(m.relative_alt / 1000.0 - target_m) <= tolerance_m,
+        timeout_s,
+        f"GLOBAL_POSITION_INT.relative_alt {target_m:.1f} ± {tolerance_m:.2f} m",
+    )
+
+
+def amsl_of_ground(conn: mavutil.mavfile, timeout_s: float) -> float:
+    """AMSL altitude of the vehicle's home, from GLOBAL_POSITION_INT (alt - relative_alt)."""
+    msg = recv_until(conn, "GLOBAL_POSITION_INT", lambda m: True, timeout_s, "GLOBAL_POSITION_INT")
+    return (msg.alt - msg.relative_alt) / 1000.0
+
+
+def upload_mission(conn: mavutil.mavfile, items: list[Message], timeout_s: float) -> Message:
+    """MISSION_COUNT, answer each MISSION_REQUEST_INT, return the final MISSION_ACK."""
+    conn.mav.mission_count_send(conn.target_system, conn.target_component, len(items), mavlink.MAV_MISSION_TYPE_MISSION)
+    deadline = time.monotonic() + timeout_s
+    while True:
+        msg = recv_until(
+            conn,
+            ["MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK"],
+            lambda m: getattr(m, "mission_type", 0) == mavlink.MAV_MISSION_TYPE_MISSION,
+            max(deadline - time.monotonic(), 0.01),
+            "mission upload handshake",
+        )
+        if msg.get_type() == "MISSION_ACK":
+            return msg
+        conn.mav.send(items[msg.seq])
