@@ -1,39 +1,168 @@
 """``swarm``: the ground-station command line.
 
-The supervisor (spawning drones, formations, neighbour relay, missions) is being built; for now the command lists
-its planned sub-commands and refuses to pretend it can run them.
+``swarm up`` runs the supervisor in the foreground; the other commands talk to it over the local control channel.
+Argument parsing only; the work is in gcs/station.py and gcs/swarm.py. Mistakes end with one line on stderr and
+a non-zero exit code.
 """
 
 from __future__ import annotations
 
+import argparse
+import math
+import signal
 import sys
 from collections.abc import Sequence
+from pathlib import Path
+from types import FrameType
+from typing import Any, NoReturn
 
-PLANNED = (
-    ("up -n N", "spawn N sitl drones and supervise them"),
-    ("status", "table of every drone: mode, armed, position, battery, link age"),
-    ("takeoff [--alt M]", "all drones take off"),
-    ("formation grid|circle|line|v", "fly a formation"),
-    ("goto", "move the formation"),
-    ("land | rtl", "land where they are, or return to launch"),
-    ("down", "land, disarm and stop every drone"),
-    ("fly MISSION", "run a mission file end to end and write a flight report"),
-)
+from gcs.control import ControlClient, ControlError, ControlServer
+from gcs.station import Station, format_status
+from gcs.supervisor import LAYOUTS, SpawnError, SpawnPlan
+from gcs.swarm import Swarm
+from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
+
+EXIT_USAGE = 2
+EXIT_FAILED = 1
+
+
+class UsageError(Exception):
+    pass
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> NoReturn:
+        raise UsageError(message)
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
+    return value
+
+
+def _origin(text: str) -> GeoPoint:
+    try:
+        lat, lon, alt = (float(p) for p in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be LAT,LON,ALT, got {text!r}") from None
+    if not (-90 < lat < 90 and -180 <= lon <= 180 and math.isfinite(alt)):
+        raise argparse.ArgumentTypeError(f"out of range: {text!r}")
+    return GeoPoint(lat_deg=lat, lon_deg=lon, alt_amsl_m=alt)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="swarm", description="Ground station for a swarm of simulated PX4-like drones.")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    up = sub.add_parser("up", help="spawn N drones and supervise them (foreground; Ctrl-C lands and stops them)")
+    up.add_argument("-n", "--drones", type=int, required=True, help="number of drones (1..100)")
+    up.add_argument("--spacing", type=_positive, default=2.0, help="spawn spacing in metres (default 2)")
+    up.add_argument("--layout", choices=sorted(LAYOUTS), default="grid", help="spawn layout (default grid)")
+    up.add_argument("--speed", type=_positive, default=1.0, help="simulation speed factor (default 1)")
+    up.add_argument("--first-instance", type=int, default=0, help="instance of the first drone (sysid = instance+1)")
+    up.add_argument("--origin", type=_origin, default=DEFAULT_HOME, help="swarm origin LAT,LON,ALT_AMSL")
+    up.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
+    up.add_argument("--seed", type=int, default=0, help="base random seed (drone i uses seed+i)")
+    up.add_argument("--logs", type=Path, default=None, help="directory for each drone's log (default: none)")
+    sub.add_parser("status", help="table of every drone")
+    takeoff = sub.add_parser("takeoff", help="arm and take off every drone")
+    takeoff.add_argument("--alt", type=_positive, default=3.0, help="altitude above home in metres (default 3)")
+    sub.add_parser("land", help="land every drone where it is")
+    sub.add_parser("rtl", help="every drone returns to its launch point and lands")
+    sub.add_parser("down", help="land, disarm and stop every drone, then the supervisor")
+    return parser
+
+
+class _Stop:
+    def __init__(self) -> None:
+        self.stopped = False
+
+    def __call__(self, _signum: int, _frame: FrameType | None) -> None:
+        self.stopped = True
+
+
+def _say(text: str) -> None:
+    print(text, flush=True)
+
+
+def run_up(args: argparse.Namespace) -> int:
+    if not 1 <= args.drones <= 100:
+        raise UsageError(f"-n must be in 1..100, got {args.drones}")
+    if args.first_instance < 0 or args.first_instance + args.drones > 255:
+        raise UsageError("--first-instance must leave room for every sysid (instance + 1 <= 255)")
+    plan = SpawnPlan(
+        n_drones=args.drones,
+        spacing_m=args.spacing,
+        layout=args.layout,
+        origin=args.origin,
+        speed_factor=args.speed,
+        first_instance=args.first_instance,
+        airframe=args.airframe,
+        seed=args.seed,
+        log_dir=args.logs,
+    )
+    stop = _Stop()
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, stop)
+    swarm = Swarm(plan)
+    station = Station(swarm, _say)
+    server: ControlServer | None = None
+    try:
+        swarm.up()
+        server = ControlServer(station.handle)
+        _say(
+            f"swarm: {plan.n_drones} drones up (sysid {swarm.sysids[0]}..{swarm.sysids[-1]}); "
+            f"control channel on 127.0.0.1:{server.port}; Ctrl-C or 'swarm down' to stop"
+        )
+        _loop(swarm, station, server, stop)
+    except (SpawnError, ControlError) as exc:
+        print(f"swarm: error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    finally:
+        if server is not None:
+            server.close()
+        _say("swarm: landing and stopping every drone")
+        swarm.shutdown()
+        _say("swarm: all drone processes stopped")
+    return 0
+
+
+def _loop(swarm: Swarm, station: Station, server: ControlServer, stop: _Stop) -> None:
+    while not (stop.stopped or station.stop_requested):
+        swarm.pump(0.05)
+        server.poll()
+        station.watch(swarm.clock())
+
+
+def run_client(args: argparse.Namespace) -> int:
+    request: dict[str, Any] = {"cmd": args.command}
+    if args.command == "takeoff":
+        request["alt"] = args.alt
+    response = ControlClient().request(request)
+    if not response.get("ok"):
+        print(f"swarm: error: {response.get('error', 'failed')}", file=sys.stderr)
+        return EXIT_FAILED
+    if args.command == "status":
+        print(format_status(response["drones"]))
+    return 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = list(sys.argv[1:] if argv is None else argv)
-    if args and args[0] not in ("-h", "--help"):
-        print(
-            f"swarm: error: '{args[0]}' is not available yet; run 'swarm --help' for the plan",
-            file=sys.stderr,
-        )
-        return 2
-    print("usage: swarm COMMAND [options]   (ground station; not yet implemented)\n\nplanned commands:")
-    for command, text in PLANNED:
-        print(f"  swarm {command:<30} {text}")
-    print("\nToday, fly one drone with:  sitl --demo")
-    return 0
+    try:
+        args = build_parser().parse_args(argv)
+        if args.command == "up":
+            return run_up(args)
+        return run_client(args)
+    except UsageError as exc:
+        print(f"swarm: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except ControlError as exc:
+        print(f"swarm: error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
 
 
 if __name__ == "__main__":

@@ -87,6 +87,22 @@ def _to_nav(item: MissionItem, origin: GeoPoint, home_alt: float) -> NavItem:
     if cmd == mavlink.MAV_CMD_NAV_LOITER_UNLIM:
         return NavItem(seq=item.seq, kind=NavKind.LOITER_UNLIMITED, target_ned_m=_target(item, origin, home_alt))
     if cmd == mavlink.MAV_CMD_DO_CHANGE_SPEED:
-        speed = item.param2 if math.isfinite(item.param2) else math.nan
-        return NavItem(seq=item.seq, kind=NavKind.SPEED, speed_mps=speed)
+        return _speed_change(item)
     return NavItem(seq=item.seq, kind=NavKind.SKIP)
+
+
+# DO_CHANGE_SPEED param1: 0 airspeed and 1 ground speed are the horizontal speed on a multicopter; 2 climb and
+# 3 descent speeds are not adjustable here (the command path answers UNSUPPORTED for them). Param2 -1 means
+# "no change" and -2 "back to the default", as MAVLink defines them and as the command path handles them.
+_HORIZONTAL_SPEED_TYPES = (0, 1)
+SPEED_DEFAULT = -2.0
+
+
+def _speed_change(item: MissionItem) -> NavItem:
+    speed_type = round(item.param1) if math.isfinite(item.param1) else 1
+    if speed_type in _HORIZONTAL_SPEED_TYPES:
+        if math.isfinite(item.param2) and item.param2 > 0:
+            return NavItem(seq=item.seq, kind=NavKind.SPEED, speed_mps=item.param2)
+        if item.param2 == SPEED_DEFAULT:
+            return NavItem(seq=item.seq, kind=NavKind.SPEED, speed_mps=math.nan)  # NaN: the default speed
+    return NavItem(seq=item.seq, kind=NavKind.SKIP)  # no change (-1, unset) or a speed this vehicle cannot set

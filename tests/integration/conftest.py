@@ -18,6 +18,7 @@ needed.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import inspect
 import os
 import threading
@@ -114,41 +115,36 @@ def instance_allocator(pytestconfig: pytest.Config) -> InstanceAllocator:
 def spawn_drones(
     request: pytest.FixtureRequest, instance_allocator: InstanceAllocator, tmp_path: Path
 ) -> Iterator[Callable[..., list[SitlDrone]]]:
-    """Factory: ``spawn_drones(n)`` starts n ready drones on adjacent free instances; all are stopped and reaped
-    at teardown, and their logs are printed (pytest shows them for failed tests)."""
+    """Factory: ``spawn_drones(n)`` starts n ready drones on adjacent free instances. At teardown every one is
+    stopped and reaped (each independently of the others) and its log is printed, which pytest shows for failed
+    tests."""
     if request.config.getoption("--vehicle") is not None:
         pytest.skip("spawning sitl is disabled when --vehicle is given")
     default_speed = request.config.getoption("--sitl-speed")
-    started: list[SitlDrone] = []
 
-    def spawn(count: int = 1, *, speed_factor: float = default_speed) -> list[SitlDrone]:
-        instances = instance_allocator.take(count)
-        drones: list[SitlDrone] = []
+    def stop(drone: SitlDrone) -> None:
         try:
-            for instance in instances:
-                drones.append(
-                    start_drone(instance=instance, speed_factor=speed_factor, seed=instance, log_dir=tmp_path)
-                )
-                started.append(drones[-1])
+            exit_code = stop_drone(drone)
         finally:
-            for instance in instances[len(drones) :]:
-                instance_allocator.give_back(instance)
-        return drones
+            instance_allocator.give_back(drone.ports.instance)
+        print(f"--- sitl instance {drone.ports.instance} (exit code {exit_code}) ---\n{drone.process.log_tail()}")
 
-    try:
+    with contextlib.ExitStack() as stoppers:
+
+        def spawn(count: int = 1, *, speed_factor: float = default_speed) -> list[SitlDrone]:
+            instances = instance_allocator.take(count)
+            drones: list[SitlDrone] = []
+            try:
+                for instance in instances:
+                    drone = start_drone(instance=instance, speed_factor=speed_factor, seed=instance, log_dir=tmp_path)
+                    stoppers.callback(stop, drone)
+                    drones.append(drone)
+            finally:
+                for instance in instances[len(drones) :]:
+                    instance_allocator.give_back(instance)
+            return drones
+
         yield spawn
-    finally:
-        try:
-            for drone in reversed(started):
-                try:
-                    exit_code = stop_drone(drone)
-                finally:
-                    instance_allocator.give_back(drone.ports.instance)
-                print(f"--- sitl instance {drone.ports.instance}, exit code {exit_code} ---")
-                print(drone.process.log_tail())
-        finally:
-            for drone in started:  # a failure above must not leave any process running
-                stop_drone(drone)
 
 
 @pytest.fixture

@@ -184,12 +184,16 @@ async def wait_relative_altitude(drone: Drone, target_m: float, tolerance_m: flo
 
 
 async def wait_flight_mode(drone: Drone, mode: FlightMode, timeout_s: float) -> None:
-    await first_matching(drone.telemetry.subscribe_flight_mode, lambda m: m == mode, timeout_s, f"flight mode {mode.name}")
+    await first_matching(
+        drone.telemetry.subscribe_flight_mode, lambda m: m == mode, timeout_s, f"flight mode {mode.name}"
+    )
 
 
 async def wait_landed_and_disarmed(drone: Drone, timeout_s: float) -> None:
     deadline = time.monotonic() + timeout_s
-    await first_matching(drone.telemetry.subscribe_in_air, lambda in_air: not in_air, timeout_s, "landed (in_air False)")
+    await first_matching(
+        drone.telemetry.subscribe_in_air, lambda in_air: not in_air, timeout_s, "landed (in_air False)"
+    )
     await first_matching(
         drone.telemetry.subscribe_armed,
         lambda armed: not armed,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -103,7 +104,7 @@ def test_resting_voltage_falls_as_the_pack_drains() -> None:
         _drain(battery, 300.0, 60.0, dt_s=1.0)
         battery.update(0.0, 0.001)
         voltages.append(battery.state().voltage_v)
-    assert all(b <= a for a, b in zip(voltages, voltages[1:], strict=False))
+    assert all(b <= a for a, b in itertools.pairwise(voltages))
     assert voltages[0] - voltages[-1] > 1.0
 
 

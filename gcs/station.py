@@ -1,0 +1,118 @@
+"""The supervisor's main loop behind ``swarm up``: telemetry, liveness, control requests, and the swarm commands.
+
+Commands arrive from the control channel (gcs/control.py) as JSON requests; each is carried out over MAVLink with
+the same messages a PX4 ground station would send, and answered with one JSON response.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from gcs.swarm import Swarm, SwarmError, check
+
+Say = Callable[[str], None]
+ARMABLE_TIMEOUT_S = 30.0
+
+
+class Station:
+    def __init__(self, swarm: Swarm, say: Say) -> None:
+        self.swarm = swarm
+        self.say = say
+        self.stop_requested = False
+        self._reported_lost: set[int] = set()
+
+    # ---- periodic work ---------------------------------------------------------------------------------------------
+    def watch(self, now_s: float) -> None:
+        """Report a drone whose heartbeats stopped (and one that came back), or whose process died."""
+        lost = set(self.swarm.fleet.lost(now_s))
+        for sysid in sorted(lost - self._reported_lost):
+            age_s = self.swarm.fleet.drones[sysid].link_age_s(now_s)
+            self.say(f"drone sysid {sysid}: link lost (no HEARTBEAT for {age_s:.1f} s)")
+        for sysid in sorted(self._reported_lost - lost):
+            self.say(f"drone sysid {sysid}: link back")
+        self._reported_lost = lost
+        for d in self.swarm.processes.exited():
+            if d.sysid not in self._reported_lost:
+                self.say(f"drone sysid {d.sysid}: process exited with code {d.process.returncode}")
+                self._reported_lost.add(d.sysid)
+
+    # ---- requests --------------------------------------------------------------------------------------------------
+    def handle(self, request: dict[str, Any]) -> dict[str, Any]:
+        cmd = request["cmd"]
+        try:
+            if cmd == "ping":
+                return {"ok": True}
+            if cmd == "status":
+                return {"ok": True, "drones": self.status_rows()}
+            if cmd == "takeoff":
+                return self.takeoff(float(request.get("alt", 3.0)))
+            if cmd == "land":
+                check(self.swarm.command_all(mavlink.MAV_CMD_NAV_LAND, *[math.nan] * 7), "land")
+                return {"ok": True}
+            if cmd == "rtl":
+                check(self.swarm.command_all(mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH), "return to launch")
+                return {"ok": True}
+            if cmd == "down":
+                self.stop_requested = True
+                return {"ok": True}
+        except SwarmError as exc:
+            return {"ok": False, "error": str(exc)}
+        return {"ok": False, "error": f"unknown command {cmd!r}"}
+
+    def takeoff(self, alt_m: float) -> dict[str, Any]:
+        if not (math.isfinite(alt_m) and 0.5 <= alt_m <= 100.0):
+            return {"ok": False, "error": f"--alt must be between 0.5 and 100 m, got {alt_m:g}"}
+        swarm = self.swarm
+        if not swarm.wait_armable(ARMABLE_TIMEOUT_S):
+            waiting = [s for s in swarm.sysids if not swarm.fleet.drones[s].prearm_ok]
+            return {"ok": False, "error": f"not armable after {ARMABLE_TIMEOUT_S:g} s: sysid {waiting}"}
+        check(swarm.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1), "arm")
+        for sysid in swarm.sysids:
+            home = swarm.fleet.drones[sysid].home
+            if home is None:
+                raise SwarmError(f"sysid {sysid} has no home position")
+            acks = swarm.command_all(
+                mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, home[2] + alt_m, sysids=[sysid]
+            )
+            check(acks, "takeoff")
+        return {"ok": True}
+
+    def status_rows(self) -> list[dict[str, Any]]:
+        now = self.swarm.clock()
+        rows = []
+        for sysid in self.swarm.sysids:
+            d = self.swarm.fleet.drones.get(sysid)
+            if d is None:
+                rows.append({"sysid": sysid, "mode": "NO LINK"})
+                continue
+            rows.append(
+                {
+                    "sysid": sysid,
+                    "mode": d.mode,
+                    "armed": d.armed,
+                    "lat_deg": d.lat_deg,
+                    "lon_deg": d.lon_deg,
+                    "alt_m": d.relative_alt_m,
+                    "battery": d.battery_remaining,
+                    "link_age_s": d.link_age_s(now),
+                }
+            )
+        return rows
+
+
+def format_status(rows: list[dict[str, Any]]) -> str:
+    lines = [f"{'sysid':>5}  {'mode':<14} {'armed':<5} {'lat':>11} {'lon':>11} {'alt m':>6} {'batt':>5} {'link s':>6}"]
+    for r in rows:
+        if "armed" not in r:
+            lines.append(f"{r['sysid']:>5}  {r['mode']}")
+            continue
+        batt = f"{r['battery']:.0%}" if r["battery"] == r["battery"] else "?"
+        lines.append(
+            f"{r['sysid']:>5}  {r['mode']:<14} {'yes' if r['armed'] else 'no':<5} {r['lat_deg']:>11.7f} "
+            f"{r['lon_deg']:>11.7f} {r['alt_m']:>6.2f} {batt:>5} {r['link_age_s']:>6.1f}"
+        )
+    return "\n".join(lines)

@@ -1,0 +1,423 @@
+"""Flight metrics on synthetic recordings whose answers are known in closed form."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+
+from gcs.metrics import (
+    FORMATION_SETTLED_RMS_M,
+    MAX_GAP_S,
+    TAKEOFF_TOLERANCE_M,
+    LiveMetrics,
+    compute_metrics,
+    settle_time,
+)
+from gcs.recording import DroneSample, EventRecord, FlightRecording, StepRecord, Vec3
+
+RATE_HZ = 50.0
+
+
+def sample(
+    time_s: float,
+    sysid: int,
+    pos: Vec3,
+    *,
+    armed: bool = True,
+    target: Vec3 | None = None,
+    vel: Vec3 = (0.0, 0.0, 0.0),
+) -> DroneSample:
+    return DroneSample(
+        time_s=time_s, sysid=sysid, pos_ned_m=pos, vel_ned_mps=vel, armed=armed, mode="OFFBOARD", target_ned_m=target
+    )
+
+
+def recording(n_drones: int = 2, **kwargs: object) -> FlightRecording:
+    return FlightRecording(mission_name="test", n_drones=n_drones, collision_radius_m=0.3, **kwargs)  # type: ignore[arg-type]
+
+
+def flight(
+    sysid: int,
+    start_s: float,
+    end_s: float,
+    pos_at: Callable[[float], Vec3],
+    *,
+    offset_s: float = 0.0,
+    target_at: Callable[[float], Vec3 | None] = lambda t: None,
+) -> list[DroneSample]:
+    """Samples at RATE_HZ (shifted by offset_s, as real telemetry of different drones is not simultaneous)."""
+    times = np.arange(start_s, end_s + 1e-9, 1.0 / RATE_HZ) + offset_s
+    return [sample(float(t), sysid, pos_at(float(t)), target=target_at(float(t))) for t in times]
+
+
+# --- separation -------------------------------------------------------------------------------------------------
+
+
+def test_two_drones_approaching_to_0_8_m_give_min_separation_0_8_at_the_closest_instant() -> None:
+    # GIVEN drone 1 hovering at 3 m and drone 2 flying past it at 2 m/s on a line 0.8 m to its side, closest at
+    # t = 5.03 s (between grid instants), with telemetry of the two drones 13 ms apart
+    rec = recording()
+    rec.samples += flight(1, 0.0, 10.0, lambda t: (0.0, 0.0, -3.0))
+    rec.samples += flight(2, 0.0, 10.0, lambda t: (2.0 * (5.03 - t), 0.8, -3.0), offset_s=0.013)
+
+    # WHEN the metrics are computed
+    metrics = compute_metrics(rec)
+
+    # THEN the minimum separation is the miss distance, at the closest instant, between drones 1 and 2
+    assert metrics.min_separation_m == pytest.approx(0.8, abs=1e-6)
+    assert metrics.min_separation_time_s == pytest.approx(5.03, abs=1e-6)
+    assert metrics.min_separation_pair == (1, 2)
+    # AND the plotted series on the 10 Hz grid never dips below it
+    assert np.nanmin(metrics.separation.min_separation_m) >= 0.8 - 1e-9
+    assert np.nanmin(metrics.separation.min_separation_m) == pytest.approx(0.8, abs=0.02)
+
+
+def test_the_closest_pair_of_three_drones_is_reported() -> None:
+    rec = recording(n_drones=3)
+    rec.samples += flight(1, 0.0, 4.0, lambda t: (0.0, 0.0, -3.0))
+    rec.samples += flight(2, 0.0, 4.0, lambda t: (5.0, 0.0, -3.0))
+    rec.samples += flight(3, 0.0, 4.0, lambda t: (5.0, 1.5, -4.0))
+
+    metrics = compute_metrics(rec)
+
+    assert metrics.min_separation_m == pytest.approx(math.hypot(1.5, 1.0))
+    assert metrics.min_separation_pair == (2, 3)
+
+
+def test_drones_on_the_ground_or_disarmed_do_not_count_for_separation() -> None:
+    # GIVEN two drones 0.3 m apart: first disarmed on the ground, then armed but only 0.3 m up
+    rec = recording()
+    for k in range(100):
+        t = k / 10
+        height = 0.0 if t < 5 else 0.3
+        rec.samples.append(sample(t, 1, (0.0, 0.0, -height), armed=t >= 5))
+        rec.samples.append(sample(t, 2, (0.0, 0.3, -height), armed=t >= 5))
+
+    # WHEN the metrics are computed
+    metrics = compute_metrics(rec)
+
+    # THEN there is no separation to report, and the series is undefined everywhere
+    assert metrics.min_separation_m is None
+    assert metrics.min_separation_pair is None
+    assert np.all(np.isnan(metrics.separation.min_separation_m))
+    assert metrics.to_dict()["separation"]["min_separation_m"][0] is None
+
+
+def test_ground_level_is_taken_from_where_each_drone_stood_disarmed() -> None:
+    # GIVEN a drone standing disarmed 2 m below the swarm origin (lower terrain), then 0.6 m above that ground
+    rec = recording()
+    rec.samples += [sample(t / 10, 1, (0.0, 0.0, 2.0), armed=False) for t in range(10)]
+    rec.samples += [sample(1 + t / 10, 1, (0.0, 0.0, 1.4)) for t in range(10)]
+    rec.samples += [sample(t / 10, 2, (0.0, 1.0, 1.4)) for t in range(20)]  # armed since its first sample
+
+    metrics = compute_metrics(rec)
+
+    # THEN drone 1 is airborne at 0.6 m over its ground; drone 2, never seen disarmed, is measured from the origin
+    # (1.4 m below it), so it is on the ground and there is no pair
+    assert metrics.min_separation_m is None
+    assert metrics.distance_flown_m[1] == pytest.approx(0.6)
+
+
+def test_no_position_is_invented_across_a_telemetry_gap() -> None:
+    # GIVEN drone 2 reports at 10 m north, falls silent for longer than MAX_GAP_S, and reappears 10 m south; a straight
+    # line between the two reports would pass right through hovering drone 1
+    gap = MAX_GAP_S + 1.0
+    rec = recording()
+    rec.samples += flight(1, 0.0, 10.0, lambda t: (0.0, 0.0, -3.0))
+    rec.samples += flight(2, 0.0, 4.0, lambda t: (10.0, 0.0, -3.0))
+    rec.samples += flight(2, 4.0 + gap, 10.0, lambda t: (-10.0, 0.0, -3.0))
+
+    metrics = compute_metrics(rec)
+
+    assert metrics.min_separation_m == pytest.approx(10.0)
+
+
+# --- formation --------------------------------------------------------------------------------------------------
+
+
+def test_time_to_formation_of_an_exponentially_decaying_error() -> None:
+    # GIVEN two drones whose distance to their slots decays as 4 m * exp(-t/2 s) from the start of a 20 s step
+    e0, tau, start, end = 4.0, 2.0, 10.0, 30.0
+    rec = recording(steps=[StepRecord(index=0, name="circle", kind="formation", start_s=start, end_s=end)])
+    slots: dict[int, Vec3] = {1: (5.0, 0.0, -3.0), 2: (-5.0, 0.0, -3.0)}
+    directions = {1: np.array([0.0, 1.0, 0.0]), 2: np.array([0.6, 0.0, 0.8])}
+
+    def pos(sysid: int) -> Callable[[float], Vec3]:
+        def at(t: float) -> Vec3:
+            error = e0 * math.exp(-(max(t, start) - start) / tau)
+            x, y, z = np.array(slots[sysid]) + error * directions[sysid]
+            return (float(x), float(y), float(z))
+
+        return at
+
+    for sysid, offset in ((1, 0.0), (2, 0.007)):
+        rec.samples += flight(
+            sysid, start, end, pos(sysid), offset_s=offset, target_at=lambda t, s=sysid: slots[s] if t >= start else None
+        )
+
+    # WHEN the metrics are computed
+    step = compute_metrics(rec).steps[0]
+
+    # THEN the formation is reached when the error falls to the threshold: t = tau * ln(e0 / threshold)
+    settle = tau * math.log(e0 / FORMATION_SETTLED_RMS_M)
+    assert step.time_to_formation_s == pytest.approx(settle, abs=0.02)
+    # AND the settled RMS is that of 0.5 m * exp(-s/tau) over the rest of the step
+    rest = end - start - settle
+    expected_rms = math.sqrt(FORMATION_SETTLED_RMS_M**2 * tau / 2 * (1 - math.exp(-2 * rest / tau)) / rest)
+    assert step.formation_rms_m == pytest.approx(expected_rms, rel=0.05)
+    # AND the largest single error once settled is the threshold itself (both drones share the error)
+    assert step.max_error_m == pytest.approx(FORMATION_SETTLED_RMS_M, abs=0.03)
+    assert step.step_rms_m is not None and step.step_rms_m > expected_rms
+
+
+def test_formation_that_drifts_out_again_before_the_step_ends_is_not_settled_until_it_returns() -> None:
+    # GIVEN an error that is small at first, grows to 1 m mid-step, and is small again from t = 14 s
+    rec = recording(n_drones=1, steps=[StepRecord(index=0, name="line", kind="formation", start_s=0.0, end_s=20.0)])
+
+    def error(t: float) -> float:
+        return 1.0 if 6.0 <= t < 14.0 else 0.1
+
+    rec.samples += flight(1, 0.0, 20.0, lambda t: (error(t), 0.0, -3.0), target_at=lambda t: (0.0, 0.0, -3.0))
+
+    step = compute_metrics(rec).steps[0]
+
+    assert step.time_to_formation_s == pytest.approx(14.0, abs=0.1)
+    assert step.formation_rms_m == pytest.approx(0.1, abs=0.01)
+
+
+def test_a_formation_never_reached_has_null_settled_metrics() -> None:
+    rec = recording(n_drones=1, steps=[StepRecord(index=0, name="v", kind="formation", start_s=0.0, end_s=10.0)])
+    rec.samples += flight(1, 0.0, 10.0, lambda t: (2.0, 0.0, -3.0), target_at=lambda t: (0.0, 0.0, -3.0))
+
+    step = compute_metrics(rec).steps[0]
+
+    assert step.time_to_formation_s is None
+    assert step.formation_rms_m is None
+    assert step.max_error_m is None
+    assert step.step_rms_m == pytest.approx(2.0)
+
+
+def test_slots_of_the_previous_step_do_not_leak_into_the_next() -> None:
+    # GIVEN a formation step ending at 10 s and a land step without slots; telemetry arrives 7 ms after each grid
+    # instant, so at the boundary the newest sample still carries the old slot
+    rec = recording(
+        n_drones=1,
+        steps=[
+            StepRecord(index=0, name="circle", kind="formation", start_s=0.0, end_s=10.0),
+            StepRecord(index=1, name="land", kind="land", start_s=10.0, end_s=20.0),
+        ],
+    )
+    rec.samples += flight(
+        1, 0.0, 20.0, lambda t: (0.0, 0.0, -3.0), offset_s=0.007, target_at=lambda t: (0.0, 0.0, -3.0) if t < 10 else None
+    )
+
+    circle, land = compute_metrics(rec).steps
+
+    assert circle.time_to_formation_s == pytest.approx(0.1, abs=0.11)  # first grid instant with a slot
+    assert land.step_rms_m is None
+    assert land.time_to_formation_s is None
+
+
+# --- takeoff ----------------------------------------------------------------------------------------------------
+
+
+def climb(target_m: float, tau_s: float, start_s: float) -> Callable[[float], Vec3]:
+    def at(t: float) -> Vec3:
+        altitude = 0.0 if t < start_s else target_m * (1.0 - math.exp(-(t - start_s) / tau_s))
+        return (0.0, 0.0, -altitude)
+
+    return at
+
+
+def test_takeoff_time_is_when_the_slowest_drone_settles_within_the_tolerance() -> None:
+    # GIVEN a takeoff command to 3 m at t = 2 s and two drones climbing as first-order lags of 1 s and 1.5 s
+    target, start = 3.0, 2.0
+    step = StepRecord(index=0, name="takeoff", kind="takeoff", start_s=start, end_s=12.0, target_alt_m=target)
+    rec = recording(steps=[step])
+    rec.samples += flight(1, 0.0, 14.0, climb(target, 1.0, start))
+    rec.samples += flight(2, 0.0, 14.0, climb(target, 1.5, start), offset_s=0.011)
+
+    # WHEN the metrics are computed
+    metrics = compute_metrics(rec)
+
+    # THEN each drone settles when 3 m * exp(-t/tau) = 0.2 m, and the swarm when the slower one does
+    expected = {1: 1.0 * math.log(target / TAKEOFF_TOLERANCE_M), 2: 1.5 * math.log(target / TAKEOFF_TOLERANCE_M)}
+    assert metrics.takeoff_time_per_drone_s == pytest.approx(expected, abs=1e-3)
+    assert metrics.takeoff_time_s == pytest.approx(expected[2], abs=1e-3)
+    assert metrics.steps[0].takeoff_time_s == metrics.takeoff_time_s
+
+
+def test_takeoff_overshoot_counts_from_the_return_into_the_band() -> None:
+    # GIVEN a climb to 3.5 m at t = 3 s (passing through the 3 m +- 0.2 m band), then back down to 3 m at t = 4 s
+    step = StepRecord(index=0, name="takeoff", kind="takeoff", start_s=0.0, end_s=8.0, target_alt_m=3.0)
+    rec = recording(n_drones=1, steps=[step])
+
+    def altitude(t: float) -> float:
+        return float(np.interp(t, [0.0, 3.0, 4.0], [0.0, 3.5, 3.0]))
+
+    rec.samples += flight(1, 0.0, 8.0, lambda t: (0.0, 0.0, -altitude(t)))
+
+    metrics = compute_metrics(rec)
+
+    # THEN it settles when coming back down through 3.2 m: 3 s + (0.3 / 0.5) * 1 s
+    assert metrics.takeoff_time_s == pytest.approx(3.6, abs=1e-6)
+
+
+def test_takeoff_time_is_null_if_a_drone_is_not_at_altitude_when_the_step_ends() -> None:
+    step = StepRecord(index=0, name="takeoff", kind="takeoff", start_s=0.0, end_s=5.0, target_alt_m=3.0)
+    rec = recording(steps=[step])
+    rec.samples += flight(1, 0.0, 5.0, climb(3.0, 0.5, 0.0))
+    rec.samples += flight(2, 0.0, 5.0, climb(2.5, 0.5, 0.0))  # stuck 0.5 m low
+
+    metrics = compute_metrics(rec)
+
+    assert metrics.takeoff_time_per_drone_s[1] is not None
+    assert metrics.takeoff_time_per_drone_s[2] is None
+    assert metrics.takeoff_time_s is None
+
+
+def test_settle_time_of_a_series_inside_the_band_from_the_start_is_its_first_instant() -> None:
+    times = np.array([1.0, 2.0, 3.0])
+    assert settle_time(times, np.array([0.1, -0.1, 0.0]), 0.2) == 1.0
+    assert settle_time(times, np.array([0.1, -0.1, 0.3]), 0.2) is None
+    assert settle_time(times, np.array([-1.0, -0.1, 0.0]), 0.2) == pytest.approx(1.0 + 0.8 / 0.9)
+
+
+# --- events, distance, totals -----------------------------------------------------------------------------------
+
+
+def test_collisions_count_events_whose_text_starts_with_collision() -> None:
+    rec = recording(
+        events=[
+            EventRecord(time_s=3.0, sysid=2, text="Collision with drone 3"),
+            EventRecord(time_s=3.0, sysid=3, text="Collision with drone 2"),
+            EventRecord(time_s=4.0, sysid=1, text="Avoidance: climbing over drone 2"),
+            EventRecord(time_s=5.0, sysid=None, text="no collision risk"),
+        ]
+    )
+
+    metrics = compute_metrics(rec)
+
+    assert metrics.collisions == 2
+    assert [e.sysid for e in metrics.collision_events] == [2, 3]
+    assert metrics.avoidance_events == 1
+
+
+def test_distance_flown_counts_the_flight_but_not_jitter_on_the_ground() -> None:
+    # GIVEN a drone jittering on the ground, climbing 3 m, flying 4 m north, descending and jittering again
+    rec = recording(n_drones=1)
+    path_t = [0.0, 2.0, 5.0, 9.0, 12.0, 14.0]
+    path_n = [0.0, 0.0, 0.0, 4.0, 4.0, 4.0]
+    path_d = [0.0, 0.0, -3.0, -3.0, 0.0, 0.0]
+    for k in range(int(14 * RATE_HZ) + 1):
+        t = k / RATE_HZ
+        jitter = 0.01 * (-1) ** k
+        pos = (float(np.interp(t, path_t, path_n)) + jitter, 0.0, float(np.interp(t, path_t, path_d)))
+        rec.samples.append(sample(t, 1, pos, armed=2.0 <= t <= 12.0))
+
+    metrics = compute_metrics(rec)
+
+    # THEN it is the 3 + 4 + 3 m path, plus the jitter while airborne (1 cm per sample) within a bound
+    airborne_s = 14.0 - 2.0 * 0.5 / 3.0 * 3.0 - 4.0  # time above 0.5 m
+    assert metrics.distance_flown_m[1] == pytest.approx(10.0, abs=0.02 * RATE_HZ * airborne_s + 0.2)
+    assert metrics.distance_flown_m[1] >= 10.0
+
+
+def test_duration_spans_samples_and_steps_and_drone_count_is_the_configured_one() -> None:
+    rec = recording(n_drones=3, steps=[StepRecord(index=0, name="hold", kind="hold", start_s=1.0, end_s=12.5)])
+    rec.samples += flight(1, 0.5, 10.0, lambda t: (0.0, 0.0, 0.0))
+
+    metrics = compute_metrics(rec)
+
+    assert metrics.duration_s == pytest.approx(12.0)
+    assert metrics.n_drones == 3
+    assert metrics.sysids == (1,)
+
+
+def test_an_empty_recording_has_metrics_too() -> None:
+    metrics = compute_metrics(recording())
+
+    assert metrics.duration_s == 0.0
+    assert metrics.min_separation_m is None
+    assert metrics.takeoff_time_s is None
+    assert metrics.separation.time_s.size == 0
+
+
+def test_metrics_dict_is_strict_json_with_the_documented_keys_in_a_fixed_order() -> None:
+    step = StepRecord(index=0, name="takeoff", kind="takeoff", start_s=0.0, end_s=6.0, target_alt_m=3.0)
+    rec = recording(steps=[step])
+    rec.samples += flight(1, 0.0, 6.0, climb(3.0, 1.0, 0.0))
+    rec.samples += flight(2, 0.0, 6.0, lambda t: (3.0, 0.0, climb(3.0, 1.0, 0.0)(t)[2]))
+
+    data = compute_metrics(rec).to_dict()
+    text = json.dumps(data, allow_nan=False)
+
+    assert list(json.loads(text))[:10] == [
+        "mission",
+        "n_drones",
+        "sysids",
+        "duration_s",
+        "collision_radius_m",
+        "min_separation_m",
+        "min_separation_time_s",
+        "min_separation_pair",
+        "collisions",
+        "collision_events",
+    ]
+    assert data["min_separation_m"] == pytest.approx(3.0)
+    assert data["takeoff_time_per_drone_s"].keys() == {"1", "2"}
+    assert data["steps"][0]["takeoff_time_s"] == data["takeoff_time_s"]
+    assert len(data["separation"]["time_s"]) == len(data["separation"]["min_separation_m"])
+
+
+# --- live status ------------------------------------------------------------------------------------------------
+
+
+def test_live_metrics_track_current_error_and_the_smallest_separation_so_far() -> None:
+    # GIVEN two drones that take off from the ground, pass 1.2 m apart, then separate to 4 m while holding 0.3 m
+    # from their slots
+    live = LiveMetrics()
+    live.observe(sample(0.0, 1, (0.0, 0.0, 0.0), armed=False))
+    live.observe(sample(0.0, 2, (0.0, 0.5, 0.0), armed=False))
+    assert live.status().separation_m is None  # on the ground: not counted
+    live.observe(sample(1.0, 1, (0.0, 0.0, -3.0)))
+    live.observe(sample(1.0, 2, (0.0, 1.2, -3.0)))
+    live.observe(sample(2.0, 1, (0.0, 0.0, -3.0), target=(0.3, 0.0, -3.0)))
+    live.observe(sample(2.0, 2, (0.0, 4.0, -3.0), target=(0.0, 4.0, -3.3)))
+
+    # WHEN the status is read
+    status = live.status()
+
+    # THEN it shows the current values and the minimum so far
+    assert status.time_s == 2.0
+    assert status.rms_error_m == pytest.approx(0.3)
+    assert status.separation_m == pytest.approx(4.0)
+    assert status.min_separation_m == pytest.approx(1.2)
+    assert status.line() == "t 2.00 s  rms 0.30 m  sep 4.00 m (min 1.20 m)"
+
+
+def test_live_metrics_compare_drones_at_the_same_instant_using_their_velocity() -> None:
+    # GIVEN drone 2's last report is 0.2 s older than drone 1's, and it was flying towards drone 1 at 5 m/s
+    live = LiveMetrics()
+    live.observe(sample(0.8, 2, (0.0, 3.0, -3.0), vel=(0.0, -5.0, 0.0)))
+    live.observe(sample(1.0, 1, (0.0, 0.0, -3.0)))
+
+    # THEN the separation now is 3 m less the 1 m it has flown since
+    assert live.status().separation_m == pytest.approx(2.0)
+    assert live.status().min_separation_m == pytest.approx(2.0)
+
+
+def test_live_metrics_leave_out_drones_whose_telemetry_is_stale() -> None:
+    live = LiveMetrics()
+    live.observe(sample(0.0, 1, (0.0, 0.0, -3.0), target=(1.0, 0.0, -3.0)))
+    live.observe(sample(MAX_GAP_S + 1.0, 2, (0.0, 1.0, -3.0), target=(0.0, 1.0, -3.0)))
+
+    status = live.status()
+
+    assert status.separation_m is None
+    assert status.rms_error_m == 0.0
+    assert LiveMetrics().status().line() == "t -  rms -  sep - (min -)"
