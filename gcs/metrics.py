@@ -54,8 +54,8 @@ Airborne
 ``duration_s``, ``n_drones``, ``sysids``, ``distance_flown_m``
     ``duration_s`` runs from the earliest to the latest of all sample times and step boundaries. ``n_drones`` is the
     recording's configured count; ``sysids`` those that reported. ``distance_flown_m`` per drone is the length of the
-    polyline through its raw samples, counting each segment with at least one airborne end (segments across gaps are
-    counted as straight lines, a lower bound).
+    polyline through its raw samples while armed (segments with both ends armed; a segment across a telemetry gap
+    counts as a straight line, a lower bound). Estimator noise adds to it, as to any path length.
 
 ``LiveMetrics`` gives the same quantities approximately while flying, for a status line: it keeps the latest sample
 per drone and compares drones at the newest sample's time (older positions extrapolated with their velocity).
@@ -201,10 +201,6 @@ class _Track:
     armed: BoolArray  # (n,)
     target_ned_m: FloatArray  # (n, 3), NaN where no slot was commanded
     ground_down_m: float
-
-    def airborne(self) -> BoolArray:
-        """At each raw sample."""
-        return self.armed & (self.ground_down_m - self.pos_ned_m[:, 2] > AIRBORNE_HEIGHT_M)
 
 
 def _tracks(samples: Iterable[DroneSample]) -> dict[int, _Track]:
@@ -414,8 +410,7 @@ def _step_metrics(
 
 
 def _distance_flown(track: _Track) -> float:
-    airborne = track.airborne()
-    counted = airborne[:-1] | airborne[1:]
+    counted = track.armed[:-1] & track.armed[1:]
     segments = np.linalg.norm(np.diff(track.pos_ned_m, axis=0), axis=1)
     return float(segments[counted].sum())
 

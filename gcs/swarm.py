@@ -7,10 +7,14 @@ land or disarm over MAVLink, then terminate and reap every process. Times are th
 
 from __future__ import annotations
 
+import dataclasses
 import selectors
+import shutil
+import tempfile
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
@@ -35,6 +39,11 @@ class Ack:
 
 class Swarm:
     def __init__(self, plan: SpawnPlan, clock: Callable[[], float] = time.monotonic) -> None:
+        # Drone output always goes to log files, so a drone that fails to start can be explained; without a
+        # log directory from the user they live in a temporary one removed at shutdown.
+        self._temp_logs = tempfile.mkdtemp(prefix="swarm-logs-") if plan.log_dir is None else None
+        if self._temp_logs is not None:
+            plan = dataclasses.replace(plan, log_dir=Path(self._temp_logs))
         self.plan = plan
         self.clock = clock
         self.link = GcsSocket()
@@ -128,6 +137,8 @@ class Swarm:
             self.processes.terminate()
             self._selector.close()
             self.link.close()
+            if self._temp_logs is not None:
+                shutil.rmtree(self._temp_logs, ignore_errors=True)
 
     # ---- commands --------------------------------------------------------------------------------------------------
     def command_all(self, command: int, *params: float, sysids: Iterable[int] | None = None) -> list[Ack]:

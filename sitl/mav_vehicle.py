@@ -16,7 +16,7 @@ from sitl.dynamics.geodesy import LocalFrame
 from sitl.dynamics.plant import GeoPoint
 from sitl.mathutil import Vec3, vec3
 from sitl.mission_exec import MissionRun
-from sitl.mission_plan import to_nav_items
+from sitl.mission_plan import NavItem, to_nav_items
 from sitl.protocol import vehicle_api as api
 from sitl.protocol.modes import Px4Mode
 from sitl.simulation import Simulation
@@ -47,6 +47,7 @@ class SimVehicleApi:
         self.origin = sim.truth.geo
         self.frame = LocalFrame(self.origin)
         self._mission_items: tuple[api.MissionItem, ...] = ()
+        self._mission_home_alt_amsl_m = math.nan  # home altitude the stored mission's relative altitudes used
         self._snapshot: api.VehicleSnapshot | None = None
         self._snapshot_time_s = -1.0
 
@@ -94,6 +95,18 @@ class SimVehicleApi:
         self.vehicle.set_offboard_setpoint(attitude, now_s)
 
     def command(self, request: api.VehicleRequest, now_s: float) -> api.CommandOutcome:
+        outcome = self._command(request, now_s)
+        if self._mission_items and self.home_alt_amsl_m() != self._mission_home_alt_amsl_m:
+            # Home moved (arming sets it, so does DO_SET_HOME): relative altitudes are above the current home, as
+            # PX4 resolves them when it flies an item, not above wherever home was at upload time.
+            self._mission_home_alt_amsl_m = self.home_alt_amsl_m()
+            self.vehicle.retarget_mission(self._nav_items())
+        # A request can change what telemetry reports (armed, mode, mission) without a physics step in between: the
+        # HEARTBEAT sent right after an accepted mode change must show the new mode, not the cached old one.
+        self._snapshot = None
+        return outcome
+
+    def _command(self, request: api.VehicleRequest, now_s: float) -> api.CommandOutcome:
         v = self.vehicle
         match request:
             case api.Arm(force=force):
@@ -135,8 +148,12 @@ class SimVehicleApi:
                 return v.set_mission_current(seq)
             case api.SetMission(items=items):
                 self._mission_items = items
-                return v.set_mission(to_nav_items(items, self.origin, self.home_alt_amsl_m()))
+                self._mission_home_alt_amsl_m = self.home_alt_amsl_m()
+                return v.set_mission(self._nav_items())
         return api.CommandOutcome(api.CommandResult.UNSUPPORTED, "Not supported")
+
+    def _nav_items(self) -> tuple[NavItem, ...]:
+        return to_nav_items(self._mission_items, self.origin, self._mission_home_alt_amsl_m)
 
     def _set_mode(self, mode: Px4Mode, now_s: float) -> api.CommandOutcome:
         v = self.vehicle

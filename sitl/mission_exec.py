@@ -57,6 +57,15 @@ class MissionExecutor:
         self._entered = False
         self.state = MissionRun.NOT_STARTED if items else MissionRun.NO_MISSION
 
+    def retarget(self, items: tuple[NavItem, ...]) -> None:
+        """Replace the items by the same mission with recomputed targets, keeping the progress.
+
+        The item being flown keeps the target it started with; later items fly to their new targets.
+        """
+        if [item.seq for item in items] != [item.seq for item in self.items]:
+            raise ValueError("retarget needs the same mission items")
+        self.items = items
+
     def set_current(self, seq: int) -> bool:
         if not (0 <= seq < len(self.items)):
             return False

@@ -8,6 +8,7 @@ with a wall-clock deadline and fail with the last message seen.
 from __future__ import annotations
 
 import contextlib
+import os
 import time
 from collections.abc import Callable, Iterator
 from typing import Any, Final
@@ -23,14 +24,30 @@ RESEND_INTERVAL_S: Final = 1.0
 Message = Any  # pymavlink message objects are dynamically typed
 
 
+# pymavlink switches itself to MAVLink 2 on the first MAVLink 2 frame it receives by setting MAVLINK20 in the
+# environment of the whole process; every connection here starts from the environment the suite was started with,
+# so each test sees pymavlink as a freshly started script does, whatever ran before it.
+_MAVLINK20_AT_START: Final = os.environ.get("MAVLINK20")
+
+
+def _restore_wire_protocol() -> None:
+    if _MAVLINK20_AT_START is None:
+        os.environ.pop("MAVLINK20", None)
+    else:
+        os.environ["MAVLINK20"] = _MAVLINK20_AT_START
+    mavutil.set_dialect(mavutil.current_dialect)
+
+
 @contextlib.contextmanager
 def mavlink_connection(url: str) -> Iterator[mavutil.mavfile]:
-    """``mavutil.mavlink_connection`` that is always closed, so its UDP port is free for the next test."""
+    """``mavutil.mavlink_connection`` as a fresh script opens it, always closed so its UDP port is free again."""
+    _restore_wire_protocol()
     conn = mavutil.mavlink_connection(url)
     try:
         yield conn
     finally:
         conn.close()
+        _restore_wire_protocol()
 
 
 def wait_vehicle_heartbeat(conn: mavutil.mavfile, sysid: int | None, timeout_s: float) -> Message:
@@ -140,3 +157,29 @@ def upload_mission(conn: mavutil.mavfile, items: list[Message], timeout_s: float
         if msg.get_type() == "MISSION_ACK":
             return msg
         conn.mav.send(items[msg.seq])
+
+
+def arm_and_take_off(conn: mavutil.mavfile, timeout_s: float) -> float:
+    """Arm (retrying until accepted) and NAV_TAKEOFF with NaN altitude (MIS_TAKEOFF_ALT); returns the altitude
+    reached above home."""
+    deadline = time.monotonic() + timeout_s
+    wait_armable(conn, timeout_s)
+    while True:
+        ack = command_long(conn, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, (1,), timeout_s)
+        if ack.result == mavlink.MAV_RESULT_ACCEPTED:
+            break
+        if time.monotonic() > deadline:
+            raise AssertionError(f"arming refused: {ack}")
+        time.sleep(0.2)
+    nan = float("nan")
+    ack = command_long(conn, mavlink.MAV_CMD_NAV_TAKEOFF, (nan,) * 7, timeout_s)
+    assert ack.result == mavlink.MAV_RESULT_ACCEPTED, f"takeoff refused: {ack}"
+    param = recv_param(conn, "MIS_TAKEOFF_ALT", timeout_s)
+    wait_relative_alt(conn, param, 0.3, max(deadline - time.monotonic(), 1.0))
+    return param
+
+
+def recv_param(conn: mavutil.mavfile, name: str, timeout_s: float) -> float:
+    conn.mav.param_request_read_send(conn.target_system, conn.target_component, name.encode(), -1)
+    msg = recv_until(conn, "PARAM_VALUE", lambda m: m.param_id == name, timeout_s, f"PARAM_VALUE {name}")
+    return float(msg.param_value)

@@ -1,0 +1,182 @@
+"""The ground station as a user runs it: real ``swarm`` and ``sitl`` processes on loopback.
+
+Policy: loopback only; instances from 60 up (clear of the flight tests and of a user's own drones at 0); every
+process is found by PID (the supervisor's children from /proc) and must be gone at the end; readiness is read from
+the supervisor's own output, never slept for.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+pytestmark = [pytest.mark.sim_only, pytest.mark.timeout(120)]
+
+SWARM = [sys.executable, "-m", "gcs.cli"]
+
+
+@pytest.fixture
+def state_env(tmp_path: Path) -> dict[str, str]:
+    return {**os.environ, "SWARM_STATE_DIR": str(tmp_path / "state")}
+
+
+def children_of(pid: int) -> list[int]:
+    try:
+        text = Path(f"/proc/{pid}/task/{pid}/children").read_text()
+    except OSError:
+        return []
+    return [int(p) for p in text.split()]
+
+
+def alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    # A zombie is dead for our purpose only once reaped; a zombie child of a dead parent is reaped by init.
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
+    except OSError:
+        return False
+
+
+def wait_dead(pids: list[int], timeout_s: float) -> list[int]:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        left = [p for p in pids if alive(p)]
+        if not left:
+            return []
+        time.sleep(0.1)
+    return [p for p in pids if alive(p)]
+
+
+class RunningSwarm:
+    def __init__(self, n: int, first_instance: int, env: dict[str, str]) -> None:
+        self.env = env
+        self.proc = subprocess.Popen(
+            [*SWARM, "up", "-n", str(n), "--speed", "4", "--first-instance", str(first_instance)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            env=env,
+        )
+        self.output: list[str] = []
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:  # the supervisor says when every drone has sent its first HEARTBEAT
+            self.output.append(line)
+            if "drones up" in line:
+                break
+        else:
+            raise AssertionError("swarm up ended before the drones were up: " + "".join(self.output))
+        self.children = children_of(self.proc.pid)
+
+    def cli(self, *args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([*SWARM, *args], capture_output=True, text=True, env=self.env, timeout=60)
+
+    def kill_all(self) -> None:
+        for pid in [self.proc.pid, *self.children]:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+        self.proc.wait()
+
+
+@pytest.fixture
+def swarm_factory(state_env: dict[str, str]) -> Iterator[type[RunningSwarm]]:
+    started: list[RunningSwarm] = []
+
+    class Factory(RunningSwarm):
+        def __init__(self, n: int, first_instance: int) -> None:
+            super().__init__(n, first_instance, state_env)
+            started.append(self)
+
+    yield Factory
+    for s in started:
+        if s.proc.poll() is None or any(alive(p) for p in s.children):
+            s.kill_all()
+
+
+def status_rows(swarm: RunningSwarm) -> list[list[str]]:
+    result = swarm.cli("status")
+    assert result.returncode == 0, result.stderr
+    return [line.split() for line in result.stdout.strip().splitlines()[1:]]
+
+
+def test_cli_commands_fly_a_running_swarm_and_down_stops_every_process(swarm_factory: type[RunningSwarm]) -> None:
+    # GIVEN a running 2-drone swarm
+    swarm = swarm_factory(2, 60)
+    assert len(swarm.children) == 2
+    rows = status_rows(swarm)
+    assert [r[0] for r in rows] == ["61", "62"] and all(r[2] == "no" for r in rows)
+    # WHEN it takes off to 2 m
+    result = swarm.cli("takeoff", "--alt", "2")
+    assert result.returncode == 0, result.stderr
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline:
+        rows = status_rows(swarm)
+        if all(r[2] == "yes" and float(r[5]) > 1.8 for r in rows):
+            break
+        time.sleep(0.3)
+    # THEN both are armed and up
+    assert all(r[2] == "yes" and float(r[5]) > 1.8 for r in rows), rows
+    # WHEN they land
+    assert swarm.cli("land").returncode == 0
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline and not all(r[2] == "no" for r in status_rows(swarm)):
+        time.sleep(0.3)
+    assert all(r[2] == "no" for r in status_rows(swarm))
+    # AND the swarm is brought down
+    assert swarm.cli("down").returncode == 0
+    assert swarm.proc.wait(timeout=30) == 0
+    assert wait_dead(swarm.children, 5) == []
+    assert swarm.cli("status").returncode == 1
+
+
+def test_killing_the_supervisor_with_sigkill_leaves_no_drone_process(swarm_factory: type[RunningSwarm]) -> None:
+    swarm = swarm_factory(3, 64)
+    assert len(swarm.children) == 3
+    swarm.proc.send_signal(signal.SIGKILL)
+    swarm.proc.wait()
+    assert wait_dead(swarm.children, 10) == []
+
+
+def test_sigterm_to_the_supervisor_stops_every_drone(swarm_factory: type[RunningSwarm]) -> None:
+    swarm = swarm_factory(2, 68)
+    swarm.proc.send_signal(signal.SIGTERM)
+    assert swarm.proc.wait(timeout=30) == 0
+    assert wait_dead(swarm.children, 5) == []
+
+
+def test_a_drone_that_cannot_start_is_named_in_one_line(state_env: dict[str, str]) -> None:
+    result = subprocess.run(
+        [*SWARM, "up", "-n", "2", "--first-instance", "72", "--airframe", "no_such_frame"],
+        capture_output=True, text=True, env=state_env, timeout=60,
+    )  # fmt: skip
+    assert result.returncode == 1
+    errors = [ln for ln in result.stdout.splitlines() + result.stderr.splitlines() if "error" in ln]
+    assert len(errors) == 1, result
+    assert "drone 72" in errors[0] and "no_such_frame" in errors[0] and "Traceback" not in result.stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "code", "fragment"),
+    [
+        (("status",), 1, "no swarm is running"),
+        (("up", "-n", "0"), 2, "-n must be in 1..100"),
+        (("up", "-n", "2", "--speed", "fast"), 2, "--speed"),
+        (("fly-away",), 2, "invalid choice"),
+    ],
+)
+def test_bad_commands_give_one_line(state_env: dict[str, str], args: tuple[str, ...], code: int, fragment: str) -> None:
+    result = subprocess.run([*SWARM, *args], capture_output=True, text=True, env=state_env, timeout=30)
+    assert result.returncode == code
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and fragment in lines[0], result.stderr
