@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import enum
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Final, Protocol, runtime_checkable
 
@@ -116,9 +116,9 @@ def _place(body_frd_m: FloatArray, times_s: FloatArray, centre: FloatArray, yaw:
     return centre[:, None, :] + rotate_yaw(body, yaw)
 
 
-def _static_frame(times_s: FloatArray, centre_ne_m: tuple[float, float], alt_m: float, yaw_rad: float) -> tuple[
-    FloatArray, FloatArray
-]:
+def _static_frame(
+    times_s: FloatArray, centre_ne_m: tuple[float, float], alt_m: float, yaw_rad: float
+) -> tuple[FloatArray, FloatArray]:
     k = np.asarray(times_s).shape[0]
     centre = np.tile(np.array([centre_ne_m[0], centre_ne_m[1], -alt_m]), (k, 1))
     return centre, np.full(k, yaw_rad)
@@ -256,8 +256,8 @@ class LineSpec:
 class VSpec:
     """A V pointing along ``heading_rad``: slot 0 at the apex on ``centre_ne_m``, then alternately right and left
     along two arms that trail back at +-``angle_rad`` / 2 from the rear axis; ``spacing_m`` between neighbours on
-    an arm. Drones k and k+1 on opposite arms are ``2 k' spacing sin(angle / 2)`` apart, so angles below 60 deg
-    bring them closer than ``spacing_m``.
+    an arm. The two drones k-th along their arms are ``2 k spacing_m sin(angle / 2)`` apart, so angles below 60 deg
+    bring the first pair closer than ``spacing_m``.
     """
 
     spacing_m: float
@@ -433,7 +433,7 @@ class _Plan:
     def __init__(
         self, start: _Track, target: _SlotTrack, start_s: float, duration_s: float, kappa_rad: float, depth: int
     ) -> None:
-        self.start: _Track | None = start
+        self.start = start
         self.target = target
         self.start_s = start_s
         self.duration_s = duration_s
@@ -444,7 +444,7 @@ class _Plan:
     def positions(self, times_s: FloatArray) -> FloatArray:
         times_s = np.asarray(times_s, dtype=np.float64)
         after = times_s >= self.arrival_s
-        if np.all(after) or self.start is None:
+        if np.all(after):
             return self.target.positions(times_s)
         out = np.empty((times_s.shape[0], self.target.slot_index.shape[0], 3))
         if np.any(after):
@@ -456,7 +456,7 @@ class _Plan:
     def frame(self, times_s: FloatArray) -> tuple[FloatArray, FloatArray]:
         times_s = np.asarray(times_s, dtype=np.float64)
         after = times_s >= self.arrival_s
-        if np.all(after) or self.start is None:
+        if np.all(after):
             return self.target.frame(times_s)
         centre = np.empty((times_s.shape[0], 3))
         yaw = np.empty(times_s.shape[0])
@@ -466,7 +466,6 @@ class _Plan:
         return centre, yaw
 
     def _blend(self, times_s: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        assert self.start is not None
         s = _quintic((times_s - self.start_s) / self.duration_s)
         start_pos = self.start.positions(times_s)
         start_centre, start_yaw = self.start.frame(times_s)
@@ -565,9 +564,8 @@ class FormationEngine:
             # Net rotation of the blended frame over the transition, and kappa that makes the frame angles meet.
             t_arrive = np.array([duration_s])
             goal_centre, goal_yaw = formation.frame(t_arrive)
-            goal_rate = float(formation.frame(t_arrive + _DIFF_STEP_S)[1][0] - formation.frame(t_arrive - _DIFF_STEP_S)[1][0]) / (
-                2.0 * _DIFF_STEP_S
-            )
+            _, around = formation.frame(t_arrive[0] + np.array([-_DIFF_STEP_S, _DIFF_STEP_S]))
+            goal_rate = float(around[1] - around[0]) / (2.0 * _DIFF_STEP_S)
             spin = 0.5 * duration_s * (start_yaw_rate + goal_rate)
             kappa = float(goal_yaw[0]) - float(start_yaw) - spin
             goal_body = rotate_yaw(
@@ -637,7 +635,7 @@ class FormationEngine:
     def _shortest_feasible(
         self,
         candidate: _Plan,
-        plan: _PlanFactory,
+        plan: Callable[[float, IntArray, float], _Plan],
         slots: IntArray,
         kappa: float,
         start_points: FloatArray,
@@ -649,12 +647,14 @@ class FormationEngine:
         # Straight-line lower bound for the quintic profile from the farthest drone.
         goal = candidate.target.positions(np.array([candidate.arrival_s]))[0]
         reach_m = float(np.max(np.linalg.norm(goal - start_points, axis=1)))
-        low = max(candidate.duration_s, _QUINTIC_PEAK_RATE * reach_m / v_max, math.sqrt(_QUINTIC_PEAK_ACCEL * reach_m / a_max))
+        low = max(
+            candidate.duration_s, _QUINTIC_PEAK_RATE * reach_m / v_max, math.sqrt(_QUINTIC_PEAK_ACCEL * reach_m / a_max)
+        )
 
         def feasible(duration_s: float) -> bool:
             p = plan(duration_s, slots, kappa)
             step = duration_s / _CHECK_SAMPLES
-            times = p.start_s + step * np.arange(-1, _CHECK_SAMPLES + 2)
+            times = np.asarray(p.start_s + step * np.arange(-1, _CHECK_SAMPLES + 2), dtype=np.float64)
             speed, accel = _peak_speed_accel(p.positions(times), step)
             return speed <= v_max and accel <= a_max
 
@@ -727,12 +727,8 @@ class FormationEngine:
         if self._plan is None:
             return math.inf
         end = self._plan.arrival_s + after_arrival_s
-        count = max(2, int(math.ceil((end - self._plan.start_s) / step_s)) + 1)
+        count = max(2, math.ceil((end - self._plan.start_s) / step_s) + 1)
         return min_pairwise_distance_m(self._plan.positions(np.linspace(self._plan.start_s, end, count)))
-
-
-class _PlanFactory(Protocol):
-    def __call__(self, duration_s: float, slots: IntArray, kappa: float, /) -> _Plan: ...
 
 
 def _peak_speed_accel(positions: FloatArray, step_s: float) -> tuple[float, float]:

@@ -39,11 +39,14 @@ Airborne
 
 ``steps``
     One entry per step: ``index, name, kind, start_s, end_s``, and, when drones had a commanded slot during the step:
-    - swarm error e(t) at a grid instant in [start_s, end_s]: the root mean square, over the present drones that
-      have a commanded slot, of the 3D distance between position and slot;
+    - swarm error e(t) at a grid instant in [start_s, end_s) (at end_s the next step's command is in force): the
+      root mean square, over the present drones with a commanded slot, of the 3D distance between position and slot;
+      a slot counts only if held from a sample inside the step (not the previous step's command, still held for
+      a few milliseconds after the boundary);
     - ``time_to_formation_s``: from the step's start to the earliest instant from which e(t) stays at or below
       ``FORMATION_SETTLED_RMS_M`` until the step's end (crossing interpolated between grid instants; resolution
-      ``1 / GRID_HZ``); null if e(t) is above it at the step's last grid instant;
+      ``1 / GRID_HZ``, counted from the step's first grid instant with a slot); null if e(t) is above it at the
+      step's last grid instant;
     - ``formation_rms_m``: sqrt of the mean of e(t)^2 over the grid instants of the settled part (from the settled
       instant to the step's end), i.e. the RMS over time and drones once in formation; null if never settled;
     - ``max_error_m``: the largest single drone's distance to its slot over the settled part; null if never settled;
@@ -282,15 +285,15 @@ def _separation(
         rel = pos[:, i : i + 1, :] - pos[:, i + 1 :, :]  # (T, others, 3), NaN unless both airborne
         dist = np.linalg.norm(rel, axis=2)
         series = np.fmin(series, np.where(np.isnan(dist), np.inf, dist).min(axis=1))
-        if n_t < 2:
-            candidates, times = dist, np.broadcast_to(grid_s[:, None], dist.shape)
-        else:
-            # closest approach of the linear relative motion between consecutive grid instants
-            r0, dr = rel[:-1], rel[1:] - rel[:-1]
-            dr2 = np.einsum("tpk,tpk->tp", dr, dr)
-            s = np.clip(np.divide(-np.einsum("tpk,tpk->tp", r0, dr), dr2, out=np.zeros_like(dr2), where=dr2 > 0), 0, 1)
-            candidates = np.linalg.norm(r0 + s[..., None] * dr, axis=2)
-            times = grid_s[:-1, None] + s * np.diff(grid_s)[:, None]
+        # candidates: every grid instant, and the closest approach of the linear relative motion between two
+        # consecutive grid instants (NaN unless the pair is airborne at both)
+        r0, dr = rel[:-1], rel[1:] - rel[:-1]
+        dr2 = np.einsum("tpk,tpk->tp", dr, dr)
+        s = np.clip(np.divide(-np.einsum("tpk,tpk->tp", r0, dr), dr2, out=np.zeros_like(dr2), where=dr2 > 0), 0, 1)
+        candidates = np.concatenate([dist, np.linalg.norm(r0 + s[..., None] * dr, axis=2)])
+        times = np.concatenate(
+            [np.broadcast_to(grid_s[:, None], dist.shape), grid_s[:-1, None] + s * np.diff(grid_s)[:, None]]
+        )
         if np.all(np.isnan(candidates)):
             continue
         t_idx, other = np.unravel_index(np.nanargmin(candidates), candidates.shape)

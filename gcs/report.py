@@ -248,7 +248,14 @@ def _separation_figure(recording: FlightRecording, metrics: FlightMetrics) -> Fi
     )
     if metrics.min_separation_m is not None and metrics.min_separation_time_s is not None:
         a, b = metrics.min_separation_pair or (0, 0)
-        ax.plot(metrics.min_separation_time_s, metrics.min_separation_m, marker="v", color="black", linestyle="none")
+        ax.plot(
+            metrics.min_separation_time_s,
+            metrics.min_separation_m,
+            marker="v",
+            color="black",
+            linestyle="none",
+            clip_on=False,  # a minimum of 0 m sits on the axis
+        )
         ax.annotate(
             f"{metrics.min_separation_m:.2f} m (drones {a}, {b})",
             (metrics.min_separation_time_s, metrics.min_separation_m),
@@ -257,15 +264,13 @@ def _separation_figure(recording: FlightRecording, metrics: FlightMetrics) -> Fi
             fontsize="small",
             bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none", "pad": 1.0},
         )
-    if metrics.collision_events:
-        ax.plot(
-            [e.time_s for e in metrics.collision_events],
-            [0.0] * len(metrics.collision_events),
-            marker="x",
+    for k, event in enumerate(metrics.collision_events):
+        ax.axvline(
+            event.time_s,
             color="tab:red",
-            markersize=9,
-            linestyle="none",
-            label="collision event",
+            alpha=0.6,
+            linewidth=1.5,
+            label="collision event" if k == 0 else None,
         )
     _step_lines(ax, recording.steps)
     ax.set_ylim(bottom=0.0)

@@ -79,6 +79,10 @@ class VehicleLink:
             drone=drone,
         )
 
+    def window_s(self, sim_s: float) -> float:
+        """Wall-clock length of an observation window covering ``sim_s`` seconds of the vehicle's time."""
+        return sim_s / self.speed_factor
+
     def wall_s(self, sim_s: float) -> float:
         """Wall-clock limit for something the vehicle should do in ``sim_s`` seconds of its own time."""
         return sim_s / self.speed_factor * WALL_SLACK_FACTOR + WALL_SLACK_S

@@ -157,15 +157,11 @@ def test_time_to_formation_of_an_exponentially_decaying_error() -> None:
 
         return at
 
+    def slot(sysid: int) -> Callable[[float], Vec3 | None]:
+        return lambda t: slots[sysid] if t >= start else None
+
     for sysid, offset in ((1, 0.0), (2, 0.007)):
-        rec.samples += flight(
-            sysid,
-            start,
-            end,
-            pos(sysid),
-            offset_s=offset,
-            target_at=lambda t, s=sysid: slots[s] if t >= start else None,
-        )
+        rec.samples += flight(sysid, start, end, pos(sysid), offset_s=offset, target_at=slot(sysid))
 
     # WHEN the metrics are computed
     step = compute_metrics(rec).steps[0]

@@ -1,0 +1,273 @@
+"""Mission files: a swarm flight written down as TOML, validated into frozen steps before anything flies.
+
+```toml
+name = "grid_to_circle"
+[swarm]
+drones = 9            # spawned on a grid (or line) with this spacing
+spacing_m = 2.0
+[[steps]]
+action = "takeoff"    # takeoff | formation | hold | land | rtl
+alt_m = 3.0
+[[steps]]
+action = "formation"
+shape = "circle"      # grid | circle | line | v, with the fields of that shape (docs/missions.md)
+radius_m = 3.0
+alt_m = 3.0
+hold_s = 30.0
+```
+
+TOML is in the standard library (no new dependency) and reads well. A mistake is reported as one line
+``FILE:LINE: steps[2].radius_m: must be a positive number``; tomllib gives no positions for values, so the line is
+found by locating the step's ``[[steps]]`` header and the key inside it.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from gcs.formation import CircleSpec, Formation, FormationError, GridSpec, LineSpec, VSpec
+from gcs.supervisor import LAYOUTS
+
+MAX_DRONES = 100
+
+
+class MissionFileError(ValueError):
+    """One line: file, line, field and the problem."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SwarmSpec:
+    drones: int
+    layout: str = "grid"
+    spacing_m: float = 2.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TakeoffStep:
+    alt_m: float
+    timeout_s: float = 30.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FormationStep:
+    name: str
+    formation: Formation
+    hold_s: float  # time in the formation after the transition started
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class HoldStep:
+    duration_s: float
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LandStep:
+    timeout_s: float = 60.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RtlStep:
+    timeout_s: float = 120.0
+
+
+Step = TakeoffStep | FormationStep | HoldStep | LandStep | RtlStep
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MissionSpec:
+    name: str
+    description: str
+    swarm: SwarmSpec
+    steps: tuple[Step, ...]
+    path: Path | None = None
+
+
+# Per shape: the spec class and its fields (name -> kind); angles are given in degrees in files.
+_SHAPES: dict[str, tuple[type, dict[str, str]]] = {
+    "grid": (GridSpec, {"rows": "count", "cols": "count", "spacing_m": "pos", "alt_m": "pos", "heading_deg": "angle"}),
+    "circle": (
+        CircleSpec,
+        {
+            "radius_m": "pos",
+            "alt_m": "pos",
+            "angular_rate_radps": "num",
+            "alt_osc_amp_m": "nonneg",
+            "alt_osc_rate_radps": "num",
+            "alt_osc_phase_step_rad": "num",
+            "phase_deg": "angle",
+        },
+    ),
+    "line": (LineSpec, {"spacing_m": "pos", "alt_m": "pos", "heading_deg": "angle"}),
+    "v": (VSpec, {"spacing_m": "pos", "alt_m": "pos", "angle_deg": "angle", "heading_deg": "angle"}),
+}
+_REQUIRED = {"grid": {"rows", "cols", "spacing_m", "alt_m"}, "circle": {"radius_m", "alt_m"},
+             "line": {"spacing_m", "alt_m"}, "v": {"spacing_m", "alt_m"}}  # fmt: skip
+
+
+class _Locator:
+    """Finds the line of a field in the TOML text (1-based), for error messages."""
+
+    def __init__(self, text: str) -> None:
+        self.lines = text.splitlines()
+
+    def _table_start(self, table: str, index: int | None) -> int | None:
+        pattern = re.compile(rf"^\s*\[\[\s*{table}\s*\]\]" if index is not None else rf"^\s*\[\s*{table}\s*\]")
+        seen = -1
+        for n, line in enumerate(self.lines):
+            if pattern.match(line):
+                seen += 1
+                if index is None or seen == index:
+                    return n
+        return None
+
+    def line_of(self, table: str | None, index: int | None, key: str | None) -> int:
+        start = -1 if table is None else self._table_start(table, index)
+        if start is None:
+            return 1
+        key_re = re.compile(rf"^\s*{re.escape(key)}\s*=") if key else None
+        for n in range(start + 1, len(self.lines)):
+            if self.lines[n].lstrip().startswith("[") and n > start:
+                break
+            if key_re is not None and key_re.match(self.lines[n]):
+                return n + 1
+        return start + 1 if start >= 0 else 1
+
+
+class _Reader:
+    def __init__(self, path: Path, locator: _Locator) -> None:
+        self.path = path
+        self.locator = locator
+
+    def fail(self, where: tuple[str | None, int | None], key: str | None, problem: str) -> MissionFileError:
+        table, index = where
+        line = self.locator.line_of(table, index, key)
+        label = ".".join(p for p in ((f"{table}[{index}]" if index is not None else table), key) if p)
+        return MissionFileError(
+            f"{self.path}:{line}: {label}: {problem}" if label else f"{self.path}:{line}: {problem}"
+        )
+
+    def number(self, table: dict[str, Any], key: str, where: tuple[str | None, int | None], kind: str) -> float:
+        value = table[key]
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+            raise self.fail(where, key, f"must be a number, got {value!r}")
+        if kind == "count" and (not isinstance(value, int) or value < 1):
+            raise self.fail(where, key, f"must be a whole number >= 1, got {value!r}")
+        if kind == "pos" and value <= 0:
+            raise self.fail(where, key, f"must be a positive number, got {value!r}")
+        if kind == "nonneg" and value < 0:
+            raise self.fail(where, key, f"must be >= 0, got {value!r}")
+        return float(value)
+
+    def check_keys(self, table: dict[str, Any], allowed: set[str], where: tuple[str | None, int | None]) -> None:
+        for key in table:
+            if key not in allowed:
+                raise self.fail(where, key, f"unknown field (allowed: {', '.join(sorted(allowed))})")
+
+
+def _formation(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int | None]) -> FormationStep:
+    shape = step.get("shape")
+    if shape not in _SHAPES:
+        raise reader.fail(where, "shape", f"must be one of {', '.join(_SHAPES)}, got {shape!r}")
+    spec_cls, fields = _SHAPES[shape]
+    reader.check_keys(step, {"action", "shape", "hold_s", "name", *fields}, where)
+    for key in sorted(_REQUIRED[shape] | {"hold_s"}):
+        if key not in step:
+            raise reader.fail(where, None, f"missing field '{key}' for a {shape} formation")
+    kwargs: dict[str, Any] = {}
+    for key, kind in fields.items():
+        if key not in step:
+            continue
+        value = reader.number(step, key, where, kind)
+        if kind == "count":
+            kwargs[key] = int(value)
+        elif kind == "angle":
+            kwargs[key.replace("_deg", "_rad")] = math.radians(value)
+        else:
+            kwargs[key] = value
+    try:
+        formation = spec_cls(**kwargs)
+    except (FormationError, ValueError, TypeError) as exc:
+        raise reader.fail(where, None, str(exc)) from None
+    name = step.get("name", shape)
+    if not isinstance(name, str):
+        raise reader.fail(where, "name", "must be a string")
+    return FormationStep(name=name, formation=formation, hold_s=reader.number(step, "hold_s", where, "pos"))
+
+
+def _step(reader: _Reader, step: Any, index: int) -> Step:
+    where: tuple[str | None, int | None] = ("steps", index)
+    if not isinstance(step, dict):
+        raise reader.fail(where, None, "must be a table")
+    action = step.get("action")
+    if action == "takeoff":
+        reader.check_keys(step, {"action", "alt_m", "timeout_s"}, where)
+        if "alt_m" not in step:
+            raise reader.fail(where, None, "missing field 'alt_m'")
+        alt = reader.number(step, "alt_m", where, "pos")
+        timeout = reader.number(step, "timeout_s", where, "pos") if "timeout_s" in step else 30.0
+        return TakeoffStep(alt_m=alt, timeout_s=timeout)
+    if action == "formation":
+        return _formation(reader, step, where)
+    if action == "hold":
+        reader.check_keys(step, {"action", "duration_s"}, where)
+        if "duration_s" not in step:
+            raise reader.fail(where, None, "missing field 'duration_s'")
+        return HoldStep(duration_s=reader.number(step, "duration_s", where, "pos"))
+    if action in ("land", "rtl"):
+        reader.check_keys(step, {"action", "timeout_s"}, where)
+        cls = LandStep if action == "land" else RtlStep
+        return cls(timeout_s=reader.number(step, "timeout_s", where, "pos")) if "timeout_s" in step else cls()
+    raise reader.fail(where, "action", f"must be takeoff, formation, hold, land or rtl, got {action!r}")
+
+
+def parse_mission(text: str, path: Path) -> MissionSpec:
+    reader = _Reader(path, _Locator(text))
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise MissionFileError(f"{path}: not valid TOML: {exc}") from None
+    reader.check_keys(data, {"name", "description", "swarm", "steps"}, (None, None))
+    swarm = data.get("swarm")
+    if not isinstance(swarm, dict):
+        raise reader.fail((None, None), None, "missing [swarm] table with 'drones'")
+    where_swarm: tuple[str | None, int | None] = ("swarm", None)
+    reader.check_keys(swarm, {"drones", "layout", "spacing_m"}, where_swarm)
+    if "drones" not in swarm:
+        raise reader.fail(where_swarm, None, "missing field 'drones'")
+    drones = int(reader.number(swarm, "drones", where_swarm, "count"))
+    if drones > MAX_DRONES:
+        raise reader.fail(where_swarm, "drones", f"at most {MAX_DRONES}, got {drones}")
+    layout = swarm.get("layout", "grid")
+    if layout not in LAYOUTS:
+        raise reader.fail(where_swarm, "layout", f"must be one of {', '.join(sorted(LAYOUTS))}, got {layout!r}")
+    spacing = reader.number(swarm, "spacing_m", where_swarm, "pos") if "spacing_m" in swarm else 2.0
+    steps_data = data.get("steps")
+    if not isinstance(steps_data, list) or not steps_data:
+        raise reader.fail((None, None), None, "missing [[steps]]: a mission needs at least one step")
+    steps = tuple(_step(reader, s, i) for i, s in enumerate(steps_data))
+    if not isinstance(steps[0], TakeoffStep):
+        raise reader.fail(("steps", 0), "action", "the first step must be a takeoff")
+    name = data.get("name", path.stem)
+    description = data.get("description", "")
+    if not isinstance(name, str) or not isinstance(description, str):
+        raise reader.fail((None, None), "name", "name and description must be strings")
+    return MissionSpec(
+        name=name,
+        description=description,
+        swarm=SwarmSpec(drones=drones, layout=layout, spacing_m=spacing),
+        steps=steps,
+        path=path,
+    )
+
+
+def load_mission(path: Path) -> MissionSpec:
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise MissionFileError(f"{path}: cannot read: {exc.strerror}") from None
+    return parse_mission(text, path)
