@@ -11,18 +11,22 @@ import argparse
 import math
 import signal
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from types import FrameType
 from typing import Any, NoReturn
 
 from gcs.control import ControlClient, ControlError, ControlServer
+from gcs.mission_file import MissionFileError, load_mission
+from gcs.mission_runner import MissionRunner
 from gcs.station import Station, format_status
 from gcs.supervisor import LAYOUTS, SpawnError, SpawnPlan
-from gcs.swarm import Swarm
+from gcs.swarm import Swarm, SwarmError
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
 
 EXIT_USAGE = 2
+DEFAULT_MISSION = Path(__file__).resolve().parent.parent / "missions" / "grid_to_circle.toml"
 EXIT_FAILED = 1
 
 
@@ -68,6 +72,16 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
     up.add_argument("--seed", type=int, default=0, help="base random seed (drone i uses seed+i)")
     up.add_argument("--logs", type=Path, default=None, help="directory for each drone's log (default: none)")
+    fly = sub.add_parser("fly", help="run a mission file end to end and write a flight report")
+    fly.add_argument(
+        "mission", type=Path, nargs="?", default=DEFAULT_MISSION, help=f"mission file (default {DEFAULT_MISSION})"
+    )
+    fly.add_argument("--report", type=Path, default=None, help="report directory (default reports/<mission>-<time>)")
+    fly.add_argument("--speed", type=_positive, default=1.0, help="simulation speed factor (default 1)")
+    fly.add_argument("--first-instance", type=int, default=0, help="instance of the first drone")
+    fly.add_argument("--origin", type=_origin, default=DEFAULT_HOME, help="swarm origin LAT,LON,ALT_AMSL")
+    fly.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
+    fly.add_argument("--seed", type=int, default=0, help="base random seed (drone i uses seed+i)")
     sub.add_parser("status", help="table of every drone")
     takeoff = sub.add_parser("takeoff", help="arm and take off every drone")
     takeoff.add_argument("--alt", type=_positive, default=3.0, help="altitude above home in metres (default 3)")
@@ -138,6 +152,31 @@ def _loop(swarm: Swarm, station: Station, server: ControlServer, stop: _Stop) ->
         station.watch(swarm.clock())
 
 
+def _interrupt(_signum: int, _frame: FrameType | None) -> NoReturn:
+    raise KeyboardInterrupt
+
+
+def run_fly(args: argparse.Namespace) -> int:
+    mission = load_mission(args.mission)
+    if args.first_instance < 0 or args.first_instance + mission.swarm.drones > 255:
+        raise UsageError("--first-instance must leave room for every sysid (instance + 1 <= 255)")
+    report = args.report or Path("reports") / f"{mission.name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    runner = MissionRunner(mission, speed_factor=args.speed, origin=args.origin, first_instance=args.first_instance,
+                           report_dir=report, say=_say, airframe=args.airframe, seed=args.seed)  # fmt: skip
+    signal.signal(signal.SIGTERM, _interrupt)  # a terminated run lands and stops its drones like Ctrl-C
+    try:
+        out = runner.run()
+    except (SwarmError, SpawnError) as exc:
+        print(f"swarm: error: {exc}", file=sys.stderr)
+        print(f"swarm: report (partial) in {report}", file=sys.stderr)
+        return EXIT_FAILED
+    except KeyboardInterrupt:
+        print(f"swarm: interrupted; drones landed and stopped; partial report in {report}", file=sys.stderr)
+        return 130
+    _say(f"swarm: report in {out}")
+    return 0
+
+
 def run_client(args: argparse.Namespace) -> int:
     request: dict[str, Any] = {"cmd": args.command}
     if args.command == "takeoff":
@@ -156,8 +195,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = build_parser().parse_args(argv)
         if args.command == "up":
             return run_up(args)
+        if args.command == "fly":
+            return run_fly(args)
         return run_client(args)
-    except UsageError as exc:
+    except (UsageError, MissionFileError) as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except ControlError as exc:

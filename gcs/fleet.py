@@ -33,6 +33,8 @@ class DroneView:
     vel_ned_mps: tuple[float, float, float] = (math.nan, math.nan, math.nan)
     local_ned_m: tuple[float, float, float] = (math.nan, math.nan, math.nan)
     home: tuple[float, float, float] | None = None  # lat, lon, alt AMSL
+    home_local_ned_m: tuple[float, float, float] | None = None  # home in the drone's own local frame
+    local_time_s: float = -math.inf
     battery_remaining: float = math.nan  # 0..1
     battery_voltage_v: float = math.nan
     landed_state: int = 0  # MAV_LANDED_STATE
@@ -79,8 +81,11 @@ class Fleet:
             view.position_time_s = now_s
         elif kind == "LOCAL_POSITION_NED":
             view.local_ned_m = (msg.x, msg.y, msg.z)
+            view.vel_ned_mps = (msg.vx, msg.vy, msg.vz)
+            view.local_time_s = now_s
         elif kind == "HOME_POSITION":
             view.home = (msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3)
+            view.home_local_ned_m = (msg.x, msg.y, msg.z)
         elif kind == "SYS_STATUS":
             view.battery_voltage_v = msg.voltage_battery * 1e-3 if msg.voltage_battery != 0xFFFF else math.nan
             view.battery_remaining = msg.battery_remaining / 100.0 if msg.battery_remaining >= 0 else math.nan

@@ -14,22 +14,25 @@ When a formation is commanded, ``FormationEngine``:
    and acceleration change at both ends) whose duration is the shortest that keeps every drone within the speed
    and acceleration limits. All drones arrive at the same instant.
 
-Moving slots (a rotating circle) are handled without losing the separation bound: drones are blended in the
-formation's rotating frame. With ``c``, ``psi`` the centre and yaw of the start (old) and target (new) frames::
+Moving slots (a rotating circle) are handled without losing that bound: drones are blended in a frame that
+spins up with the formation. With ``c_0`` the centre of the start configuration and ``c``, ``psi`` the centre and
+yaw of the formation's own frame::
 
-    pos_i(t) = C(t) + Rz(Psi(t)) [ (1 - s) a_i(t) + s b_i(t) ]
-    C = (1 - s) c_old + s c_new,   Psi = (1 - s) psi_old + s (psi_new - kappa)
+    pos_i(t) = C(t) + Rz(s psi'(t)) [ (1 - s) a_i(t) + s b_i(t) ],   C = (1 - s) c_0 + s c(t),
+    psi'(t) = psi(t) - kappa
 
-where ``a_i`` and ``b_i`` are the start and slot positions in their own frames. Rotating the whole blend rigidly
-changes no pairwise distance, so the straight-line bound applies to ``(1 - s) a + s b``. The frame spins up from
-the old rate to the new one during the transition (net rotation ``D (rate_old + rate_new) / 2``, ``kappa`` makes
-the angles meet), and the assignment is made against the arrival slots rotated back by that net spin. Position,
-velocity and acceleration are continuous at both ends, including when a new formation is commanded while drones
-are still moving (the old plan becomes the start trajectory).
+where ``a_i`` is the start relative to ``c_0`` and ``b_i`` the slot in the formation frame rotated by ``kappa``.
+Rotating the whole blend rigidly changes no pairwise distance, so the straight-line bound applies to
+``(1 - s) a + s b``. ``kappa`` is chosen so that the frame turns by ``D rate / 2`` during the transition (it starts
+still and ends at the formation's rate), and the assignment is made against the arrival slots rotated back by that
+angle. Position and velocity are continuous at both ends. Drones that are moving when a formation is commanded
+(a rotating circle, an unfinished transition) start from their setpoint and its velocity and brake smoothly to rest
+along a straight line while the transition proceeds; a rotating ring brakes into a scaled, rotated copy of itself,
+so the bound still holds approximately (``planned_min_separation_m`` measures it).
 
 Setpoints carry position and velocity/acceleration feed-forward; velocities come from central differences of the
 planned positions (exact to ~1e-7 m/s for these smooth paths), so any new formation only needs positions. They
-are meant to be streamed to every drone at ``SETPOINT_STREAM_HZ`` (PX4 leaves OFFBOARD below 2 Hz; the issue asks
+are meant to be streamed to every drone at ``SETPOINT_STREAM_HZ`` (PX4 leaves OFFBOARD below 2 Hz; the swarm needs
 for >= 10 Hz) as SET_POSITION_TARGET_LOCAL_NED in each drone's own frame (the choice is explained in
 gcs/frames.py).
 """
@@ -61,7 +64,8 @@ _CHECK_SAMPLES: Final = 160  # samples per transition when checking the limits
 _FORMATION_CHECK_S: Final = 60.0  # how long a formation's own motion is checked against the limits
 _MAX_DURATION_S: Final = 3600.0
 _MAX_REPLANS: Final = 8
-_MAX_NESTING: Final = 4  # commands during a transition chain plans; beyond this depth the chain is cut
+_BRAKING_PEAK_DECEL: Final = 8.0 / (3.0 * math.sqrt(3.0))  # max |d2x/dt2| * braking_s / v0 of the braking profile
+_MIN_BRAKING_S: Final = 0.5
 
 
 class FormationError(ValueError):
@@ -359,67 +363,52 @@ class Transition:
         return self.arrival_s - self.start_s
 
 
-class _Track(Protocol):
-    """Planned positions of a fixed list of drones plus the rigid frame they move with."""
+class _BrakingStart:
+    """Where a transition starts: each drone's position and velocity, braking smoothly to rest.
 
-    def positions(self, times_s: FloatArray) -> FloatArray: ...  # (K, n, 3)
+    A drone already moving (a rotating circle, an unfinished transition) keeps its velocity at the instant of the
+    command and decelerates along a straight line with ``dx/dt = v0 (1 - x^2)^2`` (x = time / braking time), so
+    position and velocity stay continuous and the deceleration is zero at both ends. The braking time makes the
+    deceleration use at most half the acceleration limit, leaving the rest to the transition itself. Before the
+    command the drone is extrapolated at constant velocity (only finite differences at the command instant look
+    there).
+    """
 
-    def frame(self, times_s: FloatArray) -> tuple[FloatArray, FloatArray]: ...  # centre (K, 3), yaw (K,)
-
-
-class _StaticTrack:
-    """Drones holding still: the start of a first transition, or after a chain of commands was cut."""
-
-    def __init__(self, points_ned_m: FloatArray) -> None:
+    def __init__(self, points_ned_m: FloatArray, vels_ned_mps: FloatArray, start_s: float, braking_s: float) -> None:
         self._points = points_ned_m
-        self._centre = points_ned_m.mean(axis=0)
+        self._vels = vels_ned_mps
+        self._start_s = start_s
+        self._braking_s = braking_s
+
+    @property
+    def braking_s(self) -> float:
+        return self._braking_s
 
     def positions(self, times_s: FloatArray) -> FloatArray:
-        return np.broadcast_to(self._points, (times_s.shape[0], *self._points.shape)).copy()
+        x = (times_s - self._start_s) / self._braking_s
+        xc = np.clip(x, 0.0, 1.0)
+        travelled = np.where(x < 0.0, x, xc - 2.0 * xc**3 / 3.0 + xc**5 / 5.0) * self._braking_s
+        return np.asarray(self._points[None] + travelled[:, None, None] * self._vels[None], dtype=np.float64)
 
-    def frame(self, times_s: FloatArray) -> tuple[FloatArray, FloatArray]:
-        return np.tile(self._centre, (times_s.shape[0], 1)), np.zeros(times_s.shape[0])
+    def rest_points(self) -> FloatArray:
+        """Where every drone comes to rest: the configuration the assignment plans from."""
+        return np.asarray(self._points + (8.0 / 15.0) * self._braking_s * self._vels, dtype=np.float64)
 
 
 class _SlotTrack:
-    """Drones sitting in their slots of a formation commanded at ``start_s`` (frame yaw offset by ``-kappa``)."""
+    """Drones in their slots of a formation commanded at ``start_s``."""
 
-    def __init__(self, formation: Formation, start_s: float, slot_index: IntArray, kappa_rad: float) -> None:
+    def __init__(self, formation: Formation, start_s: float, slot_index: IntArray) -> None:
         self.formation = formation
         self.start_s = start_s
         self.slot_index = slot_index
-        self.kappa_rad = kappa_rad
 
     def positions(self, times_s: FloatArray) -> FloatArray:
         slots = self.formation.slots_ned_m(times_s - self.start_s, self.slot_index.shape[0])
         return slots[:, self.slot_index, :]
 
     def frame(self, times_s: FloatArray) -> tuple[FloatArray, FloatArray]:
-        centre, yaw = self.formation.frame(times_s - self.start_s)
-        return centre, yaw - self.kappa_rad
-
-
-class _StartTrack:
-    """The start of a transition: each drone either continues along the previous plan or holds its position."""
-
-    def __init__(self, previous: _Track | None, previous_index: IntArray, points_ned_m: FloatArray) -> None:
-        self._previous = previous
-        self._previous_index = previous_index  # per drone: its index in `previous`, or -1 to hold still
-        self._points = points_ned_m
-        self._resumes = previous_index >= 0
-        self._static = _StaticTrack(points_ned_m)
-
-    def positions(self, times_s: FloatArray) -> FloatArray:
-        out = self._static.positions(times_s)
-        if self._previous is not None and np.any(self._resumes):
-            prev = self._previous.positions(times_s)
-            out[:, self._resumes, :] = prev[:, self._previous_index[self._resumes], :]
-        return out
-
-    def frame(self, times_s: FloatArray) -> tuple[FloatArray, FloatArray]:
-        if self._previous is not None and np.any(self._resumes):
-            return self._previous.frame(times_s)
-        return self._static.frame(times_s)
+        return self.formation.frame(times_s - self.start_s)
 
 
 def _quintic(tau: FloatArray) -> FloatArray:
@@ -428,10 +417,14 @@ def _quintic(tau: FloatArray) -> FloatArray:
 
 
 class _Plan:
-    """One transition from a start track into a formation's slots; after arrival, the slots themselves."""
+    """One transition from a braking start into a formation's slots; after arrival, the slots themselves.
+
+    The start frame is fixed (centred on the rest configuration, yaw 0); the target frame is the formation's,
+    offset by ``-kappa`` so that the blended yaw starts at 0 and spins up to the formation's rate (module docstring).
+    """
 
     def __init__(
-        self, start: _Track, target: _SlotTrack, start_s: float, duration_s: float, kappa_rad: float, depth: int
+        self, start: _BrakingStart, target: _SlotTrack, start_s: float, duration_s: float, kappa_rad: float
     ) -> None:
         self.start = start
         self.target = target
@@ -439,7 +432,7 @@ class _Plan:
         self.duration_s = duration_s
         self.arrival_s = start_s + duration_s
         self.kappa_rad = kappa_rad
-        self.depth = depth
+        self._start_centre = start.rest_points().mean(axis=0)
 
     def positions(self, times_s: FloatArray) -> FloatArray:
         times_s = np.asarray(times_s, dtype=np.float64)
@@ -449,45 +442,18 @@ class _Plan:
         out = np.empty((times_s.shape[0], self.target.slot_index.shape[0], 3))
         if np.any(after):
             out[after] = self.target.positions(times_s[after])
-        before = ~after
-        out[before] = self._blend(times_s[before])[0]
+        out[~after] = self._blend(times_s[~after])
         return out
 
-    def frame(self, times_s: FloatArray) -> tuple[FloatArray, FloatArray]:
-        times_s = np.asarray(times_s, dtype=np.float64)
-        after = times_s >= self.arrival_s
-        if np.all(after):
-            return self.target.frame(times_s)
-        centre = np.empty((times_s.shape[0], 3))
-        yaw = np.empty(times_s.shape[0])
-        if np.any(after):
-            centre[after], yaw[after] = self.target.frame(times_s[after])
-        _, centre[~after], yaw[~after] = self._blend(times_s[~after])
-        return centre, yaw
-
-    def _blend(self, times_s: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def _blend(self, times_s: FloatArray) -> FloatArray:
         s = _quintic((times_s - self.start_s) / self.duration_s)
-        start_pos = self.start.positions(times_s)
-        start_centre, start_yaw = self.start.frame(times_s)
-        goal_pos = self.target.positions(times_s)
-        goal_centre, goal_yaw = self.target.frame(times_s)  # already offset by -kappa
-        a = rotate_yaw(start_pos - start_centre[:, None, :], -start_yaw)
-        b = rotate_yaw(goal_pos - goal_centre[:, None, :], -goal_yaw)
-        centre = (1.0 - s)[:, None] * start_centre + s[:, None] * goal_centre
-        yaw = (1.0 - s) * start_yaw + s * goal_yaw
-        body = (1.0 - s)[:, None, None] * a + s[:, None, None] * b
-        return centre[:, None, :] + rotate_yaw(body, yaw), centre, yaw
-
-    def detached(self, now_s: float) -> _Track:
-        """This plan as a start track for a plan beginning at ``now_s``, dropping what is already history."""
-        if now_s >= self.arrival_s:
-            return self.target
-        return self
-
-
-def _yaw_rate(track: _Track, t_s: float) -> float:
-    _, yaw = track.frame(np.array([t_s - _DIFF_STEP_S, t_s + _DIFF_STEP_S]))
-    return float(yaw[1] - yaw[0]) / (2.0 * _DIFF_STEP_S)
+        start_body = self.start.positions(times_s) - self._start_centre
+        goal_centre, goal_yaw = self.target.frame(times_s)
+        goal_yaw = goal_yaw - self.kappa_rad
+        goal_body = rotate_yaw(self.target.positions(times_s) - goal_centre[:, None, :], -goal_yaw)
+        centre = (1.0 - s)[:, None] * self._start_centre + s[:, None] * goal_centre
+        body = (1.0 - s)[:, None, None] * start_body + s[:, None, None] * goal_body
+        return centre[:, None, :] + rotate_yaw(body, s * goal_yaw)
 
 
 def _wrap_pi(angle: float) -> float:
@@ -504,8 +470,9 @@ def _as_points(positions: Mapping[int, Sequence[float] | npt.ArrayLike], ids: Se
 class FormationEngine:
     """Assigns drones to formation slots and produces their setpoints each tick (pure; the caller passes time).
 
-    ``command`` plans a transition from where the drones are (or, for drones following the previous plan within
-    ``resume_tolerance_m``, from that plan, so the setpoints stay continuous); ``setpoints`` samples it.
+    ``command`` plans a transition from where the drones are. A drone that is following the current plan (its
+    position within ``resume_tolerance_m`` of its setpoint) starts from its setpoint and setpoint velocity, so a
+    formation can be changed while moving without a jump; any other drone starts at rest where it is.
     """
 
     def __init__(
@@ -551,45 +518,39 @@ class FormationEngine:
         if not ids:
             raise FormationError("no drones to place in the formation")
         points = _as_points(current_positions, ids)
-        slots_now = slots_at(formation, 0.0, len(ids))  # validates the slot count
-        del slots_now
+        slots_at(formation, 0.0, len(ids))  # refuses a formation with too few slots before any planning
         self._check_formation_motion(formation, len(ids))
 
-        start, depth = self._start_track(now_s, ids, points)
-        start_yaw_rate = _yaw_rate(start, now_s)
-        start_centre, start_yaw = (v[0] for v in start.frame(np.array([now_s])))
-        start_body = rotate_yaw((start.positions(np.array([now_s]))[0] - start_centre)[None], -np.array([start_yaw]))[0]
+        start = self._braking_start(now_s, ids, points)
+        rest = start.rest_points()
+        rest_body = rest - rest.mean(axis=0)
 
         def assign(duration_s: float) -> tuple[IntArray, float]:
-            # Net rotation of the blended frame over the transition, and kappa that makes the frame angles meet.
-            t_arrive = np.array([duration_s])
-            goal_centre, goal_yaw = formation.frame(t_arrive)
-            _, around = formation.frame(t_arrive[0] + np.array([-_DIFF_STEP_S, _DIFF_STEP_S]))
-            goal_rate = float(around[1] - around[0]) / (2.0 * _DIFF_STEP_S)
-            spin = 0.5 * duration_s * (start_yaw_rate + goal_rate)
-            kappa = float(goal_yaw[0]) - float(start_yaw) - spin
-            goal_body = rotate_yaw(
-                formation.slots_ned_m(t_arrive, len(ids)) - goal_centre[:, None, :], np.array([kappa - goal_yaw[0]])
-            )[0]
-            slots = np.array(assign_min_squared_distance(start_body, goal_body), dtype=np.int64)
+            # The blended frame spins up from rest to the formation's rate: net rotation D * rate / 2 (the mean of
+            # the quintic is 1/2). kappa offsets the formation's yaw so the blend starts at yaw 0.
+            around = np.array([duration_s - _DIFF_STEP_S, duration_s, duration_s + _DIFF_STEP_S])
+            goal_centre, goal_yaw = formation.frame(around)
+            spin = 0.5 * duration_s * float(goal_yaw[2] - goal_yaw[0]) / (2.0 * _DIFF_STEP_S)
+            kappa = float(goal_yaw[1]) - spin
+            arrival = formation.slots_ned_m(around[1:2], len(ids))[0] - goal_centre[1]
+            goal_body = rotate_yaw(arrival[None], np.array([-spin]))[0]
+            slots = np.array(assign_min_squared_distance(rest_body, goal_body), dtype=np.int64)
             return slots, kappa
 
         def plan(duration_s: float, slots: IntArray, kappa: float) -> _Plan:
-            target = _SlotTrack(formation, now_s, slots, kappa)
-            return _Plan(start, target, now_s, duration_s, kappa, depth)
+            return _Plan(start, _SlotTrack(formation, now_s, slots), now_s, duration_s, kappa)
 
-        duration = self._limits.min_duration_s
+        duration = max(self._limits.min_duration_s, start.braking_s)
         slots, kappa = assign(duration)
         for _ in range(_MAX_REPLANS):
-            candidate = plan(duration, slots, kappa)
-            required = self._shortest_feasible(candidate, plan, slots, kappa, points)
+            required = self._shortest_feasible(plan(duration, slots, kappa), plan, slots, kappa)
             if required <= duration:
                 break
             duration = required
             slots, kappa = assign(duration)
         else:
-            # Re-assignment kept asking for longer: take the last assignment with a duration it can fly.
-            duration = self._shortest_feasible(plan(duration, slots, kappa), plan, slots, kappa, points)
+            # Re-assignment kept asking for longer: keep the last assignment with a duration it can fly.
+            duration = self._shortest_feasible(plan(duration, slots, kappa), plan, slots, kappa)
 
         self._plan = plan(duration, slots, kappa)
         self._ids = ids
@@ -600,25 +561,22 @@ class FormationEngine:
         )
         return self._transition
 
-    def _start_track(self, now_s: float, ids: tuple[int, ...], points: FloatArray) -> tuple[_Track, int]:
-        """Where the transition starts: the previous plan for drones still on it, the measured position otherwise."""
-        previous_index = np.full(len(ids), -1, dtype=np.int64)
-        if self._plan is None:
-            return _StartTrack(None, previous_index, points), 0
-        previous = self._plan.detached(now_s)
-        depth = self._plan.depth + 1 if previous is self._plan else 0
-        planned = previous.positions(np.array([now_s]))[0]
-        old_index = {drone: k for k, drone in enumerate(self._ids)}
+    def _braking_start(self, now_s: float, ids: tuple[int, ...], points: FloatArray) -> _BrakingStart:
+        """Start from the setpoint (with its velocity) for drones on the current plan, at rest otherwise."""
         start_points = points.copy()
-        for k, drone in enumerate(ids):
-            j = old_index.get(drone)
-            if j is not None and float(np.linalg.norm(planned[j] - points[k])) <= self._resume_tolerance_m:
-                previous_index[k] = j
-                start_points[k] = planned[j]
-        if depth > _MAX_NESTING:
-            # Too many commands in flight: hold the planned points instead of replaying every older plan.
-            return _StartTrack(None, np.full(len(ids), -1, dtype=np.int64), start_points), 0
-        return _StartTrack(previous, previous_index, start_points), depth
+        vels = np.zeros_like(points)
+        if self._plan is not None:
+            h = _DIFF_STEP_S
+            planned = self._plan.positions(np.array([now_s - h, now_s, now_s + h]))
+            old_index = {drone: k for k, drone in enumerate(self._ids)}
+            for k, drone in enumerate(ids):
+                j = old_index.get(drone)
+                if j is not None and float(np.linalg.norm(planned[1, j] - points[k])) <= self._resume_tolerance_m:
+                    start_points[k] = planned[1, j]
+                    vels[k] = (planned[2, j] - planned[0, j]) / (2.0 * h)
+        peak_speed = float(np.max(np.linalg.norm(vels, axis=1)))
+        braking_s = max(_MIN_BRAKING_S, _BRAKING_PEAK_DECEL * peak_speed / (0.5 * self._limits.max_accel_mps2))
+        return _BrakingStart(start_points, vels, now_s, braking_s)
 
     def _check_formation_motion(self, formation: Formation, drone_count: int) -> None:
         """A formation whose slots alone move faster than the limits cannot be tracked: refuse it up front."""
@@ -638,15 +596,14 @@ class FormationEngine:
         plan: Callable[[float, IntArray, float], _Plan],
         slots: IntArray,
         kappa: float,
-        start_points: FloatArray,
     ) -> float:
         """Shortest duration >= the candidate's for which the plan with these slots stays within the limits."""
         lim = self._limits
         v_max = _LIMIT_MARGIN * lim.max_speed_mps
         a_max = _LIMIT_MARGIN * lim.max_accel_mps2
-        # Straight-line lower bound for the quintic profile from the farthest drone.
+        # Straight-line lower bound of the quintic profile for the farthest drone (exact for still formations).
         goal = candidate.target.positions(np.array([candidate.arrival_s]))[0]
-        reach_m = float(np.max(np.linalg.norm(goal - start_points, axis=1)))
+        reach_m = float(np.max(np.linalg.norm(goal - candidate.start.rest_points(), axis=1)))
         low = max(
             candidate.duration_s, _QUINTIC_PEAK_RATE * reach_m / v_max, math.sqrt(_QUINTIC_PEAK_ACCEL * reach_m / a_max)
         )
@@ -654,7 +611,7 @@ class FormationEngine:
         def feasible(duration_s: float) -> bool:
             p = plan(duration_s, slots, kappa)
             step = duration_s / _CHECK_SAMPLES
-            times = np.asarray(p.start_s + step * np.arange(-1, _CHECK_SAMPLES + 2), dtype=np.float64)
+            times = np.asarray(p.start_s + step * np.arange(0, _CHECK_SAMPLES + 2), dtype=np.float64)
             speed, accel = _peak_speed_accel(p.positions(times), step)
             return speed <= v_max and accel <= a_max
 

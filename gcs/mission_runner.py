@@ -1,0 +1,258 @@
+"""``swarm fly``: run a mission file end to end: spawn, take off, formations, land, shut down, report.
+
+The runner talks to the drones only over MAVLink, as it would to real PX4 drones: NAV_TAKEOFF and NAV_LAND
+commands, and OFFBOARD with SET_POSITION_TARGET_LOCAL_NED streamed at 20 Hz for formations. Formation targets live
+in the swarm frame (gcs/frames.py) and are converted into each drone's own local frame, anchored where that drone
+booted (reported in its HOME_POSITION). Mission time runs at the simulation's speed factor, so a step's
+``hold_s`` is simulated seconds.
+
+Everything received is written to ``flight.tlog`` and recorded for the flight report (gcs/report.py).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from gcs.formation import SETPOINT_STREAM_HZ, FormationEngine, TransitionLimits
+from gcs.frames import DroneFrame, SwarmFrame, origin_from_home
+from gcs.metrics import LiveMetrics
+from gcs.mission_file import FormationStep, HoldStep, LandStep, MissionSpec, RtlStep, Step, TakeoffStep
+from gcs.recording import DroneSample, EventRecord, FlightRecording, StepRecord
+from gcs.report import write_report
+from gcs.supervisor import SpawnPlan
+from gcs.swarm import Swarm, SwarmError, check
+from gcs.tlog import TlogWriter
+from sitl.airframe import load_airframe
+from sitl.dynamics.plant import GeoPoint
+
+Say = Callable[[str], None]
+ALT_TOLERANCE_M = 0.2  # takeoff is done when every drone holds the target altitude within this...
+ALT_HOLD_S = 1.0  # ...for this long (simulated seconds)
+STATUS_EVERY_S = 2.0
+# Position setpoint with velocity and acceleration feed-forward; yaw and yaw rate ignored (type_mask bits 10, 11).
+TYPE_MASK_POS_VEL_ACC = 0b0000_1100_0000_0000
+OFFBOARD_MODE = (1.0, 6.0, 0.0)  # DO_SET_MODE: custom mode enabled, main mode OFFBOARD
+
+
+class MissionRunner:
+    def __init__(self, mission: MissionSpec, *, speed_factor: float, origin: GeoPoint, first_instance: int,
+                 report_dir: Path, say: Say, airframe: str | None = None, seed: int = 0) -> None:  # fmt: skip
+        self.mission = mission
+        self.speed = speed_factor
+        self.say = say
+        self.report_dir = report_dir
+        self.swarm_frame = SwarmFrame(origin)
+        plan = SpawnPlan(
+            n_drones=mission.swarm.drones,
+            spacing_m=mission.swarm.spacing_m,
+            layout=mission.swarm.layout,
+            origin=origin,
+            speed_factor=speed_factor,
+            first_instance=first_instance,
+            airframe=airframe,
+            seed=seed,
+            log_dir=report_dir / "logs",
+        )
+        self.swarm = Swarm(plan)
+        self.engine = FormationEngine(TransitionLimits(max_speed_mps=1.5, max_accel_mps2=1.0))
+        collision_radius = (
+            load_airframe(airframe).collision_radius_m if airframe else load_airframe().collision_radius_m
+        )
+        self.recording = FlightRecording(
+            mission_name=mission.name, n_drones=mission.swarm.drones, collision_radius_m=collision_radius
+        )
+        self.live = LiveMetrics()
+        self._frames: dict[int, DroneFrame] = {}
+        self._t0_wall = time.monotonic()
+        self._tlog: TlogWriter | None = None
+        self._formation_active = False
+        self._next_status_s = 0.0
+        self._step_name = "spawn"
+
+    # ---- time and telemetry ----------------------------------------------------------------------------------------
+    def now(self) -> float:
+        """Mission time in simulated seconds (wall time since start times the speed factor)."""
+        return (time.monotonic() - self._t0_wall) * self.speed
+
+    def _frame(self, sysid: int) -> DroneFrame | None:
+        frame = self._frames.get(sysid)
+        if frame is None:
+            view = self.swarm.fleet.drones.get(sysid)
+            if view is None or view.home is None or view.home_local_ned_m is None:
+                return None
+            home = GeoPoint(lat_deg=view.home[0], lon_deg=view.home[1], alt_amsl_m=view.home[2])
+            frame = self._frames[sysid] = self.swarm_frame.drone_frame(origin_from_home(home, view.home_local_ned_m))
+        return frame
+
+    def _on_message(self, msg: Any, _wall_s: float) -> None:
+        if self._tlog is not None:
+            self._tlog.write(bytes(msg.get_msgbuf()), int(time.time() * 1e6))
+        kind = msg.get_type()
+        sysid = msg.get_srcSystem()
+        now = self.now()
+        if kind == "LOCAL_POSITION_NED":
+            frame = self._frame(sysid)
+            view = self.swarm.fleet.drones.get(sysid)
+            if frame is None or view is None:
+                return
+            pos = frame.to_swarm((msg.x, msg.y, msg.z))
+            vel = frame.vector_to_swarm((msg.vx, msg.vy, msg.vz))
+            target = self.engine.targets(now).get(sysid) if self._formation_active else None
+            sample = DroneSample(time_s=now, sysid=sysid, pos_ned_m=pos, vel_ned_mps=vel, armed=view.armed,
+                                 mode=view.mode, target_ned_m=target)  # fmt: skip
+            self.recording.samples.append(sample)
+            self.live.observe(sample)
+        elif kind == "STATUSTEXT":
+            self.recording.events.append(EventRecord(time_s=now, sysid=sysid, text=msg.text))
+            if msg.severity <= mavlink.MAV_SEVERITY_WARNING:
+                self.say(f"  sysid {sysid}: {msg.text}")
+
+    def _tick(self, _wall_s: float) -> None:
+        now = self.now()
+        if self._formation_active:
+            self._stream_setpoints(now)
+        if now >= self._next_status_s:
+            self._next_status_s = now + STATUS_EVERY_S
+            self.say(f"[{now:6.1f} s] {self._step_name:<10} {self.live.status().line()}")
+
+    def _positions(self) -> dict[int, tuple[float, float, float]]:
+        out = {}
+        for sysid in self.swarm.sysids:
+            frame = self._frame(sysid)
+            view = self.swarm.fleet.drones.get(sysid)
+            if frame is not None and view is not None and all(math.isfinite(v) for v in view.local_ned_m):
+                out[sysid] = frame.to_swarm(view.local_ned_m)
+        return out
+
+    def _stream_setpoints(self, now: float) -> None:
+        boot_ms = int(now * 1000) & 0xFFFFFFFF
+        for sysid, sp in self.engine.setpoints(now).items():
+            frame = self._frame(sysid)
+            if frame is None:
+                continue
+            x, y, z = frame.to_local(sp.pos_ned_m)
+            vx, vy, vz = frame.vector_to_local(sp.vel_ned_mps)
+            ax, ay, az = frame.vector_to_local(sp.acc_ned_mps2)
+            msg = mavlink.MAVLink_set_position_target_local_ned_message(
+                boot_ms, sysid, 1, mavlink.MAV_FRAME_LOCAL_NED, TYPE_MASK_POS_VEL_ACC,
+                x, y, z, vx, vy, vz, ax, ay, az, 0.0, 0.0,
+            )  # fmt: skip
+            self.swarm.send(sysid, msg)
+
+    def _wait(self, condition: Callable[[], bool], timeout_sim_s: float) -> bool:
+        return self.swarm.wait_until(condition, timeout_sim_s / self.speed, tick=self._tick)
+
+    def _hold(self, duration_sim_s: float) -> None:
+        self.swarm.run_for(duration_sim_s / self.speed, tick=self._tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
+
+    # ---- steps -----------------------------------------------------------------------------------------------------
+    def _arm(self) -> None:
+        """Wait until every drone passes its pre-arm checks, then arm them all (before the takeoff step's clock)."""
+        swarm = self.swarm
+        if not swarm.wait_until(lambda: all(swarm.fleet.drones[s].prearm_ok for s in swarm.sysids), 30.0,
+                                tick=self._tick):  # fmt: skip
+            waiting = [s for s in swarm.sysids if not swarm.fleet.drones[s].prearm_ok]
+            raise SwarmError(f"sysid {waiting} did not pass pre-arm checks within 30 s")
+        check(swarm.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1), "arm")
+
+    def _takeoff(self, step: TakeoffStep) -> None:
+        swarm = self.swarm
+        if not all(swarm.fleet.drones[s].armed for s in swarm.sysids):
+            self._arm()
+        for sysid in swarm.sysids:
+            home = swarm.fleet.drones[sysid].home
+            assert home is not None  # armable implies a valid position, hence a home
+            check(swarm.command_all(mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan,
+                                    home[2] + step.alt_m, sysids=[sysid]), "takeoff")  # fmt: skip
+        target = -step.alt_m
+        since: list[float | None] = [None]
+
+        def holding() -> bool:
+            positions = self._positions()
+            ok = len(positions) == len(swarm.sysids) and all(
+                abs(p[2] - target) < ALT_TOLERANCE_M for p in positions.values()
+            )
+            now = self.now()
+            since[0] = (since[0] if since[0] is not None else now) if ok else None
+            return since[0] is not None and now - since[0] >= ALT_HOLD_S
+
+        if not self._wait(holding, step.timeout_s):
+            raise SwarmError(f"takeoff to {step.alt_m:g} m not reached within {step.timeout_s:g} s")
+
+    def _formation(self, step: FormationStep) -> None:
+        now = self.now()
+        positions = self._positions()
+        if len(positions) != len(self.swarm.sysids):
+            raise SwarmError("no position from every drone: cannot plan the formation")
+        self.engine.command(step.formation, now, positions)
+        if not self._formation_active:
+            self._formation_active = True
+            self._stream_setpoints(now)  # PX4 accepts OFFBOARD only once setpoints are arriving
+            check(self.swarm.command_all(mavlink.MAV_CMD_DO_SET_MODE, *OFFBOARD_MODE), "offboard")
+        self._hold(step.hold_s)
+
+    def _land(self, step: LandStep | RtlStep) -> None:
+        command = mavlink.MAV_CMD_NAV_LAND if isinstance(step, LandStep) else mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH
+        self._formation_active = False
+        check(self.swarm.command_all(command, *[math.nan] * 7 if command == mavlink.MAV_CMD_NAV_LAND else []),
+              "land" if isinstance(step, LandStep) else "return to launch")  # fmt: skip
+        if not self._wait(lambda: not any(self.swarm.fleet.drones[s].armed for s in self.swarm.sysids),
+                          step.timeout_s):  # fmt: skip
+            raise SwarmError(f"not every drone landed and disarmed within {step.timeout_s:g} s")
+
+    def _run_step(self, index: int, step: Step) -> None:
+        start = self.now()
+        kind = type(step).__name__.removesuffix("Step").lower()
+        name = step.name if isinstance(step, FormationStep) else kind
+        self._step_name = name
+        self.say(f"[{start:6.1f} s] step {index + 1}/{len(self.mission.steps)}: {name}")
+        if isinstance(step, TakeoffStep):
+            self._takeoff(step)
+        elif isinstance(step, FormationStep):
+            self._formation(step)
+        elif isinstance(step, HoldStep):
+            self._hold(step.duration_s)
+        else:
+            self._land(step)
+        self.recording.steps.append(
+            StepRecord(
+                index=index,
+                name=name,
+                kind=kind,
+                start_s=start,
+                end_s=self.now(),
+                target_alt_m=step.alt_m if isinstance(step, TakeoffStep) else None,
+            )
+        )
+
+    def run(self) -> Path:
+        """Fly the mission; always shuts the swarm down and writes the report, also after a failure."""
+        self.report_dir.mkdir(parents=True, exist_ok=True)
+        self._tlog = TlogWriter(self.report_dir / "flight.tlog")
+        self.swarm.listeners.append(self._on_message)
+        failure: BaseException | None = None
+        try:
+            self.say(f"mission {self.mission.name}: spawning {self.mission.swarm.drones} drones "
+                     f"(speed {self.speed:g}x)")  # fmt: skip
+            self.swarm.up()
+            self._t0_wall = time.monotonic()
+            self._arm()
+            for index, step in enumerate(self.mission.steps):
+                self._run_step(index, step)
+        except (SwarmError, KeyboardInterrupt) as exc:
+            failure = exc
+        finally:
+            self._formation_active = False
+            self.swarm.shutdown()
+            self._tlog.close()
+        out = write_report(self.recording, self.report_dir)
+        self.say((out / "summary.txt").read_text().rstrip())
+        if failure is not None:
+            raise failure
+        return out
