@@ -96,13 +96,14 @@ class SimVehicleApi:
 
     def command(self, request: api.VehicleRequest, now_s: float) -> api.CommandOutcome:
         outcome = self._command(request, now_s)
-        if False:
+        if self._mission_items and self.home_alt_amsl_m() != self._mission_home_alt_amsl_m:
             # Home moved (arming sets it, so does DO_SET_HOME): relative altitudes are above the current home, as
             # PX4 resolves them when it flies an item, not above wherever home was at upload time.
             self._mission_home_alt_amsl_m = self.home_alt_amsl_m()
             self.vehicle.retarget_mission(self._nav_items())
         # A request can change what telemetry reports (armed, mode, mission) without a physics step in between: the
         # HEARTBEAT sent right after an accepted mode change must show the new mode, not the cached old one.
+        self._snapshot = None
         return outcome
 
     def _command(self, request: api.VehicleRequest, now_s: float) -> api.CommandOutcome:

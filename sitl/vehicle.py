@@ -479,6 +479,12 @@ class Vehicle:
         self._now_s = now_s
         n = len(self.airframe.rotors)
         if not self.status.armed:
+            if not self.landed and self._land_detector.update(
+                now_s, float(est.vel_ned_mps[2]), 0.0, self.altitude_above_home_m()
+            ):
+                # Killed in the air: the detector keeps watching with the motors off, so once the vehicle lies
+                # still on the ground it counts as landed again and may re-arm (PX4 treats disarmed as landed).
+                self._event(6, "Landing detected")
             self.status.landed_state = LandedState.ON_GROUND if self.landed else LandedState.IN_AIR
             self.status.thrust_n = 0.0
             return (0.0,) * n

@@ -259,3 +259,23 @@ def test_loading_a_new_mission_starts_over() -> None:
     assert executor.state is MissionRun.NOT_STARTED
     assert executor.current_seq == 0 and executor.reached_seq == -1
     assert _step(executor, 1.0, HOVER) is None  # not started yet
+
+
+def test_retargeting_keeps_progress_and_later_items_fly_to_their_new_targets() -> None:
+    # GIVEN a mission flying its first item
+    executor = _started(_wp(0, 10.0, 0.0, -5.0), _wp(1, 20.0, 0.0, -5.0))
+    _step(executor, 0.0, HOVER)
+    # WHEN the same mission arrives with every target 2 m higher (home moved up)
+    executor.retarget((_wp(0, 10.0, 0.0, -7.0), _wp(1, 20.0, 0.0, -7.0)))
+    # THEN the item in progress keeps its target, the mission is not restarted, and the next item uses its new one
+    assert executor.state is MissionRun.ACTIVE and executor.current_seq == 0
+    assert _step(executor, 1.0, (10.0, 0.0, -5.0)) is None
+    assert executor.reached_seq == 0
+    action = _step(executor, 1.1, (10.0, 0.0, -5.0))
+    assert action is not None and action.target_ned_m == (20.0, 0.0, -7.0)
+
+
+def test_retargeting_with_a_different_mission_is_refused() -> None:
+    executor = _started(_wp(0, 10.0, 0.0), _wp(1, 20.0, 0.0))
+    with pytest.raises(ValueError, match="same mission"):
+        executor.retarget((_wp(0, 10.0, 0.0),))
