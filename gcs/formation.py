@@ -523,7 +523,6 @@ class FormationEngine:
 
         start = self._braking_start(now_s, ids, points)
         rest = start.rest_points()
-        rest_body = rest - rest.mean(axis=0)
 
         def assign(duration_s: float) -> tuple[IntArray, float]:
             # The blended frame spins up from rest to the formation's rate: net rotation D * rate / 2 (the mean of
@@ -533,8 +532,9 @@ class FormationEngine:
             spin = 0.5 * duration_s * float(goal_yaw[2] - goal_yaw[0]) / (2.0 * _DIFF_STEP_S)
             kappa = float(goal_yaw[1]) - spin
             arrival = formation.slots_ned_m(around[1:2], len(ids))[0] - goal_centre[1]
-            goal_body = rotate_yaw(arrival[None], np.array([-spin]))[0]
-            slots = np.array(assign_min_squared_distance(rest_body, goal_body), dtype=np.int64)
+            # Absolute positions, not centred ones: with spare slots the translation decides which slots are used.
+            goals = goal_centre[1] + rotate_yaw(arrival[None], np.array([-spin]))[0]
+            slots = np.array(assign_min_squared_distance(rest, goals), dtype=np.int64)
             return slots, kappa
 
         def plan(duration_s: float, slots: IntArray, kappa: float) -> _Plan:

@@ -20,6 +20,8 @@ PREARM_CHECK_BIT: Final = mavlink.MAV_SYS_STATUS_PREARM_CHECK  # 0x10000000: "ar
 ARMED_FLAG: Final = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
 AUTOPILOT_COMPID: Final = 1
 RESEND_INTERVAL_S: Final = 1.0
+PX4_AUTO_LOITER: Final = 50593792  # custom_mode of AUTO.LOITER (Hold): main 4 << 16 | sub 3 << 24
+PX4_AUTO_LAND: Final = 100925440  # AUTO.LAND: main 4 << 16 | sub 6 << 24
 
 Message = Any  # pymavlink message objects are dynamically typed
 
@@ -161,7 +163,7 @@ def upload_mission(conn: mavutil.mavfile, items: list[Message], timeout_s: float
 
 def arm_and_take_off(conn: mavutil.mavfile, timeout_s: float) -> float:
     """Arm (retrying until accepted) and NAV_TAKEOFF with NaN altitude (MIS_TAKEOFF_ALT); returns the altitude
-    reached above home."""
+    reached above home once the drone holds there in AUTO.LOITER."""
     deadline = time.monotonic() + timeout_s
     wait_armable(conn, timeout_s)
     while True:
@@ -176,7 +178,18 @@ def arm_and_take_off(conn: mavutil.mavfile, timeout_s: float) -> float:
     assert ack.result == mavlink.MAV_RESULT_ACCEPTED, f"takeoff refused: {ack}"
     param = recv_param(conn, "MIS_TAKEOFF_ALT", timeout_s)
     wait_relative_alt(conn, param, 0.3, max(deadline - time.monotonic(), 1.0))
+    wait_custom_mode(conn, PX4_AUTO_LOITER, max(deadline - time.monotonic(), 1.0), "Hold after takeoff")
     return param
+
+
+def wait_custom_mode(conn: mavutil.mavfile, custom_mode: int, timeout_s: float, what: str) -> Message:
+    return recv_until(
+        conn,
+        "HEARTBEAT",
+        lambda m: m.get_srcComponent() == AUTOPILOT_COMPID and m.custom_mode == custom_mode,
+        timeout_s,
+        f"HEARTBEAT with custom_mode {custom_mode} ({what})",
+    )
 
 
 def recv_param(conn: mavutil.mavfile, name: str, timeout_s: float) -> float:

@@ -15,6 +15,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
 from tests.integration.mavlink_client import (
+    PX4_AUTO_LAND,
     command_long,
     heartbeat_armed,
     mavlink_connection,
@@ -29,7 +30,6 @@ from tests.integration.vehicle_link import VehicleLink
 pytestmark = pytest.mark.timeout(90)
 
 TAKEOFF_REL_M = 3.0
-PX4_AUTO_LAND = 100925440  # custom_mode of AUTO.LAND: main 4 << 16 | sub 6 << 24
 
 
 def _arm_until_accepted(conn: mavutil.mavfile, timeout_s: float) -> None:
