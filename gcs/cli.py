@@ -85,6 +85,21 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser("status", help="table of every drone")
     takeoff = sub.add_parser("takeoff", help="arm and take off every drone")
     takeoff.add_argument("--alt", type=_positive, default=3.0, help="altitude above home in metres (default 3)")
+    formation = sub.add_parser("formation", help="fly a formation (OFFBOARD): grid, circle, line or v")
+    formation.add_argument("shape", choices=("grid", "circle", "line", "v"))
+    formation.add_argument("--alt", type=_positive, default=3.0, help="altitude in metres (default 3)")
+    formation.add_argument("--spacing", type=_positive, default=2.0, help="spacing in metres (grid, line, v)")
+    formation.add_argument("--rows", type=int, default=None, help="grid rows (default: a square-ish grid)")
+    formation.add_argument("--cols", type=int, default=None, help="grid columns")
+    formation.add_argument("--radius", type=_positive, default=3.0, help="circle radius in metres (default 3)")
+    formation.add_argument("--rate", type=float, default=0.0, help="circle rotation in rad/s (default 0)")
+    formation.add_argument("--osc", type=float, default=0.0, help="circle altitude wave amplitude in metres")
+    formation.add_argument("--angle", type=float, default=90.0, help="V opening angle in degrees (default 90)")
+    formation.add_argument("--heading", type=float, default=0.0, help="heading of the formation in degrees")
+    goto = sub.add_parser("goto", help="move the current formation's centre")
+    goto.add_argument("north", type=float, help="metres north of the swarm origin")
+    goto.add_argument("east", type=float, help="metres east of the swarm origin")
+    goto.add_argument("--alt", type=_positive, default=None, help="new altitude in metres")
     sub.add_parser("land", help="land every drone where it is")
     sub.add_parser("rtl", help="every drone returns to its launch point and lands")
     sub.add_parser("down", help="land, disarm and stop every drone, then the supervisor")
@@ -147,7 +162,8 @@ def run_up(args: argparse.Namespace) -> int:
 
 def _loop(swarm: Swarm, station: Station, server: ControlServer, stop: _Stop) -> None:
     while not (stop.stopped or station.stop_requested):
-        swarm.pump(0.05)
+        swarm.pump(0.02)
+        station.tick()
         server.poll()
         station.watch(swarm.clock())
 
@@ -177,10 +193,28 @@ def run_fly(args: argparse.Namespace) -> int:
     return 0
 
 
+def _formation_fields(args: argparse.Namespace) -> dict[str, Any]:
+    if args.shape == "circle":
+        return {"radius_m": args.radius, "alt_m": args.alt, "angular_rate_radps": args.rate, "alt_osc_amp_m": args.osc}
+    fields: dict[str, Any] = {"spacing_m": args.spacing, "alt_m": args.alt, "heading_deg": args.heading}
+    if args.shape == "v":
+        fields["angle_deg"] = args.angle
+    if args.shape == "grid":
+        if (args.rows is None) != (args.cols is None):
+            raise UsageError("give both --rows and --cols, or neither")
+        fields["rows"] = args.rows if args.rows is not None else 0
+        fields["cols"] = args.cols if args.cols is not None else 0
+    return fields
+
+
 def run_client(args: argparse.Namespace) -> int:
     request: dict[str, Any] = {"cmd": args.command}
     if args.command == "takeoff":
         request["alt"] = args.alt
+    elif args.command == "formation":
+        request.update(shape=args.shape, fields=_formation_fields(args))
+    elif args.command == "goto":
+        request.update(north_m=args.north, east_m=args.east, alt_m=args.alt)
     response = ControlClient().request(request)
     if not response.get("ok"):
         print(f"swarm: error: {response.get('error', 'failed')}", file=sys.stderr)

@@ -178,7 +178,7 @@ class CircleSpec:
     seen from above, i.e. north towards east).
 
     Slot i sits at angle ``phase_rad + 2 pi i / n + rate t`` from north and at altitude
-    ``alt_m + alt_osc_amp_m sin(alt_osc_rate_radps t + i alt_osc_phase_step_rad)`` (the issue's example
+    ``alt_m + alt_osc_amp_m sin(alt_osc_rate_radps t + i alt_osc_phase_step_rad)`` (the demo's
     ``alt + 0.5 sin(t + i)`` is amplitude 0.5, rate 1, phase step 1).
     """
 

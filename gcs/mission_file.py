@@ -109,6 +109,46 @@ _REQUIRED = {"grid": {"rows", "cols", "spacing_m", "alt_m"}, "circle": {"radius_
              "line": {"spacing_m", "alt_m"}, "v": {"spacing_m", "alt_m"}}  # fmt: skip
 
 
+def number_problem(value: Any, kind: str) -> str | None:
+    """Why ``value`` is not a valid number of this kind (count, pos, nonneg, num, angle), or None."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        return f"must be a number, got {value!r}"
+    if kind == "count" and (not isinstance(value, int) or value < 1):
+        return f"must be a whole number >= 1, got {value!r}"
+    if kind == "pos" and value <= 0:
+        return f"must be a positive number, got {value!r}"
+    if kind == "nonneg" and value < 0:
+        return f"must be >= 0, got {value!r}"
+    return None
+
+
+def build_formation(shape: str, fields: dict[str, Any]) -> Formation:
+    """A formation spec from plain fields (as in a mission file step); ValueError says which field is wrong."""
+    if shape not in _SHAPES:
+        raise ValueError(f"shape must be one of {', '.join(_SHAPES)}, got {shape!r}")
+    spec_cls, kinds = _SHAPES[shape]
+    for key in fields:
+        if key not in kinds:
+            raise ValueError(f"{key}: not a field of a {shape} formation (fields: {', '.join(kinds)})")
+    missing = sorted(_REQUIRED[shape] - set(fields))
+    if missing:
+        raise ValueError(f"missing field '{missing[0]}' for a {shape} formation")
+    kwargs: dict[str, Any] = {}
+    for key, value in fields.items():
+        problem = number_problem(value, kinds[key])
+        if problem is not None:
+            raise ValueError(f"{key}: {problem}")
+        if kinds[key] == "angle":
+            kwargs[key.replace("_deg", "_rad")] = math.radians(value)
+        else:
+            kwargs[key] = int(value) if kinds[key] == "count" else float(value)
+    try:
+        formation: Formation = spec_cls(**kwargs)
+    except (FormationError, TypeError) as exc:
+        raise ValueError(str(exc)) from None
+    return formation
+
+
 class _Locator:
     """Finds the line of a field in the TOML text (1-based), for error messages."""
 
@@ -152,16 +192,10 @@ class _Reader:
         )
 
     def number(self, table: dict[str, Any], key: str, where: tuple[str | None, int | None], kind: str) -> float:
-        value = table[key]
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-            raise self.fail(where, key, f"must be a number, got {value!r}")
-        if kind == "count" and (not isinstance(value, int) or value < 1):
-            raise self.fail(where, key, f"must be a whole number >= 1, got {value!r}")
-        if kind == "pos" and value <= 0:
-            raise self.fail(where, key, f"must be a positive number, got {value!r}")
-        if kind == "nonneg" and value < 0:
-            raise self.fail(where, key, f"must be >= 0, got {value!r}")
-        return float(value)
+        problem = number_problem(table[key], kind)
+        if problem is not None:
+            raise self.fail(where, key, problem)
+        return float(table[key])
 
     def check_keys(self, table: dict[str, Any], allowed: set[str], where: tuple[str | None, int | None]) -> None:
         for key in table:
@@ -173,25 +207,17 @@ def _formation(reader: _Reader, step: dict[str, Any], where: tuple[str | None, i
     shape = step.get("shape")
     if shape not in _SHAPES:
         raise reader.fail(where, "shape", f"must be one of {', '.join(_SHAPES)}, got {shape!r}")
-    spec_cls, fields = _SHAPES[shape]
+    fields = _SHAPES[shape][1]
     reader.check_keys(step, {"action", "shape", "hold_s", "name", *fields}, where)
     for key in sorted(_REQUIRED[shape] | {"hold_s"}):
         if key not in step:
             raise reader.fail(where, None, f"missing field '{key}' for a {shape} formation")
-    kwargs: dict[str, Any] = {}
-    for key, kind in fields.items():
-        if key not in step:
-            continue
-        value = reader.number(step, key, where, kind)
-        if kind == "count":
-            kwargs[key] = int(value)
-        elif kind == "angle":
-            kwargs[key.replace("_deg", "_rad")] = math.radians(value)
-        else:
-            kwargs[key] = value
+    for key in fields:
+        if key in step:
+            reader.number(step, key, where, fields[key])
     try:
-        formation = spec_cls(**kwargs)
-    except (FormationError, ValueError, TypeError) as exc:
+        formation = build_formation(shape, {k: step[k] for k in fields if k in step})
+    except ValueError as exc:
         raise reader.fail(where, None, str(exc)) from None
     name = step.get("name", shape)
     if not isinstance(name, str):

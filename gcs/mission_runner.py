@@ -19,12 +19,13 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.formation import SETPOINT_STREAM_HZ, FormationEngine, TransitionLimits
-from gcs.frames import DroneFrame, SwarmFrame, origin_from_home
+from gcs.formation import SETPOINT_STREAM_HZ
+from gcs.frames import SwarmFrame
 from gcs.metrics import LiveMetrics
 from gcs.mission_file import FormationStep, HoldStep, LandStep, MissionSpec, RtlStep, Step, TakeoffStep
 from gcs.recording import DroneSample, EventRecord, FlightRecording, StepRecord
 from gcs.report import write_report
+from gcs.streamer import FormationStreamer
 from gcs.supervisor import SpawnPlan
 from gcs.swarm import Swarm, SwarmError, check
 from gcs.tlog import TlogWriter
@@ -35,9 +36,6 @@ Say = Callable[[str], None]
 ALT_TOLERANCE_M = 0.2  # takeoff is done when every drone holds the target altitude within this...
 ALT_HOLD_S = 1.0  # ...for this long (simulated seconds)
 STATUS_EVERY_S = 2.0
-# Position setpoint with velocity and acceleration feed-forward; yaw and yaw rate ignored (type_mask bits 10, 11).
-TYPE_MASK_POS_VEL_ACC = 0b0000_1100_0000_0000
-OFFBOARD_MODE = (1.0, 6.0, 0.0)  # DO_SET_MODE: custom mode enabled, main mode OFFBOARD
 
 
 class MissionRunner:
@@ -60,7 +58,7 @@ class MissionRunner:
             log_dir=report_dir / "logs",
         )
         self.swarm = Swarm(plan)
-        self.engine = FormationEngine(TransitionLimits(max_speed_mps=1.5, max_accel_mps2=1.0))
+        self.streamer = FormationStreamer(self.swarm, self.swarm_frame)
         collision_radius = (
             load_airframe(airframe).collision_radius_m if airframe else load_airframe().collision_radius_m
         )
@@ -68,10 +66,8 @@ class MissionRunner:
             mission_name=mission.name, n_drones=mission.swarm.drones, collision_radius_m=collision_radius
         )
         self.live = LiveMetrics()
-        self._frames: dict[int, DroneFrame] = {}
         self._t0_wall = time.monotonic()
         self._tlog: TlogWriter | None = None
-        self._formation_active = False
         self._next_status_s = 0.0
         self._step_name = "spawn"
 
@@ -80,16 +76,6 @@ class MissionRunner:
         """Mission time in simulated seconds (wall time since start times the speed factor)."""
         return (time.monotonic() - self._t0_wall) * self.speed
 
-    def _frame(self, sysid: int) -> DroneFrame | None:
-        frame = self._frames.get(sysid)
-        if frame is None:
-            view = self.swarm.fleet.drones.get(sysid)
-            if view is None or view.home is None or view.home_local_ned_m is None:
-                return None
-            home = GeoPoint(lat_deg=view.home[0], lon_deg=view.home[1], alt_amsl_m=view.home[2])
-            frame = self._frames[sysid] = self.swarm_frame.drone_frame(origin_from_home(home, view.home_local_ned_m))
-        return frame
-
     def _on_message(self, msg: Any, _wall_s: float) -> None:
         if self._tlog is not None:
             self._tlog.write(bytes(msg.get_msgbuf()), int(time.time() * 1e6))
@@ -97,13 +83,13 @@ class MissionRunner:
         sysid = msg.get_srcSystem()
         now = self.now()
         if kind == "LOCAL_POSITION_NED":
-            frame = self._frame(sysid)
+            frame = self.streamer.drone_frame(sysid)
             view = self.swarm.fleet.drones.get(sysid)
             if frame is None or view is None:
                 return
             pos = frame.to_swarm((msg.x, msg.y, msg.z))
             vel = frame.vector_to_swarm((msg.vx, msg.vy, msg.vz))
-            target = self.engine.targets(now).get(sysid) if self._formation_active else None
+            target = self.streamer.targets(now).get(sysid)
             sample = DroneSample(time_s=now, sysid=sysid, pos_ned_m=pos, vel_ned_mps=vel, armed=view.armed,
                                  mode=view.mode, target_ned_m=target)  # fmt: skip
             self.recording.samples.append(sample)
@@ -115,35 +101,10 @@ class MissionRunner:
 
     def _tick(self, _wall_s: float) -> None:
         now = self.now()
-        if self._formation_active:
-            self._stream_setpoints(now)
+        self.streamer.tick(now)
         if now >= self._next_status_s:
             self._next_status_s = now + STATUS_EVERY_S
             self.say(f"[{now:6.1f} s] {self._step_name:<10} {self.live.status().line()}")
-
-    def _positions(self) -> dict[int, tuple[float, float, float]]:
-        out = {}
-        for sysid in self.swarm.sysids:
-            frame = self._frame(sysid)
-            view = self.swarm.fleet.drones.get(sysid)
-            if frame is not None and view is not None and all(math.isfinite(v) for v in view.local_ned_m):
-                out[sysid] = frame.to_swarm(view.local_ned_m)
-        return out
-
-    def _stream_setpoints(self, now: float) -> None:
-        boot_ms = int(now * 1000) & 0xFFFFFFFF
-        for sysid, sp in self.engine.setpoints(now).items():
-            frame = self._frame(sysid)
-            if frame is None:
-                continue
-            x, y, z = frame.to_local(sp.pos_ned_m)
-            vx, vy, vz = frame.vector_to_local(sp.vel_ned_mps)
-            ax, ay, az = frame.vector_to_local(sp.acc_ned_mps2)
-            msg = mavlink.MAVLink_set_position_target_local_ned_message(
-                boot_ms, sysid, 1, mavlink.MAV_FRAME_LOCAL_NED, TYPE_MASK_POS_VEL_ACC,
-                x, y, z, vx, vy, vz, ax, ay, az, 0.0, 0.0,
-            )  # fmt: skip
-            self.swarm.send(sysid, msg)
 
     def _wait(self, condition: Callable[[], bool], timeout_sim_s: float) -> bool:
         return self.swarm.wait_until(condition, timeout_sim_s / self.speed, tick=self._tick)
@@ -174,7 +135,7 @@ class MissionRunner:
         since: list[float | None] = [None]
 
         def holding() -> bool:
-            positions = self._positions()
+            positions = self.streamer.positions()
             ok = len(positions) == len(swarm.sysids) and all(
                 abs(p[2] - target) < ALT_TOLERANCE_M for p in positions.values()
             )
@@ -186,20 +147,12 @@ class MissionRunner:
             raise SwarmError(f"takeoff to {step.alt_m:g} m not reached within {step.timeout_s:g} s")
 
     def _formation(self, step: FormationStep) -> None:
-        now = self.now()
-        positions = self._positions()
-        if len(positions) != len(self.swarm.sysids):
-            raise SwarmError("no position from every drone: cannot plan the formation")
-        self.engine.command(step.formation, now, positions)
-        if not self._formation_active:
-            self._formation_active = True
-            self._stream_setpoints(now)  # PX4 accepts OFFBOARD only once setpoints are arriving
-            check(self.swarm.command_all(mavlink.MAV_CMD_DO_SET_MODE, *OFFBOARD_MODE), "offboard")
+        self.streamer.command(step.formation, self.now())
         self._hold(step.hold_s)
 
     def _land(self, step: LandStep | RtlStep) -> None:
         command = mavlink.MAV_CMD_NAV_LAND if isinstance(step, LandStep) else mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH
-        self._formation_active = False
+        self.streamer.stop()
         check(self.swarm.command_all(command, *[math.nan] * 7 if command == mavlink.MAV_CMD_NAV_LAND else []),
               "land" if isinstance(step, LandStep) else "return to launch")  # fmt: skip
         if not self._wait(lambda: not any(self.swarm.fleet.drones[s].armed for s in self.swarm.sysids),
@@ -248,7 +201,7 @@ class MissionRunner:
         except (SwarmError, KeyboardInterrupt) as exc:
             failure = exc
         finally:
-            self._formation_active = False
+            self.streamer.stop()
             self.swarm.shutdown()
             self._tlog.close()
         out = write_report(self.recording, self.report_dir)

@@ -6,12 +6,16 @@ the same messages a PX4 ground station would send, and answered with one JSON re
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from gcs.frames import SwarmFrame
+from gcs.mission_file import build_formation
+from gcs.streamer import FormationStreamer
 from gcs.swarm import Swarm, SwarmError, check
 
 Say = Callable[[str], None]
@@ -22,10 +26,19 @@ class Station:
     def __init__(self, swarm: Swarm, say: Say) -> None:
         self.swarm = swarm
         self.say = say
+        self.streamer = FormationStreamer(swarm, SwarmFrame(swarm.plan.origin))
+        self._t0 = swarm.clock()
         self.stop_requested = False
         self._reported_lost: set[int] = set()
 
     # ---- periodic work ---------------------------------------------------------------------------------------------
+    def mission_time(self) -> float:
+        """Simulated seconds since the supervisor started (formations run on the drones' clock)."""
+        return (self.swarm.clock() - self._t0) * self.swarm.plan.speed_factor
+
+    def tick(self) -> None:
+        self.streamer.tick(self.mission_time())
+
     def watch(self, now_s: float) -> None:
         """Report a drone whose heartbeats stopped (and one that came back), or whose process died."""
         lost = set(self.swarm.fleet.lost(now_s))
@@ -50,6 +63,19 @@ class Station:
                 return {"ok": True, "drones": self.status_rows()}
             if cmd == "takeoff":
                 return self.takeoff(float(request.get("alt", 3.0)))
+            if cmd == "formation":
+                fields = dict(request.get("fields", {}))
+                if request.get("shape") == "grid" and not fields.get("rows"):
+                    n = len(self.swarm.sysids)
+                    fields["cols"] = max(1, math.ceil(math.sqrt(n)))
+                    fields["rows"] = math.ceil(n / fields["cols"])
+                formation = build_formation(str(request.get("shape")), fields)
+                self.streamer.command(formation, self.mission_time())
+                return {"ok": True}
+            if cmd == "goto":
+                return self.goto(request)
+            if cmd in ("land", "rtl"):
+                self.streamer.stop()
             if cmd == "land":
                 check(self.swarm.command_all(mavlink.MAV_CMD_NAV_LAND, *[math.nan] * 7), "land")
                 return {"ok": True}
@@ -59,7 +85,7 @@ class Station:
             if cmd == "down":
                 self.stop_requested = True
                 return {"ok": True}
-        except SwarmError as exc:
+        except (SwarmError, ValueError) as exc:
             return {"ok": False, "error": str(exc)}
         return {"ok": False, "error": f"unknown command {cmd!r}"}
 
@@ -79,6 +105,21 @@ class Station:
                 mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, home[2] + alt_m, sysids=[sysid]
             )
             check(acks, "takeoff")
+        return {"ok": True}
+
+    def goto(self, request: dict[str, Any]) -> dict[str, Any]:
+        """Move the current formation's centre to north/east (and altitude), keeping its shape."""
+        formation = self.streamer.formation
+        if formation is None or not self.streamer.active:
+            return {"ok": False, "error": "no formation is being flown: use 'swarm formation' first"}
+        north, east = float(request["north_m"]), float(request["east_m"])
+        if not (math.isfinite(north) and math.isfinite(east)):
+            return {"ok": False, "error": "north and east must be finite numbers"}
+        changes: dict[str, Any] = {"centre_ne_m": (north, east)}
+        if request.get("alt_m") is not None:
+            changes["alt_m"] = float(request["alt_m"])
+        moved = dataclasses.replace(formation, **changes)  # type: ignore[type-var]
+        self.streamer.command(moved, self.mission_time())
         return {"ok": True}
 
     def status_rows(self) -> list[dict[str, Any]]:

@@ -7,7 +7,8 @@ MAVLink layer calls the request methods (arm, takeoff, set_mode, ...), each answ
 
 Behaviour follows PX4 where a client could notice: takeoff climbs to MIS_TAKEOFF_ALT and switches to Hold; land
 descends and auto-disarms COM_DISARM_LAND seconds after touchdown; RTL climbs to RTL_RETURN_ALT, returns and lands;
-offboard needs a live setpoint stream and falls back to Hold, then lands, when it stops.
+offboard needs a live setpoint stream and falls back to Hold, then lands, when it stops; below BAT_LOW_THR it warns,
+and below BAT_CRIT_THR in the air it returns to launch.
 """
 
 from __future__ import annotations
@@ -109,6 +110,8 @@ class Vehicle:
         self.mission = MissionExecutor()
         self._mission_climb_down_m: float | None = None  # auto takeoff before the first mission item
         self._mission_landing = False
+        self._battery_low_warned = False
+        self._battery_critical = False
 
     # ---- helpers ---------------------------------------------------------------------------------------------------
     def _event(self, severity: int, text: str) -> None:
@@ -216,6 +219,8 @@ class Vehicle:
             return CommandOutcome(CommandResult.DENIED, f"Arming denied: not possible in {self.status.mode.px4_name}")
         self.status.armed = True
         self._armed_since_s = self._now_s
+        self._battery_low_warned = False
+        self._battery_critical = False
         self._landed_since_s = self._now_s
         self.cascade.reset()
         pos = self._current_pos()
@@ -463,6 +468,7 @@ class Vehicle:
             self.status.failsafe = True
             self._hold_here()
             self._enter(Px4Mode.AUTO_LOITER)
+        self._check_battery()
         if (
             self._failsafe is not None
             and self.status.mode is Px4Mode.AUTO_LOITER
@@ -472,6 +478,22 @@ class Vehicle:
             self._event(2, "Failsafe: landing")
             self._hold_here()
             self._enter(Px4Mode.AUTO_LAND)
+
+    def _check_battery(self) -> None:
+        """BAT_LOW_THR warns once per flight; below BAT_CRIT_THR in the air the vehicle returns to launch."""
+        if self._battery_critical:
+            return
+        remaining = self._battery_remaining()
+        if not self._battery_low_warned and remaining < self._p("BAT_LOW_THR"):
+            self._battery_low_warned = True
+            self._event(4, f"Low battery: {remaining:.0%} remaining")
+        if remaining < self._p("BAT_CRIT_THR") and not self.landed:
+            self._battery_critical = True
+            self._failsafe = None  # supersedes an offboard-loss failsafe in progress
+            self.status.failsafe = True
+            self._event(2, "Failsafe: battery critical, returning to launch")
+            if self.status.mode not in (Px4Mode.AUTO_RTL, Px4Mode.AUTO_LAND):
+                self.return_to_launch()
 
     def step(self, est: Estimate, now_s: float, dt_s: float) -> tuple[float, ...]:
         """One control step: returns motor commands in [0, 1] (all zero when disarmed)."""

@@ -8,6 +8,8 @@ truth is used only to check where it really went.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import TypeVar
 
 import numpy as np
 import pytest
@@ -22,6 +24,8 @@ from sitl.simulation import Simulation
 from tests.closed_loop.flight import boot_position, make_sim
 
 pytestmark = pytest.mark.timeout(60)
+
+T = TypeVar("T")
 
 
 class Drone:
@@ -38,8 +42,8 @@ class Drone:
     def snap(self) -> api.VehicleSnapshot:
         return self.api.snapshot()
 
-    def run_until(self, condition: object, timeout_s: float) -> bool:
-        return self.sim.run_until(lambda _s: bool(condition()), timeout_s)  # type: ignore[operator]
+    def run_until(self, condition: Callable[[], object], timeout_s: float) -> bool:
+        return self.sim.run_until(lambda _s: bool(condition()), timeout_s)
 
     def wait_armable(self) -> None:
         assert self.run_until(lambda: self.snap().prearm_ok, 10.0)
@@ -75,7 +79,7 @@ def _change_speed(seq: int, speed_mps: float) -> api.MissionItem:
     )
 
 
-def _compress(values: list[object]) -> list[object]:
+def _compress(values: list[T]) -> list[T]:
     """Consecutive duplicates removed: the sequence of distinct states."""
     return [v for i, v in enumerate(values) if i == 0 or v != values[i - 1]]
 
@@ -143,7 +147,7 @@ def test_takeoff_without_altitude_then_land_reports_each_landed_state_in_turn() 
     drone = Drone(seed=34)
     drone.wait_armable()
     assert drone.command(api.Arm()).ok
-    landed_states: list[object] = [drone.snap().landed_state]
+    landed_states: list[api.LandedState] = [drone.snap().landed_state]
 
     def watch() -> api.VehicleSnapshot:
         landed_states.append(drone.snap().landed_state)

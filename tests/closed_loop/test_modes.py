@@ -8,10 +8,12 @@ ground truth, which the autopilot never sees.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
 
+from sitl.battery import Battery
 from sitl.control.cascade import TrajectorySetpoint
 from sitl.protocol.modes import Px4Mode
 from sitl.protocol.vehicle_api import CommandResult, LandedState
@@ -28,6 +30,14 @@ def _horizontal_speed(sim: Simulation) -> float:
 def _local_target(sim: Simulation, north_m: float, east_m: float, alt_above_home_m: float) -> np.ndarray:
     home = sim.vehicle.home_ned_m
     return np.array((home[0] + north_m, home[1] + east_m, home[2] - alt_above_home_m))
+
+
+def _record_until(sim: Simulation, trace: Trace, condition: Callable[[Simulation], bool], timeout_s: float) -> bool:
+    def record_then_check(s: Simulation) -> bool:
+        trace.record(s)
+        return condition(s)
+
+    return sim.run_until(record_then_check, timeout_s)
 
 
 def _settled_at(sim: Simulation, target_est: np.ndarray, timeout_s: float) -> bool:
@@ -53,7 +63,7 @@ def test_rtl_climbs_to_the_return_altitude_returns_lands_at_home_and_disarms() -
     assert sim.vehicle.return_to_launch().ok
     assert sim.vehicle.status.mode is Px4Mode.AUTO_RTL
     trace = Trace()
-    assert sim.run_until(lambda s: (trace.record(s), not s.vehicle.status.armed)[1], 60.0), "did not disarm"
+    assert _record_until(sim, trace, lambda s: not s.vehicle.status.armed, 60.0), "did not disarm"
     _, pos, _ = trace.arrays()
     alt = home_true[2] - pos[:, 2]
     from_start = np.hypot(pos[:, 0] - start[0], pos[:, 1] - start[1])
@@ -84,7 +94,7 @@ def test_rtl_above_the_return_altitude_returns_at_its_current_altitude() -> None
     # WHEN it returns
     assert sim.vehicle.return_to_launch().ok
     trace = Trace()
-    assert sim.run_until(lambda s: (trace.record(s), not s.vehicle.status.armed)[1], 40.0)
+    assert _record_until(sim, trace, lambda s: not s.vehicle.status.armed, 40.0)
     _, pos, _ = trace.arrays()
     # THEN it does not descend before it is over home
     over_home = int(np.argmax(np.hypot(pos[:, 0] - home_true[0], pos[:, 1] - home_true[1]) < 0.5))
@@ -124,7 +134,7 @@ def test_offboard_setpoint_loss_holds_then_lands_with_the_failsafe_flag_set() ->
     hold_started_s = sim.time_s
     # and holds where it was (it was not moving) until COM_FAIL_ACT_T has passed
     trace = Trace()
-    assert sim.run_until(lambda s: (trace.record(s), s.vehicle.status.mode is not Px4Mode.AUTO_LOITER)[1], 10.0)
+    assert _record_until(sim, trace, lambda s: s.vehicle.status.mode is not Px4Mode.AUTO_LOITER, 10.0)
     assert sim.time_s - hold_started_s == pytest.approx(v.params["COM_FAIL_ACT_T"], abs=0.01)
     _, pos, _ = trace.arrays()
     assert np.linalg.norm(pos - where_lost, axis=1).max() < 0.3
@@ -142,6 +152,38 @@ def test_offboard_cannot_start_without_a_setpoint_stream() -> None:
     take_off(sim, 2.0)
     assert sim.vehicle.start_offboard(sim.time_s).result is CommandResult.DENIED
     assert sim.vehicle.status.mode is Px4Mode.AUTO_LOITER
+
+
+# ---- battery -------------------------------------------------------------------------------------------------------
+def test_a_low_battery_warns_once_and_a_critical_one_returns_to_launch() -> None:
+    # GIVEN a drone hovering 6 m from home on a pack just above the low-battery threshold (15 %), with the critical
+    # threshold raised to 14 % so that it is crossed within seconds
+    sim = make_sim(seed=24)
+    sim.params.set("RTL_RETURN_ALT", 4.0)
+    sim.params.set("BAT_CRIT_THR", 0.14)
+    take_off(sim, 3.0)
+    assert sim.vehicle.goto(_local_target(sim, 6.0, 0.0, 3.0)).ok
+    sim.battery = Battery(sim.config.battery, initial_remaining=0.152)
+    # WHEN it keeps hovering (about 1 % of the pack per 9 s)
+    assert sim.run_until(lambda s: s.vehicle.status.mode is Px4Mode.AUTO_RTL, 30.0), "no RTL on critical battery"
+    # THEN it warned once at BAT_LOW_THR, and at BAT_CRIT_THR it returned to launch with the failsafe flag set
+    assert sim.battery.state().remaining == pytest.approx(0.14, abs=0.001)
+    texts = [e.text for e in sim.vehicle.events]
+    warnings = [e for e in sim.vehicle.events if e.text.startswith("Low battery")]
+    assert len(warnings) == 1 and warnings[0].severity == 4
+    assert texts.index(warnings[0].text) < texts.index("Failsafe: battery critical, returning to launch")
+    assert sim.vehicle.status.failsafe
+    # and it lands at home
+    assert sim.run_until(lambda s: not s.vehicle.status.armed, 40.0)
+    assert math.hypot(*(sim.truth.pos_ned_m - boot_position(sim))[:2]) < 1.0
+
+
+def test_arming_is_refused_on_a_critical_battery() -> None:
+    sim = make_sim(seed=25)
+    sim.battery = Battery(sim.config.battery, initial_remaining=0.05)
+    assert sim.run_until(lambda s: s.time_s > 5.0, 6.0)
+    outcome = sim.vehicle.arm()
+    assert outcome.result is CommandResult.DENIED and "battery" in outcome.reason
 
 
 # ---- arming and disarming ------------------------------------------------------------------------------------------

@@ -23,12 +23,19 @@ import inspect
 import os
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-from tests.integration.sitl_process import InstanceAllocator, SitlDrone, start_drone, stop_drone
+from tests.integration.sitl_process import (
+    InstanceAllocator,
+    SitlDrone,
+    SpawnDrones,
+    instance_is_clear_of_user_ports,
+    start_drone,
+    stop_drone,
+)
 from tests.integration.vehicle_link import VehicleLink, VehicleUrlError, pymavlink_url
 
 DEFAULT_SPEED_FACTOR = 4.0
@@ -105,16 +112,32 @@ def _worker_index() -> int:
     return int(digits) if digits.isdigit() else 0
 
 
+def _instance_block(base: int, worker: int) -> int:
+    """First instance of a pytest-xdist worker's block: the ``worker``-th block of 10 from ``base`` on whose ports
+    are clear of a user's instances 0-9 and of 14550 (instances 40-49 would stream to user drones' ports)."""
+    blocks = (b for b in range(base, 255 - INSTANCES_PER_WORKER, INSTANCES_PER_WORKER) if _block_is_clear(b))
+    for _ in range(worker):
+        next(blocks, None)
+    block = next(blocks, None)
+    if block is None:
+        raise pytest.UsageError(f"no room for sitl instances of worker {worker} from --sitl-instance-base {base}")
+    return block
+
+
+def _block_is_clear(first: int) -> bool:
+    return all(instance_is_clear_of_user_ports(i) for i in range(first, first + INSTANCES_PER_WORKER))
+
+
 @pytest.fixture(scope="session")
 def instance_allocator(pytestconfig: pytest.Config) -> InstanceAllocator:
-    base = pytestconfig.getoption("--sitl-instance-base") + INSTANCES_PER_WORKER * _worker_index()
+    base = _instance_block(pytestconfig.getoption("--sitl-instance-base"), _worker_index())
     return InstanceAllocator(base, INSTANCES_PER_WORKER)
 
 
 @pytest.fixture
 def spawn_drones(
     request: pytest.FixtureRequest, instance_allocator: InstanceAllocator, tmp_path: Path
-) -> Iterator[Callable[..., list[SitlDrone]]]:
+) -> Iterator[SpawnDrones]:
     """Factory: ``spawn_drones(n)`` starts n ready drones on adjacent free instances. At teardown every one is
     stopped and reaped (each independently of the others) and its log is printed, which pytest shows for failed
     tests."""
@@ -153,7 +176,7 @@ def vehicle(request: pytest.FixtureRequest) -> VehicleLink:
     url = request.config.getoption("--vehicle")
     if url is not None:
         return VehicleLink.external(url, request.config.getoption("--vehicle-speed"))
-    spawn: Callable[..., list[SitlDrone]] = request.getfixturevalue("spawn_drones")
+    spawn: SpawnDrones = request.getfixturevalue("spawn_drones")
     return VehicleLink.of(spawn()[0])
 
 

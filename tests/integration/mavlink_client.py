@@ -196,3 +196,19 @@ def recv_param(conn: mavutil.mavfile, name: str, timeout_s: float) -> float:
     conn.mav.param_request_read_send(conn.target_system, conn.target_component, name.encode(), -1)
     msg = recv_until(conn, "PARAM_VALUE", lambda m: m.param_id == name, timeout_s, f"PARAM_VALUE {name}")
     return float(msg.param_value)
+
+
+def request_message(conn: mavutil.mavfile, msg_id: int, msg_type: str, timeout_s: float) -> tuple[Message, Message]:
+    """MAV_CMD_REQUEST_MESSAGE; returns (COMMAND_ACK, the message), which may arrive in either order."""
+    conn.mav.command_long_send(
+        conn.target_system, conn.target_component, mavlink.MAV_CMD_REQUEST_MESSAGE, 0, msg_id, 0, 0, 0, 0, 0, 0
+    )
+    got: dict[str, Message] = {}
+
+    def both(msg: Message) -> bool:
+        if msg.get_type() == msg_type or msg.command == mavlink.MAV_CMD_REQUEST_MESSAGE:
+            got[msg.get_type()] = msg
+        return len(got) == 2
+
+    recv_until(conn, ["COMMAND_ACK", msg_type], both, timeout_s, f"COMMAND_ACK and {msg_type}")
+    return got["COMMAND_ACK"], got[msg_type]

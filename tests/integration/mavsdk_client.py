@@ -17,7 +17,7 @@ import asyncio
 import contextlib
 import math
 import time
-from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
+from collections.abc import AsyncGenerator, AsyncIterator, Awaitable, Callable, Sequence
 from typing import Any, Final, TypeVar
 
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk, System
@@ -129,15 +129,15 @@ async def connect(url: str, sysid: int | None, timeout_s: float = DISCOVERY_TIME
 
 
 async def first_matching(
-    subscription: Callable[[], Any],
-    predicate: Callable[[T], bool],
+    subscription: Callable[[], AsyncGenerator[Any, None]],
+    predicate: Callable[[Any], bool],
     timeout_s: float,
     what: str,
-) -> T:
+) -> Any:
     """Return the first value of a MAVSDK subscription that satisfies ``predicate``, or fail after ``timeout_s``."""
-    last: list[T] = []
+    last: list[Any] = []
 
-    async def scan() -> T:
+    async def scan() -> Any:
         async with contextlib.aclosing(subscription()) as values:
             async for value in values:
                 last[:] = [value]

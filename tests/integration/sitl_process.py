@@ -19,6 +19,7 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Final
@@ -85,6 +86,17 @@ def udp_port_is_free(port: int) -> bool:
     return True
 
 
+USER_INSTANCES: Final = range(10)  # instances a user may run by hand while the suite runs
+GCS_PORT: Final = 14550
+
+
+def instance_is_clear_of_user_ports(instance: int) -> bool:
+    """True if none of the instance's ports is one that a user's drones 0-9 or a ground station use."""
+    ports = DronePorts(instance=instance).all()
+    user_ports = {GCS_PORT} | {p for i in USER_INSTANCES for p in DronePorts(instance=i).all()}
+    return instance not in USER_INSTANCES and not user_ports & set(ports)
+
+
 class InstanceAllocator:
     """Hands out instance numbers from ``[base, base + span)`` round robin, skipping those with a busy port.
 
@@ -115,10 +127,11 @@ class InstanceAllocator:
         )
 
     def _unusable(self, instance: int) -> bool:
-        # 14540+i must never be 14550, the machine's ground-station port
-        if instance in self._taken or API_REMOTE_BASE_PORT + instance == 14550:
-            return True
-        return not all(udp_port_is_free(p) for p in DronePorts(instance=instance).all())
+        return (
+            instance in self._taken
+            or not instance_is_clear_of_user_ports(instance)
+            or not all(udp_port_is_free(p) for p in DronePorts(instance=instance).all())
+        )
 
     def give_back(self, instance: int) -> None:
         self._taken.discard(instance)
@@ -273,6 +286,9 @@ def start_drone(
         on_failure.pop_all()
     listener.close()
     return SitlDrone(ports=ports, process=process, speed_factor=speed_factor, gcs_sink=gcs_sink)
+
+
+SpawnDrones = Callable[..., list[SitlDrone]]  # the ``spawn_drones`` fixture: spawn_drones(count=1, speed_factor=...)
 
 
 def stop_drone(drone: SitlDrone) -> int:

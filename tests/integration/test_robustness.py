@@ -13,7 +13,6 @@ import math
 import random
 import socket
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import pytest
@@ -24,13 +23,13 @@ from tests.integration.mavlink_client import (
     PX4_AUTO_LOITER,
     Message,
     arm_and_take_off,
-    command_long,
     mavlink_connection,
     recv_until,
+    request_message,
     upload_mission,
     wait_vehicle_heartbeat,
 )
-from tests.integration.sitl_process import LOOPBACK, SitlDrone
+from tests.integration.sitl_process import LOOPBACK, SitlDrone, SpawnDrones
 from tests.integration.vehicle_link import VehicleLink
 
 pytestmark = [pytest.mark.sim_only, pytest.mark.timeout(90)]
@@ -41,9 +40,6 @@ CORPUS_SEED = 20240601
 STRANGER_SYSID = 200
 UNKNOWN_COMMAND = 65000  # no MAV_CMD has this number
 RESYNC_ZEROS = 300
-
-SpawnDrones = Callable[..., list[SitlDrone]]
-
 
 # ---------------------------------------------------------------------------------------------------------------
 # What the drone is seen doing while it is being disturbed
@@ -232,9 +228,9 @@ def test_garbage_truncated_and_mutated_datagrams_do_not_disturb_a_hovering_drone
         watch.assert_kept_flying(altitude_m)
         assert drone.process.alive(), drone.process.log_tail()
         # AND it still answers its own client
-        ack = command_long(conn, mavlink.MAV_CMD_REQUEST_MESSAGE, (mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION,))
+        ack, version = request_message(conn, mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION, "AUTOPILOT_VERSION", 3.0)
         assert ack.result == mavlink.MAV_RESULT_ACCEPTED, ack
-        recv_until(conn, "AUTOPILOT_VERSION", lambda m: True, 2.0, "AUTOPILOT_VERSION")
+        assert version.capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT, version
 
 
 def _decodable_replies(sock: socket.socket, for_s: float) -> list[Message]:

@@ -11,6 +11,7 @@ import asyncio
 import contextlib
 import socket
 import time
+from collections.abc import AsyncGenerator, Callable
 
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
@@ -22,7 +23,7 @@ from tests.integration.mavsdk_client import (
     wait_landed_and_disarmed,
     wait_ready_to_arm,
 )
-from tests.integration.sitl_process import LOOPBACK, SitlDrone
+from tests.integration.sitl_process import LOOPBACK, SitlDrone, SpawnDrones
 from tests.integration.vehicle_link import VehicleLink
 
 pytestmark = [pytest.mark.sim_only, pytest.mark.timeout(120)]
@@ -54,8 +55,8 @@ def _api_sources(drone: SitlDrone, listen_s: float) -> set[tuple[int, int]]:
 
 
 async def _watch(drone: Drone, armed: list[bool], in_air: list[bool]) -> None:
-    async def collect(subscription: object, into: list[bool]) -> None:
-        async with contextlib.aclosing(subscription()) as values:  # type: ignore[operator]
+    async def collect(subscription: Callable[[], AsyncGenerator[bool, None]], into: list[bool]) -> None:
+        async with contextlib.aclosing(subscription()) as values:
             async for value in values:
                 into.append(bool(value))
 
@@ -65,10 +66,10 @@ async def _watch(drone: Drone, armed: list[bool], in_air: list[bool]) -> None:
 
 
 async def test_two_drones_have_distinct_sysids_and_ports_and_only_the_commanded_one_flies(
-    spawn_drones: object,
+    spawn_drones: SpawnDrones,
 ) -> None:
     # GIVEN two drones on adjacent instances a and a+1
-    a, b = spawn_drones(2)  # type: ignore[operator]
+    a, b = spawn_drones(2)
     assert b.ports.instance == a.ports.instance + 1
     # THEN each streams on its own API port and its own ground-station link, with its own sysid only
     assert a.sysid != b.sysid

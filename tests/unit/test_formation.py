@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -158,9 +159,9 @@ def test_v_has_its_apex_in_front_and_arms_at_the_half_angle() -> None:
         lambda: GridSpec(rows=1, cols=1, spacing_m=1, alt_m=3, centre_ne_m=(math.inf, 0.0)),
     ],
 )
-def test_bad_specs_are_refused_at_construction(build: object) -> None:
+def test_bad_specs_are_refused_at_construction(build: Callable[[], object]) -> None:
     with pytest.raises(FormationError):
-        build()  # type: ignore[operator]
+        build()
 
 
 # ---- the demo: grid then rotating circle -------------------------------------------------------------------------

@@ -172,7 +172,7 @@ def test_retargeting_downwards_from_cruise_respects_the_descent_speed_limit() ->
     trajectory = _cruise_north()
     here = trajectory.position.copy()
     # WHEN the target moves to a point 45 degrees below its course
-    run = _fly(trajectory, tuple(here + np.array((20.0, 0.0, 20.0))), duration_s=2.0)  # type: ignore[arg-type]
+    run = _fly(trajectory, tuple(here + np.array((20.0, 0.0, 20.0))), duration_s=2.0)
     # THEN the carried speed is cut to what the new line allows: it never descends faster than 1.5 m/s
     assert run.vel[:, 2].max() <= LIMITS.speed_down_mps + EPS
     _assert_within_limits(run.vel, run.acc, LIMITS)

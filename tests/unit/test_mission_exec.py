@@ -17,7 +17,7 @@ HOVER = np.array((0.0, 0.0, -5.0))
 
 
 def _wp(seq: int, north: float, east: float, down: float = -5.0, **fields: float) -> NavItem:
-    return NavItem(seq=seq, kind=NavKind.WAYPOINT, target_ned_m=(north, east, down), **fields)  # type: ignore[arg-type]
+    return NavItem(seq=seq, kind=NavKind.WAYPOINT, target_ned_m=(north, east, down), **fields)
 
 
 def _started(*items: NavItem) -> MissionExecutor:

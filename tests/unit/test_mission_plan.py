@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
@@ -26,8 +27,8 @@ def _latlon_e7(north_m: float, east_m: float) -> tuple[int, int]:
     return round(point.lat_deg * 1e7), round(point.lon_deg * 1e7)
 
 
-def _item(command: int, seq: int = 0, frame: int = RELATIVE, **fields: float) -> MissionItem:
-    return MissionItem(seq=seq, frame=frame, command=command, **fields)  # type: ignore[arg-type]
+def _item(command: int, seq: int = 0, frame: int = RELATIVE, **fields: Any) -> MissionItem:
+    return MissionItem(seq=seq, frame=frame, command=command, **fields)
 
 
 def _one(item: MissionItem, home_alt_amsl_m: float = HOME_ALT_AMSL_M) -> NavItem:
@@ -35,7 +36,7 @@ def _one(item: MissionItem, home_alt_amsl_m: float = HOME_ALT_AMSL_M) -> NavItem
     return nav
 
 
-def _waypoint(north_m: float, east_m: float, z: float, frame: int = RELATIVE, **params: float) -> MissionItem:
+def _waypoint(north_m: float, east_m: float, z: float, frame: int = RELATIVE, **params: Any) -> MissionItem:
     x, y = _latlon_e7(north_m, east_m)
     return MissionItem(seq=0, frame=frame, command=mavlink.MAV_CMD_NAV_WAYPOINT, x=x, y=y, z=z, **params)
 
