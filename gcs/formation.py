@@ -63,7 +63,6 @@ _LIMIT_MARGIN: Final = 0.99  # plan to 99 % of each limit: the check samples the
 _CHECK_SAMPLES: Final = 160  # samples per transition when checking the limits
 _FORMATION_CHECK_S: Final = 60.0  # how long a formation's own motion is checked against the limits
 _MAX_DURATION_S: Final = 3600.0
-_MAX_REPLANS: Final = 8
 _BRAKING_PEAK_DECEL: Final = 8.0 / (3.0 * math.sqrt(3.0))  # max |d2x/dt2| * braking_s / v0 of the braking profile
 _MIN_BRAKING_S: Final = 0.5
 
@@ -416,22 +415,29 @@ def _quintic(tau: FloatArray) -> FloatArray:
     return np.asarray(t * t * t * (10.0 + t * (-15.0 + 6.0 * t)), dtype=np.float64)
 
 
+def _quintic_integral(tau: FloatArray) -> FloatArray:
+    """Integral of the quintic from 0 to ``tau`` (clipped to [0, 1]); 1/2 at the end."""
+    t = np.clip(tau, 0.0, 1.0)
+    return np.asarray(t**4 * (2.5 + t * (-3.0 + t)), dtype=np.float64)
+
+
 class _Plan:
     """One transition from a braking start into a formation's slots; after arrival, the slots themselves.
 
     The start frame is fixed (centred on the rest configuration, yaw 0); the target frame is the formation's,
     offset by ``-kappa`` so that the blended yaw starts at 0 and spins up to the formation's rate (module docstring).
+    ``kappa`` depends on the duration, so every duration gets its own plan.
     """
 
-    def __init__(
-        self, start: _BrakingStart, target: _SlotTrack, start_s: float, duration_s: float, kappa_rad: float
-    ) -> None:
+    def __init__(self, start: _BrakingStart, target: _SlotTrack, start_s: float, duration_s: float) -> None:
         self.start = start
         self.target = target
         self.start_s = start_s
         self.duration_s = duration_s
         self.arrival_s = start_s + duration_s
-        self.kappa_rad = kappa_rad
+        self.rate_radps, spin = _arrival_spin(target.formation, duration_s)
+        _, arrival_yaw = target.formation.frame(np.array([duration_s]))
+        self.kappa_rad = float(arrival_yaw[0]) - spin
         self._start_centre = start.rest_points().mean(axis=0)
 
     def positions(self, times_s: FloatArray) -> FloatArray:
@@ -446,14 +452,28 @@ class _Plan:
         return out
 
     def _blend(self, times_s: FloatArray) -> FloatArray:
-        s = _quintic((times_s - self.start_s) / self.duration_s)
+        tau = (times_s - self.start_s) / self.duration_s
+        s = _quintic(tau)
         start_body = self.start.positions(times_s) - self._start_centre
         goal_centre, goal_yaw = self.target.frame(times_s)
         goal_yaw = goal_yaw - self.kappa_rad
         goal_body = rotate_yaw(self.target.positions(times_s) - goal_centre[:, None, :], -goal_yaw)
         centre = (1.0 - s)[:, None] * self._start_centre + s[:, None] * goal_centre
         body = (1.0 - s)[:, None, None] * start_body + s[:, None, None] * goal_body
-        return centre[:, None, :] + rotate_yaw(body, s * goal_yaw)
+        # s (psi - kappa) alone overshoots the formation's rate by ~17 % mid-way (its s' (psi - kappa) term); the
+        # correction turns it into rate * D * S(tau) for a steady rate, i.e. a yaw rate of rate * s(t).
+        correction = self.rate_radps * self.duration_s * (s * (np.clip(tau, 0.0, 1.0) - 0.5) - _quintic_integral(tau))
+        return centre[:, None, :] + rotate_yaw(body, s * goal_yaw - correction)
+
+
+def _arrival_spin(formation: Formation, duration_s: float) -> tuple[float, float]:
+    """The formation's yaw rate at ``duration_s`` and the net turn of a frame spun up to it over that time.
+
+    The frame's yaw rate follows ``rate * s(t)``, whose mean over the transition is ``rate / 2``.
+    """
+    _, yaw = formation.frame(np.array([duration_s - _DIFF_STEP_S, duration_s + _DIFF_STEP_S]))
+    rate = float(yaw[1] - yaw[0]) / (2.0 * _DIFF_STEP_S)
+    return rate, 0.5 * duration_s * rate
 
 
 def _wrap_pi(angle: float) -> float:
@@ -524,40 +544,25 @@ class FormationEngine:
         start = self._braking_start(now_s, ids, points)
         rest = start.rest_points()
 
-        def assign(duration_s: float) -> tuple[IntArray, float]:
-            # The blended frame spins up from rest to the formation's rate: net rotation D * rate / 2 (the mean of
-            # the quintic is 1/2). kappa offsets the formation's yaw so the blend starts at yaw 0.
-            around = np.array([duration_s - _DIFF_STEP_S, duration_s, duration_s + _DIFF_STEP_S])
-            goal_centre, goal_yaw = formation.frame(around)
-            spin = 0.5 * duration_s * float(goal_yaw[2] - goal_yaw[0]) / (2.0 * _DIFF_STEP_S)
-            kappa = float(goal_yaw[1]) - spin
-            arrival = formation.slots_ned_m(around[1:2], len(ids))[0] - goal_centre[1]
+        def assign(duration_s: float) -> IntArray:
+            # Against the arrival slots turned back by the blended frame's net turn (it spins up from rest).
+            _, spin = _arrival_spin(formation, duration_s)
+            at = np.array([duration_s])
+            goal_centre = formation.frame(at)[0][0]
+            arrival = formation.slots_ned_m(at, len(ids))[0] - goal_centre
             # Absolute positions, not centred ones: with spare slots the translation decides which slots are used.
-            goals = goal_centre[1] + rotate_yaw(arrival[None], np.array([-spin]))[0]
-            slots = np.array(assign_min_squared_distance(rest, goals), dtype=np.int64)
-            return slots, kappa
+            goals = goal_centre + rotate_yaw(arrival[None], np.array([-spin]))[0]
+            return np.array(assign_min_squared_distance(rest, goals), dtype=np.int64)
 
-        def plan(duration_s: float, slots: IntArray, kappa: float) -> _Plan:
-            return _Plan(start, _SlotTrack(formation, now_s, slots), now_s, duration_s, kappa)
+        def plan(duration_s: float) -> _Plan:
+            return _Plan(start, _SlotTrack(formation, now_s, assign(duration_s)), now_s, duration_s)
 
-        duration = max(self._limits.min_duration_s, start.braking_s)
-        slots, kappa = assign(duration)
-        for _ in range(_MAX_REPLANS):
-            required = self._shortest_feasible(plan(duration, slots, kappa), plan, slots, kappa)
-            if required <= duration:
-                break
-            duration = required
-            slots, kappa = assign(duration)
-        else:
-            # Re-assignment kept asking for longer: keep the last assignment with a duration it can fly.
-            duration = self._shortest_feasible(plan(duration, slots, kappa), plan, slots, kappa)
-
-        self._plan = plan(duration, slots, kappa)
+        self._plan = self._shortest_feasible(plan, max(self._limits.min_duration_s, start.braking_s))
         self._ids = ids
         self._transition = Transition(
             start_s=now_s,
             arrival_s=self._plan.arrival_s,
-            slot_of_drone={drone: int(slot) for drone, slot in zip(ids, slots, strict=True)},
+            slot_of_drone={drone: int(slot) for drone, slot in zip(ids, self._plan.target.slot_index, strict=True)},
         )
         return self._transition
 
@@ -590,45 +595,45 @@ class FormationEngine:
                 f"{lim.max_speed_mps:.2f} m/s and {lim.max_accel_mps2:.2f} m/s^2"
             )
 
-    def _shortest_feasible(
-        self,
-        candidate: _Plan,
-        plan: Callable[[float, IntArray, float], _Plan],
-        slots: IntArray,
-        kappa: float,
-    ) -> float:
-        """Shortest duration >= the candidate's for which the plan with these slots stays within the limits."""
+    def _shortest_feasible(self, plan: Callable[[float], _Plan], shortest_s: float) -> _Plan:
+        """The plan of the shortest duration >= ``shortest_s`` that stays within the limits.
+
+        Every candidate duration is planned on its own: with moving slots the frame's net turn, hence the
+        assignment, depends on the duration, and the separation bound needs the assignment made for the duration
+        actually flown.
+        """
         lim = self._limits
         v_max = _LIMIT_MARGIN * lim.max_speed_mps
         a_max = _LIMIT_MARGIN * lim.max_accel_mps2
         # Straight-line lower bound of the quintic profile for the farthest drone (exact for still formations).
+        candidate = plan(shortest_s)
         goal = candidate.target.positions(np.array([candidate.arrival_s]))[0]
         reach_m = float(np.max(np.linalg.norm(goal - candidate.start.rest_points(), axis=1)))
-        low = max(
-            candidate.duration_s, _QUINTIC_PEAK_RATE * reach_m / v_max, math.sqrt(_QUINTIC_PEAK_ACCEL * reach_m / a_max)
-        )
+        low = max(shortest_s, _QUINTIC_PEAK_RATE * reach_m / v_max, math.sqrt(_QUINTIC_PEAK_ACCEL * reach_m / a_max))
 
-        def feasible(duration_s: float) -> bool:
-            p = plan(duration_s, slots, kappa)
+        def feasible(duration_s: float) -> _Plan | None:
+            p = plan(duration_s)
             step = duration_s / _CHECK_SAMPLES
             times = np.asarray(p.start_s + step * np.arange(0, _CHECK_SAMPLES + 2), dtype=np.float64)
             speed, accel = _peak_speed_accel(p.positions(times), step)
-            return speed <= v_max and accel <= a_max
+            return p if speed <= v_max and accel <= a_max else None
 
-        if feasible(low):
-            return low
+        best = feasible(low)
+        if best is not None:
+            return best
         infeasible, duration = low, low * 1.25
-        while not feasible(duration):
+        while (best := feasible(duration)) is None:
             infeasible, duration = duration, duration * 1.25
             if duration > _MAX_DURATION_S:
                 raise FormationError("no transition within the speed and acceleration limits")
         for _ in range(10):
             middle = 0.5 * (infeasible + duration)
-            if feasible(middle):
-                duration = middle
+            found = feasible(middle)
+            if found is not None:
+                best, duration = found, middle
             else:
                 infeasible = middle
-        return duration
+        return best
 
     # ------------------------------------------------------------------------------------------------ outputs
 

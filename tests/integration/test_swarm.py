@@ -7,6 +7,7 @@ the supervisor's own output, never slept for.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -82,10 +83,8 @@ class RunningSwarm:
 
     def kill_all(self) -> None:
         for pid in [self.proc.pid, *self.children]:
-            try:
+            with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
         self.proc.wait()
 
 
