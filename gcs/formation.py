@@ -15,17 +15,22 @@ When a formation is commanded, ``FormationEngine``:
    and acceleration limits. All drones arrive at the same instant.
 
 Moving slots (a rotating circle) are handled without losing that bound: drones are blended in a frame that
-spins up with the formation. With ``c_0`` the centre of the start configuration and ``c``, ``psi`` the centre and
-yaw of the formation's own frame::
+spins up with the formation. With ``c_0`` the centre of the start configuration, ``c`` and ``psi`` the centre and
+yaw of the formation's own frame, ``omega`` its yaw rate at arrival, ``D`` the duration and ``tau = t / D``::
 
-    pos_i(t) = C(t) + Rz(s psi'(t)) [ (1 - s) a_i(t) + s b_i(t) ],   C = (1 - s) c_0 + s c(t),
-    psi'(t) = psi(t) - kappa
+    pos_i(t) = C(t) + Rz(theta(t)) [ (1 - s) a_i(t) + s b_i(t) ],   C = (1 - s) c_0 + s c(t),
+    theta(t) = s (psi(t) - kappa) + omega D (G(tau) - s (tau - 1 + G(1))),   G(tau) = integral of s^3 over [0, tau]
 
 where ``a_i`` is the start relative to ``c_0`` and ``b_i`` the slot in the formation frame rotated by ``kappa``.
 Rotating the whole blend rigidly changes no pairwise distance, so the straight-line bound applies to
-``(1 - s) a + s b``. ``kappa`` is chosen so that the frame turns by ``D rate / 2`` during the transition (it starts
-still and ends at the formation's rate), and the assignment is made against the arrival slots rotated back by that
-angle. Position and velocity are continuous at both ends. Drones that are moving when a formation is commanded
+``(1 - s) a + s b``. For a formation turning at a steady rate ``theta = omega D G(tau)``: the frame starts still and
+its yaw rate ``omega s^3`` rises monotonically to the formation's, never above it, and mostly late, once the blend
+has nearly the formation's shape and the translation is slowing down (spinning a wide start configuration fast, or
+adding the rim speed to the peak of the translation, would call for a longer transition). For any other yaw the
+second term vanishes with its first two derivatives at both ends. ``kappa = psi(D) - G(1) omega D`` makes the frame
+turn by ``G(1) omega D`` (``G(1) = 26/77``), and the assignment is made against the arrival slots rotated back by
+that angle; both depend on ``D``, so each duration the search tries is planned with its own assignment. Position,
+velocity and acceleration are continuous at both ends. Drones that are moving when a formation is commanded
 (a rotating circle, an unfinished transition) start from their setpoint and its velocity and brake smoothly to rest
 along a straight line while the transition proceeds; a rotating ring brakes into a scaled, rotated copy of itself,
 so the bound still holds approximately (``planned_min_separation_m`` measures it).
@@ -47,6 +52,7 @@ from typing import Final, Protocol, runtime_checkable
 
 import numpy as np
 import numpy.typing as npt
+from numpy.polynomial import Polynomial
 
 from gcs.assignment import assign_min_squared_distance
 from gcs.frames import Vec3
@@ -65,6 +71,9 @@ _FORMATION_CHECK_S: Final = 60.0  # how long a formation's own motion is checked
 _MAX_DURATION_S: Final = 3600.0
 _BRAKING_PEAK_DECEL: Final = 8.0 / (3.0 * math.sqrt(3.0))  # max |d2x/dt2| * braking_s / v0 of the braking profile
 _MIN_BRAKING_S: Final = 0.5
+# The blended frame spins up at the formation's rate times s^3 (module docstring): the integral G of s^3, and G(1).
+_SPIN_UP: Final = (Polynomial([0.0, 0.0, 0.0, 10.0, -15.0, 6.0]) ** 3).integ()
+_SPIN_UP_MEAN: Final = float(_SPIN_UP(1.0))  # 26/77
 
 
 class FormationError(ValueError):
@@ -415,12 +424,6 @@ def _quintic(tau: FloatArray) -> FloatArray:
     return np.asarray(t * t * t * (10.0 + t * (-15.0 + 6.0 * t)), dtype=np.float64)
 
 
-def _quintic_integral(tau: FloatArray) -> FloatArray:
-    """Integral of the quintic from 0 to ``tau`` (clipped to [0, 1]); 1/2 at the end."""
-    t = np.clip(tau, 0.0, 1.0)
-    return np.asarray(t**4 * (2.5 + t * (-3.0 + t)), dtype=np.float64)
-
-
 class _Plan:
     """One transition from a braking start into a formation's slots; after arrival, the slots themselves.
 
@@ -460,20 +463,17 @@ class _Plan:
         goal_body = rotate_yaw(self.target.positions(times_s) - goal_centre[:, None, :], -goal_yaw)
         centre = (1.0 - s)[:, None] * self._start_centre + s[:, None] * goal_centre
         body = (1.0 - s)[:, None, None] * start_body + s[:, None, None] * goal_body
-        # s (psi - kappa) alone overshoots the formation's rate by ~17 % mid-way (its s' (psi - kappa) term); the
-        # correction turns it into rate * D * S(tau) for a steady rate, i.e. a yaw rate of rate * s(t).
-        correction = self.rate_radps * self.duration_s * (s * (np.clip(tau, 0.0, 1.0) - 0.5) - _quintic_integral(tau))
-        return centre[:, None, :] + rotate_yaw(body, s * goal_yaw - correction)
+        # s (psi - kappa) alone would overshoot a steady rate by ~17 % mid-way; this makes the yaw rate rate * s^3.
+        t = np.clip(tau, 0.0, 1.0)
+        spin_up = np.asarray(_SPIN_UP(t), dtype=np.float64) - s * (t - 1.0 + _SPIN_UP_MEAN)
+        return centre[:, None, :] + rotate_yaw(body, s * goal_yaw + self.rate_radps * self.duration_s * spin_up)
 
 
 def _arrival_spin(formation: Formation, duration_s: float) -> tuple[float, float]:
-    """The formation's yaw rate at ``duration_s`` and the net turn of a frame spun up to it over that time.
-
-    The frame's yaw rate follows ``rate * s(t)``, whose mean over the transition is ``rate / 2``.
-    """
+    """The formation's yaw rate at ``duration_s`` and the net turn of the blended frame spun up to it in that time."""
     _, yaw = formation.frame(np.array([duration_s - _DIFF_STEP_S, duration_s + _DIFF_STEP_S]))
     rate = float(yaw[1] - yaw[0]) / (2.0 * _DIFF_STEP_S)
-    return rate, 0.5 * duration_s * rate
+    return rate, _SPIN_UP_MEAN * duration_s * rate
 
 
 def _wrap_pi(angle: float) -> float:

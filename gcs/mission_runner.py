@@ -12,6 +12,7 @@ Everything received is written to ``flight.tlog`` and recorded for the flight re
 from __future__ import annotations
 
 import math
+import re
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -36,6 +37,7 @@ Say = Callable[[str], None]
 ALT_TOLERANCE_M = 0.2  # takeoff is done when every drone holds the target altitude within this...
 ALT_HOLD_S = 1.0  # ...for this long (simulated seconds)
 STATUS_EVERY_S = 2.0
+COLLISION_TEXT = re.compile(r"Collision with drone (\d+)")
 
 
 class MissionRunner:
@@ -59,12 +61,12 @@ class MissionRunner:
         )
         self.swarm = Swarm(plan)
         self.streamer = FormationStreamer(self.swarm, self.swarm_frame)
-        collision_radius = (
-            load_airframe(airframe).collision_radius_m if airframe else load_airframe().collision_radius_m
-        )
+        # Two bodies touch when their centres are closer than the sum of both collision radii.
+        contact_distance = 2.0 * (load_airframe(airframe) if airframe else load_airframe()).collision_radius_m
         self.recording = FlightRecording(
-            mission_name=mission.name, n_drones=mission.swarm.drones, collision_radius_m=collision_radius
+            mission_name=mission.name, n_drones=mission.swarm.drones, collision_radius_m=contact_distance
         )
+        self._collision_pairs: set[frozenset[int]] = set()
         self.live = LiveMetrics()
         self._t0_wall = time.monotonic()
         self._tlog: TlogWriter | None = None
@@ -95,6 +97,12 @@ class MissionRunner:
             self.recording.samples.append(sample)
             self.live.observe(sample)
         elif kind == "STATUSTEXT":
+            match = COLLISION_TEXT.match(msg.text)
+            if match is not None:  # both drones of a collision report it: count the pair once
+                pair = frozenset((sysid, int(match.group(1))))
+                if pair in self._collision_pairs:
+                    return
+                self._collision_pairs.add(pair)
             self.recording.events.append(EventRecord(time_s=now, sysid=sysid, text=msg.text))
             if msg.severity <= mavlink.MAV_SEVERITY_WARNING:
                 self.say(f"  sysid {sysid}: {msg.text}")
@@ -151,12 +159,15 @@ class MissionRunner:
         self._hold(step.hold_s)
 
     def _land(self, step: LandStep | RtlStep) -> None:
-        command = mavlink.MAV_CMD_NAV_LAND if isinstance(step, LandStep) else mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH
+        """Land (or return) every drone still armed; a crashed or already landed drone has nothing to do."""
         self.streamer.stop()
-        check(self.swarm.command_all(command, *[math.nan] * 7 if command == mavlink.MAV_CMD_NAV_LAND else []),
-              "land" if isinstance(step, LandStep) else "return to launch")  # fmt: skip
-        if not self._wait(lambda: not any(self.swarm.fleet.drones[s].armed for s in self.swarm.sysids),
-                          step.timeout_s):  # fmt: skip
+        flying = [s for s in self.swarm.sysids if self.swarm.fleet.drones[s].armed]
+        if isinstance(step, LandStep):
+            acks = self.swarm.command_all(mavlink.MAV_CMD_NAV_LAND, *[math.nan] * 7, sysids=flying)
+        else:
+            acks = self.swarm.command_all(mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, sysids=flying)
+        check(acks, "land" if isinstance(step, LandStep) else "return to launch")
+        if not self._wait(lambda: not any(self.swarm.fleet.drones[s].armed for s in flying), step.timeout_s):
             raise SwarmError(f"not every drone landed and disarmed within {step.timeout_s:g} s")
 
     def _run_step(self, index: int, step: Step) -> None:

@@ -47,7 +47,7 @@ class EventRecord:
 class FlightRecording:
     mission_name: str
     n_drones: int
-    collision_radius_m: float
+    collision_radius_m: float  # centre distance at which two drones touch (twice the airframe collision radius)
     samples: list[DroneSample] = field(default_factory=list)
     steps: list[StepRecord] = field(default_factory=list)
     events: list[EventRecord] = field(default_factory=list)

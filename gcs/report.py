@@ -244,7 +244,7 @@ def _separation_figure(recording: FlightRecording, metrics: FlightMetrics) -> Fi
         recording.collision_radius_m,
         color="tab:red",
         linestyle="--",
-        label=f"collision radius {recording.collision_radius_m:g} m",
+        label=f"contact distance {recording.collision_radius_m:g} m",
     )
     if metrics.min_separation_m is not None and metrics.min_separation_time_s is not None:
         a, b = metrics.min_separation_pair or (0, 0)
@@ -332,7 +332,7 @@ def summary_text(metrics: FlightMetrics) -> str:
         a, b = metrics.min_separation_pair or (0, 0)
         lines.append(
             f"min separation: {metrics.min_separation_m:.2f} m at {_fmt(metrics.min_separation_time_s, 's', 1)} "
-            f"(drones {a} and {b}; collision radius {metrics.collision_radius_m:g} m)"
+            f"(drones {a} and {b}; contact distance {metrics.collision_radius_m:g} m)"
         )
     lines.append(f"collisions: {metrics.collisions}")
     for event in metrics.collision_events:

@@ -89,7 +89,7 @@ class DroneProcess:
         return lines[-1] if lines else ""
 
 
-def sitl_command(plan: SpawnPlan, instance: int, home: GeoPoint, gcs_port: int) -> list[str]:
+def sitl_command(plan: SpawnPlan, instance: int, home: GeoPoint, gcs_port: int, world: str | None) -> list[str]:
     cmd = [
         sys.executable, "-m", "sitl.cli",
         "--instance", str(instance),
@@ -100,6 +100,8 @@ def sitl_command(plan: SpawnPlan, instance: int, home: GeoPoint, gcs_port: int) 
     ]  # fmt: skip
     if plan.airframe is not None:
         cmd += ["--airframe", plan.airframe]
+    if world is not None:
+        cmd += ["--world", world]
     return cmd
 
 
@@ -109,7 +111,7 @@ class ProcessGroup:
     def __init__(self) -> None:
         self.drones: list[DroneProcess] = []
 
-    def spawn(self, plan: SpawnPlan, gcs_port: int) -> None:
+    def spawn(self, plan: SpawnPlan, gcs_port: int, world: str | None = None) -> None:
         if plan.log_dir is not None:
             plan.log_dir.mkdir(parents=True, exist_ok=True)
         for k, home in enumerate(plan.homes()):
@@ -118,7 +120,7 @@ class ProcessGroup:
             out = log_path.open("wb") if log_path is not None else subprocess.DEVNULL
             try:
                 process = subprocess.Popen(
-                    sitl_command(plan, instance, home, gcs_port),
+                    sitl_command(plan, instance, home, gcs_port, world),
                     stdin=subprocess.DEVNULL,
                     stdout=out,
                     stderr=subprocess.STDOUT,

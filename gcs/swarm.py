@@ -22,6 +22,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from gcs.fleet import Fleet
 from gcs.supervisor import ProcessGroup, SpawnError, SpawnPlan
 from gcs.transport import GcsSocket
+from sitl.world import SharedWorld
 
 COMMAND_TIMEOUT_S = 0.5  # MAVSDK's per-try timeout
 COMMAND_RETRIES = 3
@@ -53,6 +54,7 @@ class Swarm:
         self._selector = selectors.DefaultSelector()
         self._selector.register(self.link.sock, selectors.EVENT_READ)
         self._acks: list[Any] = []
+        self.world: SharedWorld | None = None
 
     @property
     def sysids(self) -> list[int]:
@@ -102,7 +104,8 @@ class Swarm:
     # ---- lifecycle -------------------------------------------------------------------------------------------------
     def up(self, ready_timeout_s: float = 30.0) -> None:
         """Spawn every drone and wait for its first HEARTBEAT; SpawnError names the first that does not come up."""
-        self.processes.spawn(self.plan, self.link.port)
+        self.world = SharedWorld.create()  # simulation truth for collisions; the drones attach to it by name
+        self.processes.spawn(self.plan, self.link.port, self.world.name)
         expected = set(self.sysids)
         end = self.clock() + ready_timeout_s
         while not expected <= set(self.fleet.drones):
@@ -135,6 +138,8 @@ class Swarm:
                     self.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196, sysids=still)
         finally:
             self.processes.terminate()
+            if self.world is not None:
+                self.world.close()
             self._selector.close()
             self.link.close()
             if self._temp_logs is not None:

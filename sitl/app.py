@@ -13,6 +13,7 @@ from sitl.protocol import Identity
 from sitl.runtime import RunOptions, StopFlag, run_loop
 from sitl.simulation import SimConfig, Simulation
 from sitl.wind import WindConfig
+from sitl.world import SharedWorld, WorldParticipant
 
 
 def _say(text: str) -> None:
@@ -30,6 +31,7 @@ def run(
     duration_s: float | None,
     demo: bool,
     links: list[LinkConfig],
+    world_name: str | None = None,
 ) -> int:
     stop = StopFlag()
     stop.install()
@@ -41,6 +43,24 @@ def run(
         f"physics {1 / sim.dt_s:.0f} Hz, home {home.lat_deg:.6f}, {home.lon_deg:.6f}, {home.alt_amsl_m:.1f} m"
     )
     flight = DemoFlight(sim, _say) if demo else None
+    participant = (
+        WorldParticipant(SharedWorld.attach(world_name), instance, airframe.collision_radius_m) if world_name else None
+    )
+
+    def on_step() -> None:
+        if flight is not None:
+            flight.tick()
+        if participant is not None:
+            truth = sim.truth
+            v = truth.vel_ned_mps
+            for contact in participant.update(
+                sim.time_s,
+                (truth.geo.lat_deg, truth.geo.lon_deg, truth.geo.alt_amsl_m),
+                (float(v[0]), float(v[1]), float(v[2])),
+                sim.vehicle.crashed,
+            ):
+                sim.vehicle.crash(f"Collision with drone {contact.instance + 1} at {contact.distance_m:.2f} m")
+
     endpoint = MavlinkEndpoint(Identity(sysid=instance + 1), SimVehicleApi(sim), sim.params, links) if links else None
     for link in endpoint.links if endpoint is not None else []:
         remote = link.config.remote
@@ -54,13 +74,15 @@ def run(
             RunOptions(speed_factor=speed_factor, duration_s=duration_s),
             stop,
             endpoint=endpoint,
-            on_step=flight.tick if flight is not None else None,
+            on_step=on_step if (flight is not None or participant is not None) else None,
             on_event=(lambda e: flight.event(e.text)) if flight is not None else None,
             finished=(lambda: flight.done) if flight is not None else None,
         )
     finally:
         if endpoint is not None:
             endpoint.close()
+        if participant is not None:
+            participant.close()
     if stop.stopped:
         print(f"sitl {instance}: stopped by {stop.signal_name} at t={sim.time_s:.2f} s", file=sys.stderr)
     return 0

@@ -18,6 +18,7 @@ from sitl.airframe import DEFAULT_AIRFRAME, AirframeError, load_airframe
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
 from sitl.mavlink_io import LinkConfig, LinkError
 from sitl.wind import WindConfig
+from sitl.world import WorldError
 
 EXIT_USAGE = 2
 SPEED_ENV = "PX4_SIM_SPEED_FACTOR"
@@ -113,6 +114,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--gcs-remote", default="127.0.0.1:14550", help="HOST:PORT of the ground station")
     parser.add_argument("--no-gcs", action="store_true", help="no ground-station link")
     parser.add_argument("--no-mavlink", action="store_true", help="no MAVLink links at all (e.g. for --demo)")
+    parser.add_argument("--world", default=None, help="name of the swarm's shared-world table (set by swarm)")
     parser.add_argument("--duration", type=float, default=None, help="exit after this many simulated seconds")
     parser.add_argument("--demo", action="store_true", help="take off to 3 m, hover, land and exit, printing progress")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
@@ -125,7 +127,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (UsageError, AirframeError) as exc:
         print(f"sitl: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    except LinkError as exc:
+    except (LinkError, WorldError) as exc:
         print(f"sitl: error: {exc}", file=sys.stderr)
         return 1
 
@@ -162,6 +164,7 @@ def _main(argv: Sequence[str] | None) -> int:
         duration_s=args.duration,
         demo=args.demo,
         links=links,
+        world_name=args.world,
     )
 
 

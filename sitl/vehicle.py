@@ -88,6 +88,7 @@ class Vehicle:
         self.params = params
         self.cascade = cascade
         self.status = VehicleStatus()
+        self.crashed = False
         self.events: list[VehicleEvent] = []
         self._battery_remaining = battery_remaining
         self._hover_thrust_n = airframe.mass_kg * 9.80665
@@ -203,6 +204,8 @@ class Vehicle:
     def arm(self, force: bool = False) -> CommandOutcome:
         if self.status.armed:
             return ACCEPTED
+        if self.crashed:
+            return CommandOutcome(CommandResult.DENIED, "Arming denied: vehicle crashed")
         if not self.landed:
             return CommandOutcome(CommandResult.DENIED, "Arming denied: vehicle in the air")
         problem = None if force else self.preflight_problem()
@@ -243,6 +246,15 @@ class Vehicle:
         if self.status.armed:
             self._disarm("Motors killed")
         return ACCEPTED
+
+    def crash(self, text: str) -> None:
+        """A collision: the motors stop wherever the vehicle is, and it stays grounded (arming is refused)."""
+        if self.crashed:
+            return
+        self.crashed = True
+        self._event(2, text)
+        if self.status.armed:
+            self._disarm("Motors stopped: crashed")
 
     def _disarm(self, text: str) -> None:
         self.status.armed = False

@@ -162,6 +162,25 @@ def describe(value: object) -> str:
     return "{" + ", ".join(f"{k}={describe(v)}" for k, v in fields.items() if not k.startswith("_")) + "}"
 
 
+@contextlib.asynccontextmanager
+async def recording(subscription: Callable[[], AsyncGenerator[Any, None]]) -> AsyncIterator[list[Any]]:
+    """Collect every value of a MAVSDK subscription while the block runs (in the background)."""
+    values: list[Any] = []
+
+    async def collect() -> None:
+        async with contextlib.aclosing(subscription()) as stream:
+            async for value in stream:
+                values.append(value)
+
+    task = asyncio.create_task(collect())
+    try:
+        yield values
+    finally:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+
+
 async def call_within(call: Awaitable[T], timeout_s: float, what: str) -> T:
     try:
         return await asyncio.wait_for(call, timeout_s)
@@ -203,12 +222,14 @@ async def wait_landed_and_disarmed(drone: Drone, timeout_s: float) -> None:
 
 
 async def take_off(drone: Drone, timeout_s: float) -> float:
-    """Arm and take off to MIS_TAKEOFF_ALT; returns the takeoff altitude once reached and in Hold."""
+    """Arm and take off to MIS_TAKEOFF_ALT; returns the relative altitude once within 0.3 m of it and in Hold."""
+    deadline = time.monotonic() + timeout_s
     takeoff_alt_m = float(await drone.action.get_takeoff_altitude())
     await drone.action.arm()
     await drone.action.takeoff()
-    await wait_relative_altitude(drone, takeoff_alt_m, 0.3, timeout_s)
-    return takeoff_alt_m
+    reached_m = await wait_relative_altitude(drone, takeoff_alt_m, 0.3, timeout_s)
+    await wait_flight_mode(drone, FlightMode.HOLD, max(deadline - time.monotonic(), 1.0))
+    return reached_m
 
 
 def distance_m(a: tuple[float, float, float], b: tuple[float, float, float]) -> float:

@@ -21,6 +21,7 @@ from tests.integration.mavsdk_client import (
     call_within,
     connect,
     first_matching,
+    recording,
     wait_flight_mode,
     wait_landed_and_disarmed,
     wait_ready_to_arm,
@@ -35,6 +36,7 @@ RTL_ALT_M = 6.0  # low, to keep the return short
 OFFSETS_NE_M = [(8.0, 0.0), (8.0, 8.0), (0.0, 8.0), (-4.0, 4.0)]  # a few metres apart around home
 SLOW_ITEM = 1  # this item carries a speed change
 SLOW_SPEED_MPS = 3.0
+SPEED_TOLERANCE_MPS = 0.5
 SIM_S_MISSION = 60.0
 
 
@@ -67,11 +69,12 @@ def _waypoints(home_lat_deg: float, home_lon_deg: float) -> list[MissionItem]:
     return items
 
 
-async def _record_progress(drone: Drone, into: list[tuple[int, int]]) -> None:
-    async with contextlib.aclosing(drone.mission.subscribe_mission_progress()) as progress:
-        async for p in progress:
-            assert isinstance(p, MissionProgress)
-            into.append((p.current, p.total))
+async def _record_speeds_by_item(drone: Drone, progress: list[MissionProgress], into: list[tuple[int, float]]) -> None:
+    """(item being flown to, horizontal ground speed) for every velocity update, from the latest progress report."""
+    async with contextlib.aclosing(drone.telemetry.subscribe_velocity_ned()) as velocities:
+        async for v in velocities:
+            if progress:
+                into.append((progress[-1].current, math.hypot(v.north_m_s, v.east_m_s)))
 
 
 async def test_four_waypoint_mission_is_flown_item_by_item_then_return_to_launch_lands_and_disarms(
@@ -100,29 +103,35 @@ async def test_four_waypoint_mission_is_flown_item_by_item_then_return_to_launch
         assert downloaded.mission_items[SLOW_ITEM].speed_m_s == pytest.approx(SLOW_SPEED_MPS)
 
         # WHEN the drone is armed and the mission started
-        progress: list[tuple[int, int]] = []
-        recorder = asyncio.create_task(_record_progress(drone, progress))
-        try:
-            await drone.action.arm()
-            await drone.mission.start_mission()
-            await wait_flight_mode(drone, FlightMode.MISSION, vehicle.wall_s(3))
-            # THEN it reports the mission finished within the expected time
-            await first_matching(
-                drone.mission.subscribe_mission_progress,
-                lambda p: p.current == p.total == len(OFFSETS_NE_M),
-                vehicle.wall_s(SIM_S_MISSION),
-                "mission progress 4 of 4",
-            )
-            assert await drone.mission.is_mission_finished()
-        finally:
-            recorder.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await recorder
+        async with recording(drone.mission.subscribe_mission_progress) as progress:
+            speeds: list[tuple[int, float]] = []
+            speed_recorder = asyncio.create_task(_record_speeds_by_item(drone, progress, speeds))
+            try:
+                await drone.action.arm()
+                await drone.mission.start_mission()
+                await wait_flight_mode(drone, FlightMode.MISSION, vehicle.wall_s(3))
+                # THEN it reports the mission finished within the expected time
+                await first_matching(
+                    drone.mission.subscribe_mission_progress,
+                    lambda p: p.current == p.total == len(OFFSETS_NE_M),
+                    vehicle.wall_s(SIM_S_MISSION),
+                    "mission progress 4 of 4",
+                )
+                assert await drone.mission.is_mission_finished()
+            finally:
+                speed_recorder.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await speed_recorder
         # AND the progress went through every item in order, always out of 4
-        currents = [current for current, _ in progress]
-        assert {total for _, total in progress} == {len(OFFSETS_NE_M)}, progress
-        assert currents == sorted(currents), f"progress went backwards: {progress}"
-        assert {1, 2, 3, 4} <= set(currents), f"items missing from the progress reports: {progress}"
+        reports = [(p.current, p.total) for p in progress]
+        currents = [current for current, _ in reports]
+        assert {total for _, total in reports} == {len(OFFSETS_NE_M)}, reports
+        assert currents == sorted(currents), f"progress went backwards: {reports}"
+        assert {1, 2, 3, 4} <= set(currents), f"items missing from the progress reports: {reports}"
+        # AND after the waypoint with the speed change, the drone kept to the new speed
+        slow_legs = [speed for current, speed in speeds if SLOW_ITEM < current < len(OFFSETS_NE_M)]
+        assert slow_legs, f"no velocity seen on the legs after item {SLOW_ITEM}"
+        assert max(slow_legs) <= SLOW_SPEED_MPS + SPEED_TOLERANCE_MPS, f"flew at {max(slow_legs):.2f} m/s"
 
         # WHEN it is told to return to launch
         await drone.action.return_to_launch()

@@ -22,6 +22,7 @@ from tests.integration.mavlink_client import (
     recv_until,
     wait_armable,
     wait_armed_state,
+    wait_custom_mode,
     wait_relative_alt,
     wait_vehicle_heartbeat,
 )
@@ -55,14 +56,16 @@ def test_pymavlink_script_arms_takes_off_to_an_amsl_altitude_lands_in_land_mode_
         # GIVEN a pymavlink connection that heard the drone's heartbeat, and the drone reporting itself armable
         hb = wait_vehicle_heartbeat(conn, vehicle.sysid, vehicle.wall_s(5))
         assert hb.autopilot == mavlink.MAV_AUTOPILOT_PX4 and hb.type == mavlink.MAV_TYPE_QUADROTOR
-        assert not heartbeat_armed(hb)
+        assert hb.base_mode & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, hb
+        assert not heartbeat_armed(hb) and hb.system_status == mavlink.MAV_STATE_STANDBY, hb
         wait_armable(conn, vehicle.wall_s(10))
 
         # WHEN the script arms
         _arm_until_accepted(conn, vehicle.wall_s(5))
         # THEN the heartbeat shows it armed
-        wait_armed_state(conn, True, vehicle.wall_s(3))
+        armed_hb = wait_armed_state(conn, True, vehicle.wall_s(3))
         assert conn.motors_armed()
+        assert armed_hb.system_status == mavlink.MAV_STATE_ACTIVE, armed_hb
 
         # WHEN it sends NAV_TAKEOFF with param7 = ground AMSL + 3 m (all other params 0, as scripts send them)
         ground = recv_until(conn, "GLOBAL_POSITION_INT", lambda m: True, vehicle.wall_s(2), "GLOBAL_POSITION_INT")
@@ -78,15 +81,11 @@ def test_pymavlink_script_arms_takes_off_to_an_amsl_altitude_lands_in_land_mode_
         # WHEN the script switches to LAND with pymavlink's PX4 mode table
         conn.set_mode("LAND")
         # THEN the heartbeat shows AUTO.LAND, which pymavlink names LAND
-        hb = recv_until(
-            conn,
-            "HEARTBEAT",
-            lambda m: m.get_srcComponent() == 1 and m.custom_mode == PX4_AUTO_LAND,
-            vehicle.wall_s(3),
-            "HEARTBEAT in AUTO.LAND",
-        )
+        land_hb = wait_custom_mode(conn, PX4_AUTO_LAND, vehicle.wall_s(3), "AUTO.LAND")
         assert conn.flightmode == "LAND"
+        assert land_hb.base_mode & mavlink.MAV_MODE_FLAG_AUTO_ENABLED, land_hb
         # AND after touchdown the armed bit clears by itself
-        wait_armed_state(conn, False, vehicle.wall_s(30))
+        disarmed_hb = wait_armed_state(conn, False, vehicle.wall_s(30))
+        assert disarmed_hb.system_status == mavlink.MAV_STATE_STANDBY, disarmed_hb
         landed = recv_until(conn, "EXTENDED_SYS_STATE", lambda m: True, vehicle.wall_s(3), "EXTENDED_SYS_STATE")
         assert landed.landed_state == mavlink.MAV_LANDED_STATE_ON_GROUND, landed

@@ -60,3 +60,26 @@ def test_a_mission_file_mistake_is_one_line_with_field_and_line(tmp_path: Path) 
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1, result.stderr
     assert f"{bad}:" in lines[0] and "steps[2].radius_m: must be a positive number" in lines[0]
+
+
+@pytest.mark.timeout(180)
+def test_drones_commanded_into_each_other_collide_crash_and_are_counted_once(tmp_path: Path) -> None:
+    # GIVEN two drones told to fly a line with 0.3 m spacing: closer than two collision radii (0.7 m)
+    mission = tmp_path / "crash.toml"
+    mission.write_text(
+        'name = "crash"\n[swarm]\ndrones = 2\nlayout = "line"\nspacing_m = 3.0\n'
+        '[[steps]]\naction = "takeoff"\nalt_m = 3.0\n'
+        '[[steps]]\naction = "formation"\nshape = "line"\nspacing_m = 0.3\nalt_m = 3.0\nhold_s = 8.0\n'
+        '[[steps]]\naction = "land"\n'
+    )
+    report = tmp_path / "report"
+    # WHEN the mission is flown
+    result = subprocess.run(
+        [*SWARM, "fly", str(mission), "--speed", "3", "--first-instance", "96", "--report", str(report)],
+        capture_output=True, text=True, timeout=160,
+    )  # fmt: skip
+    # THEN both crash (a STATUSTEXT says so) and the report counts one collision
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    metrics = json.loads((report / "metrics.json").read_text())
+    assert metrics["collisions"] == 1, metrics["collision_events"]
+    assert "Collision with drone" in result.stdout

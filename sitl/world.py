@@ -1,0 +1,132 @@
+"""The shared world: every drone's true state in one shared-memory table, for collisions (and the camera).
+
+Simulation truth is kept apart from communication: what a drone knows of its neighbours comes over MAVLink, but
+physics needs to know where the other bodies really are. The supervisor creates one table per swarm
+(``multiprocessing.shared_memory``) and passes its name to every drone (``sitl --world NAME``); drone i writes row i
+and reads all rows. Positions are geodetic, so drones with different homes share one table without agreeing on a
+frame; over a swarm's extent the local flat-earth conversion is exact to millimetres.
+
+Row layout (float64): valid, time_s, lat_deg, lon_deg, alt_amsl_m, vn, ve, vd, radius_m, crashed.
+A single writer per row and a reader that tolerates a torn row for one sample (it is re-read next time) need no lock.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from dataclasses import dataclass
+from multiprocessing import resource_tracker, shared_memory
+
+import numpy as np
+import numpy.typing as npt
+
+MAX_DRONES = 256
+COLUMNS = 10
+VALID, TIME, LAT, LON, ALT, VN, VE, VD, RADIUS, CRASHED = range(COLUMNS)
+EARTH_RADIUS_M = 6_371_000.0
+
+
+class WorldError(RuntimeError):
+    """The shared table cannot be created or opened (one line for the user)."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Contact:
+    """Another body closer than the two collision radii together."""
+
+    instance: int
+    distance_m: float
+
+
+class SharedWorld:
+    def __init__(self, shm: shared_memory.SharedMemory, owner: bool) -> None:
+        self._shm = shm
+        self._owner = owner
+        self.table: npt.NDArray[np.float64] = np.ndarray((MAX_DRONES, COLUMNS), dtype=np.float64, buffer=shm.buf)
+
+    @property
+    def name(self) -> str:
+        return self._shm.name
+
+    @classmethod
+    def create(cls) -> SharedWorld:
+        shm = shared_memory.SharedMemory(create=True, size=MAX_DRONES * COLUMNS * 8)
+        world = cls(shm, owner=True)
+        world.table[:] = 0.0
+        return world
+
+    @classmethod
+    def attach(cls, name: str) -> SharedWorld:
+        try:
+            shm = shared_memory.SharedMemory(name=name)
+        except (FileNotFoundError, ValueError, OSError) as exc:
+            raise WorldError(f"shared world {name!r} cannot be opened: {exc}") from None
+        # Only the creator may unlink the table; an attached process must not have it removed at its exit.
+        resource_tracker.unregister(shm._name, "shared_memory")  # type: ignore[attr-defined]
+        return cls(shm, owner=False)
+
+    def write(self, instance: int, time_s: float, geo: tuple[float, float, float],
+              vel_ned_mps: tuple[float, float, float], radius_m: float, crashed: bool) -> None:  # fmt: skip
+        row = self.table[instance]
+        row[TIME], row[LAT], row[LON], row[ALT] = time_s, geo[0], geo[1], geo[2]
+        row[VN], row[VE], row[VD] = vel_ned_mps
+        row[RADIUS], row[CRASHED] = radius_m, 1.0 if crashed else 0.0
+        row[VALID] = 1.0
+
+    def clear(self, instance: int) -> None:
+        self.table[instance, VALID] = 0.0
+
+    def others_ned_m(self, instance: int) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]:
+        """Instances and NED offsets (from drone ``instance``) of every other valid body."""
+        table = self.table
+        me = table[instance]
+        valid = table[:, VALID] == 1.0
+        valid[instance] = False
+        ids = np.nonzero(valid)[0]
+        rows = table[ids]
+        north = np.radians(rows[:, LAT] - me[LAT]) * EARTH_RADIUS_M
+        east = np.radians(rows[:, LON] - me[LON]) * EARTH_RADIUS_M * math.cos(math.radians(me[LAT]))
+        down = me[ALT] - rows[:, ALT]
+        return ids, np.column_stack((north, east, down))
+
+    def contacts(self, instance: int) -> list[Contact]:
+        """Bodies closer to drone ``instance`` than the sum of both collision radii."""
+        ids, offsets = self.others_ned_m(instance)
+        if len(ids) == 0:
+            return []
+        distance = np.linalg.norm(offsets, axis=1)
+        limit = self.table[ids, RADIUS] + self.table[instance, RADIUS]
+        return [Contact(instance=int(i), distance_m=float(d)) for i, d, r in zip(ids, distance, limit, strict=True)
+                if d < r]  # fmt: skip
+
+    def close(self) -> None:
+        self.table = np.zeros((0, COLUMNS))
+        self._shm.close()
+        if self._owner:
+            with contextlib.suppress(FileNotFoundError):
+                self._shm.unlink()
+
+
+class WorldParticipant:
+    """One drone's side of the shared world: publishes its truth and crashes on contact, every few steps."""
+
+    def __init__(self, world: SharedWorld, instance: int, radius_m: float, every_n_steps: int = 4) -> None:
+        self.world = world
+        self.instance = instance
+        self.radius_m = radius_m
+        self.every_n_steps = every_n_steps
+        self._count = 0
+
+    def update(self, time_s: float, geo: tuple[float, float, float], vel_ned_mps: tuple[float, float, float],
+               crashed: bool) -> list[Contact]:  # fmt: skip
+        """Call every physics step; returns new contacts (empty on steps between checks or once crashed)."""
+        self._count += 1
+        if self._count < self.every_n_steps:
+            return []
+        self._count = 0
+        self.world.write(self.instance, time_s, geo, vel_ned_mps, self.radius_m, crashed)
+        return [] if crashed else self.world.contacts(self.instance)
+
+    def close(self) -> None:
+        self.world.clear(self.instance)
+        self.world.close()
