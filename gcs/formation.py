@@ -72,8 +72,8 @@ _MAX_DURATION_S: Final = 3600.0
 _BRAKING_PEAK_DECEL: Final = 8.0 / (3.0 * math.sqrt(3.0))  # max |d2x/dt2| * braking_s / v0 of the braking profile
 _MIN_BRAKING_S: Final = 0.5
 # The blended frame spins up at the formation's rate times s^3 (module docstring): the integral G of s^3, and G(1).
-_SPIN_UP: Final = (Polynomial([0.0, 0.0, 0.0, 10.0, -15.0, 6.0]) ** 3).integ()
-_SPIN_UP_MEAN: Final = float(_SPIN_UP(1.0))  # 26/77
+_SPIN_UP_INTEGRAL: Final = (Polynomial([0.0, 0.0, 0.0, 10.0, -15.0, 6.0]) ** 3).integ()
+_SPIN_UP_MEAN: Final = float(_SPIN_UP_INTEGRAL(1.0))  # 26/77
 
 
 class FormationError(ValueError):
@@ -463,9 +463,9 @@ class _Plan:
         goal_body = rotate_yaw(self.target.positions(times_s) - goal_centre[:, None, :], -goal_yaw)
         centre = (1.0 - s)[:, None] * self._start_centre + s[:, None] * goal_centre
         body = (1.0 - s)[:, None, None] * start_body + s[:, None, None] * goal_body
-        # s (psi - kappa) alone would overshoot a steady rate by ~17 % mid-way; this makes the yaw rate rate * s^3.
+        # s (psi - kappa) alone would overshoot a steady rate by ~17 % mid-way; this makes the yaw rate omega s^3.
         t = np.clip(tau, 0.0, 1.0)
-        spin_up = np.asarray(_SPIN_UP(t), dtype=np.float64) - s * (t - 1.0 + _SPIN_UP_MEAN)
+        spin_up = np.asarray(_SPIN_UP_INTEGRAL(t), dtype=np.float64) - s * (t - 1.0 + _SPIN_UP_MEAN)
         return centre[:, None, :] + rotate_yaw(body, s * goal_yaw + self.rate_radps * self.duration_s * spin_up)
 
 

@@ -2,8 +2,9 @@
 
 Policy:
 - Loopback only. Drones this suite starts bind 127.0.0.1 and stream to 127.0.0.1; clients bind 127.0.0.1.
-- Instances start at ``--sitl-instance-base`` (default 20, plus 10 per pytest-xdist worker), never the default
-  instance 0, and an instance is used only while its UDP ports are free, so a user's own simulator is untouched.
+- Instances come from a block of 10 starting at ``--sitl-instance-base`` (default 20; the next clear block per
+  pytest-xdist worker), never instances 0-9 nor one whose ports a user's drones 0-9 or a ground station on 14550
+  use, and an instance is used only while its UDP ports are free, so a user's own simulator is untouched.
 - A drone is ready when its first HEARTBEAT arrived; nothing sleeps and hopes.
 - Every process started here is stopped by PID (SIGTERM, then SIGKILL) and reaped; after each test no child
   process and no extra thread (MAVSDK's native ones included) may remain.

@@ -138,12 +138,6 @@ def wait_relative_alt(conn: mavutil.mavfile, target_m: float, tolerance_m: float
     )
 
 
-def amsl_of_ground(conn: mavutil.mavfile, timeout_s: float) -> float:
-    """AMSL altitude of the vehicle's home, from GLOBAL_POSITION_INT (alt - relative_alt)."""
-    msg = recv_until(conn, "GLOBAL_POSITION_INT", lambda m: True, timeout_s, "GLOBAL_POSITION_INT")
-    return (msg.alt - msg.relative_alt) / 1000.0
-
-
 def upload_mission(conn: mavutil.mavfile, items: list[Message], timeout_s: float) -> Message:
     """MISSION_COUNT, answer each MISSION_REQUEST_INT, return the final MISSION_ACK."""
     conn.mav.mission_count_send(conn.target_system, conn.target_component, len(items), mavlink.MAV_MISSION_TYPE_MISSION)

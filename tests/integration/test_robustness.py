@@ -40,6 +40,8 @@ CORPUS_SEED = 20240601
 STRANGER_SYSID = 200
 UNKNOWN_COMMAND = 65000  # no MAV_CMD has this number
 RESYNC_ZEROS = 300
+CLIENT_SYSID = 255  # with component 190: how QGroundControl identifies itself
+CLIENT_TRIES = 5
 
 # ---------------------------------------------------------------------------------------------------------------
 # What the drone is seen doing while it is being disturbed
@@ -348,3 +350,39 @@ def test_commands_addressed_to_another_system_are_ignored(spawn_drones: SpawnDro
         conn.mav.param_request_read_send(drone.sysid, 1, b"MPC_XY_CRUISE", -1)
         value = recv_until(conn, "PARAM_VALUE", lambda m: m.param_id == "MPC_XY_CRUISE", 2.0, "MPC_XY_CRUISE")
         assert value.param_value != pytest.approx(12.0), value
+
+
+def test_a_strangers_truncated_datagram_does_not_lock_another_client_out(spawn_drones: SpawnDrones) -> None:
+    (drone,) = spawn_drones()
+    link = VehicleLink.of(drone)
+    target = (LOOPBACK, drone.ports.api_bind)
+    client_encoder = mavlink.MAVLink(None, srcSystem=CLIENT_SYSID, srcComponent=190)
+    # A complete, valid command whose last bytes hold 0xFD (the MAVLink 2 start byte), as any frame may: here the
+    # command number 65000 = 0xFDE8. Its answer is COMMAND_ACK UNSUPPORTED.
+    command = mavlink.MAVLink_command_long_message(drone.sysid, 1, UNKNOWN_COMMAND, 0, 0, 0, 0, 0, 0, 0, 0)
+    frame = command.pack(client_encoder)
+    assert 0xFD in frame[-8:]
+    with (
+        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as client,
+        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as stranger,
+    ):
+        client.bind((LOOPBACK, 0))
+        stranger.bind((LOOPBACK, 0))
+        # GIVEN a client whose command the drone answers
+        client.sendto(frame, target)
+        assert _acks_for(client, UNKNOWN_COMMAND, link.window_s(1.0) + 0.3), "no answer even before any garbage"
+        # WHEN a stranger sends one truncated frame (the first 10 bytes of a valid one) to the same port
+        stranger.sendto(frame[:10], target)
+        time.sleep(0.05)
+        # THEN the client's command is answered again by its second try at the latest, as a retrying ground
+        # station expects: UDP delivers whole datagrams, so one sender's broken datagram says nothing about the
+        # next datagram, least of all another sender's
+        answered = []
+        for _ in range(CLIENT_TRIES):
+            client.sendto(frame, target)
+            answered.append(bool(_acks_for(client, UNKNOWN_COMMAND, link.window_s(1.0) + 0.3)))
+        assert any(answered[:2]), f"client answered on tries {answered} after one truncated datagram from a stranger"
+
+
+def _acks_for(sock: socket.socket, command: int, for_s: float) -> list[Message]:
+    return [m for m in _decodable_replies(sock, for_s) if m.get_type() == "COMMAND_ACK" and m.command == command]

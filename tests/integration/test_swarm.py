@@ -77,7 +77,10 @@ class RunningSwarm:
                 break
         else:
             raise AssertionError("swarm up ended before the drones were up: " + "".join(self.output))
+        # Every child must go at the end (multiprocessing's shared-memory tracker among them); the drones are
+        # the children running sitl.
         self.children = children_of(self.proc.pid)
+        self.drones = [p for p in self.children if b"sitl.cli" in Path(f"/proc/{p}/cmdline").read_bytes()]
 
     def cli(self, *args: str) -> subprocess.CompletedProcess[str]:
         return subprocess.run([*SWARM, *args], capture_output=True, text=True, env=self.env, timeout=60)
@@ -113,7 +116,7 @@ def status_rows(swarm: RunningSwarm) -> list[list[str]]:
 def test_cli_commands_fly_a_running_swarm_and_down_stops_every_process(swarm_factory: type[RunningSwarm]) -> None:
     # GIVEN a running 2-drone swarm
     swarm = swarm_factory(2, 60)
-    assert len(swarm.children) == 2
+    assert len(swarm.drones) == 2
     rows = status_rows(swarm)
     assert [r[0] for r in rows] == ["61", "62"] and all(r[2] == "no" for r in rows)
     # WHEN it takes off to 2 m
@@ -142,7 +145,7 @@ def test_cli_commands_fly_a_running_swarm_and_down_stops_every_process(swarm_fac
 
 def test_killing_the_supervisor_with_sigkill_leaves_no_drone_process(swarm_factory: type[RunningSwarm]) -> None:
     swarm = swarm_factory(3, 64)
-    assert len(swarm.children) == 3
+    assert len(swarm.drones) == 3
     swarm.proc.send_signal(signal.SIGKILL)
     swarm.proc.wait()
     assert wait_dead(swarm.children, 10) == []

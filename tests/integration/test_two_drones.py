@@ -8,17 +8,15 @@ to; that is exactly what a swarm cannot afford.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import socket
 import time
-from collections.abc import AsyncGenerator, Callable
 
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from tests.integration.mavsdk_client import (
-    Drone,
     connect_many,
+    recording,
     take_off,
     wait_landed_and_disarmed,
     wait_ready_to_arm,
@@ -54,17 +52,6 @@ def _api_sources(drone: SitlDrone, listen_s: float) -> set[tuple[int, int]]:
         return _sources_heard(sock, listen_s)
 
 
-async def _watch(drone: Drone, armed: list[bool], in_air: list[bool]) -> None:
-    async def collect(subscription: Callable[[], AsyncGenerator[bool, None]], into: list[bool]) -> None:
-        async with contextlib.aclosing(subscription()) as values:
-            async for value in values:
-                into.append(bool(value))
-
-    await asyncio.gather(
-        collect(drone.telemetry.subscribe_armed, armed), collect(drone.telemetry.subscribe_in_air, in_air)
-    )
-
-
 async def test_two_drones_have_distinct_sysids_and_ports_and_only_the_commanded_one_flies(
     spawn_drones: SpawnDrones,
 ) -> None:
@@ -85,10 +72,10 @@ async def test_two_drones_have_distinct_sysids_and_ports_and_only_the_commanded_
             wait_ready_to_arm(drone_a, link_a.wall_s(10)), wait_ready_to_arm(drone_b, link_b.wall_s(10))
         )
         rtl_alt_a_m = await drone_a.action.get_return_to_launch_altitude()
-        b_armed: list[bool] = []
-        b_in_air: list[bool] = []
-        watcher = asyncio.create_task(_watch(drone_b, b_armed, b_in_air))
-        try:
+        async with (
+            recording(drone_b.telemetry.subscribe_armed) as b_armed,
+            recording(drone_b.telemetry.subscribe_in_air) as b_in_air,
+        ):
             # WHEN only drone a is armed and told to take off, and only drone b gets a new RTL altitude
             await take_off(drone_a, link_a.wall_s(20))
             await drone_b.action.set_return_to_launch_altitude(B_RTL_ALT_M)
@@ -100,10 +87,6 @@ async def test_two_drones_have_distinct_sysids_and_ports_and_only_the_commanded_
             # WHEN drone a lands
             await drone_a.action.land()
             await wait_landed_and_disarmed(drone_a, link_a.wall_s(30))
-        finally:
-            watcher.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await watcher
         # THEN drone b stayed on the ground and disarmed the whole time
         assert b_armed and b_in_air, "no telemetry from drone b while drone a flew"
         assert not any(b_armed), f"drone b armed while only drone a was commanded: {b_armed}"

@@ -18,6 +18,7 @@ from gcs.formation import (
     FormationError,
     GridSpec,
     LineSpec,
+    Transition,
     TransitionLimits,
     VSpec,
     YawMode,
@@ -390,3 +391,140 @@ def test_min_pairwise_distance_helper() -> None:
     points = np.array([[[0.0, 0.0, 0.0], [3.0, 4.0, 0.0], [0.0, 0.0, 10.0]]])
     assert min_pairwise_distance_m(points) == pytest.approx(5.0)
     assert min_pairwise_distance_m(points[:, :1]) == math.inf
+
+
+# ---- moving formations: spin-up and durations ----------------------------------------------------------------------
+RING = CircleSpec(radius_m=3.0, alt_m=3.0, angular_rate_radps=0.3)  # 0.9 m/s at the rim
+MOVED_RING = CircleSpec(radius_m=3.0, alt_m=4.0, angular_rate_radps=0.3, centre_ne_m=(5.0, 0.0))
+FAST_RING = CircleSpec(radius_m=3.0, alt_m=3.0, angular_rate_radps=0.45)  # 1.35 m/s: 90 % of the speed limit
+
+
+def on_slots(formation: Formation, t_s: float, n: int) -> dict[int, tuple[float, ...]]:
+    """Drone k at slot k of the formation at formation time t_s."""
+    return {k: tuple(p) for k, p in enumerate(slots_at(formation, t_s, n))}
+
+
+def flying(formation: Formation, n: int = 9, extra_s: float = 3.0) -> tuple[FormationEngine, float]:
+    """An engine whose drones have reached the formation and flown it for extra_s; returns it and the time."""
+    engine = FormationEngine(LIMITS)
+    return engine, engine.command(formation, 0.0, hovering_after_takeoff(n)).arrival_s + extra_s
+
+
+def command_checked(
+    engine: FormationEngine, formation: Formation, now_s: float, positions: dict[int, tuple[float, ...]]
+) -> Transition:
+    """Command the formation, then check limits, the separation bound and continuity of the planned setpoints."""
+    before = engine.setpoints(now_s)
+    transition = engine.command(formation, now_s, positions)
+    arrival = transition.arrival_s
+    # the limits, streamed through the transition and 5 s of the formation after it
+    samples = engine.sample_ned_m(np.arange(now_s, arrival + 5.0, TICK_S))
+    assert np.linalg.norm(np.diff(samples, axis=0) / TICK_S, axis=-1).max() <= LIMITS.max_speed_mps * 1.001
+    assert np.linalg.norm(np.diff(samples, n=2, axis=0) / TICK_S**2, axis=-1).max() <= LIMITS.max_accel_mps2 * 1.01
+    # every pair stays near the straight-line bound min(gaps) / sqrt(2) (moving starts brake, hence 5 %)
+    start_gap = gaps(np.array(list(positions.values()))).min()
+    goal_gap = gaps(engine.sample_ned_m([arrival])[0]).min()
+    assert engine.planned_min_separation_m(after_arrival_s=5.0) > 0.95 * min(start_gap, goal_gap) / math.sqrt(2.0)
+    # no jump at the command: a drone on its setpoint carries on from it with its velocity, any other starts at rest
+    after = engine.setpoints(now_s)
+    for drone, position in positions.items():
+        np.testing.assert_allclose(after[drone].pos_ned_m, position, atol=1e-9)
+        on_plan = drone in before and np.allclose(before[drone].pos_ned_m, position, atol=1e-9)
+        np.testing.assert_allclose(after[drone].vel_ned_mps, before[drone].vel_ned_mps if on_plan else 0.0, atol=1e-4)
+    # nor at arrival, where the drones join their moving slots with the slots' velocity and acceleration
+    h = 1e-4
+    early, late = engine.setpoints(arrival - h), engine.setpoints(arrival + h)
+    for drone in early:
+        np.testing.assert_allclose(early[drone].pos_ned_m, late[drone].pos_ned_m, atol=1e-3)
+        np.testing.assert_allclose(early[drone].vel_ned_mps, late[drone].vel_ned_mps, atol=1e-3)
+        np.testing.assert_allclose(early[drone].acc_ned_mps2, late[drone].acc_ned_mps2, atol=1e-2)
+    return transition
+
+
+def test_moving_a_rotating_ring_takes_seconds() -> None:
+    # GIVEN 4 drones put on a ring turning at 0.3 rad/s (0.9 m/s at the rim), then reported on its slots 10 s later
+    engine = FormationEngine(LIMITS)
+    spin_up = command_checked(engine, RING, 0.0, on_slots(RING, 0.0, 4))
+    # WHEN the ring is moved 5 m north and 1 m up
+    moved = command_checked(engine, MOVED_RING, 10.0, on_slots(RING, 10.0, 4))
+    # THEN spinning up takes a few seconds and the move well under 15 s (both used to take over 3 minutes)
+    assert spin_up.duration_s < 6.0
+    assert moved.duration_s < 12.0
+    # AND the drones end up flying the moved ring
+    t = moved.arrival_s + 3.0
+    assert engine.error_rms(t, settled_positions(engine, t)) < 1e-9
+    assert engine.targets(t)[0][2] == pytest.approx(-4.0)
+
+
+@pytest.mark.parametrize("extra_s", [0.0, 1.5, 4.0, 7.0])
+def test_moving_a_rotating_ring_while_flying_it_takes_seconds(extra_s: float) -> None:
+    # GIVEN 9 drones flying the ring (commanded at several phases of its turn)
+    engine, now = flying(RING, extra_s=extra_s)
+    # WHEN it is moved from their setpoints: they brake out of the turn, the blended frame spins up again
+    moved = command_checked(engine, MOVED_RING, now, settled_positions(engine, now))
+    # THEN the move takes seconds, not minutes (the rim speed adds to the shift, hence more than the shift alone)
+    assert moved.duration_s < 12.0
+
+
+@pytest.mark.parametrize(
+    ("first", "second", "longest_s"),
+    [
+        (DEMO_GRID, RING, 8.0),
+        (DEMO_GRID, FAST_RING, 10.0),
+        (RING, LineSpec(spacing_m=2.0, alt_m=3.0, heading_rad=1.2), 10.0),
+        (
+            CircleSpec(radius_m=3.0, alt_m=3.0, angular_rate_radps=0.2),
+            CircleSpec(radius_m=3.0, alt_m=3.0, angular_rate_radps=0.4),
+            6.0,
+        ),
+        (FAST_RING, CircleSpec(radius_m=3.0, alt_m=3.0, angular_rate_radps=-0.45), 8.0),
+    ],
+    ids=["grid-ring", "grid-fast-ring", "ring-line", "ring-faster", "fast-ring-reversed"],
+)
+def test_changes_to_and_from_rotating_formations_take_seconds(
+    first: Formation, second: Formation, longest_s: float
+) -> None:
+    # GIVEN 9 drones flying the first formation
+    engine, now = flying(first)
+    # WHEN the second is commanded from their setpoints
+    transition = command_checked(engine, second, now, settled_positions(engine, now))
+    # THEN it is planned within the limits, the separation bound and in seconds
+    assert transition.duration_s < longest_s
+
+
+@pytest.mark.parametrize("fraction", [0.25, 0.5, 0.75])
+def test_a_moving_formation_re_commanded_mid_transition_takes_seconds(fraction: float) -> None:
+    # GIVEN drones on their way from the grid into the rotating ring
+    engine, now = flying(DEMO_GRID)
+    first = command_checked(engine, RING, now, settled_positions(engine, now))
+    # WHEN, part-way, the ring is moved; then, part-way again, moved back
+    t = first.start_s + fraction * first.duration_s
+    second = command_checked(engine, MOVED_RING, t, settled_positions(engine, t))
+    t = second.start_s + fraction * second.duration_s
+    third = command_checked(engine, RING, t, settled_positions(engine, t))
+    # THEN each re-plan carries on from the setpoints and still takes seconds
+    assert first.duration_s < 8.0
+    assert second.duration_s < 12.0
+    assert third.duration_s < 12.0
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.one_of(formations, st.sampled_from([RING, MOVED_RING, FAST_RING])),
+    st.one_of(formations, st.sampled_from([RING, MOVED_RING, FAST_RING])),
+    st.floats(0.1, 0.9) | st.none(),
+)
+def test_transitions_take_seconds_even_into_fast_rotating_formations(
+    first: Formation, second: Formation, fraction: float | None
+) -> None:
+    # GIVEN 9 drones in (or, with a fraction, on their way into) a formation
+    engine = FormationEngine(LIMITS)
+    done = engine.command(first, 0.0, hovering_after_takeoff())
+    now = done.arrival_s + 1.0 if fraction is None else done.start_s + fraction * done.duration_s
+    # WHEN another one is commanded
+    transition = engine.command(second, now, settled_positions(engine, now))
+    # THEN the transition is bounded (a ring at 90 % of the speed limit, entered from a spread-out V, is the slowest)
+    assert transition.duration_s < 30.0
+    samples = engine.sample_ned_m(np.arange(now, transition.arrival_s + 2.0, TICK_S))
+    assert np.linalg.norm(np.diff(samples, axis=0) / TICK_S, axis=-1).max() <= LIMITS.max_speed_mps * 1.001
+    assert np.linalg.norm(np.diff(samples, n=2, axis=0) / TICK_S**2, axis=-1).max() <= LIMITS.max_accel_mps2 * 1.01
