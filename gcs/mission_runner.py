@@ -11,7 +11,6 @@ Everything received is written to ``flight.tlog`` and recorded for the flight re
 
 from __future__ import annotations
 
-import math
 import re
 import time
 from collections.abc import Callable
@@ -28,7 +27,7 @@ from gcs.recording import DroneSample, EventRecord, FlightRecording, StepRecord
 from gcs.report import write_report
 from gcs.streamer import FormationStreamer
 from gcs.supervisor import SpawnPlan
-from gcs.swarm import Swarm, SwarmError, check
+from gcs.swarm import Swarm, SwarmError
 from gcs.tlog import TlogWriter
 from sitl.airframe import load_airframe
 from sitl.dynamics.plant import GeoPoint
@@ -37,6 +36,7 @@ Say = Callable[[str], None]
 ALT_TOLERANCE_M = 0.2  # takeoff is done when every drone holds the target altitude within this...
 ALT_HOLD_S = 1.0  # ...for this long (simulated seconds)
 STATUS_EVERY_S = 2.0
+ARMABLE_TIMEOUT_S = 30.0
 COLLISION_TEXT = re.compile(r"Collision with drone (\d+)")
 
 
@@ -121,24 +121,11 @@ class MissionRunner:
         self.swarm.run_for(duration_sim_s / self.speed, tick=self._tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
 
     # ---- steps -----------------------------------------------------------------------------------------------------
-    def _arm(self) -> None:
-        """Wait until every drone passes its pre-arm checks, then arm them all (before the takeoff step's clock)."""
-        swarm = self.swarm
-        if not swarm.wait_until(lambda: all(swarm.fleet.drones[s].prearm_ok for s in swarm.sysids), 30.0,
-                                tick=self._tick):  # fmt: skip
-            waiting = [s for s in swarm.sysids if not swarm.fleet.drones[s].prearm_ok]
-            raise SwarmError(f"sysid {waiting} did not pass pre-arm checks within 30 s")
-        check(swarm.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1), "arm")
-
     def _takeoff(self, step: TakeoffStep) -> None:
         swarm = self.swarm
         if not all(swarm.fleet.drones[s].armed for s in swarm.sysids):
-            self._arm()
-        for sysid in swarm.sysids:
-            home = swarm.fleet.drones[sysid].home
-            assert home is not None  # armable implies a valid position, hence a home
-            check(swarm.command_all(mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan,
-                                    home[2] + step.alt_m, sysids=[sysid]), "takeoff")  # fmt: skip
+            swarm.arm_all(ARMABLE_TIMEOUT_S, tick=self._tick)
+        swarm.takeoff_all(step.alt_m)
         target = -step.alt_m
         since: list[float | None] = [None]
 
@@ -161,12 +148,7 @@ class MissionRunner:
     def _land(self, step: LandStep | RtlStep) -> None:
         """Land (or return) every drone still armed; a crashed or already landed drone has nothing to do."""
         self.streamer.stop()
-        flying = [s for s in self.swarm.sysids if self.swarm.fleet.drones[s].armed]
-        if isinstance(step, LandStep):
-            acks = self.swarm.command_all(mavlink.MAV_CMD_NAV_LAND, *[math.nan] * 7, sysids=flying)
-        else:
-            acks = self.swarm.command_all(mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, sysids=flying)
-        check(acks, "land" if isinstance(step, LandStep) else "return to launch")
+        flying = self.swarm.land_all(return_to_launch=isinstance(step, RtlStep))
         if not self._wait(lambda: not any(self.swarm.fleet.drones[s].armed for s in flying), step.timeout_s):
             raise SwarmError(f"not every drone landed and disarmed within {step.timeout_s:g} s")
 
@@ -206,7 +188,7 @@ class MissionRunner:
                      f"(speed {self.speed:g}x)")  # fmt: skip
             self.swarm.up()
             self._t0_wall = time.monotonic()
-            self._arm()
+            self.swarm.arm_all(ARMABLE_TIMEOUT_S, tick=self._tick)  # before the takeoff step's clock starts
             for index, step in enumerate(self.mission.steps):
                 self._run_step(index, step)
         except (SwarmError, KeyboardInterrupt) as exc:

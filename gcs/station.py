@@ -11,12 +11,10 @@ import math
 from collections.abc import Callable
 from typing import Any
 
-from pymavlink.dialects.v20 import common as mavlink
-
 from gcs.frames import SwarmFrame
 from gcs.mission_file import build_formation
 from gcs.streamer import FormationStreamer
-from gcs.swarm import Swarm, SwarmError, check
+from gcs.swarm import Swarm, SwarmError
 
 Say = Callable[[str], None]
 ARMABLE_TIMEOUT_S = 30.0
@@ -77,10 +75,10 @@ class Station:
             if cmd in ("land", "rtl"):
                 self.streamer.stop()
             if cmd == "land":
-                check(self.swarm.command_all(mavlink.MAV_CMD_NAV_LAND, *[math.nan] * 7), "land")
+                self.swarm.land_all()
                 return {"ok": True}
             if cmd == "rtl":
-                check(self.swarm.command_all(mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH), "return to launch")
+                self.swarm.land_all(return_to_launch=True)
                 return {"ok": True}
             if cmd == "down":
                 self.stop_requested = True
@@ -92,19 +90,8 @@ class Station:
     def takeoff(self, alt_m: float) -> dict[str, Any]:
         if not (math.isfinite(alt_m) and 0.5 <= alt_m <= 100.0):
             return {"ok": False, "error": f"--alt must be between 0.5 and 100 m, got {alt_m:g}"}
-        swarm = self.swarm
-        if not swarm.wait_armable(ARMABLE_TIMEOUT_S):
-            waiting = [s for s in swarm.sysids if not swarm.fleet.drones[s].prearm_ok]
-            return {"ok": False, "error": f"not armable after {ARMABLE_TIMEOUT_S:g} s: sysid {waiting}"}
-        check(swarm.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1), "arm")
-        for sysid in swarm.sysids:
-            home = swarm.fleet.drones[sysid].home
-            if home is None:
-                raise SwarmError(f"sysid {sysid} has no home position")
-            acks = swarm.command_all(
-                mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, home[2] + alt_m, sysids=[sysid]
-            )
-            check(acks, "takeoff")
+        self.swarm.arm_all(ARMABLE_TIMEOUT_S)
+        self.swarm.takeoff_all(alt_m)
         return {"ok": True}
 
     def goto(self, request: dict[str, Any]) -> dict[str, Any]:

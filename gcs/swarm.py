@@ -8,6 +8,7 @@ land or disarm over MAVLink, then terminate and reap every process. Times are th
 from __future__ import annotations
 
 import dataclasses
+import math
 import selectors
 import shutil
 import tempfile
@@ -119,8 +120,34 @@ class Swarm:
                 raise SpawnError(f"no HEARTBEAT within {ready_timeout_s:g} s from sysid {', '.join(map(str, missing))}")
             self.pump(0.05)
 
-    def wait_armable(self, timeout_s: float) -> bool:
-        return self.wait_until(lambda: all(self.fleet.drones[s].prearm_ok for s in self.sysids), timeout_s)
+    def arm_all(self, timeout_s: float, tick: Callable[[float], None] | None = None) -> None:
+        """Wait until every drone passes its pre-arm checks, then arm them all; SwarmError names the laggards."""
+        drones = self.fleet.drones
+        if not self.wait_until(lambda: all(drones[s].prearm_ok for s in self.sysids), timeout_s, tick=tick):
+            waiting = [s for s in self.sysids if not drones[s].prearm_ok]
+            raise SwarmError(f"sysid {waiting} did not pass pre-arm checks within {timeout_s:g} s")
+        check(self.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1), "arm")
+
+    def land_all(self, *, return_to_launch: bool = False) -> list[int]:
+        """Land (or return to launch) every armed drone; returns those sysids (crashed or landed ones are left)."""
+        flying = [s for s in self.sysids if s in self.fleet.drones and self.fleet.drones[s].armed]
+        if return_to_launch:
+            check(self.command_all(mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, sysids=flying), "return to launch")
+        else:
+            check(self.command_all(mavlink.MAV_CMD_NAV_LAND, *[math.nan] * 7, sysids=flying), "land")
+        return flying
+
+    def takeoff_all(self, alt_m: float) -> None:
+        """NAV_TAKEOFF for every drone to ``alt_m`` above its own home (PX4 takes an AMSL altitude)."""
+        for sysid in self.sysids:
+            home = self.fleet.drones[sysid].home
+            if home is None:
+                raise SwarmError(f"sysid {sysid} has no home position yet")
+            nan = math.nan
+            acks = self.command_all(
+                mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, nan, nan, nan, home[2] + alt_m, sysids=[sysid]
+            )
+            check(acks, "takeoff")
 
     def shutdown(self, land_timeout_s: float = 30.0) -> None:
         """Land what flies, disarm, then terminate and reap every process (also after errors)."""

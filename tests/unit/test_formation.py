@@ -442,7 +442,8 @@ def command_checked(
 
 
 def test_moving_a_rotating_ring_takes_seconds() -> None:
-    # GIVEN 4 drones put on a ring turning at 0.3 rad/s (0.9 m/s at the rim), then reported on its slots 10 s later
+    # GIVEN 4 drones put on a ring turning at 0.3 rad/s (0.9 m/s at the rim), reported 10 s later with drone k on
+    # slot k (not the slot the engine gave it, so every drone starts at rest where it is reported)
     engine = FormationEngine(LIMITS)
     spin_up = command_checked(engine, RING, 0.0, on_slots(RING, 0.0, 4))
     # WHEN the ring is moved 5 m north and 1 m up
