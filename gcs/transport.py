@@ -13,6 +13,8 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.mavlink_io import reset_parser
+
 GCS_SYSID = 255
 GCS_COMPID = mavlink.MAV_COMP_ID_MISSIONPLANNER
 
@@ -48,6 +50,7 @@ class GcsSocket:
             if parser is None:
                 parser = self._parsers[addr] = mavlink.MAVLink(None)
                 parser.robust_parsing = True
+            reset_parser(parser)
             try:
                 messages = parser.parse_buffer(data) or []
             except Exception:  # a misbehaving peer must not take the ground station down

@@ -37,6 +37,14 @@ class LinkError(OSError):
     """A link could not be opened (port in use, bad address); reported as one line by the CLI."""
 
 
+def reset_parser(parser: mavlink.MAVLink) -> None:
+    """Drop any partial frame a parser holds, so a truncated datagram cannot corrupt the next sender's frames."""
+    parser.buf = bytearray()
+    parser.buf_index = 0
+    parser.expected_length = mavlink.HEADER_LEN_V1 + 2
+    parser.have_prefix_error = False
+
+
 class UdpLink:
     def __init__(self, config: LinkConfig, identity: Identity, services: LinkServices) -> None:
         self.config = config
@@ -85,6 +93,7 @@ class UdpLink:
             except OSError:  # e.g. ICMP port unreachable reported on a later call: not our problem
                 continue
             self._learn((address[0], address[1]))
+            reset_parser(self._parser)  # a datagram holds whole frames: nothing carries over from the last one
             try:
                 messages = self._parser.parse_buffer(data) or []
             except Exception:  # a peer's bytes must never take the drone down

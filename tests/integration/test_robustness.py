@@ -124,7 +124,7 @@ def _nonsense_frames(sysid: int) -> list[bytes]:
     """Valid frames with absurd content that a vehicle must answer or ignore, never act on or crash over."""
     enc = _encoder()
     nan, inf = float("nan"), float("inf")
-    frames = [
+    return [
         # unknown command with NaN/inf parameters: COMMAND_ACK UNSUPPORTED expected
         mavlink.MAVLink_command_long_message(sysid, 1, UNKNOWN_COMMAND, 0, nan, inf, -inf, nan, 1e38, -1e38, nan).pack(
             enc
@@ -147,7 +147,6 @@ def _nonsense_frames(sysid: int) -> list[bytes]:
         # a message id no dialect defines, with a plausible header
         bytes([0xFD, 4, 0, 0, 7, 200, 42, 0xCD, 0xAB, 0x0F]) + b"\x01\x02\x03\x04" + b"\x00\x00",
     ]
-    return frames
 
 
 def _garbage_corpus(sysid: int, rng: random.Random) -> list[bytes]:
@@ -208,9 +207,10 @@ def test_garbage_truncated_and_mutated_datagrams_do_not_disturb_a_hovering_drone
                 for datagram in broken[start : start + 25]:
                     stranger.sendto(datagram, (LOOPBACK, drone.ports.api_bind))
                 watch.drain(conn, for_s=0.02)
-            # AND then, each in a datagram of its own, valid frames with nonsensical content. The zeros first: like
-            # PX4's, the drone's parser carries a partial frame over into the next datagram, and a run longer than
-            # the longest MAVLink frame (280 bytes) ends any such frame, so the frames below are parsed as sent.
+            # AND then, each in a datagram of its own, valid frames with nonsensical content. The zeros first: the
+            # drone parses its port as one byte stream (as MAVLink's C parser does), so a partial frame from above
+            # would swallow the start of the next datagram (see the lock-out test below); a run longer than the
+            # longest MAVLink frame (280 bytes) ends any such frame, so the frames below are parsed as sent.
             stranger.sendto(bytes(RESYNC_ZEROS), (LOOPBACK, drone.ports.api_bind))
             for frame in _nonsense_frames(drone.sysid):
                 stranger.sendto(frame, (LOOPBACK, drone.ports.api_bind))
