@@ -14,8 +14,10 @@ from __future__ import annotations
 
 import contextlib
 import math
+import mmap
 from dataclasses import dataclass
-from multiprocessing import resource_tracker, shared_memory
+from multiprocessing import shared_memory
+from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
@@ -38,32 +40,42 @@ class Contact:
     distance_m: float
 
 
+SIZE_BYTES = MAX_DRONES * COLUMNS * 8
+SHM_DIR = Path("/dev/shm")
+
+
 class SharedWorld:
-    def __init__(self, shm: shared_memory.SharedMemory, owner: bool) -> None:
+    """The creator owns the segment (``multiprocessing.shared_memory``, whose tracker unlinks it even if the
+    supervisor is killed); drones map it directly from /dev/shm, so attaching neither starts a tracker process per
+    drone nor lets a drone's exit remove the table."""
+
+    def __init__(self, name: str, buffer: memoryview | mmap.mmap, shm: shared_memory.SharedMemory | None) -> None:
+        self._name = name
         self._shm = shm
-        self._owner = owner
-        self.table: npt.NDArray[np.float64] = np.ndarray((MAX_DRONES, COLUMNS), dtype=np.float64, buffer=shm.buf)
+        self._map = buffer if isinstance(buffer, mmap.mmap) else None
+        self.table: npt.NDArray[np.float64] = np.ndarray((MAX_DRONES, COLUMNS), dtype=np.float64, buffer=buffer)
 
     @property
     def name(self) -> str:
-        return self._shm.name
+        return self._name
 
     @classmethod
     def create(cls) -> SharedWorld:
-        shm = shared_memory.SharedMemory(create=True, size=MAX_DRONES * COLUMNS * 8)
-        world = cls(shm, owner=True)
+        shm = shared_memory.SharedMemory(create=True, size=SIZE_BYTES)
+        assert shm.buf is not None
+        world = cls(shm.name, shm.buf, shm)
         world.table[:] = 0.0
         return world
 
     @classmethod
     def attach(cls, name: str) -> SharedWorld:
+        path = SHM_DIR / name.lstrip("/")
         try:
-            shm = shared_memory.SharedMemory(name=name)
-        except (FileNotFoundError, ValueError, OSError) as exc:
+            with path.open("r+b") as handle:
+                mapped = mmap.mmap(handle.fileno(), SIZE_BYTES)
+        except (OSError, ValueError) as exc:
             raise WorldError(f"shared world {name!r} cannot be opened: {exc}") from None
-        # Only the creator may unlink the table; an attached process must not have it removed at its exit.
-        resource_tracker.unregister(shm._name, "shared_memory")  # type: ignore[attr-defined]
-        return cls(shm, owner=False)
+        return cls(name, mapped, None)
 
     def write(self, instance: int, time_s: float, geo: tuple[float, float, float],
               vel_ned_mps: tuple[float, float, float], radius_m: float, crashed: bool) -> None:  # fmt: skip
@@ -101,8 +113,10 @@ class SharedWorld:
 
     def close(self) -> None:
         self.table = np.zeros((0, COLUMNS))
-        self._shm.close()
-        if self._owner:
+        if self._map is not None:
+            self._map.close()
+        if self._shm is not None:
+            self._shm.close()
             with contextlib.suppress(FileNotFoundError):
                 self._shm.unlink()
 
