@@ -145,6 +145,7 @@ def run_up(args: argparse.Namespace) -> int:
         server = ControlServer(station.handle)
         _say(
             f"swarm: {plan.n_drones} drones up (sysid {swarm.sysids[0]}..{swarm.sysids[-1]}); "
+            f"MAVLink on udp 127.0.0.1:{swarm.link.port}; "
             f"control channel on 127.0.0.1:{server.port}; Ctrl-C or 'swarm down' to stop"
         )
         _loop(swarm, station, server, stop)

@@ -21,6 +21,7 @@ from typing import Any
 from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.fleet import Fleet
+from gcs.relay import NeighbourRelay
 from gcs.supervisor import ProcessGroup, SpawnError, SpawnPlan
 from gcs.transport import GcsSocket
 from sitl.world import SharedWorld
@@ -40,7 +41,9 @@ class Ack:
 
 
 class Swarm:
-    def __init__(self, plan: SpawnPlan, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self, plan: SpawnPlan, clock: Callable[[], float] = time.monotonic, relay_radius_m: float | None = None
+    ) -> None:
         # Drone output always goes to log files, so a drone that fails to start can be explained; without a
         # log directory from the user they live in a temporary one removed at shutdown.
         self._temp_logs = tempfile.mkdtemp(prefix="swarm-logs-") if plan.log_dir is None else None
@@ -56,6 +59,7 @@ class Swarm:
         self._selector.register(self.link.sock, selectors.EVENT_READ)
         self._acks: list[Any] = []
         self.world: SharedWorld | None = None
+        self.relay: NeighbourRelay | None = NeighbourRelay(radius_m=relay_radius_m)
 
     @property
     def sysids(self) -> list[int]:
@@ -69,6 +73,12 @@ class Swarm:
         now = self.clock()
         for msg in self.link.receive():
             self.fleet.handle(msg, now)
+            if msg.get_type() == "GLOBAL_POSITION_INT" and self.relay is not None:
+                data = bytes(msg.get_msgbuf())
+                for target in self.relay.targets(msg.get_srcSystem(), now, self.fleet):
+                    address = self.link.addresses.get(target)
+                    if address is not None:
+                        self.link.send_raw(data, address)
             if msg.get_type() == "COMMAND_ACK":
                 self._acks.append(msg)
             for listener in self.listeners:

@@ -18,6 +18,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from sitl.params import ParamStore
 from sitl.protocol import Identity, LinkServices, Send, VehicleApi
 from sitl.protocol.core import Effect, MAVLinkMessage
+from sitl.protocol.neighbours import NeighbourTable
 
 log = logging.getLogger(__name__)
 
@@ -133,9 +134,12 @@ class MavlinkEndpoint:
 
     def __init__(self, identity: Identity, vehicle: VehicleApi, params: ParamStore, links: list[LinkConfig]) -> None:
         self.links: list[UdpLink] = []
+        # One table for the drone, fed by whichever link the relayed positions arrive on.
+        self.neighbours = NeighbourTable(identity.sysid)
         try:
             for config in links:
-                self.links.append(UdpLink(config, identity, LinkServices(identity, vehicle, params)))
+                services = LinkServices(identity, vehicle, params, neighbours=self.neighbours)
+                self.links.append(UdpLink(config, identity, services))
         except LinkError:
             self.close()
             raise

@@ -31,6 +31,7 @@ from sitl.protocol.core import (
     source_of,
 )
 from sitl.protocol.mission import MissionServer
+from sitl.protocol.neighbours import NeighbourTable
 from sitl.protocol.offboard import OffboardService
 from sitl.protocol.params import ParamService
 from sitl.protocol.statustext import StatusTextEncoder
@@ -133,6 +134,7 @@ class LinkServices:
         params: ParamStore,
         *,
         rates_hz: Mapping[int, float] = DEFAULT_RATES_HZ,
+        neighbours: NeighbourTable | None = None,
     ) -> None:
         self.identity = identity
         text = StatusTextEncoder()
@@ -153,6 +155,7 @@ class LinkServices:
             self.ping,
             self.peers,
             self.telemetry,
+            *((neighbours,) if neighbours is not None else ()),
         )
         self._routes: dict[int, Service] = {}
         for service in self._services:

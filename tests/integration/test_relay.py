@@ -1,0 +1,101 @@
+"""The neighbour relay with real processes: a drone's neighbour table follows another drone's movement.
+
+A test participant joins the swarm the way any MAVLink vehicle would (HEARTBEATs from component 1 to the ground
+station's port) and keeps the same NeighbourTable the drones keep, fed by what the relay forwards.
+Loopback only; instances 150+.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from pymavlink.dialects.v20 import common as mavlink
+
+from sitl.protocol.neighbours import NeighbourTable
+
+pytestmark = [pytest.mark.sim_only, pytest.mark.timeout(120)]
+
+OBSERVER_SYSID = 99
+SPEED = 2.0
+FIRST_INSTANCE = 150
+
+
+def test_relayed_positions_follow_a_drone_and_arrive_promptly(tmp_path: Path) -> None:
+    env = {**os.environ, "SWARM_STATE_DIR": str(tmp_path / "state")}
+    cmd = [sys.executable, "-m", "gcs.cli"]
+    up = subprocess.Popen([*cmd, "up", "-n", "2", "--speed", str(SPEED), "--first-instance", str(FIRST_INSTANCE)],
+                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)  # fmt: skip
+    relay_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        assert up.stdout is not None
+        port = None
+        for line in up.stdout:
+            match = re.search(r"MAVLink on udp 127\.0\.0\.1:(\d+)", line)
+            if match:
+                port = int(match.group(1))
+                break
+        assert port is not None, "swarm up did not report its MAVLink port"
+        relay_sock.bind(("127.0.0.1", 0))
+        relay_sock.settimeout(0.05)
+        me = mavlink.MAVLink(None, srcSystem=OBSERVER_SYSID, srcComponent=1)
+        parser = mavlink.MAVLink(None)
+        table = NeighbourTable(OBSERVER_SYSID)
+        heights: list[float] = []
+        t0 = time.monotonic()
+        next_heartbeat = 0.0
+        took_off = False
+
+        def pump(seconds: float) -> None:
+            nonlocal next_heartbeat
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                now = time.monotonic()
+                if now >= next_heartbeat:  # join the swarm as a vehicle would
+                    hb = mavlink.MAVLink_heartbeat_message(2, 12, 1, 0, 3, 3)
+                    relay_sock.sendto(hb.pack(me), ("127.0.0.1", port))
+                    next_heartbeat = now + 0.5
+                try:
+                    data = relay_sock.recv(65535)
+                except TimeoutError:
+                    continue
+                for msg in parser.parse_buffer(data) or []:
+                    if msg.get_type() != "GLOBAL_POSITION_INT":
+                        continue
+                    table.handle(msg, time.monotonic() - t0)
+                    if msg.get_srcSystem() == FIRST_INSTANCE + 1:
+                        heights.append(msg.relative_alt * 1e-3)
+
+        # GIVEN a running swarm WHEN the participant has joined THEN both drones appear in its table, fresh
+        pump(3.0)
+        now = time.monotonic() - t0
+        entries = {n.sysid: n for n in table.entries(now)}
+        assert set(entries) == {FIRST_INSTANCE + 1, FIRST_INSTANCE + 2}
+        assert all(n.age_s(now) < 0.5 for n in entries.values())
+        ground = entries[FIRST_INSTANCE + 1].alt_amsl_m
+        # WHEN the drones take off to 3 m THEN the table follows: the neighbour's altitude rises by about 3 m
+        result = subprocess.run([*cmd, "takeoff", "--alt", "3"], capture_output=True, text=True, env=env, timeout=60)
+        assert result.returncode == 0, result.stderr
+        took_off = True
+        pump(6.0)
+        now = time.monotonic() - t0
+        risen = table.entries(now)[0].alt_amsl_m - ground
+        assert 2.6 < risen < 3.4, risen
+        assert max(heights) > 2.6 and min(heights) < 0.5
+    finally:
+        relay_sock.close()
+        if up.poll() is None:
+            if took_off:
+                subprocess.run([*cmd, "land"], capture_output=True, env=env, timeout=60)
+            subprocess.run([*cmd, "down"], capture_output=True, env=env, timeout=60)
+            try:
+                up.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                up.kill()
+                up.wait()

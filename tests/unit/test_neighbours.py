@@ -1,0 +1,54 @@
+"""The drone's neighbour table and the ground station's relay plan (pure)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+from pymavlink.dialects.v20 import common as mavlink
+
+from gcs.fleet import Fleet
+from gcs.relay import NeighbourRelay
+from sitl.protocol.neighbours import NEIGHBOUR_TIMEOUT_S, NeighbourTable
+
+
+def wire(msg: Any, sysid: int) -> Any:
+    return mavlink.MAVLink(None).parse_char(msg.pack(mavlink.MAVLink(None, srcSystem=sysid, srcComponent=1)))
+
+
+def position(lat_e7: int, alt_mm: int, boot_ms: int = 1000) -> Any:
+    return mavlink.MAVLink_global_position_int_message(boot_ms, lat_e7, 85455940, alt_mm, 3000, 120, 0, -50, 0)
+
+
+def test_the_table_keeps_other_systems_with_their_ages_and_forgets_silent_ones() -> None:
+    table = NeighbourTable(own_sysid=1)
+    table.handle(wire(position(473977420, 491000), 1), 0.0)  # our own report is not a neighbour
+    table.handle(wire(position(473977420, 491000), 2), 1.0)
+    table.handle(wire(position(473977520, 492000, 1100), 2), 1.1)  # a newer report replaces the old one
+    table.handle(wire(position(473977000, 490000), 3), 1.1)
+    entries = table.entries(1.2)
+    assert [n.sysid for n in entries] == [2, 3]
+    two = entries[0]
+    assert two.lat_deg == pytest.approx(47.397752) and two.alt_amsl_m == pytest.approx(492.0)
+    assert two.vel_ned_mps == pytest.approx((1.2, 0.0, -0.5)) and two.sender_time_s == pytest.approx(1.1)
+    assert two.age_s(1.2) == pytest.approx(0.1)
+    table.poll(1.1 + NEIGHBOUR_TIMEOUT_S + 0.01)
+    assert table.entries(1.1 + NEIGHBOUR_TIMEOUT_S + 0.01) == []
+
+
+def heartbeat(fleet: Fleet, sysid: int, now: float, lat_e7: int) -> None:
+    fleet.handle(wire(mavlink.MAVLink_heartbeat_message(2, 12, 1, 0, 3, 3), sysid), now)
+    fleet.handle(wire(position(lat_e7, 491000), sysid), now)
+
+
+def test_the_relay_forwards_to_every_other_live_system_rate_limited_and_within_radius() -> None:
+    fleet = Fleet()
+    for sysid, lat in ((1, 473977420), (2, 473977520), (3, 473987420)):  # 3 is about 111 m north
+        heartbeat(fleet, sysid, 0.0, lat)
+    relay = NeighbourRelay(rate_hz=10.0)
+    assert relay.targets(1, 0.0, fleet) == [2, 3]
+    assert relay.targets(1, 0.05, fleet) == []  # a second report within 0.1 s is not forwarded
+    assert relay.targets(1, 0.1, fleet) == [2, 3]
+    near = NeighbourRelay(rate_hz=10.0, radius_m=50.0)
+    assert near.targets(1, 0.0, fleet) == [2]
+    assert relay.targets(2, 5.0, fleet) == []  # everyone else went silent: nobody to forward to
