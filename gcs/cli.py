@@ -59,6 +59,13 @@ def _origin(text: str) -> GeoPoint:
     return GeoPoint(lat_deg=lat, lon_deg=lon, alt_amsl_m=alt)
 
 
+def _address(text: str) -> tuple[str, int]:
+    host, sep, port = text.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise argparse.ArgumentTypeError(f"must be HOST:PORT, got {text!r}")
+    return host, int(port)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="swarm", description="Ground station for a swarm of simulated PX4-like drones.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -72,6 +79,10 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
     up.add_argument("--seed", type=int, default=0, help="base random seed (drone i uses seed+i)")
     up.add_argument("--logs", type=Path, default=None, help="directory for each drone's log (default: none)")
+    up.add_argument("--forward", type=_address, default=("127.0.0.1", 14550),
+                    help="HOST:PORT to forward all drone traffic to, for QGroundControl/MAVProxy (default "
+                    "127.0.0.1:14550)")  # fmt: skip
+    up.add_argument("--no-forward", action="store_true", help="do not forward drone traffic to a ground station")
     fly = sub.add_parser("fly", help="run a mission file end to end and write a flight report")
     fly.add_argument(
         "mission", type=Path, nargs="?", default=DEFAULT_MISSION, help=f"mission file (default {DEFAULT_MISSION})"
@@ -137,7 +148,7 @@ def run_up(args: argparse.Namespace) -> int:
     stop = _Stop()
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, stop)
-    swarm = Swarm(plan)
+    swarm = Swarm(plan, forward=None if args.no_forward else args.forward)
     station = Station(swarm, _say)
     server: ControlServer | None = None
     try:

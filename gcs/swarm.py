@@ -42,7 +42,11 @@ class Ack:
 
 class Swarm:
     def __init__(
-        self, plan: SpawnPlan, clock: Callable[[], float] = time.monotonic, relay_radius_m: float | None = None
+        self,
+        plan: SpawnPlan,
+        clock: Callable[[], float] = time.monotonic,
+        relay_radius_m: float | None = None,
+        forward: tuple[str, int] | None = None,
     ) -> None:
         # Drone output always goes to log files, so a drone that fails to start can be explained; without a
         # log directory from the user they live in a temporary one removed at shutdown.
@@ -60,6 +64,9 @@ class Swarm:
         self._acks: list[Any] = []
         self.world: SharedWorld | None = None
         self.relay: NeighbourRelay | None = NeighbourRelay(radius_m=relay_radius_m)
+        # Every drone's traffic also goes to this address (QGroundControl/MAVProxy listen on 14550), and what comes
+        # back from there is routed to the drones by target system, as a MAVLink router does.
+        self.forward = forward
 
     @property
     def sysids(self) -> list[int]:
@@ -71,7 +78,12 @@ class Swarm:
         if wait_s > 0:
             self._selector.select(wait_s)
         now = self.clock()
-        for msg in self.link.receive():
+        for msg, _sender in self.link.receive():
+            if msg.get_srcComponent() != 1:
+                self._route_from_ground_station(msg)
+                continue
+            if self.forward is not None:
+                self.link.send_raw(bytes(msg.get_msgbuf()), self.forward)
             self.fleet.handle(msg, now)
             if msg.get_type() == "GLOBAL_POSITION_INT" and self.relay is not None:
                 data = bytes(msg.get_msgbuf())
@@ -83,6 +95,17 @@ class Swarm:
                 self._acks.append(msg)
             for listener in self.listeners:
                 listener(msg, now)
+
+    def _route_from_ground_station(self, msg: Any) -> None:
+        """A message from another ground station (QGroundControl, MAVProxy on the forward port): to its target."""
+        if self.forward is None:
+            return
+        target = getattr(msg, "target_system", 0)
+        data = bytes(msg.get_msgbuf())
+        for sysid in self.sysids if target == 0 else [target]:
+            address = self.link.addresses.get(sysid)
+            if address is not None:
+                self.link.send_raw(data, address)
 
     def run_for(self, seconds: float, tick: Callable[[float], None] | None = None, tick_s: float = 0.05) -> None:
         """Pump telemetry for a while, calling ``tick(now)`` every ``tick_s``."""

@@ -35,9 +35,9 @@ class GcsSocket:
     def port(self) -> int:
         return int(self.sock.getsockname()[1])
 
-    def receive(self) -> list[Any]:
-        """Every message waiting on the socket (non-blocking), bad data dropped."""
-        out: list[Any] = []
+    def receive(self) -> list[tuple[Any, Address]]:
+        """Every message waiting on the socket with its sender (non-blocking), bad data dropped."""
+        out: list[tuple[Any, Address]] = []
         while True:
             try:
                 data, address = self.sock.recvfrom(65535)
@@ -61,7 +61,7 @@ class GcsSocket:
                     continue
                 if msg.get_srcComponent() == 1:
                     self.addresses[msg.get_srcSystem()] = addr
-                out.append(msg)
+                out.append((msg, addr))
 
     def pack(self, msg: Any) -> bytes:
         data: bytes = msg.pack(self._encoder)

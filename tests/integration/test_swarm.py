@@ -11,13 +11,16 @@ import contextlib
 import os
 import re
 import signal
+import socket
 import subprocess
 import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
+from pymavlink.dialects.v20 import common as mavlink
 
 pytestmark = [pytest.mark.sim_only, pytest.mark.timeout(120)]
 
@@ -185,3 +188,43 @@ def test_bad_commands_give_one_line(state_env: dict[str, str], args: tuple[str, 
     assert result.returncode == code
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and fragment in lines[0], result.stderr
+
+
+def test_a_ground_station_on_the_forward_port_sees_every_drone_and_can_command_one(state_env: dict[str, str]) -> None:
+    # GIVEN a "QGroundControl" socket and a swarm forwarding to it
+    gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    gcs.bind(("127.0.0.1", 0))
+    gcs.settimeout(0.2)
+    port = gcs.getsockname()[1]
+    up = subprocess.Popen([*SWARM, "up", "-n", "2", "--first-instance", "76", "--forward", f"127.0.0.1:{port}"],
+                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=state_env)  # fmt: skip
+    try:
+        assert up.stdout is not None
+        assert any("drones up" in line for line in up.stdout)
+        parser = mavlink.MAVLink(None)
+        me = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+
+        def receive(kind: str, seconds: float) -> list[tuple[Any, tuple[str, int]]]:
+            out = []
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                try:
+                    data, addr = gcs.recvfrom(65535)
+                except TimeoutError:
+                    continue
+                out += [(m, addr) for m in parser.parse_buffer(data) or [] if m.get_type() == kind]
+            return out
+
+        # WHEN it listens THEN it hears both drones' heartbeats
+        beats = receive("HEARTBEAT", 2.5)
+        assert {m.get_srcSystem() for m, _ in beats} == {77, 78}
+        # WHEN it asks drone 78 for a parameter THEN only drone 78 answers, through the supervisor
+        request = mavlink.MAVLink_param_request_read_message(78, 1, b"MIS_TAKEOFF_ALT", -1)
+        gcs.sendto(request.pack(me), beats[0][1])
+        answers = receive("PARAM_VALUE", 2.0)
+        assert answers and {m.get_srcSystem() for m, _ in answers} == {78}
+        assert answers[0][0].param_value == pytest.approx(2.5)
+    finally:
+        gcs.close()
+        subprocess.run([*SWARM, "down"], capture_output=True, env=state_env, timeout=60)
+        up.wait(timeout=60)
