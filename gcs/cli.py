@@ -24,6 +24,7 @@ from gcs.station import Station, format_status
 from gcs.supervisor import LAYOUTS, SpawnError, SpawnPlan
 from gcs.swarm import Swarm, SwarmError
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
+from sitl.mavlink_io import parse_host_port
 
 EXIT_USAGE = 2
 DEFAULT_MISSION = Path(__file__).resolve().parent.parent / "missions" / "grid_to_circle.toml"
@@ -60,10 +61,10 @@ def _origin(text: str) -> GeoPoint:
 
 
 def _address(text: str) -> tuple[str, int]:
-    host, sep, port = text.rpartition(":")
-    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise argparse.ArgumentTypeError(f"must be HOST:PORT, got {text!r}")
-    return host, int(port)
+    address = parse_host_port(text)
+    if address is None:
+        raise argparse.ArgumentTypeError(f"must be HOST:PORT with a port in 1..65535, got {text!r}")
+    return address
 
 
 def build_parser() -> argparse.ArgumentParser:

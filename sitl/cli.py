@@ -16,7 +16,7 @@ from typing import NoReturn
 
 from sitl.airframe import DEFAULT_AIRFRAME, AirframeError, load_airframe
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
-from sitl.mavlink_io import LinkConfig, LinkError
+from sitl.mavlink_io import LinkConfig, LinkError, parse_host_port
 from sitl.wind import WindConfig
 from sitl.world import WorldError
 
@@ -58,10 +58,10 @@ def _speed_factor(arg: str | None) -> float:
 
 
 def _address(text: str, what: str) -> tuple[str, int]:
-    host, sep, port_text = text.rpartition(":")
-    if not sep or not host or not port_text.isdigit() or not 0 < int(port_text) < 65536:
+    address = parse_host_port(text)
+    if address is None:
         raise UsageError(f"{what} must be HOST:PORT with a port in 1..65535, got {text!r}")
-    return host, int(port_text)
+    return address
 
 
 def _port(value: int | None, default: int, what: str) -> int:

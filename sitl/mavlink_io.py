@@ -34,6 +34,14 @@ class LinkConfig:
     remote: Address | None  # where to stream before anyone has spoken to us
 
 
+def parse_host_port(text: str) -> Address | None:
+    """``HOST:PORT`` with a port in 1..65535, or None when the text is not one."""
+    host, sep, port = text.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        return None
+    return host, int(port)
+
+
 class LinkError(OSError):
     """A link could not be opened (port in use, bad address); reported as one line by the CLI."""
 
