@@ -67,6 +67,13 @@ def _address(text: str) -> tuple[str, int]:
     return address
 
 
+def _add_forward_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--forward", type=_address, default=("127.0.0.1", 14550),
+                        help="HOST:PORT to forward all drone traffic to, for QGroundControl/MAVProxy (default "
+                        "127.0.0.1:14550)")  # fmt: skip
+    parser.add_argument("--no-forward", action="store_true", help="do not forward drone traffic to a ground station")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="swarm", description="Ground station for a swarm of simulated PX4-like drones.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -80,10 +87,7 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
     up.add_argument("--seed", type=int, default=0, help="base random seed (drone i uses seed+i)")
     up.add_argument("--logs", type=Path, default=None, help="directory for each drone's log (default: none)")
-    up.add_argument("--forward", type=_address, default=("127.0.0.1", 14550),
-                    help="HOST:PORT to forward all drone traffic to, for QGroundControl/MAVProxy (default "
-                    "127.0.0.1:14550)")  # fmt: skip
-    up.add_argument("--no-forward", action="store_true", help="do not forward drone traffic to a ground station")
+    _add_forward_options(up)
     fly = sub.add_parser("fly", help="run a mission file end to end and write a flight report")
     fly.add_argument(
         "mission", type=Path, nargs="?", default=DEFAULT_MISSION, help=f"mission file (default {DEFAULT_MISSION})"
@@ -94,6 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
     fly.add_argument("--origin", type=_origin, default=DEFAULT_HOME, help="swarm origin LAT,LON,ALT_AMSL")
     fly.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
     fly.add_argument("--seed", type=int, default=0, help="base random seed (drone i uses seed+i)")
+    _add_forward_options(fly)
     sub.add_parser("status", help="table of every drone")
     takeoff = sub.add_parser("takeoff", help="arm and take off every drone")
     takeoff.add_argument("--alt", type=_positive, default=3.0, help="altitude above home in metres (default 3)")
@@ -191,7 +196,8 @@ def run_fly(args: argparse.Namespace) -> int:
         raise UsageError("--first-instance must leave room for every sysid (instance + 1 <= 255)")
     report = args.report or Path("reports") / f"{mission.name}-{time.strftime('%Y%m%d-%H%M%S')}"
     runner = MissionRunner(mission, speed_factor=args.speed, origin=args.origin, first_instance=args.first_instance,
-                           report_dir=report, say=_say, airframe=args.airframe, seed=args.seed)  # fmt: skip
+                           report_dir=report, say=_say, airframe=args.airframe, seed=args.seed,
+                           forward=None if args.no_forward else args.forward)  # fmt: skip
     signal.signal(signal.SIGTERM, _interrupt)  # a terminated run lands and stops its drones like Ctrl-C
     try:
         out = runner.run()

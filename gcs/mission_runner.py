@@ -42,7 +42,8 @@ COLLISION_TEXT = re.compile(r"Collision with drone (\d+)")
 
 class MissionRunner:
     def __init__(self, mission: MissionSpec, *, speed_factor: float, origin: GeoPoint, first_instance: int,
-                 report_dir: Path, say: Say, airframe: str | None = None, seed: int = 0) -> None:  # fmt: skip
+                 report_dir: Path, say: Say, airframe: str | None = None, seed: int = 0,
+                 forward: tuple[str, int] | None = None) -> None:  # fmt: skip
         self.mission = mission
         self.speed = speed_factor
         self.say = say
@@ -59,7 +60,7 @@ class MissionRunner:
             seed=seed,
             log_dir=report_dir / "logs",
         )
-        self.swarm = Swarm(plan)
+        self.swarm = Swarm(plan, forward=forward)
         self.streamer = FormationStreamer(self.swarm, self.swarm_frame)
         # Two bodies touch when their centres are closer than the sum of both collision radii.
         contact_distance = 2.0 * (load_airframe(airframe) if airframe else load_airframe()).collision_radius_m

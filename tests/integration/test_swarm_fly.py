@@ -27,7 +27,7 @@ def test_four_drone_mission_flies_end_to_end_and_writes_a_report(tmp_path: Path)
     # WHEN it is flown at 3x real time
     result = subprocess.run(
         [*SWARM, "fly", str(MISSIONS / "square_four.toml"), "--speed", "3", "--first-instance", "90",
-         "--report", str(report)],
+         "--report", str(report), "--no-forward"],
         capture_output=True, text=True, timeout=220,
     )  # fmt: skip
     # THEN it succeeds and the report holds what the issue asks for
@@ -75,7 +75,8 @@ def test_drones_commanded_into_each_other_collide_crash_and_are_counted_once(tmp
     report = tmp_path / "report"
     # WHEN the mission is flown
     result = subprocess.run(
-        [*SWARM, "fly", str(mission), "--speed", "3", "--first-instance", "96", "--report", str(report)],
+        [*SWARM, "fly", str(mission), "--speed", "3", "--first-instance", "96", "--report", str(report),
+         "--no-forward"],
         capture_output=True, text=True, timeout=160,
     )  # fmt: skip
     # THEN both crash (a STATUSTEXT says so) and the report counts one collision
