@@ -13,6 +13,10 @@ Two classic, cheap filters, both fixed-gain so that one update costs a few micro
 
 The local frame is anchored at the estimator's origin: the first GPS fix horizontally and the first barometer
 reading (ground level at boot) vertically, as PX4's EKF2 does. The caller decides what that origin means (home).
+
+The per-step arithmetic runs on plain Python floats (vectors as x, y, z locals, the attitude as a (w, x, y, z)
+tuple): on 3-element arrays numpy's per-call overhead is far larger than the arithmetic itself. Only the published
+``Estimate`` carries numpy arrays, built once per update.
 """
 
 from __future__ import annotations
@@ -22,10 +26,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sitl.mathutil import GRAVITY_MPS2, Quat, Vec3, dcm_to_quat, quat_mul, quat_to_dcm, quat_to_euler, vec3
+from sitl.mathutil import GRAVITY_MPS2, Quat, Vec3, dcm_to_quat
 from sitl.sensors.models import SensorReadings
 
-_G_NED = vec3(0.0, 0.0, GRAVITY_MPS2)
+_Floats3 = tuple[float, float, float]
+_Floats4 = tuple[float, float, float, float]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -57,18 +62,26 @@ class Estimate:
     altitude_valid: bool
 
 
+def _gains(tau_s: float) -> _Floats3:
+    """Third-order complementary filter gains (position, velocity, accelerometer bias) for one time constant."""
+    return 3.0 / tau_s, 3.0 / tau_s**2, 1.0 / tau_s**3
+
+
 class Estimator:
     def __init__(self, config: EstimatorConfig, origin_alt_amsl_m: float) -> None:
         """``origin_alt_amsl_m`` is the altitude of the local frame's origin (down = 0), i.e. the ground at home."""
         self.config = config
         self._origin_alt_amsl_m = origin_alt_amsl_m
-        self._q: Quat = np.array((1.0, 0.0, 0.0, 0.0))
-        self._gyro_bias = np.zeros(3)
-        self._pos = np.zeros(3)
-        self._vel = np.zeros(3)
-        self._acc_bias = np.zeros(3)
-        self._acc_ned_lpf = np.zeros(3)
-        self._last_gps_vel: Vec3 | None = None
+        self._k_xy = _gains(config.tau_xy_s)
+        self._k_z = _gains(config.tau_z_s)
+        self._gate_sq = config.acc_gate_mps2**2
+        self._q: _Floats4 = (1.0, 0.0, 0.0, 0.0)
+        self._gyro_bias: _Floats3 = (0.0, 0.0, 0.0)
+        self._pos: _Floats3 = (0.0, 0.0, 0.0)
+        self._vel: _Floats3 = (0.0, 0.0, 0.0)
+        self._acc_bias: _Floats3 = (0.0, 0.0, 0.0)
+        self._acc_ned_lpf: _Floats3 = (0.0, 0.0, 0.0)
+        self._last_gps_vel: _Floats3 | None = None
         self._last_gps_time_s = 0.0
         self._last_baro_time_s: float | None = None
         self._att_initialised = False
@@ -76,113 +89,183 @@ class Estimator:
         self._have_gps = False
         self._gps_since_s = math.inf
         self._have_baro = False
-        self._mag_ref_ned = np.array((1.0, 0.0, 0.0))
-        self._rates = np.zeros(3)
+        self._mag_ref_ned: _Floats3 = (1.0, 0.0, 0.0)
+        self._mag_ref_heading_rad = 0.0
+        self._rates: _Floats3 = (0.0, 0.0, 0.0)
         self._time_s = 0.0
 
     def set_mag_reference(self, field_ned_gauss: Vec3) -> None:
-        self._mag_ref_ned = np.asarray(field_ned_gauss, dtype=np.float64)
+        n, e, d = (float(c) for c in field_ned_gauss)
+        self._mag_ref_ned = (n, e, d)
+        self._mag_ref_heading_rad = math.atan2(e, n)
 
     # -- attitude -------------------------------------------------------------------------------------------------
     def _init_attitude(self, accel_frd: Vec3, mag_frd: Vec3) -> None:
         """Level from gravity, heading from the magnetometer (TRIAD)."""
-        down = -accel_frd / max(float(np.linalg.norm(accel_frd)), 1e-6)  # body-frame direction of NED down
-        east = np.cross(down, mag_frd)
+        accel = np.asarray(accel_frd, dtype=np.float64)
+        down = -accel / max(float(np.linalg.norm(accel)), 1e-6)  # body-frame direction of NED down
+        east = np.cross(down, np.asarray(mag_frd, dtype=np.float64))
         east /= max(float(np.linalg.norm(east)), 1e-9)
         north = np.cross(east, down)
         body_to_ned_meas = np.vstack((north, east, down))  # rows: NED axes in body coordinates
         # Correct for the magnetic declination: the reference field's horizontal direction is not true north.
-        decl = math.atan2(self._mag_ref_ned[1], self._mag_ref_ned[0])
+        decl = self._mag_ref_heading_rad
         c, s = math.cos(decl), math.sin(decl)
         rz = np.array(((c, -s, 0.0), (s, c, 0.0), (0.0, 0.0, 1.0)))
-        self._q = dcm_to_quat(rz @ body_to_ned_meas)
+        w, x, y, z = dcm_to_quat(rz @ body_to_ned_meas).tolist()
+        self._q = (w, x, y, z)
         self._att_initialised = True
 
-    def _update_attitude(self, gyro: Vec3, accel: Vec3, mag: Vec3 | None, dt_s: float) -> None:
+    def _update_attitude(self, gyro: _Floats3, accel: _Floats3, mag: _Floats3 | None, dt_s: float) -> None:
         cfg = self.config
-        r = quat_to_dcm(self._q)
-        correction = np.zeros(3)
+        w, x, y, z = self._q
+        # Body->NED rotation matrix of the current attitude, row by row.
+        r00, r01, r02 = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
+        r10, r11, r12 = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
+        r20, r21, r22 = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+        cx = cy = cz = 0.0
         # Gravity direction, compensated by the vehicle's own acceleration where GPS gives one.
-        f_pred_ned = self._acc_ned_lpf - _G_NED
-        f_pred = r.T @ f_pred_ned
-        n_meas, n_pred = np.linalg.norm(accel), np.linalg.norm(f_pred)
+        an, ae, ad = self._acc_ned_lpf
+        fd = ad - GRAVITY_MPS2
+        px = r00 * an + r10 * ae + r20 * fd  # predicted specific force in body axes: R^T (a - g)
+        py = r01 * an + r11 * ae + r21 * fd
+        pz = r02 * an + r12 * ae + r22 * fd
+        mx, my, mz = accel
+        n_meas = math.sqrt(mx * mx + my * my + mz * mz)
+        n_pred = math.sqrt(px * px + py * py + pz * pz)
         if n_meas > 1e-3 and n_pred > 1e-3:
             # The compensation lags the true acceleration (10 Hz GPS), so trust gravity less while manoeuvring.
-            acc = self._acc_ned_lpf
-            weight = 1.0 / (1.0 + (acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2]) / cfg.acc_gate_mps2**2)
-            correction += cfg.att_kp_acc * weight * np.cross(accel / n_meas, f_pred / n_pred)
+            weight = 1.0 / (1.0 + (an * an + ae * ae + ad * ad) / self._gate_sq)
+            k = cfg.att_kp_acc * weight
+            ux, uy, uz = mx / n_meas, my / n_meas, mz / n_meas
+            vx, vy, vz = px / n_pred, py / n_pred, pz / n_pred
+            cx = k * (uy * vz - uz * vy)
+            cy = k * (uz * vx - ux * vz)
+            cz = k * (ux * vy - uy * vx)
         if mag is not None:
-            m_ned = r @ mag
-            heading_err = math.atan2(m_ned[1], m_ned[0]) - math.atan2(self._mag_ref_ned[1], self._mag_ref_ned[0])
+            bx, by, bz = mag
+            m_n = r00 * bx + r01 * by + r02 * bz
+            m_e = r10 * bx + r11 * by + r12 * bz
+            heading_err = math.atan2(m_e, m_n) - self._mag_ref_heading_rad
             heading_err = (heading_err + math.pi) % (2 * math.pi) - math.pi
-            correction += r.T @ vec3(0.0, 0.0, -cfg.att_kp_mag * heading_err)
-        self._gyro_bias -= cfg.att_ki * correction * dt_s
-        omega = gyro - self._gyro_bias + correction
-        self._rates = gyro - self._gyro_bias
+            yaw_corr = -cfg.att_kp_mag * heading_err  # about NED down, rotated into body axes: R^T (0, 0, c)
+            cx += r20 * yaw_corr
+            cy += r21 * yaw_corr
+            cz += r22 * yaw_corr
+        ki = cfg.att_ki
+        bgx, bgy, bgz = self._gyro_bias
+        bgx -= ki * cx * dt_s
+        bgy -= ki * cy * dt_s
+        bgz -= ki * cz * dt_s
+        self._gyro_bias = (bgx, bgy, bgz)
+        gx, gy, gz = gyro
+        rx, ry, rz = gx - bgx, gy - bgy, gz - bgz
+        self._rates = (rx, ry, rz)
         half = 0.5 * dt_s
-        dq = np.array((1.0, omega[0] * half, omega[1] * half, omega[2] * half))
-        q = quat_mul(self._q, dq)
-        self._q = q / math.sqrt(q @ q)
+        ox, oy, oz = (rx + cx) * half, (ry + cy) * half, (rz + cz) * half
+        # q * (1, omega dt / 2), renormalised.
+        qw = w - x * ox - y * oy - z * oz
+        qx = w * ox + x + y * oz - z * oy
+        qy = w * oy - x * oz + y + z * ox
+        qz = w * oz + x * oy - y * ox + z
+        norm = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+        self._q = (qw / norm, qx / norm, qy / norm, qz / norm)
 
     # -- position -------------------------------------------------------------------------------------------------
-    def _correct(self, axes: slice, err: Vec3, tau_s: float, dt_s: float) -> None:
-        k1, k2, k3 = 3.0 / tau_s, 3.0 / tau_s**2, 1.0 / tau_s**3
-        self._pos[axes] += k1 * dt_s * err
-        self._vel[axes] += k2 * dt_s * err
-        self._acc_bias[axes] -= k3 * dt_s * err
-
     def update(self, readings: SensorReadings, time_s: float, dt_s: float) -> Estimate:
         cfg = self.config
         imu = readings.imu
+        ax, ay, az = imu.accel_frd_mps2.tolist()
+        mag = readings.mag
         if not self._att_initialised:
-            if readings.mag is not None:
-                self._init_attitude(imu.accel_frd_mps2, readings.mag.field_frd_gauss)
+            if mag is not None:
+                self._init_attitude(imu.accel_frd_mps2, mag.field_frd_gauss)
                 self._att_since_s = time_s
         else:
-            mag = readings.mag.field_frd_gauss if readings.mag is not None else None
-            self._update_attitude(imu.gyro_frd_radps, imu.accel_frd_mps2, mag, dt_s)
-        # Inertial prediction in NED.
-        acc_ned = quat_to_dcm(self._q) @ imu.accel_frd_mps2 + _G_NED - self._acc_bias
-        self._pos += self._vel * dt_s + 0.5 * acc_ned * dt_s * dt_s
-        self._vel += acc_ned * dt_s
+            gx, gy, gz = imu.gyro_frd_radps.tolist()
+            if mag is None:
+                self._update_attitude((gx, gy, gz), (ax, ay, az), None, dt_s)
+            else:
+                bx, by, bz = mag.field_frd_gauss.tolist()
+                self._update_attitude((gx, gy, gz), (ax, ay, az), (bx, by, bz), dt_s)
+        # Inertial prediction in NED: R(q) accel + g - accelerometer bias.
+        w, x, y, z = self._q
+        bn, be, bd = self._acc_bias
+        acc_n = (1 - 2 * (y * y + z * z)) * ax + 2 * (x * y - w * z) * ay + 2 * (x * z + w * y) * az - bn
+        acc_e = 2 * (x * y + w * z) * ax + (1 - 2 * (x * x + z * z)) * ay + 2 * (y * z - w * x) * az - be
+        acc_d = 2 * (x * z - w * y) * ax + 2 * (y * z + w * x) * ay + (1 - 2 * (x * x + y * y)) * az + GRAVITY_MPS2 - bd
+        pn, pe, pd = self._pos
+        vn, ve, vd = self._vel
+        pn += vn * dt_s + 0.5 * acc_n * dt_s * dt_s
+        pe += ve * dt_s + 0.5 * acc_e * dt_s * dt_s
+        pd += vd * dt_s + 0.5 * acc_d * dt_s * dt_s
+        vn += acc_n * dt_s
+        ve += acc_e * dt_s
+        vd += acc_d * dt_s
 
         gps = readings.gps
         if gps is not None and gps.fix_type >= 3:
+            gpn, gpe, _ = gps.pos_ned_m.tolist()
+            gvn, gve, gvd = gps.vel_ned_mps.tolist()
             if not self._have_gps:
-                self._pos[:2] = gps.pos_ned_m[:2]
-                self._vel[:] = gps.vel_ned_mps
+                pn, pe = gpn, gpe
+                vn, ve, vd = gvn, gve, gvd
                 self._have_gps = True
                 self._gps_since_s = gps.time_s
             else:
                 gps_dt = gps.time_s - self._last_gps_time_s
-                self._correct(slice(0, 2), gps.pos_ned_m[:2] - self._pos[:2], cfg.tau_xy_s, gps_dt)
-                self._vel += cfg.gps_vel_gain * (gps.vel_ned_mps - self._vel)
-                if self._last_gps_vel is not None and gps_dt > 0:
-                    acc_gps = (gps.vel_ned_mps - self._last_gps_vel) / gps_dt
+                k1, k2, k3 = self._k_xy
+                k1, k2, k3 = k1 * gps_dt, k2 * gps_dt, k3 * gps_dt
+                err_n, err_e = gpn - pn, gpe - pe
+                pn += k1 * err_n
+                pe += k1 * err_e
+                vn += k2 * err_n
+                ve += k2 * err_e
+                bn -= k3 * err_n
+                be -= k3 * err_e
+                gain = cfg.gps_vel_gain
+                vn += gain * (gvn - vn)
+                ve += gain * (gve - ve)
+                vd += gain * (gvd - vd)
+                last = self._last_gps_vel
+                if last is not None and gps_dt > 0:
                     alpha = gps_dt / (cfg.acc_lpf_tau_s + gps_dt)
-                    self._acc_ned_lpf += alpha * (acc_gps - self._acc_ned_lpf)
-            self._last_gps_vel = gps.vel_ned_mps
+                    ln, le, ld = self._acc_ned_lpf
+                    ln += alpha * ((gvn - last[0]) / gps_dt - ln)
+                    le += alpha * ((gve - last[1]) / gps_dt - le)
+                    ld += alpha * ((gvd - last[2]) / gps_dt - ld)
+                    self._acc_ned_lpf = (ln, le, ld)
+            self._last_gps_vel = (gvn, gve, gvd)
             self._last_gps_time_s = gps.time_s
 
         baro = readings.baro
         if baro is not None:
             down_meas = self._origin_alt_amsl_m - baro.alt_amsl_m
             if not self._have_baro:
-                self._pos[2] = down_meas
+                pd = down_meas
                 self._have_baro = True
             elif self._last_baro_time_s is not None:
                 baro_dt = time_s - self._last_baro_time_s
-                self._correct(slice(2, 3), np.array((down_meas - self._pos[2],)), cfg.tau_z_s, baro_dt)
+                k1, k2, k3 = self._k_z
+                err_d = down_meas - pd
+                pd += k1 * baro_dt * err_d
+                vd += k2 * baro_dt * err_d
+                bd -= k3 * baro_dt * err_d
             self._last_baro_time_s = time_s
 
+        self._pos = (pn, pe, pd)
+        self._vel = (vn, ve, vd)
+        self._acc_bias = (bn, be, bd)
         self._time_s = time_s
-        roll, pitch, yaw = quat_to_euler(self._q)
+        roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+        pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+        yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
         return Estimate(
             time_s=time_s,
-            pos_ned_m=self._pos.copy(),
-            vel_ned_mps=self._vel.copy(),
-            att_q_frd_to_ned=self._q.copy(),
-            rates_frd_radps=self._rates.copy(),
+            pos_ned_m=np.array((pn, pe, pd)),
+            vel_ned_mps=np.array((vn, ve, vd)),
+            att_q_frd_to_ned=np.array((w, x, y, z)),
+            rates_frd_radps=np.array(self._rates),
             roll_rad=roll,
             pitch_rad=pitch,
             yaw_rad=yaw,

@@ -66,7 +66,7 @@ class RunningSwarm:
     def __init__(self, n: int, first_instance: int, env: dict[str, str]) -> None:
         self.env = env
         self.proc = subprocess.Popen(
-            [*SWARM, "up", "-n", str(n), "--speed", "4", "--first-instance", str(first_instance)],
+            [*SWARM, "up", "-n", str(n), "--speed", "4", "--first-instance", str(first_instance), "--no-forward"],
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             text=True,
