@@ -30,7 +30,8 @@ FIRST_INSTANCE = 150
 def test_relayed_positions_follow_a_drone_and_arrive_promptly(tmp_path: Path) -> None:
     env = {**os.environ, "SWARM_STATE_DIR": str(tmp_path / "state")}
     cmd = [sys.executable, "-m", "gcs.cli"]
-    up = subprocess.Popen([*cmd, "up", "-n", "2", "--speed", str(SPEED), "--first-instance", str(FIRST_INSTANCE), "--no-forward"],
+    args = ["up", "-n", "2", "--speed", str(SPEED), "--first-instance", str(FIRST_INSTANCE), "--no-forward"]
+    up = subprocess.Popen([*cmd, *args],
                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)  # fmt: skip
     relay_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
