@@ -89,15 +89,12 @@ class Estimator:
         self._have_gps = False
         self._gps_since_s = math.inf
         self._have_baro = False
-        self._mag_ref_ned: _Floats3 = (1.0, 0.0, 0.0)
-        self._mag_ref_heading_rad = 0.0
+        self._mag_ref_heading_rad = 0.0  # direction of the reference field's horizontal part (the declination)
         self._rates: _Floats3 = (0.0, 0.0, 0.0)
         self._time_s = 0.0
 
     def set_mag_reference(self, field_ned_gauss: Vec3) -> None:
-        n, e, d = (float(c) for c in field_ned_gauss)
-        self._mag_ref_ned = (n, e, d)
-        self._mag_ref_heading_rad = math.atan2(e, n)
+        self._mag_ref_heading_rad = math.atan2(float(field_ned_gauss[1]), float(field_ned_gauss[0]))
 
     # -- attitude -------------------------------------------------------------------------------------------------
     def _init_attitude(self, accel_frd: Vec3, mag_frd: Vec3) -> None:
@@ -119,10 +116,11 @@ class Estimator:
     def _update_attitude(self, gyro: _Floats3, accel: _Floats3, mag: _Floats3 | None, dt_s: float) -> None:
         cfg = self.config
         w, x, y, z = self._q
-        # Body->NED rotation matrix of the current attitude, row by row.
-        r00, r01, r02 = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
-        r10, r11, r12 = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
-        r20, r21, r22 = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+        # Body->NED rotation matrix of the current attitude, row by row (as sitl.mathutil.quat_to_dcm).
+        xx, yy, zz, xy, xz, yz, wx, wy, wz = x * x, y * y, z * z, x * y, x * z, y * z, w * x, w * y, w * z
+        r00, r01, r02 = 1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy)
+        r10, r11, r12 = 2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx)
+        r20, r21, r22 = 2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy)
         cx = cy = cz = 0.0
         # Gravity direction, compensated by the vehicle's own acceleration where GPS gives one.
         an, ae, ad = self._acc_ned_lpf
@@ -182,18 +180,18 @@ class Estimator:
                 self._init_attitude(imu.accel_frd_mps2, mag.field_frd_gauss)
                 self._att_since_s = time_s
         else:
-            gx, gy, gz = imu.gyro_frd_radps.tolist()
-            if mag is None:
-                self._update_attitude((gx, gy, gz), (ax, ay, az), None, dt_s)
-            else:
-                bx, by, bz = mag.field_frd_gauss.tolist()
-                self._update_attitude((gx, gy, gz), (ax, ay, az), (bx, by, bz), dt_s)
+            mag_frd = mag.field_frd_gauss.tolist() if mag is not None else None
+            self._update_attitude(imu.gyro_frd_radps.tolist(), (ax, ay, az), mag_frd, dt_s)
         # Inertial prediction in NED: R(q) accel + g - accelerometer bias.
         w, x, y, z = self._q
+        xx, yy, zz, xy, xz, yz, wx, wy, wz = x * x, y * y, z * z, x * y, x * z, y * z, w * x, w * y, w * z
+        r00, r01, r02 = 1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy)
+        r10, r11, r12 = 2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx)
+        r20, r21, r22 = 2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy)
         bn, be, bd = self._acc_bias
-        acc_n = (1 - 2 * (y * y + z * z)) * ax + 2 * (x * y - w * z) * ay + 2 * (x * z + w * y) * az - bn
-        acc_e = 2 * (x * y + w * z) * ax + (1 - 2 * (x * x + z * z)) * ay + 2 * (y * z - w * x) * az - be
-        acc_d = 2 * (x * z - w * y) * ax + 2 * (y * z + w * x) * ay + (1 - 2 * (x * x + y * y)) * az + GRAVITY_MPS2 - bd
+        acc_n = r00 * ax + r01 * ay + r02 * az - bn
+        acc_e = r10 * ax + r11 * ay + r12 * az - be
+        acc_d = r20 * ax + r21 * ay + r22 * az + GRAVITY_MPS2 - bd
         pn, pe, pd = self._pos
         vn, ve, vd = self._vel
         pn += vn * dt_s + 0.5 * acc_n * dt_s * dt_s
@@ -257,9 +255,10 @@ class Estimator:
         self._vel = (vn, ve, vd)
         self._acc_bias = (bn, be, bd)
         self._time_s = time_s
-        roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-        pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
-        yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+        # ZYX Euler angles from the same rotation matrix (as sitl.mathutil.quat_to_euler).
+        roll = math.atan2(r21, r22)
+        pitch = math.asin(max(-1.0, min(1.0, -r20)))
+        yaw = math.atan2(r10, r00)
         return Estimate(
             time_s=time_s,
             pos_ned_m=np.array((pn, pe, pd)),

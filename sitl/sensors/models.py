@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sitl.dynamics.plant import PlantState
-from sitl.mathutil import GRAVITY_MPS2, Vec3, quat_to_dcm, vec3
+from sitl.mathutil import GRAVITY_MPS2, Vec3, vec3
 from sitl.sensors.noise import NoiseSource
 
 
@@ -79,13 +79,25 @@ def _isa_pressure_hpa(alt_amsl_m: float) -> float:
 class Imu:
     def __init__(self, config: SensorConfig, rng: np.random.Generator) -> None:
         self._cfg = config
-        self._gyro_bias = rng.uniform(-config.gyro_bias_max_radps, config.gyro_bias_max_radps, 3)
-        self._accel_bias = rng.uniform(-config.accel_bias_max_mps2, config.accel_bias_max_mps2, 3)
+        gyro_bias = rng.uniform(-config.gyro_bias_max_radps, config.gyro_bias_max_radps, 3).tolist()
+        accel_bias = rng.uniform(-config.accel_bias_max_mps2, config.accel_bias_max_mps2, 3).tolist()
+        self._gyro_bias: tuple[float, float, float] = (gyro_bias[0], gyro_bias[1], gyro_bias[2])
+        self._accel_bias: tuple[float, float, float] = (accel_bias[0], accel_bias[1], accel_bias[2])
         self._noise = NoiseSource(rng)
 
     def sample(self, truth: PlantState) -> ImuSample:
-        gyro = truth.rates_frd_radps + self._gyro_bias + self._cfg.gyro_noise_radps * self._noise.vec3()
-        accel = truth.specific_force_frd_mps2 + self._accel_bias + self._cfg.accel_noise_mps2 * self._noise.vec3()
+        # Scalar arithmetic on Python floats: at 400 Hz numpy's per-call overhead on 3-vectors dominates.
+        noise = self._noise
+        wx, wy, wz = truth.rates_frd_radps.tolist()
+        bx, by, bz = self._gyro_bias
+        nx, ny, nz = noise.floats3()
+        k = self._cfg.gyro_noise_radps
+        gyro = np.array((wx + bx + k * nx, wy + by + k * ny, wz + bz + k * nz))
+        fx, fy, fz = truth.specific_force_frd_mps2.tolist()
+        bx, by, bz = self._accel_bias
+        nx, ny, nz = noise.floats3()
+        k = self._cfg.accel_noise_mps2
+        accel = np.array((fx + bx + k * nx, fy + by + k * ny, fz + bz + k * nz))
         return ImuSample(gyro_frd_radps=gyro, accel_frd_mps2=accel)
 
 
@@ -108,8 +120,10 @@ class Gps:
         self._cfg = config
         self._noise = NoiseSource(rng)
         self._clock = _Periodic(config.gps_rate_hz)
-        self._drift_ne_m = np.zeros(2)
+        self._drift_n_m = 0.0
+        self._drift_e_m = 0.0
         self._alpha = math.exp(-1.0 / (config.gps_rate_hz * config.gps_drift_time_s))
+        self._drift_gain = math.sqrt(1 - self._alpha**2) * config.gps_pos_drift_h_m
 
     def sample(self, truth: PlantState) -> GpsSample | None:
         if not self._clock.due(truth.time_s):
@@ -129,28 +143,30 @@ class Gps:
                 eph_m=99.0,
                 epv_m=99.0,
             )
-        n_pos, n_vel, n_drift = self._noise.vec3(), self._noise.vec3(), self._noise.vec3()
-        self._drift_ne_m = (
-            self._alpha * self._drift_ne_m + math.sqrt(1 - self._alpha**2) * cfg.gps_pos_drift_h_m * n_drift[:2]
-        )
-        err_ned = vec3(
-            self._drift_ne_m[0] + cfg.gps_pos_noise_h_m * n_pos[0],
-            self._drift_ne_m[1] + cfg.gps_pos_noise_h_m * n_pos[1],
-            cfg.gps_pos_noise_v_m * n_pos[2],
-        )
-        pos = truth.pos_ned_m + err_ned
+        noise = self._noise
+        pos_x, pos_y, pos_z = noise.floats3()
+        vel_x, vel_y, vel_z = noise.floats3()
+        drift_x, drift_y, _ = noise.floats3()
+        self._drift_n_m = self._alpha * self._drift_n_m + self._drift_gain * drift_x
+        self._drift_e_m = self._alpha * self._drift_e_m + self._drift_gain * drift_y
+        err_n = self._drift_n_m + cfg.gps_pos_noise_h_m * pos_x
+        err_e = self._drift_e_m + cfg.gps_pos_noise_h_m * pos_y
+        err_d = cfg.gps_pos_noise_v_m * pos_z
+        tn, te, td = truth.pos_ned_m.tolist()
+        vn, ve, vd = truth.vel_ned_mps.tolist()
+        k_vel = cfg.gps_vel_noise_mps
         # Geodetic of the noisy fix: offset the true geodetic by the same error (metres to degrees, local scale).
-        lat = truth.geo.lat_deg + math.degrees(err_ned[0] / 6378137.0)
-        lon = truth.geo.lon_deg + math.degrees(err_ned[1] / (6378137.0 * math.cos(math.radians(truth.geo.lat_deg))))
+        lat = truth.geo.lat_deg + math.degrees(err_n / 6378137.0)
+        lon = truth.geo.lon_deg + math.degrees(err_e / (6378137.0 * math.cos(math.radians(truth.geo.lat_deg))))
         return GpsSample(
             time_s=truth.time_s,
             fix_type=3,
             satellites=cfg.gps_satellites,
             lat_deg=lat,
             lon_deg=lon,
-            alt_amsl_m=truth.geo.alt_amsl_m - err_ned[2],
-            pos_ned_m=pos,
-            vel_ned_mps=truth.vel_ned_mps + cfg.gps_vel_noise_mps * n_vel,
+            alt_amsl_m=truth.geo.alt_amsl_m - err_d,
+            pos_ned_m=vec3(tn + err_n, te + err_e, td + err_d),
+            vel_ned_mps=vec3(vn + k_vel * vel_x, ve + k_vel * vel_y, vd + k_vel * vel_z),
             eph_m=max(0.3, 3 * cfg.gps_pos_noise_h_m),
             epv_m=max(0.4, 3 * cfg.gps_pos_noise_v_m),
         )
@@ -173,14 +189,21 @@ class Magnetometer:
     def __init__(self, config: SensorConfig, rng: np.random.Generator) -> None:
         self._cfg = config
         self._noise = NoiseSource(rng)
-        self._field_ned = np.array(config.mag_field_ned_gauss)
+        self._field_ned = tuple(float(c) for c in config.mag_field_ned_gauss)
         self._clock = _Periodic(config.baro_rate_hz)
 
     def sample(self, truth: PlantState) -> MagSample | None:
         if not self._clock.due(truth.time_s):
             return None
-        field = quat_to_dcm(truth.att_q_frd_to_ned).T @ self._field_ned
-        return MagSample(field_frd_gauss=field + self._cfg.mag_noise_gauss * self._noise.vec3())
+        w, x, y, z = truth.att_q_frd_to_ned.tolist()
+        fn, fe, fd = self._field_ned
+        nx, ny, nz = self._noise.floats3()
+        k = self._cfg.mag_noise_gauss
+        # R(q)^T field_ned, with R(q) the body->NED rotation matrix.
+        bx = (1 - 2 * (y * y + z * z)) * fn + 2 * (x * y + w * z) * fe + 2 * (x * z - w * y) * fd
+        by = 2 * (x * y - w * z) * fn + (1 - 2 * (x * x + z * z)) * fe + 2 * (y * z + w * x) * fd
+        bz = 2 * (x * z + w * y) * fn + 2 * (y * z - w * x) * fe + (1 - 2 * (x * x + y * y)) * fd
+        return MagSample(field_frd_gauss=vec3(bx + k * nx, by + k * ny, bz + k * nz))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -15,20 +15,36 @@ _BLOCK = 4096
 
 
 class NoiseSource:
-    """Standard-normal 3-vectors from one seeded stream; each sensor owns its own stream."""
+    """Standard-normal 3-vectors from one seeded stream; each sensor owns its own stream.
+
+    ``vec3`` hands out a row of the block as a numpy array, ``floats3`` the same row as Python floats (cheaper for
+    scalar arithmetic); both consume the stream identically, one row per call.
+    """
 
     def __init__(self, rng: np.random.Generator) -> None:
         self._rng = rng
         self._block = rng.standard_normal((_BLOCK, 3))
+        self._rows: list[list[float]] = self._block.tolist()
+        self._next = 0
+
+    def _refill(self) -> None:
+        self._block = self._rng.standard_normal((_BLOCK, 3))
+        self._rows = self._block.tolist()
         self._next = 0
 
     def vec3(self) -> Vec3:
         if self._next == _BLOCK:
-            self._block = self._rng.standard_normal((_BLOCK, 3))
-            self._next = 0
+            self._refill()
         row = self._block[self._next]
         self._next += 1
         return row
 
+    def floats3(self) -> tuple[float, float, float]:
+        if self._next == _BLOCK:
+            self._refill()
+        x, y, z = self._rows[self._next]
+        self._next += 1
+        return x, y, z
+
     def scalar(self) -> float:
-        return float(self.vec3()[0])
+        return self.floats3()[0]
