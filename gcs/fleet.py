@@ -34,12 +34,10 @@ class DroneView:
     local_ned_m: tuple[float, float, float] = (math.nan, math.nan, math.nan)
     home: tuple[float, float, float] | None = None  # lat, lon, alt AMSL
     home_local_ned_m: tuple[float, float, float] | None = None  # home in the drone's own local frame
-    local_time_s: float = -math.inf
     battery_remaining: float = math.nan  # 0..1
     battery_voltage_v: float = math.nan
     landed_state: int = 0  # MAV_LANDED_STATE
     prearm_ok: bool = False
-    position_time_s: float = -math.inf
     texts: list[tuple[float, int, str]] = field(default_factory=list)  # (time, severity, text), newest last
 
     def link_age_s(self, now_s: float) -> float:
@@ -78,11 +76,9 @@ class Fleet:
             view.lat_deg, view.lon_deg = msg.lat * 1e-7, msg.lon * 1e-7
             view.alt_amsl_m, view.relative_alt_m = msg.alt * 1e-3, msg.relative_alt * 1e-3
             view.vel_ned_mps = (msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
-            view.position_time_s = now_s
         elif kind == "LOCAL_POSITION_NED":
             view.local_ned_m = (msg.x, msg.y, msg.z)
             view.vel_ned_mps = (msg.vx, msg.vy, msg.vz)
-            view.local_time_s = now_s
         elif kind == "HOME_POSITION":
             view.home = (msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3)
             view.home_local_ned_m = (msg.x, msg.y, msg.z)

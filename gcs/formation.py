@@ -56,6 +56,7 @@ from numpy.polynomial import Polynomial
 
 from gcs.assignment import assign_min_squared_distance
 from gcs.frames import Vec3
+from sitl.mathutil import wrap_pi
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -476,10 +477,6 @@ def _arrival_spin(formation: Formation, duration_s: float) -> tuple[float, float
     return rate, _SPIN_UP_MEAN * duration_s * rate
 
 
-def _wrap_pi(angle: float) -> float:
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
-
-
 def _as_points(positions: Mapping[int, Sequence[float] | npt.ArrayLike], ids: Sequence[int]) -> FloatArray:
     pts = np.array([np.asarray(positions[i], dtype=np.float64).reshape(-1) for i in ids], dtype=np.float64)
     if pts.shape != (len(ids), 3) or not np.all(np.isfinite(pts)):
@@ -657,7 +654,7 @@ class FormationEngine:
         yaw = math.nan
         if self._yaw_mode is YawMode.FORMATION:
             _, formation_yaw = plan.target.formation.frame(np.array([t - plan.start_s]))
-            yaw = _wrap_pi(float(formation_yaw[0]))
+            yaw = wrap_pi(float(formation_yaw[0]))
         return {
             drone: Setpoint(pos_ned_m=_vec(p[1, k]), vel_ned_mps=_vec(vel[k]), acc_ned_mps2=_vec(acc[k]), yaw_rad=yaw)
             for k, drone in enumerate(self._ids)

@@ -15,7 +15,6 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import math
-import os
 import signal
 import subprocess
 import sys
@@ -150,17 +149,3 @@ class ProcessGroup:
             except subprocess.TimeoutExpired:
                 d.process.kill()
                 d.process.wait()
-
-    @property
-    def pids(self) -> list[int]:
-        return [d.process.pid for d in self.drones]
-
-
-def pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True

@@ -91,7 +91,6 @@ class Estimator:
         self._have_baro = False
         self._mag_ref_heading_rad = 0.0  # direction of the reference field's horizontal part (the declination)
         self._rates: _Floats3 = (0.0, 0.0, 0.0)
-        self._time_s = 0.0
 
     def set_mag_reference(self, field_ned_gauss: Vec3) -> None:
         self._mag_ref_heading_rad = math.atan2(float(field_ned_gauss[1]), float(field_ned_gauss[0]))
@@ -254,7 +253,6 @@ class Estimator:
         self._pos = (pn, pe, pd)
         self._vel = (vn, ve, vd)
         self._acc_bias = (bn, be, bd)
-        self._time_s = time_s
         # ZYX Euler angles from the same rotation matrix (as sitl.mathutil.quat_to_euler).
         roll = math.atan2(r21, r22)
         pitch = math.asin(max(-1.0, min(1.0, -r20)))

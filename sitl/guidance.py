@@ -71,7 +71,6 @@ class StraightLineTrajectory:
         self._pos = np.array(start_ned_m, dtype=np.float64)
         self._speed = 0.0
         self._dir = np.zeros(3)
-        self._acc = np.zeros(3)
 
     @property
     def position(self) -> Vec3:
@@ -80,7 +79,6 @@ class StraightLineTrajectory:
     def reset(self, pos_ned_m: Vec3) -> None:
         self._pos = np.array(pos_ned_m, dtype=np.float64)
         self._speed = 0.0
-        self._acc = np.zeros(3)
 
     def update(
         self, target_ned_m: Vec3, limits: MotionLimits, dt_s: float, max_speed_mps: float = math.inf
@@ -90,7 +88,6 @@ class StraightLineTrajectory:
         if dist < 1e-4 and self._speed < 1e-3:
             self._pos = np.array(target_ned_m, dtype=np.float64)
             self._speed = 0.0
-            self._acc = np.zeros(3)
             return Reference(pos_ned_m=self._pos.copy(), vel_ned_mps=np.zeros(3), acc_ned_mps2=np.zeros(3))
         direction = delta / dist if dist > 1e-9 else self._dir
         line_limit = _component_scale(direction, limits.speed_xy_mps, limits.speed_up_mps, limits.speed_down_mps)

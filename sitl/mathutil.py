@@ -69,10 +69,6 @@ def quat_mul(a: Quat, b: Quat) -> Quat:
     )
 
 
-def quat_conj(q: Quat) -> Quat:
-    return np.array((q[0], -q[1], -q[2], -q[3]))
-
-
 def quat_from_euler(roll_rad: float, pitch_rad: float, yaw_rad: float) -> Quat:
     cr, sr = math.cos(roll_rad / 2), math.sin(roll_rad / 2)
     cp, sp = math.cos(pitch_rad / 2), math.sin(pitch_rad / 2)
@@ -94,15 +90,6 @@ def quat_to_euler(q: Quat) -> tuple[float, float, float]:
     pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
     yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
     return roll, pitch, yaw
-
-
-def quat_from_axis_angle(rotvec: Vec3) -> Quat:
-    """Quaternion for a rotation vector (axis * angle, radians)."""
-    angle = float(np.linalg.norm(rotvec))
-    if angle < 1e-12:
-        return np.array((1.0, 0.5 * rotvec[0], 0.5 * rotvec[1], 0.5 * rotvec[2]))
-    s = math.sin(angle / 2) / angle
-    return np.array((math.cos(angle / 2), rotvec[0] * s, rotvec[1] * s, rotvec[2] * s))
 
 
 def wrap_pi(angle_rad: float) -> float:

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -60,7 +60,6 @@ class _RtlPlan:
 @dataclass(slots=True)
 class _Failsafe:
     since_s: float
-    reason: str
 
 
 @dataclass(slots=True)
@@ -72,7 +71,6 @@ class VehicleStatus:
     landed_state: LandedState = LandedState.ON_GROUND
     failsafe: bool = False
     thrust_n: float = 0.0
-    setpoint_pos_ned_m: Vec3 = field(default_factory=lambda: np.zeros(3))
 
 
 class Vehicle:
@@ -89,6 +87,8 @@ class Vehicle:
         self.cascade = cascade
         self.status = VehicleStatus()
         self.crashed = False
+        self._limits_version = -1
+        self._limits_cache: MotionLimits | None = None
         self.events: list[VehicleEvent] = []
         self._battery_remaining = battery_remaining
         self._hover_thrust_n = airframe.mass_kg * 9.80665
@@ -122,13 +122,17 @@ class Vehicle:
         return self.params[name]
 
     def _limits(self) -> MotionLimits:
-        return MotionLimits(
-            speed_xy_mps=self._p("MPC_XY_CRUISE"),
-            speed_up_mps=self._p("MPC_Z_V_AUTO_UP"),
-            speed_down_mps=self._p("MPC_Z_V_AUTO_DN"),
-            accel_xy_mps2=self._p("MPC_ACC_HOR"),
-            accel_z_mps2=self._p("MPC_ACC_UP_MAX"),
-        )
+        """Auto-mode motion limits, rebuilt only when a parameter changed (this runs every control step)."""
+        if self._limits_cache is None or self._limits_version != self.params.version:
+            self._limits_version = self.params.version
+            self._limits_cache = MotionLimits(
+                speed_xy_mps=self._p("MPC_XY_CRUISE"),
+                speed_up_mps=self._p("MPC_Z_V_AUTO_UP"),
+                speed_down_mps=self._p("MPC_Z_V_AUTO_DN"),
+                accel_xy_mps2=self._p("MPC_ACC_HOR"),
+                accel_z_mps2=self._p("MPC_ACC_UP_MAX"),
+            )
+        return self._limits_cache
 
     @property
     def estimate(self) -> Estimate | None:
@@ -476,7 +480,7 @@ class Vehicle:
                 self._rtl.phase = "land"
         elif mode is Px4Mode.OFFBOARD and not self._offboard_alive(now_s):
             self._event(2, "Failsafe: offboard setpoints lost, holding")
-            self._failsafe = _Failsafe(since_s=now_s, reason="offboard loss")
+            self._failsafe = _Failsafe(since_s=now_s)
             self.status.failsafe = True
             self._hold_here()
             self._enter(Px4Mode.AUTO_LOITER)
@@ -568,7 +572,6 @@ class Vehicle:
             self._trajectory.reset(est.pos_ned_m)
             return self.cascade.update_attitude(est, self._offboard, dt_s, landed=self.landed)
         setpoint = self._setpoint_for_mode(est, now_s, dt_s)
-        self.status.setpoint_pos_ned_m = np.array(setpoint.pos_ned_m)
         return self.cascade.update(est, setpoint, dt_s, landed=self.landed)
 
     def _descending_to_land(self) -> bool:
