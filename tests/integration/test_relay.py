@@ -19,6 +19,8 @@ from pathlib import Path
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
+from gcs.probe import PROBE_SYSIDS, RelayProbe
+from sitl.dynamics.plant import DEFAULT_HOME
 from sitl.protocol.neighbours import Neighbour, NeighbourTable
 
 pytestmark = [pytest.mark.sim_only, pytest.mark.timeout(120)]
@@ -99,6 +101,16 @@ def test_relayed_positions_follow_a_drone_and_arrive_promptly(tmp_path: Path) ->
         pump_until(lambda: False, 2.0)  # it holds there: the table keeps following, it does not run away
         assert 2.6 < risen_m() < 3.4, risen_m()
         assert max(heights) > 2.6 and min(heights) < 0.5
+        # WHEN a probe joins as two more vehicles THEN every report of one reaches the other through the relay,
+        # and the drones hear the probe too (a router forwards every system's position to every other)
+        probe = RelayProbe(port, (DEFAULT_HOME.lat_deg, DEFAULT_HOME.lon_deg, DEFAULT_HOME.alt_amsl_m))
+        try:
+            stats = probe.run_for(3.0)
+        finally:
+            probe.close()
+        assert stats.sent >= 25 and stats.received >= stats.sent - 1, stats  # the last may still be in flight
+        assert 0.0 < stats.median_ms <= stats.p95_ms <= stats.max_ms, stats
+        assert pump_until(lambda: PROBE_SYSIDS[0] in neighbours(), 2.0), neighbours()
     finally:
         relay_sock.close()
         if up.poll() is None:

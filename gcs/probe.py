@@ -1,0 +1,165 @@
+"""Relay latency, measured from outside: a probe joins the swarm as two vehicles and times the relay hop.
+
+The relay's job is to move one drone's GLOBAL_POSITION_INT to the others. Timing that hop inside the drones would
+need their clocks aligned (each paced process has its own simulated clock), so the probe stands in for two drones on
+one loopback socket instead: it sends a position report as system A, stamped with a sequence marker in
+``time_boot_ms``, and the relay forwards it to every other live system - including B, which is the same socket.
+Send and receive times are read from one clock in one process, so the difference is exactly what a drone's report
+spends between leaving its socket and arriving at a neighbour's: the UDP hops both ways and the supervisor's
+receive, parse, rate limit and forward. The probe reports from a point 10 km north of the first drone and 100 m up,
+so no drone's avoidance ever reacts to it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import selectors
+import socket
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+from pymavlink.dialects.v20 import common as mavlink
+
+HEARTBEAT_INTERVAL_S = 0.5
+PROBE_OFFSET_NORTH_DEG = 0.09  # about 10 km
+PROBE_SYSIDS = (240, 241)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LatencyStats:
+    """Summary of one probe run (milliseconds; NaN when nothing came back)."""
+
+    sent: int
+    received: int
+    median_ms: float
+    p95_ms: float
+    max_ms: float
+
+    @property
+    def lost(self) -> int:
+        return self.sent - self.received
+
+
+def latency_stats(latencies_s: Sequence[float], sent: int) -> LatencyStats:
+    """Median, 95th percentile and maximum of the measured hops (nearest-rank percentiles)."""
+    if not latencies_s:
+        nan = float("nan")
+        return LatencyStats(sent=sent, received=0, median_ms=nan, p95_ms=nan, max_ms=nan)
+    ordered = sorted(latencies_s)
+
+    def rank(q: float) -> float:
+        return ordered[min(len(ordered) - 1, max(0, round(q * len(ordered)) - 1))] * 1e3
+
+    return LatencyStats(
+        sent=sent, received=len(ordered), median_ms=rank(0.5), p95_ms=rank(0.95), max_ms=ordered[-1] * 1e3
+    )
+
+
+class RelayProbe:
+    """Two probe vehicles on one socket: A reports its position at ``rate_hz``, B receives A's relayed reports."""
+
+    def __init__(
+        self,
+        gcs_port: int,
+        anchor_lat_lon_alt: tuple[float, float, float],
+        rate_hz: float = 10.0,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self._gcs = ("127.0.0.1", gcs_port)
+        self._clock = clock
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.setblocking(False)
+        self._sender = mavlink.MAVLink(None, srcSystem=PROBE_SYSIDS[0], srcComponent=1)
+        self._other = mavlink.MAVLink(None, srcSystem=PROBE_SYSIDS[1], srcComponent=1)
+        self._parser = mavlink.MAVLink(None)
+        self._parser.robust_parsing = True
+        lat, lon, alt = anchor_lat_lon_alt
+        self._position = (round((lat + PROBE_OFFSET_NORTH_DEG) * 1e7), round(lon * 1e7), round((alt + 100.0) * 1e3))
+        self._interval_s = 1.0 / rate_hz
+        self._next_report_s = 0.0
+        self._next_heartbeat_s = 0.0
+        self._marker = 0
+        self._sent_at: dict[int, float] = {}
+        self.latencies_s: list[float] = []
+
+    def tick(self) -> None:
+        """Keep both probe vehicles alive and send A's next position report when due."""
+        now = self._clock()
+        if now >= self._next_heartbeat_s:
+            self._next_heartbeat_s = now + HEARTBEAT_INTERVAL_S
+            for encoder in (self._sender, self._other):
+                hb = mavlink.MAVLink_heartbeat_message(
+                    mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, 0, 0, 3, 3
+                )
+                self.sock.sendto(hb.pack(encoder), self._gcs)
+        if now >= self._next_report_s:
+            self._next_report_s = now + self._interval_s
+            self._marker += 1
+            lat, lon, alt = self._position
+            report = mavlink.MAVLink_global_position_int_message(self._marker, lat, lon, alt, 100_000, 0, 0, 0, 0)
+            data = report.pack(self._sender)
+            self._sent_at[self._marker] = self._clock()
+            self.sock.sendto(data, self._gcs)
+
+    def receive(self) -> None:
+        """Time every relayed report of A that has arrived (everything else the relay sends is ignored)."""
+        while True:
+            try:
+                data = self.sock.recv(65535)
+            except (BlockingIOError, InterruptedError):
+                return
+            now = self._clock()
+            for msg in self._parser.parse_buffer(data) or []:
+                if msg.get_type() != "GLOBAL_POSITION_INT" or msg.get_srcSystem() != PROBE_SYSIDS[0]:
+                    continue
+                sent = self._sent_at.pop(msg.time_boot_ms, None)
+                if sent is not None:
+                    self.latencies_s.append(now - sent)
+
+    def stats(self) -> LatencyStats:
+        return latency_stats(self.latencies_s, self._marker)
+
+    def run_for(self, duration_s: float) -> LatencyStats:
+        """Probe for ``duration_s``, waking on arrivals (so a reply is timed when it lands, not on a poll)."""
+        end = self._clock() + duration_s
+        with selectors.DefaultSelector() as selector:
+            selector.register(self.sock, selectors.EVENT_READ)
+            while (now := self._clock()) < end:
+                self.tick()
+                selector.select(max(0.0, min(self._next_report_s, self._next_heartbeat_s, end) - now))
+                self.receive()
+        return self.stats()
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m gcs.probe PORT``: probe a running swarm's relay from a process of its own, print JSON stats."""
+    parser = argparse.ArgumentParser(prog="python -m gcs.probe", description=__doc__.splitlines()[0])
+    parser.add_argument("port", type=int, help="the supervisor's MAVLink port (swarm up prints it)")
+    parser.add_argument("--seconds", type=float, default=10.0, help="how long to probe (default 10)")
+    parser.add_argument("--rate", type=float, default=10.0, help="reports per second (default 10)")
+    parser.add_argument("--anchor", default="47.397742,8.545594,488.0", help="LAT,LON,ALT near the swarm")
+    args = parser.parse_args(argv)
+    try:
+        lat, lon, alt = (float(v) for v in args.anchor.split(","))
+    except ValueError:
+        print(f"error: --anchor must be LAT,LON,ALT, got {args.anchor!r}", file=sys.stderr)
+        return 2
+    probe = RelayProbe(args.port, (lat, lon, alt), rate_hz=args.rate)
+    try:
+        stats = probe.run_for(args.seconds)
+    finally:
+        probe.close()
+    print(json.dumps({"sent": stats.sent, "received": stats.received, "median_ms": stats.median_ms,
+                      "p95_ms": stats.p95_ms, "max_ms": stats.max_ms}))  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
