@@ -3,17 +3,23 @@
 from __future__ import annotations
 
 import sys
+import time
+from pathlib import Path
 
 from sitl.airframe import Airframe
+from sitl.awareness import Awareness
 from sitl.demo import DemoFlight
 from sitl.dynamics.plant import GeoPoint
+from sitl.lockstep import LockstepMember
 from sitl.mav_vehicle import SimVehicleApi
 from sitl.mavlink_io import LinkConfig, MavlinkEndpoint
 from sitl.protocol import Identity
-from sitl.runtime import RunOptions, StopFlag, run_loop
+from sitl.runtime import LockstepSteps, LoopStats, RunOptions, StopFlag, run_loop
 from sitl.simulation import SimConfig, Simulation
 from sitl.wind import WindConfig
 from sitl.world import SharedWorld, WorldParticipant
+
+CPU_REPORT_STEPS = 100  # how often the time spent per part is published in the shared world (for benchmarks)
 
 
 def _say(text: str) -> None:
@@ -32,22 +38,40 @@ def run(
     demo: bool,
     links: list[LinkConfig],
     world_name: str | None = None,
+    lockstep: bool = False,
+    camera_frames: Path | None = None,
 ) -> int:
     stop = StopFlag()
     stop.install()
     sim = Simulation(SimConfig(airframe=airframe, seed=seed, home=home, wind=wind))
-    speed = "unpaced" if speed_factor == 0 else f"{speed_factor:g}x real time"
+    speed = "lockstep" if lockstep else "unpaced" if speed_factor == 0 else f"{speed_factor:g}x real time"
     _say(
         f"sitl {instance}: airframe {airframe.name} ({airframe.mass_kg:.2f} kg, hover at "
         f"{airframe.hover_thrust_fraction:.0%} of max thrust), seed {seed}, {speed}, "
         f"physics {1 / sim.dt_s:.0f} Hz, home {home.lat_deg:.6f}, {home.lon_deg:.6f}, {home.alt_amsl_m:.1f} m"
     )
     flight = DemoFlight(sim, _say) if demo else None
-    participant = (
-        WorldParticipant(SharedWorld.attach(world_name), instance, airframe.collision_radius_m) if world_name else None
+    world = SharedWorld.attach(world_name) if world_name else None
+    participant = WorldParticipant(world, instance, airframe.collision_radius_m) if world is not None else None
+    clock = LockstepSteps(LockstepMember(world, instance)) if lockstep and world is not None else None
+
+    api = SimVehicleApi(sim)
+    endpoint = MavlinkEndpoint(Identity(sysid=instance + 1), api, sim.params, links) if links else None
+    awareness = Awareness(
+        sim,
+        instance,
+        api.frame,
+        world=world,
+        neighbours=endpoint.neighbours if endpoint is not None else None,
+        frames_dir=camera_frames,
     )
 
+    stats = LoopStats()
+    perception_ns = 0
+    steps = 0
+
     def on_step() -> None:
+        nonlocal perception_ns, steps
         if flight is not None:
             flight.tick()
         if participant is not None:
@@ -60,8 +84,14 @@ def run(
                 sim.vehicle.crashed,
             ):
                 sim.vehicle.crash(f"Collision with drone {contact.instance + 1} at {contact.distance_m:.2f} m")
+        t0 = time.perf_counter_ns()
+        awareness.update(sim.time_s)
+        perception_ns += time.perf_counter_ns() - t0
+        steps += 1
+        if world is not None and steps % CPU_REPORT_STEPS == 0:
+            world.write_cpu(instance, sim.physics_ns * 1e-9, sim.control_ns * 1e-9, perception_ns * 1e-9,
+                            stats.link_ns * 1e-9)  # fmt: skip
 
-    endpoint = MavlinkEndpoint(Identity(sysid=instance + 1), SimVehicleApi(sim), sim.params, links) if links else None
     for link in endpoint.links if endpoint is not None else []:
         remote = link.config.remote
         _say(
@@ -74,9 +104,11 @@ def run(
             RunOptions(speed_factor=speed_factor, duration_s=duration_s),
             stop,
             endpoint=endpoint,
-            on_step=on_step if (flight is not None or participant is not None) else None,
+            on_step=on_step,
             on_event=(lambda e: flight.event(e.text)) if flight is not None else None,
             finished=(lambda: flight.done) if flight is not None else None,
+            clock=clock,
+            stats=stats,
         )
     finally:
         if endpoint is not None:

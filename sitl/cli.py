@@ -12,6 +12,7 @@ import math
 import os
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 from typing import NoReturn
 
 from sitl.airframe import DEFAULT_AIRFRAME, AirframeError, load_airframe
@@ -115,6 +116,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-gcs", action="store_true", help="no ground-station link")
     parser.add_argument("--no-mavlink", action="store_true", help="no MAVLink links at all (e.g. for --demo)")
     parser.add_argument("--world", default=None, help="name of the swarm's shared-world table (set by swarm)")
+    parser.add_argument(
+        "--lockstep", action="store_true", help="advance time together with the swarm's other drones (needs --world)"
+    )
+    parser.add_argument(
+        "--camera-frames", type=Path, default=None, help="save every camera frame as PNG in this directory"
+    )
     parser.add_argument("--duration", type=float, default=None, help="exit after this many simulated seconds")
     parser.add_argument("--demo", action="store_true", help="take off to 3 m, hover, land and exit, printing progress")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
@@ -146,6 +153,8 @@ def _main(argv: Sequence[str] | None) -> int:
         if not (-90 < lat < 90 and -180 <= lon <= 180):
             raise UsageError(f"--home latitude/longitude out of range: {args.home!r}")
         home = GeoPoint(lat_deg=lat, lon_deg=lon, alt_amsl_m=alt)
+    if args.lockstep and args.world is None:
+        raise UsageError("--lockstep needs --world (the swarm's shared world carries the common clock)")
     wind = _float_list(args.wind, 3, "--wind")
     speed = _speed_factor(args.speed)
     links = _links(args)
@@ -165,6 +174,8 @@ def _main(argv: Sequence[str] | None) -> int:
         demo=args.demo,
         links=links,
         world_name=args.world,
+        lockstep=args.lockstep,
+        camera_frames=args.camera_frames,
     )
 
 

@@ -14,7 +14,9 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from types import FrameType
+from typing import Protocol
 
+from sitl.lockstep import LockstepMember
 from sitl.mavlink_io import MavlinkEndpoint
 from sitl.pacing import Pacer
 from sitl.simulation import Simulation
@@ -27,6 +29,13 @@ log = logging.getLogger(__name__)
 class RunOptions:
     speed_factor: float = 1.0
     duration_s: float | None = None  # stop after this much simulation time
+
+
+@dataclass(slots=True)
+class LoopStats:
+    """Time the loop spends on MAVLink (receive, poll, STATUSTEXT), in nanoseconds of the monotonic clock."""
+
+    link_ns: int = 0
 
 
 class StopFlag:
@@ -45,6 +54,83 @@ class StopFlag:
         self.signal_name = signal.Signals(signum).name
 
 
+class StepClock(Protocol):
+    """Decides how many physics steps the loop may take now, and how to wait when it may take none."""
+
+    def steps_due(self, sim_time_s: float, completed_steps: int, max_batch: int) -> int: ...
+
+    def completed(self, steps: int) -> None: ...
+
+    def wait(self, selector: selectors.BaseSelector, sim_time_s: float) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class WallClockSteps:
+    """Paced by the wall clock at a speed factor (0 = as fast as possible)."""
+
+    def __init__(self, speed_factor: float, dt_s: float) -> None:
+        self.pacer = Pacer(speed_factor, dt_s, time.monotonic())
+        self.dt_s = dt_s
+
+    def steps_due(self, sim_time_s: float, completed_steps: int, max_batch: int) -> int:
+        return self.pacer.steps_due(time.monotonic(), sim_time_s, max_batch)
+
+    def completed(self, steps: int) -> None:
+        pass
+
+    def wait(self, selector: selectors.BaseSelector, sim_time_s: float) -> None:
+        if self.pacer.unpaced:
+            return
+        wait_s = self.pacer.wall_time_of(sim_time_s + self.dt_s) - time.monotonic()
+        if wait_s > 0:
+            if selector.get_map():
+                selector.select(wait_s)
+            else:
+                time.sleep(wait_s)
+
+    def close(self) -> None:
+        if self.pacer.dropped_s > 0:
+            log.warning("fell behind real time by %.2f s of simulation time in total", self.pacer.dropped_s)
+
+
+LOCKSTEP_GATE_WAIT_S = 0.0002
+LOCKSTEP_PEER_WAIT_S = 0.0002
+
+
+class LockstepSteps:
+    """Advanced together with the other drones through the shared world (sitl/lockstep.py)."""
+
+    def __init__(self, member: LockstepMember) -> None:
+        self.member = member
+        self._gated = True
+        self._due = 0
+        member.join()
+
+    def steps_due(self, sim_time_s: float, completed_steps: int, max_batch: int) -> int:
+        due, self._gated = self.member.steps_allowed(completed_steps)
+        self._due = min(due, max_batch)
+        return self._due
+
+    def completed(self, steps: int) -> None:
+        self.member.completed(steps)
+
+    def wait(self, selector: selectors.BaseSelector, sim_time_s: float) -> None:
+        """Waiting for the supervisor: sleep briefly (waking on MAVLink); waiting for a peer: let it run."""
+        if self._due > 0:
+            return
+        if self._gated:
+            if selector.get_map():
+                selector.select(LOCKSTEP_GATE_WAIT_S)
+            else:
+                time.sleep(LOCKSTEP_GATE_WAIT_S)
+        else:
+            time.sleep(LOCKSTEP_PEER_WAIT_S)
+
+    def close(self) -> None:
+        self.member.leave()
+
+
 def run_loop(
     sim: Simulation,
     options: RunOptions,
@@ -54,9 +140,13 @@ def run_loop(
     on_step: Callable[[], None] | None = None,
     on_event: Callable[[VehicleEvent], None] | None = None,
     finished: Callable[[], bool] | None = None,
+    clock: StepClock | None = None,
+    stats: LoopStats | None = None,
 ) -> None:
-    """Step the simulation paced to the wall clock until stopped, finished, or the duration is reached."""
-    pacer = Pacer(options.speed_factor, sim.dt_s, time.monotonic())
+    """Step the simulation (paced to the wall clock unless another clock is given) until stopped, finished, or
+    the duration is reached."""
+    steps_clock = clock if clock is not None else WallClockSteps(options.speed_factor, sim.dt_s)
+    completed = 0
     selector = selectors.DefaultSelector()
     if endpoint is not None:
         for sock in endpoint.sockets():
@@ -64,19 +154,26 @@ def run_loop(
     events = sim.vehicle.events
     # Unpaced, check the sockets every few milliseconds of simulation rather than after every step.
     max_batch = 400 if endpoint is None else 8
+    loop_stats = stats if stats is not None else LoopStats()
+    clock_ns = time.perf_counter_ns
     try:
         while not stop.stopped:
             if endpoint is not None:
+                t0 = clock_ns()
                 endpoint.receive(sim.time_s)
-            due = pacer.steps_due(time.monotonic(), sim.time_s, max_batch)
+                loop_stats.link_ns += clock_ns() - t0
+            due = steps_clock.steps_due(sim.time_s, completed, max_batch)
             for _ in range(due):
                 sim.step()
+                completed += 1
+                steps_clock.completed(completed)
                 if on_step is not None:
                     on_step()
                 if (finished is not None and finished()) or (
                     options.duration_s is not None and sim.time_s >= options.duration_s - 1e-9
                 ):
                     return
+            t0 = clock_ns()
             if events:
                 for event in events:
                     if endpoint is not None:
@@ -86,14 +183,8 @@ def run_loop(
                 events.clear()
             if endpoint is not None:
                 endpoint.poll(sim.time_s)
-            if not pacer.unpaced:
-                wait_s = pacer.wall_time_of(sim.time_s + sim.dt_s) - time.monotonic()
-                if wait_s > 0:
-                    if selector.get_map():
-                        selector.select(wait_s)
-                    else:
-                        time.sleep(wait_s)
+            loop_stats.link_ns += clock_ns() - t0
+            steps_clock.wait(selector, sim.time_s)
     finally:
         selector.close()
-        if pacer.dropped_s > 0:
-            log.warning("fell behind real time by %.2f s of simulation time in total", pacer.dropped_s)
+        steps_clock.close()

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sitl.airframe import Airframe
+from sitl.collision_prevention import CollisionPrevention
 from sitl.control.cascade import AttitudeSetpoint, Cascade, CascadeOutput, TrajectorySetpoint
 from sitl.estimation import Estimate
 from sitl.guidance import MotionLimits, StraightLineTrajectory
@@ -113,6 +114,9 @@ class Vehicle:
         self._mission_landing = False
         self._battery_low_warned = False
         self._battery_critical = False
+        self.collision_prevention = CollisionPrevention(
+            params, cascade.position, airframe.collision_radius_m, self._event
+        )
 
     # ---- helpers ---------------------------------------------------------------------------------------------------
     def _event(self, severity: int, text: str) -> None:
@@ -572,6 +576,8 @@ class Vehicle:
             self._trajectory.reset(est.pos_ned_m)
             return self.cascade.update_attitude(est, self._offboard, dt_s, landed=self.landed)
         setpoint = self._setpoint_for_mode(est, now_s, dt_s)
+        if not self.landed:
+            setpoint = self.collision_prevention.apply(setpoint, est.pos_ned_m, est.vel_ned_mps, now_s)
         return self.cascade.update(est, setpoint, dt_s, landed=self.landed)
 
     def _descending_to_land(self) -> bool:

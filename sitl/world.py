@@ -6,8 +6,12 @@ physics needs to know where the other bodies really are. The supervisor creates 
 and reads all rows. Positions are geodetic, so drones with different homes share one table without agreeing on a
 frame; over a swarm's extent the local flat-earth conversion is exact to millimetres.
 
-Row layout (float64): valid, time_s, lat_deg, lon_deg, alt_amsl_m, vn, ve, vd, radius_m, crashed.
-A single writer per row and a reader that tolerates a torn row for one sample (it is re-read next time) need no lock.
+Row layout (float64): valid, time_s, lat_deg, lon_deg, alt_amsl_m, vn, ve, vd, radius_m, crashed, then the
+lockstep column: physics steps completed (infinite while the row is no lockstep member), then the seconds the drone
+has spent so far on physics, control, perception and MAVLink (read by ``swarm bench``). After the
+rows, a small header holds the lockstep gate (sitl/lockstep.py). A single writer per cell and a reader that tolerates
+a torn row for one sample (it is re-read next time) need no lock; step counts only grow, so a stale read only ever
+makes a drone wait a little longer, never run ahead.
 """
 
 from __future__ import annotations
@@ -23,8 +27,11 @@ import numpy as np
 import numpy.typing as npt
 
 MAX_DRONES = 256
-COLUMNS = 10
-VALID, TIME, LAT, LON, ALT, VN, VE, VD, RADIUS, CRASHED = range(COLUMNS)
+COLUMNS = 15
+VALID, TIME, LAT, LON, ALT, VN, VE, VD, RADIUS, CRASHED, STEP = range(11)
+CPU_PHYSICS, CPU_CONTROL, CPU_PERCEPTION, CPU_LINK = range(11, 15)  # seconds spent so far, for benchmarks
+HEADER_SLOTS = 4
+GATE_STEP, GATE_OPEN = range(2)  # header: steps every member may complete; 1 once the supervisor opened the gate
 EARTH_RADIUS_M = 6_371_000.0
 
 
@@ -40,7 +47,8 @@ class Contact:
     distance_m: float
 
 
-SIZE_BYTES = MAX_DRONES * COLUMNS * 8
+TABLE_BYTES = MAX_DRONES * COLUMNS * 8
+SIZE_BYTES = TABLE_BYTES + HEADER_SLOTS * 8
 SHM_DIR = Path("/dev/shm")
 
 
@@ -54,6 +62,9 @@ class SharedWorld:
         self._shm = shm
         self._map = buffer if isinstance(buffer, mmap.mmap) else None
         self.table: npt.NDArray[np.float64] = np.ndarray((MAX_DRONES, COLUMNS), dtype=np.float64, buffer=buffer)
+        self.header: npt.NDArray[np.float64] = np.ndarray(
+            (HEADER_SLOTS,), dtype=np.float64, buffer=buffer, offset=TABLE_BYTES
+        )
 
     @property
     def name(self) -> str:
@@ -65,6 +76,8 @@ class SharedWorld:
         assert shm.buf is not None
         world = cls(shm.name, shm.buf, shm)
         world.table[:] = 0.0
+        world.table[:, STEP] = np.inf  # a row that is no lockstep member never holds anyone back
+        world.header[:] = 0.0
         return world
 
     @classmethod
@@ -84,6 +97,9 @@ class SharedWorld:
         row[VN], row[VE], row[VD] = vel_ned_mps
         row[RADIUS], row[CRASHED] = radius_m, 1.0 if crashed else 0.0
         row[VALID] = 1.0
+
+    def write_cpu(self, instance: int, physics_s: float, control_s: float, perception_s: float, link_s: float) -> None:
+        self.table[instance, CPU_PHYSICS : CPU_LINK + 1] = (physics_s, control_s, perception_s, link_s)
 
     def clear(self, instance: int) -> None:
         self.table[instance, VALID] = 0.0
@@ -113,6 +129,7 @@ class SharedWorld:
 
     def close(self) -> None:
         self.table = np.zeros((0, COLUMNS))
+        self.header = np.zeros(HEADER_SLOTS)
         if self._map is not None:
             self._map.close()
         if self._shm is not None:

@@ -1,0 +1,121 @@
+"""What a drone perceives of the other bodies: its camera and the relayed neighbour table, fed to the autopilot.
+
+Two sensors, each at its own rate, both ending in the autopilot's collision prevention (sitl/collision_prevention.py):
+
+- the camera rig renders a frame from the shared world's truth (the other drones' true positions, this drone's true
+  attitude - the camera is a sensor, and sensors see the world as it is) every 1/CAM_RATE simulated seconds; the
+  detector then works on the image alone, and the detections are turned into relative positions with this drone's
+  ESTIMATED attitude. Nothing downstream of the image knows where anything really is;
+- the neighbour table (relayed GLOBAL_POSITION_INT) is converted into this drone's local frame every
+  ``RELAY_PERIOD_S``.
+
+Frames can be saved as PNG (``sitl --camera-frames DIR``): one file per camera per frame, named by instance,
+camera and simulated time, so any drone's view of any moment can be looked at afterwards.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from sitl.avoidance import Obstacle
+from sitl.collision_prevention import RelayedNeighbour
+from sitl.dynamics.geodesy import LocalFrame
+from sitl.params import ParamStore
+from sitl.perception.camera import CameraConfig, CameraRig, render_rig, spheres
+from sitl.perception.detector import detect_rig, to_ned
+from sitl.protocol.neighbours import NeighbourTable
+from sitl.simulation import Simulation
+from sitl.world import SharedWorld
+
+RELAY_PERIOD_S = 0.05
+
+
+class Awareness:
+    def __init__(
+        self,
+        sim: Simulation,
+        instance: int,
+        frame: LocalFrame,
+        *,
+        world: SharedWorld | None,
+        neighbours: NeighbourTable | None,
+        frames_dir: Path | None = None,
+    ) -> None:
+        self._sim = sim
+        self._instance = instance
+        self._frame = frame
+        self._world = world
+        self._neighbours = neighbours
+        self._frames_dir = frames_dir
+        if frames_dir is not None:
+            frames_dir.mkdir(parents=True, exist_ok=True)
+        self._params: ParamStore = sim.params
+        self._radius_m = sim.config.airframe.collision_radius_m
+        self._prevention = sim.vehicle.collision_prevention
+        self._rng = np.random.default_rng(np.random.SeedSequence(sim.config.seed).spawn(3)[2])
+        self._rig_version = -1
+        self._rig: CameraRig | None = None
+        self._next_frame_s = 0.0
+        self._next_relay_s = 0.0
+        self.frames = 0
+
+    def _camera_rig(self) -> CameraRig:
+        """The rig from the CAM_* parameters (rebuilt only when one changed)."""
+        if self._rig is None or self._rig_version != self._params.version:
+            p = self._params
+            self._rig_version = p.version
+            config = CameraConfig(
+                fov_h_rad=math.radians(p["CAM_HFOV"]),
+                max_range_m=p["CAM_RANGE"],
+                frame_rate_hz=p["CAM_RATE"],
+                noise_seed=self._sim.config.seed,
+            )
+            self._rig = CameraRig.omni(config) if p["CAM_RIG"] == 1 else CameraRig.forward(config)
+        return self._rig
+
+    def update(self, now_s: float) -> None:
+        """Call every physics step; does its work only when a camera frame or a relay update is due."""
+        if self._neighbours is not None and now_s >= self._next_relay_s:
+            self._next_relay_s = now_s + RELAY_PERIOD_S
+            self._update_relay(now_s)
+        if self._world is not None and now_s >= self._next_frame_s:
+            self._next_frame_s = now_s + 1.0 / self._params["CAM_RATE"]
+            if self._params["CAM_ENABLE"] == 1:
+                self._capture(now_s)
+            else:
+                self._prevention.set_camera((), now_s)
+
+    def _update_relay(self, now_s: float) -> None:
+        assert self._neighbours is not None
+        frame = self._frame
+        out = []
+        for n in self._neighbours.entries(now_s):
+            pos = frame.ned_from_geodetic_rad(math.radians(n.lat_deg), math.radians(n.lon_deg), n.alt_amsl_m)
+            out.append(
+                RelayedNeighbour(sysid=n.sysid, pos_ned_m=pos, vel_ned_mps=n.vel_ned_mps, received_s=n.received_s)
+            )
+        self._prevention.set_relay(out)
+
+    def _capture(self, now_s: float) -> None:
+        assert self._world is not None
+        est = self._sim.estimate
+        if est is None or not est.attitude_valid:
+            return
+        rig = self._camera_rig()
+        _ids, offsets = self._world.others_ned_m(self._instance)
+        images = render_rig(rig, self._sim.truth.att_q_frd_to_ned, spheres(offsets, self._radius_m), self._rng)
+        self.frames += 1
+        if self._frames_dir is not None:
+            for image, camera in zip(images, rig.cameras, strict=True):
+                name = f"drone{self._instance}-{camera.config.name}-{now_s:09.3f}.png"
+                cv2.imwrite(str(self._frames_dir / name), image)
+        detections = detect_rig(images, rig, self._radius_m)
+        q = est.att_q_frd_to_ned
+        self._prevention.set_camera(
+            [Obstacle(rel_pos_ned_m=to_ned(d, q), radius_m=self._radius_m, source="camera") for d in detections],
+            now_s,
+        )

@@ -1,0 +1,159 @@
+"""Collision prevention in the autopilot: the avoidance algorithm (sitl/avoidance.py) applied to the setpoint.
+
+Every mode that flies a position (offboard position or velocity setpoints, missions, hold, goto, RTL) ends in one
+``TrajectorySetpoint``; this module turns it into the velocity the position loop would ask for, lets ``avoid`` bend
+that velocity away from what the drone perceives, and when a correction is needed hands the cascade a horizontal
+velocity setpoint instead (altitude keeps its own setpoint). With nothing near, the setpoint passes through untouched,
+so avoidance costs nothing to a drone flying alone and changes nothing in its flight.
+
+Inputs come from outside the autopilot at their own rates - camera detections (relative positions measured at the
+capture time) and relayed neighbours (absolute positions in this drone's local frame) - and are aged to "now" here.
+Avoidance itself runs at ``AVOID_RATE_HZ`` (PX4's position loop rate) and its velocity is held between runs.
+An *episode* starts when a correction first applies and ends after ``EPISODE_END_S`` without one; its start and end
+are STATUSTEXTs ("Avoidance: ...", counted in the flight report), the end carrying the closest approach.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+from sitl.avoidance import AvoidanceConfig, Obstacle, avoid, fuse
+from sitl.control.cascade import TrajectorySetpoint
+from sitl.control.position import PositionController
+from sitl.mathutil import Vec3
+from sitl.params import ParamStore
+
+Vec3f = tuple[float, float, float]
+
+AVOID_RATE_HZ = 50.0
+EPISODE_END_S = 1.0
+INPUT_TIMEOUT_S = 1.0  # camera frames older than this are forgotten (the relay's own ages are handled by fuse)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RelayedNeighbour:
+    """A neighbour as the relay reported it, converted to this drone's local frame."""
+
+    sysid: int
+    pos_ned_m: tuple[float, float, float]
+    vel_ned_mps: tuple[float, float, float]
+    received_s: float
+
+
+class CollisionPrevention:
+    def __init__(self, params: ParamStore, position: PositionController, own_radius_m: float,
+                 event: Callable[[int, str], None]) -> None:  # fmt: skip
+        self._params = params
+        self._position = position
+        self._own_radius_m = own_radius_m
+        self._event = event
+        self._config_version = -1
+        self._config = AvoidanceConfig()
+        self._camera: tuple[Obstacle, ...] = ()
+        self._camera_time_s = -math.inf
+        self._relay: tuple[RelayedNeighbour, ...] = ()
+        self._next_run_s = -math.inf
+        self._vel_xy: tuple[float, float] | None = None  # the held correction, None when not correcting
+        self._episode_closest_m = math.inf
+        self._last_active_s: float | None = None
+        self.episodes = 0
+        self.closest_m = math.inf  # over the whole flight, while correcting
+
+    # ---- inputs ----------------------------------------------------------------------------------------------------
+    def set_camera(self, detections: Sequence[Obstacle], capture_time_s: float) -> None:
+        """Camera detections (``rel_pos_ned_m`` as measured at ``capture_time_s``)."""
+        self._camera = tuple(detections)
+        self._camera_time_s = capture_time_s
+
+    def set_relay(self, neighbours: Sequence[RelayedNeighbour]) -> None:
+        self._relay = tuple(neighbours)
+
+    def config(self) -> AvoidanceConfig:
+        """The algorithm's configuration from the parameter table (rebuilt only when a parameter changed)."""
+        if self._config_version != self._params.version:
+            p = self._params
+            self._config_version = p.version
+            self._config = AvoidanceConfig(
+                enabled=p["AVOID_ENABLE"] == 1,
+                own_radius_m=self._own_radius_m,
+                min_distance_m=p["AVOID_MIN_DIST"],
+                horizon_s=p["AVOID_HORIZON"],
+                max_correction_mps=p["AVOID_MAX_CORR"],
+                max_speed_mps=p["MPC_XY_VEL_MAX"],
+                max_accel_mps2=p["MPC_ACC_HOR"],
+            )
+        return self._config
+
+    def _obstacles(self, pos_ned_m: Vec3f, own_vel: Vec3f, now_s: float) -> list[Obstacle]:
+        camera: list[Obstacle] = []
+        if now_s - self._camera_time_s <= INPUT_TIMEOUT_S:
+            age = now_s - self._camera_time_s
+            camera = [dataclasses.replace(d, age_s=d.age_s + age) for d in self._camera]
+        relay = [
+            Obstacle(
+                rel_pos_ned_m=(
+                    n.pos_ned_m[0] - pos_ned_m[0],
+                    n.pos_ned_m[1] - pos_ned_m[1],
+                    n.pos_ned_m[2] - pos_ned_m[2],
+                ),
+                vel_ned_mps=n.vel_ned_mps,
+                vel_known=True,
+                radius_m=self._own_radius_m,  # the swarm flies one airframe; a relay report carries no size
+                source="relay",
+                age_s=max(0.0, now_s - n.received_s),
+            )
+            for n in self._relay
+        ]
+        return fuse(camera, relay, own_vel, self.config())
+
+    # ---- the correction --------------------------------------------------------------------------------------------
+    def apply(
+        self, setpoint: TrajectorySetpoint, pos_ned_m: Vec3, vel_ned_mps: Vec3, now_s: float
+    ) -> TrajectorySetpoint:
+        """The setpoint to fly: unchanged unless a neighbour is in the way."""
+        config = self.config()
+        if not config.enabled or (not self._camera and not self._relay):
+            self._vel_xy = None
+            self._end_episode(now_s)
+            return setpoint
+        if now_s >= self._next_run_s:
+            self._next_run_s = now_s + 1.0 / AVOID_RATE_HZ
+            pos = (float(pos_ned_m[0]), float(pos_ned_m[1]), float(pos_ned_m[2]))
+            vel = (float(vel_ned_mps[0]), float(vel_ned_mps[1]), float(vel_ned_mps[2]))
+            self._run(setpoint, pos, vel, now_s)
+        if self._vel_xy is None:
+            return setpoint
+        z_pos, z_vel, z_acc = setpoint.pos_ned_m[2], setpoint.vel_ned_mps[2], setpoint.acc_ned_mps2[2]
+        return TrajectorySetpoint(
+            pos_ned_m=(math.nan, math.nan, z_pos),
+            vel_ned_mps=(self._vel_xy[0], self._vel_xy[1], z_vel),
+            acc_ned_mps2=(math.nan, math.nan, z_acc),
+            yaw_rad=setpoint.yaw_rad,
+            yawspeed_radps=setpoint.yawspeed_radps,
+        )
+
+    def _run(self, setpoint: TrajectorySetpoint, pos: Vec3f, own_vel: Vec3f, now_s: float) -> None:
+        desired = self._position.update(pos, setpoint.pos_ned_m, setpoint.vel_ned_mps)
+        result = avoid(own_vel, desired, self._obstacles(pos, own_vel, now_s), self.config())
+        if not result.active:
+            self._vel_xy = None
+            self._end_episode(now_s)
+            return
+        self._vel_xy = (result.vel_ned_mps[0], result.vel_ned_mps[1])
+        if self._last_active_s is None:
+            self.episodes += 1
+            self._episode_closest_m = math.inf
+            self._event(
+                6, f"Avoidance: correcting for {result.constraining} neighbour(s), closest {result.closest_m:.2f} m"
+            )
+        self._last_active_s = now_s
+        self._episode_closest_m = min(self._episode_closest_m, result.closest_m)
+        self.closest_m = min(self.closest_m, result.closest_m)
+
+    def _end_episode(self, now_s: float) -> None:
+        if self._last_active_s is not None and now_s - self._last_active_s >= EPISODE_END_S:
+            self._last_active_s = None
+            self._event(6, f"Avoidance ended: closest approach {self._episode_closest_m:.2f} m")

@@ -1,0 +1,418 @@
+"""Blob detector: bright bodies in a camera frame -> bearing and range, from the image alone.
+
+The detector knows the camera (intrinsics, mount, the grey levels it was tuned for) and, as a prior, the physical
+radius of a drone; it does not know where anything is. Per blob:
+
+1. threshold half way between background and body level, so a pixel counts when it is more than half covered;
+2. outer contours, then pixel moments of each blob (not contour moments, which lose half a pixel all round and
+   would make a 2 px blob look 40 % smaller; not connectedComponentsWithStats, 70 us a frame against 5 us here);
+3. the blob is taken to be the exact image of a sphere (an ellipse, stretched radially off axis): its centroid and
+   its pixel area fix, through ``sphere_silhouette``, the direction of the sphere's centre and its angular radius
+   alpha, and range = radius / sin(alpha). Using the area (every pixel votes) rather than a fitted radius keeps
+   range errors a few per cent down to 2 px blobs.
+
+Blobs that are not the image of one whole sphere use the fact that a sphere's outline is a circle of rays around
+its centre direction (a cone), so an arc of it fixes both direction and angular radius (``_fit_cone``):
+
+- truncated (touching the image border): the cone is fitted to the outline inside the frame. With the body's centre
+  in the frame this is as good as a whole blob; with most of the body outside, a sliver with under 8 outline pixels
+  falls back to the visible centroid and the larger of the area-equivalent radius and half the blob's extent along
+  the cut border, which can put ``range_m`` far too long. Flagged ``truncated``: treat the range with caution.
+- merged (a near body partly in front of a far one, or two bodies side by side): detected when the blob is more
+  elongated than one sphere at that place can be. The nearest body is whole (nothing is in front of it): the largest
+  inscribed circle (distance transform peak) finds it, and the cone fitted to the outline pixels on that circle
+  gives its bearing and range; if that silhouette covers under 45 % of the blob (impossible for equal bodies, so
+  the fit failed) the blob is reported as one body from its whole area instead. Otherwise the silhouette is erased
+  and a large enough remainder is reported as a second body with the bearing of its centroid and a range from its
+  visible area, hence too long. All carry ``merged``. A far body almost wholly hidden leaves a sliver not elongated
+  enough to notice: the blob then reads as the near body slightly enlarged (range errs short, the safe side). Three
+  or more bodies in one blob yield at most two.
+
+Obstacles that are not drone-sized (a pole, a building) yield ranges computed as if they were a drone: far too
+short for larger ones (the safe side), and usually flagged truncated when they fill the frame.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from sitl.mathutil import quat_to_dcm
+from sitl.perception.camera import Camera, CameraRig, GrayImage, sphere_silhouette
+
+# A blob of this many pixels or more is checked for being two bodies; below it pixelation alone makes shapes vary.
+_MERGE_CHECK_MIN_AREA_PX = 30
+# Measured elongation beyond this multiple of one sphere's elongation means several bodies.
+_MERGE_ELONGATION_RATIO = 1.25
+# The nearest body of a merged blob covers at least this share of it (half, less pixelation and fit error).
+_NEAREST_MIN_SHARE = 0.45
+# The remainder of a merged blob is a body when at least this fraction of the near body's area.
+_REMAINDER_MIN_FRACTION = 0.05
+# Detections from two cameras of a rig closer than this (or than the larger angular radius) are one body.
+_DUPLICATE_ANGLE_RAD = math.radians(3.0)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Detection:
+    """One body seen in one frame.
+
+    ``azimuth_rad`` (positive right) and ``elevation_rad`` (positive up) are in the camera frame; ``unit_frd`` is
+    the same direction in the body FRD frame, ready to rotate into NED with the drone's attitude estimate.
+    """
+
+    camera_name: str
+    centroid_px: tuple[float, float]
+    area_px: int
+    azimuth_rad: float
+    elevation_rad: float
+    unit_frd: tuple[float, float, float]
+    range_m: float
+    angular_radius_rad: float
+    truncated: bool
+    merged: bool
+
+
+def _across_axis(c_n: float, a_n: float) -> tuple[float, float]:
+    """Across-axis semi-axis b of a sphere's image, and db/da, given its centre distance c and radial semi-axis a
+    (normalised units, focal length 1).
+
+    The radial extremes of the ellipse are t1 = tan(theta - alpha) = c - a and t2 = tan(theta + alpha) = c + a, and
+    b = sin(alpha) / sqrt(cos(theta - alpha) cos(theta + alpha)) = sin(alpha) ((1 + t1^2)(1 + t2^2))^(1/4).
+    """
+    t1, t2 = c_n - a_n, c_n + a_n
+    q1, q2 = 1.0 + t1 * t1, 1.0 + t2 * t2
+    alpha = (math.atan(t2) - math.atan(t1)) / 2.0
+    root4 = (q1 * q2) ** 0.25
+    d_alpha = (1.0 / q2 + 1.0 / q1) / 2.0
+    d_product = 2.0 * (t2 * q1 - t1 * q2)
+    sin_a = math.sin(alpha)
+    return sin_a * root4, math.cos(alpha) * d_alpha * root4 + sin_a * 0.25 * root4 / (q1 * q2) * d_product
+
+
+def _solve_sphere(c_n: float, target: float, *, by_area: bool) -> tuple[float, float, float, float]:
+    """Invert the sphere silhouette: from its centre distance and its area (or across-axis semi-axis), all in
+    normalised units, to (theta, alpha, radial semi-axis, across semi-axis).
+
+    Newton's method on the radial semi-axis from the small-angle guess, kept inside a shrinking bracket; area and
+    across-axis semi-axis both grow with it. Two or three iterations at drone ranges.
+    """
+    stretch = math.sqrt(1.0 + c_n * c_n)
+    a_n = math.sqrt(target / math.pi * stretch) if by_area else target * stretch
+    lo, hi = 0.0, math.inf
+    b_n = 0.0
+    for _ in range(40):
+        b_n, slope = _across_axis(c_n, a_n)
+        if by_area:
+            err, slope = math.pi * a_n * b_n - target, math.pi * (b_n + a_n * slope)
+        else:
+            err = b_n - target
+        if abs(err) <= 1e-8 * target:
+            break
+        if err > 0.0:
+            hi = a_n
+        else:
+            lo = a_n
+        nxt = a_n - err / slope if slope > 0.0 else math.nan
+        if not lo < nxt < hi:
+            nxt = 0.5 * (lo + hi) if hi < math.inf else 2.0 * a_n
+        a_n = nxt
+    t1, t2 = math.atan(c_n - a_n), math.atan(c_n + a_n)
+    return (t1 + t2) / 2.0, (t2 - t1) / 2.0, a_n, b_n
+
+
+def _ray(camera: Camera, u: float, v: float, theta: float) -> tuple[float, float, float]:
+    """Unit vector (camera frame) theta off the optical axis, in the image direction of pixel (u, v)."""
+    xn, yn = (u - camera.cx_px) / camera.focal_px, (v - camera.cy_px) / camera.focal_px
+    rho = math.hypot(xn, yn)
+    py, pz = (xn / rho, yn / rho) if rho > 0.0 else (1.0, 0.0)
+    sin_t = math.sin(theta)
+    return (math.cos(theta), sin_t * py, sin_t * pz)
+
+
+def _make(
+    camera: Camera,
+    centroid_px: tuple[float, float],
+    vec_cam: tuple[float, float, float],
+    alpha: float,
+    area_px: int,
+    known_body_radius_m: float,
+    *,
+    truncated: bool,
+    merged: bool,
+) -> Detection:
+    return Detection(
+        camera_name=camera.config.name,
+        centroid_px=centroid_px,
+        area_px=area_px,
+        azimuth_rad=math.atan2(vec_cam[1], vec_cam[0]),
+        elevation_rad=math.atan2(-vec_cam[2], math.hypot(vec_cam[0], vec_cam[1])),
+        unit_frd=camera.camera_to_body(vec_cam),
+        range_m=known_body_radius_m / math.sin(alpha) if alpha > 0.0 else math.inf,
+        angular_radius_rad=alpha,
+        truncated=truncated,
+        merged=merged,
+    )
+
+
+def _normalised(camera: Camera, u: float, v: float) -> float:
+    return math.hypot(u - camera.cx_px, v - camera.cy_px) / camera.focal_px
+
+
+def _elongation(m: dict[str, float]) -> float:
+    """Major over minor axis of a pixel set from its central moments (less the 1/12 px^2 each pixel adds)."""
+    area = m["m00"]
+    mu20, mu02, mu11 = m["mu20"] / area, m["mu02"] / area, m["mu11"] / area
+    mean = (mu20 + mu02) / 2.0
+    half_diff = math.hypot((mu20 - mu02) / 2.0, mu11)
+    major, minor = mean + half_diff - 1.0 / 12.0, mean - half_diff - 1.0 / 12.0
+    return math.sqrt(major / minor) if minor > 0.0 else math.inf
+
+
+def _solve3(m: list[list[float]], rhs: list[float]) -> tuple[float, float, float] | None:
+    """Solve a 3x3 linear system by Cramer's rule (numpy.linalg costs 5 us of overhead per call here)."""
+    (a, b, c), (d, e, f), (g, h, i) = m
+    co0, co1, co2 = e * i - f * h, f * g - d * i, d * h - e * g
+    det = a * co0 + b * co1 + c * co2
+    if abs(det) < 1e-12:
+        return None
+    r0, r1, r2 = rhs
+    return (
+        (r0 * co0 + b * (f * r2 - r1 * i) + c * (r1 * h - e * r2)) / det,
+        (a * (r1 * i - f * r2) + r0 * co1 + c * (d * r2 - r1 * g)) / det,
+        (a * (e * r2 - r1 * h) + b * (r1 * g - d * r2) + r0 * co2) / det,
+    )
+
+
+def _fit_cone(
+    camera: Camera, boundary_px: npt.NDArray[np.float64], vec: tuple[float, float, float], alpha: float, *, select: bool
+) -> tuple[tuple[float, float, float], float] | None:
+    """Refine a sphere's centre direction and angular radius from boundary pixels of its image.
+
+    The image of a sphere is bounded by the rays u with axis . u = cos(alpha): points of a plane, so a linear
+    least-squares fit n . u = 1 gives axis = n / |n| and cos(alpha) = 1 / |n| wherever the sphere sits in the image
+    (no ellipse model needed), from any arc of its outline. Boundary pixel centres lie about half a pixel inside the
+    true edge, so each is moved half a pixel out from the current silhouette centre. With ``select`` only pixels
+    within a pixel and a half of the current cone take part from the start (this drops the outline of other bodies
+    in a merged blob); otherwise all do at first, then the outliers are dropped. Fewer than 8 points leave the
+    estimate unchanged (None). Short arcs are not refused: even a sixth of the outline beat the fallback estimate
+    for bodies mostly outside the frame (docs/perception.md).
+    """
+    f = camera.focal_px
+    tolerance = 1.5 / f
+    bu, bv = boundary_px[:, 0], boundary_px[:, 1]
+    for iteration in range(2):
+        ax, ay, az = vec
+        sin_a = math.sin(alpha)
+        if ax <= 0.0 or ax * ax - sin_a * sin_a <= 0.02:
+            return None
+        c_n, _, _ = sphere_silhouette(math.acos(min(1.0, ax)), sin_a)
+        rho = math.hypot(ay, az)
+        py, pz = (ay / rho, az / rho) if rho > 0.0 else (1.0, 0.0)
+        du, dv = bu - (camera.cx_px + f * c_n * py), bv - (camera.cy_px + f * c_n * pz)
+        push = 0.5 / np.maximum(np.sqrt(du * du + dv * dv), 1e-9)
+        ry, rz = bu - camera.cx_px + du * push, bv - camera.cy_px + dv * push
+        inv = 1.0 / np.sqrt(f * f + ry * ry + rz * rz)
+        rx, ry, rz = f * inv, ry * inv, rz * inv
+        if select or iteration > 0:
+            # |angle to axis - alpha| <= tolerance, to first order in cosines.
+            keep = np.abs(rx * ax + ry * ay + rz * az - math.cos(alpha)) <= tolerance * sin_a
+            rx, ry, rz = rx[keep], ry[keep], rz[keep]
+            tolerance = 1.0 / f
+        if len(rx) < 8:
+            return None
+        sxx, syy, szz = float(rx @ rx), float(ry @ ry), float(rz @ rz)
+        sxy, sxz, syz = float(rx @ ry), float(rx @ rz), float(ry @ rz)
+        sums = [float(rx.sum()), float(ry.sum()), float(rz.sum())]
+        normal = _solve3([[sxx, sxy, sxz], [sxy, syy, syz], [sxz, syz, szz]], sums)
+        if normal is None:
+            return None
+        length = math.sqrt(normal[0] ** 2 + normal[1] ** 2 + normal[2] ** 2)
+        if length <= 1.0:
+            return None
+        vec, alpha = (normal[0] / length, normal[1] / length, normal[2] / length), math.acos(1.0 / length)
+    return vec, alpha
+
+
+def _split_merged(
+    camera: Camera, mask: GrayImage, x0: int, y0: int, known_body_radius_m: float, min_area_px: int, whole: Detection
+) -> list[Detection]:
+    """The nearest body from the largest inscribed circle of the blob, refined on its arc of the blob boundary,
+    then what is left of the blob once that body's silhouette is erased.
+
+    Bodies share one size, so the nearest looks the largest and its whole silhouette covers at least half the blob;
+    a split that finds less has measured the wrong arc (small blobs), and the blob is reported as one body instead
+    (``whole``: its area-based range is short of the nearest body's, the safe side).
+    """
+    padded = cv2.copyMakeBorder(mask, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
+    dist = cv2.distanceTransform(padded, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    _, peak, _, (pu, pv) = cv2.minMaxLoc(dist)
+    u, v = x0 + pu - 1.0, y0 + pv - 1.0
+    f = camera.focal_px
+    # The distance transform at the centre of a pixel disc of radius R is about R + 0.5 (distance to the centre of
+    # the first pixel outside it).
+    theta, alpha, _, _ = _solve_sphere(_normalised(camera, u, v), max(peak - 0.5, 0.5) / f, by_area=False)
+    vec = _ray(camera, u, v, theta)
+    contours, _ = cv2.findContours(padded, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    boundary = np.concatenate([c[:, 0, :] for c in contours]).astype(np.float64)
+    boundary += (x0 - 1.0, y0 - 1.0)
+    fitted = _fit_cone(camera, boundary, vec, alpha, select=True)
+    if fitted is not None:
+        vec, alpha = fitted
+        theta = math.acos(min(1.0, vec[0]))
+    c_n, a_n, b_n = sphere_silhouette(theta, math.sin(alpha))
+    rho = math.hypot(vec[1], vec[2])
+    py, pz = (vec[1] / rho, vec[2] / rho) if rho > 0.0 else (1.0, 0.0)
+    uc, vc = camera.cx_px + f * c_n * py, camera.cy_px + f * c_n * pz
+    near_area = round(math.pi * a_n * b_n * f * f)
+    if near_area < _NEAREST_MIN_SHARE * whole.area_px:
+        return [whole]
+    found = [_make(camera, (uc, vc), vec, alpha, near_area, known_body_radius_m, truncated=False, merged=True)]
+    # Erase the near body's silhouette, a pixel larger all round, and look at what is left.
+    centre = (round((uc - x0 + 1.0) * 16), round((vc - y0 + 1.0) * 16))
+    axes = (round((a_n * f + 1.0) * 16), round((b_n * f + 1.0) * 16))
+    cv2.ellipse(padded, centre, axes, math.degrees(math.atan2(pz, py)), 0.0, 360.0, 0, -1, cv2.LINE_8, 4)
+    contours, _ = cv2.findContours(padded, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    best: tuple[float, float, float] | None = None
+    for contour in contours:
+        bx, by, bw, bh = cv2.boundingRect(contour)
+        m = cv2.moments(padded[by : by + bh, bx : bx + bw], True)
+        if m["m00"] > 0 and (best is None or m["m00"] > best[0]):
+            best = (m["m00"], x0 + bx - 1.0 + m["m10"] / m["m00"], y0 + by - 1.0 + m["m01"] / m["m00"])
+    if best is not None and best[0] >= max(min_area_px, _REMAINDER_MIN_FRACTION * near_area):
+        area, ru, rv = best
+        theta, alpha, _, _ = _solve_sphere(_normalised(camera, ru, rv), area / (f * f), by_area=True)
+        found.append(
+            _make(
+                camera,
+                (ru, rv),
+                _ray(camera, ru, rv, theta),
+                alpha,
+                round(area),
+                known_body_radius_m,
+                truncated=False,
+                merged=True,
+            )
+        )
+    return found
+
+
+def _truncated(
+    camera: Camera, contour: npt.NDArray[Any], centroid_px: tuple[float, float], area_px: int, radius_m: float
+) -> Detection:
+    """A blob cut by the image border: fit the sphere's cone to the part of its outline inside the frame; when
+    that arc is too short, fall back to the visible centroid and the larger of the area-equivalent radius and half
+    the extent along the cut border (both only bound the body from one side)."""
+    cfg = camera.config
+    w, h = cfg.width_px, cfg.height_px
+    u, v = centroid_px
+    x, y, bw, bh = cv2.boundingRect(contour)
+    half_extent = max(bh if x == 0 or x + bw == w else 0, bw if y == 0 or y + bh == h else 0) / 2.0
+    b_px = max(math.sqrt(area_px / math.pi), half_extent)
+    theta, alpha, _, _ = _solve_sphere(_normalised(camera, u, v), b_px / camera.focal_px, by_area=False)
+    vec = _ray(camera, u, v, theta)
+    pts = contour[:, 0, :]
+    inner = pts[(pts[:, 0] > 0) & (pts[:, 0] < w - 1) & (pts[:, 1] > 0) & (pts[:, 1] < h - 1)].astype(np.float64)
+    fitted = _fit_cone(camera, inner, vec, alpha, select=False) if len(inner) >= 8 else None
+    if fitted is not None:
+        vec, alpha = fitted
+    return _make(camera, centroid_px, vec, alpha, area_px, radius_m, truncated=True, merged=False)
+
+
+def detect(image: GrayImage, camera: Camera, known_body_radius_m: float, *, min_area_px: int = 3) -> list[Detection]:
+    """Bodies in one frame of ``camera`` (uint8 H x W), largest blob first.
+
+    ``known_body_radius_m`` is the prior on a body's size (a drone's collision radius); ``min_area_px`` rejects
+    specks smaller than a drone at the camera's maximum range would be.
+    """
+    cfg = camera.config
+    h, w = cfg.height_px, cfg.width_px
+    binary = camera.binary_scratch
+    cv2.threshold(image, cfg.threshold_level - 1, 255, cv2.THRESH_BINARY, dst=binary)
+    contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    boxes = [cv2.boundingRect(c) for c in contours]
+    f = camera.focal_px
+    found: list[Detection] = []
+    for i, (contour, (x, y, bw, bh)) in enumerate(zip(contours, boxes, strict=True)):
+        roi: GrayImage = binary[y : y + bh, x : x + bw]
+        if any(
+            j != i and x < ox + ow and ox < x + bw and y < oy + oh and oy < y + bh
+            for j, (ox, oy, ow, oh) in enumerate(boxes)
+        ):
+            # Another blob reaches into this one's box: count only this blob's pixels.
+            mask = camera.mask_scratch[y : y + bh, x : x + bw]
+            mask.fill(0)
+            cv2.drawContours(mask, [contour], -1, 255, -1, offset=(-x, -y))
+            cv2.bitwise_and(mask, roi, dst=mask)
+            roi = mask
+        m = cv2.moments(roi, True)
+        area = m["m00"]
+        if area < min_area_px:
+            continue
+        u, v = x + m["m10"] / area, y + m["m01"] / area
+        truncated = x == 0 or y == 0 or x + bw == w or y + bh == h
+        c_n = _normalised(camera, u, v)
+        if truncated:
+            found.append(_truncated(camera, contour, (u, v), int(area), known_body_radius_m))
+            continue
+        theta, alpha, a_n, b_n = _solve_sphere(c_n, area / (f * f), by_area=True)
+        merged = area >= _MERGE_CHECK_MIN_AREA_PX and _elongation(m) > _MERGE_ELONGATION_RATIO * a_n / b_n
+        single = _make(
+            camera,
+            (u, v),
+            _ray(camera, u, v, theta),
+            alpha,
+            int(area),
+            known_body_radius_m,
+            truncated=False,
+            merged=merged,
+        )
+        if merged:
+            found.extend(_split_merged(camera, roi, x, y, known_body_radius_m, min_area_px, single))
+        else:
+            found.append(single)
+    found.sort(key=lambda det: det.area_px, reverse=True)
+    return found
+
+
+def detect_rig(
+    images: list[GrayImage], rig: CameraRig, known_body_radius_m: float, *, min_area_px: int = 3
+) -> list[Detection]:
+    """Detections of every camera of a rig; a body seen by two overlapping cameras is kept once, preferring the
+    view where it is whole (not truncated), then the larger one."""
+    found = [
+        det
+        for image, camera in zip(images, rig.cameras, strict=True)
+        for det in detect(image, camera, known_body_radius_m, min_area_px=min_area_px)
+    ]
+    found.sort(key=lambda det: (det.truncated, -det.area_px))
+    kept: list[Detection] = []
+    for det in found:
+        if not any(
+            other.camera_name != det.camera_name
+            and _angle_between(other.unit_frd, det.unit_frd)
+            < max(_DUPLICATE_ANGLE_RAD, other.angular_radius_rad, det.angular_radius_rad)
+            for other in kept
+        ):
+            kept.append(det)
+    return kept
+
+
+def _angle_between(a: tuple[float, float, float], b: tuple[float, float, float]) -> float:
+    dot = a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+    return math.acos(max(-1.0, min(1.0, dot)))
+
+
+def to_ned(detection: Detection, own_att_q_frd_to_ned: npt.ArrayLike) -> tuple[float, float, float]:
+    """Position of the detected body relative to the drone, NED metres, using the drone's ESTIMATED attitude."""
+    r = quat_to_dcm(np.asarray(own_att_q_frd_to_ned, dtype=np.float64))
+    x, y, z = (c * detection.range_m for c in detection.unit_frd)
+    return (
+        float(r[0, 0] * x + r[0, 1] * y + r[0, 2] * z),
+        float(r[1, 0] * x + r[1, 1] * y + r[1, 2] * z),
+        float(r[2, 0] * x + r[2, 1] * y + r[2, 2] * z),
+    )

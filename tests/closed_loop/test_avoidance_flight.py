@@ -1,0 +1,87 @@
+"""Two drones flown at each other through JSBSim, in one process, seeing each other only through the camera.
+
+Both simulations share one world table, as drone processes do; each renders its camera from it, detects with
+OpenCV and lets collision prevention bend its velocity. No relay here (camera only), and the world's contact check
+is live: a collision crashes both, so "no crash" is a real outcome. The same run with avoidance off collides.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from sitl.airframe import load_airframe
+from sitl.awareness import Awareness
+from sitl.dynamics.geodesy import LocalFrame
+from sitl.dynamics.plant import DEFAULT_HOME
+from sitl.simulation import SimConfig, Simulation
+from sitl.world import SharedWorld, WorldParticipant
+from tests.closed_loop.flight import take_off
+
+pytestmark = pytest.mark.timeout(240)
+
+GAP_M = 12.0
+
+
+def _fly_head_on(avoid: bool) -> tuple[float, list[bool], list[float], list[str]]:
+    """(minimum true centre distance, crashed flags, final distance to goal, events) of a head-on pass."""
+    airframe = load_airframe()
+    world = SharedWorld.create()
+    frame = LocalFrame(DEFAULT_HOME)
+    homes = [frame.geo_from_ned((0.0, 0.0, 0.0)), frame.geo_from_ned((GAP_M, 0.0, 0.0))]
+    sims = [
+        Simulation(SimConfig(airframe=airframe, seed=11 + i, home=home, initial_yaw_rad=yaw))
+        for i, (home, yaw) in enumerate(zip(homes, (0.0, math.pi), strict=True))
+    ]
+    participants = [WorldParticipant(world, i, airframe.collision_radius_m) for i in range(2)]
+    seen = [Awareness(s, i, LocalFrame(s.truth.geo), world=world, neighbours=None) for i, s in enumerate(sims)]
+    closest = math.inf
+
+    def step_both() -> None:
+        nonlocal closest
+        for i, (sim, part, eyes) in enumerate(zip(sims, participants, seen, strict=True)):
+            sim.step()
+            t = sim.truth
+            v = t.vel_ned_mps
+            for contact in part.update(sim.time_s, (t.geo.lat_deg, t.geo.lon_deg, t.geo.alt_amsl_m),
+                                       (float(v[0]), float(v[1]), float(v[2])), sim.vehicle.crashed):  # fmt: skip
+                sim.vehicle.crash(f"Collision with drone {contact.instance + 1}")
+            eyes.update(sim.time_s)
+            del i
+        a = frame.ned_from_geo(sims[0].truth.geo)
+        b = frame.ned_from_geo(sims[1].truth.geo)
+        closest = min(closest, math.dist(a, b))
+
+    try:
+        for sim in sims:
+            sim.params.set("AVOID_ENABLE", 1 if avoid else 0)
+            take_off(sim, 3.0)  # one after the other: each waits on the ground, far apart, while the other climbs
+        for sim, sign in zip(sims, (1.0, -1.0), strict=True):
+            start = sim.vehicle.estimate.pos_ned_m  # type: ignore[union-attr]
+            assert sim.vehicle.set_speed(2.0).ok
+            assert sim.vehicle.goto(np.array([start[0] + sign * GAP_M, start[1], start[2]])).ok
+        for _ in range(round(15.0 / sims[0].dt_s)):
+            step_both()
+        goals = [frame.ned_from_geo(homes[1]), frame.ned_from_geo(homes[0])]
+        final = [math.dist(frame.ned_from_geo(s.truth.geo)[:2], g[:2]) for s, g in zip(sims, goals, strict=True)]
+        events = [e.text for s in sims for e in s.vehicle.events]
+        return closest, [s.vehicle.crashed for s in sims], final, events
+    finally:
+        for part in participants:
+            part.world.clear(part.instance)
+        world.close()
+
+
+def test_a_head_on_pair_seeing_only_with_cameras_passes_without_touching() -> None:
+    closest, crashed, final, events = _fly_head_on(avoid=True)
+    assert crashed == [False, False], events
+    assert closest >= 0.8, closest
+    assert max(final) < 0.5, final  # both arrive where they were sent
+    assert any(e.startswith("Avoidance:") for e in events), events
+
+
+def test_the_same_pass_without_avoidance_collides() -> None:
+    closest, crashed, _final, events = _fly_head_on(avoid=False)
+    assert closest < 0.7 and crashed == [True, True], (closest, events)

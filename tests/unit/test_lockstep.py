@@ -1,0 +1,76 @@
+"""Lockstep through the shared world: nobody runs more than one step ahead, the gate holds everyone, leavers free
+the others. Members are driven by hand here, exactly as the drone loop drives them (steps_allowed, completed)."""
+
+from __future__ import annotations
+
+import random
+
+from sitl.lockstep import LockstepGate, LockstepMember
+from sitl.world import SharedWorld
+
+DT_S = 1.0 / 400.0
+
+
+def test_no_member_gets_more_than_one_step_ahead_under_any_interleaving() -> None:
+    world = SharedWorld.create()
+    try:
+        gate = LockstepGate(world, DT_S)
+        members = [LockstepMember(SharedWorld.attach(world.name), i) for i in (0, 3, 7)]
+        for m in members:
+            m.join()
+        gate.open_until(0.5)  # 200 steps
+        done = [0, 0, 0]
+        rng = random.Random(1)
+        for _ in range(5000):  # a random scheduler: any member may get the CPU next
+            k = rng.randrange(3)
+            due, _gated = members[k].steps_allowed(done[k])
+            for _ in range(min(due, rng.randint(1, 3))):
+                done[k] += 1
+                members[k].completed(done[k])
+            assert max(done) - min(done) <= 1, done
+        # every member reached the gate, none passed it, and the gate's clock agrees
+        assert done == [200, 200, 200]
+        assert gate.completed_steps() == 200 and abs(gate.time_s() - 0.5) < 1e-12
+        assert members[0].steps_allowed(200) == (0, True)  # held by the gate, not by a peer
+    finally:
+        world.close()
+
+
+def test_nothing_moves_before_the_gate_opens_and_the_gate_never_moves_back() -> None:
+    world = SharedWorld.create()
+    try:
+        gate = LockstepGate(world, DT_S)
+        member = LockstepMember(world, 0)
+        member.join()
+        assert gate.members() == 1
+        assert member.steps_allowed(0) == (0, True)
+        gate.open_until(0.01)
+        done = 0
+        while (due := member.steps_allowed(done)[0]) > 0:  # alone: a step at a time, up to the gate
+            assert due == 1
+            done += 1
+            member.completed(done)
+        assert done == 4
+        gate.open_until(0.005)
+        assert member.steps_allowed(4) == (0, True)
+    finally:
+        world.close()
+
+
+def test_a_member_that_leaves_or_is_removed_holds_nobody_back() -> None:
+    world = SharedWorld.create()
+    try:
+        gate = LockstepGate(world, DT_S)
+        a, b, c = (LockstepMember(world, i) for i in range(3))
+        for m in (a, b, c):
+            m.join()
+        gate.open_until(1.0)
+        a.completed(1)
+        assert a.steps_allowed(1)[0] == 0 and not a.steps_allowed(1)[1]  # waiting for b and c, not the gate
+        b.leave()
+        gate.remove(2)  # c died without leaving
+        assert gate.members() == 1
+        assert a.steps_allowed(1) == (1, False)
+        assert gate.completed_steps() == 1
+    finally:
+        world.close()
