@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import signal
 import sys
 import time
@@ -17,8 +18,9 @@ from pathlib import Path
 from types import FrameType
 from typing import Any, NoReturn
 
+from gcs.bench import add_bench_parser, run_bench
 from gcs.control import ControlClient, ControlError, ControlServer
-from gcs.mission_file import MissionFileError, load_mission
+from gcs.mission_file import MissionFileError, build_flock, build_follow, load_mission
 from gcs.mission_runner import MissionRunner
 from gcs.station import Station, format_status
 from gcs.supervisor import LAYOUTS, SpawnError, SpawnPlan
@@ -50,6 +52,39 @@ def _positive(text: str) -> float:
     return value
 
 
+def _nonneg(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text!r}")
+    return value
+
+
+def _pairs(text: str) -> list[list[float]]:
+    """'10,0 10,10' or '10,0;10,10' -> [[10, 0], [10, 10]] (a value starting with '-' needs --option=VALUE)."""
+    pairs = []
+    for item in text.replace(";", " ").split():
+        try:
+            a, b = (float(v) for v in item.split(","))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be pairs like '10,0 10,10', got {item!r}") from None
+        if not (math.isfinite(a) and math.isfinite(b)):
+            raise argparse.ArgumentTypeError(f"must be finite numbers, got {item!r}")
+        pairs.append([a, b])
+    if not pairs:
+        raise argparse.ArgumentTypeError("needs at least one pair like '10,0'")
+    return pairs
+
+
+def _v_angle(text: str) -> float:
+    value = _positive(text)
+    if value > 180.0:
+        raise argparse.ArgumentTypeError(f"must be in (0, 180] degrees, got {text!r}")
+    return value
+
+
 def _origin(text: str) -> GeoPoint:
     try:
         lat, lon, alt = (float(p) for p in text.split(","))
@@ -74,6 +109,34 @@ def _add_forward_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-forward", action="store_true", help="do not forward drone traffic to a ground station")
 
 
+def _add_timing_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--speed", type=_positive, default=None, help="speed factor (default 1; with --lockstep: as fast as possible)"
+    )
+    parser.add_argument(
+        "--lockstep", action="store_true", help="all drones advance simulated time together (one shared clock)"
+    )
+    parser.add_argument(
+        "--quantum",
+        type=int,
+        default=1,
+        help="lockstep: physics steps every drone runs between waits, i.e. the clock skew bound (default 1)",
+    )
+
+
+def _speed(args: argparse.Namespace) -> float:
+    """The speed factor; 0 (as fast as the CPU allows) only in lockstep."""
+    if args.speed is not None:
+        return float(args.speed)
+    return 0.0 if args.lockstep else 1.0
+
+
+def _quantum(args: argparse.Namespace) -> int:
+    if not 1 <= args.quantum <= 400:
+        raise UsageError(f"--quantum must be in 1..400 physics steps, got {args.quantum}")
+    return int(args.quantum)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="swarm", description="Ground station for a swarm of simulated PX4-like drones.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -81,7 +144,7 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("-n", "--drones", type=int, required=True, help="number of drones (1..100)")
     up.add_argument("--spacing", type=_positive, default=2.0, help="spawn spacing in metres (default 2)")
     up.add_argument("--layout", choices=sorted(LAYOUTS), default="grid", help="spawn layout (default grid)")
-    up.add_argument("--speed", type=_positive, default=1.0, help="simulation speed factor (default 1)")
+    _add_timing_options(up)
     up.add_argument("--first-instance", type=int, default=0, help="instance of the first drone (sysid = instance+1)")
     up.add_argument("--origin", type=_origin, default=DEFAULT_HOME, help="swarm origin LAT,LON,ALT_AMSL")
     up.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
@@ -93,12 +156,13 @@ def build_parser() -> argparse.ArgumentParser:
         "mission", type=Path, nargs="?", default=DEFAULT_MISSION, help=f"mission file (default {DEFAULT_MISSION})"
     )
     fly.add_argument("--report", type=Path, default=None, help="report directory (default reports/<mission>-<time>)")
-    fly.add_argument("--speed", type=_positive, default=1.0, help="simulation speed factor (default 1)")
+    _add_timing_options(fly)
     fly.add_argument("--first-instance", type=int, default=0, help="instance of the first drone")
     fly.add_argument("--origin", type=_origin, default=DEFAULT_HOME, help="swarm origin LAT,LON,ALT_AMSL")
     fly.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
     fly.add_argument("--seed", type=int, default=0, help="base random seed (drone i uses seed+i)")
     _add_forward_options(fly)
+    add_bench_parser(sub)
     sub.add_parser("status", help="table of every drone")
     takeoff = sub.add_parser("takeoff", help="arm and take off every drone")
     takeoff.add_argument("--alt", type=_positive, default=3.0, help="altitude above home in metres (default 3)")
@@ -113,6 +177,36 @@ def build_parser() -> argparse.ArgumentParser:
     formation.add_argument("--osc", type=float, default=0.0, help="circle altitude wave amplitude in metres")
     formation.add_argument("--angle", type=float, default=90.0, help="V opening angle in degrees (default 90)")
     formation.add_argument("--heading", type=float, default=0.0, help="heading of the formation in degrees")
+    flock = sub.add_parser(
+        "flock", help="Reynolds flocking (OFFBOARD) towards migration points; until the next command"
+    )
+    flock.add_argument("--alt", type=_positive, default=3.0, help="altitude in metres (default 3)")
+    flock.add_argument(
+        "--goals",
+        type=_pairs,
+        default=None,
+        metavar="'N,E N,E'",
+        help="migration points (north,east metres), visited in turn (default: none, just flock)",
+    )
+    flock.add_argument("--speed", type=_positive, default=None, help="maximum speed in m/s (default 1.5)")
+    flock.add_argument("--accel", type=_positive, default=None, help="maximum acceleration in m/s^2 (default 1.5)")
+    flock.add_argument("--radius", type=_positive, default=None, help="neighbour radius in metres (default 6)")
+    flock.add_argument("--separation", type=_positive, default=None, help="separation radius in metres (default 2.5)")
+    flock.add_argument("--w-separation", type=_positive, default=None, help="separation weight in m/s^2 (default 3)")
+    flock.add_argument("--w-alignment", type=_nonneg, default=None, help="alignment weight in 1/s (default 1)")
+    flock.add_argument("--w-cohesion", type=_nonneg, default=None, help="cohesion weight in 1/s^2 (default 0.05)")
+    flock.add_argument("--w-migration", type=_nonneg, default=None, help="migration weight in 1/s (default 0.8)")
+    follow = sub.add_parser("follow", help="leader-follower (OFFBOARD): the leader flies waypoints, the others follow")
+    follow.add_argument("--waypoints", type=_pairs, required=True, metavar="'N,E N,E'",
+                        help="the leader's waypoints, north,east metres in the swarm frame")  # fmt: skip
+    follow.add_argument("--leader", type=int, default=None, help="sysid of the leader (default: the lowest)")
+    follow.add_argument("--alt", type=_positive, default=3.0, help="altitude in metres (default 3)")
+    follow.add_argument("--speed", type=_positive, default=None, help="leader's cruise speed in m/s (default 1.5)")
+    follow.add_argument("--spacing", type=_positive, default=None, help="V spacing in metres (default 2.5)")
+    follow.add_argument("--angle", type=_v_angle, default=None, help="V opening angle in degrees (default 90)")
+    follow.add_argument("--offsets", type=_pairs, default=None, metavar="'F,R F,R'",
+                        help="followers' offsets (forward,right metres from the leader) instead of the V")  # fmt: skip
+    follow.add_argument("--turn-radius", type=_positive, default=None, help="leader's corner radius (default 3)")
     goto = sub.add_parser("goto", help="move the current formation's centre")
     goto.add_argument("north", type=float, help="metres north of the swarm origin")
     goto.add_argument("east", type=float, help="metres east of the swarm origin")
@@ -145,7 +239,9 @@ def run_up(args: argparse.Namespace) -> int:
         spacing_m=args.spacing,
         layout=args.layout,
         origin=args.origin,
-        speed_factor=args.speed,
+        speed_factor=_speed(args),
+        lockstep=args.lockstep,
+        lockstep_quantum=_quantum(args),
         first_instance=args.first_instance,
         airframe=args.airframe,
         seed=args.seed,
@@ -195,9 +291,10 @@ def run_fly(args: argparse.Namespace) -> int:
     if args.first_instance < 0 or args.first_instance + mission.swarm.drones > 255:
         raise UsageError("--first-instance must leave room for every sysid (instance + 1 <= 255)")
     report = args.report or Path("reports") / f"{mission.name}-{time.strftime('%Y%m%d-%H%M%S')}"
-    runner = MissionRunner(mission, speed_factor=args.speed, origin=args.origin, first_instance=args.first_instance,
+    runner = MissionRunner(mission, speed_factor=_speed(args), origin=args.origin, first_instance=args.first_instance,
                            report_dir=report, say=_say, airframe=args.airframe, seed=args.seed,
-                           forward=None if args.no_forward else args.forward)  # fmt: skip
+                           forward=None if args.no_forward else args.forward, lockstep=args.lockstep,
+                           lockstep_quantum=_quantum(args))  # fmt: skip
     signal.signal(signal.SIGTERM, _interrupt)  # a terminated run lands and stops its drones like Ctrl-C
     try:
         out = runner.run()
@@ -226,12 +323,60 @@ def _formation_fields(args: argparse.Namespace) -> dict[str, Any]:
     return fields
 
 
+def _given(args: argparse.Namespace, names: dict[str, str]) -> dict[str, Any]:
+    """Spec fields for the options the user gave (the spec's defaults stand for the others)."""
+    return {field: getattr(args, option) for option, field in names.items() if getattr(args, option) is not None}
+
+
+_FLOCK_OPTIONS = {
+    "alt": "alt_m",
+    "goals": "migration_ne_m",
+    "speed": "max_speed_mps",
+    "accel": "max_accel_mps2",
+    "radius": "neighbour_radius_m",
+    "separation": "separation_radius_m",
+    "w_separation": "separation_weight_mps2",
+    "w_alignment": "alignment_weight_per_s",
+    "w_cohesion": "cohesion_weight_per_s2",
+    "w_migration": "migration_weight_per_s",
+}
+_FOLLOW_OPTIONS = {
+    "waypoints": "waypoints_ne_m",
+    "leader": "leader_sysid",
+    "alt": "alt_m",
+    "speed": "speed_mps",
+    "spacing": "spacing_m",
+    "angle": "angle_deg",
+    "offsets": "offsets_fr_m",
+    "turn_radius": "turn_radius_m",
+}
+
+
+def _behaviour_fields(args: argparse.Namespace) -> dict[str, Any]:
+    """The request's fields, checked here so that a mistake is one line before anything is sent."""
+    if args.command == "follow" and args.leader is not None and not 1 <= args.leader <= 255:
+        raise UsageError(f"--leader must be a sysid in 1..255, got {args.leader}")
+    flock = args.command == "flock"
+    fields = _given(args, _FLOCK_OPTIONS if flock else _FOLLOW_OPTIONS)
+    try:
+        build_flock(fields) if flock else build_follow(fields)
+    except ValueError as exc:
+        message = str(exc)
+        for option, field in (_FLOCK_OPTIONS if flock else _FOLLOW_OPTIONS).items():
+            flag = "--" + option.replace("_", "-")
+            message = re.sub(rf"\b(FlockSpec\.|FollowSpec\.)?{field}\b", flag, message)
+        raise UsageError(f"argument {message}") from None
+    return fields
+
+
 def run_client(args: argparse.Namespace) -> int:
     request: dict[str, Any] = {"cmd": args.command}
     if args.command == "takeoff":
         request["alt"] = args.alt
     elif args.command == "formation":
         request.update(shape=args.shape, fields=_formation_fields(args))
+    elif args.command in ("flock", "follow"):
+        request["fields"] = _behaviour_fields(args)
     elif args.command == "goto":
         request.update(north_m=args.north, east_m=args.east, alt_m=args.alt)
     response = ControlClient().request(request)
@@ -250,6 +395,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return run_up(args)
         if args.command == "fly":
             return run_fly(args)
+        if args.command == "bench":
+            return run_bench(args)
         return run_client(args)
     except (UsageError, MissionFileError) as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)

@@ -13,17 +13,14 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
+from gcs.behaviours import SwarmState
+from gcs.formation import Setpoint
+
 Vec3f = tuple[float, float, float]
 
 
 class CrossingError(ValueError):
     """A move that cannot be flown (one line for the user)."""
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class LineSetpoint:
-    pos_ned_m: Vec3f
-    vel_ned_mps: Vec3f
 
 
 def antipodal_goals(positions: Mapping[int, Sequence[float]], centre_ne_m: tuple[float, float] | None = None
@@ -45,6 +42,7 @@ class _Line:
     start: Vec3f
     unit: Vec3f
     length_m: float
+    yaw_rad: float
 
 
 class CrossingMove:
@@ -57,6 +55,7 @@ class CrossingMove:
         if not (math.isfinite(speed_mps) and speed_mps > 0 and math.isfinite(accel_mps2) and accel_mps2 > 0):
             raise CrossingError(f"speed and acceleration must be positive, got {speed_mps}, {accel_mps2}")
         self.start_s = start_s
+        self.goals = {i: (float(g[0]), float(g[1]), float(g[2])) for i, g in goals.items()}
         self.speed_mps = speed_mps
         self.accel_mps2 = accel_mps2
         self._lines: dict[int, _Line] = {}
@@ -67,41 +66,52 @@ class CrossingMove:
             if not math.isfinite(length):
                 raise CrossingError(f"drone {i}: start and goal must be finite")
             unit = (d[0] / length, d[1] / length, d[2] / length) if length > 1e-9 else (0.0, 0.0, 0.0)
-            self._lines[i] = _Line(start=(float(p0[0]), float(p0[1]), float(p0[2])), unit=unit, length_m=length)
+            yaw = math.atan2(unit[1], unit[0]) if math.hypot(unit[0], unit[1]) > 1e-9 else math.nan
+            start = (float(p0[0]), float(p0[1]), float(p0[2]))
+            self._lines[i] = _Line(start=start, unit=unit, length_m=length, yaw_rad=yaw)
 
-    def _profile(self, length_m: float, t_s: float) -> tuple[float, float]:
-        """(distance along the line, speed) of a trapezoidal (or triangular) profile at time t."""
+    def _profile(self, length_m: float, t_s: float) -> tuple[float, float, float]:
+        """(distance along the line, speed, acceleration) of a trapezoidal (or triangular) profile at time t."""
         a, v = self.accel_mps2, self.speed_mps
         if length_m < v * v / a:  # never reaches cruise speed
             v = math.sqrt(length_m * a)
         t_ramp = v / a
         t_cruise = max(0.0, (length_m - v * t_ramp) / v)
         if t_s <= 0.0:
-            return 0.0, 0.0
+            return 0.0, 0.0, 0.0
         if t_s < t_ramp:
-            return 0.5 * a * t_s * t_s, a * t_s
+            return 0.5 * a * t_s * t_s, a * t_s, a
         if t_s < t_ramp + t_cruise:
-            return 0.5 * a * t_ramp * t_ramp + v * (t_s - t_ramp), v
+            return 0.5 * a * t_ramp * t_ramp + v * (t_s - t_ramp), v, 0.0
         t_dec = t_s - t_ramp - t_cruise
         if t_dec < t_ramp:
-            return length_m - 0.5 * a * (t_ramp - t_dec) ** 2, v - a * t_dec
-        return length_m, 0.0
+            return length_m - 0.5 * a * (t_ramp - t_dec) ** 2, v - a * t_dec, -a
+        return length_m, 0.0, 0.0
 
     def duration_s(self) -> float:
         longest = max((line.length_m for line in self._lines.values()), default=0.0)
         v = min(self.speed_mps, math.sqrt(longest * self.accel_mps2)) if longest > 0 else 0.0
         return 0.0 if v == 0 else v / self.accel_mps2 + longest / v
 
-    def setpoints(self, now_s: float) -> dict[int, LineSetpoint]:
+    def setpoints(self, now_s: float, state: SwarmState | None = None) -> dict[int, Setpoint]:
+        """Each drone's point on its line (a ``Behaviour`` for the streamer; the drones' state is not needed).
+
+        The yaw faces along the line, so a forward camera looks where the drone is going."""
         out = {}
         for i, line in self._lines.items():
-            s, v = self._profile(line.length_m, now_s - self.start_s)
+            s, v, a = self._profile(line.length_m, now_s - self.start_s)
             u, p = line.unit, line.start
-            out[i] = LineSetpoint(
+            out[i] = Setpoint(
                 pos_ned_m=(p[0] + u[0] * s, p[1] + u[1] * s, p[2] + u[2] * s),
                 vel_ned_mps=(u[0] * v, u[1] * v, u[2] * v),
+                acc_ned_mps2=(u[0] * a, u[1] * a, u[2] * a),
+                yaw_rad=line.yaw_rad,
             )
         return out
+
+    def targets(self) -> dict[int, Vec3f]:
+        """The goals (the streamer reports them as the drones' slots)."""
+        return dict(self.goals)
 
     def done(self, now_s: float) -> bool:
         return now_s - self.start_s >= self.duration_s()

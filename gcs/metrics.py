@@ -26,9 +26,11 @@ Airborne
     pair is airborne the pair's relative position is taken as linear, so a close pass between grid instants is not
     missed: it is never above the smallest value of the series. Null when no two drones are ever airborne together.
 
-``collisions``, ``collision_events``, ``avoidance_events``
-    The number of the recording's events whose text starts with "Collision" (listed in ``collision_events``), and
-    the number whose text starts with "Avoidance".
+``collisions``, ``collision_events``, ``avoidance_events``, ``avoidance_closest_approach_m``
+    The number of the recording's events whose text starts with "Collision" (listed in ``collision_events``); the
+    number of onboard avoidance episodes (events starting "Avoidance:", one when a drone starts correcting), and the
+    smallest "closest approach" any drone reported at the end of an episode ("Avoidance ended: closest approach
+    1.34 m"; the drone's own perception, centre to centre; null when no episode ended).
 
 ``takeoff_time_s``, ``takeoff_time_per_drone_s``
     For the first step of kind "takeoff" that has a target altitude: for each drone with a sample inside the step,
@@ -54,6 +56,19 @@ Airborne
     ``FORMATION_SETTLED_RMS_M`` is deliberately looser than typical acceptance limits on ``formation_rms_m`` (the
     settled part only contains e(t) at or below it, so a limit equal to it would be met by construction).
 
+``alignment`` (steps of kind "flock")
+    The velocity alignment order parameter ``phi(t) = |sum_i v_i| / sum_i |v_i|`` over the airborne drones at a grid
+    instant in [start_s, end_s), with ``v_i`` the drone's horizontal velocity (interpolated like positions; the
+    vertical velocity is altitude-hold noise, not the flock's motion). 1 when every drone flies the same way, about
+    ``1 / sqrt(n)`` for random directions. Undefined (null) with fewer than two airborne drones or a mean horizontal
+    speed below ``ALIGNMENT_MIN_SPEED_MPS``: a hovering swarm has no direction to agree on.
+    - ``converged_time_s``: from the step's start to the first grid instant with ``phi >= ALIGNMENT_CONVERGED``;
+      null if never;
+    - ``mean``, ``min``: of phi over the defined grid instants from that instant to the step's end (after
+      convergence; later dips count); null if never converged;
+    - ``time_s``, ``phi``: the series over the step.
+    ``ALIGNMENT_CONVERGED`` is deliberately looser than typical acceptance limits on ``mean``.
+
 ``duration_s``, ``n_drones``, ``sysids``, ``distance_flown_m``
     ``duration_s`` runs from the earliest to the latest of all sample times and step boundaries. ``n_drones`` is the
     recording's configured count; ``sysids`` those that reported. ``distance_flown_m`` per drone is the length of the
@@ -61,12 +76,14 @@ Airborne
     counts as a straight line, a lower bound). Estimator noise adds to it, as to any path length.
 
 ``LiveMetrics`` gives the same quantities approximately while flying, for a status line: it keeps the latest sample
-per drone and compares drones at the newest sample's time (older positions extrapolated with their velocity).
+per drone and compares drones at the newest sample's time (older positions extrapolated with their velocity); it also
+gives phi of the latest velocities when defined.
 """
 
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -84,11 +101,26 @@ MAX_GAP_S = 1.0  # samples further apart than this: the drone is unknown in betw
 AIRBORNE_HEIGHT_M = 0.5  # above ground level; below it a drone counts as on the ground
 TAKEOFF_TOLERANCE_M = 0.2  # altitude band around the takeoff target
 FORMATION_SETTLED_RMS_M = 0.5  # swarm RMS error at or below which the formation counts as reached
+ALIGNMENT_CONVERGED = 0.8  # phi from which a flock counts as aligned
+ALIGNMENT_MIN_SPEED_MPS = 0.2  # mean horizontal speed below which phi is undefined
+ALIGNMENT_STEP_KINDS = frozenset({"flock"})
 COLLISION_PREFIX = "Collision"
-AVOIDANCE_PREFIX = "Avoidance"
+AVOIDANCE_PREFIX = "Avoidance:"
+AVOIDANCE_CLOSEST = re.compile(r"^Avoidance ended: closest approach ([0-9.]+) m")
 
 _SCALAR_DECIMALS = 4  # 0.1 mm / 0.1 ms in metrics.json
 _SERIES_DECIMALS = 3
+
+
+@dataclass(frozen=True, slots=True, kw_only=True, eq=False)
+class AlignmentMetrics:
+    """Velocity alignment of a flock step (module docstring); phi NaN where undefined."""
+
+    converged_time_s: float | None
+    mean: float | None
+    min: float | None
+    time_s: FloatArray
+    phi: FloatArray
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -105,6 +137,7 @@ class StepMetrics:
     target_alt_m: float | None = None
     takeoff_time_s: float | None = None  # takeoff steps only
     takeoff_time_per_drone_s: dict[int, float | None] = field(default_factory=dict)
+    alignment: AlignmentMetrics | None = None  # flock steps only
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -128,6 +161,7 @@ class FlightMetrics:
     collisions: int
     collision_events: tuple[EventRecord, ...]
     avoidance_events: int
+    avoidance_closest_approach_m: float | None
     takeoff_time_s: float | None
     takeoff_time_per_drone_s: dict[int, float | None]
     steps: tuple[StepMetrics, ...]
@@ -150,6 +184,7 @@ class FlightMetrics:
                 {"time_s": _r(e.time_s), "sysid": e.sysid, "text": e.text} for e in self.collision_events
             ],
             "avoidance_events": self.avoidance_events,
+            "avoidance_closest_approach_m": _r(self.avoidance_closest_approach_m),
             "takeoff_time_s": _r(self.takeoff_time_s),
             "takeoff_time_per_drone_s": {str(k): _r(v) for k, v in self.takeoff_time_per_drone_s.items()},
             "steps": [_step_dict(s) for s in self.steps],
@@ -160,6 +195,8 @@ class FlightMetrics:
                 "airborne_height_m": AIRBORNE_HEIGHT_M,
                 "takeoff_tolerance_m": TAKEOFF_TOLERANCE_M,
                 "formation_settled_rms_m": FORMATION_SETTLED_RMS_M,
+                "alignment_converged": ALIGNMENT_CONVERGED,
+                "alignment_min_speed_mps": ALIGNMENT_MIN_SPEED_MPS,
             },
             "separation": {
                 "time_s": [_r(t, _SERIES_DECIMALS) for t in self.separation.time_s.tolist()],
@@ -184,6 +221,15 @@ def _step_dict(step: StepMetrics) -> dict[str, Any]:
         out["target_alt_m"] = _r(step.target_alt_m)
         out["takeoff_time_s"] = _r(step.takeoff_time_s)
         out["takeoff_time_per_drone_s"] = {str(k): _r(v) for k, v in step.takeoff_time_per_drone_s.items()}
+    if step.alignment is not None:
+        a = step.alignment
+        out["alignment"] = {
+            "converged_time_s": _r(a.converged_time_s),
+            "mean": _r(a.mean),
+            "min": _r(a.min),
+            "time_s": [_r(t, _SERIES_DECIMALS) for t in a.time_s.tolist()],
+            "phi": [_r(v, _SERIES_DECIMALS) for v in a.phi.tolist()],
+        }
     return out
 
 
@@ -201,6 +247,7 @@ class _Track:
     sysid: int
     time_s: FloatArray  # (n,) sorted
     pos_ned_m: FloatArray  # (n, 3)
+    vel_ned_mps: FloatArray  # (n, 3)
     armed: BoolArray  # (n,)
     target_ned_m: FloatArray  # (n, 3), NaN where no slot was commanded
     ground_down_m: float
@@ -223,6 +270,7 @@ def _tracks(samples: Iterable[DroneSample]) -> dict[int, _Track]:
             sysid=sysid,
             time_s=np.array([s.time_s for s in ordered], dtype=float),
             pos_ned_m=pos,
+            vel_ned_mps=np.array([s.vel_ned_mps for s in ordered], dtype=float).reshape(-1, 3),
             armed=armed,
             target_ned_m=target,
             ground_down_m=float(disarmed_down.max()) if disarmed_down.size else 0.0,
@@ -233,6 +281,7 @@ def _tracks(samples: Iterable[DroneSample]) -> dict[int, _Track]:
 @dataclass(frozen=True, slots=True)
 class _Resampled:
     pos_ned_m: FloatArray  # (T, 3), NaN where not present
+    vel_ned_mps: FloatArray  # (T, 3), NaN where not present
     airborne: BoolArray  # (T,)
     target_ned_m: FloatArray  # (T, 3), NaN where not present or no slot
     target_since_s: FloatArray  # (T,) time of the sample the slot is held from
@@ -249,10 +298,12 @@ def _resample(track: _Track, grid_s: FloatArray) -> _Resampled:
     frac = np.divide(grid_s - t[i0], span, out=np.zeros_like(grid_s), where=span > 0)
     pos = track.pos_ned_m[i0] + frac[:, None] * (track.pos_ned_m[i1] - track.pos_ned_m[i0])
     pos[~present] = np.nan
+    vel = track.vel_ned_mps[i0] + frac[:, None] * (track.vel_ned_mps[i1] - track.vel_ned_mps[i0])
+    vel[~present] = np.nan
     target = track.target_ned_m[i0].copy()
     target[~present] = np.nan
     airborne = present & track.armed[i0] & (track.ground_down_m - pos[:, 2] > AIRBORNE_HEIGHT_M)
-    return _Resampled(pos_ned_m=pos, airborne=airborne, target_ned_m=target, target_since_s=t[i0])
+    return _Resampled(pos_ned_m=pos, vel_ned_mps=vel, airborne=airborne, target_ned_m=target, target_since_s=t[i0])
 
 
 def time_grid(start_s: float, end_s: float, rate_hz: float = GRID_HZ) -> FloatArray:
@@ -305,6 +356,44 @@ def _separation(
             )
     series[np.isinf(series)] = np.nan
     return series, best
+
+
+# --- alignment --------------------------------------------------------------------------------------------------
+
+
+def alignment_order_parameter(vel_ne_mps: npt.ArrayLike) -> FloatArray:
+    """phi = |sum v_i| / sum |v_i| over the drones (axis -2) of horizontal velocities shaped (..., n, 2).
+
+    Rows with a NaN are absent drones. NaN where fewer than two are present or their mean speed is below
+    ``ALIGNMENT_MIN_SPEED_MPS``. Returns shape (...) (a 0-d array for one instant).
+    """
+    v = np.asarray(vel_ne_mps, dtype=np.float64)
+    present = np.all(np.isfinite(v), axis=-1)
+    v = np.where(present[..., None], v, 0.0)
+    count = present.sum(axis=-1)
+    total = np.linalg.norm(v, axis=-1).sum(axis=-1)
+    resultant = np.linalg.norm(v.sum(axis=-2), axis=-1)
+    defined = (count >= 2) & (total >= np.maximum(count, 1) * ALIGNMENT_MIN_SPEED_MPS)
+    return np.asarray(np.where(defined, resultant / np.where(defined, total, 1.0), np.nan), dtype=np.float64)
+
+
+def _alignment(step: StepRecord, grid_s: FloatArray, resampled: Sequence[_Resampled]) -> AlignmentMetrics:
+    in_step = (grid_s >= step.start_s - 1e-9) & (grid_s < step.end_s - 1e-9)
+    times = grid_s[in_step]
+    vel = np.full((times.size, len(resampled), 2), np.nan)
+    for k, r in enumerate(resampled):
+        airborne = r.airborne[in_step]
+        vel[airborne, k] = r.vel_ned_mps[in_step][airborne, :2]
+    phi = alignment_order_parameter(vel).reshape(times.size)
+    reached = np.flatnonzero(phi >= ALIGNMENT_CONVERGED)
+    converged = mean = low = None
+    if reached.size:
+        first = int(reached[0])
+        converged = float(times[first]) - step.start_s
+        after = phi[first:]
+        after = after[np.isfinite(after)]
+        mean, low = float(after.mean()), float(after.min())
+    return AlignmentMetrics(converged_time_s=converged, mean=mean, min=low, time_s=times, phi=phi)
 
 
 # --- settling ---------------------------------------------------------------------------------------------------
@@ -409,6 +498,7 @@ def _step_metrics(
         target_alt_m=step.target_alt_m,
         takeoff_time_s=_slowest(takeoff_per_drone),
         takeoff_time_per_drone_s=takeoff_per_drone,
+        alignment=_alignment(step, grid_s, resampled) if step.kind in ALIGNMENT_STEP_KINDS else None,
     )
 
 
@@ -449,6 +539,9 @@ def compute_metrics(recording: FlightRecording) -> FlightMetrics:
         collisions=len(collision_events),
         collision_events=collision_events,
         avoidance_events=sum(e.text.startswith(AVOIDANCE_PREFIX) for e in recording.events),
+        avoidance_closest_approach_m=min(
+            (float(m.group(1)) for e in recording.events if (m := AVOIDANCE_CLOSEST.match(e.text))), default=None
+        ),
         takeoff_time_s=first_takeoff.takeoff_time_s if first_takeoff else None,
         takeoff_time_per_drone_s=dict(first_takeoff.takeoff_time_per_drone_s) if first_takeoff else {},
         steps=steps,
@@ -466,14 +559,16 @@ class LiveStatus:
     rms_error_m: float | None  # swarm RMS distance to the commanded slots, now
     separation_m: float | None  # minimum pairwise separation of airborne drones, now
     min_separation_m: float | None  # smallest separation seen so far
+    alignment: float | None = None  # phi of the latest velocities of airborne drones, when defined
 
     def line(self) -> str:
         def fmt(value: float | None, unit: str) -> str:
             return "-" if value is None else f"{value:.2f} {unit}"
 
+        phi = "" if self.alignment is None else f"  phi {self.alignment:.2f}"
         return (
             f"t {fmt(self.time_s, 's')}  rms {fmt(self.rms_error_m, 'm')}  "
-            f"sep {fmt(self.separation_m, 'm')} (min {fmt(self.min_separation_m, 'm')})"
+            f"sep {fmt(self.separation_m, 'm')} (min {fmt(self.min_separation_m, 'm')}){phi}"
         )
 
 
@@ -521,7 +616,19 @@ class LiveMetrics:
             if s.target_ned_m is not None and now - s.time_s <= self._max_age_s
         ]
         rms = math.sqrt(sum(squared) / len(squared)) if squared else None
-        return LiveStatus(time_s=now, rms_error_m=rms, separation_m=separation, min_separation_m=self._min_separation_m)
+        velocities = [
+            s.vel_ned_mps[:2]
+            for s in self._latest.values()
+            if abs(now - s.time_s) <= self._max_age_s and self._airborne(s)
+        ]
+        phi = float(alignment_order_parameter(velocities)) if len(velocities) >= 2 else math.nan
+        return LiveStatus(
+            time_s=now,
+            rms_error_m=rms,
+            separation_m=separation,
+            min_separation_m=self._min_separation_m,
+            alignment=phi if math.isfinite(phi) else None,
+        )
 
     def _airborne(self, sample: DroneSample) -> bool:
         ground = self._ground_down_m.get(sample.sysid, 0.0)

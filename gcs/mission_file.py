@@ -6,7 +6,7 @@ name = "grid_to_circle"
 drones = 9            # spawned on a grid (or line) with this spacing
 spacing_m = 2.0
 [[steps]]
-action = "takeoff"    # takeoff | formation | hold | land | rtl
+action = "takeoff"    # takeoff | formation | flock | follow | hold | land | rtl
 alt_m = 3.0
 [[steps]]
 action = "formation"
@@ -15,6 +15,9 @@ radius_m = 3.0
 alt_m = 3.0
 hold_s = 30.0
 ```
+
+``flock`` and ``follow`` steps carry the fields of ``FlockSpec`` and ``FollowSpec`` (gcs/behaviours.py; angles in
+degrees), and ``[swarm] params = { NAME = value }`` lists drone parameters set before arming (docs/missions.md).
 
 TOML is in the standard library (no new dependency) and reads well. A mistake is reported as one line
 ``FILE:LINE: steps[2].radius_m: must be a positive number``; tomllib gives no positions for values, so the line is
@@ -30,6 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from gcs.behaviours import FlockSpec, FollowSpec
 from gcs.formation import CircleSpec, Formation, FormationError, GridSpec, LineSpec, VSpec
 from gcs.supervisor import LAYOUTS
 
@@ -45,6 +49,9 @@ class SwarmSpec:
     drones: int
     layout: str = "grid"
     spacing_m: float = 2.0
+    # Drone parameters set over MAVLink (PARAM_SET) before arming; an int travels as INT32, a float as REAL32.
+    params: tuple[tuple[str, int | float], ...] = ()
+    relay: bool = True  # false: no neighbour relay, the drones see each other only with their cameras
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -58,6 +65,31 @@ class FormationStep:
     name: str
     formation: Formation
     hold_s: float  # time in the formation after the transition started
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FlockStep:
+    name: str
+    spec: FlockSpec
+    duration_s: float
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FollowStep:
+    name: str
+    spec: FollowSpec  # leader_sysid None: resolved from leader_drone when the swarm is up
+    leader_drone: int | None  # 1..drones: the swarm's n-th drone leads (its sysid depends on --first-instance)
+    duration_s: float | None  # None: until the leader reaches its last waypoint
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SwapStep:
+    """Every drone straight to the point opposite it through the swarm's centre, paths crossing (avoidance test)."""
+
+    speed_mps: float
+    accel_mps2: float = 1.0
+    timeout_s: float = 30.0  # every drone within tolerance_m of its goal within this time of the step's start
+    tolerance_m: float = 0.5
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -75,7 +107,7 @@ class RtlStep:
     timeout_s: float = 120.0
 
 
-Step = TakeoffStep | FormationStep | HoldStep | LandStep | RtlStep
+Step = TakeoffStep | FormationStep | FlockStep | FollowStep | SwapStep | HoldStep | LandStep | RtlStep
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -109,6 +141,39 @@ _REQUIRED = {"grid": {"rows", "cols", "spacing_m", "alt_m"}, "circle": {"radius_
              "line": {"spacing_m", "alt_m"}, "v": {"spacing_m", "alt_m"}}  # fmt: skip
 
 
+# Behaviours: their fields (name -> kind) and the spec field each fills, where the file's differs (degrees).
+_FLOCK_FIELDS: dict[str, str] = {
+    "alt_m": "pos",
+    "migration_ne_m": "points",
+    "max_speed_mps": "pos",
+    "max_accel_mps2": "pos",
+    "neighbour_radius_m": "pos",
+    "separation_radius_m": "pos",
+    "separation_weight_mps2": "pos",
+    "separation_lookahead_s": "nonneg",
+    "alignment_weight_per_s": "nonneg",
+    "cohesion_weight_per_s2": "nonneg",
+    "migration_weight_per_s": "nonneg",
+    "arrival_radius_m": "pos",
+}
+_FOLLOW_FIELDS: dict[str, str] = {
+    "waypoints_ne_m": "points",
+    "alt_m": "pos",
+    "speed_mps": "pos",
+    "leader_sysid": "count",
+    "offsets_fr_m": "offsets",
+    "spacing_m": "pos",
+    "angle_deg": "angle",
+    "turn_radius_m": "pos",
+    "max_accel_mps2": "pos",
+    "max_turn_rate_degps": "pos",
+}
+_RENAMED = {"angle_deg": "angle_rad", "max_turn_rate_degps": "max_turn_rate_radps"}
+_FLOCK_REQUIRED = {"alt_m"}
+_FOLLOW_REQUIRED = {"waypoints_ne_m", "alt_m"}
+_PAIR_LABELS = {"points": "[north, east]", "offsets": "[forward, right]"}
+
+
 def number_problem(value: Any, kind: str) -> str | None:
     """Why ``value`` is not a valid number of this kind (count, pos, nonneg, num, angle), or None."""
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
@@ -120,6 +185,59 @@ def number_problem(value: Any, kind: str) -> str | None:
     if kind == "nonneg" and value < 0:
         return f"must be >= 0, got {value!r}"
     return None
+
+
+def field_problem(value: Any, kind: str) -> str | None:
+    """Like ``number_problem``, also for lists of pairs (kinds points, offsets)."""
+    if kind not in _PAIR_LABELS:
+        return number_problem(value, kind)
+    label = _PAIR_LABELS[kind]
+    if not isinstance(value, list | tuple) or not value:
+        return f"must be a non-empty list of {label} pairs, got {value!r}"
+    for pair in value:
+        if not isinstance(pair, list | tuple) or len(pair) != 2 or any(number_problem(v, "num") for v in pair):
+            return f"must be a list of {label} pairs of numbers, got {pair!r} in it"
+    return None
+
+
+def _convert(key: str, value: Any, kind: str) -> tuple[str, Any]:
+    if kind in _PAIR_LABELS:
+        return key, tuple((float(a), float(b)) for a, b in value)
+    if key in _RENAMED:
+        return _RENAMED[key], math.radians(value)
+    return key, int(value) if kind == "count" else float(value)
+
+
+def _build_behaviour(cls: type, what: str, kinds: dict[str, str], required: set[str], fields: dict[str, Any]) -> Any:
+    for key in fields:
+        if key not in kinds:
+            raise ValueError(f"{key}: not a field of {what} (fields: {', '.join(kinds)})")
+    missing = sorted(required - set(fields))
+    if missing:
+        raise ValueError(f"missing field '{missing[0]}' for {what}")
+    kwargs: dict[str, Any] = {}
+    for key, value in fields.items():
+        problem = field_problem(value, kinds[key])
+        if problem is not None:
+            raise ValueError(f"{key}: {problem}")
+        name, converted = _convert(key, value, kinds[key])
+        kwargs[name] = converted
+    try:
+        return cls(**kwargs)
+    except (FormationError, TypeError) as exc:
+        raise ValueError(str(exc)) from None
+
+
+def build_flock(fields: dict[str, Any]) -> FlockSpec:
+    """A flocking spec from plain fields (a mission step's, or the CLI's); ValueError says which field is wrong."""
+    spec: FlockSpec = _build_behaviour(FlockSpec, "flocking", _FLOCK_FIELDS, _FLOCK_REQUIRED, fields)
+    return spec
+
+
+def build_follow(fields: dict[str, Any]) -> FollowSpec:
+    """A leader-follower spec from plain fields (the CLI's, with ``leader_sysid``); ValueError names the field."""
+    spec: FollowSpec = _build_behaviour(FollowSpec, "leader-follower", _FOLLOW_FIELDS, _FOLLOW_REQUIRED, fields)
+    return spec
 
 
 def build_formation(shape: str, fields: dict[str, Any]) -> Formation:
@@ -149,6 +267,11 @@ def build_formation(shape: str, fields: dict[str, Any]) -> Formation:
     return formation
 
 
+# A table header line: [name] or [[name]] alone (a comment may follow). Not the continuation of a multi-line array
+# such as "  [12.0, 0.0],", which also starts with a bracket.
+_HEADER = re.compile(r"""^\s*\[\[?\s*[A-Za-z_"'][^\]]*\]\]?\s*(#.*)?$""")
+
+
 class _Locator:
     """Finds the line of a field in the TOML text (1-based), for error messages."""
 
@@ -171,7 +294,7 @@ class _Locator:
             return 1
         key_re = re.compile(rf"^\s*{re.escape(key)}\s*=") if key else None
         for n in range(start + 1, len(self.lines)):
-            if self.lines[n].lstrip().startswith("[") and n > start:
+            if _HEADER.match(self.lines[n]) and n > start:
                 break
             if key_re is not None and key_re.match(self.lines[n]):
                 return n + 1
@@ -196,6 +319,11 @@ class _Reader:
         if problem is not None:
             raise self.fail(where, key, problem)
         return float(table[key])
+
+    def field(self, table: dict[str, Any], key: str, where: tuple[str | None, int | None], kind: str) -> None:
+        problem = field_problem(table[key], kind)
+        if problem is not None:
+            raise self.fail(where, key, problem)
 
     def check_keys(self, table: dict[str, Any], allowed: set[str], where: tuple[str | None, int | None]) -> None:
         for key in table:
@@ -225,7 +353,56 @@ def _formation(reader: _Reader, step: dict[str, Any], where: tuple[str | None, i
     return FormationStep(name=name, formation=formation, hold_s=reader.number(step, "hold_s", where, "pos"))
 
 
-def _step(reader: _Reader, step: Any, index: int) -> Step:
+def _step_name(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int | None], default: str) -> str:
+    name = step.get("name", default)
+    if not isinstance(name, str):
+        raise reader.fail(where, "name", "must be a string")
+    return name
+
+
+def _flock(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int | None]) -> FlockStep:
+    reader.check_keys(step, {"action", "name", "duration_s", *_FLOCK_FIELDS}, where)
+    for key in sorted(_FLOCK_REQUIRED | {"duration_s"}):
+        if key not in step:
+            raise reader.fail(where, None, f"missing field '{key}' for a flock step")
+    for key, kind in _FLOCK_FIELDS.items():
+        if key in step:
+            reader.field(step, key, where, kind)
+    duration = reader.number(step, "duration_s", where, "pos")
+    try:
+        spec = build_flock({k: step[k] for k in _FLOCK_FIELDS if k in step})
+    except ValueError as exc:
+        raise reader.fail(where, None, str(exc)) from None
+    return FlockStep(name=_step_name(reader, step, where, "flock"), spec=spec, duration_s=duration)
+
+
+def _follow(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int | None], drones: int) -> FollowStep:
+    fields = {k: v for k, v in _FOLLOW_FIELDS.items() if k != "leader_sysid"}
+    reader.check_keys(step, {"action", "name", "duration_s", "leader_drone", *fields}, where)
+    for key in sorted(_FOLLOW_REQUIRED):
+        if key not in step:
+            raise reader.fail(where, None, f"missing field '{key}' for a follow step")
+    for key, kind in fields.items():
+        if key in step:
+            reader.field(step, key, where, kind)
+    leader = None
+    if "leader_drone" in step:
+        leader = int(reader.number(step, "leader_drone", where, "count"))
+        if leader > drones:
+            raise reader.fail(where, "leader_drone", f"must be one of the swarm's drones 1..{drones}, got {leader}")
+    offsets = step.get("offsets_fr_m")
+    if offsets is not None and len(offsets) < drones - 1:
+        raise reader.fail(where, "offsets_fr_m", f"{len(offsets)} offsets for {drones - 1} followers: give one each")
+    duration = reader.number(step, "duration_s", where, "pos") if "duration_s" in step else None
+    try:
+        spec = build_follow({k: step[k] for k in fields if k in step})
+    except ValueError as exc:
+        raise reader.fail(where, None, str(exc)) from None
+    name = _step_name(reader, step, where, "follow")
+    return FollowStep(name=name, spec=spec, leader_drone=leader, duration_s=duration)
+
+
+def _step(reader: _Reader, step: Any, index: int, drones: int) -> Step:
     where: tuple[str | None, int | None] = ("steps", index)
     if not isinstance(step, dict):
         raise reader.fail(where, None, "must be a table")
@@ -239,6 +416,17 @@ def _step(reader: _Reader, step: Any, index: int) -> Step:
         return TakeoffStep(alt_m=alt, timeout_s=timeout)
     if action == "formation":
         return _formation(reader, step, where)
+    if action == "flock":
+        return _flock(reader, step, where)
+    if action == "follow":
+        return _follow(reader, step, where, drones)
+    if action == "swap":
+        reader.check_keys(step, {"action", "speed_mps", "accel_mps2", "timeout_s", "tolerance_m"}, where)
+        if "speed_mps" not in step:
+            raise reader.fail(where, None, "missing field 'speed_mps'")
+        optional = {k: reader.number(step, k, where, "pos") for k in ("accel_mps2", "timeout_s", "tolerance_m")
+                    if k in step}  # fmt: skip
+        return SwapStep(speed_mps=reader.number(step, "speed_mps", where, "pos"), **optional)
     if action == "hold":
         reader.check_keys(step, {"action", "duration_s"}, where)
         if "duration_s" not in step:
@@ -248,7 +436,26 @@ def _step(reader: _Reader, step: Any, index: int) -> Step:
         reader.check_keys(step, {"action", "timeout_s"}, where)
         cls = LandStep if action == "land" else RtlStep
         return cls(timeout_s=reader.number(step, "timeout_s", where, "pos")) if "timeout_s" in step else cls()
-    raise reader.fail(where, "action", f"must be takeoff, formation, hold, land or rtl, got {action!r}")
+    raise reader.fail(
+        where, "action", f"must be takeoff, formation, flock, follow, swap, hold, land or rtl, got {action!r}"
+    )
+
+
+_PARAM_NAME = re.compile(r"^[A-Za-z0-9_]{1,16}$")  # MAVLink param_id: at most 16 characters
+
+
+def _params(reader: _Reader, table: Any, where: tuple[str | None, int | None]) -> tuple[tuple[str, int | float], ...]:
+    if not isinstance(table, dict):
+        raise reader.fail(where, "params", "must be a table of NAME = number, e.g. { AVOID_ENABLE = 0 }")
+    out: list[tuple[str, int | float]] = []
+    for name, value in table.items():
+        if not _PARAM_NAME.match(name):
+            raise reader.fail(where, "params", f"{name!r} is not a parameter name (letters, digits, _; 16 at most)")
+        problem = number_problem(value, "num")
+        if problem is not None:
+            raise reader.fail(where, "params", f"{name} {problem}")
+        out.append((name, value))
+    return tuple(out)
 
 
 def parse_mission(text: str, path: Path) -> MissionSpec:
@@ -262,7 +469,7 @@ def parse_mission(text: str, path: Path) -> MissionSpec:
     if not isinstance(swarm, dict):
         raise reader.fail((None, None), None, "missing [swarm] table with 'drones'")
     where_swarm: tuple[str | None, int | None] = ("swarm", None)
-    reader.check_keys(swarm, {"drones", "layout", "spacing_m"}, where_swarm)
+    reader.check_keys(swarm, {"drones", "layout", "spacing_m", "params", "relay"}, where_swarm)
     if "drones" not in swarm:
         raise reader.fail(where_swarm, None, "missing field 'drones'")
     drones = int(reader.number(swarm, "drones", where_swarm, "count"))
@@ -272,10 +479,14 @@ def parse_mission(text: str, path: Path) -> MissionSpec:
     if layout not in LAYOUTS:
         raise reader.fail(where_swarm, "layout", f"must be one of {', '.join(sorted(LAYOUTS))}, got {layout!r}")
     spacing = reader.number(swarm, "spacing_m", where_swarm, "pos") if "spacing_m" in swarm else 2.0
+    params = _params(reader, swarm.get("params", {}), where_swarm)
+    relay = swarm.get("relay", True)
+    if not isinstance(relay, bool):
+        raise reader.fail(where_swarm, "relay", f"must be true or false, got {relay!r}")
     steps_data = data.get("steps")
     if not isinstance(steps_data, list) or not steps_data:
         raise reader.fail((None, None), None, "missing [[steps]]: a mission needs at least one step")
-    steps = tuple(_step(reader, s, i) for i, s in enumerate(steps_data))
+    steps = tuple(_step(reader, s, i, drones) for i, s in enumerate(steps_data))
     if not isinstance(steps[0], TakeoffStep):
         raise reader.fail(("steps", 0), "action", "the first step must be a takeoff")
     name = data.get("name", path.stem)
@@ -285,7 +496,7 @@ def parse_mission(text: str, path: Path) -> MissionSpec:
     return MissionSpec(
         name=name,
         description=description,
-        swarm=SwarmSpec(drones=drones, layout=layout, spacing_m=spacing),
+        swarm=SwarmSpec(drones=drones, layout=layout, spacing_m=spacing, params=params, relay=relay),
         steps=steps,
         path=path,
     )

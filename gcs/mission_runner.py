@@ -1,17 +1,20 @@
 """``swarm fly``: run a mission file end to end: spawn, take off, formations, land, shut down, report.
 
 The runner talks to the drones only over MAVLink, as it would to real PX4 drones: NAV_TAKEOFF and NAV_LAND
-commands, and OFFBOARD with SET_POSITION_TARGET_LOCAL_NED streamed at 20 Hz for formations. Formation targets live
-in the swarm frame (gcs/frames.py) and are converted into each drone's own local frame, anchored where that drone
-booted (reported in its HOME_POSITION). Mission time runs at the simulation's speed factor, so a step's
-``hold_s`` is simulated seconds.
+commands, and OFFBOARD with SET_POSITION_TARGET_LOCAL_NED streamed at 20 Hz for formations and behaviours
+(leader-follower, flocking: gcs/behaviours.py). Formation targets live in the swarm frame (gcs/frames.py) and are
+converted into each drone's own local frame, anchored where that drone booted (reported in its HOME_POSITION).
+Mission time runs at the simulation's speed factor, so a step's ``hold_s`` is simulated seconds.
 
 Everything received is written to ``flight.tlog`` and recorded for the flight report (gcs/report.py).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import re
+import struct
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -22,7 +25,18 @@ from pymavlink.dialects.v20 import common as mavlink
 from gcs.formation import SETPOINT_STREAM_HZ
 from gcs.frames import SwarmFrame
 from gcs.metrics import LiveMetrics
-from gcs.mission_file import FormationStep, HoldStep, LandStep, MissionSpec, RtlStep, Step, TakeoffStep
+from gcs.mission_file import (
+    FlockStep,
+    FollowStep,
+    FormationStep,
+    HoldStep,
+    LandStep,
+    MissionSpec,
+    RtlStep,
+    Step,
+    SwapStep,
+    TakeoffStep,
+)
 from gcs.recording import DroneSample, EventRecord, FlightRecording, StepRecord
 from gcs.report import write_report
 from gcs.streamer import FormationStreamer
@@ -37,13 +51,42 @@ ALT_TOLERANCE_M = 0.2  # takeoff is done when every drone holds the target altit
 ALT_HOLD_S = 1.0  # ...for this long (simulated seconds)
 STATUS_EVERY_S = 2.0
 ARMABLE_TIMEOUT_S = 30.0
+PARAM_TIMEOUT_S = 1.0  # for every drone's PARAM_VALUE echo, per attempt (on the swarm's clock)
+PARAM_ATTEMPTS = 3
+_INT_PARAM_TYPES = {
+    mavlink.MAV_PARAM_TYPE_UINT8: "<B",
+    mavlink.MAV_PARAM_TYPE_INT8: "<b",
+    mavlink.MAV_PARAM_TYPE_UINT16: "<H",
+    mavlink.MAV_PARAM_TYPE_INT16: "<h",
+    mavlink.MAV_PARAM_TYPE_UINT32: "<I",
+    mavlink.MAV_PARAM_TYPE_INT32: "<i",
+}
+FOLLOW_ARRIVAL_MARGIN_S = 30.0  # the leader must report itself at its last waypoint this long after its reference
 COLLISION_TEXT = re.compile(r"Collision with drone (\d+)")
+
+
+def param_set_message(sysid: int, name: str, value: int | float) -> Any:
+    """PARAM_SET as PX4 expects it: an int bytewise in the float field as INT32, a float as REAL32."""
+    if isinstance(value, int):
+        bits = struct.unpack("<f", struct.pack("<i", value))[0]
+        return mavlink.MAVLink_param_set_message(sysid, 1, name.encode("ascii"), bits, mavlink.MAV_PARAM_TYPE_INT32)
+    return mavlink.MAVLink_param_set_message(sysid, 1, name.encode("ascii"), value, mavlink.MAV_PARAM_TYPE_REAL32)
+
+
+def param_value(msg: Any) -> float:
+    """The number a PARAM_VALUE carries (integer types bytewise)."""
+    fmt = _INT_PARAM_TYPES.get(msg.param_type)
+    if fmt is None:
+        return float(msg.param_value)
+    raw = struct.pack("<f", msg.param_value)
+    return float(struct.unpack(fmt, raw[: struct.calcsize(fmt)])[0])
 
 
 class MissionRunner:
     def __init__(self, mission: MissionSpec, *, speed_factor: float, origin: GeoPoint, first_instance: int,
                  report_dir: Path, say: Say, airframe: str | None = None, seed: int = 0,
-                 forward: tuple[str, int] | None = None) -> None:  # fmt: skip
+                 forward: tuple[str, int] | None = None, lockstep: bool = False,
+                 lockstep_quantum: int = 1) -> None:  # fmt: skip
         self.mission = mission
         self.speed = speed_factor
         self.say = say
@@ -59,8 +102,10 @@ class MissionRunner:
             airframe=airframe,
             seed=seed,
             log_dir=report_dir / "logs",
+            lockstep=lockstep,
+            lockstep_quantum=lockstep_quantum,
         )
-        self.swarm = Swarm(plan, forward=forward)
+        self.swarm = Swarm(plan, forward=forward, relay=mission.swarm.relay)
         self.streamer = FormationStreamer(self.swarm, self.swarm_frame)
         # Two bodies touch when their centres are closer than the sum of both collision radii.
         contact_distance = 2.0 * (load_airframe(airframe) if airframe else load_airframe()).collision_radius_m
@@ -69,19 +114,21 @@ class MissionRunner:
         )
         self._collision_pairs: set[frozenset[int]] = set()
         self.live = LiveMetrics()
-        self._t0_wall = time.monotonic()
+        self._t0_s = 0.0
+        self._epoch_us = int(time.time() * 1e6)
         self._tlog: TlogWriter | None = None
         self._next_status_s = 0.0
         self._step_name = "spawn"
 
     # ---- time and telemetry ----------------------------------------------------------------------------------------
     def now(self) -> float:
-        """Mission time in simulated seconds (wall time since start times the speed factor)."""
-        return (time.monotonic() - self._t0_wall) * self.speed
+        """Mission time in simulated seconds (the supervisor's clock: paced wall time or the lockstep clock)."""
+        return self.swarm.clock() - self._t0_s
 
     def _on_message(self, msg: Any, _wall_s: float) -> None:
         if self._tlog is not None:
-            self._tlog.write(bytes(msg.get_msgbuf()), int(time.time() * 1e6))
+            # Stamped in simulated time from the mission's start, so a replay runs at the flight's own pace
+            self._tlog.write(bytes(msg.get_msgbuf()), self._epoch_us + int(self.now() * 1e6))
         kind = msg.get_type()
         sysid = msg.get_srcSystem()
         now = self.now()
@@ -116,10 +163,44 @@ class MissionRunner:
             self.say(f"[{now:6.1f} s] {self._step_name:<10} {self.live.status().line()}")
 
     def _wait(self, condition: Callable[[], bool], timeout_sim_s: float) -> bool:
-        return self.swarm.wait_until(condition, timeout_sim_s / self.speed, tick=self._tick)
+        return self.swarm.wait_until(condition, timeout_sim_s, tick=self._tick)
 
     def _hold(self, duration_sim_s: float) -> None:
-        self.swarm.run_for(duration_sim_s / self.speed, tick=self._tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
+        self.swarm.run_for(duration_sim_s, tick=self._tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
+
+    def _set_params(self) -> None:
+        """The mission's drone parameters on every drone, each confirmed by its PARAM_VALUE echo (as MAVSDK does)."""
+        echoes: dict[tuple[int, str], float] = {}
+
+        def listen(msg: Any, _now: float) -> None:
+            if msg.get_type() == "PARAM_VALUE":
+                echoes[(msg.get_srcSystem(), msg.param_id)] = param_value(msg)
+
+        self.swarm.listeners.append(listen)
+        try:
+            for name, value in self.mission.swarm.params:
+                pending = list(self.swarm.sysids)
+                for _ in range(PARAM_ATTEMPTS):
+                    for sysid in pending:
+                        echoes.pop((sysid, name), None)
+                        self.swarm.send(sysid, param_set_message(sysid, name, value))
+                    self.swarm.wait_until(lambda: all((s, name) in echoes for s in pending), PARAM_TIMEOUT_S)  # noqa: B023
+                    pending = [s for s in pending if (s, name) not in echoes]
+                    if not pending:
+                        break
+                if pending:
+                    raise SwarmError(f"parameter {name}: no answer from sysid {pending} (unknown parameter?)")
+                kept = {s: echoes[(s, name)] for s in self.swarm.sysids}
+                refused = [s for s, v in kept.items() if not math.isclose(v, value, rel_tol=1e-6, abs_tol=1e-9)]
+                if refused:
+                    raise SwarmError(
+                        f"parameter {name} = {value:g} refused by sysid {refused} (kept {kept[refused[0]]:g})"
+                    )
+            if self.mission.swarm.params:
+                listed = ", ".join(f"{n} = {v:g}" for n, v in self.mission.swarm.params)
+                self.say(f"parameters set on every drone: {listed}")
+        finally:
+            self.swarm.listeners.remove(listen)
 
     # ---- steps -----------------------------------------------------------------------------------------------------
     def _takeoff(self, step: TakeoffStep) -> None:
@@ -146,6 +227,34 @@ class MissionRunner:
         self.streamer.command(step.formation, self.now())
         self._hold(step.hold_s)
 
+    def _flock(self, step: FlockStep) -> None:
+        self.streamer.command_flock(step.spec, self.now())
+        self._hold(step.duration_s)
+
+    def _follow(self, step: FollowStep) -> None:
+        spec = step.spec
+        if step.leader_drone is not None:
+            spec = dataclasses.replace(spec, leader_sysid=self.swarm.sysids[step.leader_drone - 1])
+        behaviour = self.streamer.command_follow(spec, self.now())
+        if step.duration_s is not None:
+            self._hold(step.duration_s)
+            return
+        timeout = behaviour.finish_s + FOLLOW_ARRIVAL_MARGIN_S - self.now()
+        if not self._wait(lambda: behaviour.done(self.now()), timeout):
+            raise SwarmError(f"leader sysid {behaviour.leader} did not reach its last waypoint within {timeout:.0f} s")
+
+    def _swap(self, step: SwapStep) -> None:
+        move = self.streamer.command_swap(step.speed_mps, step.accel_mps2, self.now())
+
+        def arrived() -> bool:
+            positions = self.streamer.positions()
+            return all(
+                s in positions and math.dist(positions[s], goal) <= step.tolerance_m for s, goal in move.goals.items()
+            )
+
+        if not self._wait(arrived, step.timeout_s):
+            raise SwarmError(f"not every drone reached the opposite point within {step.timeout_s:g} s")
+
     def _land(self, step: LandStep | RtlStep) -> None:
         """Land (or return) every drone still armed; a crashed or already landed drone has nothing to do."""
         self.streamer.stop()
@@ -156,13 +265,19 @@ class MissionRunner:
     def _run_step(self, index: int, step: Step) -> None:
         start = self.now()
         kind = type(step).__name__.removesuffix("Step").lower()
-        name = step.name if isinstance(step, FormationStep) else kind
+        name = step.name if isinstance(step, FormationStep | FlockStep | FollowStep) else kind
         self._step_name = name
         self.say(f"[{start:6.1f} s] step {index + 1}/{len(self.mission.steps)}: {name}")
         if isinstance(step, TakeoffStep):
             self._takeoff(step)
         elif isinstance(step, FormationStep):
             self._formation(step)
+        elif isinstance(step, FlockStep):
+            self._flock(step)
+        elif isinstance(step, SwapStep):
+            self._swap(step)
+        elif isinstance(step, FollowStep):
+            self._follow(step)
         elif isinstance(step, HoldStep):
             self._hold(step.duration_s)
         else:
@@ -185,10 +300,12 @@ class MissionRunner:
         self.swarm.listeners.append(self._on_message)
         failure: BaseException | None = None
         try:
-            self.say(f"mission {self.mission.name}: spawning {self.mission.swarm.drones} drones "
-                     f"(speed {self.speed:g}x)")  # fmt: skip
+            pace = ("lockstep, as fast as possible" if self.speed == 0 else f"lockstep at {self.speed:g}x") \
+                if self.swarm.plan.lockstep else f"speed {self.speed:g}x"  # fmt: skip
+            self.say(f"mission {self.mission.name}: spawning {self.mission.swarm.drones} drones ({pace})")
             self.swarm.up()
-            self._t0_wall = time.monotonic()
+            self._set_params()
+            self._t0_s = self.swarm.clock()
             self.swarm.arm_all(ARMABLE_TIMEOUT_S, tick=self._tick)  # before the takeoff step's clock starts
             for index, step in enumerate(self.mission.steps):
                 self._run_step(index, step)

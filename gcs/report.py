@@ -338,7 +338,11 @@ def summary_text(metrics: FlightMetrics) -> str:
     for event in metrics.collision_events:
         who = "swarm" if event.sysid is None else f"drone {event.sysid}"
         lines.append(f"  {event.time_s:7.1f} s  {who}: {event.text}")
-    lines.append(f"avoidance events: {metrics.avoidance_events}")
+    closest = metrics.avoidance_closest_approach_m
+    lines.append(
+        f"avoidance events: {metrics.avoidance_events}"
+        + (f" (closest approach seen by a drone: {closest:.2f} m)" if closest is not None else "")
+    )
     flown = "  ".join(f"{k}: {v:.1f} m" for k, v in metrics.distance_flown_m.items()) or "-"
     lines += [f"distance flown: {flown}", ""]
     return "\n".join(lines)

@@ -12,7 +12,7 @@ from collections.abc import Callable
 from typing import Any
 
 from gcs.frames import SwarmFrame
-from gcs.mission_file import build_formation
+from gcs.mission_file import build_flock, build_follow, build_formation
 from gcs.streamer import FormationStreamer
 from gcs.swarm import Swarm, SwarmError
 
@@ -32,7 +32,7 @@ class Station:
     # ---- periodic work ---------------------------------------------------------------------------------------------
     def mission_time(self) -> float:
         """Simulated seconds since the supervisor started (formations run on the drones' clock)."""
-        return (self.swarm.clock() - self._t0) * self.swarm.plan.speed_factor
+        return self.swarm.clock() - self._t0
 
     def tick(self) -> None:
         self.streamer.tick(self.mission_time())
@@ -69,6 +69,12 @@ class Station:
                     fields["rows"] = math.ceil(n / fields["cols"])
                 formation = build_formation(str(request.get("shape")), fields)
                 self.streamer.command(formation, self.mission_time())
+                return {"ok": True}
+            if cmd == "flock":
+                self.streamer.command_flock(build_flock(dict(request.get("fields", {}))), self.mission_time())
+                return {"ok": True}
+            if cmd == "follow":
+                self.streamer.command_follow(build_follow(dict(request.get("fields", {}))), self.mission_time())
                 return {"ok": True}
             if cmd == "goto":
                 return self.goto(request)

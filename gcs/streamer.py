@@ -5,6 +5,11 @@ acceleration feed-forward) in its own local frame, whose origin is recovered fro
 (gcs/frames.py explains the choice). PX4 accepts OFFBOARD only while setpoints arrive, so the first setpoints go
 out before the mode switch, and then at SETPOINT_STREAM_HZ. Used by ``swarm fly`` and by ``swarm up``'s
 ``formation`` command alike.
+
+Instead of the formation engine, a behaviour (gcs/behaviours.py: leader-follower, flocking) can be streamed: it is
+handed the drones' reported state (``state``) every tick. Its setpoints may leave components out (NaN): the
+``type_mask`` then ignores them, e.g. flocking sends a horizontal velocity with acceleration feed-forward and an
+altitude (``TYPE_MASK_VEL_XY_POS_Z``).
 """
 
 from __future__ import annotations
@@ -13,24 +18,71 @@ import math
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.formation import Formation, FormationEngine, TransitionLimits
+from gcs.behaviours import Behaviour, Flock, FlockSpec, FollowSpec, LeaderFollower, SwarmState
+from gcs.crossing import CrossingMove, antipodal_goals
+from gcs.formation import Formation, FormationEngine, Setpoint, TransitionLimits
 from gcs.frames import DroneFrame, SwarmFrame, Vec3, origin_from_home
 from gcs.swarm import Swarm, SwarmError, check
 from sitl.dynamics.plant import GeoPoint
 
 # Position setpoint with velocity and acceleration feed-forward; yaw and yaw rate ignored (type_mask bits 10, 11).
 TYPE_MASK_POS_VEL_ACC = 0b0000_1100_0000_0000
+_POS_BITS = (
+    mavlink.POSITION_TARGET_TYPEMASK_X_IGNORE,
+    mavlink.POSITION_TARGET_TYPEMASK_Y_IGNORE,
+    mavlink.POSITION_TARGET_TYPEMASK_Z_IGNORE,
+)
+_VEL_BITS = (
+    mavlink.POSITION_TARGET_TYPEMASK_VX_IGNORE,
+    mavlink.POSITION_TARGET_TYPEMASK_VY_IGNORE,
+    mavlink.POSITION_TARGET_TYPEMASK_VZ_IGNORE,
+)
+_ACC_BITS = (
+    mavlink.POSITION_TARGET_TYPEMASK_AX_IGNORE,
+    mavlink.POSITION_TARGET_TYPEMASK_AY_IGNORE,
+    mavlink.POSITION_TARGET_TYPEMASK_AZ_IGNORE,
+)
+# Horizontal velocity with acceleration feed-forward, altitude by position (flocking): x, y, vz, az, yaw ignored.
+TYPE_MASK_VEL_XY_POS_Z = TYPE_MASK_POS_VEL_ACC | _POS_BITS[0] | _POS_BITS[1] | _VEL_BITS[2] | _ACC_BITS[2]
 OFFBOARD_MODE = (1.0, 6.0, 0.0)  # DO_SET_MODE: custom mode enabled, main mode OFFBOARD
 DEFAULT_LIMITS = TransitionLimits(max_speed_mps=1.5, max_accel_mps2=1.0)
+
+
+def type_mask(sp: Setpoint) -> int:
+    """SET_POSITION_TARGET type_mask for a setpoint: every NaN component ignored, yaw used when finite (a crossing
+    move faces the way it flies), yaw rate always ignored.
+
+    A horizontal position needs both north and east: one NaN drops both.
+    """
+    mask = TYPE_MASK_POS_VEL_ACC
+    if math.isfinite(sp.yaw_rad):
+        mask &= ~mavlink.POSITION_TARGET_TYPEMASK_YAW_IGNORE
+    for bits, values in ((_POS_BITS, sp.pos_ned_m), (_VEL_BITS, sp.vel_ned_mps), (_ACC_BITS, sp.acc_ned_mps2)):
+        for bit, value in zip(bits, values, strict=True):
+            if not math.isfinite(value):
+                mask |= bit
+    if mask & (_POS_BITS[0] | _POS_BITS[1]):
+        mask |= _POS_BITS[0] | _POS_BITS[1]
+    return mask
+
+
+def _finite_or_zero(values: Vec3) -> Vec3:
+    return (
+        values[0] if math.isfinite(values[0]) else 0.0,
+        values[1] if math.isfinite(values[1]) else 0.0,
+        values[2] if math.isfinite(values[2]) else 0.0,
+    )
 
 
 class FormationStreamer:
     def __init__(self, swarm: Swarm, frame: SwarmFrame, limits: TransitionLimits = DEFAULT_LIMITS) -> None:
         self.swarm = swarm
         self.swarm_frame = frame
+        self.limits = limits
         self.engine = FormationEngine(limits)
         self.active = False
         self.formation: Formation | None = None
+        self.behaviour: Behaviour | None = None
         self._frames: dict[int, DroneFrame] = {}
 
     def drone_frame(self, sysid: int) -> DroneFrame | None:
@@ -54,16 +106,67 @@ class FormationStreamer:
                 out[sysid] = frame.to_swarm(view.local_ned_m)
         return out
 
-    def command(self, formation: Formation, now_s: float) -> None:
-        """Plan the transition into ``formation`` and make sure every drone is flying it in OFFBOARD."""
+    def state(self) -> SwarmState:
+        """Reported position and velocity (swarm frame) of every armed drone with a home and a finite report."""
+        positions: dict[int, Vec3] = {}
+        velocities: dict[int, Vec3] = {}
+        for sysid in self.swarm.sysids:
+            frame = self.drone_frame(sysid)
+            view = self.swarm.fleet.drones.get(sysid)
+            if frame is None or view is None or not view.armed:
+                continue
+            if all(math.isfinite(v) for v in (*view.local_ned_m, *view.vel_ned_mps)):
+                positions[sysid] = frame.to_swarm(view.local_ned_m)
+                velocities[sysid] = frame.vector_to_swarm(view.vel_ned_mps)
+        return SwarmState.from_mappings(positions, velocities)
+
+    def _check_ready(self, what: str) -> dict[int, Vec3]:
         positions = self.positions()
         missing = sorted(set(self.swarm.sysids) - set(positions))
         if missing:
-            raise SwarmError(f"no position yet from sysid {missing}: cannot plan a formation")
+            raise SwarmError(f"no position yet from sysid {missing}: cannot plan {what}")
         if not all(self.swarm.fleet.drones[s].armed for s in self.swarm.sysids):
-            raise SwarmError("every drone must be armed and flying before a formation (swarm takeoff)")
+            raise SwarmError(f"every drone must be armed and flying before {what} (swarm takeoff)")
+        return positions
+
+    def command(self, formation: Formation, now_s: float) -> None:
+        """Plan the transition into ``formation`` and make sure every drone is flying it in OFFBOARD."""
+        positions = self._check_ready("a formation")
         self.engine.command(formation, now_s, positions)
         self.formation = formation
+        self.behaviour = None
+        self._offboard(now_s)
+
+    def command_follow(self, spec: FollowSpec, now_s: float) -> LeaderFollower:
+        """Leader-follower flight of every drone (gcs/behaviours.py), in OFFBOARD."""
+        self._check_ready("leader-follower")
+        behaviour = LeaderFollower(spec, now_s, self.state(), self.limits)
+        self._start_behaviour(behaviour, now_s)
+        return behaviour
+
+    def command_flock(self, spec: FlockSpec, now_s: float) -> Flock:
+        """Reynolds flocking of every drone (gcs/behaviours.py), in OFFBOARD."""
+        self._check_ready("flocking")
+        behaviour = Flock(spec, now_s, self.state())
+        self._start_behaviour(behaviour, now_s)
+        return behaviour
+
+    def command_swap(self, speed_mps: float, accel_mps2: float, now_s: float) -> CrossingMove:
+        """Every drone straight through the centre to the opposite point (gcs/crossing.py): paths cross on purpose."""
+        positions = self._check_ready("a swap")
+        behaviour = CrossingMove(positions, antipodal_goals(positions), now_s, speed_mps=speed_mps,
+                                 accel_mps2=accel_mps2)  # fmt: skip
+        self._start_behaviour(behaviour, now_s)
+        return behaviour
+
+    def _start_behaviour(self, behaviour: Behaviour, now_s: float) -> None:
+        self.behaviour = behaviour
+        self.formation = None
+        # A later formation starts from where the drones are, not from a plan made before the behaviour.
+        self.engine = FormationEngine(self.limits)
+        self._offboard(now_s)
+
+    def _offboard(self, now_s: float) -> None:
         if not self.active:
             self.active = True
             self.tick(now_s)  # PX4 accepts OFFBOARD only once setpoints are arriving
@@ -74,21 +177,37 @@ class FormationStreamer:
         self.active = False
 
     def targets(self, now_s: float) -> dict[int, Vec3]:
-        return self.engine.targets(now_s) if self.active else {}
+        if not self.active:
+            return {}
+        return self.behaviour.targets() if self.behaviour is not None else self.engine.targets(now_s)
 
     def tick(self, now_s: float) -> None:
         if not self.active:
             return
         boot_ms = int(now_s * 1000) & 0xFFFFFFFF
-        for sysid, sp in self.engine.setpoints(now_s).items():
+        if self.behaviour is not None:
+            state = self.state()
+            setpoints = self.behaviour.setpoints(now_s, state)
+        else:
+            state = None
+            setpoints = self.engine.setpoints(now_s)
+        for sysid, sp in setpoints.items():
             frame = self.drone_frame(sysid)
             if frame is None:
                 continue
-            x, y, z = frame.to_local(sp.pos_ned_m)
-            vx, vy, vz = frame.vector_to_local(sp.vel_ned_mps)
-            ax, ay, az = frame.vector_to_local(sp.acc_ned_mps2)
+            mask = type_mask(sp)
+            pos = sp.pos_ned_m
+            if mask & _POS_BITS[0]:
+                # Altitude alone: place it above the drone's reported position (the two tangent planes differ by
+                # d^2 / 2R in height, 0.8 mm at 100 m from the swarm origin: negligible, but free to get right).
+                row = state.row(sysid) if state is not None else None
+                here = state.pos_ned_m[row] if state is not None and row is not None else (0.0, 0.0)
+                pos = (float(here[0]), float(here[1]), pos[2])
+            x, y, z = frame.to_local(_finite_or_zero(pos))
+            vx, vy, vz = frame.vector_to_local(_finite_or_zero(sp.vel_ned_mps))
+            ax, ay, az = frame.vector_to_local(_finite_or_zero(sp.acc_ned_mps2))
             msg = mavlink.MAVLink_set_position_target_local_ned_message(
-                boot_ms, sysid, 1, mavlink.MAV_FRAME_LOCAL_NED, TYPE_MASK_POS_VEL_ACC,
-                x, y, z, vx, vy, vz, ax, ay, az, 0.0, 0.0,
+                boot_ms, sysid, 1, mavlink.MAV_FRAME_LOCAL_NED, mask,
+                x, y, z, vx, vy, vz, ax, ay, az, sp.yaw_rad if math.isfinite(sp.yaw_rad) else 0.0, 0.0,
             )  # fmt: skip
             self.swarm.send(sysid, msg)

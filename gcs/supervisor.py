@@ -62,7 +62,9 @@ class SpawnPlan:
     spacing_m: float = 2.0
     layout: str = "grid"
     origin: GeoPoint = DEFAULT_HOME
-    speed_factor: float = 1.0
+    speed_factor: float = 1.0  # with lockstep: 0 = as fast as the CPU allows, else a pace for the common clock
+    lockstep: bool = False
+    lockstep_quantum: int = 1  # physics steps every drone runs between waits (the skew bound)
     first_instance: int = 0
     airframe: str | None = None
     seed: int = 0
@@ -92,7 +94,7 @@ def sitl_command(plan: SpawnPlan, instance: int, home: GeoPoint, gcs_port: int, 
     cmd = [
         sys.executable, "-m", "sitl.cli",
         "--instance", str(instance),
-        "--speed", f"{plan.speed_factor:g}",
+        "--speed", "0" if plan.lockstep else f"{plan.speed_factor:g}",
         "--seed", str(plan.seed + instance),
         "--home", f"{home.lat_deg:.9f},{home.lon_deg:.9f},{home.alt_amsl_m:.3f}",
         "--gcs-remote", f"127.0.0.1:{gcs_port}",
@@ -101,6 +103,8 @@ def sitl_command(plan: SpawnPlan, instance: int, home: GeoPoint, gcs_port: int, 
         cmd += ["--airframe", plan.airframe]
     if world is not None:
         cmd += ["--world", world]
+        if plan.lockstep:
+            cmd += ["--lockstep", "--lockstep-quantum", str(plan.lockstep_quantum)]
     return cmd
 
 

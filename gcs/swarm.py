@@ -2,7 +2,11 @@
 
 ``Swarm`` brings drones up (spawn, then wait for each one's first HEARTBEAT; never sleep-and-hope), pumps
 telemetry into the fleet view, sends commands with PX4-client retry rules, and shuts everything down in order:
-land or disarm over MAVLink, then terminate and reap every process. Times are the supervisor's monotonic clock.
+land or disarm over MAVLink, then terminate and reap every process.
+
+Times are simulated seconds on the supervisor's clock (``Swarm.clock``): paced, the wall clock times the speed
+factor; in lockstep, the drones' common clock in the shared world (sitl/lockstep.py), which the supervisor itself
+gates after every pump, so formations, timeouts and mission steps run on exactly the drones' time.
 """
 
 from __future__ import annotations
@@ -24,10 +28,15 @@ from gcs.fleet import Fleet
 from gcs.relay import NeighbourRelay
 from gcs.supervisor import ProcessGroup, SpawnError, SpawnPlan
 from gcs.transport import GcsSocket
+from sitl.lockstep import LockstepGate
+from sitl.simulation import PHYSICS_RATE_HZ
 from sitl.world import SharedWorld
 
 COMMAND_TIMEOUT_S = 0.5  # MAVSDK's per-try timeout
 COMMAND_RETRIES = 3
+LOCKSTEP_LEAD_S = 0.05  # how far the drones may run ahead of the supervisor's last look (one setpoint period)
+LOCKSTEP_STALL_S = 10.0  # wall seconds without progress before the supervisor calls the simulation stalled
+LOCKSTEP_MAX_WAIT_S = 0.005  # wall-clock cap on one wait for traffic in lockstep (simulated time has no wall rate)
 
 
 @dataclass(frozen=True, slots=True)
@@ -44,8 +53,8 @@ class Swarm:
     def __init__(
         self,
         plan: SpawnPlan,
-        clock: Callable[[], float] = time.monotonic,
         relay_radius_m: float | None = None,
+        relay: bool = True,
         forward: tuple[str, int] | None = None,
     ) -> None:
         # Drone output always goes to log files, so a drone that fails to start can be explained; without a
@@ -54,7 +63,10 @@ class Swarm:
         if self._temp_logs is not None:
             plan = dataclasses.replace(plan, log_dir=Path(self._temp_logs))
         self.plan = plan
-        self.clock = clock
+        self._wall_t0 = time.monotonic()
+        self.gate: LockstepGate | None = None
+        self._gate_progress = (0, time.monotonic())  # (steps, wall time they were first seen)
+        self._next_exit_check = 0.0
         self.link = GcsSocket()
         self.fleet = Fleet()
         self.processes = ProcessGroup()
@@ -63,10 +75,44 @@ class Swarm:
         self._selector.register(self.link.sock, selectors.EVENT_READ)
         self._acks: list[Any] = []
         self.world: SharedWorld | None = None
-        self.relay: NeighbourRelay | None = NeighbourRelay(radius_m=relay_radius_m)
+        self.relay: NeighbourRelay | None = NeighbourRelay(radius_m=relay_radius_m) if relay else None
         # Every drone's traffic also goes to this address (QGroundControl/MAVProxy listen on 14550), and what comes
         # back from there is routed to the drones by target system, as a MAVLink router does.
         self.forward = forward
+
+    def clock(self) -> float:
+        """Simulated seconds: the drones' common clock in lockstep, else wall time times the speed factor."""
+        if self.gate is not None:
+            return self.gate.time_s()
+        return (time.monotonic() - self._wall_t0) * self.plan.speed_factor
+
+    def _wall_wait_s(self, sim_s: float) -> float:
+        if self.plan.lockstep:
+            return min(sim_s, LOCKSTEP_MAX_WAIT_S)
+        return sim_s / self.plan.speed_factor
+
+    def _advance_gate(self) -> None:
+        """Let the drones run on to just past the supervisor's time; notice a stall or a dead member."""
+        gate = self.gate
+        if gate is None:
+            return
+        wall = time.monotonic()
+        if wall >= self._next_exit_check:
+            self._next_exit_check = wall + 0.5
+            for d in self.processes.exited():
+                gate.remove(d.instance)
+        steps = gate.completed_steps()
+        if gate.members() < len(self.processes.drones) and steps == 0:
+            return  # not everyone has joined yet: nobody starts before the rest
+        now = steps * gate.dt_s
+        until = now + LOCKSTEP_LEAD_S
+        if self.plan.speed_factor > 0:  # paced lockstep: the common clock follows the wall clock
+            until = min(until, (wall - self._wall_t0) * self.plan.speed_factor)
+        gate.open_until(until)
+        if steps != self._gate_progress[0]:
+            self._gate_progress = (steps, wall)
+        elif wall - self._gate_progress[1] > LOCKSTEP_STALL_S and gate.members() > 0:
+            raise SwarmError(f"simulation stalled at t={now:.3f} s: no drone advanced for {LOCKSTEP_STALL_S:g} s")
 
     @property
     def sysids(self) -> list[int]:
@@ -74,9 +120,9 @@ class Swarm:
 
     # ---- IO --------------------------------------------------------------------------------------------------------
     def pump(self, wait_s: float = 0.0) -> None:
-        """Handle every waiting message, waiting up to ``wait_s`` for the first."""
+        """Handle every waiting message, waiting up to ``wait_s`` (simulated) for the first."""
         if wait_s > 0:
-            self._selector.select(wait_s)
+            self._selector.select(self._wall_wait_s(wait_s))
         now = self.clock()
         for msg, _sender in self.link.receive():
             if msg.get_srcComponent() != 1:
@@ -95,6 +141,7 @@ class Swarm:
                 self._acks.append(msg)
             for listener in self.listeners:
                 listener(msg, now)
+        self._advance_gate()
 
     def _route_from_ground_station(self, msg: Any) -> None:
         """A message from another ground station (QGroundControl, MAVProxy on the forward port): to its target."""
@@ -140,18 +187,21 @@ class Swarm:
         """Spawn every drone and wait for its first HEARTBEAT; SpawnError names the first that does not come up."""
         self.world = SharedWorld.create()  # simulation truth for collisions; the drones attach to it by name
         self.processes.spawn(self.plan, self.link.port, self.world.name)
+        self._wall_t0 = time.monotonic()
+        if self.plan.lockstep:
+            self.gate = LockstepGate(self.world, 1.0 / PHYSICS_RATE_HZ)
         expected = set(self.sysids)
-        end = self.clock() + ready_timeout_s
+        end = time.monotonic() + ready_timeout_s  # start-up is wall-clock work (Python, JSBSim), whatever the mode
         while not expected <= set(self.fleet.drones):
             for d in self.processes.exited():
                 detail = d.last_log_line() or "no output"
                 raise SpawnError(
                     f"drone {d.instance} (sysid {d.sysid}) exited with code {d.process.returncode}: {detail}"
                 )
-            if self.clock() > end:
+            if time.monotonic() > end:
                 missing = sorted(expected - set(self.fleet.drones))
                 raise SpawnError(f"no HEARTBEAT within {ready_timeout_s:g} s from sysid {', '.join(map(str, missing))}")
-            self.pump(0.05)
+            self.pump(self.plan.speed_factor * 0.05 if not self.plan.lockstep else LOCKSTEP_MAX_WAIT_S)
 
     def arm_all(self, timeout_s: float, tick: Callable[[float], None] | None = None) -> None:
         """Wait until every drone passes its pre-arm checks, then arm them all; SwarmError names the laggards."""

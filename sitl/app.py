@@ -39,6 +39,7 @@ def run(
     links: list[LinkConfig],
     world_name: str | None = None,
     lockstep: bool = False,
+    lockstep_quantum: int = 1,
     camera_frames: Path | None = None,
 ) -> int:
     stop = StopFlag()
@@ -53,7 +54,7 @@ def run(
     flight = DemoFlight(sim, _say) if demo else None
     world = SharedWorld.attach(world_name) if world_name else None
     participant = WorldParticipant(world, instance, airframe.collision_radius_m) if world is not None else None
-    clock = LockstepSteps(LockstepMember(world, instance)) if lockstep and world is not None else None
+    clock = LockstepSteps(LockstepMember(world, instance, lockstep_quantum)) if lockstep and world is not None else None
 
     api = SimVehicleApi(sim)
     endpoint = MavlinkEndpoint(Identity(sysid=instance + 1), api, sim.params, links) if links else None

@@ -120,6 +120,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--lockstep", action="store_true", help="advance time together with the swarm's other drones (needs --world)"
     )
     parser.add_argument(
+        "--lockstep-quantum", type=int, default=1, help="lockstep: steps run between waits (skew bound; default 1)"
+    )
+    parser.add_argument(
         "--camera-frames", type=Path, default=None, help="save every camera frame as PNG in this directory"
     )
     parser.add_argument("--duration", type=float, default=None, help="exit after this many simulated seconds")
@@ -153,6 +156,8 @@ def _main(argv: Sequence[str] | None) -> int:
         if not (-90 < lat < 90 and -180 <= lon <= 180):
             raise UsageError(f"--home latitude/longitude out of range: {args.home!r}")
         home = GeoPoint(lat_deg=lat, lon_deg=lon, alt_amsl_m=alt)
+    if not 1 <= args.lockstep_quantum <= 400:
+        raise UsageError(f"--lockstep-quantum must be in 1..400 steps, got {args.lockstep_quantum}")
     if args.lockstep and args.world is None:
         raise UsageError("--lockstep needs --world (the swarm's shared world carries the common clock)")
     wind = _float_list(args.wind, 3, "--wind")
@@ -175,6 +180,7 @@ def _main(argv: Sequence[str] | None) -> int:
         links=links,
         world_name=args.world,
         lockstep=args.lockstep,
+        lockstep_quantum=args.lockstep_quantum,
         camera_frames=args.camera_frames,
     )
 

@@ -43,6 +43,29 @@ class RelayedNeighbour:
     received_s: float
 
 
+MIN_PREFERRED_SPEED_MPS = 1.0
+
+
+def _preferred(desired: Vec3f, setpoint: TrajectorySetpoint) -> Vec3f:
+    """The velocity avoidance should aim for: what the position loop wants, but no faster horizontally than the
+    setpoint itself moves (and at least ``MIN_PREFERRED_SPEED_MPS``).
+
+    A drone held back by its neighbours falls behind a moving setpoint, and the position loop then asks for ever
+    more speed to catch up (6 m/s behind a 2 m/s setpoint in an eight-drone swap); fed to the velocity obstacles that
+    demand pushes every drone into the crowd harder than the crowd can clear. Capped, each drone asks for the pace
+    the mission set, and catches up freely once nothing is in the way (the cap applies only while correcting)."""
+    vx, vy = desired[0], desired[1]
+    if not (math.isfinite(vx) and math.isfinite(vy)):
+        return desired
+    ff = setpoint.vel_ned_mps
+    ff_speed = math.hypot(ff[0], ff[1]) if math.isfinite(ff[0]) and math.isfinite(ff[1]) else 0.0
+    cap = max(ff_speed, MIN_PREFERRED_SPEED_MPS)
+    speed = math.hypot(vx, vy)
+    if speed <= cap:
+        return desired
+    return (vx * cap / speed, vy * cap / speed, desired[2])
+
+
 class CollisionPrevention:
     def __init__(self, params: ParamStore, position: PositionController, own_radius_m: float,
                  event: Callable[[int, str], None]) -> None:  # fmt: skip
@@ -136,7 +159,7 @@ class CollisionPrevention:
         )
 
     def _run(self, setpoint: TrajectorySetpoint, pos: Vec3f, own_vel: Vec3f, now_s: float) -> None:
-        desired = self._position.update(pos, setpoint.pos_ned_m, setpoint.vel_ned_mps)
+        desired = _preferred(self._position.update(pos, setpoint.pos_ned_m, setpoint.vel_ned_mps), setpoint)
         result = avoid(own_vel, desired, self._obstacles(pos, own_vel, now_s), self.config())
         if not result.active:
             self._vel_xy = None

@@ -10,50 +10,117 @@ allows k + 1. Hence
 - the supervisor, which moves the gate after each of its own loop iterations, is never more than its lead behind
   the drones: its setpoint streaming, timeouts and mission timing all run on the same simulated clock.
 
-All members must share one physics rate (the supervisor starts them so). A row that is no member holds an infinite step
-count, so the common time is simply the column's minimum; a member that leaves (exits, or is killed and removed by
-the supervisor) goes back to infinity and no longer holds anyone back. Step counts only grow and every cell has a single
-writer, so a stale read can only make a member wait a little longer, never run ahead; no lock is needed.
+Waiting costs nothing: a member that may not step sets its WAITING flag and sleeps on a datagram socket of its own
+(abstract Unix address derived from the world's name); the member whose step moves the common time on - the last
+laggard - and the supervisor when it moves the gate wake exactly the members that wait. Polling instead (sleeping
+0.2 ms and looking again) cost more than the simulation itself with nine drones on two cores (docs/benchmarks.md).
+The flag is set before the last look at the clock, so a wake-up can be missed only through store-load reordering
+between two cores; a sleep never lasts longer than ``MAX_SLEEP_S``, which bounds that rare case.
+
+A quantum of Q steps generalises the rule: every member runs to the next multiple of Q past the slowest one, then
+waits, so the skew is at most Q steps and each process sleeps and wakes once per Q steps instead of every step. With
+more drones than cores every step otherwise costs each drone a context switch and a cold cache, which costs more than
+the step itself (docs/benchmarks.md); Q = 1 is the default and the strict form.
+
+All members must share one physics rate and one quantum (the supervisor starts them so). A row that is no member
+holds an infinite step count, so the common time is simply the column's minimum; a member that leaves (exits, or is
+killed and removed by the supervisor) goes back to infinity and no longer holds anyone back. Step counts only grow
+and every cell has a single writer, so a stale read can only make a member wait a little longer, never run ahead; no
+lock is needed.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
+import socket
 
 import numpy as np
 
-from sitl.world import GATE_OPEN, GATE_STEP, STEP, SharedWorld
+from sitl.world import GATE_OPEN, GATE_STEP, STEP, WAITING, SharedWorld
+
+MAX_SLEEP_S = 0.005
+
+
+def wake_address(world_name: str, instance: int) -> bytes:
+    """Abstract Unix socket address (no file to clean up) of a member's wake-up socket."""
+    return f"\0swarm-lockstep-{world_name.lstrip('/')}-{instance}".encode()
+
+
+class _Waker:
+    """Sends the empty datagrams that wake sleeping members."""
+
+    def __init__(self, world: SharedWorld) -> None:
+        self._world_name = world.name
+        self._waiting = world.table[:, WAITING]
+        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self._sock.setblocking(False)
+
+    def wake_waiting(self) -> None:
+        for instance in np.flatnonzero(self._waiting == 1.0):
+            with contextlib.suppress(OSError):  # gone, or its queue full: it is awake anyway
+                self._sock.sendto(b"", wake_address(self._world_name, int(instance)))
+
+    def close(self) -> None:
+        self._sock.close()
 
 
 class LockstepMember:
     """A drone's side: join, ask how many steps it may take, publish each completed step, leave."""
 
-    def __init__(self, world: SharedWorld, instance: int) -> None:
+    def __init__(self, world: SharedWorld, instance: int, quantum_steps: int = 1) -> None:
+        if quantum_steps < 1:
+            raise ValueError(f"a lockstep quantum is at least one step, got {quantum_steps}")
         self.world = world
         self.instance = instance
+        self.quantum = quantum_steps
         self._steps = world.table[:, STEP]  # a view: reading it costs one reduction, no copy
+        self._waiting = world.table[:, WAITING]
         self._header = world.header
+        self.wake_socket = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self.wake_socket.bind(wake_address(world.name, instance))
+        self.wake_socket.setblocking(False)
+        self._waker = _Waker(world)
 
     def join(self) -> None:
+        self._waiting[self.instance] = 0.0
         self._steps[self.instance] = 0.0
 
     def steps_allowed(self, completed: int) -> tuple[int, bool]:
         """(steps this member may take now, whether the supervisor's gate is what holds it).
 
-        Its own count is in the column too: while another member is behind, the minimum is that member's and this
-        one may go no further than one step past it; when this one is the slowest, it may take one step (everyone
-        else has completed at least as many)."""
+        Everyone runs to the end of the current quantum (the next multiple of ``quantum`` steps past the common
+        time, i.e. past the slowest member) and no further; its own count is in the column too, which only matters
+        when it is the slowest, and then the quantum it is in is the one it may finish."""
         header = self._header
         gate = float(header[GATE_STEP]) if header[GATE_OPEN] == 1.0 else 0.0
-        peers = float(self._steps.min()) + 1.0
+        q = self.quantum
+        peers = float((int(self._steps.min()) // q + 1) * q)
         limit = min(peers, gate)
         return max(0, int(limit) - completed), gate <= peers
 
     def completed(self, steps: int) -> None:
-        self._steps[self.instance] = float(steps)
+        """Publish a completed step; the last member to finish a quantum wakes whoever waits at its end."""
+        steps_column = self._steps
+        steps_column[self.instance] = float(steps)
+        if steps % self.quantum == 0 and steps_column.min() >= steps:
+            self._waker.wake_waiting()
+
+    def begin_wait(self) -> None:
+        self._waiting[self.instance] = 1.0
+
+    def end_wait(self) -> None:
+        self._waiting[self.instance] = 0.0
+        with contextlib.suppress(BlockingIOError):
+            while True:
+                self.wake_socket.recv(16)
 
     def leave(self) -> None:
+        self._waiting[self.instance] = 0.0
         self._steps[self.instance] = math.inf
+        self._waker.wake_waiting()  # whoever waited for this member may go on
+        self._waker.close()
+        self.wake_socket.close()
 
 
 class LockstepGate:
@@ -62,6 +129,7 @@ class LockstepGate:
     def __init__(self, world: SharedWorld, dt_s: float) -> None:
         self.world = world
         self.dt_s = dt_s
+        self._waker = _Waker(world)
 
     def members(self) -> int:
         return int(np.count_nonzero(np.isfinite(self.world.table[:, STEP])))
@@ -78,10 +146,18 @@ class LockstepGate:
         """Let every member run until ``sim_time_s`` (the gate never moves back)."""
         step = math.floor(sim_time_s / self.dt_s + 1e-9)
         header = self.world.header
+        opened = header[GATE_OPEN] != 1.0
         if step > header[GATE_STEP]:
             header[GATE_STEP] = float(step)
+            opened = True
         header[GATE_OPEN] = 1.0
+        if opened:
+            self._waker.wake_waiting()
 
     def remove(self, instance: int) -> None:
         """A member that died without leaving must not hold the others back."""
         self.world.table[instance, STEP] = math.inf
+        self._waker.wake_waiting()
+
+    def close(self) -> None:
+        self._waker.close()

@@ -10,13 +10,14 @@ from __future__ import annotations
 import logging
 import selectors
 import signal
+import socket
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from types import FrameType
 from typing import Protocol
 
-from sitl.lockstep import LockstepMember
+from sitl.lockstep import MAX_SLEEP_S, LockstepMember
 from sitl.mavlink_io import MavlinkEndpoint
 from sitl.pacing import Pacer
 from sitl.simulation import Simulation
@@ -63,6 +64,10 @@ class StepClock(Protocol):
 
     def wait(self, selector: selectors.BaseSelector, sim_time_s: float) -> None: ...
 
+    def sockets(self) -> list[socket.socket]:
+        """Sockets whose data should end a wait (registered with the loop's selector)."""
+        ...
+
     def close(self) -> None: ...
 
 
@@ -79,6 +84,9 @@ class WallClockSteps:
     def completed(self, steps: int) -> None:
         pass
 
+    def sockets(self) -> list[socket.socket]:
+        return []
+
     def wait(self, selector: selectors.BaseSelector, sim_time_s: float) -> None:
         if self.pacer.unpaced:
             return
@@ -94,38 +102,39 @@ class WallClockSteps:
             log.warning("fell behind real time by %.2f s of simulation time in total", self.pacer.dropped_s)
 
 
-LOCKSTEP_GATE_WAIT_S = 0.0002
-LOCKSTEP_PEER_WAIT_S = 0.0002
-
-
 class LockstepSteps:
     """Advanced together with the other drones through the shared world (sitl/lockstep.py)."""
 
     def __init__(self, member: LockstepMember) -> None:
         self.member = member
-        self._gated = True
         self._due = 0
+        self._completed = 0
         member.join()
 
     def steps_due(self, sim_time_s: float, completed_steps: int, max_batch: int) -> int:
-        due, self._gated = self.member.steps_allowed(completed_steps)
+        due, _gated = self.member.steps_allowed(completed_steps)
+        self._completed = completed_steps
         self._due = min(due, max_batch)
         return self._due
 
     def completed(self, steps: int) -> None:
         self.member.completed(steps)
+        self._completed = steps
+
+    def sockets(self) -> list[socket.socket]:
+        return [self.member.wake_socket]
 
     def wait(self, selector: selectors.BaseSelector, sim_time_s: float) -> None:
-        """Waiting for the supervisor: sleep briefly (waking on MAVLink); waiting for a peer: let it run."""
+        """Sleep until a peer or the supervisor wakes this member (or MAVLink arrives), after a last look."""
         if self._due > 0:
             return
-        if self._gated:
-            if selector.get_map():
-                selector.select(LOCKSTEP_GATE_WAIT_S)
-            else:
-                time.sleep(LOCKSTEP_GATE_WAIT_S)
-        else:
-            time.sleep(LOCKSTEP_PEER_WAIT_S)
+        member = self.member
+        member.begin_wait()
+        try:
+            if member.steps_allowed(self._completed)[0] == 0:
+                selector.select(MAX_SLEEP_S)
+        finally:
+            member.end_wait()
 
     def close(self) -> None:
         self.member.leave()
@@ -148,9 +157,8 @@ def run_loop(
     steps_clock = clock if clock is not None else WallClockSteps(options.speed_factor, sim.dt_s)
     completed = 0
     selector = selectors.DefaultSelector()
-    if endpoint is not None:
-        for sock in endpoint.sockets():
-            selector.register(sock, selectors.EVENT_READ)
+    for sock in [*(endpoint.sockets() if endpoint is not None else []), *steps_clock.sockets()]:
+        selector.register(sock, selectors.EVENT_READ)
     events = sim.vehicle.events
     # Unpaced, check the sockets every few milliseconds of simulation rather than after every step.
     max_batch = 400 if endpoint is None else 8

@@ -8,7 +8,8 @@ frame; over a swarm's extent the local flat-earth conversion is exact to millime
 
 Row layout (float64): valid, time_s, lat_deg, lon_deg, alt_amsl_m, vn, ve, vd, radius_m, crashed, then the
 lockstep column: physics steps completed (infinite while the row is no lockstep member), then the seconds the drone
-has spent so far on physics, control, perception and MAVLink (read by ``swarm bench``). After the
+has spent so far on physics, control, perception and MAVLink (read by ``swarm bench``), and a lockstep member's
+"waiting to be woken" flag. After the
 rows, a small header holds the lockstep gate (sitl/lockstep.py). A single writer per cell and a reader that tolerates
 a torn row for one sample (it is re-read next time) need no lock; step counts only grow, so a stale read only ever
 makes a drone wait a little longer, never run ahead.
@@ -27,9 +28,10 @@ import numpy as np
 import numpy.typing as npt
 
 MAX_DRONES = 256
-COLUMNS = 15
+COLUMNS = 16
 VALID, TIME, LAT, LON, ALT, VN, VE, VD, RADIUS, CRASHED, STEP = range(11)
 CPU_PHYSICS, CPU_CONTROL, CPU_PERCEPTION, CPU_LINK = range(11, 15)  # seconds spent so far, for benchmarks
+WAITING = 15  # 1 while a lockstep member sleeps until woken
 HEADER_SLOTS = 4
 GATE_STEP, GATE_OPEN = range(2)  # header: steps every member may complete; 1 once the supervisor opened the gate
 EARTH_RADIUS_M = 6_371_000.0

@@ -64,10 +64,11 @@ def test_a_mission_file_mistake_is_one_line_with_field_and_line(tmp_path: Path) 
 
 @pytest.mark.timeout(180)
 def test_drones_commanded_into_each_other_collide_crash_and_are_counted_once(tmp_path: Path) -> None:
-    # GIVEN two drones told to fly a line with 0.3 m spacing: closer than two collision radii (0.7 m)
+    # GIVEN two drones without onboard avoidance told to fly a line with 0.3 m spacing: closer than two collision
+    # radii (0.7 m)
     mission = tmp_path / "crash.toml"
     mission.write_text(
-        'name = "crash"\n[swarm]\ndrones = 2\nlayout = "line"\nspacing_m = 3.0\n'
+        'name = "crash"\n[swarm]\ndrones = 2\nlayout = "line"\nspacing_m = 3.0\nparams = { AVOID_ENABLE = 0 }\n'
         '[[steps]]\naction = "takeoff"\nalt_m = 3.0\n'
         '[[steps]]\naction = "formation"\nshape = "line"\nspacing_m = 0.3\nalt_m = 3.0\nhold_s = 8.0\n'
         '[[steps]]\naction = "land"\n'

@@ -33,10 +33,11 @@ def test_every_drone_flies_its_straight_line_at_cruise_speed_and_stops_at_the_go
         s = starts[i]
         cross = s[0] * sp.pos_ned_m[1] - s[1] * sp.pos_ned_m[0]
         assert abs(cross) < 1e-9
+        assert math.cos(sp.yaw_rad - math.atan2(-s[1], -s[0])) > 1 - 1e-9  # facing the way it flies
     # every drone is at the centre at the same instant: paths really cross
     assert all(math.hypot(*sp.pos_ned_m[:2]) < 1e-9 for sp in move.setpoints(14.0).values())
     end = move.setpoints(18.5)
-    assert all(math.dist(sp.pos_ned_m, g) < 1e-9 and sp.vel_ned_mps == (0.0, 0.0, 0.0)
+    assert all(math.dist(sp.pos_ned_m, g) < 1e-9 and tuple(sp.vel_ned_mps) == (0.0, 0.0, 0.0)
                for sp, g in zip(end.values(), antipodal_goals(starts).values(), strict=True))  # fmt: skip
     assert move.done(18.0) and not move.done(17.9)
 

@@ -5,17 +5,20 @@ from __future__ import annotations
 
 import random
 
+import pytest
+
 from sitl.lockstep import LockstepGate, LockstepMember
 from sitl.world import SharedWorld
 
 DT_S = 1.0 / 400.0
 
 
-def test_no_member_gets_more_than_one_step_ahead_under_any_interleaving() -> None:
+@pytest.mark.parametrize("quantum", [1, 4])
+def test_no_member_gets_more_than_a_quantum_ahead_under_any_interleaving(quantum: int) -> None:
     world = SharedWorld.create()
     try:
         gate = LockstepGate(world, DT_S)
-        members = [LockstepMember(SharedWorld.attach(world.name), i) for i in (0, 3, 7)]
+        members = [LockstepMember(SharedWorld.attach(world.name), i, quantum) for i in (0, 3, 7)]
         for m in members:
             m.join()
         gate.open_until(0.5)  # 200 steps
@@ -27,7 +30,7 @@ def test_no_member_gets_more_than_one_step_ahead_under_any_interleaving() -> Non
             for _ in range(min(due, rng.randint(1, 3))):
                 done[k] += 1
                 members[k].completed(done[k])
-            assert max(done) - min(done) <= 1, done
+            assert max(done) - min(done) <= quantum, done
         # every member reached the gate, none passed it, and the gate's clock agrees
         assert done == [200, 200, 200]
         assert gate.completed_steps() == 200 and abs(gate.time_s() - 0.5) < 1e-12
@@ -73,4 +76,33 @@ def test_a_member_that_leaves_or_is_removed_holds_nobody_back() -> None:
         assert a.steps_allowed(1) == (1, False)
         assert gate.completed_steps() == 1
     finally:
+        world.close()
+
+
+def test_the_member_that_completes_the_common_step_wakes_the_one_waiting_for_it() -> None:
+    world = SharedWorld.create()
+    try:
+        gate = LockstepGate(world, DT_S)
+        fast, slow = LockstepMember(world, 0), LockstepMember(world, 1)
+        fast.join()
+        slow.join()
+        gate.open_until(1.0)
+        fast.completed(1)
+        assert fast.steps_allowed(1)[0] == 0
+        fast.begin_wait()  # it sleeps on its wake socket...
+        slow.completed(1)  # ...until the slow one catches up, which wakes it
+        fast.wake_socket.settimeout(1.0)
+        assert fast.wake_socket.recv(16) == b""
+        fast.wake_socket.setblocking(False)
+        fast.end_wait()
+        assert fast.steps_allowed(1)[0] == 1
+        # nobody waits: completing a step sends nothing
+        fast.completed(2)
+        slow.completed(2)
+        with pytest.raises(BlockingIOError):
+            fast.wake_socket.recv(16)
+        fast.leave()
+        slow.leave()
+    finally:
+        gate.close()
         world.close()

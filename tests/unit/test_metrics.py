@@ -10,10 +10,13 @@ import numpy as np
 import pytest
 
 from gcs.metrics import (
+    ALIGNMENT_CONVERGED,
+    ALIGNMENT_MIN_SPEED_MPS,
     FORMATION_SETTLED_RMS_M,
     MAX_GAP_S,
     TAKEOFF_TOLERANCE_M,
     LiveMetrics,
+    alignment_order_parameter,
     compute_metrics,
     settle_time,
 )
@@ -314,6 +317,24 @@ def test_collisions_count_events_whose_text_starts_with_collision() -> None:
     assert metrics.collisions == 2
     assert [e.sysid for e in metrics.collision_events] == [2, 3]
     assert metrics.avoidance_events == 1
+    assert metrics.avoidance_closest_approach_m is None
+
+
+def test_avoidance_episodes_are_counted_once_and_the_closest_reported_approach_kept() -> None:
+    rec = recording(
+        events=[
+            EventRecord(time_s=4.0, sysid=1, text="Avoidance: correcting for 1 neighbour(s), closest 3.10 m"),
+            EventRecord(time_s=6.0, sysid=1, text="Avoidance ended: closest approach 1.42 m"),
+            EventRecord(time_s=4.1, sysid=2, text="Avoidance: correcting for 2 neighbour(s), closest 2.90 m"),
+            EventRecord(time_s=6.5, sysid=2, text="Avoidance ended: closest approach 1.38 m"),
+        ]
+    )
+
+    metrics = compute_metrics(rec)
+
+    assert metrics.avoidance_events == 2
+    assert metrics.avoidance_closest_approach_m == 1.38
+    assert metrics.to_dict()["avoidance_closest_approach_m"] == 1.38
 
 
 def test_distance_flown_is_the_path_while_armed_without_jitter_on_the_ground() -> None:
@@ -383,6 +404,80 @@ def test_metrics_dict_is_strict_json_with_the_documented_keys_in_a_fixed_order()
     assert len(data["separation"]["time_s"]) == len(data["separation"]["min_separation_m"])
 
 
+# --- alignment --------------------------------------------------------------------------------------------------
+
+
+def test_alignment_order_parameter_is_one_aligned_zero_opposed_and_undefined_when_hovering() -> None:
+    assert float(alignment_order_parameter([[1.0, 0.0], [2.0, 0.0], [0.5, 0.0]])) == pytest.approx(1.0)
+    assert float(alignment_order_parameter([[1.0, 0.0], [-1.0, 0.0]])) == pytest.approx(0.0)
+    # four drones at right angles: no common direction
+    assert float(alignment_order_parameter([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])) == pytest.approx(0.0)
+    # one north, one east at the same speed: |(1, 1)| / 2
+    assert float(alignment_order_parameter([[1.0, 0.0], [0.0, 1.0]])) == pytest.approx(math.sqrt(2) / 2)
+    slow = 0.5 * ALIGNMENT_MIN_SPEED_MPS
+    assert math.isnan(float(alignment_order_parameter([[slow, 0.0], [slow, 0.0]])))
+    assert math.isnan(float(alignment_order_parameter([[1.0, 0.0], [math.nan, math.nan]])))  # one drone present
+    # over time: shape (T, n, 2) -> (T,)
+    assert alignment_order_parameter(np.zeros((7, 3, 2))).shape == (7,)
+
+
+def test_a_flock_step_reports_when_the_drones_aligned_and_how_well_from_then_on() -> None:
+    # GIVEN three airborne drones flying north, east and south-west until t = 4 s, then all north-east at 1 m/s,
+    # in a flock step from 1 s to 9 s (and a hold step after it)
+    steps = [
+        StepRecord(index=0, name="flock", kind="flock", start_s=1.0, end_s=9.0),
+        StepRecord(index=1, name="hold", kind="hold", start_s=9.0, end_s=10.0),
+    ]
+    rec = recording(n_drones=3, steps=steps)
+    before = [(1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (-0.7, -0.7, 0.0)]
+    after = (0.7, 0.7, 0.0)
+    for k in range(3):
+        times = np.arange(0.0, 10.0 + 1e-9, 1.0 / RATE_HZ) + 0.007 * k
+        rec.samples += [
+            sample(float(t), k + 1, (5.0 * k, 0.0, -3.0), vel=before[k] if t < 4.0 else after) for t in times
+        ]
+
+    # WHEN the metrics are computed
+    data = compute_metrics(rec).to_dict()
+    flock = data["steps"][0]["alignment"]
+
+    # THEN alignment converged 3 s into the step, and was perfect from then on
+    assert flock["converged_time_s"] == pytest.approx(3.0, abs=1.0 / 10.0 + 1e-9)
+    assert flock["mean"] == pytest.approx(1.0, abs=1e-9) and flock["min"] == pytest.approx(1.0, abs=1e-9)
+    # AND the series covers the step, low before the switch
+    assert len(flock["time_s"]) == len(flock["phi"]) == 80
+    assert flock["phi"][0] < ALIGNMENT_CONVERGED
+    # AND steps of other kinds carry no alignment; the parameters are stated
+    assert "alignment" not in data["steps"][1]
+    assert data["parameters"]["alignment_converged"] == ALIGNMENT_CONVERGED
+
+
+def test_a_hovering_flock_has_no_alignment_and_a_late_dip_counts() -> None:
+    # GIVEN two drones that hover (undefined) for a flock step's first half, then fly together, then split
+    step = StepRecord(index=0, name="flock", kind="flock", start_s=0.0, end_s=10.0)
+    rec = recording(n_drones=2, steps=[step])
+
+    def vel(k: int, t: float) -> tuple[float, float, float]:
+        if t < 5.0:
+            return (0.0, 0.0, 0.0)
+        if t < 8.0:
+            return (1.0, 0.0, 0.0)
+        return (1.0, 0.0, 0.0) if k == 0 else (0.0, 1.0, 0.0)
+
+    for k in range(2):
+        times = np.arange(0.0, 10.0 + 1e-9, 1.0 / RATE_HZ)
+        rec.samples += [sample(float(t), k + 1, (0.0, 5.0 * k, -3.0), vel=vel(k, float(t))) for t in times]
+
+    alignment = compute_metrics(rec).steps[0].alignment
+
+    # THEN it converged at 5 s; the split at 8 s (phi = 0.71) is in the mean and is the minimum
+    assert alignment is not None
+    assert alignment.converged_time_s == pytest.approx(5.0, abs=0.1)
+    assert alignment.min == pytest.approx(math.sqrt(2) / 2, abs=1e-6)
+    assert alignment.mean == pytest.approx((30 * 1.0 + 20 * math.sqrt(2) / 2) / 50, abs=0.02)
+    assert np.all(np.isnan(alignment.phi[alignment.time_s < 4.9]))
+
+
 # --- live status ------------------------------------------------------------------------------------------------
 
 
@@ -430,3 +525,11 @@ def test_live_metrics_leave_out_drones_whose_telemetry_is_stale() -> None:
     assert status.separation_m is None
     assert status.rms_error_m == 0.0
     assert LiveMetrics().status().line() == "t -  rms -  sep - (min -)"
+
+
+def test_live_status_shows_alignment_once_the_drones_move() -> None:
+    live = LiveMetrics()
+    live.observe(sample(1.0, 1, (0.0, 0.0, -3.0), vel=(1.0, 0.0, 0.0)))
+    live.observe(sample(1.0, 2, (0.0, 3.0, -3.0), vel=(0.0, 1.0, 0.0)))
+    assert live.status().alignment == pytest.approx(math.sqrt(2) / 2)
+    assert live.status().line().endswith("  phi 0.71")

@@ -2,12 +2,26 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import pytest
+from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.formation import CircleSpec, GridSpec
-from gcs.mission_file import FormationStep, LandStep, MissionFileError, TakeoffStep, load_mission, parse_mission
+from gcs.mission_file import (
+    FlockStep,
+    FollowStep,
+    FormationStep,
+    LandStep,
+    MissionFileError,
+    TakeoffStep,
+    build_flock,
+    build_follow,
+    load_mission,
+    parse_mission,
+)
+from gcs.mission_runner import param_set_message, param_value
 
 MISSIONS = Path(__file__).resolve().parents[2] / "missions"
 
@@ -94,3 +108,123 @@ def test_first_step_must_be_a_takeoff() -> None:
 def test_missing_file_is_one_line(tmp_path: Path) -> None:
     with pytest.raises(MissionFileError, match="cannot read"):
         load_mission(tmp_path / "nope.toml")
+
+
+BEHAVIOURS = """\
+name = "b"
+[swarm]
+drones = 4
+
+[[steps]]
+action = "takeoff"
+alt_m = 3.0
+
+[[steps]]
+action = "flock"
+duration_s = 20.0
+alt_m = 3.0
+migration_ne_m = [
+  [20.0, 0.0],
+  [0.0, 0.0],
+]
+max_speed_mps = 1.5
+
+[[steps]]
+action = "follow"
+leader_drone = 2
+waypoints_ne_m = [[10.0, 0.0], [10.0, 10.0]]
+alt_m = 3.0
+offsets_fr_m = [[-2.0, 2.0], [-2.0, -2.0], [-4.0, 0.0]]
+max_turn_rate_degps = 20
+
+[[steps]]
+action = "land"
+"""
+
+
+def test_flock_and_follow_steps_parse_into_their_specs() -> None:
+    mission = parse_mission(BEHAVIOURS, Path("m.toml"))
+    flock, follow = mission.steps[1], mission.steps[2]
+    assert isinstance(flock, FlockStep) and flock.name == "flock" and flock.duration_s == 20.0
+    assert flock.spec.migration_ne_m == ((20.0, 0.0), (0.0, 0.0)) and flock.spec.max_speed_mps == 1.5
+    assert isinstance(follow, FollowStep) and follow.leader_drone == 2 and follow.duration_s is None
+    assert follow.spec.waypoints_ne_m == ((10.0, 0.0), (10.0, 10.0)) and follow.spec.leader_sysid is None
+    assert follow.spec.offsets_fr_m == ((-2.0, 2.0), (-2.0, -2.0), (-4.0, 0.0))
+    assert follow.spec.max_turn_rate_radps == pytest.approx(math.radians(20))
+
+
+def test_the_shipped_behaviour_missions_are_what_the_docs_say() -> None:
+    flocking = load_mission(MISSIONS / "flocking.toml")
+    assert flocking.swarm.drones == 12
+    flock = flocking.steps[1]
+    assert isinstance(flock, FlockStep) and flock.duration_s == 60.0 and len(flock.spec.migration_ne_m) == 2
+    assert isinstance(flocking.steps[-1], LandStep)
+    leader = load_mission(MISSIONS / "leader_follower.toml")
+    follow = leader.steps[1]
+    assert leader.swarm.drones == 5 and isinstance(follow, FollowStep) and len(follow.spec.waypoints_ne_m) == 4
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "line", "expected"),
+    [
+        ("max_speed_mps = 1.5", "max_speed_mps = -1", 17, "steps[1].max_speed_mps: must be a positive number"),
+        ("max_speed_mps = 1.5", "speed = 1.5", 17, "steps[1].speed: unknown field"),
+        ("  [0.0, 0.0],", '  [0.0, "x"],', 13, "steps[1].migration_ne_m: must be a list of [north, east] pairs"),
+        ("duration_s = 20.0\n", "", 9, "missing field 'duration_s' for a flock step"),
+        ("max_speed_mps = 1.5", "separation_radius_m = 9.0", 9, "must not exceed neighbour_radius_m"),
+        ("leader_drone = 2", "leader_drone = 5", 21, "steps[2].leader_drone: must be one of the swarm's drones 1..4"),
+        ("leader_drone = 2", "leader_sysid = 2", 21, "steps[2].leader_sysid: unknown field"),
+        ("waypoints_ne_m = [[10.0, 0.0], [10.0, 10.0]]", "", 19, "missing field 'waypoints_ne_m' for a follow step"),
+        ("waypoints_ne_m = [[10.0, 0.0], [10.0, 10.0]]", "waypoints_ne_m = []", 22, "steps[2].waypoints_ne_m: must be"),
+        (", [-4.0, 0.0]]", "]", 24, "steps[2].offsets_fr_m: 2 offsets for 3 followers: give one each"),
+        ("[-4.0, 0.0]]", "[0.0, 0.1]]", 19, "puts a follower on the leader"),
+        ("max_turn_rate_degps = 20", "max_turn_rate_degps = 0", 25, "steps[2].max_turn_rate_degps: must be a positive"),
+    ],
+)
+def test_behaviour_mistakes_name_file_line_and_field(old: str, new: str, line: int, expected: str) -> None:
+    assert old in BEHAVIOURS
+    text = BEHAVIOURS.replace(old, new, 1)
+    with pytest.raises(MissionFileError) as info:
+        parse_mission(text, Path("m.toml"))
+    message = str(info.value)
+    assert message.startswith(f"m.toml:{line}: "), message
+    assert expected in message
+    assert "\n" not in message
+
+
+def test_behaviour_specs_from_plain_fields_name_the_bad_field() -> None:
+    assert build_flock({"alt_m": 4}).alt_m == 4.0
+    with pytest.raises(ValueError, match=r"^alt_m: must be a positive number"):
+        build_flock({"alt_m": 0})
+    with pytest.raises(ValueError, match="missing field 'alt_m' for flocking"):
+        build_flock({})
+    with pytest.raises(ValueError, match=r"^radius: not a field of flocking"):
+        build_flock({"alt_m": 4, "radius": 3})
+    assert build_follow({"waypoints_ne_m": [[1, 2]], "alt_m": 3, "leader_sysid": 7}).leader_sysid == 7
+    with pytest.raises(ValueError, match=r"^leader_sysid: must be a whole number >= 1"):
+        build_follow({"waypoints_ne_m": [[1, 2]], "alt_m": 3, "leader_sysid": 0.5})
+
+
+def test_swarm_params_are_read_in_order_with_their_number_type() -> None:
+    text = GOOD.replace("spacing_m = 2.5", "spacing_m = 2.5\nparams = { AVOID_ENABLE = 0, MPC_XY_P = 0.9 }")
+    params = parse_mission(text, Path("m.toml")).swarm.params
+    assert params == (("AVOID_ENABLE", 0), ("MPC_XY_P", 0.9))
+    assert isinstance(params[0][1], int) and isinstance(params[1][1], float)
+    with pytest.raises(MissionFileError, match=r"^m.toml:5: swarm.params: 'BAD-NAME' is not a parameter name"):
+        parse_mission(GOOD.replace("spacing_m = 2.5", "spacing_m = 2.5\nparams = { BAD-NAME = 1 }"), Path("m.toml"))
+    with pytest.raises(MissionFileError, match=r"^m.toml:5: swarm.params: X must be a number"):
+        parse_mission(GOOD.replace("spacing_m = 2.5", 'spacing_m = 2.5\nparams = { X = "on" }'), Path("m.toml"))
+
+
+@pytest.mark.parametrize("value", [0, 1, -3, 0.95, 12.5])
+def test_a_param_set_carries_ints_bytewise_and_floats_as_floats(value: int | float) -> None:
+    # GIVEN the PARAM_SET the runner sends, through the wire and back
+    mav = mavlink.MAVLink(None)
+    wire = param_set_message(7, "SOME_PARAM", value).pack(mav)
+    parsed = mavlink.MAVLink(None).decode(bytearray(wire))
+    # THEN the drone reads the number that was meant, with the type PX4 expects
+    assert parsed.param_type == (
+        mavlink.MAV_PARAM_TYPE_INT32 if isinstance(value, int) else mavlink.MAV_PARAM_TYPE_REAL32
+    )
+    assert param_value(parsed) == pytest.approx(value, rel=1e-7)
+    assert parsed.target_system == 7 and parsed.param_id == "SOME_PARAM"

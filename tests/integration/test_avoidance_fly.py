@@ -1,0 +1,87 @@
+"""Onboard collision avoidance with real processes, judged by the flight report (issue acceptance scenarios).
+
+Each test flies a shipped mission with ``swarm fly --lockstep`` (all drones on one simulated clock, as fast as the
+two cores allow, with a quantum of 8 physics steps = 20 ms), so the outcome does not depend on how loaded the machine
+is. Collisions are real: the shared world crashes both drones of any pair closer than two collision radii (0.7 m).
+
+Policy: loopback only (--no-forward); instances 100-145; a time limit on every test.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+pytestmark = [pytest.mark.sim_only]
+
+MISSIONS = Path(__file__).resolve().parents[2] / "missions"
+SWARM = [sys.executable, "-m", "gcs.cli"]
+
+
+def fly(mission: str, first_instance: int, tmp_path: Path, timeout_s: float, *, avoidance: bool = True,
+        expect_ok: bool = True) -> dict[str, Any]:  # fmt: skip
+    """Fly a shipped mission in lockstep (optionally with avoidance off on every drone); the report's metrics."""
+    path = MISSIONS / mission
+    if not avoidance:
+        text = path.read_text()
+        assert text.count("[swarm]\n") == 1
+        path = tmp_path / mission
+        path.write_text(text.replace("[swarm]\n", "[swarm]\nparams = { AVOID_ENABLE = 0 }\n"))
+    report = tmp_path / "report"
+    result = subprocess.run(
+        [*SWARM, "fly", str(path), "--lockstep", "--quantum", "8", "--first-instance", str(first_instance),
+         "--report", str(report), "--no-forward"],
+        capture_output=True, text=True, timeout=timeout_s,
+    )  # fmt: skip
+    if expect_ok:
+        assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    metrics: dict[str, Any] = json.loads((report / "metrics.json").read_text())
+    return metrics
+
+
+@pytest.mark.timeout(240)
+def test_eight_drones_swap_through_the_centre_without_touching(tmp_path: Path) -> None:
+    # GIVEN 8 drones on a circle of radius 6 m WHEN each is sent straight to the opposite point at 2 m/s
+    metrics = fly("antipodal_swap.toml", 100, tmp_path, 220)
+    # THEN nobody collided and nobody came closer than 0.8 m (centre to centre)
+    assert metrics["collisions"] == 0, metrics["collision_events"]
+    assert metrics["min_separation_m"] >= 0.8
+    # AND everyone reached the opposite point (the step ends only when every drone is within 0.5 m of it) in 30 s
+    swap = next(s for s in metrics["steps"] if s["kind"] == "swap")
+    assert swap["end_s"] - swap["start_s"] <= 30.0
+    # AND the drones did avoid: every one of them corrected its course
+    assert metrics["avoidance_events"] >= 8
+
+
+@pytest.mark.timeout(240)
+def test_the_same_swap_without_avoidance_collides(tmp_path: Path) -> None:
+    # GIVEN the same mission with AVOID_ENABLE = 0 on every drone WHEN it is flown
+    metrics = fly("antipodal_swap.toml", 110, tmp_path, 220, avoidance=False, expect_ok=False)
+    # THEN drones collide in the centre: the scenario is a real test
+    assert metrics["collisions"] >= 1
+    assert metrics["avoidance_events"] == 0
+
+
+@pytest.mark.timeout(180)
+def test_a_head_on_pair_with_the_relay_cut_avoids_with_cameras_alone(tmp_path: Path) -> None:
+    # GIVEN two drones 12 m apart, no neighbour relay (each one's table stays empty)
+    # WHEN they fly straight at each other at 2 m/s, facing the way they fly
+    metrics = fly("head_on_camera.toml", 120, tmp_path, 160)
+    # THEN they pass without a collision, seeing each other only through their cameras
+    assert metrics["collisions"] == 0, metrics["collision_events"]
+    assert metrics["min_separation_m"] >= 0.8
+    assert metrics["avoidance_events"] >= 1
+
+
+@pytest.mark.timeout(420)
+def test_sixteen_drones_change_from_grid_to_circle_without_a_collision(tmp_path: Path) -> None:
+    metrics = fly("grid_to_circle_16.toml", 130, tmp_path, 400)
+    assert metrics["n_drones"] == 16 and len(metrics["sysids"]) == 16
+    assert metrics["collisions"] == 0, metrics["collision_events"]
+    circle = next(s for s in metrics["steps"] if s["name"] == "circle")
+    assert circle["formation_rms_m"] is not None and circle["formation_rms_m"] < 0.3

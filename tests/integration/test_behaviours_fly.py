@@ -1,0 +1,87 @@
+"""``swarm fly`` of the behaviour missions with real processes: leader-follower and flocking, judged by the report.
+
+Leader-follower is flown with the drones' onboard collision avoidance switched off (``AVOID_ENABLE = 0`` in the
+mission's [swarm] params), so a follower's error is the law's own. The flock is flown as shipped, avoidance on, in
+lockstep (one simulated clock, quantum 8 steps), so the result does not depend on the machine's load: the whole
+system, separation rule and onboard avoidance together, must keep 12 drones apart and aligned.
+
+Policy: loopback only (--no-forward); instances 200-239; a time limit on every test.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+pytestmark = [pytest.mark.sim_only]
+
+MISSIONS = Path(__file__).resolve().parents[2] / "missions"
+SWARM = [sys.executable, "-m", "gcs.cli"]
+
+
+def fly(mission: str, timing: list[str], first_instance: int, tmp_path: Path, timeout_s: float, *,
+        avoidance: bool) -> dict[str, Any]:  # fmt: skip
+    """Fly a shipped mission (optionally without onboard avoidance); the report's metrics."""
+    path = MISSIONS / mission
+    if not avoidance:
+        text = path.read_text()
+        assert text.count("[swarm]\n") == 1
+        path = tmp_path / mission
+        path.write_text(text.replace("[swarm]\n", "[swarm]\nparams = { AVOID_ENABLE = 0 }\n"))
+    report = tmp_path / "report"
+    result = subprocess.run(
+        [*SWARM, "fly", str(path), *timing, "--first-instance", str(first_instance),
+         "--report", str(report), "--no-forward"],
+        capture_output=True, text=True, timeout=timeout_s,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    metrics: dict[str, Any] = json.loads((report / "metrics.json").read_text())
+    if not avoidance:
+        assert "parameters set on every drone: AVOID_ENABLE = 0" in result.stdout
+        assert metrics["avoidance_events"] == 0
+    return metrics
+
+
+@pytest.mark.timeout(240)
+def test_leader_follower_mission_keeps_the_followers_on_their_slots_round_the_square(tmp_path: Path) -> None:
+    # GIVEN the 5-drone mission: the middle drone of a line leads a 12 m square, four follow in a V
+    # WHEN it is flown at 3x real time
+    metrics = fly("leader_follower.toml", ["--speed", "3"], 200, tmp_path, 220, avoidance=False)
+    # THEN nobody touched anybody
+    assert metrics["n_drones"] == 5 and len(metrics["sysids"]) == 5
+    assert metrics["collisions"] == 0
+    assert metrics["min_separation_m"] > 1.5
+    # AND the follow step lasted the square (it ends only once the leader reports itself at its last waypoint)
+    follow = next(s for s in metrics["steps"] if s["kind"] == "follow")
+    assert follow["end_s"] - follow["start_s"] > 30.0
+    # AND the drones were on their slots (followers: offsets from the leader's reported state; the leader: its
+    # path) within 10 s of the step's start and stayed there until it ended: within 1 m each, 0.4 m RMS
+    assert follow["time_to_formation_s"] is not None and follow["time_to_formation_s"] < 10.0
+    assert follow["max_error_m"] < 1.0
+    assert follow["formation_rms_m"] < 0.4
+    # AND the leader (drone 3: sysid 203) flew the 44 m path
+    assert metrics["distance_flown_m"]["203"] > 40.0
+
+
+@pytest.mark.timeout(420)
+def test_twelve_drones_flock_out_and_back_aligned_and_without_a_collision(tmp_path: Path) -> None:
+    # GIVEN the 12-drone flocking mission: 60 s towards a migration point 40 m north and back, then land
+    # WHEN it is flown as shipped, onboard avoidance on, in lockstep
+    metrics = fly("flocking.toml", ["--lockstep", "--quantum", "8"], 210, tmp_path, 400, avoidance=True)
+    # THEN no drone collided or came within 1 m of another
+    assert metrics["n_drones"] == 12 and len(metrics["sysids"]) == 12
+    assert metrics["collisions"] == 0
+    assert metrics["min_separation_m"] > 1.0
+    # AND the flock aligned within 10 s and stayed aligned: mean order parameter above 0.9 from then on
+    flock = next(s for s in metrics["steps"] if s["kind"] == "flock")
+    assert flock["end_s"] - flock["start_s"] == pytest.approx(60.0, abs=1.0)
+    alignment = flock["alignment"]
+    assert alignment["converged_time_s"] is not None and alignment["converged_time_s"] < 10.0
+    assert alignment["mean"] > 0.9
+    # AND it migrated: every drone flew out and most of the way back
+    assert min(metrics["distance_flown_m"].values()) > 60.0

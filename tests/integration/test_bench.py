@@ -1,0 +1,122 @@
+"""``swarm bench`` for real: N = 1 and 2 for a few simulated seconds, paced and in lockstep.
+
+Policy: loopback only; instances 244-245 (sysids 245-246: clear of the relay probe's 240-241 and of the other
+suites' blocks); the bench runs as its own process (``python -m gcs.bench``) and must leave no drone behind. What is
+checked is the shape of the result and that every figure was actually measured (finite, positive, consistent with
+the others); the figures themselves depend on the machine and are not asserted.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from gcs.bench import CPU_KEYS, CPU_PARTS
+
+pytestmark = [pytest.mark.sim_only, pytest.mark.timeout(330)]
+
+FIRST_INSTANCE = 244
+SIM_SECONDS = 3.0
+POSITIVE = (
+    "ready_s",
+    "rtf_paced",
+    "rtf_unpaced",
+    "cpu_ms_per_drone_sim_s",
+    "bare_jsbsim_cpu_ms_per_sim_s",
+    "supervisor_cpu_ms_per_drone_sim_s",
+    "cpu_ms_per_drone_sim_s_lockstep",
+    "memory_mb_per_drone",
+    "cmd_rtt_median_ms",
+    "relay_median_ms",
+    "sim_s_paced",
+    "wall_s_paced",
+    "sim_s_unpaced",
+    "wall_s_unpaced",
+    *(f"{part}_ms_per_drone_sim_s" for part in CPU_PARTS),
+    *(f"{key}_x_bare" for key in CPU_KEYS),
+)
+
+
+def sitl_processes_of(instances: set[int]) -> list[int]:
+    """PIDs of any running ``sitl`` with one of these instance numbers (only this test uses them)."""
+    found = []
+    for entry in os.scandir("/proc"):
+        if not entry.name.isdigit():
+            continue
+        try:
+            argv = Path(entry.path, "cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        if b"sitl.cli" in argv and b"--instance" in argv:
+            index = argv.index(b"--instance") + 1
+            if index < len(argv) and argv[index].isdigit() and int(argv[index]) in instances:
+                found.append(int(entry.name))
+    return found
+
+
+def test_bench_measures_every_figure_for_each_swarm_size_and_leaves_nothing_behind(tmp_path: Path) -> None:
+    json_path, plot_path = tmp_path / "bench.json", tmp_path / "bench.png"
+    # GIVEN no drone of ours running WHEN the bench runs N = 1, 2 for a few simulated seconds
+    assert sitl_processes_of({FIRST_INSTANCE, FIRST_INSTANCE + 1}) == []
+    cmd = [sys.executable, "-m", "gcs.bench", "--drones", "2,1", "--sim-seconds", str(SIM_SECONDS),
+           "--first-instance", str(FIRST_INSTANCE), "--json", str(json_path), "--plot", str(plot_path)]  # fmt: skip
+    result = subprocess.run(cmd, capture_output=True, text=True, timeout=310)
+    # THEN it succeeds, prints one table row per N, and every drone it started is gone
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert sitl_processes_of({FIRST_INSTANCE, FIRST_INSTANCE + 1}) == []
+    lines = result.stdout.splitlines()
+    header = next(i for i, line in enumerate(lines) if line.split()[:3] == ["N", "ready", "s"])
+    assert [line.split()[0] for line in lines[header + 1 : header + 3]] == ["1", "2"], result.stdout
+    assert "largest N that held real time" in result.stdout
+    assert plot_path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # and the JSON holds one row per N, smallest first, with the machine it ran on
+    doc: dict[str, Any] = json.loads(json_path.read_text())
+    assert {"rows", "machine", "largest_n_real_time", "sim_seconds"} <= doc.keys()
+    assert doc["machine"]["logical_cpus"] >= 1 and len(doc["machine"]["loadavg_after"]) == 3
+    rows = doc["rows"]
+    assert [r["n_drones"] for r in rows] == [1, 2]
+    for row in rows:
+        n = row["n_drones"]
+        assert row["errors"] == [], row["errors"]
+        for key in POSITIVE:
+            value = row[key]
+            assert isinstance(value, float) and math.isfinite(value) and value > 0, (n, key, value)
+        assert isinstance(row["held_real_time"], bool)
+        # the split shares out the measured total; ratios are to the bare plant measured in the same run
+        parts = sum(row[f"{part}_ms_per_drone_sim_s"] for part in CPU_PARTS)
+        assert parts == pytest.approx(row["cpu_ms_per_drone_sim_s"], rel=1e-9)
+        bare = row["bare_jsbsim_cpu_ms_per_sim_s"]
+        assert row["cpu_ms_per_drone_sim_s_x_bare"] == pytest.approx(row["cpu_ms_per_drone_sim_s"] / bare)
+        assert row["cpu_ms_per_drone_sim_s"] > bare  # a whole drone costs more than its plant alone
+        # paced: the window is SIM_SECONDS of the supervisor's clock, which the drones' own clocks follow
+        assert row["wall_s_paced"] == pytest.approx(SIM_SECONDS, rel=0.1)
+        assert row["rtf_paced"] == pytest.approx(row["sim_s_paced"] / row["wall_s_paced"])
+        assert row["memory_kind"] in ("pss", "rss") and 5.0 < row["memory_mb_per_drone"] < 2000.0
+        # every command was answered, the relay probe got (nearly) every report back
+        assert row["cmd_rtt_received"] == row["cmd_rtt_sent"] >= 20
+        assert row["cmd_rtt_median_ms"] <= row["cmd_rtt_p95_ms"] <= row["cmd_rtt_max_ms"]
+        assert row["relay_sent"] >= 25 and row["relay_received"] >= row["relay_sent"] - 1
+        assert row["relay_median_ms"] <= row["relay_p95_ms"] <= row["relay_max_ms"]
+        assert row["clock_skew_samples"] > 0 and row["clock_skew_max_ms"] >= 0
+        # lockstep: the same simulated window, no drone ever more than one step ahead of another
+        assert row["sim_s_unpaced"] == pytest.approx(SIM_SECONDS, abs=0.1)
+        assert row["lockstep_skew_samples"] > 0
+        assert row["lockstep_skew_max_steps"] <= 1 and row["lockstep_skew_over_one"] == 0
+        assert row["collisions_paced"] == 0 and row["collisions_lockstep"] == 0
+        assert row["relay_radius_m"] is None and row["circle_radius_m"] == 3.0
+    assert doc["largest_n_real_time"] in (None, 1, 2)
+
+
+def test_bad_arguments_are_one_line_and_spawn_nothing() -> None:
+    result = subprocess.run([sys.executable, "-m", "gcs.bench", "--drones", "1,1"],
+                            capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines() == ["swarm bench: error: argument --drones: lists 1 twice"]
+    assert result.stdout == ""
