@@ -36,6 +36,7 @@ from typing import Any
 from gcs.behaviours import FlockSpec, FollowSpec
 from gcs.formation import CircleSpec, Formation, FormationError, GridSpec, LineSpec, VSpec
 from gcs.supervisor import LAYOUTS
+from sitl.world import MAX_OBSTACLES
 
 MAX_DRONES = 100
 
@@ -52,6 +53,22 @@ class SwarmSpec:
     # Drone parameters set over MAVLink (PARAM_SET) before arming; an int travels as INT32, a float as REAL32.
     params: tuple[tuple[str, int | float], ...] = ()
     relay: bool = True  # false: no neighbour relay, the drones see each other only with their cameras
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ObstacleSpec:
+    """A static obstacle in the swarm frame: a vertical pole standing on the ground, or a sphere in the air."""
+
+    cylinder: bool
+    north_m: float
+    east_m: float
+    radius_m: float
+    height_m: float = 0.0  # pole height above the ground (cylinder)
+    alt_m: float = 0.0  # centre altitude (sphere)
+
+    @property
+    def centre_alt_m(self) -> float:
+        return self.height_m / 2.0 if self.cylinder else self.alt_m
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -117,6 +134,7 @@ class MissionSpec:
     swarm: SwarmSpec
     steps: tuple[Step, ...]
     path: Path | None = None
+    obstacles: tuple[ObstacleSpec, ...] = ()
 
 
 # Per shape: the spec class and its fields (name -> kind); angles are given in degrees in files.
@@ -458,13 +476,43 @@ def _params(reader: _Reader, table: Any, where: tuple[str | None, int | None]) -
     return tuple(out)
 
 
+def _obstacles(reader: _Reader, data: Any) -> tuple[ObstacleSpec, ...]:
+    if not isinstance(data, list):
+        raise reader.fail((None, None), "obstacles", "must be [[obstacles]] tables")
+    out = []
+    for i, item in enumerate(data):
+        where: tuple[str | None, int | None] = ("obstacles", i)
+        if not isinstance(item, dict):
+            raise reader.fail(where, None, "must be a table")
+        shape = item.get("shape")
+        if shape not in ("cylinder", "sphere"):
+            raise reader.fail(where, "shape", f"must be cylinder or sphere, got {shape!r}")
+        size = "height_m" if shape == "cylinder" else "alt_m"
+        reader.check_keys(item, {"shape", "north_m", "east_m", "radius_m", size}, where)
+        for key in ("north_m", "east_m", "radius_m", size):
+            if key not in item:
+                raise reader.fail(where, None, f"missing field '{key}' for a {shape}")
+        out.append(
+            ObstacleSpec(
+                cylinder=shape == "cylinder",
+                north_m=reader.number(item, "north_m", where, "num"),
+                east_m=reader.number(item, "east_m", where, "num"),
+                radius_m=reader.number(item, "radius_m", where, "pos"),
+                **{size: reader.number(item, size, where, "pos")},
+            )
+        )
+    if len(out) > MAX_OBSTACLES:
+        raise reader.fail((None, None), "obstacles", f"at most {MAX_OBSTACLES}, got {len(out)}")
+    return tuple(out)
+
+
 def parse_mission(text: str, path: Path) -> MissionSpec:
     reader = _Reader(path, _Locator(text))
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise MissionFileError(f"{path}: not valid TOML: {exc}") from None
-    reader.check_keys(data, {"name", "description", "swarm", "steps"}, (None, None))
+    reader.check_keys(data, {"name", "description", "swarm", "steps", "obstacles"}, (None, None))
     swarm = data.get("swarm")
     if not isinstance(swarm, dict):
         raise reader.fail((None, None), None, "missing [swarm] table with 'drones'")
@@ -499,6 +547,7 @@ def parse_mission(text: str, path: Path) -> MissionSpec:
         swarm=SwarmSpec(drones=drones, layout=layout, spacing_m=spacing, params=params, relay=relay),
         steps=steps,
         path=path,
+        obstacles=_obstacles(reader, data.get("obstacles", [])),
     )
 
 

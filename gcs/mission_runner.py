@@ -243,6 +243,17 @@ class MissionRunner:
         if not self._wait(lambda: behaviour.done(self.now()), timeout):
             raise SwarmError(f"leader sysid {behaviour.leader} did not reach its last waypoint within {timeout:.0f} s")
 
+    def _place_obstacles(self) -> None:
+        """Declare the mission's static obstacles in the shared world (cameras see them, contact crashes)."""
+        world = self.swarm.world
+        assert world is not None
+        for ob in self.mission.obstacles:
+            geo = self.swarm_frame.geo_from_ned((ob.north_m, ob.east_m, -ob.centre_alt_m))
+            world.add_obstacle(cylinder=ob.cylinder, centre=(geo.lat_deg, geo.lon_deg, geo.alt_amsl_m),
+                               radius_m=ob.radius_m, height_m=ob.height_m)  # fmt: skip
+        if self.mission.obstacles:
+            self.say(f"{len(self.mission.obstacles)} static obstacle(s) placed")
+
     def _swap(self, step: SwapStep) -> None:
         move = self.streamer.command_swap(step.speed_mps, step.accel_mps2, self.now())
 
@@ -304,6 +315,7 @@ class MissionRunner:
                 if self.swarm.plan.lockstep else f"speed {self.speed:g}x"  # fmt: skip
             self.say(f"mission {self.mission.name}: spawning {self.mission.swarm.drones} drones ({pace})")
             self.swarm.up()
+            self._place_obstacles()
             self._set_params()
             self._t0_s = self.swarm.clock()
             self.swarm.arm_all(ARMABLE_TIMEOUT_S, tick=self._tick)  # before the takeoff step's clock starts

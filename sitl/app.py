@@ -84,7 +84,7 @@ def run(
                 (float(v[0]), float(v[1]), float(v[2])),
                 sim.vehicle.crashed,
             ):
-                sim.vehicle.crash(f"Collision with drone {contact.instance + 1} at {contact.distance_m:.2f} m")
+                sim.vehicle.crash(contact.text())
         t0 = time.perf_counter_ns()
         awareness.update(sim.time_s)
         perception_ns += time.perf_counter_ns() - t0

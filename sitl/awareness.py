@@ -2,10 +2,11 @@
 
 Two sensors, each at its own rate, both ending in the autopilot's collision prevention (sitl/collision_prevention.py):
 
-- the camera rig renders a frame from the shared world's truth (the other drones' true positions, this drone's true
-  attitude - the camera is a sensor, and sensors see the world as it is) every 1/CAM_RATE simulated seconds; the
-  detector then works on the image alone, and the detections are turned into relative positions with this drone's
-  ESTIMATED attitude. Nothing downstream of the image knows where anything really is;
+- the camera rig renders a frame from the shared world's truth (the other drones' true positions and any static
+  obstacles the mission declared, this drone's true attitude - the camera is a sensor, and sensors see the world as
+  it is) every 1/CAM_RATE simulated seconds; the detector then works on the image alone, and the detections are
+  turned into relative positions with this drone's ESTIMATED attitude. Nothing downstream of the image knows where
+  anything really is;
 - the neighbour table (relayed GLOBAL_POSITION_INT) is converted into this drone's local frame every
   ``RELAY_PERIOD_S``.
 
@@ -25,7 +26,7 @@ from sitl.avoidance import Obstacle
 from sitl.collision_prevention import RelayedNeighbour
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.params import ParamStore
-from sitl.perception.camera import CameraConfig, CameraRig, render_rig, spheres
+from sitl.perception.camera import Body, CameraConfig, CameraRig, Sphere, VerticalCylinder, render_rig, spheres
 from sitl.perception.detector import detect_rig, to_ned
 from sitl.protocol.neighbours import NeighbourTable
 from sitl.simulation import Simulation
@@ -107,7 +108,15 @@ class Awareness:
             return
         rig = self._camera_rig()
         _ids, offsets = self._world.others_ned_m(self._instance)
-        images = render_rig(rig, self._sim.truth.att_q_frd_to_ned, spheres(offsets, self._radius_m), self._rng)
+        bodies: list[Body] = list(spheres(offsets, self._radius_m))
+        for ob in self._world.obstacles_from(self._instance):  # static obstacles the mission declared
+            if ob.cylinder:
+                bodies.append(
+                    VerticalCylinder(offset_ned_m=ob.offset_ned_m, radius_m=ob.radius_m, height_m=ob.height_m)
+                )
+            else:
+                bodies.append(Sphere(offset_ned_m=ob.offset_ned_m, radius_m=ob.radius_m))
+        images = render_rig(rig, self._sim.truth.att_q_frd_to_ned, bodies, self._rng)
         self.frames += 1
         if self._frames_dir is not None:
             for image, camera in zip(images, rig.cameras, strict=True):

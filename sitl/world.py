@@ -43,14 +43,38 @@ class WorldError(RuntimeError):
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Contact:
-    """Another body closer than the two collision radii together."""
+    """Another body closer than the two collision radii together (``obstacle`` set when it is a static one)."""
 
     instance: int
     distance_m: float
+    obstacle: int | None = None
+
+    def text(self) -> str:
+        """The STATUSTEXT a drone sends when it hits this body."""
+        if self.obstacle is not None:
+            return f"Collision with obstacle {self.obstacle + 1} at {self.distance_m:.2f} m"
+        return f"Collision with drone {self.instance + 1} at {self.distance_m:.2f} m"
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StaticObstacle:
+    """A declared obstacle seen from one drone: its centre's NED offset (mid-height for a cylinder)."""
+
+    index: int
+    cylinder: bool
+    offset_ned_m: tuple[float, float, float]
+    radius_m: float
+    height_m: float
+
+
+# Static obstacles a mission declares, after the header: one row each, written once by the supervisor.
+MAX_OBSTACLES = 32
+OBSTACLE_COLUMNS = 7
+O_VALID, O_KIND, O_LAT, O_LON, O_ALT, O_RADIUS, O_HEIGHT = range(OBSTACLE_COLUMNS)
+SPHERE, CYLINDER = 0.0, 1.0  # O_KIND; a cylinder stands vertically, O_ALT is its mid-height
 TABLE_BYTES = MAX_DRONES * COLUMNS * 8
-SIZE_BYTES = TABLE_BYTES + HEADER_SLOTS * 8
+OBSTACLES_OFFSET = TABLE_BYTES + HEADER_SLOTS * 8
+SIZE_BYTES = OBSTACLES_OFFSET + MAX_OBSTACLES * OBSTACLE_COLUMNS * 8
 SHM_DIR = Path("/dev/shm")
 
 
@@ -67,6 +91,9 @@ class SharedWorld:
         self.header: npt.NDArray[np.float64] = np.ndarray(
             (HEADER_SLOTS,), dtype=np.float64, buffer=buffer, offset=TABLE_BYTES
         )
+        self.obstacle_table: npt.NDArray[np.float64] = np.ndarray(
+            (MAX_OBSTACLES, OBSTACLE_COLUMNS), dtype=np.float64, buffer=buffer, offset=OBSTACLES_OFFSET
+        )
 
     @property
     def name(self) -> str:
@@ -80,6 +107,7 @@ class SharedWorld:
         world.table[:] = 0.0
         world.table[:, STEP] = np.inf  # a row that is no lockstep member never holds anyone back
         world.header[:] = 0.0
+        world.obstacle_table[:] = 0.0
         return world
 
     @classmethod
@@ -119,19 +147,62 @@ class SharedWorld:
         down = me[ALT] - rows[:, ALT]
         return ids, np.column_stack((north, east, down))
 
+    def add_obstacle(self, *, cylinder: bool, centre: tuple[float, float, float], radius_m: float,
+                     height_m: float = 0.0) -> int:  # fmt: skip
+        """Declare a static obstacle (centre lat, lon, alt AMSL; mid-height for a cylinder); returns its index."""
+        free = np.flatnonzero(self.obstacle_table[:, O_VALID] == 0.0)
+        if len(free) == 0:
+            raise WorldError(f"at most {MAX_OBSTACLES} obstacles")
+        k = int(free[0])
+        row = self.obstacle_table[k]
+        row[O_KIND] = CYLINDER if cylinder else SPHERE
+        row[O_LAT], row[O_LON], row[O_ALT] = centre
+        row[O_RADIUS], row[O_HEIGHT] = radius_m, height_m
+        row[O_VALID] = 1.0
+        return k
+
+    def obstacles_from(self, instance: int) -> list[StaticObstacle]:
+        """Every declared obstacle as seen from drone ``instance`` (offsets from its published position)."""
+        rows = self.obstacle_table
+        me = self.table[instance]
+        out = []
+        cos_lat = math.cos(math.radians(me[LAT]))
+        for k in np.flatnonzero(rows[:, O_VALID] == 1.0):
+            row = rows[k]
+            north = math.radians(row[O_LAT] - me[LAT]) * EARTH_RADIUS_M
+            east = math.radians(row[O_LON] - me[LON]) * EARTH_RADIUS_M * cos_lat
+            out.append(StaticObstacle(index=int(k), cylinder=row[O_KIND] == CYLINDER,
+                                      offset_ned_m=(north, east, float(me[ALT] - row[O_ALT])),
+                                      radius_m=float(row[O_RADIUS]), height_m=float(row[O_HEIGHT])))  # fmt: skip
+        return out
+
     def contacts(self, instance: int) -> list[Contact]:
-        """Bodies closer to drone ``instance`` than the sum of both collision radii."""
+        """Bodies closer to drone ``instance`` than the sum of both collision radii, static obstacles included."""
+        own_radius = float(self.table[instance, RADIUS])
+        found: list[Contact] = []
         ids, offsets = self.others_ned_m(instance)
-        if len(ids) == 0:
-            return []
-        distance = np.linalg.norm(offsets, axis=1)
-        limit = self.table[ids, RADIUS] + self.table[instance, RADIUS]
-        return [Contact(instance=int(i), distance_m=float(d)) for i, d, r in zip(ids, distance, limit, strict=True)
-                if d < r]  # fmt: skip
+        if len(ids):
+            distance = np.linalg.norm(offsets, axis=1)
+            limit = self.table[ids, RADIUS] + own_radius
+            found = [Contact(instance=int(i), distance_m=float(d))
+                     for i, d, r in zip(ids, distance, limit, strict=True) if d < r]  # fmt: skip
+        if self.obstacle_table[:, O_VALID].any():
+            for ob in self.obstacles_from(instance):
+                n, e, d = ob.offset_ned_m
+                if ob.cylinder:  # distance to the pole's surface, within its height
+                    gap = math.hypot(n, e) - ob.radius_m
+                    touching = gap < own_radius and abs(d) < ob.height_m / 2.0 + own_radius
+                else:
+                    gap = math.sqrt(n * n + e * e + d * d) - ob.radius_m
+                    touching = gap < own_radius
+                if touching:
+                    found.append(Contact(instance=-1, distance_m=max(0.0, gap), obstacle=ob.index))
+        return found
 
     def close(self) -> None:
         self.table = np.zeros((0, COLUMNS))
         self.header = np.zeros(HEADER_SLOTS)
+        self.obstacle_table = np.zeros((0, OBSTACLE_COLUMNS))
         if self._map is not None:
             self._map.close()
         if self._shm is not None:

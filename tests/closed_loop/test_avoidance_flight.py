@@ -85,3 +85,50 @@ def test_a_head_on_pair_seeing_only_with_cameras_passes_without_touching() -> No
 def test_the_same_pass_without_avoidance_collides() -> None:
     closest, crashed, _final, events = _fly_head_on(avoid=False)
     assert closest < 0.7 and crashed == [True, True], (closest, events)
+
+
+def _fly_past_pole(avoid: bool) -> tuple[bool, float, list[str]]:
+    """(crashed, final distance to the goal, events) of one drone sent straight through a pole, camera only."""
+    airframe = load_airframe()
+    world = SharedWorld.create()
+    try:
+        frame = LocalFrame(DEFAULT_HOME)
+        sim = Simulation(SimConfig(airframe=airframe, seed=21))
+        pole = frame.geo_from_ned((GAP_M / 2, 0.0, -5.0))  # 0.25 m radius, 10 m tall, halfway along the path
+        world.add_obstacle(cylinder=True, centre=(pole.lat_deg, pole.lon_deg, pole.alt_amsl_m), radius_m=0.25,
+                           height_m=10.0)  # fmt: skip
+        part = WorldParticipant(world, 0, airframe.collision_radius_m)
+        eyes = Awareness(sim, 0, LocalFrame(sim.truth.geo), world=world, neighbours=None)
+        sim.params.set("AVOID_ENABLE", 1 if avoid else 0)
+
+        def step() -> None:
+            sim.step()
+            t = sim.truth
+            v = t.vel_ned_mps
+            for contact in part.update(sim.time_s, (t.geo.lat_deg, t.geo.lon_deg, t.geo.alt_amsl_m),
+                                       (float(v[0]), float(v[1]), float(v[2])), sim.vehicle.crashed):  # fmt: skip
+                sim.vehicle.crash(contact.text())
+            eyes.update(sim.time_s)
+
+        take_off(sim, 3.0)
+        start = sim.vehicle.estimate.pos_ned_m  # type: ignore[union-attr]
+        assert sim.vehicle.set_speed(2.0).ok
+        assert sim.vehicle.goto(np.array([start[0] + GAP_M, start[1], start[2]])).ok
+        for _ in range(round(15.0 / sim.dt_s)):
+            step()
+        final = math.dist(frame.ned_from_geo(sim.truth.geo)[:2], (GAP_M, 0.0))
+        return sim.vehicle.crashed, final, [e.text for e in sim.vehicle.events]
+    finally:
+        world.close()
+
+
+def test_a_drone_sees_a_declared_pole_with_its_camera_and_flies_round_it() -> None:
+    crashed, final, events = _fly_past_pole(avoid=True)
+    assert not crashed, events
+    assert final < 0.5, final
+    assert any(e.startswith("Avoidance:") for e in events), events
+
+
+def test_without_avoidance_the_drone_hits_the_pole() -> None:
+    crashed, _final, events = _fly_past_pole(avoid=False)
+    assert crashed and any(e.startswith("Collision with obstacle 1") for e in events), events

@@ -4,7 +4,7 @@ Each test flies a shipped mission with ``swarm fly --lockstep`` (all drones on o
 two cores allow, with a quantum of 8 physics steps = 20 ms), so the outcome does not depend on how loaded the machine
 is. Collisions are real: the shared world crashes both drones of any pair closer than two collision radii (0.7 m).
 
-Policy: loopback only (--no-forward); instances 100-145; a time limit on every test.
+Policy: loopback only (--no-forward); instances 100-149; a time limit on every test.
 """
 
 from __future__ import annotations
@@ -85,3 +85,12 @@ def test_sixteen_drones_change_from_grid_to_circle_without_a_collision(tmp_path:
     assert metrics["collisions"] == 0, metrics["collision_events"]
     circle = next(s for s in metrics["steps"] if s["name"] == "circle")
     assert circle["formation_rms_m"] is not None and circle["formation_rms_m"] < 0.3
+
+
+@pytest.mark.timeout(180)
+def test_four_drones_swap_round_a_pole_the_mission_declares(tmp_path: Path) -> None:
+    # GIVEN a pole at the centre of a 5 m circle of 4 drones WHEN they swap straight through it
+    metrics = fly("pole_swap.toml", 146, tmp_path, 160)
+    # THEN nobody hit the pole or another drone (a contact with either crashes the drone and is counted)
+    assert metrics["collisions"] == 0, metrics["collision_events"]
+    assert metrics["min_separation_m"] >= 0.8

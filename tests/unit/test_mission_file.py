@@ -228,3 +228,58 @@ def test_a_param_set_carries_ints_bytewise_and_floats_as_floats(value: int | flo
     )
     assert param_value(parsed) == pytest.approx(value, rel=1e-7)
     assert parsed.target_system == 7 and parsed.param_id == "SOME_PARAM"
+
+
+POLES = (
+    GOOD
+    + """
+[[obstacles]]
+shape = "cylinder"
+north_m = 1.0
+east_m = -2.0
+radius_m = 0.25
+height_m = 8.0
+
+[[obstacles]]
+shape = "sphere"
+north_m = 5.0
+east_m = 0.0
+radius_m = 1.0
+alt_m = 4.0
+
+[[steps]]
+action = "swap"
+speed_mps = 2.0
+"""
+)
+
+
+def test_obstacles_swap_steps_and_relay_are_read() -> None:
+    mission = parse_mission(POLES.replace("spacing_m = 2.5", "spacing_m = 2.5\nrelay = false"), Path("m.toml"))
+    pole, ball = mission.obstacles
+    assert pole.cylinder and (pole.north_m, pole.east_m, pole.radius_m, pole.height_m) == (1.0, -2.0, 0.25, 8.0)
+    assert pole.centre_alt_m == 4.0
+    assert not ball.cylinder and ball.centre_alt_m == 4.0
+    swap = mission.steps[-1]
+    assert type(swap).__name__ == "SwapStep" and swap.speed_mps == 2.0 and swap.timeout_s == 30.0
+    assert mission.swarm.relay is False
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "expected"),
+    [
+        ('shape = "cylinder"', 'shape = "cube"', "obstacles[0].shape: must be cylinder or sphere"),
+        ("height_m = 8.0", "", "missing field 'height_m' for a cylinder"),
+        ("radius_m = 1.0", "radius_m = -1.0", "obstacles[1].radius_m: must be a positive number"),
+        ("speed_mps = 2.0", "speed_mps = 0", "speed_mps: must be a positive number"),
+    ],
+)
+def test_obstacle_and_swap_mistakes_are_one_line(old: str, new: str, expected: str) -> None:
+    with pytest.raises(MissionFileError) as info:
+        parse_mission(POLES.replace(old, new, 1), Path("m.toml"))
+    assert expected in str(info.value) and "\n" not in str(info.value)
+
+
+def test_relay_must_be_true_or_false() -> None:
+    with pytest.raises(MissionFileError, match=r"swarm\.relay: must be true or false"):
+        parse_mission(GOOD.replace("spacing_m = 2.5", 'spacing_m = 2.5\nrelay = "off"'), Path("m.toml"))
