@@ -40,3 +40,26 @@ def test_a_participant_publishes_every_n_steps_and_reports_no_contact_once_crash
         assert world.table[0, 0] == 0.0  # its row is cleared when it leaves
     finally:
         world.close()
+
+
+def test_declared_obstacles_are_seen_from_each_drone_and_touching_one_is_a_contact() -> None:
+    world = SharedWorld.create()
+    try:
+        # GIVEN a pole 0.25 m thick and 8 m tall 1 m north of a drone at 3 m, and a 1 m ball 10 m up
+        world.write(0, 1.0, (LAT, LON, ALT + 3.0), (0.0, 0.0, 0.0), 0.35, False)
+        world.add_obstacle(cylinder=True, centre=(LAT + 1.0 / M_PER_DEG_LAT, LON, ALT + 4.0), radius_m=0.25,
+                           height_m=8.0)  # fmt: skip
+        world.add_obstacle(cylinder=False, centre=(LAT, LON, ALT + 13.0), radius_m=1.0)
+        pole, ball = world.obstacles_from(0)
+        assert pole.cylinder and abs(pole.offset_ned_m[0] - 1.0) < 1e-6 and abs(pole.offset_ned_m[2] + 1.0) < 1e-6
+        assert not ball.cylinder and abs(ball.offset_ned_m[2] + 10.0) < 1e-6
+        assert world.contacts(0) == []  # 0.75 m from the pole's surface, 9 m below the ball's
+        # WHEN the drone drifts to 0.5 m from the pole's axis THEN it touches it (0.25 + 0.35 > 0.5)
+        world.write(0, 1.1, (LAT + 0.5 / M_PER_DEG_LAT, LON, ALT + 3.0), (0.0, 0.0, 0.0), 0.35, False)
+        (contact,) = world.contacts(0)
+        assert contact.obstacle == 0 and contact.text().startswith("Collision with obstacle 1 at 0.25 m")
+        # AND above the pole's top (8 m + radius) there is nothing to touch
+        world.write(0, 1.2, (LAT + 0.5 / M_PER_DEG_LAT, LON, ALT + 8.5), (0.0, 0.0, 0.0), 0.35, False)
+        assert world.contacts(0) == []
+    finally:
+        world.close()
