@@ -11,11 +11,21 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numpy as np
-
 # Open-circuit voltage per LiPo cell against state of charge (typical curve, 0 %..100 %).
-_SOC_POINTS = np.array((0.0, 0.05, 0.10, 0.20, 0.30, 0.40, 0.50, 0.60, 0.70, 0.80, 0.90, 1.0))
-_OCV_POINTS = np.array((3.27, 3.61, 3.69, 3.73, 3.77, 3.79, 3.82, 3.87, 3.92, 3.97, 4.06, 4.20))
+_SOC_POINTS = (0.0, 0.05, 0.10, 0.20, 0.30, 0.40, 0.50, 0.60, 0.70, 0.80, 0.90, 1.0)
+_OCV_POINTS = (3.27, 3.61, 3.69, 3.73, 3.77, 3.79, 3.82, 3.87, 3.92, 3.97, 4.06, 4.20)
+
+
+def _cell_ocv_v(remaining: float) -> float:
+    """Linear interpolation of the cell curve (plain floats: this runs every physics step)."""
+    if remaining <= _SOC_POINTS[0]:
+        return _OCV_POINTS[0]
+    for j in range(1, len(_SOC_POINTS)):
+        x1 = _SOC_POINTS[j]
+        if remaining <= x1:
+            x0, y0, y1 = _SOC_POINTS[j - 1], _OCV_POINTS[j - 1], _OCV_POINTS[j]
+            return y0 + (y1 - y0) * (remaining - x0) / (x1 - x0)
+    return _OCV_POINTS[-1]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -53,10 +63,15 @@ class Battery:
         self._consumed_mah = (1.0 - initial_remaining) * config.capacity_mah
         self._current_a = 0.0
 
+    @property
+    def remaining(self) -> float:
+        """State of charge, 0..1 (read by the autopilot's battery failsafe every step)."""
+        return max(0.0, 1.0 - self._consumed_mah / self.config.capacity_mah)
+
     def state(self) -> BatteryState:
         cfg = self.config
-        remaining = max(0.0, 1.0 - self._consumed_mah / cfg.capacity_mah)
-        ocv = float(np.interp(remaining, _SOC_POINTS, _OCV_POINTS)) * cfg.cells
+        remaining = self.remaining
+        ocv = _cell_ocv_v(remaining) * cfg.cells
         return BatteryState(
             voltage_v=ocv - self._current_a * cfg.internal_resistance_ohm,
             current_a=self._current_a,
@@ -66,8 +81,7 @@ class Battery:
 
     def update(self, mechanical_power_w: float, dt_s: float) -> None:
         cfg = self.config
-        remaining = max(0.0, 1.0 - self._consumed_mah / cfg.capacity_mah)
-        ocv = float(np.interp(remaining, _SOC_POINTS, _OCV_POINTS)) * cfg.cells
+        ocv = _cell_ocv_v(self.remaining) * cfg.cells
         power_w = mechanical_power_w / cfg.efficiency + cfg.avionics_w
         self._current_a = _current_for_power(power_w, max(ocv, 1.0), cfg.internal_resistance_ohm)
         self._consumed_mah += self._current_a * dt_s / 3.6

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sitl.mathutil import GRAVITY_MPS2, Quat, Vec3, dcm_to_quat
+from sitl.mathutil import GRAVITY_MPS2, Quat, Vec3, dcm_to_quat, fast_constructor
 from sitl.sensors.models import SensorReadings
 
 _Floats3 = tuple[float, float, float]
@@ -60,6 +60,9 @@ class Estimate:
     attitude_valid: bool
     position_valid: bool  # horizontal position and velocity from a GPS fix
     altitude_valid: bool
+
+
+_new_estimate = fast_constructor(Estimate)
 
 
 def _gains(tau_s: float) -> _Floats3:
@@ -254,10 +257,13 @@ class Estimator:
         self._vel = (vn, ve, vd)
         self._acc_bias = (bn, be, bd)
         # ZYX Euler angles from the same rotation matrix (as sitl.mathutil.quat_to_euler).
+        sin_pitch = -r20
+        sin_pitch = sin_pitch if sin_pitch < 1.0 else 1.0  # min(1, .) and max(-1, .) without the calls
+        sin_pitch = sin_pitch if sin_pitch > -1.0 else -1.0
         roll = math.atan2(r21, r22)
-        pitch = math.asin(max(-1.0, min(1.0, -r20)))
+        pitch = math.asin(sin_pitch)
         yaw = math.atan2(r10, r00)
-        return Estimate(
+        return _new_estimate(
             time_s=time_s,
             pos_ned_m=np.array((pn, pe, pd)),
             vel_ned_mps=np.array((vn, ve, vd)),

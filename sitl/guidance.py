@@ -13,11 +13,12 @@ largest speed whose horizontal and vertical components both respect theirs.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from sitl.mathutil import Vec3
+from sitl.mathutil import Vec3, fast_constructor
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -36,10 +37,12 @@ class Reference:
     acc_ned_mps2: Vec3
 
 
-def _component_scale(direction: Vec3, limit_xy: float, limit_up: float, limit_down: float) -> float:
-    """Largest magnitude along a unit direction whose horizontal and vertical components stay within limits."""
-    horizontal = math.hypot(direction[0], direction[1])
-    vertical = direction[2]
+_new_reference = fast_constructor(Reference)
+
+
+def _component_scale(horizontal: float, vertical: float, limit_xy: float, limit_up: float, limit_down: float) -> float:
+    """Largest magnitude along a unit direction (given by its horizontal and down components) whose horizontal
+    and vertical components stay within limits."""
     scale = math.inf
     if horizontal > 1e-9:
         scale = limit_xy / horizontal
@@ -64,47 +67,81 @@ def _stoppable_speed(dist_m: float, previous_mps: float, accel_mps2: float, dt_s
     return max(0.0, 0.5 * (math.sqrt(discriminant) - a_dt))
 
 
-class StraightLineTrajectory:
-    """Moves a reference point toward a target along a straight line with bounded speed and acceleration."""
+Floats3 = tuple[float, float, float]
+_ZERO3: Floats3 = (0.0, 0.0, 0.0)
 
-    def __init__(self, start_ned_m: Vec3) -> None:
-        self._pos = np.array(start_ned_m, dtype=np.float64)
+
+def _floats3(v: Vec3 | Sequence[float]) -> Floats3:
+    if isinstance(v, np.ndarray):
+        x, y, z = v.tolist()  # already Python floats
+        return (x, y, z)
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+class StraightLineTrajectory:
+    """Moves a reference point toward a target along a straight line with bounded speed and acceleration.
+
+    The state is kept in Python floats (numpy's per-call overhead on 3-vectors is larger than the arithmetic, and
+    this runs every control step); only the returned ``Reference`` and ``position`` are arrays.
+    """
+
+    def __init__(self, start_ned_m: Vec3 | Sequence[float]) -> None:
+        self._pos = _floats3(start_ned_m)
         self._speed = 0.0
-        self._dir = np.zeros(3)
+        self._dir = (0.0, 0.0, 0.0)
 
     @property
     def position(self) -> Vec3:
-        return self._pos
+        return np.array(self._pos)
 
-    def reset(self, pos_ned_m: Vec3) -> None:
-        self._pos = np.array(pos_ned_m, dtype=np.float64)
+    def reset(self, pos_ned_m: Vec3 | Sequence[float]) -> None:
+        self._pos = _floats3(pos_ned_m)
         self._speed = 0.0
 
     def update(
-        self, target_ned_m: Vec3, limits: MotionLimits, dt_s: float, max_speed_mps: float = math.inf
+        self, target_ned_m: Vec3 | Sequence[float], limits: MotionLimits, dt_s: float, max_speed_mps: float = math.inf
     ) -> Reference:
-        delta = target_ned_m - self._pos
-        dist = float(np.linalg.norm(delta))
+        """Advance the reference one step towards the target; position, velocity and acceleration as arrays."""
+        pos, vel, acc = self.advance(target_ned_m, limits, dt_s, max_speed_mps)
+        return _new_reference(pos_ned_m=np.array(pos), vel_ned_mps=np.array(vel), acc_ned_mps2=np.array(acc))
+
+    def advance(
+        self, target_ned_m: Vec3 | Sequence[float], limits: MotionLimits, dt_s: float, max_speed_mps: float = math.inf
+    ) -> tuple[Floats3, Floats3, Floats3]:
+        """``update`` with the reference as (position, velocity, acceleration) float tuples, for a caller that
+        works in floats anyway (three arrays and a record less per control step)."""
+        tx, ty, tz = _floats3(target_ned_m)
+        px, py, pz = self._pos
+        dx = tx - px
+        dy = ty - py
+        dz = tz - pz
+        dist = math.sqrt(dx * dx + dy * dy + dz * dz)
         if dist < 1e-4 and self._speed < 1e-3:
-            self._pos = np.array(target_ned_m, dtype=np.float64)
+            self._pos = (tx, ty, tz)
             self._speed = 0.0
-            return Reference(pos_ned_m=self._pos.copy(), vel_ned_mps=np.zeros(3), acc_ned_mps2=np.zeros(3))
-        direction = delta / dist if dist > 1e-9 else self._dir
-        line_limit = _component_scale(direction, limits.speed_xy_mps, limits.speed_up_mps, limits.speed_down_mps)
+            return self._pos, _ZERO3, _ZERO3
+        if dist > 1e-9:
+            ux, uy, uz = dx / dist, dy / dist, dz / dist
+        else:
+            ux, uy, uz = self._dir
+        horizontal = math.hypot(ux, uy)
+        line_limit = _component_scale(horizontal, uz, limits.speed_xy_mps, limits.speed_up_mps, limits.speed_down_mps)
         # A new direction (target moved) carries over only the speed component along it, and no more than the new
         # line allows: 5 m/s of horizontal cruise turned 45 degrees downward would otherwise descend at 2.5 m/s.
         # (A lower speed limit on the same line is approached with the allowed deceleration instead.)
         if self._speed > 0.0:
-            cos_turn = float(direction @ self._dir)
+            ox, oy, oz = self._dir
+            cos_turn = ux * ox + uy * oy + uz * oz
             if cos_turn < 1.0 - 1e-9:
                 self._speed = min(max(0.0, self._speed * cos_turn), line_limit)
-        self._dir = direction
+        self._dir = (ux, uy, uz)
         v_max = min(max_speed_mps, line_limit)
-        a_max = _component_scale(direction, limits.accel_xy_mps2, limits.accel_z_mps2, limits.accel_z_mps2)
+        a_max = _component_scale(horizontal, uz, limits.accel_xy_mps2, limits.accel_z_mps2, limits.accel_z_mps2)
         previous = self._speed
         desired = min(v_max, _stoppable_speed(dist, previous, a_max, dt_s))
-        self._speed = max(previous - a_max * dt_s, min(previous + a_max * dt_s, desired))
-        step = min(dist, 0.5 * (previous + self._speed) * dt_s)
-        self._pos = self._pos + direction * step
-        acc = direction * ((self._speed - previous) / dt_s)
-        return Reference(pos_ned_m=self._pos.copy(), vel_ned_mps=direction * self._speed, acc_ned_mps2=acc)
+        speed = max(previous - a_max * dt_s, min(previous + a_max * dt_s, desired))
+        self._speed = speed
+        step = min(dist, 0.5 * (previous + speed) * dt_s)
+        self._pos = (px + ux * step, py + uy * step, pz + uz * step)
+        acc = (speed - previous) / dt_s
+        return self._pos, (ux * speed, uy * speed, uz * speed), (ux * acc, uy * acc, uz * acc)

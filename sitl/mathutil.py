@@ -1,4 +1,5 @@
-"""Small rotation helpers shared by the plant, sensors, estimator and controllers.
+"""Small rotation helpers shared by the plant, sensors, estimator and controllers, and ``fast_constructor`` for the
+records they hand each other every physics step.
 
 Conventions used everywhere in the project:
 - World frame is local NED (north, east, down) anchored at home; body frame is FRD (forward, right, down).
@@ -8,7 +9,10 @@ Conventions used everywhere in the project:
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Callable
+from typing import Any, ParamSpec, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -18,6 +22,9 @@ Quat = npt.NDArray[np.float64]
 Mat3 = npt.NDArray[np.float64]
 
 GRAVITY_MPS2 = 9.80665
+
+_P = ParamSpec("_P")
+_T = TypeVar("_T")
 
 
 def vec3(x: float, y: float, z: float) -> Vec3:
@@ -95,3 +102,37 @@ def quat_to_euler(q: Quat) -> tuple[float, float, float]:
 def wrap_pi(angle_rad: float) -> float:
     """Wrap an angle to [-pi, pi)."""
     return (angle_rad + math.pi) % (2 * math.pi) - math.pi
+
+
+def fast_constructor(cls: Callable[_P, _T]) -> Callable[_P, _T]:
+    """A constructor for a frozen slots dataclass that is two to three times cheaper than calling the class.
+
+    A frozen dataclass's generated ``__init__`` assigns every field through ``object.__setattr__``, about 0.1 us
+    per field; for the records built at the physics rate (plant state, sensor readings, estimate, controller
+    output: some fifty fields per step) that is a measurable share of the loop. The function returned here builds
+    the same object by writing each slot through its descriptor: same class, same keyword-only signature and
+    defaults (mypy checks calls against the class's own), equal to what the class would build, and just as
+    immutable afterwards. Classes with ``__post_init__``, ``default_factory`` or ``init=False`` fields are refused,
+    since skipping ``__init__`` would skip them.
+    """
+    if not (isinstance(cls, type) and dataclasses.is_dataclass(cls) and "__slots__" in cls.__dict__):
+        raise TypeError(f"{cls!r} is not a slots dataclass")
+    if hasattr(cls, "__post_init__"):
+        raise TypeError(f"{cls.__name__} has __post_init__, which a fast constructor would skip")
+    namespace: dict[str, Any] = {"_new": object.__new__, "_cls": cls}
+    params: list[str] = []
+    body: list[str] = []
+    for f in dataclasses.fields(cls):
+        if not f.init or f.default_factory is not dataclasses.MISSING:
+            raise TypeError(f"{cls.__name__}.{f.name}: only plain fields (optionally with a default) are supported")
+        namespace[f"_set_{f.name}"] = cls.__dict__[f.name].__set__
+        if f.default is dataclasses.MISSING:
+            params.append(f.name)
+        else:
+            namespace[f"_default_{f.name}"] = f.default
+            params.append(f"{f.name}=_default_{f.name}")
+        body.append(f"    _set_{f.name}(obj, {f.name})\n")
+    source = f"def new_{cls.__name__}(*, {', '.join(params)}):\n    obj = _new(_cls)\n{''.join(body)}    return obj\n"
+    exec(source, namespace)  # the technique dataclasses itself uses to generate __init__
+    constructor: Callable[_P, _T] = namespace[f"new_{cls.__name__}"]
+    return constructor

@@ -65,7 +65,7 @@ class Simulation:
             config.airframe,
             self.params,
             Cascade(config.airframe, self.params),
-            battery_remaining=lambda: self.battery.state().remaining,
+            battery_remaining=lambda: self.battery.remaining,
         )
         self.truth: PlantState = self.plant.state()
         self.readings: SensorReadings | None = None
@@ -78,7 +78,8 @@ class Simulation:
         self.physics_ns = 0  # JSBSim, wind, battery
 
     def step(self) -> PlantState:
-        """Advance one physics step (sensors, estimator and control run at the physics rate).
+        """Advance one physics step (sensors sample at their own rates, the estimator, attitude and rate control
+        every step, position and velocity control at MPC_LOOP_HZ).
 
         The two halves are timed (``control_ns``, ``physics_ns``; a monotonic clock read costs ~50 ns) so benchmarks
         can say where a drone's time goes without a profiler's distortion."""
@@ -93,7 +94,10 @@ class Simulation:
             self.plant.set_wind(self.wind.update(self.dt_s))
         self.truth = self.plant.step(motors)
         self.time_s = self.truth.time_s
-        power_w = sum(self._k_q * w * w * w for w in self.truth.motor_speeds_radps)
+        power_w = 0.0
+        for w in self.truth.motor_speeds_radps:
+            power_w += w * w * w
+        power_w *= self._k_q
         self.battery.update(power_w, self.dt_s)
         t2 = time.perf_counter_ns()
         self.control_ns += t1 - t0

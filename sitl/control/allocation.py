@@ -30,12 +30,15 @@ import numpy as np
 
 from sitl.airframe import Airframe
 from sitl.control import Vec3f
+from sitl.mathutil import fast_constructor
 
 Bool3 = tuple[bool, bool, bool]
 
 # Rounding slack (N, in collective units) when testing whether a demand fits: bounds are compared in thrust
 # units, never after dividing by a possibly tiny yaw coefficient.
 _TOL = 1e-9
+
+_NOT_CUT: Bool3 = (False, False, False)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -48,6 +51,9 @@ class AllocationResult:
     saturated_neg: Bool3
     # +1: less collective than demanded (at the top), -1: more than demanded (roll/pitch needed it), 0: exact.
     thrust_saturation: int
+
+
+_new_result = fast_constructor(AllocationResult)
 
 
 def effectiveness_matrix(airframe: Airframe) -> np.ndarray:
@@ -156,6 +162,34 @@ class ControlAllocator:
         roll_t, pitch_t, yaw_t = torque_frd_nm
         rows = self._rows
 
+        # The common case first, in one pass: every rotor fits as demanded (the same per-rotor arithmetic as the
+        # general path below with the full yaw share and the demanded collective).
+        thrusts: list[float] = []
+        cmds: list[float] = []
+        for r, p, y_coef, c, hi_max in rows:
+            a = r * roll_t + p * pitch_t
+            y = y_coef * yaw_t
+            if not -a - _TOL <= thrust_n + y <= hi_max - a + _TOL:
+                break
+            t = c * (a + thrust_n + y)
+            t = 0.0 if t < 0.0 else (t_max if t > t_max else t)
+            thrusts.append(t)
+            cmds.append(math.sqrt(t / t_max))
+        else:
+            return _new_result(
+                motor_cmds=tuple(cmds),
+                rotor_thrusts_n=tuple(thrusts),
+                saturated_pos=_NOT_CUT,
+                saturated_neg=_NOT_CUT,
+                thrust_saturation=0,
+            )
+        return self._allocate_saturated(roll_t, pitch_t, yaw_t, thrust_n)
+
+    def _allocate_saturated(self, roll_t: float, pitch_t: float, yaw_t: float, thrust_n: float) -> AllocationResult:
+        """The general case: some rotor would leave [0, T_max], so cut by priority (see the module docstring)."""
+        t_max = self.thrust_max_n
+        rows = self._rows
+
         # Rotor i takes c_i * (rp_i + k + g * yaw_i): rp_i and yaw_i are its roll/pitch and yaw parts in
         # collective units, k the collective, g the yaw share. Staying inside [0, T_max] means
         # lo_i = -rp_i <= k + g * yaw_i <= T_max / c_i - rp_i = hi_i.
@@ -166,42 +200,33 @@ class ControlAllocator:
         collective = thrust_n
         rp_scale = 1.0
         thrust_saturation = 0
-        # The common case first: everything fits as demanded.
-        fits = True
-        for lo_i, hi_i, y in zip(lo, hi, yaw, strict=True):
-            if not lo_i - _TOL <= collective + y <= hi_i + _TOL:
-                fits = False
-                break
-        if fits:
-            yaw_share = 1.0
-        else:
-            # The demanded collective with a reduced yaw share (roll/pitch then fit too)?
+        # The demanded collective with a reduced yaw share (roll/pitch then fit too)?
+        g_lo, g_hi = _shares_at(lo, hi, yaw, collective)
+        if g_lo > g_hi:
+            g_start, g_end = _feasible_shares(lo, hi, yaw)
+            if g_start > g_end:
+                # (a) Scale roll/pitch by the largest s with s * (rp_j - rp_i) <= T_max / c_j for all i, j.
+                for a_j, row_j in zip(rp, rows, strict=True):
+                    for a_i in rp:
+                        if a_j > a_i:
+                            rp_scale = min(rp_scale, row_j[4] / (a_j - a_i))
+                rp = [a * rp_scale for a in rp]
+                lo = [-a for a in rp]
+                hi = [row[4] - a for a, row in zip(rp, rows, strict=True)]
+                g_start, g_end = 0.0, max(0.0, _feasible_shares(lo, hi, yaw)[1])
+            # (b) The collective nearest to the demand at which roll/pitch fit with some yaw share.
             g_lo, g_hi = _shares_at(lo, hi, yaw, collective)
             if g_lo > g_hi:
-                g_start, g_end = _feasible_shares(lo, hi, yaw)
-                if g_start > g_end:
-                    # (a) Scale roll/pitch by the largest s with s * (rp_j - rp_i) <= T_max / c_j for all i, j.
-                    for a_j, row_j in zip(rp, rows, strict=True):
-                        for a_i in rp:
-                            if a_j > a_i:
-                                rp_scale = min(rp_scale, row_j[4] / (a_j - a_i))
-                    rp = [a * rp_scale for a in rp]
-                    lo = [-a for a in rp]
-                    hi = [row[4] - a for a, row in zip(rp, rows, strict=True)]
-                    g_start, g_end = 0.0, max(0.0, _feasible_shares(lo, hi, yaw)[1])
-                # (b) The collective nearest to the demand at which roll/pitch fit with some yaw share.
-                g_lo, g_hi = _shares_at(lo, hi, yaw, collective)
-                if g_lo > g_hi:
-                    if collective > min(h - g_start * y for h, y in zip(hi, yaw, strict=True)):
-                        collective = _max_collective(hi, yaw, g_start, g_end)
-                        thrust_saturation = 1
-                    else:  # the mirror image: the smallest collective, via negated bounds
-                        neg_lo = [-v for v in lo]
-                        collective = -_max_collective(neg_lo, [-y for y in yaw], g_start, g_end)
-                        thrust_saturation = -1
-                    g_hi = _shares_at(lo, hi, yaw, collective)[1]
-            # (c) The largest yaw share at that collective.
-            yaw_share = min(max(g_hi, 0.0), 1.0)
+                if collective > min(h - g_start * y for h, y in zip(hi, yaw, strict=True)):
+                    collective = _max_collective(hi, yaw, g_start, g_end)
+                    thrust_saturation = 1
+                else:  # the mirror image: the smallest collective, via negated bounds
+                    neg_lo = [-v for v in lo]
+                    collective = -_max_collective(neg_lo, [-y for y in yaw], g_start, g_end)
+                    thrust_saturation = -1
+                g_hi = _shares_at(lo, hi, yaw, collective)[1]
+        # (c) The largest yaw share at that collective.
+        yaw_share = min(max(g_hi, 0.0), 1.0)
 
         thrusts = []
         cmds = []
@@ -213,7 +238,7 @@ class ControlAllocator:
 
         rp_cut = rp_scale < 1.0 - _TOL
         yaw_cut = yaw_share < 1.0 - _TOL
-        return AllocationResult(
+        return _new_result(
             motor_cmds=tuple(cmds),
             rotor_thrusts_n=tuple(thrusts),
             saturated_pos=(rp_cut and roll_t > 0.0, rp_cut and pitch_t > 0.0, yaw_cut and yaw_t > 0.0),

@@ -71,20 +71,25 @@ def dcm_columns_to_quat(
     r00, r10, r20 = c0
     r01, r11, r21 = c1
     r02, r12, r22 = c2
+    return _dcm_to_quat(r00, r01, r02, r10, r11, r12, r20, r21, r22)
+
+
+def _dcm_to_quat(
+    r00: float, r01: float, r02: float, r10: float, r11: float, r12: float, r20: float, r21: float, r22: float
+) -> Quat4f:
     tr = r00 + r11 + r22
     if tr > 0.0:
         s = math.sqrt(tr + 1.0) * 2.0
-        q = (0.25 * s, (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s)
+        w, x, y, z = 0.25 * s, (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s
     elif r00 > r11 and r00 > r22:
         s = math.sqrt(1.0 + r00 - r11 - r22) * 2.0
-        q = ((r21 - r12) / s, 0.25 * s, (r01 + r10) / s, (r02 + r20) / s)
+        w, x, y, z = (r21 - r12) / s, 0.25 * s, (r01 + r10) / s, (r02 + r20) / s
     elif r11 > r22:
         s = math.sqrt(1.0 + r11 - r00 - r22) * 2.0
-        q = ((r02 - r20) / s, (r01 + r10) / s, 0.25 * s, (r12 + r21) / s)
+        w, x, y, z = (r02 - r20) / s, (r01 + r10) / s, 0.25 * s, (r12 + r21) / s
     else:
         s = math.sqrt(1.0 + r22 - r00 - r11) * 2.0
-        q = ((r10 - r01) / s, (r02 + r20) / s, (r12 + r21) / s, 0.25 * s)
-    w, x, y, z = q
+        w, x, y, z = (r10 - r01) / s, (r02 + r20) / s, (r12 + r21) / s, 0.25 * s
     n = math.sqrt(w * w + x * x + y * y + z * z)
     if w < 0.0:
         n = -n
@@ -113,8 +118,11 @@ def thrust_to_attitude(thrust_ned_n: Vec3f, yaw_rad: float) -> Quat4f:
     bx_x /= n
     bx_y /= n
     bx_z /= n
-    by = (bz_y * bx_z - bz_z * bx_y, bz_z * bx_x - bz_x * bx_z, bz_x * bx_y - bz_y * bx_x)
-    return dcm_columns_to_quat((bx_x, bx_y, bx_z), by, (bz_x, bz_y, bz_z))
+    by_x = bz_y * bx_z - bz_z * bx_y
+    by_y = bz_z * bx_x - bz_x * bx_z
+    by_z = bz_x * bx_y - bz_y * bx_x
+    # The rotation matrix has columns body x, body y, body z.
+    return _dcm_to_quat(bx_x, by_x, bz_x, bx_y, by_y, bz_y, bx_z, by_z, bz_z)
 
 
 def _quat_between(src: Vec3f, dst: Vec3f) -> Quat4f:
@@ -177,16 +185,25 @@ class AttitudeController:
             rate_y = sign * ey * cfg.pitch_p_per_s
             rate_z = sign * ez_ * cfg.yaw_p_per_s
         else:
-            reduced = quat_mul(tilt, att_q)
+            # reduced = tilt * att_q, then conj(att_q) * reduced and conj(reduced) * att_sp_q, written out with
+            # only the components used (this runs every control step).
+            tw, tx, ty, tz = tilt
+            rw = tw * qw - tx * qx - ty * qy - tz * qz
+            rx = tw * qx + tx * qw + ty * qz - tz * qy
+            ry = tw * qy - tx * qz + ty * qw + tz * qx
+            rz = tw * qz + tx * qy - ty * qx + tz * qw
             # Tilt error in the body frame (its axis lies in the body x-y plane), as 2 sin(angle / 2) * axis.
-            _, ex, ey, _ = _conj_mul(att_q, reduced)
+            ex = qw * rx - qx * rw - qy * rz + qz * ry
+            ey = qw * ry + qx * rz - qy * rw - qz * rx
             rate_x = 2.0 * ex * cfg.roll_p_per_s
             rate_y = 2.0 * ey * cfg.pitch_p_per_s
             # Remaining heading error about the thrust axis, of which only the weighted share is used.
-            mw, _, _, mz = _conj_mul(reduced, att_sp_q)
+            mw = rw * dw + rx * dx + ry * dy + rz * dz
+            mz = rw * dz - rx * dy + ry * dx - rz * dw
             if mw < 0.0:
                 mz = -mz
-            mz = min(1.0, max(-1.0, mz))
+            mz = mz if mz > -1.0 else -1.0
+            mz = mz if mz < 1.0 else 1.0
             rate_z = 2.0 * math.sin(weight * math.asin(mz)) * yaw_gain
 
         if yawspeed_ff_radps == yawspeed_ff_radps:

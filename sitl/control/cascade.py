@@ -1,9 +1,16 @@
 """The controller cascade of one drone: estimated state + setpoint in, motor commands out.
 
 A thin composition of the pure stages (position -> velocity -> attitude -> rate -> allocation). It owns the
-two things the stages must not: the parameter store (configs are rebuilt when ``ParamStore.version`` changes,
-so a gain set in flight takes effect at the next step) and the little memory that sits between stages (the
-allocation's saturation report fed back to the rate integrator, the held heading).
+things the stages must not: the parameter store (configs are rebuilt when ``ParamStore.version`` changes,
+so a gain set in flight takes effect at the next step), the little memory that sits between stages (the
+allocation's saturation report fed back to the rate integrator, the held heading) and the loop rates.
+
+Loop rates, as in PX4: the attitude, rate and allocation stages run at every call (the physics rate); the
+position and velocity loops, and the attitude setpoint they produce, run at ``MPC_LOOP_HZ`` and are held in
+between, with the velocity loop's integrator and derivative using the time actually elapsed since their last run.
+A new setpoint (one that differs from the last) or a parameter change is acted on at once, so the lower rate
+only spaces out the updates of a setpoint that holds still (hover, hold, a formation slot between two streamed
+setpoints). At or above the physics rate the outer loops run at every call, and the cascade is single-rate.
 
 Two entry points, matching the MAVLink setpoints a PX4 vehicle accepts:
 - ``update`` with a ``TrajectorySetpoint`` (SET_POSITION_TARGET_*: position, velocity, acceleration, yaw, yaw
@@ -25,10 +32,17 @@ from sitl.airframe import Airframe
 from sitl.control import Vec3f
 from sitl.control.allocation import AllocationResult, ControlAllocator
 from sitl.control.attitude import AttitudeController, Quat4f, thrust_to_attitude
-from sitl.control.params import attitude_config, position_config, rate_config, velocity_config
+from sitl.control.params import (
+    attitude_config,
+    outer_loop_period_s,
+    position_config,
+    rate_config,
+    velocity_config,
+)
 from sitl.control.position import PositionController
 from sitl.control.rate import NO_SATURATION, RateController
 from sitl.control.velocity import VelocityController
+from sitl.mathutil import fast_constructor
 from sitl.params import ParamStore
 
 _NAN = math.nan
@@ -96,9 +110,21 @@ class CascadeOutput:
     allocation: AllocationResult
 
 
+_new_output = fast_constructor(CascadeOutput)
+
+# What the outer loops hand the inner ones between their runs: velocity, acceleration and thrust setpoints,
+# attitude setpoint, collective thrust and the heading-rate feed-forward.
+_OuterOutput = tuple[Vec3f, Vec3f, Vec3f, Quat4f, float, float]
+
+
 def _floats(v: VecLike) -> Sequence[float]:
     # Python floats do arithmetic several times faster than numpy scalars.
     return v.tolist() if isinstance(v, np.ndarray) else v
+
+
+def _floats3(v: VecLike) -> Vec3f:
+    x, y, z = v.tolist() if isinstance(v, np.ndarray) else v
+    return (x, y, z)
 
 
 class Cascade:
@@ -113,6 +139,7 @@ class Cascade:
         self.rate = RateController(rate_config(params, airframe))
         self.allocator = ControlAllocator(airframe)
         self._params_version = params.version
+        self._outer_period_s = outer_loop_period_s(params)
         self.reset()
 
     @property
@@ -129,6 +156,13 @@ class Cascade:
         self._yaw_sp_prev = _NAN
         self._sat_pos = NO_SATURATION
         self._sat_neg = NO_SATURATION
+        self._forget_outer()
+
+    def _forget_outer(self) -> None:
+        """The next ``update`` runs the position and velocity loops afresh, as on the first step."""
+        self._outer: _OuterOutput | None = None  # what they last produced (None: run at the next call)
+        self._outer_setpoint: TrajectorySetpoint | None = None  # the setpoint they produced it for
+        self._outer_elapsed_s = 0.0  # time since their last run
 
     def _refresh_configs(self) -> None:
         store = self.params
@@ -139,6 +173,8 @@ class Cascade:
         self.velocity.config = velocity_config(store, self.airframe)
         self.attitude.config = attitude_config(store)
         self.rate.config = rate_config(store, self.airframe)
+        self._outer_period_s = outer_loop_period_s(store)
+        self._outer = None  # a new gain takes effect at the next step in the outer loops too
 
     def _heading_setpoint(self, att_q: Sequence[float], setpoint: TrajectorySetpoint) -> float:
         yaw_sp = setpoint.yaw_rad
@@ -156,24 +192,54 @@ class Cascade:
         self, state: EstimatedState, setpoint: TrajectorySetpoint, dt_s: float, *, landed: bool = False
     ) -> CascadeOutput:
         """One control step towards a trajectory setpoint. ``landed`` freezes the integrators."""
-        self._refresh_configs()
-        pos = _floats(state.pos_ned_m)
-        vel = _floats(state.vel_ned_mps)
-        att_q = _floats(state.att_q_frd_to_ned)
-        vel_sp = self.position.update((pos[0], pos[1], pos[2]), setpoint.pos_ned_m, setpoint.vel_ned_mps)
-        out = self.velocity.update(
-            (vel[0], vel[1], vel[2]), vel_sp, setpoint.acc_ned_mps2, dt_s, freeze_integrator=landed
-        )
-        thrust = out.thrust_sp_ned_n
-        att_sp_q = thrust_to_attitude(thrust, self._heading_setpoint(att_q, setpoint))
-        collective = math.sqrt(thrust[0] * thrust[0] + thrust[1] * thrust[1] + thrust[2] * thrust[2])
-        rates_sp, torque, alloc = self._inner(
-            state, att_q, att_sp_q, setpoint.yawspeed_radps, None, collective, dt_s, landed
-        )
-        return CascadeOutput(
+        if self.params.version != self._params_version:
+            self._refresh_configs()
+        # Python floats do arithmetic several times faster than numpy scalars (inline: this runs every step).
+        att_m = state.att_q_frd_to_ned
+        qw, qx, qy, qz = att_m.tolist() if isinstance(att_m, np.ndarray) else att_m
+        att_q = (qw, qx, qy, qz)
+
+        # The outer loops: position and velocity to a thrust vector and an attitude setpoint, at MPC_LOOP_HZ or
+        # at once for a new setpoint (identity first: a streamed setpoint is the same object until it changes).
+        elapsed_s = self._outer_elapsed_s + dt_s
+        outer = self._outer
+        last_setpoint = self._outer_setpoint
+        if (
+            outer is None
+            or elapsed_s >= self._outer_period_s - 1e-9
+            or (setpoint is not last_setpoint and setpoint != last_setpoint)
+        ):
+            pos_m = state.pos_ned_m
+            px, py, pz = pos_m.tolist() if isinstance(pos_m, np.ndarray) else pos_m
+            vel_m = state.vel_ned_mps
+            vx, vy, vz = vel_m.tolist() if isinstance(vel_m, np.ndarray) else vel_m
+            vel_sp = self.position.update((px, py, pz), setpoint.pos_ned_m, setpoint.vel_ned_mps)
+            acc_sp, thrust = self.velocity.thrust_setpoint(
+                (vx, vy, vz), vel_sp, setpoint.acc_ned_mps2, elapsed_s, landed
+            )
+            att_sp_q = thrust_to_attitude(thrust, self._heading_setpoint(att_q, setpoint))
+            tx, ty, tz = thrust
+            collective = math.sqrt(tx * tx + ty * ty + tz * tz)
+            yawspeed_ff = setpoint.yawspeed_radps
+            self._outer = (vel_sp, acc_sp, thrust, att_sp_q, collective, yawspeed_ff)
+            self._outer_setpoint = setpoint
+            self._outer_elapsed_s = 0.0
+        else:
+            vel_sp, acc_sp, thrust, att_sp_q, collective, yawspeed_ff = outer
+            self._outer_elapsed_s = elapsed_s
+
+        # The inner loops at every call (as _inner, written out).
+        rates_m = state.rates_frd_radps
+        wx, wy, wz = rates_m.tolist() if isinstance(rates_m, np.ndarray) else rates_m
+        rates_sp = self.attitude.update(att_q, att_sp_q, yawspeed_ff)
+        torque = self.rate.torque_setpoint((wx, wy, wz), rates_sp, dt_s, self._sat_pos, self._sat_neg, landed)
+        alloc = self.allocator.allocate(torque, collective)
+        self._sat_pos = alloc.saturated_pos
+        self._sat_neg = alloc.saturated_neg
+        return _new_output(
             motor_cmds=alloc.motor_cmds,
             vel_sp_ned_mps=vel_sp,
-            acc_sp_ned_mps2=out.acc_sp_ned_mps2,
+            acc_sp_ned_mps2=acc_sp,
             thrust_sp_ned_n=thrust,
             att_sp_q=att_sp_q,
             rates_sp_frd_radps=rates_sp,
@@ -189,6 +255,7 @@ class Cascade:
         self._refresh_configs()
         att_q = _floats(state.att_q_frd_to_ned)
         self._yaw_sp_prev = _NAN
+        self._forget_outer()  # back on a trajectory setpoint, the outer loops start from the current state
         collective = setpoint.thrust_n
         if setpoint.att_q is None:
             att_sp_q = (att_q[0], att_q[1], att_q[2], att_q[3])
@@ -208,7 +275,7 @@ class Cascade:
         rates_sp, torque, alloc = self._inner(
             state, att_q, att_sp_q, setpoint.yawspeed_ff_radps, rates_sp, collective, dt_s, landed
         )
-        return CascadeOutput(
+        return _new_output(
             motor_cmds=alloc.motor_cmds,
             vel_sp_ned_mps=NAN3,
             acc_sp_ned_mps2=NAN3,
@@ -234,14 +301,8 @@ class Cascade:
         """Attitude (unless rates are given), rate and allocation stages; keeps the saturation feedback."""
         if rates_sp is None:
             rates_sp = self.attitude.update((att_q[0], att_q[1], att_q[2], att_q[3]), att_sp_q, yawspeed_ff)
-        rates = _floats(state.rates_frd_radps)
-        torque = self.rate.update(
-            (rates[0], rates[1], rates[2]),
-            rates_sp,
-            dt_s,
-            saturated_pos=self._sat_pos,
-            saturated_neg=self._sat_neg,
-            freeze_integrator=landed,
+        torque = self.rate.torque_setpoint(
+            _floats3(state.rates_frd_radps), rates_sp, dt_s, self._sat_pos, self._sat_neg, landed
         )
         alloc = self.allocator.allocate(torque, collective)
         self._sat_pos = alloc.saturated_pos

@@ -50,14 +50,6 @@ def constrain_xy(prio_x: float, prio_y: float, extra_x: float, extra_y: float, m
     return prio_x + ux * s, prio_y + uy * s
 
 
-def _axis(pos_sp: float, pos: float, vel_ff: float, gain: float) -> tuple[float, float]:
-    """(velocity setpoint, its position part) for one axis; NaN setpoint fields contribute nothing."""
-    if pos_sp == pos_sp:  # not NaN
-        from_pos = gain * (pos_sp - pos)
-        return (from_pos + vel_ff if vel_ff == vel_ff else from_pos), from_pos
-    return vel_ff, 0.0
-
-
 class PositionController:
     """Stateless P loop; ``update`` returns the NED velocity setpoint, NaN on axes left to acceleration
     control."""
@@ -70,9 +62,27 @@ class PositionController:
 
     def update(self, pos_ned_m: Vec3f, pos_sp_ned_m: Vec3f, vel_ff_ned_mps: Vec3f) -> Vec3f:
         cfg = self.config
-        vel_x, pos_part_x = _axis(pos_sp_ned_m[0], pos_ned_m[0], vel_ff_ned_mps[0], cfg.xy_p_per_s)
-        vel_y, pos_part_y = _axis(pos_sp_ned_m[1], pos_ned_m[1], vel_ff_ned_mps[1], cfg.xy_p_per_s)
-        vel_z, _ = _axis(pos_sp_ned_m[2], pos_ned_m[2], vel_ff_ned_mps[2], cfg.z_p_per_s)
+        pos_x, pos_y, pos_z = pos_ned_m
+        sp_x, sp_y, sp_z = pos_sp_ned_m
+        ff_x, ff_y, ff_z = vel_ff_ned_mps
+        # Per axis, written out (this runs every control step): P on the position error plus the velocity
+        # feed-forward; a NaN position leaves the feed-forward alone, a NaN feed-forward contributes nothing.
+        if sp_x == sp_x:
+            pos_part_x = cfg.xy_p_per_s * (sp_x - pos_x)
+            vel_x = pos_part_x + ff_x if ff_x == ff_x else pos_part_x
+        else:
+            vel_x, pos_part_x = ff_x, 0.0
+        if sp_y == sp_y:
+            pos_part_y = cfg.xy_p_per_s * (sp_y - pos_y)
+            vel_y = pos_part_y + ff_y if ff_y == ff_y else pos_part_y
+        else:
+            vel_y, pos_part_y = ff_y, 0.0
+        if sp_z == sp_z:
+            vel_z = cfg.z_p_per_s * (sp_z - pos_z)
+            if ff_z == ff_z:
+                vel_z = vel_z + ff_z
+        else:
+            vel_z = ff_z
 
         nan_x = vel_x != vel_x
         nan_y = vel_y != vel_y

@@ -46,7 +46,11 @@ class VelocityOutput:
 
 
 class VelocityController:
-    """Velocity PID in NED. ``update`` takes setpoints that may hold NaN ("not set") fields."""
+    """Velocity PID in NED. ``update`` takes setpoints that may hold NaN ("not set") fields.
+
+    The body is written out per axis rather than looped over three indices: it runs at the physics rate for every
+    drone, and the unrolled form does the same arithmetic in about half the interpreter time.
+    """
 
     def __init__(self, config: VelocityConfig) -> None:
         self.config = config
@@ -54,21 +58,11 @@ class VelocityController:
 
     def reset(self) -> None:
         self.integral_ned_mps2: list[float] = [0.0, 0.0, 0.0]
-        self._vel_deriv = [0.0, 0.0, 0.0]
+        self._vel_deriv: Vec3f = (0.0, 0.0, 0.0)
         self._prev_vel: Vec3f | None = None
-
-    def _velocity_derivative(self, vel: Vec3f, dt_s: float) -> list[float]:
-        deriv = self._vel_deriv
-        prev = self._prev_vel
-        self._prev_vel = vel
-        if prev is None or dt_s <= 0.0:
-            return deriv
-        cutoff = self.config.vel_deriv_cutoff_hz
-        alpha = 1.0 if cutoff <= 0.0 else dt_s / (dt_s + 1.0 / (2.0 * math.pi * cutoff))
-        for i in range(3):
-            raw = (vel[i] - prev[i]) / dt_s
-            deriv[i] += alpha * (raw - deriv[i])
-        return deriv
+        self._trig_config: VelocityConfig | None = None  # the config the cached tilt-limit cosine/sine belong to
+        self._cos_tilt_max = 1.0
+        self._sin_tilt_max = 0.0
 
     def update(
         self,
@@ -80,28 +74,64 @@ class VelocityController:
         freeze_integrator: bool = False,
     ) -> VelocityOutput:
         """One control step; an axis with neither velocity nor acceleration setpoint holds zero velocity."""
+        acc, thrust = self.thrust_setpoint(vel_ned_mps, vel_sp_ned_mps, acc_ff_ned_mps2, dt_s, freeze_integrator)
+        return VelocityOutput(acc_sp_ned_mps2=acc, thrust_sp_ned_n=thrust)
+
+    def thrust_setpoint(
+        self,
+        vel_ned_mps: Vec3f,
+        vel_sp_ned_mps: Vec3f,
+        acc_ff_ned_mps2: Vec3f,
+        dt_s: float,
+        freeze_integrator: bool = False,
+    ) -> tuple[Vec3f, Vec3f]:
+        """``update`` without the result object: (acceleration setpoint, thrust setpoint), for the cascade."""
         cfg = self.config
         integ = self.integral_ned_mps2
-        deriv = self._velocity_derivative(vel_ned_mps, dt_s)
-        gains_p = (cfg.xy_p_per_s, cfg.xy_p_per_s, cfg.z_p_per_s)
-        gains_d = (cfg.xy_d, cfg.xy_d, cfg.z_d)
+        vx, vy, vz = vel_ned_mps
 
-        err = [0.0, 0.0, 0.0]
-        acc = [0.0, 0.0, 0.0]
-        for i in range(3):
-            vel_sp = vel_sp_ned_mps[i]
-            acc_ff = acc_ff_ned_mps2[i]
-            if vel_sp != vel_sp:
-                if acc_ff == acc_ff:  # acceleration control on this axis: the PID stays out
-                    err[i] = _NAN
-                    acc[i] = acc_ff
-                    continue
-                vel_sp = 0.0
-            e = vel_sp - vel_ned_mps[i]
-            err[i] = e
-            pid = gains_p[i] * e + integ[i] - gains_d[i] * deriv[i]
-            acc[i] = pid + acc_ff if acc_ff == acc_ff else pid
-        acc_x, acc_y, acc_z = acc
+        # Low-passed derivative of the measured velocity (the D term acts on the measurement).
+        dx, dy, dz = self._vel_deriv
+        prev = self._prev_vel
+        self._prev_vel = vel_ned_mps
+        if prev is not None and dt_s > 0.0:
+            cutoff = cfg.vel_deriv_cutoff_hz
+            alpha = 1.0 if cutoff <= 0.0 else dt_s / (dt_s + 1.0 / (2.0 * math.pi * cutoff))
+            dx += alpha * ((vx - prev[0]) / dt_s - dx)
+            dy += alpha * ((vy - prev[1]) / dt_s - dy)
+            dz += alpha * ((vz - prev[2]) / dt_s - dz)
+            self._vel_deriv = (dx, dy, dz)
+
+        # PID per axis. A NaN velocity setpoint with an acceleration set is acceleration control (the PID stays
+        # out); with neither set the axis brakes to zero velocity.
+        sp_x, sp_y, sp_z = vel_sp_ned_mps
+        ff_x, ff_y, ff_z = acc_ff_ned_mps2
+        p_xy = cfg.xy_p_per_s
+        d_xy = cfg.xy_d
+        if sp_x == sp_x or ff_x != ff_x:
+            err_x = (sp_x if sp_x == sp_x else 0.0) - vx
+            acc_x = p_xy * err_x + integ[0] - d_xy * dx
+            if ff_x == ff_x:
+                acc_x = acc_x + ff_x
+        else:
+            err_x = _NAN
+            acc_x = ff_x
+        if sp_y == sp_y or ff_y != ff_y:
+            err_y = (sp_y if sp_y == sp_y else 0.0) - vy
+            acc_y = p_xy * err_y + integ[1] - d_xy * dy
+            if ff_y == ff_y:
+                acc_y = acc_y + ff_y
+        else:
+            err_y = _NAN
+            acc_y = ff_y
+        if sp_z == sp_z or ff_z != ff_z:
+            err_z = (sp_z if sp_z == sp_z else 0.0) - vz
+            acc_z = cfg.z_p_per_s * err_z + integ[2] - cfg.z_d * dz
+            if ff_z == ff_z:
+                acc_z = acc_z + ff_z
+        else:
+            err_z = _NAN
+            acc_z = ff_z
 
         # Thrust direction (body z axis, pointing down through the vehicle) from a_sp - g, tilt-limited. A
         # demand to fall faster than gravity cannot be met by rotors: it is flown level-ish at minimum thrust.
@@ -113,10 +143,14 @@ class VelocityController:
             bz_x, bz_y, bz_z = 0.0, 0.0, 1.0
         else:
             bz_x, bz_y, bz_z = -acc_x / norm, -acc_y / norm, up_component / norm
-            cos_max = math.cos(cfg.tilt_max_rad)
+            if self._trig_config is not cfg:
+                self._trig_config = cfg
+                self._cos_tilt_max = math.cos(cfg.tilt_max_rad)
+                self._sin_tilt_max = math.sin(cfg.tilt_max_rad)
+            cos_max = self._cos_tilt_max
             if bz_z < cos_max:
                 horiz = math.hypot(bz_x, bz_y)
-                sin_max = math.sin(cfg.tilt_max_rad)
+                sin_max = self._sin_tilt_max
                 if horiz < 1e-9:
                     bz_x, bz_y = sin_max, 0.0
                 else:
@@ -124,22 +158,24 @@ class VelocityController:
                 bz_z = cos_max
 
         # The collective keeps the demanded vertical force through the tilt limit (PX4 projects it the same way).
-        collective = cfg.mass_kg * (GRAVITY_MPS2 - acc_z) / bz_z
-        if collective < cfg.thrust_min_n:
-            collective = cfg.thrust_min_n
+        mass = cfg.mass_kg
+        thrust_min = cfg.thrust_min_n
+        collective = mass * (GRAVITY_MPS2 - acc_z) / bz_z
+        if collective < thrust_min:
+            collective = thrust_min
         thr_x = -bz_x * collective
         thr_y = -bz_y * collective
         thr_z = -bz_z * collective
 
         # Vertical anti-windup: no integration further into a saturated collective.
-        err_z = err[2]
         thrust_max = cfg.thrust_max_n
-        if (-thr_z <= cfg.thrust_min_n and err_z >= 0.0) or (-thr_z >= thrust_max and err_z <= 0.0):
-            err[2] = 0.0
+        if (-thr_z <= thrust_min and err_z >= 0.0) or (-thr_z >= thrust_max and err_z <= 0.0):
+            err_z = 0.0
 
         # Vertical priority with a horizontal margin, then the horizontal part gets what remains.
         thr_xy = math.hypot(thr_x, thr_y)
-        allocated_xy = min(thr_xy, cfg.thrust_xy_margin_n)
+        margin = cfg.thrust_xy_margin_n
+        allocated_xy = margin if margin < thr_xy else thr_xy  # min(thr_xy, margin)
         thr_up_max_sq = thrust_max * thrust_max - allocated_xy * allocated_xy
         thr_up_max = math.sqrt(thr_up_max_sq) if thr_up_max_sq > 0.0 else 0.0
         if -thr_z > thr_up_max:
@@ -154,22 +190,24 @@ class VelocityController:
         if not freeze_integrator and dt_s > 0.0:
             # Horizontal tracking anti-reset-windup (Rundqwist 1990, as PX4): while the produced horizontal
             # acceleration falls short of the demand, the shortfall is fed back against the integrator.
-            if cfg.xy_p_per_s > 0.0 and err[0] == err[0] and err[1] == err[1]:
-                prod_x = thr_x / cfg.mass_kg
-                prod_y = thr_y / cfg.mass_kg
+            if p_xy > 0.0 and err_x == err_x and err_y == err_y:
+                prod_x = thr_x / mass
+                prod_y = thr_y / mass
                 if acc_x * acc_x + acc_y * acc_y > prod_x * prod_x + prod_y * prod_y:
-                    arw_gain = 2.0 / cfg.xy_p_per_s
-                    err[0] -= arw_gain * (acc_x - prod_x)
-                    err[1] -= arw_gain * (acc_y - prod_y)
-            gains_i = (cfg.xy_i_per_s2, cfg.xy_i_per_s2, cfg.z_i_per_s2)
-            for i in range(3):
-                e = err[i]
-                if e == e:
-                    integ[i] += gains_i[i] * e * dt_s
+                    arw_gain = 2.0 / p_xy
+                    err_x -= arw_gain * (acc_x - prod_x)
+                    err_y -= arw_gain * (acc_y - prod_y)
+            i_xy = cfg.xy_i_per_s2
+            if err_x == err_x:
+                integ[0] += i_xy * err_x * dt_s
+            if err_y == err_y:
+                integ[1] += i_xy * err_y * dt_s
+            if err_z == err_z:
+                integ[2] += cfg.z_i_per_s2 * err_z * dt_s
             # The vertical integrator never needs to cancel more than gravity.
             if integ[2] > GRAVITY_MPS2:
                 integ[2] = GRAVITY_MPS2
             elif integ[2] < -GRAVITY_MPS2:
                 integ[2] = -GRAVITY_MPS2
 
-        return VelocityOutput(acc_sp_ned_mps2=(acc_x, acc_y, acc_z), thrust_sp_ned_n=(thr_x, thr_y, thr_z))
+        return (acc_x, acc_y, acc_z), (thr_x, thr_y, thr_z)

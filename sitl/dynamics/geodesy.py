@@ -29,6 +29,7 @@ from sitl.mathutil import Vec3
 WGS84_A_M = 6378137.0
 WGS84_F = 1.0 / 298.257223563
 WGS84_E2 = WGS84_F * (2.0 - WGS84_F)
+_ONE_MINUS_E2 = 1.0 - WGS84_E2
 
 _INVERSE_TOLERANCE_M = 1e-7
 _INVERSE_MAX_ITERATIONS = 8
@@ -59,15 +60,20 @@ class LocalFrame:
     def ned_from_geodetic_rad(self, lat_rad: float, lon_rad: float, alt_m: float) -> tuple[float, float, float]:
         """NED metres of a geodetic position given in radians (the plant's per-step path)."""
         sin_lat = math.sin(lat_rad)
-        cos_lat = math.cos(lat_rad)
-        x, y, z = _ecef(sin_lat, cos_lat, math.sin(lon_rad), math.cos(lon_rad), self._alt0)
+        # _ecef(sin_lat, cos(lat), sin(lon), cos(lon), home altitude), written out: this runs every physics step.
+        n = WGS84_A_M / math.sqrt(1.0 - WGS84_E2 * sin_lat * sin_lat)
+        alt0 = self._alt0
+        r = (n + alt0) * math.cos(lat_rad)
+        x = r * math.cos(lon_rad)
+        y = r * math.sin(lon_rad)
+        z = (n * _ONE_MINUS_E2 + alt0) * sin_lat
         dx = x - self._x0
         dy = y - self._y0
         dz = z - self._z0
         t = self._cos_lon0 * dx + self._sin_lon0 * dy
         north = -self._sin_lat0 * t + self._cos_lat0 * dz
         east = -self._sin_lon0 * dx + self._cos_lon0 * dy
-        return (north, east, self._alt0 - alt_m)
+        return (north, east, alt0 - alt_m)
 
     def ned_from_geo(self, point: GeoPoint) -> tuple[float, float, float]:
         return self.ned_from_geodetic_rad(math.radians(point.lat_deg), math.radians(point.lon_deg), point.alt_amsl_m)

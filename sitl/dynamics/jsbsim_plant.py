@@ -37,11 +37,14 @@ from sitl.dynamics.jsbsim_model import (
     write_model,
 )
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint, PlantState
-from sitl.mathutil import GRAVITY_MPS2, Vec3
+from sitl.mathutil import GRAVITY_MPS2, Vec3, fast_constructor
 
 _log = logging.getLogger(__name__)
 
 _FT_PER_M = 1.0 / M_PER_FT
+
+_new_state = fast_constructor(PlantState)
+_new_geo = fast_constructor(GeoPoint)
 
 
 class PlantError(RuntimeError):
@@ -248,8 +251,9 @@ class JsbsimPlant:
     def _write_cmds(self, motor_cmds: Sequence[float]) -> None:
         if len(motor_cmds) != self._n_rotors:
             raise ValueError(f"expected {self._n_rotors} motor commands, got {len(motor_cmds)}")
-        for setter, value in zip(self._cmd_setters, motor_cmds, strict=True):
-            setter(_clamp_cmd(value))
+        for setter, value in zip(self._cmd_setters, motor_cmds, strict=False):  # lengths checked above
+            value = float(value)  # _clamp_cmd inline: this runs every physics step
+            setter(1.0 if value > 1.0 else (value if value > 0.0 else 0.0))
 
     def _any_contact(self) -> bool:
         # A plain loop: three times cheaper than any() over a generator, and this runs every step.
@@ -279,14 +283,14 @@ class JsbsimPlant:
         if qw < 0.0:  # JSBSim reports yaw in [0, 2 pi); keep the project's w >= 0 form
             qw, qx, qy, qz = -qw, -qx, -qy, -qz
         sf = self._sf_scale
-        return PlantState(
+        return _new_state(
             time_s=self._steps * self._dt_s,
             pos_ned_m=np.array((north, east, down)),
             vel_ned_mps=np.array((gn() * M_PER_FT, ge() * M_PER_FT, gd() * M_PER_FT)),
             att_q_frd_to_ned=np.array((qw, qx, qy, qz)),
             rates_frd_radps=np.array((gp(), gq(), gr())),
             specific_force_frd_mps2=np.array((gfx() * sf, gfy() * sf, gfz() * sf)),
-            geo=GeoPoint(lat_deg=math.degrees(lat), lon_deg=math.degrees(lon), alt_amsl_m=alt_m),
+            geo=_new_geo(lat_deg=math.degrees(lat), lon_deg=math.degrees(lon), alt_amsl_m=alt_m),
             on_ground=self._any_contact(),
             motor_speeds_radps=tuple([g() for g in self._speed_getters]),
         )

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sitl.dynamics.plant import PlantState
-from sitl.mathutil import GRAVITY_MPS2, Vec3, vec3
+from sitl.mathutil import GRAVITY_MPS2, Vec3, fast_constructor, vec3
 from sitl.sensors.noise import NoiseSource
 
 
@@ -71,6 +71,13 @@ class MagSample:
     field_frd_gauss: Vec3
 
 
+# Built at the sensor rates (the IMU at every physics step): the cheap constructors of the frozen records.
+_new_imu_sample = fast_constructor(ImuSample)
+_new_gps_sample = fast_constructor(GpsSample)
+_new_baro_sample = fast_constructor(BaroSample)
+_new_mag_sample = fast_constructor(MagSample)
+
+
 def _isa_pressure_hpa(alt_amsl_m: float) -> float:
     """ISA troposphere pressure at a geometric altitude (close enough to geopotential at these heights)."""
     return 1013.25 * (1.0 - 2.25577e-5 * alt_amsl_m) ** 5.25588
@@ -98,20 +105,22 @@ class Imu:
         nx, ny, nz = noise.floats3()
         k = self._cfg.accel_noise_mps2
         accel = np.array((fx + bx + k * nx, fy + by + k * ny, fz + bz + k * nz))
-        return ImuSample(gyro_frd_radps=gyro, accel_frd_mps2=accel)
+        return _new_imu_sample(gyro_frd_radps=gyro, accel_frd_mps2=accel)
 
 
 class _Periodic:
     """Fires at a fixed rate in simulation time, aligned to multiples of the period."""
 
+    __slots__ = ("_period_s", "next_s")
+
     def __init__(self, rate_hz: float) -> None:
         self._period_s = 1.0 / rate_hz
-        self._next_s = 0.0
+        self.next_s = 0.0  # the next sample is due at this time (less 1 ns of rounding slack)
 
     def due(self, time_s: float) -> bool:
-        if time_s + 1e-9 < self._next_s:
+        if time_s + 1e-9 < self.next_s:
             return False
-        self._next_s += self._period_s * max(1, math.floor((time_s - self._next_s) / self._period_s) + 1)
+        self.next_s += self._period_s * max(1, math.floor((time_s - self.next_s) / self._period_s) + 1)
         return True
 
 
@@ -119,19 +128,19 @@ class Gps:
     def __init__(self, config: SensorConfig, rng: np.random.Generator) -> None:
         self._cfg = config
         self._noise = NoiseSource(rng)
-        self._clock = _Periodic(config.gps_rate_hz)
+        self.clock = _Periodic(config.gps_rate_hz)
         self._drift_n_m = 0.0
         self._drift_e_m = 0.0
         self._alpha = math.exp(-1.0 / (config.gps_rate_hz * config.gps_drift_time_s))
         self._drift_gain = math.sqrt(1 - self._alpha**2) * config.gps_pos_drift_h_m
 
     def sample(self, truth: PlantState) -> GpsSample | None:
-        if not self._clock.due(truth.time_s):
+        if not self.clock.due(truth.time_s):
             return None
         cfg = self._cfg
         if truth.time_s < cfg.gps_time_to_fix_s:
             nan3 = vec3(math.nan, math.nan, math.nan)
-            return GpsSample(
+            return _new_gps_sample(
                 time_s=truth.time_s,
                 fix_type=1,
                 satellites=3,
@@ -158,7 +167,7 @@ class Gps:
         # Geodetic of the noisy fix: offset the true geodetic by the same error (metres to degrees, local scale).
         lat = truth.geo.lat_deg + math.degrees(err_n / 6378137.0)
         lon = truth.geo.lon_deg + math.degrees(err_e / (6378137.0 * math.cos(math.radians(truth.geo.lat_deg))))
-        return GpsSample(
+        return _new_gps_sample(
             time_s=truth.time_s,
             fix_type=3,
             satellites=cfg.gps_satellites,
@@ -176,13 +185,13 @@ class Barometer:
     def __init__(self, config: SensorConfig, rng: np.random.Generator) -> None:
         self._cfg = config
         self._noise = NoiseSource(rng)
-        self._clock = _Periodic(config.baro_rate_hz)
+        self.clock = _Periodic(config.baro_rate_hz)
 
     def sample(self, truth: PlantState) -> BaroSample | None:
-        if not self._clock.due(truth.time_s):
+        if not self.clock.due(truth.time_s):
             return None
         alt = truth.geo.alt_amsl_m + self._cfg.baro_noise_m * self._noise.scalar()
-        return BaroSample(alt_amsl_m=alt, pressure_hpa=_isa_pressure_hpa(alt), temperature_c=15.0 - 0.0065 * alt)
+        return _new_baro_sample(alt_amsl_m=alt, pressure_hpa=_isa_pressure_hpa(alt), temperature_c=15.0 - 0.0065 * alt)
 
 
 class Magnetometer:
@@ -190,10 +199,10 @@ class Magnetometer:
         self._cfg = config
         self._noise = NoiseSource(rng)
         self._field_ned = tuple(float(c) for c in config.mag_field_ned_gauss)
-        self._clock = _Periodic(config.baro_rate_hz)
+        self.clock = _Periodic(config.baro_rate_hz)
 
     def sample(self, truth: PlantState) -> MagSample | None:
-        if not self._clock.due(truth.time_s):
+        if not self.clock.due(truth.time_s):
             return None
         w, x, y, z = truth.att_q_frd_to_ned.tolist()
         fn, fe, fd = self._field_ned
@@ -203,7 +212,7 @@ class Magnetometer:
         bx = (1 - 2 * (y * y + z * z)) * fn + 2 * (x * y + w * z) * fe + 2 * (x * z - w * y) * fd
         by = 2 * (x * y - w * z) * fn + (1 - 2 * (x * x + z * z)) * fe + 2 * (y * z + w * x) * fd
         bz = 2 * (x * z + w * y) * fn + 2 * (y * z - w * x) * fe + (1 - 2 * (x * x + y * y)) * fd
-        return MagSample(field_frd_gauss=vec3(bx + k * nx, by + k * ny, bz + k * nz))
+        return _new_mag_sample(field_frd_gauss=vec3(bx + k * nx, by + k * ny, bz + k * nz))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -212,6 +221,9 @@ class SensorReadings:
     gps: GpsSample | None
     baro: BaroSample | None
     mag: MagSample | None
+
+
+_new_readings = fast_constructor(SensorReadings)
 
 
 class SensorSuite:
@@ -226,11 +238,15 @@ class SensorSuite:
         self.mag = Magnetometer(config, streams[3])
 
     def sample(self, truth: PlantState) -> SensorReadings:
-        return SensorReadings(
+        # The slower sensors are asked only when due (the same test their clocks make): most physics steps carry
+        # the IMU alone, and three calls that return None would cost more than the IMU sample itself.
+        due_s = truth.time_s + 1e-9
+        gps, baro, mag = self.gps, self.baro, self.mag
+        return _new_readings(
             imu=self.imu.sample(truth),
-            gps=self.gps.sample(truth),
-            baro=self.baro.sample(truth),
-            mag=self.mag.sample(truth),
+            gps=gps.sample(truth) if due_s >= gps.clock.next_s else None,
+            baro=baro.sample(truth) if due_s >= baro.clock.next_s else None,
+            mag=mag.sample(truth) if due_s >= mag.clock.next_s else None,
         )
 
 
