@@ -117,11 +117,35 @@ def _add_timing_options(parser: argparse.ArgumentParser) -> None:
         "--lockstep", action="store_true", help="all drones advance simulated time together (one shared clock)"
     )
     parser.add_argument(
+        "--camera-frames",
+        type=_drone_numbers,
+        default=frozenset(),
+        metavar="N[,N...]",
+        help="save these drones' camera frames as PNG (swarm fly: REPORT/camera/; swarm up: ./camera-frames/)",
+    )
+    parser.add_argument(
         "--quantum",
         type=int,
         default=1,
         help="lockstep: physics steps every drone runs between waits, i.e. the clock skew bound (default 1)",
     )
+
+
+def _drone_numbers(text: str) -> frozenset[int]:
+    try:
+        numbers = frozenset(int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be drone numbers like 1,3, got {text!r}") from None
+    if not numbers or min(numbers) < 1:
+        raise argparse.ArgumentTypeError(f"drone numbers start at 1, got {text!r}")
+    return numbers
+
+
+def _camera_drones(args: argparse.Namespace, n_drones: int) -> frozenset[int]:
+    numbers: frozenset[int] = args.camera_frames
+    if numbers and max(numbers) > n_drones:
+        raise UsageError(f"--camera-frames: drone numbers go from 1 to {n_drones}, got {max(numbers)}")
+    return numbers
 
 
 def _speed(args: argparse.Namespace) -> float:
@@ -246,6 +270,8 @@ def run_up(args: argparse.Namespace) -> int:
         airframe=args.airframe,
         seed=args.seed,
         log_dir=args.logs,
+        camera_drones=_camera_drones(args, args.drones),
+        camera_dir=Path("camera-frames"),
     )
     stop = _Stop()
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
@@ -294,7 +320,8 @@ def run_fly(args: argparse.Namespace) -> int:
     runner = MissionRunner(mission, speed_factor=_speed(args), origin=args.origin, first_instance=args.first_instance,
                            report_dir=report, say=_say, airframe=args.airframe, seed=args.seed,
                            forward=None if args.no_forward else args.forward, lockstep=args.lockstep,
-                           lockstep_quantum=_quantum(args))  # fmt: skip
+                           lockstep_quantum=_quantum(args),
+                           camera_drones=_camera_drones(args, mission.swarm.drones))  # fmt: skip
     signal.signal(signal.SIGTERM, _interrupt)  # a terminated run lands and stops its drones like Ctrl-C
     try:
         out = runner.run()

@@ -86,7 +86,7 @@ class MissionRunner:
     def __init__(self, mission: MissionSpec, *, speed_factor: float, origin: GeoPoint, first_instance: int,
                  report_dir: Path, say: Say, airframe: str | None = None, seed: int = 0,
                  forward: tuple[str, int] | None = None, lockstep: bool = False,
-                 lockstep_quantum: int = 1) -> None:  # fmt: skip
+                 lockstep_quantum: int = 1, camera_drones: frozenset[int] = frozenset()) -> None:  # fmt: skip
         self.mission = mission
         self.speed = speed_factor
         self.say = say
@@ -104,6 +104,8 @@ class MissionRunner:
             log_dir=report_dir / "logs",
             lockstep=lockstep,
             lockstep_quantum=lockstep_quantum,
+            camera_drones=camera_drones,
+            camera_dir=report_dir / "camera",
         )
         self.swarm = Swarm(plan, forward=forward, relay=mission.swarm.relay)
         self.streamer = FormationStreamer(self.swarm, self.swarm_frame)

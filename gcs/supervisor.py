@@ -69,6 +69,8 @@ class SpawnPlan:
     airframe: str | None = None
     seed: int = 0
     log_dir: Path | None = None  # each drone's stdout/stderr goes to drone-<i>.log here
+    camera_drones: frozenset[int] = frozenset()  # drones (1..n, in spawn order) whose camera frames are saved...
+    camera_dir: Path | None = None  # ...as PNG under camera_dir/drone-<instance>/
 
     def homes(self) -> list[GeoPoint]:
         offsets = LAYOUTS[self.layout](self.n_drones, self.spacing_m)
@@ -101,6 +103,8 @@ def sitl_command(plan: SpawnPlan, instance: int, home: GeoPoint, gcs_port: int, 
     ]  # fmt: skip
     if plan.airframe is not None:
         cmd += ["--airframe", plan.airframe]
+    if plan.camera_dir is not None and instance - plan.first_instance + 1 in plan.camera_drones:
+        cmd += ["--camera-frames", str(plan.camera_dir / f"drone-{instance}")]
     if world is not None:
         cmd += ["--world", world]
         if plan.lockstep:

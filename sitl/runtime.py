@@ -71,6 +71,9 @@ class StepClock(Protocol):
     def close(self) -> None: ...
 
 
+PACED_WAKE_STEPS = 4  # 10 ms of simulated time at 400 Hz
+
+
 class WallClockSteps:
     """Paced by the wall clock at a speed factor (0 = as fast as possible)."""
 
@@ -90,7 +93,10 @@ class WallClockSteps:
     def wait(self, selector: selectors.BaseSelector, sim_time_s: float) -> None:
         if self.pacer.unpaced:
             return
-        wait_s = self.pacer.wall_time_of(sim_time_s + self.dt_s) - time.monotonic()
+        # Sleep until a few steps are due, not one: each wake-up costs a select, two socket reads and a telemetry
+        # poll, which at 400 wake-ups a second was the largest part of a paced drone's time (docs/benchmarks.md).
+        # Arriving MAVLink still wakes the loop at once, so commands are not delayed.
+        wait_s = self.pacer.wall_time_of(sim_time_s + PACED_WAKE_STEPS * self.dt_s) - time.monotonic()
         if wait_s > 0:
             if selector.get_map():
                 selector.select(wait_s)

@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import cv2
 import pytest
 
 pytestmark = [pytest.mark.sim_only]
@@ -24,7 +25,7 @@ SWARM = [sys.executable, "-m", "gcs.cli"]
 
 
 def fly(mission: str, first_instance: int, tmp_path: Path, timeout_s: float, *, avoidance: bool = True,
-        expect_ok: bool = True) -> dict[str, Any]:  # fmt: skip
+        expect_ok: bool = True, extra: tuple[str, ...] = ()) -> dict[str, Any]:  # fmt: skip
     """Fly a shipped mission in lockstep (optionally with avoidance off on every drone); the report's metrics."""
     path = MISSIONS / mission
     if not avoidance:
@@ -35,7 +36,7 @@ def fly(mission: str, first_instance: int, tmp_path: Path, timeout_s: float, *, 
     report = tmp_path / "report"
     result = subprocess.run(
         [*SWARM, "fly", str(path), "--lockstep", "--quantum", "8", "--first-instance", str(first_instance),
-         "--report", str(report), "--no-forward"],
+         "--report", str(report), "--no-forward", *extra],
         capture_output=True, text=True, timeout=timeout_s,
     )  # fmt: skip
     if expect_ok:
@@ -71,11 +72,15 @@ def test_the_same_swap_without_avoidance_collides(tmp_path: Path) -> None:
 def test_a_head_on_pair_with_the_relay_cut_avoids_with_cameras_alone(tmp_path: Path) -> None:
     # GIVEN two drones 12 m apart, no neighbour relay (each one's table stays empty)
     # WHEN they fly straight at each other at 2 m/s, facing the way they fly
-    metrics = fly("head_on_camera.toml", 120, tmp_path, 160)
+    metrics = fly("head_on_camera.toml", 120, tmp_path, 160, extra=("--camera-frames", "1"))
     # THEN they pass without a collision, seeing each other only through their cameras
     assert metrics["collisions"] == 0, metrics["collision_events"]
     assert metrics["min_separation_m"] >= 0.8
     assert metrics["avoidance_events"] >= 1
+    # AND drone 1's frames were saved, and the other drone is in some of them (a bright blob on the dark sky)
+    frames = sorted((tmp_path / "report" / "camera" / "drone-120").glob("*.png"))
+    assert len(frames) > 100
+    assert any(cv2.imread(str(f), cv2.IMREAD_GRAYSCALE).max() > 150 for f in frames)
 
 
 @pytest.mark.timeout(420)
