@@ -40,7 +40,15 @@ from typing import Final, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from gcs.formation import FormationEngine, FormationError, Setpoint, TransitionLimits, VSpec
+from gcs.formation import (
+    FormationEngine,
+    FormationError,
+    Setpoint,
+    TransitionLimits,
+    VSpec,
+    check_finite,
+    check_positive,
+)
 from gcs.frames import Vec3
 from sitl.mathutil import wrap_pi
 
@@ -98,18 +106,6 @@ class SwarmState:
     def row(self, sysid: int) -> int | None:
         """The row of ``sysid``, None if it has no report."""
         return self._rows.get(sysid)
-
-
-def _check_finite(owner: object, **values: float) -> None:
-    for name, value in values.items():
-        if not math.isfinite(value):
-            raise FormationError(f"{type(owner).__name__}.{name} must be finite, got {value}")
-
-
-def _check_positive(owner: object, **values: float) -> None:
-    for name, value in values.items():
-        if not value > 0.0:
-            raise FormationError(f"{type(owner).__name__}.{name} must be positive, got {value}")
 
 
 def _check_points(owner: object, name: str, points: Sequence[tuple[float, float]]) -> None:
@@ -170,7 +166,7 @@ class FlockSpec:
     arrival_radius_m: float = 3.0
 
     def __post_init__(self) -> None:
-        _check_finite(
+        check_finite(
             self,
             alt_m=self.alt_m,
             max_speed_mps=self.max_speed_mps,
@@ -184,7 +180,7 @@ class FlockSpec:
             migration_weight_per_s=self.migration_weight_per_s,
             arrival_radius_m=self.arrival_radius_m,
         )
-        _check_positive(
+        check_positive(
             self,
             alt_m=self.alt_m,
             max_speed_mps=self.max_speed_mps,
@@ -584,8 +580,8 @@ class FollowSpec:
             "max_accel_mps2": self.max_accel_mps2,
             "max_turn_rate_radps": self.max_turn_rate_radps,
         }
-        _check_finite(self, angle_rad=self.angle_rad, **values)
-        _check_positive(self, **values)
+        check_finite(self, angle_rad=self.angle_rad, **values)
+        check_positive(self, **values)
         if not 0.0 < self.angle_rad <= math.pi:
             raise FormationError(f"FollowSpec.angle_rad must be in (0, pi], got {self.angle_rad}")
 

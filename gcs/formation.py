@@ -105,13 +105,15 @@ def slots_at(formation: Formation, t_s: float, drone_count: int) -> FloatArray:
     return formation.slots_ned_m(np.array([float(t_s)]), drone_count)[0]
 
 
-def _check_finite(owner: object, **values: float) -> None:
+def check_finite(owner: object, **values: float) -> None:
+    """Refuse a spec field that is not a finite number (one line naming spec and field)."""
     for name, value in values.items():
         if not math.isfinite(value):
             raise FormationError(f"{type(owner).__name__}.{name} must be finite, got {value}")
 
 
-def _check_positive(owner: object, **values: float) -> None:
+def check_positive(owner: object, **values: float) -> None:
+    """Refuse a spec field that is not strictly positive (one line naming spec and field)."""
     for name, value in values.items():
         if not value > 0.0:
             raise FormationError(f"{type(owner).__name__}.{name} must be positive, got {value}")
@@ -162,8 +164,8 @@ class GridSpec:
     def __post_init__(self) -> None:
         if self.rows < 1 or self.cols < 1:
             raise FormationError(f"GridSpec needs at least one row and column, got {self.rows} x {self.cols}")
-        _check_finite(self, spacing_m=self.spacing_m, alt_m=self.alt_m, heading_rad=self.heading_rad)
-        _check_positive(self, spacing_m=self.spacing_m)
+        check_finite(self, spacing_m=self.spacing_m, alt_m=self.alt_m, heading_rad=self.heading_rad)
+        check_positive(self, spacing_m=self.spacing_m)
         _check_centre(self, self.centre_ne_m)
 
     def body_frd_m(self) -> FloatArray:
@@ -201,7 +203,7 @@ class CircleSpec:
     centre_ne_m: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
-        _check_finite(
+        check_finite(
             self,
             radius_m=self.radius_m,
             alt_m=self.alt_m,
@@ -211,7 +213,7 @@ class CircleSpec:
             alt_osc_phase_step_rad=self.alt_osc_phase_step_rad,
             phase_rad=self.phase_rad,
         )
-        _check_positive(self, radius_m=self.radius_m)
+        check_positive(self, radius_m=self.radius_m)
         if self.alt_osc_amp_m < 0.0:
             raise FormationError(f"CircleSpec.alt_osc_amp_m must not be negative, got {self.alt_osc_amp_m}")
         _check_centre(self, self.centre_ne_m)
@@ -250,8 +252,8 @@ class LineSpec:
     centre_ne_m: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
-        _check_finite(self, spacing_m=self.spacing_m, alt_m=self.alt_m, heading_rad=self.heading_rad)
-        _check_positive(self, spacing_m=self.spacing_m)
+        check_finite(self, spacing_m=self.spacing_m, alt_m=self.alt_m, heading_rad=self.heading_rad)
+        check_positive(self, spacing_m=self.spacing_m)
         _check_centre(self, self.centre_ne_m)
 
     def slots_ned_m(self, times_s: FloatArray, drone_count: int) -> FloatArray:
@@ -280,10 +282,10 @@ class VSpec:
     centre_ne_m: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
-        _check_finite(
+        check_finite(
             self, spacing_m=self.spacing_m, alt_m=self.alt_m, angle_rad=self.angle_rad, heading_rad=self.heading_rad
         )
-        _check_positive(self, spacing_m=self.spacing_m)
+        check_positive(self, spacing_m=self.spacing_m)
         if not 0.0 < self.angle_rad <= math.pi:
             raise FormationError(f"VSpec.angle_rad must be in (0, pi], got {self.angle_rad}")
         _check_centre(self, self.centre_ne_m)
@@ -339,9 +341,9 @@ class TransitionLimits:
     min_duration_s: float = 1.0  # even a transition of nothing takes this long (no step in the setpoint)
 
     def __post_init__(self) -> None:
-        _check_positive(self, max_speed_mps=self.max_speed_mps, max_accel_mps2=self.max_accel_mps2)
-        _check_finite(self, min_duration_s=self.min_duration_s)
-        _check_positive(self, min_duration_s=self.min_duration_s)
+        check_positive(self, max_speed_mps=self.max_speed_mps, max_accel_mps2=self.max_accel_mps2)
+        check_finite(self, min_duration_s=self.min_duration_s)
+        check_positive(self, min_duration_s=self.min_duration_s)
 
 
 class YawMode(enum.Enum):

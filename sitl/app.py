@@ -65,6 +65,7 @@ def run(
         world=world,
         neighbours=endpoint.neighbours if endpoint is not None else None,
         frames_dir=camera_frames,
+        shared_clock=clock is not None,
     )
 
     stats = LoopStats()

@@ -45,6 +45,7 @@ class Awareness:
         world: SharedWorld | None,
         neighbours: NeighbourTable | None,
         frames_dir: Path | None = None,
+        shared_clock: bool = False,
     ) -> None:
         self._sim = sim
         self._instance = instance
@@ -52,6 +53,10 @@ class Awareness:
         self._world = world
         self._neighbours = neighbours
         self._frames_dir = frames_dir
+        # In lockstep every drone's time_boot_ms is on one clock, so a report's age is known exactly from the
+        # sender's own timestamp (transit and relay included); paced, the clocks differ by the spawn stagger and
+        # only the arrival time can be trusted.
+        self._shared_clock = shared_clock
         if frames_dir is not None:
             frames_dir.mkdir(parents=True, exist_ok=True)
         self._params: ParamStore = sim.params
@@ -96,9 +101,8 @@ class Awareness:
         out = []
         for n in self._neighbours.entries(now_s):
             pos = frame.ned_from_geodetic_rad(math.radians(n.lat_deg), math.radians(n.lon_deg), n.alt_amsl_m)
-            out.append(
-                RelayedNeighbour(sysid=n.sysid, pos_ned_m=pos, vel_ned_mps=n.vel_ned_mps, received_s=n.received_s)
-            )
+            stamp = n.sender_time_s if self._shared_clock else n.received_s
+            out.append(RelayedNeighbour(sysid=n.sysid, pos_ned_m=pos, vel_ned_mps=n.vel_ned_mps, received_s=stamp))
         self._prevention.set_relay(out)
 
     def _capture(self, now_s: float) -> None:

@@ -40,7 +40,7 @@ class RelayedNeighbour:
     sysid: int
     pos_ned_m: tuple[float, float, float]
     vel_ned_mps: tuple[float, float, float]
-    received_s: float
+    received_s: float  # when the position was true: the sender's time in lockstep, else its arrival
 
 
 MIN_PREFERRED_SPEED_MPS = 1.0

@@ -9,39 +9,22 @@ Policy: loopback only (--no-forward); instances 100-149; a time limit on every t
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
 import cv2
 import pytest
 
-pytestmark = [pytest.mark.sim_only]
+from tests.integration.mission_flight import fly_mission
 
-MISSIONS = Path(__file__).resolve().parents[2] / "missions"
-SWARM = [sys.executable, "-m", "gcs.cli"]
+pytestmark = [pytest.mark.sim_only]
 
 
 def fly(mission: str, first_instance: int, tmp_path: Path, timeout_s: float, *, avoidance: bool = True,
         expect_ok: bool = True, extra: tuple[str, ...] = ()) -> dict[str, Any]:  # fmt: skip
     """Fly a shipped mission in lockstep (optionally with avoidance off on every drone); the report's metrics."""
-    path = MISSIONS / mission
-    if not avoidance:
-        text = path.read_text()
-        assert text.count("[swarm]\n") == 1
-        path = tmp_path / mission
-        path.write_text(text.replace("[swarm]\n", "[swarm]\nparams = { AVOID_ENABLE = 0 }\n"))
-    report = tmp_path / "report"
-    result = subprocess.run(
-        [*SWARM, "fly", str(path), "--lockstep", "--quantum", "8", "--first-instance", str(first_instance),
-         "--report", str(report), "--no-forward", *extra],
-        capture_output=True, text=True, timeout=timeout_s,
-    )  # fmt: skip
-    if expect_ok:
-        assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
-    metrics: dict[str, Any] = json.loads((report / "metrics.json").read_text())
+    args = ["--lockstep", "--quantum", "8", "--first-instance", str(first_instance), *extra]
+    metrics, _ = fly_mission(mission, args, tmp_path, timeout_s, avoidance=avoidance, expect_ok=expect_ok)
     return metrics
 
 

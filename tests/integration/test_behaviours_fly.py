@@ -10,37 +10,21 @@ Policy: loopback only (--no-forward); instances 200-239; a time limit on every t
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-pytestmark = [pytest.mark.sim_only]
+from tests.integration.mission_flight import fly_mission
 
-MISSIONS = Path(__file__).resolve().parents[2] / "missions"
-SWARM = [sys.executable, "-m", "gcs.cli"]
+pytestmark = [pytest.mark.sim_only]
 
 
 def fly(mission: str, timing: list[str], first_instance: int, tmp_path: Path, timeout_s: float, *,
         avoidance: bool) -> dict[str, Any]:  # fmt: skip
     """Fly a shipped mission (optionally without onboard avoidance); the report's metrics."""
-    path = MISSIONS / mission
-    if not avoidance:
-        text = path.read_text()
-        assert text.count("[swarm]\n") == 1
-        path = tmp_path / mission
-        path.write_text(text.replace("[swarm]\n", "[swarm]\nparams = { AVOID_ENABLE = 0 }\n"))
-    report = tmp_path / "report"
-    result = subprocess.run(
-        [*SWARM, "fly", str(path), *timing, "--first-instance", str(first_instance),
-         "--report", str(report), "--no-forward"],
-        capture_output=True, text=True, timeout=timeout_s,
-    )  # fmt: skip
-    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
-    metrics: dict[str, Any] = json.loads((report / "metrics.json").read_text())
+    args = [*timing, "--first-instance", str(first_instance)]
+    metrics, result = fly_mission(mission, args, tmp_path, timeout_s, avoidance=avoidance)
     if not avoidance:
         assert "parameters set on every drone: AVOID_ENABLE = 0" in result.stdout
         assert metrics["avoidance_events"] == 0
