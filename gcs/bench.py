@@ -48,7 +48,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.formation import SETPOINT_STREAM_HZ, CircleSpec, FormationError, TransitionLimits
 from gcs.frames import SwarmFrame
-from gcs.probe import PROBE_SYSIDS
+from gcs.probe import PROBE_SYSIDS, percentile
 from gcs.streamer import DEFAULT_LIMITS, FormationStreamer
 from gcs.supervisor import SpawnError, SpawnPlan
 from gcs.swarm import Swarm, SwarmError
@@ -129,14 +129,6 @@ def check_instances(first_instance: int, largest_n: int) -> None:
             f"--first-instance {first_instance} with {largest_n} drones gives sysid {clash[0]}, which the relay "
             f"probe uses (sysids {PROBE_SYSIDS[0]}, {PROBE_SYSIDS[1]})"
         )
-
-
-def percentile(values: Sequence[float], q: float) -> float:
-    """Nearest-rank percentile: the smallest value with at least ``q`` of the samples at or below it (NaN if none)."""
-    if not values:
-        return math.nan
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, max(0, math.ceil(q * len(ordered)) - 1))]
 
 
 def spread(values: Iterable[float]) -> float:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import selectors
 import socket
 import sys
@@ -43,18 +44,23 @@ class LatencyStats:
         return self.sent - self.received
 
 
+def percentile(values: Sequence[float], q: float) -> float:
+    """Nearest-rank percentile: the smallest value with at least ``q`` of the samples at or below it (NaN if none)."""
+    if not values:
+        return math.nan
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, max(0, math.ceil(q * len(ordered)) - 1))]
+
+
 def latency_stats(latencies_s: Sequence[float], sent: int) -> LatencyStats:
-    """Median, 95th percentile and maximum of the measured hops (nearest-rank percentiles)."""
-    if not latencies_s:
-        nan = float("nan")
-        return LatencyStats(sent=sent, received=0, median_ms=nan, p95_ms=nan, max_ms=nan)
-    ordered = sorted(latencies_s)
-
-    def rank(q: float) -> float:
-        return ordered[min(len(ordered) - 1, max(0, round(q * len(ordered)) - 1))] * 1e3
-
+    """Median, 95th percentile and maximum of the measured hops."""
+    ms = [v * 1e3 for v in latencies_s]
     return LatencyStats(
-        sent=sent, received=len(ordered), median_ms=rank(0.5), p95_ms=rank(0.95), max_ms=ordered[-1] * 1e3
+        sent=sent,
+        received=len(ms),
+        median_ms=percentile(ms, 0.5),
+        p95_ms=percentile(ms, 0.95),
+        max_ms=max(ms, default=math.nan),
     )
 
 

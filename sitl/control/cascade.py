@@ -228,14 +228,8 @@ class Cascade:
             vel_sp, acc_sp, thrust, att_sp_q, collective, yawspeed_ff = outer
             self._outer_elapsed_s = elapsed_s
 
-        # The inner loops at every call (as _inner, written out).
-        rates_m = state.rates_frd_radps
-        wx, wy, wz = rates_m.tolist() if isinstance(rates_m, np.ndarray) else rates_m
-        rates_sp = self.attitude.update(att_q, att_sp_q, yawspeed_ff)
-        torque = self.rate.torque_setpoint((wx, wy, wz), rates_sp, dt_s, self._sat_pos, self._sat_neg, landed)
-        alloc = self.allocator.allocate(torque, collective)
-        self._sat_pos = alloc.saturated_pos
-        self._sat_neg = alloc.saturated_neg
+        # The inner loops at every call.
+        rates_sp, torque, alloc = self._inner(state, att_q, att_sp_q, yawspeed_ff, None, collective, dt_s, landed)
         return _new_output(
             motor_cmds=alloc.motor_cmds,
             vel_sp_ned_mps=vel_sp,
