@@ -684,7 +684,7 @@ class ScenarioFlight:
                         sysid, 1, command, 0, float(mavlink.MAVLINK_MSG_ID_HOME_POSITION), 0, 0, 0, 0, 0, 0
                     )
                     start = time.monotonic()
-                    swarm.send(sysid, message)
+                    swarm.send_now(sysid, message)
                     sent += 1
                     while sysid not in acked and time.monotonic() - start < RTT_TIMEOUT_S:
                         if (now := swarm.clock()) >= next_tick:

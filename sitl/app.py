@@ -111,6 +111,7 @@ def run(
             finished=(lambda: flight.done) if flight is not None else None,
             clock=clock,
             stats=stats,
+            booting=lambda: not sim.vehicle.status.armed and sim.vehicle.preflight_problem() is not None,
         )
     finally:
         if endpoint is not None:

@@ -41,6 +41,11 @@ class Pacer:
             lag_s = self._max_catchup_s
         return max(0, min(max_batch, int(lag_s / self.dt_s + 1e-9)))
 
+    def rebase(self, now_wall_s: float, sim_time_s: float) -> None:
+        """Pace from here on: ``sim_time_s`` is due now (after a stretch run unpaced on purpose)."""
+        self._anchor_wall_s = now_wall_s
+        self._anchor_sim_s = sim_time_s
+
     def wall_time_of(self, sim_time_s: float) -> float:
         """When (wall clock) simulation time ``sim_time_s`` is due."""
         if self.unpaced:

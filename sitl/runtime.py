@@ -72,16 +72,30 @@ class StepClock(Protocol):
 
 
 PACED_WAKE_STEPS = 4  # 10 ms of simulated time at 400 Hz
+BOOT_FAST_FORWARD_MAX_S = 10.0  # simulated seconds a boot may be fast-forwarded at most
 
 
 class WallClockSteps:
-    """Paced by the wall clock at a speed factor (0 = as fast as possible)."""
+    """Paced by the wall clock at a speed factor (0 = as fast as possible).
 
-    def __init__(self, speed_factor: float, dt_s: float) -> None:
+    ``booting``, when given, is asked before each batch: while it holds (and for at most BOOT_FAST_FORWARD_MAX_S of
+    simulated time) the drone runs unpaced, then pacing starts from where it got to. A drone on the ground waiting
+    for its GPS fix and estimator has nothing to show in real time, and those 4 simulated seconds were most of the
+    wait before a swarm could arm; fast-forwarded they take some 40 ms of CPU. The sensors and the estimator run
+    exactly as they would paced; only the wall clock does not wait for them.
+    """
+
+    def __init__(self, speed_factor: float, dt_s: float, booting: Callable[[], bool] | None = None) -> None:
         self.pacer = Pacer(speed_factor, dt_s, time.monotonic())
         self.dt_s = dt_s
+        self._booting = booting if booting is not None and not self.pacer.unpaced else None
 
     def steps_due(self, sim_time_s: float, completed_steps: int, max_batch: int) -> int:
+        if self._booting is not None:
+            if sim_time_s < BOOT_FAST_FORWARD_MAX_S and self._booting():
+                return max_batch
+            self._booting = None
+            self.pacer.rebase(time.monotonic(), sim_time_s)
         return self.pacer.steps_due(time.monotonic(), sim_time_s, max_batch)
 
     def completed(self, steps: int) -> None:
@@ -91,7 +105,7 @@ class WallClockSteps:
         return []
 
     def wait(self, selector: selectors.BaseSelector, sim_time_s: float) -> None:
-        if self.pacer.unpaced:
+        if self.pacer.unpaced or self._booting is not None:
             return
         # Sleep until a few steps are due, not one: each wake-up costs a select, two socket reads and a telemetry
         # poll, which at 400 wake-ups a second was the largest part of a paced drone's time (docs/benchmarks.md).
@@ -157,10 +171,11 @@ def run_loop(
     finished: Callable[[], bool] | None = None,
     clock: StepClock | None = None,
     stats: LoopStats | None = None,
+    booting: Callable[[], bool] | None = None,
 ) -> None:
     """Step the simulation (paced to the wall clock unless another clock is given) until stopped, finished, or
-    the duration is reached."""
-    steps_clock = clock if clock is not None else WallClockSteps(options.speed_factor, sim.dt_s)
+    the duration is reached; paced, a boot is fast-forwarded while ``booting()`` holds (see WallClockSteps)."""
+    steps_clock = clock if clock is not None else WallClockSteps(options.speed_factor, sim.dt_s, booting)
     completed = 0
     selector = selectors.DefaultSelector()
     for sock in [*(endpoint.sockets() if endpoint is not None else []), *steps_clock.sockets()]:

@@ -1,4 +1,5 @@
-"""Wall-clock pacing: how many physics steps are due, catch-up after a stall, and when the next step is due."""
+"""Wall-clock pacing: how many physics steps are due, catch-up after a stall, when the next step is due, and the
+fast-forwarded boot."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import math
 import pytest
 
 from sitl.pacing import Pacer
+from sitl.runtime import BOOT_FAST_FORWARD_MAX_S, WallClockSteps
 
 pytestmark = pytest.mark.timeout(10)
 
@@ -88,3 +90,31 @@ def test_wall_time_of_tells_when_a_simulation_time_is_due() -> None:
 def test_a_negative_or_non_finite_speed_factor_is_refused(speed: float) -> None:
     with pytest.raises(ValueError, match="speed factor"):
         Pacer(speed, DT_S, start_wall_s=0.0)
+
+
+def test_rebase_paces_on_from_a_simulation_time_reached_unpaced() -> None:
+    # GIVEN a pacer started at wall 0 whose drone ran 4 s of simulation unpaced by wall time 0.05 s
+    pacer = Pacer(1.0, DT_S, start_wall_s=0.0)
+    pacer.rebase(0.05, 4.0)
+    # THEN 4 s is due at wall 0.05 s, and the next 10 ms of simulation 10 ms later, with no time counted as dropped
+    assert pacer.steps_due(0.05, 4.0) == 0
+    assert pacer.steps_due(0.06, 4.0) == 4
+    assert pacer.wall_time_of(4.5) == pytest.approx(0.55)
+    assert pacer.dropped_s == 0.0
+
+
+def test_a_booting_drone_runs_unpaced_then_paces_from_where_boot_ended() -> None:
+    # GIVEN a real-time clock whose drone is booting until simulated time 3 s
+    sim_s = 0.0
+    clock = WallClockSteps(1.0, DT_S, booting=lambda: sim_s < 3.0)
+    # WHEN it is asked for steps while booting, THEN a full batch is due every time, with no wall time passing
+    while sim_s < 3.0:
+        assert clock.steps_due(sim_s, 0, 8) == 8
+        sim_s += 8 * DT_S
+    # and once booted it paces from there: nothing is due before the wall clock moves on
+    assert clock.steps_due(sim_s, 0, 8) == 0
+    assert clock.pacer.wall_time_of(sim_s + 1.0) == pytest.approx(clock.pacer.wall_time_of(sim_s) + 1.0)
+    # A boot that never ends is cut off after BOOT_FAST_FORWARD_MAX_S
+    never = WallClockSteps(1.0, DT_S, booting=lambda: True)
+    assert never.steps_due(BOOT_FAST_FORWARD_MAX_S - DT_S, 0, 8) == 8
+    assert never.steps_due(BOOT_FAST_FORWARD_MAX_S, 0, 8) == 0
