@@ -15,14 +15,13 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import math
-import os
 import signal
 import subprocess
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from gcs.drone_factory import DroneFactory, FactoryError, ForkedProcess
 from sitl.dynamics.geodesy import geo_from_ned
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
 
@@ -39,11 +38,9 @@ class SpawnError(RuntimeError):
     """A drone did not come up; the message names it and says why, in one line."""
 
 
-def _child_setup() -> None:  # runs in the child between fork and exec
+def _die_with_parent() -> None:  # runs in the drone factory between fork and exec
     with contextlib.suppress(OSError):
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
-    with contextlib.suppress(OSError):
-        os.nice(DRONE_NICE)
 
 
 def grid_layout(n: int, spacing_m: float) -> list[tuple[float, float]]:
@@ -90,7 +87,7 @@ class DroneProcess:
     instance: int
     sysid: int
     home: GeoPoint
-    process: subprocess.Popen[bytes]
+    process: ForkedProcess
     log_path: Path | None
 
     def last_log_line(self) -> str:
@@ -100,9 +97,9 @@ class DroneProcess:
         return lines[-1] if lines else ""
 
 
-def sitl_command(plan: SpawnPlan, instance: int, home: GeoPoint, gcs_port: int, world: str | None) -> list[str]:
+def sitl_args(plan: SpawnPlan, instance: int, home: GeoPoint, gcs_port: int, world: str | None) -> list[str]:
+    """The ``sitl`` command-line arguments of one drone of the plan."""
     cmd = [
-        sys.executable, "-m", "sitl.cli",
         "--instance", str(instance),
         "--speed", "0" if plan.lockstep else f"{plan.speed_factor:g}",
         "--seed", str(plan.seed + instance),
@@ -121,30 +118,28 @@ def sitl_command(plan: SpawnPlan, instance: int, home: GeoPoint, gcs_port: int, 
 
 
 class ProcessGroup:
-    """The drone processes of one swarm."""
+    """The drone processes of one swarm, forked by one drone factory (gcs/drone_factory.py)."""
 
     def __init__(self) -> None:
         self.drones: list[DroneProcess] = []
+        self.factory: DroneFactory | None = None
 
     def spawn(self, plan: SpawnPlan, gcs_port: int, world: str | None = None) -> None:
         if plan.log_dir is not None:
             plan.log_dir.mkdir(parents=True, exist_ok=True)
+        if self.factory is None:
+            log = plan.log_dir / "drone-factory.log" if plan.log_dir is not None else None
+            try:
+                self.factory = DroneFactory(log, preexec_fn=_die_with_parent)
+            except FactoryError as exc:
+                raise SpawnError(str(exc)) from None
         for k, home in enumerate(plan.homes()):
             instance = plan.first_instance + k
             log_path = plan.log_dir / f"drone-{instance}.log" if plan.log_dir is not None else None
-            out = log_path.open("wb") if log_path is not None else subprocess.DEVNULL
             try:
-                process = subprocess.Popen(
-                    sitl_command(plan, instance, home, gcs_port, world),
-                    stdin=subprocess.DEVNULL,
-                    stdout=out,
-                    stderr=subprocess.STDOUT,
-                    start_new_session=True,
-                    preexec_fn=_child_setup,  # PR_SET_PDEATHSIG, nice
-                )
-            finally:
-                if log_path is not None:
-                    out.close()  # type: ignore[union-attr]
+                process = self.factory.spawn(sitl_args(plan, instance, home, gcs_port, world), log_path, DRONE_NICE)
+            except FactoryError as exc:
+                raise SpawnError(f"drone {instance}: {exc}") from None
             self.drones.append(
                 DroneProcess(instance=instance, sysid=instance + 1, home=home, process=process, log_path=log_path)
             )
@@ -165,3 +160,6 @@ class ProcessGroup:
             except subprocess.TimeoutExpired:
                 d.process.kill()
                 d.process.wait()
+        if self.factory is not None:
+            self.factory.close()
+            self.factory = None

@@ -77,10 +77,13 @@ class GcsSocket:
         return data
 
     def send(self, sysid: int, msg: Any) -> bool:
-        """Send to one drone; False when that drone has not been heard yet."""
+        """Send to one drone at once (after anything queued: a command must not overtake the setpoints streamed
+        before it, or OFFBOARD is refused for want of a setpoint); False when that drone has not been heard yet."""
         address = self.addresses.get(sysid)
         if address is None:
             return False
+        if self._outbox:
+            self.flush()
         return self.send_raw(self.pack(msg), address)
 
     def send_raw(self, data: bytes, address: Address) -> bool:

@@ -80,10 +80,12 @@ class RunningSwarm:
                 break
         else:
             raise AssertionError("swarm up ended before the drones were up: " + "".join(self.output))
-        # Every child must go at the end (multiprocessing's shared-memory tracker among them); the drones are
-        # the children running sitl.
-        self.children = children_of(self.proc.pid)
-        self.drones = [p for p in self.children if b"sitl.cli" in Path(f"/proc/{p}/cmdline").read_bytes()]
+        # Every descendant must go at the end (multiprocessing's shared-memory tracker among them); the drones are
+        # the children of the drone factory (sitl.zygote), which forks them.
+        direct = children_of(self.proc.pid)
+        factories = [p for p in direct if b"sitl.zygote" in Path(f"/proc/{p}/cmdline").read_bytes()]
+        self.drones = [d for f in factories for d in children_of(f)]
+        self.children = [*direct, *self.drones]
 
     def cli(self, *args: str) -> subprocess.CompletedProcess[str]:
         return subprocess.run([*SWARM, *args], capture_output=True, text=True, env=self.env, timeout=60)

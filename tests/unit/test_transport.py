@@ -74,3 +74,12 @@ def test_an_unknown_drone_is_not_queued(pair: tuple[GcsSocket, socket.socket]) -
     gcs, _drone = pair
     assert not gcs.queue(99, _setpoint(0))
     assert not gcs.queued
+
+
+def test_a_message_sent_at_once_leaves_after_what_was_queued_before_it(pair: tuple[GcsSocket, socket.socket]) -> None:
+    gcs, drone = pair
+    gcs.queue(7, _setpoint(1))
+    gcs.send(7, _setpoint(2))
+    assert not gcs.queued
+    frames = [m for d in _datagrams(drone) for m in _parse(d)]
+    assert [m.time_boot_ms for m in frames] == [1, 2]

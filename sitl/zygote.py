@@ -1,0 +1,185 @@
+"""A drone factory: one process that has imported the drone code once and forks a ready interpreter per drone.
+
+Starting a drone with ``python -m sitl.cli`` costs some 0.5 s of CPU before it simulates anything: the interpreter,
+numpy, JSBSim, pymavlink's message tables and OpenCV. Nine drones on two cores spent over two seconds of wall time on
+that alone, fifty more than twelve. A fork of a process that already holds all of it costs a few milliseconds, and
+the children share those pages copy-on-write instead of each holding its own copy.
+
+The supervisor (gcs/supervisor.py) starts ``python -m sitl.zygote`` and talks to it over its stdin and stdout, one
+JSON object per line:
+
+- request ``{"argv": [...], "log": PATH or null, "nice": N}``: fork a drone running ``sitl.cli.main(argv)`` with
+  stdout and stderr in ``log`` (or /dev/null), in a session of its own, at niceness ``nice``;
+  answer ``{"pid": PID}``, or ``{"error": TEXT}`` when the fork failed;
+- event ``{"exit": PID, "code": C}`` when a drone ends (``-SIGNUM`` when a signal ended it), as ``Popen.returncode``.
+
+The children are the factory's, so it reaps them and reports their exit codes. Each child asks for SIGTERM when the
+factory dies (``PR_SET_PDEATHSIG``), as the factory does for the supervisor; when its stdin closes, the factory stops
+its children (SIGTERM, then SIGKILL after a grace period) and exits. It must not start threads before forking, so the
+numerical libraries are told to use one thread before they are imported.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import json
+import os
+import selectors
+import signal
+import sys
+import time
+import traceback
+from typing import Any
+
+PR_SET_PDEATHSIG = 1
+PR_SET_NAME = 15
+REAP_INTERVAL_S = 0.05
+STOP_GRACE_S = 5.0
+
+
+def _preload() -> None:
+    """Import everything a drone imports, so that forked drones start with it in memory."""
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+    # The drone's whole import graph (simulation, autopilot, MAVLink, world), and OpenCV, which a drone imports
+    # when its camera first runs.
+    import sitl.app
+    import sitl.cli
+    import sitl.perception.detector  # noqa: F401
+
+
+def _child(argv: list[str], log: str | None, nice: int) -> None:
+    """Runs in the forked child; never returns."""
+    code = 1
+    try:
+        os.setsid()
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+        # The command line stays the factory's; the name top and ps -o comm show says which drone this is.
+        instance = argv[argv.index("--instance") + 1] if "--instance" in argv[:-1] else "?"
+        libc.prctl(PR_SET_NAME, f"sitl-{instance}".encode()[:15])
+        if os.getppid() == 1:  # the factory died between the fork and the line above
+            os._exit(1)
+        with contextlib.suppress(OSError):
+            os.nice(nice)
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGCHLD):
+            signal.signal(sig, signal.SIG_DFL)
+        stdin = os.open(os.devnull, os.O_RDONLY)
+        out = os.open(log, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644) if log else os.open(os.devnull, os.O_WRONLY)
+        os.dup2(stdin, 0)
+        os.dup2(out, 1)
+        os.dup2(out, 2)
+        os.close(stdin)
+        os.close(out)
+        from sitl.cli import main
+
+        code = main(argv)
+    except SystemExit as exc:
+        code = exc.code if isinstance(exc.code, int) else 1
+    except BaseException:
+        traceback.print_exc()
+    finally:
+        with contextlib.suppress(Exception):
+            sys.stdout.flush()
+            sys.stderr.flush()
+        os._exit(code)
+
+
+class Factory:
+    def __init__(self) -> None:
+        self.children: set[int] = set()
+
+    def _reply(self, obj: dict[str, Any]) -> None:
+        sys.stdout.write(json.dumps(obj) + "\n")
+        sys.stdout.flush()
+
+    def handle(self, line: bytes) -> None:
+        try:
+            request = json.loads(line)
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            self._reply({"error": "bad request: not JSON"})
+            return
+        if isinstance(request, dict):
+            self.fork(request)
+        else:
+            self._reply({"error": "bad request: not an object"})
+
+    def fork(self, request: dict[str, Any]) -> None:
+        argv = request.get("argv")
+        log = request.get("log")
+        nice = request.get("nice", 0)
+        if (
+            not isinstance(argv, list)
+            or not all(isinstance(a, str) for a in argv)
+            or not (log is None or isinstance(log, str))
+            or not isinstance(nice, int)
+        ):
+            self._reply({"error": f"bad request: {request!r}"})
+            return
+        sys.stdout.flush()
+        sys.stderr.flush()
+        try:
+            pid = os.fork()
+        except OSError as exc:
+            self._reply({"error": f"fork failed: {exc.strerror}"})
+            return
+        if pid == 0:
+            _child(argv, log, nice)
+        self.children.add(pid)
+        self._reply({"pid": pid})
+
+    def reap(self) -> None:
+        for pid in list(self.children):
+            try:
+                done, status = os.waitpid(pid, os.WNOHANG)
+            except ChildProcessError:
+                self.children.discard(pid)
+                continue
+            if done:
+                self.children.discard(pid)
+                self._reply({"exit": pid, "code": os.waitstatus_to_exitcode(status)})
+
+    def stop_all(self) -> None:
+        for pid in self.children:
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGTERM)
+        deadline = time.monotonic() + STOP_GRACE_S
+        while self.children and time.monotonic() < deadline:
+            time.sleep(0.02)
+            self.reap()
+        for pid in self.children:
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
+        while self.children:
+            time.sleep(0.01)
+            self.reap()
+
+
+def main() -> int:
+    _preload()
+    factory = Factory()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the supervisor's to handle
+    selector = selectors.DefaultSelector()
+    stdin = sys.stdin.fileno()
+    selector.register(stdin, selectors.EVENT_READ)
+    factory._reply({"ready": os.getpid()})
+    pending = b""
+    try:
+        while True:
+            if selector.select(REAP_INTERVAL_S):
+                data = os.read(stdin, 65536)
+                if not data:
+                    break  # the supervisor closed the pipe (or died): stop
+                pending += data
+                *lines, pending = pending.split(b"\n")
+                for line in lines:
+                    factory.handle(line)
+            factory.reap()
+    finally:
+        factory.stop_all()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
