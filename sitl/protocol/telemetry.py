@@ -7,7 +7,8 @@ reads armed and flight mode only from heartbeats), MISSION_CURRENT when the miss
 MISSION_ITEM_REACHED, HOME_POSITION when home moves, EXTENDED_SYS_STATE when the landed state changes.
 
 Rates are in simulation time, like everything else here; call ``poll`` at least twice as often as the fastest stream
-(every physics step is fine, the check is cheap).
+(every physics step is fine: between the due time of the next stream and the next check for events, a poll returns
+at once without building a snapshot of the vehicle, which is most of what telemetry costs).
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ DEFAULT_RATES_HZ: Final[Mapping[int, float]] = {
 }
 MAX_RATE_HZ: Final = 250.0  # SET_MESSAGE_INTERVAL faster than this is clamped
 MIN_EXTRA_HEARTBEAT_INTERVAL_S: Final = 0.05  # extra heartbeats on state changes at most this often (flapping)
+EVENT_CHECK_INTERVAL_S: Final = 0.01  # state changes the vehicle makes itself (landed, mode) go out within this
 
 
 @dataclass(slots=True)
@@ -78,6 +80,7 @@ class TelemetryScheduler:
         self._last_home_key: tuple[float, float, float] | None = None
         self._last_landed: int | None = None
         self._primed = False
+        self._next_poll_s = -math.inf  # nothing to do before this: no stream due, no event check
 
     # ---- the service interface -----------------------------------------------------------------------------
     def handle(self, msg: MAVLinkMessage, now_s: float) -> list[Effect]:
@@ -87,17 +90,23 @@ class TelemetryScheduler:
 
     def poll(self, now_s: float) -> list[Effect]:
         now_s = check_now(now_s)
+        if now_s < self._next_poll_s:
+            return []
         snap = self._vehicle.snapshot()
         out = self._events(snap, now_s)
+        next_poll_s = now_s + EVENT_CHECK_INTERVAL_S
         for msg_id, stream in self._streams.items():
-            if stream.next_due_s is not None and now_s < stream.next_due_s:
-                continue
-            msg = BUILDERS[msg_id](snap, self._identity)
-            if msg_id == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
-                self._note_heartbeat(snap, now_s)
-            if msg is not None:
-                out.append(Send(msg))
-            stream.next_due_s = self._next_due(stream, now_s)
+            due_s = stream.next_due_s
+            if due_s is None or now_s >= due_s:
+                msg = BUILDERS[msg_id](snap, self._identity)
+                if msg_id == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+                    self._note_heartbeat(snap, now_s)
+                if msg is not None:
+                    out.append(Send(msg))
+                due_s = stream.next_due_s = self._next_due(stream, now_s)
+            if due_s < next_poll_s:
+                next_poll_s = due_s
+        self._next_poll_s = next_poll_s
         return out
 
     def state_change_effects(self, now_s: float) -> list[Effect]:
@@ -125,6 +134,7 @@ class TelemetryScheduler:
         else:
             interval_s = max(interval_us * 1e-6, 1.0 / MAX_RATE_HZ)
         self._streams[msg_id] = _Stream(interval_s, None)
+        self._next_poll_s = -math.inf
         return CommandResult.ACCEPTED
 
     def message_interval_us(self, msg_id: int) -> int:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import Counter
 
@@ -275,3 +276,33 @@ def test_huge_text_is_truncated_and_non_ascii_replaced() -> None:
     assert text.startswith("?y") and text.endswith("...") and len(text) == 200
     assert encoder.encode(6, "   ") == []
     assert DOWN(encoder.encode(99, "bad severity")[0]).severity == mavlink.MAV_SEVERITY_INFO
+
+
+class CountingVehicle(FakeVehicle):
+    def __init__(self) -> None:
+        super().__init__()
+        self.snapshots = 0
+
+    def snapshot(self) -> VehicleSnapshot:
+        self.snapshots += 1
+        return super().snapshot()
+
+
+def test_polls_between_due_streams_and_event_checks_cost_no_snapshot() -> None:
+    # GIVEN a scheduler streaming only HEARTBEAT at 1 Hz, polled every physics step (400 Hz) for 2 s
+    vehicle = CountingVehicle()
+    scheduler = TelemetryScheduler(IDENT, vehicle, rates_hz={mavlink.MAVLINK_MSG_ID_HEARTBEAT: 1.0})
+    sent = run(scheduler, 2.0, step_s=0.0025)
+    # THEN the heartbeats still go out on time, and the vehicle is looked at only for event checks (every 10 ms),
+    # not at each of the 800 polls
+    assert [m.get_type() for m in sent] == ["HEARTBEAT", "HEARTBEAT"]
+    assert vehicle.snapshots <= 2.0 / 0.01 + 2
+
+
+def test_a_state_change_the_vehicle_makes_itself_goes_out_within_the_event_check_interval() -> None:
+    vehicle = FakeVehicle()
+    scheduler = TelemetryScheduler(IDENT, vehicle, rates_hz={mavlink.MAVLINK_MSG_ID_HEARTBEAT: 1.0})
+    run(scheduler, 0.5, step_s=0.0025)
+    vehicle.snap = dataclasses.replace(vehicle.snap, armed=True)
+    sent = run(scheduler, 0.0125, step_s=0.0025, start_s=0.5)  # 10 ms and one step
+    assert [m.get_type() for m in sent] == ["HEARTBEAT"]
