@@ -159,13 +159,22 @@ class CollisionPrevention:
         )
 
     def _run(self, setpoint: TrajectorySetpoint, pos: Vec3f, own_vel: Vec3f, now_s: float) -> None:
-        desired = _preferred(self._position.update(pos, setpoint.pos_ned_m, setpoint.vel_ned_mps), setpoint)
-        result = avoid(own_vel, desired, self._obstacles(pos, own_vel, now_s), self.config())
+        demand = self._position.update(pos, setpoint.pos_ned_m, setpoint.vel_ned_mps)
+        obstacles = self._obstacles(pos, own_vel, now_s)
+        config = self.config()
+        # Whether to correct is decided on what the drone would really fly (the position loop's demand, which may be
+        # a sprint to catch up with its setpoint), not on the capped pace: a pace that is clear says nothing about a
+        # sprint, and two drones sprinting to catch up after a detour met at 6 m/s closing speed that way.
+        result = avoid(own_vel, demand, obstacles, config)
         if not result.active:
             self._vel_xy = None
             self._end_episode(now_s)
             return
-        self._vel_xy = (result.vel_ned_mps[0], result.vel_ned_mps[1])
+        vel = result.vel_ned_mps
+        preferred = _preferred(demand, setpoint)
+        if preferred != demand:  # correct around the mission's pace (which may need no change), not the sprint
+            vel = avoid(own_vel, preferred, obstacles, config).vel_ned_mps
+        self._vel_xy = (vel[0], vel[1])
         if self._last_active_s is None:
             self.episodes += 1
             self._episode_closest_m = math.inf

@@ -71,7 +71,7 @@ class StepClock(Protocol):
     def close(self) -> None: ...
 
 
-PACED_WAKE_STEPS = 4  # 10 ms of simulated time at 400 Hz
+PACED_WAKE_STEPS = 8  # 20 ms of simulated time at 400 Hz
 BOOT_FAST_FORWARD_MAX_S = 10.0  # simulated seconds a boot may be fast-forwarded at most
 
 
@@ -107,9 +107,11 @@ class WallClockSteps:
     def wait(self, selector: selectors.BaseSelector, sim_time_s: float) -> None:
         if self.pacer.unpaced or self._booting is not None:
             return
-        # Sleep until a few steps are due, not one: each wake-up costs a select, two socket reads and a telemetry
-        # poll, which at 400 wake-ups a second was the largest part of a paced drone's time (docs/benchmarks.md).
-        # Arriving MAVLink still wakes the loop at once, so commands are not delayed.
+        # Sleep until a few steps are due, not one: a wake-up costs far more than its select, socket reads and
+        # telemetry poll (the process comes back to cold caches), and at 400 wake-ups a second that was the largest
+        # part of a paced drone's time. Every 4 steps cost a 9-drone swarm 85-96 ms of CPU per drone per simulated
+        # second, every 8 steps 72-92 (docs/benchmarks.md). Arriving MAVLink still wakes the loop at once, so
+        # commands are not delayed.
         wait_s = self.pacer.wall_time_of(sim_time_s + PACED_WAKE_STEPS * self.dt_s) - time.monotonic()
         if wait_s > 0:
             if selector.get_map():

@@ -1,0 +1,31 @@
+"""Where avoidance acts (the decision to correct on what the drone would really fly is exercised by the pole swap in
+tests/integration/test_avoidance_fly.py)."""
+
+from __future__ import annotations
+
+import pytest
+
+from sitl.collision_prevention import CollisionPrevention, RelayedNeighbour
+from sitl.control.cascade import TrajectorySetpoint
+from sitl.control.params import position_config
+from sitl.control.position import PositionController
+from sitl.mathutil import vec3
+from sitl.simulation import build_param_store
+
+pytestmark = pytest.mark.timeout(10)
+
+
+def prevention() -> tuple[CollisionPrevention, list[str]]:
+    params = build_param_store()
+    events: list[str] = []
+    return CollisionPrevention(
+        params, PositionController(position_config(params)), 0.35, lambda _s, t: events.append(t)
+    ), events
+
+
+def test_a_drone_alone_flies_its_setpoint_untouched() -> None:
+    cp, events = prevention()
+    setpoint = TrajectorySetpoint(pos_ned_m=(6.0, 0.0, -3.0), vel_ned_mps=(1.0, 0.0, 0.0), acc_ned_mps2=(0.0, 0.0, 0.0))
+    cp.set_relay([RelayedNeighbour(sysid=9, pos_ned_m=(-30.0, 0.0, -3.0), vel_ned_mps=(0.0, 0.0, 0.0), received_s=0.0)])
+    assert cp.apply(setpoint, vec3(0.0, 0.0, -3.0), vec3(3.0, 0.0, 0.0), 0.0) is setpoint
+    assert events == []
