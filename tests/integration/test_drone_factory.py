@@ -1,0 +1,50 @@
+"""The drone factory: forked drones report their exit codes, take signals, and none outlives the factory."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from pathlib import Path
+
+import pytest
+
+from gcs.drone_factory import DroneFactory
+
+pytestmark = pytest.mark.timeout(60)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
+    except OSError:
+        return False
+
+
+def test_forked_drones_report_exit_codes_take_signals_and_stop_with_the_factory(tmp_path: Path) -> None:
+    factory = DroneFactory(tmp_path / "factory.log")
+    try:
+        # A bad argument: the drone's own one-line error and exit code 2, as from the command line
+        bad = factory.spawn(["--instance", "999"], tmp_path / "bad.log", 0)
+        assert bad.wait(20) == 2
+        assert "--instance must be in 0..254" in (tmp_path / "bad.log").read_text()
+        # A short unpaced flight ends by itself with 0
+        short = factory.spawn(["--instance", "61", "--no-mavlink", "--speed", "0", "--duration", "1"], None, 0)
+        assert short.wait(20) == 0
+        # A drone running until told: SIGTERM stops it cleanly (sitl exits 0 and says why)
+        running = factory.spawn(["--instance", "62", "--no-mavlink"], tmp_path / "running.log", 5)
+        time.sleep(1.0)
+        assert running.poll() is None and _alive(running.pid)
+        assert os.getpriority(os.PRIO_PROCESS, running.pid) == 5
+        running.send_signal(signal.SIGTERM)
+        assert running.wait(20) == 0
+        assert "stopped by SIGTERM" in (tmp_path / "running.log").read_text()
+        running.send_signal(signal.SIGTERM)  # reaped: a no-op, never a signal to a recycled PID
+        # One left running when the factory closes is stopped by it
+        left = factory.spawn(["--instance", "63", "--no-mavlink"], None, 0)
+        time.sleep(0.5)
+    finally:
+        factory.close()
+    assert left.returncode is not None
+    assert not _alive(left.pid)
+    assert not _alive(factory.pid)
