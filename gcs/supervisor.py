@@ -12,8 +12,6 @@ Processes are only ever signalled by the PIDs this supervisor started.
 
 from __future__ import annotations
 
-import contextlib
-import ctypes
 import math
 import signal
 import subprocess
@@ -24,8 +22,8 @@ from pathlib import Path
 from gcs.drone_factory import DroneFactory, FactoryError, ForkedProcess
 from sitl.dynamics.geodesy import geo_from_ned
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
+from sitl.zygote import die_with_parent
 
-PR_SET_PDEATHSIG = 1
 TERMINATE_WAIT_S = 5.0
 # Drones run at a lower scheduling priority than the supervisor. When the drones want more CPU than there is, the
 # supervisor (setpoints, the relay, readiness, commands) still gets its share instead of starving among N busy
@@ -36,11 +34,6 @@ DRONE_NICE = 10
 
 class SpawnError(RuntimeError):
     """A drone did not come up; the message names it and says why, in one line."""
-
-
-def _die_with_parent() -> None:  # runs in the drone factory between fork and exec
-    with contextlib.suppress(OSError):
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
 def grid_layout(n: int, spacing_m: float) -> list[tuple[float, float]]:
@@ -130,7 +123,7 @@ class ProcessGroup:
         if self.factory is None:
             log = plan.log_dir / "drone-factory.log" if plan.log_dir is not None else None
             try:
-                self.factory = DroneFactory(log, preexec_fn=_die_with_parent)
+                self.factory = DroneFactory(log, preexec_fn=die_with_parent)
             except FactoryError as exc:
                 raise SpawnError(str(exc)) from None
         for k, home in enumerate(plan.homes()):

@@ -38,6 +38,13 @@ REAP_INTERVAL_S = 0.05
 STOP_GRACE_S = 5.0
 
 
+def die_with_parent() -> None:
+    """Ask the kernel for SIGTERM when the parent process dies (Linux PR_SET_PDEATHSIG); also used by the
+    supervisor for the factory itself, between fork and exec."""
+    with contextlib.suppress(OSError):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+
+
 def _preload() -> None:
     """Import everything a drone imports, so that forked drones start with it in memory."""
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -54,11 +61,10 @@ def _child(argv: list[str], log: str | None, nice: int) -> None:
     code = 1
     try:
         os.setsid()
-        libc = ctypes.CDLL("libc.so.6", use_errno=True)
-        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+        die_with_parent()
         # The command line stays the factory's; the name top and ps -o comm show says which drone this is.
         instance = argv[argv.index("--instance") + 1] if "--instance" in argv[:-1] else "?"
-        libc.prctl(PR_SET_NAME, f"sitl-{instance}".encode()[:15])
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_NAME, f"sitl-{instance}".encode()[:15])
         if os.getppid() == 1:  # the factory died between the fork and the line above
             os._exit(1)
         with contextlib.suppress(OSError):
@@ -90,7 +96,7 @@ class Factory:
     def __init__(self) -> None:
         self.children: set[int] = set()
 
-    def _reply(self, obj: dict[str, Any]) -> None:
+    def reply(self, obj: dict[str, Any]) -> None:
         sys.stdout.write(json.dumps(obj) + "\n")
         sys.stdout.flush()
 
@@ -98,12 +104,12 @@ class Factory:
         try:
             request = json.loads(line)
         except (json.JSONDecodeError, UnicodeDecodeError):
-            self._reply({"error": "bad request: not JSON"})
+            self.reply({"error": "bad request: not JSON"})
             return
         if isinstance(request, dict):
             self.fork(request)
         else:
-            self._reply({"error": "bad request: not an object"})
+            self.reply({"error": "bad request: not an object"})
 
     def fork(self, request: dict[str, Any]) -> None:
         argv = request.get("argv")
@@ -115,19 +121,19 @@ class Factory:
             or not (log is None or isinstance(log, str))
             or not isinstance(nice, int)
         ):
-            self._reply({"error": f"bad request: {request!r}"})
+            self.reply({"error": f"bad request: {request!r}"})
             return
         sys.stdout.flush()
         sys.stderr.flush()
         try:
             pid = os.fork()
         except OSError as exc:
-            self._reply({"error": f"fork failed: {exc.strerror}"})
+            self.reply({"error": f"fork failed: {exc.strerror}"})
             return
         if pid == 0:
             _child(argv, log, nice)
         self.children.add(pid)
-        self._reply({"pid": pid})
+        self.reply({"pid": pid})
 
     def reap(self) -> None:
         for pid in list(self.children):
@@ -138,7 +144,7 @@ class Factory:
                 continue
             if done:
                 self.children.discard(pid)
-                self._reply({"exit": pid, "code": os.waitstatus_to_exitcode(status)})
+                self.reply({"exit": pid, "code": os.waitstatus_to_exitcode(status)})
 
     def stop_all(self) -> None:
         for pid in self.children:
@@ -163,7 +169,7 @@ def main() -> int:
     selector = selectors.DefaultSelector()
     stdin = sys.stdin.fileno()
     selector.register(stdin, selectors.EVENT_READ)
-    factory._reply({"ready": os.getpid()})
+    factory.reply({"ready": os.getpid()})
     pending = b""
     try:
         while True:

@@ -21,6 +21,16 @@ def _alive(pid: int) -> bool:
         return False
 
 
+def _await_line(path: Path, text: str, timeout_s: float = 20.0) -> None:
+    """Wait until the drone has written ``text`` to its log (it prints its start-up line once it is running)."""
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if path.exists() and text in path.read_text():
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"{text!r} not in {path} within {timeout_s} s")
+
+
 def test_forked_drones_report_exit_codes_take_signals_and_stop_with_the_factory(tmp_path: Path) -> None:
     factory = DroneFactory(tmp_path / "factory.log")
     try:
@@ -33,7 +43,7 @@ def test_forked_drones_report_exit_codes_take_signals_and_stop_with_the_factory(
         assert short.wait(20) == 0
         # A drone running until told: SIGTERM stops it cleanly (sitl exits 0 and says why)
         running = factory.spawn(["--instance", "62", "--no-mavlink"], tmp_path / "running.log", 5)
-        time.sleep(1.0)
+        _await_line(tmp_path / "running.log", "sitl 62: airframe")
         assert running.poll() is None and _alive(running.pid)
         assert os.getpriority(os.PRIO_PROCESS, running.pid) == 5
         running.send_signal(signal.SIGTERM)
@@ -41,8 +51,8 @@ def test_forked_drones_report_exit_codes_take_signals_and_stop_with_the_factory(
         assert "stopped by SIGTERM" in (tmp_path / "running.log").read_text()
         running.send_signal(signal.SIGTERM)  # reaped: a no-op, never a signal to a recycled PID
         # One left running when the factory closes is stopped by it
-        left = factory.spawn(["--instance", "63", "--no-mavlink"], None, 0)
-        time.sleep(0.5)
+        left = factory.spawn(["--instance", "63", "--no-mavlink"], tmp_path / "left.log", 0)
+        _await_line(tmp_path / "left.log", "sitl 63: airframe")
     finally:
         factory.close()
     assert left.returncode is not None
