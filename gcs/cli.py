@@ -249,6 +249,10 @@ class _Stop:
         self.stopped = True
 
 
+def _interrupt(_signum: int, _frame: FrameType | None) -> NoReturn:
+    raise KeyboardInterrupt
+
+
 def _say(text: str) -> None:
     print(text, flush=True)
 
@@ -274,13 +278,16 @@ def run_up(args: argparse.Namespace) -> int:
         camera_dir=Path("camera-frames"),
     )
     stop = _Stop()
-    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-        signal.signal(sig, stop)
+    signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    for sig in signals:  # while the drones start, a signal ends the start-up at once (and stops what started)
+        signal.signal(sig, _interrupt)
     swarm = Swarm(plan, forward=None if args.no_forward else args.forward)
     station = Station(swarm, _say)
     server: ControlServer | None = None
     try:
         swarm.up()
+        for sig in signals:  # from here on the loop notices the flag and lands the swarm in order
+            signal.signal(sig, stop)
         server = ControlServer(station.handle)
         _say(
             f"swarm: {plan.n_drones} drones up (sysid {swarm.sysids[0]}..{swarm.sysids[-1]}); "
@@ -291,7 +298,12 @@ def run_up(args: argparse.Namespace) -> int:
     except (SpawnError, ControlError) as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
         return EXIT_FAILED
+    except KeyboardInterrupt:
+        print("swarm: interrupted while starting the drones", file=sys.stderr)
+        return 130
     finally:
+        for sig in signals:  # a second Ctrl-C must not cut the shutdown short
+            signal.signal(sig, stop)
         if server is not None:
             server.close()
         _say("swarm: landing and stopping every drone")
@@ -306,10 +318,6 @@ def _loop(swarm: Swarm, station: Station, server: ControlServer, stop: _Stop) ->
         station.tick()
         server.poll()
         station.watch(swarm.clock())
-
-
-def _interrupt(_signum: int, _frame: FrameType | None) -> NoReturn:
-    raise KeyboardInterrupt
 
 
 def run_fly(args: argparse.Namespace) -> int:

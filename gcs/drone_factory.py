@@ -101,7 +101,15 @@ class DroneFactory:
         self._early_exits: dict[int, int] = {}
         self._closed = False
         self.log_path = log_path
-        self._await_reply("ready", START_TIMEOUT_S)
+        try:
+            self._await_reply("ready", START_TIMEOUT_S)
+        except BaseException:  # no answer, or interrupted (Ctrl-C, SIGTERM): nobody else knows of this process
+            self._process.kill()
+            self._process.wait()
+            self._selector.close()
+            self._process.stdout.close()
+            self._stdin.close()
+            raise
 
     @property
     def pid(self) -> int:

@@ -25,6 +25,11 @@ GCS_COMPID = mavlink.MAV_COMP_ID_MISSIONPLANNER
 
 Address = tuple[str, int]
 MAX_BATCH_BYTES = 1400  # a batched datagram stays below a typical path MTU (1500 bytes less IP/UDP headers)
+# Datagrams one ``receive`` reads at most. Drones that together send faster than the supervisor parses (fifty
+# drones on two busy cores) would otherwise keep one call reading for ever, and with it the timers, the setpoint
+# streams and the signal handling of the loop that called it; what is left waits for the next call, and what the
+# socket buffer cannot hold is dropped, as any UDP link drops under overload.
+MAX_RECEIVE_DATAGRAMS = 256
 
 
 class GcsSocket:
@@ -43,10 +48,11 @@ class GcsSocket:
     def port(self) -> int:
         return int(self.sock.getsockname()[1])
 
-    def receive(self) -> list[tuple[Any, Address]]:
-        """Every message waiting on the socket with its sender (non-blocking), bad data dropped."""
+    def receive(self, max_datagrams: int = MAX_RECEIVE_DATAGRAMS) -> list[tuple[Any, Address]]:
+        """The messages waiting on the socket with their senders, from at most ``max_datagrams`` datagrams
+        (non-blocking), bad data dropped."""
         out: list[tuple[Any, Address]] = []
-        while True:
+        for _ in range(max_datagrams):
             try:
                 data, address = self.sock.recvfrom(65535)
             except (BlockingIOError, InterruptedError):
@@ -70,6 +76,7 @@ class GcsSocket:
                 if msg.get_srcComponent() == 1:
                     self.addresses[msg.get_srcSystem()] = addr
                 out.append((msg, addr))
+        return out
 
     def pack(self, msg: Any) -> bytes:
         data: bytes = msg.pack(self._encoder)

@@ -25,6 +25,10 @@ log = logging.getLogger(__name__)
 Address = tuple[str, int]
 MAX_DATAGRAM = 65535
 MAX_LEARNED_PEERS = 8  # a few clients per link; the oldest is forgotten first
+# Datagrams one ``receive`` reads at most (a whole supervisor tick is one or two). A peer that sends faster than the
+# drone parses would otherwise keep the loop reading for ever, and the drone would stop flying; bounded, the loop
+# steps its physics between reads and the socket buffer drops the excess, as a flooded radio link would.
+MAX_RECEIVE_DATAGRAMS = 64
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -92,9 +96,9 @@ class UdpLink:
             del self._peers[1 if self.config.remote is not None else 0]
 
     def receive(self) -> list[MAVLinkMessage]:
-        """Every message that arrived since the last call (drains the socket)."""
+        """The messages that arrived since the last call, from at most MAX_RECEIVE_DATAGRAMS datagrams."""
         out: list[MAVLinkMessage] = []
-        while True:
+        for _ in range(MAX_RECEIVE_DATAGRAMS):
             try:
                 data, address = self.sock.recvfrom(MAX_DATAGRAM)
             except (BlockingIOError, InterruptedError):
@@ -115,6 +119,7 @@ class UdpLink:
                 else:
                     self.received += 1
                     out.append(msg)
+        return out
 
     def send(self, effects: Iterable[Effect]) -> None:
         for effect in effects:

@@ -386,3 +386,36 @@ def test_a_strangers_truncated_datagram_does_not_lock_another_client_out(spawn_d
 
 def _acks_for(sock: socket.socket, command: int, for_s: float) -> list[Message]:
     return [m for m in _decodable_replies(sock, for_s) if m.get_type() == "COMMAND_ACK" and m.command == command]
+
+
+FLOOD_WALL_S = 3.0  # longer than MAX_HEARTBEAT_GAP_WALL_S: a loop stuck reading for the whole flood fails
+
+
+def test_a_flood_of_datagrams_does_not_stall_a_hovering_drone(spawn_drones: SpawnDrones) -> None:
+    """A peer sending faster than the drone can parse (a runaway script, a loop bug in a ground station) costs
+    the drone the datagrams its socket cannot hold, never its flight loop."""
+    (drone,) = spawn_drones()
+    link = VehicleLink.of(drone)
+    with mavlink_connection(link.pymavlink_url) as conn:
+        # GIVEN a drone hovering in Hold
+        altitude_m = _hovering(drone, conn)
+        watch = FlightWatch()
+        watch.drain(conn)
+        # WHEN a stranger sends it heartbeats as fast as one process can, for longer than a heartbeat gap may last
+        heartbeat = mavlink.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3).pack(_encoder())
+        sent = 0
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as stranger:
+            stranger.bind((LOOPBACK, 0))
+            end = time.monotonic() + FLOOD_WALL_S
+            while time.monotonic() < end:
+                for _ in range(500):
+                    stranger.sendto(heartbeat, (LOOPBACK, drone.ports.api_bind))
+                sent += 500
+                watch.drain(conn)
+        watch.drain(conn, for_s=link.window_s(2.0))
+        # THEN it kept flying, heartbeats on time, and still answers its client
+        assert sent > 10_000, f"only {sent} datagrams sent: not a flood"
+        watch.assert_kept_flying(altitude_m)
+        assert drone.process.alive(), drone.process.log_tail()
+        ack, _version = request_message(conn, mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION, "AUTOPILOT_VERSION", 3.0)
+        assert ack.result == mavlink.MAV_RESULT_ACCEPTED, ack

@@ -163,6 +163,37 @@ def test_sigterm_to_the_supervisor_stops_every_drone(swarm_factory: type[Running
     assert wait_dead(swarm.children, 5) == []
 
 
+def test_sigterm_while_the_drones_start_ends_the_start_up_at_once(state_env: dict[str, str]) -> None:
+    """A start-up that cannot finish (here: the drone factory is held stopped) must not hold a SIGTERM or Ctrl-C
+    back until it times out; the supervisor stops what it started and says so."""
+    proc = subprocess.Popen(
+        [*SWARM, "up", "-n", "2", "--first-instance", "76", "--no-forward"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=state_env,
+    )  # fmt: skip
+    factory = None
+    try:
+        end = time.monotonic() + 30
+        while factory is None and time.monotonic() < end and proc.poll() is None:
+            found = [p for p in children_of(proc.pid) if b"sitl.zygote" in Path(f"/proc/{p}/cmdline").read_bytes()]
+            factory = found[0] if found else None
+            time.sleep(0.005)
+        assert factory is not None, "no drone factory started"
+        os.kill(factory, signal.SIGSTOP)  # still importing the drone code: the supervisor waits for its word
+        proc.send_signal(signal.SIGTERM)
+        os.kill(factory, signal.SIGCONT)
+        out, err = proc.communicate(timeout=20)
+        assert proc.returncode == 130, (out, err)
+        assert "drones up" not in out
+        assert "interrupted while starting" in err and "Traceback" not in err, err
+        assert wait_dead([factory], 10) == []
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        if factory is not None and alive(factory):
+            os.kill(factory, signal.SIGKILL)
+
+
 def test_a_drone_that_cannot_start_is_named_in_one_line(state_env: dict[str, str]) -> None:
     result = subprocess.run(
         [*SWARM, "up", "-n", "2", "--first-instance", "72", "--airframe", "no_such_frame"],

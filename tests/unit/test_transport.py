@@ -83,3 +83,21 @@ def test_a_message_sent_at_once_leaves_after_what_was_queued_before_it(pair: tup
     assert not gcs.queued
     frames = [m for d in _datagrams(drone) for m in _parse(d)]
     assert [m.time_boot_ms for m in frames] == [1, 2]
+
+
+def test_receive_reads_a_bounded_number_of_datagrams_per_call() -> None:
+    """A flood must not keep one call reading for ever: the caller's loop gets back control, nothing is lost."""
+    gcs = GcsSocket()
+    drone = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    encoder = mavlink.MAVLink(None, srcSystem=7, srcComponent=1)
+    try:
+        for k in range(25):
+            drone.sendto(_setpoint(k).pack(encoder), ("127.0.0.1", gcs.port))
+        first = gcs.receive(max_datagrams=10)
+        rest = gcs.receive(max_datagrams=100)
+        assert [m.time_boot_ms for m, _ in first] == list(range(10))
+        assert [m.time_boot_ms for m, _ in rest] == list(range(10, 25))
+        assert gcs.receive() == []
+    finally:
+        gcs.close()
+        drone.close()
