@@ -20,6 +20,7 @@ measured figures.
 
 from __future__ import annotations
 
+import heapq
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -86,6 +87,11 @@ class AvoidanceConfig:
     pass_right_tilt_rad: float = 0.3
     # A tie between passing left and right (the relative velocity within this sine of the bearing) goes right.
     pass_right_tie_sin: float = 0.05
+    # Only this many obstacles, the nearest by gap (centre distance less the separation to keep), are avoided, as
+    # RVO2's maxNeighbors (10 in its examples) does: in a crowd, the constraints of bodies behind the nearest ring
+    # are met by any velocity that meets the ring's, and without a bound the cost grows with the swarm (29
+    # neighbours within reach each, on a 30-drone circle). 0 avoids every obstacle.
+    max_obstacles: int = 10
     # Fusion.
     relay_max_age_s: float = 1.0  # older relayed positions are dropped: a neighbour may have turned since
     gate_m: float = 1.0  # association gate: gate_m + gate_range_frac * camera range
@@ -400,25 +406,10 @@ def avoid(
     # (nx, ny, distance, required separation, obstacle vx, vy, responsibility) for the safety layer.
     near: list[tuple[float, float, float, float, float, float, float]] = []
     constraining = 0
-    for ob in obstacles:
-        if not _within3(ob.rel_pos_ned_m, MAX_REL_POS_M):
-            continue
-        if ob.vel_known and not _within3(ob.vel_ned_mps, MAX_SPEED_MPS):
-            continue
-        px, py, pz = ob.rel_pos_ned_m
-        bvx, bvy, bvz = ob.vel_ned_mps if ob.vel_known else _ZERO3
-        radius = min(ob.radius_m, MAX_REL_POS_M) if ob.radius_m > 0.0 else 0.0  # NaN compares false: 0
-        band = config.vertical_band_m
-        if abs(pz) > band:
-            pz_end = pz + (bvz - ovz) * tau
-            if pz * pz_end > 0.0 and abs(pz_end) > band:
-                continue
-        r = required_separation_m(radius, config)
-        dist_sq = px * px + py * py
+    for ob, r, dist_sq in _in_reach(obstacles, ovz, tau, reach_speed, config):
+        px, py, _pz = ob.rel_pos_ned_m
+        bvx, bvy, _bvz = ob.vel_ned_mps if ob.vel_known else _ZERO3
         dist = math.sqrt(dist_sq)
-        b_speed = math.sqrt(bvx * bvx + bvy * bvy)
-        if dist - r > tau * (reach_speed + b_speed):
-            continue  # out of reach within the horizon whatever either does
         resp = 0.5 if (ob.vel_known and ob.source != "camera") else 1.0
         if dist < 1e-6:
             # Coincident centres: no bearing to go by; take the obstacle as straight ahead of the desired heading
@@ -485,6 +476,36 @@ def avoid(
     return AvoidanceResult(
         vel_ned_mps=(vx, vy, desired_vel_ned_mps[2]), active=active, closest_m=closest, constraining=constraining
     )
+
+
+def _in_reach(
+    obstacles: Sequence[Obstacle], own_vz: float, tau: float, reach_speed: float, config: AvoidanceConfig
+) -> list[tuple[Obstacle, float, float]]:
+    """(obstacle, separation to keep, horizontal distance squared) of every usable obstacle that can be reached
+    within the horizon, at most ``config.max_obstacles`` of them, the nearest by gap; in input order."""
+    band = config.vertical_band_m
+    found: list[tuple[float, int, Obstacle, float, float]] = []
+    for ob in obstacles:
+        if not _within3(ob.rel_pos_ned_m, MAX_REL_POS_M):
+            continue
+        if ob.vel_known and not _within3(ob.vel_ned_mps, MAX_SPEED_MPS):
+            continue
+        px, py, pz = ob.rel_pos_ned_m
+        bvx, bvy, bvz = ob.vel_ned_mps if ob.vel_known else _ZERO3
+        if abs(pz) > band:
+            pz_end = pz + (bvz - own_vz) * tau
+            if pz * pz_end > 0.0 and abs(pz_end) > band:
+                continue
+        radius = min(ob.radius_m, MAX_REL_POS_M) if ob.radius_m > 0.0 else 0.0  # NaN compares false: 0
+        r = required_separation_m(radius, config)
+        dist_sq = px * px + py * py
+        gap = math.sqrt(dist_sq) - r
+        if gap > tau * (reach_speed + math.sqrt(bvx * bvx + bvy * bvy)):
+            continue  # out of reach within the horizon whatever either does
+        found.append((gap, len(found), ob, r, dist_sq))
+    if 0 < config.max_obstacles < len(found):
+        found = sorted(heapq.nsmallest(config.max_obstacles, found), key=lambda item: item[1])
+    return [(ob, r, dist_sq) for _, _, ob, r, dist_sq in found]
 
 
 def _safety_layer(

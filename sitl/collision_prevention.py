@@ -16,6 +16,7 @@ are STATUSTEXTs ("Avoidance: ...", counted in the flight report), the end carryi
 from __future__ import annotations
 
 import dataclasses
+import heapq
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -31,6 +32,9 @@ Vec3f = tuple[float, float, float]
 AVOID_RATE_HZ = 50.0
 EPISODE_END_S = 1.0
 INPUT_TIMEOUT_S = 1.0  # camera frames older than this are forgotten (the relay's own ages are handled by fuse)
+# Relayed neighbours fused per obstacle ``avoid`` keeps: the nearest by reported position, with room for the
+# distances fusion brings up to date (a report is at most a second old).
+RELAY_CANDIDATES_PER_OBSTACLE = 2
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -115,6 +119,16 @@ class CollisionPrevention:
         if now_s - self._camera_time_s <= INPUT_TIMEOUT_S:
             age = now_s - self._camera_time_s
             camera = [dataclasses.replace(d, age_s=d.age_s + age) for d in self._camera]
+        config = self.config()
+        neighbours: Sequence[RelayedNeighbour] = self._relay
+        if config.max_obstacles > 0 and len(neighbours) > RELAY_CANDIDATES_PER_OBSTACLE * config.max_obstacles:
+            # ``avoid`` keeps the nearest few; fusing neighbours it will drop anyway is most of the cost in a crowd.
+            x, y, z = pos_ned_m
+            neighbours = heapq.nsmallest(
+                RELAY_CANDIDATES_PER_OBSTACLE * config.max_obstacles,
+                neighbours,
+                key=lambda n: (n.pos_ned_m[0] - x) ** 2 + (n.pos_ned_m[1] - y) ** 2 + (n.pos_ned_m[2] - z) ** 2,
+            )
         relay = [
             Obstacle(
                 rel_pos_ned_m=(
@@ -128,9 +142,9 @@ class CollisionPrevention:
                 source="relay",
                 age_s=max(0.0, now_s - n.received_s),
             )
-            for n in self._relay
+            for n in neighbours
         ]
-        return fuse(camera, relay, own_vel, self.config())
+        return fuse(camera, relay, own_vel, config)
 
     # ---- the correction --------------------------------------------------------------------------------------------
     def apply(

@@ -3,6 +3,8 @@ tests/integration/test_avoidance_fly.py)."""
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
 from sitl.collision_prevention import CollisionPrevention, RelayedNeighbour
@@ -29,3 +31,25 @@ def test_a_drone_alone_flies_its_setpoint_untouched() -> None:
     cp.set_relay([RelayedNeighbour(sysid=9, pos_ned_m=(-30.0, 0.0, -3.0), vel_ned_mps=(0.0, 0.0, 0.0), received_s=0.0)])
     assert cp.apply(setpoint, vec3(0.0, 0.0, -3.0), vec3(3.0, 0.0, 0.0), 0.0) is setpoint
     assert events == []
+
+
+def test_in_a_crowd_only_the_nearest_neighbours_are_fused_and_the_correction_is_the_same() -> None:
+    # GIVEN a drone at the origin heading north, and 60 relayed neighbours on rings from 2 to 31.5 m
+    setpoint = TrajectorySetpoint(pos_ned_m=(6.0, 0.0, -3.0), vel_ned_mps=(1.0, 0.0, 0.0), acc_ned_mps2=(0.0, 0.0, 0.0))
+    crowd = [
+        RelayedNeighbour(
+            sysid=k + 2,
+            pos_ned_m=((2.0 + 0.5 * k) * math.cos(1.3 * k), (2.0 + 0.5 * k) * math.sin(1.3 * k), -3.0),
+            vel_ned_mps=(0.0, -0.5, 0.0),
+            received_s=0.0,
+        )
+        for k in range(60)
+    ]
+    corrected = []
+    for neighbours in (crowd, crowd[:20]):  # all of them; the 20 nearest (two per obstacle avoided)
+        cp, _events = prevention()
+        cp.set_relay(neighbours)
+        corrected.append(cp.apply(setpoint, vec3(0.0, 0.0, -3.0), vec3(1.0, 0.0, 0.0), 0.0))
+    # THEN the drone corrects, and exactly as if only the nearest had been reported
+    assert corrected[0] != setpoint
+    assert corrected[0] == corrected[1]
