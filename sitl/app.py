@@ -77,14 +77,7 @@ def run(
         if flight is not None:
             flight.tick()
         if participant is not None:
-            truth = sim.truth
-            v = truth.vel_ned_mps
-            for contact in participant.update(
-                sim.time_s,
-                (truth.geo.lat_deg, truth.geo.lon_deg, truth.geo.alt_amsl_m),
-                (float(v[0]), float(v[1]), float(v[2])),
-                sim.vehicle.crashed,
-            ):
+            for contact in participant.after_step(sim.truth, sim.vehicle.crashed):
                 sim.vehicle.crash(contact.text())
         t0 = time.perf_counter_ns()
         awareness.update(sim.time_s)

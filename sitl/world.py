@@ -27,6 +27,8 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from sitl.dynamics.plant import PlantState
+
 MAX_DRONES = 256
 COLUMNS = 16
 VALID, TIME, LAT, LON, ALT, VN, VE, VD, RADIUS, CRASHED, STEP = range(11)
@@ -182,10 +184,9 @@ class SharedWorld:
         found: list[Contact] = []
         ids, offsets = self.others_ned_m(instance)
         if len(ids):
-            distance = np.linalg.norm(offsets, axis=1)
-            limit = self.table[ids, RADIUS] + own_radius
-            found = [Contact(instance=int(i), distance_m=float(d))
-                     for i, d, r in zip(ids, distance, limit, strict=True) if d < r]  # fmt: skip
+            distance = np.sqrt(np.einsum("ij,ij->i", offsets, offsets))
+            hits = np.flatnonzero(distance < self.table[ids, RADIUS] + own_radius)
+            found = [Contact(instance=int(ids[k]), distance_m=float(distance[k])) for k in hits]
         if self.obstacle_table[:, O_VALID].any():
             for ob in self.obstacles_from(instance):
                 n, e, d = ob.offset_ned_m
@@ -221,13 +222,20 @@ class WorldParticipant:
         self.every_n_steps = every_n_steps
         self._count = 0
 
-    def update(self, time_s: float, geo: tuple[float, float, float], vel_ned_mps: tuple[float, float, float],
-               crashed: bool) -> list[Contact]:  # fmt: skip
-        """Call every physics step; returns new contacts (empty on steps between checks or once crashed)."""
+    def after_step(self, truth: PlantState, crashed: bool) -> list[Contact]:
+        """Call after every physics step: every ``every_n_steps`` steps publishes the truth and returns the contacts
+        (``update``); on the steps between it costs a counter."""
         self._count += 1
         if self._count < self.every_n_steps:
             return []
         self._count = 0
+        geo, v = truth.geo, truth.vel_ned_mps
+        return self.update(truth.time_s, (geo.lat_deg, geo.lon_deg, geo.alt_amsl_m),
+                           (float(v[0]), float(v[1]), float(v[2])), crashed)  # fmt: skip
+
+    def update(self, time_s: float, geo: tuple[float, float, float], vel_ned_mps: tuple[float, float, float],
+               crashed: bool) -> list[Contact]:  # fmt: skip
+        """Publish this drone's truth; returns the contacts it has (none once crashed)."""
         self.world.write(self.instance, time_s, geo, vel_ned_mps, self.radius_m, crashed)
         return [] if crashed else self.world.contacts(self.instance)
 

@@ -43,10 +43,7 @@ def _fly_head_on(avoid: bool) -> tuple[float, list[bool], list[float], list[str]
         nonlocal closest
         for i, (sim, part, eyes) in enumerate(zip(sims, participants, seen, strict=True)):
             sim.step()
-            t = sim.truth
-            v = t.vel_ned_mps
-            for contact in part.update(sim.time_s, (t.geo.lat_deg, t.geo.lon_deg, t.geo.alt_amsl_m),
-                                       (float(v[0]), float(v[1]), float(v[2])), sim.vehicle.crashed):  # fmt: skip
+            for contact in part.after_step(sim.truth, sim.vehicle.crashed):
                 sim.vehicle.crash(f"Collision with drone {contact.instance + 1}")
             eyes.update(sim.time_s)
             del i
@@ -103,10 +100,7 @@ def _fly_past_pole(avoid: bool) -> tuple[bool, float, list[str]]:
 
         def step() -> None:
             sim.step()
-            t = sim.truth
-            v = t.vel_ned_mps
-            for contact in part.update(sim.time_s, (t.geo.lat_deg, t.geo.lon_deg, t.geo.alt_amsl_m),
-                                       (float(v[0]), float(v[1]), float(v[2])), sim.vehicle.crashed):  # fmt: skip
+            for contact in part.after_step(sim.truth, sim.vehicle.crashed):
                 sim.vehicle.crash(contact.text())
             eyes.update(sim.time_s)
 

@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import numpy as np
+import pytest
+
+from sitl.dynamics.plant import GeoPoint, PlantState
+from sitl.mathutil import vec3
 from sitl.world import SharedWorld, WorldParticipant
 
 LAT, LON, ALT = 47.397742, 8.545594, 490.0
@@ -28,13 +33,22 @@ def test_an_attached_table_sees_rows_written_by_the_creator_and_contacts_need_bo
         world.close()
 
 
+def _truth(time_s: float, alt_amsl_m: float) -> PlantState:
+    zero = vec3(0.0, 0.0, 0.0)
+    return PlantState(time_s=time_s, pos_ned_m=zero, vel_ned_mps=zero, att_q_frd_to_ned=np.array([1.0, 0.0, 0.0, 0.0]),
+                      rates_frd_radps=zero, specific_force_frd_mps2=zero,
+                      geo=GeoPoint(lat_deg=LAT, lon_deg=LON, alt_amsl_m=alt_amsl_m), on_ground=False,
+                      motor_speeds_radps=(0.0,) * 4)  # fmt: skip
+
+
 def test_a_participant_publishes_every_n_steps_and_reports_no_contact_once_crashed() -> None:
     world = SharedWorld.create()
     try:
         world.write(1, 0.0, (LAT, LON, ALT), (0.0, 0.0, 0.0), 0.35, False)
         participant = WorldParticipant(SharedWorld.attach(world.name), 0, 0.35, every_n_steps=4)
-        results = [participant.update(0.01 * k, (LAT, LON, ALT + 0.2), (0.0, 0.0, 0.0), False) for k in range(8)]
+        results = [participant.after_step(_truth(0.01 * k, ALT + 0.2), crashed=False) for k in range(8)]
         assert [len(r) for r in results] == [0, 0, 0, 1, 0, 0, 0, 1]
+        assert world.table[0, 1] == pytest.approx(0.07)  # published on the steps it checks
         assert participant.update(0.1, (LAT, LON, ALT), (0.0, 0.0, 0.0), True) == []
         participant.close()
         assert world.table[0, 0] == 0.0  # its row is cleared when it leaves
