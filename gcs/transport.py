@@ -18,13 +18,12 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.mavlink_io import reset_parser
+from sitl.mavlink_io import datagrams, reset_parser
 
 GCS_SYSID = 255
 GCS_COMPID = mavlink.MAV_COMP_ID_MISSIONPLANNER
 
 Address = tuple[str, int]
-MAX_BATCH_BYTES = 1400  # a batched datagram stays below a typical path MTU (1500 bytes less IP/UDP headers)
 # Datagrams one ``receive`` reads at most. Drones that together send faster than the supervisor parses (fifty
 # drones on two busy cores) would otherwise keep one call reading for ever, and with it the timers, the setpoint
 # streams and the signal handling of the loop that called it; what is left waits for the next call, and what the
@@ -120,13 +119,8 @@ class GcsSocket:
         """Send everything queued: per address, whole frames packed in order into datagrams of <= MAX_BATCH_BYTES."""
         outbox, self._outbox = self._outbox, {}
         for address, frames in outbox.items():
-            batch = bytearray()
-            for frame in frames:
-                if batch and len(batch) + len(frame) > MAX_BATCH_BYTES:
-                    self.send_raw(bytes(batch), address)
-                    batch.clear()
-                batch += frame
-            self.send_raw(bytes(batch), address)
+            for data in datagrams(frames):
+                self.send_raw(data, address)
 
     def close(self) -> None:
         self.sock.close()

@@ -25,6 +25,7 @@ log = logging.getLogger(__name__)
 Address = tuple[str, int]
 MAX_DATAGRAM = 65535
 MAX_LEARNED_PEERS = 8  # a few clients per link; the oldest is forgotten first
+MAX_BATCH_BYTES = 1400  # a datagram of several frames stays below a typical path MTU (1500 less IP/UDP headers)
 # Datagrams one ``receive`` reads at most (a whole supervisor tick is one or two). A peer that sends faster than the
 # drone parses would otherwise keep the loop reading for ever, and the drone would stop flying; bounded, the loop
 # steps its physics between reads and the socket buffer drops the excess, as a flooded radio link would.
@@ -48,6 +49,23 @@ def parse_host_port(text: str) -> Address | None:
 
 class LinkError(OSError):
     """A link could not be opened (port in use, bad address); reported as one line by the CLI."""
+
+
+def datagrams(frames: Iterable[bytes], max_bytes: int = MAX_BATCH_BYTES) -> list[bytes]:
+    """Whole MAVLink frames packed in order into as few datagrams of at most ``max_bytes`` as they fit (a frame
+    larger than that goes alone). Every MAVLink parser reads a datagram as a byte stream, so frames may share one,
+    as ArduPilot's and PX4's UDP links do; one datagram instead of one per frame saves a system call on each side
+    and, more costly on a busy machine, a wake-up of the receiving process."""
+    out: list[bytes] = []
+    batch = bytearray()
+    for frame in frames:
+        if batch and len(batch) + len(frame) > max_bytes:
+            out.append(bytes(batch))
+            batch.clear()
+        batch += frame
+    if batch:
+        out.append(bytes(batch))
+    return out
 
 
 def reset_parser(parser: mavlink.MAVLink) -> None:
@@ -122,15 +140,21 @@ class UdpLink:
         return out
 
     def send(self, effects: Iterable[Effect]) -> None:
+        """Send the messages among ``effects`` to every peer, together: the streams due at one poll (several share
+        each 100 ms tick) or the replies to one message leave in one datagram per peer."""
+        frames: list[bytes] = []
         for effect in effects:
             if not isinstance(effect, Send):
                 continue
             try:
-                data = effect.msg.pack(self._encoder)
+                frames.append(effect.msg.pack(self._encoder))
             except Exception:  # a message that cannot be packed is a bug, but not a crash
                 log.exception("cannot pack %s", effect.msg.get_type())
                 continue
             self._encoder.seq = (self._encoder.seq + 1) % 256
+        if not frames:
+            return
+        for data in datagrams(frames) if len(frames) > 1 else frames:
             for address in self._peers:
                 try:
                     self.sock.sendto(data, address)

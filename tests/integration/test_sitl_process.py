@@ -10,8 +10,10 @@ from __future__ import annotations
 import signal
 import socket
 import subprocess
+import time
 
 import pytest
+from pymavlink.dialects.v20 import common as mavlink
 
 from tests.integration.mavlink_client import mavlink_connection, wait_vehicle_heartbeat
 from tests.integration.sitl_process import (
@@ -72,3 +74,36 @@ def test_a_drone_whose_api_port_is_taken_exits_with_one_line_naming_the_port(
     errors = result.stderr.strip().splitlines()
     assert len(errors) == 1 and str(api_port) in errors[0], result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_streams_due_together_leave_in_one_datagram_that_pymavlink_reads_whole(spawn_drones: SpawnDrones) -> None:
+    """Telemetry due at the same tick (the four 10 Hz streams, with the 5 Hz ones every other tick) shares a
+    datagram, as ArduPilot's UDP links pack frames: fewer system calls and wake-ups on both sides. Every frame must
+    still reach a client that reads one message at a time."""
+    (drone,) = spawn_drones()
+    link = VehicleLink.of(drone)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as client:
+        client.bind((LOOPBACK, drone.ports.api_remote))
+        client.settimeout(5.0)
+        parser = mavlink.MAVLink(None)
+        frames_per_datagram: list[int] = []
+        kinds: set[str] = set()
+        end = time.monotonic() + link.window_s(2.0)
+        while time.monotonic() < end:
+            messages = [m for m in parser.parse_buffer(client.recv(65535)) or [] if m.get_type() != "BAD_DATA"]
+            frames_per_datagram.append(len(messages))
+            kinds |= {m.get_type() for m in messages}
+    # THEN the 10 Hz streams arrive together, and there are far fewer datagrams than messages
+    assert {"GLOBAL_POSITION_INT", "LOCAL_POSITION_NED", "ATTITUDE", "ATTITUDE_QUATERNION"} <= kinds, kinds
+    assert max(frames_per_datagram) >= 4, frames_per_datagram
+    assert len(frames_per_datagram) * 2 < sum(frames_per_datagram), frames_per_datagram
+    # AND a pymavlink client reading one message at a time gets them all, in order
+    with mavlink_connection(link.pymavlink_url) as conn:
+        wait_vehicle_heartbeat(conn, drone.sysid, 5.0)
+        seen: list[str] = []
+        end = time.monotonic() + link.window_s(1.0)
+        while time.monotonic() < end:
+            msg = conn.recv_match(blocking=True, timeout=0.5)
+            if msg is not None and msg.get_srcSystem() == drone.sysid:
+                seen.append(msg.get_type())
+    assert seen.count("GLOBAL_POSITION_INT") >= 8 and seen.count("ATTITUDE_QUATERNION") >= 8, seen
