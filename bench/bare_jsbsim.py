@@ -20,6 +20,7 @@ import jsbsim
 from sitl.airframe import Airframe, load_airframe
 from sitl.dynamics.jsbsim_model import model_name, motor_cmd_property
 from sitl.dynamics.jsbsim_plant import JsbsimPlant
+from sitl.simulation import PHYSICS_RATE_HZ
 
 HOVER_START_NED_M = (0.0, 0.0, -10.0)
 
@@ -40,7 +41,7 @@ def _bare_fdm(airframe: Airframe, dt_s: float, on_ground: bool) -> jsbsim.FGFDME
     return plant._fdm
 
 
-def bare_step_us(steps: int = 20_000, *, on_ground: bool = False, dt_s: float = 1.0 / 400.0) -> float:
+def bare_step_us(steps: int = 20_000, *, on_ground: bool = False, dt_s: float = 1.0 / PHYSICS_RATE_HZ) -> float:
     """Microseconds per ``FGFDMExec.run()`` of the generated model, hovering (or resting on the ground)."""
     fdm = _bare_fdm(load_airframe(), dt_s, on_ground)
     run = fdm.run
@@ -50,7 +51,7 @@ def bare_step_us(steps: int = 20_000, *, on_ground: bool = False, dt_s: float = 
     return (time.perf_counter() - start) / steps * 1e6
 
 
-def plant_step_us(steps: int = 20_000, *, on_ground: bool = False, dt_s: float = 1.0 / 400.0) -> float:
+def plant_step_us(steps: int = 20_000, *, on_ground: bool = False, dt_s: float = 1.0 / PHYSICS_RATE_HZ) -> float:
     """Microseconds per ``JsbsimPlant.step()`` including command writes and the PlantState it returns."""
     airframe = load_airframe()
     cmds = [0.0 if on_ground else hover_cmd(airframe)] * len(airframe.rotors)
@@ -68,7 +69,7 @@ def plant_step_us(steps: int = 20_000, *, on_ground: bool = False, dt_s: float =
 def property_access_ns(calls: int = 200_000) -> dict[str, float]:
     """Nanoseconds per property read and write, by item access on the executive and by a bound node."""
     airframe = load_airframe()
-    fdm = _bare_fdm(airframe, 1.0 / 400.0, on_ground=True)
+    fdm = _bare_fdm(airframe, 1.0 / PHYSICS_RATE_HZ, on_ground=True)
     read_name = "velocities/v-north-fps"
     write_name = motor_cmd_property(0)
     manager = fdm.get_property_manager()
@@ -95,7 +96,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=20_000, help="physics steps per measurement")
     args = parser.parse_args()
-    print(f"JSBSim {jsbsim.__version__}, {args.steps} steps at 400 Hz")
+    print(f"JSBSim {jsbsim.__version__}, {args.steps} steps at {PHYSICS_RATE_HZ:.0f} Hz")
     for where, on_ground in (("hovering", False), ("on ground", True)):
         bare = bare_step_us(args.steps, on_ground=on_ground)
         full = plant_step_us(args.steps, on_ground=on_ground)

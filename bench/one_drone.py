@@ -17,7 +17,7 @@ Figures are from one run on the current machine, which is shared: compare ratios
 
     python bench/one_drone.py [--sim-seconds 30] [--mpc-loop-hz HZ]
 
-``--mpc-loop-hz`` sets the rate of the position and velocity loops (the MPC_LOOP_HZ parameter; 400 = every physics
+``--mpc-loop-hz`` sets the rate of the position and velocity loops (the MPC_LOOP_HZ parameter; 250 = every physics
 step, i.e. single-rate) to compare a multi-rate cascade with a single-rate one.
 """
 
@@ -30,7 +30,7 @@ from collections.abc import Callable
 
 from sitl.airframe import load_airframe
 from sitl.dynamics.jsbsim_plant import JsbsimPlant
-from sitl.simulation import SimConfig, Simulation
+from sitl.simulation import PHYSICS_RATE_HZ, SimConfig, Simulation
 
 TAKEOFF_ALT_M = 3.0
 PARTS = ("jsbsim", "sensors", "estimator", "autopilot", "control cascade", "wind+battery", "other")
@@ -169,7 +169,10 @@ def main() -> None:
     total = closed_loop_total(args.sim_seconds, args.mpc_loop_hz)
     parts = closed_loop_breakdown(args.sim_seconds, args.mpc_loop_hz)
     loop_hz = _make_sim(args.mpc_loop_hz).params["MPC_LOOP_HZ"]
-    print(f"physics 400 Hz, position/velocity loops at {loop_hz:.0f} Hz, {args.sim_seconds:.0f} simulated seconds each")
+    print(
+        f"physics {PHYSICS_RATE_HZ:.0f} Hz, position/velocity loops at {loop_hz:.0f} Hz, "
+        f"{args.sim_seconds:.0f} simulated seconds each"
+    )
     print(f"bare JSBSim plant : {1 / bare:7.1f} sim s per CPU s  ({bare * 1e3:6.1f} ms CPU per sim s)")
     print(
         f"full closed loop  : {1 / total:7.1f} sim s per CPU s  ({total * 1e3:6.1f} ms CPU per sim s,"

@@ -1,6 +1,6 @@
 """State estimator: attitude, position and velocity from noisy sensors, so the controller never sees truth.
 
-Two classic, cheap filters, both fixed-gain so that one update costs a few microseconds at 400 Hz:
+Two classic, cheap filters, both fixed-gain so that one update costs a few microseconds at the physics rate:
 
 - Attitude: a Mahony complementary filter (gyro integration corrected by the accelerometer's gravity direction and
   the magnetometer's heading, with gyro-bias estimation). A multirotor's accelerometer mostly measures thrust, so

@@ -58,7 +58,7 @@ def _stoppable_speed(dist_m: float, previous_mps: float, accel_mps2: float, dt_s
 
     The step moves (previous + v) / 2 * dt, and what is left must satisfy v^2 <= 2 a (distance left). Judging by the
     distance before the step instead lets the speed run one step ahead of the braking curve at every step, and the
-    reference then reaches the target still moving (about 0.3 m/s at 5 m/s cruise and 400 Hz) and stops dead.
+    reference then reaches the target still moving (about 0.3 m/s at 5 m/s cruise and 400 Hz physics) and stops dead.
     """
     a_dt = accel_mps2 * dt_s
     discriminant = a_dt * a_dt + 8.0 * accel_mps2 * dist_m - 4.0 * accel_mps2 * previous_mps * dt_s

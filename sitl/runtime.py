@@ -71,7 +71,7 @@ class StepClock(Protocol):
     def close(self) -> None: ...
 
 
-PACED_WAKE_STEPS = 8  # 20 ms of simulated time at 400 Hz
+PACED_WAKE_STEPS = 8  # 32 ms of simulated time at 250 Hz
 BOOT_FAST_FORWARD_MAX_S = 10.0  # simulated seconds a boot may be fast-forwarded at most
 
 

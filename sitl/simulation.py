@@ -26,7 +26,7 @@ from sitl.sensors.models import GpsSample, SensorConfig, SensorReadings, SensorS
 from sitl.vehicle import Vehicle
 from sitl.wind import WindConfig, WindModel
 
-PHYSICS_RATE_HZ = 400.0
+PHYSICS_RATE_HZ = 250.0
 
 
 def build_param_store() -> ParamStore:

@@ -4,7 +4,7 @@ Names, meanings and (where the units agree) defaults follow PX4, so a PX4 user f
 exceptions are written in the descriptions: the rate-loop gains are in physical units (angular acceleration
 per rate error, see sitl/control/rate.py), and there is no hover-thrust parameter because the velocity stage
 converts acceleration to force with the airframe mass. Defaults are tuned for airframes/quad_x_f450.toml at a
-400 Hz loop.
+400 Hz loop, and fly the same at the 250 Hz default physics rate (docs/control.md).
 
 The builders turn a ParamStore (plus the airframe's physical constants) into the frozen config of each stage;
 the stages themselves never see the store.
@@ -50,8 +50,8 @@ CONTROL_PARAMS: tuple[ParamDef, ...] = (
     _p("MPC_THR_MAX", 1.0, 0.0, 1.0, "", "Maximum collective thrust, fraction of maximum"),
     _p("MPC_THR_XY_MARG", 0.3, 0.0, 0.5, "", "Thrust kept for horizontal control at full climb, fraction"),
     # PX4 runs its position controller at the estimator's output rate (50-100 Hz), below the attitude and rate
-    # loops. At 100 Hz the closed-loop acceptance flights measure the same as with the single-rate cascade (400 Hz,
-    # the physics rate) to within a few millimetres, and a hovering drone costs about 7 % less CPU time.
+    # loops. At 100 Hz the closed-loop acceptance flights measured the same as with the single-rate cascade (at the
+    # then 400 Hz physics rate) to within a few millimetres, and a hovering drone cost about 7 % less CPU time.
     _p(
         "MPC_LOOP_HZ",
         100.0,

@@ -117,7 +117,7 @@ class JsbsimPlant:
         self,
         airframe: Airframe,
         home: GeoPoint = DEFAULT_HOME,
-        dt_s: float = 1.0 / 400.0,
+        dt_s: float = 1.0 / 250.0,  # sitl.simulation.PHYSICS_RATE_HZ
         initial_pos_ned_m: Sequence[float] = (0.0, 0.0, 0.0),
         initial_yaw_rad: float = 0.0,
         *,

@@ -93,7 +93,7 @@ class Imu:
         self._noise = NoiseSource(rng)
 
     def sample(self, truth: PlantState) -> ImuSample:
-        # Scalar arithmetic on Python floats: at 400 Hz numpy's per-call overhead on 3-vectors dominates.
+        # Scalar arithmetic on Python floats: at every physics step numpy's per-call overhead on 3-vectors dominates.
         noise = self._noise
         wx, wy, wz = truth.rates_frd_radps.tolist()
         bx, by, bz = self._gyro_bias

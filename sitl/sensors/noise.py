@@ -1,6 +1,6 @@
 """Seeded Gaussian noise drawn in blocks.
 
-Drawing three normals per sensor per 400 Hz step from ``numpy.random.Generator`` costs a call each time; drawing a
+Drawing three normals per sensor per physics step from ``numpy.random.Generator`` costs a call each time; drawing a
 block of a few thousand at once and handing them out keeps the physics loop cheap while staying exactly
 reproducible for a given seed (the block size is fixed, so the sequence does not depend on timing).
 """

@@ -245,8 +245,13 @@ def test_wind_pushes_a_hovering_drone_downwind_with_quadratic_drag() -> None:
     plant.set_wind(wind)
     # WHEN a short time passes
     states = run(plant, [hover_cmd()] * 4, 0.05)
-    # THEN it accelerates downwind at c v^2 / m per body axis (level, yaw 0: body x = north, y = east)
-    accel = states[-1].vel_ned_mps / states[-1].time_s
+    # THEN it accelerates downwind at c v^2 / m per body axis (level, yaw 0: body x = north, y = east), measured as
+    # the slope of the velocity once JSBSim's multi-step integrator has taken up the new force (its first few steps
+    # over- and undershoot, by a share of the window that grows with the step: 3 % of v/t at 400 Hz, 4.6 % at 250)
+    t = np.array([s.time_s for s in states])
+    v = np.array([s.vel_ned_mps for s in states])
+    after = t >= 0.02 - 1e-9
+    accel = np.polyfit(t[after], v[after], 1)[0]
     cx, cy, _ = AIRFRAME.drag_coeff_frd_n_per_mps2
     expected = np.array((cx * wind[0] ** 2, cy * wind[1] ** 2)) / AIRFRAME.mass_kg
     np.testing.assert_allclose(accel[:2], expected, rtol=0.03)
