@@ -26,6 +26,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Final, Literal
 
+from sitl.mathutil import fast_constructor
+
 Vec3 = tuple[float, float, float]
 ObstacleSource = Literal["camera", "relay", "fused"]
 
@@ -53,6 +55,11 @@ class Obstacle:
     radius_m: float = 0.35
     source: ObstacleSource = "camera"
     age_s: float = 0.0
+
+
+# Obstacles are built for every neighbour at the avoidance rate, several times over (relay, fusion): the fast
+# constructor builds the same frozen record at a third of the cost (sitl/mathutil.py).
+new_obstacle = fast_constructor(Obstacle)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -164,7 +171,7 @@ def fuse(
         age = max(0.0, age)
         (px, py, pz), (vx, vy, vz) = r.rel_pos_ned_m, r.vel_ned_mps
         relays.append(
-            Obstacle(
+            new_obstacle(
                 rel_pos_ned_m=(px + vx * age, py + vy * age, pz + vz * age),
                 vel_ned_mps=r.vel_ned_mps,
                 vel_known=True,
@@ -202,7 +209,7 @@ def fuse(
         if ri_match is None:
             cx, cy, cz = c.rel_pos_ned_m
             out.append(
-                Obstacle(
+                new_obstacle(
                     rel_pos_ned_m=(cx - own_vx * age, cy - own_vy * age, cz - own_vz * age),
                     radius_m=c.radius_m,
                     source="camera",
@@ -234,7 +241,7 @@ def _fuse_pair(cam: Obstacle, rel: Obstacle, cam_age_s: float, own_vel: Vec3, co
         rng = (cam_range / var_cam + relay_range / var_relay) / (1.0 / var_cam + 1.0 / var_relay)
         k = rng / cam_range
         pos = (cx * k, cy * k, cz * k)
-    return Obstacle(
+    return new_obstacle(
         rel_pos_ned_m=pos,
         vel_ned_mps=rel.vel_ned_mps,
         vel_known=True,

@@ -15,13 +15,12 @@ are STATUSTEXTs ("Avoidance: ...", counted in the flight report), the end carryi
 
 from __future__ import annotations
 
-import dataclasses
 import heapq
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from sitl.avoidance import AvoidanceConfig, Obstacle, avoid, fuse
+from sitl.avoidance import AvoidanceConfig, Obstacle, avoid, fuse, new_obstacle
 from sitl.control.cascade import TrajectorySetpoint
 from sitl.control.position import PositionController
 from sitl.mathutil import Vec3
@@ -118,7 +117,11 @@ class CollisionPrevention:
         camera: list[Obstacle] = []
         if now_s - self._camera_time_s <= INPUT_TIMEOUT_S:
             age = now_s - self._camera_time_s
-            camera = [dataclasses.replace(d, age_s=d.age_s + age) for d in self._camera]
+            camera = [
+                new_obstacle(rel_pos_ned_m=d.rel_pos_ned_m, vel_ned_mps=d.vel_ned_mps, vel_known=d.vel_known,
+                             radius_m=d.radius_m, source=d.source, age_s=d.age_s + age)
+                for d in self._camera
+            ]  # fmt: skip
         config = self.config()
         neighbours: Sequence[RelayedNeighbour] = self._relay
         if config.max_obstacles > 0 and len(neighbours) > RELAY_CANDIDATES_PER_OBSTACLE * config.max_obstacles:
@@ -130,7 +133,7 @@ class CollisionPrevention:
                 key=lambda n: (n.pos_ned_m[0] - x) ** 2 + (n.pos_ned_m[1] - y) ** 2 + (n.pos_ned_m[2] - z) ** 2,
             )
         relay = [
-            Obstacle(
+            new_obstacle(
                 rel_pos_ned_m=(
                     n.pos_ned_m[0] - pos_ned_m[0],
                     n.pos_ned_m[1] - pos_ned_m[1],

@@ -34,9 +34,11 @@ class RunOptions:
 
 @dataclass(slots=True)
 class LoopStats:
-    """Time the loop spends on MAVLink (receive, poll, STATUSTEXT), in nanoseconds of the monotonic clock."""
+    """Time the loop spends on MAVLink (receive, poll, STATUSTEXT), in nanoseconds of ``clock_ns`` (see
+    ``Simulation.part_clock_ns`` for the choice of clock)."""
 
     link_ns: int = 0
+    clock_ns: Callable[[], int] = time.perf_counter_ns
 
 
 class StopFlag:
@@ -186,7 +188,7 @@ def run_loop(
     # Unpaced, check the sockets every few milliseconds of simulation rather than after every step.
     max_batch = 400 if endpoint is None else 8
     loop_stats = stats if stats is not None else LoopStats()
-    clock_ns = time.perf_counter_ns
+    clock_ns = loop_stats.clock_ns
     try:
         while not stop.stopped:
             if endpoint is not None:
