@@ -107,6 +107,7 @@ class Swarm:
         gate = self.gate
         if gate is None:
             return
+        gate.drain_wakes()
         wall = time.monotonic()
         if wall >= self._next_exit_check:
             self._next_exit_check = wall + 0.5
@@ -216,6 +217,7 @@ class Swarm:
         self._wall_t0 = time.monotonic()
         if self.plan.lockstep:
             self.gate = LockstepGate(self.world, 1.0 / PHYSICS_RATE_HZ)
+            self._selector.register(self.gate.wake_socket, selectors.EVENT_READ)
         expected = set(self.sysids)
         end = time.monotonic() + ready_timeout_s  # start-up is wall-clock work (Python, JSBSim), whatever the mode
         while not expected <= set(self.fleet.drones):
@@ -274,6 +276,9 @@ class Swarm:
                     self.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196, sysids=still)
         finally:
             self.processes.terminate()
+            if self.gate is not None:
+                self._selector.unregister(self.gate.wake_socket)
+                self.gate.close()
             if self.world is not None:
                 self.world.close()
             self._selector.close()

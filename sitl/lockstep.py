@@ -14,6 +14,9 @@ Waiting costs nothing: a member that may not step sets its WAITING flag and slee
 (abstract Unix address derived from the world's name); the member whose step moves the common time on - the last
 laggard - and the supervisor when it moves the gate wake exactly the members that wait. Polling instead (sleeping
 0.2 ms and looking again) cost more than the simulation itself with nine drones on two cores (docs/benchmarks.md).
+The supervisor sleeps the same way: the last member to reach the gate wakes it. Before, it looked again only when
+MAVLink traffic arrived or its 5 ms wait ran out, which capped a single drone at 4x real time once its telemetry
+left in fewer datagrams.
 The flag is set before the last look at the clock, so a wake-up can be missed only through store-load reordering
 between two cores; a sleep never lasts longer than ``MAX_SLEEP_S``, which bounds that rare case.
 
@@ -47,6 +50,11 @@ def wake_address(world_name: str, instance: int) -> bytes:
     return f"\0swarm-lockstep-{world_name.lstrip('/')}-{instance}".encode()
 
 
+def gate_address(world_name: str) -> bytes:
+    """Abstract Unix socket address of the supervisor's wake-up socket (the gate's)."""
+    return f"\0swarm-lockstep-{world_name.lstrip('/')}-gate".encode()
+
+
 class _Waker:
     """Sends the empty datagrams that wake sleeping members."""
 
@@ -60,6 +68,10 @@ class _Waker:
         for instance in np.flatnonzero(self._waiting == 1.0):
             with contextlib.suppress(OSError):  # gone, or its queue full: it is awake anyway
                 self._sock.sendto(b"", wake_address(self._world_name, int(instance)))
+
+    def wake_gate(self) -> None:
+        with contextlib.suppress(OSError):  # no supervisor listening, or its queue full: it is awake anyway
+            self._sock.sendto(b"", gate_address(self._world_name))
 
     def close(self) -> None:
         self._sock.close()
@@ -100,11 +112,18 @@ class LockstepMember:
         return max(0, int(limit) - completed), gate <= peers
 
     def completed(self, steps: int) -> None:
-        """Publish a completed step; the last member to finish a quantum wakes whoever waits at its end."""
+        """Publish a completed step; the last member to finish a quantum wakes whoever waits at its end, and the
+        last to reach the gate wakes the supervisor, which would otherwise only look again when its own wait for
+        traffic ran out."""
         steps_column = self._steps
         steps_column[self.instance] = float(steps)
-        if steps % self.quantum == 0 and steps_column.min() >= steps:
-            self._waker.wake_waiting()
+        end_of_quantum = steps % self.quantum == 0
+        at_gate = steps >= self._header[GATE_STEP]
+        if (end_of_quantum or at_gate) and steps_column.min() >= steps:
+            if end_of_quantum:
+                self._waker.wake_waiting()
+            if at_gate:
+                self._waker.wake_gate()
 
     def begin_wait(self) -> None:
         self._waiting[self.instance] = 1.0
@@ -130,6 +149,16 @@ class LockstepGate:
         self.world = world
         self.dt_s = dt_s
         self._waker = _Waker(world)
+        # The members' last one to reach the gate sends an empty datagram here: the supervisor waits on this socket
+        # with its MAVLink socket and moves the gate at once.
+        self.wake_socket = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self.wake_socket.bind(gate_address(world.name))
+        self.wake_socket.setblocking(False)
+
+    def drain_wakes(self) -> None:
+        with contextlib.suppress(BlockingIOError):
+            while True:
+                self.wake_socket.recv(16)
 
     def members(self) -> int:
         return int(np.count_nonzero(np.isfinite(self.world.table[:, STEP])))
@@ -161,3 +190,4 @@ class LockstepGate:
 
     def close(self) -> None:
         self._waker.close()
+        self.wake_socket.close()

@@ -106,3 +106,29 @@ def test_the_member_that_completes_the_common_step_wakes_the_one_waiting_for_it(
     finally:
         gate.close()
         world.close()
+
+
+def test_the_last_member_to_reach_the_gate_wakes_the_supervisor_once() -> None:
+    world = SharedWorld.create()
+    try:
+        gate = LockstepGate(world, DT_S)
+        a, b = LockstepMember(world, 0), LockstepMember(world, 1)
+        a.join()
+        b.join()
+        gate.open_until(2 * DT_S)  # two steps
+        a.completed(1)
+        b.completed(1)
+        a.completed(2)
+        # a is at the gate but b is not: the supervisor is not woken yet
+        with pytest.raises(BlockingIOError):
+            gate.wake_socket.recv(16)
+        b.completed(2)  # the last one arrives: one wake-up
+        assert gate.wake_socket.recv(16) == b""
+        with pytest.raises(BlockingIOError):
+            gate.wake_socket.recv(16)
+        gate.drain_wakes()
+        a.leave()
+        b.leave()
+    finally:
+        gate.close()
+        world.close()
