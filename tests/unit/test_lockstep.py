@@ -3,11 +3,12 @@ the others. Members are driven by hand here, exactly as the drone loop drives th
 
 from __future__ import annotations
 
+import contextlib
 import random
 
 import pytest
 
-from sitl.lockstep import LockstepGate, LockstepMember
+from sitl.lockstep import GATE_WAKE_AHEAD_STEPS, LockstepGate, LockstepMember
 from sitl.world import SharedWorld
 
 DT_S = 1.0 / 400.0
@@ -127,6 +128,30 @@ def test_the_last_member_to_reach_the_gate_wakes_the_supervisor_once() -> None:
         with pytest.raises(BlockingIOError):
             gate.wake_socket.recv(16)
         gate.drain_wakes()
+        a.leave()
+        b.leave()
+    finally:
+        gate.close()
+        world.close()
+
+
+def test_the_supervisor_is_woken_before_the_gate_so_the_drones_need_not_stop_there() -> None:
+    world = SharedWorld.create()
+    try:
+        gate = LockstepGate(world, DT_S)
+        a, b = LockstepMember(world, 0), LockstepMember(world, 1)
+        a.join()
+        b.join()
+        gate.open_until(10 * DT_S)
+        woken_at = []
+        for steps in range(1, 11):
+            a.completed(steps)
+            b.completed(steps)
+            with contextlib.suppress(BlockingIOError):
+                gate.wake_socket.recv(16)
+                woken_at.append(steps)
+        # once GATE_WAKE_AHEAD_STEPS short of the gate, and once at it (had the supervisor not moved it by then)
+        assert woken_at == [10 - GATE_WAKE_AHEAD_STEPS, 10]
         a.leave()
         b.leave()
     finally:
