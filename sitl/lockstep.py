@@ -14,9 +14,9 @@ Waiting costs nothing: a member that may not step sets its WAITING flag and slee
 (abstract Unix address derived from the world's name); the member whose step moves the common time on - the last
 laggard - and the supervisor when it moves the gate wake exactly the members that wait. Polling instead (sleeping
 0.2 ms and looking again) cost more than the simulation itself with nine drones on two cores (docs/benchmarks.md).
-The supervisor sleeps the same way: the last member to reach the gate wakes it. Before, it looked again only when
-MAVLink traffic arrived or its 5 ms wait ran out, which capped a single drone at 4x real time once its telemetry
-left in fewer datagrams.
+The supervisor sleeps the same way: the last member to come within GATE_WAKE_AHEAD_STEPS of the gate, or to reach
+it, wakes it. Before, it looked again only when MAVLink traffic arrived or its 5 ms wait ran out, which capped a
+single drone at 4x real time once its telemetry left in fewer datagrams.
 The flag is set before the last look at the clock, so a wake-up can be missed only through store-load reordering
 between two cores; a sleep never lasts longer than ``MAX_SLEEP_S``, which bounds that rare case.
 
@@ -44,8 +44,8 @@ from sitl.world import GATE_OPEN, GATE_STEP, STEP, WAITING, SharedWorld
 
 MAX_SLEEP_S = 0.005
 # The supervisor is woken when the slowest member is this many steps short of the gate (and again at the gate if
-# it has not moved it by then), so that it moves the gate while the drones still run: woken only at the gate, every
-# drone stopped there each time, and 30 drones in lockstep took twice the CPU.
+# it has not moved it by then), so that it can move the gate while the drones still run instead of every drone
+# stopping there each time.
 GATE_WAKE_AHEAD_STEPS = 2
 
 
@@ -154,7 +154,7 @@ class LockstepGate:
         self.world = world
         self.dt_s = dt_s
         self._waker = _Waker(world)
-        # The members' last one to reach the gate sends an empty datagram here: the supervisor waits on this socket
+        # The last member to near or reach the gate sends an empty datagram here: the supervisor waits on this socket
         # with its MAVLink socket and moves the gate at once.
         self.wake_socket = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         self.wake_socket.bind(gate_address(world.name))

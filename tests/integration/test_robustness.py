@@ -225,13 +225,17 @@ def test_garbage_truncated_and_mutated_datagrams_do_not_disturb_a_hovering_drone
             assert set(acks) == {(mavlink.MAV_RESULT_UNSUPPORTED, STRANGER_SYSID)}, acks
 
         watch.drain(conn, for_s=link.window_s(3.0))
-        # THEN the drone kept flying: heartbeats on time, altitude held, still armed in Hold
-        watch.assert_kept_flying(altitude_m)
-        assert drone.process.alive(), drone.process.log_tail()
-        # AND it still answers its own client
-        ack, version = request_message(conn, mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION, "AUTOPILOT_VERSION", 3.0)
-        assert ack.result == mavlink.MAV_RESULT_ACCEPTED, ack
-        assert version.capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT, version
+        # THEN the drone kept flying: heartbeats on time, altitude held, still armed in Hold; and answers its client
+        _assert_kept_flying_and_answering(drone, conn, watch, altitude_m)
+
+
+def _assert_kept_flying_and_answering(drone: SitlDrone, conn: mavutil.mavfile, watch: FlightWatch,
+                                      altitude_m: float) -> None:  # fmt: skip
+    watch.assert_kept_flying(altitude_m)
+    assert drone.process.alive(), drone.process.log_tail()
+    ack, version = request_message(conn, mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION, "AUTOPILOT_VERSION", 3.0)
+    assert ack.result == mavlink.MAV_RESULT_ACCEPTED, ack
+    assert version.capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT, version
 
 
 def _decodable_replies(sock: socket.socket, for_s: float) -> list[Message]:
@@ -415,7 +419,4 @@ def test_a_flood_of_datagrams_does_not_stall_a_hovering_drone(spawn_drones: Spaw
         watch.drain(conn, for_s=link.window_s(2.0))
         # THEN it kept flying, heartbeats on time, and still answers its client
         assert sent > 10_000, f"only {sent} datagrams sent: not a flood"
-        watch.assert_kept_flying(altitude_m)
-        assert drone.process.alive(), drone.process.log_tail()
-        ack, _version = request_message(conn, mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION, "AUTOPILOT_VERSION", 3.0)
-        assert ack.result == mavlink.MAV_RESULT_ACCEPTED, ack
+        _assert_kept_flying_and_answering(drone, conn, watch, altitude_m)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import random
+from collections.abc import Iterator
 
 import pytest
 
@@ -109,51 +110,51 @@ def test_the_member_that_completes_the_common_step_wakes_the_one_waiting_for_it(
         world.close()
 
 
-def test_the_last_member_to_reach_the_gate_wakes_the_supervisor_once() -> None:
+@pytest.fixture
+def gate_and_pair() -> Iterator[tuple[LockstepGate, LockstepMember, LockstepMember]]:
+    """A supervisor's gate and two members that have joined, all closed afterwards."""
     world = SharedWorld.create()
+    gate = LockstepGate(world, DT_S)
+    a, b = LockstepMember(world, 0), LockstepMember(world, 1)
+    a.join()
+    b.join()
     try:
-        gate = LockstepGate(world, DT_S)
-        a, b = LockstepMember(world, 0), LockstepMember(world, 1)
-        a.join()
-        b.join()
-        gate.open_until(2 * DT_S)  # two steps
-        a.completed(1)
-        b.completed(1)
-        a.completed(2)
-        # a is at the gate but b is not: the supervisor is not woken yet
-        with pytest.raises(BlockingIOError):
-            gate.wake_socket.recv(16)
-        b.completed(2)  # the last one arrives: one wake-up
-        assert gate.wake_socket.recv(16) == b""
-        with pytest.raises(BlockingIOError):
-            gate.wake_socket.recv(16)
-        gate.drain_wakes()
+        yield gate, a, b
+    finally:
         a.leave()
         b.leave()
-    finally:
         gate.close()
         world.close()
 
 
-def test_the_supervisor_is_woken_before_the_gate_so_the_drones_need_not_stop_there() -> None:
-    world = SharedWorld.create()
-    try:
-        gate = LockstepGate(world, DT_S)
-        a, b = LockstepMember(world, 0), LockstepMember(world, 1)
-        a.join()
-        b.join()
-        gate.open_until(10 * DT_S)
-        woken_at = []
-        for steps in range(1, 11):
-            a.completed(steps)
-            b.completed(steps)
-            with contextlib.suppress(BlockingIOError):
-                gate.wake_socket.recv(16)
-                woken_at.append(steps)
-        # once GATE_WAKE_AHEAD_STEPS short of the gate, and once at it (had the supervisor not moved it by then)
-        assert woken_at == [10 - GATE_WAKE_AHEAD_STEPS, 10]
-        a.leave()
-        b.leave()
-    finally:
-        gate.close()
-        world.close()
+def test_the_last_member_to_reach_the_gate_wakes_the_supervisor_once(
+    gate_and_pair: tuple[LockstepGate, LockstepMember, LockstepMember],
+) -> None:
+    gate, a, b = gate_and_pair
+    gate.open_until(2 * DT_S)  # two steps
+    a.completed(1)
+    b.completed(1)
+    a.completed(2)
+    # a is at the gate but b is not: the supervisor is not woken yet
+    with pytest.raises(BlockingIOError):
+        gate.wake_socket.recv(16)
+    b.completed(2)  # the last one arrives: one wake-up
+    assert gate.wake_socket.recv(16) == b""
+    with pytest.raises(BlockingIOError):
+        gate.wake_socket.recv(16)
+
+
+def test_the_supervisor_is_woken_before_the_gate_so_the_drones_need_not_stop_there(
+    gate_and_pair: tuple[LockstepGate, LockstepMember, LockstepMember],
+) -> None:
+    gate, a, b = gate_and_pair
+    gate.open_until(10 * DT_S)
+    woken_at = []
+    for steps in range(1, 11):
+        a.completed(steps)
+        b.completed(steps)
+        with contextlib.suppress(BlockingIOError):
+            gate.wake_socket.recv(16)
+            woken_at.append(steps)
+    # once GATE_WAKE_AHEAD_STEPS short of the gate, and once at it (had the supervisor not moved it by then)
+    assert woken_at == [10 - GATE_WAKE_AHEAD_STEPS, 10]
