@@ -37,6 +37,7 @@ from gcs.mission_file import (
     SwapStep,
     TakeoffStep,
 )
+from gcs.pace_monitor import PaceMonitor
 from gcs.recording import DroneSample, EventRecord, FlightRecording, StepRecord
 from gcs.report import write_report
 from gcs.streamer import FormationStreamer
@@ -116,6 +117,8 @@ class MissionRunner:
         )
         self._collision_pairs: set[frozenset[int]] = set()
         self.live = LiveMetrics()
+        # Paced, the supervisor's clock is the wall clock: watch that the drones keep up with it.
+        self._pace = PaceMonitor(speed_factor) if not lockstep and speed_factor > 0 else None
         self._t0_s = 0.0
         self._epoch_us = int(time.time() * 1e6)
         self._tlog: TlogWriter | None = None
@@ -160,9 +163,16 @@ class MissionRunner:
     def _tick(self, _wall_s: float) -> None:
         now = self.now()
         self.streamer.tick(now)
+        pace = ""
+        if self._pace is not None:
+            warning = self._pace.update(time.monotonic(), self.swarm.drone_time_s())
+            if warning is not None:
+                self.say(warning)
+            rate = self._pace.rate()
+            pace = "" if rate is None else f"  rtf {rate:.2f}"
         if now >= self._next_status_s:
             self._next_status_s = now + STATUS_EVERY_S
-            self.say(f"[{now:6.1f} s] {self._step_name:<10} {self.live.status().line()}")
+            self.say(f"[{now:6.1f} s] {self._step_name:<10} {self.live.status().line()}{pace}")
 
     def _wait(self, condition: Callable[[], bool], timeout_sim_s: float) -> bool:
         return self.swarm.wait_until(condition, timeout_sim_s, tick=self._tick)

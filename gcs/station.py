@@ -8,11 +8,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from collections.abc import Callable
 from typing import Any
 
 from gcs.frames import SwarmFrame
 from gcs.mission_file import build_flock, build_follow, build_formation
+from gcs.pace_monitor import PaceMonitor
 from gcs.streamer import FormationStreamer
 from gcs.swarm import Swarm, SwarmError
 
@@ -28,6 +30,8 @@ class Station:
         self._t0 = swarm.clock()
         self.stop_requested = False
         self._reported_lost: set[int] = set()
+        plan = swarm.plan
+        self._pace = PaceMonitor(plan.speed_factor) if not plan.lockstep and plan.speed_factor > 0 else None
 
     # ---- periodic work ---------------------------------------------------------------------------------------------
     def mission_time(self) -> float:
@@ -38,7 +42,12 @@ class Station:
         self.streamer.tick(self.mission_time())
 
     def watch(self, now_s: float) -> None:
-        """Report a drone whose heartbeats stopped (and one that came back), or whose process died."""
+        """Report a drone whose heartbeats stopped (and one that came back), or whose process died, and a swarm that
+        cannot keep the requested pace (once)."""
+        if self._pace is not None:
+            warning = self._pace.update(time.monotonic(), self.swarm.drone_time_s())
+            if warning is not None:
+                self.say(warning)
         lost = set(self.swarm.fleet.lost(now_s))
         for sysid in sorted(lost - self._reported_lost):
             age_s = self.swarm.fleet.drones[sysid].link_age_s(now_s)

@@ -30,7 +30,7 @@ from gcs.supervisor import ProcessGroup, SpawnError, SpawnPlan
 from gcs.transport import GcsSocket
 from sitl.lockstep import LockstepGate
 from sitl.simulation import PHYSICS_RATE_HZ
-from sitl.world import SharedWorld
+from sitl.world import TIME, VALID, SharedWorld
 
 COMMAND_TIMEOUT_S = 0.5  # MAVSDK's per-try timeout
 COMMAND_RETRIES = 3
@@ -125,6 +125,17 @@ class Swarm:
             self._gate_progress = (steps, wall)
         elif wall - self._gate_progress[1] > LOCKSTEP_STALL_S and gate.members() > 0:
             raise SwarmError(f"simulation stalled at t={now:.3f} s: no drone advanced for {LOCKSTEP_STALL_S:g} s")
+
+    def drone_time_s(self) -> float | None:
+        """The slowest running drone's own simulated time (the shared world's TIME column, which each drone writes
+        every few physics steps); None before every drone has written it."""
+        if self.world is None:
+            return None
+        instances = [d.instance for d in self.processes.drones if d.process.poll() is None]
+        table = self.world.table
+        if not instances or not (table[instances, VALID] == 1.0).all():
+            return None
+        return float(table[instances, TIME].min())
 
     @property
     def sysids(self) -> list[int]:

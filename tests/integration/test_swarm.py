@@ -194,6 +194,35 @@ def test_sigterm_while_the_drones_start_ends_the_start_up_at_once(state_env: dic
             os.kill(factory, signal.SIGKILL)
 
 
+def test_a_swarm_that_cannot_keep_the_requested_speed_is_warned_about_once(state_env: dict[str, str]) -> None:
+    """Paced drones that cannot keep up give the lag up, so the supervisor's wall-clock timing would run ahead of
+    them unnoticed; 200x real time is beyond any machine this suite runs on."""
+    proc = subprocess.Popen(
+        [*SWARM, "up", "-n", "2", "--speed", "200", "--first-instance", "80", "--no-forward"],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=state_env,
+    )  # fmt: skip
+    lines: list[str] = []
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:  # the warning comes once a 5 s window has been measured
+            lines.append(line)
+            if "warning" in line:
+                break
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=60)
+        lines += out.splitlines(keepends=True)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    warnings = [ln for ln in lines if "warning" in ln]
+    assert len(warnings) == 1, "".join(lines)
+    rate = float(re.search(r"run at ([0-9.]+)x real time", warnings[0]).group(1))  # type: ignore[union-attr]
+    assert 0 < rate < 0.9 * 200, warnings[0]
+    assert "requested 200x" in warnings[0] and "--lockstep" in warnings[0]
+    assert proc.returncode == 0, "".join(lines)
+
+
 def test_a_drone_that_cannot_start_is_named_in_one_line(state_env: dict[str, str]) -> None:
     result = subprocess.run(
         [*SWARM, "up", "-n", "2", "--first-instance", "72", "--airframe", "no_such_frame"],
