@@ -183,17 +183,19 @@ def fuse(
     cams = [c for c in camera if _within3(c.rel_pos_ned_m, MAX_REL_POS_M) and c.age_s <= MAX_AGE_S]
 
     candidates: list[tuple[float, int, int]] = []
+    relay_positions = [r.rel_pos_ned_m for r in relays] if cams else []
     for ci, c in enumerate(cams):
         cx, cy, cz = c.rel_pos_ned_m
         age = max(0.0, c.age_s)
         cx, cy, cz = cx - own_vx * age, cy - own_vy * age, cz - own_vz * age
         gate = config.gate_m + config.gate_range_frac * math.sqrt(cx * cx + cy * cy + cz * cz)
-        for ri, r in enumerate(relays):
-            rx, ry, rz = r.rel_pos_ned_m
+        gate_sq = gate * gate
+        for ri, (rx, ry, rz) in enumerate(relay_positions):
             # The relay velocity also moves the camera position forward once matched; gate on the static guess.
-            d = math.sqrt((rx - cx) * (rx - cx) + (ry - cy) * (ry - cy) + (rz - cz) * (rz - cz))
-            if d <= gate:
-                candidates.append((d, ci, ri))
+            dx, dy, dz = rx - cx, ry - cy, rz - cz
+            d_sq = dx * dx + dy * dy + dz * dz
+            if d_sq <= gate_sq:  # a square root only for the few within the gate
+                candidates.append((math.sqrt(d_sq), ci, ri))
     candidates.sort()
     cam_match: dict[int, int] = {}
     used_relay: set[int] = set()
