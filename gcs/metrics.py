@@ -75,6 +75,12 @@ Airborne
     polyline through its raw samples while armed (segments with both ends armed; a segment across a telemetry gap
     counts as a straight line, a lower bound). Estimator noise adds to it, as to any path length.
 
+``requested_speed``, ``realtime_factor_min``, ``realtime_factor_mean``
+    Paced flights only (null in lockstep): the speed factor asked for, and the slowest and mean of the drones'
+    achieved real-time factor as the supervisor measured it at each status line (the slowest drone's own clock
+    against the wall clock over 5 s, gcs/pace_monitor.py). Below 90 % of the request the summary flags the flight:
+    the mission's timing, which follows the wall clock, ran ahead of the drones.
+
 ``LiveMetrics`` gives the same quantities approximately while flying, for a status line: it keeps the latest sample
 per drone and compares drones at the newest sample's time (older positions extrapolated with their velocity); it also
 gives phi of the latest velocities when defined.
@@ -167,6 +173,9 @@ class FlightMetrics:
     steps: tuple[StepMetrics, ...]
     distance_flown_m: dict[int, float]
     separation: SeparationSeries
+    requested_speed: float | None = None  # paced flights only
+    realtime_factor_min: float | None = None  # the drones' achieved pace, over 5 s windows
+    realtime_factor_mean: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: fixed key order, rounded floats, None for undefined values, drone keys as strings."""
@@ -189,6 +198,9 @@ class FlightMetrics:
             "takeoff_time_per_drone_s": {str(k): _r(v) for k, v in self.takeoff_time_per_drone_s.items()},
             "steps": [_step_dict(s) for s in self.steps],
             "distance_flown_m": {str(k): _r(v) for k, v in self.distance_flown_m.items()},
+            "requested_speed": _r(self.requested_speed),
+            "realtime_factor_min": _r(self.realtime_factor_min),
+            "realtime_factor_mean": _r(self.realtime_factor_mean),
             "parameters": {
                 "grid_hz": GRID_HZ,
                 "max_gap_s": MAX_GAP_S,
@@ -547,6 +559,11 @@ def compute_metrics(recording: FlightRecording) -> FlightMetrics:
         steps=steps,
         distance_flown_m={sysid: _distance_flown(track) for sysid, track in tracks.items()},
         separation=SeparationSeries(time_s=grid, min_separation_m=series),
+        requested_speed=recording.requested_speed,
+        realtime_factor_min=min(recording.realtime_factors, default=None),
+        realtime_factor_mean=(
+            sum(recording.realtime_factors) / len(recording.realtime_factors) if recording.realtime_factors else None
+        ),
     )
 
 

@@ -51,3 +51,7 @@ class FlightRecording:
     samples: list[DroneSample] = field(default_factory=list)
     steps: list[StepRecord] = field(default_factory=list)
     events: list[EventRecord] = field(default_factory=list)
+    # Paced flights: the speed factor asked for, and the drones' achieved real-time factor, measured every few
+    # seconds (gcs/pace_monitor.py); None and empty in lockstep, where pace cannot change the result.
+    requested_speed: float | None = None
+    realtime_factors: list[float] = field(default_factory=list)

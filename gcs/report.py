@@ -27,6 +27,7 @@ from gcs.metrics import (
     FlightMetrics,
     compute_metrics,
 )
+from gcs.pace_monitor import SLOW_FRACTION
 from gcs.recording import DroneSample, FlightRecording, StepRecord
 
 log = logging.getLogger(__name__)
@@ -293,8 +294,16 @@ def summary_text(metrics: FlightMetrics) -> str:
         f"Flight report: {metrics.mission_name}",
         f"drones: {metrics.n_drones} (reporting: {sysids})",
         f"duration: {metrics.duration_s:.1f} s",
-        "",
     ]
+    if metrics.requested_speed is not None and metrics.realtime_factor_min is not None:
+        speed, low = metrics.requested_speed, metrics.realtime_factor_min
+        behind = low < SLOW_FRACTION * speed
+        lines.append(
+            f"pace: {metrics.realtime_factor_mean:.2f}x real time on average, {low:.2f}x at the slowest, "
+            f"{speed:g}x requested"
+            + (" - BEHIND: the mission's timing ran ahead of the drones (see docs/benchmarks.md)" if behind else "")
+        )
+    lines.append("")
 
     if metrics.takeoff_time_per_drone_s:
         slowest = [k for k, v in metrics.takeoff_time_per_drone_s.items() if v == metrics.takeoff_time_s]

@@ -21,6 +21,7 @@ from gcs.metrics import (
     settle_time,
 )
 from gcs.recording import DroneSample, EventRecord, FlightRecording, StepRecord, Vec3
+from gcs.report import summary_text
 
 RATE_HZ = 50.0
 
@@ -402,6 +403,28 @@ def test_metrics_dict_is_strict_json_with_the_documented_keys_in_a_fixed_order()
     assert data["takeoff_time_per_drone_s"].keys() == {"1", "2"}
     assert data["steps"][0]["takeoff_time_s"] == data["takeoff_time_s"]
     assert len(data["separation"]["time_s"]) == len(data["separation"]["min_separation_m"])
+
+
+def test_the_pace_of_a_paced_flight_is_reported_and_a_flight_that_fell_behind_says_so() -> None:
+    # GIVEN a paced flight at 2x whose drones kept the pace, then fell to 1.2x for a while
+    rec = recording()
+    rec.requested_speed = 2.0
+    rec.realtime_factors = [2.0, 1.99, 1.2, 1.97]
+    metrics = compute_metrics(rec)
+    # THEN the slowest and the mean are in the metrics and the JSON, and the summary flags it
+    assert metrics.realtime_factor_min == pytest.approx(1.2)
+    assert metrics.realtime_factor_mean == pytest.approx(1.79)
+    data = metrics.to_dict()
+    assert (data["requested_speed"], data["realtime_factor_min"]) == (2.0, 1.2)
+    pace = [ln for ln in summary_text(metrics).splitlines() if ln.startswith("pace:")]
+    assert pace == ["pace: 1.79x real time on average, 1.20x at the slowest, 2x requested - BEHIND: the mission's "
+                    "timing ran ahead of the drones (see docs/benchmarks.md)"]  # fmt: skip
+    # AND a flight that kept its pace gets the line without the flag, a lockstep flight none
+    rec.realtime_factors = [2.0, 1.95]
+    assert "BEHIND" not in summary_text(compute_metrics(rec))
+    assert "pace:" in summary_text(compute_metrics(rec))
+    assert "pace:" not in summary_text(compute_metrics(recording()))
+    assert compute_metrics(recording()).to_dict()["realtime_factor_min"] is None
 
 
 # --- alignment --------------------------------------------------------------------------------------------------
