@@ -118,8 +118,8 @@ class MissionRunner:
         self._collision_pairs: set[frozenset[int]] = set()
         self.live = LiveMetrics()
         # Paced, the supervisor's clock is the wall clock: watch that the drones keep up with it.
-        self._pace = PaceMonitor(speed_factor) if not lockstep and speed_factor > 0 else None
-        self.recording.requested_speed = speed_factor if self._pace is not None else None
+        self._pace = PaceMonitor.for_plan(plan)
+        self.recording.requested_speed = self._pace.speed_factor if self._pace is not None else None
         self._t0_s = 0.0
         self._epoch_us = int(time.time() * 1e6)
         self._tlog: TlogWriter | None = None
@@ -164,17 +164,18 @@ class MissionRunner:
     def _tick(self, _wall_s: float) -> None:
         now = self.now()
         self.streamer.tick(now)
-        pace = ""
+        rate = None
         if self._pace is not None:
             warning = self._pace.update(time.monotonic(), self.swarm.drone_time_s())
             if warning is not None:
                 self.say(warning)
             rate = self._pace.rate()
-            pace = "" if rate is None else f"  rtf {rate:.2f}"
-            if rate is not None and now >= self._next_status_s:  # the report keeps one reading per status line
-                self.recording.realtime_factors.append(rate)
         if now >= self._next_status_s:
             self._next_status_s = now + STATUS_EVERY_S
+            pace = ""
+            if rate is not None:  # the report keeps the reading of each status line
+                self.recording.realtime_factors.append(rate)
+                pace = f"  rtf {rate:.2f}"
             self.say(f"[{now:6.1f} s] {self._step_name:<10} {self.live.status().line()}{pace}")
 
     def _wait(self, condition: Callable[[], bool], timeout_sim_s: float) -> bool:

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from collections import deque
 
+from gcs.supervisor import SpawnPlan
+
 WINDOW_S = 5.0  # wall seconds over which the achieved rate is measured
 SLOW_FRACTION = 0.9  # below this fraction of the requested speed, the swarm is said to fall behind
 
@@ -25,6 +27,11 @@ class PaceMonitor:
         self.slow_fraction = slow_fraction
         self._samples: deque[tuple[float, float]] = deque()
         self._warned = False
+
+    @classmethod
+    def for_plan(cls, plan: SpawnPlan) -> PaceMonitor | None:
+        """A monitor for a paced swarm; None in lockstep, whose clock is the drones' own."""
+        return cls(plan.speed_factor) if not plan.lockstep and plan.speed_factor > 0 else None
 
     def observe(self, wall_s: float, drone_time_s: float | None) -> None:
         """One sample: the wall clock and the slowest drone's simulated time (None while unknown)."""

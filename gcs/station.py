@@ -30,8 +30,7 @@ class Station:
         self._t0 = swarm.clock()
         self.stop_requested = False
         self._reported_lost: set[int] = set()
-        plan = swarm.plan
-        self._pace = PaceMonitor(plan.speed_factor) if not plan.lockstep and plan.speed_factor > 0 else None
+        self._pace = PaceMonitor.for_plan(swarm.plan)
 
     # ---- periodic work ---------------------------------------------------------------------------------------------
     def mission_time(self) -> float:

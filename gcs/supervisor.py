@@ -138,7 +138,10 @@ class ProcessGroup:
             )
 
     def exited(self) -> list[DroneProcess]:
-        return [d for d in self.drones if d.process.poll() is not None]
+        """The drones that have ended: the factory's news read once, not once per drone (this runs every tick)."""
+        if self.factory is not None:
+            self.factory.collect(0.0)
+        return [d for d in self.drones if d.process.returncode is not None]
 
     def terminate(self, wait_s: float = TERMINATE_WAIT_S) -> None:
         """SIGTERM every child still running, then SIGKILL after ``wait_s``; always reaps."""

@@ -131,7 +131,8 @@ class Swarm:
         every few physics steps); None before every drone has written it."""
         if self.world is None:
             return None
-        instances = [d.instance for d in self.processes.drones if d.process.poll() is None]
+        ended = {d.instance for d in self.processes.exited()}
+        instances = [d.instance for d in self.processes.drones if d.instance not in ended]
         table = self.world.table
         if not instances or not (table[instances, VALID] == 1.0).all():
             return None

@@ -58,6 +58,10 @@ def run(
 
     api = SimVehicleApi(sim)
     endpoint = MavlinkEndpoint(Identity(sysid=instance + 1), api, sim.params, links) if links else None
+    # In a swarm the parts are timed on this thread's CPU clock (Simulation.part_clock_ns), so the split stays true
+    # when there are more drones than cores.
+    part_clock_ns = time.thread_time_ns if world is not None else time.perf_counter_ns
+    sim.part_clock_ns = part_clock_ns
     awareness = Awareness(
         sim,
         instance,
@@ -66,29 +70,23 @@ def run(
         neighbours=endpoint.neighbours if endpoint is not None else None,
         frames_dir=camera_frames,
         shared_clock=clock is not None,
+        clock_ns=part_clock_ns,
     )
 
-    # In a swarm the parts are timed on this thread's CPU clock (Simulation.part_clock_ns), so the split stays true
-    # when there are more drones than cores.
-    part_clock_ns = time.thread_time_ns if world is not None else time.perf_counter_ns
-    sim.part_clock_ns = part_clock_ns
     stats = LoopStats(clock_ns=part_clock_ns)
-    perception_ns = 0
     steps = 0
 
     def on_step() -> None:
-        nonlocal perception_ns, steps
+        nonlocal steps
         if flight is not None:
             flight.tick()
         if participant is not None:
             for contact in participant.after_step(sim.truth, sim.vehicle.crashed):
                 sim.vehicle.crash(contact.text())
-        t0 = part_clock_ns()
         awareness.update(sim.time_s)
-        perception_ns += part_clock_ns() - t0
         steps += 1
         if world is not None and steps % CPU_REPORT_STEPS == 0:
-            world.write_cpu(instance, sim.physics_ns * 1e-9, sim.control_ns * 1e-9, perception_ns * 1e-9,
+            world.write_cpu(instance, sim.physics_ns * 1e-9, sim.control_ns * 1e-9, awareness.cpu_ns * 1e-9,
                             stats.link_ns * 1e-9)  # fmt: skip
 
     for link in endpoint.links if endpoint is not None else []:

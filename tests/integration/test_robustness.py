@@ -9,10 +9,12 @@ so they only run against drones this suite starts.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import random
 import socket
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import pytest
@@ -90,10 +92,20 @@ class FlightWatch:
         assert self.armed == {True}, f"armed states seen: {self.armed}"
 
 
-def _hovering(drone: SitlDrone, conn: mavutil.mavfile) -> float:
+@contextlib.contextmanager
+def _hovering_drone(
+    spawn_drones: SpawnDrones,
+) -> Iterator[tuple[SitlDrone, VehicleLink, mavutil.mavfile, float, FlightWatch]]:
+    """One drone hovering in Hold with a client connected: the drone, its link, the connection, the altitude it
+    holds, and a watch that has read everything so far."""
+    (drone,) = spawn_drones()
     link = VehicleLink.of(drone)
-    wait_vehicle_heartbeat(conn, drone.sysid, link.wall_s(5))
-    return arm_and_take_off(conn, link.wall_s(20))
+    with mavlink_connection(link.pymavlink_url) as conn:
+        wait_vehicle_heartbeat(conn, drone.sysid, link.wall_s(5))
+        altitude_m = arm_and_take_off(conn, link.wall_s(20))
+        watch = FlightWatch()
+        watch.drain(conn)
+        yield drone, link, conn, altitude_m, watch
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -184,13 +196,8 @@ def _decodable(datagram: bytes) -> list[Message]:
 
 
 def test_garbage_truncated_and_mutated_datagrams_do_not_disturb_a_hovering_drone(spawn_drones: SpawnDrones) -> None:
-    (drone,) = spawn_drones()
-    link = VehicleLink.of(drone)
-    with mavlink_connection(link.pymavlink_url) as conn:
-        # GIVEN a drone hovering in Hold
-        altitude_m = _hovering(drone, conn)
-        watch = FlightWatch()
-        watch.drain(conn)
+    # GIVEN a drone hovering in Hold
+    with _hovering_drone(spawn_drones) as (drone, link, conn, altitude_m, watch):
         # AND a corpus of broken datagrams none of which decodes to a message (checked here, so that a lucky bit
         # flip cannot turn into a real command)
         rng = random.Random(CORPUS_SEED)
@@ -274,14 +281,8 @@ def _waypoint(conn: mavutil.mavfile, seq: int, lat_e7: int, lon_e7: int, rel_alt
 def test_abandoned_mission_upload_leaves_the_drone_flying_and_a_fresh_upload_succeeds(
     spawn_drones: SpawnDrones,
 ) -> None:
-    (drone,) = spawn_drones()
-    link = VehicleLink.of(drone)
-    with mavlink_connection(link.pymavlink_url) as conn:
-        # GIVEN a drone hovering in Hold
-        altitude_m = _hovering(drone, conn)
-        watch = FlightWatch()
-        watch.drain(conn)
-
+    # GIVEN a drone hovering in Hold
+    with _hovering_drone(spawn_drones) as (drone, link, conn, altitude_m, watch):
         # WHEN a client announces a 5-item mission upload and then never sends an item
         conn.mav.mission_count_send(conn.target_system, conn.target_component, 5, mavlink.MAV_MISSION_TYPE_MISSION)
         # THEN the drone asks for item 0, and after its retries gives up (goes quiet, or says so with a MISSION_ACK)
@@ -398,13 +399,8 @@ FLOOD_WALL_S = 3.0  # longer than MAX_HEARTBEAT_GAP_WALL_S: a loop stuck reading
 def test_a_flood_of_datagrams_does_not_stall_a_hovering_drone(spawn_drones: SpawnDrones) -> None:
     """A peer sending faster than the drone can parse (a runaway script, a loop bug in a ground station) costs
     the drone the datagrams its socket cannot hold, never its flight loop."""
-    (drone,) = spawn_drones()
-    link = VehicleLink.of(drone)
-    with mavlink_connection(link.pymavlink_url) as conn:
-        # GIVEN a drone hovering in Hold
-        altitude_m = _hovering(drone, conn)
-        watch = FlightWatch()
-        watch.drain(conn)
+    # GIVEN a drone hovering in Hold
+    with _hovering_drone(spawn_drones) as (drone, link, conn, altitude_m, watch):
         # WHEN a stranger sends it heartbeats as fast as one process can, for longer than a heartbeat gap may last
         heartbeat = mavlink.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3).pack(_encoder())
         sent = 0
