@@ -185,8 +185,10 @@ def run_loop(
     for sock in [*(endpoint.sockets() if endpoint is not None else []), *steps_clock.sockets()]:
         selector.register(sock, selectors.EVENT_READ)
     events = sim.vehicle.events
-    # Unpaced, check the sockets every few milliseconds of simulation rather than after every step.
-    max_batch = 400 if endpoint is None else 8
+    # With MAVLink, read the sockets every few milliseconds of simulation (unpaced) rather than after every step. A
+    # paced batch must hold a whole wake-up's steps: shorter, the drone would sleep again while steps are still due
+    # and fall behind its clock by the difference.
+    max_batch = 400 if endpoint is None else PACED_WAKE_STEPS
     loop_stats = stats if stats is not None else LoopStats()
     clock_ns = loop_stats.clock_ns
     try:

@@ -1,4 +1,5 @@
-"""``swarm bench`` for real: N = 1 and 2 for a few simulated seconds, paced and in lockstep.
+"""``swarm bench`` for real: N = 1 and 2 for a few simulated seconds, paced and in lockstep; and bench/wakeups.py
+(the machine's price of a wake-up), which forks flights of its own and must reap them.
 
 Policy: loopback only; instances 244-245 (sysids 245-246: clear of the relay probe's 240-241 and of the other
 suites' blocks); the bench runs as its own process (``python -m gcs.bench``) and must leave no drone behind. What is
@@ -11,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -23,6 +25,9 @@ from gcs.bench import CPU_KEYS, CPU_PARTS
 pytestmark = [pytest.mark.sim_only, pytest.mark.timeout(330)]
 
 FIRST_INSTANCE = 244
+REPO = Path(__file__).resolve().parents[2]
+WAKEUPS = REPO / "bench" / "wakeups.py"
+WAKEUP_ROW = re.compile(r"^(\d+ process(?:es)?, [a-z ,0-9]+?) +([\d.]+) +([\d.]+) +([\d.]+) +([\d.]+)", re.MULTILINE)
 SIM_SECONDS = 3.0
 POSITIVE = (
     "ready_s",
@@ -120,3 +125,43 @@ def test_bad_arguments_are_one_line_and_spawn_nothing() -> None:
     assert result.returncode == 2
     assert result.stderr.strip().splitlines() == ["swarm bench: error: argument --drones: lists 1 twice"]
     assert result.stdout == ""
+
+
+def _wakeup_processes() -> list[int]:
+    """PIDs of any process running bench/wakeups.py (its forked flights carry the same command line)."""
+    found = []
+    for entry in os.scandir("/proc"):
+        try:
+            argv = Path(entry.path, "cmdline").read_bytes().split(b"\0") if entry.name.isdigit() else []
+        except OSError:
+            continue
+        if str(WAKEUPS).encode() in argv:
+            found.append(int(entry.name))
+    return found
+
+
+def test_the_wakeup_bench_measures_every_run_and_reaps_its_flights() -> None:
+    result = subprocess.run([sys.executable, str(WAKEUPS), "--sim-seconds", "0.5", "--crowd", "2"],
+                            capture_output=True, text=True, timeout=120, cwd=REPO)  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    rows = [m.groups() for m in WAKEUP_ROW.finditer(result.stdout)]
+    # one process unpaced and at 4 wake intervals; the crowd of 2 at 2 wake intervals and unpaced
+    assert [label for label, *_ in rows] == [
+        "1 process, unpaced",
+        *(f"1 process, paced, wake every {w} steps" for w in (2, 8, 32, 125)),
+        *(f"2 processes, paced, wake every {w} steps" for w in (8, 32)),
+        "2 processes, unpaced",
+    ]
+    for label, *figures in rows:
+        mean, low, high, wakes = (float(v) for v in figures)
+        assert 0 < low <= mean <= high
+        assert (wakes == 0) == label.endswith("unpaced")
+    assert _wakeup_processes() == []
+
+
+def test_the_wakeup_bench_refuses_a_bad_crowd_in_one_line() -> None:
+    result = subprocess.run([sys.executable, str(WAKEUPS), "--crowd", "1,x"],
+                            capture_output=True, text=True, timeout=60, cwd=REPO)  # fmt: skip
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines() == ["wakeups.py: error: argument --crowd: expected process counts like "
+                                                  "9,30, got '1,x'"]  # fmt: skip
