@@ -56,7 +56,7 @@ def _make_sim(mpc_loop_hz: float | None) -> Simulation:
     return sim
 
 
-def _arm_and_take_off_when_ready(sim: Simulation) -> bool:
+def arm_and_take_off_when_ready(sim: Simulation) -> bool:
     vehicle = sim.vehicle
     return vehicle.preflight_problem() is None and vehicle.arm().ok and vehicle.takeoff(TAKEOFF_ALT_M).ok
 
@@ -70,7 +70,7 @@ def closed_loop_total(sim_seconds: float, mpc_loop_hz: float | None = None) -> f
     for _ in range(steps):
         sim.step()
         if not armed:
-            armed = _arm_and_take_off_when_ready(sim)
+            armed = arm_and_take_off_when_ready(sim)
     return (time.process_time() - start) / sim_seconds
 
 
@@ -140,7 +140,7 @@ def closed_loop_breakdown(sim_seconds: float, mpc_loop_hz: float | None = None) 
         battery.update(sum(k_q * w * w * w for w in sim.truth.motor_speeds_radps), dt_s)
         t6 = clock()
         if not armed:
-            armed = _arm_and_take_off_when_ready(sim)
+            armed = arm_and_take_off_when_ready(sim)
         t7 = clock()
         totals["sensors"] += t1 - t0
         totals["estimator"] += t2 - t1

@@ -31,6 +31,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import NoReturn
 
+from one_drone import arm_and_take_off_when_ready  # this directory is on the path of a script run from it
+
 from sitl.airframe import load_airframe
 from sitl.simulation import PHYSICS_RATE_HZ, SimConfig, Simulation
 
@@ -72,8 +74,7 @@ def extra_per_wake_ms(paced_ms: float, unpaced_ms: float, wakes_per_sim_s: float
 def _flying_sim(seed: int) -> Simulation:
     """A simulation armed, taken off and climbing for CLIMB_S, run unpaced: the measured stretch is flight."""
     sim = Simulation(SimConfig(airframe=load_airframe(), seed=seed))
-    vehicle = sim.vehicle
-    while not (vehicle.preflight_problem() is None and vehicle.arm().ok and vehicle.takeoff(3.0).ok):
+    while not arm_and_take_off_when_ready(sim):
         sim.step()
     for _ in range(round(CLIMB_S / sim.dt_s)):
         sim.step()
@@ -95,9 +96,10 @@ def _fly(sim: Simulation, sim_seconds: float, wake_steps: int | None) -> float:
                 continue
         else:
             due = steps
-        for _ in range(min(due, steps - done)):
+        batch = min(due, steps - done)
+        for _ in range(batch):
             sim.step()
-        done += min(due, steps - done)
+        done += batch
     return time.process_time() - cpu0
 
 

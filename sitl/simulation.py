@@ -19,14 +19,12 @@ from sitl.battery import Battery, BatteryConfig
 from sitl.control.cascade import Cascade
 from sitl.control.params import CONTROL_PARAMS
 from sitl.dynamics.jsbsim_plant import JsbsimPlant
-from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint, PlantState
+from sitl.dynamics.plant import DEFAULT_HOME, PHYSICS_RATE_HZ, GeoPoint, PlantState
 from sitl.estimation import Estimate, Estimator, EstimatorConfig
 from sitl.params import ParamStore
 from sitl.sensors.models import GpsSample, SensorConfig, SensorReadings, SensorSuite
 from sitl.vehicle import Vehicle
 from sitl.wind import WindConfig, WindModel
-
-PHYSICS_RATE_HZ = 250.0
 
 
 def build_param_store() -> ParamStore:

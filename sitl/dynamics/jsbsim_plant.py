@@ -36,7 +36,7 @@ from sitl.dynamics.jsbsim_model import (
     rotor_speed_property,
     write_model,
 )
-from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint, PlantState
+from sitl.dynamics.plant import DEFAULT_HOME, PHYSICS_RATE_HZ, GeoPoint, PlantState
 from sitl.mathutil import GRAVITY_MPS2, Vec3, fast_constructor
 
 _log = logging.getLogger(__name__)
@@ -117,7 +117,7 @@ class JsbsimPlant:
         self,
         airframe: Airframe,
         home: GeoPoint = DEFAULT_HOME,
-        dt_s: float = 1.0 / 250.0,  # sitl.simulation.PHYSICS_RATE_HZ
+        dt_s: float = 1.0 / PHYSICS_RATE_HZ,
         initial_pos_ned_m: Sequence[float] = (0.0, 0.0, 0.0),
         initial_yaw_rad: float = 0.0,
         *,

@@ -12,6 +12,9 @@ from typing import Protocol
 
 from sitl.mathutil import Quat, Vec3
 
+# The physics step rate every plant and simulation uses by default: PX4's SITL rate (docs/control.md).
+PHYSICS_RATE_HZ = 250.0
+
 # PX4 SITL default home (Zurich), used when no home is given.
 DEFAULT_HOME_LAT_DEG = 47.397742
 DEFAULT_HOME_LON_DEG = 8.545594
