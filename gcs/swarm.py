@@ -25,6 +25,7 @@ from typing import Any
 from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.fleet import Fleet
+from gcs.losses import DroneLoss
 from gcs.relay import NeighbourRelay
 from gcs.supervisor import ProcessGroup, SpawnError, SpawnPlan
 from gcs.transport import GcsSocket
@@ -90,6 +91,7 @@ class Swarm:
         self.forward = forward
         self.batch_hold_s = batch_hold_s
         self._flush_due_s = math.inf  # when the queued traffic must leave (-inf: at the next pump)
+        self.losses: dict[int, DroneLoss] = {}  # sysid -> the loss, recorded once
 
     def clock(self) -> float:
         """Simulated seconds: the drones' common clock in lockstep, else wall time times the speed factor."""
