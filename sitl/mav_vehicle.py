@@ -14,10 +14,12 @@ from sitl.control.cascade import AttitudeSetpoint as CascadeAttitudeSetpoint
 from sitl.control.cascade import TrajectorySetpoint
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.dynamics.plant import GeoPoint
+from sitl.faults import BATTERY_LEVELS, FaultError, apply_request, decode_request
 from sitl.mathutil import Vec3, vec3
 from sitl.mission_exec import MissionRun
 from sitl.mission_plan import NavItem, to_nav_items
 from sitl.protocol import vehicle_api as api
+from sitl.protocol.fence import to_geofence
 from sitl.protocol.modes import Px4Mode
 from sitl.simulation import Simulation
 
@@ -48,6 +50,7 @@ class SimVehicleApi:
         self.frame = LocalFrame(self.origin)
         self._mission_items: tuple[api.MissionItem, ...] = ()
         self._mission_home_alt_amsl_m = math.nan  # home altitude the stored mission's relative altitudes used
+        self._fence_items: tuple[api.MissionItem, ...] = ()
         self._snapshot: api.VehicleSnapshot | None = None
         self._snapshot_time_s = -1.0
 
@@ -70,6 +73,15 @@ class SimVehicleApi:
     # ---- VehicleApi ---------------------------------------------------------------------------------------------
     def mission_items(self) -> Sequence[api.MissionItem]:
         return self._mission_items
+
+    def fence_items(self) -> Sequence[api.MissionItem]:
+        return self._fence_items
+
+    def note_gcs_heartbeat(self, now_s: float) -> None:
+        self.vehicle.note_gcs_heartbeat(now_s)
+
+    def mavlink_failed(self) -> bool:
+        return self.sim.faults.link_off
 
     def set_offboard_setpoint(self, setpoint: api.OffboardSetpoint | api.AttitudeSetpoint, now_s: float) -> None:
         if isinstance(setpoint, api.OffboardSetpoint):
@@ -150,7 +162,43 @@ class SimVehicleApi:
                 self._mission_items = items
                 self._mission_home_alt_amsl_m = self.home_alt_amsl_m()
                 return v.set_mission(self._nav_items())
+            case api.SetFence(items=items):
+                # Zones in the local frame the autopilot flies in (fences are vertical prisms: no altitude).
+                v.set_fence(to_geofence(items, self._ne_of))
+                self._fence_items = items
+                return api.CommandOutcome.accepted()
+            case api.InjectFailure():
+                return self._inject_failure(request)
         return api.CommandOutcome(api.CommandResult.UNSUPPORTED, "Not supported")
+
+    def _ne_of(self, lat_deg: float, lon_deg: float) -> tuple[float, float]:
+        north, east, _ = self.frame.ned_from_geo(
+            GeoPoint(lat_deg=lat_deg, lon_deg=lon_deg, alt_amsl_m=self.origin.alt_amsl_m)
+        )
+        return (north, east)
+
+    def _inject_failure(self, request: api.InjectFailure) -> api.CommandOutcome:
+        """MAV_CMD_INJECT_FAILURE as PX4 answers it: DENIED unless SYS_FAILURE_EN = 1, UNSUPPORTED for a failure
+        the simulation cannot produce; accepted, the reason is the text that announces the failure."""
+        params = self.sim.params
+        if params["SYS_FAILURE_EN"] != 1:
+            return api.CommandOutcome.denied("Failure injection disabled")
+        # BAT_EMERGEN_THR may be absent from an older parameter table: that level is then refused, never guessed.
+        thresholds = {name: params[name] for _, name in BATTERY_LEVELS.values() if name in params}
+        try:
+            fault = decode_request(request.unit, request.failure_type, request.instance)
+            state, text = apply_request(
+                self.sim.faults,
+                fault,
+                rotor_count=len(self.sim.config.airframe.rotors),
+                battery_level=round(params["SYS_FAIL_BAT_LVL"]),
+                battery_thresholds=thresholds,
+            )
+        except FaultError as exc:
+            result = api.CommandResult.UNSUPPORTED if exc.unsupported else api.CommandResult.DENIED
+            return api.CommandOutcome(result, str(exc))
+        self.sim.set_faults(state)
+        return api.CommandOutcome(api.CommandResult.ACCEPTED, text)
 
     def _nav_items(self) -> tuple[NavItem, ...]:
         return to_nav_items(self._mission_items, self.origin, self._mission_home_alt_amsl_m)
