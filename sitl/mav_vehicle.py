@@ -10,11 +10,13 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+from pymavlink.dialects.v20 import common as mavlink
+
 from sitl.control.cascade import AttitudeSetpoint as CascadeAttitudeSetpoint
 from sitl.control.cascade import TrajectorySetpoint
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.dynamics.plant import GeoPoint
-from sitl.faults import BATTERY_LEVELS, FaultError, apply_request, decode_request
+from sitl.faults import BATTERY_LEVELS, FaultError, GpsFault, apply_request, decode_request
 from sitl.mathutil import Vec3, vec3
 from sitl.mission_exec import MissionRun
 from sitl.mission_plan import NavItem, to_nav_items
@@ -30,6 +32,7 @@ _MISSION_STATE = {
     MissionRun.PAUSED: api.MissionState.PAUSED,
     MissionRun.COMPLETE: api.MissionState.COMPLETE,
 }
+_ALL_HEALTHY = api.SensorHealth()
 NO_RC_MODES = frozenset(
     {Px4Mode.MANUAL, Px4Mode.ALTCTL, Px4Mode.POSCTL, Px4Mode.STABILIZED, Px4Mode.ACRO, Px4Mode.AUTO_READY}
 )
@@ -277,9 +280,23 @@ class SimVehicleApi:
                 reached_seq=mission.reached_seq,
             ),
             throttle=status.thrust_n / max(v.cascade.collective_max_n, 1e-9),
+            sensors=self._sensor_health(),
         )
         self._snapshot_time_s = sim.time_s
         return self._snapshot
+
+    def _sensor_health(self) -> api.SensorHealth:
+        """SYS_STATUS health: an injected GPS failure makes the GPS unhealthy and a failed rotor the motor outputs,
+        as PX4 reports a receiver without fix and a failed ESC."""
+        faults = self.sim.faults
+        if faults.gps is GpsFault.NONE and not faults.motors_off:
+            return _ALL_HEALTHY
+        healthy = api.SIM_SENSOR_BITS
+        if faults.gps is not GpsFault.NONE:
+            healthy &= ~mavlink.MAV_SYS_STATUS_SENSOR_GPS
+        if faults.motors_off:
+            healthy &= ~mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+        return api.SensorHealth(healthy=healthy)
 
     def _gps_status(self) -> api.GpsStatus:
         gps = self.sim.last_gps

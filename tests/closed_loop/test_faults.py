@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.faults import BATTERY_TRIGGER_MARGIN, GPS_GLITCH_OFFSET_NE_M, FailureType, FailureUnit
 from sitl.mav_vehicle import SimVehicleApi
@@ -76,6 +77,7 @@ def test_gps_off_invalidates_the_position_after_the_timeout_and_recovers() -> No
     sim.run_for(0.3)
     snap = SimVehicleApi(sim).snapshot()
     assert snap.gps.fix_type is api.GpsFixType.NO_FIX and snap.gps.position is None  # GPS_RAW_INT: no fix
+    assert not snap.sensors.healthy & mavlink.MAV_SYS_STATUS_SENSOR_GPS  # SYS_STATUS: GPS unhealthy
     assert sim.estimate is not None and sim.estimate.position_valid  # dead reckoning, not yet timed out
     assert sim.run_until(lambda s: s.estimate is not None and not s.estimate.position_valid, timeout_s + 1.0)
     assert timeout_s - 0.2 <= sim.time_s - t_off <= timeout_s + 0.2, sim.time_s - t_off

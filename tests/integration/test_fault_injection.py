@@ -27,7 +27,7 @@ from tests.integration.mavlink_client import (
     recv_until,
     wait_vehicle_heartbeat,
 )
-from tests.integration.mavsdk_client import call_within, connect
+from tests.integration.mavsdk_client import call_within, connect, first_matching
 from tests.integration.sitl_process import InstanceAllocator, SitlDrone, start_drone, stop_drone
 from tests.integration.vehicle_link import VehicleLink
 
@@ -169,8 +169,10 @@ def test_pymavlink_fence_upload_download_refusal_and_clear(tmp_path: Path) -> No
 
 
 @pytest.mark.timeout(90)
-async def test_mavsdk_uploads_downloads_and_clears_a_fence(tmp_path: Path) -> None:
+async def test_mavsdk_uploads_downloads_and_clears_a_fence_and_injects_a_failure(tmp_path: Path) -> None:
+    from mavsdk.asyncio.plugins.failure import FailureAsync, FailureType, FailureUnit
     from mavsdk.asyncio.plugins.geofence import Circle, FenceType, GeofenceAsync, GeofenceData, Point, Polygon
+    from mavsdk.asyncio.plugins.telemetry import FixType
 
     with drone_in_world(tmp_path) as (drone, _world):
         link = VehicleLink.of(drone)
@@ -192,3 +194,12 @@ async def test_mavsdk_uploads_downloads_and_clears_a_fence(tmp_path: Path) -> No
             await call_within(geofence.clear_geofence(), 10.0, "clear_geofence")
             after_clear = await call_within(geofence.download_geofence(), 10.0, "download after clear")
             assert after_clear.polygons == [] and after_clear.circles == []
+            # MAVSDK's failure plugin reads SYS_FAILURE_EN when it starts (and refuses by itself, DISABLED, while it
+            # is 0): enable injection first, as PX4's docs say. The drone's own refusal is the pymavlink test's.
+            await call_within(client.param.set_param_int("SYS_FAILURE_EN", 1), 10.0, "set SYS_FAILURE_EN")
+            failure = FailureAsync(client.system)
+            await call_within(failure.inject(FailureUnit.SENSOR_GPS, FailureType.OFF, 0), 10.0, "inject")
+            no_fix = await first_matching(
+                client.telemetry.subscribe_gps_info, lambda g: g.num_satellites == 0, 5.0, "no sats"
+            )
+            assert no_fix.fix_type == FixType.NO_FIX
