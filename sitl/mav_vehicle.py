@@ -33,6 +33,12 @@ _MISSION_STATE = {
     MissionRun.COMPLETE: api.MissionState.COMPLETE,
 }
 _ALL_HEALTHY = api.SensorHealth()
+# Most severe first; BAT_EMERGEN_THR may be absent from an older parameter table (that grade is then skipped).
+_CHARGE_STATES = (
+    ("BAT_EMERGEN_THR", int(mavlink.MAV_BATTERY_CHARGE_STATE_EMERGENCY)),
+    ("BAT_CRIT_THR", int(mavlink.MAV_BATTERY_CHARGE_STATE_CRITICAL)),
+    ("BAT_LOW_THR", int(mavlink.MAV_BATTERY_CHARGE_STATE_LOW)),
+)
 NO_RC_MODES = frozenset(
     {Px4Mode.MANUAL, Px4Mode.ALTCTL, Px4Mode.POSCTL, Px4Mode.STABILIZED, Px4Mode.ACRO, Px4Mode.AUTO_READY}
 )
@@ -270,6 +276,7 @@ class SimVehicleApi:
                 remaining=battery.remaining,
                 consumed_mah=battery.consumed_mah,
                 cell_count=sim.config.battery.cells,
+                charge_state=self._charge_state(battery.remaining),
             ),
             home=home,
             local_origin=self.origin,
@@ -284,6 +291,14 @@ class SimVehicleApi:
         )
         self._snapshot_time_s = sim.time_s
         return self._snapshot
+
+    def _charge_state(self, remaining: float) -> int:
+        """BATTERY_STATUS charge_state as PX4's battery library grades the charge against the BAT_*_THR levels."""
+        params = self.sim.params
+        for name, state in _CHARGE_STATES:
+            if name in params and remaining < params[name]:
+                return state
+        return int(mavlink.MAV_BATTERY_CHARGE_STATE_OK)
 
     def _sensor_health(self) -> api.SensorHealth:
         """SYS_STATUS health: an injected GPS failure makes the GPS unhealthy and a failed rotor the motor outputs,

@@ -239,9 +239,7 @@ def battery_status(snap: VehicleSnapshot, ident: Identity) -> MAVLinkMessage:
         -1,
         to_int(bat.remaining * 100.0, 0, 100, -1),
         0,
-        mavlink.MAV_BATTERY_CHARGE_STATE_OK
-        if math.isfinite(bat.remaining)
-        else mavlink.MAV_BATTERY_CHARGE_STATE_UNDEFINED,
+        bat.charge_state if math.isfinite(bat.remaining) else mavlink.MAV_BATTERY_CHARGE_STATE_UNDEFINED,
         (0, 0, 0, 0),
         0,
         0,

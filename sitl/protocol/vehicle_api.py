@@ -371,6 +371,8 @@ class BatteryStatus:
     consumed_mah: float  # NaN unknown
     cell_count: int = 0  # 0: unknown, report the pack voltage as one value
     temperature_c: float = NAN
+    # MAV_BATTERY_CHARGE_STATE: PX4 reports LOW/CRITICAL/EMERGENCY once the charge is below BAT_LOW_THR/_CRIT_/_EMERGEN_
+    charge_state: int = mavlink.MAV_BATTERY_CHARGE_STATE_OK
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

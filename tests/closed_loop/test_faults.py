@@ -114,7 +114,13 @@ def test_battery_faults_read_just_below_their_threshold_and_clear() -> None:
     sim = enabled_sim(seed=7)
     api_ = SimVehicleApi(sim)
     true_remaining = sim.battery.true_remaining
-    for level, threshold in ((1, "BAT_LOW_THR"), (2, "BAT_CRIT_THR"), (3, "BAT_EMERGEN_THR")):
+    grades = (
+        (1, "BAT_LOW_THR", mavlink.MAV_BATTERY_CHARGE_STATE_LOW),
+        (2, "BAT_CRIT_THR", mavlink.MAV_BATTERY_CHARGE_STATE_CRITICAL),
+        (3, "BAT_EMERGEN_THR", mavlink.MAV_BATTERY_CHARGE_STATE_EMERGENCY),
+    )
+    assert api_.snapshot().battery.charge_state == mavlink.MAV_BATTERY_CHARGE_STATE_OK
+    for level, threshold, charge_state in grades:
         sim.params.set("SYS_FAIL_BAT_LVL", level)
         outcome = inject(sim, BATTERY, WRONG)
         if threshold not in sim.params:  # declared with the battery failsafe (sitl/autopilot_params.py)
@@ -125,6 +131,7 @@ def test_battery_faults_read_just_below_their_threshold_and_clear() -> None:
         sim.run_for(0.1)
         assert sim.battery.remaining == pytest.approx(expected)
         assert api_.snapshot().battery.remaining == pytest.approx(expected)
+        assert api_.snapshot().battery.charge_state == charge_state  # BATTERY_STATUS as PX4 grades it
     assert inject(sim, BATTERY, OFF).ok
     sim.run_for(0.1)
     assert api_.snapshot().battery.remaining == 0.0
