@@ -112,12 +112,22 @@ def decode_request(unit: int | None, failure_type: int | None, instance: int | N
     return request
 
 
+# PX4's names in its announcements (the keys of its `failure` console command).
 _UNIT_NAMES: Final = {
-    FailureUnit.SENSOR_GPS: "GPS",
+    FailureUnit.SENSOR_GPS: "gps",
     FailureUnit.SYSTEM_BATTERY: "battery",
     FailureUnit.SYSTEM_MOTOR: "motor",
-    FailureUnit.SYSTEM_MAVLINK_SIGNAL: "MAVLink signal",
+    FailureUnit.SYSTEM_MAVLINK_SIGNAL: "mavlink_signal",
 }
+
+
+def announcement(request: FaultRequest) -> str:
+    """The STATUSTEXT of an accepted injection, in PX4's words ("Injected: gps off, all instances")."""
+    which = "all instances" if request.instance == 0 else f"instances {request.instance}"
+    unit = _UNIT_NAMES[request.unit]
+    if request.type is FailureType.OK:
+        return f"Cleared: {unit}, {which}"
+    return f"Injected: {unit} {request.type.name.lower()}, {which}"
 
 
 def apply_request(
@@ -133,34 +143,27 @@ def apply_request(
     ``battery_level`` is SYS_FAIL_BAT_LVL; ``battery_thresholds`` holds the BAT_*_THR parameters by name (only
     those declared: a level whose threshold is missing is refused rather than guessed)."""
     unit, kind, instance = request.unit, request.type, request.instance
+    text = announcement(request)
     if unit is FailureUnit.SYSTEM_MOTOR:
         if instance > rotor_count:
             raise FaultError(f"Motor {instance} does not exist ({rotor_count} rotors)", unsupported=False)
         chosen = frozenset(range(rotor_count)) if instance == 0 else frozenset({instance - 1})
-        which = "all motors" if instance == 0 else f"motor {instance}"
         if kind is FailureType.OFF:
-            return replace(state, motors_off=state.motors_off | chosen), f"Failure injected: {which} off"
-        return replace(state, motors_off=state.motors_off - chosen), f"Failure cleared: {which} ok"
+            return replace(state, motors_off=state.motors_off | chosen), text
+        return replace(state, motors_off=state.motors_off - chosen), text
     if unit is FailureUnit.SENSOR_GPS:
-        if kind is FailureType.OFF:
-            return replace(state, gps=GpsFault.OFF), "Failure injected: GPS off"
-        if kind is FailureType.WRONG:
-            north, east = GPS_GLITCH_OFFSET_NE_M
-            return replace(state, gps=GpsFault.GLITCH), f"Failure injected: GPS glitch ({north:g} m N, {east:g} m E)"
-        return replace(state, gps=GpsFault.NONE), "Failure cleared: GPS ok"
+        gps = {FailureType.OFF: GpsFault.OFF, FailureType.WRONG: GpsFault.GLITCH}.get(kind, GpsFault.NONE)
+        return replace(state, gps=gps), text
     if unit is FailureUnit.SYSTEM_BATTERY:
         if kind is FailureType.OFF:
-            return replace(state, battery=BatteryFault.EMPTY, battery_remaining=0.0), "Failure injected: battery off"
+            return replace(state, battery=BatteryFault.EMPTY, battery_remaining=0.0), text
         if kind is FailureType.WRONG:
             fault, threshold_name = BATTERY_LEVELS.get(battery_level, BATTERY_LEVELS[2])
             threshold = battery_thresholds.get(threshold_name)
             if threshold is None:
                 raise FaultError(f"Battery failure: {threshold_name} not available", unsupported=True)
             remaining = max(0.0, threshold - BATTERY_TRIGGER_MARGIN)
-            text = f"Failure injected: battery {fault.value} ({remaining:.0%} remaining)"
             return replace(state, battery=fault, battery_remaining=remaining), text
-        return replace(state, battery=BatteryFault.NONE, battery_remaining=None), "Failure cleared: battery ok"
-    # SYSTEM_MAVLINK_SIGNAL
-    if kind is FailureType.OFF:
-        return replace(state, link_off=True), "Failure injected: MAVLink signal off"
-    return state, "Failure cleared: MAVLink signal ok"
+        return replace(state, battery=BatteryFault.NONE, battery_remaining=None), text
+    # SYSTEM_MAVLINK_SIGNAL: OK changes nothing (a drone whose link is off never hears it)
+    return replace(state, link_off=state.link_off or kind is FailureType.OFF), text

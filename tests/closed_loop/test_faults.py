@@ -46,7 +46,7 @@ def test_injection_is_denied_unless_enabled_and_unsupported_failures_are_unsuppo
     assert inject(sim, MOTOR, 3).result is api.CommandResult.UNSUPPORTED  # FAILURE_TYPE_STUCK
     assert inject(sim, MOTOR, OFF, 5).result is api.CommandResult.DENIED  # a quadrotor has no motor 5
     accepted = inject(sim, MOTOR, OFF, 2)
-    assert accepted.ok and accepted.reason == "Failure injected: motor 2 off"
+    assert accepted.ok and accepted.reason == "Injected: motor off, instances 2"
     assert sim.plant.failed_motors == frozenset({1})
     assert inject(sim, MOTOR, OK, 2).ok and sim.plant.failed_motors == frozenset()
 
@@ -92,7 +92,7 @@ def test_gps_glitch_is_gated_out_then_declared_invalid() -> None:
     sim = enabled_sim(seed=6)
     take_off(sim, 2.5)
     timeout_s = sim.estimator.config.gps_timeout_s
-    assert inject(sim, GPS, WRONG).reason.startswith("Failure injected: GPS glitch")
+    assert inject(sim, GPS, WRONG).reason == "Injected: gps wrong, all instances"
     assert sim.last_gps is not None
     errors = []
 
@@ -153,5 +153,5 @@ def test_link_off_is_only_a_flag_for_the_endpoint() -> None:
     sim = enabled_sim(seed=9)
     vehicle_api = SimVehicleApi(sim)
     assert not vehicle_api.mavlink_failed()
-    assert inject(sim, LINK, OFF).reason == "Failure injected: MAVLink signal off"
+    assert inject(sim, LINK, OFF).reason == "Injected: mavlink_signal off, all instances"
     assert vehicle_api.mavlink_failed()

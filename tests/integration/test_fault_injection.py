@@ -89,8 +89,8 @@ def test_inject_failure_is_denied_unless_enabled_and_a_link_fault_silences_a_dro
         assert command_long(conn, INJECT, (0, 1, 0)).result == mavlink.MAV_RESULT_UNSUPPORTED  # gyro off
         # WHEN the MAVLink signal is cut  THEN the injection is announced and accepted...
         conn.mav.command_long_send(conn.target_system, 0, INJECT, 0, 105, 1, 0, 0, 0, 0, 0)
-        text = recv_until(conn, "STATUSTEXT", lambda m: "MAVLink signal off" in m.text, 3.0, "injection text")
-        assert text.text == "Failure injected: MAVLink signal off"
+        text = recv_until(conn, "STATUSTEXT", lambda m: "mavlink_signal off" in m.text, 3.0, "injection text")
+        assert text.text == "Injected: mavlink_signal off, all instances"
         ack = recv_until(conn, "COMMAND_ACK", lambda m: m.command == INJECT, 3.0, "injection ACK")
         assert ack.result == mavlink.MAV_RESULT_ACCEPTED
         row = world.table[drone.ports.instance]

@@ -24,10 +24,10 @@ INJECT = mavlink.MAV_CMD_INJECT_FAILURE
 
 def test_accepted_injection_is_announced_before_its_ack() -> None:
     rig = Rig()
-    rig.vehicle.refuse(InjectFailure, CommandResult.ACCEPTED, "Failure injected: motor 1 off")
+    rig.vehicle.refuse(InjectFailure, CommandResult.ACCEPTED, "Injected: motor off, instances 1")
     out = rig.send(long(INJECT, 101, 1, 1))
     assert [m.get_type() for m in out][:2] == ["STATUSTEXT", "COMMAND_ACK"]
-    assert out[0].text == "Failure injected: motor 1 off" and out[1].result == mavlink.MAV_RESULT_ACCEPTED
+    assert out[0].text == "Injected: motor off, instances 1" and out[1].result == mavlink.MAV_RESULT_ACCEPTED
     assert rig.vehicle.requests[-1] == InjectFailure(unit=101, failure_type=1, instance=1)
 
 
@@ -52,7 +52,7 @@ def test_gcs_heartbeats_reach_the_vehicle_and_others_do_not() -> None:
 def test_fault_decoding_and_state() -> None:
     request = decode_request(101, 1, 0)
     state, text = apply_request(FaultState(), request, rotor_count=4, battery_level=2, battery_thresholds={})
-    assert state.motors_off == frozenset(range(4)) and text == "Failure injected: all motors off"
+    assert state.motors_off == frozenset(range(4)) and text == "Injected: motor off, all instances"
     glitch = decode_request(int(FailureUnit.SENSOR_GPS), int(FailureType.WRONG), 0)
     state, _ = apply_request(state, glitch, rotor_count=4, battery_level=2, battery_thresholds={})
     assert state.gps.value == "glitch" and state.motors_off == frozenset(range(4))  # faults accumulate
@@ -66,7 +66,7 @@ def test_fault_decoding_and_state() -> None:
     battery = decode_request(100, 4, 0)
     state, text = apply_request(FaultState(), battery, rotor_count=4, battery_level=1,
                                 battery_thresholds={"BAT_LOW_THR": 0.15})  # fmt: skip
-    assert state.battery_remaining == pytest.approx(0.14) and text == "Failure injected: battery low (14% remaining)"
+    assert state.battery_remaining == pytest.approx(0.14) and text == "Injected: battery wrong, all instances"
 
 
 def _recv_all(sock: socket.socket, seconds: float, endpoint: MavlinkEndpoint, now_s: float) -> int:
@@ -97,7 +97,7 @@ def test_a_link_fault_silences_every_link_after_the_accepting_reply() -> None:
     try:
         assert all(_recv_all(c, 0.3, endpoint, 1.0) > 0 for c in clients)  # both links stream
         # The vehicle accepts a link fault; the client hears the ACK, then nothing on either link.
-        vehicle.refuse(InjectFailure, CommandResult.ACCEPTED, "Failure injected: MAVLink signal off")
+        vehicle.refuse(InjectFailure, CommandResult.ACCEPTED, "Injected: mavlink_signal off, all instances")
         original = vehicle.command
 
         def command(request: object, now_s: float) -> CommandOutcome:
