@@ -23,6 +23,7 @@ from sitl.airframe import Airframe
 from sitl.collision_prevention import CollisionPrevention
 from sitl.control.cascade import AttitudeSetpoint, Cascade, CascadeOutput, TrajectorySetpoint
 from sitl.estimation import Estimate
+from sitl.geofence import Geofence
 from sitl.guidance import MotionLimits, StraightLineTrajectory
 from sitl.land_detector import LandDetector, LandDetectorConfig
 from sitl.mathutil import Vec3, vec3
@@ -603,3 +604,11 @@ class Vehicle:
         delay = self._p("COM_DISARM_LAND") if took_off else self._p("COM_DISARM_PRFLT")
         if delay >= 0 and now_s - since >= delay:
             self._disarm("Auto-disarmed after landing" if took_off else "Auto-disarmed: no takeoff")
+
+    def set_fence(self, fence: Geofence) -> None:
+        """The geofence uploaded by a ground station, in the local frame."""
+        self.fence = fence
+
+    def note_gcs_heartbeat(self, now_s: float) -> None:
+        """A ground-station HEARTBEAT arrived at ``now_s``."""
+        self.gcs_heartbeat_s = now_s
