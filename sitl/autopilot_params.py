@@ -119,6 +119,16 @@ AUTOPILOT_PARAMS: tuple[ParamDef, ...] = (
         description="Offboard setpoint loss timeout before the failsafe (Hold, then land)",
     ),
     ParamDef(
+        name="COM_OBL_RC_ACT",
+        default=0,
+        min=0,
+        max=7,
+        unit="",
+        type=ParamType.INT,
+        description="Offboard loss action: 0-2 manual modes (no RC: Hold, then land), 3 Return, 4 Land, 5 Hold, "
+        "6 Terminate, 7 Disarm",
+    ),
+    ParamDef(
         name="COM_FAIL_ACT_T",
         default=5.0,
         min=0.0,
