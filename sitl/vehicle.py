@@ -27,6 +27,7 @@ from sitl.autopilot.modes import ModeUnit, build_units
 from sitl.collision_prevention import CollisionPrevention
 from sitl.control.cascade import AttitudeSetpoint, Cascade, CascadeOutput, TrajectorySetpoint
 from sitl.estimation import Estimate
+from sitl.geofence import Geofence
 from sitl.guidance import MotionLimits, StraightLineTrajectory
 from sitl.land_detector import LandDetector, LandDetectorConfig
 from sitl.mathutil import Vec3, vec3
@@ -95,11 +96,12 @@ class Vehicle:
         self.target_ned_m: Vec3 = np.zeros(3)
         self.target_yaw_rad = math.nan
         self.speed_override_mps = math.inf
-        self.units = build_units()
+        self.units = build_units(self._hover_thrust_n)
         self._unit_of: dict[Px4Mode, ModeUnit] = self.units.by_mode()
         self._unit: ModeUnit = self._unit_of[self.status.mode]
         self.failsafes = FailsafeState()
         self._gcs_heartbeat_s = math.nan
+        self._fence = Geofence()
         self._est: Estimate | None = None
         self._now_s = 0.0
         self._landed_since_s: float | None = 0.0
@@ -165,11 +167,14 @@ class Vehicle:
 
     def enter(self, mode: Px4Mode) -> None:
         """Switch to the unit flying ``mode`` (the old unit drops what must not survive the switch)."""
-        unit = self._unit_of[mode]
+        self._switch_to(self._unit_of[mode])
+
+    def _switch_to(self, unit: ModeUnit) -> None:
         if unit is self._unit:
             return
         self._unit.exit(self)
         self._unit = unit
+        mode = unit.mode
         if mode is not self.status.mode:
             self.status.mode = mode
             self.event(6, f"Mode {mode.px4_name}")
@@ -405,6 +410,30 @@ class Vehicle:
         is armed only once the first one has been heard, as PX4's."""
         self._gcs_heartbeat_s = now_s
 
+    def set_fence(self, fence: Geofence) -> None:
+        """The geofence in force from now on (local frame); GF_ACTION says what a breach does."""
+        self._fence = fence
+
+    @property
+    def fence(self) -> Geofence:
+        return self._fence
+
+    def _fence_breach(self, est: Estimate) -> str | None:
+        hor = self.p("GF_MAX_HOR_DIST")
+        ver = self.p("GF_MAX_VER_DIST")
+        if not est.position_valid or (not self._fence.zones and hor <= 0.0 and ver <= 0.0):
+            return None
+        return self._fence.breach(_tuple3(est.pos_ned_m), _tuple3(self._home_ned_m), hor, ver)
+
+    def terminate(self, text: str) -> None:
+        """Flight termination (PX4): the motors stop and stay stopped; like a crash, arming is refused after it."""
+        if self.crashed:
+            return
+        self.crashed = True
+        self.event(2, text)
+        if self.status.armed:
+            self._disarm("Flight terminated")
+
     # ---- failsafes -------------------------------------------------------------------------------------------------
     def _failsafe_inputs(self, est: Estimate, now_s: float) -> FailsafeInputs:
         return FailsafeInputs(
@@ -417,7 +446,7 @@ class Vehicle:
             battery_remaining=self._battery_remaining(),
             position_valid=est.position_valid,
             altitude_valid=est.altitude_valid,
-            fence_breach=None,
+            fence_breach=self._fence_breach(est),
         )
 
     def _run_failsafes(self, est: Estimate, now_s: float) -> None:
@@ -441,9 +470,16 @@ class Vehicle:
         elif action is FailsafeAction.RTL:
             if mode not in (Px4Mode.AUTO_RTL, Px4Mode.AUTO_LAND):  # never climb back out of a landing
                 self.return_to_launch()
-        elif action in (FailsafeAction.LAND, FailsafeAction.DESCEND) and mode is not Px4Mode.AUTO_LAND:
+        elif action is FailsafeAction.LAND and mode is not Px4Mode.AUTO_LAND:
             self.hold_here()
             self.enter(Px4Mode.AUTO_LAND)
+        elif action is FailsafeAction.DESCEND:
+            self.units.descend.start(self._est)
+            self._switch_to(self.units.descend)
+        elif action is FailsafeAction.DISARM:
+            self._disarm("Motors stopped: lockdown")
+        elif action is FailsafeAction.TERMINATE:
+            self.terminate("Flight termination")
 
     # ---- the step --------------------------------------------------------------------------------------------------
     def step(self, est: Estimate, now_s: float, dt_s: float) -> tuple[float, ...]:

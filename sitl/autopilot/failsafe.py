@@ -165,6 +165,15 @@ FAILSAFE_TABLE: tuple[FailsafeRow, ...] = (
         hold_first=True,
     ),
     FailsafeRow(
+        kind=FailsafeKind.DATALINK_LOSS,
+        condition=_datalink_lost,
+        action=lambda p: _DLL_ACTIONS.get(_int(p, "NAV_DLL_ACT"), FailsafeAction.NONE),
+        cause=lambda i: "no connection to the ground station",
+        clear=Clear.WHEN_CONDITION_CLEARS,
+        hold_first=True,
+        recovered="Data link regained",
+    ),
+    FailsafeRow(
         kind=FailsafeKind.BATTERY_LOW,
         condition=lambda i, p: i.battery_remaining < p["BAT_LOW_THR"],
         action=lambda p: FailsafeAction.WARN,  # PX4 only warns at the low level, whatever COM_LOW_BAT_ACT says
@@ -175,10 +184,36 @@ FAILSAFE_TABLE: tuple[FailsafeRow, ...] = (
     FailsafeRow(
         kind=FailsafeKind.BATTERY_CRITICAL,
         condition=lambda i, p: i.battery_remaining < p["BAT_CRIT_THR"] and not i.landed,
-        action=lambda p: FailsafeAction.RTL,
+        action=lambda p: _BAT_CRITICAL_ACTIONS.get(_int(p, "COM_LOW_BAT_ACT"), FailsafeAction.WARN),
         cause=lambda i: "battery critical",
         clear=Clear.ON_ARMING,
         hold_first=False,  # the pack drains on: act at once
+    ),
+    FailsafeRow(
+        kind=FailsafeKind.BATTERY_EMERGENCY,
+        condition=lambda i, p: i.battery_remaining < p["BAT_EMERGEN_THR"] and not i.landed,
+        action=lambda p: _BAT_EMERGENCY_ACTIONS.get(_int(p, "COM_LOW_BAT_ACT"), FailsafeAction.WARN),
+        cause=lambda i: "battery emergency",
+        clear=Clear.ON_ARMING,
+        hold_first=False,
+    ),
+    FailsafeRow(
+        kind=FailsafeKind.POSITION_LOSS,
+        # PX4's mode fallback: a mode that needs a position cannot run without one, so the vehicle comes down
+        # (Land needs a position too: without one it descends level at a controlled sink rate).
+        condition=lambda i, p: not i.position_valid and i.needs_position and not i.landed,
+        action=lambda p: FailsafeAction.DESCEND,
+        cause=lambda i: "no global position",
+        clear=Clear.WHEN_CONDITION_CLEARS,
+        hold_first=False,  # Hold needs the position that is missing
+    ),
+    FailsafeRow(
+        kind=FailsafeKind.GEOFENCE,
+        condition=lambda i, p: i.fence_breach is not None and not i.landed,
+        action=lambda p: _GF_ACTIONS.get(_int(p, "GF_ACTION"), FailsafeAction.WARN),
+        cause=lambda i: f"geofence violation ({i.fence_breach})",
+        clear=Clear.WHEN_CONDITION_CLEARS,
+        hold_first=False,  # PX4 acts on a breach at once
     ),
 )
 

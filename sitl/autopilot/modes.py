@@ -330,6 +330,53 @@ class Offboard(TrackTarget):
         return not isinstance(self.setpoint_in, AttitudeSetpoint)
 
 
+# Descend without a position: the sink-rate loop on the altitude estimate. Thrust is a fraction of hover thrust:
+# proportional on the sink-rate error (fraction per m/s) plus an integrator that finds the thrust that sinks at the
+# landing speed and, on the ground where sinking stops, winds the thrust down until the land detector sees it.
+DESCEND_KP = 0.4
+DESCEND_KI = 0.5
+DESCEND_RATIO_MIN = 0.3
+DESCEND_RATIO_MAX = 1.2
+# Without an altitude estimate either there is nothing to close a loop on: PX4 descends at a fixed thrust below hover.
+DESCEND_BLIND_RATIO = 0.9
+
+
+class Descend(TrackTarget):
+    """PX4's Descend: the fallback of the position-loss failsafe. Level attitude, heading kept, sinking at
+    MPC_LAND_SPEED on the altitude estimate (or at a fixed thrust without one). Shown as AUTO.LAND, as PX4 shows it.
+    """
+
+    mode = Px4Mode.AUTO_LAND
+
+    def __init__(self, hover_thrust_n: float) -> None:
+        self.hover_thrust_n = hover_thrust_n
+        self.ratio = 1.0
+        self.yaw_rad = 0.0
+
+    def start(self, est: Estimate | None) -> None:
+        self.ratio = 1.0
+        self.yaw_rad = est.yaw_rad if est is not None else 0.0
+
+    def setpoint(self, v: ModeContext, est: Estimate, dt_s: float) -> TrajectorySetpoint | AttitudeSetpoint:
+        if est.altitude_valid:
+            error = v.p("MPC_LAND_SPEED") - float(est.vel_ned_mps[2])  # > 0: sinking too slowly
+            self.ratio = min(DESCEND_RATIO_MAX, max(DESCEND_RATIO_MIN, self.ratio - DESCEND_KI * error * dt_s))
+            ratio = min(DESCEND_RATIO_MAX, max(DESCEND_RATIO_MIN, self.ratio - DESCEND_KP * error))
+        else:
+            ratio = DESCEND_BLIND_RATIO
+        half = 0.5 * self.yaw_rad
+        return AttitudeSetpoint(att_q=(math.cos(half), 0.0, 0.0, math.sin(half)), thrust_n=ratio * self.hover_thrust_n)
+
+    def wants_air(self, v: ModeContext) -> bool:
+        return False
+
+    def descending_to_land(self) -> bool:
+        return True
+
+    def needs_position(self) -> bool:
+        return False
+
+
 @dataclass(frozen=True, slots=True)
 class Units:
     """The vehicle's mode units, one instance each for the vehicle's lifetime (their state is per flight)."""
@@ -340,13 +387,14 @@ class Units:
     rtl: ReturnToLaunch
     mission: Mission
     offboard: Offboard
+    descend: Descend  # entered only by the failsafe; AUTO.LAND on the wire, so not in ``by_mode``
 
     def by_mode(self) -> dict[Px4Mode, ModeUnit]:
         units: tuple[ModeUnit, ...] = (self.hold, self.takeoff, self.land, self.rtl, self.mission, self.offboard)
         return {u.mode: u for u in units}
 
 
-def build_units() -> Units:
+def build_units(hover_thrust_n: float) -> Units:
     return Units(
         hold=Hold(),
         takeoff=Takeoff(),
@@ -354,4 +402,5 @@ def build_units() -> Units:
         rtl=ReturnToLaunch(),
         mission=Mission(),
         offboard=Offboard(),
+        descend=Descend(hover_thrust_n),
     )

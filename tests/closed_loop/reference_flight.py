@@ -62,6 +62,7 @@ def fly() -> Figures:
     sim.params.set("COM_FAIL_ACT_T", 1.0)
     sim.params.set("RTL_RETURN_ALT", 5.0)
     sim.params.set("RTL_DESCEND_ALT", 3.0)
+    sim.params.set("COM_LOW_BAT_ACT", 1)  # return at critical (PX4's default, 0, only warns)
     rec = _Recorder(sim)
     v = sim.vehicle
     assert sim.run_until(lambda s: s.vehicle.preflight_problem() is None, 10.0)
