@@ -419,9 +419,11 @@ class Vehicle:
         return self._fence
 
     def _fence_breach(self, est: Estimate) -> str | None:
-        hor = self.p("GF_MAX_HOR_DIST")
-        ver = self.p("GF_MAX_VER_DIST")
-        if not est.position_valid or (not self._fence.zones and hor <= 0.0 and ver <= 0.0):
+        if not est.position_valid:
+            return None
+        hor = self.params["GF_MAX_HOR_DIST"]
+        ver = self.params["GF_MAX_VER_DIST"]
+        if not self._fence.zones and hor <= 0.0 and ver <= 0.0:
             return None
         return self._fence.breach(_tuple3(est.pos_ned_m), _tuple3(self._home_ned_m), hor, ver)
 

@@ -3,7 +3,6 @@ action each PX4 parameter value selects, severity ranking, the hold-first delay,
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import pytest
@@ -61,7 +60,7 @@ def test_nav_dll_act_selects_the_datalink_action_after_a_hold_of_com_fail_act_t(
 ) -> None:
     params = _params(NAV_DLL_ACT=nav_dll_act)
     state = FailsafeState()
-    lost = dataclasses.replace(FLYING, now_s=FLYING.gcs_heartbeat_s + 10.01)
+    lost = FLYING._replace(now_s=FLYING.gcs_heartbeat_s + 10.01)
     assert _actions(state, lost, params) == [(FailsafeKind.DATALINK_LOSS, FailsafeAction.HOLD)]
     assert state.in_failsafe and state.active is FailsafeKind.DATALINK_LOSS
     delay = params["COM_FAIL_ACT_T"]
@@ -75,23 +74,23 @@ def test_nav_dll_act_selects_the_datalink_action_after_a_hold_of_com_fail_act_t(
 
 def test_datalink_loss_needs_a_heartbeat_first_a_timeout_and_is_off_by_default_and_while_landing() -> None:
     on = _params(NAV_DLL_ACT=2)
-    lost = dataclasses.replace(FLYING, now_s=FLYING.gcs_heartbeat_s + 10.01)
+    lost = FLYING._replace(now_s=FLYING.gcs_heartbeat_s + 10.01)
     assert _actions(FailsafeState(), lost, _params()) == []  # PX4's default NAV_DLL_ACT = 0
-    assert _actions(FailsafeState(), dataclasses.replace(lost, gcs_heartbeat_s=math.nan), on) == []
-    assert _actions(FailsafeState(), dataclasses.replace(lost, now_s=FLYING.gcs_heartbeat_s + 9.99), on) == []
-    assert _actions(FailsafeState(), dataclasses.replace(lost, mode=Px4Mode.AUTO_LAND), on) == []
+    assert _actions(FailsafeState(), lost._replace(gcs_heartbeat_s=math.nan), on) == []
+    assert _actions(FailsafeState(), lost._replace(now_s=FLYING.gcs_heartbeat_s + 9.99), on) == []
+    assert _actions(FailsafeState(), lost._replace(mode=Px4Mode.AUTO_LAND), on) == []
 
 
 def test_a_link_that_comes_back_is_announced_and_a_second_loss_fires_again() -> None:
     params = _params(NAV_DLL_ACT=1)
     state = FailsafeState()
-    lost = dataclasses.replace(FLYING, now_s=FLYING.gcs_heartbeat_s + 11.0)
+    lost = FLYING._replace(now_s=FLYING.gcs_heartbeat_s + 11.0)
     assert _actions(state, lost, params) == [(FailsafeKind.DATALINK_LOSS, FailsafeAction.HOLD)]
-    assert _actions(state, dataclasses.replace(lost, now_s=lost.now_s + 1.0), params) == []  # fires once
-    back = state.evaluate(dataclasses.replace(lost, gcs_heartbeat_s=lost.now_s), params)
+    assert _actions(state, lost._replace(now_s=lost.now_s + 1.0), params) == []  # fires once
+    back = state.evaluate(lost._replace(gcs_heartbeat_s=lost.now_s), params)
     assert [o.text for o in back] == ["Data link regained"]
     state.cleared()  # the operator commands a mode
-    again = dataclasses.replace(lost, now_s=lost.now_s + 11.0, gcs_heartbeat_s=lost.now_s)
+    again = lost._replace(now_s=lost.now_s + 11.0, gcs_heartbeat_s=lost.now_s)
     assert _actions(state, again, params) == [(FailsafeKind.DATALINK_LOSS, FailsafeAction.HOLD)]
 
 
@@ -109,9 +108,9 @@ def test_com_low_bat_act_selects_the_critical_and_emergency_actions(
 ) -> None:
     params = _params(COM_LOW_BAT_ACT=com_low_bat_act)
     state = FailsafeState()
-    crit = _actions(state, dataclasses.replace(FLYING, battery_remaining=0.06), params)
+    crit = _actions(state, FLYING._replace(battery_remaining=0.06), params)
     assert crit == [(FailsafeKind.BATTERY_LOW, FailsafeAction.WARN), (FailsafeKind.BATTERY_CRITICAL, critical)]
-    emerg = _actions(state, dataclasses.replace(FLYING, battery_remaining=0.04), params)
+    emerg = _actions(state, FLYING._replace(battery_remaining=0.04), params)
     # An emergency action no more severe than the one in force is only said, not taken (action NONE).
     taken = emergency if emergency is FailsafeAction.WARN or emergency > critical else FailsafeAction.NONE
     assert emerg == [(FailsafeKind.BATTERY_EMERGENCY, taken)]
@@ -120,7 +119,7 @@ def test_com_low_bat_act_selects_the_critical_and_emergency_actions(
 def test_battery_levels_fire_once_per_flight_and_rearm_on_arming() -> None:
     params = _params(COM_LOW_BAT_ACT=2)
     state = FailsafeState()
-    low = dataclasses.replace(FLYING, battery_remaining=0.06)
+    low = FLYING._replace(battery_remaining=0.06)
     assert len(state.evaluate(low, params)) == 2
     state.cleared()
     assert state.evaluate(low, params) == []
@@ -131,15 +130,15 @@ def test_battery_levels_fire_once_per_flight_and_rearm_on_arming() -> None:
 def test_a_more_severe_failsafe_supersedes_a_held_one_and_a_milder_one_does_not() -> None:
     params = _params(COM_LOW_BAT_ACT=1)
     state = FailsafeState()
-    offboard_lost = dataclasses.replace(FLYING, mode=Px4Mode.OFFBOARD)
+    offboard_lost = FLYING._replace(mode=Px4Mode.OFFBOARD)
     assert _actions(state, offboard_lost, params) == [(FailsafeKind.OFFBOARD_LOSS, FailsafeAction.HOLD)]
     # a critical battery during the hold: Return beats Hold, and the delayed landing is dropped
-    critical = dataclasses.replace(FLYING, battery_remaining=0.06)
+    critical = FLYING._replace(battery_remaining=0.06)
     assert (FailsafeKind.BATTERY_CRITICAL, FailsafeAction.RTL) in _actions(state, critical, params)
     assert state.delayed_action(1e9, Px4Mode.AUTO_LOITER, 0.0) is None
     # a geofence Hold while returning changes nothing but is said
     params.set("GF_ACTION", 2)
-    breach = dataclasses.replace(critical, fence_breach="Outside the geofence")
+    breach = critical._replace(fence_breach="Outside the geofence")
     orders = state.evaluate(breach, params)
     assert [(o.kind, o.action) for o in orders] == [(FailsafeKind.GEOFENCE, FailsafeAction.NONE)]
     assert orders[0].text == "Failsafe: geofence violation (Outside the geofence), holding"
@@ -149,7 +148,7 @@ def test_a_more_severe_failsafe_supersedes_a_held_one_and_a_milder_one_does_not(
 def test_the_delayed_action_waits_for_hold_and_is_dropped_when_the_operator_takes_over() -> None:
     params = _params()
     state = FailsafeState()
-    state.evaluate(dataclasses.replace(FLYING, mode=Px4Mode.OFFBOARD), params)
+    state.evaluate(FLYING._replace(mode=Px4Mode.OFFBOARD), params)
     assert state.delayed_action(FLYING.now_s + 10.0, Px4Mode.AUTO_RTL, 5.0) is None  # not while in another mode
     state.cleared()
     assert state.delayed_action(FLYING.now_s + 10.0, Px4Mode.AUTO_LOITER, 5.0) is None
@@ -168,14 +167,14 @@ def test_the_delayed_action_waits_for_hold_and_is_dropped_when_the_operator_take
     ],
 )
 def test_gf_action_selects_the_geofence_action_at_once(gf_action: int, action: FailsafeAction | None) -> None:
-    breach = dataclasses.replace(FLYING, fence_breach="Maximum altitude exceeded")
+    breach = FLYING._replace(fence_breach="Maximum altitude exceeded")
     expected = [] if action is None else [(FailsafeKind.GEOFENCE, action)]
     assert _actions(FailsafeState(), breach, _params(GF_ACTION=gf_action)) == expected
 
 
 def test_position_loss_descends_only_in_a_mode_that_needs_a_position_and_only_in_the_air() -> None:
     params = _params()
-    lost = dataclasses.replace(FLYING, position_valid=False)
+    lost = FLYING._replace(position_valid=False)
     assert _actions(FailsafeState(), lost, params) == [(FailsafeKind.POSITION_LOSS, FailsafeAction.DESCEND)]
-    assert _actions(FailsafeState(), dataclasses.replace(lost, needs_position=False), params) == []
-    assert _actions(FailsafeState(), dataclasses.replace(lost, landed=True), params) == []
+    assert _actions(FailsafeState(), lost._replace(needs_position=False), params) == []
+    assert _actions(FailsafeState(), lost._replace(landed=True), params) == []
