@@ -261,3 +261,22 @@ def test_geofence_breach_with_the_px4_default_only_warns() -> None:
     assert v.status.mode is Px4Mode.AUTO_LOITER and not v.status.failsafe
     assert "geofence violation (Maximum altitude exceeded)" in _texts(sim)
     assert sim.altitude_above_start_m() > 3.2
+
+
+def test_geofence_breach_with_gf_action_terminate_stops_the_motors_for_good() -> None:
+    # GIVEN a 3 m ceiling and GF_ACTION = 4 (Terminate)
+    sim = make_sim(seed=42)
+    sim.params.set("GF_ACTION", 4)
+    sim.params.set("GF_MAX_VER_DIST", 3.0)
+    take_off(sim, 2.0)
+    v = sim.vehicle
+    # WHEN it climbs through the ceiling
+    assert v.goto(_local(sim, 0.0, 0.0, 5.0)).ok
+    assert sim.run_until(lambda s: not s.vehicle.status.armed, 10.0)
+    # THEN the motors stop, HEARTBEAT says FLIGHT_TERMINATION, it falls and may not arm again
+    assert v.crashed
+    assert _heartbeat_status(sim) == mavlink.MAV_STATE_FLIGHT_TERMINATION
+    assert "Flight termination" in _texts(sim)
+    assert sim.run_until(lambda s: s.truth.on_ground, 5.0)
+    sim.run_for(1.0)
+    assert not v.arm().ok
