@@ -238,7 +238,18 @@ class Vehicle:
             return "Preflight Fail: no valid global position yet (GPS)"
         if self._battery_remaining() < self.p("BAT_CRIT_THR"):
             return "Preflight Fail: battery too low"
+        # As PX4: with a datalink-loss action set, a ground station must be heard before arming ...
+        if self.p("NAV_DLL_ACT") != 0 and not self._gcs_heard_within(self._now_s, self.p("COM_DL_LOSS_T")):
+            return "Preflight Fail: No connection to the ground control station"
+        # ... and with a geofence that acts, the vehicle must start inside it (zones only: home is set on arming).
+        if self.p("GF_ACTION") > 1 and est.position_valid and self._fence.zones:
+            pos = _tuple3(est.pos_ned_m)
+            if self._fence.breach(pos, pos) is not None:
+                return "Preflight Fail: Vehicle outside geofence"
         return None
+
+    def _gcs_heard_within(self, now_s: float, timeout_s: float) -> bool:
+        return not math.isnan(self._gcs_heartbeat_s) and now_s - self._gcs_heartbeat_s <= timeout_s
 
     def arm(self, force: bool = False) -> CommandOutcome:
         if self.status.armed:
@@ -407,7 +418,7 @@ class Vehicle:
 
     def note_gcs_heartbeat(self, now_s: float) -> None:
         """A ground station's HEARTBEAT (type MAV_TYPE_GCS) arrived: the datalink-loss failsafe watches these, and
-        is armed only once the first one has been heard, as PX4's."""
+        is armed only once the first one has been heard, as PX4's (with NAV_DLL_ACT set, arming needs one too)."""
         self._gcs_heartbeat_s = now_s
 
     def set_fence(self, fence: Geofence) -> None:

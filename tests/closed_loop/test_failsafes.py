@@ -70,7 +70,7 @@ def test_datalink_loss_with_nav_dll_act_return_holds_then_returns_after_com_dl_l
     assert v.status.mode is Px4Mode.AUTO_LOITER
     assert v.status.active_failsafe is FailsafeKind.DATALINK_LOSS
     assert _heartbeat_status(sim) == mavlink.MAV_STATE_CRITICAL
-    assert "Failsafe: no connection to the ground station, holding" in _texts(sim)
+    assert "Failsafe: no connection to the ground control station, holding" in _texts(sim)
     # ... and COM_FAIL_ACT_T later returns to launch, lands at home and disarms
     held_at_s = sim.time_s
     assert sim.run_until(lambda s: s.vehicle.status.mode is Px4Mode.AUTO_RTL, 10.0)
@@ -84,12 +84,31 @@ def test_datalink_loss_with_nav_dll_act_return_holds_then_returns_after_com_dl_l
     assert "Data link regained" in _texts(sim)
 
 
+def test_with_nav_dll_act_set_arming_needs_a_ground_station() -> None:
+    sim = make_sim(seed=30)
+    sim.params.set("NAV_DLL_ACT", 2)
+    assert sim.run_until(
+        lambda s: (
+            s.vehicle.preflight_problem() is not None
+            and s.vehicle.estimate is not None
+            and s.vehicle.estimate.position_valid
+        ),
+        10.0,
+    )
+    sim.run_for(0.1)
+    assert sim.vehicle.preflight_problem() == "Preflight Fail: No connection to the ground control station"
+    assert not sim.vehicle.arm().ok
+    sim.vehicle.note_gcs_heartbeat(sim.time_s)
+    assert sim.vehicle.preflight_problem() is None
+    assert sim.vehicle.arm().ok
+
+
 def test_datalink_loss_is_ignored_before_any_gcs_heartbeat_and_with_the_px4_default() -> None:
-    # GIVEN two hovering drones: one with NAV_DLL_ACT = 2 that never heard a ground station, one that heard one and
-    # has PX4's default NAV_DLL_ACT = 0 (disabled)
+    # GIVEN two hovering drones: one with NAV_DLL_ACT = 2 (set in the air) that never heard a ground station, one
+    # that heard one and has PX4's default NAV_DLL_ACT = 0 (disabled)
     never_heard = make_sim(seed=32)
-    never_heard.params.set("NAV_DLL_ACT", 2)
     take_off(never_heard, 2.0)
+    never_heard.params.set("NAV_DLL_ACT", 2)
     default = make_sim(seed=33)
     default.vehicle.note_gcs_heartbeat(default.time_s)
     take_off(default, 2.0)
@@ -280,3 +299,17 @@ def test_geofence_breach_with_gf_action_terminate_stops_the_motors_for_good() ->
     assert sim.run_until(lambda s: s.truth.on_ground, 5.0)
     sim.run_for(1.0)
     assert not v.arm().ok
+
+
+def test_with_a_geofence_that_acts_arming_outside_it_is_refused() -> None:
+    sim = make_sim(seed=43)
+    sim.params.set("GF_ACTION", 3)
+    assert sim.run_until(lambda s: s.vehicle.preflight_problem() is None, 10.0)
+    est = sim.vehicle.estimate
+    assert est is not None
+    here = (float(est.pos_ned_m[0]), float(est.pos_ned_m[1]))
+    sim.vehicle.set_fence(Geofence(zones=(CircleZone(kind=FenceKind.EXCLUSION, centre_ne_m=here, radius_m=2.0),)))
+    assert sim.vehicle.preflight_problem() == "Preflight Fail: Vehicle outside geofence"
+    assert not sim.vehicle.arm().ok
+    sim.params.set("GF_ACTION", 1)  # a fence that only warns does not hold the vehicle on the ground
+    assert sim.vehicle.arm().ok
