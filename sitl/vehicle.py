@@ -99,6 +99,9 @@ class Vehicle:
         self.units = build_units(self._hover_thrust_n)
         self._unit_of: dict[Px4Mode, ModeUnit] = self.units.by_mode()
         self._unit: ModeUnit = self._unit_of[self.status.mode]
+        # The unit the operator (or the normal flow of modes) chose, while a failsafe flies another one: PX4's "user
+        # intended mode", which a fallback returns to when its cause clears.
+        self._intended: ModeUnit | None = None
         self.failsafes = FailsafeState()
         self._gcs_heartbeat_s = math.nan
         self._fence = Geofence()
@@ -222,6 +225,7 @@ class Vehicle:
 
     def _operator_takes_over(self) -> None:
         """A mode commanded by the operator ends the failsafe in force (PX4: cleared on mode change)."""
+        self._intended = None
         self.failsafes.cleared()
         self.status.failsafe = False
         self.status.active_failsafe = FailsafeKind.NONE
@@ -453,7 +457,7 @@ class Vehicle:
             now_s=now_s,
             landed=self.landed,
             mode=self.status.mode,
-            needs_position=self._unit.needs_position(),
+            needs_position=(self._intended or self._unit).needs_position(),
             offboard_alive=self._offboard_alive(now_s),
             gcs_heartbeat_s=self._gcs_heartbeat_s,
             battery_remaining=self._battery_remaining(),
@@ -471,9 +475,13 @@ class Vehicle:
 
     def _apply_failsafe(self, order: FailsafeOrder) -> None:
         self.event(order.severity, order.text)
+        if order.resume:
+            self._resume_intended()
         action = order.action
         if action <= FailsafeAction.WARN:
             return
+        if not self.status.failsafe:
+            self._intended = self._unit
         self.status.failsafe = True
         self.status.active_failsafe = order.kind
         mode = self.status.mode
@@ -493,6 +501,26 @@ class Vehicle:
             self._disarm("Motors stopped: lockdown")
         elif action is FailsafeAction.TERMINATE:
             self.terminate("Flight termination")
+
+    def _resume_intended(self) -> None:
+        """The cause of a mode fallback cleared while the fallback still flies: back to the operator's mode."""
+        intended = self._intended
+        if intended is None or self._unit is not self.units.descend or self.landed:
+            return
+        units = self.units
+        if intended is units.mission:
+            self.start_mission()
+        elif intended is units.rtl:
+            self._operator_takes_over()
+            self.return_to_launch()
+        elif intended is units.land:
+            self._operator_takes_over()
+            self.hold_here()
+            self.enter(Px4Mode.AUTO_LAND)
+        elif intended is units.offboard and self._offboard_alive(self._now_s):
+            self.start_offboard(self._now_s)
+        else:
+            self.hold()
 
     # ---- the step --------------------------------------------------------------------------------------------------
     def step(self, est: Estimate, now_s: float, dt_s: float) -> tuple[float, ...]:

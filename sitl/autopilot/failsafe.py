@@ -74,7 +74,7 @@ class FailsafeInputs(NamedTuple):
     now_s: float
     landed: bool
     mode: Px4Mode
-    needs_position: bool  # the active mode cannot fly without a horizontal position
+    needs_position: bool  # the mode the operator chose cannot fly without a horizontal position
     offboard_alive: bool  # a setpoint arrived within COM_OF_LOSS_T
     gcs_heartbeat_s: float  # time of the last ground-station HEARTBEAT; NaN before the first
     battery_remaining: float  # 0..1
@@ -97,6 +97,9 @@ class FailsafeRow:
     clear: Clear
     hold_first: bool  # hold COM_FAIL_ACT_T before an action more severe than Hold (PX4's failsafe delay)
     recovered: str | None = None  # said when the condition clears ("Data link regained")
+    # The action is a fallback for a mode that cannot run (PX4's mode fallback): when the condition clears while it
+    # is in force, the vehicle goes back to the mode the operator had chosen.
+    resume_when_clear: bool = False
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -107,6 +110,7 @@ class FailsafeOrder:
     action: FailsafeAction
     severity: int
     text: str
+    resume: bool = False  # the cause cleared: go back to the operator's mode if the fallback is still flying
 
 
 def _int(params: ParamStore, name: str) -> int:
@@ -209,6 +213,8 @@ FAILSAFE_TABLE: tuple[FailsafeRow, ...] = (
         cause=lambda i: "no global position",
         clear=Clear.WHEN_CONDITION_CLEARS,
         hold_first=False,  # Hold needs the position that is missing
+        recovered="Global position regained",
+        resume_when_clear=True,
     ),
     FailsafeRow(
         kind=FailsafeKind.GEOFENCE,
@@ -266,7 +272,11 @@ class FailsafeState:
                     if row.recovered is not None:
                         orders.append(
                             FailsafeOrder(
-                                kind=row.kind, action=FailsafeAction.NONE, severity=SEVERITY_INFO, text=row.recovered
+                                kind=row.kind,
+                                action=FailsafeAction.NONE,
+                                severity=SEVERITY_INFO,
+                                text=row.recovered,
+                                resume=row.resume_when_clear and self.active is row.kind,
                             )
                         )
                 continue

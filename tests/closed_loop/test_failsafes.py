@@ -18,6 +18,7 @@ from sitl.battery import Battery
 from sitl.control.cascade import TrajectorySetpoint
 from sitl.estimation import Estimate
 from sitl.geofence import CircleZone, FenceKind, Geofence
+from sitl.mission_plan import NavItem, NavKind
 from sitl.protocol.modes import FailsafeKind, Px4Mode, system_status
 from sitl.simulation import Simulation
 from tests.closed_loop.flight import boot_position, make_sim, take_off
@@ -189,15 +190,18 @@ def test_com_low_bat_act_3_returns_at_critical_and_lands_at_emergency() -> None:
 
 
 # ---- position loss ---------------------------------------------------------------------------------------------------
-def _lose_position(sim: Simulation) -> None:
-    """From now on the estimator reports no horizontal position (as with the GPS receiver off)."""
+def _lose_position(sim: Simulation) -> list[bool]:
+    """From now on the estimator reports no horizontal position (as with the GPS receiver off), until the returned
+    switch is set back to True."""
     inner = sim.estimator.update
+    valid = [False]
 
-    def without_position(*args: object, **kwargs: object) -> Estimate:
+    def maybe_without_position(*args: object, **kwargs: object) -> Estimate:
         est = inner(*args, **kwargs)  # type: ignore[arg-type]
-        return dataclasses.replace(est, position_valid=False)
+        return est if valid[0] else dataclasses.replace(est, position_valid=False)
 
-    sim.estimator.update = without_position  # type: ignore[method-assign]
+    sim.estimator.update = maybe_without_position  # type: ignore[method-assign]
+    return valid
 
 
 def test_position_loss_descends_level_at_the_landing_speed_and_disarms_on_the_ground() -> None:
@@ -232,6 +236,28 @@ def test_position_loss_descends_level_at_the_landing_speed_and_disarms_on_the_gr
     assert sim.truth.on_ground and not v.crashed
     assert max(horizontal_mps) < 1.5
     assert math.hypot(*(sim.truth.pos_ned_m - where)[:2]) < 6.0
+
+
+def test_a_mission_interrupted_by_a_position_loss_resumes_when_the_position_returns() -> None:
+    # GIVEN a drone flying a mission leg
+    sim = make_sim(seed=44)
+    take_off(sim, 4.0)
+    v = sim.vehicle
+    home = v.home_ned_m
+    far = NavItem(seq=0, kind=NavKind.WAYPOINT, target_ned_m=(home[0] + 12.0, home[1], home[2] - 4.0))
+    assert v.set_mission((far,)).ok and v.start_mission().ok
+    sim.run_for(2.0)
+    # WHEN the position is lost for a second, then comes back
+    valid = _lose_position(sim)
+    sim.run_for(1.0)
+    assert v.status.mode is Px4Mode.AUTO_LAND and v.status.active_failsafe is FailsafeKind.POSITION_LOSS
+    valid[0] = True
+    sim.run_for(0.1)
+    # THEN, as PX4 after a mode fallback, it goes back to the mission and the failsafe ends
+    assert v.status.mode is Px4Mode.AUTO_MISSION
+    assert not v.status.failsafe and v.status.active_failsafe is FailsafeKind.NONE
+    assert "Global position regained" in _texts(sim)
+    assert sim.run_until(lambda s: s.vehicle.mission.reached_seq == 0, 20.0)
 
 
 # ---- geofence --------------------------------------------------------------------------------------------------------

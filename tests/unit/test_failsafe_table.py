@@ -178,3 +178,16 @@ def test_position_loss_descends_only_in_a_mode_that_needs_a_position_and_only_in
     assert _actions(FailsafeState(), lost, params) == [(FailsafeKind.POSITION_LOSS, FailsafeAction.DESCEND)]
     assert _actions(FailsafeState(), lost._replace(needs_position=False), params) == []
     assert _actions(FailsafeState(), lost._replace(landed=True), params) == []
+
+
+def test_a_position_that_returns_resumes_the_operators_mode_only_while_the_fallback_is_in_force() -> None:
+    params = _params()
+    lost = FLYING._replace(position_valid=False)
+    state = FailsafeState()
+    state.evaluate(lost, params)
+    back = state.evaluate(FLYING, params)
+    assert [(o.text, o.resume) for o in back] == [("Global position regained", True)]
+    state = FailsafeState()
+    state.evaluate(lost, params)
+    state.cleared()  # the operator took over meanwhile
+    assert [o.resume for o in state.evaluate(FLYING, params)] == [False]
