@@ -100,8 +100,9 @@ class Vehicle:
         self._unit_of: dict[Px4Mode, ModeUnit] = self.units.by_mode()
         self._unit: ModeUnit = self._unit_of[self.status.mode]
         # The unit the operator (or the normal flow of modes) chose, while a failsafe flies another one: PX4's "user
-        # intended mode", which a fallback returns to when its cause clears.
+        # intended mode", the one the position-loss row asks "can it run without a position?".
         self._intended: ModeUnit | None = None
+        self._fallback_from: ModeUnit | None = None  # the unit Descend replaced, flown again if the position returns
         self.failsafes = FailsafeState()
         self._gcs_heartbeat_s = math.nan
         self._fence = Geofence()
@@ -226,6 +227,7 @@ class Vehicle:
     def _operator_takes_over(self) -> None:
         """A mode commanded by the operator ends the failsafe in force (PX4: cleared on mode change)."""
         self._intended = None
+        self._fallback_from = None
         self.failsafes.cleared()
         self.status.failsafe = False
         self.status.active_failsafe = FailsafeKind.NONE
@@ -476,7 +478,7 @@ class Vehicle:
     def _apply_failsafe(self, order: FailsafeOrder) -> None:
         self.event(order.severity, order.text)
         if order.resume:
-            self._resume_intended()
+            self._resume_after_fallback()
         action = order.action
         if action <= FailsafeAction.WARN:
             return
@@ -495,6 +497,8 @@ class Vehicle:
             self.hold_here()
             self.enter(Px4Mode.AUTO_LAND)
         elif action is FailsafeAction.DESCEND:
+            if self._unit is not self.units.descend:
+                self._fallback_from = self._unit
             self.units.descend.start(self._est)
             self._switch_to(self.units.descend)
         elif action is FailsafeAction.DISARM:
@@ -502,25 +506,31 @@ class Vehicle:
         elif action is FailsafeAction.TERMINATE:
             self.terminate("Flight termination")
 
-    def _resume_intended(self) -> None:
-        """The cause of a mode fallback cleared while the fallback still flies: back to the operator's mode."""
-        intended = self._intended
-        if intended is None or self._unit is not self.units.descend or self.landed:
+    def _resume_after_fallback(self) -> None:
+        """The cause of a mode fallback (Descend) cleared while it still flies: back to the mode it replaced, and to
+        whatever failsafe was in force before it (FailsafeState has restored that)."""
+        before = self._fallback_from
+        self._fallback_from = None
+        if before is None or self._unit is not self.units.descend or self.landed:
             return
         units = self.units
-        if intended is units.mission:
-            self.start_mission()
-        elif intended is units.rtl:
-            self._operator_takes_over()
-            self.return_to_launch()
-        elif intended is units.land:
-            self._operator_takes_over()
+        if before is units.mission:
+            self.enter(Px4Mode.AUTO_MISSION)
+            self.mission.start()
+        elif before is units.rtl:
+            units.rtl.start(self)
+        elif before is units.land:
             self.hold_here()
             self.enter(Px4Mode.AUTO_LAND)
-        elif intended is units.offboard and self._offboard_alive(self._now_s):
-            self.start_offboard(self._now_s)
+        elif before is units.offboard and self._offboard_alive(self._now_s):
+            self.enter(Px4Mode.OFFBOARD)
         else:
-            self.hold()
+            self.hold_here()
+            self.enter(Px4Mode.AUTO_LOITER)
+        self.status.failsafe = self.failsafes.in_failsafe
+        self.status.active_failsafe = self.failsafes.active
+        if not self.status.failsafe:
+            self._intended = None
 
     # ---- the step --------------------------------------------------------------------------------------------------
     def step(self, est: Estimate, now_s: float, dt_s: float) -> tuple[float, ...]:

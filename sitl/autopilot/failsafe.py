@@ -245,6 +245,8 @@ class FailsafeState:
         # step and hashing an Enum member is a Python-level call.
         self._fired = [False] * len(table)
         self._pending: _Pending | None = None
+        # What was in force when a mode-fallback row took over, restored when its cause clears.
+        self._before_fallback: tuple[FailsafeKind, FailsafeAction, _Pending | None] | None = None
 
     @property
     def in_failsafe(self) -> bool:
@@ -261,6 +263,7 @@ class FailsafeState:
         self.active = FailsafeKind.NONE
         self.active_action = FailsafeAction.NONE
         self._pending = None
+        self._before_fallback = None
 
     def evaluate(self, inputs: FailsafeInputs, params: ParamStore) -> list[FailsafeOrder]:
         orders: list[FailsafeOrder] = []
@@ -269,6 +272,10 @@ class FailsafeState:
             if not row.condition(inputs, params):
                 if fired[index] and row.clear is Clear.WHEN_CONDITION_CLEARS:
                     fired[index] = False
+                    resume = row.resume_when_clear and self.active is row.kind
+                    if resume and self._before_fallback is not None:
+                        self.active, self.active_action, self._pending = self._before_fallback
+                        self._before_fallback = None
                     if row.recovered is not None:
                         orders.append(
                             FailsafeOrder(
@@ -276,7 +283,7 @@ class FailsafeState:
                                 action=FailsafeAction.NONE,
                                 severity=SEVERITY_INFO,
                                 text=row.recovered,
-                                resume=row.resume_when_clear and self.active is row.kind,
+                                resume=resume,
                             )
                         )
                 continue
@@ -303,6 +310,8 @@ class FailsafeState:
                 )
                 continue
             now_action = action
+            if row.resume_when_clear:
+                self._before_fallback = (self.active, self.active_action, self._pending)
             self._pending = None  # a more severe failsafe supersedes a delayed one
             if row.hold_first and action > FailsafeAction.HOLD:
                 now_action = FailsafeAction.HOLD

@@ -191,3 +191,17 @@ def test_a_position_that_returns_resumes_the_operators_mode_only_while_the_fallb
     state.evaluate(lost, params)
     state.cleared()  # the operator took over meanwhile
     assert [o.resume for o in state.evaluate(FLYING, params)] == [False]
+
+
+def test_a_fallback_that_ends_restores_the_failsafe_it_replaced() -> None:
+    params = _params(COM_LOW_BAT_ACT=1)
+    state = FailsafeState()
+    critical = FLYING._replace(battery_remaining=0.06, mode=Px4Mode.AUTO_RTL)
+    state.evaluate(critical, params)
+    assert state.active is FailsafeKind.BATTERY_CRITICAL
+    assert (FailsafeKind.POSITION_LOSS, FailsafeAction.DESCEND) in _actions(
+        state, critical._replace(position_valid=False), params
+    )
+    back = state.evaluate(critical, params)
+    assert [o.resume for o in back] == [True]
+    assert state.active is FailsafeKind.BATTERY_CRITICAL and state.active_action is FailsafeAction.RTL
