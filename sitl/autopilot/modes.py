@@ -1,10 +1,11 @@
 """One unit per flight mode, all behind one interface (``ModeUnit``).
 
-A unit owns its mode's state (the RTL plan, the mission's phase, the offboard stream) and answers four questions
-each control step: what changes now (``advance``: transitions such as "takeoff complete"), what to fly
-(``setpoint``), does the vehicle want to be in the air (``wants_air``: on the ground and not wanting air the motors
-idle), and what happens at touchdown (``on_touchdown``). Adding a mode means one class here and one line in
-``build_units``.
+A unit owns its mode's state (the RTL plan, the mission's phase, the offboard stream) and answers, each control
+step: what changes now (``advance``: transitions such as "takeoff complete"), what to fly (``setpoint``), does the
+vehicle want to be in the air (``wants_air``: on the ground and not wanting air the motors idle), is it landing
+(``descending_to_land``, ``landed_state``), can it fly without a position (``needs_position``, for the GPS-loss
+failsafe) and what happens at touchdown (``on_touchdown``). Adding a mode means one class here and its field in
+``Units``.
 
 The units reach the vehicle through ``ModeContext``, the narrow surface sitl/vehicle.py offers them: the shared
 smooth trajectory, the target it tracks, home, the land detector's verdict and the mode switch. They never read a
