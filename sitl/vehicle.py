@@ -595,11 +595,3 @@ class Vehicle:
         delay = self.p("COM_DISARM_LAND") if took_off else self.p("COM_DISARM_PRFLT")
         if delay >= 0 and now_s - since >= delay:
             self._disarm("Auto-disarmed after landing" if took_off else "Auto-disarmed: no takeoff")
-
-    def set_fence(self, fence: Geofence) -> None:
-        """The geofence uploaded by a ground station, in the local frame."""
-        self.fence = fence
-
-    def note_gcs_heartbeat(self, now_s: float) -> None:
-        """A ground-station HEARTBEAT arrived at ``now_s``."""
-        self.gcs_heartbeat_s = now_s
