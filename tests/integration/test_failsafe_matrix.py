@@ -23,7 +23,7 @@ from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import dataclass, field
 from multiprocessing import resource_tracker
 from pathlib import Path
-from typing import Final
+from typing import Any, Final
 
 import pytest
 from pymavlink import mavutil
@@ -51,6 +51,7 @@ INJECT: Final = mavlink.MAV_CMD_INJECT_FAILURE
 PX4_AUTO_RTL: Final = 84148224  # main 4 << 16 | sub 5 << 24
 PX4_OFFBOARD: Final = 6 << 16
 EARTH_RADIUS_M: Final = 6_371_000.0
+Geo2 = tuple[float, float]  # latitude, longitude in degrees
 _allocator = InstanceAllocator(FIRST_INSTANCE, INSTANCES)
 
 
@@ -166,6 +167,15 @@ class GroundStation:
             timeout_s,
             "HEARTBEAT disarmed",
         )
+
+
+async def text_among(texts: list[Any], text: str, timeout_s: float) -> None:
+    """Wait until MAVSDK's recorded STATUSTEXTs hold ``text``."""
+    deadline = time.monotonic() + timeout_s
+    while not any(t.text == text for t in texts):
+        if time.monotonic() > deadline:
+            raise AssertionError(f"STATUSTEXT {text!r} not within {timeout_s:.1f} s: {[t.text for t in texts]}")
+        await asyncio.sleep(0.01)
 
 
 @contextlib.asynccontextmanager
@@ -291,29 +301,67 @@ def _is_status(m: Message, custom_mode: int, system_status: int) -> bool:
     return bool(m.get_type() == "HEARTBEAT" and m.custom_mode == custom_mode and m.system_status == system_status)
 
 
+# ---- pre-arm check of the datalink failsafe -----------------------------------------------------------------------
+@pytest.mark.timeout(60)
+def test_with_nav_dll_act_set_arming_needs_gcs_heartbeats(tmp_path: Path) -> None:
+    with (
+        drone_in_world(tmp_path) as (drone, world),
+        mavlink_connection(VehicleLink.of(drone).pymavlink_url) as conn,
+    ):
+        wait_vehicle_heartbeat(conn, drone.sysid, 10.0)
+        gcs = GroundStation(conn, drone, world, home_of(drone, world))
+        # GIVEN NAV_DLL_ACT = 2 and a client that sends no GCS HEARTBEAT (a script, not a ground station)
+        gcs.set_param("NAV_DLL_ACT", 2, integer=True)
+        # WHEN it arms once the estimate is ready  THEN DENIED, with PX4's words
+        refusal = "Preflight Fail: No connection to the ground control station"
+        deadline = time.monotonic() + 30.0
+        while refusal not in [t for _, t in gcs.texts]:
+            assert time.monotonic() < deadline, gcs.texts
+            conn.mav.command_long_send(drone.sysid, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+            ack = gcs.recv(lambda m: m.get_type() == "COMMAND_ACK", 3.0, "arming ACK")
+            assert ack.result == mavlink.MAV_RESULT_DENIED, ack
+            time.sleep(0.5 / SPEED_FACTOR)
+            gcs.recv(lambda m: m.get_type() == "HEARTBEAT", 3.0, "HEARTBEAT")  # the refusal's text comes first
+
+        # WHEN GCS HEARTBEATs flow  THEN it arms
+        def beat() -> None:
+            conn.mav.heartbeat_send(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+
+        with periodic(beat, 1.0 / SPEED_FACTOR):
+            time.sleep(1.5 / SPEED_FACTOR)
+            ack = command_long(conn, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, (1,))
+            assert ack.result == mavlink.MAV_RESULT_ACCEPTED, (ack, gcs.texts)
+
+
 # ---- datalink loss ------------------------------------------------------------------------------------------------
 @pytest.mark.timeout(60)
 def test_link_off_with_nav_dll_act_return_holds_then_returns_home_after_com_dl_loss_t(tmp_path: Path) -> None:
-    loss_s, act_s = 5, 1.0
+    loss_s, act_s, goto_m = 5, 3.0, 40.0
     with ground_station(tmp_path) as gcs:
-        # GIVEN NAV_DLL_ACT = 2 (Return), short timeouts, a drone holding 8 m north of home
+        # GIVEN NAV_DLL_ACT = 2 (Return), short timeouts, a drone starting a 40 m goto north (8 s at cruise speed)
         gcs.set_param("NAV_DLL_ACT", 2, integer=True)
         gcs.set_param("COM_DL_LOSS_T", loss_s, integer=True)
         gcs.set_param("COM_FAIL_ACT_T", act_s)
         gcs.set_param("RTL_RETURN_ALT", 0.0)
         arm_and_take_off(gcs.conn, 40.0)
-        gcs.reposition(8.0, 0.0, 2.5)
-        gcs.watch_body(lambda s: settled(s, (8.0, 0.0)), 20.0, "holding at the goto point")
-        # WHEN both links are cut: the drone hears no more GCS HEARTBEATs and says nothing more
+        gcs.reposition(goto_m, 0.0, 2.5)
+        # WHEN both links are cut at once: the drone hears no more GCS HEARTBEATs and says nothing more
         gcs.inject(105, 1)
         cut = gcs.body()
-        # THEN it stays where it is for COM_DL_LOSS_T (+ COM_FAIL_ACT_T in Hold) after the last heartbeat it heard
-        # (at most 1 s before the cut), then flies home and lands there
+        # THEN COM_DL_LOSS_T after the last heartbeat it heard (at most 1 s before the cut) it holds: it brakes and
+        # stays put for COM_FAIL_ACT_T; then it returns and lands at home
         samples = gcs.watch_body(lambda s: s[-1].up_m < 0.1 and s[-1].hor_dist_m() < 1.5, 60.0, "landed back home")
-        left = next(s for s in samples if s.hor_dist_m(cut) > 0.5)
-        assert loss_s + act_s - 1.0 <= left.time_s - cut.time_s <= loss_s + act_s + 1.0, (cut, left)
-        assert max(s.hor_dist_m() for s in samples) <= 8.5  # straight home, no wandering away
         assert gcs.drone.process.alive()
+    far = max(samples, key=lambda s: s.north_m)
+    hold = [s for s in samples if abs(s.north_m - far.north_m) < 0.3]
+    back = next(s for s in samples if s.time_s > far.time_s and s.north_m < far.north_m - 0.5)
+    braking_s = CRUISE_MPS / ACC_HOR_MPS2
+    assert far.north_m < goto_m - 5.0, far  # stopped well short of the goto point
+    assert loss_s - 1.0 <= far.time_s - cut.time_s <= loss_s + braking_s + 0.5, (cut, far)
+    # (``back`` is 0.5 m on the way home: 0.6 s from rest at MPC_ACC_HOR)
+    assert loss_s + act_s - 1.0 <= back.time_s - cut.time_s <= loss_s + act_s + 1.0, (cut, back)
+    assert hold[-1].time_s - hold[0].time_s >= act_s - braking_s, (hold[0], hold[-1])  # held still, then left
+    assert max(abs(s.east_m) for s in samples) < 1.0  # straight out and straight home
 
 
 # ---- offboard loss ------------------------------------------------------------------------------------------------
@@ -567,3 +615,73 @@ def test_above_gf_max_ver_dist_with_gf_action_terminate_falls_and_reports_flight
         # and it may not arm again
         ack = command_long(gcs.conn, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, (1,))
         assert ack.result == mavlink.MAV_RESULT_DENIED
+
+
+def _square(
+    home: tuple[float, float, float], north_m: float, east_m: float, half_m: float
+) -> list[tuple[float, float]]:
+    """Latitude/longitude corners of a square of side 2 * ``half_m`` centred ``north_m``, ``east_m`` from home."""
+    lat0, lon0, _ = home
+    m_per_deg_lon = EARTH_RADIUS_M * math.cos(math.radians(lat0))
+    return [
+        (lat0 + math.degrees((north_m + dn) / EARTH_RADIUS_M), lon0 + math.degrees(east_m + de) / m_per_deg_lon)
+        for dn, de in ((-half_m, -half_m), (-half_m, half_m), (half_m, half_m), (half_m, -half_m))
+    ]
+
+
+@pytest.mark.timeout(90)
+async def test_mavsdk_polygon_fence_with_gf_action_hold_stops_at_the_fence_and_arming_outside_it_is_refused(
+    tmp_path: Path,
+) -> None:
+    from mavsdk.asyncio.plugins.action import ActionError
+    from mavsdk.asyncio.plugins.geofence import FenceType, GeofenceAsync, GeofenceData, Point, Polygon
+    from mavsdk.asyncio.plugins.telemetry import FlightMode
+
+    from tests.integration.mavsdk_client import (
+        call_within,
+        connect,
+        recording,
+        take_off,
+        wait_flight_mode,
+        wait_ready_to_arm,
+    )
+
+    half_m = 6.0
+    with drone_in_world(tmp_path) as (drone, world):
+        home = home_of(drone, world)
+        async with connect(VehicleLink.of(drone).mavsdk_url, drone.sysid) as client:
+            geofence = GeofenceAsync(client.system)
+            await call_within(client.param.set_param_int("GF_ACTION", 2), 10.0, "GF_ACTION")
+            await wait_ready_to_arm(client, 30.0)
+            async with recording(client.telemetry.subscribe_status_text) as texts:
+                # GIVEN an inclusion square 20 m north that home is not in: arming is refused, with PX4's words
+                away = [Point(lat, lon) for lat, lon in _square(home, 20.0, 0.0, half_m)]
+                fence = GeofenceData(polygons=[Polygon(away, FenceType.INCLUSION)], circles=[])
+                await call_within(geofence.upload_geofence(fence), 10.0, "upload_geofence")
+                with pytest.raises(ActionError):
+                    await call_within(client.action.arm(), 10.0, "arm outside the fence")
+                # GIVEN then an inclusion square of 12 m around home
+                around = [Point(lat, lon) for lat, lon in _square(home, 0.0, 0.0, half_m)]
+                fence = GeofenceData(polygons=[Polygon(around, FenceType.INCLUSION)], circles=[])
+                await call_within(geofence.upload_geofence(fence), 10.0, "upload_geofence")
+                await take_off(client, 40.0)
+                # WHEN it is sent 20 m east, through the fence
+                east_deg = math.degrees(20.0 / (EARTH_RADIUS_M * math.cos(math.radians(home[0]))))
+                await call_within(
+                    client.action.goto_location(home[0], home[1] + east_deg, home[2] + 2.5, math.nan), 10.0, "goto"
+                )
+                # THEN it says so and holds (a goto is Hold already in PX4: the mode stays HOLD) a braking distance
+                # beyond the fence, and stays there
+                async with sampling(lambda: body_of(drone, world, home)) as samples:
+                    hold_text = "Failsafe: geofence violation (Outside the geofence), holding"
+                    await text_among(texts, hold_text, 20.0)
+                    turned = body_of(drone, world, home)
+                    await wait_flight_mode(client, FlightMode.HOLD, 2.0)
+                    await asyncio.sleep(4.0 / SPEED_FACTOR)
+                last = body_of(drone, world, home)
+            said = [t.text for t in texts]
+    assert "Preflight Fail: Vehicle outside geofence" in said, said
+    assert half_m - ESTIMATE_M <= turned.east_m <= half_m + 1.0, turned
+    farthest = max(s.east_m for s in samples)
+    assert farthest <= half_m + _braking_m(CRUISE_MPS, ACC_HOR_MPS2) + TRACKING_M, farthest
+    assert last.hor_dist_m((0.0, farthest)) < 0.5 and last.up_m > 2.0, last  # holding, in the air
