@@ -98,6 +98,19 @@ class StraightLineTrajectory:
         self._pos = _floats3(pos_ned_m)
         self._speed = 0.0
 
+    def reset_moving(self, pos_ned_m: Vec3 | Sequence[float], vel_ned_mps: Vec3 | Sequence[float]) -> None:
+        """Restart the reference at ``pos_ned_m`` already moving at ``vel_ned_mps`` (the vehicle's own state): a
+        target ahead along that velocity is then reached by braking from it, not by stopping dead and starting
+        again from rest."""
+        self._pos = _floats3(pos_ned_m)
+        vx, vy, vz = _floats3(vel_ned_mps)
+        speed = math.sqrt(vx * vx + vy * vy + vz * vz)
+        if speed < 1e-9:
+            self._speed = 0.0
+            return
+        self._speed = speed
+        self._dir = (vx / speed, vy / speed, vz / speed)
+
     def update(
         self, target_ned_m: Vec3 | Sequence[float], limits: MotionLimits, dt_s: float, max_speed_mps: float = math.inf
     ) -> Reference:

@@ -288,6 +288,7 @@ class SimVehicleApi:
             ),
             throttle=status.thrust_n / max(v.cascade.collective_max_n, 1e-9),
             sensors=self._sensor_health(),
+            flight_terminated=v.crashed,  # a crash or a flight termination: HEARTBEAT FLIGHT_TERMINATION
         )
         self._snapshot_time_s = sim.time_s
         return self._snapshot

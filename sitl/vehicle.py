@@ -196,7 +196,11 @@ class Vehicle:
             speed = float(np.linalg.norm(vel))
             if speed > 0.1:
                 pos = pos + vel * (speed / (2.0 * self.p("MPC_ACC_HOR")))
-            self.trajectory.reset(self.current_pos())
+                # The reference starts from the vehicle's own motion and brakes along it to that point; from rest
+                # it would stop dead at the vehicle (which overshoots it) and then accelerate again to that point.
+                self.trajectory.reset_moving(self.current_pos(), vel)
+            else:
+                self.trajectory.reset(self.current_pos())
         self.start_goto(pos, self._est.yaw_rad if self._est is not None else math.nan)
 
     def track_setpoint(self, limits: MotionLimits, max_speed_mps: float, dt_s: float) -> TrajectorySetpoint:

@@ -184,3 +184,19 @@ def test_reset_puts_the_reference_at_rest_at_a_new_point() -> None:
     ref = trajectory.update(np.array((0.0, 100.0, -2.0)), LIMITS, DT_S)
     assert np.linalg.norm(ref.vel_ned_mps) == pytest.approx(LIMITS.accel_xy_mps2 * DT_S)
     assert ref.vel_ned_mps[1] > 0.0
+
+
+def test_reset_moving_brakes_from_the_given_velocity_to_a_target_a_braking_distance_ahead() -> None:
+    # GIVEN a reference restarted where a vehicle is, moving east at cruise speed (a Hold entered at speed)
+    trajectory = StraightLineTrajectory(np.zeros(3))
+    speed = LIMITS.speed_xy_mps
+    trajectory.reset_moving(np.array((1.0, 2.0, -3.0)), np.array((0.0, speed, 0.0)))
+    # WHEN it goes to the point v^2 / (2 a) ahead
+    braking_m = speed**2 / (2.0 * LIMITS.accel_xy_mps2)
+    run = _fly(trajectory, (1.0, 2.0 + braking_m, -3.0), 3.0)
+    # THEN it brakes at once from that speed, never faster than the limit, and stops there without stopping before
+    east_speed = run.vel[:, 1]
+    assert east_speed[0] == pytest.approx(speed - LIMITS.accel_xy_mps2 * DT_S)
+    assert np.all(np.diff(east_speed) <= EPS)  # slowing all the way: no stop-and-go
+    _assert_within_limits(run.vel, run.acc, LIMITS)
+    assert run.pos[-1] == pytest.approx((1.0, 2.0 + braking_m, -3.0), abs=1e-6)
