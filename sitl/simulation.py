@@ -6,6 +6,7 @@ MAVLink. Everything random is drawn from streams spawned from one seed, so a see
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -27,6 +28,11 @@ from sitl.params import ParamStore
 from sitl.sensors.models import GpsSample, SensorConfig, SensorReadings, SensorSuite
 from sitl.vehicle import Vehicle
 from sitl.wind import WindConfig, WindModel
+
+# A touchdown faster than this breaks the airframe (gear, arms, props): the vehicle is crashed, as after a collision.
+# A normal landing touches down at MPC_LAND_SPEED (0.7 m/s) or slower; 3 m/s is the speed of a drop from 0.46 m, which
+# a hobby quadrotor's gear does not survive without damage. A quad that loses a rotor in a 3 m hover lands at ~6 m/s.
+GROUND_IMPACT_SPEED_MPS = 3.0
 
 
 def build_param_store() -> ParamStore:
@@ -108,8 +114,11 @@ class Simulation:
         t1 = clock()
         if not self.wind.calm:
             self.plant.set_wind(self.wind.update(self.dt_s))
+        before = self.truth
         self.truth = self.plant.step(motors)
         self.time_s = self.truth.time_s
+        if self.truth.on_ground and not before.on_ground:
+            self._touchdown(before)
         power_w = 0.0
         for w in self.truth.motor_speeds_radps:
             power_w += w * w * w
@@ -119,6 +128,14 @@ class Simulation:
         self.control_ns += t1 - t0
         self.physics_ns += t2 - t1
         return self.truth
+
+    def _touchdown(self, before: PlantState) -> None:
+        """The first step in contact with the ground: too fast a touchdown is a crash (the speed is the one just
+        before contact, as the gear's springs have already begun to slow the body on this step)."""
+        vn, ve, vd = before.vel_ned_mps
+        speed_mps = math.sqrt(vn * vn + ve * ve + vd * vd)
+        if speed_mps > GROUND_IMPACT_SPEED_MPS:
+            self.vehicle.crash(f"Ground impact at {speed_mps:.1f} m/s")
 
     def run_for(self, duration_s: float, on_step: Callable[[Simulation], None] | None = None) -> None:
         for _ in range(round(duration_s / self.dt_s)):

@@ -14,7 +14,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from sitl.faults import BATTERY_TRIGGER_MARGIN, GPS_GLITCH_OFFSET_NE_M, FailureType, FailureUnit
 from sitl.mav_vehicle import SimVehicleApi
 from sitl.protocol import vehicle_api as api
-from sitl.simulation import Simulation
+from sitl.simulation import GROUND_IMPACT_SPEED_MPS, Simulation
 from tests.closed_loop.flight import make_sim, take_off
 
 pytestmark = pytest.mark.timeout(90)
@@ -66,6 +66,13 @@ def test_a_quadrotor_with_one_motor_off_falls() -> None:
     assert max(commanded[-10:]) > 0.1 and max(spinning[-10:]) < 1.0, (commanded[-10:], spinning[-10:])
     # Three rotors cannot hold a quadrotor: it comes down within 3 s of the failure (3 m up, free fall takes 0.8 s).
     assert sim.run_until(lambda s: s.altitude_above_start_m() < 0.3, 3.0), sim.altitude_above_start_m()
+    # It hits the ground far faster than a landing: the airframe is broken, the motors stop and the heartbeat says
+    # FLIGHT_TERMINATION, which is how a ground station learns that the drone is down.
+    assert sim.run_until(lambda s: s.vehicle.crashed, 1.0)
+    impact = [e.text for e in sim.vehicle.events if e.text.startswith("Ground impact at ")]
+    assert len(impact) == 1 and float(impact[0].split()[3]) > GROUND_IMPACT_SPEED_MPS, impact
+    snap = SimVehicleApi(sim).snapshot()
+    assert not snap.armed and snap.flight_terminated
 
 
 def test_gps_off_invalidates_the_position_after_the_timeout_and_recovers() -> None:

@@ -594,15 +594,17 @@ def test_a_rotor_off_in_flight_the_drone_falls_and_stays_down(tmp_path: Path) ->
         samples = gcs.watch_body(lambda s: s[-1].up_m < 0.05, 10.0, "on the ground")
         fell_s = samples[-1].time_s - stopped.time_s
         assert fell_s <= 2.0, fell_s
-        # and what a client sees after it came down
+        # and what a client sees after it came down: the impact broke it (sitl/simulation.py GROUND_IMPACT_SPEED_MPS)
+        assert gcs.wait_text("Ground impact at ", 2.0) is not None
         hb = gcs.recv(lambda m: m.get_type() == "HEARTBEAT", 3.0, "HEARTBEAT")
         status = gcs.recv(lambda m: m.get_type() == "SYS_STATUS", 3.0, "SYS_STATUS")
         assert gcs.body().up_m < 0.05  # and stays there
     # SYS_STATUS shows the motor outputs present but unhealthy, as PX4 does for a failed motor
     motors = mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
     assert status.onboard_control_sensors_present & motors and not status.onboard_control_sensors_health & motors
-    # Not PX4: with no failure detector (FD_FAIL_R/FD_FAIL_P) the drone on its side still reports armed in Hold.
-    assert hb.custom_mode == PX4_AUTO_LOITER and up_m > 2.0
+    # The motors stopped and the heartbeat says FLIGHT_TERMINATION: a ground station knows this drone is down.
+    assert up_m > 2.0 and hb.system_status == mavlink.MAV_STATE_FLIGHT_TERMINATION
+    assert not hb.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED
 
 
 @pytest.mark.timeout(60)
