@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from sitl.dynamics.plant import GeoPoint, PlantState
+from sitl.lockstep import LockstepGate, LockstepMember
 from sitl.mathutil import GRAVITY_MPS2, vec3
 from sitl.world import STEP, SharedWorld, WorldParticipant
 
@@ -153,5 +154,33 @@ def test_a_falling_body_is_a_contact_where_it_is_at_the_readers_time_and_frees_l
         assert world.contacts(1) == []
         ids, offsets = world.others_ned_m(1)
         assert offsets[0] == pytest.approx((-1.0, 0.0, 0.0), abs=1e-6)
+    finally:
+        world.close()
+
+
+def test_a_member_that_ended_holds_no_lockstep_member_back() -> None:
+    world = SharedWorld.create()
+    try:
+        gate = LockstepGate(world, 0.004)
+        alive, dead = LockstepMember(world, 0), LockstepMember(world, 1)
+        alive.join()
+        dead.join()
+        gate.open_until(1.0)
+        # GIVEN both at step 10, and the dead one's row written (it has a body)
+        for k in range(1, 11):
+            alive.completed(k)
+            dead.completed(k)
+        world.write(1, 0.04, (LAT, LON, ALT + 3.0), (0.0, 0.0, 0.0), 0.35, False, rest_alt_amsl_m=ALT)
+        alive.completed(11)
+        assert alive.steps_allowed(11) == (0, False)  # one step ahead of the other: waits for it
+        # WHEN the dead member's process is gone and its row marked ended (it never left)
+        world.mark_ended(1)
+        # THEN the survivor may go on (a step at a time past its own count, as any lone member), and the gate's
+        # clock follows the survivor alone
+        assert alive.steps_allowed(11) == (1, False)
+        assert gate.completed_steps() == 11 and gate.members() == 1
+        for m in (alive, dead):
+            m.leave()
+        gate.close()
     finally:
         world.close()
