@@ -28,4 +28,4 @@ def test_a_rotating_circle_of_8_avoids_a_silent_drone_hovering_in_its_path_with_
 
 def test_with_one_forward_camera_and_the_heading_held_the_circle_flies_into_the_silent_drone() -> None:
     out = fly_circle_past_a_silent_drone(CircleScenario(cam_rig=0, yaw_follow=0, stop_at_collision=True))
-    assert out.collisions >= 2 and any("Collision with drone 9" in e for e in out.events), out.events
+    assert out.collisions >= 1 and any("Collision with drone 9" in e for e in out.events), out.events
