@@ -53,7 +53,13 @@ def run(
     )
     flight = DemoFlight(sim, _say) if demo else None
     world = SharedWorld.attach(world_name) if world_name else None
-    participant = WorldParticipant(world, instance, airframe.collision_radius_m) if world is not None else None
+    # The body rests with its centre where it rests now, at boot on its gear: that is where it comes to lie if it falls.
+    rest_alt = sim.truth.geo.alt_amsl_m
+    participant = (
+        WorldParticipant(world, instance, airframe.collision_radius_m, rest_alt_amsl_m=rest_alt)
+        if world is not None
+        else None
+    )
     clock = LockstepSteps(LockstepMember(world, instance, lockstep_quantum)) if lockstep and world is not None else None
 
     api = SimVehicleApi(sim)

@@ -53,7 +53,9 @@ AVOIDANCE_PARAMS: tuple[ParamDef, ...] = (
     ),
     ParamDef(
         name="CAM_RIG",
-        default=0,
+        # Omnidirectional by default: a silent drone (no relay) beside or behind a drone is seen too; with one
+        # forward camera a rotating circle flew into one (docs/avoidance.md, "A silent drone").
+        default=1,
         min=0,
         max=1,
         unit="",

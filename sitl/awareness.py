@@ -102,7 +102,9 @@ class Awareness:
             self._update_relay(now_s)
         if frame_due:
             self._next_frame_s = now_s + 1.0 / self._params["CAM_RATE"]
-            if self._params["CAM_ENABLE"] == 1:
+            # With avoidance off nothing uses a frame: render only when frames are being saved.
+            wanted = self._params["AVOID_ENABLE"] == 1 or self._frames_dir is not None
+            if self._params["CAM_ENABLE"] == 1 and wanted:
                 self._capture(now_s)
             else:
                 self._prevention.set_camera((), now_s)

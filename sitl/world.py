@@ -8,9 +8,19 @@ frame; over a swarm's extent the local flat-earth conversion is exact to millime
 
 Row layout (float64): valid, time_s, lat_deg, lon_deg, alt_amsl_m, vn, ve, vd, radius_m, crashed, then the
 lockstep column: physics steps completed (infinite while the row is no lockstep member), then the seconds the drone
-has spent so far on physics, control, perception and MAVLink (read by ``swarm bench``), and a lockstep member's
-"waiting to be woken" flag. After the
-rows, a small header holds the lockstep gate (sitl/lockstep.py). A single writer per cell and a reader that tolerates
+has spent so far on physics, control, perception and MAVLink (read by ``swarm bench``), a lockstep member's
+"waiting to be woken" flag, then ``ended`` (1 once the drone's process is gone) and ``rest_alt_amsl_m``, the altitude
+its centre has when it rests on the ground below it (terrain elevation plus the centre's height on its gear). After
+the rows, a small header holds the lockstep gate (sitl/lockstep.py).
+
+A drone whose process ends (a normal exit, or SIGKILL noticed by the supervisor, which calls ``mark_ended``) leaves
+its body behind: from its last written state (position, velocity, time) it falls ballistically under gravity and
+then rests on the ground, its horizontal velocity carried until it lands. Nobody writes the row any more; every
+reader computes the body from the row and its own simulated time with one pure function (``body_geo_at``), so all
+readers see the same body at the same time, and in lockstep, where every drone's clock is the same, the fall is
+exactly reproducible. Paced drones' clocks differ by their start-up offsets (tens of milliseconds), and a reader sees
+the fall that much earlier or later. Falling or resting, the body stays an obstacle: contacts and the cameras see it
+where it is at the reader's time. A single writer per cell and a reader that tolerates
 a torn row for one sample (it is re-read next time) need no lock; step counts only grow, so a stale read only ever
 makes a drone wait a little longer, never run ahead.
 """
@@ -28,15 +38,37 @@ import numpy as np
 import numpy.typing as npt
 
 from sitl.dynamics.plant import PlantState
+from sitl.mathutil import GRAVITY_MPS2
 
 MAX_DRONES = 256
-COLUMNS = 16
+COLUMNS = 18
 VALID, TIME, LAT, LON, ALT, VN, VE, VD, RADIUS, CRASHED, STEP = range(11)
 CPU_PHYSICS, CPU_CONTROL, CPU_PERCEPTION, CPU_LINK = range(11, 15)  # seconds spent so far, for benchmarks
 WAITING = 15  # 1 while a lockstep member sleeps until woken
+ENDED, REST_ALT = 16, 17  # 1 once the drone's process is gone (its body falls); its centre's altitude at rest
 HEADER_SLOTS = 4
 GATE_STEP, GATE_OPEN = range(2)  # header: steps every member may complete; 1 once the supervisor opened the gate
 EARTH_RADIUS_M = 6_371_000.0
+
+
+def body_geo_at(rows: npt.NDArray[np.float64], time_s: float) -> npt.NDArray[np.float64]:
+    """Where the bodies of ``rows`` (an (n, COLUMNS) block of the table) are at ``time_s``: (n, 3) lat, lon, alt AMSL.
+
+    A live row is where it was last written. An ended row falls from its last written state: free fall (no drag:
+    a tumbling quadrotor falling a few metres barely slows) with the written velocity, until its centre reaches
+    ``rest_alt_amsl_m``, and then lies there; horizontal motion stops on landing. Before the last written time the
+    body is where it was written (a reader whose clock lags sees no fall yet). Pure, so every reader agrees."""
+    alt = rows[:, ALT]
+    vn, ve, vd = rows[:, VN], rows[:, VE], rows[:, VD]
+    height = np.maximum(alt - rows[:, REST_ALT], 0.0)
+    height = np.where(np.isfinite(height), height, 0.0)  # no known ground: the body stays where it was
+    # landing time: alt - vd t - g t^2 / 2 = rest
+    landing_s = (np.sqrt(vd * vd + 2.0 * GRAVITY_MPS2 * height) - vd) / GRAVITY_MPS2
+    fall_s = np.where(rows[:, ENDED] == 1.0, np.clip(time_s - rows[:, TIME], 0.0, landing_s), 0.0)
+    down = vd * fall_s + 0.5 * GRAVITY_MPS2 * fall_s * fall_s
+    lat = rows[:, LAT] + np.degrees(vn * fall_s / EARTH_RADIUS_M)
+    lon = rows[:, LON] + np.degrees(ve * fall_s / (EARTH_RADIUS_M * np.cos(np.radians(rows[:, LAT]))))
+    return np.column_stack((lat, lon, np.fmax(alt - down, np.fmin(alt, rows[:, REST_ALT]))))
 
 
 class WorldError(RuntimeError):
@@ -123,30 +155,57 @@ class SharedWorld:
         return cls(name, mapped, None)
 
     def write(self, instance: int, time_s: float, geo: tuple[float, float, float],
-              vel_ned_mps: tuple[float, float, float], radius_m: float, crashed: bool) -> None:  # fmt: skip
+              vel_ned_mps: tuple[float, float, float], radius_m: float, crashed: bool, *,
+              rest_alt_amsl_m: float) -> None:  # fmt: skip
         row = self.table[instance]
         row[TIME], row[LAT], row[LON], row[ALT] = time_s, geo[0], geo[1], geo[2]
         row[VN], row[VE], row[VD] = vel_ned_mps
-        row[RADIUS], row[CRASHED] = radius_m, 1.0 if crashed else 0.0
+        row[RADIUS], row[CRASHED], row[REST_ALT] = radius_m, 1.0 if crashed else 0.0, rest_alt_amsl_m
+        row[ENDED] = 0.0  # a row is (re)used by a live drone
         row[VALID] = 1.0
+
+    def mark_ended(self, instance: int) -> None:
+        """The drone's process is gone (called once by whoever sees it go: the supervisor for a killed process, the
+        drone itself on a normal exit). Its body falls from its last written state and then lies on the ground,
+        still an obstacle; it also stops being a lockstep member, so it holds nobody back. A row never written
+        (the drone died before its first step) has no body and stays empty."""
+        row = self.table[instance]
+        row[STEP] = math.inf
+        row[WAITING] = 0.0
+        if row[VALID] == 1.0:
+            row[ENDED] = 1.0
+
+    def ended(self, instance: int) -> bool:
+        """True once the drone's process is gone (its body falls or lies on the ground)."""
+        return bool(self.table[instance, ENDED] == 1.0)
+
+    def body_geo(self, instance: int, time_s: float) -> tuple[float, float, float] | None:
+        """Lat, lon (deg) and alt AMSL (m) of drone ``instance``'s body at ``time_s`` on the drones' simulated clock
+        (falling if it ended; ``math.inf`` gives where it comes to rest); None if the row holds no body."""
+        row = self.table[instance]
+        if row[VALID] != 1.0:
+            return None
+        lat, lon, alt = body_geo_at(row[np.newaxis, :], time_s)[0]
+        return float(lat), float(lon), float(alt)
 
     def write_cpu(self, instance: int, physics_s: float, control_s: float, perception_s: float, link_s: float) -> None:
         self.table[instance, CPU_PHYSICS : CPU_LINK + 1] = (physics_s, control_s, perception_s, link_s)
 
-    def clear(self, instance: int) -> None:
-        self.table[instance, VALID] = 0.0
-
     def others_ned_m(self, instance: int) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]:
-        """Instances and NED offsets (from drone ``instance``) of every other valid body."""
+        """Instances and NED offsets (from drone ``instance``) of every other valid body, ended ones where they have
+        fallen to at drone ``instance``'s last published time."""
         table = self.table
         me = table[instance]
         valid = table[:, VALID] == 1.0
         valid[instance] = False
         ids = np.nonzero(valid)[0]
         rows = table[ids]
-        north = np.radians(rows[:, LAT] - me[LAT]) * EARTH_RADIUS_M
-        east = np.radians(rows[:, LON] - me[LON]) * EARTH_RADIUS_M * math.cos(math.radians(me[LAT]))
-        down = me[ALT] - rows[:, ALT]
+        lat, lon, alt = rows[:, LAT], rows[:, LON], rows[:, ALT]
+        if rows[:, ENDED].any():
+            lat, lon, alt = body_geo_at(rows, float(me[TIME])).T
+        north = np.radians(lat - me[LAT]) * EARTH_RADIUS_M
+        east = np.radians(lon - me[LON]) * EARTH_RADIUS_M * math.cos(math.radians(me[LAT]))
+        down = me[ALT] - alt
         return ids, np.column_stack((north, east, down))
 
     def add_obstacle(self, *, cylinder: bool, centre: tuple[float, float, float], radius_m: float,
@@ -215,10 +274,12 @@ class SharedWorld:
 class WorldParticipant:
     """One drone's side of the shared world: publishes its truth and crashes on contact, every few steps."""
 
-    def __init__(self, world: SharedWorld, instance: int, radius_m: float, every_n_steps: int = 4) -> None:
+    def __init__(self, world: SharedWorld, instance: int, radius_m: float, *, rest_alt_amsl_m: float,
+                 every_n_steps: int = 4) -> None:  # fmt: skip
         self.world = world
         self.instance = instance
         self.radius_m = radius_m
+        self.rest_alt_amsl_m = rest_alt_amsl_m
         self.every_n_steps = every_n_steps
         self._count = 0
 
@@ -236,9 +297,11 @@ class WorldParticipant:
     def update(self, time_s: float, geo: tuple[float, float, float], vel_ned_mps: tuple[float, float, float],
                crashed: bool) -> list[Contact]:  # fmt: skip
         """Publish this drone's truth; returns the contacts it has (none once crashed)."""
-        self.world.write(self.instance, time_s, geo, vel_ned_mps, self.radius_m, crashed)
+        self.world.write(self.instance, time_s, geo, vel_ned_mps, self.radius_m, crashed,
+                         rest_alt_amsl_m=self.rest_alt_amsl_m)  # fmt: skip
         return [] if crashed else self.world.contacts(self.instance)
 
     def close(self) -> None:
-        self.world.clear(self.instance)
+        """Leave the world as a killed drone does: the body falls from its last published state and stays."""
+        self.world.mark_ended(self.instance)
         self.world.close()

@@ -32,8 +32,10 @@ from sitl.airframe import Airframe
 from sitl.control import Vec3f
 from sitl.control.allocation import AllocationResult, ControlAllocator
 from sitl.control.attitude import AttitudeController, Quat4f, thrust_to_attitude
+from sitl.control.heading import follow_travel
 from sitl.control.params import (
     attitude_config,
+    heading_config,
     outer_loop_period_s,
     position_config,
     rate_config,
@@ -138,6 +140,7 @@ class Cascade:
         self.attitude = AttitudeController(attitude_config(params))
         self.rate = RateController(rate_config(params, airframe))
         self.allocator = ControlAllocator(airframe)
+        self.heading = heading_config(params)
         self._params_version = params.version
         self._outer_period_s = outer_loop_period_s(params)
         self.reset()
@@ -173,18 +176,21 @@ class Cascade:
         self.velocity.config = velocity_config(store, self.airframe)
         self.attitude.config = attitude_config(store)
         self.rate.config = rate_config(store, self.airframe)
+        self.heading = heading_config(store)
         self._outer_period_s = outer_loop_period_s(store)
         self._outer = None  # a new gain takes effect at the next step in the outer loops too
 
-    def _heading_setpoint(self, att_q: Sequence[float], setpoint: TrajectorySetpoint) -> float:
+    def _heading_setpoint(
+        self, att_q: Sequence[float], setpoint: TrajectorySetpoint, vel_sp: Vec3f, elapsed_s: float
+    ) -> float:
         yaw_sp = setpoint.yaw_rad
         if yaw_sp != yaw_sp:
             if setpoint.yawspeed_radps == setpoint.yawspeed_radps or self._yaw_sp_prev != self._yaw_sp_prev:
                 # Rate-only heading control (or nothing to hold yet): the current heading, no yaw error.
                 w, x, y, z = att_q
                 yaw_sp = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-            else:
-                yaw_sp = self._yaw_sp_prev
+            else:  # yaw left free: held, or turned towards the direction of travel (MPC_YAW_FOLLOW)
+                yaw_sp = follow_travel(self._yaw_sp_prev, vel_sp[0], vel_sp[1], elapsed_s, self.heading)
         self._yaw_sp_prev = yaw_sp
         return yaw_sp
 
@@ -217,7 +223,7 @@ class Cascade:
             acc_sp, thrust = self.velocity.thrust_setpoint(
                 (vx, vy, vz), vel_sp, setpoint.acc_ned_mps2, elapsed_s, landed
             )
-            att_sp_q = thrust_to_attitude(thrust, self._heading_setpoint(att_q, setpoint))
+            att_sp_q = thrust_to_attitude(thrust, self._heading_setpoint(att_q, setpoint, vel_sp, elapsed_s))
             tx, ty, tz = thrust
             collective = math.sqrt(tx * tx + ty * ty + tz * tz)
             yawspeed_ff = setpoint.yawspeed_radps

@@ -16,10 +16,11 @@ import math
 
 from sitl.airframe import Airframe
 from sitl.control.attitude import AttitudeConfig
+from sitl.control.heading import HeadingConfig
 from sitl.control.position import PositionConfig
 from sitl.control.rate import RateConfig
 from sitl.control.velocity import VelocityConfig
-from sitl.params import ParamDef, ParamStore
+from sitl.params import ParamDef, ParamStore, ParamType
 
 
 def _p(name: str, default: float, lo: float, hi: float, unit: str, description: str) -> ParamDef:
@@ -71,6 +72,19 @@ CONTROL_PARAMS: tuple[ParamDef, ...] = (
     # Below PX4's 200 deg/s: an F450 has about 4 rad/s^2 of yaw authority at hover, too little to stop a
     # 200 deg/s turn on the attitude loop's approach (a 180 degree heading step overshot by 20 degrees).
     _p("MC_YAWRATE_MAX", 120.0, 0.0, 1800.0, "deg/s", "Maximum yaw rate setpoint"),
+    # Heading when a setpoint leaves yaw free (sitl/control/heading.py; the default is measured in
+    # docs/avoidance.md: the forward camera must look where the drone flies).
+    ParamDef(
+        name="MPC_YAW_FOLLOW",
+        default=0,
+        min=0,
+        max=1,
+        unit="",
+        description="Heading when a setpoint leaves yaw free: 1 turn towards the direction of travel (above"
+        " 0.5 m/s), 0 hold the last heading (PX4 offboard)",
+        type=ParamType.INT,
+    ),
+    _p("MPC_YAWRAUTO_MAX", 45.0, 5.0, 360.0, "deg/s", "Maximum rate of a heading that follows the direction of travel"),
     # Rate loop (physical units).
     _p("MC_ROLLRATE_P", 25.0, 0.0, 100.0, "1/s", "Roll rate P gain." + _RATE_UNITS),
     _p("MC_ROLLRATE_I", 20.0, 0.0, 200.0, "1/s^2", "Roll rate I gain." + _RATE_UNITS),
@@ -116,6 +130,13 @@ def velocity_config(store: ParamStore, airframe: Airframe) -> VelocityConfig:
         thrust_max_n=thrust_max * collective_max_n,
         thrust_xy_margin_n=store["MPC_THR_XY_MARG"] * collective_max_n,
         mass_kg=airframe.mass_kg,
+    )
+
+
+def heading_config(store: ParamStore) -> HeadingConfig:
+    return HeadingConfig(
+        follow_travel=store["MPC_YAW_FOLLOW"] == 1,
+        follow_rate_max_radps=math.radians(store["MPC_YAWRAUTO_MAX"]),
     )
 
 

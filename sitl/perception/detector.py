@@ -53,6 +53,8 @@ _MERGE_ELONGATION_RATIO = 1.25
 _NEAREST_MIN_SHARE = 0.45
 # The remainder of a merged blob is a body when at least this fraction of the near body's area.
 _REMAINDER_MIN_FRACTION = 0.05
+# A blob cut by the top or bottom border and at least this many times taller than wide is an upright structure.
+_UPRIGHT_ASPECT = 2.0
 # Detections from two cameras of a rig closer than this (or than the larger angular radius) are one body.
 _DUPLICATE_ANGLE_RAD = math.radians(3.0)
 
@@ -311,6 +313,17 @@ def _truncated(
     w, h = cfg.width_px, cfg.height_px
     u, v = centroid_px
     x, y, bw, bh = cv2.boundingRect(contour)
+    if (y == 0 or y + bh == h) and x > 0 and x + bw < w and bh >= _UPRIGHT_ASPECT * bw:
+        # Cut by the top or bottom only, and much taller than wide: something upright that leaves the frame (a
+        # pole), not a sphere cut by the border (whose visible cap is wider than tall). Its outline is two straight
+        # edges with no arc to fit, and its area says only how much of it the frame holds: the width is the one
+        # size cue, read with the body-size prior. A pole thinner than a drone
+        # reads a little far (0.25 m at 6 m reads 8.4 m); the area or a cone fitted to the straight edges read it
+        # at 1-2 m wherever it was, so a camera that kept it in view (the side cameras of the omni rig) steered away
+        # from it for as long as it saw it.
+        vec = _ray(camera, u, v, math.atan(_normalised(camera, u, v)))  # the centroid's own direction
+        return _make(camera, centroid_px, vec, math.atan((bw / 2.0) / camera.focal_px), area_px, radius_m,
+                     truncated=True, merged=False)  # fmt: skip
     half_extent = max(bh if x == 0 or x + bw == w else 0, bw if y == 0 or y + bh == h else 0) / 2.0
     b_px = max(math.sqrt(area_px / math.pi), half_extent)
     theta, alpha, _, _ = _solve_sphere(_normalised(camera, u, v), b_px / camera.focal_px, by_area=False)

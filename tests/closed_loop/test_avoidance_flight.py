@@ -35,7 +35,10 @@ def _fly_head_on(avoid: bool) -> tuple[float, list[bool], list[float], list[str]
         Simulation(SimConfig(airframe=airframe, seed=11 + i, home=home, initial_yaw_rad=yaw))
         for i, (home, yaw) in enumerate(zip(homes, (0.0, math.pi), strict=True))
     ]
-    participants = [WorldParticipant(world, i, airframe.collision_radius_m) for i in range(2)]
+    participants = [
+        WorldParticipant(world, i, airframe.collision_radius_m, rest_alt_amsl_m=s.truth.geo.alt_amsl_m)
+        for i, s in enumerate(sims)
+    ]
     seen = [Awareness(s, i, LocalFrame(s.truth.geo), world=world, neighbours=None) for i, s in enumerate(sims)]
     closest = math.inf
 
@@ -67,7 +70,7 @@ def _fly_head_on(avoid: bool) -> tuple[float, list[bool], list[float], list[str]
         return closest, [s.vehicle.crashed for s in sims], final, events
     finally:
         for part in participants:
-            part.world.clear(part.instance)
+            part.world.mark_ended(part.instance)
         world.close()
 
 
@@ -94,7 +97,7 @@ def _fly_past_pole(avoid: bool) -> tuple[bool, float, list[str]]:
         pole = frame.geo_from_ned((GAP_M / 2, 0.0, -5.0))  # 0.25 m radius, 10 m tall, halfway along the path
         world.add_obstacle(cylinder=True, centre=(pole.lat_deg, pole.lon_deg, pole.alt_amsl_m), radius_m=0.25,
                            height_m=10.0)  # fmt: skip
-        part = WorldParticipant(world, 0, airframe.collision_radius_m)
+        part = WorldParticipant(world, 0, airframe.collision_radius_m, rest_alt_amsl_m=sim.truth.geo.alt_amsl_m)
         eyes = Awareness(sim, 0, LocalFrame(sim.truth.geo), world=world, neighbours=None)
         sim.params.set("AVOID_ENABLE", 1 if avoid else 0)
 

@@ -1,0 +1,103 @@
+"""A drone process killed in the air leaves a body that falls to the ground in the shared world.
+
+Two real ``sitl`` processes in lockstep on a shared world created here, as the supervisor creates it, with the gate
+moved on by this test at 4x real time: one drone stays on the ground and is the reader; the other takes off
+(pymavlink) and is SIGKILLed at its takeoff altitude. After ``mark_ended`` its body falls and the reader, no longer
+held back by the dead member, runs on: its view of the body (``others_ned_m`` at its own simulated time, the view
+its camera and contact check use) has the body on the ground within 3 s.
+
+Policy: loopback only; instances 160-161; a time limit; every process stopped by PID and reaped.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import signal
+import threading
+import time
+from collections.abc import Iterator
+from multiprocessing import resource_tracker
+from pathlib import Path
+
+import pytest
+
+from sitl.dynamics.geodesy import LocalFrame
+from sitl.dynamics.plant import DEFAULT_HOME
+from sitl.lockstep import LockstepGate
+from sitl.world import ALT, REST_ALT, TIME, SharedWorld
+from tests.integration.mavlink_client import arm_and_take_off, mavlink_connection, wait_vehicle_heartbeat
+from tests.integration.sitl_process import SitlDrone, start_drone, stop_drone
+from tests.integration.vehicle_link import VehicleLink
+
+pytestmark = [pytest.mark.sim_only, pytest.mark.timeout(120)]
+
+READER, VICTIM = 160, 161
+SPEED = 4.0
+PHYSICS_DT_S = 1.0 / 250.0
+
+
+@pytest.fixture(scope="module", autouse=True)
+def shared_memory_tracker() -> Iterator[None]:
+    """A shared world created in this process starts Python's shared-memory tracker, a child process that lives as
+    long as the interpreter; started before the leak check's snapshot, it is not taken for a leftover drone."""
+    resource_tracker.ensure_running()
+    yield
+
+
+def _move_the_gate(gate: LockstepGate, stop: threading.Event) -> None:
+    """The supervisor's part of lockstep: the gate moves 20 ms past the common time every 5 ms of wall time, so the
+    common clock runs at most 4x real time and never leaps after a pause."""
+    while not stop.wait(0.005):
+        gate.open_until(gate.time_s() + 0.005 * SPEED)
+
+
+def test_a_drone_killed_in_the_air_is_on_the_ground_within_3_s_in_the_other_drones_view(tmp_path: Path) -> None:
+    world = SharedWorld.create()
+    with contextlib.ExitStack() as stack:
+        stack.callback(world.close)
+        gate = LockstepGate(world, PHYSICS_DT_S)
+        stack.callback(gate.close)
+        stop = threading.Event()
+        mover = threading.Thread(target=_move_the_gate, args=(gate, stop), name="gate")
+        mover.start()
+        stack.callback(mover.join)
+        stack.callback(stop.set)
+        drones: list[SitlDrone] = []
+        for instance, north_m in ((READER, 0.0), (VICTIM, 5.0)):
+            home = LocalFrame(DEFAULT_HOME).geo_from_ned((north_m, 0.0, 0.0))
+            home_arg = f"{home.lat_deg:.9f},{home.lon_deg:.9f},{home.alt_amsl_m:.3f}"
+            drone = start_drone(instance=instance, speed_factor=SPEED, seed=instance, log_dir=tmp_path,
+                                extra_args=("--world", world.name, "--lockstep", "--home", home_arg))  # fmt: skip
+            stack.callback(stop_drone, drone)
+            drones.append(drone)
+        victim = VehicleLink.of(drones[1])
+        with mavlink_connection(victim.pymavlink_url) as conn:
+            wait_vehicle_heartbeat(conn, victim.sysid, victim.wall_s(5))
+            # GIVEN the victim hovering at its takeoff altitude
+            alt_m = arm_and_take_off(conn, victim.wall_s(30))
+        table = world.table
+        assert table[VICTIM, ALT] - table[VICTIM, REST_ALT] == pytest.approx(alt_m, abs=0.4)
+        # WHEN its process is killed and the supervisor's part is done: the row marked ended
+        drones[1].process.signal(signal.SIGKILL)
+        drones[1].process.wait(10.0)
+        assert not world.ended(VICTIM)
+        world.mark_ended(VICTIM)
+        killed_at_s = float(table[VICTIM, TIME])
+        gate.remove(VICTIM)  # as the supervisor does for an exited member (mark_ended has already freed it)
+        # THEN in the reader's view the body falls and lies on the ground by 3 s after its last state
+        deadline = time.monotonic() + 10.0
+        heights = []
+        while time.monotonic() < deadline and table[READER, TIME] < killed_at_s + 3.0:
+            ids, offsets = world.others_ned_m(READER)
+            (k,) = [i for i, ident in enumerate(ids) if ident == VICTIM]
+            heights.append(-float(offsets[k][2]))
+            time.sleep(0.01)
+        assert table[READER, TIME] >= killed_at_s + 3.0, "the reader's clock did not advance"
+        ids, offsets = world.others_ned_m(READER)
+        (k,) = [i for i, ident in enumerate(ids) if ident == VICTIM]
+        assert abs(offsets[k][2]) < 0.05, offsets[k]  # both rest on their gear at the same ground level
+        assert max(heights) > 1.0 and min(heights) < 0.05, heights  # it was seen up there, and coming down
+        _lat, _lon, alt = world.body_geo(VICTIM, math.inf)  # type: ignore[misc]
+        assert alt == pytest.approx(table[VICTIM, REST_ALT])
+        assert drones[0].process.alive()
