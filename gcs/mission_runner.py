@@ -14,7 +14,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
-import struct
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -22,10 +21,14 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from gcs.degrade import apply_loss_policy
+from gcs.faults import CRASH, result_text
 from gcs.formation import SETPOINT_STREAM_HZ
 from gcs.frames import SwarmFrame
+from gcs.losses import MAV_STATE_CRITICAL, LossPolicy, loss_line
 from gcs.metrics import LiveMetrics
 from gcs.mission_file import (
+    FaultStep,
     FlockStep,
     FollowStep,
     FormationStep,
@@ -38,7 +41,8 @@ from gcs.mission_file import (
     TakeoffStep,
 )
 from gcs.pace_monitor import PaceMonitor
-from gcs.recording import DroneSample, EventRecord, FlightRecording, StepRecord
+from gcs.params import param_set_message, param_value
+from gcs.recording import DroneSample, EventRecord, FaultRecord, FlightRecording, StepRecord
 from gcs.report import write_report
 from gcs.streamer import FormationStreamer
 from gcs.supervisor import SpawnPlan
@@ -54,33 +58,10 @@ STATUS_EVERY_S = 2.0
 ARMABLE_TIMEOUT_S = 30.0
 PARAM_TIMEOUT_S = 1.0  # for every drone's PARAM_VALUE echo, per attempt (on the swarm's clock)
 PARAM_ATTEMPTS = 3
-_INT_PARAM_TYPES = {
-    mavlink.MAV_PARAM_TYPE_UINT8: "<B",
-    mavlink.MAV_PARAM_TYPE_INT8: "<b",
-    mavlink.MAV_PARAM_TYPE_UINT16: "<H",
-    mavlink.MAV_PARAM_TYPE_INT16: "<h",
-    mavlink.MAV_PARAM_TYPE_UINT32: "<I",
-    mavlink.MAV_PARAM_TYPE_INT32: "<i",
-}
 FOLLOW_ARRIVAL_MARGIN_S = 30.0  # the leader must report itself at its last waypoint this long after its reference
+HOLD_POLICY_S = 10.0  # a mission under loss policy hold hovers this long before it lands the survivors
+POLICY_LANDING_S = 120.0  # survivors landed (land, hold) or back and landed (abort) within this time
 COLLISION_TEXT = re.compile(r"Collision with drone (\d+)")
-
-
-def param_set_message(sysid: int, name: str, value: int | float) -> Any:
-    """PARAM_SET as PX4 expects it: an int bytewise in the float field as INT32, a float as REAL32."""
-    if isinstance(value, int):
-        bits = struct.unpack("<f", struct.pack("<i", value))[0]
-        return mavlink.MAVLink_param_set_message(sysid, 1, name.encode("ascii"), bits, mavlink.MAV_PARAM_TYPE_INT32)
-    return mavlink.MAVLink_param_set_message(sysid, 1, name.encode("ascii"), value, mavlink.MAV_PARAM_TYPE_REAL32)
-
-
-def param_value(msg: Any) -> float:
-    """The number a PARAM_VALUE carries (integer types bytewise)."""
-    fmt = _INT_PARAM_TYPES.get(msg.param_type)
-    if fmt is None:
-        return float(msg.param_value)
-    raw = struct.pack("<f", msg.param_value)
-    return float(struct.unpack(fmt, raw[: struct.calcsize(fmt)])[0])
 
 
 class MissionRunner:
@@ -125,6 +106,10 @@ class MissionRunner:
         self._tlog: TlogWriter | None = None
         self._next_status_s = 0.0
         self._step_name = "spawn"
+        self.recording.loss_policy = mission.loss_policy.value
+        self._pending_faults: list[tuple[float, FaultStep]] = []  # (mission time due, step)
+        self._system_status: dict[int, int] = {}
+        self._policy_taken = False  # a loss policy other than continue has taken the survivors out of the mission
 
     # ---- time and telemetry ----------------------------------------------------------------------------------------
     def now(self) -> float:
@@ -150,6 +135,15 @@ class MissionRunner:
                                  mode=view.mode, target_ned_m=target)  # fmt: skip
             self.recording.samples.append(sample)
             self.live.observe(sample)
+        elif kind == "HEARTBEAT" and msg.get_srcComponent() == 1:
+            before = self._system_status.get(sysid)
+            self._system_status[sysid] = msg.system_status
+            if msg.system_status == MAV_STATE_CRITICAL and before != MAV_STATE_CRITICAL:
+                view = self.swarm.fleet.drones.get(sysid)
+                warnings = [t for _t, sev, t in (view.texts if view else []) if sev <= mavlink.MAV_SEVERITY_WARNING]
+                text = f"failsafe: {warnings[-1]}" if warnings else "failsafe"
+                self.recording.failsafes.append(EventRecord(time_s=now, sysid=sysid, text=text))
+                self.say(f"  sysid {sysid}: {text}")
         elif kind == "STATUSTEXT":
             match = COLLISION_TEXT.match(msg.text)
             if match is not None:  # both drones of a collision report it: count the pair once
@@ -163,6 +157,8 @@ class MissionRunner:
 
     def _tick(self, _wall_s: float) -> None:
         now = self.now()
+        self._watch_losses(now)
+        self._inject_due_faults(now)
         self.streamer.tick(now)
         rate = None
         if self._pace is not None:
@@ -177,6 +173,37 @@ class MissionRunner:
                 self.recording.realtime_factors.append(rate)
                 pace = f"  rtf {rate:.2f}"
             self.say(f"[{now:6.1f} s] {self._step_name:<10} {self.live.status().line()}{pace}")
+
+    def _watch_losses(self, now: float) -> None:
+        """Each new loss: one line, one record, and the mission's loss policy."""
+        for loss in self.swarm.detect_losses(now):
+            self.say(loss_line(loss))
+            line = apply_loss_policy(self.mission.loss_policy, self.streamer, loss, now)
+            if self.mission.loss_policy is not LossPolicy.CONTINUE:
+                self._policy_taken = True
+            if line is not None:
+                self.say(f"  swarm: {line}")
+                self.recording.policy_events.append(EventRecord(time_s=now, sysid=loss.sysid, text=line))
+
+    def _inject_due_faults(self, now: float) -> None:
+        due = [(t, step) for t, step in self._pending_faults if t <= now]
+        if not due:
+            return
+        self._pending_faults = [(t, step) for t, step in self._pending_faults if t > now]
+        for _t, step in due:
+            sysid = self.swarm.sysids[step.drone - 1]
+            what = step.fault.describe()
+            if sysid in self.swarm.losses:
+                result = "not injected: drone already lost"
+            elif step.fault.kind == CRASH:
+                result = f"process {self.swarm.kill(sysid)} killed with SIGKILL"
+            else:
+                try:
+                    result = result_text(self.swarm.inject_fault(sysid, step.fault).result)
+                except SwarmError as exc:
+                    result = f"not injected: {exc}"
+            self.say(f"[{now:6.1f} s] fault {what} on drone {sysid}: {result}")
+            self.recording.faults.append(FaultRecord(time_s=now, sysid=sysid, fault=what, result=result))
 
     def _wait(self, condition: Callable[[], bool], timeout_sim_s: float) -> bool:
         return self.swarm.wait_until(condition, timeout_sim_s, tick=self._tick)
@@ -221,7 +248,7 @@ class MissionRunner:
     # ---- steps -----------------------------------------------------------------------------------------------------
     def _takeoff(self, step: TakeoffStep) -> None:
         swarm = self.swarm
-        if not all(swarm.fleet.drones[s].armed for s in swarm.sysids):
+        if not all(swarm.fleet.drones[s].armed for s in swarm.active_sysids):
             swarm.arm_all(ARMABLE_TIMEOUT_S, tick=self._tick)
         swarm.takeoff_all(step.alt_m)
         target = -step.alt_m
@@ -229,7 +256,7 @@ class MissionRunner:
 
         def holding() -> bool:
             positions = self.streamer.positions()
-            ok = len(positions) == len(swarm.sysids) and all(
+            ok = len(positions) == len(swarm.active_sysids) and all(
                 abs(p[2] - target) < ALT_TOLERANCE_M for p in positions.values()
             )
             now = self.now()
@@ -286,8 +313,24 @@ class MissionRunner:
         """Land (or return) every drone still armed; a crashed or already landed drone has nothing to do."""
         self.streamer.stop()
         flying = self.swarm.land_all(return_to_launch=isinstance(step, RtlStep))
-        if not self._wait(lambda: not any(self.swarm.fleet.drones[s].armed for s in flying), step.timeout_s):
+        if not self._wait(lambda: not self._still_armed(flying), step.timeout_s):
             raise SwarmError(f"not every drone landed and disarmed within {step.timeout_s:g} s")
+
+    def _still_armed(self, sysids: list[int]) -> list[int]:
+        """Those still armed that the swarm has not lost (a lost drone's last report may say armed for ever)."""
+        drones = self.swarm.fleet.drones
+        return [s for s in sysids if s not in self.swarm.losses and drones[s].armed]
+
+    def _finish_after_policy(self) -> None:
+        """After a loss under hold, land or abort the remaining steps are dropped: the mission ends once the
+        survivors are down (hold: they hold for HOLD_POLICY_S, then land where they are)."""
+        self.say(f"[{self.now():6.1f} s] loss policy {self.mission.loss_policy.value}: remaining steps dropped")
+        if self.mission.loss_policy is LossPolicy.HOLD:
+            self._hold(HOLD_POLICY_S)
+            self.swarm.land_all()
+        flying = [s for s in self.swarm.active_sysids if self.swarm.fleet.drones[s].armed]
+        if not self._wait(lambda: not self._still_armed(flying), POLICY_LANDING_S):
+            raise SwarmError(f"not every drone landed and disarmed within {POLICY_LANDING_S:g} s of the loss policy")
 
     def _run_step(self, index: int, step: Step) -> None:
         start = self.now()
@@ -307,6 +350,9 @@ class MissionRunner:
             self._follow(step)
         elif isinstance(step, HoldStep):
             self._hold(step.duration_s)
+        elif isinstance(step, FaultStep):
+            self._pending_faults.append((start + step.after_s, step))
+            self._inject_due_faults(self.now())
         else:
             self._land(step)
         self.recording.steps.append(
@@ -336,11 +382,15 @@ class MissionRunner:
             self._t0_s = self.swarm.clock()
             self.swarm.arm_all(ARMABLE_TIMEOUT_S, tick=self._tick)  # before the takeoff step's clock starts
             for index, step in enumerate(self.mission.steps):
+                if self._policy_taken:
+                    self._finish_after_policy()
+                    break
                 self._run_step(index, step)
         except (SwarmError, KeyboardInterrupt) as exc:
             failure = exc
         finally:
             self.streamer.stop()
+            self.recording.losses = list(self.swarm.losses.values())
             self.swarm.shutdown()
             self._tlog.close()
         out = write_report(self.recording, self.report_dir)

@@ -24,14 +24,18 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from gcs.faults import BATTERY_LEVEL_PARAM, ENABLE_PARAM, FAULTS, MAV_CMD_INJECT_FAILURE, FaultRequest
 from gcs.fleet import Fleet
-from gcs.losses import DroneLoss
+from gcs.losses import MAV_STATE_FLIGHT_TERMINATION, DroneLoss, process_exit_cause
+from gcs.params import param_set_message, param_value
 from gcs.relay import NeighbourRelay
 from gcs.supervisor import ProcessGroup, SpawnError, SpawnPlan
 from gcs.transport import GcsSocket
+from sitl.dynamics.geodesy import ned_from_geo
+from sitl.dynamics.plant import GeoPoint
 from sitl.lockstep import LockstepGate
 from sitl.simulation import PHYSICS_RATE_HZ
-from sitl.world import TIME, VALID, SharedWorld
+from sitl.world import ALT, LAT, LON, TIME, VALID, SharedWorld
 
 COMMAND_TIMEOUT_S = 0.5  # MAVSDK's per-try timeout
 COMMAND_RETRIES = 3
@@ -46,6 +50,12 @@ LOCKSTEP_MAX_WAIT_S = 0.005  # wall-clock cap on one wait for traffic in lockste
 # 100, and a wake-up costs a drone more CPU than the message it brings (docs/benchmarks.md). The receiving drone's
 # neighbour table ages every report by its sender's timestamp in lockstep; paced, by its arrival.
 BATCH_HOLD_S = 0.05
+HOLD_MODE = (1.0, 4.0, 3.0)  # DO_SET_MODE: custom mode enabled, main mode AUTO, sub mode LOITER (PX4 Hold)
+GCS_HEARTBEAT_PERIOD_S = 1.0  # QGroundControl sends its HEARTBEAT at 1 Hz; PX4's datalink-loss failsafe watches it
+# A lost drone's body is "down" once it is this close to its launch altitude (the ground, in this flat world).
+ON_GROUND_M = 0.3
+PARAM_TIMEOUT_S = 1.0  # for a PARAM_VALUE echo, per attempt (on the swarm's clock)
+PARAM_ATTEMPTS = 3
 
 
 @dataclass(frozen=True, slots=True)
@@ -92,6 +102,8 @@ class Swarm:
         self.batch_hold_s = batch_hold_s
         self._flush_due_s = math.inf  # when the queued traffic must leave (-inf: at the next pump)
         self.losses: dict[int, DroneLoss] = {}  # sysid -> the loss, recorded once
+        self._next_gcs_heartbeat_s = 0.0
+        self._param_echoes: dict[tuple[int, str], float] = {}
 
     def clock(self) -> float:
         """Simulated seconds: the drones' common clock in lockstep, else wall time times the speed factor."""
@@ -144,6 +156,111 @@ class Swarm:
     def sysids(self) -> list[int]:
         return [d.sysid for d in self.processes.drones]
 
+    @property
+    def active_sysids(self) -> list[int]:
+        """The drones the swarm still has: every one not in ``losses``."""
+        return [d.sysid for d in self.processes.drones if d.sysid not in self.losses]
+
+    # ---- losses ----------------------------------------------------------------------------------------------------
+    def detect_losses(self, time_s: float) -> list[DroneLoss]:
+        """Record every new loss once and return them: a drone whose process ended (any cause), one that reports
+        MAV_STATE_FLIGHT_TERMINATION (crashed, terminated), or one silent for the link-loss time.
+
+        ``time_s`` is the time to record (the caller's mission clock). A process that ended leaves the lockstep
+        gate and the shared world, where its body falls under gravity from its last state (``mark_ended``).
+        """
+        new: list[DroneLoss] = []
+        now = self.clock()
+        for d in self.processes.exited():
+            if d.sysid in self.losses:
+                continue
+            code = d.process.returncode
+            assert code is not None
+            new.append(self._record_loss(d.sysid, time_s, process_exit_cause(code)))
+        for d in self.processes.drones:
+            view = self.fleet.drones.get(d.sysid)
+            if view is None or d.sysid in self.losses:
+                continue
+            if view.system_status == MAV_STATE_FLIGHT_TERMINATION:
+                new.append(self._record_loss(d.sysid, time_s, crash_cause(view.texts)))
+            elif view.lost(now):
+                cause = f"link lost (no HEARTBEAT for {view.link_age_s(now):.1f} s)"
+                new.append(self._record_loss(d.sysid, time_s, cause))
+        self._settle_down_positions()
+        return new
+
+    def _record_loss(self, sysid: int, time_s: float, cause: str) -> DroneLoss:
+        loss = DroneLoss(sysid=sysid, time_s=time_s, cause=cause)
+        self.losses[sysid] = loss
+        d = self._process(sysid)
+        if d.process.returncode is not None:
+            if self.world is not None:
+                mark_ended = getattr(self.world, "mark_ended", None)
+                if mark_ended is not None:  # the falling body (sitl/world.py); absent, the row stays where it was
+                    mark_ended(d.instance)
+            if self.gate is not None:
+                self.gate.remove(d.instance)
+        return loss
+
+    def _process(self, sysid: int) -> Any:
+        return next(d for d in self.processes.drones if d.sysid == sysid)
+
+    def _settle_down_positions(self) -> None:
+        """Fill in where each lost drone came down, once its body is on the ground (north/east of the origin)."""
+        if self.world is None:
+            return
+        for sysid, loss in list(self.losses.items()):
+            if loss.down_ne_m is not None:
+                continue
+            d = self._process(sysid)
+            geo = self._body_geo(d.instance)
+            if geo is None or geo[2] - d.home.alt_amsl_m > ON_GROUND_M:
+                continue
+            north, east, _ = ned_from_geo(GeoPoint(lat_deg=geo[0], lon_deg=geo[1], alt_amsl_m=geo[2]), self.plan.origin)
+            self.losses[sysid] = dataclasses.replace(loss, down_ne_m=(north, east))
+
+    def _body_geo(self, instance: int) -> tuple[float, float, float] | None:
+        """Where a drone's body is in the shared world (a falling body's by ``body_geo``, else its last row)."""
+        assert self.world is not None
+        body_geo = getattr(self.world, "body_geo", None)
+        if body_geo is not None:
+            geo: tuple[float, float, float] | None = body_geo(instance, self.clock())
+            return geo
+        row = self.world.table[instance]
+        if row[VALID] != 1.0:
+            return None
+        return float(row[LAT]), float(row[LON]), float(row[ALT])
+
+    def kill(self, sysid: int) -> int:
+        """SIGKILL drone ``sysid``'s process by its PID (a simulated crash of the flight software); returns the PID.
+        The loss is recorded by ``detect_losses`` when the supervisor sees the process gone, as for any other end."""
+        d = self._process(sysid)
+        if d.process.returncode is not None:
+            raise SwarmError(f"drone {sysid}: its process has already ended")
+        d.process.kill()
+        return int(d.process.pid)
+
+    def set_param(self, sysid: int, name: str, value: int | float) -> None:
+        """PARAM_SET, confirmed by the drone's PARAM_VALUE echo (as MAVSDK does); SwarmError if refused or silent."""
+        for _ in range(PARAM_ATTEMPTS):
+            self._param_echoes.pop((sysid, name), None)
+            self.send(sysid, param_set_message(sysid, name, value))
+            if self.wait_until(lambda: (sysid, name) in self._param_echoes, PARAM_TIMEOUT_S):
+                kept = self._param_echoes[(sysid, name)]
+                if not math.isclose(kept, value, rel_tol=1e-6, abs_tol=1e-9):
+                    raise SwarmError(f"drone {sysid}: parameter {name} = {value:g} refused (kept {kept:g})")
+                return
+        raise SwarmError(f"drone {sysid}: no answer to setting parameter {name}")
+
+    def inject_fault(self, sysid: int, fault: FaultRequest) -> Ack:
+        """MAV_CMD_INJECT_FAILURE as PX4 takes it, after SYS_FAILURE_EN = 1 (and the battery level it needs)."""
+        kind = FAULTS[fault.kind]
+        self.set_param(sysid, ENABLE_PARAM, 1)
+        if kind.battery_level is not None:
+            self.set_param(sysid, BATTERY_LEVEL_PARAM, kind.battery_level)
+        acks = self.command_all(MAV_CMD_INJECT_FAILURE, kind.unit, kind.failure_type, fault.instance, sysids=[sysid])
+        return acks[0]
+
     # ---- IO --------------------------------------------------------------------------------------------------------
     def pump(self, wait_s: float = 0.0) -> None:
         """Send what is due, then handle every waiting message, waiting up to ``wait_s`` (simulated) for the first."""
@@ -168,10 +285,26 @@ class Swarm:
                         self._hold(data, address, now)
             if msg.get_type() == "COMMAND_ACK":
                 self._acks.append(msg)
+            elif msg.get_type() == "PARAM_VALUE":
+                self._param_echoes[(msg.get_srcSystem(), msg.param_id)] = param_value(msg)
             for listener in self.listeners:
                 listener(msg, now)
+        self._send_gcs_heartbeat(now)
         self._flush(now)
         self._advance_gate()
+
+    def _send_gcs_heartbeat(self, now: float) -> None:
+        """The ground station's own HEARTBEAT to every drone at 1 Hz (simulated time), as QGroundControl sends it:
+        PX4's datalink-loss failsafe (COM_DL_LOSS_T) counts from the last one. Lost drones get none."""
+        if now < self._next_gcs_heartbeat_s:
+            return
+        self._next_gcs_heartbeat_s = now + GCS_HEARTBEAT_PERIOD_S
+        msg = mavlink.MAVLink_heartbeat_message(
+            mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE
+        )
+        for sysid in self.active_sysids:
+            self.link.queue(sysid, msg)
+        self._flush_due_s = -math.inf
 
     def _hold(self, data: bytes, address: tuple[str, int], now: float) -> None:
         """Queue traffic that may wait for the next batch (at most ``batch_hold_s``)."""
@@ -248,23 +381,29 @@ class Swarm:
     def arm_all(self, timeout_s: float, tick: Callable[[float], None] | None = None) -> None:
         """Wait until every drone passes its pre-arm checks, then arm them all; SwarmError names the laggards."""
         drones = self.fleet.drones
-        if not self.wait_until(lambda: all(drones[s].prearm_ok for s in self.sysids), timeout_s, tick=tick):
-            waiting = [s for s in self.sysids if not drones[s].prearm_ok]
+        if not self.wait_until(lambda: all(drones[s].prearm_ok for s in self.active_sysids), timeout_s, tick=tick):
+            waiting = [s for s in self.active_sysids if not drones[s].prearm_ok]
             raise SwarmError(f"sysid {waiting} did not pass pre-arm checks within {timeout_s:g} s")
-        check(self.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1), "arm")
+        check(self.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1, sysids=self.active_sysids), "arm")
 
     def land_all(self, *, return_to_launch: bool = False) -> list[int]:
         """Land (or return to launch) every armed drone; returns those sysids (crashed or landed ones are left)."""
-        flying = [s for s in self.sysids if s in self.fleet.drones and self.fleet.drones[s].armed]
+        flying = [s for s in self.active_sysids if s in self.fleet.drones and self.fleet.drones[s].armed]
         if return_to_launch:
             check(self.command_all(mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, sysids=flying), "return to launch")
         else:
             check(self.command_all(mavlink.MAV_CMD_NAV_LAND, *[math.nan] * 7, sysids=flying), "land")
         return flying
 
+    def hold_all(self) -> list[int]:
+        """Every armed surviving drone into PX4 Hold (AUTO.LOITER), where it is; returns those sysids."""
+        flying = [s for s in self.active_sysids if s in self.fleet.drones and self.fleet.drones[s].armed]
+        check(self.command_all(mavlink.MAV_CMD_DO_SET_MODE, *HOLD_MODE, sysids=flying), "hold")
+        return flying
+
     def takeoff_all(self, alt_m: float) -> None:
         """NAV_TAKEOFF for every drone to ``alt_m`` above its own home (PX4 takes an AMSL altitude)."""
-        for sysid in self.sysids:
+        for sysid in self.active_sysids:
             home = self.fleet.drones[sysid].home
             if home is None:
                 raise SwarmError(f"sysid {sysid} has no home position yet")
@@ -279,7 +418,7 @@ class Swarm:
         try:
             flying = [
                 s
-                for s in self.sysids
+                for s in self.active_sysids
                 if s in self.fleet.drones and self.fleet.drones[s].armed and not self.fleet.drones[s].lost(self.clock())
             ]
             if flying:
@@ -331,6 +470,12 @@ class Swarm:
     def send_now(self, sysid: int, msg: Any) -> None:
         """One message to one drone at once, outside any batch (a command whose answer is being timed)."""
         self.link.send(sysid, msg)
+
+
+def crash_cause(texts: list[tuple[float, int, str]]) -> str:
+    """``crashed``, with the drone's last warning (``crashed: Collision with drone 2 at 0.61 m``) when it sent one."""
+    warnings = [text for _t, severity, text in texts if severity <= mavlink.MAV_SEVERITY_WARNING]
+    return f"crashed: {warnings[-1]}" if warnings else "crashed"
 
 
 def check(acks: list[Ack], what: str) -> None:
