@@ -783,9 +783,9 @@ class LeaderFollower:
         self._targets = {self.leader: pos}
         if not self.followers:
             return out
-        if now_s < self.depart_s and self._join is not None:
-            out.update(self._join.setpoints(now_s))
-            self._targets.update(self._join.targets(now_s))
+        if now_s < self.depart_s and self._join is not None:  # (a follower lost while joining is left out)
+            out.update({s: sp for s, sp in self._join.setpoints(now_s).items() if s in self.followers})
+            self._targets.update({s: p for s, p in self._join.targets(now_s).items() if s in self.followers})
             return out
         course = course_of(self._leader_vel)
         if course is not None:

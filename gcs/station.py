@@ -36,6 +36,13 @@ class Station:
         self._t0 = swarm.clock()
         self.stop_requested = False
         self._pace = PaceMonitor.for_plan(swarm.plan)
+        swarm.listeners.append(self._on_message)
+
+    def _on_message(self, msg: Any, _now_s: float) -> None:
+        """A drone's warnings (collisions, failsafes, fault injections) on the supervisor's output, as a ground
+        station shows them."""
+        if msg.get_type() == "STATUSTEXT" and msg.severity <= mavlink.MAV_SEVERITY_WARNING:
+            self.say(f"  sysid {msg.get_srcSystem()}: {msg.text}")
 
     # ---- periodic work ---------------------------------------------------------------------------------------------
     def mission_time(self) -> float:

@@ -300,7 +300,7 @@ class Swarm:
             return
         self._next_gcs_heartbeat_s = now + GCS_HEARTBEAT_PERIOD_S
         msg = mavlink.MAVLink_heartbeat_message(
-            mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE
+            mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3
         )
         for sysid in self.active_sysids:
             self.link.queue(sysid, msg)
