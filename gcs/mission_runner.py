@@ -21,6 +21,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from gcs.behaviours import LeaderFollower
 from gcs.degrade import apply_loss_policy
 from gcs.faults import CRASH, result_text
 from gcs.formation import SETPOINT_STREAM_HZ
@@ -46,7 +47,7 @@ from gcs.recording import DroneSample, EventRecord, FaultRecord, FlightRecording
 from gcs.report import write_report
 from gcs.streamer import FormationStreamer
 from gcs.supervisor import SpawnPlan
-from gcs.swarm import Swarm, SwarmError
+from gcs.swarm import PARAM_ATTEMPTS, PARAM_TIMEOUT_S, Swarm, SwarmError
 from gcs.tlog import TlogWriter
 from sitl.airframe import load_airframe
 from sitl.dynamics.plant import GeoPoint
@@ -56,9 +57,8 @@ ALT_TOLERANCE_M = 0.2  # takeoff is done when every drone holds the target altit
 ALT_HOLD_S = 1.0  # ...for this long (simulated seconds)
 STATUS_EVERY_S = 2.0
 ARMABLE_TIMEOUT_S = 30.0
-PARAM_TIMEOUT_S = 1.0  # for every drone's PARAM_VALUE echo, per attempt (on the swarm's clock)
-PARAM_ATTEMPTS = 3
 FOLLOW_ARRIVAL_MARGIN_S = 30.0  # the leader must report itself at its last waypoint this long after its reference
+FOLLOW_TIMEOUT_S = 3600.0  # the follow step's outer bound; it ends with the leader's arrival or its margin
 HOLD_POLICY_S = 10.0  # a mission under loss policy hold hovers this long before it lands the survivors
 POLICY_LANDING_S = 120.0  # survivors landed (land, hold) or back and landed (abort) within this time
 COLLISION_TEXT = re.compile(r"Collision with drone (\d+)")
@@ -282,9 +282,23 @@ class MissionRunner:
         if step.duration_s is not None:
             self._hold(step.duration_s)
             return
-        timeout = behaviour.finish_s + FOLLOW_ARRIVAL_MARGIN_S - self.now()
-        if not self._wait(lambda: behaviour.done(self.now()), timeout):
-            raise SwarmError(f"leader sysid {behaviour.leader} did not reach its last waypoint within {timeout:.0f} s")
+
+        def current() -> LeaderFollower:
+            # a lost leader hands over to a new flight (gcs/streamer.py handle_loss): wait for that one
+            flown = self.streamer.behaviour
+            return flown if isinstance(flown, LeaderFollower) else behaviour
+
+        def over() -> bool:
+            flown = current()
+            return flown.done(self.now()) or self.now() > flown.finish_s + FOLLOW_ARRIVAL_MARGIN_S
+
+        self._wait(over, FOLLOW_TIMEOUT_S)
+        if not current().done(self.now()):
+            flown = current()
+            raise SwarmError(
+                f"leader sysid {flown.leader} did not reach its last waypoint within "
+                f"{FOLLOW_ARRIVAL_MARGIN_S:g} s of its reference"
+            )
 
     def _place_obstacles(self) -> None:
         """Declare the mission's static obstacles in the shared world (cameras see them, contact crashes)."""

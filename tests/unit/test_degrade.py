@@ -20,6 +20,8 @@ from gcs.metrics import compute_metrics
 from gcs.mission_file import FaultStep, MissionFileError, parse_mission
 from gcs.recording import DroneSample, FlightRecording, StepRecord
 from gcs.report import summary_text
+from gcs.station import failsafe_text, format_status
+from gcs.swarm import crash_cause
 
 LIMITS = TransitionLimits(max_speed_mps=1.5, max_accel_mps2=1.0)
 
@@ -212,3 +214,24 @@ def test_the_report_lists_the_loss_and_counts_formation_metrics_over_the_drones_
     assert metrics.to_dict()["losses"] == [
         {"sysid": 2, "time_s": 5.0, "cause": "process killed by SIGKILL", "down_ne_m": [0.1, 4.2]}
     ]
+
+
+def test_a_crash_is_blamed_on_the_first_recent_warning_not_on_its_consequences() -> None:
+    texts = [(1.0, 4, "Low battery: 30% remaining"), (20.0, 2, "Collision with drone 2 at 0.61 m"),
+             (20.0, 2, "Motors stopped: crashed"), (20.5, 6, "Landing detected")]  # fmt: skip
+    assert crash_cause(texts, 21.0) == "crashed: Collision with drone 2 at 0.61 m"
+    assert crash_cause(texts[:1], 21.0) == "crashed"  # a warning long before is about something else
+
+
+def test_status_shows_a_lost_drone_and_an_active_failsafe() -> None:
+    rows = [
+        {"sysid": 203, "mode": "LOST", "detail": "t=5.1 s: process killed by SIGKILL"},
+        {"sysid": 204, "mode": "AUTO.LAND", "armed": True, "lat_deg": 47.0, "lon_deg": 8.0, "alt_m": 2.0,
+         "battery": 0.1, "link_age_s": 0.2, "failsafe": failsafe_text(5, [(3.0, 2, "Critical battery level!")])},
+        {"sysid": 205, "mode": "OFFBOARD", "armed": True, "lat_deg": 47.0, "lon_deg": 8.0, "alt_m": 3.0,
+         "battery": 0.9, "link_age_s": 0.2, "failsafe": failsafe_text(4, [(3.0, 2, "Critical battery level!")])},
+    ]  # fmt: skip
+    lines = format_status(rows).splitlines()
+    assert lines[1].split() == ["203", "LOST", "t=5.1", "s:", "process", "killed", "by", "SIGKILL"]
+    assert lines[2].endswith("FAILSAFE: Critical battery level!")
+    assert "FAILSAFE" not in lines[3]  # ACTIVE, no failsafe: an old warning is no failsafe
