@@ -13,7 +13,7 @@ import pytest
 
 from gcs.behaviours import FollowSpec, LeaderFollower, SwarmState
 from gcs.cli import main as swarm_main
-from gcs.faults import FAILURE_UNIT_SYSTEM_MOTOR, FAULTS, FaultError, fault_request
+from gcs.faults import FAILURE_UNIT_SYSTEM_MOTOR, FAULT_NAMES, FAULTS, FaultError, fault_request
 from gcs.formation import CircleSpec, FormationEngine, TransitionLimits, min_pairwise_distance_m
 from gcs.losses import DroneLoss, LossPolicy, loss_line, process_exit_cause
 from gcs.metrics import compute_metrics
@@ -235,3 +235,15 @@ def test_status_shows_a_lost_drone_and_an_active_failsafe() -> None:
     assert lines[1].split() == ["203", "LOST", "t=5.1", "s:", "process", "killed", "by", "SIGKILL"]
     assert lines[2].endswith("FAILSAFE: Critical battery level!")
     assert "FAILSAFE" not in lines[3]  # ACTIVE, no failsafe: an old warning is no failsafe
+
+
+def test_swarm_fly_with_a_bad_fault_step_is_one_line_and_exit_code_2_before_anything_flies(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text(MISSION.replace('fault = "crash"', 'fault = "meteor"'))
+    assert swarm_main(["fly", str(path), "--report", str(tmp_path / "report")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    names = ", ".join(FAULT_NAMES)
+    assert err == [f"swarm: error: {path}:20: steps[2].fault: unknown fault 'meteor' (faults: {names})"]
+    assert not (tmp_path / "report").exists()

@@ -1,0 +1,217 @@
+"""Losing a drone in flight, as a user does it: real ``swarm`` and ``sitl`` processes in lockstep on loopback.
+
+Policy: instances 200-239; every process found by PID and gone at the end; readiness and progress read from the
+supervisor's output and ``swarm status``, never slept for.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import json
+import math
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from sitl.dynamics.geodesy import ned_from_geo
+from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
+from sitl.world import SharedWorld
+from tests.integration.test_swarm import alive, children_of, wait_dead
+
+pytestmark = [pytest.mark.sim_only]
+
+SWARM = [sys.executable, "-m", "gcs.cli"]
+RADIUS_M = 3.0
+ON_CIRCLE_M = 0.3  # every drone this close to the circle...
+PENTAGON_SIDE_M = 2.0 * RADIUS_M * math.sin(math.pi / 5.0)  # ...and its neighbours about this far (3.53 m)
+# Five drones left on the slots of a circle of six have neighbours 3.0 m apart (the hexagon's side): the check
+# takes the midpoint, so it tells the two apart with 0.26 m to spare either way.
+FIVE_APART_M = 0.5 * (PENTAGON_SIDE_M + RADIUS_M)
+
+
+class Supervisor:
+    """``swarm up`` in the background, its output collected line by line."""
+
+    def __init__(self, args: list[str], env: dict[str, str]) -> None:
+        self.env = env
+        self.proc = subprocess.Popen([*SWARM, "up", *args], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                     text=True, env=env)  # fmt: skip
+        self.lines: list[str] = []
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+        self.wait_for(lambda: any("drones up" in ln for ln in self.lines), 60, "the drones to come up")
+        direct = children_of(self.proc.pid)
+        factories = [p for p in direct if b"sitl.zygote" in Path(f"/proc/{p}/cmdline").read_bytes()]
+        self.drones = [d for f in factories for d in children_of(f)]
+        self.children = [*direct, *self.drones]
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.append(line.rstrip("\n"))
+
+    def wait_for(self, condition: Callable[[], bool], timeout_s: float, what: str) -> None:
+        end = time.monotonic() + timeout_s
+        while not condition():
+            assert self.proc.poll() is None, "swarm up ended:\n" + "\n".join(self.lines)
+            assert time.monotonic() < end, f"timed out waiting for {what}:\n" + "\n".join(self.lines[-30:])
+            time.sleep(0.2)
+
+    def cli(self, *args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([*SWARM, *args], capture_output=True, text=True, env=self.env, timeout=60)
+
+    def command(self, *args: str) -> None:
+        """A swarm command whose outcome the test then waits for. On a busy machine a lockstep swarm can take more
+        wall time to arm or switch mode than the client waits (30 s); the supervisor still carries the command
+        out, and the test checks that it did."""
+        result = self.cli(*args)
+        assert result.returncode == 0 or "did not answer (timed out)" in result.stderr, result
+
+    def status(self) -> dict[int, list[str]]:
+        result = self.cli("status")
+        while "did not answer (timed out)" in result.stderr:  # busy with a command (see ``command``)
+            result = self.cli("status")
+        assert result.returncode == 0, result.stderr
+        return {int(row.split()[0]): row.split() for row in result.stdout.strip().splitlines()[1:]}
+
+    def stop(self) -> None:
+        """SIGKILL: the drones end with their supervisor (test_swarm.py shows it), without a landing to wait for."""
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+        for pid in self.children:
+            with contextlib.suppress(ProcessLookupError):
+                if alive(pid):
+                    os.kill(pid, signal.SIGKILL)
+        self._reader.join(timeout=5)
+
+
+@pytest.fixture
+def supervisors(tmp_path: Path) -> Iterator[Callable[[list[str]], Supervisor]]:
+    env = {**os.environ, "SWARM_STATE_DIR": str(tmp_path / "state")}
+    started: list[Supervisor] = []
+
+    def start(args: list[str]) -> Supervisor:
+        started.append(Supervisor(args, env))
+        return started[-1]
+
+    yield start
+    for s in started:
+        s.stop()
+        assert wait_dead(s.children, 10) == []
+
+
+def horizontal(row: list[str]) -> tuple[float, float]:
+    """North/east of the swarm origin from a status row's lat/lon."""
+    north, east, _ = ned_from_geo(GeoPoint(lat_deg=float(row[3]), lon_deg=float(row[4]), alt_amsl_m=0.0),
+                                  DEFAULT_HOME)  # fmt: skip
+    return north, east
+
+
+def on_circle(rows: dict[int, list[str]], sysids: list[int]) -> bool:
+    """Every drone in OFFBOARD within ON_CIRCLE_M of the circle and, for five, spread as a pentagon (no two closer
+    than FIVE_APART_M: five left on a circle of six's slots fail this)."""
+    if any(rows[s][1] != "OFFBOARD" for s in sysids):
+        return False
+    points = [horizontal(rows[s]) for s in sysids]
+    if any(abs(math.hypot(n, e) - RADIUS_M) > ON_CIRCLE_M for n, e in points):
+        return False
+    if len(sysids) == 6:
+        return True
+    gaps = [math.dist(a, b) for a, b in itertools.combinations(points, 2)]
+    return min(gaps) > FIVE_APART_M
+
+
+@pytest.mark.timeout(420)
+def test_kill_9_of_one_drone_of_a_rotating_circle_of_6_leaves_a_circle_of_5_and_one_line(
+    supervisors: Callable[[list[str]], Supervisor],
+) -> None:
+    # GIVEN six drones in lockstep flying a rotating circle
+    swarm = supervisors(["-n", "6", "--lockstep", "--first-instance", "200", "--no-forward"])
+    sysids = list(range(201, 207))
+    assert len(swarm.drones) == 6
+    swarm.command("takeoff", "--alt", "3")
+    swarm.wait_for(lambda: all(float(r[5]) > 2.7 for r in swarm.status().values()), 150, "the takeoff")
+    swarm.command("formation", "circle", "--radius", str(RADIUS_M), "--rate", "0.3", "--alt", "3")
+    swarm.wait_for(lambda: on_circle(swarm.status(), sysids), 150, "the circle of 6")
+    # WHEN the process of sysid 203 is killed with SIGKILL (by PID, through the supervisor)
+    result = swarm.cli("kill", "203")
+    assert result.returncode == 0 and "killed" in result.stdout, result
+    survivors = [s for s in sysids if s != 203]
+    # THEN the five others re-form a circle of five
+    swarm.wait_for(lambda: on_circle(swarm.status(), survivors), 150, "the circle of 5")
+    # AND the status shows the dead drone LOST with its cause, not armed
+    row = " ".join(swarm.status()[203])
+    assert row.startswith("203 LOST") and "process killed by SIGKILL" in row, row
+    # AND the supervisor said so once, on one line, and nobody collided
+    lost = [ln for ln in swarm.lines if "lost" in ln]
+    assert len(lost) == 1 and re.fullmatch(r"drone 203 lost at t=\d+\.\d s: process killed by SIGKILL", lost[0]), lost
+    assert not [ln for ln in swarm.lines if "Collision" in ln or "link back" in ln or "exited" in ln], swarm.lines
+    assert any("formation re-planned over 5 drones" in ln for ln in swarm.lines), swarm.lines
+
+
+MISSION = """\
+name = "lose_one"
+[swarm]
+drones = 4
+spacing_m = 3.0
+
+[[steps]]
+action = "takeoff"
+alt_m = 3.0
+
+[[steps]]
+action = "fault"
+drone = 2
+fault = "crash"
+after_s = 6.0
+
+[[steps]]
+action = "formation"
+shape = "circle"
+radius_m = 3.0
+alt_m = 3.0
+hold_s = 20.0
+
+[[steps]]
+action = "land"
+"""
+
+
+@pytest.mark.timeout(300)
+def test_a_mission_crash_fault_is_in_the_report_with_the_loss_and_metrics_over_the_survivors(tmp_path: Path) -> None:
+    # GIVEN a mission that kills drone 2 six seconds into a circle of four
+    mission = tmp_path / "lose_one.toml"
+    mission.write_text(MISSION)
+    report = tmp_path / "report"
+    # WHEN flown in lockstep
+    result = subprocess.run(
+        [*SWARM, "fly", str(mission), "--report", str(report), "--lockstep", "--first-instance", "210", "--no-forward"],
+        capture_output=True, text=True, timeout=280,
+    )  # fmt: skip
+    # THEN the mission completes with the three survivors landing
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    assert len(re.findall(r"^drone 212 lost at t=", result.stdout, re.M)) == 1, result.stdout
+    # AND the report lists the fault, the loss and where it came down, with no collision
+    metrics = json.loads((report / "metrics.json").read_text())
+    assert [f["fault"] for f in metrics["faults"]] == ["crash"]
+    assert metrics["faults"][0]["sysid"] == 212 and "killed with SIGKILL" in metrics["faults"][0]["result"]
+    assert [(x["sysid"], x["cause"]) for x in metrics["losses"]] == [(212, "process killed by SIGKILL")]
+    assert metrics["collisions"] == 0
+    assert metrics["loss_policy"] == "continue"
+    if hasattr(SharedWorld, "mark_ended"):  # the body falls (sitl/world.py): where it came down is reported
+        assert metrics["losses"][0]["down_ne_m"] is not None, metrics["losses"]
+    summary = (report / "summary.txt").read_text()
+    assert "drones lost: 1 (loss policy: continue)" in summary
+    # AND the circle step's formation error is that of the three still flying, settled on their circle of three
+    circle = next(s for s in metrics["steps"] if s["name"] == "circle")
+    assert circle["formation_rms_m"] is not None and circle["formation_rms_m"] < 0.3, circle
