@@ -116,6 +116,11 @@ class MissionRunner:
         """Mission time in simulated seconds (the supervisor's clock: paced wall time or the lockstep clock)."""
         return self.swarm.clock() - self._t0_s
 
+    def _on_sent(self, data: bytes, _now_s: float) -> None:
+        """What the ground station commanded (COMMAND_LONG, PARAM_SET) goes into the tlog beside the answers."""
+        if self._tlog is not None:
+            self._tlog.write(data, self._epoch_us + int(self.now() * 1e6))
+
     def _on_message(self, msg: Any, _wall_s: float) -> None:
         if self._tlog is not None:
             # Stamped in simulated time from the mission's start, so a replay runs at the flight's own pace
@@ -385,6 +390,7 @@ class MissionRunner:
         self.report_dir.mkdir(parents=True, exist_ok=True)
         self._tlog = TlogWriter(self.report_dir / "flight.tlog")
         self.swarm.listeners.append(self._on_message)
+        self.swarm.sent_listeners.append(self._on_sent)
         failure: BaseException | None = None
         try:
             pace = ("lockstep, as fast as possible" if self.speed == 0 else f"lockstep at {self.speed:g}x") \

@@ -78,7 +78,7 @@ class Station:
             if cmd == "formation":
                 fields = dict(request.get("fields", {}))
                 if request.get("shape") == "grid" and not fields.get("rows"):
-                    n = len(self.swarm.sysids)
+                    n = len(self.swarm.active_sysids)
                     fields["cols"] = max(1, math.ceil(math.sqrt(n)))
                     fields["rows"] = math.ceil(n / fields["cols"])
                 formation = build_formation(str(request.get("shape")), fields)

@@ -91,6 +91,8 @@ class Swarm:
         self.fleet = Fleet()
         self.processes = ProcessGroup()
         self.listeners: list[Callable[[Any, float], None]] = []  # e.g. the flight recorder, the relay
+        # Commands and parameter writes the swarm sends, as packed MAVLink frames (the flight log keeps them)
+        self.sent_listeners: list[Callable[[bytes, float], None]] = []
         self._selector = selectors.DefaultSelector()
         self._selector.register(self.link.sock, selectors.EVENT_READ)
         self._acks: list[Any] = []
@@ -213,24 +215,31 @@ class Swarm:
         if self.world is None:
             return
         for sysid, loss in list(self.losses.items()):
-            if loss.down_ne_m is not None:
-                continue
-            d = self._process(sysid)
-            geo = self._body_geo(d.instance)
-            if geo is None or geo[2] - d.home.alt_amsl_m > ON_GROUND_M:
-                continue
-            north, east, _ = ned_from_geo(GeoPoint(lat_deg=geo[0], lon_deg=geo[1], alt_amsl_m=geo[2]), self.plan.origin)
-            self.losses[sysid] = dataclasses.replace(loss, down_ne_m=(north, east))
+            if loss.down_ne_m is None:
+                d = self._process(sysid)
+                geo = self._grounded_body_geo(d.instance, d.home.alt_amsl_m)
+                if geo is not None:
+                    point = GeoPoint(lat_deg=geo[0], lon_deg=geo[1], alt_amsl_m=geo[2])
+                    north, east, _ = ned_from_geo(point, self.plan.origin)
+                    self.losses[sysid] = dataclasses.replace(loss, down_ne_m=(north, east))
 
-    def _body_geo(self, instance: int) -> tuple[float, float, float] | None:
-        """Where a drone's body is in the shared world (a falling body's by ``body_geo``, else its last row)."""
-        assert self.world is not None
-        body_geo = getattr(self.world, "body_geo", None)
-        if body_geo is not None:
-            geo: tuple[float, float, float] | None = body_geo(instance, self.clock())
-            return geo
-        row = self.world.table[instance]
-        if row[VALID] != 1.0:
+    def _grounded_body_geo(self, instance: int, home_alt_m: float) -> tuple[float, float, float] | None:
+        """Where a drone's body lies, once it lies on the ground; None while it is in the air (or has no body).
+
+        An ended process's body falls in the shared world (``SharedWorld.body_geo``, computed from its last state):
+        it is down once it is where it comes to rest. A live drone (crashed, or silent) writes its own row: it is
+        down within ON_GROUND_M of its launch altitude."""
+        world = self.world
+        assert world is not None
+        # (getattr: the falling body's API of sitl/world.py, which a world without it lacks; its row then stays put)
+        ended, body_geo = getattr(world, "ended", None), getattr(world, "body_geo", None)
+        if ended is not None and body_geo is not None and ended(instance):
+            now, rest = body_geo(instance, self.clock()), body_geo(instance, math.inf)
+            if now is None or rest is None or abs(now[2] - rest[2]) > 0.01:
+                return None
+            return (float(now[0]), float(now[1]), float(now[2]))
+        row = world.table[instance]
+        if row[VALID] != 1.0 or float(row[ALT]) - home_alt_m > ON_GROUND_M:
             return None
         return float(row[LAT]), float(row[LON]), float(row[ALT])
 
@@ -247,7 +256,7 @@ class Swarm:
         """PARAM_SET, confirmed by the drone's PARAM_VALUE echo (as MAVSDK does); SwarmError if refused or silent."""
         for _ in range(PARAM_ATTEMPTS):
             self._param_echoes.pop((sysid, name), None)
-            self.send(sysid, param_set_message(sysid, name, value))
+            self._send_logged(sysid, param_set_message(sysid, name, value), now=False)
             if self.wait_until(lambda: (sysid, name) in self._param_echoes, PARAM_TIMEOUT_S):
                 kept = self._param_echoes[(sysid, name)]
                 if not math.isclose(kept, value, rel_tol=1e-6, abs_tol=1e-9):
@@ -455,7 +464,7 @@ class Swarm:
             if not pending:
                 break
             for s in pending:
-                self.link.send(s, mavlink.MAVLink_command_long_message(s, 1, command, attempt, *p))
+                self._send_logged(s, mavlink.MAVLink_command_long_message(s, 1, command, attempt, *p), now=True)
             end = self.clock() + COMMAND_TIMEOUT_S
             while any(results[s] is None for s in pending) and self.clock() < end:
                 self.pump(0.02)
@@ -465,6 +474,22 @@ class Swarm:
                         results[src] = ack.result
                 self._acks.clear()
         return [Ack(s, results[s]) for s in targets]
+
+    def _send_logged(self, sysid: int, msg: Any, *, now: bool) -> None:
+        """A command or parameter write, at once or with the next batch, also handed to ``sent_listeners``."""
+        data = self.link.pack(msg)
+        address = self.link.addresses.get(sysid)
+        if address is None:
+            return
+        if now:
+            if self.link.queued:
+                self.link.flush()
+            self.link.send_raw(data, address)
+        else:
+            self.link.queue_raw(data, address)
+            self._flush_due_s = -math.inf
+        for listener in self.sent_listeners:
+            listener(data, self.clock())
 
     def send(self, sysid: int, msg: Any) -> None:
         """Streamed traffic (setpoints, parameter writes): leaves at the start of the next pump, batched with

@@ -21,6 +21,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.dynamics.geodesy import ned_from_geo
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
@@ -63,7 +65,11 @@ class Supervisor:
         end = time.monotonic() + timeout_s
         while not condition():
             assert self.proc.poll() is None, "swarm up ended:\n" + "\n".join(self.lines)
-            assert time.monotonic() < end, f"timed out waiting for {what}:\n" + "\n".join(self.lines[-30:])
+            if time.monotonic() > end:
+                table = self.cli("status")
+                raise AssertionError(
+                    "\n".join([f"timed out waiting for {what}:", *self.lines[-30:], table.stdout, table.stderr])
+                )
             time.sleep(0.2)
 
     def cli(self, *args: str) -> subprocess.CompletedProcess[str]:
@@ -131,7 +137,7 @@ def on_circle(rows: dict[int, list[str]], sysids: list[int]) -> bool:
     return min(gaps) > FIVE_APART_M
 
 
-@pytest.mark.timeout(420)
+@pytest.mark.timeout(600)  # about 70 s on 2 quiet cores; the waits are long only for a machine shared with others
 def test_kill_9_of_one_drone_of_a_rotating_circle_of_6_leaves_a_circle_of_5_and_one_line(
     supervisors: Callable[[list[str]], Supervisor],
 ) -> None:
@@ -140,15 +146,15 @@ def test_kill_9_of_one_drone_of_a_rotating_circle_of_6_leaves_a_circle_of_5_and_
     sysids = list(range(201, 207))
     assert len(swarm.drones) == 6
     swarm.command("takeoff", "--alt", "3")
-    swarm.wait_for(lambda: all(float(r[5]) > 2.7 for r in swarm.status().values()), 150, "the takeoff")
+    swarm.wait_for(lambda: all(float(r[5]) > 2.7 for r in swarm.status().values()), 240, "the takeoff")
     swarm.command("formation", "circle", "--radius", str(RADIUS_M), "--rate", "0.3", "--alt", "3")
-    swarm.wait_for(lambda: on_circle(swarm.status(), sysids), 150, "the circle of 6")
+    swarm.wait_for(lambda: on_circle(swarm.status(), sysids), 240, "the circle of 6")
     # WHEN the process of sysid 203 is killed with SIGKILL (by PID, through the supervisor)
     result = swarm.cli("kill", "203")
     assert result.returncode == 0 and "killed" in result.stdout, result
     survivors = [s for s in sysids if s != 203]
     # THEN the five others re-form a circle of five
-    swarm.wait_for(lambda: on_circle(swarm.status(), survivors), 150, "the circle of 5")
+    swarm.wait_for(lambda: on_circle(swarm.status(), survivors), 240, "the circle of 5")
     # AND the status shows the dead drone LOST with its cause, not armed
     row = " ".join(swarm.status()[203])
     assert row.startswith("203 LOST") and "process killed by SIGKILL" in row, row
@@ -157,6 +163,12 @@ def test_kill_9_of_one_drone_of_a_rotating_circle_of_6_leaves_a_circle_of_5_and_
     assert len(lost) == 1 and re.fullmatch(r"drone 203 lost at t=\d+\.\d s: process killed by SIGKILL", lost[0]), lost
     assert not [ln for ln in swarm.lines if "Collision" in ln or "link back" in ln or "exited" in ln], swarm.lines
     assert any("formation re-planned over 5 drones" in ln for ln in swarm.lines), swarm.lines
+    # AND a fault for a drone the swarm does not have, or for the lost one, is one line (exit 2: bad input)
+    unknown = swarm.cli("fault", "99", "motor")
+    assert unknown.returncode == 2 and unknown.stderr == "swarm: error: no drone with sysid 99 (sysids 201..206)\n"
+    again = swarm.cli("kill", "203")
+    assert again.returncode == 1 and again.stderr.startswith("swarm: error: drone 203 is already lost ("), again
+    assert len(again.stderr.splitlines()) == 1
 
 
 MISSION = """\
@@ -212,6 +224,13 @@ def test_a_mission_crash_fault_is_in_the_report_with_the_loss_and_metrics_over_t
         assert metrics["losses"][0]["down_ne_m"] is not None, metrics["losses"]
     summary = (report / "summary.txt").read_text()
     assert "drones lost: 1 (loss policy: continue)" in summary
+    # AND the flight log holds the ground station's commands beside the drones' answers (an injected fault's
+    # COMMAND_LONG goes there the same way)
+    log = mavutil.mavlink_connection(str(report / "flight.tlog"))
+    commands = set()
+    while (msg := log.recv_match(type="COMMAND_LONG")) is not None:
+        commands.add((msg.get_srcSystem(), msg.command))
+    assert (255, mavlink.MAV_CMD_COMPONENT_ARM_DISARM) in commands, commands
     # AND the circle step's formation error is that of the three still flying, settled on their circle of three
     circle = next(s for s in metrics["steps"] if s["name"] == "circle")
     assert circle["formation_rms_m"] is not None and circle["formation_rms_m"] < 0.3, circle
