@@ -62,13 +62,23 @@ class Battery:
         self.config = config
         self._consumed_mah = (1.0 - initial_remaining) * config.capacity_mah
         self._current_a = 0.0
+        # An injected battery failure (sitl/faults.py) is a fault of the monitor, not of the cells: the pack goes on
+        # powering the motors from its true charge while the monitor reports this charge (None: the true one).
+        self.reported_remaining: float | None = None
+
+    @property
+    def true_remaining(self) -> float:
+        """The cells' true state of charge, 0..1."""
+        return max(0.0, 1.0 - self._consumed_mah / self.config.capacity_mah)
 
     @property
     def remaining(self) -> float:
-        """State of charge, 0..1 (read by the autopilot's battery failsafe every step)."""
-        return max(0.0, 1.0 - self._consumed_mah / self.config.capacity_mah)
+        """State of charge the battery monitor reports, 0..1 (read by the autopilot's battery failsafe every step)."""
+        reported = self.reported_remaining
+        return self.true_remaining if reported is None else reported
 
     def state(self) -> BatteryState:
+        """What the monitor reports (BATTERY_STATUS): under an injected fault, voltage matches the faked charge."""
         cfg = self.config
         remaining = self.remaining
         ocv = _cell_ocv_v(remaining) * cfg.cells
@@ -81,7 +91,7 @@ class Battery:
 
     def update(self, mechanical_power_w: float, dt_s: float) -> None:
         cfg = self.config
-        ocv = _cell_ocv_v(self.remaining) * cfg.cells
+        ocv = _cell_ocv_v(self.true_remaining) * cfg.cells
         power_w = mechanical_power_w / cfg.efficiency + cfg.avionics_w
         self._current_a = _current_for_power(power_w, max(ocv, 1.0), cfg.internal_resistance_ohm)
         self._consumed_mah += self._current_a * dt_s / 3.6

@@ -11,6 +11,12 @@ Two classic, cheap filters, both fixed-gain so that one update costs a few micro
   from one time constant per axis (k1 = 3/tau, k2 = 3/tau^2, k3 = 1/tau^3, the critically-damped choice used by
   ArduPilot's original inertial navigation).
 
+GPS faults are handled as PX4's EKF2 handles them, kept simple: a fix whose horizontal position disagrees with the
+prediction by more than ``gps_pos_gate_m`` is not fused (its velocity still is), and when no GPS position has been
+fused for ``gps_timeout_s`` (the receiver lost its fix, or a glitch kept every fix outside the gate) the horizontal
+position is declared invalid (``Estimate.position_valid`` False). A fix that arrives after the receiver was silent
+that long resets the position to it, as EKF2 resets on regaining GPS; a glitch that clears is fused again at once.
+
 The local frame is anchored at the estimator's origin: the first GPS fix horizontally and the first barometer
 reading (ground level at boot) vertically, as PX4's EKF2 does. The caller decides what that origin means (home).
 
@@ -45,6 +51,11 @@ class EstimatorConfig:
     acc_gate_mps2: float = 1.0  # gravity correction weight halves at this manoeuvring acceleration
     converge_s: float = 1.0  # attitude settling time after the first heading measurement
     gps_converge_s: float = 2.5  # position settling after the first fix (~3 tau_xy): before it, not valid
+    # Without GPS position fusion for this long the horizontal position is invalid (PX4's EKF2_NOAID_TOUT, 5 s).
+    gps_timeout_s: float = 5.0
+    # Horizontal innovation gate: PX4 gates GPS position at EKF2_GPS_P_GATE = 5 standard deviations, which with its
+    # 0.5 m GPS noise and a settled filter is a few metres; our fixes' noise is 0.04 m + 0.03 m drift.
+    gps_pos_gate_m: float = 5.0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -86,6 +97,7 @@ class Estimator:
         self._acc_ned_lpf: _Floats3 = (0.0, 0.0, 0.0)
         self._last_gps_vel: _Floats3 | None = None
         self._last_gps_time_s = 0.0
+        self._last_pos_fused_s = -math.inf  # last GPS position fused (the innovation passed the gate)
         self._last_baro_time_s: float | None = None
         self._att_initialised = False
         self._att_since_s = math.inf
@@ -207,22 +219,27 @@ class Estimator:
         if gps is not None and gps.fix_type >= 3:
             gpn, gpe, _ = gps.pos_ned_m.tolist()
             gvn, gve, gvd = gps.vel_ned_mps.tolist()
-            if not self._have_gps:
+            if not self._have_gps or gps.time_s - self._last_gps_time_s > cfg.gps_timeout_s:
+                # First fix, or the first after the receiver was lost: start from it.
                 pn, pe = gpn, gpe
                 vn, ve, vd = gvn, gve, gvd
+                if not self._have_gps:
+                    self._gps_since_s = gps.time_s
                 self._have_gps = True
-                self._gps_since_s = gps.time_s
+                self._last_pos_fused_s = gps.time_s
             else:
                 gps_dt = gps.time_s - self._last_gps_time_s
-                k1, k2, k3 = self._k_xy
-                k1, k2, k3 = k1 * gps_dt, k2 * gps_dt, k3 * gps_dt
                 err_n, err_e = gpn - pn, gpe - pe
-                pn += k1 * err_n
-                pe += k1 * err_e
-                vn += k2 * err_n
-                ve += k2 * err_e
-                bn -= k3 * err_n
-                be -= k3 * err_e
+                if err_n * err_n + err_e * err_e <= cfg.gps_pos_gate_m * cfg.gps_pos_gate_m:
+                    k1, k2, k3 = self._k_xy
+                    k1, k2, k3 = k1 * gps_dt, k2 * gps_dt, k3 * gps_dt
+                    pn += k1 * err_n
+                    pe += k1 * err_e
+                    vn += k2 * err_n
+                    ve += k2 * err_e
+                    bn -= k3 * err_n
+                    be -= k3 * err_e
+                    self._last_pos_fused_s = gps.time_s
                 gain = cfg.gps_vel_gain
                 vn += gain * (gvn - vn)
                 ve += gain * (gve - ve)
@@ -273,6 +290,7 @@ class Estimator:
             pitch_rad=pitch,
             yaw_rad=yaw,
             attitude_valid=self._att_initialised and time_s - self._att_since_s >= cfg.converge_s,
-            position_valid=time_s - self._gps_since_s >= cfg.gps_converge_s,
+            position_valid=time_s - self._gps_since_s >= cfg.gps_converge_s
+            and time_s - self._last_pos_fused_s <= cfg.gps_timeout_s,
             altitude_valid=self._have_baro,
         )

@@ -10,14 +10,18 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+from pymavlink.dialects.v20 import common as mavlink
+
 from sitl.control.cascade import AttitudeSetpoint as CascadeAttitudeSetpoint
 from sitl.control.cascade import TrajectorySetpoint
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.dynamics.plant import GeoPoint
+from sitl.faults import BATTERY_LEVELS, FaultError, GpsFault, apply_request, decode_request
 from sitl.mathutil import Vec3, vec3
 from sitl.mission_exec import MissionRun
 from sitl.mission_plan import NavItem, to_nav_items
 from sitl.protocol import vehicle_api as api
+from sitl.protocol.fence import to_geofence
 from sitl.protocol.modes import Px4Mode
 from sitl.simulation import Simulation
 
@@ -28,6 +32,13 @@ _MISSION_STATE = {
     MissionRun.PAUSED: api.MissionState.PAUSED,
     MissionRun.COMPLETE: api.MissionState.COMPLETE,
 }
+_ALL_HEALTHY = api.SensorHealth()
+# Most severe first; BAT_EMERGEN_THR may be absent from an older parameter table (that grade is then skipped).
+_CHARGE_STATES = (
+    ("BAT_EMERGEN_THR", int(mavlink.MAV_BATTERY_CHARGE_STATE_EMERGENCY)),
+    ("BAT_CRIT_THR", int(mavlink.MAV_BATTERY_CHARGE_STATE_CRITICAL)),
+    ("BAT_LOW_THR", int(mavlink.MAV_BATTERY_CHARGE_STATE_LOW)),
+)
 NO_RC_MODES = frozenset(
     {Px4Mode.MANUAL, Px4Mode.ALTCTL, Px4Mode.POSCTL, Px4Mode.STABILIZED, Px4Mode.ACRO, Px4Mode.AUTO_READY}
 )
@@ -48,6 +59,7 @@ class SimVehicleApi:
         self.frame = LocalFrame(self.origin)
         self._mission_items: tuple[api.MissionItem, ...] = ()
         self._mission_home_alt_amsl_m = math.nan  # home altitude the stored mission's relative altitudes used
+        self._fence_items: tuple[api.MissionItem, ...] = ()
         self._snapshot: api.VehicleSnapshot | None = None
         self._snapshot_time_s = -1.0
 
@@ -70,6 +82,15 @@ class SimVehicleApi:
     # ---- VehicleApi ---------------------------------------------------------------------------------------------
     def mission_items(self) -> Sequence[api.MissionItem]:
         return self._mission_items
+
+    def fence_items(self) -> Sequence[api.MissionItem]:
+        return self._fence_items
+
+    def note_gcs_heartbeat(self, now_s: float) -> None:
+        self.vehicle.note_gcs_heartbeat(now_s)
+
+    def mavlink_failed(self) -> bool:
+        return self.sim.faults.link_off
 
     def set_offboard_setpoint(self, setpoint: api.OffboardSetpoint | api.AttitudeSetpoint, now_s: float) -> None:
         if isinstance(setpoint, api.OffboardSetpoint):
@@ -150,7 +171,43 @@ class SimVehicleApi:
                 self._mission_items = items
                 self._mission_home_alt_amsl_m = self.home_alt_amsl_m()
                 return v.set_mission(self._nav_items())
+            case api.SetFence(items=items):
+                # Zones in the local frame the autopilot flies in (fences are vertical prisms: no altitude).
+                v.set_fence(to_geofence(items, self._ne_of))
+                self._fence_items = items
+                return api.CommandOutcome.accepted()
+            case api.InjectFailure():
+                return self._inject_failure(request)
         return api.CommandOutcome(api.CommandResult.UNSUPPORTED, "Not supported")
+
+    def _ne_of(self, lat_deg: float, lon_deg: float) -> tuple[float, float]:
+        north, east, _ = self.frame.ned_from_geo(
+            GeoPoint(lat_deg=lat_deg, lon_deg=lon_deg, alt_amsl_m=self.origin.alt_amsl_m)
+        )
+        return (north, east)
+
+    def _inject_failure(self, request: api.InjectFailure) -> api.CommandOutcome:
+        """MAV_CMD_INJECT_FAILURE as PX4 answers it: DENIED unless SYS_FAILURE_EN = 1, UNSUPPORTED for a failure
+        the simulation cannot produce; accepted, the reason is the text that announces the failure."""
+        params = self.sim.params
+        if params["SYS_FAILURE_EN"] != 1:
+            return api.CommandOutcome.denied("Failure injection disabled")
+        # BAT_EMERGEN_THR may be absent from an older parameter table: that level is then refused, never guessed.
+        thresholds = {name: params[name] for _, name in BATTERY_LEVELS.values() if name in params}
+        try:
+            fault = decode_request(request.unit, request.failure_type, request.instance)
+            state, text = apply_request(
+                self.sim.faults,
+                fault,
+                rotor_count=len(self.sim.config.airframe.rotors),
+                battery_level=round(params["SYS_FAIL_BAT_LVL"]),
+                battery_thresholds=thresholds,
+            )
+        except FaultError as exc:
+            result = api.CommandResult.UNSUPPORTED if exc.unsupported else api.CommandResult.DENIED
+            return api.CommandOutcome(result, str(exc))
+        self.sim.set_faults(state)
+        return api.CommandOutcome(api.CommandResult.ACCEPTED, text)
 
     def _nav_items(self) -> tuple[NavItem, ...]:
         return to_nav_items(self._mission_items, self.origin, self._mission_home_alt_amsl_m)
@@ -219,6 +276,7 @@ class SimVehicleApi:
                 remaining=battery.remaining,
                 consumed_mah=battery.consumed_mah,
                 cell_count=sim.config.battery.cells,
+                charge_state=self._charge_state(battery.remaining),
             ),
             home=home,
             local_origin=self.origin,
@@ -229,9 +287,31 @@ class SimVehicleApi:
                 reached_seq=mission.reached_seq,
             ),
             throttle=status.thrust_n / max(v.cascade.collective_max_n, 1e-9),
+            sensors=self._sensor_health(),
         )
         self._snapshot_time_s = sim.time_s
         return self._snapshot
+
+    def _charge_state(self, remaining: float) -> int:
+        """BATTERY_STATUS charge_state as PX4's battery library grades the charge against the BAT_*_THR levels."""
+        params = self.sim.params
+        for name, state in _CHARGE_STATES:
+            if name in params and remaining < params[name]:
+                return state
+        return int(mavlink.MAV_BATTERY_CHARGE_STATE_OK)
+
+    def _sensor_health(self) -> api.SensorHealth:
+        """SYS_STATUS health: an injected GPS failure makes the GPS unhealthy and a failed rotor the motor outputs,
+        as PX4 reports a receiver without fix and a failed ESC."""
+        faults = self.sim.faults
+        if faults.gps is GpsFault.NONE and not faults.motors_off:
+            return _ALL_HEALTHY
+        healthy = api.SIM_SENSOR_BITS
+        if faults.gps is not GpsFault.NONE:
+            healthy &= ~mavlink.MAV_SYS_STATUS_SENSOR_GPS
+        if faults.motors_off:
+            healthy &= ~mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+        return api.SensorHealth(healthy=healthy)
 
     def _gps_status(self) -> api.GpsStatus:
         gps = self.sim.last_gps

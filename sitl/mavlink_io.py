@@ -4,6 +4,10 @@ Each link (the API link on 14580+i and the ground-station link on 18570+i, PX4's
 UDP socket with its own ``LinkServices``. A link streams to its configured remote from boot and also answers every
 address that has sent it something (PX4's behaviour), so a client on any port is heard. Datagrams are parsed with
 pymavlink's robust parser: garbage becomes "bad data" and is dropped; nothing a peer sends can raise out of here.
+
+An injected MAVLink failure (FAILURE_UNIT_SYSTEM_MAVLINK_SIGNAL, see sitl/faults.py) silences every link for the rest
+of the process, as a dead radio would: the reply that accepted the injection still leaves, then nothing is sent, and
+whatever arrives is read and dropped unparsed (read, so that the loop's select does not wake on it for ever).
 """
 
 from __future__ import annotations
@@ -139,6 +143,16 @@ class UdpLink:
                     out.append(msg)
         return out
 
+    def drain(self) -> None:
+        """Read and drop whatever arrived (a silenced link): at most MAX_RECEIVE_DATAGRAMS datagrams a call."""
+        for _ in range(MAX_RECEIVE_DATAGRAMS):
+            try:
+                self.sock.recv(MAX_DATAGRAM)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:
+                continue
+
     def send(self, effects: Iterable[Effect]) -> None:
         """Send the messages among ``effects`` to every peer, together: the streams due at one poll (several share
         each 100 ms tick) or the replies to one message leave in one datagram per peer."""
@@ -171,6 +185,8 @@ class MavlinkEndpoint:
 
     def __init__(self, identity: Identity, vehicle: VehicleApi, params: ParamStore, links: list[LinkConfig]) -> None:
         self.links: list[UdpLink] = []
+        self._vehicle = vehicle
+        self.silenced = False  # set for good once the vehicle reports an injected MAVLink failure
         # One table for the drone, fed by whichever link the relayed positions arrive on.
         self.neighbours = NeighbourTable(identity.sysid)
         try:
@@ -185,15 +201,31 @@ class MavlinkEndpoint:
         return [link.sock for link in self.links]
 
     def receive(self, now_s: float) -> None:
+        if self.silenced:
+            for link in self.links:
+                link.drain()
+            return
         for link in self.links:
             for msg in link.receive():
+                if self.silenced:
+                    continue  # the rest of this batch arrived after the radio died
                 link.send(link.services.handle(msg, now_s))
+                if self._vehicle.mavlink_failed():
+                    self._silence()
+
+    def _silence(self) -> None:
+        self.silenced = True
+        log.warning("MAVLink signal lost (injected failure): all links silent from now on")
 
     def poll(self, now_s: float) -> None:
+        if self.silenced:
+            return
         for link in self.links:
             link.send(link.services.poll(now_s))
 
     def statustext(self, severity: int, text: str) -> None:
+        if self.silenced:
+            return
         for link in self.links:
             link.send(link.services.statustext(severity, text))
 

@@ -21,6 +21,8 @@ from sitl.control.params import CONTROL_PARAMS
 from sitl.dynamics.jsbsim_plant import JsbsimPlant
 from sitl.dynamics.plant import DEFAULT_HOME, PHYSICS_RATE_HZ, GeoPoint, PlantState
 from sitl.estimation import Estimate, Estimator, EstimatorConfig
+from sitl.fault_params import FAULT_PARAMS
+from sitl.faults import FaultState
 from sitl.params import ParamStore
 from sitl.sensors.models import GpsSample, SensorConfig, SensorReadings, SensorSuite
 from sitl.vehicle import Vehicle
@@ -29,7 +31,7 @@ from sitl.wind import WindConfig, WindModel
 
 def build_param_store() -> ParamStore:
     """Every parameter of one drone, in the order the MAVLink parameter protocol indexes them."""
-    return ParamStore((*CONTROL_PARAMS, *AUTOPILOT_PARAMS, *AVOIDANCE_PARAMS))
+    return ParamStore((*CONTROL_PARAMS, *AUTOPILOT_PARAMS, *AVOIDANCE_PARAMS, *FAULT_PARAMS))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -65,10 +67,12 @@ class Simulation:
             Cascade(config.airframe, self.params),
             battery_remaining=lambda: self.battery.remaining,
         )
+        self.faults = FaultState()  # injected faults in force (set_faults)
         self.truth: PlantState = self.plant.state()
         self.readings: SensorReadings | None = None
         self.last_gps: GpsSample | None = None  # the receiver's latest report, for GPS_RAW_INT
         self.estimate: Estimate | None = None
+        self.motor_cmds: tuple[float, ...] = ()
         self.time_s = 0.0
         self.truth_at_boot_ned_m = self.truth.pos_ned_m.copy()
         self._k_q = config.airframe.torque_coeff_nm_per_radps2
@@ -78,6 +82,14 @@ class Simulation:
         # thread's CPU clock instead (~0.4 us a read), because with more drones than cores a monotonic clock also
         # counts the time a drone waits for a CPU, charged to whichever part it was preempted in (sitl/app.py).
         self.part_clock_ns: Callable[[], int] = time.perf_counter_ns
+
+    def set_faults(self, faults: FaultState) -> None:
+        """Put injected faults in force where they act: the plant's rotors, the GPS receiver, the battery monitor.
+        (A link fault acts in the MAVLink endpoint, which reads ``faults.link_off``.)"""
+        self.faults = faults
+        self.plant.failed_motors = faults.motors_off
+        self.sensors.gps.fault = faults.gps
+        self.battery.reported_remaining = faults.battery_remaining
 
     def step(self) -> PlantState:
         """Advance one physics step (sensors sample at their own rates, the estimator, attitude and rate control
@@ -92,6 +104,7 @@ class Simulation:
             self.last_gps = self.readings.gps
         self.estimate = self.estimator.update(self.readings, self.time_s, self.dt_s)
         motors = self.vehicle.step(self.estimate, self.time_s, self.dt_s)
+        self.motor_cmds = motors  # as the mixer commands them; a failed rotor ignores its command in the plant
         t1 = clock()
         if not self.wind.calm:
             self.plant.set_wind(self.wind.update(self.dt_s))

@@ -141,6 +141,9 @@ class JsbsimPlant:
         )
         self._wind_ned_mps = np.zeros(3)
         self._steps = 0
+        # Rotors that have failed (0-based, an injected motor failure): whatever the mixer commands, the motor gets
+        # nothing, so the rotor spins down through its lag and gives no thrust and no torque.
+        self.failed_motors: frozenset[int] = frozenset()
 
         _install_log_bridge()
         self._fdm = self._load(airframe)
@@ -254,6 +257,8 @@ class JsbsimPlant:
         for setter, value in zip(self._cmd_setters, motor_cmds, strict=False):  # lengths checked above
             value = float(value)  # _clamp_cmd inline: this runs every physics step
             setter(1.0 if value > 1.0 else (value if value > 0.0 else 0.0))
+        for index in self.failed_motors:
+            self._cmd_setters[index](0.0)
 
     def _any_contact(self) -> bool:
         # A plain loop: three times cheaper than any() over a generator, and this runs every step.

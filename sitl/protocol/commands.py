@@ -47,6 +47,7 @@ from sitl.protocol.vehicle_api import (
     CommandOutcome,
     CommandResult,
     Disarm,
+    InjectFailure,
     Kill,
     Land,
     MissionStart,
@@ -94,6 +95,7 @@ _LABELS: Final[dict[int, str]] = {
     mavlink.MAV_CMD_DO_SET_MISSION_CURRENT: "Set mission item",
     mavlink.MAV_CMD_DO_FLIGHTTERMINATION: "Flight termination",
     mavlink.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: "Reboot",
+    mavlink.MAV_CMD_INJECT_FAILURE: "Failure injection",
 }
 
 
@@ -195,6 +197,7 @@ class CommandService:
             mavlink.MAV_CMD_DO_SET_MISSION_CURRENT: self._set_mission_current,
             mavlink.MAV_CMD_DO_FLIGHTTERMINATION: self._flight_termination,
             mavlink.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: self._reboot,
+            mavlink.MAV_CMD_INJECT_FAILURE: self._inject_failure,
             mavlink.MAV_CMD_SET_MESSAGE_INTERVAL: self._set_message_interval,
             mavlink.MAV_CMD_GET_MESSAGE_INTERVAL: self._get_message_interval,
             mavlink.MAV_CMD_REQUEST_MESSAGE: self._request_message,
@@ -427,6 +430,21 @@ class CommandService:
         if cmd.params[0] > 0.5:
             return self._ask(Kill(), now_s)
         return _Reply(CommandResult.ACCEPTED)  # "terminate off": nothing to undo
+
+    def _inject_failure(self, cmd: DecodedCommand, now_s: float) -> _Reply:
+        """MAV_CMD_INJECT_FAILURE. An accepted injection is announced with a STATUSTEXT (sent before the ACK) so that
+        every log of the link, a ground station's tlog included, records when which failure began."""
+        p1, p2, p3 = cmd.params[:3]
+        request = InjectFailure(
+            unit=param_to_int(p1),
+            failure_type=param_to_int(p2),
+            instance=0 if math.isnan(p3) else param_to_int(p3),  # unset (NaN) means all instances
+        )
+        reply = self._ask(request, now_s)
+        if reply.result is CommandResult.ACCEPTED and reply.reason:
+            text = tuple(Send(m) for m in self._statustext.encode(Severity.WARNING, reply.reason))
+            return _Reply(CommandResult.ACCEPTED, effects=text)
+        return reply
 
     def _reboot(self, cmd: DecodedCommand, now_s: float) -> _Reply:
         return _Reply(CommandResult.DENIED, "Reboot not supported by the simulator")

@@ -92,12 +92,14 @@ class PeerInfo:
 
 
 class PeerMonitor:
-    """Remembers who sends HEARTBEATs on this link (ground stations, companion computers, other drones)."""
+    """Remembers who sends HEARTBEATs on this link (ground stations, companion computers, other drones), and tells
+    the vehicle of each ground-station HEARTBEAT: PX4's datalink-loss failsafe watches exactly those."""
 
     handles: frozenset[int] = frozenset({mavlink.MAVLINK_MSG_ID_HEARTBEAT})
 
-    def __init__(self, identity: Identity) -> None:
+    def __init__(self, identity: Identity, vehicle: VehicleApi | None = None) -> None:
         self._identity = identity
+        self._vehicle = vehicle
         self._peers: dict[Peer, PeerInfo] = {}
 
     def handle(self, msg: MAVLinkMessage, now_s: float) -> list[Effect]:
@@ -109,6 +111,8 @@ class PeerMonitor:
             return []
         if source.sysid != self._identity.sysid:
             self._peers[source] = PeerInfo(source, mav_type, now_s)
+            if mav_type == mavlink.MAV_TYPE_GCS and self._vehicle is not None:
+                self._vehicle.note_gcs_heartbeat(now_s)
         return []
 
     def poll(self, now_s: float) -> list[Effect]:
@@ -145,7 +149,7 @@ class LinkServices:
         self.offboard = OffboardService(identity, vehicle, statustext=text)
         self.timesync = TimesyncService()
         self.ping = PingService()
-        self.peers = PeerMonitor(identity)
+        self.peers = PeerMonitor(identity, vehicle)
         self._services: tuple[Service, ...] = (
             self.commands,
             self.params,

@@ -33,6 +33,7 @@ INT32_MIN: Final = -INT32_MAX - 1
 CAPABILITIES: Final = (
     mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
     | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
     | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
     | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
     | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
@@ -238,9 +239,7 @@ def battery_status(snap: VehicleSnapshot, ident: Identity) -> MAVLinkMessage:
         -1,
         to_int(bat.remaining * 100.0, 0, 100, -1),
         0,
-        mavlink.MAV_BATTERY_CHARGE_STATE_OK
-        if math.isfinite(bat.remaining)
-        else mavlink.MAV_BATTERY_CHARGE_STATE_UNDEFINED,
+        bat.charge_state if math.isfinite(bat.remaining) else mavlink.MAV_BATTERY_CHARGE_STATE_UNDEFINED,
         (0, 0, 0, 0),
         0,
         0,

@@ -15,8 +15,11 @@ Robustness, all driven by the injected time:
 - a download whose client goes quiet for ``MISSION_IDLE_TIMEOUT_S`` is dropped;
 - duplicate and out-of-sequence items are ignored (the retry asks again), a duplicate of the last item after
   completion is acknowledged again (the client missed our ACK);
-- fence (1) and rally (2) lists are not stored: downloads report 0 items, clears succeed, uploads of items are
-  refused with MAV_MISSION_UNSUPPORTED (and AUTOPILOT_VERSION does not advertise them).
+- a fence (type 1) runs through the same transfers; its items are checked as PX4 checks them (sitl/protocol/fence.py:
+  polygon vertices with a count of at least 3, repeated on each vertex, circles with a positive radius) and the
+  vehicle gets the whole fence as one ``SetFence``; MISSION_CLEAR_ALL of type 1 clears it, of type ALL clears both;
+- rally points (2) are not stored: downloads report 0 items, clears succeed, uploads of items are refused with
+  MAV_MISSION_UNSUPPORTED.
 
 Legal (state, message) pairs are the table ``_ROUTES`` below; every other pair is ignored at one choke point.
 """
@@ -48,6 +51,7 @@ from sitl.protocol.core import (
     read_int,
     source_of,
 )
+from sitl.protocol.fence import validate_fence, validate_fence_item
 from sitl.protocol.statustext import Severity, StatusTextEncoder
 from sitl.protocol.vehicle_api import (
     GLOBAL_FRAMES,
@@ -55,6 +59,7 @@ from sitl.protocol.vehicle_api import (
     CommandResult,
     MissionItem,
     MissionType,
+    SetFence,
     SetMission,
     SetMissionCurrent,
     VehicleApi,
@@ -376,8 +381,17 @@ class MissionServer:
             return []
         return self._text(Severity.CRITICAL, reason or f"Mission refused (MAV_MISSION_RESULT {result})")
 
-    def _apply(self, items: tuple[MissionItem, ...], now_s: float) -> tuple[int, str]:
-        outcome = self._vehicle.command(SetMission(items=items), now_s)
+    def _apply(
+        self, items: tuple[MissionItem, ...], now_s: float, mission_type: int = MissionType.MISSION
+    ) -> tuple[int, str]:
+        """Hand a complete list to the vehicle: the mission, or the fence after the checks of the fence as a whole."""
+        if mission_type == MissionType.FENCE:
+            result, reason = validate_fence(items)
+            if result != mavlink.MAV_MISSION_ACCEPTED:
+                return result, reason
+            outcome = self._vehicle.command(SetFence(items=items), now_s)
+        else:
+            outcome = self._vehicle.command(SetMission(items=items), now_s)
         if not isinstance(outcome, CommandOutcome):
             return int(mavlink.MAV_MISSION_ERROR), "Vehicle gave no outcome"
         return _OUTCOME_TO_MISSION_RESULT.get(outcome.result, mavlink.MAV_MISSION_ERROR), outcome.reason
@@ -394,14 +408,14 @@ class MissionServer:
         count = read_int(msg, "count", lo=0, hi=0xFFFF)
         mission_type = read_int(msg, "mission_type", lo=0, hi=255)
         self._completed = None
-        if mission_type != MissionType.MISSION:
-            if mission_type in (MissionType.FENCE, MissionType.RALLY) and count == 0:
+        if mission_type not in (MissionType.MISSION, MissionType.FENCE):
+            if mission_type == MissionType.RALLY and count == 0:
                 return [self._ack(source, mavlink.MAV_MISSION_ACCEPTED, mission_type)]
             return [self._ack(source, mavlink.MAV_MISSION_UNSUPPORTED, mission_type)]
         if count > MAX_MISSION_ITEMS:
             return [self._ack(source, mavlink.MAV_MISSION_NO_SPACE, mission_type)]
         if count == 0:
-            result, reason = self._apply((), now_s)
+            result, reason = self._apply((), now_s, mission_type)
             return [self._ack(source, result, mission_type), *self._refusal_text(result, reason)]
         self._upload = _Upload(
             partner=source, mission_type=mission_type, count=count, int_mode=True, last_request_s=now_s
@@ -434,7 +448,7 @@ class MissionServer:
             return []  # duplicate or out of sequence: the retry timer asks for the right one again
         try:
             item = item_from_message(msg, msg_id)
-            result = validate_item(item)
+            result = validate_fence_item(item) if up.mission_type == MissionType.FENCE else validate_item(item)
         except _ItemRejected as rej:
             result = rej.result
         if result != mavlink.MAV_MISSION_ACCEPTED:
@@ -450,7 +464,7 @@ class MissionServer:
         if up.expected_seq < up.count:
             return [self._request(up)]
         self._upload = None
-        result, reason = self._apply(tuple(up.items), now_s)
+        result, reason = self._apply(tuple(up.items), now_s, up.mission_type)
         self._completed = _Completed(up.partner, up.mission_type, up.count, result)
         return [self._ack(up.partner, result, up.mission_type), *self._refusal_text(result, reason)]
 
@@ -484,14 +498,16 @@ class MissionServer:
     def _start_download(self, msg: MAVLinkMessage, msg_id: int, now_s: float) -> list[Effect]:
         source = source_of(msg)
         mission_type = read_int(msg, "mission_type", lo=0, hi=255)
-        if mission_type in (MissionType.FENCE, MissionType.RALLY):
+        if mission_type == MissionType.RALLY:
             return [Send(mavlink.MAVLink_mission_count_message(source.sysid, source.compid, 0, mission_type))]
-        if mission_type != MissionType.MISSION:
+        if mission_type not in (MissionType.MISSION, MissionType.FENCE):
             return [self._ack(source, mavlink.MAV_MISSION_UNSUPPORTED, mission_type)]
-        items = tuple(self._vehicle.mission_items())[:MAX_MISSION_ITEMS]
+        fence = mission_type == MissionType.FENCE
+        stored = self._vehicle.fence_items() if fence else self._vehicle.mission_items()
+        items = tuple(stored)[:MAX_MISSION_ITEMS]
         count_msg = mavlink.MAVLink_mission_count_message(source.sysid, source.compid, len(items), mission_type)
         if items:
-            current = self._vehicle.snapshot().mission.current_seq
+            current = -1 if fence else self._vehicle.snapshot().mission.current_seq
             self._download = _Download(source, mission_type, items, current, last_activity_s=now_s)
         return [Send(count_msg)]
 
@@ -540,10 +556,17 @@ class MissionServer:
         source = source_of(msg)
         mission_type = read_int(msg, "mission_type", lo=0, hi=255)
         self._completed = None
-        if mission_type in (MissionType.FENCE, MissionType.RALLY):
+        if mission_type == MissionType.RALLY:
             return [self._ack(source, mavlink.MAV_MISSION_ACCEPTED, mission_type)]  # nothing stored
+        if mission_type == MissionType.FENCE:
+            result, reason = self._apply((), now_s, MissionType.FENCE)
+            return [self._ack(source, result, mission_type), *self._refusal_text(result, reason)]
         if mission_type not in (MissionType.MISSION, mavlink.MAV_MISSION_TYPE_ALL):
             return [self._ack(source, mavlink.MAV_MISSION_UNSUPPORTED, mission_type)]
+        if mission_type == mavlink.MAV_MISSION_TYPE_ALL:
+            result, reason = self._apply((), now_s, MissionType.FENCE)
+            if result != mavlink.MAV_MISSION_ACCEPTED:
+                return [self._ack(source, result, mission_type), *self._refusal_text(result, reason)]
         result, reason = self._apply((), now_s)
         return [self._ack(source, result, mission_type), *self._refusal_text(result, reason)]
 

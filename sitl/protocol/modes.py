@@ -160,3 +160,20 @@ def decode_set_mode_message(base_mode_flags: int, custom_mode: int) -> Px4Mode |
     if mode is None:
         raise PeerInputError(f"unknown PX4 custom mode {custom_mode}")
     return mode
+
+
+class FailsafeKind(Enum):
+    """Which failsafe is in force, as a ground station shows it (``NONE`` when none is).
+
+    Defined beside the modes because it is part of what a client is told about the vehicle (the snapshot, the
+    status table, the flight report), while the decisions that set it live in sitl/autopilot/failsafe.py.
+    """
+
+    NONE = "none"
+    OFFBOARD_LOSS = "offboard_loss"
+    DATALINK_LOSS = "datalink_loss"
+    BATTERY_LOW = "battery_low"
+    BATTERY_CRITICAL = "battery_critical"
+    BATTERY_EMERGENCY = "battery_emergency"
+    POSITION_LOSS = "position_loss"
+    GEOFENCE = "geofence"

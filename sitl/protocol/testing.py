@@ -34,6 +34,7 @@ from sitl.protocol.vehicle_api import (
     MissionProgress,
     MissionState,
     OffboardSetpoint,
+    SetFence,
     SetMission,
     SetMissionCurrent,
     SetMode,
@@ -82,6 +83,9 @@ class FakeVehicle:
         self.outcomes: dict[type, CommandOutcome] = {}
         self.mission: list[MissionItem] = []
         self.setpoints: list[tuple[OffboardSetpoint | AttitudeSetpoint, float]] = []
+        self.fence: list[MissionItem] = []
+        self.gcs_heartbeats: list[float] = []
+        self.link_failed = False
 
     # ---- VehicleApi ------------------------------------------------------------------------------------------------
     def snapshot(self) -> VehicleSnapshot:
@@ -101,6 +105,15 @@ class FakeVehicle:
     def set_offboard_setpoint(self, setpoint: OffboardSetpoint | AttitudeSetpoint, now_s: float) -> None:
         self.setpoints.append((setpoint, now_s))
 
+    def fence_items(self) -> Sequence[MissionItem]:
+        return tuple(self.fence)
+
+    def note_gcs_heartbeat(self, now_s: float) -> None:
+        self.gcs_heartbeats.append(now_s)
+
+    def mavlink_failed(self) -> bool:
+        return self.link_failed
+
     # ---- test helpers ----------------------------------------------------------------------------------------------
     def refuse(self, request_type: type, result: CommandResult, reason: str = "") -> None:
         self.outcomes[request_type] = CommandOutcome(result, reason)
@@ -119,6 +132,8 @@ class FakeVehicle:
             self.mission = list(request.items)
             state = MissionState.NOT_STARTED if request.items else MissionState.NO_MISSION
             self.update(mission=MissionProgress(current_seq=0, total=len(request.items), state=state))
+        elif isinstance(request, SetFence):
+            self.fence = list(request.items)
         elif isinstance(request, SetMissionCurrent):
             self.update(mission=dataclasses.replace(self.snap.mission, current_seq=request.seq))
 

@@ -250,6 +250,25 @@ class SetMission:
     items: tuple[MissionItem, ...]
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SetFence:
+    """Replace the whole geofence (mission type 1; an empty tuple clears it). Items are validated already."""
+
+    items: tuple[MissionItem, ...]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class InjectFailure:
+    """MAV_CMD_INJECT_FAILURE: param1 FAILURE_UNIT, param2 FAILURE_TYPE, param3 instance (0 all, else 1-based).
+
+    The vehicle refuses it (DENIED) unless SYS_FAILURE_EN = 1, as PX4 does; an accepted outcome's ``reason`` is the
+    text announcing the failure, which the command service sends as a STATUSTEXT."""
+
+    unit: int | None  # None: the parameter was not a usable integer
+    failure_type: int | None
+    instance: int | None
+
+
 VehicleRequest: TypeAlias = (
     Arm
     | Disarm
@@ -264,6 +283,8 @@ VehicleRequest: TypeAlias = (
     | MissionStart
     | SetMissionCurrent
     | SetMission
+    | SetFence
+    | InjectFailure
 )
 
 
@@ -350,6 +371,8 @@ class BatteryStatus:
     consumed_mah: float  # NaN unknown
     cell_count: int = 0  # 0: unknown, report the pack voltage as one value
     temperature_c: float = NAN
+    # MAV_BATTERY_CHARGE_STATE: PX4 reports LOW/CRITICAL/EMERGENCY once the charge is below BAT_LOW_THR/_CRIT_/_EMERGEN_
+    charge_state: int = mavlink.MAV_BATTERY_CHARGE_STATE_OK
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -436,4 +459,16 @@ class VehicleApi(Protocol):
 
     def set_offboard_setpoint(self, setpoint: OffboardSetpoint | AttitudeSetpoint, now_s: float) -> None:
         """A valid offboard setpoint arrived at ``now_s`` (the vehicle tracks COM_OF_LOSS_T from these times)."""
+        ...
+
+    def fence_items(self) -> Sequence[MissionItem]:
+        """The stored geofence (mission type 1), in order, as last accepted by ``command(SetFence(...))``."""
+        ...
+
+    def note_gcs_heartbeat(self, now_s: float) -> None:
+        """A HEARTBEAT from a ground station (MAV_TYPE_GCS) arrived at ``now_s`` (datalink-loss failsafe input)."""
+        ...
+
+    def mavlink_failed(self) -> bool:
+        """True once an injected failure cut the MAVLink signal: every link then stops sending and receiving."""
         ...

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sitl.dynamics.plant import PlantState
+from sitl.faults import GPS_GLITCH_OFFSET_NE_M, GpsFault
 from sitl.mathutil import GRAVITY_MPS2, Vec3, fast_constructor, vec3
 from sitl.sensors.noise import NoiseSource
 
@@ -133,17 +134,20 @@ class Gps:
         self._drift_e_m = 0.0
         self._alpha = math.exp(-1.0 / (config.gps_rate_hz * config.gps_drift_time_s))
         self._drift_gain = math.sqrt(1 - self._alpha**2) * config.gps_pos_drift_h_m
+        # An injected fault (sitl/faults.py): OFF reports no fix, GLITCH offsets every fix by GPS_GLITCH_OFFSET_NE_M.
+        self.fault = GpsFault.NONE
 
     def sample(self, truth: PlantState) -> GpsSample | None:
         if not self.clock.due(truth.time_s):
             return None
         cfg = self._cfg
-        if truth.time_s < cfg.gps_time_to_fix_s:
+        searching = truth.time_s < cfg.gps_time_to_fix_s
+        if searching or self.fault is GpsFault.OFF:
             nan3 = vec3(math.nan, math.nan, math.nan)
             return _new_gps_sample(
                 time_s=truth.time_s,
                 fix_type=1,
-                satellites=3,
+                satellites=3 if searching else 0,
                 lat_deg=math.nan,
                 lon_deg=math.nan,
                 alt_amsl_m=math.nan,
@@ -160,6 +164,9 @@ class Gps:
         self._drift_e_m = self._alpha * self._drift_e_m + self._drift_gain * drift_y
         err_n = self._drift_n_m + cfg.gps_pos_noise_h_m * pos_x
         err_e = self._drift_e_m + cfg.gps_pos_noise_h_m * pos_y
+        if self.fault is GpsFault.GLITCH:
+            err_n += GPS_GLITCH_OFFSET_NE_M[0]
+            err_e += GPS_GLITCH_OFFSET_NE_M[1]
         err_d = cfg.gps_pos_noise_v_m * pos_z
         tn, te, td = truth.pos_ned_m.tolist()
         vn, ve, vd = truth.vel_ned_mps.tolist()

@@ -161,6 +161,7 @@ def test_a_low_battery_warns_once_and_a_critical_one_returns_to_launch() -> None
     sim = make_sim(seed=24)
     sim.params.set("RTL_RETURN_ALT", 4.0)
     sim.params.set("BAT_CRIT_THR", 0.14)
+    sim.params.set("COM_LOW_BAT_ACT", 1)  # return at critical (PX4's default, 0, only warns)
     take_off(sim, 3.0)
     assert sim.vehicle.goto(_local_target(sim, 6.0, 0.0, 3.0)).ok
     sim.battery = Battery(sim.config.battery, initial_remaining=0.152)

@@ -316,11 +316,11 @@ def test_a_client_refusing_int_gets_float_requests() -> None:
     assert req.get_type() == "MISSION_REQUEST"
 
 
-# ---- fence and rally ---------------------------------------------------------------------------------------
-@pytest.mark.parametrize("mission_type", [mavlink.MAV_MISSION_TYPE_FENCE, mavlink.MAV_MISSION_TYPE_RALLY])
-def test_fence_and_rally_are_empty_and_refused_properly(mission_type: int) -> None:
+# ---- rally (fences: tests/unit/test_fence_upload.py) -------------------------------------------------------
+def test_rally_is_empty_and_refused_properly() -> None:
     h = Harness()
-    fence_item = mavlink.MAVLink_mission_item_int_message(SYSID, 1, 0, 5, 5001, 0, 1, 4, 0, 0, 0, 1, 1, 0, mission_type)
+    mission_type = mavlink.MAV_MISSION_TYPE_RALLY
+    fence_item = mavlink.MAVLink_mission_item_int_message(SYSID, 1, 0, 5, 5100, 0, 1, 0, 0, 0, 0, 1, 1, 0, mission_type)
     assert h.upload([fence_item], mission_type) == mavlink.MAV_MISSION_UNSUPPORTED
     assert h.upload([], mission_type) == ACCEPTED
     assert h.download(mission_type) == []
