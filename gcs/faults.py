@@ -49,6 +49,8 @@ FAULTS: dict[str, FaultKind] = {
                   battery_level=1, help="the battery reads low"),
         FaultKind(name="battery-critical", unit=FAILURE_UNIT_SYSTEM_BATTERY, failure_type=FAILURE_TYPE_WRONG,
                   battery_level=2, help="the battery reads critical"),
+        FaultKind(name="battery-emergency", unit=FAILURE_UNIT_SYSTEM_BATTERY, failure_type=FAILURE_TYPE_WRONG,
+                  battery_level=3, help="the battery reads at its emergency level"),
         FaultKind(name="battery-off", unit=FAILURE_UNIT_SYSTEM_BATTERY, failure_type=FAILURE_TYPE_OFF,
                   help="the pack reads empty"),
         FaultKind(name="link", unit=FAILURE_UNIT_SYSTEM_MAVLINK_SIGNAL, failure_type=FAILURE_TYPE_OFF,
