@@ -374,6 +374,8 @@ class MissionRunner:
             self._inject_due_faults(self.now())
         else:
             self._land(step)
+        if isinstance(step, FaultStep):
+            return  # an instant, listed with the faults (a zero-length step would only clutter the steps table)
         self.recording.steps.append(
             StepRecord(
                 index=index,

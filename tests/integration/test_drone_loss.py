@@ -188,12 +188,6 @@ fault = "crash"
 after_s = 6.0
 
 [[steps]]
-action = "fault"
-drone = 4
-fault = "motor"
-after_s = 14.0
-
-[[steps]]
 action = "formation"
 shape = "circle"
 radius_m = 3.0
