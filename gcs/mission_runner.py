@@ -211,10 +211,13 @@ class MissionRunner:
             self.recording.faults.append(FaultRecord(time_s=now, sysid=sysid, fault=what, result=result))
 
     def _wait(self, condition: Callable[[], bool], timeout_sim_s: float) -> bool:
-        return self.swarm.wait_until(condition, timeout_sim_s, tick=self._tick)
+        """Wait for ``condition``; True also as soon as a loss policy (hold, land, abort) takes over the flight,
+        which ends the step."""
+        return self.swarm.wait_until(lambda: self._policy_taken or condition(), timeout_sim_s, tick=self._tick)
 
     def _hold(self, duration_sim_s: float) -> None:
-        self.swarm.run_for(duration_sim_s, tick=self._tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
+        """Fly on for ``duration_sim_s`` (the step's time), or until a loss policy takes over."""
+        self._wait(lambda: False, duration_sim_s)
 
     def _set_params(self) -> None:
         """The mission's drone parameters on every drone, each confirmed by its PARAM_VALUE echo (as MAVSDK does)."""
@@ -298,7 +301,7 @@ class MissionRunner:
             return flown.done(self.now()) or self.now() > flown.finish_s + FOLLOW_ARRIVAL_MARGIN_S
 
         self._wait(over, FOLLOW_TIMEOUT_S)
-        if not current().done(self.now()):
+        if not self._policy_taken and not current().done(self.now()):
             flown = current()
             raise SwarmError(
                 f"leader sysid {flown.leader} did not reach its last waypoint within "
@@ -345,10 +348,11 @@ class MissionRunner:
         survivors are down (hold: they hold for HOLD_POLICY_S, then land where they are)."""
         self.say(f"[{self.now():6.1f} s] loss policy {self.mission.loss_policy.value}: remaining steps dropped")
         if self.mission.loss_policy is LossPolicy.HOLD:
-            self._hold(HOLD_POLICY_S)
+            self.swarm.run_for(HOLD_POLICY_S, tick=self._tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
             self.swarm.land_all()
         flying = [s for s in self.swarm.active_sysids if self.swarm.fleet.drones[s].armed]
-        if not self._wait(lambda: not self._still_armed(flying), POLICY_LANDING_S):
+        landed = self.swarm.wait_until(lambda: not self._still_armed(flying), POLICY_LANDING_S, tick=self._tick)
+        if not landed:
             raise SwarmError(f"not every drone landed and disarmed within {POLICY_LANDING_S:g} s of the loss policy")
 
     def _run_step(self, index: int, step: Step) -> None:

@@ -234,3 +234,58 @@ def test_a_mission_crash_fault_is_in_the_report_with_the_loss_and_metrics_over_t
     # AND the circle step's formation error is that of the three still flying, settled on their circle of three
     circle = next(s for s in metrics["steps"] if s["name"] == "circle")
     assert circle["formation_rms_m"] is not None and circle["formation_rms_m"] < 0.3, circle
+
+
+ABORT_MISSION = """\
+name = "abort_on_loss"
+[swarm]
+drones = 2
+spacing_m = 4.0
+loss_policy = "abort"
+params = { RTL_RETURN_ALT = 5.0 }  # a short return: the default 30 m climb takes long for nothing here
+
+[[steps]]
+action = "takeoff"
+alt_m = 3.0
+
+[[steps]]
+action = "fault"
+drone = 1
+fault = "crash"
+after_s = 2.0
+
+[[steps]]
+action = "formation"
+shape = "line"
+spacing_m = 4.0
+alt_m = 3.0
+heading_deg = 90.0
+hold_s = 60.0
+
+[[steps]]
+action = "land"
+"""
+
+
+@pytest.mark.timeout(240)
+def test_loss_policy_abort_returns_the_survivor_to_launch_and_drops_the_rest_of_the_mission(tmp_path: Path) -> None:
+    # GIVEN a mission whose first drone crashes two seconds into a minute-long formation, under loss policy abort
+    mission = tmp_path / "abort.toml"
+    mission.write_text(ABORT_MISSION)
+    report = tmp_path / "report"
+    # WHEN flown in lockstep
+    result = subprocess.run(
+        [*SWARM, "fly", str(mission), "--report", str(report), "--lockstep", "--first-instance", "220", "--no-forward"],
+        capture_output=True, text=True, timeout=220,
+    )  # fmt: skip
+    # THEN the survivor returned to launch and landed, and the mission ended there instead of holding its formation
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    assert "loss policy abort: every drone returns to launch and lands" in result.stdout
+    assert "remaining steps dropped" in result.stdout
+    metrics = json.loads((report / "metrics.json").read_text())
+    assert metrics["loss_policy"] == "abort"
+    assert [x["sysid"] for x in metrics["losses"]] == [221]
+    assert [e["text"] for e in metrics["loss_policy_actions"]] == [
+        "loss policy abort: every drone returns to launch and lands"
+    ]
+    assert metrics["duration_s"] < 50.0  # not the formation's 60 s
