@@ -316,8 +316,9 @@ class Swarm:
         msg = mavlink.MAVLink_heartbeat_message(
             mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3
         )
-        for sysid in self.active_sysids:
-            self.link.queue(sysid, msg)
+        for sysid in list(self.link.addresses):  # every vehicle heard, as QGroundControl does, except the lost
+            if sysid not in self.losses:
+                self.link.queue(sysid, msg)
         self._flush_due_s = -math.inf
 
     def _hold(self, data: bytes, address: tuple[str, int], now: float) -> None:

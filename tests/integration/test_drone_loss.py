@@ -13,17 +13,21 @@ import math
 import os
 import re
 import signal
+import socket
 import subprocess
 import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
+from gcs.supervisor import SpawnPlan
+from gcs.swarm import Swarm
 from sitl.dynamics.geodesy import ned_from_geo
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
 from sitl.world import SharedWorld
@@ -289,3 +293,32 @@ def test_loss_policy_abort_returns_the_survivor_to_launch_and_drops_the_rest_of_
         "loss policy abort: every drone returns to launch and lands"
     ]
     assert metrics["duration_s"] < 50.0  # not the formation's 60 s
+
+
+@pytest.mark.timeout(30)
+def test_the_supervisor_sends_every_drone_a_gcs_heartbeat_once_a_second() -> None:
+    """As QGroundControl does: a drone's datalink-loss failsafe (COM_DL_LOSS_T) counts from the last one."""
+    # GIVEN a supervisor that has heard one drone (a real UDP socket speaking for sysid 7)
+    swarm = Swarm(SpawnPlan(n_drones=1), relay=False)
+    drone = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        drone.bind(("127.0.0.1", 0))
+        drone.settimeout(0.0)
+        encoder = mavlink.MAVLink(None, srcSystem=7, srcComponent=1)
+        beat = mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, 0, 0, 3, 3)
+        drone.sendto(beat.pack(encoder), ("127.0.0.1", swarm.link.port))
+        # WHEN it runs for 3.5 s
+        swarm.run_for(3.5)
+        # THEN the drone got a HEARTBEAT from a ground station each second (at 0, 1, 2 and 3 s)
+        parser = mavlink.MAVLink(None)
+        received: list[Any] = []
+        with contextlib.suppress(BlockingIOError):
+            while True:
+                received += parser.parse_buffer(drone.recv(65535)) or []
+        beats = [m for m in received if m.get_type() == "HEARTBEAT"]
+        assert len(beats) == 4, received
+        assert all(m.type == mavlink.MAV_TYPE_GCS and m.autopilot == mavlink.MAV_AUTOPILOT_INVALID for m in beats)
+        assert all((m.get_srcSystem(), m.get_srcComponent()) == (255, 190) for m in beats)
+    finally:
+        drone.close()
+        swarm.shutdown()
