@@ -29,7 +29,7 @@ from gcs.fleet import LINK_LOST_S, Fleet
 from gcs.losses import MAV_STATE_FLIGHT_TERMINATION, DroneLoss, process_exit_cause
 from gcs.params import param_set_message, param_value
 from gcs.relay import NeighbourRelay
-from gcs.supervisor import ProcessGroup, SpawnError, SpawnPlan
+from gcs.supervisor import DroneProcess, ProcessGroup, SpawnError, SpawnPlan
 from gcs.transport import GcsSocket
 from sitl.dynamics.geodesy import ned_from_geo
 from sitl.dynamics.plant import GeoPoint
@@ -207,7 +207,7 @@ class Swarm:
                 self.gate.remove(d.instance)
         return loss
 
-    def _process(self, sysid: int) -> Any:
+    def _process(self, sysid: int) -> DroneProcess:
         return next(d for d in self.processes.drones if d.sysid == sysid)
 
     def _settle_down_positions(self) -> None:
