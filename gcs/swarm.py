@@ -34,6 +34,7 @@ from gcs.transport import GcsSocket
 from sitl.dynamics.geodesy import ned_from_geo
 from sitl.dynamics.plant import GeoPoint
 from sitl.lockstep import LockstepGate
+from sitl.protocol.modes import Px4Mode
 from sitl.simulation import PHYSICS_RATE_HZ
 from sitl.world import ALT, LAT, LON, TIME, VALID, SharedWorld
 
@@ -50,7 +51,8 @@ LOCKSTEP_MAX_WAIT_S = 0.005  # wall-clock cap on one wait for traffic in lockste
 # 100, and a wake-up costs a drone more CPU than the message it brings (docs/benchmarks.md). The receiving drone's
 # neighbour table ages every report by its sender's timestamp in lockstep; paced, by its arrival.
 BATCH_HOLD_S = 0.05
-HOLD_MODE = (1.0, 4.0, 3.0)  # DO_SET_MODE: custom mode enabled, main mode AUTO, sub mode LOITER (PX4 Hold)
+# DO_SET_MODE for PX4 Hold: custom mode enabled, main mode AUTO, sub mode LOITER
+HOLD_MODE = (1.0, float(Px4Mode.AUTO_LOITER.main_mode), float(Px4Mode.AUTO_LOITER.sub_mode))
 GCS_HEARTBEAT_PERIOD_S = 1.0  # QGroundControl sends its HEARTBEAT at 1 Hz; PX4's datalink-loss failsafe watches it
 # A lost drone's body is "down" once it is this close to its launch altitude (the ground, in this flat world).
 ON_GROUND_M = 0.3

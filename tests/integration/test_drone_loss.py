@@ -175,6 +175,23 @@ def test_kill_9_of_one_drone_of_a_rotating_circle_of_6_leaves_a_circle_of_5_and_
     assert len(again.stderr.splitlines()) == 1
 
 
+@pytest.mark.timeout(300)
+def test_loss_policy_hold_puts_the_survivor_in_hold_where_it_is(supervisors: Callable[[list[str]], Supervisor]) -> None:
+    # GIVEN two drones flying a line under loss policy hold
+    swarm = supervisors(["-n", "2", "--lockstep", "--first-instance", "224", "--no-forward", "--loss-policy", "hold"])
+    swarm.command("takeoff", "--alt", "3")
+    swarm.wait_for(lambda: all(float(r[5]) > 2.7 for r in swarm.status().values()), 120, "the takeoff")
+    swarm.command("formation", "line", "--spacing", "4", "--alt", "3")
+    swarm.wait_for(lambda: all(r[1] == "OFFBOARD" for r in swarm.status().values()), 120, "OFFBOARD")
+    # WHEN the second drone's process is killed
+    assert swarm.cli("kill", "226").returncode == 0
+    # THEN the survivor is switched to PX4 Hold (AUTO.LOITER) and stays up, and the supervisor says why
+    swarm.wait_for(lambda: swarm.status()[225][1] == "AUTO.LOITER", 120, "Hold")
+    row = swarm.status()[225]
+    assert row[2] == "yes" and float(row[5]) > 2.5, row
+    assert "swarm: loss policy hold: every drone holds where it is" in swarm.lines, swarm.lines
+
+
 MISSION = """\
 name = "lose_one"
 [swarm]
