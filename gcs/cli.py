@@ -27,6 +27,7 @@ from gcs.mission_runner import MissionRunner
 from gcs.station import Station, format_status
 from gcs.supervisor import LAYOUTS, SpawnError, SpawnPlan
 from gcs.swarm import Swarm, SwarmError
+from sitl.airframe import load_airframe
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
 from sitl.mavlink_io import parse_host_port
 
@@ -186,6 +187,12 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
     up.add_argument("--seed", type=int, default=0, help="base random seed (drone i uses seed+i)")
     up.add_argument("--logs", type=Path, default=None, help="directory for each drone's log (default: none)")
+    up.add_argument(
+        "--report",
+        type=Path,
+        default=None,
+        help="record the session and write a flight report (as swarm fly's) into this directory at the end",
+    )
     up.add_argument("--loss-policy", choices=LOSS_POLICIES, default=LossPolicy.CONTINUE.value,
                     help="what the others do when a drone is lost: continue (re-plan over the survivors; default), "
                     "hold, land, or abort (every drone returns to launch and lands)")  # fmt: skip
@@ -303,7 +310,8 @@ def run_up(args: argparse.Namespace) -> int:
     for sig in signals:  # while the drones start, a signal ends the start-up at once (and stops what started)
         signal.signal(sig, _interrupt)
     swarm = Swarm(plan, forward=None if args.no_forward else args.forward)
-    station = Station(swarm, _say, LossPolicy(args.loss_policy))
+    contact = 2.0 * (load_airframe(args.airframe) if args.airframe else load_airframe()).collision_radius_m
+    station = Station(swarm, _say, LossPolicy(args.loss_policy), report_dir=args.report, contact_distance_m=contact)
     server: ControlServer | None = None
     try:
         swarm.up()
@@ -330,6 +338,9 @@ def run_up(args: argparse.Namespace) -> int:
         _say("swarm: landing and stopping every drone")
         swarm.shutdown()
         _say("swarm: all drone processes stopped")
+        report = station.write_report()
+        if report is not None:
+            _say(f"swarm: report in {report}")
     return 0
 
 

@@ -13,21 +13,17 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import re
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
-
-from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.behaviours import LeaderFollower
 from gcs.degrade import apply_loss_policy
 from gcs.faults import CRASH, result_text
 from gcs.formation import SETPOINT_STREAM_HZ
 from gcs.frames import SwarmFrame
-from gcs.losses import MAV_STATE_CRITICAL, LossPolicy, loss_line
-from gcs.metrics import LiveMetrics
+from gcs.losses import LossPolicy, loss_line
 from gcs.mission_file import (
     FaultStep,
     FlockStep,
@@ -43,12 +39,12 @@ from gcs.mission_file import (
 )
 from gcs.pace_monitor import PaceMonitor
 from gcs.params import param_set_message, param_value
-from gcs.recording import DroneSample, EventRecord, FaultRecord, FlightRecording, StepRecord
+from gcs.recorder import FlightRecorder
+from gcs.recording import EventRecord, FaultRecord, FlightRecording, StepRecord
 from gcs.report import write_report
 from gcs.streamer import FormationStreamer
 from gcs.supervisor import SpawnPlan
 from gcs.swarm import PARAM_ATTEMPTS, PARAM_TIMEOUT_S, Swarm, SwarmError
-from gcs.tlog import TlogWriter
 from sitl.airframe import load_airframe
 from sitl.dynamics.plant import GeoPoint
 
@@ -61,7 +57,6 @@ FOLLOW_ARRIVAL_MARGIN_S = 30.0  # the leader must report itself at its last wayp
 FOLLOW_TIMEOUT_S = 3600.0  # the follow step's outer bound; it ends with the leader's arrival or its margin
 HOLD_POLICY_S = 10.0  # a mission under loss policy hold hovers this long before it lands the survivors
 POLICY_LANDING_S = 120.0  # survivors landed (land, hold) or back and landed (abort) within this time
-COLLISION_TEXT = re.compile(r"Collision with drone (\d+)")
 
 
 class MissionRunner:
@@ -96,69 +91,21 @@ class MissionRunner:
         self.recording = FlightRecording(
             mission_name=mission.name, n_drones=mission.swarm.drones, collision_radius_m=contact_distance
         )
-        self._collision_pairs: set[frozenset[int]] = set()
-        self.live = LiveMetrics()
         # Paced, the supervisor's clock is the wall clock: watch that the drones keep up with it.
         self._pace = PaceMonitor.for_plan(plan)
         self.recording.requested_speed = self._pace.speed_factor if self._pace is not None else None
         self._t0_s = 0.0
-        self._epoch_us = int(time.time() * 1e6)
-        self._tlog: TlogWriter | None = None
+        self.recorder: FlightRecorder | None = None
         self._next_status_s = 0.0
         self._step_name = "spawn"
         self.recording.loss_policy = mission.loss_policy.value
         self._pending_faults: list[tuple[float, FaultStep]] = []  # (mission time due, step)
-        self._system_status: dict[int, int] = {}
         self._policy_taken = False  # a loss policy other than continue has taken the survivors out of the mission
 
     # ---- time and telemetry ----------------------------------------------------------------------------------------
     def now(self) -> float:
         """Mission time in simulated seconds (the supervisor's clock: paced wall time or the lockstep clock)."""
         return self.swarm.clock() - self._t0_s
-
-    def _on_sent(self, data: bytes, _now_s: float) -> None:
-        """What the ground station commanded (COMMAND_LONG, PARAM_SET) goes into the tlog beside the answers."""
-        if self._tlog is not None:
-            self._tlog.write(data, self._epoch_us + int(self.now() * 1e6))
-
-    def _on_message(self, msg: Any, _wall_s: float) -> None:
-        if self._tlog is not None:
-            # Stamped in simulated time from the mission's start, so a replay runs at the flight's own pace
-            self._tlog.write(bytes(msg.get_msgbuf()), self._epoch_us + int(self.now() * 1e6))
-        kind = msg.get_type()
-        sysid = msg.get_srcSystem()
-        now = self.now()
-        if kind == "LOCAL_POSITION_NED":
-            frame = self.streamer.drone_frame(sysid)
-            view = self.swarm.fleet.drones.get(sysid)
-            if frame is None or view is None:
-                return
-            pos = frame.to_swarm((msg.x, msg.y, msg.z))
-            vel = frame.vector_to_swarm((msg.vx, msg.vy, msg.vz))
-            target = self.streamer.targets(now).get(sysid)
-            sample = DroneSample(time_s=now, sysid=sysid, pos_ned_m=pos, vel_ned_mps=vel, armed=view.armed,
-                                 mode=view.mode, target_ned_m=target)  # fmt: skip
-            self.recording.samples.append(sample)
-            self.live.observe(sample)
-        elif kind == "HEARTBEAT" and msg.get_srcComponent() == 1:
-            before = self._system_status.get(sysid)
-            self._system_status[sysid] = msg.system_status
-            if msg.system_status == MAV_STATE_CRITICAL and before != MAV_STATE_CRITICAL:
-                view = self.swarm.fleet.drones.get(sysid)
-                warnings = [t for _t, sev, t in (view.texts if view else []) if sev <= mavlink.MAV_SEVERITY_WARNING]
-                text = f"failsafe: {warnings[-1]}" if warnings else "failsafe"
-                self.recording.failsafes.append(EventRecord(time_s=now, sysid=sysid, text=text))
-                self.say(f"  sysid {sysid}: {text}")
-        elif kind == "STATUSTEXT":
-            match = COLLISION_TEXT.match(msg.text)
-            if match is not None:  # both drones of a collision report it: count the pair once
-                pair = frozenset((sysid, int(match.group(1))))
-                if pair in self._collision_pairs:
-                    return
-                self._collision_pairs.add(pair)
-            self.recording.events.append(EventRecord(time_s=now, sysid=sysid, text=msg.text))
-            if msg.severity <= mavlink.MAV_SEVERITY_WARNING:
-                self.say(f"  sysid {sysid}: {msg.text}")
 
     def _tick(self, _wall_s: float) -> None:
         now = self.now()
@@ -177,7 +124,8 @@ class MissionRunner:
             if rate is not None:  # the report keeps the reading of each status line
                 self.recording.realtime_factors.append(rate)
                 pace = f"  rtf {rate:.2f}"
-            self.say(f"[{now:6.1f} s] {self._step_name:<10} {self.live.status().line()}{pace}")
+            live = self.recorder.live.status().line() if self.recorder is not None else ""
+            self.say(f"[{now:6.1f} s] {self._step_name:<10} {live}{pace}")
 
     def _watch_losses(self, now: float) -> None:
         """Each new loss: one line, one record, and the mission's loss policy."""
@@ -394,9 +342,9 @@ class MissionRunner:
     def run(self) -> Path:
         """Fly the mission; always shuts the swarm down and writes the report, also after a failure."""
         self.report_dir.mkdir(parents=True, exist_ok=True)
-        self._tlog = TlogWriter(self.report_dir / "flight.tlog")
-        self.swarm.listeners.append(self._on_message)
-        self.swarm.sent_listeners.append(self._on_sent)
+        self.recorder = FlightRecorder(
+            self.streamer, self.recording, self.now, self.report_dir / "flight.tlog", self.say
+        )
         failure: BaseException | None = None
         try:
             pace = ("lockstep, as fast as possible" if self.speed == 0 else f"lockstep at {self.speed:g}x") \
@@ -418,7 +366,7 @@ class MissionRunner:
             self.streamer.stop()
             self.recording.losses = list(self.swarm.losses.values())
             self.swarm.shutdown()
-            self._tlog.close()
+            self.recorder.close()
         out = write_report(self.recording, self.report_dir)
         self.say((out / "summary.txt").read_text().rstrip())
         if failure is not None:

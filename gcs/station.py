@@ -10,6 +10,7 @@ import dataclasses
 import math
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
@@ -20,6 +21,9 @@ from gcs.frames import SwarmFrame
 from gcs.losses import MAV_STATE_CRITICAL, LossPolicy, loss_line
 from gcs.mission_file import build_flock, build_follow, build_formation
 from gcs.pace_monitor import PaceMonitor
+from gcs.recorder import FlightRecorder
+from gcs.recording import EventRecord, FaultRecord, FlightRecording, StepRecord
+from gcs.report import write_report
 from gcs.streamer import FormationStreamer
 from gcs.swarm import Swarm, SwarmError
 
@@ -27,8 +31,14 @@ Say = Callable[[str], None]
 ARMABLE_TIMEOUT_S = 30.0
 
 
+# Commands that start what the report calls a step (name and kind taken from the request)
+STEP_COMMANDS = ("takeoff", "formation", "flock", "follow", "goto", "land", "rtl")
+
+
 class Station:
-    def __init__(self, swarm: Swarm, say: Say, loss_policy: LossPolicy = LossPolicy.CONTINUE) -> None:
+    def __init__(self, swarm: Swarm, say: Say, loss_policy: LossPolicy = LossPolicy.CONTINUE,
+                 report_dir: Path | None = None, contact_distance_m: float = 0.0) -> None:  # fmt: skip
+        """``report_dir``: record the session and write a flight report there at the end (``swarm up --report``)."""
         self.swarm = swarm
         self.say = say
         self.loss_policy = loss_policy
@@ -37,6 +47,42 @@ class Station:
         self.stop_requested = False
         self._pace = PaceMonitor.for_plan(swarm.plan)
         swarm.listeners.append(self._on_message)
+        self.report_dir = report_dir
+        self.recording = FlightRecording(
+            mission_name="swarm-up", n_drones=swarm.plan.n_drones, collision_radius_m=contact_distance_m
+        )
+        self.recording.loss_policy = loss_policy.value
+        self.recorder: FlightRecorder | None = None
+        if report_dir is not None:
+            report_dir.mkdir(parents=True, exist_ok=True)
+            self.recorder = FlightRecorder(self.streamer, self.recording, self.mission_time,
+                                           report_dir / "flight.tlog", say=None)  # fmt: skip
+        self._step: StepRecord | None = None  # the command being flown, for the report
+
+    def _begin_step(self, request: dict[str, Any]) -> None:
+        """A command that changes what the swarm flies ends the report's current step and starts the next."""
+        now = self.mission_time()
+        self._end_step(now)
+        cmd = request["cmd"]
+        name = str(request.get("shape", cmd)) if cmd == "formation" else cmd
+        kind = "formation" if cmd == "goto" else cmd
+        alt = float(request.get("alt", 3.0)) if cmd == "takeoff" else None
+        index = len(self.recording.steps)
+        self._step = StepRecord(index=index, name=name, kind=kind, start_s=now, end_s=now, target_alt_m=alt)
+
+    def _end_step(self, now: float) -> None:
+        if self._step is not None:
+            self.recording.steps.append(dataclasses.replace(self._step, end_s=now))
+            self._step = None
+
+    def write_report(self) -> Path | None:
+        """After the swarm is shut down: the flight report of the session (None without ``report_dir``)."""
+        if self.report_dir is None or self.recorder is None:
+            return None
+        self._end_step(self.mission_time())
+        self.recording.losses = list(self.swarm.losses.values())
+        self.recorder.close()
+        return write_report(self.recording, self.report_dir)
 
     def _on_message(self, msg: Any, _now_s: float) -> None:
         """A drone's warnings (collisions, failsafes, fault injections) on the supervisor's output, as a ground
@@ -64,9 +110,16 @@ class Station:
             line = apply_loss_policy(self.loss_policy, self.streamer, loss, self.mission_time())
             if line is not None:
                 self.say(f"swarm: {line}")
+                self.recording.policy_events.append(EventRecord(time_s=loss.time_s, sysid=loss.sysid, text=line))
 
     # ---- requests --------------------------------------------------------------------------------------------------
     def handle(self, request: dict[str, Any]) -> dict[str, Any]:
+        response = self._handle(request)
+        if response.get("ok") and request["cmd"] in STEP_COMMANDS:
+            self._begin_step(request)
+        return response
+
+    def _handle(self, request: dict[str, Any]) -> dict[str, Any]:
         cmd = request["cmd"]
         try:
             if cmd == "ping":
@@ -125,12 +178,18 @@ class Station:
         if fault.kind == CRASH:
             pid = self.swarm.kill(sysid)
             self.say(f"swarm: fault: drone {sysid} process (pid {pid}) killed with SIGKILL")
+            self._record_fault(sysid, fault.describe(), f"process {pid} killed with SIGKILL")
             return {"ok": True, "result": f"process {pid} killed"}
         ack = self.swarm.inject_fault(sysid, fault)
         self.say(f"swarm: fault {fault.describe()} on drone {sysid}: {result_text(ack.result)}")
+        self._record_fault(sysid, fault.describe(), result_text(ack.result))
         if not ack.ok:
             return {"ok": False, "error": f"drone {sysid} refused fault {fault.describe()}: {result_text(ack.result)}"}
         return {"ok": True, "result": result_text(ack.result)}
+
+    def _record_fault(self, sysid: int, what: str, result: str) -> None:
+        record = FaultRecord(time_s=self.mission_time(), sysid=sysid, fault=what, result=result)
+        self.recording.faults.append(record)
 
     def takeoff(self, alt_m: float) -> dict[str, Any]:
         if not (math.isfinite(alt_m) and 0.5 <= alt_m <= 100.0):

@@ -143,10 +143,11 @@ def on_circle(rows: dict[int, list[str]], sysids: list[int]) -> bool:
 
 @pytest.mark.timeout(600)  # about 70 s on 2 quiet cores; the waits are long only for a machine shared with others
 def test_kill_9_of_one_drone_of_a_rotating_circle_of_6_leaves_a_circle_of_5_and_one_line(
-    supervisors: Callable[[list[str]], Supervisor],
+    supervisors: Callable[[list[str]], Supervisor], tmp_path: Path
 ) -> None:
-    # GIVEN six drones in lockstep flying a rotating circle
-    swarm = supervisors(["-n", "6", "--lockstep", "--first-instance", "200", "--no-forward"])
+    # GIVEN six drones in lockstep flying a rotating circle, the session recorded for a report
+    report = tmp_path / "report"
+    swarm = supervisors(["-n", "6", "--lockstep", "--first-instance", "200", "--no-forward", "--report", str(report)])
     sysids = list(range(201, 207))
     assert len(swarm.drones) == 6
     swarm.command("takeoff", "--alt", "3")
@@ -173,6 +174,17 @@ def test_kill_9_of_one_drone_of_a_rotating_circle_of_6_leaves_a_circle_of_5_and_
     again = swarm.cli("kill", "203")
     assert again.returncode == 1 and again.stderr.startswith("swarm: error: drone 203 is already lost ("), again
     assert len(again.stderr.splitlines()) == 1
+    # AND once the swarm is down, the report lists the loss and the fault, with no collision
+    swarm.command("down")
+    assert swarm.proc.wait(timeout=120) == 0, swarm.lines
+    metrics = json.loads((report / "metrics.json").read_text())
+    assert [(x["sysid"], x["cause"]) for x in metrics["losses"]] == [(203, "process killed by SIGKILL")]
+    assert [(f["sysid"], f["fault"]) for f in metrics["faults"]] == [(203, "crash")]
+    assert metrics["collisions"] == 0
+    assert [s["name"] for s in metrics["steps"]] == ["takeoff", "circle"]
+    if hasattr(SharedWorld, "mark_ended"):  # the body falls (sitl/world.py): where it came down is reported
+        down = metrics["losses"][0]["down_ne_m"]
+        assert down is not None and abs(math.hypot(*down) - RADIUS_M) < 1.0, down  # below its place on the circle
 
 
 @pytest.mark.timeout(300)
