@@ -336,6 +336,7 @@ def run_up(args: argparse.Namespace) -> int:
         if server is not None:
             server.close()
         _say("swarm: landing and stopping every drone")
+        station.end_session()
         swarm.shutdown()
         _say("swarm: all drone processes stopped")
         report = station.write_report()

@@ -77,10 +77,9 @@ class FlightRecorder:
             if msg.system_status == MAV_STATE_CRITICAL and before != MAV_STATE_CRITICAL:
                 view = self.swarm.fleet.drones.get(sysid)
                 warnings = [t for _t, sev, t in (view.texts if view else []) if sev <= mavlink.MAV_SEVERITY_WARNING]
-                text = f"failsafe: {warnings[-1]}" if warnings else "failsafe"
+                # (its warning was printed as it came, with the other STATUSTEXTs)
+                text = warnings[-1] if warnings else "system status CRITICAL (no warning received)"
                 self.recording.failsafes.append(EventRecord(time_s=now, sysid=sysid, text=text))
-                if self.say is not None:
-                    self.say(f"  sysid {sysid}: {text}")
         elif kind == "STATUSTEXT":
             match = COLLISION_TEXT.match(msg.text)
             if match is not None:  # both drones of a collision report it: count the pair once

@@ -75,11 +75,16 @@ class Station:
             self.recording.steps.append(dataclasses.replace(self._step, end_s=now))
             self._step = None
 
+    def end_session(self) -> None:
+        """Before the swarm shuts down (its clock goes with it): the last step ends now. The shutdown's landing
+        traffic is still recorded."""
+        self._end_step(self.mission_time())
+
     def write_report(self) -> Path | None:
         """After the swarm is shut down: the flight report of the session (None without ``report_dir``)."""
         if self.report_dir is None or self.recorder is None:
             return None
-        self._end_step(self.mission_time())
+        self._end_step(self.recording.steps[-1].end_s if self.recording.steps else 0.0)
         self.recording.losses = list(self.swarm.losses.values())
         self.recorder.close()
         return write_report(self.recording, self.report_dir)
