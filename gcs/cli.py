@@ -27,7 +27,7 @@ from gcs.mission_runner import MissionRunner
 from gcs.station import Station, format_status
 from gcs.supervisor import LAYOUTS, SpawnError, SpawnPlan
 from gcs.swarm import Swarm, SwarmError
-from sitl.airframe import load_airframe
+from sitl.airframe import AirframeError, load_airframe
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
 from sitl.mavlink_io import parse_host_port
 
@@ -290,6 +290,12 @@ def run_up(args: argparse.Namespace) -> int:
         raise UsageError(f"-n must be in 1..100, got {args.drones}")
     if args.first_instance < 0 or args.first_instance + args.drones > 255:
         raise UsageError("--first-instance must leave room for every sysid (instance + 1 <= 255)")
+    contact = 0.0
+    if args.report is not None:  # the report's contact distance (a bad airframe is named by the drones otherwise)
+        try:
+            contact = 2.0 * (load_airframe(args.airframe) if args.airframe else load_airframe()).collision_radius_m
+        except AirframeError as exc:
+            raise UsageError(str(exc)) from None
     plan = SpawnPlan(
         n_drones=args.drones,
         spacing_m=args.spacing,
@@ -310,7 +316,6 @@ def run_up(args: argparse.Namespace) -> int:
     for sig in signals:  # while the drones start, a signal ends the start-up at once (and stops what started)
         signal.signal(sig, _interrupt)
     swarm = Swarm(plan, forward=None if args.no_forward else args.forward)
-    contact = 2.0 * (load_airframe(args.airframe) if args.airframe else load_airframe()).collision_radius_m
     station = Station(swarm, _say, LossPolicy(args.loss_policy), report_dir=args.report, contact_distance_m=contact)
     server: ControlServer | None = None
     try:

@@ -247,3 +247,12 @@ def test_swarm_fly_with_a_bad_fault_step_is_one_line_and_exit_code_2_before_anyt
     names = ", ".join(FAULT_NAMES)
     assert err == [f"swarm: error: {path}:20: steps[2].fault: unknown fault 'meteor' (faults: {names})"]
     assert not (tmp_path / "report").exists()
+
+
+def test_swarm_up_report_with_an_unknown_airframe_is_one_line_and_exit_code_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    args = ["up", "-n", "1", "--report", str(tmp_path / "r"), "--airframe", "no_such_frame", "--no-forward"]
+    assert swarm_main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("swarm: error: ") and "no_such_frame" in err[0], err
