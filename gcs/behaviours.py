@@ -32,6 +32,7 @@ Flocking (``Flock``)
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -434,6 +435,18 @@ class LeaderPath:
         curvature = self._curvature[i] + f * (self._curvature[i + 1] - self._curvature[i])
         return _vec(pos), _vec(v * tangent), _vec(a * tangent + v * v * curvature)
 
+    def remaining_waypoints(
+        self, waypoints_ne_m: Sequence[tuple[float, float]], t_s: float
+    ) -> tuple[tuple[float, float], ...]:
+        """The waypoints the reference has not passed ``t_s`` after the start (each passed where the path comes
+        nearest to it); the last one always remains, so a new leader still ends where the flight was to end."""
+        remaining = []
+        for north, east in waypoints_ne_m:
+            nearest = int(np.argmin(np.linalg.norm(self._pos[:, :2] - np.array([north, east]), axis=1)))
+            if float(self._t[nearest]) > t_s:
+                remaining.append((north, east))
+        return tuple(remaining) if remaining else (tuple(waypoints_ne_m[-1]),)  # type: ignore[return-value]
+
     def speed_profile(self) -> tuple[FloatArray, FloatArray]:
         """(time, speed) at every arc-length sample, for checks and plots."""
         return self._t.copy(), self._v.copy()
@@ -770,9 +783,9 @@ class LeaderFollower:
         self._targets = {self.leader: pos}
         if not self.followers:
             return out
-        if now_s < self.depart_s and self._join is not None:
-            out.update(self._join.setpoints(now_s))
-            self._targets.update(self._join.targets(now_s))
+        if now_s < self.depart_s and self._join is not None:  # (a follower lost while joining is left out)
+            out.update({s: sp for s, sp in self._join.setpoints(now_s).items() if s in self.followers})
+            self._targets.update({s: p for s, p in self._join.targets(now_s).items() if s in self.followers})
             return out
         course = course_of(self._leader_vel)
         if course is not None:
@@ -802,6 +815,21 @@ class LeaderFollower:
 
     def targets(self) -> dict[int, Vec3]:
         return dict(self._targets)
+
+    def without(self, lost: int, now_s: float, state: SwarmState, limits: TransitionLimits) -> LeaderFollower:
+        """The same flight without drone ``lost``. A lost follower leaves its slot empty; a lost leader hands over
+        to the next follower, which hovers while the others join their slots around it (the join of a new
+        command: synchronised and collision-aware) and then flies on through the waypoints not yet reached.
+        ``state`` holds the survivors only."""
+        if lost != self.leader:
+            self.followers = tuple(s for s in self.followers if s != lost)
+            self._targets.pop(lost, None)
+            return self
+        if not self.followers:
+            raise FormationError("no follower left to take the lead")
+        waypoints = self.path.remaining_waypoints(self.spec.waypoints_ne_m, now_s - self.depart_s)
+        spec = dataclasses.replace(self.spec, leader_sysid=self.followers[0], waypoints_ne_m=waypoints)
+        return LeaderFollower(spec, now_s, state, limits)
 
     def done(self, now_s: float) -> bool:
         """The leader's reference is at the last waypoint and so is the leader, by its last report."""

@@ -49,6 +49,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from gcs.formation import SETPOINT_STREAM_HZ, CircleSpec, FormationError, TransitionLimits
 from gcs.frames import SwarmFrame
 from gcs.probe import PROBE_SYSIDS, percentile
+from gcs.recorder import COLLISION_TEXT
 from gcs.streamer import DEFAULT_LIMITS, FormationStreamer
 from gcs.supervisor import SpawnError, SpawnPlan
 from gcs.swarm import Swarm, SwarmError
@@ -83,7 +84,6 @@ DISARM_FORCE_MAGIC = 21196.0  # MAV_CMD_COMPONENT_ARM_DISARM param2: disarm even
 CONSISTENT_READ_TRIES = 5
 TIME_PUBLISH_STEPS = 4  # sitl/world.py: each drone writes TIME every 4 physics steps
 CPU_PARTS = ("physics", "control", "perception", "mavlink")
-COLLISION_TEXT = re.compile(r"Collision with drone (\d+)")
 EXIT_USAGE = 2
 EXIT_FAILED = 1
 

@@ -20,11 +20,14 @@ from typing import Any, NoReturn
 
 from gcs.bench import add_bench_parser, run_bench
 from gcs.control import ControlClient, ControlError, ControlServer
+from gcs.faults import CRASH, FAULT_NAMES, FaultError, fault_request
+from gcs.losses import LOSS_POLICIES, LossPolicy
 from gcs.mission_file import MissionFileError, build_flock, build_follow, load_mission
 from gcs.mission_runner import MissionRunner
 from gcs.station import Station, format_status
 from gcs.supervisor import LAYOUTS, SpawnError, SpawnPlan
 from gcs.swarm import Swarm, SwarmError
+from sitl.airframe import AirframeError, load_airframe
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
 from sitl.mavlink_io import parse_host_port
 
@@ -76,6 +79,16 @@ def _pairs(text: str) -> list[list[float]]:
     if not pairs:
         raise argparse.ArgumentTypeError("needs at least one pair like '10,0'")
     return pairs
+
+
+def _sysid(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a drone's sysid (a whole number), got {text!r}") from None
+    if not 1 <= value <= 255:
+        raise argparse.ArgumentTypeError(f"must be a sysid in 1..255, got {text!r}")
+    return value
 
 
 def _v_angle(text: str) -> float:
@@ -174,6 +187,15 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
     up.add_argument("--seed", type=int, default=0, help="base random seed (drone i uses seed+i)")
     up.add_argument("--logs", type=Path, default=None, help="directory for each drone's log (default: none)")
+    up.add_argument(
+        "--report",
+        type=Path,
+        default=None,
+        help="record the session and write a flight report (as swarm fly's) into this directory at the end",
+    )
+    up.add_argument("--loss-policy", choices=LOSS_POLICIES, default=LossPolicy.CONTINUE.value,
+                    help="what the others do when a drone is lost: continue (re-plan over the survivors; default), "
+                    "hold, land, or abort (every drone returns to launch and lands)")  # fmt: skip
     _add_forward_options(up)
     fly = sub.add_parser("fly", help="run a mission file end to end and write a flight report")
     fly.add_argument(
@@ -235,6 +257,12 @@ def build_parser() -> argparse.ArgumentParser:
     goto.add_argument("north", type=float, help="metres north of the swarm origin")
     goto.add_argument("east", type=float, help="metres east of the swarm origin")
     goto.add_argument("--alt", type=_positive, default=None, help="new altitude in metres")
+    fault = sub.add_parser("fault", help="inject a fault into one drone (MAV_CMD_INJECT_FAILURE, or crash: SIGKILL)")
+    fault.add_argument("sysid", type=_sysid, help="the drone's sysid")
+    fault.add_argument("kind", choices=FAULT_NAMES, metavar="KIND", help=f"one of: {', '.join(FAULT_NAMES)}")
+    fault.add_argument("--motor", type=int, default=None, help="motor fault: the rotor, 1-based (default 1; 0 = all)")
+    kill = sub.add_parser("kill", help="kill one drone's process with SIGKILL (a crash of its flight software)")
+    kill.add_argument("sysid", type=_sysid, help="the drone's sysid")
     sub.add_parser("land", help="land every drone where it is")
     sub.add_parser("rtl", help="every drone returns to its launch point and lands")
     sub.add_parser("down", help="land, disarm and stop every drone, then the supervisor")
@@ -262,6 +290,12 @@ def run_up(args: argparse.Namespace) -> int:
         raise UsageError(f"-n must be in 1..100, got {args.drones}")
     if args.first_instance < 0 or args.first_instance + args.drones > 255:
         raise UsageError("--first-instance must leave room for every sysid (instance + 1 <= 255)")
+    contact = 0.0
+    if args.report is not None:  # the report's contact distance (a bad airframe is named by the drones otherwise)
+        try:
+            contact = 2.0 * (load_airframe(args.airframe) if args.airframe else load_airframe()).collision_radius_m
+        except AirframeError as exc:
+            raise UsageError(str(exc)) from None
     plan = SpawnPlan(
         n_drones=args.drones,
         spacing_m=args.spacing,
@@ -282,7 +316,7 @@ def run_up(args: argparse.Namespace) -> int:
     for sig in signals:  # while the drones start, a signal ends the start-up at once (and stops what started)
         signal.signal(sig, _interrupt)
     swarm = Swarm(plan, forward=None if args.no_forward else args.forward)
-    station = Station(swarm, _say)
+    station = Station(swarm, _say, LossPolicy(args.loss_policy), report_dir=args.report, contact_distance_m=contact)
     server: ControlServer | None = None
     try:
         swarm.up()
@@ -307,8 +341,12 @@ def run_up(args: argparse.Namespace) -> int:
         if server is not None:
             server.close()
         _say("swarm: landing and stopping every drone")
+        station.end_session()
         swarm.shutdown()
         _say("swarm: all drone processes stopped")
+        report = station.write_report()
+        if report is not None:
+            _say(f"swarm: report in {report}")
     return 0
 
 
@@ -414,12 +452,21 @@ def run_client(args: argparse.Namespace) -> int:
         request["fields"] = _behaviour_fields(args)
     elif args.command == "goto":
         request.update(north_m=args.north, east_m=args.east, alt_m=args.alt)
+    elif args.command in ("fault", "kill"):
+        kind = CRASH if args.command == "kill" else args.kind
+        try:
+            fault_request(kind, getattr(args, "motor", None))
+        except FaultError as exc:
+            raise UsageError(str(exc)) from None
+        request = {"cmd": "fault", "sysid": args.sysid, "kind": kind, "motor": getattr(args, "motor", None)}
     response = ControlClient().request(request)
     if not response.get("ok"):
         print(f"swarm: error: {response.get('error', 'failed')}", file=sys.stderr)
-        return EXIT_FAILED
+        return EXIT_USAGE if response.get("usage") else EXIT_FAILED
     if args.command == "status":
         print(format_status(response["drones"]))
+    elif args.command in ("fault", "kill"):
+        print(f"swarm: drone {args.sysid}: {response.get('result', 'done')}")
     return 0
 
 

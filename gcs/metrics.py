@@ -97,7 +97,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from gcs.recording import DroneSample, EventRecord, FlightRecording, StepRecord
+from gcs.losses import DroneLoss
+from gcs.recording import DroneSample, EventRecord, FaultRecord, FlightRecording, StepRecord
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -173,6 +174,11 @@ class FlightMetrics:
     steps: tuple[StepMetrics, ...]
     distance_flown_m: dict[int, float]
     separation: SeparationSeries
+    loss_policy: str = "continue"
+    losses: tuple[DroneLoss, ...] = ()
+    faults: tuple[FaultRecord, ...] = ()
+    failsafes: tuple[EventRecord, ...] = ()
+    policy_events: tuple[EventRecord, ...] = ()
     requested_speed: float | None = None  # paced flights only
     realtime_factor_min: float | None = None  # the drones' achieved pace, over 5 s windows
     realtime_factor_mean: float | None = None
@@ -198,6 +204,15 @@ class FlightMetrics:
             "takeoff_time_per_drone_s": {str(k): _r(v) for k, v in self.takeoff_time_per_drone_s.items()},
             "steps": [_step_dict(s) for s in self.steps],
             "distance_flown_m": {str(k): _r(v) for k, v in self.distance_flown_m.items()},
+            "loss_policy": self.loss_policy,
+            "losses": [_loss_dict(x) for x in self.losses],
+            "faults": [
+                {"time_s": _r(f.time_s), "sysid": f.sysid, "fault": f.fault, "result": f.result} for f in self.faults
+            ],
+            "failsafes": [{"time_s": _r(e.time_s), "sysid": e.sysid, "text": e.text} for e in self.failsafes],
+            "loss_policy_actions": [
+                {"time_s": _r(e.time_s), "sysid": e.sysid, "text": e.text} for e in self.policy_events
+            ],
             "requested_speed": _r(self.requested_speed),
             "realtime_factor_min": _r(self.realtime_factor_min),
             "realtime_factor_mean": _r(self.realtime_factor_mean),
@@ -215,6 +230,11 @@ class FlightMetrics:
                 "min_separation_m": [_r(d, _SERIES_DECIMALS) for d in self.separation.min_separation_m.tolist()],
             },
         }
+
+
+def _loss_dict(loss: DroneLoss) -> dict[str, Any]:
+    down = [_r(v) for v in loss.down_ne_m] if loss.down_ne_m is not None else None
+    return {"sysid": loss.sysid, "time_s": _r(loss.time_s), "cause": loss.cause, "down_ne_m": down}
 
 
 def _step_dict(step: StepMetrics) -> dict[str, Any]:
@@ -523,9 +543,17 @@ def _distance_flown(track: _Track) -> float:
 # --- entry point ------------------------------------------------------------------------------------------------
 
 
+def flying_samples(recording: FlightRecording) -> list[DroneSample]:
+    """The samples of drones still in the swarm: a lost drone's from before its loss only, so that formation
+    errors and separations are those of the drones still flying (a falling or silent drone is no formation
+    member; its stale last report is no separation)."""
+    lost_at = {loss.sysid: loss.time_s for loss in recording.losses}
+    return [s for s in recording.samples if s.time_s < lost_at.get(s.sysid, math.inf)]
+
+
 def compute_metrics(recording: FlightRecording) -> FlightMetrics:
     """Every metric of the module docstring for one recorded flight."""
-    tracks = _tracks(recording.samples)
+    tracks = _tracks(flying_samples(recording))
     sysids = tuple(tracks)
     sample_times = [float(t) for track in tracks.values() for t in (track.time_s[0], track.time_s[-1])]
     bounds = sample_times + [t for s in recording.steps for t in (s.start_s, s.end_s)]
@@ -559,6 +587,11 @@ def compute_metrics(recording: FlightRecording) -> FlightMetrics:
         steps=steps,
         distance_flown_m={sysid: _distance_flown(track) for sysid, track in tracks.items()},
         separation=SeparationSeries(time_s=grid, min_separation_m=series),
+        loss_policy=recording.loss_policy,
+        losses=tuple(recording.losses),
+        faults=tuple(recording.faults),
+        failsafes=tuple(recording.failsafes),
+        policy_events=tuple(recording.policy_events),
         requested_speed=recording.requested_speed,
         realtime_factor_min=min(recording.realtime_factors, default=None),
         realtime_factor_mean=(

@@ -6,7 +6,7 @@ name = "grid_to_circle"
 drones = 9            # spawned on a grid (or line) with this spacing
 spacing_m = 2.0
 [[steps]]
-action = "takeoff"    # takeoff | formation | flock | follow | hold | land | rtl
+action = "takeoff"    # takeoff | formation | flock | follow | swap | hold | fault | land | rtl
 alt_m = 3.0
 [[steps]]
 action = "formation"
@@ -18,6 +18,8 @@ hold_s = 30.0
 
 ``flock`` and ``follow`` steps carry the fields of ``FlockSpec`` and ``FollowSpec`` (gcs/behaviours.py; angles in
 degrees), and ``[swarm] params = { NAME = value }`` lists drone parameters set before arming (docs/missions.md).
+A ``fault`` step (``drone``, ``fault``, optional ``motor`` and ``after_s``) injects a fault (gcs/faults.py) and
+``[swarm] loss_policy`` says what the others do when a drone is lost (gcs/losses.py).
 
 TOML is in the standard library (no new dependency) and reads well. A mistake is reported as one line
 ``FILE:LINE: steps[2].radius_m: must be a positive number``; tomllib gives no positions for values, so the line is
@@ -34,7 +36,9 @@ from pathlib import Path
 from typing import Any
 
 from gcs.behaviours import FlockSpec, FollowSpec
+from gcs.faults import FAULT_NAMES, FaultError, FaultRequest, fault_request
 from gcs.formation import CircleSpec, Formation, FormationError, GridSpec, LineSpec, VSpec
+from gcs.losses import LOSS_POLICIES, LossPolicy
 from gcs.supervisor import LAYOUTS
 from sitl.world import MAX_OBSTACLES
 
@@ -124,7 +128,17 @@ class RtlStep:
     timeout_s: float = 120.0
 
 
-Step = TakeoffStep | FormationStep | FlockStep | FollowStep | SwapStep | HoldStep | LandStep | RtlStep
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FaultStep:
+    """A fault injected into one drone ``after_s`` after the step is reached; the mission goes straight on to the
+    next step (so a fault placed before a formation step happens during that formation)."""
+
+    drone: int  # 1..drones: the swarm's n-th drone (its sysid depends on --first-instance)
+    fault: FaultRequest
+    after_s: float = 0.0
+
+
+Step = TakeoffStep | FormationStep | FlockStep | FollowStep | SwapStep | HoldStep | LandStep | RtlStep | FaultStep
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -133,6 +147,7 @@ class MissionSpec:
     description: str
     swarm: SwarmSpec
     steps: tuple[Step, ...]
+    loss_policy: LossPolicy = LossPolicy.CONTINUE
     path: Path | None = None
     obstacles: tuple[ObstacleSpec, ...] = ()
 
@@ -450,13 +465,32 @@ def _step(reader: _Reader, step: Any, index: int, drones: int) -> Step:
         if "duration_s" not in step:
             raise reader.fail(where, None, "missing field 'duration_s'")
         return HoldStep(duration_s=reader.number(step, "duration_s", where, "pos"))
+    if action == "fault":
+        return _fault(reader, step, where, drones)
     if action in ("land", "rtl"):
         reader.check_keys(step, {"action", "timeout_s"}, where)
         cls = LandStep if action == "land" else RtlStep
         return cls(timeout_s=reader.number(step, "timeout_s", where, "pos")) if "timeout_s" in step else cls()
     raise reader.fail(
-        where, "action", f"must be takeoff, formation, flock, follow, swap, hold, land or rtl, got {action!r}"
+        where, "action", f"must be takeoff, formation, flock, follow, swap, hold, fault, land or rtl, got {action!r}"
     )
+
+
+def _fault(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int | None], drones: int) -> FaultStep:
+    reader.check_keys(step, {"action", "drone", "fault", "motor", "after_s"}, where)
+    for key in ("drone", "fault"):
+        if key not in step:
+            raise reader.fail(where, None, f"missing field '{key}' for a fault step")
+    drone = int(reader.number(step, "drone", where, "count"))
+    if drone > drones:
+        raise reader.fail(where, "drone", f"must be one of the swarm's drones 1..{drones}, got {drone}")
+    try:
+        fault_request(step["fault"])
+        fault = fault_request(step["fault"], step.get("motor"))
+    except FaultError as exc:
+        raise reader.fail(where, "motor" if step["fault"] in FAULT_NAMES else "fault", str(exc)) from None
+    after = reader.number(step, "after_s", where, "nonneg") if "after_s" in step else 0.0
+    return FaultStep(drone=drone, fault=fault, after_s=after)
 
 
 _PARAM_NAME = re.compile(r"^[A-Za-z0-9_]{1,16}$")  # MAVLink param_id: at most 16 characters
@@ -517,7 +551,7 @@ def parse_mission(text: str, path: Path) -> MissionSpec:
     if not isinstance(swarm, dict):
         raise reader.fail((None, None), None, "missing [swarm] table with 'drones'")
     where_swarm: tuple[str | None, int | None] = ("swarm", None)
-    reader.check_keys(swarm, {"drones", "layout", "spacing_m", "params", "relay"}, where_swarm)
+    reader.check_keys(swarm, {"drones", "layout", "spacing_m", "params", "relay", "loss_policy"}, where_swarm)
     if "drones" not in swarm:
         raise reader.fail(where_swarm, None, "missing field 'drones'")
     drones = int(reader.number(swarm, "drones", where_swarm, "count"))
@@ -531,6 +565,9 @@ def parse_mission(text: str, path: Path) -> MissionSpec:
     relay = swarm.get("relay", True)
     if not isinstance(relay, bool):
         raise reader.fail(where_swarm, "relay", f"must be true or false, got {relay!r}")
+    policy = swarm.get("loss_policy", LossPolicy.CONTINUE.value)
+    if policy not in LOSS_POLICIES:
+        raise reader.fail(where_swarm, "loss_policy", f"must be one of {', '.join(LOSS_POLICIES)}, got {policy!r}")
     steps_data = data.get("steps")
     if not isinstance(steps_data, list) or not steps_data:
         raise reader.fail((None, None), None, "missing [[steps]]: a mission needs at least one step")
@@ -546,6 +583,7 @@ def parse_mission(text: str, path: Path) -> MissionSpec:
         description=description,
         swarm=SwarmSpec(drones=drones, layout=layout, spacing_m=spacing, params=params, relay=relay),
         steps=steps,
+        loss_policy=LossPolicy(policy),
         path=path,
         obstacles=_obstacles(reader, data.get("obstacles", [])),
     )

@@ -13,19 +13,19 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import re
-import struct
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from pymavlink.dialects.v20 import common as mavlink
-
+from gcs.behaviours import LeaderFollower
+from gcs.degrade import apply_loss_policy
+from gcs.faults import CRASH, result_text
 from gcs.formation import SETPOINT_STREAM_HZ
 from gcs.frames import SwarmFrame
-from gcs.metrics import LiveMetrics
+from gcs.losses import LossPolicy, loss_line
 from gcs.mission_file import (
+    FaultStep,
     FlockStep,
     FollowStep,
     FormationStep,
@@ -38,12 +38,13 @@ from gcs.mission_file import (
     TakeoffStep,
 )
 from gcs.pace_monitor import PaceMonitor
-from gcs.recording import DroneSample, EventRecord, FlightRecording, StepRecord
+from gcs.params import param_set_message, param_value
+from gcs.recorder import FlightRecorder
+from gcs.recording import EventRecord, FaultRecord, FlightRecording, StepRecord
 from gcs.report import write_report
 from gcs.streamer import FormationStreamer
 from gcs.supervisor import SpawnPlan
-from gcs.swarm import Swarm, SwarmError
-from gcs.tlog import TlogWriter
+from gcs.swarm import PARAM_ATTEMPTS, PARAM_TIMEOUT_S, Swarm, SwarmError
 from sitl.airframe import load_airframe
 from sitl.dynamics.plant import GeoPoint
 
@@ -52,35 +53,10 @@ ALT_TOLERANCE_M = 0.2  # takeoff is done when every drone holds the target altit
 ALT_HOLD_S = 1.0  # ...for this long (simulated seconds)
 STATUS_EVERY_S = 2.0
 ARMABLE_TIMEOUT_S = 30.0
-PARAM_TIMEOUT_S = 1.0  # for every drone's PARAM_VALUE echo, per attempt (on the swarm's clock)
-PARAM_ATTEMPTS = 3
-_INT_PARAM_TYPES = {
-    mavlink.MAV_PARAM_TYPE_UINT8: "<B",
-    mavlink.MAV_PARAM_TYPE_INT8: "<b",
-    mavlink.MAV_PARAM_TYPE_UINT16: "<H",
-    mavlink.MAV_PARAM_TYPE_INT16: "<h",
-    mavlink.MAV_PARAM_TYPE_UINT32: "<I",
-    mavlink.MAV_PARAM_TYPE_INT32: "<i",
-}
 FOLLOW_ARRIVAL_MARGIN_S = 30.0  # the leader must report itself at its last waypoint this long after its reference
-COLLISION_TEXT = re.compile(r"Collision with drone (\d+)")
-
-
-def param_set_message(sysid: int, name: str, value: int | float) -> Any:
-    """PARAM_SET as PX4 expects it: an int bytewise in the float field as INT32, a float as REAL32."""
-    if isinstance(value, int):
-        bits = struct.unpack("<f", struct.pack("<i", value))[0]
-        return mavlink.MAVLink_param_set_message(sysid, 1, name.encode("ascii"), bits, mavlink.MAV_PARAM_TYPE_INT32)
-    return mavlink.MAVLink_param_set_message(sysid, 1, name.encode("ascii"), value, mavlink.MAV_PARAM_TYPE_REAL32)
-
-
-def param_value(msg: Any) -> float:
-    """The number a PARAM_VALUE carries (integer types bytewise)."""
-    fmt = _INT_PARAM_TYPES.get(msg.param_type)
-    if fmt is None:
-        return float(msg.param_value)
-    raw = struct.pack("<f", msg.param_value)
-    return float(struct.unpack(fmt, raw[: struct.calcsize(fmt)])[0])
+FOLLOW_TIMEOUT_S = 3600.0  # the follow step's outer bound; it ends with the leader's arrival or its margin
+HOLD_POLICY_S = 10.0  # a mission under loss policy hold hovers this long before it lands the survivors
+POLICY_LANDING_S = 120.0  # survivors landed (land, hold) or back and landed (abort) within this time
 
 
 class MissionRunner:
@@ -115,54 +91,26 @@ class MissionRunner:
         self.recording = FlightRecording(
             mission_name=mission.name, n_drones=mission.swarm.drones, collision_radius_m=contact_distance
         )
-        self._collision_pairs: set[frozenset[int]] = set()
-        self.live = LiveMetrics()
         # Paced, the supervisor's clock is the wall clock: watch that the drones keep up with it.
         self._pace = PaceMonitor.for_plan(plan)
         self.recording.requested_speed = self._pace.speed_factor if self._pace is not None else None
         self._t0_s = 0.0
-        self._epoch_us = int(time.time() * 1e6)
-        self._tlog: TlogWriter | None = None
+        self.recorder: FlightRecorder | None = None
         self._next_status_s = 0.0
         self._step_name = "spawn"
+        self.recording.loss_policy = mission.loss_policy.value
+        self._pending_faults: list[tuple[float, FaultStep]] = []  # (mission time due, step)
+        self._policy_taken = False  # a loss policy other than continue has taken the survivors out of the mission
 
     # ---- time and telemetry ----------------------------------------------------------------------------------------
     def now(self) -> float:
         """Mission time in simulated seconds (the supervisor's clock: paced wall time or the lockstep clock)."""
         return self.swarm.clock() - self._t0_s
 
-    def _on_message(self, msg: Any, _wall_s: float) -> None:
-        if self._tlog is not None:
-            # Stamped in simulated time from the mission's start, so a replay runs at the flight's own pace
-            self._tlog.write(bytes(msg.get_msgbuf()), self._epoch_us + int(self.now() * 1e6))
-        kind = msg.get_type()
-        sysid = msg.get_srcSystem()
-        now = self.now()
-        if kind == "LOCAL_POSITION_NED":
-            frame = self.streamer.drone_frame(sysid)
-            view = self.swarm.fleet.drones.get(sysid)
-            if frame is None or view is None:
-                return
-            pos = frame.to_swarm((msg.x, msg.y, msg.z))
-            vel = frame.vector_to_swarm((msg.vx, msg.vy, msg.vz))
-            target = self.streamer.targets(now).get(sysid)
-            sample = DroneSample(time_s=now, sysid=sysid, pos_ned_m=pos, vel_ned_mps=vel, armed=view.armed,
-                                 mode=view.mode, target_ned_m=target)  # fmt: skip
-            self.recording.samples.append(sample)
-            self.live.observe(sample)
-        elif kind == "STATUSTEXT":
-            match = COLLISION_TEXT.match(msg.text)
-            if match is not None:  # both drones of a collision report it: count the pair once
-                pair = frozenset((sysid, int(match.group(1))))
-                if pair in self._collision_pairs:
-                    return
-                self._collision_pairs.add(pair)
-            self.recording.events.append(EventRecord(time_s=now, sysid=sysid, text=msg.text))
-            if msg.severity <= mavlink.MAV_SEVERITY_WARNING:
-                self.say(f"  sysid {sysid}: {msg.text}")
-
     def _tick(self, _wall_s: float) -> None:
         now = self.now()
+        self._watch_losses(now)
+        self._inject_due_faults(now)
         self.streamer.tick(now)
         rate = None
         if self._pace is not None:
@@ -176,13 +124,48 @@ class MissionRunner:
             if rate is not None:  # the report keeps the reading of each status line
                 self.recording.realtime_factors.append(rate)
                 pace = f"  rtf {rate:.2f}"
-            self.say(f"[{now:6.1f} s] {self._step_name:<10} {self.live.status().line()}{pace}")
+            live = self.recorder.live.status().line() if self.recorder is not None else ""
+            self.say(f"[{now:6.1f} s] {self._step_name:<10} {live}{pace}")
+
+    def _watch_losses(self, now: float) -> None:
+        """Each new loss: one line, one record, and the mission's loss policy."""
+        for loss in self.swarm.detect_losses(now):
+            self.say(loss_line(loss))
+            line = apply_loss_policy(self.mission.loss_policy, self.streamer, loss, now)
+            if self.mission.loss_policy is not LossPolicy.CONTINUE:
+                self._policy_taken = True
+            if line is not None:
+                self.say(f"  swarm: {line}")
+                self.recording.policy_events.append(EventRecord(time_s=now, sysid=loss.sysid, text=line))
+
+    def _inject_due_faults(self, now: float) -> None:
+        due = [(t, step) for t, step in self._pending_faults if t <= now]
+        if not due:
+            return
+        self._pending_faults = [(t, step) for t, step in self._pending_faults if t > now]
+        for _t, step in due:
+            sysid = self.swarm.sysids[step.drone - 1]
+            what = step.fault.describe()
+            if sysid in self.swarm.losses:
+                result = "not injected: drone already lost"
+            elif step.fault.kind == CRASH:
+                result = f"process {self.swarm.kill(sysid)} killed with SIGKILL"
+            else:
+                try:
+                    result = result_text(self.swarm.inject_fault(sysid, step.fault).result)
+                except SwarmError as exc:
+                    result = f"not injected: {exc}"
+            self.say(f"[{now:6.1f} s] fault {what} on drone {sysid}: {result}")
+            self.recording.faults.append(FaultRecord(time_s=now, sysid=sysid, fault=what, result=result))
 
     def _wait(self, condition: Callable[[], bool], timeout_sim_s: float) -> bool:
-        return self.swarm.wait_until(condition, timeout_sim_s, tick=self._tick)
+        """Wait for ``condition``; True also as soon as a loss policy (hold, land, abort) takes over the flight,
+        which ends the step."""
+        return self.swarm.wait_until(lambda: self._policy_taken or condition(), timeout_sim_s, tick=self._tick)
 
     def _hold(self, duration_sim_s: float) -> None:
-        self.swarm.run_for(duration_sim_s, tick=self._tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
+        """Fly on for ``duration_sim_s`` (the step's time), or until a loss policy takes over."""
+        self._wait(lambda: False, duration_sim_s)
 
     def _set_params(self) -> None:
         """The mission's drone parameters on every drone, each confirmed by its PARAM_VALUE echo (as MAVSDK does)."""
@@ -221,7 +204,7 @@ class MissionRunner:
     # ---- steps -----------------------------------------------------------------------------------------------------
     def _takeoff(self, step: TakeoffStep) -> None:
         swarm = self.swarm
-        if not all(swarm.fleet.drones[s].armed for s in swarm.sysids):
+        if not all(swarm.fleet.drones[s].armed for s in swarm.active_sysids):
             swarm.arm_all(ARMABLE_TIMEOUT_S, tick=self._tick)
         swarm.takeoff_all(step.alt_m)
         target = -step.alt_m
@@ -229,7 +212,7 @@ class MissionRunner:
 
         def holding() -> bool:
             positions = self.streamer.positions()
-            ok = len(positions) == len(swarm.sysids) and all(
+            ok = len(positions) == len(swarm.active_sysids) and all(
                 abs(p[2] - target) < ALT_TOLERANCE_M for p in positions.values()
             )
             now = self.now()
@@ -255,9 +238,23 @@ class MissionRunner:
         if step.duration_s is not None:
             self._hold(step.duration_s)
             return
-        timeout = behaviour.finish_s + FOLLOW_ARRIVAL_MARGIN_S - self.now()
-        if not self._wait(lambda: behaviour.done(self.now()), timeout):
-            raise SwarmError(f"leader sysid {behaviour.leader} did not reach its last waypoint within {timeout:.0f} s")
+
+        def current() -> LeaderFollower:
+            # a lost leader hands over to a new flight (gcs/streamer.py handle_loss): wait for that one
+            flown = self.streamer.behaviour
+            return flown if isinstance(flown, LeaderFollower) else behaviour
+
+        def over() -> bool:
+            flown = current()
+            return flown.done(self.now()) or self.now() > flown.finish_s + FOLLOW_ARRIVAL_MARGIN_S
+
+        self._wait(over, FOLLOW_TIMEOUT_S)
+        if not self._policy_taken and not current().done(self.now()):
+            flown = current()
+            raise SwarmError(
+                f"leader sysid {flown.leader} did not reach its last waypoint within "
+                f"{FOLLOW_ARRIVAL_MARGIN_S:g} s of its reference"
+            )
 
     def _place_obstacles(self) -> None:
         """Declare the mission's static obstacles in the shared world (cameras see them, contact crashes)."""
@@ -286,8 +283,25 @@ class MissionRunner:
         """Land (or return) every drone still armed; a crashed or already landed drone has nothing to do."""
         self.streamer.stop()
         flying = self.swarm.land_all(return_to_launch=isinstance(step, RtlStep))
-        if not self._wait(lambda: not any(self.swarm.fleet.drones[s].armed for s in flying), step.timeout_s):
+        if not self._wait(lambda: not self._still_armed(flying), step.timeout_s):
             raise SwarmError(f"not every drone landed and disarmed within {step.timeout_s:g} s")
+
+    def _still_armed(self, sysids: list[int]) -> list[int]:
+        """Those still armed that the swarm has not lost (a lost drone's last report may say armed for ever)."""
+        drones = self.swarm.fleet.drones
+        return [s for s in sysids if s not in self.swarm.losses and drones[s].armed]
+
+    def _finish_after_policy(self) -> None:
+        """After a loss under hold, land or abort the remaining steps are dropped: the mission ends once the
+        survivors are down (hold: they hold for HOLD_POLICY_S, then land where they are)."""
+        self.say(f"[{self.now():6.1f} s] loss policy {self.mission.loss_policy.value}: remaining steps dropped")
+        if self.mission.loss_policy is LossPolicy.HOLD:
+            self.swarm.run_for(HOLD_POLICY_S, tick=self._tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
+            self.swarm.land_all()
+        flying = [s for s in self.swarm.active_sysids if self.swarm.fleet.drones[s].armed]
+        landed = self.swarm.wait_until(lambda: not self._still_armed(flying), POLICY_LANDING_S, tick=self._tick)
+        if not landed:
+            raise SwarmError(f"not every drone landed and disarmed within {POLICY_LANDING_S:g} s of the loss policy")
 
     def _run_step(self, index: int, step: Step) -> None:
         start = self.now()
@@ -307,8 +321,13 @@ class MissionRunner:
             self._follow(step)
         elif isinstance(step, HoldStep):
             self._hold(step.duration_s)
+        elif isinstance(step, FaultStep):
+            self._pending_faults.append((start + step.after_s, step))
+            self._inject_due_faults(self.now())
         else:
             self._land(step)
+        if isinstance(step, FaultStep):
+            return  # an instant, listed with the faults (a zero-length step would only clutter the steps table)
         self.recording.steps.append(
             StepRecord(
                 index=index,
@@ -323,8 +342,9 @@ class MissionRunner:
     def run(self) -> Path:
         """Fly the mission; always shuts the swarm down and writes the report, also after a failure."""
         self.report_dir.mkdir(parents=True, exist_ok=True)
-        self._tlog = TlogWriter(self.report_dir / "flight.tlog")
-        self.swarm.listeners.append(self._on_message)
+        self.recorder = FlightRecorder(
+            self.streamer, self.recording, self.now, self.report_dir / "flight.tlog", self.say
+        )
         failure: BaseException | None = None
         try:
             pace = ("lockstep, as fast as possible" if self.speed == 0 else f"lockstep at {self.speed:g}x") \
@@ -336,13 +356,17 @@ class MissionRunner:
             self._t0_s = self.swarm.clock()
             self.swarm.arm_all(ARMABLE_TIMEOUT_S, tick=self._tick)  # before the takeoff step's clock starts
             for index, step in enumerate(self.mission.steps):
+                if self._policy_taken:
+                    self._finish_after_policy()
+                    break
                 self._run_step(index, step)
         except (SwarmError, KeyboardInterrupt) as exc:
             failure = exc
         finally:
             self.streamer.stop()
+            self.recording.losses = list(self.swarm.losses.values())
             self.swarm.shutdown()
-            self._tlog.close()
+            self.recorder.close()
         out = write_report(self.recording, self.report_dir)
         self.say((out / "summary.txt").read_text().rstrip())
         if failure is not None:

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from gcs.losses import DroneLoss
+
 Vec3 = tuple[float, float, float]
 
 
@@ -43,6 +45,16 @@ class EventRecord:
     text: str  # e.g. a STATUSTEXT: "Collision with drone 3", "Avoidance: ..."
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FaultRecord:
+    """A fault the mission injected: when, into which drone, and the drone's answer."""
+
+    time_s: float
+    sysid: int
+    fault: str  # "motor 1 off", "gps", "crash", ...
+    result: str  # "accepted", "denied", "process 1234 killed", "not injected: drone already lost"
+
+
 @dataclass(slots=True)
 class FlightRecording:
     mission_name: str
@@ -55,3 +67,8 @@ class FlightRecording:
     # seconds (gcs/pace_monitor.py); None and empty in lockstep, where pace cannot change the result.
     requested_speed: float | None = None
     realtime_factors: list[float] = field(default_factory=list)
+    loss_policy: str = "continue"  # what the survivors did on a loss (gcs/losses.py LossPolicy)
+    losses: list[DroneLoss] = field(default_factory=list)  # as finally known (where each came down, once it did)
+    faults: list[FaultRecord] = field(default_factory=list)
+    failsafes: list[EventRecord] = field(default_factory=list)  # a drone entering failsafe, with its warning
+    policy_events: list[EventRecord] = field(default_factory=list)  # what the swarm did about each loss

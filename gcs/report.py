@@ -354,4 +354,26 @@ def summary_text(metrics: FlightMetrics) -> str:
     )
     flown = "  ".join(f"{k}: {v:.1f} m" for k, v in metrics.distance_flown_m.items()) or "-"
     lines += [f"distance flown: {flown}", ""]
+    lines += faults_text(metrics)
     return "\n".join(lines)
+
+
+def faults_text(metrics: FlightMetrics) -> list[str]:
+    """Faults injected, failsafes, losses and the loss policy, in the order a reader asks about them."""
+    lines = []
+    if metrics.faults:
+        lines.append(f"faults injected: {len(metrics.faults)}")
+        lines += [f"  {f.time_s:7.1f} s  drone {f.sysid}: {f.fault} ({f.result})" for f in metrics.faults]
+    if metrics.failsafes:
+        lines.append(f"failsafes: {len(metrics.failsafes)}")
+        lines += [f"  {e.time_s:7.1f} s  drone {e.sysid}: {e.text}" for e in metrics.failsafes]
+    lines.append(f"drones lost: {len(metrics.losses)} (loss policy: {metrics.loss_policy})")
+    for loss in metrics.losses:
+        down = loss.down_ne_m
+        where = "not seen on the ground" if down is None else f"down at {down[0]:.1f} m N, {down[1]:.1f} m E"
+        lines.append(f"  {loss.time_s:7.1f} s  drone {loss.sysid}: {loss.cause}; {where}")
+    lines += [f"  {e.time_s:7.1f} s  swarm: {e.text}" for e in metrics.policy_events]
+    if metrics.losses:
+        lines.append("  (formation errors and separations count each lost drone only until its loss)")
+    lines.append("")
+    return lines

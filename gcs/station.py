@@ -10,11 +10,20 @@ import dataclasses
 import math
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
+from pymavlink.dialects.v20 import common as mavlink
+
+from gcs.degrade import apply_loss_policy
+from gcs.faults import CRASH, FaultError, fault_request, result_text
 from gcs.frames import SwarmFrame
+from gcs.losses import MAV_STATE_CRITICAL, LossPolicy, loss_line
 from gcs.mission_file import build_flock, build_follow, build_formation
 from gcs.pace_monitor import PaceMonitor
+from gcs.recorder import FlightRecorder
+from gcs.recording import EventRecord, FaultRecord, FlightRecording, StepRecord
+from gcs.report import write_report
 from gcs.streamer import FormationStreamer
 from gcs.swarm import Swarm, SwarmError
 
@@ -22,15 +31,69 @@ Say = Callable[[str], None]
 ARMABLE_TIMEOUT_S = 30.0
 
 
+# Commands that start what the report calls a step (name and kind taken from the request)
+STEP_COMMANDS = ("takeoff", "formation", "flock", "follow", "goto", "land", "rtl")
+
+
 class Station:
-    def __init__(self, swarm: Swarm, say: Say) -> None:
+    def __init__(self, swarm: Swarm, say: Say, loss_policy: LossPolicy = LossPolicy.CONTINUE,
+                 report_dir: Path | None = None, contact_distance_m: float = 0.0) -> None:  # fmt: skip
+        """``report_dir``: record the session and write a flight report there at the end (``swarm up --report``)."""
         self.swarm = swarm
         self.say = say
+        self.loss_policy = loss_policy
         self.streamer = FormationStreamer(swarm, SwarmFrame(swarm.plan.origin))
         self._t0 = swarm.clock()
         self.stop_requested = False
-        self._reported_lost: set[int] = set()
         self._pace = PaceMonitor.for_plan(swarm.plan)
+        swarm.listeners.append(self._on_message)
+        self.report_dir = report_dir
+        self.recording = FlightRecording(
+            mission_name="swarm-up", n_drones=swarm.plan.n_drones, collision_radius_m=contact_distance_m
+        )
+        self.recording.loss_policy = loss_policy.value
+        self.recorder: FlightRecorder | None = None
+        if report_dir is not None:
+            report_dir.mkdir(parents=True, exist_ok=True)
+            self.recorder = FlightRecorder(self.streamer, self.recording, self.mission_time,
+                                           report_dir / "flight.tlog", say=None)  # fmt: skip
+        self._step: StepRecord | None = None  # the command being flown, for the report
+
+    def _begin_step(self, request: dict[str, Any]) -> None:
+        """A command that changes what the swarm flies ends the report's current step and starts the next."""
+        now = self.mission_time()
+        self._end_step(now)
+        cmd = request["cmd"]
+        name = str(request.get("shape", cmd)) if cmd == "formation" else cmd
+        kind = "formation" if cmd == "goto" else cmd
+        alt = float(request.get("alt", 3.0)) if cmd == "takeoff" else None
+        index = len(self.recording.steps)
+        self._step = StepRecord(index=index, name=name, kind=kind, start_s=now, end_s=now, target_alt_m=alt)
+
+    def _end_step(self, now: float) -> None:
+        if self._step is not None:
+            self.recording.steps.append(dataclasses.replace(self._step, end_s=now))
+            self._step = None
+
+    def end_session(self) -> None:
+        """Before the swarm shuts down (its clock goes with it): the last step ends now. The shutdown's landing
+        traffic is still recorded."""
+        self._end_step(self.mission_time())
+
+    def write_report(self) -> Path | None:
+        """After the swarm is shut down: the flight report of the session (None without ``report_dir``)."""
+        if self.report_dir is None or self.recorder is None:
+            return None
+        self._end_step(self.recording.steps[-1].end_s if self.recording.steps else 0.0)
+        self.recording.losses = list(self.swarm.losses.values())
+        self.recorder.close()
+        return write_report(self.recording, self.report_dir)
+
+    def _on_message(self, msg: Any, _now_s: float) -> None:
+        """A drone's warnings (collisions, failsafes, fault injections) on the supervisor's output, as a ground
+        station shows them."""
+        if msg.get_type() == "STATUSTEXT" and msg.severity <= mavlink.MAV_SEVERITY_WARNING:
+            self.say(f"  sysid {msg.get_srcSystem()}: {msg.text}")
 
     # ---- periodic work ---------------------------------------------------------------------------------------------
     def mission_time(self) -> float:
@@ -41,26 +104,27 @@ class Station:
         self.streamer.tick(self.mission_time())
 
     def watch(self, now_s: float) -> None:
-        """Report a drone whose heartbeats stopped (and one that came back), or whose process died, and a swarm that
-        cannot keep the requested pace (once)."""
+        """Record and report each lost drone once (one line), apply the loss policy, and report a swarm that cannot
+        keep the requested pace (once)."""
         if self._pace is not None:
             warning = self._pace.update(time.monotonic(), self.swarm.drone_time_s())
             if warning is not None:
                 self.say(warning)
-        lost = set(self.swarm.fleet.lost(now_s))
-        for sysid in sorted(lost - self._reported_lost):
-            age_s = self.swarm.fleet.drones[sysid].link_age_s(now_s)
-            self.say(f"drone sysid {sysid}: link lost (no HEARTBEAT for {age_s:.1f} s)")
-        for sysid in sorted(self._reported_lost - lost):
-            self.say(f"drone sysid {sysid}: link back")
-        self._reported_lost = lost
-        for d in self.swarm.processes.exited():
-            if d.sysid not in self._reported_lost:
-                self.say(f"drone sysid {d.sysid}: process exited with code {d.process.returncode}")
-                self._reported_lost.add(d.sysid)
+        for loss in self.swarm.detect_losses(self.mission_time()):
+            self.say(loss_line(loss))
+            line = apply_loss_policy(self.loss_policy, self.streamer, loss, self.mission_time())
+            if line is not None:
+                self.say(f"swarm: {line}")
+                self.recording.policy_events.append(EventRecord(time_s=loss.time_s, sysid=loss.sysid, text=line))
 
     # ---- requests --------------------------------------------------------------------------------------------------
     def handle(self, request: dict[str, Any]) -> dict[str, Any]:
+        response = self._handle(request)
+        if response.get("ok") and request["cmd"] in STEP_COMMANDS:
+            self._begin_step(request)
+        return response
+
+    def _handle(self, request: dict[str, Any]) -> dict[str, Any]:
         cmd = request["cmd"]
         try:
             if cmd == "ping":
@@ -72,7 +136,7 @@ class Station:
             if cmd == "formation":
                 fields = dict(request.get("fields", {}))
                 if request.get("shape") == "grid" and not fields.get("rows"):
-                    n = len(self.swarm.sysids)
+                    n = len(self.swarm.active_sysids)
                     fields["cols"] = max(1, math.ceil(math.sqrt(n)))
                     fields["rows"] = math.ceil(n / fields["cols"])
                 formation = build_formation(str(request.get("shape")), fields)
@@ -97,9 +161,40 @@ class Station:
             if cmd == "down":
                 self.stop_requested = True
                 return {"ok": True}
-        except (SwarmError, ValueError) as exc:
+            if cmd == "fault":
+                return self.fault(request)
+        except (SwarmError, FaultError, ValueError) as exc:
             return {"ok": False, "error": str(exc)}
         return {"ok": False, "error": f"unknown command {cmd!r}"}
+
+    def fault(self, request: dict[str, Any]) -> dict[str, Any]:
+        """Inject a fault into one drone (``swarm fault``, ``swarm kill``): a MAVLink fault or a killed process."""
+        sysid = request.get("sysid")
+        if isinstance(sysid, bool) or not isinstance(sysid, int) or sysid not in self.swarm.sysids:
+            sysids = self.swarm.sysids
+            known = f"{sysids[0]}..{sysids[-1]}" if sysids else "none"
+            return {"ok": False, "usage": True, "error": f"no drone with sysid {sysid!r} (sysids {known})"}
+        if sysid in self.swarm.losses:
+            return {"ok": False, "error": f"drone {sysid} is already lost ({self.swarm.losses[sysid].cause})"}
+        try:
+            fault = fault_request(request.get("kind"), request.get("motor"))
+        except FaultError as exc:
+            return {"ok": False, "usage": True, "error": str(exc)}
+        if fault.kind == CRASH:
+            pid = self.swarm.kill(sysid)
+            self.say(f"swarm: fault: drone {sysid} process (pid {pid}) killed with SIGKILL")
+            self._record_fault(sysid, fault.describe(), f"process {pid} killed with SIGKILL")
+            return {"ok": True, "result": f"process {pid} killed"}
+        ack = self.swarm.inject_fault(sysid, fault)
+        self.say(f"swarm: fault {fault.describe()} on drone {sysid}: {result_text(ack.result)}")
+        self._record_fault(sysid, fault.describe(), result_text(ack.result))
+        if not ack.ok:
+            return {"ok": False, "error": f"drone {sysid} refused fault {fault.describe()}: {result_text(ack.result)}"}
+        return {"ok": True, "result": result_text(ack.result)}
+
+    def _record_fault(self, sysid: int, what: str, result: str) -> None:
+        record = FaultRecord(time_s=self.mission_time(), sysid=sysid, fault=what, result=result)
+        self.recording.faults.append(record)
 
     def takeoff(self, alt_m: float) -> dict[str, Any]:
         if not (math.isfinite(alt_m) and 0.5 <= alt_m <= 100.0):
@@ -128,6 +223,12 @@ class Station:
         rows = []
         for sysid in self.swarm.sysids:
             d = self.swarm.fleet.drones.get(sysid)
+            loss = self.swarm.losses.get(sysid)
+            if loss is not None:
+                down = loss.down_ne_m
+                where = "" if down is None else f", down at {down[0]:.1f} m N {down[1]:.1f} m E"
+                rows.append({"sysid": sysid, "mode": "LOST", "detail": f"t={loss.time_s:.1f} s: {loss.cause}{where}"})
+                continue
             if d is None:
                 rows.append({"sysid": sysid, "mode": "NO LINK"})
                 continue
@@ -141,6 +242,7 @@ class Station:
                     "alt_m": d.relative_alt_m,
                     "battery": d.battery_remaining,
                     "link_age_s": d.link_age_s(now),
+                    "failsafe": failsafe_text(d.system_status, d.texts),
                 }
             )
         return rows
@@ -150,11 +252,21 @@ def format_status(rows: list[dict[str, Any]]) -> str:
     lines = [f"{'sysid':>5}  {'mode':<14} {'armed':<5} {'lat':>11} {'lon':>11} {'alt m':>6} {'batt':>5} {'link s':>6}"]
     for r in rows:
         if "armed" not in r:
-            lines.append(f"{r['sysid']:>5}  {r['mode']}")
+            detail = f"  {r['detail']}" if r.get("detail") else ""
+            lines.append(f"{r['sysid']:>5}  {r['mode']}{detail}")
             continue
         batt = f"{r['battery']:.0%}" if r["battery"] == r["battery"] else "?"
         lines.append(
             f"{r['sysid']:>5}  {r['mode']:<14} {'yes' if r['armed'] else 'no':<5} {r['lat_deg']:>11.7f} "
             f"{r['lon_deg']:>11.7f} {r['alt_m']:>6.2f} {batt:>5} {r['link_age_s']:>6.1f}"
+            + (f"  FAILSAFE: {r['failsafe']}" if r.get("failsafe") else "")
         )
     return "\n".join(lines)
+
+
+def failsafe_text(system_status: int, texts: list[tuple[float, int, str]]) -> str | None:
+    """While a drone reports MAV_STATE_CRITICAL (PX4: a failsafe acts), its last warning says which one."""
+    if system_status != MAV_STATE_CRITICAL:
+        return None
+    warnings = [text for _t, severity, text in texts if severity <= mavlink.MAV_SEVERITY_WARNING]
+    return warnings[-1] if warnings else "active"

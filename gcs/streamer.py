@@ -20,7 +20,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.behaviours import Behaviour, Flock, FlockSpec, FollowSpec, LeaderFollower, SwarmState
 from gcs.crossing import CrossingMove, antipodal_goals
-from gcs.formation import Formation, FormationEngine, Setpoint, TransitionLimits
+from gcs.formation import Formation, FormationEngine, FormationError, Setpoint, TransitionLimits
 from gcs.frames import DroneFrame, SwarmFrame, Vec3, origin_from_home
 from gcs.swarm import Swarm, SwarmError, check
 from sitl.dynamics.plant import GeoPoint
@@ -99,7 +99,7 @@ class FormationStreamer:
     def positions(self) -> dict[int, Vec3]:
         """Every drone's reported position in the swarm frame (drones without a home yet are left out)."""
         out = {}
-        for sysid in self.swarm.sysids:
+        for sysid in self.swarm.active_sysids:
             frame = self.drone_frame(sysid)
             view = self.swarm.fleet.drones.get(sysid)
             if frame is not None and view is not None and all(math.isfinite(v) for v in view.local_ned_m):
@@ -110,7 +110,7 @@ class FormationStreamer:
         """Reported position and velocity (swarm frame) of every armed drone with a home and a finite report."""
         positions: dict[int, Vec3] = {}
         velocities: dict[int, Vec3] = {}
-        for sysid in self.swarm.sysids:
+        for sysid in self.swarm.active_sysids:
             frame = self.drone_frame(sysid)
             view = self.swarm.fleet.drones.get(sysid)
             if frame is None or view is None or not view.armed:
@@ -122,10 +122,13 @@ class FormationStreamer:
 
     def _check_ready(self, what: str) -> dict[int, Vec3]:
         positions = self.positions()
-        missing = sorted(set(self.swarm.sysids) - set(positions))
+        active = self.swarm.active_sysids
+        if not active:
+            raise SwarmError(f"every drone is lost: cannot plan {what}")
+        missing = sorted(set(active) - set(positions))
         if missing:
             raise SwarmError(f"no position yet from sysid {missing}: cannot plan {what}")
-        if not all(self.swarm.fleet.drones[s].armed for s in self.swarm.sysids):
+        if not all(self.swarm.fleet.drones[s].armed for s in active):
             raise SwarmError(f"every drone must be armed and flying before {what} (swarm takeoff)")
         return positions
 
@@ -170,7 +173,33 @@ class FormationStreamer:
         if not self.active:
             self.active = True
             self.tick(now_s)  # PX4 accepts OFFBOARD only once setpoints are arriving
-            check(self.swarm.command_all(mavlink.MAV_CMD_DO_SET_MODE, *OFFBOARD_MODE), "offboard")
+            active = self.swarm.active_sysids
+            check(self.swarm.command_all(mavlink.MAV_CMD_DO_SET_MODE, *OFFBOARD_MODE, sysids=active), "offboard")
+
+    def handle_loss(self, sysid: int, now_s: float) -> str | None:
+        """Carry on without drone ``sysid`` (already in ``swarm.losses``): a formation re-plans over the survivors
+        with the same synchronised, collision-aware transition as a formation change; a lost leader hands over to
+        the next follower; flocking simply goes on without it. Returns one line saying what changed, or None."""
+        if not self.active:
+            return None
+        survivors = self.positions()
+        if not survivors:
+            self.stop()
+            return "no drone left to fly"
+        if self.behaviour is None and self.formation is not None:
+            try:
+                transition = self.engine.command(self.formation, now_s, survivors)
+            except FormationError as exc:
+                return f"formation not re-planned: {exc}"
+            return f"formation re-planned over {len(survivors)} drones (arrival in {transition.duration_s:.1f} s)"
+        if isinstance(self.behaviour, LeaderFollower):
+            behaviour = self.behaviour.without(sysid, now_s, self.state(), self.limits)
+            handed_over = behaviour.leader != self.behaviour.leader
+            self.behaviour = behaviour
+            return f"leader sysid {sysid} lost: sysid {behaviour.leader} leads" if handed_over else None
+        if isinstance(self.behaviour, Flock):
+            return f"flocking goes on with {len(survivors)} drones"
+        return None
 
     def stop(self) -> None:
         """Stop streaming (before a land or RTL command takes the drones out of OFFBOARD)."""
@@ -193,7 +222,7 @@ class FormationStreamer:
             setpoints = self.engine.setpoints(now_s)
         for sysid, sp in setpoints.items():
             frame = self.drone_frame(sysid)
-            if frame is None:
+            if frame is None or sysid in self.swarm.losses:
                 continue
             mask = type_mask(sp)
             pos = sp.pos_ned_m

@@ -24,14 +24,19 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.fleet import Fleet
-from gcs.losses import DroneLoss
+from gcs.faults import BATTERY_LEVEL_PARAM, ENABLE_PARAM, FAULTS, MAV_CMD_INJECT_FAILURE, FaultRequest
+from gcs.fleet import LINK_LOST_S, Fleet
+from gcs.losses import MAV_STATE_FLIGHT_TERMINATION, DroneLoss, process_exit_cause
+from gcs.params import param_set_message, param_value
 from gcs.relay import NeighbourRelay
-from gcs.supervisor import ProcessGroup, SpawnError, SpawnPlan
+from gcs.supervisor import DroneProcess, ProcessGroup, SpawnError, SpawnPlan
 from gcs.transport import GcsSocket
+from sitl.dynamics.geodesy import ned_from_geo
+from sitl.dynamics.plant import GeoPoint
 from sitl.lockstep import LockstepGate
+from sitl.protocol.modes import Px4Mode
 from sitl.simulation import PHYSICS_RATE_HZ
-from sitl.world import TIME, VALID, SharedWorld
+from sitl.world import ALT, LAT, LON, TIME, VALID, SharedWorld
 
 COMMAND_TIMEOUT_S = 0.5  # MAVSDK's per-try timeout
 COMMAND_RETRIES = 3
@@ -46,6 +51,13 @@ LOCKSTEP_MAX_WAIT_S = 0.005  # wall-clock cap on one wait for traffic in lockste
 # 100, and a wake-up costs a drone more CPU than the message it brings (docs/benchmarks.md). The receiving drone's
 # neighbour table ages every report by its sender's timestamp in lockstep; paced, by its arrival.
 BATCH_HOLD_S = 0.05
+# DO_SET_MODE for PX4 Hold: custom mode enabled, main mode AUTO, sub mode LOITER
+HOLD_MODE = (1.0, float(Px4Mode.AUTO_LOITER.main_mode), float(Px4Mode.AUTO_LOITER.sub_mode))
+GCS_HEARTBEAT_PERIOD_S = 1.0  # QGroundControl sends its HEARTBEAT at 1 Hz; PX4's datalink-loss failsafe watches it
+# A lost drone's body is "down" once it is this close to its launch altitude (the ground, in this flat world).
+ON_GROUND_M = 0.3
+PARAM_TIMEOUT_S = 1.0  # for a PARAM_VALUE echo, per attempt (on the swarm's clock)
+PARAM_ATTEMPTS = 3
 
 
 @dataclass(frozen=True, slots=True)
@@ -81,6 +93,8 @@ class Swarm:
         self.fleet = Fleet()
         self.processes = ProcessGroup()
         self.listeners: list[Callable[[Any, float], None]] = []  # e.g. the flight recorder, the relay
+        # Commands and parameter writes the swarm sends, as packed MAVLink frames (the flight log keeps them)
+        self.sent_listeners: list[Callable[[bytes, float], None]] = []
         self._selector = selectors.DefaultSelector()
         self._selector.register(self.link.sock, selectors.EVENT_READ)
         self._acks: list[Any] = []
@@ -92,6 +106,9 @@ class Swarm:
         self.batch_hold_s = batch_hold_s
         self._flush_due_s = math.inf  # when the queued traffic must leave (-inf: at the next pump)
         self.losses: dict[int, DroneLoss] = {}  # sysid -> the loss, recorded once
+        self._next_gcs_heartbeat_s = 0.0
+        self._param_echoes: dict[tuple[int, str], float] = {}
+        self._heard_wall_s: dict[int, float] = {}  # sysid -> wall time of its last HEARTBEAT
 
     def clock(self) -> float:
         """Simulated seconds: the drones' common clock in lockstep, else wall time times the speed factor."""
@@ -144,6 +161,120 @@ class Swarm:
     def sysids(self) -> list[int]:
         return [d.sysid for d in self.processes.drones]
 
+    @property
+    def active_sysids(self) -> list[int]:
+        """The drones the swarm still has: every one not in ``losses``."""
+        return [d.sysid for d in self.processes.drones if d.sysid not in self.losses]
+
+    # ---- losses ----------------------------------------------------------------------------------------------------
+    def detect_losses(self, time_s: float) -> list[DroneLoss]:
+        """Record every new loss once and return them: a drone whose process ended (any cause), one that reports
+        MAV_STATE_FLIGHT_TERMINATION (crashed, terminated), or one silent for the link-loss time.
+
+        ``time_s`` is the time to record (the caller's mission clock). A process that ended leaves the lockstep
+        gate and the shared world, where its body falls under gravity from its last state (``mark_ended``).
+        """
+        new: list[DroneLoss] = []
+        now = self.clock()
+        for d in self.processes.exited():
+            if d.sysid in self.losses:
+                continue
+            code = d.process.returncode
+            assert code is not None
+            new.append(self._record_loss(d.sysid, time_s, process_exit_cause(code)))
+        for d in self.processes.drones:
+            view = self.fleet.drones.get(d.sysid)
+            if view is None or d.sysid in self.losses:
+                continue
+            if view.system_status == MAV_STATE_FLIGHT_TERMINATION:
+                new.append(self._record_loss(d.sysid, time_s, crash_cause(view.texts, now)))
+            elif view.lost(now) and time.monotonic() - self._heard_wall_s.get(d.sysid, -math.inf) > LINK_LOST_S:
+                # silent for the link-loss time on both clocks: a loaded machine that delays a paced drone's
+                # heartbeat by a fraction of a wall second (3 s at --speed 4 is 0.75 s) must not lose it for good
+                cause = f"link lost (no HEARTBEAT for {view.link_age_s(now):.1f} s)"
+                new.append(self._record_loss(d.sysid, time_s, cause))
+        self._settle_down_positions()
+        return new
+
+    def _record_loss(self, sysid: int, time_s: float, cause: str) -> DroneLoss:
+        loss = DroneLoss(sysid=sysid, time_s=time_s, cause=cause)
+        self.losses[sysid] = loss
+        d = self._process(sysid)
+        if d.process.returncode is not None:
+            if self.world is not None:
+                mark_ended = getattr(self.world, "mark_ended", None)
+                if mark_ended is not None:  # the falling body (sitl/world.py); absent, the row stays where it was
+                    mark_ended(d.instance)
+            if self.gate is not None:
+                self.gate.remove(d.instance)
+        return loss
+
+    def _process(self, sysid: int) -> DroneProcess:
+        return next(d for d in self.processes.drones if d.sysid == sysid)
+
+    def _settle_down_positions(self) -> None:
+        """Fill in where each lost drone came down, once its body is on the ground (north/east of the origin)."""
+        if self.world is None:
+            return
+        for sysid, loss in list(self.losses.items()):
+            if loss.down_ne_m is None:
+                d = self._process(sysid)
+                geo = self._grounded_body_geo(d.instance, d.home.alt_amsl_m)
+                if geo is not None:
+                    point = GeoPoint(lat_deg=geo[0], lon_deg=geo[1], alt_amsl_m=geo[2])
+                    north, east, _ = ned_from_geo(point, self.plan.origin)
+                    self.losses[sysid] = dataclasses.replace(loss, down_ne_m=(north, east))
+
+    def _grounded_body_geo(self, instance: int, home_alt_m: float) -> tuple[float, float, float] | None:
+        """Where a drone's body lies, once it lies on the ground; None while it is in the air (or has no body).
+
+        An ended process's body falls in the shared world (``SharedWorld.body_geo``, computed from its last state):
+        it is down once it is where it comes to rest. A live drone (crashed, or silent) writes its own row: it is
+        down within ON_GROUND_M of its launch altitude."""
+        world = self.world
+        assert world is not None
+        # (getattr: the falling body's API of sitl/world.py, which a world without it lacks; its row then stays put)
+        ended, body_geo = getattr(world, "ended", None), getattr(world, "body_geo", None)
+        if ended is not None and body_geo is not None and ended(instance):
+            now, rest = body_geo(instance, self.clock()), body_geo(instance, math.inf)
+            if now is None or rest is None or abs(now[2] - rest[2]) > 0.01:
+                return None
+            return (float(now[0]), float(now[1]), float(now[2]))
+        row = world.table[instance]
+        if row[VALID] != 1.0 or float(row[ALT]) - home_alt_m > ON_GROUND_M:
+            return None
+        return float(row[LAT]), float(row[LON]), float(row[ALT])
+
+    def kill(self, sysid: int) -> int:
+        """SIGKILL drone ``sysid``'s process by its PID (a simulated crash of the flight software); returns the PID.
+        The loss is recorded by ``detect_losses`` when the supervisor sees the process gone, as for any other end."""
+        d = self._process(sysid)
+        if d.process.returncode is not None:
+            raise SwarmError(f"drone {sysid}: its process has already ended")
+        d.process.kill()
+        return int(d.process.pid)
+
+    def set_param(self, sysid: int, name: str, value: int | float) -> None:
+        """PARAM_SET, confirmed by the drone's PARAM_VALUE echo (as MAVSDK does); SwarmError if refused or silent."""
+        for _ in range(PARAM_ATTEMPTS):
+            self._param_echoes.pop((sysid, name), None)
+            self._send_logged(sysid, param_set_message(sysid, name, value), now=False)
+            if self.wait_until(lambda: (sysid, name) in self._param_echoes, PARAM_TIMEOUT_S):
+                kept = self._param_echoes[(sysid, name)]
+                if not math.isclose(kept, value, rel_tol=1e-6, abs_tol=1e-9):
+                    raise SwarmError(f"drone {sysid}: parameter {name} = {value:g} refused (kept {kept:g})")
+                return
+        raise SwarmError(f"drone {sysid}: no answer to setting parameter {name}")
+
+    def inject_fault(self, sysid: int, fault: FaultRequest) -> Ack:
+        """MAV_CMD_INJECT_FAILURE as PX4 takes it, after SYS_FAILURE_EN = 1 (and the battery level it needs)."""
+        kind = FAULTS[fault.kind]
+        self.set_param(sysid, ENABLE_PARAM, 1)
+        if kind.battery_level is not None:
+            self.set_param(sysid, BATTERY_LEVEL_PARAM, kind.battery_level)
+        acks = self.command_all(MAV_CMD_INJECT_FAILURE, kind.unit, kind.failure_type, fault.instance, sysids=[sysid])
+        return acks[0]
+
     # ---- IO --------------------------------------------------------------------------------------------------------
     def pump(self, wait_s: float = 0.0) -> None:
         """Send what is due, then handle every waiting message, waiting up to ``wait_s`` (simulated) for the first."""
@@ -166,12 +297,31 @@ class Swarm:
                     address = self.link.addresses.get(target)
                     if address is not None:
                         self._hold(data, address, now)
-            if msg.get_type() == "COMMAND_ACK":
+            if msg.get_type() == "HEARTBEAT":
+                self._heard_wall_s[msg.get_srcSystem()] = time.monotonic()
+            elif msg.get_type() == "COMMAND_ACK":
                 self._acks.append(msg)
+            elif msg.get_type() == "PARAM_VALUE":
+                self._param_echoes[(msg.get_srcSystem(), msg.param_id)] = param_value(msg)
             for listener in self.listeners:
                 listener(msg, now)
+        self._send_gcs_heartbeat(now)
         self._flush(now)
         self._advance_gate()
+
+    def _send_gcs_heartbeat(self, now: float) -> None:
+        """The ground station's own HEARTBEAT to every drone at 1 Hz (simulated time), as QGroundControl sends it:
+        PX4's datalink-loss failsafe (COM_DL_LOSS_T) counts from the last one. Lost drones get none."""
+        if now < self._next_gcs_heartbeat_s:
+            return
+        self._next_gcs_heartbeat_s = now + GCS_HEARTBEAT_PERIOD_S
+        msg = mavlink.MAVLink_heartbeat_message(
+            mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3
+        )
+        for sysid in list(self.link.addresses):  # every vehicle heard, as QGroundControl does, except the lost
+            if sysid not in self.losses:
+                self.link.queue(sysid, msg)
+        self._flush_due_s = -math.inf
 
     def _hold(self, data: bytes, address: tuple[str, int], now: float) -> None:
         """Queue traffic that may wait for the next batch (at most ``batch_hold_s``)."""
@@ -248,23 +398,29 @@ class Swarm:
     def arm_all(self, timeout_s: float, tick: Callable[[float], None] | None = None) -> None:
         """Wait until every drone passes its pre-arm checks, then arm them all; SwarmError names the laggards."""
         drones = self.fleet.drones
-        if not self.wait_until(lambda: all(drones[s].prearm_ok for s in self.sysids), timeout_s, tick=tick):
-            waiting = [s for s in self.sysids if not drones[s].prearm_ok]
+        if not self.wait_until(lambda: all(drones[s].prearm_ok for s in self.active_sysids), timeout_s, tick=tick):
+            waiting = [s for s in self.active_sysids if not drones[s].prearm_ok]
             raise SwarmError(f"sysid {waiting} did not pass pre-arm checks within {timeout_s:g} s")
-        check(self.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1), "arm")
+        check(self.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1, sysids=self.active_sysids), "arm")
 
     def land_all(self, *, return_to_launch: bool = False) -> list[int]:
         """Land (or return to launch) every armed drone; returns those sysids (crashed or landed ones are left)."""
-        flying = [s for s in self.sysids if s in self.fleet.drones and self.fleet.drones[s].armed]
+        flying = [s for s in self.active_sysids if s in self.fleet.drones and self.fleet.drones[s].armed]
         if return_to_launch:
             check(self.command_all(mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, sysids=flying), "return to launch")
         else:
             check(self.command_all(mavlink.MAV_CMD_NAV_LAND, *[math.nan] * 7, sysids=flying), "land")
         return flying
 
+    def hold_all(self) -> list[int]:
+        """Every armed surviving drone into PX4 Hold (AUTO.LOITER), where it is; returns those sysids."""
+        flying = [s for s in self.active_sysids if s in self.fleet.drones and self.fleet.drones[s].armed]
+        check(self.command_all(mavlink.MAV_CMD_DO_SET_MODE, *HOLD_MODE, sysids=flying), "hold")
+        return flying
+
     def takeoff_all(self, alt_m: float) -> None:
         """NAV_TAKEOFF for every drone to ``alt_m`` above its own home (PX4 takes an AMSL altitude)."""
-        for sysid in self.sysids:
+        for sysid in self.active_sysids:
             home = self.fleet.drones[sysid].home
             if home is None:
                 raise SwarmError(f"sysid {sysid} has no home position yet")
@@ -279,7 +435,7 @@ class Swarm:
         try:
             flying = [
                 s
-                for s in self.sysids
+                for s in self.active_sysids
                 if s in self.fleet.drones and self.fleet.drones[s].armed and not self.fleet.drones[s].lost(self.clock())
             ]
             if flying:
@@ -311,7 +467,7 @@ class Swarm:
             if not pending:
                 break
             for s in pending:
-                self.link.send(s, mavlink.MAVLink_command_long_message(s, 1, command, attempt, *p))
+                self._send_logged(s, mavlink.MAVLink_command_long_message(s, 1, command, attempt, *p), now=True)
             end = self.clock() + COMMAND_TIMEOUT_S
             while any(results[s] is None for s in pending) and self.clock() < end:
                 self.pump(0.02)
@@ -322,6 +478,22 @@ class Swarm:
                 self._acks.clear()
         return [Ack(s, results[s]) for s in targets]
 
+    def _send_logged(self, sysid: int, msg: Any, *, now: bool) -> None:
+        """A command or parameter write, at once or with the next batch, also handed to ``sent_listeners``."""
+        data = self.link.pack(msg)
+        address = self.link.addresses.get(sysid)
+        if address is None:
+            return
+        if now:
+            if self.link.queued:
+                self.link.flush()
+            self.link.send_raw(data, address)
+        else:
+            self.link.queue_raw(data, address)
+            self._flush_due_s = -math.inf
+        for listener in self.sent_listeners:
+            listener(data, self.clock())
+
     def send(self, sysid: int, msg: Any) -> None:
         """Streamed traffic (setpoints, parameter writes): leaves at the start of the next pump, batched with
         whatever else is queued for each drone. Commands that wait for an answer go out at once (``command_all``)."""
@@ -331,6 +503,20 @@ class Swarm:
     def send_now(self, sysid: int, msg: Any) -> None:
         """One message to one drone at once, outside any batch (a command whose answer is being timed)."""
         self.link.send(sysid, msg)
+
+
+CRASH_TEXT_AGE_S = 5.0  # a warning this recent says why a drone crashed; an older one is about something else
+
+
+def crash_cause(texts: list[tuple[float, int, str]], now_s: float) -> str:
+    """``crashed``, with the first of the drone's recent warnings: the cause (``crashed: Collision with drone 2 at
+    0.61 m``, an injected motor failure), not its consequences (``Motors stopped: crashed``) that follow it."""
+    warnings = [
+        text
+        for t, severity, text in texts
+        if severity <= mavlink.MAV_SEVERITY_WARNING and now_s - t <= CRASH_TEXT_AGE_S
+    ]
+    return f"crashed: {warnings[0]}" if warnings else "crashed"
 
 
 def check(acks: list[Ack], what: str) -> None:

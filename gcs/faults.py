@@ -1,0 +1,113 @@
+"""The faults the ground station can inject, by the names the CLI and mission files use (pure: no IO).
+
+On the wire a fault is PX4's MAV_CMD_INJECT_FAILURE (420): param1 = FAILURE_UNIT, param2 = FAILURE_TYPE, param3 =
+instance (0 = all, else 1-based). A drone honours it only with SYS_FAILURE_EN = 1, as PX4 does; the ground station
+sets that parameter first, as a simulator convenience (on hardware nobody should). Battery levels are chosen by
+SYS_FAIL_BAT_LVL (1 low, 2 critical, 3 emergency), set before the injection.
+
+A crash of the drone process is no MAVLink fault: the supervisor SIGKILLs the process by its PID (``crash``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from pymavlink.dialects.v20 import common as mavlink
+
+MAV_CMD_INJECT_FAILURE = 420
+FAILURE_UNIT_SENSOR_GPS = 4
+FAILURE_UNIT_SYSTEM_BATTERY = 100
+FAILURE_UNIT_SYSTEM_MOTOR = 101
+FAILURE_UNIT_SYSTEM_MAVLINK_SIGNAL = 105
+FAILURE_TYPE_OK = 0
+FAILURE_TYPE_OFF = 1
+FAILURE_TYPE_WRONG = 4
+ENABLE_PARAM = "SYS_FAILURE_EN"
+BATTERY_LEVEL_PARAM = "SYS_FAIL_BAT_LVL"
+CRASH = "crash"
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FaultKind:
+    name: str
+    unit: int  # FAILURE_UNIT
+    failure_type: int  # FAILURE_TYPE
+    battery_level: int | None = None  # SYS_FAIL_BAT_LVL set before injecting
+    help: str = ""
+
+
+FAULTS: dict[str, FaultKind] = {
+    f.name: f
+    for f in (
+        FaultKind(name="motor", unit=FAILURE_UNIT_SYSTEM_MOTOR, failure_type=FAILURE_TYPE_OFF,
+                  help="one rotor stops (--motor M, 1-based; default 1)"),
+        FaultKind(name="gps", unit=FAILURE_UNIT_SENSOR_GPS, failure_type=FAILURE_TYPE_OFF,
+                  help="the GPS receiver stops reporting"),
+        FaultKind(name="gps-glitch", unit=FAILURE_UNIT_SENSOR_GPS, failure_type=FAILURE_TYPE_WRONG,
+                  help="the reported GPS position jumps"),
+        FaultKind(name="battery-low", unit=FAILURE_UNIT_SYSTEM_BATTERY, failure_type=FAILURE_TYPE_WRONG,
+                  battery_level=1, help="the battery reads low"),
+        FaultKind(name="battery-critical", unit=FAILURE_UNIT_SYSTEM_BATTERY, failure_type=FAILURE_TYPE_WRONG,
+                  battery_level=2, help="the battery reads critical"),
+        FaultKind(name="battery-emergency", unit=FAILURE_UNIT_SYSTEM_BATTERY, failure_type=FAILURE_TYPE_WRONG,
+                  battery_level=3, help="the battery reads at its emergency level"),
+        FaultKind(name="battery-off", unit=FAILURE_UNIT_SYSTEM_BATTERY, failure_type=FAILURE_TYPE_OFF,
+                  help="the pack reads empty"),
+        FaultKind(name="link", unit=FAILURE_UNIT_SYSTEM_MAVLINK_SIGNAL, failure_type=FAILURE_TYPE_OFF,
+                  help="both MAVLink links go silent for good; the drone flies on"),
+        FaultKind(name="motor-ok", unit=FAILURE_UNIT_SYSTEM_MOTOR, failure_type=FAILURE_TYPE_OK,
+                  help="clears a motor fault"),
+        FaultKind(name="gps-ok", unit=FAILURE_UNIT_SENSOR_GPS, failure_type=FAILURE_TYPE_OK,
+                  help="clears a GPS fault"),
+        FaultKind(name="battery-ok", unit=FAILURE_UNIT_SYSTEM_BATTERY, failure_type=FAILURE_TYPE_OK,
+                  help="clears a battery fault"),
+    )
+}  # fmt: skip
+FAULT_NAMES = (*FAULTS, CRASH)
+_RESULTS = {
+    mavlink.MAV_RESULT_ACCEPTED: "accepted",
+    mavlink.MAV_RESULT_TEMPORARILY_REJECTED: "temporarily rejected",
+    mavlink.MAV_RESULT_DENIED: "denied",
+    mavlink.MAV_RESULT_UNSUPPORTED: "unsupported",
+    mavlink.MAV_RESULT_FAILED: "failed",
+}
+
+
+class FaultError(ValueError):
+    """A fault that cannot be injected as asked (one line naming the problem)."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FaultRequest:
+    """One injection: the fault, and for a motor fault which rotor (1-based; 0 = all)."""
+
+    kind: str  # a key of FAULTS, or CRASH
+    motor: int = 1
+
+    @property
+    def instance(self) -> int:
+        """INJECT_FAILURE param3: the rotor for a motor fault, else 0 (every instance of the unit)."""
+        return self.motor if self.kind in FAULTS and FAULTS[self.kind].unit == FAILURE_UNIT_SYSTEM_MOTOR else 0
+
+    def describe(self) -> str:
+        return f"motor {self.motor} off" if self.kind == "motor" else self.kind
+
+
+def fault_request(kind: object, motor: object = None) -> FaultRequest:
+    """Check a fault name (and rotor number) from the CLI or a mission file; FaultError says what is wrong."""
+    if not isinstance(kind, str) or kind not in FAULT_NAMES:
+        raise FaultError(f"unknown fault {kind!r} (faults: {', '.join(FAULT_NAMES)})")
+    if motor is None:
+        return FaultRequest(kind=kind)
+    if kind not in ("motor", "motor-ok"):
+        raise FaultError(f"a motor number applies only to the motor fault, not to {kind!r}")
+    if isinstance(motor, bool) or not isinstance(motor, int) or not 0 <= motor <= 8:
+        raise FaultError(f"motor must be a whole number in 0..8 (0 = all), got {motor!r}")
+    return FaultRequest(kind=kind, motor=motor)
+
+
+def result_text(result: int | None) -> str:
+    """A COMMAND_ACK result in words (None: no answer)."""
+    if result is None:
+        return "no answer"
+    return _RESULTS.get(result, f"result {result}")

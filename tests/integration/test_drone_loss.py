@@ -1,0 +1,357 @@
+"""Losing a drone in flight, as a user does it: real ``swarm`` and ``sitl`` processes in lockstep on loopback.
+
+Policy: instances 200-239; every process found by PID and gone at the end; readiness and progress read from the
+supervisor's output and ``swarm status``, never slept for.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import json
+import math
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mavlink
+
+from gcs.supervisor import SpawnPlan
+from gcs.swarm import Swarm
+from sitl.dynamics.geodesy import ned_from_geo
+from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
+from sitl.world import SharedWorld
+from tests.integration.test_swarm import alive, children_of, wait_dead
+
+pytestmark = [pytest.mark.sim_only]
+
+SWARM = [sys.executable, "-m", "gcs.cli"]
+RADIUS_M = 3.0
+ON_CIRCLE_M = 0.3  # every drone this close to the circle...
+# A dead drone's body falls only with the shared world's falling bodies (sitl/world.py ``mark_ended``); without them
+# it hangs frozen where it died, on the survivors' circle, and they fly into it (the bug this work fixes).
+BODIES_FALL = hasattr(SharedWorld, "mark_ended")
+PENTAGON_SIDE_M = 2.0 * RADIUS_M * math.sin(math.pi / 5.0)  # ...and its neighbours about this far (3.53 m)
+# Five drones left on the slots of a circle of six have neighbours 3.0 m apart (the hexagon's side): the check
+# takes the midpoint, so it tells the two apart with 0.26 m to spare either way.
+FIVE_APART_M = 0.5 * (PENTAGON_SIDE_M + RADIUS_M)
+
+
+class Supervisor:
+    """``swarm up`` in the background, its output collected line by line."""
+
+    def __init__(self, args: list[str], env: dict[str, str]) -> None:
+        self.env = env
+        self.proc = subprocess.Popen([*SWARM, "up", *args], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                     text=True, env=env)  # fmt: skip
+        self.lines: list[str] = []
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+        self.wait_for(lambda: any("drones up" in ln for ln in self.lines), 60, "the drones to come up")
+        direct = children_of(self.proc.pid)
+        factories = [p for p in direct if b"sitl.zygote" in Path(f"/proc/{p}/cmdline").read_bytes()]
+        self.drones = [d for f in factories for d in children_of(f)]
+        self.children = [*direct, *self.drones]
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.append(line.rstrip("\n"))
+
+    def wait_for(self, condition: Callable[[], bool], timeout_s: float, what: str) -> None:
+        end = time.monotonic() + timeout_s
+        while not condition():
+            assert self.proc.poll() is None, "swarm up ended:\n" + "\n".join(self.lines)
+            if time.monotonic() > end:
+                table = self.cli("status")
+                raise AssertionError(
+                    "\n".join([f"timed out waiting for {what}:", *self.lines[-30:], table.stdout, table.stderr])
+                )
+            time.sleep(0.2)
+
+    def cli(self, *args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([*SWARM, *args], capture_output=True, text=True, env=self.env, timeout=60)
+
+    def command(self, *args: str) -> None:
+        """A swarm command whose outcome the test then waits for. On a busy machine a lockstep swarm can take more
+        wall time to arm or switch mode than the client waits (30 s); the supervisor still carries the command
+        out, and the test checks that it did."""
+        result = self.cli(*args)
+        assert result.returncode == 0 or "did not answer (timed out)" in result.stderr, result
+
+    def status(self) -> dict[int, list[str]]:
+        result = self.cli("status")
+        while "did not answer (timed out)" in result.stderr:  # busy with a command (see ``command``)
+            result = self.cli("status")
+        assert result.returncode == 0, result.stderr
+        return {int(row.split()[0]): row.split() for row in result.stdout.strip().splitlines()[1:]}
+
+    def stop(self) -> None:
+        """SIGKILL: the drones end with their supervisor (test_swarm.py shows it), without a landing to wait for."""
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+        for pid in self.children:
+            with contextlib.suppress(ProcessLookupError):
+                if alive(pid):
+                    os.kill(pid, signal.SIGKILL)
+        self._reader.join(timeout=5)
+
+
+@pytest.fixture
+def supervisors(tmp_path: Path) -> Iterator[Callable[[list[str]], Supervisor]]:
+    env = {**os.environ, "SWARM_STATE_DIR": str(tmp_path / "state")}
+    started: list[Supervisor] = []
+
+    def start(args: list[str]) -> Supervisor:
+        started.append(Supervisor(args, env))
+        return started[-1]
+
+    yield start
+    for s in started:
+        s.stop()
+        assert wait_dead(s.children, 10) == []
+
+
+def horizontal(row: list[str]) -> tuple[float, float]:
+    """North/east of the swarm origin from a status row's lat/lon."""
+    north, east, _ = ned_from_geo(GeoPoint(lat_deg=float(row[3]), lon_deg=float(row[4]), alt_amsl_m=0.0),
+                                  DEFAULT_HOME)  # fmt: skip
+    return north, east
+
+
+def on_circle(rows: dict[int, list[str]], sysids: list[int]) -> bool:
+    """Every drone in OFFBOARD within ON_CIRCLE_M of the circle and, for five, spread as a pentagon (no two closer
+    than FIVE_APART_M: five left on a circle of six's slots fail this)."""
+    if any(rows[s][1] != "OFFBOARD" for s in sysids):
+        return False
+    points = [horizontal(rows[s]) for s in sysids]
+    if any(abs(math.hypot(n, e) - RADIUS_M) > ON_CIRCLE_M for n, e in points):
+        return False
+    if len(sysids) == 6:
+        return True
+    gaps = [math.dist(a, b) for a, b in itertools.combinations(points, 2)]
+    return min(gaps) > FIVE_APART_M
+
+
+@pytest.mark.timeout(600)  # about 70 s on 2 quiet cores; the waits are long only for a machine shared with others
+def test_kill_9_of_one_drone_of_a_rotating_circle_of_6_leaves_a_circle_of_5_and_one_line(
+    supervisors: Callable[[list[str]], Supervisor], tmp_path: Path
+) -> None:
+    # GIVEN six drones in lockstep flying a rotating circle, the session recorded for a report
+    report = tmp_path / "report"
+    swarm = supervisors(["-n", "6", "--lockstep", "--first-instance", "200", "--no-forward", "--report", str(report)])
+    sysids = list(range(201, 207))
+    assert len(swarm.drones) == 6
+    swarm.command("takeoff", "--alt", "3")
+    swarm.wait_for(lambda: all(float(r[5]) > 2.7 for r in swarm.status().values()), 240, "the takeoff")
+    swarm.command("formation", "circle", "--radius", str(RADIUS_M), "--rate", "0.3", "--alt", "3")
+    swarm.wait_for(lambda: on_circle(swarm.status(), sysids), 240, "the circle of 6")
+    # WHEN the process of sysid 203 is killed with SIGKILL (by PID, through the supervisor)
+    result = swarm.cli("kill", "203")
+    assert result.returncode == 0 and "killed" in result.stdout, result
+    survivors = [s for s in sysids if s != 203]
+    # THEN the five others re-form a circle of five
+    swarm.wait_for(lambda: on_circle(swarm.status(), survivors), 240, "the circle of 5")
+    # AND the status shows the dead drone LOST with its cause, not armed
+    row = " ".join(swarm.status()[203])
+    assert row.startswith("203 LOST") and "process killed by SIGKILL" in row, row
+    # AND the supervisor said so once, on one line, and nobody collided
+    lost = [ln for ln in swarm.lines if "lost" in ln]
+    assert len(lost) == 1 and re.fullmatch(r"drone 203 lost at t=\d+\.\d s: process killed by SIGKILL", lost[0]), lost
+    assert not [ln for ln in swarm.lines if "link back" in ln or "exited" in ln], swarm.lines
+    assert not BODIES_FALL or not [ln for ln in swarm.lines if "Collision" in ln], swarm.lines
+    assert any("formation re-planned over 5 drones" in ln for ln in swarm.lines), swarm.lines
+    # AND a fault for a drone the swarm does not have, or for the lost one, is one line (exit 2: bad input)
+    unknown = swarm.cli("fault", "99", "motor")
+    assert unknown.returncode == 2 and unknown.stderr == "swarm: error: no drone with sysid 99 (sysids 201..206)\n"
+    again = swarm.cli("kill", "203")
+    assert again.returncode == 1 and again.stderr.startswith("swarm: error: drone 203 is already lost ("), again
+    assert len(again.stderr.splitlines()) == 1
+    # AND once the swarm is down, the report lists the loss and the fault, with no collision
+    swarm.command("down")
+    assert swarm.proc.wait(timeout=120) == 0, swarm.lines
+    metrics = json.loads((report / "metrics.json").read_text())
+    assert [(x["sysid"], x["cause"]) for x in metrics["losses"]] == [(203, "process killed by SIGKILL")]
+    assert [(f["sysid"], f["fault"]) for f in metrics["faults"]] == [(203, "crash")]
+    assert [s["name"] for s in metrics["steps"]] == ["takeoff", "circle"]
+    if BODIES_FALL:  # nobody hits the falling body, and where it came down is reported
+        assert metrics["collisions"] == 0, metrics["collision_events"]
+        down = metrics["losses"][0]["down_ne_m"]
+        assert down is not None and abs(math.hypot(*down) - RADIUS_M) < 1.0, down  # below its place on the circle
+
+
+@pytest.mark.timeout(300)
+def test_loss_policy_hold_puts_the_survivor_in_hold_where_it_is(supervisors: Callable[[list[str]], Supervisor]) -> None:
+    # GIVEN two drones flying a line under loss policy hold
+    swarm = supervisors(["-n", "2", "--lockstep", "--first-instance", "224", "--no-forward", "--loss-policy", "hold"])
+    swarm.command("takeoff", "--alt", "3")
+    swarm.wait_for(lambda: all(float(r[5]) > 2.7 for r in swarm.status().values()), 120, "the takeoff")
+    swarm.command("formation", "line", "--spacing", "4", "--alt", "3")
+    swarm.wait_for(lambda: all(r[1] == "OFFBOARD" for r in swarm.status().values()), 120, "OFFBOARD")
+    # WHEN the second drone's process is killed
+    assert swarm.cli("kill", "226").returncode == 0
+    # THEN the survivor is switched to PX4 Hold (AUTO.LOITER) and stays up, and the supervisor says why
+    swarm.wait_for(lambda: swarm.status()[225][1] == "AUTO.LOITER", 120, "Hold")
+    row = swarm.status()[225]
+    assert row[2] == "yes" and float(row[5]) > 2.5, row
+    assert "swarm: loss policy hold: every drone holds where it is" in swarm.lines, swarm.lines
+
+
+MISSION = """\
+name = "lose_one"
+[swarm]
+drones = 4
+spacing_m = 3.0
+
+[[steps]]
+action = "takeoff"
+alt_m = 3.0
+
+[[steps]]
+action = "fault"
+drone = 2
+fault = "crash"
+after_s = 6.0
+
+[[steps]]
+action = "formation"
+shape = "circle"
+radius_m = 3.0
+alt_m = 3.0
+hold_s = 20.0
+
+[[steps]]
+action = "land"
+"""
+
+
+@pytest.mark.timeout(300)
+def test_a_mission_crash_fault_is_in_the_report_with_the_loss_and_metrics_over_the_survivors(tmp_path: Path) -> None:
+    # GIVEN a mission that kills drone 2 six seconds into a circle of four
+    mission = tmp_path / "lose_one.toml"
+    mission.write_text(MISSION)
+    report = tmp_path / "report"
+    # WHEN flown in lockstep
+    result = subprocess.run(
+        [*SWARM, "fly", str(mission), "--report", str(report), "--lockstep", "--first-instance", "210", "--no-forward"],
+        capture_output=True, text=True, timeout=280,
+    )  # fmt: skip
+    # THEN the mission completes with the three survivors landing
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    assert len(re.findall(r"^drone 212 lost at t=", result.stdout, re.M)) == 1, result.stdout
+    # AND the report lists the fault, the loss and where it came down, with no collision
+    metrics = json.loads((report / "metrics.json").read_text())
+    assert [f["fault"] for f in metrics["faults"]] == ["crash"]
+    assert metrics["faults"][0]["sysid"] == 212 and "killed with SIGKILL" in metrics["faults"][0]["result"]
+    assert [(x["sysid"], x["cause"]) for x in metrics["losses"]] == [(212, "process killed by SIGKILL")]
+    assert not BODIES_FALL or metrics["collisions"] == 0, metrics["collision_events"]
+    assert metrics["loss_policy"] == "continue"
+    if BODIES_FALL:  # where the falling body came down is reported
+        assert metrics["losses"][0]["down_ne_m"] is not None, metrics["losses"]
+    summary = (report / "summary.txt").read_text()
+    assert "drones lost: 1 (loss policy: continue)" in summary
+    # AND the flight log holds the ground station's commands beside the drones' answers (an injected fault's
+    # COMMAND_LONG goes there the same way)
+    log = mavutil.mavlink_connection(str(report / "flight.tlog"))
+    commands = set()
+    while (msg := log.recv_match(type="COMMAND_LONG")) is not None:
+        commands.add((msg.get_srcSystem(), msg.command))
+    assert (255, mavlink.MAV_CMD_COMPONENT_ARM_DISARM) in commands, commands
+    # AND the circle step's formation error is that of the three still flying, settled on their circle of three
+    circle = next(s for s in metrics["steps"] if s["name"] == "circle")
+    assert circle["formation_rms_m"] is not None and circle["formation_rms_m"] < 0.3, circle
+
+
+ABORT_MISSION = """\
+name = "abort_on_loss"
+[swarm]
+drones = 2
+spacing_m = 4.0
+loss_policy = "abort"
+params = { RTL_RETURN_ALT = 5.0 }  # a short return: the default 30 m climb takes long for nothing here
+
+[[steps]]
+action = "takeoff"
+alt_m = 3.0
+
+[[steps]]
+action = "fault"
+drone = 1
+fault = "crash"
+after_s = 2.0
+
+[[steps]]
+action = "formation"
+shape = "line"
+spacing_m = 4.0
+alt_m = 3.0
+heading_deg = 90.0
+hold_s = 60.0
+
+[[steps]]
+action = "land"
+"""
+
+
+@pytest.mark.timeout(240)
+def test_loss_policy_abort_returns_the_survivor_to_launch_and_drops_the_rest_of_the_mission(tmp_path: Path) -> None:
+    # GIVEN a mission whose first drone crashes two seconds into a minute-long formation, under loss policy abort
+    mission = tmp_path / "abort.toml"
+    mission.write_text(ABORT_MISSION)
+    report = tmp_path / "report"
+    # WHEN flown in lockstep
+    result = subprocess.run(
+        [*SWARM, "fly", str(mission), "--report", str(report), "--lockstep", "--first-instance", "220", "--no-forward"],
+        capture_output=True, text=True, timeout=220,
+    )  # fmt: skip
+    # THEN the survivor returned to launch and landed, and the mission ended there instead of holding its formation
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    assert "loss policy abort: every drone returns to launch and lands" in result.stdout
+    assert "remaining steps dropped" in result.stdout
+    metrics = json.loads((report / "metrics.json").read_text())
+    assert metrics["loss_policy"] == "abort"
+    assert [x["sysid"] for x in metrics["losses"]] == [221]
+    assert [e["text"] for e in metrics["loss_policy_actions"]] == [
+        "loss policy abort: every drone returns to launch and lands"
+    ]
+    assert metrics["duration_s"] < 50.0  # not the formation's 60 s
+
+
+@pytest.mark.timeout(30)
+def test_the_supervisor_sends_every_drone_a_gcs_heartbeat_once_a_second() -> None:
+    """As QGroundControl does: a drone's datalink-loss failsafe (COM_DL_LOSS_T) counts from the last one."""
+    # GIVEN a supervisor that has heard one drone (a real UDP socket speaking for sysid 7)
+    swarm = Swarm(SpawnPlan(n_drones=1), relay=False)
+    drone = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        drone.bind(("127.0.0.1", 0))
+        drone.settimeout(0.0)
+        encoder = mavlink.MAVLink(None, srcSystem=7, srcComponent=1)
+        beat = mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, 0, 0, 3, 3)
+        drone.sendto(beat.pack(encoder), ("127.0.0.1", swarm.link.port))
+        # WHEN it runs for 3.5 s
+        swarm.run_for(3.5)
+        # THEN the drone got a HEARTBEAT from a ground station each second (at 0, 1, 2 and 3 s)
+        parser = mavlink.MAVLink(None)
+        received: list[Any] = []
+        with contextlib.suppress(BlockingIOError):
+            while True:
+                received += parser.parse_buffer(drone.recv(65535)) or []
+        beats = [m for m in received if m.get_type() == "HEARTBEAT"]
+        assert len(beats) == 4, received
+        assert all(m.type == mavlink.MAV_TYPE_GCS and m.autopilot == mavlink.MAV_AUTOPILOT_INVALID for m in beats)
+        assert all((m.get_srcSystem(), m.get_srcComponent()) == (255, 190) for m in beats)
+    finally:
+        drone.close()
+        swarm.shutdown()
