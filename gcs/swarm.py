@@ -201,10 +201,8 @@ class Swarm:
         self.losses[sysid] = loss
         d = self._process(sysid)
         if d.process.returncode is not None:
-            if self.world is not None:
-                mark_ended = getattr(self.world, "mark_ended", None)
-                if mark_ended is not None:  # the falling body (sitl/world.py); absent, the row stays where it was
-                    mark_ended(d.instance)
+            if self.world is not None:  # its body stops hovering: it falls from its last state (sitl/world.py)
+                self.world.mark_ended(d.instance)
             if self.gate is not None:
                 self.gate.remove(d.instance)
         return loss
@@ -233,10 +231,8 @@ class Swarm:
         down within ON_GROUND_M of its launch altitude."""
         world = self.world
         assert world is not None
-        # (getattr: the falling body's API of sitl/world.py, which a world without it lacks; its row then stays put)
-        ended, body_geo = getattr(world, "ended", None), getattr(world, "body_geo", None)
-        if ended is not None and body_geo is not None and ended(instance):
-            now, rest = body_geo(instance, self.clock()), body_geo(instance, math.inf)
+        if world.ended(instance):
+            now, rest = world.body_geo(instance, self.clock()), world.body_geo(instance, math.inf)
             if now is None or rest is None or abs(now[2] - rest[2]) > 0.01:
                 return None
             return (float(now[0]), float(now[1]), float(now[2]))
