@@ -30,7 +30,6 @@ from gcs.supervisor import SpawnPlan
 from gcs.swarm import Swarm
 from sitl.dynamics.geodesy import ned_from_geo
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
-from sitl.world import SharedWorld
 from tests.integration.test_swarm import alive, children_of, wait_dead
 
 pytestmark = [pytest.mark.sim_only]
@@ -38,9 +37,6 @@ pytestmark = [pytest.mark.sim_only]
 SWARM = [sys.executable, "-m", "gcs.cli"]
 RADIUS_M = 3.0
 ON_CIRCLE_M = 0.3  # every drone this close to the circle...
-# A dead drone's body falls only with the shared world's falling bodies (sitl/world.py ``mark_ended``); without them
-# it hangs frozen where it died, on the survivors' circle, and they fly into it (the bug this work fixes).
-BODIES_FALL = hasattr(SharedWorld, "mark_ended")
 PENTAGON_SIDE_M = 2.0 * RADIUS_M * math.sin(math.pi / 5.0)  # ...and its neighbours about this far (3.53 m)
 # Five drones left on the slots of a circle of six have neighbours 3.0 m apart (the hexagon's side): the check
 # takes the midpoint, so it tells the two apart with 0.26 m to spare either way.
@@ -170,7 +166,7 @@ def test_kill_9_of_one_drone_of_a_rotating_circle_of_6_leaves_a_circle_of_5_and_
     lost = [ln for ln in swarm.lines if "lost" in ln]
     assert len(lost) == 1 and re.fullmatch(r"drone 203 lost at t=\d+\.\d s: process killed by SIGKILL", lost[0]), lost
     assert not [ln for ln in swarm.lines if "link back" in ln or "exited" in ln], swarm.lines
-    assert not BODIES_FALL or not [ln for ln in swarm.lines if "Collision" in ln], swarm.lines
+    assert not [ln for ln in swarm.lines if "Collision" in ln], swarm.lines
     assert any("formation re-planned over 5 drones" in ln for ln in swarm.lines), swarm.lines
     # AND a fault for a drone the swarm does not have, or for the lost one, is one line (exit 2: bad input)
     unknown = swarm.cli("fault", "99", "motor")
@@ -185,10 +181,10 @@ def test_kill_9_of_one_drone_of_a_rotating_circle_of_6_leaves_a_circle_of_5_and_
     assert [(x["sysid"], x["cause"]) for x in metrics["losses"]] == [(203, "process killed by SIGKILL")]
     assert [(f["sysid"], f["fault"]) for f in metrics["faults"]] == [(203, "crash")]
     assert [s["name"] for s in metrics["steps"]] == ["takeoff", "circle"]
-    if BODIES_FALL:  # nobody hits the falling body, and where it came down is reported
-        assert metrics["collisions"] == 0, metrics["collision_events"]
-        down = metrics["losses"][0]["down_ne_m"]
-        assert down is not None and abs(math.hypot(*down) - RADIUS_M) < 1.0, down  # below its place on the circle
+    # (nobody hit the falling body, and where it came down is reported)
+    assert metrics["collisions"] == 0, metrics["collision_events"]
+    down = metrics["losses"][0]["down_ne_m"]
+    assert down is not None and abs(math.hypot(*down) - RADIUS_M) < 1.0, down  # below its place on the circle
 
 
 @pytest.mark.timeout(300)
@@ -255,10 +251,9 @@ def test_a_mission_crash_fault_is_in_the_report_with_the_loss_and_metrics_over_t
     assert [f["fault"] for f in metrics["faults"]] == ["crash"]
     assert metrics["faults"][0]["sysid"] == 212 and "killed with SIGKILL" in metrics["faults"][0]["result"]
     assert [(x["sysid"], x["cause"]) for x in metrics["losses"]] == [(212, "process killed by SIGKILL")]
-    assert not BODIES_FALL or metrics["collisions"] == 0, metrics["collision_events"]
+    assert metrics["collisions"] == 0, metrics["collision_events"]
     assert metrics["loss_policy"] == "continue"
-    if BODIES_FALL:  # where the falling body came down is reported
-        assert metrics["losses"][0]["down_ne_m"] is not None, metrics["losses"]
+    assert metrics["losses"][0]["down_ne_m"] is not None, metrics["losses"]  # where the falling body came down
     summary = (report / "summary.txt").read_text()
     assert "drones lost: 1 (loss policy: continue)" in summary
     # AND the flight log holds the ground station's commands beside the drones' answers (an injected fault's
