@@ -25,6 +25,9 @@ from dataclasses import dataclass
 from pymavlink.dialects.v20 import common as mavlink
 
 HEARTBEAT_INTERVAL_S = 0.5
+# After the last report, how long the probe keeps listening for replies still on their way: a report sent just before
+# the end is not lost because the run stopped first (on a loaded machine the hop can take a good part of a second).
+DRAIN_S = 1.0
 PROBE_OFFSET_NORTH_DEG = 0.09  # about 10 km
 PROBE_SYSIDS = (240, 241)
 
@@ -130,13 +133,18 @@ class RelayProbe:
         return latency_stats(self.latencies_s, self._marker)
 
     def run_for(self, duration_s: float) -> LatencyStats:
-        """Probe for ``duration_s``, waking on arrivals (so a reply is timed when it lands, not on a poll)."""
+        """Probe for ``duration_s``, waking on arrivals (so a reply is timed when it lands, not on a poll), then wait up
+        to DRAIN_S for the replies still in flight."""
         end = self._clock() + duration_s
         with selectors.DefaultSelector() as selector:
             selector.register(self.sock, selectors.EVENT_READ)
             while (now := self._clock()) < end:
                 self.tick()
                 selector.select(max(0.0, min(self._next_report_s, self._next_heartbeat_s, end) - now))
+                self.receive()
+            drained = end + DRAIN_S  # no more reports: only wait for the ones in flight
+            while self._sent_at and (now := self._clock()) < drained:
+                selector.select(drained - now)
                 self.receive()
         return self.stats()
 

@@ -110,7 +110,7 @@ def test_relayed_positions_follow_a_drone_and_arrive_promptly(tmp_path: Path) ->
             stats = probe.run_for(3.0)
         finally:
             probe.close()
-        assert stats.sent >= 25 and stats.received >= stats.sent - 1, stats  # the last may still be in flight
+        assert stats.sent >= 25 and stats.received >= stats.sent - 1, stats  # the first may precede B joining
         assert 0.0 < stats.median_ms <= stats.p95_ms <= stats.max_ms, stats
         assert pump_until(lambda: PROBE_SYSIDS[0] in neighbours(), 2.0), neighbours()
     finally:

@@ -52,3 +52,17 @@ def test_the_relay_forwards_to_every_other_live_system_rate_limited_and_within_r
     near = NeighbourRelay(rate_hz=10.0, radius_m=50.0)
     assert near.targets(1, 0.0, fleet) == [2]
     assert relay.targets(2, 5.0, fleet) == []  # everyone else went silent: nobody to forward to
+
+
+def test_the_relay_forwards_reports_a_late_pump_reads_together_but_holds_a_fast_source_to_its_rate() -> None:
+    fleet = Fleet()
+    for sysid, lat in ((1, 473977420), (2, 473977520)):
+        heartbeat(fleet, sysid, 0.0, lat)
+    relay = NeighbourRelay(rate_hz=10.0)
+    # GIVEN a source reporting at 10 Hz, read on time for 0.0-0.2 s WHEN the supervisor is late and reads the
+    # reports of 0.3 and 0.4 s together at 0.42 s THEN both are forwarded: the source kept its rate
+    assert [relay.targets(1, t, fleet) for t in (0.0, 0.1, 0.2)] == [[2], [2], [2]]
+    assert [relay.targets(1, 0.42, fleet), relay.targets(1, 0.42, fleet)] == [[2], [2]]
+    # GIVEN a source reporting at 40 Hz for 2.5 s THEN about 10 a second are forwarded (1 / 0.9 of the rate at most)
+    forwarded = sum(1 for k in range(1, 101) if relay.targets(1, 0.42 + k * 0.025, fleet))
+    assert 25 <= forwarded <= 28, forwarded
