@@ -14,14 +14,10 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink
 
-MAV_CMD_INJECT_FAILURE = 420
-FAILURE_UNIT_SENSOR_GPS = 4
-FAILURE_UNIT_SYSTEM_BATTERY = 100
-FAILURE_UNIT_SYSTEM_MOTOR = 101
-FAILURE_UNIT_SYSTEM_MAVLINK_SIGNAL = 105
-FAILURE_TYPE_OK = 0
-FAILURE_TYPE_OFF = 1
-FAILURE_TYPE_WRONG = 4
+# MAVLink's FAILURE_UNIT and FAILURE_TYPE values, by short names for the table below
+_GPS, _BATTERY = mavlink.FAILURE_UNIT_SENSOR_GPS, mavlink.FAILURE_UNIT_SYSTEM_BATTERY
+_MOTOR, _LINK = mavlink.FAILURE_UNIT_SYSTEM_MOTOR, mavlink.FAILURE_UNIT_SYSTEM_MAVLINK_SIGNAL
+_OK, _OFF, _WRONG = mavlink.FAILURE_TYPE_OK, mavlink.FAILURE_TYPE_OFF, mavlink.FAILURE_TYPE_WRONG
 ENABLE_PARAM = "SYS_FAILURE_EN"
 BATTERY_LEVEL_PARAM = "SYS_FAIL_BAT_LVL"
 CRASH = "crash"
@@ -39,27 +35,27 @@ class FaultKind:
 FAULTS: dict[str, FaultKind] = {
     f.name: f
     for f in (
-        FaultKind(name="motor", unit=FAILURE_UNIT_SYSTEM_MOTOR, failure_type=FAILURE_TYPE_OFF,
+        FaultKind(name="motor", unit=_MOTOR, failure_type=_OFF,
                   help="one rotor stops (--motor M, 1-based; default 1)"),
-        FaultKind(name="gps", unit=FAILURE_UNIT_SENSOR_GPS, failure_type=FAILURE_TYPE_OFF,
+        FaultKind(name="gps", unit=_GPS, failure_type=_OFF,
                   help="the GPS receiver stops reporting"),
-        FaultKind(name="gps-glitch", unit=FAILURE_UNIT_SENSOR_GPS, failure_type=FAILURE_TYPE_WRONG,
+        FaultKind(name="gps-glitch", unit=_GPS, failure_type=_WRONG,
                   help="the reported GPS position jumps"),
-        FaultKind(name="battery-low", unit=FAILURE_UNIT_SYSTEM_BATTERY, failure_type=FAILURE_TYPE_WRONG,
+        FaultKind(name="battery-low", unit=_BATTERY, failure_type=_WRONG,
                   battery_level=1, help="the battery reads low"),
-        FaultKind(name="battery-critical", unit=FAILURE_UNIT_SYSTEM_BATTERY, failure_type=FAILURE_TYPE_WRONG,
+        FaultKind(name="battery-critical", unit=_BATTERY, failure_type=_WRONG,
                   battery_level=2, help="the battery reads critical"),
-        FaultKind(name="battery-emergency", unit=FAILURE_UNIT_SYSTEM_BATTERY, failure_type=FAILURE_TYPE_WRONG,
+        FaultKind(name="battery-emergency", unit=_BATTERY, failure_type=_WRONG,
                   battery_level=3, help="the battery reads at its emergency level"),
-        FaultKind(name="battery-off", unit=FAILURE_UNIT_SYSTEM_BATTERY, failure_type=FAILURE_TYPE_OFF,
+        FaultKind(name="battery-off", unit=_BATTERY, failure_type=_OFF,
                   help="the pack reads empty"),
-        FaultKind(name="link", unit=FAILURE_UNIT_SYSTEM_MAVLINK_SIGNAL, failure_type=FAILURE_TYPE_OFF,
+        FaultKind(name="link", unit=_LINK, failure_type=_OFF,
                   help="both MAVLink links go silent for good; the drone flies on"),
-        FaultKind(name="motor-ok", unit=FAILURE_UNIT_SYSTEM_MOTOR, failure_type=FAILURE_TYPE_OK,
+        FaultKind(name="motor-ok", unit=_MOTOR, failure_type=_OK,
                   help="clears a motor fault"),
-        FaultKind(name="gps-ok", unit=FAILURE_UNIT_SENSOR_GPS, failure_type=FAILURE_TYPE_OK,
+        FaultKind(name="gps-ok", unit=_GPS, failure_type=_OK,
                   help="clears a GPS fault"),
-        FaultKind(name="battery-ok", unit=FAILURE_UNIT_SYSTEM_BATTERY, failure_type=FAILURE_TYPE_OK,
+        FaultKind(name="battery-ok", unit=_BATTERY, failure_type=_OK,
                   help="clears a battery fault"),
     )
 }  # fmt: skip
@@ -87,7 +83,7 @@ class FaultRequest:
     @property
     def instance(self) -> int:
         """INJECT_FAILURE param3: the rotor for a motor fault, else 0 (every instance of the unit)."""
-        return self.motor if self.kind in FAULTS and FAULTS[self.kind].unit == FAILURE_UNIT_SYSTEM_MOTOR else 0
+        return self.motor if self.kind in FAULTS and FAULTS[self.kind].unit == _MOTOR else 0
 
     def describe(self) -> str:
         return f"motor {self.motor} off" if self.kind == "motor" else self.kind

@@ -24,7 +24,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.faults import BATTERY_LEVEL_PARAM, ENABLE_PARAM, FAULTS, MAV_CMD_INJECT_FAILURE, FaultRequest
+from gcs.faults import BATTERY_LEVEL_PARAM, ENABLE_PARAM, FAULTS, FaultRequest
 from gcs.fleet import LINK_LOST_S, Fleet
 from gcs.losses import MAV_STATE_FLIGHT_TERMINATION, DroneLoss, process_exit_cause
 from gcs.params import param_set_message, param_value
@@ -268,7 +268,8 @@ class Swarm:
         self.set_param(sysid, ENABLE_PARAM, 1)
         if kind.battery_level is not None:
             self.set_param(sysid, BATTERY_LEVEL_PARAM, kind.battery_level)
-        acks = self.command_all(MAV_CMD_INJECT_FAILURE, kind.unit, kind.failure_type, fault.instance, sysids=[sysid])
+        command = mavlink.MAV_CMD_INJECT_FAILURE
+        acks = self.command_all(command, kind.unit, kind.failure_type, fault.instance, sysids=[sysid])
         return acks[0]
 
     # ---- IO --------------------------------------------------------------------------------------------------------

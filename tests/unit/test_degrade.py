@@ -13,7 +13,7 @@ import pytest
 
 from gcs.behaviours import FollowSpec, LeaderFollower, SwarmState
 from gcs.cli import main as swarm_main
-from gcs.faults import FAILURE_UNIT_SYSTEM_MOTOR, FAULT_NAMES, FAULTS, FaultError, fault_request
+from gcs.faults import FAULT_NAMES, FAULTS, FaultError, fault_request
 from gcs.formation import CircleSpec, FormationEngine, TransitionLimits, min_pairwise_distance_m
 from gcs.losses import DroneLoss, LossPolicy, loss_line, process_exit_cause
 from gcs.metrics import compute_metrics
@@ -98,7 +98,7 @@ def test_a_loss_is_one_line_naming_the_signal_or_exit_code() -> None:
 
 
 def test_faults_map_to_px4_failure_units_and_types() -> None:
-    assert (FAULTS["motor"].unit, FAULTS["motor"].failure_type) == (FAILURE_UNIT_SYSTEM_MOTOR, 1)
+    assert (FAULTS["motor"].unit, FAULTS["motor"].failure_type) == (101, 1)
     assert (FAULTS["gps-glitch"].unit, FAULTS["gps-glitch"].failure_type) == (4, 4)
     assert (FAULTS["battery-critical"].unit, FAULTS["battery-critical"].battery_level) == (100, 2)
     assert (FAULTS["link"].unit, FAULTS["link"].failure_type) == (105, 1)
