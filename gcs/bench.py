@@ -53,8 +53,7 @@ from gcs.recorder import COLLISION_TEXT
 from gcs.streamer import DEFAULT_LIMITS, FormationStreamer
 from gcs.supervisor import SpawnError, SpawnPlan
 from gcs.swarm import Swarm, SwarmError
-from sitl.dynamics.plant import DEFAULT_HOME
-from sitl.simulation import PHYSICS_RATE_HZ
+from sitl.dynamics.plant import DEFAULT_HOME, PHYSICS_RATE_HZ
 from sitl.world import CPU_LINK, CPU_PHYSICS, MAX_DRONES, STEP, TIME
 
 DEFAULT_DRONE_COUNTS = (1, 3, 9, 20, 50, 100)

@@ -32,10 +32,9 @@ from gcs.relay import NeighbourRelay
 from gcs.supervisor import DroneProcess, ProcessGroup, SpawnError, SpawnPlan
 from gcs.transport import GcsSocket
 from sitl.dynamics.geodesy import ned_from_geo
-from sitl.dynamics.plant import GeoPoint
+from sitl.dynamics.plant import PHYSICS_RATE_HZ, GeoPoint
 from sitl.lockstep import LockstepGate
 from sitl.protocol.modes import Px4Mode
-from sitl.simulation import PHYSICS_RATE_HZ
 from sitl.world import ALT, LAT, LON, TIME, VALID, SharedWorld
 
 COMMAND_TIMEOUT_S = 0.5  # MAVSDK's per-try timeout
