@@ -11,11 +11,9 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from sitl.protocol.modes import Px4Mode
+from gcs.px4_modes import mode_name
 
 LINK_LOST_S = 3.0  # MAVSDK and QGroundControl call a system lost after 3 s without a heartbeat
-
-_MODES_BY_CUSTOM = {mode.custom_mode: mode for mode in Px4Mode}
 
 
 @dataclass(slots=True)
@@ -66,8 +64,7 @@ class Fleet:
                 view = self.drones[sysid] = DroneView(sysid=sysid, first_heartbeat_s=now_s, last_heartbeat_s=now_s)
             view.last_heartbeat_s = now_s
             view.armed = bool(msg.base_mode & 128)
-            mode = _MODES_BY_CUSTOM.get(msg.custom_mode)
-            view.mode = mode.px4_name if mode is not None else f"custom {msg.custom_mode}"
+            view.mode = mode_name(msg.custom_mode)
             view.system_status = msg.system_status
             return
         if view is None:

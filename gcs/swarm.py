@@ -28,13 +28,13 @@ from gcs.faults import BATTERY_LEVEL_PARAM, ENABLE_PARAM, FAULTS, FaultRequest
 from gcs.fleet import LINK_LOST_S, Fleet
 from gcs.losses import MAV_STATE_FLIGHT_TERMINATION, DroneLoss, process_exit_cause
 from gcs.params import param_set_message, param_value
+from gcs.px4_modes import set_mode_params
 from gcs.relay import NeighbourRelay
 from gcs.supervisor import DroneProcess, ProcessGroup, SpawnError, SpawnPlan
 from gcs.transport import GcsSocket
 from sitl.dynamics.geodesy import ned_from_geo
 from sitl.dynamics.plant import PHYSICS_RATE_HZ, GeoPoint
 from sitl.lockstep import LockstepGate
-from sitl.protocol.modes import Px4Mode
 from sitl.world import ALT, LAT, LON, TIME, VALID, SharedWorld
 
 COMMAND_TIMEOUT_S = 0.5  # MAVSDK's per-try timeout
@@ -50,8 +50,8 @@ LOCKSTEP_MAX_WAIT_S = 0.005  # wall-clock cap on one wait for traffic in lockste
 # 100, and a wake-up costs a drone more CPU than the message it brings (docs/benchmarks.md). The receiving drone's
 # neighbour table ages every report by its sender's timestamp in lockstep; paced, by its arrival.
 BATCH_HOLD_S = 0.05
-# DO_SET_MODE for PX4 Hold: custom mode enabled, main mode AUTO, sub mode LOITER
-HOLD_MODE = (1.0, float(Px4Mode.AUTO_LOITER.main_mode), float(Px4Mode.AUTO_LOITER.sub_mode))
+# DO_SET_MODE for PX4 Hold (AUTO.LOITER), as pymavlink encodes it for PX4
+HOLD_MODE = set_mode_params("LOITER")
 GCS_HEARTBEAT_PERIOD_S = 1.0  # QGroundControl sends its HEARTBEAT at 1 Hz; PX4's datalink-loss failsafe watches it
 # A lost drone's body is "down" once it is this close to its launch altitude (the ground, in this flat world).
 ON_GROUND_M = 0.3
