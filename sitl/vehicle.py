@@ -307,13 +307,18 @@ class Vehicle:
         return ACCEPTED
 
     def crash(self, text: str) -> None:
-        """A collision: the motors stop wherever the vehicle is, and it stays grounded (arming is refused)."""
+        """A collision or a hard impact: the motors stop wherever the vehicle is, and it stays grounded (arming is
+        refused)."""
+        self._stop_for_good(text, "Motors stopped: crashed")
+
+    def _stop_for_good(self, text: str, disarm_text: str) -> None:
+        """A crash or a flight termination (the first one counts): say why, stop the motors, refuse to arm again."""
         if self.crashed:
             return
         self.crashed = True
         self.event(2, text)
         if self.status.armed:
-            self._disarm("Motors stopped: crashed")
+            self._disarm(disarm_text)
 
     def _disarm(self, text: str) -> None:
         self.status.armed = False
@@ -450,12 +455,7 @@ class Vehicle:
 
     def terminate(self, text: str) -> None:
         """Flight termination (PX4): the motors stop and stay stopped; like a crash, arming is refused after it."""
-        if self.crashed:
-            return
-        self.crashed = True
-        self.event(2, text)
-        if self.status.armed:
-            self._disarm("Flight terminated")
+        self._stop_for_good(text, "Flight terminated")
 
     # ---- failsafes -------------------------------------------------------------------------------------------------
     def _failsafe_inputs(self, est: Estimate, now_s: float) -> FailsafeInputs:

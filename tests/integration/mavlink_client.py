@@ -8,7 +8,9 @@ with a wall-clock deadline and fail with the last message seen.
 from __future__ import annotations
 
 import contextlib
+import math
 import os
+import struct
 import time
 from collections.abc import Callable, Iterator
 from typing import Any, Final
@@ -190,6 +192,16 @@ def recv_param(conn: mavutil.mavfile, name: str, timeout_s: float) -> float:
     conn.mav.param_request_read_send(conn.target_system, conn.target_component, name.encode(), -1)
     msg = recv_until(conn, "PARAM_VALUE", lambda m: m.param_id == name, timeout_s, f"PARAM_VALUE {name}")
     return float(msg.param_value)
+
+
+def set_param(conn: mavutil.mavfile, name: str, value: float, *, integer: bool = False) -> None:
+    """PARAM_SET (INT32 bytewise as PX4 and QGroundControl send it, or REAL32); waits for the echo and checks it."""
+    kind = mavlink.MAV_PARAM_TYPE_INT32 if integer else mavlink.MAV_PARAM_TYPE_REAL32
+    wire = struct.unpack("<f", struct.pack("<i", int(value)))[0] if integer else value
+    conn.mav.param_set_send(conn.target_system, 1, name.encode(), wire, kind)
+    echo = recv_until(conn, "PARAM_VALUE", lambda m: m.param_id == name, 5.0, f"PARAM_VALUE {name}")
+    got = struct.unpack("<i", struct.pack("<f", echo.param_value))[0] if integer else echo.param_value
+    assert got == value if integer else math.isclose(got, value, rel_tol=1e-6), (name, value, got)
 
 
 def request_message(conn: mavutil.mavfile, msg_id: int, msg_type: str, timeout_s: float) -> tuple[Message, Message]:

@@ -19,12 +19,14 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Final
 
 from pymavlink.dialects.v20 import common as mavlink
+
+from sitl.world import SharedWorld
 
 LOOPBACK: Final = "127.0.0.1"
 API_REMOTE_BASE_PORT: Final = 14540  # the drone streams to 14540+i (PX4 SITL convention)
@@ -297,3 +299,26 @@ def stop_drone(drone: SitlDrone) -> int:
         return drone.process.stop()
     finally:
         drone.gcs_sink.close()
+
+
+@contextlib.contextmanager
+def drone_in_world(
+    tmp_path: Path, allocator: InstanceAllocator, speed_factor: float, log_lines: int = 30
+) -> Iterator[tuple[SitlDrone, SharedWorld]]:
+    """A ``sitl`` on an instance of ``allocator``'s block, publishing its body to a fresh shared world, so a test
+    can watch where it flies even when its links are silent. Its log's last lines are printed when it stops."""
+    world = SharedWorld.create()
+    (instance,) = allocator.take()
+    try:
+        drone = start_drone(
+            instance=instance, speed_factor=speed_factor, seed=instance, log_dir=tmp_path,
+            extra_args=("--world", world.name),
+        )  # fmt: skip
+        try:
+            yield drone, world
+        finally:
+            code = stop_drone(drone)
+            print(f"--- sitl instance {instance} (exit code {code}) ---\n{drone.process.log_tail(log_lines)}")
+    finally:
+        allocator.give_back(instance)
+        world.close()

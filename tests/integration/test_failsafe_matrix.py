@@ -16,7 +16,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
-import struct
 import threading
 import time
 from collections.abc import AsyncIterator, Callable, Iterator
@@ -30,6 +29,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.world import ALT, LAT, LON, TIME, VALID, VE, VN, SharedWorld
+from tests.integration import sitl_process
 from tests.integration.mavlink_client import (
     PX4_AUTO_LAND,
     PX4_AUTO_LOITER,
@@ -38,9 +38,10 @@ from tests.integration.mavlink_client import (
     command_long,
     mavlink_connection,
     recv_until,
+    set_param,
     wait_vehicle_heartbeat,
 )
-from tests.integration.sitl_process import InstanceAllocator, SitlDrone, start_drone, stop_drone
+from tests.integration.sitl_process import InstanceAllocator, SitlDrone
 from tests.integration.vehicle_link import VehicleLink
 
 pytestmark = [pytest.mark.sim_only]
@@ -48,6 +49,7 @@ pytestmark = [pytest.mark.sim_only]
 FIRST_INSTANCE, INSTANCES = 100, 20
 SPEED_FACTOR: Final = 4.0
 INJECT: Final = mavlink.MAV_CMD_INJECT_FAILURE
+PREARM: Final = mavlink.MAV_SYS_STATUS_PREARM_CHECK
 PX4_AUTO_RTL: Final = 84148224  # main 4 << 16 | sub 5 << 24
 PX4_OFFBOARD: Final = 6 << 16
 EARTH_RADIUS_M: Final = 6_371_000.0
@@ -132,13 +134,7 @@ class GroundStation:
         )
 
     def set_param(self, name: str, value: float, *, integer: bool = False) -> None:
-        """PARAM_SET (INT32 bytewise as PX4 and QGroundControl send it, or REAL32); waits for the echo."""
-        kind = mavlink.MAV_PARAM_TYPE_INT32 if integer else mavlink.MAV_PARAM_TYPE_REAL32
-        wire = struct.unpack("<f", struct.pack("<i", int(value)))[0] if integer else value
-        self.conn.mav.param_set_send(self.conn.target_system, 1, name.encode(), wire, kind)
-        echo = recv_until(self.conn, "PARAM_VALUE", lambda m: m.param_id == name, 5.0, f"PARAM_VALUE {name}")
-        got = struct.unpack("<i", struct.pack("<f", echo.param_value))[0] if integer else echo.param_value
-        assert got == pytest.approx(value), (name, value, got)
+        set_param(self.conn, name, value, integer=integer)
 
     def inject(self, unit: int, failure_type: int, instance: int = 0) -> None:
         """MAV_CMD_INJECT_FAILURE, sent once (its announcement, which comes first, is kept with the other texts)."""
@@ -226,24 +222,11 @@ def watch_body(
     raise AssertionError(f"{what}: not within {timeout_s:.1f} s; last {samples[-1:]}")
 
 
-@contextlib.contextmanager
-def drone_in_world(tmp_path: Path, speed_factor: float = SPEED_FACTOR) -> Iterator[tuple[SitlDrone, SharedWorld]]:
+def drone_in_world(
+    tmp_path: Path, speed_factor: float = SPEED_FACTOR
+) -> contextlib.AbstractContextManager[tuple[SitlDrone, SharedWorld]]:
     """A ``sitl`` on an instance of this module's block, publishing its body to a fresh shared world."""
-    world = SharedWorld.create()
-    (instance,) = _allocator.take()
-    try:
-        drone = start_drone(
-            instance=instance, speed_factor=speed_factor, seed=instance, log_dir=tmp_path,
-            extra_args=("--world", world.name),
-        )  # fmt: skip
-        try:
-            yield drone, world
-        finally:
-            code = stop_drone(drone)
-            print(f"--- sitl instance {instance} (exit code {code}) ---\n{drone.process.log_tail(80)}")
-    finally:
-        _allocator.give_back(instance)
-        world.close()
+    return sitl_process.drone_in_world(tmp_path, _allocator, speed_factor, log_lines=80)
 
 
 def home_of(drone: SitlDrone, world: SharedWorld) -> tuple[float, float, float]:
@@ -330,7 +313,8 @@ def test_with_nav_dll_act_set_arming_needs_gcs_heartbeats(tmp_path: Path) -> Non
             conn.mav.heartbeat_send(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
 
         with periodic(beat, 1.0 / SPEED_FACTOR):
-            time.sleep(1.5 / SPEED_FACTOR)
+            gcs.recv(lambda m: m.get_type() == "SYS_STATUS" and bool(m.onboard_control_sensors_health & PREARM), 5.0,
+                     "SYS_STATUS with the pre-arm checks passing")  # fmt: skip
             ack = command_long(conn, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, (1,))
             assert ack.result == mavlink.MAV_RESULT_ACCEPTED, (ack, gcs.texts)
 
@@ -442,25 +426,24 @@ def test_low_battery_only_warns_whatever_com_low_bat_act(tmp_path: Path) -> None
 
 
 @pytest.mark.timeout(60)
-def test_critical_battery_with_com_low_bat_act_land_lands_where_it_is(tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    ("level", "action", "text", "charge_state"),
+    [
+        # SYS_FAIL_BAT_LVL 2 (critical) with COM_LOW_BAT_ACT = 2: Land
+        (2, 2, "Failsafe: battery critical, landing", mavlink.MAV_BATTERY_CHARGE_STATE_CRITICAL),
+        # 3 (emergency) with COM_LOW_BAT_ACT = 3: Return at critical, Land at emergency; the reading is below both
+        (3, 3, "Failsafe: battery emergency, landing", mavlink.MAV_BATTERY_CHARGE_STATE_EMERGENCY),
+    ],
+    ids=["critical-land", "emergency-return-then-land"],
+)
+def test_a_critical_or_emergency_battery_per_com_low_bat_act_lands_where_it_is(
+    tmp_path: Path, level: int, action: int, text: str, charge_state: int
+) -> None:
     with ground_station(tmp_path) as gcs:
-        injected = _fly_out_and_inject_battery(gcs, level=2, action=2)
+        injected = _fly_out_and_inject_battery(gcs, level=level, action=action)
         gcs.recv(lambda m: _is_status(m, PX4_AUTO_LAND, mavlink.MAV_STATE_CRITICAL), 3.0, "AUTO.LAND, CRITICAL")
-        assert gcs.wait_text("Failsafe: battery critical, landing", 2.0) == mavlink.MAV_SEVERITY_CRITICAL
-        gcs.recv(_charge_state_is(mavlink.MAV_BATTERY_CHARGE_STATE_CRITICAL), 5.0, "BATTERY_STATUS CRITICAL")
-        gcs.wait_disarmed(20.0)
-        down = gcs.body()
-    assert down.hor_dist_m(injected) < 0.5 and down.up_m < 0.1, (injected, down)
-
-
-@pytest.mark.timeout(60)
-def test_emergency_battery_with_com_low_bat_act_3_lands_where_it_is(tmp_path: Path) -> None:
-    with ground_station(tmp_path) as gcs:
-        # COM_LOW_BAT_ACT = 3: Return at critical, Land at emergency; an emergency reading is below both
-        injected = _fly_out_and_inject_battery(gcs, level=3, action=3)
-        gcs.recv(lambda m: _is_status(m, PX4_AUTO_LAND, mavlink.MAV_STATE_CRITICAL), 3.0, "AUTO.LAND, CRITICAL")
-        assert gcs.wait_text("Failsafe: battery emergency, landing", 2.0) == mavlink.MAV_SEVERITY_CRITICAL
-        gcs.recv(_charge_state_is(mavlink.MAV_BATTERY_CHARGE_STATE_EMERGENCY), 5.0, "BATTERY_STATUS EMERGENCY")
+        assert gcs.wait_text(text, 2.0) == mavlink.MAV_SEVERITY_CRITICAL
+        gcs.recv(_charge_state_is(charge_state), 5.0, f"BATTERY_STATUS charge state {charge_state}")
         gcs.wait_disarmed(20.0)
         down = gcs.body()
     assert down.hor_dist_m(injected) < 0.5 and down.up_m < 0.1, (injected, down)

@@ -9,9 +9,7 @@ ground truth, read to show that a drone whose links went silent still flies.
 from __future__ import annotations
 
 import contextlib
-import struct
 import time
-from collections.abc import Iterator
 from multiprocessing import resource_tracker
 from pathlib import Path
 
@@ -20,15 +18,17 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.world import ALT, TIME, VALID, SharedWorld
+from tests.integration import sitl_process
 from tests.integration.mavlink_client import (
     arm_and_take_off,
     command_long,
     mavlink_connection,
     recv_until,
+    set_param,
     wait_vehicle_heartbeat,
 )
 from tests.integration.mavsdk_client import call_within, connect, first_matching
-from tests.integration.sitl_process import InstanceAllocator, SitlDrone, start_drone, stop_drone
+from tests.integration.sitl_process import InstanceAllocator, SitlDrone
 from tests.integration.vehicle_link import VehicleLink
 
 pytestmark = [pytest.mark.sim_only]
@@ -45,31 +45,11 @@ def _shared_memory_tracker() -> None:
     resource_tracker.ensure_running()
 
 
-@contextlib.contextmanager
-def drone_in_world(tmp_path: Path, speed_factor: float = 4.0) -> Iterator[tuple[SitlDrone, SharedWorld]]:
-    world = SharedWorld.create()
-    (instance,) = _allocator.take()
-    try:
-        drone = start_drone(
-            instance=instance, speed_factor=speed_factor, seed=instance, log_dir=tmp_path,
-            extra_args=("--world", world.name),
-        )  # fmt: skip
-        try:
-            yield drone, world
-        finally:
-            code = stop_drone(drone)
-            print(f"--- sitl instance {instance} (exit code {code}) ---\n{drone.process.log_tail()}")
-    finally:
-        _allocator.give_back(instance)
-        world.close()
-
-
-def set_int_param(conn: mavutil.mavfile, name: str, value: int) -> None:
-    """PARAM_SET of an INT32 parameter, bytewise as PX4 and QGroundControl send it; waits for the echo."""
-    as_float = struct.unpack("<f", struct.pack("<i", value))[0]
-    conn.mav.param_set_send(conn.target_system, 1, name.encode(), as_float, mavlink.MAV_PARAM_TYPE_INT32)
-    echo = recv_until(conn, "PARAM_VALUE", lambda m: m.param_id == name, 5.0, f"PARAM_VALUE {name}")
-    assert struct.unpack("<i", struct.pack("<f", echo.param_value))[0] == value
+def drone_in_world(
+    tmp_path: Path, speed_factor: float = 4.0
+) -> contextlib.AbstractContextManager[tuple[SitlDrone, SharedWorld]]:
+    """A ``sitl`` on an instance of this module's block, publishing its body to a fresh shared world."""
+    return sitl_process.drone_in_world(tmp_path, _allocator, speed_factor)
 
 
 @pytest.mark.timeout(90)
@@ -83,7 +63,7 @@ def test_inject_failure_is_denied_unless_enabled_and_a_link_fault_silences_a_dro
         assert ack.result == mavlink.MAV_RESULT_DENIED
         recv_until(conn, "STATUSTEXT", lambda m: m.text == "Failure injection disabled", 3.0, "refusal text")
         # GIVEN failure injection enabled and the drone hovering
-        set_int_param(conn, "SYS_FAILURE_EN", 1)
+        set_param(conn, "SYS_FAILURE_EN", 1, integer=True)
         arm_and_take_off(conn, 40.0)
         # WHEN an unsupported failure is injected  THEN UNSUPPORTED
         assert command_long(conn, INJECT, (0, 1, 0)).result == mavlink.MAV_RESULT_UNSUPPORTED  # gyro off
