@@ -78,7 +78,6 @@ class Simulation:
         self.readings: SensorReadings | None = None
         self.last_gps: GpsSample | None = None  # the receiver's latest report, for GPS_RAW_INT
         self.estimate: Estimate | None = None
-        self.motor_cmds: tuple[float, ...] = ()
         self.time_s = 0.0
         self.truth_at_boot_ned_m = self.truth.pos_ned_m.copy()
         self._k_q = config.airframe.torque_coeff_nm_per_radps2
@@ -110,7 +109,6 @@ class Simulation:
             self.last_gps = self.readings.gps
         self.estimate = self.estimator.update(self.readings, self.time_s, self.dt_s)
         motors = self.vehicle.step(self.estimate, self.time_s, self.dt_s)
-        self.motor_cmds = motors  # as the mixer commands them; a failed rotor ignores its command in the plant
         t1 = clock()
         if not self.wind.calm:
             self.plant.set_wind(self.wind.update(self.dt_s))

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.estimation import Estimate
 from sitl.faults import BATTERY_TRIGGER_MARGIN, GPS_GLITCH_OFFSET_NE_M, FailureType, FailureUnit
 from sitl.mav_vehicle import SimVehicleApi
 from sitl.protocol import vehicle_api as api
@@ -55,13 +56,18 @@ def test_a_quadrotor_with_one_motor_off_falls() -> None:
     sim = enabled_sim(seed=4)
     take_off(sim, 3.0)
     assert inject(sim, MOTOR, OFF, 1).ok
-    commanded, spinning = [], []
+    commanded: list[float] = []
+    spinning: list[float] = []
+    control = sim.vehicle.step
 
-    def record(s: Simulation) -> None:
-        commanded.append(float(s.motor_cmds[0]))
-        spinning.append(s.truth.motor_speeds_radps[0])
+    def step(est: Estimate, now_s: float, dt_s: float) -> tuple[float, ...]:  # what the mixer commands, passed on
+        motors = control(est, now_s, dt_s)
+        commanded.append(float(motors[0]))
+        return motors
 
-    sim.run_for(0.3, record)
+    sim.vehicle.step = step  # type: ignore[method-assign]
+    sim.run_for(0.3, lambda s: spinning.append(s.truth.motor_speeds_radps[0]))
+    sim.vehicle.step = control  # type: ignore[method-assign]
     # The mixer still commands the failed rotor; the rotor spins down through its motor lag and stays stopped.
     assert max(commanded[-10:]) > 0.1 and max(spinning[-10:]) < 1.0, (commanded[-10:], spinning[-10:])
     # Three rotors cannot hold a quadrotor: it comes down within 3 s of the failure (3 m up, free fall takes 0.8 s).
