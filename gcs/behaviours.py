@@ -51,7 +51,7 @@ from gcs.formation import (
     check_positive,
 )
 from gcs.frames import Vec3
-from sitl.mathutil import wrap_pi
+from gcs.geodesy import wrap_pi
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]

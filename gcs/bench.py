@@ -14,9 +14,9 @@ For each swarm size N the harness spawns N drones and flies one fixed scenario t
 
 Every CPU figure is also given as a ratio to bare JSBSim stepping of the same airframe at the same physics rate,
 measured in-process in the same run (bench/bare_jsbsim.py does the same in more detail): a machine-independent
-way to read the numbers, since absolute milliseconds change with every CPU. That reference is the one place the
-ground station touches a simulation module directly; everything about the drones is measured from outside, over
-MAVLink, /proc and the shared world the supervisor owns anyway.
+way to read the numbers, since absolute milliseconds change with every CPU. The simulation measures that reference
+and publishes the drones' clocks and CPU counters; the bench reads both through the harness (gcs/harness.py), and
+everything else about the drones from outside, over MAVLink and /proc.
 
 The module is in two halves: pure figures (statistics, window arithmetic, table, JSON) first, then the IO that
 runs swarms and reads /proc. Method and limits are written up in docs/benchmarks.md ("swarm bench").
@@ -48,13 +48,12 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.formation import SETPOINT_STREAM_HZ, CircleSpec, FormationError, TransitionLimits
 from gcs.frames import SwarmFrame
+from gcs.geodesy import DEFAULT_ORIGIN
+from gcs.harness import Simulation, SpawnError, SpawnPlan
 from gcs.probe import PROBE_SYSIDS, percentile
 from gcs.recorder import COLLISION_TEXT
 from gcs.streamer import DEFAULT_LIMITS, FormationStreamer
-from gcs.supervisor import SpawnError, SpawnPlan
 from gcs.swarm import Swarm, SwarmError
-from sitl.dynamics.plant import DEFAULT_HOME, PHYSICS_RATE_HZ
-from sitl.world import CPU_LINK, CPU_PHYSICS, MAX_DRONES, STEP, TIME
 
 DEFAULT_DRONE_COUNTS = (1, 3, 9, 20, 50, 100)
 DEFAULT_SIM_SECONDS = 20.0
@@ -75,13 +74,11 @@ PROBE_SECONDS = 3.0
 PROBE_EXTRA_WALL_S = 30.0  # the probe's own start-up (imports) on a loaded machine
 RTT_MIN_SAMPLES = 20  # command round trips: every drone in turn, as many rounds as give at least this many
 RTT_TIMEOUT_S = 0.5  # wall seconds per command before it counts as lost (MAVSDK's per-try timeout)
-BARE_SIM_SECONDS = 10.0
-BARE_REPEATS = 3
 ARM_TIMEOUT_S = 30.0
 TAKEOFF_TIMEOUT_S = 40.0
 DISARM_FORCE_MAGIC = 21196.0  # MAV_CMD_COMPONENT_ARM_DISARM param2: disarm even in the air
 CONSISTENT_READ_TRIES = 5
-TIME_PUBLISH_STEPS = 4  # sitl/world.py: each drone writes TIME every 4 physics steps
+TIME_PUBLISH_STEPS = 4  # each drone publishes its simulated time every 4 physics steps (sitl/world.py)
 CPU_PARTS = ("physics", "control", "perception", "mavlink")
 EXIT_USAGE = 2
 EXIT_FAILED = 1
@@ -114,13 +111,15 @@ def parse_drone_counts(text: str) -> tuple[int, ...]:
     return tuple(sorted(counts))
 
 
-def check_instances(first_instance: int, largest_n: int) -> None:
-    """Every drone needs a world row and a sysid that is not one of the relay probe's two vehicles."""
+def check_instances(first_instance: int, largest_n: int, max_instances: int) -> None:
+    """Every drone needs an instance the simulation runs (0..max_instances - 1), a sysid (instance + 1) below 256,
+    and a sysid that is not one of the relay probe's two vehicles."""
     last = first_instance + largest_n - 1
-    if first_instance < 0 or last >= MAX_DRONES - 1:
+    top = min(max_instances, 255) - 1
+    if first_instance < 0 or last > top:
         raise BenchUsageError(
             f"--first-instance {first_instance} with {largest_n} drones needs instances up to {last}; "
-            f"they must lie in 0..{MAX_DRONES - 2}"
+            f"they must lie in 0..{top}"
         )
     clash = sorted(set(range(first_instance + 1, last + 2)) & set(PROBE_SYSIDS))
     if clash:
@@ -336,7 +335,7 @@ def _finite_or_none(value: Any) -> Any:
     return value
 
 
-def row_json(row: BenchRow) -> dict[str, Any]:
+def row_json(row: BenchRow, physics_rate_hz: float) -> dict[str, Any]:
     """One flat JSON object per swarm size; figures that were not measured are null (JSON has no NaN)."""
     nan = math.nan
     paced, lock = row.paced, row.lockstep
@@ -375,7 +374,7 @@ def row_json(row: BenchRow) -> dict[str, Any]:
         "clock_skew_max_ms": paced.clock_skew_max_ms if paced else nan,
         "clock_skew_drift_ms": paced.clock_skew_drift_ms if paced else nan,
         "clock_skew_samples": paced.clock_skew_samples if paced else 0,
-        "clock_skew_quantum_ms": 1e3 * TIME_PUBLISH_STEPS / PHYSICS_RATE_HZ,
+        "clock_skew_quantum_ms": 1e3 * TIME_PUBLISH_STEPS / physics_rate_hz,
         "sim_s_paced": pw.sim_s if pw else nan,
         "wall_s_paced": pw.wall_s if pw else nan,
         "collisions_paced": paced.collisions if paced else 0,
@@ -406,9 +405,10 @@ def largest_real_time(rows: Sequence[Mapping[str, Any]]) -> int | None:
     return max(held) if held else None
 
 
-def bench_document(rows: Sequence[BenchRow], machine: Mapping[str, Any], sim_seconds: float) -> dict[str, Any]:
+def bench_document(rows: Sequence[BenchRow], machine: Mapping[str, Any], sim_seconds: float,
+                   physics_rate_hz: float) -> dict[str, Any]:  # fmt: skip
     """The JSON file: ``{"rows": [...], "machine": {...}, ...}``."""
-    flat = [row_json(r) for r in rows]
+    flat = [row_json(r, physics_rate_hz) for r in rows]
     return {
         "rows": flat,
         "machine": dict(machine),
@@ -479,56 +479,33 @@ def _supervisor_cpu_s() -> float:
 
 
 def take_snapshot(swarm: Swarm) -> Snapshot:
-    """Every drone's process CPU (/proc) and its row of the shared world, and the supervisor's own CPU."""
-    assert swarm.world is not None
-    table = swarm.world.table
+    """Every drone's process CPU (/proc), its CPU by part and its clock as it publishes them (through the harness),
+    and the supervisor's own CPU."""
+    harness = swarm.harness
+    pids = harness.process_ids()
+    parts_s = harness.cpu_parts_s()
+    times_s, _ = harness.clock_columns()
     drones = []
-    for d in swarm.processes.drones:
-        text = _read(f"/proc/{d.process.pid}/stat")
+    for k, sysid in enumerate(swarm.sysids):
+        text = _read(f"/proc/{pids[sysid]}/stat")
         if text is None:
-            raise SwarmError(f"drone {d.instance} (pid {d.process.pid}) is gone: cannot measure it")
-        row = table[d.instance]
-        parts = (float(row[CPU_PHYSICS]), float(row[CPU_PHYSICS + 1]), float(row[CPU_PHYSICS + 2]),
-                 float(row[CPU_LINK]))  # fmt: skip
-        drones.append(DroneSample(cpu_ticks=proc_stat_cpu_ticks(text), parts_s=parts, sim_time_s=float(row[TIME])))
+            raise SwarmError(f"drone {sysid} (pid {pids[sysid]}) is gone: cannot measure it")
+        parts = (float(parts_s[k, 0]), float(parts_s[k, 1]), float(parts_s[k, 2]), float(parts_s[k, 3]))
+        drones.append(DroneSample(cpu_ticks=proc_stat_cpu_ticks(text), parts_s=parts, sim_time_s=float(times_s[k])))
     return Snapshot(wall_s=time.monotonic(), supervisor_cpu_s=_supervisor_cpu_s(), drones=tuple(drones))
 
 
 def drone_memory(swarm: Swarm) -> tuple[list[float], str]:
     """Each drone's proportional set size in MB (resident size where smaps_rollup is not available)."""
     sizes, kinds = [], set()
-    for d in swarm.processes.drones:
-        pid = d.process.pid
+    for pid in swarm.harness.process_ids().values():
         kb, kind = memory_kb(_read(f"/proc/{pid}/smaps_rollup"), _read(f"/proc/{pid}/status"))
         sizes.append(kb / 1024.0)
         kinds.add(kind)
     return sizes, "rss" if "rss" in kinds else "pss"
 
 
-def bare_jsbsim_cpu_ms_per_sim_s(sim_seconds: float = BARE_SIM_SECONDS, repeats: int = BARE_REPEATS) -> float:
-    """CPU ms per simulated second of the plant alone, hovering with constant commands (median of ``repeats``).
-
-    Same airframe (the default) and physics rate as the drones; the thread CPU clock, so other processes do not
-    count. Imported here so that ``swarm`` commands other than bench do not load JSBSim."""
-    from sitl.airframe import load_airframe
-    from sitl.dynamics.jsbsim_plant import JsbsimPlant
-
-    airframe = load_airframe()
-    dt_s = 1.0 / PHYSICS_RATE_HZ
-    cmds = (math.sqrt(airframe.hover_thrust_fraction),) * len(airframe.rotors)
-    steps = round(sim_seconds / dt_s)
-    results = []
-    for _ in range(repeats):
-        plant = JsbsimPlant(airframe, dt_s=dt_s, initial_pos_ned_m=(0.0, 0.0, -10.0), initial_motor_cmds=cmds)
-        step = plant.step
-        start = time.thread_time()
-        for _ in range(steps):
-            step(cmds)
-        results.append((time.thread_time() - start) / (steps * dt_s) * 1e3)
-    return sorted(results)[len(results) // 2]
-
-
-def machine_info() -> dict[str, Any]:
+def machine_info(physics_rate_hz: float) -> dict[str, Any]:
     cpuinfo = _read("/proc/cpuinfo") or ""
     model = re.search(r"^model name\s*:\s*(.+)$", cpuinfo, re.MULTILINE)
     try:
@@ -544,7 +521,7 @@ def machine_info() -> dict[str, Any]:
         "platform": platform.platform(),
         "python": platform.python_version(),
         "jsbsim": jsbsim_version,
-        "physics_rate_hz": PHYSICS_RATE_HZ,
+        "physics_rate_hz": physics_rate_hz,
         "clk_tck": os.sysconf("SC_CLK_TCK"),
         "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
@@ -552,6 +529,7 @@ def machine_info() -> dict[str, Any]:
 
 @dataclass(kw_only=True)
 class BenchConfig:
+    simulation: Simulation  # what starts the drones (gcs/composition.py)
     drone_counts: tuple[int, ...]
     sim_seconds: float
     first_instance: int = DEFAULT_FIRST_INSTANCE
@@ -575,20 +553,19 @@ class ScenarioFlight:
         plan = SpawnPlan(
             n_drones=n,
             spacing_m=SPAWN_SPACING_M,
-            origin=DEFAULT_HOME,
+            origin=DEFAULT_ORIGIN,
             speed_factor=0.0 if lockstep else 1.0,
             lockstep=lockstep,
             first_instance=config.first_instance,
             seed=config.seed,
         )
-        self.swarm = Swarm(plan, relay_radius_m=relay_radius_for(n))
+        self.swarm = Swarm(plan, config.simulation.harness(plan), relay_radius_m=relay_radius_for(n))
         self.radius_m = circle_radius_m(n)
         self.streamer = FormationStreamer(
             self.swarm, SwarmFrame(plan.origin), circle_limits(self.radius_m, CIRCLE_RATE_RADPS)
         )
         self.sampling = False
         self.samples = _ClockSamples()
-        self._rows: list[int] = []
         self._collisions: set[frozenset[int]] = set()
         self.swarm.listeners.append(self._on_message)
 
@@ -605,13 +582,13 @@ class ScenarioFlight:
     def tick(self, now: float) -> None:
         """Stream setpoints; while measuring, sample every drone's clock (TIME) and lockstep step count (STEP)."""
         self.streamer.tick(now)
-        if self.sampling and self.swarm.world is not None:
-            table, rows = self.swarm.world.table, self._rows
-            times = consistent_read(lambda: table[rows, TIME])
+        if self.sampling:
+            columns = self.swarm.harness.clock_columns
+            times = consistent_read(lambda: columns()[0])
             if times is not None:
                 self.samples.time_spreads_ms.append(1e3 * spread(times))
             if self.lockstep:
-                steps = consistent_read(lambda: table[rows, STEP])
+                steps = consistent_read(lambda: columns()[1])
                 if steps is not None:
                     self.samples.step_spreads.append(spread(steps))
 
@@ -619,7 +596,6 @@ class ScenarioFlight:
         """Spawn and wait for every drone's first HEARTBEAT and passed pre-arm checks; wall seconds from spawn."""
         start = time.monotonic()
         self.swarm.up(ready_timeout_s=30.0 + 2.0 * self.n)  # start-up is CPU-bound: N Python processes importing
-        self._rows = [d.instance for d in self.swarm.processes.drones]
         drones = self.swarm.fleet.drones
         timeout = 30.0 + 1.0 * self.n
         if not self.swarm.wait_until(lambda: all(drones[s].prearm_ok for s in self.swarm.sysids), timeout):
@@ -727,7 +703,7 @@ class ScenarioFlight:
         swarm = self.swarm
         try:
             self.streamer.stop()
-            if swarm.world is not None:
+            if swarm.sysids:
                 armed = [s for s in swarm.sysids if s in swarm.fleet.drones and swarm.fleet.drones[s].armed]
                 if armed:
                     swarm.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, DISARM_FORCE_MAGIC, sysids=armed)
@@ -800,7 +776,7 @@ def run_lockstep(n: int, config: BenchConfig, say: Say) -> LockstepFigures:
 
 def bench_one(n: int, config: BenchConfig, say: Say) -> BenchRow:
     """Both runs of one swarm size, with the bare JSBSim reference measured just before them."""
-    bare = bare_jsbsim_cpu_ms_per_sim_s()
+    bare = config.simulation.bare_plant_cpu_ms_per_sim_s()
     say(f"N={n}: bare JSBSim {bare:.2f} ms CPU per simulated second")
     paced: PacedFigures | None = None
     lock: LockstepFigures | None = None
@@ -868,7 +844,7 @@ def write_plot(rows: Sequence[Mapping[str, Any]], path: Path) -> None:
 
 def run(config: BenchConfig, say: Say) -> tuple[dict[str, Any], bool]:
     """Bench every swarm size in turn; returns the JSON document and whether every run succeeded."""
-    machine = machine_info()
+    machine = machine_info(config.simulation.physics_rate_hz)
     machine["loadavg_before"] = list(os.getloadavg())
     rows: list[BenchRow] = []
     try:
@@ -876,7 +852,7 @@ def run(config: BenchConfig, say: Say) -> tuple[dict[str, Any], bool]:
             rows.append(bench_one(n, config, say))
     finally:
         machine["loadavg_after"] = list(os.getloadavg())
-        document = bench_document(rows, machine, config.sim_seconds)
+        document = bench_document(rows, machine, config.sim_seconds, config.simulation.physics_rate_hz)
         say("")
         say(format_table(document["rows"]))
         largest = document["largest_n_real_time"]
@@ -951,14 +927,14 @@ def _say(text: str) -> None:
     print(text, flush=True)
 
 
-def run_bench(args: argparse.Namespace) -> int:
+def run_bench(args: argparse.Namespace, simulation: Simulation) -> int:
     """``swarm bench``: 0 when every run succeeded, 1 when one failed, 2 for bad arguments, 130 when interrupted."""
     try:
-        check_instances(args.first_instance, max(args.drones))
+        check_instances(args.first_instance, max(args.drones), simulation.max_instances)
     except BenchUsageError as exc:
         print(f"swarm bench: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    config = BenchConfig(drone_counts=tuple(args.drones), sim_seconds=args.sim_seconds,
+    config = BenchConfig(simulation=simulation, drone_counts=tuple(args.drones), sim_seconds=args.sim_seconds,
                          first_instance=args.first_instance, seed=args.seed, json_path=args.json,
                          plot_path=args.plot)  # fmt: skip
     previous = signal.signal(signal.SIGTERM, _interrupt)  # a terminated bench stops its drones like Ctrl-C
@@ -970,20 +946,3 @@ def run_bench(args: argparse.Namespace) -> int:
     finally:
         signal.signal(signal.SIGTERM, previous)
     return 0 if ok else EXIT_FAILED
-
-
-class _OneLineParser(argparse.ArgumentParser):
-    def error(self, message: str) -> NoReturn:
-        print(f"swarm bench: error: {message}", file=sys.stderr)
-        sys.exit(EXIT_USAGE)
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m gcs.bench``: the same as ``swarm bench``."""
-    parser = _OneLineParser(prog="python -m gcs.bench", description=__doc__.splitlines()[0])
-    _configure(parser)
-    return run_bench(parser.parse_args(argv))
-
-
-if __name__ == "__main__":
-    sys.exit(main())

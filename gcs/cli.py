@@ -19,17 +19,17 @@ from types import FrameType
 from typing import Any, NoReturn
 
 from gcs.bench import add_bench_parser, run_bench
+from gcs.composition import SITL
 from gcs.control import ControlClient, ControlError, ControlServer
 from gcs.faults import CRASH, FAULT_NAMES, FaultError, fault_request
+from gcs.geodesy import DEFAULT_ORIGIN, GeoPoint
+from gcs.harness import LAYOUTS, Simulation, SpawnError, SpawnPlan
 from gcs.losses import LOSS_POLICIES, LossPolicy
 from gcs.mission_file import MissionFileError, build_flock, build_follow, load_mission
 from gcs.mission_runner import MissionRunner
 from gcs.station import Station, format_status
-from gcs.supervisor import LAYOUTS, SpawnError, SpawnPlan
 from gcs.swarm import Swarm, SwarmError
-from sitl.airframe import AirframeError, load_airframe
-from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
-from sitl.mavlink_io import parse_host_port
+from gcs.transport import parse_host_port
 
 EXIT_USAGE = 2
 DEFAULT_MISSION = Path(__file__).resolve().parent.parent / "missions" / "grid_to_circle.toml"
@@ -183,7 +183,7 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--layout", choices=sorted(LAYOUTS), default="grid", help="spawn layout (default grid)")
     _add_timing_options(up)
     up.add_argument("--first-instance", type=int, default=0, help="instance of the first drone (sysid = instance+1)")
-    up.add_argument("--origin", type=_origin, default=DEFAULT_HOME, help="swarm origin LAT,LON,ALT_AMSL")
+    up.add_argument("--origin", type=_origin, default=DEFAULT_ORIGIN, help="swarm origin LAT,LON,ALT_AMSL")
     up.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
     up.add_argument("--seed", type=int, default=0, help="base random seed (drone i uses seed+i)")
     up.add_argument("--logs", type=Path, default=None, help="directory for each drone's log (default: none)")
@@ -204,7 +204,7 @@ def build_parser() -> argparse.ArgumentParser:
     fly.add_argument("--report", type=Path, default=None, help="report directory (default reports/<mission>-<time>)")
     _add_timing_options(fly)
     fly.add_argument("--first-instance", type=int, default=0, help="instance of the first drone")
-    fly.add_argument("--origin", type=_origin, default=DEFAULT_HOME, help="swarm origin LAT,LON,ALT_AMSL")
+    fly.add_argument("--origin", type=_origin, default=DEFAULT_ORIGIN, help="swarm origin LAT,LON,ALT_AMSL")
     fly.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
     fly.add_argument("--seed", type=int, default=0, help="base random seed (drone i uses seed+i)")
     _add_forward_options(fly)
@@ -285,7 +285,7 @@ def _say(text: str) -> None:
     print(text, flush=True)
 
 
-def run_up(args: argparse.Namespace) -> int:
+def run_up(args: argparse.Namespace, simulation: Simulation) -> int:
     if not 1 <= args.drones <= 100:
         raise UsageError(f"-n must be in 1..100, got {args.drones}")
     if args.first_instance < 0 or args.first_instance + args.drones > 255:
@@ -293,8 +293,8 @@ def run_up(args: argparse.Namespace) -> int:
     contact = 0.0
     if args.report is not None:  # the report's contact distance (a bad airframe is named by the drones otherwise)
         try:
-            contact = 2.0 * (load_airframe(args.airframe) if args.airframe else load_airframe()).collision_radius_m
-        except AirframeError as exc:
+            contact = simulation.contact_distance_m(args.airframe)
+        except ValueError as exc:
             raise UsageError(str(exc)) from None
     plan = SpawnPlan(
         n_drones=args.drones,
@@ -315,7 +315,7 @@ def run_up(args: argparse.Namespace) -> int:
     signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     for sig in signals:  # while the drones start, a signal ends the start-up at once (and stops what started)
         signal.signal(sig, _interrupt)
-    swarm = Swarm(plan, forward=None if args.no_forward else args.forward)
+    swarm = Swarm(plan, simulation.harness(plan), forward=None if args.no_forward else args.forward)
     station = Station(swarm, _say, LossPolicy(args.loss_policy), report_dir=args.report, contact_distance_m=contact)
     server: ControlServer | None = None
     try:
@@ -358,13 +358,14 @@ def _loop(swarm: Swarm, station: Station, server: ControlServer, stop: _Stop) ->
         station.watch(swarm.clock())
 
 
-def run_fly(args: argparse.Namespace) -> int:
-    mission = load_mission(args.mission)
+def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
+    mission = load_mission(args.mission, max_obstacles=simulation.max_obstacles)
     if args.first_instance < 0 or args.first_instance + mission.swarm.drones > 255:
         raise UsageError("--first-instance must leave room for every sysid (instance + 1 <= 255)")
     report = args.report or Path("reports") / f"{mission.name}-{time.strftime('%Y%m%d-%H%M%S')}"
-    runner = MissionRunner(mission, speed_factor=_speed(args), origin=args.origin, first_instance=args.first_instance,
-                           report_dir=report, say=_say, airframe=args.airframe, seed=args.seed,
+    runner = MissionRunner(mission, simulation, speed_factor=_speed(args), origin=args.origin,
+                           first_instance=args.first_instance, report_dir=report, say=_say, airframe=args.airframe,
+                           seed=args.seed,
                            forward=None if args.no_forward else args.forward, lockstep=args.lockstep,
                            lockstep_quantum=_quantum(args),
                            camera_drones=_camera_drones(args, mission.swarm.drones))  # fmt: skip
@@ -471,14 +472,15 @@ def run_client(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """The ``swarm`` entry point and the composition root's user: the simulated drones come from ``SITL``."""
     try:
         args = build_parser().parse_args(argv)
         if args.command == "up":
-            return run_up(args)
+            return run_up(args, SITL)
         if args.command == "fly":
-            return run_fly(args)
+            return run_fly(args, SITL)
         if args.command == "bench":
-            return run_bench(args)
+            return run_bench(args, SITL)
         return run_client(args)
     except (UsageError, MissionFileError) as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)

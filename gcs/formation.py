@@ -56,7 +56,7 @@ from numpy.polynomial import Polynomial
 
 from gcs.assignment import assign_min_squared_distance
 from gcs.frames import Vec3
-from sitl.mathutil import wrap_pi
+from gcs.geodesy import wrap_pi
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]

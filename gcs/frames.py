@@ -5,9 +5,9 @@ longitude, altitude AMSL) chosen for the flight. Every PX4-like drone, however, 
 in **its own** local NED frame, anchored where it booted; drones spawned side by side have origins metres apart,
 so a swarm-frame point has different local coordinates on every drone.
 
-All conversions go through sitl/dynamics/geodesy.py, the pure module the drones themselves use to turn geodetic
-positions into local NED and back, so the ground station and the drones agree on the definition (orthographic
-projection onto the origin's tangent plane; down is the altitude difference). Swarm NED -> geodetic -> drone NED
+All conversions go through gcs/geodesy.py, the ground station's own implementation of the local-frame definition
+the drones use (orthographic projection onto the origin's tangent plane; down is the altitude difference), written
+independently of the drone's code so that a projection bug cannot cancel out. Swarm NED -> geodetic -> drone NED
 round-trips to well under a millimetre at swarm scales.
 
 Which setpoint message: SET_POSITION_TARGET_LOCAL_NED in each drone's own local frame
@@ -39,8 +39,7 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
-from sitl.dynamics.geodesy import LocalFrame
-from sitl.dynamics.plant import GeoPoint
+from gcs.geodesy import GeoPoint, NedFrame
 
 Vec3 = tuple[float, float, float]
 
@@ -75,7 +74,7 @@ class SwarmFrame:
 
     def __init__(self, origin: GeoPoint) -> None:
         self._origin = origin
-        self._frame = LocalFrame(origin)
+        self._frame = NedFrame(origin)
 
     @property
     def origin(self) -> GeoPoint:
@@ -102,7 +101,7 @@ class DroneFrame:
     def __init__(self, swarm: SwarmFrame, drone_origin: GeoPoint) -> None:
         self._swarm = swarm
         self._origin = drone_origin
-        self._local = LocalFrame(drone_origin)
+        self._local = NedFrame(drone_origin)
         self._local_from_swarm = _ned_from_ecef_matrix(drone_origin) @ _ned_from_ecef_matrix(swarm.origin).T
 
     @property
@@ -137,14 +136,14 @@ class DroneFrame:
 def origin_from_home(home: GeoPoint, home_local_ned_m: Sequence[float] | npt.ArrayLike) -> GeoPoint:
     """A drone's local origin from its HOME_POSITION: home's geodetic position and home's local coordinates.
 
-    The origin is the point O with ``LocalFrame(O).ned_from_geo(home) == home_local_ned_m``. Stepping back from home
+    The origin is the point O with ``NedFrame(O).ned_from_geo(home) == home_local_ned_m``. Stepping back from home
     by the local offset lands within about d^2 / R of it (the two tangent planes differ); a few fixed-point
     corrections remove that.
     """
     target = np.asarray(_as_vec3(home_local_ned_m, "home local NED position"))
-    origin = LocalFrame(home).geo_from_ned(tuple(-target))
+    origin = NedFrame(home).geo_from_ned(tuple(-target))
     for _ in range(_ORIGIN_ITERATIONS):
-        frame = LocalFrame(origin)
+        frame = NedFrame(origin)
         residual = target - np.asarray(frame.ned_from_geo(home))
         if float(np.max(np.abs(residual))) < 1e-9:
             break

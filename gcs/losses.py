@@ -1,14 +1,14 @@
 """Drones the swarm has lost, as the ground station records them: when, why, and where each came down.
 
-A drone is lost when its process ends for any reason, when it crashes (a collision, a motor failure), or when its
-link stays silent (no HEARTBEAT for the link-loss time). The supervisor records each loss once; formations and
-behaviours plan over the drones that are not lost, and the flight report lists every loss.
+A drone is lost when its flight software ends for any reason (the simulation harness says how), when it crashes
+(a collision, a motor failure), or when its link stays silent (no HEARTBEAT for the link-loss time). The supervisor
+records each loss once; formations and behaviours plan over the drones that are not lost, and the flight report
+lists every loss.
 """
 
 from __future__ import annotations
 
 import enum
-import signal
 from dataclasses import dataclass
 
 
@@ -41,17 +41,6 @@ class LossPolicy(enum.Enum):
 
 
 LOSS_POLICIES = tuple(p.value for p in LossPolicy)
-
-
-def process_exit_cause(returncode: int) -> str:
-    """One line for how a drone process ended: a negative return code is the signal that ended it (as Popen)."""
-    if returncode < 0:
-        try:
-            name = signal.Signals(-returncode).name
-        except ValueError:
-            name = f"signal {-returncode}"
-        return f"process killed by {name}"
-    return f"process exited with code {returncode}"
 
 
 def loss_line(loss: DroneLoss) -> str:

@@ -38,9 +38,8 @@ from typing import Any
 from gcs.behaviours import FlockSpec, FollowSpec
 from gcs.faults import FAULT_NAMES, FaultError, FaultRequest, fault_request
 from gcs.formation import CircleSpec, Formation, FormationError, GridSpec, LineSpec, VSpec
+from gcs.harness import LAYOUTS
 from gcs.losses import LOSS_POLICIES, LossPolicy
-from gcs.supervisor import LAYOUTS
-from sitl.world import MAX_OBSTACLES
 
 MAX_DRONES = 100
 
@@ -510,7 +509,7 @@ def _params(reader: _Reader, table: Any, where: tuple[str | None, int | None]) -
     return tuple(out)
 
 
-def _obstacles(reader: _Reader, data: Any) -> tuple[ObstacleSpec, ...]:
+def _obstacles(reader: _Reader, data: Any, max_obstacles: int | None) -> tuple[ObstacleSpec, ...]:
     if not isinstance(data, list):
         raise reader.fail((None, None), "obstacles", "must be [[obstacles]] tables")
     out = []
@@ -535,12 +534,13 @@ def _obstacles(reader: _Reader, data: Any) -> tuple[ObstacleSpec, ...]:
                 **{size: reader.number(item, size, where, "pos")},
             )
         )
-    if len(out) > MAX_OBSTACLES:
-        raise reader.fail((None, None), "obstacles", f"at most {MAX_OBSTACLES}, got {len(out)}")
+    if max_obstacles is not None and len(out) > max_obstacles:
+        raise reader.fail((None, None), "obstacles", f"at most {max_obstacles}, got {len(out)}")
     return tuple(out)
 
 
-def parse_mission(text: str, path: Path) -> MissionSpec:
+def parse_mission(text: str, path: Path, *, max_obstacles: int | None = None) -> MissionSpec:
+    """The mission in ``text`` (read from ``path``); ``max_obstacles``: what the simulation's world holds."""
     reader = _Reader(path, _Locator(text))
     try:
         data = tomllib.loads(text)
@@ -585,13 +585,13 @@ def parse_mission(text: str, path: Path) -> MissionSpec:
         steps=steps,
         loss_policy=LossPolicy(policy),
         path=path,
-        obstacles=_obstacles(reader, data.get("obstacles", [])),
+        obstacles=_obstacles(reader, data.get("obstacles", []), max_obstacles),
     )
 
 
-def load_mission(path: Path) -> MissionSpec:
+def load_mission(path: Path, *, max_obstacles: int | None = None) -> MissionSpec:
     try:
         text = path.read_text()
     except OSError as exc:
         raise MissionFileError(f"{path}: cannot read: {exc.strerror}") from None
-    return parse_mission(text, path)
+    return parse_mission(text, path, max_obstacles=max_obstacles)

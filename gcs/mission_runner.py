@@ -23,6 +23,8 @@ from gcs.degrade import apply_loss_policy
 from gcs.faults import CRASH, result_text
 from gcs.formation import SETPOINT_STREAM_HZ
 from gcs.frames import SwarmFrame
+from gcs.geodesy import GeoPoint
+from gcs.harness import Simulation, SpawnPlan
 from gcs.losses import LossPolicy, loss_line
 from gcs.mission_file import (
     FaultStep,
@@ -43,10 +45,7 @@ from gcs.recorder import FlightRecorder
 from gcs.recording import EventRecord, FaultRecord, FlightRecording, StepRecord
 from gcs.report import write_report
 from gcs.streamer import FormationStreamer
-from gcs.supervisor import SpawnPlan
 from gcs.swarm import PARAM_ATTEMPTS, PARAM_TIMEOUT_S, Swarm, SwarmError
-from sitl.airframe import load_airframe
-from sitl.dynamics.plant import GeoPoint
 
 Say = Callable[[str], None]
 ALT_TOLERANCE_M = 0.2  # takeoff is done when every drone holds the target altitude within this...
@@ -60,8 +59,8 @@ POLICY_LANDING_S = 120.0  # survivors landed (land, hold) or back and landed (ab
 
 
 class MissionRunner:
-    def __init__(self, mission: MissionSpec, *, speed_factor: float, origin: GeoPoint, first_instance: int,
-                 report_dir: Path, say: Say, airframe: str | None = None, seed: int = 0,
+    def __init__(self, mission: MissionSpec, simulation: Simulation, *, speed_factor: float, origin: GeoPoint,
+                 first_instance: int, report_dir: Path, say: Say, airframe: str | None = None, seed: int = 0,
                  forward: tuple[str, int] | None = None, lockstep: bool = False,
                  lockstep_quantum: int = 1, camera_drones: frozenset[int] = frozenset()) -> None:  # fmt: skip
         self.mission = mission
@@ -84,10 +83,10 @@ class MissionRunner:
             camera_drones=camera_drones,
             camera_dir=report_dir / "camera",
         )
-        self.swarm = Swarm(plan, forward=forward, relay=mission.swarm.relay)
+        self.swarm = Swarm(plan, simulation.harness(plan), forward=forward, relay=mission.swarm.relay)
         self.streamer = FormationStreamer(self.swarm, self.swarm_frame)
         # Two bodies touch when their centres are closer than the sum of both collision radii.
-        contact_distance = 2.0 * (load_airframe(airframe) if airframe else load_airframe()).collision_radius_m
+        contact_distance = simulation.contact_distance_m(airframe)
         self.recording = FlightRecording(
             mission_name=mission.name, n_drones=mission.swarm.drones, collision_radius_m=contact_distance
         )
@@ -149,7 +148,7 @@ class MissionRunner:
             if sysid in self.swarm.losses:
                 result = "not injected: drone already lost"
             elif step.fault.kind == CRASH:
-                result = f"process {self.swarm.kill(sysid)} killed with SIGKILL"
+                result = self.swarm.kill(sysid)
             else:
                 try:
                     result = result_text(self.swarm.inject_fault(sysid, step.fault).result)
@@ -258,12 +257,10 @@ class MissionRunner:
 
     def _place_obstacles(self) -> None:
         """Declare the mission's static obstacles in the shared world (cameras see them, contact crashes)."""
-        world = self.swarm.world
-        assert world is not None
         for ob in self.mission.obstacles:
             geo = self.swarm_frame.geo_from_ned((ob.north_m, ob.east_m, -ob.centre_alt_m))
-            world.add_obstacle(cylinder=ob.cylinder, centre=(geo.lat_deg, geo.lon_deg, geo.alt_amsl_m),
-                               radius_m=ob.radius_m, height_m=ob.height_m)  # fmt: skip
+            self.swarm.harness.add_obstacle(cylinder=ob.cylinder, centre_geo=(geo.lat_deg, geo.lon_deg, geo.alt_amsl_m),
+                                            radius_m=ob.radius_m, height_m=ob.height_m)  # fmt: skip
         if self.mission.obstacles:
             self.say(f"{len(self.mission.obstacles)} static obstacle(s) placed")
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections import deque
 
-from gcs.supervisor import SpawnPlan
+from gcs.harness import SpawnPlan
 
 WINDOW_S = 5.0  # wall seconds over which the achieved rate is measured
 SLOW_FRACTION = 0.9  # below this fraction of the requested speed, the swarm is said to fall behind

@@ -181,10 +181,10 @@ class Station:
         except FaultError as exc:
             return {"ok": False, "usage": True, "error": str(exc)}
         if fault.kind == CRASH:
-            pid = self.swarm.kill(sysid)
-            self.say(f"swarm: fault: drone {sysid} process (pid {pid}) killed with SIGKILL")
-            self._record_fault(sysid, fault.describe(), f"process {pid} killed with SIGKILL")
-            return {"ok": True, "result": f"process {pid} killed"}
+            done = self.swarm.kill(sysid)
+            self.say(f"swarm: fault: drone {sysid}: {done}")
+            self._record_fault(sysid, fault.describe(), done)
+            return {"ok": True, "result": done}
         ack = self.swarm.inject_fault(sysid, fault)
         self.say(f"swarm: fault {fault.describe()} on drone {sysid}: {result_text(ack.result)}")
         self._record_fault(sysid, fault.describe(), result_text(ack.result))

@@ -22,8 +22,8 @@ from gcs.behaviours import Behaviour, Flock, FlockSpec, FollowSpec, LeaderFollow
 from gcs.crossing import CrossingMove, antipodal_goals
 from gcs.formation import Formation, FormationEngine, FormationError, Setpoint, TransitionLimits
 from gcs.frames import DroneFrame, SwarmFrame, Vec3, origin_from_home
+from gcs.geodesy import GeoPoint
 from gcs.swarm import Swarm, SwarmError, check
-from sitl.dynamics.plant import GeoPoint
 
 # Position setpoint with velocity and acceleration feed-forward; yaw and yaw rate ignored (type_mask bits 10, 11).
 TYPE_MASK_POS_VEL_ACC = 0b0000_1100_0000_0000

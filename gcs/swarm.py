@@ -5,8 +5,11 @@ telemetry into the fleet view, sends commands with PX4-client retry rules, and s
 land or disarm over MAVLink, then terminate and reap every process.
 
 Times are simulated seconds on the supervisor's clock (``Swarm.clock``): paced, the wall clock times the speed
-factor; in lockstep, the drones' common clock in the shared world (sitl/lockstep.py), which the supervisor itself
-gates after every pump, so formations, timeouts and mission steps run on exactly the drones' time.
+factor; in lockstep, the drones' common clock, which the supervisor itself moves on (through the harness) after
+every pump, so formations, timeouts and mission steps run on exactly the drones' time.
+
+The simulation is reached only through the ``SimulationHarness`` handed to the constructor (gcs/harness.py):
+it starts the drones, says which ended and why, crashes one on request, and runs the lockstep clock.
 """
 
 from __future__ import annotations
@@ -14,28 +17,22 @@ from __future__ import annotations
 import dataclasses
 import math
 import selectors
-import shutil
-import tempfile
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.faults import BATTERY_LEVEL_PARAM, ENABLE_PARAM, FAULTS, FaultRequest
 from gcs.fleet import LINK_LOST_S, Fleet
-from gcs.losses import MAV_STATE_FLIGHT_TERMINATION, DroneLoss, process_exit_cause
+from gcs.geodesy import GeoPoint, NedFrame
+from gcs.harness import SimulationHarness, SpawnError, SpawnPlan
+from gcs.losses import MAV_STATE_FLIGHT_TERMINATION, DroneLoss
 from gcs.params import param_set_message, param_value
 from gcs.px4_modes import set_mode_params
 from gcs.relay import NeighbourRelay
-from gcs.supervisor import DroneProcess, ProcessGroup, SpawnError, SpawnPlan
 from gcs.transport import GcsSocket
-from sitl.dynamics.geodesy import ned_from_geo
-from sitl.dynamics.plant import PHYSICS_RATE_HZ, GeoPoint
-from sitl.lockstep import LockstepGate
-from sitl.world import ALT, LAT, LON, TIME, VALID, SharedWorld
 
 COMMAND_TIMEOUT_S = 0.5  # MAVSDK's per-try timeout
 COMMAND_RETRIES = 3
@@ -53,8 +50,7 @@ BATCH_HOLD_S = 0.05
 # DO_SET_MODE for PX4 Hold (AUTO.LOITER), as pymavlink encodes it for PX4
 HOLD_MODE = set_mode_params("LOITER")
 GCS_HEARTBEAT_PERIOD_S = 1.0  # QGroundControl sends its HEARTBEAT at 1 Hz; PX4's datalink-loss failsafe watches it
-# A lost drone's body is "down" once it is this close to its launch altitude (the ground, in this flat world).
-ON_GROUND_M = 0.3
+EXIT_CHECK_S = 0.5  # wall seconds between looks for ended drones while moving the lockstep clock
 PARAM_TIMEOUT_S = 1.0  # for a PARAM_VALUE echo, per attempt (on the swarm's clock)
 PARAM_ATTEMPTS = 3
 
@@ -73,31 +69,29 @@ class Swarm:
     def __init__(
         self,
         plan: SpawnPlan,
+        harness: SimulationHarness,
         relay_radius_m: float | None = None,
         relay: bool = True,
         forward: tuple[str, int] | None = None,
         batch_hold_s: float = BATCH_HOLD_S,
     ) -> None:
-        # Drone output always goes to log files, so a drone that fails to start can be explained; without a
-        # log directory from the user they live in a temporary one removed at shutdown.
-        self._temp_logs = tempfile.mkdtemp(prefix="swarm-logs-") if plan.log_dir is None else None
-        if self._temp_logs is not None:
-            plan = dataclasses.replace(plan, log_dir=Path(self._temp_logs))
         self.plan = plan
+        self.harness = harness  # the simulation, made for this plan by the composition root (gcs/composition.py)
+        self._swarm_frame = NedFrame(plan.origin)
+        self._sysids: list[int] = []  # spawn order, once launched
+        self._lockstep_running = False
+        self._wake_fd: int | None = None
         self._wall_t0 = time.monotonic()
-        self.gate: LockstepGate | None = None
-        self._gate_progress = (0, time.monotonic())  # (steps, wall time they were first seen)
+        self._gate_progress = (0.0, time.monotonic())  # (common time, wall time it was first seen)
         self._next_exit_check = 0.0
         self.link = GcsSocket()
         self.fleet = Fleet()
-        self.processes = ProcessGroup()
         self.listeners: list[Callable[[Any, float], None]] = []  # e.g. the flight recorder, the relay
         # Commands and parameter writes the swarm sends, as packed MAVLink frames (the flight log keeps them)
         self.sent_listeners: list[Callable[[bytes, float], None]] = []
         self._selector = selectors.DefaultSelector()
         self._selector.register(self.link.sock, selectors.EVENT_READ)
         self._acks: list[Any] = []
-        self.world: SharedWorld | None = None
         self.relay: NeighbourRelay | None = NeighbourRelay(radius_m=relay_radius_m) if relay else None
         # Every drone's traffic also goes to this address (QGroundControl/MAVProxy listen on 14550), and what comes
         # back from there is routed to the drones by target system, as a MAVLink router does.
@@ -111,8 +105,8 @@ class Swarm:
 
     def clock(self) -> float:
         """Simulated seconds: the drones' common clock in lockstep, else wall time times the speed factor."""
-        if self.gate is not None:
-            return self.gate.time_s()
+        if self._lockstep_running:
+            return self.harness.lockstep_time_s()
         return (time.monotonic() - self._wall_t0) * self.plan.speed_factor
 
     def _wall_wait_s(self, sim_s: float) -> float:
@@ -122,132 +116,87 @@ class Swarm:
 
     def _advance_gate(self) -> None:
         """Let the drones run on to just past the supervisor's time; notice a stall or a dead member."""
-        gate = self.gate
-        if gate is None:
+        if not self._lockstep_running:
             return
-        gate.drain_wakes()
         wall = time.monotonic()
         if wall >= self._next_exit_check:
-            self._next_exit_check = wall + 0.5
-            for d in self.processes.exited():
-                gate.remove(d.instance)
-        steps = gate.completed_steps()
-        if gate.members() < len(self.processes.drones) and steps == 0:
-            return  # not everyone has joined yet: nobody starts before the rest
-        now = steps * gate.dt_s
-        until = now + LOCKSTEP_LEAD_S
+            self._next_exit_check = wall + EXIT_CHECK_S
+            self.harness.ended()  # a drone that ended leaves the lockstep gate: it must hold nobody back
+        until = math.inf
         if self.plan.speed_factor > 0:  # paced lockstep: the common clock follows the wall clock
-            until = min(until, (wall - self._wall_t0) * self.plan.speed_factor)
-        gate.open_until(until)
-        if steps != self._gate_progress[0]:
-            self._gate_progress = (steps, wall)
-        elif wall - self._gate_progress[1] > LOCKSTEP_STALL_S and gate.members() > 0:
+            until = (wall - self._wall_t0) * self.plan.speed_factor
+        now = self.harness.advance_lockstep(LOCKSTEP_LEAD_S, until)
+        if now is None:
+            return  # not every drone has joined yet: nobody starts before the rest
+        if now != self._gate_progress[0]:
+            self._gate_progress = (now, wall)
+        elif wall - self._gate_progress[1] > LOCKSTEP_STALL_S and len(self.harness.ended()) < len(self._sysids):
             raise SwarmError(f"simulation stalled at t={now:.3f} s: no drone advanced for {LOCKSTEP_STALL_S:g} s")
 
     def drone_time_s(self) -> float | None:
-        """The slowest running drone's own simulated time (the shared world's TIME column, which each drone writes
-        every few physics steps); None before every drone has written it."""
-        if self.world is None:
-            return None
-        ended = {d.instance for d in self.processes.exited()}
-        instances = [d.instance for d in self.processes.drones if d.instance not in ended]
-        table = self.world.table
-        if not instances or not (table[instances, VALID] == 1.0).all():
-            return None
-        return float(table[instances, TIME].min())
+        """The slowest running drone's own simulated time; None before every drone has one."""
+        return self.harness.drone_time_s()
 
     @property
     def sysids(self) -> list[int]:
-        return [d.sysid for d in self.processes.drones]
+        return list(self._sysids)
 
     @property
     def active_sysids(self) -> list[int]:
         """The drones the swarm still has: every one not in ``losses``."""
-        return [d.sysid for d in self.processes.drones if d.sysid not in self.losses]
+        return [s for s in self._sysids if s not in self.losses]
 
     # ---- losses ----------------------------------------------------------------------------------------------------
     def detect_losses(self, time_s: float) -> list[DroneLoss]:
         """Record every new loss once and return them: a drone whose process ended (any cause), one that reports
         MAV_STATE_FLIGHT_TERMINATION (crashed, terminated), or one silent for the link-loss time.
 
-        ``time_s`` is the time to record (the caller's mission clock). A process that ended leaves the lockstep
-        gate and the shared world, where its body falls under gravity from its last state (``mark_ended``).
+        ``time_s`` is the time to record (the caller's mission clock). The harness says which drones ended and how
+        (and their bodies then fall in the simulated world from their last state).
         """
         new: list[DroneLoss] = []
         now = self.clock()
-        for d in self.processes.exited():
-            if d.sysid in self.losses:
-                continue
-            code = d.process.returncode
-            assert code is not None
-            new.append(self._record_loss(d.sysid, time_s, process_exit_cause(code)))
-        for d in self.processes.drones:
-            view = self.fleet.drones.get(d.sysid)
-            if view is None or d.sysid in self.losses:
+        for sysid, cause in self.harness.ended().items():
+            if sysid not in self.losses:
+                new.append(self._record_loss(sysid, time_s, cause))
+        for sysid in self._sysids:
+            view = self.fleet.drones.get(sysid)
+            if view is None or sysid in self.losses:
                 continue
             if view.system_status == MAV_STATE_FLIGHT_TERMINATION:
-                new.append(self._record_loss(d.sysid, time_s, crash_cause(view.texts, now)))
-            elif view.lost(now) and time.monotonic() - self._heard_wall_s.get(d.sysid, -math.inf) > LINK_LOST_S:
+                new.append(self._record_loss(sysid, time_s, crash_cause(view.texts, now)))
+            elif view.lost(now) and time.monotonic() - self._heard_wall_s.get(sysid, -math.inf) > LINK_LOST_S:
                 # silent for the link-loss time on both clocks: a loaded machine that delays a paced drone's
                 # heartbeat by a fraction of a wall second (3 s at --speed 4 is 0.75 s) must not lose it for good
                 cause = f"link lost (no HEARTBEAT for {view.link_age_s(now):.1f} s)"
-                new.append(self._record_loss(d.sysid, time_s, cause))
+                new.append(self._record_loss(sysid, time_s, cause))
         self._settle_down_positions()
         return new
 
     def _record_loss(self, sysid: int, time_s: float, cause: str) -> DroneLoss:
         loss = DroneLoss(sysid=sysid, time_s=time_s, cause=cause)
         self.losses[sysid] = loss
-        d = self._process(sysid)
-        if d.process.returncode is not None:
-            if self.world is not None:  # its body stops hovering: it falls from its last state (sitl/world.py)
-                self.world.mark_ended(d.instance)
-            if self.gate is not None:
-                self.gate.remove(d.instance)
         return loss
-
-    def _process(self, sysid: int) -> DroneProcess:
-        return next(d for d in self.processes.drones if d.sysid == sysid)
 
     def _settle_down_positions(self) -> None:
         """Fill in where each lost drone came down, once its body is on the ground (north/east of the origin)."""
-        if self.world is None:
+        if not self._sysids:
             return
         for sysid, loss in list(self.losses.items()):
             if loss.down_ne_m is None:
-                d = self._process(sysid)
-                geo = self._grounded_body_geo(d.instance, d.home.alt_amsl_m)
+                geo = self.harness.grounded_body_geo(sysid, self.clock())
                 if geo is not None:
                     point = GeoPoint(lat_deg=geo[0], lon_deg=geo[1], alt_amsl_m=geo[2])
-                    north, east, _ = ned_from_geo(point, self.plan.origin)
+                    north, east, _ = self._swarm_frame.ned_from_geo(point)
                     self.losses[sysid] = dataclasses.replace(loss, down_ne_m=(north, east))
 
-    def _grounded_body_geo(self, instance: int, home_alt_m: float) -> tuple[float, float, float] | None:
-        """Where a drone's body lies, once it lies on the ground; None while it is in the air (or has no body).
-
-        An ended process's body falls in the shared world (``SharedWorld.body_geo``, computed from its last state):
-        it is down once it is where it comes to rest. A live drone (crashed, or silent) writes its own row: it is
-        down within ON_GROUND_M of its launch altitude."""
-        world = self.world
-        assert world is not None
-        if world.ended(instance):
-            now, rest = world.body_geo(instance, self.clock()), world.body_geo(instance, math.inf)
-            if now is None or rest is None or abs(now[2] - rest[2]) > 0.01:
-                return None
-            return (float(now[0]), float(now[1]), float(now[2]))
-        row = world.table[instance]
-        if row[VALID] != 1.0 or float(row[ALT]) - home_alt_m > ON_GROUND_M:
-            return None
-        return float(row[LAT]), float(row[LON]), float(row[ALT])
-
-    def kill(self, sysid: int) -> int:
-        """SIGKILL drone ``sysid``'s process by its PID (a simulated crash of the flight software); returns the PID.
-        The loss is recorded by ``detect_losses`` when the supervisor sees the process gone, as for any other end."""
-        d = self._process(sysid)
-        if d.process.returncode is not None:
-            raise SwarmError(f"drone {sysid}: its process has already ended")
-        d.process.kill()
-        return int(d.process.pid)
+    def kill(self, sysid: int) -> str:
+        """Crash drone ``sysid``'s flight software (the harness kills what runs it); returns what was done, in one
+        line. The loss is recorded by ``detect_losses`` when the harness reports the end, as for any other end."""
+        done = self.harness.kill(sysid)
+        if done is None:
+            raise SwarmError(f"drone {sysid}: its flight software has already ended")
+        return done
 
     def set_param(self, sysid: int, name: str, value: int | float) -> None:
         """PARAM_SET, confirmed by the drone's PARAM_VALUE echo (as MAVSDK does); SwarmError if refused or silent."""
@@ -372,20 +321,20 @@ class Swarm:
     # ---- lifecycle -------------------------------------------------------------------------------------------------
     def up(self, ready_timeout_s: float = 30.0) -> None:
         """Spawn every drone and wait for its first HEARTBEAT; SpawnError names the first that does not come up."""
-        self.world = SharedWorld.create()  # simulation truth for collisions; the drones attach to it by name
-        self.processes.spawn(self.plan, self.link.port, self.world.name)
+        try:
+            self._sysids = self.harness.launch(self.link.port)
+        except RuntimeError as exc:  # the harness's one line (gcs/harness.py)
+            raise SpawnError(str(exc)) from None
         self._wall_t0 = time.monotonic()
-        if self.plan.lockstep:
-            self.gate = LockstepGate(self.world, 1.0 / PHYSICS_RATE_HZ)
-            self._selector.register(self.gate.wake_socket, selectors.EVENT_READ)
+        self._wake_fd = self.harness.wake_fileno()
+        if self._wake_fd is not None:
+            self._selector.register(self._wake_fd, selectors.EVENT_READ)
+        self._lockstep_running = self.plan.lockstep
         expected = set(self.sysids)
         end = time.monotonic() + ready_timeout_s  # start-up is wall-clock work (Python, JSBSim), whatever the mode
         while not expected <= set(self.fleet.drones):
-            for d in self.processes.exited():
-                detail = d.last_log_line() or "no output"
-                raise SpawnError(
-                    f"drone {d.instance} (sysid {d.sysid}) exited with code {d.process.returncode}: {detail}"
-                )
+            for sysid in self.harness.ended():
+                raise SpawnError(self.harness.end_report(sysid))
             if time.monotonic() > end:
                 missing = sorted(expected - set(self.fleet.drones))
                 raise SpawnError(f"no HEARTBEAT within {ready_timeout_s:g} s from sysid {', '.join(map(str, missing))}")
@@ -441,16 +390,14 @@ class Swarm:
                 if still:  # a drone that cannot land in time is disarmed where it is
                     self.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196, sysids=still)
         finally:
-            self.processes.terminate()
-            if self.gate is not None:
-                self._selector.unregister(self.gate.wake_socket)
-                self.gate.close()
-            if self.world is not None:
-                self.world.close()
-            self._selector.close()
-            self.link.close()
-            if self._temp_logs is not None:
-                shutil.rmtree(self._temp_logs, ignore_errors=True)
+            if self._wake_fd is not None:
+                self._selector.unregister(self._wake_fd)
+                self._wake_fd = None
+            try:
+                self.harness.close()
+            finally:
+                self._selector.close()
+                self.link.close()
 
     # ---- commands --------------------------------------------------------------------------------------------------
     def command_all(self, command: int, *params: float, sysids: Iterable[int] | None = None) -> list[Ack]:

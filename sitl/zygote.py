@@ -5,8 +5,8 @@ numpy, JSBSim, pymavlink's message tables and OpenCV. Nine drones on two cores s
 that alone, fifty more than twelve. A fork of a process that already holds all of it costs a few milliseconds, and
 the children share those pages copy-on-write instead of each holding its own copy.
 
-The supervisor (gcs/supervisor.py) starts ``python -m sitl.zygote`` and talks to it over its stdin and stdout, one
-JSON object per line:
+The simulation harness (sitl/harness/processes.py) starts ``python -m sitl.zygote`` and talks to it over its stdin
+and stdout, one JSON object per line:
 
 - request ``{"argv": [...], "log": PATH or null, "nice": N}``: fork a drone running ``sitl.cli.main(argv)`` with
   stdout and stderr in ``log`` (or /dev/null), at niceness ``nice``;

@@ -2,7 +2,7 @@
 (the machine's price of a wake-up), which forks flights of its own and must reap them.
 
 Policy: loopback only; instances 244-245 (sysids 245-246: clear of the relay probe's 240-241 and of the other
-suites' blocks); the bench runs as its own process (``python -m gcs.bench``) and must leave no drone behind. What is
+suites' blocks); the bench runs as its own process (``python -m gcs.cli bench``) and must leave no drone behind. What is
 checked is the shape of the result and that every figure was actually measured (finite, positive, consistent with
 the others); the figures themselves depend on the machine and are not asserted.
 """
@@ -70,7 +70,7 @@ def test_bench_measures_every_figure_for_each_swarm_size_and_leaves_nothing_behi
     json_path, plot_path = tmp_path / "bench.json", tmp_path / "bench.png"
     # GIVEN no drone of ours running WHEN the bench runs N = 1, 2 for a few simulated seconds
     assert sitl_processes_of({FIRST_INSTANCE, FIRST_INSTANCE + 1}) == []
-    cmd = [sys.executable, "-m", "gcs.bench", "--drones", "2,1", "--sim-seconds", str(SIM_SECONDS),
+    cmd = [sys.executable, "-m", "gcs.cli", "bench", "--drones", "2,1", "--sim-seconds", str(SIM_SECONDS),
            "--first-instance", str(FIRST_INSTANCE), "--json", str(json_path), "--plot", str(plot_path)]  # fmt: skip
     result = subprocess.run(cmd, capture_output=True, text=True, timeout=310)
     # THEN it succeeds, prints one table row per N, and every drone it started is gone
@@ -120,10 +120,10 @@ def test_bench_measures_every_figure_for_each_swarm_size_and_leaves_nothing_behi
 
 
 def test_bad_arguments_are_one_line_and_spawn_nothing() -> None:
-    result = subprocess.run([sys.executable, "-m", "gcs.bench", "--drones", "1,1"],
+    result = subprocess.run([sys.executable, "-m", "gcs.cli", "bench", "--drones", "1,1"],
                             capture_output=True, text=True, timeout=60)  # fmt: skip
     assert result.returncode == 2
-    assert result.stderr.strip().splitlines() == ["swarm bench: error: argument --drones: lists 1 twice"]
+    assert result.stderr.strip().splitlines() == ["swarm: error: argument --drones: lists 1 twice"]
     assert result.stdout == ""
 
 

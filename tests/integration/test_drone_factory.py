@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from gcs.drone_factory import DroneFactory
+from sitl.harness.factory import DroneFactory
 
 pytestmark = pytest.mark.timeout(60)
 

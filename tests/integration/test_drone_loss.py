@@ -26,7 +26,8 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.supervisor import SpawnPlan
+from gcs.composition import SITL
+from gcs.harness import SpawnPlan
 from gcs.swarm import Swarm
 from sitl.dynamics.geodesy import ned_from_geo
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
@@ -327,7 +328,8 @@ def test_loss_policy_abort_returns_the_survivor_to_launch_and_drops_the_rest_of_
 def test_the_supervisor_sends_every_drone_a_gcs_heartbeat_once_a_second() -> None:
     """As QGroundControl does: a drone's datalink-loss failsafe (COM_DL_LOSS_T) counts from the last one."""
     # GIVEN a supervisor that has heard one drone (a real UDP socket speaking for sysid 7)
-    swarm = Swarm(SpawnPlan(n_drones=1), relay=False)
+    plan = SpawnPlan(n_drones=1)
+    swarm = Swarm(plan, SITL.harness(plan), relay=False)
     drone = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
         drone.bind(("127.0.0.1", 0))

@@ -24,7 +24,6 @@ from gcs.bench import (
     Snapshot,
     WindowFigures,
     add_bench_parser,
-    bare_jsbsim_cpu_ms_per_sim_s,
     bench_document,
     check_instances,
     circle_limits,
@@ -33,7 +32,6 @@ from gcs.bench import (
     format_table,
     largest_real_time,
     latency_figures,
-    main,
     memory_kb,
     parse_drone_counts,
     percentile,
@@ -45,11 +43,15 @@ from gcs.bench import (
     window_figures,
     write_plot,
 )
+from gcs.cli import main as swarm_main
+from gcs.composition import SITL
 from gcs.formation import CircleSpec, FormationEngine, FormationError, slots_at
+from gcs.harness import grid_layout
 from gcs.probe import PROBE_SYSIDS, latency_stats
 from gcs.streamer import DEFAULT_LIMITS
-from gcs.supervisor import grid_layout
+from sitl.harness.simulation import bare_plant_cpu_ms_per_sim_s
 
+RATE_HZ = SITL.physics_rate_hz
 REQUIRED_ROW_KEYS = {
     "n_drones",
     "rtf_paced",
@@ -89,13 +91,14 @@ def test_bad_drone_counts_say_what_is_wrong(text: str, complaint: str) -> None:
 
 
 def test_instances_must_fit_the_world_and_keep_clear_of_the_probe_sysids() -> None:
-    check_instances(100, 100)  # sysids 101..200
+    limit = SITL.max_instances
+    check_instances(100, 100, limit)  # sysids 101..200
     with pytest.raises(BenchUsageError, match=f"sysid {PROBE_SYSIDS[0]}"):
-        check_instances(200, 50)
+        check_instances(200, 50, limit)
     with pytest.raises(BenchUsageError, match="must lie in"):
-        check_instances(250, 10)
+        check_instances(250, 10, limit)
     with pytest.raises(BenchUsageError, match="must lie in"):
-        check_instances(-1, 1)
+        check_instances(-1, 1, limit)
 
 
 def test_the_subcommand_parses_like_the_standalone_command() -> None:
@@ -112,17 +115,15 @@ def test_the_subcommand_parses_like_the_standalone_command() -> None:
 
 @pytest.mark.parametrize("argv", [["--drones", "0"], ["--sim-seconds", "-1"], ["--sim-seconds", "nan"], ["--bogus"]])
 def test_bad_arguments_end_with_one_error_line_and_exit_2(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
-    with pytest.raises(SystemExit) as exit_info:
-        main(argv)
-    assert exit_info.value.code == 2
+    assert swarm_main(["bench", *argv]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("swarm bench: error:"), err
+    assert len(err) == 1 and err[0].startswith("swarm: error:"), err
 
 
 def test_a_probe_sysid_clash_is_refused_before_anything_is_spawned(capsys: pytest.CaptureFixture[str]) -> None:
     args = argparse.Namespace(drones=(1, 3), first_instance=PROBE_SYSIDS[0] - 2, sim_seconds=1.0, seed=0,
                               json=None, plot=None)  # fmt: skip
-    assert run_bench(args) == 2
+    assert run_bench(args, SITL) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "probe" in err[0], err
 
@@ -285,7 +286,7 @@ def _row(n: int, rtf_paced: float, *, lockstep: bool = True) -> BenchRow:
 
 
 def test_a_row_holds_every_figure_and_each_cpu_figure_as_a_multiple_of_bare_jsbsim() -> None:
-    out = row_json(_row(9, 0.99))
+    out = row_json(_row(9, 0.99), RATE_HZ)
     assert out.keys() >= REQUIRED_ROW_KEYS
     assert out["n_drones"] == 9 and out["held_real_time"] is True
     assert out["cpu_ms_per_drone_sim_s_x_bare"] == pytest.approx(10.0)
@@ -298,7 +299,7 @@ def test_a_missing_run_is_null_in_json_and_a_dash_in_the_table() -> None:
     # GIVEN a row whose lockstep run failed
     row = BenchRow(n_drones=3, circle_radius_m=3.0, relay_radius_m=None, bare_jsbsim_cpu_ms_per_sim_s=3.0,
                    paced=_row(3, 0.9).paced, errors=("lockstep: stalled",))  # fmt: skip
-    out = row_json(row)
+    out = row_json(row, RATE_HZ)
     # THEN its figures are null (valid JSON), the error is kept, and the table shows '-'
     assert out["rtf_unpaced"] is None and out["cpu_ms_per_drone_sim_s_lockstep_x_bare"] is None
     assert out["errors"] == ["lockstep: stalled"] and out["held_real_time"] is False
@@ -311,20 +312,20 @@ def test_a_missing_run_is_null_in_json_and_a_dash_in_the_table() -> None:
 
 def test_the_document_names_the_largest_swarm_that_held_real_time() -> None:
     rows = [_row(1, 1.0), _row(3, 0.99), _row(9, 0.97), _row(20, 0.5)]
-    doc = bench_document(rows, {"logical_cpus": 2}, sim_seconds=10.0)
+    doc = bench_document(rows, {"logical_cpus": 2}, sim_seconds=10.0, physics_rate_hz=SITL.physics_rate_hz)
     assert [r["n_drones"] for r in doc["rows"]] == [1, 3, 9, 20]
     assert doc["largest_n_real_time"] == 3 and doc["machine"] == {"logical_cpus": 2}
-    assert largest_real_time([row_json(_row(1, 0.5))]) is None
+    assert largest_real_time([row_json(_row(1, 0.5), RATE_HZ)]) is None
     assert len(format_table(doc["rows"]).splitlines()) == 5
 
 
 def test_the_plot_is_a_png_even_with_missing_figures(tmp_path: Path) -> None:
-    rows = [row_json(_row(1, 1.0)), row_json(_row(3, 0.99, lockstep=False))]
+    rows = [row_json(_row(1, 1.0), RATE_HZ), row_json(_row(3, 0.99, lockstep=False), RATE_HZ)]
     path = tmp_path / "plots" / "scaling.png"
     write_plot(rows, path)
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_bare_jsbsim_stepping_costs_a_few_ms_of_cpu_per_simulated_second() -> None:
-    ms = bare_jsbsim_cpu_ms_per_sim_s(sim_seconds=2.0, repeats=1)
+    ms = bare_plant_cpu_ms_per_sim_s(sim_seconds=2.0, repeats=1)
     assert 0.1 < ms < 100.0  # 3.7 ms on the 2-core development machine (docs/benchmarks.md)

@@ -11,7 +11,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.control import ControlClient, ControlError, ControlServer
 from gcs.fleet import Fleet
-from gcs.supervisor import grid_layout, line_layout
+from gcs.harness import grid_layout, line_layout
 
 pytestmark = pytest.mark.timeout(30)
 

@@ -8,8 +8,7 @@ from collections.abc import Iterator
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.transport import GcsSocket
-from sitl.mavlink_io import MAX_BATCH_BYTES
+from gcs.transport import MAX_BATCH_BYTES, GcsSocket
 
 
 @pytest.fixture

@@ -1,27 +1,26 @@
-"""Spawns and supervises drone processes: readiness by first HEARTBEAT, liveness, and a shutdown with no orphans.
+"""Spawns and supervises drone processes: the launch plan, each drone's command line, and a shutdown with no orphans.
 
-Three layers make sure no ``sitl`` outlives its supervisor:
-- a normal exit (Ctrl-C, ``swarm down``, an error) lands or disarms every drone over MAVLink, then sends SIGTERM,
-  waits, SIGKILLs what is left and reaps every child;
-- children run in their own session, so a Ctrl-C typed in the terminal reaches only the supervisor, which then
+Three layers make sure no ``sitl`` outlives the ground station that asked for it:
+- a normal exit (Ctrl-C, ``swarm down``, an error) lands or disarms every drone over MAVLink (the ground station's
+  part), then the harness sends SIGTERM, waits, SIGKILLs what is left and reaps every child;
+- children run in their own session, so a Ctrl-C typed in the terminal reaches only the ground station, which then
   shuts them down in order instead of leaving them mid-flight;
 - each child asks the kernel for SIGTERM when its parent dies (Linux ``PR_SET_PDEATHSIG``), which covers a
-  supervisor killed with SIGKILL, where no Python code runs at all.
-Processes are only ever signalled by the PIDs this supervisor started.
+  ground station killed with SIGKILL, where no Python code runs at all.
+Processes are only ever signalled by the PIDs this group started.
 """
 
 from __future__ import annotations
 
-import math
 import signal
 import subprocess
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from gcs.drone_factory import DroneFactory, FactoryError, ForkedProcess
 from sitl.dynamics.geodesy import geo_from_ned
-from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
+from sitl.dynamics.plant import GeoPoint
+from sitl.harness.factory import DroneFactory, FactoryError, ForkedProcess
 from sitl.zygote import die_with_parent
 
 TERMINATE_WAIT_S = 5.0
@@ -33,33 +32,27 @@ DRONE_NICE = 10
 
 
 class SpawnError(RuntimeError):
-    """A drone did not come up; the message names it and says why, in one line."""
+    """A drone could not be started; the message names it and says why, in one line."""
 
 
-def grid_layout(n: int, spacing_m: float) -> list[tuple[float, float]]:
-    """North/east spawn offsets on a square-ish grid centred on the origin, row by row."""
-    cols = max(1, math.ceil(math.sqrt(n)))
-    rows = math.ceil(n / cols)
-    out = []
-    for i in range(n):
-        r, c = divmod(i, cols)
-        out.append(((r - (rows - 1) / 2) * spacing_m, (c - (cols - 1) / 2) * spacing_m))
-    return out
-
-
-def line_layout(n: int, spacing_m: float) -> list[tuple[float, float]]:
-    return [(0.0, (i - (n - 1) / 2) * spacing_m) for i in range(n)]
-
-
-LAYOUTS = {"grid": grid_layout, "line": line_layout}
+def process_exit_cause(returncode: int) -> str:
+    """One line for how a drone process ended: a negative return code is the signal that ended it (as Popen)."""
+    if returncode < 0:
+        try:
+            name = signal.Signals(-returncode).name
+        except ValueError:
+            name = f"signal {-returncode}"
+        return f"process killed by {name}"
+    return f"process exited with code {returncode}"
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class SpawnPlan:
-    n_drones: int
-    spacing_m: float = 2.0
-    layout: str = "grid"
-    origin: GeoPoint = DEFAULT_HOME
+class LaunchPlan:
+    """The drones to start and how: each drone's spawn point as north/east metres from the origin (spawn order),
+    instances from ``first_instance``."""
+
+    origin: GeoPoint
+    offsets_ne_m: tuple[tuple[float, float], ...]
     speed_factor: float = 1.0  # with lockstep: 0 = as fast as the CPU allows, else a pace for the common clock
     lockstep: bool = False
     lockstep_quantum: int = 1  # physics steps every drone runs between waits (the skew bound)
@@ -70,9 +63,13 @@ class SpawnPlan:
     camera_drones: frozenset[int] = frozenset()  # drones (1..n, in spawn order) whose camera frames are saved...
     camera_dir: Path | None = None  # ...as PNG under camera_dir/drone-<instance>/
 
+    @property
+    def n_drones(self) -> int:
+        return len(self.offsets_ne_m)
+
     def homes(self) -> list[GeoPoint]:
-        offsets = LAYOUTS[self.layout](self.n_drones, self.spacing_m)
-        return [geo_from_ned((north, east, 0.0), self.origin) for north, east in offsets]
+        """Each drone's home, placed by the simulation's geodesy (where the bodies really stand)."""
+        return [geo_from_ned((north, east, 0.0), self.origin) for north, east in self.offsets_ne_m]
 
 
 @dataclass(slots=True)
@@ -90,7 +87,7 @@ class DroneProcess:
         return lines[-1] if lines else ""
 
 
-def sitl_args(plan: SpawnPlan, instance: int, home: GeoPoint, gcs_port: int, world: str | None) -> list[str]:
+def sitl_args(plan: LaunchPlan, instance: int, home: GeoPoint, gcs_port: int, world: str | None) -> list[str]:
     """The ``sitl`` command-line arguments of one drone of the plan."""
     cmd = [
         "--instance", str(instance),
@@ -111,13 +108,13 @@ def sitl_args(plan: SpawnPlan, instance: int, home: GeoPoint, gcs_port: int, wor
 
 
 class ProcessGroup:
-    """The drone processes of one swarm, forked by one drone factory (gcs/drone_factory.py)."""
+    """The drone processes of one swarm, forked by one drone factory (sitl/harness/factory.py)."""
 
     def __init__(self) -> None:
         self.drones: list[DroneProcess] = []
         self.factory: DroneFactory | None = None
 
-    def spawn(self, plan: SpawnPlan, gcs_port: int, world: str | None = None) -> None:
+    def spawn(self, plan: LaunchPlan, gcs_port: int, world: str | None = None) -> None:
         if plan.log_dir is not None:
             plan.log_dir.mkdir(parents=True, exist_ok=True)
         if self.factory is None:

@@ -2,7 +2,7 @@
 
 ``DroneFactory`` starts one ``python -m sitl.zygote`` and asks it for drones; each comes back as a
 ``ForkedProcess``, which answers like ``subprocess.Popen`` (``pid``, ``poll``, ``wait``, ``send_signal``, ``kill``,
-``returncode``) so the supervisor treats both alike. The drones are the factory's children: it reaps them and
+``returncode``) so the process group treats both alike. The drones are the factory's children: it reaps them and
 reports their exit codes over its stdout, which ``collect`` reads. Signals go through a pidfd taken right after the
 fork, so a signal can never reach another process that reused the PID of a drone already reaped.
 """
@@ -31,7 +31,7 @@ class FactoryError(RuntimeError):
 
 
 class ForkedProcess:
-    """A drone forked by the factory, with the part of ``subprocess.Popen``'s interface the supervisor uses."""
+    """A drone forked by the factory, with the part of ``subprocess.Popen``'s interface the process group uses."""
 
     def __init__(self, pid: int, factory: DroneFactory) -> None:
         self.pid = pid

@@ -1,0 +1,169 @@
+"""What the ground station needs from a simulation, declared on the ground station's side.
+
+A ground station flying real drones knows them only over MAVLink. Flying simulated ones it needs a little more:
+someone who starts them where the plan says, tells it which have ended and why, crashes one on request (fault
+injection) and, in lockstep, lets their common simulated time run on. ``SimulationHarness`` is that face, and the
+ground station sees nothing else of the simulation: no processes or PIDs to signal, no shared-memory rows, no
+drone code. The simulation side implements it (sitl/harness/, ``SitlHarness``); the composition root
+(gcs/composition.py) is the only ground-station module that knows both and hands a harness to ``Swarm``. The
+import-linter contract in pyproject.toml keeps it so (docs/architecture.md).
+
+Everything crossing the face is a plain value: sysids, simulated seconds, one-line texts, geodetic tuples
+``(lat_deg, lon_deg, alt_m)``, numpy arrays of figures. The plan that says what to start (``SpawnPlan``) is the
+ground station's: where the swarm stands (origin, layout, spacing), how it runs (paced or lockstep), which
+instances; the composition root turns it into the simulation's own launch plan.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+from gcs.geodesy import DEFAULT_ORIGIN, GeoPoint
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def grid_layout(n: int, spacing_m: float) -> list[tuple[float, float]]:
+    """North/east spawn offsets on a square-ish grid centred on the origin, row by row."""
+    cols = max(1, math.ceil(math.sqrt(n)))
+    rows = math.ceil(n / cols)
+    out = []
+    for i in range(n):
+        r, c = divmod(i, cols)
+        out.append(((r - (rows - 1) / 2) * spacing_m, (c - (cols - 1) / 2) * spacing_m))
+    return out
+
+
+def line_layout(n: int, spacing_m: float) -> list[tuple[float, float]]:
+    return [(0.0, (i - (n - 1) / 2) * spacing_m) for i in range(n)]
+
+
+LAYOUTS: dict[str, Callable[[int, float], list[tuple[float, float]]]] = {"grid": grid_layout, "line": line_layout}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SpawnPlan:
+    """The swarm to start: how many drones, where they stand, how they run."""
+
+    n_drones: int
+    spacing_m: float = 2.0
+    layout: str = "grid"
+    origin: GeoPoint = DEFAULT_ORIGIN
+    speed_factor: float = 1.0  # with lockstep: 0 = as fast as the CPU allows, else a pace for the common clock
+    lockstep: bool = False
+    lockstep_quantum: int = 1  # physics steps every drone runs between waits (the skew bound)
+    first_instance: int = 0  # drone i (0-based, spawn order) is instance first_instance + i, sysid instance + 1
+    airframe: str | None = None
+    seed: int = 0
+    log_dir: Path | None = None  # each drone's output goes to a log file here (a temporary directory if None)
+    camera_drones: frozenset[int] = frozenset()  # drones (1..n, in spawn order) whose camera frames are saved...
+    camera_dir: Path | None = None  # ...as PNG under camera_dir/drone-<instance>/
+
+    def offsets_ne_m(self) -> list[tuple[float, float]]:
+        """Each drone's spawn position, north/east metres from the origin in the swarm frame (spawn order)."""
+        return LAYOUTS[self.layout](self.n_drones, self.spacing_m)
+
+
+class SpawnError(RuntimeError):
+    """A drone did not come up; the message names it and says why, in one line."""
+
+
+class SimulationHarness(Protocol):
+    """The simulated swarm as the ground station may use it. Drones are named by sysid."""
+
+    def launch(self, gcs_port: int) -> list[int]:
+        """Start every drone of the plan, its ground-station link sending to UDP ``gcs_port`` on 127.0.0.1; returns
+        their sysids in spawn order. Raises RuntimeError with a one-line message when a drone cannot be started."""
+        ...
+
+    def close(self) -> None:
+        """Stop every drone (terminate, then kill after a grace period) and release everything; no orphans."""
+        ...
+
+    def ended(self) -> dict[int, str]:
+        """Every drone that has ended (its flight software stopped: a process exit, a kill), by sysid, with one line
+        saying how. Asking also lets the simulation act on an end it sees for the first time."""
+        ...
+
+    def end_report(self, sysid: int) -> str:
+        """One line about an ended drone for the user who started it (names it, its exit, its last words)."""
+        ...
+
+    def kill(self, sysid: int) -> str | None:
+        """Crash the drone's flight software now; what was done in one line, or None if it had already ended."""
+        ...
+
+    def drone_time_s(self) -> float | None:
+        """The slowest running drone's own simulated clock; None before every running drone has one."""
+        ...
+
+    def grounded_body_geo(self, sysid: int, time_s: float) -> tuple[float, float, float] | None:
+        """Where a drone's body lies (lat_deg, lon_deg, alt_m) at ``time_s`` once it is on the ground, else None."""
+        ...
+
+    def add_obstacle(self, *, cylinder: bool, centre_geo: tuple[float, float, float], radius_m: float,
+                     height_m: float) -> None:  # fmt: skip
+        """Declare a static obstacle (a vertical cylinder standing on the ground, or a sphere) in the world."""
+        ...
+
+    def wake_fileno(self) -> int | None:
+        """In lockstep, a descriptor that turns readable when the drones need the clock moved on; else None."""
+        ...
+
+    def lockstep_time_s(self) -> float:
+        """In lockstep, the drones' common simulated time (0 before they start; frozen once closed)."""
+        ...
+
+    def advance_lockstep(self, lead_s: float, until_s: float = math.inf) -> float | None:
+        """In lockstep, let the drones run to ``lead_s`` past their common time, at most to ``until_s``; returns the
+        common time it started from, or None while not every drone has joined (nobody starts before the rest)."""
+        ...
+
+    def process_ids(self) -> dict[int, int]:
+        """For measurement (CPU time and memory read from /proc, as ``top`` would): the PID running each drone."""
+        ...
+
+    def clock_columns(self) -> tuple[FloatArray, FloatArray]:
+        """For measurement: each drone's published simulated time and lockstep step count (spawn order), one read."""
+        ...
+
+    def cpu_parts_s(self) -> FloatArray:
+        """For measurement: each drone's CPU seconds in physics, control, perception and MAVLink (n x 4)."""
+        ...
+
+
+class Simulation(Protocol):
+    """The simulation before any swarm exists: its limits, airframe sizes, and a harness for each plan."""
+
+    @property
+    def max_instances(self) -> int:
+        """Instances run 0..max_instances - 1."""
+        ...
+
+    @property
+    def max_obstacles(self) -> int:
+        """How many static obstacles a world holds."""
+        ...
+
+    @property
+    def physics_rate_hz(self) -> float: ...
+
+    def harness(self, plan: SpawnPlan) -> SimulationHarness:
+        """A harness for the swarm of ``plan`` (nothing started until its ``launch``)."""
+        ...
+
+    def contact_distance_m(self, airframe: str | None) -> float:
+        """Centre distance at which two drones of the airframe (None: the default) touch; ValueError (one line)
+        when the airframe does not exist."""
+        ...
+
+    def bare_plant_cpu_ms_per_sim_s(self) -> float:
+        """CPU ms per simulated second of the physics alone (the bench's machine-independent yardstick)."""
+        ...

@@ -1,0 +1,11 @@
+"""The simulation harness: spawning, the drone factory, the shared world and the lockstep gate behind one face.
+
+The ground station depends on the interface it declares (gcs/harness.py); only its composition root
+(gcs/composition.py) imports this package, and this package imports nothing from ``gcs``. See docs/architecture.md.
+"""
+
+from sitl.dynamics.plant import GeoPoint
+from sitl.harness.harness import SitlHarness
+from sitl.harness.processes import LaunchPlan, SpawnError, process_exit_cause
+
+__all__ = ["GeoPoint", "LaunchPlan", "SitlHarness", "SpawnError", "process_exit_cause"]

@@ -1,0 +1,217 @@
+"""The simulation harness: everything about a simulated swarm that only the simulation may know, behind one face.
+
+A ground station flying real drones knows them only over MAVLink. Flying simulated drones it also needs someone to
+start them, to tell it when one has ended, to crash one on request and, in lockstep, to let the simulated time run
+on: that is this class, and nothing more. The ground station is handed a ``SitlHarness`` by its composition root
+and sees it through the interface it declares itself (gcs/harness.py ``SimulationHarness``): sysids, causes as one
+line of text, geodetic tuples, simulated seconds. Processes, PIDs, world rows and columns, the lockstep gate and
+the drone factory stay on this side, so that the way drones are run (one process each, or several drones hosted by
+one process) can change without the ground station noticing.
+
+What it owns:
+- the drone processes (sitl/harness/processes.py, forked by the drone factory sitl/harness/factory.py), their log
+  files (in a temporary directory removed at ``close`` unless the plan names one);
+- the shared world (sitl/world.py): created before the drones, which attach to it by name; a drone that ended is
+  marked there once (its body falls from its last state), obstacles are declared there;
+- the lockstep gate (sitl/lockstep.py) in lockstep: its wake-up socket, how far the drones have got, how far they
+  may go.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+from sitl.dynamics.plant import PHYSICS_RATE_HZ
+from sitl.harness.processes import DroneProcess, LaunchPlan, ProcessGroup, process_exit_cause
+from sitl.lockstep import LockstepGate
+from sitl.world import ALT, CPU_LINK, CPU_PHYSICS, LAT, LON, STEP, TIME, VALID, SharedWorld
+
+# A live drone's body (crashed or silent, still writing its row) is "down" once it is this close to its launch
+# altitude (the ground, in this flat world).
+ON_GROUND_M = 0.3
+REST_TOLERANCE_M = 0.01  # an ended drone's falling body is down once within this of where it comes to rest
+
+FloatArray = npt.NDArray[np.float64]
+
+
+class SitlHarness:
+    """One simulated swarm: its drones, their shared world and, in lockstep, the gate of their common clock.
+
+    Drones are named by sysid (instance + 1) on this face, as the ground station knows them."""
+
+    def __init__(self, plan: LaunchPlan) -> None:
+        self.plan = plan
+        self._temp_logs: str | None = None
+        self._processes = ProcessGroup()
+        self._world: SharedWorld | None = None
+        self._gate: LockstepGate | None = None
+        self._ended: dict[int, str] = {}  # sysid -> cause, for every drone seen ended (marked in the world once)
+        self._final_time_s = 0.0  # the common lockstep time when the gate closed
+
+    # ---- lifecycle -------------------------------------------------------------------------------------------------
+    def launch(self, gcs_port: int) -> list[int]:
+        """Create the shared world, start every drone of the plan sending to the ground station's UDP ``gcs_port``,
+        and open the lockstep gate if the plan asks for lockstep. Returns the drones' sysids in spawn order.
+        SpawnError (a RuntimeError, one line) when a drone cannot be started."""
+        if self.plan.log_dir is None:
+            # Drone output always goes to log files, so a drone that fails to start can be explained; without a
+            # log directory from the user they live in a temporary one removed at ``close``.
+            self._temp_logs = tempfile.mkdtemp(prefix="swarm-logs-")
+            self.plan = dataclasses.replace(self.plan, log_dir=Path(self._temp_logs))
+        self._world = SharedWorld.create()  # simulation truth for collisions; the drones attach to it by name
+        self._processes.spawn(self.plan, gcs_port, self._world.name)
+        if self.plan.lockstep:
+            self._gate = LockstepGate(self._world, 1.0 / PHYSICS_RATE_HZ)
+        return [d.sysid for d in self._processes.drones]
+
+    def close(self) -> None:
+        """Terminate and reap every drone (SIGTERM, then SIGKILL after a grace period), close the gate and the
+        shared world, remove temporary logs. Safe to call after a failed ``launch``."""
+        if self._gate is not None:  # before the drones leave the gate
+            self._final_time_s = self._gate.time_s()
+        try:
+            self._processes.terminate()
+        finally:
+            if self._gate is not None:
+                self._gate.close()
+                self._gate = None
+            if self._world is not None:
+                self._world.close()
+                self._world = None
+            if self._temp_logs is not None:
+                shutil.rmtree(self._temp_logs, ignore_errors=True)
+
+    # ---- ends and faults -------------------------------------------------------------------------------------------
+    def ended(self) -> dict[int, str]:
+        """Every drone that has ended, by sysid, with one line saying how (``process killed by SIGKILL``).
+
+        A drone seen ended for the first time leaves the shared world's living (its body falls from its last state)
+        and the lockstep gate (it holds nobody back)."""
+        for d in self._processes.exited():
+            if d.sysid in self._ended:
+                continue
+            code = d.process.returncode
+            assert code is not None
+            self._ended[d.sysid] = process_exit_cause(code)
+            if self._world is not None:
+                self._world.mark_ended(d.instance)
+            if self._gate is not None:
+                self._gate.remove(d.instance)
+        return dict(self._ended)
+
+    def end_report(self, sysid: int) -> str:
+        """One line about an ended drone for a user who asked for it to start: which drone, its exit code and the
+        last line it wrote (its error)."""
+        d = self._drone(sysid)
+        detail = d.last_log_line() or "no output"
+        return f"drone {d.instance} (sysid {d.sysid}) exited with code {d.process.returncode}: {detail}"
+
+    def kill(self, sysid: int) -> str | None:
+        """Crash drone ``sysid``'s flight software now (SIGKILL to its process, by PID); returns what was done, in
+        one line, or None when the drone had already ended. The end shows in ``ended`` once it is noticed."""
+        d = self._drone(sysid)
+        if d.process.returncode is not None or d.process.poll() is not None:
+            return None
+        d.process.kill()
+        return f"process {d.process.pid} killed with SIGKILL"
+
+    # ---- the shared world ------------------------------------------------------------------------------------------
+    def drone_time_s(self) -> float | None:
+        """The slowest running drone's own simulated time (each drone publishes it every few physics steps); None
+        before every running drone has published it."""
+        if self._world is None:
+            return None
+        ended = {d.instance for d in self._processes.exited()}
+        instances = [d.instance for d in self._processes.drones if d.instance not in ended]
+        table = self._world.table
+        if not instances or not (table[instances, VALID] == 1.0).all():
+            return None
+        return float(table[instances, TIME].min())
+
+    def grounded_body_geo(self, sysid: int, time_s: float) -> tuple[float, float, float] | None:
+        """Latitude, longitude (deg) and altitude (m) where drone ``sysid``'s body lies at ``time_s`` on the common
+        simulated clock, once it lies on the ground; None while it is in the air (or has no body).
+
+        An ended drone's body falls in the shared world from its last state: it is down once it is where it comes
+        to rest. A live drone (crashed, or silent) writes its own row: it is down within ON_GROUND_M of its launch
+        altitude."""
+        world = self._world
+        if world is None:
+            return None
+        d = self._drone(sysid)
+        if world.ended(d.instance):
+            now, rest = world.body_geo(d.instance, time_s), world.body_geo(d.instance, math.inf)
+            if now is None or rest is None or abs(now[2] - rest[2]) > REST_TOLERANCE_M:
+                return None
+            return (float(now[0]), float(now[1]), float(now[2]))
+        row = world.table[d.instance]
+        if row[VALID] != 1.0 or float(row[ALT]) - d.home.alt_amsl_m > ON_GROUND_M:
+            return None
+        return float(row[LAT]), float(row[LON]), float(row[ALT])
+
+    def add_obstacle(self, *, cylinder: bool, centre_geo: tuple[float, float, float], radius_m: float,
+                     height_m: float) -> None:  # fmt: skip
+        """Declare a static obstacle (a vertical cylinder or a sphere) that cameras see and contact crashes into."""
+        assert self._world is not None, "launch first"
+        self._world.add_obstacle(cylinder=cylinder, centre=centre_geo, radius_m=radius_m, height_m=height_m)
+
+    # ---- lockstep --------------------------------------------------------------------------------------------------
+    def wake_fileno(self) -> int | None:
+        """A descriptor that becomes readable when the lockstep drones near or reach the gate (the ground station
+        waits on it with its MAVLink socket); None when not in lockstep."""
+        return self._gate.wake_socket.fileno() if self._gate is not None else None
+
+    def lockstep_time_s(self) -> float:
+        """The drones' common simulated time: the steps every lockstep drone has completed; 0 before any joined,
+        and where it stood once ``close`` has stopped the drones."""
+        return self._gate.time_s() if self._gate is not None else self._final_time_s
+
+    def advance_lockstep(self, lead_s: float, until_s: float = math.inf) -> float | None:
+        """Let the lockstep drones run on to ``lead_s`` past their common time (at most to ``until_s``); returns
+        the common time, or None while not every drone has joined (nobody starts before the rest). Clears pending
+        wake-ups first, so the next one is news."""
+        gate = self._gate
+        if gate is None:
+            return None
+        gate.drain_wakes()
+        steps = gate.completed_steps()
+        now = steps * gate.dt_s
+        if steps == 0 and gate.members() < len(self._processes.drones):
+            return None
+        gate.open_until(min(now + lead_s, until_s))
+        return now
+
+    # ---- measurement (the bench) -----------------------------------------------------------------------------------
+    def process_ids(self) -> dict[int, int]:
+        """The PID of the process that runs each drone, by sysid: for reading its CPU time and memory in /proc, as
+        ``top`` would. Not for signalling: ``kill`` does that."""
+        return {d.sysid: int(d.process.pid) for d in self._processes.drones}
+
+    def clock_columns(self) -> tuple[FloatArray, FloatArray]:
+        """Each drone's published simulated time and lockstep step count (spawn order), as one read of the shared
+        world: cells have separate writers, so a read may be torn (read twice and compare to know)."""
+        assert self._world is not None, "launch first"
+        rows = [d.instance for d in self._processes.drones]
+        table = self._world.table
+        return table[rows, TIME].copy(), table[rows, STEP].copy()
+
+    def cpu_parts_s(self) -> FloatArray:
+        """Each drone's CPU seconds so far in physics, control, perception and MAVLink (one row per drone, spawn
+        order), as the drones publish them."""
+        assert self._world is not None, "launch first"
+        rows = [d.instance for d in self._processes.drones]
+        return self._world.table[rows, CPU_PHYSICS : CPU_LINK + 1].copy()
+
+    # ---- internals -------------------------------------------------------------------------------------------------
+    def _drone(self, sysid: int) -> DroneProcess:
+        for d in self._processes.drones:
+            if d.sysid == sysid:
+                return d
+        raise KeyError(f"no drone with sysid {sysid}")

@@ -1,0 +1,57 @@
+"""What the simulation tells a ground station about itself before any drone flies: its limits, the airframe's size,
+and the cost of its physics alone (the bench's yardstick).
+
+Imported by the ground station's composition root only; JSBSim is loaded by ``bare_plant_cpu_ms_per_sim_s``
+alone, so that starting a swarm does not load it into the ground station.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+from sitl.airframe import AirframeError, load_airframe
+from sitl.dynamics.plant import PHYSICS_RATE_HZ
+from sitl.world import MAX_DRONES, MAX_OBSTACLES
+
+__all__ = [
+    "MAX_INSTANCES",
+    "MAX_OBSTACLES",
+    "PHYSICS_RATE_HZ",
+    "AirframeError",
+    "bare_plant_cpu_ms_per_sim_s",
+    "contact_distance_m",
+]
+
+MAX_INSTANCES = MAX_DRONES  # instances 0..MAX_INSTANCES-1 (one shared-world row each)
+BARE_SIM_SECONDS = 10.0
+BARE_REPEATS = 3
+
+
+def contact_distance_m(airframe: str | None) -> float:
+    """Centre distance at which two drones of this airframe touch (twice its collision radius); AirframeError (a
+    ValueError, one line) for an airframe that does not exist or does not load."""
+    frame = load_airframe(airframe) if airframe else load_airframe()
+    return 2.0 * frame.collision_radius_m
+
+
+def bare_plant_cpu_ms_per_sim_s(sim_seconds: float = BARE_SIM_SECONDS, repeats: int = BARE_REPEATS) -> float:
+    """CPU ms per simulated second of the plant alone, hovering with constant commands (median of ``repeats``).
+
+    Same airframe (the default) and physics rate as the drones; the thread CPU clock, so other processes do not
+    count."""
+    from sitl.dynamics.jsbsim_plant import JsbsimPlant
+
+    airframe = load_airframe()
+    dt_s = 1.0 / PHYSICS_RATE_HZ
+    cmds = (math.sqrt(airframe.hover_thrust_fraction),) * len(airframe.rotors)
+    steps = round(sim_seconds / dt_s)
+    results = []
+    for _ in range(repeats):
+        plant = JsbsimPlant(airframe, dt_s=dt_s, initial_pos_ned_m=(0.0, 0.0, -10.0), initial_motor_cmds=cmds)
+        step = plant.step
+        start = time.thread_time()
+        for _ in range(steps):
+            step(cmds)
+        results.append((time.thread_time() - start) / (steps * dt_s) * 1e3)
+    return sorted(results)[len(results) // 2]

@@ -1,0 +1,53 @@
+"""The boundary between the ground station and the simulation holds: ``lint-imports`` with the contracts in
+pyproject.toml ([tool.importlinter]): gcs imports nothing from sitl except through its composition root, which
+only the swarm entry point uses, and sitl imports nothing from gcs (docs/architecture.md)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+LINT_IMPORTS = Path(sys.executable).parent / "lint-imports"
+
+pytestmark = pytest.mark.timeout(120)
+
+
+def _lint_imports(root: Path) -> subprocess.CompletedProcess[str]:
+    if not LINT_IMPORTS.exists():
+        pytest.fail(f"{LINT_IMPORTS} is missing: install the test extra (pip install -e '.[test]')")
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    return subprocess.run([str(LINT_IMPORTS), "--no-cache"], cwd=root, env=env, capture_output=True, text=True,
+                          timeout=100)  # fmt: skip
+
+
+def test_the_ground_station_and_the_simulation_keep_to_their_import_contracts() -> None:
+    result = _lint_imports(ROOT)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "3 kept, 0 broken" in result.stdout, result.stdout
+
+
+@pytest.mark.parametrize(
+    ("module", "line", "complaint"),
+    [
+        ("gcs/formation.py", "import sitl.world", "gcs.formation -> sitl.world"),
+        ("gcs/bench.py", "import gcs.composition", "gcs.bench -> gcs.composition"),
+        ("sitl/harness/harness.py", "import gcs.harness", "sitl.harness.harness -> gcs.harness"),
+    ],
+)
+def test_a_crossing_import_breaks_the_build(tmp_path: Path, module: str, line: str, complaint: str) -> None:
+    # GIVEN a copy of both packages with one import that crosses the boundary
+    for package in ("gcs", "sitl"):
+        shutil.copytree(ROOT / package, tmp_path / package, ignore=shutil.ignore_patterns("__pycache__", "*.xml"))
+    shutil.copy(ROOT / "pyproject.toml", tmp_path)
+    target = tmp_path / module
+    target.write_text(target.read_text() + f"\n{line}  # noqa\n")
+    # WHEN the contracts are checked THEN the check fails and names the import
+    result = _lint_imports(tmp_path)
+    assert result.returncode != 0, result.stdout
+    assert complaint in result.stdout, result.stdout
