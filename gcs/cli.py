@@ -16,7 +16,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 from types import FrameType
-from typing import Any, NoReturn
+from typing import Any, Literal, NoReturn
 
 from gcs.bench import add_bench_parser, run_bench
 from gcs.composition import SITL
@@ -142,6 +142,26 @@ def _add_timing_options(parser: argparse.ArgumentParser) -> None:
         default=1,
         help="lockstep: physics steps every drone runs between waits, i.e. the clock skew bound (default 1)",
     )
+    parser.add_argument(
+        "--drones-per-process",
+        type=drones_per_process_arg,
+        default=1,
+        metavar="K|auto",
+        help="drones each simulation process runs (default 1: one process per drone; auto: one process per CPU)",
+    )
+
+
+def drones_per_process_arg(text: str) -> int | Literal["auto"]:
+    """``--drones-per-process``: a count of at least 1, or ``auto``."""
+    if text == "auto":
+        return "auto"
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number of drones or auto, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1 (or auto), got {text!r}")
+    return value
 
 
 def _drone_numbers(text: str) -> frozenset[int]:
@@ -310,6 +330,7 @@ def run_up(args: argparse.Namespace, simulation: Simulation) -> int:
         log_dir=args.logs,
         camera_drones=_camera_drones(args, args.drones),
         camera_dir=Path("camera-frames"),
+        drones_per_process=args.drones_per_process,
     )
     stop = _Stop()
     signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
@@ -368,7 +389,8 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
                            seed=args.seed,
                            forward=None if args.no_forward else args.forward, lockstep=args.lockstep,
                            lockstep_quantum=_quantum(args),
-                           camera_drones=_camera_drones(args, mission.swarm.drones))  # fmt: skip
+                           camera_drones=_camera_drones(args, mission.swarm.drones),
+                           drones_per_process=args.drones_per_process)  # fmt: skip
     signal.signal(signal.SIGTERM, _interrupt)  # a terminated run lands and stops its drones like Ctrl-C
     try:
         out = runner.run()

@@ -29,6 +29,7 @@ def launch_plan(plan: SpawnPlan) -> LaunchPlan:
         log_dir=plan.log_dir,
         camera_drones=plan.camera_drones,
         camera_dir=plan.camera_dir,
+        drones_per_process=plan.drones_per_process,
     )
 
 

@@ -20,7 +20,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import Literal, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -65,6 +65,10 @@ class SpawnPlan:
     log_dir: Path | None = None  # each drone's output goes to a log file here (a temporary directory if None)
     camera_drones: frozenset[int] = frozenset()  # drones (1..n, in spawn order) whose camera frames are saved...
     camera_dir: Path | None = None  # ...as PNG under camera_dir/drone-<instance>/
+    # How many drones one simulation process runs: 1 (each drone its own process, as PX4 SITL), K, or "auto" (one
+    # process per usable CPU). A hosted drone is the same vehicle on the wire; hosting saves the CPU every process
+    # pays for its wake-ups (docs/architecture.md, "Drone hosts").
+    drones_per_process: int | Literal["auto"] = 1
 
     def offsets_ne_m(self) -> list[tuple[float, float]]:
         """Each drone's spawn position, north/east metres from the origin in the swarm frame (spawn order)."""

@@ -16,7 +16,7 @@ import math
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from gcs.behaviours import LeaderFollower
 from gcs.degrade import apply_loss_policy
@@ -62,7 +62,8 @@ class MissionRunner:
     def __init__(self, mission: MissionSpec, simulation: Simulation, *, speed_factor: float, origin: GeoPoint,
                  first_instance: int, report_dir: Path, say: Say, airframe: str | None = None, seed: int = 0,
                  forward: tuple[str, int] | None = None, lockstep: bool = False,
-                 lockstep_quantum: int = 1, camera_drones: frozenset[int] = frozenset()) -> None:  # fmt: skip
+                 lockstep_quantum: int = 1, camera_drones: frozenset[int] = frozenset(),
+                 drones_per_process: int | Literal["auto"] = 1) -> None:  # fmt: skip
         self.mission = mission
         self.speed = speed_factor
         self.say = say
@@ -82,6 +83,7 @@ class MissionRunner:
             lockstep_quantum=lockstep_quantum,
             camera_drones=camera_drones,
             camera_dir=report_dir / "camera",
+            drones_per_process=drones_per_process,
         )
         self.swarm = Swarm(plan, simulation.harness(plan), forward=forward, relay=mission.swarm.relay)
         self.streamer = FormationStreamer(self.swarm, self.swarm_frame)

@@ -31,11 +31,13 @@ import numpy.typing as npt
 from sitl.dynamics.plant import PHYSICS_RATE_HZ
 from sitl.harness.processes import DroneProcess, LaunchPlan, ProcessGroup, process_exit_cause
 from sitl.lockstep import LockstepGate
-from sitl.world import ALT, CPU_LINK, CPU_PHYSICS, LAT, LON, STEP, TIME, VALID, SharedWorld
+from sitl.world import ALT, CPU_LINK, CPU_PHYSICS, END_FAILED, END_STOPPED, LAT, LON, STEP, TIME, VALID, SharedWorld
 
 # A live drone's body (crashed or silent, still writing its row) is "down" once it is this close to its launch
 # altitude (the ground, in this flat world).
 ON_GROUND_M = 0.3
+# How a hosted drone ended by ``kill`` is reported: it stops as a killed process stops, but no signal was sent.
+HOSTED_KILL_CAUSE = "killed inside its host process"
 REST_TOLERANCE_M = 0.01  # an ended drone's falling body is down once within this of where it comes to rest
 
 FloatArray = npt.NDArray[np.float64]
@@ -99,12 +101,20 @@ class SitlHarness:
                 continue
             code = d.process.returncode
             assert code is not None
-            self._ended[d.sysid] = process_exit_cause(code)
-            if self._world is not None:
-                self._world.mark_ended(d.instance)
-            if self._gate is not None:
-                self._gate.remove(d.instance)
+            self._note_end(d, process_exit_cause(code) if not d.hosted else f"its host {process_exit_cause(code)}")
+        world = self._world
+        if world is not None:
+            for d in self._processes.drones:
+                if d.hosted and d.sysid not in self._ended and (cause := world.end_cause(d.instance)) is not None:
+                    self._note_end(d, hosted_end_cause(cause, d))
         return dict(self._ended)
+
+    def _note_end(self, d: DroneProcess, cause: str) -> None:
+        self._ended[d.sysid] = cause
+        if self._world is not None:
+            self._world.mark_ended(d.instance)
+        if self._gate is not None:
+            self._gate.remove(d.instance)
 
     def end_report(self, sysid: int) -> str:
         """One line about an ended drone for a user who asked for it to start: which drone, its exit code and the
@@ -117,8 +127,12 @@ class SitlHarness:
         """Crash drone ``sysid``'s flight software now (SIGKILL to its process, by PID); returns what was done, in
         one line, or None when the drone had already ended. The end shows in ``ended`` once it is noticed."""
         d = self._drone(sysid)
-        if d.process.returncode is not None or d.process.poll() is not None:
+        if d.process.returncode is not None or d.process.poll() is not None or sysid in self.ended():
             return None
+        if d.hosted:  # a signal would end the host's other drones too: the host ends this one as SIGKILL would
+            assert self._world is not None
+            self._world.request_stop(d.instance)
+            return f"killed inside its host process {d.process.pid}; the host's other drones fly on"
         d.process.kill()
         return f"process {d.process.pid} killed with SIGKILL"
 
@@ -128,8 +142,8 @@ class SitlHarness:
         before every running drone has published it."""
         if self._world is None:
             return None
-        ended = {d.instance for d in self._processes.exited()}
-        instances = [d.instance for d in self._processes.drones if d.instance not in ended]
+        ended = self.ended()
+        instances = [d.instance for d in self._processes.drones if d.sysid not in ended]
         table = self._world.table
         if not instances or not (table[instances, VALID] == 1.0).all():
             return None
@@ -215,3 +229,13 @@ class SitlHarness:
             if d.sysid == sysid:
                 return d
         raise KeyError(f"no drone with sysid {sysid}")
+
+
+def hosted_end_cause(cause: float, d: DroneProcess) -> str:
+    """One line for how a hosted drone ended while its host process runs on (the ``END_*`` cause its host wrote)."""
+    if cause == END_FAILED:
+        log = f" (traceback in {d.log_path.name})" if d.log_path is not None else ""
+        return f"drone software failed{log}"
+    if cause == END_STOPPED:
+        return HOSTED_KILL_CAUSE
+    return "flight software exited"

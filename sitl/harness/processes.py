@@ -12,11 +12,13 @@ Processes are only ever signalled by the PIDs this group started.
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 from sitl.dynamics.geodesy import geo_from_ned
 from sitl.dynamics.plant import GeoPoint
@@ -62,23 +64,60 @@ class LaunchPlan:
     log_dir: Path | None = None  # each drone's stdout/stderr goes to drone-<i>.log here
     camera_drones: frozenset[int] = frozenset()  # drones (1..n, in spawn order) whose camera frames are saved...
     camera_dir: Path | None = None  # ...as PNG under camera_dir/drone-<instance>/
+    drones_per_process: int | Literal["auto"] = 1  # drones one process hosts; "auto": one process per usable CPU
 
     @property
     def n_drones(self) -> int:
         return len(self.offsets_ne_m)
+
+    def hosts(self, usable_cpus: int) -> list[list[int]]:
+        """The drones (0-based, spawn order) each process runs: ``host_groups`` with this plan's setting."""
+        return host_groups(self.n_drones, self.drones_per_process, usable_cpus)
 
     def homes(self) -> list[GeoPoint]:
         """Each drone's home, placed by the simulation's geodesy (where the bodies really stand)."""
         return [geo_from_ned((north, east, 0.0), self.origin) for north, east in self.offsets_ne_m]
 
 
+def host_groups(n_drones: int, per_process: int | Literal["auto"], usable_cpus: int) -> list[list[int]]:
+    """Which drones (0-based, spawn order) each process runs: runs of ``per_process`` consecutive drones (the last
+    may be shorter); "auto" makes one process per usable CPU (fewer when there are fewer drones), their sizes
+    differing by at most one. Consecutive drones stand side by side in the layouts, so a host's drones are
+    neighbours and their mutual camera and contact reads touch memory the host has just written."""
+    if per_process == "auto":
+        hosts = max(1, min(n_drones, usable_cpus))
+        base, extra = divmod(n_drones, hosts)
+        sizes = [base + (1 if h < extra else 0) for h in range(hosts)]
+    else:
+        if per_process < 1:
+            raise ValueError(f"a process runs at least one drone, got {per_process}")
+        sizes = [min(per_process, n_drones - k) for k in range(0, n_drones, per_process)]
+    groups, start = [], 0
+    for size in sizes:
+        groups.append(list(range(start, start + size)))
+        start += size
+    return groups
+
+
+def usable_cpus() -> int:
+    """CPUs this process may run on (its affinity mask, which containers and taskset narrow), at least 1."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
 @dataclass(slots=True)
 class DroneProcess:
+    """A drone and the process that runs it; ``hosted`` when that process runs other drones too (then ending the
+    drone is asked of its host through the shared world, not done with a signal)."""
+
     instance: int
     sysid: int
     home: GeoPoint
     process: ForkedProcess
     log_path: Path | None
+    hosted: bool = False
 
     def last_log_line(self) -> str:
         if self.log_path is None or not self.log_path.exists():
@@ -87,19 +126,43 @@ class DroneProcess:
         return lines[-1] if lines else ""
 
 
+def _home_arg(home: GeoPoint) -> str:
+    return f"{home.lat_deg:.9f},{home.lon_deg:.9f},{home.alt_amsl_m:.3f}"
+
+
 def sitl_args(plan: LaunchPlan, instance: int, home: GeoPoint, gcs_port: int, world: str | None) -> list[str]:
-    """The ``sitl`` command-line arguments of one drone of the plan."""
+    """The ``sitl`` command-line arguments of one drone of the plan, alone in its process."""
     cmd = [
         "--instance", str(instance),
-        "--speed", "0" if plan.lockstep else f"{plan.speed_factor:g}",
         "--seed", str(plan.seed + instance),
-        "--home", f"{home.lat_deg:.9f},{home.lon_deg:.9f},{home.alt_amsl_m:.3f}",
-        "--gcs-remote", f"127.0.0.1:{gcs_port}",
+        "--home", _home_arg(home),
     ]  # fmt: skip
-    if plan.airframe is not None:
-        cmd += ["--airframe", plan.airframe]
     if plan.camera_dir is not None and instance - plan.first_instance + 1 in plan.camera_drones:
         cmd += ["--camera-frames", str(plan.camera_dir / f"drone-{instance}")]
+    return cmd + _common_args(plan, gcs_port, world)
+
+
+def host_args(
+    plan: LaunchPlan, instances: list[int], homes: list[GeoPoint], gcs_port: int, world: str | None
+) -> list[str]:
+    """The ``sitl --instances`` arguments of one process hosting several drones of the plan: the same drones, with
+    the same seeds, homes and camera choices, as ``sitl_args`` would start one by one; each drone's log is
+    drone-<instance>.log in the plan's log directory, as when it runs alone."""
+    cmd = ["--instances", ",".join(map(str, instances)), "--seed", str(plan.seed + instances[0])]
+    for home in homes:
+        cmd += ["--home", _home_arg(home)]
+    if plan.log_dir is not None:
+        cmd += ["--log-dir", str(plan.log_dir)]
+    cameras = [i for i in instances if i - plan.first_instance + 1 in plan.camera_drones]
+    if plan.camera_dir is not None and cameras:
+        cmd += ["--camera-frames", str(plan.camera_dir), "--camera-instances", ",".join(map(str, cameras))]
+    return cmd + _common_args(plan, gcs_port, world)
+
+
+def _common_args(plan: LaunchPlan, gcs_port: int, world: str | None) -> list[str]:
+    cmd = ["--speed", "0" if plan.lockstep else f"{plan.speed_factor:g}", "--gcs-remote", f"127.0.0.1:{gcs_port}"]
+    if plan.airframe is not None:
+        cmd += ["--airframe", plan.airframe]
     if world is not None:
         cmd += ["--world", world]
         if plan.lockstep:
@@ -112,6 +175,7 @@ class ProcessGroup:
 
     def __init__(self) -> None:
         self.drones: list[DroneProcess] = []
+        self.processes: list[ForkedProcess] = []  # each once, whether it runs one drone or hosts several
         self.factory: DroneFactory | None = None
 
     def spawn(self, plan: LaunchPlan, gcs_port: int, world: str | None = None) -> None:
@@ -123,16 +187,34 @@ class ProcessGroup:
                 self.factory = DroneFactory(log, preexec_fn=die_with_parent)
             except FactoryError as exc:
                 raise SpawnError(str(exc)) from None
-        for k, home in enumerate(plan.homes()):
-            instance = plan.first_instance + k
-            log_path = plan.log_dir / f"drone-{instance}.log" if plan.log_dir is not None else None
+        homes = plan.homes()
+        for group in plan.hosts(usable_cpus()):
+            instances = [plan.first_instance + k for k in group]
+            hosted = len(group) > 1
+            if hosted:
+                name = f"host-{instances[0]}-{instances[-1]}"
+                argv = host_args(plan, instances, [homes[k] for k in group], gcs_port, world)
+            else:
+                name = f"drone-{instances[0]}"
+                argv = sitl_args(plan, instances[0], homes[group[0]], gcs_port, world)
+            log_path = plan.log_dir / f"{name}.log" if plan.log_dir is not None else None
             try:
-                process = self.factory.spawn(sitl_args(plan, instance, home, gcs_port, world), log_path, DRONE_NICE)
+                process = self.factory.spawn(argv, log_path, DRONE_NICE)
             except FactoryError as exc:
-                raise SpawnError(f"drone {instance}: {exc}") from None
-            self.drones.append(
-                DroneProcess(instance=instance, sysid=instance + 1, home=home, process=process, log_path=log_path)
-            )
+                raise SpawnError(f"{name.replace('-', ' ', 1)}: {exc}") from None
+            self.processes.append(process)
+            for k, instance in zip(group, instances, strict=True):
+                own_log = plan.log_dir / f"drone-{instance}.log" if plan.log_dir is not None else None
+                self.drones.append(
+                    DroneProcess(
+                        instance=instance,
+                        sysid=instance + 1,
+                        home=homes[k],
+                        process=process,
+                        log_path=own_log,
+                        hosted=hosted,
+                    )
+                )
 
     def exited(self) -> list[DroneProcess]:
         """The drones that have ended: the factory's news read once, not once per drone (this runs every tick)."""
@@ -142,17 +224,17 @@ class ProcessGroup:
 
     def terminate(self, wait_s: float = TERMINATE_WAIT_S) -> None:
         """SIGTERM every child still running, then SIGKILL after ``wait_s``; always reaps."""
-        for d in self.drones:
-            if d.process.poll() is None:
-                d.process.send_signal(signal.SIGTERM)
+        for process in self.processes:
+            if process.poll() is None:
+                process.send_signal(signal.SIGTERM)
         deadline = time.monotonic() + wait_s
-        for d in self.drones:
+        for process in self.processes:
             remaining = max(0.0, deadline - time.monotonic())
             try:
-                d.process.wait(timeout=remaining)
+                process.wait(timeout=remaining)
             except subprocess.TimeoutExpired:
-                d.process.kill()
-                d.process.wait()
+                process.kill()
+                process.wait()
         if self.factory is not None:
             self.factory.close()
             self.factory = None

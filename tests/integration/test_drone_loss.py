@@ -31,6 +31,7 @@ from gcs.harness import SpawnPlan
 from gcs.swarm import Swarm
 from sitl.dynamics.geodesy import ned_from_geo
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
+from sitl.harness.harness import HOSTED_KILL_CAUSE
 from tests.integration.test_swarm import alive, children_of, wait_dead
 
 pytestmark = [pytest.mark.sim_only]
@@ -142,19 +143,26 @@ def on_circle(rows: dict[int, list[str]], sysids: list[int]) -> bool:
 
 
 @pytest.mark.timeout(600)  # about 70 s on 2 quiet cores; the waits are long only for a machine shared with others
+@pytest.mark.parametrize(
+    ("per_process", "cause"),
+    [("1", "process killed by SIGKILL"), ("3", HOSTED_KILL_CAUSE)],
+    ids=["process-per-drone", "hosted"],
+)
 def test_kill_9_of_one_drone_of_a_rotating_circle_of_6_leaves_a_circle_of_5_and_one_line(
-    supervisors: Callable[[list[str]], Supervisor], tmp_path: Path
+    supervisors: Callable[[list[str]], Supervisor], tmp_path: Path, per_process: str, cause: str
 ) -> None:
-    # GIVEN six drones in lockstep flying a rotating circle, the session recorded for a report
+    # GIVEN six drones in lockstep flying a rotating circle (each in its own process, or three to a process), the
+    # session recorded for a report
     report = tmp_path / "report"
-    swarm = supervisors(["-n", "6", "--lockstep", "--first-instance", "200", "--no-forward", "--report", str(report)])
+    swarm = supervisors(["-n", "6", "--lockstep", "--first-instance", "200", "--no-forward", "--report", str(report),
+                         "--drones-per-process", per_process])  # fmt: skip
     sysids = list(range(201, 207))
-    assert len(swarm.drones) == 6
+    assert len(swarm.drones) == 6 // int(per_process)  # processes
     swarm.command("takeoff", "--alt", "3")
     swarm.wait_for(lambda: all(float(r[5]) > 2.7 for r in swarm.status().values()), 240, "the takeoff")
     swarm.command("formation", "circle", "--radius", str(RADIUS_M), "--rate", "0.3", "--alt", "3")
     swarm.wait_for(lambda: on_circle(swarm.status(), sysids), 240, "the circle of 6")
-    # WHEN the process of sysid 203 is killed with SIGKILL (by PID, through the supervisor)
+    # WHEN sysid 203 is killed: its process with SIGKILL (by PID, through the supervisor), or inside its host
     result = swarm.cli("kill", "203")
     assert result.returncode == 0 and "killed" in result.stdout, result
     survivors = [s for s in sysids if s != 203]
@@ -162,10 +170,10 @@ def test_kill_9_of_one_drone_of_a_rotating_circle_of_6_leaves_a_circle_of_5_and_
     swarm.wait_for(lambda: on_circle(swarm.status(), survivors), 240, "the circle of 5")
     # AND the status shows the dead drone LOST with its cause, not armed
     row = " ".join(swarm.status()[203])
-    assert row.startswith("203 LOST") and "process killed by SIGKILL" in row, row
+    assert row.startswith("203 LOST") and cause in row, row
     # AND the supervisor said so once, on one line, and nobody collided
     lost = [ln for ln in swarm.lines if "lost" in ln]
-    assert len(lost) == 1 and re.fullmatch(r"drone 203 lost at t=\d+\.\d s: process killed by SIGKILL", lost[0]), lost
+    assert len(lost) == 1 and re.fullmatch(rf"drone 203 lost at t=\d+\.\d s: {cause}", lost[0]), lost
     assert not [ln for ln in swarm.lines if "link back" in ln or "exited" in ln], swarm.lines
     assert not [ln for ln in swarm.lines if "Collision" in ln], swarm.lines
     assert any("formation re-planned over 5 drones" in ln for ln in swarm.lines), swarm.lines
@@ -179,7 +187,7 @@ def test_kill_9_of_one_drone_of_a_rotating_circle_of_6_leaves_a_circle_of_5_and_
     swarm.command("down")
     assert swarm.proc.wait(timeout=120) == 0, swarm.lines
     metrics = json.loads((report / "metrics.json").read_text())
-    assert [(x["sysid"], x["cause"]) for x in metrics["losses"]] == [(203, "process killed by SIGKILL")]
+    assert [(x["sysid"], x["cause"]) for x in metrics["losses"]] == [(203, cause)]
     assert [(f["sysid"], f["fault"]) for f in metrics["faults"]] == [(203, "crash")]
     assert [s["name"] for s in metrics["steps"]] == ["takeoff", "circle"]
     # (nobody hit the falling body, and where it came down is reported)
