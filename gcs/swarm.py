@@ -18,16 +18,16 @@ import shutil
 import tempfile
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from gcs.commands import FORCE_DISARM_MAGIC, Ack, CommandClient, Send
 from gcs.faults import BATTERY_LEVEL_PARAM, ENABLE_PARAM, FAULTS, FaultRequest
 from gcs.fleet import LINK_LOST_S, Fleet
 from gcs.losses import MAV_STATE_FLIGHT_TERMINATION, DroneLoss, process_exit_cause
-from gcs.params import param_set_message, param_value
+from gcs.params import ParamClient, ParamResult
 from gcs.px4_modes import set_mode_params
 from gcs.relay import NeighbourRelay
 from gcs.supervisor import DroneProcess, ProcessGroup, SpawnError, SpawnPlan
@@ -37,8 +37,7 @@ from sitl.dynamics.plant import PHYSICS_RATE_HZ, GeoPoint
 from sitl.lockstep import LockstepGate
 from sitl.world import ALT, LAT, LON, TIME, VALID, SharedWorld
 
-COMMAND_TIMEOUT_S = 0.5  # MAVSDK's per-try timeout
-COMMAND_RETRIES = 3
+ARM_TIMEOUT_S = 30.0  # simulated seconds for every drone to pass its pre-arm checks before it is armed
 # How far the drones may run ahead of the supervisor's last look. Under load the drones sit at this limit, so it is
 # the lag of setpoints and relayed positions in simulated time: 50 ms let an eight-drone swap touch on a busy machine.
 LOCKSTEP_LEAD_S = 0.02
@@ -55,18 +54,6 @@ HOLD_MODE = set_mode_params("LOITER")
 GCS_HEARTBEAT_PERIOD_S = 1.0  # QGroundControl sends its HEARTBEAT at 1 Hz; PX4's datalink-loss failsafe watches it
 # A lost drone's body is "down" once it is this close to its launch altitude (the ground, in this flat world).
 ON_GROUND_M = 0.3
-PARAM_TIMEOUT_S = 1.0  # for a PARAM_VALUE echo, per attempt (on the swarm's clock)
-PARAM_ATTEMPTS = 3
-
-
-@dataclass(frozen=True, slots=True)
-class Ack:
-    sysid: int
-    result: int | None  # MAV_RESULT, None when no answer came
-
-    @property
-    def ok(self) -> bool:
-        return self.result == mavlink.MAV_RESULT_ACCEPTED
 
 
 class Swarm:
@@ -96,7 +83,9 @@ class Swarm:
         self.sent_listeners: list[Callable[[bytes, float], None]] = []
         self._selector = selectors.DefaultSelector()
         self._selector.register(self.link.sock, selectors.EVENT_READ)
-        self._acks: list[Any] = []
+        # The MAVLink command and parameter protocols (no IO of their own: the swarm feeds them and sends for them)
+        self.commands = CommandClient()
+        self.params = ParamClient()
         self.world: SharedWorld | None = None
         self.relay: NeighbourRelay | None = NeighbourRelay(radius_m=relay_radius_m) if relay else None
         # Every drone's traffic also goes to this address (QGroundControl/MAVProxy listen on 14550), and what comes
@@ -106,7 +95,6 @@ class Swarm:
         self._flush_due_s = math.inf  # when the queued traffic must leave (-inf: at the next pump)
         self.losses: dict[int, DroneLoss] = {}  # sysid -> the loss, recorded once
         self._next_gcs_heartbeat_s = 0.0
-        self._param_echoes: dict[tuple[int, str], float] = {}
         self._heard_wall_s: dict[int, float] = {}  # sysid -> wall time of its last HEARTBEAT
 
     def clock(self) -> float:
@@ -251,15 +239,31 @@ class Swarm:
 
     def set_param(self, sysid: int, name: str, value: int | float) -> None:
         """PARAM_SET, confirmed by the drone's PARAM_VALUE echo (as MAVSDK does); SwarmError if refused or silent."""
-        for _ in range(PARAM_ATTEMPTS):
-            self._param_echoes.pop((sysid, name), None)
-            self._send_logged(sysid, param_set_message(sysid, name, value), now=False)
-            if self.wait_until(lambda: (sysid, name) in self._param_echoes, PARAM_TIMEOUT_S):
-                kept = self._param_echoes[(sysid, name)]
-                if not math.isclose(kept, value, rel_tol=1e-6, abs_tol=1e-9):
-                    raise SwarmError(f"drone {sysid}: parameter {name} = {value:g} refused (kept {kept:g})")
-                return
-        raise SwarmError(f"drone {sysid}: no answer to setting parameter {name}")
+        result = self.set_params(name, value, [sysid])[0]
+        if result.refused:
+            raise SwarmError(f"drone {sysid}: parameter {name} = {value:g} refused (kept {result.kept:g})")
+        if not result.ok:
+            raise SwarmError(f"drone {sysid}: no answer to setting parameter {name}")
+
+    def set_params(self, name: str, value: int | float, sysids: Iterable[int]) -> list[ParamResult]:
+        """One parameter on several drones at once, each confirmed by its echo or retried (gcs/params.py)."""
+        targets = list(sysids)
+        results: dict[int, ParamResult] = {}
+        for sysid in targets:
+            self._send_effects(self.params.start(sysid, name, value, self.clock()), now=False)
+
+        def collect() -> bool:
+            for sysid in targets:
+                if sysid not in results and (result := self.params.take(sysid, name)) is not None:
+                    results[sysid] = result
+            return len(results) == len(targets)
+
+        try:
+            self._serve(collect, self.params.poll, self.params.next_due_s, now=False)
+        finally:  # interrupted or failed: nothing is left in flight to block the next set of the same parameter
+            for sysid in targets:
+                self.params.cancel(sysid, name)
+        return [results[s] for s in targets]
 
     def inject_fault(self, sysid: int, fault: FaultRequest) -> Ack:
         """MAV_CMD_INJECT_FAILURE as PX4 takes it, after SYS_FAILURE_EN = 1 (and the battery level it needs)."""
@@ -296,9 +300,9 @@ class Swarm:
             if msg.get_type() == "HEARTBEAT":
                 self._heard_wall_s[msg.get_srcSystem()] = time.monotonic()
             elif msg.get_type() == "COMMAND_ACK":
-                self._acks.append(msg)
+                self.commands.handle(msg, now)
             elif msg.get_type() == "PARAM_VALUE":
-                self._param_echoes[(msg.get_srcSystem(), msg.param_id)] = param_value(msg)
+                self._send_effects(self.params.handle(msg, now), now=False)
             for listener in self.listeners:
                 listener(msg, now)
         self._send_gcs_heartbeat(now)
@@ -391,12 +395,22 @@ class Swarm:
                 raise SpawnError(f"no HEARTBEAT within {ready_timeout_s:g} s from sysid {', '.join(map(str, missing))}")
             self.pump(self.plan.speed_factor * 0.05 if not self.plan.lockstep else LOCKSTEP_MAX_WAIT_S)
 
-    def arm_all(self, timeout_s: float, tick: Callable[[float], None] | None = None) -> None:
-        """Wait until every drone passes its pre-arm checks, then arm them all; SwarmError names the laggards."""
+    def wait_prearm(
+        self, timeout_s: float = ARM_TIMEOUT_S, tick: Callable[[float], None] | None = None, *, every: bool = False
+    ) -> None:
+        """Wait until the drones (the surviving ones; ``every``: all of them) pass their pre-arm checks;
+        SwarmError names those that did not within ``timeout_s``."""
         drones = self.fleet.drones
-        if not self.wait_until(lambda: all(drones[s].prearm_ok for s in self.active_sysids), timeout_s, tick=tick):
-            waiting = [s for s in self.active_sysids if not drones[s].prearm_ok]
-            raise SwarmError(f"sysid {waiting} did not pass pre-arm checks within {timeout_s:g} s")
+
+        def waiting() -> list[int]:
+            return [s for s in (self.sysids if every else self.active_sysids) if not drones[s].prearm_ok]
+
+        if not self.wait_until(lambda: not waiting(), timeout_s, tick=tick):
+            raise SwarmError(f"sysid {waiting()} did not pass pre-arm checks within {timeout_s:g} s")
+
+    def arm_all(self, timeout_s: float = ARM_TIMEOUT_S, tick: Callable[[float], None] | None = None) -> None:
+        """Wait until every drone passes its pre-arm checks, then arm them all; SwarmError names the laggards."""
+        self.wait_prearm(timeout_s, tick)
         check(self.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1, sysids=self.active_sysids), "arm")
 
     def land_all(self, *, return_to_launch: bool = False) -> list[int]:
@@ -439,7 +453,7 @@ class Swarm:
                 self.wait_until(lambda: not any(self.fleet.drones[s].armed for s in flying), land_timeout_s)
                 still = [s for s in flying if self.fleet.drones[s].armed]
                 if still:  # a drone that cannot land in time is disarmed where it is
-                    self.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196, sysids=still)
+                    self.force_disarm(still)
         finally:
             self.processes.terminate()
             if self.gate is not None:
@@ -454,25 +468,47 @@ class Swarm:
 
     # ---- commands --------------------------------------------------------------------------------------------------
     def command_all(self, command: int, *params: float, sysids: Iterable[int] | None = None) -> list[Ack]:
-        """COMMAND_LONG to several drones at once, each retried until acknowledged (as MAVSDK does)."""
+        """COMMAND_LONG to several drones at once, each retried until answered (MAVSDK's rules: gcs/commands.py)."""
         targets = list(self.sysids if sysids is None else sysids)
-        p = [*params, *([0.0] * (7 - len(params)))]
-        results: dict[int, int | None] = {s: None for s in targets}
-        for attempt in range(COMMAND_RETRIES):
-            pending = [s for s in targets if results[s] is None]
-            if not pending:
-                break
-            for s in pending:
-                self._send_logged(s, mavlink.MAVLink_command_long_message(s, 1, command, attempt, *p), now=True)
-            end = self.clock() + COMMAND_TIMEOUT_S
-            while any(results[s] is None for s in pending) and self.clock() < end:
-                self.pump(0.02)
-                for ack in self._acks:
-                    src = ack.get_srcSystem()
-                    if ack.command == command and src in results and results[src] is None:
-                        results[src] = ack.result
-                self._acks.clear()
-        return [Ack(s, results[s]) for s in targets]
+        results: dict[int, Ack] = {}
+        for sysid in targets:
+            self._send_effects(self.commands.start(sysid, command, params, self.clock()), now=True)
+
+        def collect() -> bool:
+            for sysid in targets:
+                if sysid not in results and (ack := self.commands.take(sysid, command)) is not None:
+                    results[sysid] = ack
+            return len(results) == len(targets)
+
+        try:
+            self._serve(collect, self.commands.poll, self.commands.next_due_s, now=True)
+        finally:  # interrupted or failed: nothing is left in flight to block the shutdown's own commands
+            for sysid in targets:
+                self.commands.cancel(sysid, command)
+        return [results[s] for s in targets]
+
+    def force_disarm(self, sysids: Iterable[int]) -> list[Ack]:
+        """Disarm where they are, in the air too (the motors stop: the drones fall)."""
+        return self.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, FORCE_DISARM_MAGIC, sysids=sysids)
+
+    def _serve(
+        self,
+        done: Callable[[], bool],
+        poll: Callable[[float], list[Send]],
+        next_due_s: Callable[[], float],
+        *,
+        now: bool,
+    ) -> None:
+        """Pump until ``done``, sending what a protocol client's ``poll`` asks for when its timers come due."""
+        while not done():
+            self._send_effects(poll(self.clock()), now=now)
+            if done():
+                return
+            self.pump(min(0.02, max(0.0, next_due_s() - self.clock())))
+
+    def _send_effects(self, effects: list[Send], *, now: bool) -> None:
+        for effect in effects:
+            self._send_logged(effect.sysid, effect.message, now=now)
 
     def _send_logged(self, sysid: int, msg: Any, *, now: bool) -> None:
         """A command or parameter write, at once or with the next batch, also handed to ``sent_listeners``."""
