@@ -704,10 +704,10 @@ class ScenarioFlight:
         try:
             self.streamer.stop()
             if swarm.world is not None:
-                armed = [s for s in swarm.sysids if s in swarm.fleet.drones and swarm.fleet.drones[s].armed]
+                armed = swarm.armed_sysids()
                 if armed:
                     swarm.force_disarm(armed)
-                    swarm.wait_until(lambda: not any(swarm.fleet.drones[s].armed for s in armed), 3.0)
+                    swarm.wait_until(lambda: not swarm.armed_sysids(armed), 3.0)
         except (SwarmError, OSError):
             pass  # shutdown below still terminates and reaps every process
         finally:

@@ -238,13 +238,8 @@ class MissionRunner:
         """Land (or return) every drone still armed; a crashed or already landed drone has nothing to do."""
         self.streamer.stop()
         flying = self.swarm.land_all(return_to_launch=isinstance(step, RtlStep))
-        if not self._wait(lambda: not self._still_armed(flying), step.timeout_s):
+        if not self._wait(lambda: not self.swarm.armed_sysids(flying), step.timeout_s):
             raise SwarmError(f"not every drone landed and disarmed within {step.timeout_s:g} s")
-
-    def _still_armed(self, sysids: list[int]) -> list[int]:
-        """Those still armed that the swarm has not lost (a lost drone's last report may say armed for ever)."""
-        drones = self.swarm.fleet.drones
-        return [s for s in sysids if s not in self.swarm.losses and drones[s].armed]
 
     def _finish_after_policy(self) -> None:
         """After a loss under hold, land or abort the remaining steps are dropped: the mission ends once the
@@ -253,8 +248,8 @@ class MissionRunner:
         if self.mission.loss_policy is LossPolicy.HOLD:
             self.swarm.run_for(HOLD_POLICY_S, tick=self._tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
             self.swarm.land_all()
-        flying = [s for s in self.swarm.active_sysids if self.swarm.fleet.drones[s].armed]
-        landed = self.swarm.wait_until(lambda: not self._still_armed(flying), POLICY_LANDING_S, tick=self._tick)
+        flying = self.swarm.armed_sysids()
+        landed = self.swarm.wait_until(lambda: not self.swarm.armed_sysids(flying), POLICY_LANDING_S, tick=self._tick)
         if not landed:
             raise SwarmError(f"not every drone landed and disarmed within {POLICY_LANDING_S:g} s of the loss policy")
 

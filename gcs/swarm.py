@@ -2,7 +2,9 @@
 
 ``Swarm`` brings drones up (spawn, then wait for each one's first HEARTBEAT; never sleep-and-hope), pumps
 telemetry into the fleet view, sends commands with PX4-client retry rules, and shuts everything down in order:
-land or disarm over MAVLink, then terminate and reap every process.
+land or disarm over MAVLink, then terminate and reap every process. The retry rules are not here: commands and
+parameter writes are protocol objects without IO (gcs/commands.py, gcs/params.py) that the swarm feeds with what it
+receives and whose effects it sends.
 
 Times are simulated seconds on the supervisor's clock (``Swarm.clock``): paced, the wall clock times the speed
 factor; in lockstep, the drones' common clock in the shared world (sitl/lockstep.py), which the supervisor itself
@@ -395,6 +397,16 @@ class Swarm:
                 raise SpawnError(f"no HEARTBEAT within {ready_timeout_s:g} s from sysid {', '.join(map(str, missing))}")
             self.pump(self.plan.speed_factor * 0.05 if not self.plan.lockstep else LOCKSTEP_MAX_WAIT_S)
 
+    def armed_sysids(self, sysids: Iterable[int] | None = None) -> list[int]:
+        """Of ``sysids`` (default: every drone), those not lost whose last HEARTBEAT said armed (a lost drone's last
+        report may say armed for ever)."""
+        drones = self.fleet.drones
+        return [
+            s
+            for s in (self.sysids if sysids is None else sysids)
+            if s not in self.losses and s in drones and drones[s].armed
+        ]
+
     def wait_prearm(
         self, timeout_s: float = ARM_TIMEOUT_S, tick: Callable[[float], None] | None = None, *, every: bool = False
     ) -> None:
@@ -415,7 +427,7 @@ class Swarm:
 
     def land_all(self, *, return_to_launch: bool = False) -> list[int]:
         """Land (or return to launch) every armed drone; returns those sysids (crashed or landed ones are left)."""
-        flying = [s for s in self.active_sysids if s in self.fleet.drones and self.fleet.drones[s].armed]
+        flying = self.armed_sysids()
         if return_to_launch:
             check(self.command_all(mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, sysids=flying), "return to launch")
         else:
@@ -424,34 +436,29 @@ class Swarm:
 
     def hold_all(self) -> list[int]:
         """Every armed surviving drone into PX4 Hold (AUTO.LOITER), where it is; returns those sysids."""
-        flying = [s for s in self.active_sysids if s in self.fleet.drones and self.fleet.drones[s].armed]
+        flying = self.armed_sysids()
         check(self.command_all(mavlink.MAV_CMD_DO_SET_MODE, *HOLD_MODE, sysids=flying), "hold")
         return flying
 
     def takeoff_all(self, alt_m: float) -> None:
-        """NAV_TAKEOFF for every drone to ``alt_m`` above its own home (PX4 takes an AMSL altitude)."""
+        """NAV_TAKEOFF for every drone to ``alt_m`` above its own home (PX4 takes an AMSL altitude), all at once."""
+        params: dict[int, tuple[float, ...]] = {}
+        nan = math.nan
         for sysid in self.active_sysids:
             home = self.fleet.drones[sysid].home
             if home is None:
                 raise SwarmError(f"sysid {sysid} has no home position yet")
-            nan = math.nan
-            acks = self.command_all(
-                mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, nan, nan, nan, home[2] + alt_m, sysids=[sysid]
-            )
-            check(acks, "takeoff")
+            params[sysid] = (0, 0, 0, nan, nan, nan, home[2] + alt_m)
+        check(self.command_each(mavlink.MAV_CMD_NAV_TAKEOFF, params), "takeoff")
 
     def shutdown(self, land_timeout_s: float = 30.0) -> None:
         """Land what flies, disarm, then terminate and reap every process (also after errors)."""
         try:
-            flying = [
-                s
-                for s in self.active_sysids
-                if s in self.fleet.drones and self.fleet.drones[s].armed and not self.fleet.drones[s].lost(self.clock())
-            ]
+            flying = [s for s in self.armed_sysids() if not self.fleet.drones[s].lost(self.clock())]
             if flying:
                 self.command_all(mavlink.MAV_CMD_NAV_LAND, sysids=flying)
-                self.wait_until(lambda: not any(self.fleet.drones[s].armed for s in flying), land_timeout_s)
-                still = [s for s in flying if self.fleet.drones[s].armed]
+                self.wait_until(lambda: not self.armed_sysids(flying), land_timeout_s)
+                still = self.armed_sysids(flying)
                 if still:  # a drone that cannot land in time is disarmed where it is
                     self.force_disarm(still)
         finally:
@@ -469,10 +476,16 @@ class Swarm:
     # ---- commands --------------------------------------------------------------------------------------------------
     def command_all(self, command: int, *params: float, sysids: Iterable[int] | None = None) -> list[Ack]:
         """COMMAND_LONG to several drones at once, each retried until answered (MAVSDK's rules: gcs/commands.py)."""
-        targets = list(self.sysids if sysids is None else sysids)
+        targets = self.sysids if sysids is None else sysids
+        return self.command_each(command, {sysid: params for sysid in targets})
+
+    def command_each(self, command: int, params: dict[int, tuple[float, ...]]) -> list[Ack]:
+        """One command to several drones at once, each with its own params (sysid -> params 1-7), each retried
+        until answered; the answers in the order of ``params``."""
+        targets = list(params)
         results: dict[int, Ack] = {}
         for sysid in targets:
-            self._send_effects(self.commands.start(sysid, command, params, self.clock()), now=True)
+            self._send_effects(self.commands.start(sysid, command, params[sysid], self.clock()), now=True)
 
         def collect() -> bool:
             for sysid in targets:
