@@ -250,22 +250,9 @@ class Swarm:
     def set_params(self, name: str, value: int | float, sysids: Iterable[int]) -> list[ParamResult]:
         """One parameter on several drones at once, each confirmed by its echo or retried (gcs/params.py)."""
         targets = list(sysids)
-        results: dict[int, ParamResult] = {}
         for sysid in targets:
             self._send_effects(self.params.start(sysid, name, value, self.clock()), now=False)
-
-        def collect() -> bool:
-            for sysid in targets:
-                if sysid not in results and (result := self.params.take(sysid, name)) is not None:
-                    results[sysid] = result
-            return len(results) == len(targets)
-
-        try:
-            self._serve(collect, self.params.poll, self.params.next_due_s, now=False)
-        finally:  # interrupted or failed: nothing is left in flight to block the next set of the same parameter
-            for sysid in targets:
-                self.params.cancel(sysid, name)
-        return [results[s] for s in targets]
+        return self._serve(self.params, name, targets, now=False)
 
     def inject_fault(self, sysid: int, fault: FaultRequest) -> Ack:
         """MAV_CMD_INJECT_FAILURE as PX4 takes it, after SYS_FAILURE_EN = 1 (and the battery level it needs)."""
@@ -483,41 +470,36 @@ class Swarm:
         """One command to several drones at once, each with its own params (sysid -> params 1-7), each retried
         until answered; the answers in the order of ``params``."""
         targets = list(params)
-        results: dict[int, Ack] = {}
         for sysid in targets:
             self._send_effects(self.commands.start(sysid, command, params[sysid], self.clock()), now=True)
-
-        def collect() -> bool:
-            for sysid in targets:
-                if sysid not in results and (ack := self.commands.take(sysid, command)) is not None:
-                    results[sysid] = ack
-            return len(results) == len(targets)
-
-        try:
-            self._serve(collect, self.commands.poll, self.commands.next_due_s, now=True)
-        finally:  # interrupted or failed: nothing is left in flight to block the shutdown's own commands
-            for sysid in targets:
-                self.commands.cancel(sysid, command)
-        return [results[s] for s in targets]
+        return self._serve(self.commands, command, targets, now=True)
 
     def force_disarm(self, sysids: Iterable[int]) -> list[Ack]:
         """Disarm where they are, in the air too (the motors stop: the drones fall)."""
         return self.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, FORCE_DISARM_MAGIC, sysids=sysids)
 
-    def _serve(
-        self,
-        done: Callable[[], bool],
-        poll: Callable[[float], list[Send]],
-        next_due_s: Callable[[], float],
-        *,
-        now: bool,
-    ) -> None:
-        """Pump until ``done``, sending what a protocol client's ``poll`` asks for when its timers come due."""
-        while not done():
-            self._send_effects(poll(self.clock()), now=now)
-            if done():
-                return
-            self.pump(min(0.02, max(0.0, next_due_s() - self.clock())))
+    def _serve(self, client: CommandClient | ParamClient, key: Any, targets: list[int], *, now: bool) -> list[Any]:
+        """Pump until the work ``key`` (a command, a parameter name) has ended on every target, sending what the
+        client's ``poll`` asks for when its timers come due; the outcomes in the order of ``targets``. Interrupted or
+        failed, nothing is left in flight to block the next use of the same command or parameter (the shutdown's)."""
+        results: dict[int, Any] = {}
+
+        def collect() -> bool:
+            for sysid in targets:
+                if sysid not in results and (outcome := client.take(sysid, key)) is not None:
+                    results[sysid] = outcome
+            return len(results) == len(targets)
+
+        try:
+            while not collect():
+                self._send_effects(client.poll(self.clock()), now=now)
+                if collect():
+                    break
+                self.pump(min(0.02, max(0.0, client.next_due_s() - self.clock())))
+        finally:
+            for sysid in targets:
+                client.cancel(sysid, key)
+        return [results[s] for s in targets]
 
     def _send_effects(self, effects: list[Send], *, now: bool) -> None:
         for effect in effects:
