@@ -46,6 +46,7 @@ import numpy as np
 import numpy.typing as npt
 from pymavlink.dialects.v20 import common as mavlink
 
+from gcs.commands import COMMAND_TIMEOUT_S
 from gcs.formation import SETPOINT_STREAM_HZ, CircleSpec, FormationError, TransitionLimits
 from gcs.frames import SwarmFrame
 from gcs.probe import PROBE_SYSIDS, percentile
@@ -73,7 +74,7 @@ RELAY_RADIUS_M = 15.0
 PROBE_SECONDS = 3.0
 PROBE_EXTRA_WALL_S = 30.0  # the probe's own start-up (imports) on a loaded machine
 RTT_MIN_SAMPLES = 20  # command round trips: every drone in turn, as many rounds as give at least this many
-RTT_TIMEOUT_S = 0.5  # wall seconds per command before it counts as lost (MAVSDK's per-try timeout)
+RTT_TIMEOUT_S = COMMAND_TIMEOUT_S  # wall seconds per command before it counts as lost (MAVSDK's per-try timeout)
 BARE_SIM_SECONDS = 10.0
 BARE_REPEATS = 3
 TAKEOFF_TIMEOUT_S = 40.0
