@@ -26,7 +26,7 @@ sleeping.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Final
 
 from pymavlink.dialects.v20 import common as mavlink
@@ -88,7 +88,6 @@ class _Work:
     retries_left: int
     due_s: float  # when this try times out
     confirmation: int = 0
-    progress: list[int] = field(default_factory=list)  # IN_PROGRESS percentages seen (255: unknown)
 
     def message(self) -> Any:
         return mavlink.MAVLink_command_long_message(
@@ -145,7 +144,6 @@ class CommandClient:
         if work is None or msg.get_srcComponent() != work.compid:
             return []  # not ours: another command's, or a late duplicate of one already ended
         if msg.result == mavlink.MAV_RESULT_IN_PROGRESS:
-            work.progress.append(int(getattr(msg, "progress", 255)))
             work.due_s = now_s + max(1, work.retries_left) * self.timeout_s
         elif msg.result in FINAL_RESULTS:
             del self._work[key]
