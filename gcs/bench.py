@@ -46,14 +46,16 @@ import numpy as np
 import numpy.typing as npt
 from pymavlink.dialects.v20 import common as mavlink
 
+from gcs.commands import COMMAND_TIMEOUT_S
 from gcs.formation import SETPOINT_STREAM_HZ, CircleSpec, FormationError, TransitionLimits
 from gcs.frames import SwarmFrame
 from gcs.geodesy import DEFAULT_ORIGIN
 from gcs.harness import Simulation, SpawnError, SpawnPlan
 from gcs.probe import PROBE_SYSIDS, percentile
-from gcs.recorder import COLLISION_TEXT
+from gcs.procedures import take_off_and_hold
+from gcs.recorder import CollisionPairs
 from gcs.streamer import DEFAULT_LIMITS, FormationStreamer
-from gcs.swarm import Swarm, SwarmError
+from gcs.swarm import ARM_TIMEOUT_S, Swarm, SwarmError
 
 DEFAULT_DRONE_COUNTS = (1, 3, 9, 20, 50, 100)
 DEFAULT_SIM_SECONDS = 20.0
@@ -61,8 +63,6 @@ DEFAULT_FIRST_INSTANCE = 100  # well clear of a user's drones at 0 and of the te
 MAX_BENCH_DRONES = 100  # as ``swarm up -n``
 SPAWN_SPACING_M = 2.0
 TAKEOFF_ALT_M = 3.0
-ALT_TOLERANCE_M = 0.2  # takeoff is done when every drone holds 3 m within this...
-ALT_HOLD_S = 1.0  # ...for this long (simulated)
 CIRCLE_RATE_RADPS = 0.2
 CIRCLE_MIN_RADIUS_M = 3.0
 CIRCLE_MIN_GAP_M = 2.0  # neighbours on the circle at least this far apart (chord)
@@ -73,10 +73,8 @@ RELAY_RADIUS_M = 15.0
 PROBE_SECONDS = 3.0
 PROBE_EXTRA_WALL_S = 30.0  # the probe's own start-up (imports) on a loaded machine
 RTT_MIN_SAMPLES = 20  # command round trips: every drone in turn, as many rounds as give at least this many
-RTT_TIMEOUT_S = 0.5  # wall seconds per command before it counts as lost (MAVSDK's per-try timeout)
-ARM_TIMEOUT_S = 30.0
+RTT_TIMEOUT_S = COMMAND_TIMEOUT_S  # wall seconds per command before it counts as lost (MAVSDK's per-try timeout)
 TAKEOFF_TIMEOUT_S = 40.0
-DISARM_FORCE_MAGIC = 21196.0  # MAV_CMD_COMPONENT_ARM_DISARM param2: disarm even in the air
 CONSISTENT_READ_TRIES = 5
 TIME_PUBLISH_STEPS = 4  # each drone publishes its simulated time every 4 physics steps (sitl/world.py)
 CPU_PARTS = ("physics", "control", "perception", "mavlink")
@@ -566,7 +564,7 @@ class ScenarioFlight:
         )
         self.sampling = False
         self.samples = _ClockSamples()
-        self._collisions: set[frozenset[int]] = set()
+        self._collisions = CollisionPairs()
         self.swarm.listeners.append(self._on_message)
 
     @property
@@ -575,9 +573,7 @@ class ScenarioFlight:
 
     def _on_message(self, msg: Any, _now: float) -> None:
         if msg.get_type() == "STATUSTEXT":
-            match = COLLISION_TEXT.match(msg.text)
-            if match is not None:
-                self._collisions.add(frozenset((msg.get_srcSystem(), int(match.group(1)))))
+            self._collisions.observe(msg.get_srcSystem(), msg.text)
 
     def tick(self, now: float) -> None:
         """Stream setpoints; while measuring, sample every drone's clock (TIME) and lockstep step count (STEP)."""
@@ -596,30 +592,11 @@ class ScenarioFlight:
         """Spawn and wait for every drone's first HEARTBEAT and passed pre-arm checks; wall seconds from spawn."""
         start = time.monotonic()
         self.swarm.up(ready_timeout_s=30.0 + 2.0 * self.n)  # start-up is CPU-bound: N Python processes importing
-        drones = self.swarm.fleet.drones
-        timeout = 30.0 + 1.0 * self.n
-        if not self.swarm.wait_until(lambda: all(drones[s].prearm_ok for s in self.swarm.sysids), timeout):
-            waiting = [s for s in self.swarm.sysids if not drones[s].prearm_ok]
-            raise SwarmError(f"sysid {waiting} did not pass pre-arm checks within {timeout:g} s")
+        self.swarm.wait_prearm(ARM_TIMEOUT_S + 1.0 * self.n, every=True)
         return time.monotonic() - start
 
     def take_off(self) -> None:
-        swarm = self.swarm
-        swarm.arm_all(ARM_TIMEOUT_S, tick=self.tick)
-        swarm.takeoff_all(TAKEOFF_ALT_M)
-        since: list[float | None] = [None]
-
-        def holding() -> bool:
-            positions = self.streamer.positions()
-            ok = len(positions) == self.n and all(
-                abs(p[2] + TAKEOFF_ALT_M) < ALT_TOLERANCE_M for p in positions.values()
-            )
-            now = swarm.clock()
-            since[0] = (since[0] if since[0] is not None else now) if ok else None
-            return since[0] is not None and now - since[0] >= ALT_HOLD_S
-
-        if not swarm.wait_until(holding, TAKEOFF_TIMEOUT_S + 0.2 * self.n, tick=self.tick):
-            raise SwarmError(f"takeoff to {TAKEOFF_ALT_M:g} m not reached")
+        take_off_and_hold(self.swarm, self.streamer, TAKEOFF_ALT_M, TAKEOFF_TIMEOUT_S + 0.2 * self.n, tick=self.tick)
 
     def circle_window(self, sim_seconds: float) -> tuple[Snapshot, Snapshot]:
         """Command the rotating circle and fly it for ``sim_seconds`` (supervisor clock), snapshots at both ends."""
@@ -704,10 +681,10 @@ class ScenarioFlight:
         try:
             self.streamer.stop()
             if swarm.sysids:
-                armed = [s for s in swarm.sysids if s in swarm.fleet.drones and swarm.fleet.drones[s].armed]
+                armed = swarm.armed_sysids()
                 if armed:
-                    swarm.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, DISARM_FORCE_MAGIC, sysids=armed)
-                    swarm.wait_until(lambda: not any(swarm.fleet.drones[s].armed for s in armed), 3.0)
+                    swarm.force_disarm(armed)
+                    swarm.wait_until(lambda: not swarm.armed_sysids(armed), 3.0)
         except (SwarmError, OSError):
             pass  # shutdown below still terminates and reaps every process
         finally:

@@ -13,10 +13,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 from gcs.behaviours import LeaderFollower
 from gcs.degrade import apply_loss_policy
@@ -39,19 +38,15 @@ from gcs.mission_file import (
     SwapStep,
     TakeoffStep,
 )
-from gcs.pace_monitor import PaceMonitor
-from gcs.params import param_set_message, param_value
+from gcs.procedures import PaceWatch, take_off_and_hold
 from gcs.recorder import FlightRecorder
 from gcs.recording import EventRecord, FaultRecord, FlightRecording, StepRecord
 from gcs.report import write_report
 from gcs.streamer import FormationStreamer
-from gcs.swarm import PARAM_ATTEMPTS, PARAM_TIMEOUT_S, Swarm, SwarmError
+from gcs.swarm import Swarm, SwarmError
 
 Say = Callable[[str], None]
-ALT_TOLERANCE_M = 0.2  # takeoff is done when every drone holds the target altitude within this...
-ALT_HOLD_S = 1.0  # ...for this long (simulated seconds)
 STATUS_EVERY_S = 2.0
-ARMABLE_TIMEOUT_S = 30.0
 FOLLOW_ARRIVAL_MARGIN_S = 30.0  # the leader must report itself at its last waypoint this long after its reference
 FOLLOW_TIMEOUT_S = 3600.0  # the follow step's outer bound; it ends with the leader's arrival or its margin
 HOLD_POLICY_S = 10.0  # a mission under loss policy hold hovers this long before it lands the survivors
@@ -93,8 +88,8 @@ class MissionRunner:
             mission_name=mission.name, n_drones=mission.swarm.drones, collision_radius_m=contact_distance
         )
         # Paced, the supervisor's clock is the wall clock: watch that the drones keep up with it.
-        self._pace = PaceMonitor.for_plan(plan)
-        self.recording.requested_speed = self._pace.speed_factor if self._pace is not None else None
+        self._pace = PaceWatch(self.swarm, say)
+        self.recording.requested_speed = self._pace.requested_speed
         self._t0_s = 0.0
         self.recorder: FlightRecorder | None = None
         self._next_status_s = 0.0
@@ -113,12 +108,7 @@ class MissionRunner:
         self._watch_losses(now)
         self._inject_due_faults(now)
         self.streamer.tick(now)
-        rate = None
-        if self._pace is not None:
-            warning = self._pace.update(time.monotonic(), self.swarm.drone_time_s())
-            if warning is not None:
-                self.say(warning)
-            rate = self._pace.rate()
+        rate = self._pace.tick()
         if now >= self._next_status_s:
             self._next_status_s = now + STATUS_EVERY_S
             pace = ""
@@ -170,58 +160,24 @@ class MissionRunner:
 
     def _set_params(self) -> None:
         """The mission's drone parameters on every drone, each confirmed by its PARAM_VALUE echo (as MAVSDK does)."""
-        echoes: dict[tuple[int, str], float] = {}
-
-        def listen(msg: Any, _now: float) -> None:
-            if msg.get_type() == "PARAM_VALUE":
-                echoes[(msg.get_srcSystem(), msg.param_id)] = param_value(msg)
-
-        self.swarm.listeners.append(listen)
-        try:
-            for name, value in self.mission.swarm.params:
-                pending = list(self.swarm.sysids)
-                for _ in range(PARAM_ATTEMPTS):
-                    for sysid in pending:
-                        echoes.pop((sysid, name), None)
-                        self.swarm.send(sysid, param_set_message(sysid, name, value))
-                    self.swarm.wait_until(lambda: all((s, name) in echoes for s in pending), PARAM_TIMEOUT_S)  # noqa: B023
-                    pending = [s for s in pending if (s, name) not in echoes]
-                    if not pending:
-                        break
-                if pending:
-                    raise SwarmError(f"parameter {name}: no answer from sysid {pending} (unknown parameter?)")
-                kept = {s: echoes[(s, name)] for s in self.swarm.sysids}
-                refused = [s for s, v in kept.items() if not math.isclose(v, value, rel_tol=1e-6, abs_tol=1e-9)]
-                if refused:
-                    raise SwarmError(
-                        f"parameter {name} = {value:g} refused by sysid {refused} (kept {kept[refused[0]]:g})"
-                    )
-            if self.mission.swarm.params:
-                listed = ", ".join(f"{n} = {v:g}" for n, v in self.mission.swarm.params)
-                self.say(f"parameters set on every drone: {listed}")
-        finally:
-            self.swarm.listeners.remove(listen)
+        for name, value in self.mission.swarm.params:
+            results = self.swarm.set_params(name, value, self.swarm.sysids)
+            silent = [r.sysid for r in results if r.kept is None]
+            if silent:
+                raise SwarmError(f"parameter {name}: no answer from sysid {silent} (unknown parameter?)")
+            refused = [r for r in results if r.refused]
+            if refused:
+                raise SwarmError(
+                    f"parameter {name} = {value:g} refused by sysid {[r.sysid for r in refused]} "
+                    f"(kept {refused[0].kept:g})"
+                )
+        if self.mission.swarm.params:
+            listed = ", ".join(f"{n} = {v:g}" for n, v in self.mission.swarm.params)
+            self.say(f"parameters set on every drone: {listed}")
 
     # ---- steps -----------------------------------------------------------------------------------------------------
     def _takeoff(self, step: TakeoffStep) -> None:
-        swarm = self.swarm
-        if not all(swarm.fleet.drones[s].armed for s in swarm.active_sysids):
-            swarm.arm_all(ARMABLE_TIMEOUT_S, tick=self._tick)
-        swarm.takeoff_all(step.alt_m)
-        target = -step.alt_m
-        since: list[float | None] = [None]
-
-        def holding() -> bool:
-            positions = self.streamer.positions()
-            ok = len(positions) == len(swarm.active_sysids) and all(
-                abs(p[2] - target) < ALT_TOLERANCE_M for p in positions.values()
-            )
-            now = self.now()
-            since[0] = (since[0] if since[0] is not None else now) if ok else None
-            return since[0] is not None and now - since[0] >= ALT_HOLD_S
-
-        if not self._wait(holding, step.timeout_s):
-            raise SwarmError(f"takeoff to {step.alt_m:g} m not reached within {step.timeout_s:g} s")
+        take_off_and_hold(self.swarm, self.streamer, step.alt_m, step.timeout_s, wait=self._wait, tick=self._tick)
 
     def _formation(self, step: FormationStep) -> None:
         self.streamer.command(step.formation, self.now())
@@ -282,13 +238,8 @@ class MissionRunner:
         """Land (or return) every drone still armed; a crashed or already landed drone has nothing to do."""
         self.streamer.stop()
         flying = self.swarm.land_all(return_to_launch=isinstance(step, RtlStep))
-        if not self._wait(lambda: not self._still_armed(flying), step.timeout_s):
+        if not self._wait(lambda: not self.swarm.armed_sysids(flying), step.timeout_s):
             raise SwarmError(f"not every drone landed and disarmed within {step.timeout_s:g} s")
-
-    def _still_armed(self, sysids: list[int]) -> list[int]:
-        """Those still armed that the swarm has not lost (a lost drone's last report may say armed for ever)."""
-        drones = self.swarm.fleet.drones
-        return [s for s in sysids if s not in self.swarm.losses and drones[s].armed]
 
     def _finish_after_policy(self) -> None:
         """After a loss under hold, land or abort the remaining steps are dropped: the mission ends once the
@@ -297,8 +248,8 @@ class MissionRunner:
         if self.mission.loss_policy is LossPolicy.HOLD:
             self.swarm.run_for(HOLD_POLICY_S, tick=self._tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
             self.swarm.land_all()
-        flying = [s for s in self.swarm.active_sysids if self.swarm.fleet.drones[s].armed]
-        landed = self.swarm.wait_until(lambda: not self._still_armed(flying), POLICY_LANDING_S, tick=self._tick)
+        flying = self.swarm.armed_sysids()
+        landed = self.swarm.wait_until(lambda: not self.swarm.armed_sysids(flying), POLICY_LANDING_S, tick=self._tick)
         if not landed:
             raise SwarmError(f"not every drone landed and disarmed within {POLICY_LANDING_S:g} s of the loss policy")
 
@@ -353,7 +304,7 @@ class MissionRunner:
             self._place_obstacles()
             self._set_params()
             self._t0_s = self.swarm.clock()
-            self.swarm.arm_all(ARMABLE_TIMEOUT_S, tick=self._tick)  # before the takeoff step's clock starts
+            self.swarm.arm_all(tick=self._tick)  # before the takeoff step's clock starts
             for index, step in enumerate(self.mission.steps):
                 if self._policy_taken:
                     self._finish_after_policy()

@@ -26,6 +26,27 @@ Say = Callable[[str], None]
 COLLISION_TEXT = re.compile(r"Collision with drone (\d+)")
 
 
+class CollisionPairs:
+    """Collisions counted once per pair of drones: both drones of a collision report it in a STATUSTEXT."""
+
+    def __init__(self) -> None:
+        self.pairs: set[frozenset[int]] = set()
+
+    def observe(self, sysid: int, text: str) -> bool | None:
+        """One STATUSTEXT from ``sysid``: None when it reports no collision, else whether the pair is new."""
+        match = COLLISION_TEXT.match(text)
+        if match is None:
+            return None
+        pair = frozenset((sysid, int(match.group(1))))
+        if pair in self.pairs:
+            return False
+        self.pairs.add(pair)
+        return True
+
+    def __len__(self) -> int:
+        return len(self.pairs)
+
+
 class FlightRecorder:
     def __init__(self, streamer: FormationStreamer, recording: FlightRecording, clock: Callable[[], float],
                  tlog_path: Path, say: Say | None) -> None:  # fmt: skip
@@ -37,7 +58,7 @@ class FlightRecorder:
         self.clock = clock
         self.say = say
         self.live = LiveMetrics()
-        self._collision_pairs: set[frozenset[int]] = set()
+        self.collisions = CollisionPairs()
         self._system_status: dict[int, int] = {}
         self._epoch_us = int(time.time() * 1e6)
         self._tlog = TlogWriter(tlog_path)
@@ -81,12 +102,8 @@ class FlightRecorder:
                 text = warnings[-1] if warnings else "system status CRITICAL (no warning received)"
                 self.recording.failsafes.append(EventRecord(time_s=now, sysid=sysid, text=text))
         elif kind == "STATUSTEXT":
-            match = COLLISION_TEXT.match(msg.text)
-            if match is not None:  # both drones of a collision report it: count the pair once
-                pair = frozenset((sysid, int(match.group(1))))
-                if pair in self._collision_pairs:
-                    return
-                self._collision_pairs.add(pair)
+            if self.collisions.observe(sysid, msg.text) is False:
+                return  # the other drone's report of a collision already recorded
             self.recording.events.append(EventRecord(time_s=now, sysid=sysid, text=msg.text))
             if self.say is not None and msg.severity <= mavlink.MAV_SEVERITY_WARNING:
                 self.say(f"  sysid {sysid}: {msg.text}")

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -20,7 +19,7 @@ from gcs.faults import CRASH, FaultError, fault_request, result_text
 from gcs.frames import SwarmFrame
 from gcs.losses import MAV_STATE_CRITICAL, LossPolicy, loss_line
 from gcs.mission_file import build_flock, build_follow, build_formation
-from gcs.pace_monitor import PaceMonitor
+from gcs.procedures import PaceWatch
 from gcs.recorder import FlightRecorder
 from gcs.recording import EventRecord, FaultRecord, FlightRecording, StepRecord
 from gcs.report import write_report
@@ -28,7 +27,6 @@ from gcs.streamer import FormationStreamer
 from gcs.swarm import Swarm, SwarmError
 
 Say = Callable[[str], None]
-ARMABLE_TIMEOUT_S = 30.0
 
 
 # Commands that start what the report calls a step (name and kind taken from the request)
@@ -45,7 +43,7 @@ class Station:
         self.streamer = FormationStreamer(swarm, SwarmFrame(swarm.plan.origin))
         self._t0 = swarm.clock()
         self.stop_requested = False
-        self._pace = PaceMonitor.for_plan(swarm.plan)
+        self._pace = PaceWatch(swarm, say)
         swarm.listeners.append(self._on_message)
         self.report_dir = report_dir
         self.recording = FlightRecording(
@@ -106,10 +104,7 @@ class Station:
     def watch(self, now_s: float) -> None:
         """Record and report each lost drone once (one line), apply the loss policy, and report a swarm that cannot
         keep the requested pace (once)."""
-        if self._pace is not None:
-            warning = self._pace.update(time.monotonic(), self.swarm.drone_time_s())
-            if warning is not None:
-                self.say(warning)
+        self._pace.tick()
         for loss in self.swarm.detect_losses(self.mission_time()):
             self.say(loss_line(loss))
             line = apply_loss_policy(self.loss_policy, self.streamer, loss, self.mission_time())
@@ -199,7 +194,7 @@ class Station:
     def takeoff(self, alt_m: float) -> dict[str, Any]:
         if not (math.isfinite(alt_m) and 0.5 <= alt_m <= 100.0):
             return {"ok": False, "error": f"--alt must be between 0.5 and 100 m, got {alt_m:g}"}
-        self.swarm.arm_all(ARMABLE_TIMEOUT_S)
+        self.swarm.arm_all()
         self.swarm.takeoff_all(alt_m)
         return {"ok": True}
 

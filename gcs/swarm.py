@@ -2,7 +2,9 @@
 
 ``Swarm`` brings drones up (spawn, then wait for each one's first HEARTBEAT; never sleep-and-hope), pumps
 telemetry into the fleet view, sends commands with PX4-client retry rules, and shuts everything down in order:
-land or disarm over MAVLink, then terminate and reap every process.
+land or disarm over MAVLink, then terminate and reap every process. The retry rules are not here: commands and
+parameter writes are protocol objects without IO (gcs/commands.py, gcs/params.py) that the swarm feeds with what it
+receives and whose effects it sends.
 
 Times are simulated seconds on the supervisor's clock (``Swarm.clock``): paced, the wall clock times the speed
 factor; in lockstep, the drones' common clock, which the supervisor itself moves on (through the harness) after
@@ -19,23 +21,22 @@ import math
 import selectors
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from gcs.commands import FORCE_DISARM_MAGIC, Ack, CommandClient, Send
 from gcs.faults import BATTERY_LEVEL_PARAM, ENABLE_PARAM, FAULTS, FaultRequest
 from gcs.fleet import LINK_LOST_S, Fleet
 from gcs.geodesy import GeoPoint, NedFrame
 from gcs.harness import SimulationHarness, SpawnError, SpawnPlan
 from gcs.losses import MAV_STATE_FLIGHT_TERMINATION, DroneLoss
-from gcs.params import param_set_message, param_value
+from gcs.params import ParamClient, ParamResult
 from gcs.px4_modes import set_mode_params
 from gcs.relay import NeighbourRelay
 from gcs.transport import GcsSocket
 
-COMMAND_TIMEOUT_S = 0.5  # MAVSDK's per-try timeout
-COMMAND_RETRIES = 3
+ARM_TIMEOUT_S = 30.0  # simulated seconds for every drone to pass its pre-arm checks before it is armed
 # How far the drones may run ahead of the supervisor's last look. Under load the drones sit at this limit, so it is
 # the lag of setpoints and relayed positions in simulated time: 50 ms let an eight-drone swap touch on a busy machine.
 LOCKSTEP_LEAD_S = 0.02
@@ -51,18 +52,6 @@ BATCH_HOLD_S = 0.05
 HOLD_MODE = set_mode_params("LOITER")
 GCS_HEARTBEAT_PERIOD_S = 1.0  # QGroundControl sends its HEARTBEAT at 1 Hz; PX4's datalink-loss failsafe watches it
 EXIT_CHECK_S = 0.5  # wall seconds between looks for ended drones while moving the lockstep clock
-PARAM_TIMEOUT_S = 1.0  # for a PARAM_VALUE echo, per attempt (on the swarm's clock)
-PARAM_ATTEMPTS = 3
-
-
-@dataclass(frozen=True, slots=True)
-class Ack:
-    sysid: int
-    result: int | None  # MAV_RESULT, None when no answer came
-
-    @property
-    def ok(self) -> bool:
-        return self.result == mavlink.MAV_RESULT_ACCEPTED
 
 
 class Swarm:
@@ -91,7 +80,9 @@ class Swarm:
         self.sent_listeners: list[Callable[[bytes, float], None]] = []
         self._selector = selectors.DefaultSelector()
         self._selector.register(self.link.sock, selectors.EVENT_READ)
-        self._acks: list[Any] = []
+        # The MAVLink command and parameter protocols (no IO of their own: the swarm feeds them and sends for them)
+        self.commands = CommandClient()
+        self.params = ParamClient()
         self.relay: NeighbourRelay | None = NeighbourRelay(radius_m=relay_radius_m) if relay else None
         # Every drone's traffic also goes to this address (QGroundControl/MAVProxy listen on 14550), and what comes
         # back from there is routed to the drones by target system, as a MAVLink router does.
@@ -100,7 +91,6 @@ class Swarm:
         self._flush_due_s = math.inf  # when the queued traffic must leave (-inf: at the next pump)
         self.losses: dict[int, DroneLoss] = {}  # sysid -> the loss, recorded once
         self._next_gcs_heartbeat_s = 0.0
-        self._param_echoes: dict[tuple[int, str], float] = {}
         self._heard_wall_s: dict[int, float] = {}  # sysid -> wall time of its last HEARTBEAT
 
     def clock(self) -> float:
@@ -200,15 +190,18 @@ class Swarm:
 
     def set_param(self, sysid: int, name: str, value: int | float) -> None:
         """PARAM_SET, confirmed by the drone's PARAM_VALUE echo (as MAVSDK does); SwarmError if refused or silent."""
-        for _ in range(PARAM_ATTEMPTS):
-            self._param_echoes.pop((sysid, name), None)
-            self._send_logged(sysid, param_set_message(sysid, name, value), now=False)
-            if self.wait_until(lambda: (sysid, name) in self._param_echoes, PARAM_TIMEOUT_S):
-                kept = self._param_echoes[(sysid, name)]
-                if not math.isclose(kept, value, rel_tol=1e-6, abs_tol=1e-9):
-                    raise SwarmError(f"drone {sysid}: parameter {name} = {value:g} refused (kept {kept:g})")
-                return
-        raise SwarmError(f"drone {sysid}: no answer to setting parameter {name}")
+        result = self.set_params(name, value, [sysid])[0]
+        if result.refused:
+            raise SwarmError(f"drone {sysid}: parameter {name} = {value:g} refused (kept {result.kept:g})")
+        if not result.ok:
+            raise SwarmError(f"drone {sysid}: no answer to setting parameter {name}")
+
+    def set_params(self, name: str, value: int | float, sysids: Iterable[int]) -> list[ParamResult]:
+        """One parameter on several drones at once, each confirmed by its echo or retried (gcs/params.py)."""
+        targets = list(sysids)
+        for sysid in targets:
+            self._send_effects(self.params.start(sysid, name, value, self.clock()), now=False)
+        return self._serve(self.params, name, targets, now=False)
 
     def inject_fault(self, sysid: int, fault: FaultRequest) -> Ack:
         """MAV_CMD_INJECT_FAILURE as PX4 takes it, after SYS_FAILURE_EN = 1 (and the battery level it needs)."""
@@ -245,9 +238,9 @@ class Swarm:
             if msg.get_type() == "HEARTBEAT":
                 self._heard_wall_s[msg.get_srcSystem()] = time.monotonic()
             elif msg.get_type() == "COMMAND_ACK":
-                self._acks.append(msg)
+                self.commands.handle(msg, now)
             elif msg.get_type() == "PARAM_VALUE":
-                self._param_echoes[(msg.get_srcSystem(), msg.param_id)] = param_value(msg)
+                self._send_effects(self.params.handle(msg, now), now=False)
             for listener in self.listeners:
                 listener(msg, now)
         self._send_gcs_heartbeat(now)
@@ -340,17 +333,37 @@ class Swarm:
                 raise SpawnError(f"no HEARTBEAT within {ready_timeout_s:g} s from sysid {', '.join(map(str, missing))}")
             self.pump(self.plan.speed_factor * 0.05 if not self.plan.lockstep else LOCKSTEP_MAX_WAIT_S)
 
-    def arm_all(self, timeout_s: float, tick: Callable[[float], None] | None = None) -> None:
-        """Wait until every drone passes its pre-arm checks, then arm them all; SwarmError names the laggards."""
+    def armed_sysids(self, sysids: Iterable[int] | None = None) -> list[int]:
+        """Of ``sysids`` (default: every drone), those not lost whose last HEARTBEAT said armed (a lost drone's last
+        report may say armed for ever)."""
         drones = self.fleet.drones
-        if not self.wait_until(lambda: all(drones[s].prearm_ok for s in self.active_sysids), timeout_s, tick=tick):
-            waiting = [s for s in self.active_sysids if not drones[s].prearm_ok]
-            raise SwarmError(f"sysid {waiting} did not pass pre-arm checks within {timeout_s:g} s")
+        return [
+            s
+            for s in (self.sysids if sysids is None else sysids)
+            if s not in self.losses and s in drones and drones[s].armed
+        ]
+
+    def wait_prearm(
+        self, timeout_s: float = ARM_TIMEOUT_S, tick: Callable[[float], None] | None = None, *, every: bool = False
+    ) -> None:
+        """Wait until the drones (the surviving ones; ``every``: all of them) pass their pre-arm checks;
+        SwarmError names those that did not within ``timeout_s``."""
+        drones = self.fleet.drones
+
+        def waiting() -> list[int]:
+            return [s for s in (self.sysids if every else self.active_sysids) if not drones[s].prearm_ok]
+
+        if not self.wait_until(lambda: not waiting(), timeout_s, tick=tick):
+            raise SwarmError(f"sysid {waiting()} did not pass pre-arm checks within {timeout_s:g} s")
+
+    def arm_all(self, timeout_s: float = ARM_TIMEOUT_S, tick: Callable[[float], None] | None = None) -> None:
+        """Wait until every drone passes its pre-arm checks, then arm them all; SwarmError names the laggards."""
+        self.wait_prearm(timeout_s, tick)
         check(self.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1, sysids=self.active_sysids), "arm")
 
     def land_all(self, *, return_to_launch: bool = False) -> list[int]:
         """Land (or return to launch) every armed drone; returns those sysids (crashed or landed ones are left)."""
-        flying = [s for s in self.active_sysids if s in self.fleet.drones and self.fleet.drones[s].armed]
+        flying = self.armed_sysids()
         if return_to_launch:
             check(self.command_all(mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, sysids=flying), "return to launch")
         else:
@@ -359,36 +372,31 @@ class Swarm:
 
     def hold_all(self) -> list[int]:
         """Every armed surviving drone into PX4 Hold (AUTO.LOITER), where it is; returns those sysids."""
-        flying = [s for s in self.active_sysids if s in self.fleet.drones and self.fleet.drones[s].armed]
+        flying = self.armed_sysids()
         check(self.command_all(mavlink.MAV_CMD_DO_SET_MODE, *HOLD_MODE, sysids=flying), "hold")
         return flying
 
     def takeoff_all(self, alt_m: float) -> None:
-        """NAV_TAKEOFF for every drone to ``alt_m`` above its own home (PX4 takes an AMSL altitude)."""
+        """NAV_TAKEOFF for every drone to ``alt_m`` above its own home (PX4 takes an AMSL altitude), all at once."""
+        params: dict[int, tuple[float, ...]] = {}
+        nan = math.nan
         for sysid in self.active_sysids:
             home = self.fleet.drones[sysid].home
             if home is None:
                 raise SwarmError(f"sysid {sysid} has no home position yet")
-            nan = math.nan
-            acks = self.command_all(
-                mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, nan, nan, nan, home[2] + alt_m, sysids=[sysid]
-            )
-            check(acks, "takeoff")
+            params[sysid] = (0, 0, 0, nan, nan, nan, home[2] + alt_m)
+        check(self.command_each(mavlink.MAV_CMD_NAV_TAKEOFF, params), "takeoff")
 
     def shutdown(self, land_timeout_s: float = 30.0) -> None:
         """Land what flies, disarm, then terminate and reap every process (also after errors)."""
         try:
-            flying = [
-                s
-                for s in self.active_sysids
-                if s in self.fleet.drones and self.fleet.drones[s].armed and not self.fleet.drones[s].lost(self.clock())
-            ]
+            flying = [s for s in self.armed_sysids() if not self.fleet.drones[s].lost(self.clock())]
             if flying:
                 self.command_all(mavlink.MAV_CMD_NAV_LAND, sysids=flying)
-                self.wait_until(lambda: not any(self.fleet.drones[s].armed for s in flying), land_timeout_s)
-                still = [s for s in flying if self.fleet.drones[s].armed]
+                self.wait_until(lambda: not self.armed_sysids(flying), land_timeout_s)
+                still = self.armed_sysids(flying)
                 if still:  # a drone that cannot land in time is disarmed where it is
-                    self.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196, sysids=still)
+                    self.force_disarm(still)
         finally:
             if self._wake_fd is not None:
                 self._selector.unregister(self._wake_fd)
@@ -401,25 +409,48 @@ class Swarm:
 
     # ---- commands --------------------------------------------------------------------------------------------------
     def command_all(self, command: int, *params: float, sysids: Iterable[int] | None = None) -> list[Ack]:
-        """COMMAND_LONG to several drones at once, each retried until acknowledged (as MAVSDK does)."""
-        targets = list(self.sysids if sysids is None else sysids)
-        p = [*params, *([0.0] * (7 - len(params)))]
-        results: dict[int, int | None] = {s: None for s in targets}
-        for attempt in range(COMMAND_RETRIES):
-            pending = [s for s in targets if results[s] is None]
-            if not pending:
-                break
-            for s in pending:
-                self._send_logged(s, mavlink.MAVLink_command_long_message(s, 1, command, attempt, *p), now=True)
-            end = self.clock() + COMMAND_TIMEOUT_S
-            while any(results[s] is None for s in pending) and self.clock() < end:
-                self.pump(0.02)
-                for ack in self._acks:
-                    src = ack.get_srcSystem()
-                    if ack.command == command and src in results and results[src] is None:
-                        results[src] = ack.result
-                self._acks.clear()
-        return [Ack(s, results[s]) for s in targets]
+        """COMMAND_LONG to several drones at once, each retried until answered (MAVSDK's rules: gcs/commands.py)."""
+        targets = self.sysids if sysids is None else sysids
+        return self.command_each(command, {sysid: params for sysid in targets})
+
+    def command_each(self, command: int, params: dict[int, tuple[float, ...]]) -> list[Ack]:
+        """One command to several drones at once, each with its own params (sysid -> params 1-7), each retried
+        until answered; the answers in the order of ``params``."""
+        targets = list(params)
+        for sysid in targets:
+            self._send_effects(self.commands.start(sysid, command, params[sysid], self.clock()), now=True)
+        return self._serve(self.commands, command, targets, now=True)
+
+    def force_disarm(self, sysids: Iterable[int]) -> list[Ack]:
+        """Disarm where they are, in the air too (the motors stop: the drones fall)."""
+        return self.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, FORCE_DISARM_MAGIC, sysids=sysids)
+
+    def _serve(self, client: CommandClient | ParamClient, key: Any, targets: list[int], *, now: bool) -> list[Any]:
+        """Pump until the work ``key`` (a command, a parameter name) has ended on every target, sending what the
+        client's ``poll`` asks for when its timers come due; the outcomes in the order of ``targets``. Interrupted or
+        failed, nothing is left in flight to block the next use of the same command or parameter (the shutdown's)."""
+        results: dict[int, Any] = {}
+
+        def collect() -> bool:
+            for sysid in targets:
+                if sysid not in results and (outcome := client.take(sysid, key)) is not None:
+                    results[sysid] = outcome
+            return len(results) == len(targets)
+
+        try:
+            while not collect():
+                self._send_effects(client.poll(self.clock()), now=now)
+                if collect():
+                    break
+                self.pump(min(0.02, max(0.0, client.next_due_s() - self.clock())))
+        finally:
+            for sysid in targets:
+                client.cancel(sysid, key)
+        return [results[s] for s in targets]
+
+    def _send_effects(self, effects: list[Send], *, now: bool) -> None:
+        for effect in effects:
+            self._send_logged(effect.sysid, effect.message, now=now)
 
     def _send_logged(self, sysid: int, msg: Any, *, now: bool) -> None:
         """A command or parameter write, at once or with the next batch, also handed to ``sent_listeners``."""

@@ -21,7 +21,7 @@ from gcs.mission_file import (
     load_mission,
     parse_mission,
 )
-from gcs.mission_runner import param_set_message, param_value
+from gcs.params import param_set_message, param_value
 
 MISSIONS = Path(__file__).resolve().parents[2] / "missions"
 

@@ -1,0 +1,55 @@
+"""``swarm fly`` mission parameters through the ground station's parameter client, against real drones.
+
+A value the drones refuse (out of its declared range: they echo the value they kept) and a name they do not know
+(no echo at all, as PX4) must each end the flight before arming with one line naming the parameter and the drones.
+
+Policy: loopback only (--no-forward); lockstep, so the retries' timing does not depend on the machine's load;
+instances 250-253; a time limit on every test.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+pytestmark = [pytest.mark.sim_only]
+
+SWARM = [sys.executable, "-m", "gcs.cli"]
+
+
+def fly_with_params(tmp_path: Path, params: str, first_instance: int) -> subprocess.CompletedProcess[str]:
+    mission = tmp_path / "params.toml"
+    mission.write_text(
+        f'name = "params"\n[swarm]\ndrones = 2\nspacing_m = 3.0\nparams = {{ {params} }}\n'
+        '[[steps]]\naction = "takeoff"\nalt_m = 2.0\n[[steps]]\naction = "land"\n'
+    )
+    return subprocess.run(
+        [*SWARM, "fly", str(mission), "--lockstep", "--first-instance", str(first_instance), "--report",
+         str(tmp_path / "report"), "--no-forward"],
+        capture_output=True, text=True, timeout=100,
+    )  # fmt: skip
+
+
+@pytest.mark.timeout(120)
+def test_a_value_the_drones_refuse_ends_the_mission_naming_the_drones_and_the_value_they_kept(tmp_path: Path) -> None:
+    # GIVEN a mission that sets MPC_XY_CRUISE far above its range (the drones keep 5 m/s)
+    # WHEN it is flown
+    result = fly_with_params(tmp_path, "MPC_XY_CRUISE = 1000.0", 250)
+    # THEN it fails before arming, in one line naming both drones and the value kept
+    assert result.returncode == 1, result.stdout[-2000:] + result.stderr[-2000:]
+    assert "swarm: error: parameter MPC_XY_CRUISE = 1000 refused by sysid [251, 252] (kept 5)" in result.stderr
+    assert "step 1/2" not in result.stdout
+
+
+@pytest.mark.timeout(120)
+def test_a_parameter_the_drones_do_not_know_ends_the_mission_with_no_answer(tmp_path: Path) -> None:
+    # GIVEN a mission that sets a parameter no drone has (PX4 sends no PARAM_VALUE for it)
+    # WHEN it is flown
+    result = fly_with_params(tmp_path, "NO_SUCH_PARAM = 1", 252)
+    # THEN every retry goes unanswered and the flight ends before arming, naming the drones
+    assert result.returncode == 1, result.stdout[-2000:] + result.stderr[-2000:]
+    assert "swarm: error: parameter NO_SUCH_PARAM: no answer from sysid [253, 254]" in result.stderr
+    assert "step 1/2" not in result.stdout
