@@ -40,7 +40,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import FrameType
-from typing import Any, NoReturn
+from typing import Any, Literal, NoReturn
 
 import numpy as np
 import numpy.typing as npt
@@ -50,14 +50,16 @@ from gcs.commands import COMMAND_TIMEOUT_S
 from gcs.formation import SETPOINT_STREAM_HZ, CircleSpec, FormationError, TransitionLimits
 from gcs.frames import SwarmFrame
 from gcs.geodesy import DEFAULT_ORIGIN
-from gcs.harness import Simulation, SpawnError, SpawnPlan
+from gcs.harness import Simulation, SpawnError, SpawnPlan, parse_drones_per_process
 from gcs.probe import PROBE_SYSIDS, percentile
 from gcs.procedures import take_off_and_hold
 from gcs.recorder import CollisionPairs
 from gcs.streamer import DEFAULT_LIMITS, FormationStreamer
 from gcs.swarm import ARM_TIMEOUT_S, Swarm, SwarmError
 
+PerProcess = int | Literal["auto"]
 DEFAULT_DRONE_COUNTS = (1, 3, 9, 20, 50, 100)
+DEFAULT_MODES: tuple[PerProcess, ...] = (1, "auto")  # each N with a process per drone, then hosted
 DEFAULT_SIM_SECONDS = 20.0
 DEFAULT_FIRST_INSTANCE = 100  # well clear of a user's drones at 0 and of the test suites' blocks
 MAX_BENCH_DRONES = 100  # as ``swarm up -n``
@@ -199,20 +201,21 @@ def memory_kb(smaps_rollup: str | None, status: str | None) -> tuple[float, str]
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class DroneSample:
-    """One drone at one instant: its process CPU and its own counters from the shared world."""
+    """One drone at one instant: its own counters from the shared world."""
 
-    cpu_ticks: int
     parts_s: tuple[float, float, float, float]  # physics, control, perception, MAVLink (drone's monotonic clock)
     sim_time_s: float
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Snapshot:
-    """Everything the window figures need, read at one instant (start or end of the measurement window)."""
+    """Everything the window figures need, read at one instant (start or end of the measurement window). CPU is
+    per process, in the processes' order of the swarm: one per drone, or fewer when processes host several."""
 
     wall_s: float
     supervisor_cpu_s: float
     drones: tuple[DroneSample, ...]
+    process_cpu_ticks: tuple[int, ...]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -236,11 +239,14 @@ def window_figures(before: Snapshot, after: Snapshot, clk_tck: float) -> WindowF
     do not cover the loop's bookkeeping."""
     if len(before.drones) != len(after.drones) or not before.drones:
         raise ValueError("both snapshots must hold the same, non-empty set of drones")
+    if len(before.process_cpu_ticks) != len(after.process_cpu_ticks):
+        raise ValueError("both snapshots must hold the same processes")
     n = len(before.drones)
     wall = after.wall_s - before.wall_s
     sim = min(d.sim_time_s for d in after.drones) - min(d.sim_time_s for d in before.drones)
     drone_sim = sum(a.sim_time_s - b.sim_time_s for b, a in zip(before.drones, after.drones, strict=True))
-    cpu_s = sum((a.cpu_ticks - b.cpu_ticks) / clk_tck for b, a in zip(before.drones, after.drones, strict=True))
+    ticks = zip(before.process_cpu_ticks, after.process_cpu_ticks, strict=True)
+    cpu_s = sum((a - b) / clk_tck for b, a in ticks)
     parts = [
         sum(a.parts_s[k] - b.parts_s[k] for b, a in zip(before.drones, after.drones, strict=True)) for k in range(4)
     ]
@@ -315,6 +321,9 @@ class BenchRow:
     paced: PacedFigures | None = None
     lockstep: LockstepFigures | None = None
     errors: tuple[str, ...] = ()
+    drones_per_process: PerProcess = 1  # the setting
+    hosts: int = 0  # simulation processes it gave (N for one process per drone)
+    drones_per_host: int = 1  # the most drones one of them ran
 
 
 # Figures in ms CPU per simulated second that are also given as a multiple of bare JSBSim stepping.
@@ -343,6 +352,9 @@ def row_json(row: BenchRow, physics_rate_hz: float) -> dict[str, Any]:
     relay = paced.relay if paced is not None else LatencyFigures()
     out: dict[str, Any] = {
         "n_drones": row.n_drones,
+        "drones_per_process": row.drones_per_process,
+        "hosts": row.hosts,
+        "drones_per_host": row.drones_per_host,
         "ready_s": paced.ready_s if paced else nan,
         "rtf_paced": pw.rtf if pw else nan,
         "held_real_time": bool(pw is not None and pw.rtf >= REAL_TIME_HELD),
@@ -403,6 +415,17 @@ def largest_real_time(rows: Sequence[Mapping[str, Any]]) -> int | None:
     return max(held) if held else None
 
 
+def largest_real_time_by_mode(rows: Sequence[Mapping[str, Any]]) -> dict[str, int | None]:
+    """``largest_real_time`` for each drones-per-process setting benched (keys "1", "auto", ...)."""
+    modes = dict.fromkeys(str(r.get("drones_per_process", 1)) for r in rows)
+    return {m: largest_real_time([r for r in rows if str(r.get("drones_per_process", 1)) == m]) for m in modes}
+
+
+def mode_label(mode: PerProcess | str) -> str:
+    """How a drones-per-process setting is named in the summary line."""
+    return "a process per drone" if str(mode) == "1" else f"{mode} drones per process"
+
+
 def bench_document(rows: Sequence[BenchRow], machine: Mapping[str, Any], sim_seconds: float,
                    physics_rate_hz: float) -> dict[str, Any]:  # fmt: skip
     """The JSON file: ``{"rows": [...], "machine": {...}, ...}``."""
@@ -412,7 +435,7 @@ def bench_document(rows: Sequence[BenchRow], machine: Mapping[str, Any], sim_sec
         "machine": dict(machine),
         "sim_seconds": sim_seconds,
         "real_time_threshold": REAL_TIME_HELD,
-        "largest_n_real_time": largest_real_time(flat),
+        "largest_n_real_time": largest_real_time_by_mode(flat),
     }
 
 
@@ -425,6 +448,8 @@ def _cell(value: Any, fmt: str) -> str:
 # (header, JSON key or a pair of keys shown as a/b, format)
 TABLE_COLUMNS: tuple[tuple[str, str | tuple[str, str], str], ...] = (
     ("N", "n_drones", "d"),
+    ("hosts", "hosts", "d"),
+    ("per host", "drones_per_host", "d"),
     ("ready s", "ready_s", ".1f"),
     ("rtf paced", "rtf_paced", ".3f"),
     ("rtf lockstep", "rtf_unpaced", ".2f"),
@@ -480,25 +505,36 @@ def take_snapshot(swarm: Swarm) -> Snapshot:
     """Every drone's process CPU (/proc), its CPU by part and its clock as it publishes them (through the harness),
     and the supervisor's own CPU."""
     harness = swarm.harness
-    pids = harness.process_ids()
     parts_s = harness.cpu_parts_s()
     times_s, _ = harness.clock_columns()
     drones = []
-    for k, sysid in enumerate(swarm.sysids):
-        text = _read(f"/proc/{pids[sysid]}/stat")
-        if text is None:
-            raise SwarmError(f"drone {sysid} (pid {pids[sysid]}) is gone: cannot measure it")
+    for k in range(len(swarm.sysids)):
         parts = (float(parts_s[k, 0]), float(parts_s[k, 1]), float(parts_s[k, 2]), float(parts_s[k, 3]))
-        drones.append(DroneSample(cpu_ticks=proc_stat_cpu_ticks(text), parts_s=parts, sim_time_s=float(times_s[k])))
-    return Snapshot(wall_s=time.monotonic(), supervisor_cpu_s=_supervisor_cpu_s(), drones=tuple(drones))
+        drones.append(DroneSample(parts_s=parts, sim_time_s=float(times_s[k])))
+    ticks = []
+    for pid in process_ids(swarm):
+        text = _read(f"/proc/{pid}/stat")
+        if text is None:
+            raise SwarmError(f"drone process {pid} is gone: cannot measure it")
+        ticks.append(proc_stat_cpu_ticks(text))
+    return Snapshot(wall_s=time.monotonic(), supervisor_cpu_s=_supervisor_cpu_s(), drones=tuple(drones),
+                    process_cpu_ticks=tuple(ticks))  # fmt: skip
+
+
+def process_ids(swarm: Swarm) -> list[int]:
+    """The processes that run the swarm's drones, each once (a host runs several), in spawn order."""
+    return list(dict.fromkeys(swarm.harness.process_ids()[s] for s in swarm.sysids))
 
 
 def drone_memory(swarm: Swarm) -> tuple[list[float], str]:
-    """Each drone's proportional set size in MB (resident size where smaps_rollup is not available)."""
+    """Each drone's proportional set size in MB (resident size where smaps_rollup is not available); a host's is
+    shared out equally between its drones."""
+    pids = swarm.harness.process_ids()
+    per_process = {pid: sum(1 for s in swarm.sysids if pids[s] == pid) for pid in process_ids(swarm)}
     sizes, kinds = [], set()
-    for pid in swarm.harness.process_ids().values():
+    for pid, drones in per_process.items():
         kb, kind = memory_kb(_read(f"/proc/{pid}/smaps_rollup"), _read(f"/proc/{pid}/status"))
-        sizes.append(kb / 1024.0)
+        sizes += [kb / 1024.0 / drones] * drones
         kinds.add(kind)
     return sizes, "rss" if "rss" in kinds else "pss"
 
@@ -530,6 +566,8 @@ class BenchConfig:
     simulation: Simulation  # what starts the drones (gcs/composition.py)
     drone_counts: tuple[int, ...]
     sim_seconds: float
+    # Each N is run with each of these drones-per-process settings (1: a process per drone; K; "auto")
+    modes: tuple[PerProcess, ...] = DEFAULT_MODES
     first_instance: int = DEFAULT_FIRST_INSTANCE
     seed: int = 0
     json_path: Path | None = None
@@ -545,7 +583,7 @@ class _ClockSamples:
 class ScenarioFlight:
     """One swarm flying the bench scenario: ready, arm, take off, rotating circle; measured from outside."""
 
-    def __init__(self, n: int, config: BenchConfig, *, lockstep: bool) -> None:
+    def __init__(self, n: int, config: BenchConfig, *, lockstep: bool, mode: PerProcess = 1) -> None:
         self.n = n
         self.lockstep = lockstep
         plan = SpawnPlan(
@@ -556,6 +594,7 @@ class ScenarioFlight:
             lockstep=lockstep,
             first_instance=config.first_instance,
             seed=config.seed,
+            drones_per_process=mode,
         )
         self.swarm = Swarm(plan, config.simulation.harness(plan), relay_radius_m=relay_radius_for(n))
         self.radius_m = circle_radius_m(n)
@@ -698,8 +737,8 @@ def _float(value: Any) -> float:
 RUN_ERRORS = (SwarmError, SpawnError, FormationError, OSError, subprocess.SubprocessError, ValueError)
 
 
-def run_paced(n: int, config: BenchConfig, say: Say) -> PacedFigures:
-    flight = ScenarioFlight(n, config, lockstep=False)
+def run_paced(n: int, config: BenchConfig, say: Say, mode: PerProcess = 1) -> PacedFigures:
+    flight = ScenarioFlight(n, config, lockstep=False, mode=mode)
     try:
         ready_s = flight.ready()
         say(f"  paced: {n} ready in {ready_s:.1f} s; arming and taking off")
@@ -730,8 +769,8 @@ def run_paced(n: int, config: BenchConfig, say: Say) -> PacedFigures:
         flight.stop()
 
 
-def run_lockstep(n: int, config: BenchConfig, say: Say) -> LockstepFigures:
-    flight = ScenarioFlight(n, config, lockstep=True)
+def run_lockstep(n: int, config: BenchConfig, say: Say, mode: PerProcess = 1) -> LockstepFigures:
+    flight = ScenarioFlight(n, config, lockstep=True, mode=mode)
     try:
         ready_s = flight.ready()
         flight.take_off()
@@ -751,25 +790,44 @@ def run_lockstep(n: int, config: BenchConfig, say: Say) -> LockstepFigures:
         flight.stop()
 
 
-def bench_one(n: int, config: BenchConfig, say: Say) -> BenchRow:
-    """Both runs of one swarm size, with the bare JSBSim reference measured just before them."""
-    bare = config.simulation.bare_plant_cpu_ms_per_sim_s()
-    say(f"N={n}: bare JSBSim {bare:.2f} ms CPU per simulated second")
+def bench_one(n: int, config: BenchConfig, say: Say, mode: PerProcess, bare: float) -> BenchRow:
+    """Both runs of one swarm size with one drones-per-process setting; ``bare`` is the bare JSBSim reference
+    measured just before them."""
+    hosts = config.simulation.drones_per_host(n, mode)
+    say(f"N={n}, drones per process {mode}: {len(hosts)} process(es) of {max(hosts)} drone(s) at most")
     paced: PacedFigures | None = None
     lock: LockstepFigures | None = None
     errors: list[str] = []
     try:
-        paced = run_paced(n, config, say)
+        paced = run_paced(n, config, say, mode)
     except RUN_ERRORS as exc:
         errors.append(f"paced: {exc}")
         say(f"  paced: failed: {exc}")
     try:
-        lock = run_lockstep(n, config, say)
+        lock = run_lockstep(n, config, say, mode)
     except RUN_ERRORS as exc:
         errors.append(f"lockstep: {exc}")
         say(f"  lockstep: failed: {exc}")
     return BenchRow(n_drones=n, circle_radius_m=circle_radius_m(n), relay_radius_m=relay_radius_for(n),
-                    bare_jsbsim_cpu_ms_per_sim_s=bare, paced=paced, lockstep=lock, errors=tuple(errors))  # fmt: skip
+                    bare_jsbsim_cpu_ms_per_sim_s=bare, paced=paced, lockstep=lock, errors=tuple(errors),
+                    drones_per_process=mode, hosts=len(hosts), drones_per_host=max(hosts))  # fmt: skip
+
+
+def bench_size(n: int, config: BenchConfig, say: Say) -> list[BenchRow]:
+    """Every drones-per-process setting for one swarm size, side by side; a setting that would share the drones out
+    exactly as one already run (``auto`` with no more drones than CPUs is one process per drone) is not run again."""
+    bare = config.simulation.bare_plant_cpu_ms_per_sim_s()
+    say(f"N={n}: bare JSBSim {bare:.2f} ms CPU per simulated second")
+    rows: list[BenchRow] = []
+    seen: list[list[int]] = []
+    for mode in config.modes:
+        sharing = config.simulation.drones_per_host(n, mode)
+        if sharing in seen:
+            say(f"N={n}, drones per process {mode}: the same processes as a setting already run; skipped")
+            continue
+        seen.append(sharing)
+        rows.append(bench_one(n, config, say, mode, bare))
+    return rows
 
 
 def write_plot(rows: Sequence[Mapping[str, Any]], path: Path) -> None:
@@ -780,27 +838,32 @@ def write_plot(rows: Sequence[Mapping[str, Any]], path: Path) -> None:
     import matplotlib.pyplot as plt
     from matplotlib import ticker
 
-    def series(key: str) -> tuple[list[int], list[float]]:
-        pts = [(r["n_drones"], r[key]) for r in rows if r.get(key) is not None]
+    modes = list(dict.fromkeys(str(r.get("drones_per_process", 1)) for r in rows))
+
+    def series(key: str, mode: str | None = None) -> tuple[list[int], list[float]]:
+        chosen = [r for r in rows if mode is None or str(r.get("drones_per_process", 1)) == mode]
+        pts = [(r["n_drones"], r[key]) for r in chosen if r.get(key) is not None]
         return [p[0] for p in pts], [float(p[1]) for p in pts]
 
     fig, (ax_rtf, ax_cpu) = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
-    for key, label, marker in (("rtf_paced", "paced (speed 1)", "o"), ("rtf_unpaced", "lockstep, unpaced", "s")):
-        xs, ys = series(key)
-        ax_rtf.plot(xs, ys, marker=marker, label=label)
+    for mode in modes:
+        for key, label, marker in (("rtf_paced", "paced", "o"), ("rtf_unpaced", "lockstep", "s")):
+            xs, ys = series(key, mode)
+            ax_rtf.plot(xs, ys, marker=marker, label=f"{label}, {mode_label(mode)}")
     ax_rtf.axhline(1.0, color="grey", linewidth=0.8)
     ax_rtf.axhline(REAL_TIME_HELD, color="grey", linewidth=0.8, linestyle=":", label=f"{REAL_TIME_HELD:g} (held)")
     ax_rtf.set(xscale="log", yscale="log", xlabel="drones N", ylabel="simulated s per wall s", title="real-time factor")
     finite = [float(r[k]) for r in rows for k in ("rtf_paced", "rtf_unpaced") if r.get(k) is not None] or [1.0]
     ax_rtf.set_ylim(min(0.5, 0.8 * min(finite)), max(2.0, 1.25 * max(finite)))  # always shows 0.5, 1 and 2
-    ax_rtf.legend()
-    for key, label, marker in (
-        ("cpu_ms_per_drone_sim_s", "drone, paced", "o"),
-        ("cpu_ms_per_drone_sim_s_lockstep", "drone, lockstep", "s"),
-        ("supervisor_cpu_ms_per_drone_sim_s", "supervisor, paced", "^"),
-    ):
-        xs, ys = series(key)
-        ax_cpu.plot(xs, ys, marker=marker, label=label)
+    ax_rtf.legend(fontsize="small")
+    for mode in modes:
+        for key, label, marker in (
+            ("cpu_ms_per_drone_sim_s", "drone, paced", "o"),
+            ("cpu_ms_per_drone_sim_s_lockstep", "drone, lockstep", "s"),
+            ("supervisor_cpu_ms_per_drone_sim_s", "supervisor, paced", "^"),
+        ):
+            xs, ys = series(key, mode)
+            ax_cpu.plot(xs, ys, marker=marker, label=f"{label}, {mode_label(mode)}")
     xs, ys = series("bare_jsbsim_cpu_ms_per_sim_s")
     ax_cpu.plot(xs, ys, color="black", linestyle="--", label="bare JSBSim plant")
     ax_cpu.set(xscale="log", yscale="log", xlabel="drones N", ylabel="ms CPU per drone per simulated s",
@@ -826,13 +889,13 @@ def run(config: BenchConfig, say: Say) -> tuple[dict[str, Any], bool]:
     rows: list[BenchRow] = []
     try:
         for n in config.drone_counts:
-            rows.append(bench_one(n, config, say))
+            rows += bench_size(n, config, say)
     finally:
         machine["loadavg_after"] = list(os.getloadavg())
         document = bench_document(rows, machine, config.sim_seconds, config.simulation.physics_rate_hz)
         say("")
         say(format_table(document["rows"]))
-        largest = document["largest_n_real_time"]
+        largest = ", ".join(f"{mode_label(mode)}: {n or 'none'}" for mode, n in document["largest_n_real_time"].items())
         say(
             f"largest N that held real time (rtf >= {REAL_TIME_HELD:g}): {largest or 'none'}; load average "
             f"before {machine['loadavg_before'][0]:.2f}, after {machine['loadavg_after'][0]:.2f}"
@@ -888,6 +951,26 @@ def _configure(parser: argparse.ArgumentParser) -> None:
         help=f"instance of the first drone (sysid = instance+1; default {DEFAULT_FIRST_INSTANCE})",
     )
     parser.add_argument("--seed", type=int, default=0, help="base random seed (drone i uses seed+i)")
+    parser.add_argument(
+        "--drones-per-process",
+        type=_modes_arg,
+        default=DEFAULT_MODES,
+        metavar="K|auto[,...]",
+        help="drones per simulation process, each setting benched side by side (default 1,auto)",
+    )
+
+
+def _modes_arg(text: str) -> tuple[PerProcess, ...]:
+    modes: list[PerProcess] = []
+    for item in text.split(","):
+        try:
+            mode = parse_drones_per_process(item.strip())
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+        if mode in modes:
+            raise argparse.ArgumentTypeError(f"lists {mode} twice")
+        modes.append(mode)
+    return tuple(modes)
 
 
 def add_bench_parser(sub: Any) -> None:
@@ -913,7 +996,7 @@ def run_bench(args: argparse.Namespace, simulation: Simulation) -> int:
         return EXIT_USAGE
     config = BenchConfig(simulation=simulation, drone_counts=tuple(args.drones), sim_seconds=args.sim_seconds,
                          first_instance=args.first_instance, seed=args.seed, json_path=args.json,
-                         plot_path=args.plot)  # fmt: skip
+                         plot_path=args.plot, modes=tuple(args.drones_per_process))  # fmt: skip
     previous = signal.signal(signal.SIGTERM, _interrupt)  # a terminated bench stops its drones like Ctrl-C
     try:
         _, ok = run(config, _say)

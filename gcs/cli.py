@@ -23,7 +23,7 @@ from gcs.composition import SITL
 from gcs.control import ControlClient, ControlError, ControlServer
 from gcs.faults import CRASH, FAULT_NAMES, FaultError, fault_request
 from gcs.geodesy import DEFAULT_ORIGIN, GeoPoint
-from gcs.harness import LAYOUTS, Simulation, SpawnError, SpawnPlan
+from gcs.harness import LAYOUTS, Simulation, SpawnError, SpawnPlan, parse_drones_per_process
 from gcs.losses import LOSS_POLICIES, LossPolicy
 from gcs.mission_file import MissionFileError, build_flock, build_follow, load_mission
 from gcs.mission_runner import MissionRunner
@@ -153,15 +153,10 @@ def _add_timing_options(parser: argparse.ArgumentParser) -> None:
 
 def drones_per_process_arg(text: str) -> int | Literal["auto"]:
     """``--drones-per-process``: a count of at least 1, or ``auto``."""
-    if text == "auto":
-        return "auto"
     try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number of drones or auto, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1 (or auto), got {text!r}")
-    return value
+        return parse_drones_per_process(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _drone_numbers(text: str) -> frozenset[int]:

@@ -9,9 +9,12 @@ entry point (gcs/cli.py) passes ``SITL`` to whatever builds swarms: ``swarm up``
 
 from __future__ import annotations
 
+from typing import Literal
+
 from gcs.harness import SimulationHarness, SpawnPlan
 from sitl.harness import GeoPoint, LaunchPlan, SitlHarness
 from sitl.harness import simulation as sim
+from sitl.harness.processes import host_groups, usable_cpus
 
 
 def launch_plan(plan: SpawnPlan) -> LaunchPlan:
@@ -56,6 +59,9 @@ class SitlSimulation:
 
     def bare_plant_cpu_ms_per_sim_s(self) -> float:
         return sim.bare_plant_cpu_ms_per_sim_s()
+
+    def drones_per_host(self, n_drones: int, drones_per_process: int | Literal["auto"]) -> list[int]:
+        return [len(group) for group in host_groups(n_drones, drones_per_process, usable_cpus())]
 
 
 SITL = SitlSimulation()

@@ -75,6 +75,19 @@ class SpawnPlan:
         return LAYOUTS[self.layout](self.n_drones, self.spacing_m)
 
 
+def parse_drones_per_process(text: str) -> int | Literal["auto"]:
+    """``K`` (at least 1) or ``auto``, as ``--drones-per-process`` takes it; ValueError with one line otherwise."""
+    if text == "auto":
+        return "auto"
+    try:
+        value = int(text)
+    except ValueError:
+        raise ValueError(f"must be a number of drones or auto, got {text!r}") from None
+    if value < 1:
+        raise ValueError(f"must be at least 1 (or auto), got {text!r}")
+    return value
+
+
 class SpawnError(RuntimeError):
     """A drone did not come up; the message names it and says why, in one line."""
 
@@ -170,4 +183,8 @@ class Simulation(Protocol):
 
     def bare_plant_cpu_ms_per_sim_s(self) -> float:
         """CPU ms per simulated second of the physics alone (the bench's machine-independent yardstick)."""
+        ...
+
+    def drones_per_host(self, n_drones: int, drones_per_process: int | Literal["auto"]) -> list[int]:
+        """How many drones each process would run for a swarm of ``n_drones`` with this setting, in spawn order."""
         ...

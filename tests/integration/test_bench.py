@@ -68,25 +68,29 @@ def sitl_processes_of(instances: set[int]) -> list[int]:
 
 def test_bench_measures_every_figure_for_each_swarm_size_and_leaves_nothing_behind(tmp_path: Path) -> None:
     json_path, plot_path = tmp_path / "bench.json", tmp_path / "bench.png"
-    # GIVEN no drone of ours running WHEN the bench runs N = 1, 2 for a few simulated seconds
+    # GIVEN no drone of ours running WHEN the bench runs N = 2 for a few simulated seconds, each drone in its own
+    # process and both hosted by one
     assert sitl_processes_of({FIRST_INSTANCE, FIRST_INSTANCE + 1}) == []
-    cmd = [sys.executable, "-m", "gcs.cli", "bench", "--drones", "2,1", "--sim-seconds", str(SIM_SECONDS),
-           "--first-instance", str(FIRST_INSTANCE), "--json", str(json_path), "--plot", str(plot_path)]  # fmt: skip
+    cmd = [sys.executable, "-m", "gcs.cli", "bench", "--drones", "2", "--drones-per-process", "1,2",
+           "--sim-seconds", str(SIM_SECONDS), "--first-instance", str(FIRST_INSTANCE), "--json", str(json_path),
+           "--plot", str(plot_path)]  # fmt: skip
     result = subprocess.run(cmd, capture_output=True, text=True, timeout=310)
-    # THEN it succeeds, prints one table row per N, and every drone it started is gone
+    # THEN it succeeds, prints one table row per setting, and every drone it started is gone
     assert result.returncode == 0, result.stdout + result.stderr
     assert sitl_processes_of({FIRST_INSTANCE, FIRST_INSTANCE + 1}) == []
     lines = result.stdout.splitlines()
-    header = next(i for i, line in enumerate(lines) if line.split()[:3] == ["N", "ready", "s"])
-    assert [line.split()[0] for line in lines[header + 1 : header + 3]] == ["1", "2"], result.stdout
+    header = next(i for i, line in enumerate(lines) if line.split()[:4] == ["N", "hosts", "per", "host"])
+    assert [line.split()[:3] for line in lines[header + 1 : header + 3]] == [["2", "2", "1"], ["2", "1", "2"]], (
+        result.stdout
+    )
     assert "largest N that held real time" in result.stdout
     assert plot_path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    # and the JSON holds one row per N, smallest first, with the machine it ran on
+    # and the JSON holds one row per setting, as run, with the machine it ran on
     doc: dict[str, Any] = json.loads(json_path.read_text())
     assert {"rows", "machine", "largest_n_real_time", "sim_seconds"} <= doc.keys()
     assert doc["machine"]["logical_cpus"] >= 1 and len(doc["machine"]["loadavg_after"]) == 3
     rows = doc["rows"]
-    assert [r["n_drones"] for r in rows] == [1, 2]
+    assert [(r["n_drones"], r["drones_per_process"], r["hosts"]) for r in rows] == [(2, 1, 2), (2, 2, 1)]
     for row in rows:
         n = row["n_drones"]
         assert row["errors"] == [], row["errors"]
@@ -116,7 +120,8 @@ def test_bench_measures_every_figure_for_each_swarm_size_and_leaves_nothing_behi
         assert row["lockstep_skew_max_steps"] <= 1 and row["lockstep_skew_over_one"] == 0
         assert row["collisions_paced"] == 0 and row["collisions_lockstep"] == 0
         assert row["relay_radius_m"] is None and row["circle_radius_m"] == 3.0
-    assert doc["largest_n_real_time"] in (None, 1, 2)
+    assert doc["largest_n_real_time"].keys() == {"1", "2"}
+    assert all(n in (None, 2) for n in doc["largest_n_real_time"].values())
 
 
 def test_bad_arguments_are_one_line_and_spawn_nothing() -> None:

@@ -229,19 +229,22 @@ def test_memory_prefers_pss_and_falls_back_to_rss() -> None:
 # ------------------------------------------------------------------------------------------------ window figures
 
 
-def _sample(ticks: int, parts: tuple[float, float, float, float], t: float) -> DroneSample:
-    return DroneSample(cpu_ticks=ticks, parts_s=parts, sim_time_s=t)
+def _sample(parts: tuple[float, float, float, float], t: float) -> DroneSample:
+    return DroneSample(parts_s=parts, sim_time_s=t)
 
 
-def test_window_figures_share_the_measured_cpu_out_by_the_drones_own_counters() -> None:
-    # GIVEN two drones over 10 wall seconds: one advanced 10.0 s of simulation, the slower 9.8 s
-    before = Snapshot(wall_s=100.0, supervisor_cpu_s=1.0, drones=(
-        _sample(1000, (1.0, 2.0, 0.5, 0.5), 50.0),
-        _sample(2000, (1.0, 2.0, 0.5, 0.5), 49.9),
+@pytest.mark.parametrize("hosted", [False, True], ids=["process-per-drone", "one-host"])
+def test_window_figures_share_the_measured_cpu_out_by_the_drones_own_counters(hosted: bool) -> None:
+    # GIVEN two drones over 10 wall seconds: one advanced 10.0 s of simulation, the slower 9.8 s; 0.8 s of CPU
+    # in all, 0.4 s in each drone's own process, or all of it in the one process that hosts both
+    ticks_before, ticks_after = ((3000,), (3080,)) if hosted else ((1000, 2000), (1040, 2040))
+    before = Snapshot(wall_s=100.0, supervisor_cpu_s=1.0, process_cpu_ticks=ticks_before, drones=(
+        _sample((1.0, 2.0, 0.5, 0.5), 50.0),
+        _sample((1.0, 2.0, 0.5, 0.5), 49.9),
     ))  # fmt: skip
-    after = Snapshot(wall_s=110.0, supervisor_cpu_s=1.4, drones=(
-        _sample(1040, (1.05, 2.20, 0.55, 0.10 + 0.5), 60.0),  # 0.40 s CPU; parts 0.05/0.20/0.05/0.10 s
-        _sample(2040, (1.05, 2.20, 0.55, 0.10 + 0.5), 59.7),  # 0.40 s CPU
+    after = Snapshot(wall_s=110.0, supervisor_cpu_s=1.4, process_cpu_ticks=ticks_after, drones=(
+        _sample((1.05, 2.20, 0.55, 0.10 + 0.5), 60.0),  # parts 0.05/0.20/0.05/0.10 s
+        _sample((1.05, 2.20, 0.55, 0.10 + 0.5), 59.7),
     ))  # fmt: skip
     fig = window_figures(before, after, clk_tck=100.0)
     # THEN the real-time factor follows the slowest clock: (59.7 - 49.9) / 10
@@ -258,9 +261,11 @@ def test_window_figures_share_the_measured_cpu_out_by_the_drones_own_counters() 
 
 
 def test_window_figures_refuse_snapshots_of_different_swarms() -> None:
-    one = Snapshot(wall_s=0.0, supervisor_cpu_s=0.0, drones=(_sample(0, (0.0,) * 4, 0.0),))
+    one = Snapshot(wall_s=0.0, supervisor_cpu_s=0.0, drones=(_sample((0.0,) * 4, 0.0),), process_cpu_ticks=(0,))
     with pytest.raises(ValueError, match="same"):
-        window_figures(one, Snapshot(wall_s=1.0, supervisor_cpu_s=0.0, drones=()), 100.0)
+        window_figures(one, Snapshot(wall_s=1.0, supervisor_cpu_s=0.0, drones=(), process_cpu_ticks=(0,)), 100.0)
+    with pytest.raises(ValueError, match="same processes"):
+        window_figures(one, Snapshot(wall_s=1.0, supervisor_cpu_s=0.0, drones=one.drones, process_cpu_ticks=()), 100.0)
 
 
 # ------------------------------------------------------------------------------------------------ rows, table, JSON
@@ -272,7 +277,7 @@ def _window(rtf: float, cpu_ms: float) -> WindowFigures:
                          parts_coverage=0.95, supervisor_cpu_ms_per_drone_sim_s=2.0)  # fmt: skip
 
 
-def _row(n: int, rtf_paced: float, *, lockstep: bool = True) -> BenchRow:
+def _row(n: int, rtf_paced: float, *, lockstep: bool = True, mode: int | str = 1) -> BenchRow:
     paced = PacedFigures(ready_s=6.0, window=_window(rtf_paced, 30.0), memory_mb_mean=50.0,
                          memory_mb_max=52.0, memory_kind="pss",
                          command_rtt=LatencyFigures(median_ms=0.4, p95_ms=1.5, max_ms=2.0, sent=20, received=20),
@@ -281,8 +286,10 @@ def _row(n: int, rtf_paced: float, *, lockstep: bool = True) -> BenchRow:
                          clock_skew_samples=100, collisions=0)  # fmt: skip
     lock = LockstepFigures(ready_s=1.0, window=_window(4.0, 35.0), skew_max_steps=1.0,
                            skew_over_one=0, skew_samples=80, collisions=0)  # fmt: skip
+    hosts = n if mode == 1 else 2
     return BenchRow(n_drones=n, circle_radius_m=3.0, relay_radius_m=None, bare_jsbsim_cpu_ms_per_sim_s=3.0,
-                    paced=paced, lockstep=lock if lockstep else None)  # fmt: skip
+                    paced=paced, lockstep=lock if lockstep else None, drones_per_process=mode,  # type: ignore[arg-type]
+                    hosts=hosts, drones_per_host=-(-n // hosts))  # fmt: skip
 
 
 def test_a_row_holds_every_figure_and_each_cpu_figure_as_a_multiple_of_bare_jsbsim() -> None:
@@ -310,13 +317,18 @@ def test_a_missing_run_is_null_in_json_and_a_dash_in_the_table() -> None:
     assert cells[0] == "3" and "-" in cells and cells[-1] == "no"
 
 
-def test_the_document_names_the_largest_swarm_that_held_real_time() -> None:
-    rows = [_row(1, 1.0), _row(3, 0.99), _row(9, 0.97), _row(20, 0.5)]
+def test_the_document_names_the_largest_swarm_that_held_real_time_in_each_mode() -> None:
+    rows = [_row(1, 1.0), _row(3, 0.99), _row(9, 0.97), _row(9, 0.99, mode="auto"), _row(20, 0.5),
+            _row(20, 0.97, mode="auto")]  # fmt: skip
     doc = bench_document(rows, {"logical_cpus": 2}, sim_seconds=10.0, physics_rate_hz=SITL.physics_rate_hz)
-    assert [r["n_drones"] for r in doc["rows"]] == [1, 3, 9, 20]
-    assert doc["largest_n_real_time"] == 3 and doc["machine"] == {"logical_cpus": 2}
+    assert [(r["n_drones"], r["drones_per_process"]) for r in doc["rows"]] == [
+        (1, 1), (3, 1), (9, 1), (9, "auto"), (20, 1), (20, "auto")
+    ]  # fmt: skip
+    assert doc["largest_n_real_time"] == {"1": 3, "auto": 9} and doc["machine"] == {"logical_cpus": 2}
     assert largest_real_time([row_json(_row(1, 0.5), RATE_HZ)]) is None
-    assert len(format_table(doc["rows"]).splitlines()) == 5
+    table = format_table(doc["rows"]).splitlines()
+    assert len(table) == 7 and table[0].split()[:4] == ["N", "hosts", "per", "host"]
+    assert table[4].split()[:3] == ["9", "2", "5"]  # nine drones hosted by two processes, five at most in one
 
 
 def test_the_plot_is_a_png_even_with_missing_figures(tmp_path: Path) -> None:
