@@ -20,9 +20,15 @@ SLOW_FRACTION = 0.9  # below this fraction of the requested speed, the swarm is 
 
 class PaceMonitor:
     def __init__(
-        self, speed_factor: float, *, window_s: float = WINDOW_S, slow_fraction: float = SLOW_FRACTION
+        self,
+        speed_factor: float,
+        *,
+        window_s: float = WINDOW_S,
+        slow_fraction: float = SLOW_FRACTION,
+        hosted: bool = False,
     ) -> None:
         self.speed_factor = speed_factor
+        self.hosted = hosted  # the drones already share processes: hosting is no longer the remedy
         self.window_s = window_s
         self.slow_fraction = slow_fraction
         self._samples: deque[tuple[float, float]] = deque()
@@ -31,7 +37,9 @@ class PaceMonitor:
     @classmethod
     def for_plan(cls, plan: SpawnPlan) -> PaceMonitor | None:
         """A monitor for a paced swarm; None in lockstep, whose clock is the drones' own."""
-        return cls(plan.speed_factor) if not plan.lockstep and plan.speed_factor > 0 else None
+        if plan.lockstep or plan.speed_factor <= 0:
+            return None
+        return cls(plan.speed_factor, hosted=plan.drones_per_process != 1)
 
     def observe(self, wall_s: float, drone_time_s: float | None) -> None:
         """One sample: the wall clock and the slowest drone's simulated time (None while unknown)."""
@@ -61,8 +69,12 @@ class PaceMonitor:
         if self._warned or rate is None or rate >= self.slow_fraction * self.speed_factor:
             return None
         self._warned = True
+        # Each drone process pays for its own wake-ups and cache refills; hosting several drones per process
+        # removes most of that cost (docs/benchmarks.md), so it is the first remedy while each drone has its own.
+        remedies = "" if self.hosted else "--drones-per-process auto (several drones share each process), "
         return (
             f"swarm: warning: the drones run at {rate:.2f}x real time, slower than the requested "
             f"{self.speed_factor:g}x (this machine is short of CPU); the supervisor's timing runs ahead of them. "
-            "Fewer drones, a lower --speed, or --lockstep (results independent of the machine's load) avoid it"
+            f"{remedies}Fewer drones, a lower --speed, or --lockstep (results independent of the machine's load) "
+            "avoid it"
         )

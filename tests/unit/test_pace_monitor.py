@@ -37,6 +37,10 @@ def test_a_swarm_that_falls_behind_is_warned_about_once_and_one_that_keeps_up_ne
     said = [w for w in warnings if w is not None]
     assert len(said) == 1
     assert "3.00x real time" in said[0] and "requested 4x" in said[0] and "--lockstep" in said[0]
+    assert "--drones-per-process auto" in said[0]  # each drone has its own process: hosting is the first remedy
+    hosted = PaceMonitor(4.0, window_s=2.0, hosted=True)
+    said = [w for k in range(60) if (w := hosted.update(0.1 * k, 0.3 * k)) is not None]
+    assert len(said) == 1 and "--drones-per-process" not in said[0]  # already hosted: the other remedies only
     fine = PaceMonitor(4.0, window_s=2.0)
     assert all(fine.update(0.1 * k, 0.39 * k) is None for k in range(60))  # 3.9x: within 10 %
 
