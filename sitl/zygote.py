@@ -74,14 +74,22 @@ def _lower_priority(nice: int) -> None:
         autogroup.write(str(nice))
 
 
+def process_name(argv: list[str]) -> str:
+    """The name top and ps -o comm show for a drone process: ``sitl-3`` for instance 3, ``sitl-0-24`` for a host of
+    instances 0 to 24 (the kernel keeps 15 characters)."""
+    for flag in ("--instance", "--instances"):
+        if flag in argv[:-1]:
+            return f"sitl-{argv[argv.index(flag) + 1]}"
+    return "sitl-?"
+
+
 def _child(argv: list[str], log: str | None, nice: int) -> None:
     """Runs in the forked child; never returns."""
     code = 1
     try:
         die_with_parent()
         # The command line stays the factory's; the name top and ps -o comm show says which drone this is.
-        instance = argv[argv.index("--instance") + 1] if "--instance" in argv[:-1] else "?"
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_NAME, f"sitl-{instance}".encode()[:15])
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_NAME, process_name(argv).encode()[:15])
         if os.getppid() == 1:  # the factory died between the fork and the line above
             os._exit(1)
         _lower_priority(nice)

@@ -148,7 +148,9 @@ def host_args(
     """The ``sitl --instances`` arguments of one process hosting several drones of the plan: the same drones, with
     the same seeds, homes and camera choices, as ``sitl_args`` would start one by one; each drone's log is
     drone-<instance>.log in the plan's log directory, as when it runs alone."""
-    cmd = ["--instances", ",".join(map(str, instances)), "--seed", str(plan.seed + instances[0])]
+    contiguous = instances == list(range(instances[0], instances[-1] + 1))
+    selection = f"{instances[0]}-{instances[-1]}" if contiguous else ",".join(map(str, instances))
+    cmd = ["--instances", selection, "--seed", str(plan.seed + instances[0])]
     for home in homes:
         cmd += ["--home", _home_arg(home)]
     if plan.log_dir is not None:

@@ -213,6 +213,32 @@ def test_loss_policy_hold_puts_the_survivor_in_hold_where_it_is(supervisors: Cal
     assert "swarm: loss policy hold: every drone holds where it is" in swarm.lines, swarm.lines
 
 
+@pytest.mark.timeout(300)
+def test_a_host_process_killed_from_outside_loses_its_drones_and_the_other_host_flies_on(
+    supervisors: Callable[[list[str]], Supervisor],
+) -> None:
+    # GIVEN four drones in lockstep, two to a process, holding a line at 3 m
+    swarm = supervisors(["-n", "4", "--lockstep", "--first-instance", "236", "--no-forward", "--layout", "line",
+                         "--spacing", "3", "--drones-per-process", "2"])  # fmt: skip
+    assert len(swarm.drones) == 2  # two host processes
+    swarm.command("takeoff", "--alt", "3")
+    swarm.wait_for(lambda: all(float(r[5]) > 2.7 for r in swarm.status().values()), 120, "the takeoff")
+    # WHEN the process hosting sysids 237 and 238 is killed with SIGKILL from outside the swarm (as the OOM killer
+    # would), not through the supervisor
+    host = next(pid for pid in swarm.drones if Path(f"/proc/{pid}/comm").read_text().strip() == "sitl-236-237")
+    os.kill(host, signal.SIGKILL)
+    # THEN both its drones are lost, each said once with the host's end, and the other host's drones fly on
+    swarm.wait_for(lambda: sum("lost" in ln for ln in swarm.lines) == 2, 60, "two losses")
+    lost = sorted(ln for ln in swarm.lines if "lost" in ln)
+    for line, sysid in zip(lost, (237, 238), strict=True):
+        assert re.fullmatch(rf"drone {sysid} lost at t=\d+\.\d s: its host process killed by SIGKILL", line), lost
+    rows = swarm.status()
+    assert rows[237][1] == rows[238][1] == "LOST", rows
+    assert all(rows[s][2] == "yes" and float(rows[s][5]) > 2.5 for s in (239, 240)), rows
+    swarm.command("land")
+    swarm.wait_for(lambda: all(swarm.status()[s][2] == "no" for s in (239, 240)), 120, "the landing")
+
+
 MISSION = """\
 name = "lose_one"
 [swarm]
