@@ -16,12 +16,15 @@ from pathlib import Path
 from typing import NoReturn
 
 from sitl.airframe import DEFAULT_AIRFRAME, AirframeError, load_airframe
+from sitl.dynamics.geodesy import geo_from_ned
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
 from sitl.mavlink_io import LinkConfig, LinkError, parse_host_port
+from sitl.specs import DroneSpec, ProcessSpec
 from sitl.wind import WindConfig
 from sitl.world import WorldError
 
 EXIT_USAGE = 2
+MAX_INSTANCE = 254  # MAVLink sysid i + 1 <= 255
 SPEED_ENV = "PX4_SIM_SPEED_FACTOR"
 
 
@@ -72,11 +75,10 @@ def _port(value: int | None, default: int, what: str) -> int:
     return port
 
 
-def _links(args: argparse.Namespace) -> list[LinkConfig]:
+def _links(args: argparse.Namespace, i: int) -> tuple[LinkConfig, ...]:
     """PX4 SITL's port convention for instance i: API 14580+i -> 14540+i, ground station 18570+i -> 14550."""
     if args.no_mavlink:
-        return []
-    i = args.instance
+        return ()
     links = [
         LinkConfig(
             name="API",
@@ -92,18 +94,71 @@ def _links(args: argparse.Namespace) -> list[LinkConfig]:
                 remote=_address(args.gcs_remote, "--gcs-remote"),
             )
         )
-    return links
+    return tuple(links)
+
+
+def parse_instances(text: str) -> list[int]:
+    """``0-24``, ``3`` or ``0-3,8,10-11``: instance numbers, each in 0..254, in order, without repeats."""
+    out: list[int] = []
+    for part in text.split(","):
+        low, sep, high = part.strip().partition("-")
+        try:
+            first, last = int(low), int(high) if sep else int(low)
+        except ValueError:
+            raise UsageError(f"--instances must look like 0-24 or 0-3,8, got {text!r}") from None
+        if not 0 <= first <= last <= MAX_INSTANCE:
+            raise UsageError(f"--instances must be ranges within 0..{MAX_INSTANCE}, low to high, got {text!r}")
+        out.extend(range(first, last + 1))
+    if len(set(out)) != len(out):
+        raise UsageError(f"--instances names an instance twice: {text!r}")
+    return out
+
+
+def _home(text: str) -> GeoPoint:
+    lat, lon, alt = _float_list(text, 3, "--home")
+    if not (-90 < lat < 90 and -180 <= lon <= 180):
+        raise UsageError(f"--home latitude/longitude out of range: {text!r}")
+    return GeoPoint(lat_deg=lat, lon_deg=lon, alt_amsl_m=alt)
+
+
+def _homes(args: argparse.Namespace, count: int) -> list[GeoPoint]:
+    """One home per drone: as many ``--home`` as drones, or one (default PX4's), from which the drones stand in a
+    line eastwards ``--spacing`` apart, as PX4's multi-vehicle SITL lines its vehicles up."""
+    given = [_home(text) for text in args.home or []]
+    if len(given) == count:
+        return given
+    if len(given) > 1:
+        raise UsageError(f"give one --home, or one per instance ({count}), not {len(given)}")
+    if not (math.isfinite(args.spacing) and args.spacing > 0):
+        raise UsageError(f"--spacing must be a positive number of metres, got {args.spacing}")
+    first = given[0] if given else DEFAULT_HOME
+    return [geo_from_ned((0.0, k * args.spacing, 0.0), first) for k in range(count)]
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="sitl", description="Run one simulated quadrotor (JSBSim + PX4-style autopilot).")
-    parser.add_argument("--instance", type=int, default=0, help="instance number i >= 0 (MAVLink sysid i+1)")
+    parser.add_argument("--instance", type=int, default=None, help="instance number i >= 0 (MAVLink sysid i+1)")
+    parser.add_argument(
+        "--instances",
+        default=None,
+        help="host several drones in this process, e.g. 0-24 or 0-3,8 (each its own sysid, ports, seed, log)",
+    )
     parser.add_argument("--airframe", default=DEFAULT_AIRFRAME, help="airframe name in airframes/ or a .toml path")
     parser.add_argument(
         "--speed", default=None, help=f"simulation speed factor (default: ${SPEED_ENV} or 1.0; 0 = unpaced)"
     )
-    parser.add_argument("--seed", type=int, default=None, help="random seed (default: the instance number)")
-    parser.add_argument("--home", default=None, help="home as LAT,LON,ALT_AMSL (default: PX4 SITL home)")
+    parser.add_argument(
+        "--seed", type=int, default=None, help="random seed of the first instance, +1 per instance (default: instance)"
+    )
+    parser.add_argument(
+        "--home",
+        action="append",
+        default=None,
+        help="home as LAT,LON,ALT_AMSL (default: PX4 SITL home); once, or once per instance",
+    )
+    parser.add_argument(
+        "--spacing", type=float, default=2.0, help="with several instances and one home: metres between them (east)"
+    )
     parser.add_argument("--wind", default="0,0,0", help="steady wind N,E,D in m/s (the direction it blows to)")
     parser.add_argument("--gust", type=float, default=0.0, help="gust RMS intensity in m/s")
     parser.add_argument("--host", default="127.0.0.1", help="address the MAVLink links bind (default loopback)")
@@ -123,7 +178,16 @@ def build_parser() -> argparse.ArgumentParser:
         "--lockstep-quantum", type=int, default=1, help="lockstep: steps run between waits (skew bound; default 1)"
     )
     parser.add_argument(
-        "--camera-frames", type=Path, default=None, help="save every camera frame as PNG in this directory"
+        "--camera-frames",
+        type=Path,
+        default=None,
+        help="save every camera frame as PNG in this directory (drone-<instance>/ in it with several instances)",
+    )
+    parser.add_argument(
+        "--camera-instances", default=None, help="with several instances: whose frames to save (default all)"
+    )
+    parser.add_argument(
+        "--log-dir", type=Path, default=None, help="each drone's output in drone-<instance>.log here (default stdout)"
     )
     parser.add_argument("--duration", type=float, default=None, help="exit after this many simulated seconds")
     parser.add_argument("--demo", action="store_true", help="take off to 3 m, hover, land and exit, printing progress")
@@ -144,45 +208,79 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _main(argv: Sequence[str] | None) -> int:
     args = build_parser().parse_args(argv)
-    if args.instance < 0 or args.instance > 254:
-        raise UsageError(f"--instance must be in 0..254, got {args.instance}")
+    instances = _instances(args)
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
         raise UsageError(f"--duration must be a positive number of seconds, got {args.duration}")
     if not (math.isfinite(args.gust) and args.gust >= 0):
         raise UsageError(f"--gust must be >= 0, got {args.gust}")
-    home = DEFAULT_HOME
-    if args.home is not None:
-        lat, lon, alt = _float_list(args.home, 3, "--home")
-        if not (-90 < lat < 90 and -180 <= lon <= 180):
-            raise UsageError(f"--home latitude/longitude out of range: {args.home!r}")
-        home = GeoPoint(lat_deg=lat, lon_deg=lon, alt_amsl_m=alt)
     if not 1 <= args.lockstep_quantum <= 400:
         raise UsageError(f"--lockstep-quantum must be in 1..400 steps, got {args.lockstep_quantum}")
     if args.lockstep and args.world is None:
         raise UsageError("--lockstep needs --world (the swarm's shared world carries the common clock)")
+    if args.demo and len(instances) > 1:
+        raise UsageError("--demo flies one drone: give --instance, not several --instances")
     wind = _float_list(args.wind, 3, "--wind")
     speed = _speed_factor(args.speed)
-    links = _links(args)
+    homes = _homes(args, len(instances))
+    cameras = set(parse_instances(args.camera_instances)) if args.camera_instances else set(instances)
     airframe = load_airframe(args.airframe)
+    if args.log_dir is not None:
+        try:
+            args.log_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise UsageError(f"--log-dir {args.log_dir}: {exc.strerror}") from None
+    first_seed = args.seed if args.seed is not None else instances[0]
+    specs = [
+        DroneSpec(
+            instance=i,
+            seed=first_seed + (i - instances[0]),
+            home=home,
+            links=_links(args, i),
+            camera_frames=_camera_dir(args.camera_frames, i, len(instances)) if i in cameras else None,
+            log_path=args.log_dir / f"drone-{i}.log" if args.log_dir is not None else None,
+        )
+        for i, home in zip(instances, homes, strict=True)
+    ]
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(name)s: %(message)s")
 
     from sitl.app import run  # heavy imports (jsbsim) only after the arguments are known to be good
 
     return run(
-        instance=args.instance,
-        airframe=airframe,
-        seed=args.seed if args.seed is not None else args.instance,
-        speed_factor=speed,
-        home=home,
-        wind=WindConfig(steady_ned_mps=(wind[0], wind[1], wind[2]), gust_rms_mps=args.gust),
-        duration_s=args.duration,
-        demo=args.demo,
-        links=links,
-        world_name=args.world,
-        lockstep=args.lockstep,
-        lockstep_quantum=args.lockstep_quantum,
-        camera_frames=args.camera_frames,
+        specs,
+        ProcessSpec(
+            airframe=airframe,
+            speed_factor=speed,
+            wind=WindConfig(steady_ned_mps=(wind[0], wind[1], wind[2]), gust_rms_mps=args.gust),
+            duration_s=args.duration,
+            demo=args.demo,
+            world_name=args.world,
+            lockstep=args.lockstep,
+            lockstep_quantum=args.lockstep_quantum,
+        ),
     )
+
+
+def _instances(args: argparse.Namespace) -> list[int]:
+    if args.instances is not None:
+        if args.instance is not None:
+            raise UsageError("give --instance or --instances, not both")
+        instances = parse_instances(args.instances)
+        if len(instances) > 1:
+            for option in ("api_port", "gcs_port", "api_remote"):
+                if getattr(args, option) is not None:
+                    flag = "--" + option.replace("_", "-")
+                    raise UsageError(f"{flag} is one drone's: with several --instances the ports follow each instance")
+        return instances
+    instance = 0 if args.instance is None else args.instance
+    if not 0 <= instance <= MAX_INSTANCE:
+        raise UsageError(f"--instance must be in 0..{MAX_INSTANCE}, got {instance}")
+    return [instance]
+
+
+def _camera_dir(root: Path | None, instance: int, count: int) -> Path | None:
+    if root is None:
+        return None
+    return root if count == 1 else root / f"drone-{instance}"
 
 
 if __name__ == "__main__":

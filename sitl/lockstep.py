@@ -37,6 +37,7 @@ from __future__ import annotations
 import contextlib
 import math
 import socket
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -82,25 +83,33 @@ class _Waker:
 
 
 class LockstepMember:
-    """A drone's side: join, ask how many steps it may take, publish each completed step, leave."""
+    """One process's side: join, ask how many steps it may take, publish each completed step, leave.
 
-    def __init__(self, world: SharedWorld, instance: int, quantum_steps: int = 1) -> None:
+    A process hosting several drones (sitl/host.py) is one member with several rows: its drones step together, so
+    every row it owns holds the same count, and it sleeps and is woken once for all of them, on the wake-up address
+    of its first row (the row whose WAITING flag it sets). A hosted drone that ends ``drop``s its row."""
+
+    def __init__(self, world: SharedWorld, instances: int | Sequence[int], quantum_steps: int = 1) -> None:
         if quantum_steps < 1:
             raise ValueError(f"a lockstep quantum is at least one step, got {quantum_steps}")
+        rows = [instances] if isinstance(instances, int) else list(instances)
+        if not rows:
+            raise ValueError("a lockstep member has at least one row")
         self.world = world
-        self.instance = instance
+        self.instance = rows[0]  # the row whose WAITING flag and wake-up address stand for the whole member
         self.quantum = quantum_steps
+        self._rows = np.array(rows, dtype=np.intp)
         self._steps = world.table[:, STEP]  # a view: reading it costs one reduction, no copy
         self._waiting = world.table[:, WAITING]
         self._header = world.header
         self.wake_socket = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-        self.wake_socket.bind(wake_address(world.name, instance))
+        self.wake_socket.bind(wake_address(world.name, self.instance))
         self.wake_socket.setblocking(False)
         self._waker = _Waker(world)
 
     def join(self) -> None:
         self._waiting[self.instance] = 0.0
-        self._steps[self.instance] = 0.0
+        self._steps[self._rows] = 0.0
 
     def steps_allowed(self, completed: int) -> tuple[int, bool]:
         """(steps this member may take now, whether the supervisor's gate is what holds it).
@@ -120,7 +129,11 @@ class LockstepMember:
         last to come within GATE_WAKE_AHEAD_STEPS of the gate, or to reach it, wakes the supervisor, which would
         otherwise only look again when its own wait for traffic ran out."""
         steps_column = self._steps
-        steps_column[self.instance] = float(steps)
+        rows = self._rows
+        if len(rows) == 1:
+            steps_column[rows[0]] = float(steps)
+        else:
+            steps_column[rows] = float(steps)
         end_of_quantum = steps % self.quantum == 0
         gate = self._header[GATE_STEP]
         wake_gate = steps >= gate or steps == gate - GATE_WAKE_AHEAD_STEPS
@@ -129,6 +142,12 @@ class LockstepMember:
                 self._waker.wake_waiting()
             if wake_gate:
                 self._waker.wake_gate()
+
+    def drop(self, instance: int) -> None:
+        """Row ``instance`` no longer advances (its hosted drone ended): it holds nobody back from now on."""
+        self._rows = self._rows[self._rows != instance]
+        self._steps[instance] = math.inf
+        self._waker.wake_waiting()
 
     def begin_wait(self) -> None:
         self._waiting[self.instance] = 1.0
@@ -141,7 +160,7 @@ class LockstepMember:
 
     def leave(self) -> None:
         self._waiting[self.instance] = 0.0
-        self._steps[self.instance] = math.inf
+        self._steps[self._rows] = math.inf
         self._waker.wake_waiting()  # whoever waited for this member may go on
         self._waker.close()
         self.wake_socket.close()

@@ -7,21 +7,22 @@ early, so a command is handled within a fraction of a physics step of its arriva
 
 from __future__ import annotations
 
+import functools
 import logging
+import math
 import selectors
 import signal
 import socket
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from types import FrameType
 from typing import Protocol
 
+from sitl.drone import Drone, DroneLogRouter
 from sitl.lockstep import MAX_SLEEP_S, LockstepMember
-from sitl.mavlink_io import MavlinkEndpoint
 from sitl.pacing import Pacer
-from sitl.simulation import Simulation
-from sitl.vehicle import VehicleEvent
+from sitl.world import END_STOPPED
 
 log = logging.getLogger(__name__)
 
@@ -30,15 +31,6 @@ log = logging.getLogger(__name__)
 class RunOptions:
     speed_factor: float = 1.0
     duration_s: float | None = None  # stop after this much simulation time
-
-
-@dataclass(slots=True)
-class LoopStats:
-    """Time the loop spends on MAVLink (receive, poll, STATUSTEXT), in nanoseconds of ``clock_ns`` (see
-    ``Simulation.part_clock_ns`` for the choice of clock)."""
-
-    link_ns: int = 0
-    clock_ns: Callable[[], int] = time.perf_counter_ns
 
 
 class StopFlag:
@@ -63,6 +55,10 @@ class StepClock(Protocol):
     def steps_due(self, sim_time_s: float, completed_steps: int, max_batch: int) -> int: ...
 
     def completed(self, steps: int) -> None: ...
+
+    def drop(self, instance: int) -> None:
+        """Drone ``instance`` of this process ended: it no longer takes part in the clock."""
+        ...
 
     def wait(self, selector: selectors.BaseSelector, sim_time_s: float) -> None: ...
 
@@ -101,6 +97,9 @@ class WallClockSteps:
         return self.pacer.steps_due(time.monotonic(), sim_time_s, max_batch)
 
     def completed(self, steps: int) -> None:
+        pass
+
+    def drop(self, instance: int) -> None:
         pass
 
     def sockets(self) -> list[socket.socket]:
@@ -145,6 +144,9 @@ class LockstepSteps:
         self.member.completed(steps)
         self._completed = steps
 
+    def drop(self, instance: int) -> None:
+        self.member.drop(instance)
+
     def sockets(self) -> list[socket.socket]:
         return [self.member.wake_socket]
 
@@ -165,61 +167,103 @@ class LockstepSteps:
 
 
 def run_loop(
-    sim: Simulation,
+    drones: Sequence[Drone],
     options: RunOptions,
     stop: StopFlag,
     *,
-    endpoint: MavlinkEndpoint | None = None,
-    on_step: Callable[[], None] | None = None,
-    on_event: Callable[[VehicleEvent], None] | None = None,
-    finished: Callable[[], bool] | None = None,
     clock: StepClock | None = None,
-    stats: LoopStats | None = None,
-    booting: Callable[[], bool] | None = None,
+    router: DroneLogRouter | None = None,
 ) -> None:
-    """Step the simulation (paced to the wall clock unless another clock is given) until stopped, finished, or
-    the duration is reached; paced, a boot is fast-forwarded while ``booting()`` holds (see WallClockSteps)."""
-    steps_clock = clock if clock is not None else WallClockSteps(options.speed_factor, sim.dt_s, booting)
-    completed = 0
+    """Step every drone of the process (paced to the wall clock unless another clock is given) until stopped, every
+    drone finished or ended, or the duration reached. Paced, the boot is fast-forwarded while a drone still boots
+    (see WallClockSteps).
+
+    The drones advance together: one wake-up, one look at the sockets and one clock decision serve them all. Which
+    drone has traffic waiting comes from one ``select`` over every socket, so a host of many drones does not try
+    every socket every time. An exception in one drone's code ends that drone alone (``Drone.fail``); a drone the
+    supervisor asked to stop (``Drone.stop_requested``) ends as if its process had been killed."""
+    if not drones:
+        return
+    dt_s = drones[0].sim.dt_s
+    live = list(drones)
+    booting = lambda: any(d.booting() for d in live)  # noqa: E731
+    steps_clock = clock if clock is not None else WallClockSteps(options.speed_factor, dt_s, booting)
     selector = selectors.DefaultSelector()
-    for sock in [*(endpoint.sockets() if endpoint is not None else []), *steps_clock.sockets()]:
-        selector.register(sock, selectors.EVENT_READ)
-    events = sim.vehicle.events
+    for drone in drones:
+        for sock in drone.endpoint.sockets() if drone.endpoint is not None else []:
+            selector.register(sock, selectors.EVENT_READ, drone)
+    for sock in steps_clock.sockets():
+        selector.register(sock, selectors.EVENT_READ, None)
     # With MAVLink, read the sockets every few milliseconds of simulation (unpaced) rather than after every step. A
     # paced batch must hold a whole wake-up's steps: shorter, the drone would sleep again while steps are still due
     # and fall behind its clock by the difference.
-    max_batch = 400 if endpoint is None else PACED_WAKE_STEPS
-    loop_stats = stats if stats is not None else LoopStats()
-    clock_ns = loop_stats.clock_ns
+    max_batch = 400 if all(d.endpoint is None for d in drones) else PACED_WAKE_STEPS
+    # In lockstep the drones of a host take each step together, so none is ever more than a step ahead of another
+    # (the barrier's promise); paced, each runs its whole batch at once, which keeps its data in the caches.
+    step_major = isinstance(steps_clock, LockstepSteps)
+    completed = 0
+
+    def end(drone: Drone, exc: BaseException | None) -> None:
+        for sock in drone.endpoint.sockets() if drone.endpoint is not None else []:
+            selector.unregister(sock)
+        steps_clock.drop(drone.instance)
+        if exc is not None:
+            drone.fail(exc)
+        else:
+            drone.close(END_STOPPED, f"stopped on request at t={drone.time_s:.2f} s, as a killed process stops")
+
+    def each(action: Callable[[Drone], None], drones_now: Iterable[Drone]) -> None:
+        for drone in drones_now:
+            if router is not None:
+                router.current = drone.output
+            try:
+                action(drone)
+            except Exception as exc:
+                end(drone, exc)
+
     try:
         while not stop.stopped:
-            if endpoint is not None:
-                t0 = clock_ns()
-                endpoint.receive(sim.time_s)
-                loop_stats.link_ns += clock_ns() - t0
-            due = steps_clock.steps_due(sim.time_s, completed, max_batch)
-            for _ in range(due):
-                sim.step()
-                completed += 1
-                steps_clock.completed(completed)
-                if on_step is not None:
-                    on_step()
-                if (finished is not None and finished()) or (
-                    options.duration_s is not None and sim.time_s >= options.duration_s - 1e-9
-                ):
-                    return
-            t0 = clock_ns()
-            if events:
-                for event in events:
-                    if endpoint is not None:
-                        endpoint.statustext(event.severity, event.text)
-                    if on_event is not None:
-                        on_event(event)
-                events.clear()
-            if endpoint is not None:
-                endpoint.poll(sim.time_s)
-            loop_stats.link_ns += clock_ns() - t0
-            steps_clock.wait(selector, sim.time_s)
+            for drone in live:
+                if drone.stop_requested():
+                    end(drone, None)
+            live = [d for d in live if not d.ended]
+            if not live:
+                return
+            ready = {key.data for key, _ in selector.select(0)}
+            each(Drone.receive, [d for d in live if d in ready])
+            time_s = live[0].time_s
+            due = steps_clock.steps_due(time_s, completed, max_batch)
+            if options.duration_s is not None:
+                due = min(due, max(0, math.ceil((options.duration_s - time_s) / dt_s - 1e-9)))
+            if due > 0:
+                if step_major:
+                    for _ in range(due):
+                        each(Drone.step, [d for d in live if not d.ended])
+                        completed += 1
+                        steps_clock.completed(completed)
+                else:
+                    each(functools.partial(_run_steps, steps=due), live)
+                    completed += due
+                    steps_clock.completed(completed)
+            live = [d for d in live if not d.ended]
+            if not live or all(d.finished for d in live):
+                return
+            if options.duration_s is not None and live[0].time_s >= options.duration_s - 1e-9:
+                return
+            each(Drone.after_batch, live)
+            if router is not None:
+                router.current = None
+            steps_clock.wait(selector, live[0].time_s)
     finally:
+        if router is not None:
+            router.current = None
         selector.close()
         steps_clock.close()
+
+
+def _run_steps(drone: Drone, steps: int) -> None:
+    """A paced batch of one drone; a demo flight ends it at the step where it is over."""
+    for _ in range(steps):
+        drone.step()
+        if drone.finished:
+            return

@@ -41,11 +41,16 @@ from sitl.dynamics.plant import PlantState
 from sitl.mathutil import GRAVITY_MPS2
 
 MAX_DRONES = 256
-COLUMNS = 18
+COLUMNS = 20
 VALID, TIME, LAT, LON, ALT, VN, VE, VD, RADIUS, CRASHED, STEP = range(11)
 CPU_PHYSICS, CPU_CONTROL, CPU_PERCEPTION, CPU_LINK = range(11, 15)  # seconds spent so far, for benchmarks
 WAITING = 15  # 1 while a lockstep member sleeps until woken
 ENDED, REST_ALT = 16, 17  # 1 once the drone's process is gone (its body falls); its centre's altitude at rest
+# A drone hosted with others in one process (sitl/host.py) cannot be ended by a signal without ending its hosts'
+# other drones: STOP_REQUEST = 1 asks its host to end it as if its own process had been killed. END_CAUSE says why a
+# row ended, for whoever did not end it (the supervisor learns of a hosted drone's end from here).
+STOP_REQUEST, END_CAUSE = 18, 19
+END_UNKNOWN, END_EXITED, END_STOPPED, END_FAILED = 0.0, 1.0, 2.0, 3.0  # END_CAUSE values
 HEADER_SLOTS = 4
 GATE_STEP, GATE_OPEN = range(2)  # header: steps every member may complete; 1 once the supervisor opened the gate
 EARTH_RADIUS_M = 6_371_000.0
@@ -164,16 +169,31 @@ class SharedWorld:
         row[ENDED] = 0.0  # a row is (re)used by a live drone
         row[VALID] = 1.0
 
-    def mark_ended(self, instance: int) -> None:
+    def mark_ended(self, instance: int, cause: float = END_UNKNOWN) -> None:
         """The drone's process is gone (called once by whoever sees it go: the supervisor for a killed process, the
-        drone itself on a normal exit). Its body falls from its last written state and then lies on the ground,
-        still an obstacle; it also stops being a lockstep member, so it holds nobody back. A row never written
-        (the drone died before its first step) has no body and stays empty."""
+        drone itself or its host on a normal exit, a stop request or a failure, with the ``END_*`` cause). Its body
+        falls from its last written state and then lies on the ground, still an obstacle; it also stops being a
+        lockstep member, so it holds nobody back. A row never written (the drone died before its first step) has no
+        body and stays empty. A cause already recorded is kept: the first to see the end knows best why."""
         row = self.table[instance]
         row[STEP] = math.inf
         row[WAITING] = 0.0
+        if row[END_CAUSE] == END_UNKNOWN:
+            row[END_CAUSE] = cause
         if row[VALID] == 1.0:
             row[ENDED] = 1.0
+
+    def end_cause(self, instance: int) -> float | None:
+        """Why row ``instance`` ended (an ``END_*`` value), or None while it has not."""
+        row = self.table[instance]
+        return None if row[ENDED] != 1.0 and row[END_CAUSE] == END_UNKNOWN else float(row[END_CAUSE])
+
+    def request_stop(self, instance: int) -> None:
+        """Ask the host of drone ``instance`` to end it as a killed process ends (sitl/host.py)."""
+        self.table[instance, STOP_REQUEST] = 1.0
+
+    def stop_requested(self, instance: int) -> bool:
+        return bool(self.table[instance, STOP_REQUEST] == 1.0)
 
     def ended(self, instance: int) -> bool:
         """True once the drone's process is gone (its body falls or lies on the ground)."""
@@ -282,6 +302,8 @@ class WorldParticipant:
         self.rest_alt_amsl_m = rest_alt_amsl_m
         self.every_n_steps = every_n_steps
         self._count = 0
+        world.table[instance, STOP_REQUEST] = 0.0  # a row reused by a new drone starts with no request, no end
+        world.table[instance, END_CAUSE] = END_UNKNOWN
 
     def after_step(self, truth: PlantState, crashed: bool) -> list[Contact]:
         """Call after every physics step: every ``every_n_steps`` steps publishes the truth and returns the contacts
@@ -301,7 +323,7 @@ class WorldParticipant:
                          rest_alt_amsl_m=self.rest_alt_amsl_m)  # fmt: skip
         return [] if crashed else self.world.contacts(self.instance)
 
-    def close(self) -> None:
+    def close(self, cause: float = END_EXITED) -> None:
         """Leave the world as a killed drone does: the body falls from its last published state and stays."""
-        self.world.mark_ended(self.instance)
+        self.world.mark_ended(self.instance, cause)
         self.world.close()

@@ -34,7 +34,7 @@ from tests.integration.sitl_process import (
     SitlDrone,
     SpawnDrones,
     instance_is_clear_of_user_ports,
-    start_drone,
+    start_drones,
     stop_drone,
 )
 from tests.integration.vehicle_link import VehicleLink, VehicleUrlError, pymavlink_url
@@ -155,14 +155,15 @@ def spawn_drones(
 
     with contextlib.ExitStack() as stoppers:
 
-        def spawn(count: int = 1, *, speed_factor: float = default_speed) -> list[SitlDrone]:
+        def spawn(count: int = 1, *, speed_factor: float = default_speed, hosted: bool = False) -> list[SitlDrone]:
             instances = instance_allocator.take(count)
             drones: list[SitlDrone] = []
             try:
-                for instance in instances:
-                    drone = start_drone(instance=instance, speed_factor=speed_factor, seed=instance, log_dir=tmp_path)
+                drones = start_drones(
+                    instances=instances, speed_factor=speed_factor, seed=instances[0], log_dir=tmp_path, hosted=hosted
+                )
+                for drone in drones:
                     stoppers.callback(stop, drone)
-                    drones.append(drone)
             finally:
                 for instance in instances[len(drones) :]:
                     instance_allocator.give_back(instance)
@@ -171,13 +172,22 @@ def spawn_drones(
         yield spawn
 
 
-@pytest.fixture
+HOST_NEIGHBOURS = 2  # a hosted vehicle shares its process with this many other drones, which stand idle
+
+
+@pytest.fixture(params=["process", "hosted"])
 def vehicle(request: pytest.FixtureRequest) -> VehicleLink:
-    """The vehicle a flight test flies: ``--vehicle`` if given, else a fresh drone of our own."""
+    """The vehicle a flight test flies: ``--vehicle`` if given, else a fresh drone of our own, once in its own
+    process and once hosted with HOST_NEIGHBOURS other drones in one ``sitl --instances`` process (a client must
+    not be able to tell the two apart)."""
     url = request.config.getoption("--vehicle")
     if url is not None:
+        if request.param == "hosted":
+            pytest.skip("an external vehicle is flown once")
         return VehicleLink.external(url, request.config.getoption("--vehicle-speed"))
     spawn: SpawnDrones = request.getfixturevalue("spawn_drones")
+    if request.param == "hosted":
+        return VehicleLink.of(spawn(1 + HOST_NEIGHBOURS, hosted=True)[0])
     return VehicleLink.of(spawn()[0])
 
 

@@ -19,7 +19,7 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Final
@@ -172,10 +172,13 @@ def first_heartbeat(sock: socket.socket, sysid: int, deadline: float, alive: Pro
 class Process:
     """One running ``sitl``; stop() is idempotent and always reaps."""
 
-    def __init__(self, popen: subprocess.Popen[bytes], log_path: Path, log_file: IO[bytes]) -> None:
+    def __init__(
+        self, popen: subprocess.Popen[bytes], log_path: Path, log_file: IO[bytes], host_log: Path | None = None
+    ) -> None:
         self.popen = popen
-        self.log_path = log_path
+        self.log_path = log_path  # a hosted drone's own log; the host's stdout and stderr go to ``host_log``
         self._log_file = log_file
+        self._host_log = host_log
 
     @property
     def pid(self) -> int:
@@ -187,7 +190,9 @@ class Process:
     def log_tail(self, lines: int = 30) -> str:
         if not self._log_file.closed:
             self._log_file.flush()
-        text = self.log_path.read_text(errors="replace")
+        text = self.log_path.read_text(errors="replace") if self.log_path.exists() else ""
+        if self._host_log is not None:
+            text += f"\n--- host log {self._host_log.name} ---\n" + self._host_log.read_text(errors="replace")
         return "\n".join(text.splitlines()[-lines:])
 
     def raise_if_exited(self) -> None:
@@ -244,28 +249,81 @@ def start_drone(
     The caller owns the result and must pass it to ``stop_drone``; if start-up fails, everything started here is
     stopped and reaped before the error propagates.
     """
-    ports = DronePorts(instance=instance)
+    (drone,) = start_drones(
+        instances=[instance], speed_factor=speed_factor, seed=seed, log_dir=log_dir, extra_args=extra_args,
+        ready_timeout_s=ready_timeout_s, hosted=False,
+    )  # fmt: skip
+    return drone
+
+
+def start_drones(
+    *,
+    instances: Sequence[int],
+    speed_factor: float,
+    seed: int,
+    log_dir: Path,
+    extra_args: tuple[str, ...] = (),
+    ready_timeout_s: float = READY_TIMEOUT_S,
+    hosted: bool,
+) -> list[SitlDrone]:
+    """Start drones on ``instances``, each in its own process or (``hosted``) all in one ``sitl --instances``
+    process, and return once every one's first HEARTBEAT arrived on 127.0.0.1:14540+i; drone i's seed is
+    ``seed + (i - instances[0])``. A hosted drone's ``process`` is its host (stopping one stops them all) and its
+    log is its own ``drone-<i>.log``.
+
+    The caller owns the result and must pass each to ``stop_drone``; if start-up fails, everything started here is
+    stopped and reaped before the error propagates.
+    """
+    if hosted:
+        return _start_process(instances, speed_factor, seed, log_dir, extra_args, ready_timeout_s)
+    started: list[SitlDrone] = []
+    try:
+        for k, instance in enumerate(instances):
+            started += _start_process([instance], speed_factor, seed + k, log_dir, extra_args, ready_timeout_s)
+    except BaseException:
+        for drone in started:
+            stop_drone(drone)
+        raise
+    return started
+
+
+def _start_process(
+    instances: Sequence[int],
+    speed_factor: float,
+    seed: int,
+    log_dir: Path,
+    extra_args: tuple[str, ...],
+    ready_timeout_s: float,
+) -> list[SitlDrone]:
+    """One ``sitl`` process running ``instances`` (``--instance`` for one), ready: see ``start_drones``."""
+    ports = [DronePorts(instance=i) for i in instances]
     with contextlib.ExitStack() as on_failure:
-        # Bound before the drone starts, so its very first datagram is not lost to an unbound port.
-        listener = on_failure.enter_context(socket.socket(socket.AF_INET, socket.SOCK_DGRAM))
-        listener.bind((LOOPBACK, ports.api_remote))
+        # Bound before the drones start, so their very first datagrams are not lost to an unbound port.
+        listeners = []
+        for p in ports:
+            listener = on_failure.enter_context(socket.socket(socket.AF_INET, socket.SOCK_DGRAM))
+            listener.bind((LOOPBACK, p.api_remote))
+            listeners.append(listener)
         gcs_sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         on_failure.callback(gcs_sink.close)
         gcs_sink.bind((LOOPBACK, 0))
         gcs_port = gcs_sink.getsockname()[1]
 
-        log_path = log_dir / f"sitl-{instance}.log"
+        alone = len(instances) == 1
+        name = f"sitl-{instances[0]}" if alone else f"sitl-host-{instances[0]}"
+        log_path = log_dir / f"{name}.log"
         log_file = log_path.open("wb")
+        selection = ["--instance", str(instances[0])] if alone else ["--instances", ",".join(map(str, instances))]
         argv = [
             *sitl_command(),
-            "--instance",
-            str(instance),
+            *selection,
             "--speed",
             f"{speed_factor:g}",
             "--seed",
             str(seed),
             "--gcs-remote",
             f"{LOOPBACK}:{gcs_port}",
+            *([] if alone else ["--log-dir", str(log_dir / name)]),
             *extra_args,
         ]
         env = {k: v for k, v in os.environ.items() if k != "PX4_SIM_SPEED_FACTOR"}
@@ -276,18 +334,28 @@ def start_drone(
             stderr=subprocess.STDOUT,
             env=env,
         )
-        process = Process(popen, log_path, log_file)
-        on_failure.callback(process.stop)
-        try:
-            first_heartbeat(listener, ports.sysid, time.monotonic() + ready_timeout_s, alive=process)
-        except TimeoutError:
-            raise SitlStartError(
-                f"sitl --instance {instance} (pid {process.pid}) sent no HEARTBEAT to 127.0.0.1:{ports.api_remote} "
-                f"within {ready_timeout_s:.0f} s; log:\n{process.log_tail()}"
-            ) from None
+        host = Process(popen, log_path, log_file)
+        on_failure.callback(host.stop)
+        processes = [
+            host if alone else Process(popen, log_dir / name / f"drone-{i}.log", log_file, host_log=log_path)
+            for i in instances
+        ]
+        deadline = time.monotonic() + ready_timeout_s
+        for p, listener, process in zip(ports, listeners, processes, strict=True):
+            try:
+                first_heartbeat(listener, p.sysid, deadline, alive=process)
+            except TimeoutError:
+                raise SitlStartError(
+                    f"{' '.join(selection)} (pid {popen.pid}) sent no HEARTBEAT to 127.0.0.1:{p.api_remote} "
+                    f"within {ready_timeout_s:.0f} s; log:\n{process.log_tail()}"
+                ) from None
         on_failure.pop_all()
-    listener.close()
-    return SitlDrone(ports=ports, process=process, speed_factor=speed_factor, gcs_sink=gcs_sink)
+    for listener in listeners:
+        listener.close()
+    return [
+        SitlDrone(ports=p, process=process, speed_factor=speed_factor, gcs_sink=gcs_sink)
+        for p, process in zip(ports, processes, strict=True)
+    ]
 
 
 SpawnDrones = Callable[..., list[SitlDrone]]  # the ``spawn_drones`` fixture: spawn_drones(count=1, speed_factor=...)

@@ -1,0 +1,215 @@
+"""One simulated drone as its process's loop drives it: the simulation, its MAVLink links, its place in the shared
+world, its perception, and its output.
+
+A process runs one drone (the default, and the shape of PX4 SITL) or hosts several (sitl/runtime.py steps them all
+in one loop). Either way each drone is built and driven the same way, through ``Drone``, so a hosted drone is on the
+wire and in the world exactly what a lone one is: its own sysid, ports, JSBSim instance, autopilot, parameters, seed
+and log. Only the loop around it, and who owns the process, differ.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+import traceback
+from collections.abc import Callable
+from pathlib import Path
+from typing import TextIO
+
+from sitl.awareness import Awareness
+from sitl.demo import DemoFlight
+from sitl.mav_vehicle import SimVehicleApi
+from sitl.mavlink_io import MavlinkEndpoint
+from sitl.protocol import Identity
+from sitl.simulation import SimConfig, Simulation
+from sitl.specs import DroneSpec, ProcessSpec
+from sitl.world import END_EXITED, END_FAILED, SharedWorld, WorldParticipant
+
+CPU_REPORT_STEPS = 100  # how often the time spent per part is published in the shared world (for benchmarks)
+
+
+class DroneOutput:
+    """Where one drone's lines go: its own log file when hosted with a log directory, else the process's stdout
+    (and stderr for tracebacks and log records), every line naming the drone as ``sitl <instance>:``."""
+
+    def __init__(self, instance: int, log_path: Path | None) -> None:
+        self.instance = instance
+        self._file: TextIO | None = log_path.open("w", buffering=1) if log_path is not None else None
+
+    def say(self, text: str) -> None:
+        out = self._file if self._file is not None else sys.stdout
+        print(text, file=out, flush=True)
+
+    def error(self, text: str) -> None:
+        out = self._file if self._file is not None else sys.stderr
+        print(text, file=out, flush=True)
+
+    def close(self) -> None:
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+
+class DroneLogRouter(logging.Handler):
+    """Sends each log record (a MAVLink link silenced, a fall behind real time) to the log of the drone the loop is
+    running at that moment, so a hosted drone's log holds its own warnings; the loop sets ``current``."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.current: DroneOutput | None = None
+        self.setFormatter(logging.Formatter("%(name)s: %(message)s"))
+
+    def emit(self, record: logging.LogRecord) -> None:
+        text = self.format(record)
+        if self.current is not None:
+            self.current.error(f"sitl {self.current.instance}: {text}")
+        else:
+            print(text, file=sys.stderr, flush=True)
+
+
+class Drone:
+    """One drone: built from its spec, then stepped, fed and polled by its process's loop (sitl/runtime.py).
+
+    ``fail`` ends it for good after an exception in its own code: the traceback goes to its log, its links close (it
+    falls silent, as a crashed process does) and its body falls in the shared world; the other drones of its process
+    fly on."""
+
+    def __init__(self, spec: DroneSpec, common: ProcessSpec, *, clock_ns: Callable[[], int]) -> None:
+        self.instance = spec.instance
+        self.output = DroneOutput(spec.instance, spec.log_path)
+        self.ended = False
+        self.failed = False
+        sim = Simulation(SimConfig(airframe=common.airframe, seed=spec.seed, home=spec.home, wind=common.wind))
+        self.sim = sim
+        airframe = common.airframe
+        pace = common.speed_factor
+        speed = "lockstep" if common.lockstep else "unpaced" if pace == 0 else f"{pace:g}x real time"
+        home = spec.home
+        self.say(
+            f"airframe {airframe.name} ({airframe.mass_kg:.2f} kg, hover at "
+            f"{airframe.hover_thrust_fraction:.0%} of max thrust), seed {spec.seed}, {speed}, "
+            f"physics {1 / sim.dt_s:.0f} Hz, home {home.lat_deg:.6f}, {home.lon_deg:.6f}, {home.alt_amsl_m:.1f} m"
+        )
+        self.flight = DemoFlight(sim, self.say) if common.demo else None
+        # Each drone maps the world itself, so that ending one (which unmaps it) leaves the others' mappings alone.
+        world = SharedWorld.attach(common.world_name) if common.world_name else None
+        self.world = world
+        # The body rests with its centre where it rests now, at boot on its gear: that is where it comes to lie if it
+        # falls.
+        rest_alt = sim.truth.geo.alt_amsl_m
+        self.participant = (
+            WorldParticipant(world, spec.instance, airframe.collision_radius_m, rest_alt_amsl_m=rest_alt)
+            if world is not None
+            else None
+        )
+        api = SimVehicleApi(sim)
+        identity = Identity(sysid=spec.instance + 1)
+        self.endpoint = MavlinkEndpoint(identity, api, sim.params, list(spec.links)) if spec.links else None
+        sim.part_clock_ns = clock_ns
+        self.awareness = Awareness(
+            sim,
+            spec.instance,
+            api.frame,
+            world=world,
+            neighbours=self.endpoint.neighbours if self.endpoint is not None else None,
+            frames_dir=spec.camera_frames,
+            shared_clock=common.lockstep and world is not None,
+            clock_ns=clock_ns,
+        )
+        self._clock_ns = clock_ns
+        self.link_ns = 0
+        self._steps = 0
+        for link in self.endpoint.links if self.endpoint is not None else []:
+            remote = link.config.remote
+            self.say(
+                f"MAVLink {link.config.name} link on udp {link.config.bind[0]}:{link.port}"
+                + (f", streaming to {remote[0]}:{remote[1]}" if remote else "")
+            )
+
+    def say(self, text: str) -> None:
+        self.output.say(f"sitl {self.instance}: {text}")
+
+    @property
+    def time_s(self) -> float:
+        return self.sim.time_s
+
+    @property
+    def finished(self) -> bool:
+        """The demo flight is over (never, without --demo)."""
+        return self.flight is not None and self.flight.done
+
+    def booting(self) -> bool:
+        """On the ground and not yet ready to arm (GPS fix, estimator): a paced loop may fast-forward this."""
+        vehicle = self.sim.vehicle
+        return not vehicle.status.armed and vehicle.preflight_problem() is not None
+
+    def stop_requested(self) -> bool:
+        """The supervisor asked for this drone to end as a killed process ends (only hosted drones are asked)."""
+        return self.world is not None and self.world.stop_requested(self.instance)
+
+    def receive(self) -> None:
+        if self.endpoint is not None:
+            t0 = self._clock_ns()
+            self.endpoint.receive(self.sim.time_s)
+            self.link_ns += self._clock_ns() - t0
+
+    def step(self) -> None:
+        sim = self.sim
+        sim.step()
+        if self.flight is not None:
+            self.flight.tick()
+        if self.participant is not None:
+            for contact in self.participant.after_step(sim.truth, sim.vehicle.crashed):
+                sim.vehicle.crash(contact.text())
+        self.awareness.update(sim.time_s)
+        self._steps += 1
+        if self.world is not None and self._steps % CPU_REPORT_STEPS == 0:
+            self.world.write_cpu(self.instance, sim.physics_ns * 1e-9, sim.control_ns * 1e-9,
+                                 self.awareness.cpu_ns * 1e-9, self.link_ns * 1e-9)  # fmt: skip
+
+    def after_batch(self) -> None:
+        """Between batches: the autopilot's events out as STATUSTEXT (and into the demo's log), telemetry due."""
+        t0 = self._clock_ns()
+        events = self.sim.vehicle.events
+        if events:
+            for event in events:
+                if self.endpoint is not None:
+                    self.endpoint.statustext(event.severity, event.text)
+                if self.flight is not None:
+                    self.flight.event(event.text)
+            events.clear()
+        if self.endpoint is not None:
+            self.endpoint.poll(self.sim.time_s)
+        self.link_ns += self._clock_ns() - t0
+
+    def fail(self, exc: BaseException) -> None:
+        """End this drone after an exception in its own code (see the class docstring)."""
+        self.failed = True
+        self.output.error(f"sitl {self.instance}: drone software failed at t={self.sim.time_s:.3f} s:")
+        self.output.error("".join(traceback.format_exception(exc)).rstrip())
+        self.close(END_FAILED)
+
+    def close(self, cause: float = END_EXITED, last_words: str | None = None) -> None:
+        """Close the links, leave the world (the body falls from its last state) with ``cause``, say
+        ``last_words`` (to stderr when the drone has no log of its own); idempotent."""
+        if self.ended:
+            return
+        self.ended = True
+        try:
+            if self.endpoint is not None:
+                self.endpoint.close()
+        finally:
+            if self.participant is not None:
+                self.participant.close(cause)
+            elif self.world is not None:
+                self.world.close()
+            if last_words is not None:
+                self.output.error(f"sitl {self.instance}: {last_words}")
+            self.output.close()
+
+
+def cpu_clock(in_world: bool) -> Callable[[], int]:
+    """The clock a drone's parts are timed on: in a swarm this thread's CPU clock, so the split stays true when
+    there are more drones than cores (``Simulation.part_clock_ns``); alone, the wall clock."""
+    return time.thread_time_ns if in_world else time.perf_counter_ns

@@ -1,0 +1,38 @@
+"""What a drone process is asked to run: the drones it hosts and what they share (light: the command line builds
+these before the heavy imports)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from sitl.airframe import Airframe
+from sitl.dynamics.plant import GeoPoint
+from sitl.mavlink_io import LinkConfig
+from sitl.wind import WindConfig
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DroneSpec:
+    """What differs between the drones of one process."""
+
+    instance: int
+    seed: int
+    home: GeoPoint
+    links: tuple[LinkConfig, ...]
+    camera_frames: Path | None = None
+    log_path: Path | None = None  # this drone's own output; None: the process's stdout and stderr
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ProcessSpec:
+    """What every drone of one process shares: one airframe, one clock, one world, one wind."""
+
+    airframe: Airframe
+    speed_factor: float
+    wind: WindConfig
+    duration_s: float | None = None
+    demo: bool = False
+    world_name: str | None = None
+    lockstep: bool = False
+    lockstep_quantum: int = 1
