@@ -376,6 +376,10 @@ def _loop(swarm: Swarm, station: Station, server: ControlServer, stop: _Stop) ->
 
 def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
     mission = load_mission(args.mission, max_obstacles=simulation.max_obstacles)
+    try:  # a bad airframe is one line before anything starts (the runner needs its size for the report)
+        simulation.contact_distance_m(args.airframe)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     if args.first_instance < 0 or args.first_instance + mission.swarm.drones > 255:
         raise UsageError("--first-instance must leave room for every sysid (instance + 1 <= 255)")
     report = args.report or Path("reports") / f"{mission.name}-{time.strftime('%Y%m%d-%H%M%S')}"

@@ -1,8 +1,8 @@
-"""A running swarm as the ground station sees it: the processes, the MAVLink socket and the fleet view.
+"""A running swarm as the ground station sees it: its simulation harness, the MAVLink socket and the fleet view.
 
-``Swarm`` brings drones up (spawn, then wait for each one's first HEARTBEAT; never sleep-and-hope), pumps
+``Swarm`` brings drones up (launch, then wait for each one's first HEARTBEAT; never sleep-and-hope), pumps
 telemetry into the fleet view, sends commands with PX4-client retry rules, and shuts everything down in order:
-land or disarm over MAVLink, then terminate and reap every process. The retry rules are not here: commands and
+land or disarm over MAVLink, then the harness stops every drone. The retry rules are not here: commands and
 parameter writes are protocol objects without IO (gcs/commands.py, gcs/params.py) that the swarm feeds with what it
 receives and whose effects it sends.
 
@@ -138,7 +138,7 @@ class Swarm:
 
     # ---- losses ----------------------------------------------------------------------------------------------------
     def detect_losses(self, time_s: float) -> list[DroneLoss]:
-        """Record every new loss once and return them: a drone whose process ended (any cause), one that reports
+        """Record every new loss once and return them: a drone the harness reports ended (any cause), one that reports
         MAV_STATE_FLIGHT_TERMINATION (crashed, terminated), or one silent for the link-loss time.
 
         ``time_s`` is the time to record (the caller's mission clock). The harness says which drones ended and how
@@ -388,7 +388,8 @@ class Swarm:
         check(self.command_each(mavlink.MAV_CMD_NAV_TAKEOFF, params), "takeoff")
 
     def shutdown(self, land_timeout_s: float = 30.0) -> None:
-        """Land what flies, disarm, then terminate and reap every process (also after errors)."""
+        """Land what flies, disarm, then have the harness stop every drone and leave nothing behind (also after
+        errors)."""
         try:
             flying = [s for s in self.armed_sysids() if not self.fleet.drones[s].lost(self.clock())]
             if flying:

@@ -29,9 +29,11 @@ def fly(mission: str, first_instance: int, tmp_path: Path, timeout_s: float, *, 
 
 
 @pytest.mark.timeout(240)
-def test_eight_drones_swap_through_the_centre_without_touching(tmp_path: Path) -> None:
-    # GIVEN 8 drones on a circle of radius 6 m WHEN each is sent straight to the opposite point at 2 m/s
-    metrics = fly("antipodal_swap.toml", 100, tmp_path, 220)
+@pytest.mark.parametrize("per_process", ["1", "auto"], ids=["process-per-drone", "hosted"])
+def test_eight_drones_swap_through_the_centre_without_touching(tmp_path: Path, per_process: str) -> None:
+    # GIVEN 8 drones on a circle of radius 6 m (each in its own process, or shared between one process per CPU)
+    # WHEN each is sent straight to the opposite point at 2 m/s
+    metrics = fly("antipodal_swap.toml", 100, tmp_path, 220, extra=("--drones-per-process", per_process))
     # THEN nobody collided and nobody came closer than 0.8 m (centre to centre)
     assert metrics["collisions"] == 0, metrics["collision_events"]
     assert metrics["min_separation_m"] >= 0.8

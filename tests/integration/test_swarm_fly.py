@@ -21,13 +21,14 @@ SWARM = [sys.executable, "-m", "gcs.cli"]
 
 
 @pytest.mark.timeout(240)
-def test_four_drone_mission_flies_end_to_end_and_writes_a_report(tmp_path: Path) -> None:
-    # GIVEN the 4-drone mission
+@pytest.mark.parametrize("per_process", ["1", "2"], ids=["process-per-drone", "hosted"])
+def test_four_drone_mission_flies_end_to_end_and_writes_a_report(tmp_path: Path, per_process: str) -> None:
+    # GIVEN the 4-drone mission (each drone in its own process, or two to a process)
     report = tmp_path / "report"
     # WHEN it is flown at 3x real time
     result = subprocess.run(
         [*SWARM, "fly", str(MISSIONS / "square_four.toml"), "--speed", "3", "--first-instance", "90",
-         "--report", str(report), "--no-forward"],
+         "--report", str(report), "--no-forward", "--drones-per-process", per_process],
         capture_output=True, text=True, timeout=220,
     )  # fmt: skip
     # THEN it succeeds and the report holds what the issue asks for

@@ -257,3 +257,15 @@ def test_swarm_up_report_with_an_unknown_airframe_is_one_line_and_exit_code_2(
     assert swarm_main(args) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("swarm: error: ") and "no_such_frame" in err[0], err
+
+
+def test_swarm_fly_with_an_unknown_airframe_is_one_line_and_exit_code_2_before_anything_flies(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "m.toml"
+    path.write_text(MISSION)
+    args = ["fly", str(path), "--report", str(tmp_path / "report"), "--airframe", "no_such_frame", "--no-forward"]
+    assert swarm_main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("swarm: error: ") and "no such airframe file" in err[0], err
+    assert not (tmp_path / "report").exists()

@@ -101,3 +101,21 @@ def test_receive_reads_a_bounded_number_of_datagrams_per_call() -> None:
     finally:
         gcs.close()
         drone.close()
+
+
+def test_a_truncated_datagram_does_not_cost_the_senders_next_frame() -> None:
+    """A datagram holds whole frames: the fragment a cut datagram leaves must not swallow the next one's bytes."""
+    gcs = GcsSocket()
+    drone = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    encoder = mavlink.MAVLink(None, srcSystem=7, srcComponent=1)
+    try:
+        # GIVEN a drone whose first datagram was cut in the middle of a frame
+        drone.sendto(_setpoint(1).pack(encoder)[:20], ("127.0.0.1", gcs.port))
+        # WHEN its next datagram holds two whole frames
+        drone.sendto(_setpoint(2).pack(encoder) + _setpoint(3).pack(encoder), ("127.0.0.1", gcs.port))
+        # THEN both arrive
+        messages = gcs.receive()
+        assert [m.time_boot_ms for m, _ in messages] == [2, 3]
+    finally:
+        gcs.close()
+        drone.close()
