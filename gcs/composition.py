@@ -14,7 +14,6 @@ from typing import Literal
 from gcs.harness import SimulationHarness, SpawnPlan
 from sitl.harness import GeoPoint, LaunchPlan, SitlHarness
 from sitl.harness import simulation as sim
-from sitl.harness.processes import host_groups, usable_cpus
 
 
 def launch_plan(plan: SpawnPlan) -> LaunchPlan:
@@ -61,7 +60,7 @@ class SitlSimulation:
         return sim.bare_plant_cpu_ms_per_sim_s()
 
     def drones_per_host(self, n_drones: int, drones_per_process: int | Literal["auto"]) -> list[int]:
-        return [len(group) for group in host_groups(n_drones, drones_per_process, usable_cpus())]
+        return sim.drones_per_host(n_drones, drones_per_process)
 
 
 SITL = SitlSimulation()

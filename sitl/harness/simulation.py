@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import math
 import time
+from typing import Literal
 
 from sitl.airframe import AirframeError, load_airframe
 from sitl.dynamics.plant import PHYSICS_RATE_HZ
+from sitl.harness.processes import host_groups, usable_cpus
 from sitl.world import MAX_DRONES, MAX_OBSTACLES
 
 __all__ = [
@@ -21,6 +23,7 @@ __all__ = [
     "AirframeError",
     "bare_plant_cpu_ms_per_sim_s",
     "contact_distance_m",
+    "drones_per_host",
 ]
 
 MAX_INSTANCES = MAX_DRONES  # instances 0..MAX_INSTANCES-1 (one shared-world row each)
@@ -33,6 +36,12 @@ def contact_distance_m(airframe: str | None) -> float:
     ValueError, one line) for an airframe that does not exist or does not load."""
     frame = load_airframe(airframe) if airframe else load_airframe()
     return 2.0 * frame.collision_radius_m
+
+
+def drones_per_host(n_drones: int, drones_per_process: int | Literal["auto"]) -> list[int]:
+    """How many drones each process runs for a swarm of ``n_drones`` with this setting (spawn order), on this
+    machine (``auto`` counts its usable CPUs)."""
+    return [len(group) for group in host_groups(n_drones, drones_per_process, usable_cpus())]
 
 
 def bare_plant_cpu_ms_per_sim_s(sim_seconds: float = BARE_SIM_SECONDS, repeats: int = BARE_REPEATS) -> float:
