@@ -49,6 +49,48 @@ MIN_EXTRA_HEARTBEAT_INTERVAL_S: Final = 0.05  # extra heartbeats on state change
 EVENT_CHECK_INTERVAL_S: Final = 0.01  # state changes the vehicle makes itself (landed, mode) go out within this
 
 
+class PollShare:
+    """What the telemetry of every link of one drone builds alike during one poll: the vehicle snapshot, and each
+    stream message built from it.
+
+    The links' schedulers run on one clock with the same default rates, so at a poll the same streams are
+    usually due on both, and nothing changes the vehicle between one link's poll and the next (polls only time
+    out transfers and emit telemetry). Opened around a poll of all links (``MavlinkEndpoint.poll``), every link
+    gets the same snapshot and a message due on several links is built once and packed for each with its own
+    sequence number. Closed, it passes every call through, so a scheduler used alone behaves as before.
+    """
+
+    def __init__(self, vehicle: VehicleApi) -> None:
+        self._vehicle = vehicle
+        self._open = False
+        self._snap: VehicleSnapshot | None = None
+        self._built: dict[tuple[int, Identity], MAVLinkMessage | None] = {}
+
+    def open(self) -> None:
+        self._open = True
+
+    def close(self) -> None:
+        self._open = False
+        self._snap = None
+        self._built.clear()
+
+    def snapshot(self) -> VehicleSnapshot:
+        if not self._open:
+            return self._vehicle.snapshot()
+        if self._snap is None:
+            self._snap = self._vehicle.snapshot()
+        return self._snap
+
+    def build(self, msg_id: int, snap: VehicleSnapshot, identity: Identity) -> MAVLinkMessage | None:
+        """``BUILDERS[msg_id](snap, identity)``, once per poll while open (``snap`` is then this poll's)."""
+        if not self._open:
+            return BUILDERS[msg_id](snap, identity)
+        key = (msg_id, identity)
+        if key not in self._built:
+            self._built[key] = BUILDERS[msg_id](snap, identity)
+        return self._built[key]
+
+
 @dataclass(slots=True)
 class _Stream:
     interval_s: float
@@ -67,9 +109,11 @@ class TelemetryScheduler:
         *,
         rates_hz: Mapping[int, float] = DEFAULT_RATES_HZ,
         statustext: StatusTextEncoder | None = None,
+        share: PollShare | None = None,
     ) -> None:
         self._identity = identity
         self._vehicle = vehicle
+        self._share = share if share is not None else PollShare(vehicle)
         self._defaults = {mid: hz for mid, hz in rates_hz.items() if mid in BUILDERS and hz > 0}
         self._streams: dict[int, _Stream] = {mid: _Stream(1.0 / hz, None) for mid, hz in self._defaults.items()}
         self._statustext = statustext or StatusTextEncoder()
@@ -92,13 +136,14 @@ class TelemetryScheduler:
         now_s = check_now(now_s)
         if now_s < self._next_poll_s:
             return []
-        snap = self._vehicle.snapshot()
+        share = self._share
+        snap = share.snapshot()
         out = self._events(snap, now_s)
         next_poll_s = now_s + EVENT_CHECK_INTERVAL_S
         for msg_id, stream in self._streams.items():
             due_s = stream.next_due_s
             if due_s is None or now_s >= due_s:
-                msg = BUILDERS[msg_id](snap, self._identity)
+                msg = share.build(msg_id, snap, self._identity)
                 if msg_id == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
                     self._note_heartbeat(snap, now_s)
                 if msg is not None:
