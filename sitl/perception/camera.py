@@ -231,10 +231,12 @@ def render_if_drawn(
     reach the detector's threshold (``Camera.noise_cannot_detect``): that frame is background noise in which the
     detector finds nothing, so it is neither composed nor looked at. The random offset of the noise is drawn all
     the same, so every later frame gets the noise it would have had."""
-    if _draw_bodies(camera, own_att_q_frd_to_ned, bodies) or not camera.noise_cannot_detect:
-        return _expose(camera, rng)
-    _noise_offset(camera, rng)
-    return None
+    if not (bodies and _draw_bodies(camera, own_att_q_frd_to_ned, bodies)):
+        if camera.noise_cannot_detect:
+            _noise_offset(camera, rng)
+            return None
+        camera._transmittance.fill(1.0)  # nothing drawn (and with no body, not even cleared)
+    return _expose(camera, rng)
 
 
 def _draw_bodies(camera: Camera, own_att_q_frd_to_ned: npt.ArrayLike, bodies: Sequence[Body]) -> bool:

@@ -339,7 +339,15 @@ def test_skipping_empty_frames_changes_no_detection_and_no_later_noise(seed: int
 
 
 def test_a_camera_whose_noise_could_be_detected_is_never_skipped() -> None:
-    camera = Camera(CameraConfig(background_level=100, body_level=130, pixel_noise_sigma=20.0))
+    config = CameraConfig(background_level=100, body_level=130, pixel_noise_sigma=20.0)
+    camera = Camera(config)
     assert not camera.noise_cannot_detect
     rng = np.random.default_rng(0)
     assert render_if_drawn(camera, LEVEL_Q, [], rng) is not None
+    far = [Sphere(offset_ned_m=(40.0, 0.0, 0.0), radius_m=R_M)]
+    reference = Camera(config)
+    full_rng, skip_rng = np.random.default_rng(5), np.random.default_rng(5)
+    for bodies in ([], far, [Sphere(offset_ned_m=(5.0, 0.5, 0.0), radius_m=R_M)], far):
+        full = render(reference, LEVEL_Q, bodies, full_rng)
+        image = render_if_drawn(camera, LEVEL_Q, bodies, skip_rng)
+        assert image is not None and np.array_equal(image, full)
