@@ -163,6 +163,7 @@ class LinkServices:
             self.telemetry,
             *((neighbours,) if neighbours is not None else ()),
         )
+        self._own = Peer(identity.sysid, identity.compid)
         self._routes: dict[int, Service] = {}
         for service in self._services:
             for msg_id in service.handles:
@@ -179,7 +180,7 @@ class LinkServices:
             source = source_of(msg)
         except PeerInputError:
             return []
-        if source == Peer(self.identity.sysid, self.identity.compid):
+        if source == self._own:
             return []  # our own message echoed back (a shared socket, a router loop)
         out = service.handle(msg, now_s)
         if service is self.commands:
