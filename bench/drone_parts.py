@@ -14,7 +14,9 @@ Two flights, each timed per part on the thread's CPU clock exactly as a swarm dr
     python bench/drone_parts.py [--sim-seconds 30] [--repeats 3] [--trees DIR ...]
 
 With ``--trees``, each repeat runs every tree in a subprocess of its own (``PYTHONPATH=DIR``), interleaved, so the
-machine's load falls on all alike; medians are printed per tree. A tree is a checkout of this repository (for
+machine's load falls on all alike; medians are printed per tree, and each part as a multiple of a part whose code
+the trees share (physics for the lone drone, control for the circle), which cancels the machine's drift between
+runs. A tree is a checkout of this repository (for
 example ``git worktree add /tmp/base HEAD~3`` or ``git archive``).
 """
 
@@ -161,7 +163,7 @@ def main() -> None:
             row = json.loads(proc.stdout.strip().splitlines()[-1])
             results[tree].append(row)
             print(f"repeat {rep + 1} {tree}: {json.dumps(row)}", flush=True)
-    for scenario in ("lone", "circle"):
+    for scenario, reference in (("lone", "physics"), ("circle", "control")):
         print(f"\n{scenario}: ms of CPU per drone per simulated second, median of {args.repeats}")
         print("| tree | " + " | ".join(PARTS) + " |")
         print("|---|" + "---|" * len(PARTS))
@@ -170,6 +172,17 @@ def main() -> None:
             for p in PARTS:
                 values = [r[scenario][p] for r in rows if p in r[scenario]]
                 cells.append(f"{statistics.median(values):.2f}" if values else "-")
+            print(f"| {tree} | " + " | ".join(cells) + " |")
+        # The machine's speed drifts between runs (other work, cache sharing): each part as a multiple of a part
+        # whose code both trees share, within each run, is the steadier comparison.
+        print(f"\n{scenario}: each part / {reference} in the same run, median of {args.repeats}")
+        print("| tree | " + " | ".join(PARTS) + " |")
+        print("|---|" + "---|" * len(PARTS))
+        for tree, rows in results.items():
+            cells = []
+            for p in PARTS:
+                values = [r[scenario][p] / r[scenario][reference] for r in rows if p in r[scenario]]
+                cells.append(f"{statistics.median(values):.3f}" if values else "-")
             print(f"| {tree} | " + " | ".join(cells) + " |")
 
 

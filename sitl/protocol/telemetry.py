@@ -14,7 +14,7 @@ at once without building a snapshot of the vehicle, which is most of what teleme
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Final
 
@@ -125,6 +125,11 @@ class TelemetryScheduler:
         self._last_landed: int | None = None
         self._primed = False
         self._next_poll_s = -math.inf  # nothing to do before this: no stream due, no event check
+        # A vehicle may offer ``event_state()``: every input of the event messages, cheaper than a snapshot. A poll
+        # with no stream due then builds no snapshot while it equals what the last check saw, unless an extra
+        # HEARTBEAT is still held back by its rate limit. Without it, every poll builds one.
+        self._event_state: Callable[[], object] | None = getattr(vehicle, "event_state", None)
+        self._checked_event_state: object = None  # event_state() at the last event check (None: check next time)
 
     # ---- the service interface -----------------------------------------------------------------------------
     def handle(self, msg: MAVLinkMessage, now_s: float) -> list[Effect]:
@@ -136,6 +141,18 @@ class TelemetryScheduler:
         now_s = check_now(now_s)
         if now_s < self._next_poll_s:
             return []
+        event_state = self._event_state() if self._event_state is not None else None
+        if event_state is not None and event_state == self._checked_event_state:
+            next_poll_s = now_s + EVENT_CHECK_INTERVAL_S
+            for stream in self._streams.values():
+                due_s = stream.next_due_s
+                if due_s is None or now_s >= due_s:
+                    break  # a stream is due: go on below
+                if due_s < next_poll_s:
+                    next_poll_s = due_s
+            else:
+                self._next_poll_s = next_poll_s  # nothing due and nothing changed: no snapshot
+                return []
         share = self._share
         snap = share.snapshot()
         out = self._events(snap, now_s)
@@ -152,11 +169,15 @@ class TelemetryScheduler:
             if due_s < next_poll_s:
                 next_poll_s = due_s
         self._next_poll_s = next_poll_s
+        # An extra HEARTBEAT held back by its rate limit must be looked at again even if nothing else changes.
+        held_back = self._heartbeat_key(snap) != self._last_heartbeat_key
+        self._checked_event_state = None if held_back else event_state
         return out
 
     def state_change_effects(self, now_s: float) -> list[Effect]:
         """Only the event-driven messages (used right after a command so the new state goes out at once)."""
         now_s = check_now(now_s)
+        self._checked_event_state = None  # a command changed the vehicle: the next poll checks in full
         return self._events(self._vehicle.snapshot(), now_s)
 
     # ---- rate control --------------------------------------------------------------------------------------
