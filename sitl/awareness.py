@@ -28,7 +28,16 @@ from sitl.avoidance import Obstacle
 from sitl.collision_prevention import RelayedNeighbour
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.params import ParamStore
-from sitl.perception.camera import Body, CameraConfig, CameraRig, Sphere, VerticalCylinder, render_rig, spheres
+from sitl.perception.camera import (
+    Body,
+    CameraConfig,
+    CameraRig,
+    Sphere,
+    VerticalCylinder,
+    render_rig,
+    render_rig_if_drawn,
+    spheres,
+)
 from sitl.perception.detector import detect_rig, to_ned
 from sitl.protocol.neighbours import NeighbourTable
 from sitl.simulation import Simulation
@@ -135,13 +144,18 @@ class Awareness:
                 )
             else:
                 bodies.append(Sphere(offset_ned_m=ob.offset_ned_m, radius_m=ob.radius_m))
-        images = render_rig(rig, self._sim.truth.att_q_frd_to_ned, bodies, self._rng)
+        q_true = self._sim.truth.att_q_frd_to_ned
         self.frames += 1
         if self._frames_dir is not None:
+            images = render_rig(rig, q_true, bodies, self._rng)
             for image, camera in zip(images, rig.cameras, strict=True):
                 name = f"drone{self._instance}-{camera.config.name}-{now_s:09.3f}.png"
                 cv2.imwrite(str(self._frames_dir / name), image)
-        detections = detect_rig(images, rig, self._radius_m)
+            detections = detect_rig(images, rig, self._radius_m)
+        else:
+            # A camera that nothing reaches is neither composed nor searched: the detections are the same (none
+            # from it), and so is the noise of every later frame (docs/perception.md, "Empty frames").
+            detections = detect_rig(render_rig_if_drawn(rig, q_true, bodies, self._rng), rig, self._radius_m)
         q = est.att_q_frd_to_ned
         self._prevention.set_camera(
             [Obstacle(rel_pos_ned_m=to_ned(d, q), radius_m=self._radius_m, source="camera") for d in detections],

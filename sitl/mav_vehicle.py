@@ -235,6 +235,29 @@ class SimVehicleApi:
             return api.CommandOutcome.temporarily_rejected(outcome.reason)
         return outcome
 
+    def event_state(self) -> tuple[object, ...]:
+        """Every input of the event messages (extra HEARTBEAT, MISSION_CURRENT, MISSION_ITEM_REACHED, HOME_POSITION,
+        EXTENDED_SYS_STATE), read without building a snapshot: while it stays equal, telemetry knows no event is due
+        and skips the snapshot on polls with no stream due (sitl/protocol/telemetry.py)."""
+        v = self.vehicle
+        status = v.status
+        est = v.estimate
+        mission = v.mission
+        pos_valid = est is not None and est.position_valid and est.altitude_valid
+        home = tuple(v.home_ned_m.tolist()) if pos_valid or status.armed else None
+        return (
+            status.armed,
+            status.mode,
+            status.failsafe,
+            v.crashed,
+            status.landed_state,
+            mission.current_seq,
+            len(mission.items),
+            mission.state,
+            mission.reached_seq,
+            home,
+        )
+
     def snapshot(self) -> api.VehicleSnapshot:
         sim = self.sim
         if self._snapshot is not None and self._snapshot_time_s == sim.time_s:

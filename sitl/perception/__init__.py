@@ -5,7 +5,7 @@ Typical use at the camera rate::
 
     rig = CameraRig.forward()                      # or CameraRig.omni()
     bodies = spheres(offsets_ned_m, radius_m=0.35)  # other drones, NED offsets from this drone
-    images = render_rig(rig, q_true, bodies, rng)
+    images = render_rig(rig, q_true, bodies, rng)   # or render_rig_if_drawn: None for an empty frame
     detections = detect_rig(images, rig, known_body_radius_m=0.35)
     positions_ned_m = [to_ned(d, q_estimated) for d in detections]
 """
@@ -18,7 +18,9 @@ from sitl.perception.camera import (
     Sphere,
     VerticalCylinder,
     render,
+    render_if_drawn,
     render_rig,
+    render_rig_if_drawn,
     spheres,
 )
 from sitl.perception.detector import Detection, detect, detect_rig, to_ned
@@ -34,7 +36,9 @@ __all__ = [
     "detect",
     "detect_rig",
     "render",
+    "render_if_drawn",
     "render_rig",
+    "render_rig_if_drawn",
     "spheres",
     "to_ned",
 ]

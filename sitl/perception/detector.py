@@ -35,6 +35,7 @@ short for larger ones (the safe side), and usually flagged truncated when they f
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -393,13 +394,15 @@ def detect(image: GrayImage, camera: Camera, known_body_radius_m: float, *, min_
 
 
 def detect_rig(
-    images: list[GrayImage], rig: CameraRig, known_body_radius_m: float, *, min_area_px: int = 3
+    images: Sequence[GrayImage | None], rig: CameraRig, known_body_radius_m: float, *, min_area_px: int = 3
 ) -> list[Detection]:
     """Detections of every camera of a rig; a body seen by two overlapping cameras is kept once, preferring the
-    view where it is whole (not truncated), then the larger one."""
+    view where it is whole (not truncated), then the larger one. None stands for a frame known to hold nothing
+    (``render_rig_if_drawn``)."""
     found = [
         det
         for image, camera in zip(images, rig.cameras, strict=True)
+        if image is not None
         for det in detect(image, camera, known_body_radius_m, min_area_px=min_area_px)
     ]
     found.sort(key=lambda det: (det.truncated, -det.area_px))

@@ -35,7 +35,7 @@ from sitl.protocol.neighbours import NeighbourTable
 from sitl.protocol.offboard import OffboardService
 from sitl.protocol.params import ParamService
 from sitl.protocol.statustext import StatusTextEncoder
-from sitl.protocol.telemetry import DEFAULT_RATES_HZ, TelemetryScheduler
+from sitl.protocol.telemetry import DEFAULT_RATES_HZ, PollShare, TelemetryScheduler
 from sitl.protocol.vehicle_api import VehicleApi
 
 PEER_TIMEOUT_S: Final = 3.0  # a peer is gone after this long without a HEARTBEAT (MAVSDK uses 3 s as well)
@@ -139,10 +139,12 @@ class LinkServices:
         *,
         rates_hz: Mapping[int, float] = DEFAULT_RATES_HZ,
         neighbours: NeighbourTable | None = None,
+        share: PollShare | None = None,
     ) -> None:
+        """``share``: one ``PollShare`` for all links of a drone, opened around a poll of them all."""
         self.identity = identity
         text = StatusTextEncoder()
-        self.telemetry = TelemetryScheduler(identity, vehicle, rates_hz=rates_hz, statustext=text)
+        self.telemetry = TelemetryScheduler(identity, vehicle, rates_hz=rates_hz, statustext=text, share=share)
         self.commands = CommandService(identity, vehicle, self.telemetry, statustext=text)
         self.params = ParamService(identity, params, statustext=text)
         self.mission = MissionServer(identity, vehicle, statustext=text)
@@ -161,6 +163,7 @@ class LinkServices:
             self.telemetry,
             *((neighbours,) if neighbours is not None else ()),
         )
+        self._own = Peer(identity.sysid, identity.compid)
         self._routes: dict[int, Service] = {}
         for service in self._services:
             for msg_id in service.handles:
@@ -177,7 +180,7 @@ class LinkServices:
             source = source_of(msg)
         except PeerInputError:
             return []
-        if source == Peer(self.identity.sysid, self.identity.compid):
+        if source == self._own:
             return []  # our own message echoed back (a shared socket, a router loop)
         out = service.handle(msg, now_s)
         if service is self.commands:

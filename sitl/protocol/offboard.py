@@ -106,6 +106,9 @@ class VehiclePose:
         )
 
 
+_NO_POSE: Final = VehiclePose()  # for the frames whose decoding reads no pose
+
+
 def _axes(values: tuple[float, float, float], mask: int, bits: tuple[int, int, int], what: str) -> Vec3:
     """Components not ignored by ``mask``; NaN for ignored ones. A used component must be finite."""
     out = []
@@ -303,7 +306,13 @@ class OffboardService:
             if msg_id == mavlink.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET:
                 setpoint = decode_attitude_target(msg)
             else:
-                pose = VehiclePose.from_snapshot(self._vehicle.snapshot())
+                # An absolute local NED setpoint (what a ground station streams at 20 Hz) needs no pose, and a
+                # vehicle snapshot is most of what decoding one would cost; every other frame reads the pose.
+                absolute = (
+                    msg_id == mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED
+                    and read_int(msg, "coordinate_frame", lo=0, hi=255) == mavlink.MAV_FRAME_LOCAL_NED
+                )
+                pose = _NO_POSE if absolute else VehiclePose.from_snapshot(self._vehicle.snapshot())
                 if msg_id == mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED:
                     setpoint = decode_local_ned(msg, pose)
                 else:

@@ -14,7 +14,7 @@ at once without building a snapshot of the vehicle, which is most of what teleme
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Final
 
@@ -49,6 +49,48 @@ MIN_EXTRA_HEARTBEAT_INTERVAL_S: Final = 0.05  # extra heartbeats on state change
 EVENT_CHECK_INTERVAL_S: Final = 0.01  # state changes the vehicle makes itself (landed, mode) go out within this
 
 
+class PollShare:
+    """What the telemetry of every link of one drone builds alike during one poll: the vehicle snapshot, and each
+    stream message built from it.
+
+    The links' schedulers run on one clock with the same default rates, so at a poll the same streams are
+    usually due on both, and nothing changes the vehicle between one link's poll and the next (polls only time
+    out transfers and emit telemetry). Opened around a poll of all links (``MavlinkEndpoint.poll``), every link
+    gets the same snapshot and a message due on several links is built once and packed for each with its own
+    sequence number. Closed, it passes every call through, so a scheduler used alone behaves as before.
+    """
+
+    def __init__(self, vehicle: VehicleApi) -> None:
+        self._vehicle = vehicle
+        self._open = False
+        self._snap: VehicleSnapshot | None = None
+        self._built: dict[tuple[int, Identity], MAVLinkMessage | None] = {}
+
+    def open(self) -> None:
+        self._open = True
+
+    def close(self) -> None:
+        self._open = False
+        self._snap = None
+        self._built.clear()
+
+    def snapshot(self) -> VehicleSnapshot:
+        if not self._open:
+            return self._vehicle.snapshot()
+        if self._snap is None:
+            self._snap = self._vehicle.snapshot()
+        return self._snap
+
+    def build(self, msg_id: int, snap: VehicleSnapshot, identity: Identity) -> MAVLinkMessage | None:
+        """``BUILDERS[msg_id](snap, identity)``, once per poll while open (``snap`` is then this poll's)."""
+        if not self._open:
+            return BUILDERS[msg_id](snap, identity)
+        key = (msg_id, identity)
+        if key not in self._built:
+            self._built[key] = BUILDERS[msg_id](snap, identity)
+        return self._built[key]
+
+
 @dataclass(slots=True)
 class _Stream:
     interval_s: float
@@ -67,9 +109,11 @@ class TelemetryScheduler:
         *,
         rates_hz: Mapping[int, float] = DEFAULT_RATES_HZ,
         statustext: StatusTextEncoder | None = None,
+        share: PollShare | None = None,
     ) -> None:
         self._identity = identity
         self._vehicle = vehicle
+        self._share = share if share is not None else PollShare(vehicle)
         self._defaults = {mid: hz for mid, hz in rates_hz.items() if mid in BUILDERS and hz > 0}
         self._streams: dict[int, _Stream] = {mid: _Stream(1.0 / hz, None) for mid, hz in self._defaults.items()}
         self._statustext = statustext or StatusTextEncoder()
@@ -81,6 +125,11 @@ class TelemetryScheduler:
         self._last_landed: int | None = None
         self._primed = False
         self._next_poll_s = -math.inf  # nothing to do before this: no stream due, no event check
+        # A vehicle may offer ``event_state()``: every input of the event messages, cheaper than a snapshot. A poll
+        # with no stream due then builds no snapshot while it equals what the last check saw, unless an extra
+        # HEARTBEAT is still held back by its rate limit. Without it, every poll builds one.
+        self._event_state: Callable[[], object] | None = getattr(vehicle, "event_state", None)
+        self._checked_event_state: object = None  # event_state() at the last event check (None: check next time)
 
     # ---- the service interface -----------------------------------------------------------------------------
     def handle(self, msg: MAVLinkMessage, now_s: float) -> list[Effect]:
@@ -92,13 +141,26 @@ class TelemetryScheduler:
         now_s = check_now(now_s)
         if now_s < self._next_poll_s:
             return []
-        snap = self._vehicle.snapshot()
+        event_state = self._event_state() if self._event_state is not None else None
+        if event_state is not None and event_state == self._checked_event_state:
+            next_poll_s = now_s + EVENT_CHECK_INTERVAL_S
+            for stream in self._streams.values():
+                due_s = stream.next_due_s
+                if due_s is None or now_s >= due_s:
+                    break  # a stream is due: go on below
+                if due_s < next_poll_s:
+                    next_poll_s = due_s
+            else:
+                self._next_poll_s = next_poll_s  # nothing due and nothing changed: no snapshot
+                return []
+        share = self._share
+        snap = share.snapshot()
         out = self._events(snap, now_s)
         next_poll_s = now_s + EVENT_CHECK_INTERVAL_S
         for msg_id, stream in self._streams.items():
             due_s = stream.next_due_s
             if due_s is None or now_s >= due_s:
-                msg = BUILDERS[msg_id](snap, self._identity)
+                msg = share.build(msg_id, snap, self._identity)
                 if msg_id == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
                     self._note_heartbeat(snap, now_s)
                 if msg is not None:
@@ -107,11 +169,15 @@ class TelemetryScheduler:
             if due_s < next_poll_s:
                 next_poll_s = due_s
         self._next_poll_s = next_poll_s
+        # An extra HEARTBEAT held back by its rate limit must be looked at again even if nothing else changes.
+        held_back = self._heartbeat_key(snap) != self._last_heartbeat_key
+        self._checked_event_state = None if held_back else event_state
         return out
 
     def state_change_effects(self, now_s: float) -> list[Effect]:
         """Only the event-driven messages (used right after a command so the new state goes out at once)."""
         now_s = check_now(now_s)
+        self._checked_event_state = None  # a command changed the vehicle: the next poll checks in full
         return self._events(self._vehicle.snapshot(), now_s)
 
     # ---- rate control --------------------------------------------------------------------------------------

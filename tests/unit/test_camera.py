@@ -224,3 +224,16 @@ def test_spheres_are_built_from_a_table_of_offsets_with_one_or_many_radii() -> N
     ]
     assert [s.radius_m for s in spheres(offsets, [0.3, 0.5])] == [0.3, 0.5]
     assert spheres(np.zeros((0, 3)), 0.35) == []
+
+
+@pytest.mark.parametrize("bounds", [(121, 161), (181, 241), (2**31 + 1, 3), (7, 2**33 + 3)])
+def test_the_noise_offset_draws_what_one_draw_of_both_bounds_would(bounds: tuple[int, int]) -> None:
+    """The renderer draws a frame's noise offset as two scalars, which must be the numbers (and leave the stream
+    where) numpy's array-bounds draw would, or skipped and rendered frames would get different noise; the large
+    bounds make numpy reject and redraw often."""
+    for seed in range(100):
+        array_rng, scalar_rng = np.random.default_rng(seed), np.random.default_rng(seed)
+        for _ in range(20):
+            expected = array_rng.integers(0, bounds).tolist()
+            assert [int(scalar_rng.integers(0, bounds[0])), int(scalar_rng.integers(0, bounds[1]))] == expected
+        assert array_rng.bit_generator.state == scalar_rng.bit_generator.state

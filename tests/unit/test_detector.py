@@ -22,7 +22,9 @@ from sitl.perception import (
     detect,
     detect_rig,
     render,
+    render_if_drawn,
     render_rig,
+    render_rig_if_drawn,
     to_ned,
 )
 from sitl.perception.camera import sphere_silhouette
@@ -304,3 +306,48 @@ def test_a_pole_leaving_the_frame_is_ranged_by_its_width_not_taken_for_a_near_dr
         n, e, _ = to_ned(det, LEVEL_Q)
         assert abs(math.degrees(math.atan2(e, n)) - azimuth_deg) < 2.0
         assert 0.9 * distance_m < det.range_m < 1.7 * distance_m, det.range_m
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_skipping_empty_frames_changes_no_detection_and_no_later_noise(seed: int) -> None:
+    """A rig rendered with ``render_rig_if_drawn`` (frames nothing reaches are neither composed nor searched) finds
+    exactly what the full rendering finds, frame after frame, with the random stream left in the same state: bodies
+    near and far, in view and out of it, on camera seams, one camera inside a body, cylinders, and no body at all."""
+    rng_scene = np.random.default_rng(seed)
+    rig = CameraRig.omni(CameraConfig(noise_seed=seed))
+    assert all(camera.noise_cannot_detect for camera in rig.cameras)
+    full_rng, skip_rng = np.random.default_rng(100 + seed), np.random.default_rng(100 + seed)
+    skipped = found = 0
+    for frame in range(60):
+        count = int(rng_scene.integers(0, 5))
+        bodies: list[Sphere | VerticalCylinder] = []
+        for _ in range(count):
+            offset = rng_scene.uniform(-25.0, 25.0, 3) * (0.1 if frame % 7 == 0 else 1.0)
+            if rng_scene.random() < 0.2:
+                bodies.append(VerticalCylinder(offset_ned_m=tuple(offset.tolist()), radius_m=0.5, height_m=6.0))
+            else:
+                bodies.append(Sphere(offset_ned_m=tuple(offset.tolist()), radius_m=R_M))
+        roll, pitch = rng_scene.uniform(-0.5, 0.5, 2)
+        q = quat_from_euler(float(roll), float(pitch), float(rng_scene.uniform(-math.pi, math.pi)))
+        full = detect_rig(render_rig(rig, q, bodies, full_rng), rig, R_M)
+        images = render_rig_if_drawn(rig, q, bodies, skip_rng)
+        skipped += sum(image is None for image in images)
+        assert detect_rig(images, rig, R_M) == full
+        found += len(full)
+        assert full_rng.bit_generator.state == skip_rng.bit_generator.state
+    assert skipped > 0 and found > 0
+
+
+def test_a_camera_whose_noise_could_be_detected_is_never_skipped() -> None:
+    config = CameraConfig(background_level=100, body_level=130, pixel_noise_sigma=20.0)
+    camera = Camera(config)
+    assert not camera.noise_cannot_detect
+    rng = np.random.default_rng(0)
+    assert render_if_drawn(camera, LEVEL_Q, [], rng) is not None
+    far = [Sphere(offset_ned_m=(40.0, 0.0, 0.0), radius_m=R_M)]
+    reference = Camera(config)
+    full_rng, skip_rng = np.random.default_rng(5), np.random.default_rng(5)
+    for bodies in ([], far, [Sphere(offset_ned_m=(5.0, 0.5, 0.0), radius_m=R_M)], far):
+        full = render(reference, LEVEL_Q, bodies, full_rng)
+        image = render_if_drawn(camera, LEVEL_Q, bodies, skip_rng)
+        assert image is not None and np.array_equal(image, full)

@@ -66,3 +66,30 @@ def test_the_relay_forwards_reports_a_late_pump_reads_together_but_holds_a_fast_
     # GIVEN a source reporting at 40 Hz for 2.5 s THEN about 10 a second are forwarded (1 / 0.9 of the rate at most)
     forwarded = sum(1 for k in range(1, 101) if relay.targets(1, 0.42 + k * 0.025, fleet))
     assert 25 <= forwarded <= 28, forwarded
+
+
+def test_the_one_pass_field_check_accepts_and_refuses_exactly_what_the_field_by_field_check_does() -> None:
+    from sitl.protocol.core import PeerInputError
+    from sitl.protocol.neighbours import _checked_fields, _plain_fields
+
+    def fields(**overrides: Any) -> Any:
+        msg = mavlink.MAVLink_global_position_int_message(5, 473977420, 85455940, 490000, 3000, -10, 20, 0, 9000)
+        for name, value in overrides.items():
+            setattr(msg, name, value)
+        return msg
+
+    extremes = {"lat": (-900_000_000, 900_000_000), "lon": (-1_800_000_000, 1_800_000_000),
+                "alt": (-(2**31), 2**31 - 1), "vx": (-32768, 32767), "vy": (-32768, 32767),
+                "vz": (-32768, 32767), "time_boot_ms": (0, 2**32 - 1)}  # fmt: skip
+    cases = [fields()]
+    for name, (lo, hi) in extremes.items():
+        cases += [fields(**{name: v}) for v in (lo, hi, lo - 1, hi + 1, True, 1.0, None, "1", 2**70)]
+    for msg in cases:
+        try:
+            expected: Any = _checked_fields(msg)
+        except PeerInputError:
+            expected = None
+        plain = _plain_fields(msg)
+        assert plain is None or plain == expected  # the fast path never accepts what the checks refuse
+        if expected is not None and all(type(v) is int for v in expected):
+            assert plain == expected  # and takes every well-formed report

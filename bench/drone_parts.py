@@ -1,0 +1,190 @@
+"""Benchmark: CPU per drone per simulated second of each part of a drone, and two code trees compared in one run.
+
+Two flights, each timed per part on the thread's CPU clock exactly as a swarm drone times itself
+(``Simulation.physics_ns`` / ``control_ns``, ``Awareness.cpu_ns``, the loop's ``LoopStats.link_ns``):
+
+- **lone**: one drone as ``sitl`` runs it (``run_loop`` unpaced, so its batches of 8 steps and its telemetry polls
+  are a paced drone's), with both MAVLink links streaming to a UDP sink nobody reads and a shared world in which it
+  is alone: it takes off to 3 m, flies 10 m north and hovers. Every camera frame is empty. The ground-station link
+  receives what a supervisor of a 9-drone swarm sends it: every 50 ms one datagram with an offboard setpoint and the
+  relayed positions of 8 neighbours at 10 Hz (4 a tick), and a ground-station HEARTBEAT every second.
+- **circle**: tests/closed_loop/circle_swarm.py, nine drones on one shared world (eight on a rotating 4 m circle
+  and a silent one), omnidirectional cameras: every drone has others in view. No MAVLink.
+
+    python bench/drone_parts.py [--sim-seconds 30] [--repeats 3] [--trees DIR ...]
+
+With ``--trees``, each repeat runs every tree in a subprocess of its own (``PYTHONPATH=DIR``), interleaved, so the
+machine's load falls on all alike; medians are printed per tree, and each part as a multiple of a part whose code
+the trees share (physics for the lone drone, control for the circle), which cancels the machine's drift between
+runs. A tree is a checkout of this repository (for
+example ``git worktree add /tmp/base HEAD~3`` or ``git archive``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+PARTS = ("physics", "control", "perception", "mavlink", "total")
+
+
+def lone(sim_seconds: float) -> dict[str, float]:
+    import socket
+
+    from sitl.airframe import load_airframe
+    from sitl.awareness import Awareness
+    from sitl.mav_vehicle import SimVehicleApi
+    from sitl.mavlink_io import LinkConfig, MavlinkEndpoint
+    from sitl.protocol import Identity
+    from sitl.runtime import LoopStats, RunOptions, StopFlag, run_loop
+    from sitl.simulation import SimConfig, Simulation
+    from sitl.world import SharedWorld, WorldParticipant
+
+    sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sink.bind(("127.0.0.1", 0))
+    sink_addr = sink.getsockname()
+    airframe = load_airframe()
+    sim = Simulation(SimConfig(airframe=airframe, seed=3))
+    sim.part_clock_ns = time.thread_time_ns
+    world = SharedWorld.create()
+    part = WorldParticipant(world, 0, airframe.collision_radius_m, rest_alt_amsl_m=sim.truth.geo.alt_amsl_m)
+    api = SimVehicleApi(sim)
+    links = [
+        LinkConfig(name="api", bind=("127.0.0.1", 0), remote=sink_addr),
+        LinkConfig(name="gcs", bind=("127.0.0.1", 0), remote=sink_addr),
+    ]
+    endpoint = MavlinkEndpoint(Identity(sysid=1), api, sim.params, links)
+    eyes = Awareness(sim, 0, api.frame, world=world, neighbours=endpoint.neighbours, clock_ns=time.thread_time_ns)
+    stats = LoopStats(clock_ns=time.thread_time_ns)
+    phase = 0
+    # The supervisor's traffic, packed once: relayed frames keep their senders' sysids, as the relay forwards them.
+    from pymavlink.dialects.v20 import common as mavlink
+
+    gcs = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+    neighbours = [mavlink.MAVLink(None, srcSystem=2 + k, srcComponent=1) for k in range(8)]
+    gcs_port = endpoint.links[1].port
+    supervisor = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    next_tick_s = 0.0
+    tick = 0
+
+    def traffic(now_s: float) -> None:
+        nonlocal next_tick_s, tick
+        if now_s < next_tick_s:
+            return
+        next_tick_s = now_s + 0.05
+        setpoint = gcs.set_position_target_local_ned_encode(
+            int(now_s * 1e3), 1, 1, mavlink.MAV_FRAME_LOCAL_NED, 0x0DF8, 10.0, 0.0, -3.0, 0, 0, 0, 0, 0, 0, 0, 0
+        )
+        frames = [setpoint.pack(gcs)]
+        for k in range(4):
+            n = neighbours[(tick * 4 + k) % 8]
+            frames.append(n.global_position_int_encode(int(now_s * 1e3), 473977420 + 90000 + 2000 * k, 85455940, 490000,
+                                                       3000, 10, 20, 0, 9000).pack(n))  # fmt: skip
+        if tick % 20 == 0:
+            frames.append(gcs.heartbeat_encode(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0).pack(gcs))
+        tick += 1
+        supervisor.sendto(b"".join(frames), ("127.0.0.1", gcs_port))
+
+    def on_step() -> None:
+        nonlocal phase
+        part.after_step(sim.truth, sim.vehicle.crashed)
+        eyes.update(sim.time_s)
+        traffic(sim.time_s)
+        v = sim.vehicle
+        if phase == 0 and v.preflight_problem() is None:
+            assert v.arm().ok and v.takeoff(3.0).ok
+            phase = 1
+        elif phase == 1 and sim.time_s > 12.0:
+            import numpy as np
+
+            assert v.goto(np.array((10.0, 0.0, -3.0))).ok
+            phase = 2
+
+    t0 = time.thread_time_ns()
+    try:
+        run_loop(sim, RunOptions(speed_factor=0.0, duration_s=sim_seconds), StopFlag(), endpoint=endpoint,
+                 on_step=on_step, stats=stats)  # fmt: skip
+    finally:
+        endpoint.close()
+        part.close()
+        world.close()
+        sink.close()
+        supervisor.close()
+    total_ns = time.thread_time_ns() - t0
+    ms = 1e-6 / sim.time_s
+    return {
+        "physics": sim.physics_ns * ms,
+        "control": sim.control_ns * ms,
+        "perception": eyes.cpu_ns * ms,
+        "mavlink": stats.link_ns * ms,
+        "total": total_ns * ms,
+    }
+
+
+def circle(sim_seconds: float) -> dict[str, float]:
+    sys.path.insert(0, os.getcwd())
+    from tests.closed_loop.circle_swarm import CircleScenario, fly_circle_past_a_silent_drone
+
+    out = fly_circle_past_a_silent_drone(CircleScenario(rotate_s=max(sim_seconds - 10.0, 5.0)))
+    return {
+        "control": out.control_ms_per_drone_sim_s,
+        "perception": out.perception_ms_per_drone_sim_s,
+        "total": out.cpu_ms_per_drone_sim_s,
+    }
+
+
+def one(sim_seconds: float) -> dict[str, dict[str, float]]:
+    return {"lone": lone(sim_seconds), "circle": circle(sim_seconds)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sim-seconds", type=float, default=30.0)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--trees", nargs="+", type=Path, default=None)
+    parser.add_argument("--one", action="store_true", help=argparse.SUPPRESS)  # a subprocess of --trees
+    args = parser.parse_args()
+    if args.one:
+        print(json.dumps(one(args.sim_seconds)), flush=True)
+        return
+    trees = [p.resolve() for p in args.trees] if args.trees else [Path.cwd()]
+    results: dict[Path, list[dict[str, dict[str, float]]]] = {t: [] for t in trees}
+    for rep in range(args.repeats):
+        for tree in trees:
+            env = {**os.environ, "PYTHONPATH": str(tree)}
+            cmd = [sys.executable, str(Path(__file__).resolve()), "--one", "--sim-seconds", str(args.sim_seconds)]
+            proc = subprocess.run(cmd, env=env, cwd=tree, capture_output=True, text=True, check=True)
+            row = json.loads(proc.stdout.strip().splitlines()[-1])
+            results[tree].append(row)
+            print(f"repeat {rep + 1} {tree}: {json.dumps(row)}", flush=True)
+    for scenario, reference in (("lone", "physics"), ("circle", "control")):
+        print(f"\n{scenario}: ms of CPU per drone per simulated second, median of {args.repeats}")
+        print("| tree | " + " | ".join(PARTS) + " |")
+        print("|---|" + "---|" * len(PARTS))
+        for tree, rows in results.items():
+            cells = []
+            for p in PARTS:
+                values = [r[scenario][p] for r in rows if p in r[scenario]]
+                cells.append(f"{statistics.median(values):.2f}" if values else "-")
+            print(f"| {tree} | " + " | ".join(cells) + " |")
+        # The machine's speed drifts between runs (other work, cache sharing): each part as a multiple of a part
+        # whose code both trees share, within each run, is the steadier comparison.
+        print(f"\n{scenario}: each part / {reference} in the same run, median of {args.repeats}")
+        print("| tree | " + " | ".join(PARTS) + " |")
+        print("|---|" + "---|" * len(PARTS))
+        for tree, rows in results.items():
+            cells = []
+            for p in PARTS:
+                values = [r[scenario][p] / r[scenario][reference] for r in rows if p in r[scenario]]
+                cells.append(f"{statistics.median(values):.3f}" if values else "-")
+            print(f"| {tree} | " + " | ".join(cells) + " |")
+
+
+if __name__ == "__main__":
+    main()
