@@ -165,25 +165,26 @@ def main() -> None:
             print(f"repeat {rep + 1} {tree}: {json.dumps(row)}", flush=True)
     for scenario, reference in (("lone", "physics"), ("circle", "control")):
         print(f"\n{scenario}: ms of CPU per drone per simulated second, median of {args.repeats}")
-        print("| tree | " + " | ".join(PARTS) + " |")
-        print("|---|" + "---|" * len(PARTS))
-        for tree, rows in results.items():
-            cells = []
-            for p in PARTS:
-                values = [r[scenario][p] for r in rows if p in r[scenario]]
-                cells.append(f"{statistics.median(values):.2f}" if values else "-")
-            print(f"| {tree} | " + " | ".join(cells) + " |")
+        _print_medians(results, scenario, ".2f")
         # The machine's speed drifts between runs (other work, cache sharing): each part as a multiple of a part
         # whose code both trees share, within each run, is the steadier comparison.
         print(f"\n{scenario}: each part / {reference} in the same run, median of {args.repeats}")
-        print("| tree | " + " | ".join(PARTS) + " |")
-        print("|---|" + "---|" * len(PARTS))
-        for tree, rows in results.items():
-            cells = []
-            for p in PARTS:
-                values = [r[scenario][p] / r[scenario][reference] for r in rows if p in r[scenario]]
-                cells.append(f"{statistics.median(values):.3f}" if values else "-")
-            print(f"| {tree} | " + " | ".join(cells) + " |")
+        _print_medians(results, scenario, ".3f", reference)
+
+
+def _print_medians(results: dict[Path, list[dict[str, dict[str, float]]]], scenario: str, fmt: str,
+                   reference: str | None = None) -> None:  # fmt: skip
+    """One markdown row per tree: the median over its runs of each part of ``scenario`` it measured, in ms, or as a
+    multiple of the ``reference`` part of the same run."""
+    print("| tree | " + " | ".join(PARTS) + " |")
+    print("|---|" + "---|" * len(PARTS))
+    for tree, runs in results.items():
+        cells = []
+        for part in PARTS:
+            values = [r[scenario][part] / (r[scenario][reference] if reference else 1.0) for r in runs
+                      if part in r[scenario]]  # fmt: skip
+            cells.append(format(statistics.median(values), fmt) if values else "-")
+        print(f"| {tree} | " + " | ".join(cells) + " |")
 
 
 if __name__ == "__main__":
