@@ -111,8 +111,11 @@ class Awareness:
             self._update_relay(now_s)
         if frame_due:
             self._next_frame_s = now_s + 1.0 / self._params["CAM_RATE"]
-            # With avoidance off nothing uses a frame: render only when frames are being saved.
-            wanted = self._params["AVOID_ENABLE"] == 1 or self._frames_dir is not None
+            # Only collision prevention uses a frame, and only in flight: with avoidance off, or while the drone is
+            # disarmed (it flies nothing; a swarm spends its boot there, cameras full of its neighbours on the
+            # ground), render only when frames are being saved.
+            avoiding = self._params["AVOID_ENABLE"] == 1 and self._sim.vehicle.status.armed
+            wanted = avoiding or self._frames_dir is not None
             if self._params["CAM_ENABLE"] == 1 and wanted:
                 self._capture(now_s)
             else:
