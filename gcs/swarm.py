@@ -155,13 +155,19 @@ class Swarm:
                 continue
             if view.system_status == MAV_STATE_FLIGHT_TERMINATION:
                 new.append(self._record_loss(sysid, time_s, crash_cause(view.texts, now)))
-            elif view.lost(now) and time.monotonic() - self._heard_wall_s.get(sysid, -math.inf) > LINK_LOST_S:
-                # silent for the link-loss time on both clocks: a loaded machine that delays a paced drone's
-                # heartbeat by a fraction of a wall second (3 s at --speed 4 is 0.75 s) must not lose it for good
+            elif view.lost(now) and (self.plan.lockstep or self._silent_on_the_wall_clock(sysid)):
                 cause = f"link lost (no HEARTBEAT for {view.link_age_s(now):.1f} s)"
                 new.append(self._record_loss(sysid, time_s, cause))
         self._settle_down_positions()
         return new
+
+    def _silent_on_the_wall_clock(self, sysid: int) -> bool:
+        """Paced, a drone is lost when it is silent for the link-loss time on both clocks: a loaded machine that
+        delays a paced drone's heartbeat by a fraction of a wall second (3 s at --speed 4 is 0.75 s) must not lose it
+        for good. In lockstep the simulated clock alone decides: the drones cannot run more than the gate's lead
+        ahead of the supervisor, so a heartbeat sent is read within that lead, however fast or slow the machine;
+        counting wall seconds there kept a silent drone in the swarm when the simulation ran faster than real time."""
+        return time.monotonic() - self._heard_wall_s.get(sysid, -math.inf) > LINK_LOST_S
 
     def _record_loss(self, sysid: int, time_s: float, cause: str) -> DroneLoss:
         loss = DroneLoss(sysid=sysid, time_s=time_s, cause=cause)
