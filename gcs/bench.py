@@ -790,10 +790,9 @@ def run_lockstep(n: int, config: BenchConfig, say: Say, mode: PerProcess = 1) ->
         flight.stop()
 
 
-def bench_one(n: int, config: BenchConfig, say: Say, mode: PerProcess, bare: float) -> BenchRow:
+def bench_one(n: int, config: BenchConfig, say: Say, mode: PerProcess, bare: float, hosts: list[int]) -> BenchRow:
     """Both runs of one swarm size with one drones-per-process setting; ``bare`` is the bare JSBSim reference
-    measured just before them."""
-    hosts = config.simulation.drones_per_host(n, mode)
+    measured just before them, ``hosts`` the drones each process runs."""
     say(f"N={n}, drones per process {mode}: {len(hosts)} process(es) of {max(hosts)} drone(s) at most")
     paced: PacedFigures | None = None
     lock: LockstepFigures | None = None
@@ -826,7 +825,7 @@ def bench_size(n: int, config: BenchConfig, say: Say) -> list[BenchRow]:
             say(f"N={n}, drones per process {mode}: the same processes as a setting already run; skipped")
             continue
         seen.append(sharing)
-        rows.append(bench_one(n, config, say, mode, bare))
+        rows.append(bench_one(n, config, say, mode, bare, sharing))
     return rows
 
 

@@ -186,7 +186,10 @@ def run_loop(
         return
     dt_s = drones[0].sim.dt_s
     live = list(drones)
-    booting = lambda: any(d.booting() for d in live)  # noqa: E731
+
+    def booting() -> bool:
+        return any(d.booting() for d in live)
+
     steps_clock = clock if clock is not None else WallClockSteps(options.speed_factor, dt_s, booting)
     selector = selectors.DefaultSelector()
     for drone in drones:
