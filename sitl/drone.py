@@ -24,7 +24,7 @@ from sitl.mavlink_io import MavlinkEndpoint
 from sitl.protocol import Identity
 from sitl.simulation import SimConfig, Simulation
 from sitl.specs import DroneSpec, ProcessSpec
-from sitl.world import END_EXITED, END_FAILED, SharedWorld, WorldParticipant
+from sitl.world import END_EXITED, END_FAILED, SharedWorld, WorldParticipant, lockstep_epoch_steps
 
 CPU_REPORT_STEPS = 100  # how often the time spent per part is published in the shared world (for benchmarks)
 
@@ -99,7 +99,13 @@ class Drone:
         # falls.
         rest_alt = sim.truth.geo.alt_amsl_m
         self.participant = (
-            WorldParticipant(world, spec.instance, airframe.collision_radius_m, rest_alt_amsl_m=rest_alt)
+            WorldParticipant(
+                world,
+                spec.instance,
+                airframe.collision_radius_m,
+                rest_alt_amsl_m=rest_alt,
+                epoch_steps=lockstep_epoch_steps(common.lockstep_quantum) if common.lockstep else None,
+            )
             if world is not None
             else None
         )
