@@ -1,10 +1,10 @@
 """MAVLink 2 signing on the ground station's side: the key file, and pymavlink's signing set up on its encoder.
 
 The ground station signs every frame it packs with pymavlink's own implementation (``MAVLink.signing``): link id
-0, timestamps from the wall clock in 10 us units since 2015-01-01 (the signing epoch), at least one more per frame.
-pymavlink counts its timestamp up by one per frame from where it was set, which after a long session falls behind
-the wall clock, and a drone refuses a new stream more than a minute behind its own timestamp; so before each frame
-the timestamp is moved up to the wall clock when it lags (``refresh``).
+200 (``GCS_LINK_ID``), timestamps from the wall clock in 10 us units since 2015-01-01 (the signing epoch), at least
+one more per frame. pymavlink counts its timestamp up by one per frame from where it was set, which after a long
+session falls behind the wall clock, and a drone refuses a new stream more than a minute behind its own timestamp;
+so before each frame the timestamp is moved up to the wall clock when it lags (``refresh``).
 
 The key file is read by the same rules as the drone's (sitl/protocol/signing.py, kept separate because the ground
 station knows the drones only over MAVLink; tests/unit/test_signing.py checks the two agree): 64 hex digits are the
@@ -24,7 +24,11 @@ from typing import Any, Final
 KEY_LEN: Final = 32
 EPOCH_UNIX_S: Final = 1_420_070_400  # 2015-01-01 00:00:00 UTC
 TICKS_PER_S: Final = 100_000  # 10 us
-GCS_LINK_ID: Final = 0
+# The supervisor's link id in its signatures. A drone keeps one timestamp per (link id, system, component) stream, and
+# the supervisor is system 255, component 190, as QGroundControl is, which numbers its links from 0 (MAVProxy and
+# pymavlink do too): a QGroundControl on the forward port signing with link id 0 would share the supervisor's
+# stream, and its frames, stamped from another clock, would look like replays. No client starts at 200.
+GCS_LINK_ID: Final = 200
 _HEX_KEY = re.compile(r"[0-9a-fA-F]{64}")
 _ZERO_KEY = "the all-zero key means 'no signing' in MAVLink; give another key"
 
