@@ -18,8 +18,11 @@ from __future__ import annotations
 
 import hashlib
 import re
+import struct
 from pathlib import Path
 from typing import Any, Final
+
+from pymavlink.dialects.v20 import common as mavlink
 
 KEY_LEN: Final = 32
 EPOCH_UNIX_S: Final = 1_420_070_400  # 2015-01-01 00:00:00 UTC
@@ -29,6 +32,8 @@ TICKS_PER_S: Final = 100_000  # 10 us
 # pymavlink do too): a QGroundControl on the forward port signing with link id 0 would share the supervisor's
 # stream, and its frames, stamped from another clock, would look like replays. No client starts at 200.
 GCS_LINK_ID: Final = 200
+SIGNATURE_LEN: Final = mavlink.MAVLINK_SIGNATURE_BLOCK_LEN
+_HEADER_LEN: Final = 10  # MAVLink 2
 _HEX_KEY = re.compile(r"[0-9a-fA-F]{64}")
 _ZERO_KEY = "the all-zero key means 'no signing' in MAVLink; give another key"
 
@@ -92,3 +97,21 @@ def refresh(encoder: Any, unix_s: float) -> None:
     """Move a signing encoder's timestamp up to the wall clock if it lags (see the module docstring)."""
     signing = encoder.signing
     signing.timestamp = max(signing.timestamp, ticks(unix_s))
+
+
+def without_signature(packet: bytes) -> bytes:
+    """A signed MAVLink 2 packet as it would have been unsigned (flag cleared, CRC recomputed, the 13 signature
+    bytes dropped); any other packet unchanged. Logs keep packets this way, as the signing specification asks
+    ("Logging"): a log must not hand whoever reads it a collection of signatures to attack the key with, and a
+    flight's log then does not depend on the signatures' wall-clock timestamps."""
+    if len(packet) < _HEADER_LEN + 2 + SIGNATURE_LEN or packet[0] != mavlink.PROTOCOL_MARKER_V2:
+        return packet
+    if not packet[2] & mavlink.MAVLINK_IFLAG_SIGNED or len(packet) != _HEADER_LEN + packet[1] + 2 + SIGNATURE_LEN:
+        return packet
+    cls = mavlink.mavlink_map.get(packet[7] | packet[8] << 8 | packet[9] << 16)
+    if cls is None:
+        return packet
+    body = bytearray(packet[1 : _HEADER_LEN + packet[1]])
+    body[1] &= ~mavlink.MAVLINK_IFLAG_SIGNED
+    crc = mavlink.x25crc(bytes(body) + bytes((cls.crc_extra,))).crc
+    return packet[:1] + bytes(body) + struct.pack("<H", crc)

@@ -50,12 +50,13 @@ def key_file(tmp_path: Path) -> Path:
 def signing_drones(
     request: pytest.FixtureRequest, instance_allocator: InstanceAllocator, tmp_path: Path, key_file: Path
 ) -> Iterator[list[SitlDrone]]:
-    count, hosted = request.param
+    count, hosted, with_key = request.param
+    key_args = ("--signing-key", str(key_file)) if with_key else ()
     instances = instance_allocator.take(count)
     drones: list[SitlDrone] = []
     try:
         drones = start_drones(instances=instances, speed_factor=SPEED, seed=instances[0], log_dir=tmp_path,
-                              extra_args=("--signing-key", str(key_file), *SIGNING_ARGS), hosted=hosted)  # fmt: skip
+                              extra_args=(*key_args, *SIGNING_ARGS), hosted=hosted)  # fmt: skip
         yield drones
     finally:
         for drone in drones:
@@ -117,7 +118,7 @@ def _signed_client(conn: Any, sysid: int, wall_s: float) -> None:
     conn.setup_signing(KEY, sign_outgoing=True, allow_unsigned_callback=lambda _mav, _msg_id: False, link_id=0)
 
 
-@pytest.mark.parametrize("signing_drones", [(1, False)], indirect=True)
+@pytest.mark.parametrize("signing_drones", [(1, False, True)], indirect=True)
 def test_a_pymavlink_client_with_the_key_flies_a_drone_that_refuses_unsigned_and_wrongly_signed_commands(
     signing_drones: list[SitlDrone],
 ) -> None:
@@ -177,7 +178,7 @@ def test_a_pymavlink_client_with_the_key_flies_a_drone_that_refuses_unsigned_and
     assert f"dropped {2 * ATTEMPTS} unsigned, {2 * ATTEMPTS} with a bad signature, 0 replayed" in tail, tail
 
 
-@pytest.mark.parametrize("signing_drones", [(2, True)], indirect=True)
+@pytest.mark.parametrize("signing_drones", [(2, True, True)], indirect=True)
 def test_every_hosted_drone_signs_with_the_key_and_refuses_unsigned_commands(signing_drones: list[SitlDrone]) -> None:
     for drone in signing_drones:
         with mavlink_connection(f"udpin:{LOOPBACK}:{drone.ports.api_remote}") as conn:
@@ -194,3 +195,29 @@ def test_every_hosted_drone_signs_with_the_key_and_refuses_unsigned_commands(sig
             ack = command_long(conn, mavlink.MAV_CMD_REQUEST_MESSAGE, (mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION,), 10)
             assert ack.result == mavlink.MAV_RESULT_ACCEPTED, ack
             assert conn.mav.signing.goodsig_count > 10 and conn.mav.signing.reject_count == 0
+
+
+@pytest.mark.parametrize("signing_drones", [(1, False, False)], indirect=True)
+def test_setup_signing_over_the_link_installs_the_key_on_a_drone_that_has_none(signing_drones: list[SitlDrone]) -> None:
+    (drone,) = signing_drones
+    with mavlink_connection(f"udpin:{LOOPBACK}:{drone.ports.api_remote}") as conn:
+        # GIVEN a drone that requires signing but has no key yet (so it checks nothing), and a client that heard it
+        wait_vehicle_heartbeat(conn, drone.sysid, 10)
+        wait_armable(conn, 20)
+        # WHEN the client sends SETUP_SIGNING with the key, as QGroundControl and MAVProxy provision a vehicle
+        initial = int((time.time() - 1_420_070_400) * 100_000)
+        conn.mav.setup_signing_send(drone.sysid, 1, list(KEY), initial)
+        # THEN the drone says it installed the key (named by its id, never shown)
+        key_id = hashlib.sha256(KEY).hexdigest()[:8]
+        recv_until(conn, "STATUSTEXT", lambda m: m.text == f"MAVLink signing key {key_id} installed", 5, "installed")
+        # AND from then on an unsigned command is dropped, with the reason said once
+        conn.mav.command_long_send(drone.sysid, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+        required = REJECTION_TEXT[Verdict.REJECTED_UNSIGNED]
+        recv_until(conn, "STATUSTEXT", lambda m: m.text == required, 5, "signing required")
+        with pytest.raises(AssertionError, match="not within"):
+            recv_until(conn, "COMMAND_ACK", lambda m: True, 2, "an ACK for the unsigned arm")
+        # AND the same command signed with the installed key is obeyed
+        conn.setup_signing(KEY, sign_outgoing=True, allow_unsigned_callback=lambda _mav, _msg_id: False, link_id=0)
+        ack = command_long(conn, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, (1.0,), 10)
+        assert ack.result == mavlink.MAV_RESULT_ACCEPTED, ack
+        wait_armed_state(conn, True, 5)

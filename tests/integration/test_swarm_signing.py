@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
 pytestmark = [pytest.mark.sim_only]
@@ -92,6 +93,14 @@ def test_a_signed_lockstep_mission_flies_forwards_signed_frames_and_reports_sign
         parser.parse_buffer(data)
     assert parser.signing.goodsig_count > 100, parser.signing.goodsig_count
     assert parser.signing.reject_count == 0 and parser.signing.badsig_count == 0
+    # AND the flight log holds the traffic without its signatures, as the signing specification asks of logs
+    log = mavutil.mavlink_connection(str(report / "flight.tlog"))
+    logged = 0
+    while (msg := log.recv_msg()) is not None:
+        assert not msg.get_header().incompat_flags & mavlink.MAVLINK_IFLAG_SIGNED, msg
+        logged += 1
+    log.close()
+    assert logged > 100
     # AND every drone dropped nothing it should have taken (its log's closing line)
     logs = sorted(p for p in (report / "logs").glob("drone-*.log") if p.stem.removeprefix("drone-").isdigit())
     assert len(logs) == 2

@@ -323,3 +323,14 @@ def test_setup_signing_must_be_signed_with_the_current_key_to_change_or_clear_it
     assert gate.state.key == OTHER_KEY
     _, texts = gate.admit(_signed_by_client(_setup(bytes(32), timestamp=0), key=OTHER_KEY, timestamp=T0 + 600))
     assert gate.state.key is None and "off" in texts[0][1]
+
+
+def test_the_flight_log_keeps_a_signed_packet_as_it_would_have_been_unsigned() -> None:
+    for seq, msg in enumerate(_messages()):
+        signer = _pymavlink_signer(KEY, 200, T0)
+        signer.seq = seq
+        signed = bytes(msg.pack(signer))
+        assert gcs_signing.without_signature(signed) == _unsigned(msg, seq), msg.get_type()
+        unsigned = _unsigned(msg, seq)
+        assert gcs_signing.without_signature(unsigned) is unsigned
+    assert gcs_signing.without_signature(b"\xfe\x09garbage") == b"\xfe\x09garbage"
