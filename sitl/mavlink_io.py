@@ -191,7 +191,7 @@ class UdpLink:
             encoder.seq = (encoder.seq + 1) % 256
         if not frames:
             return
-        if self.signing is not None:
+        if self.signing is not None and self.signing.active:
             frames = self.signing.sign_frames(frames, self.link_id, time.time())
         for data in datagrams(frames) if len(frames) > 1 else frames:
             for address in self._peers:
