@@ -317,9 +317,10 @@ class SigningState:
 class SigningGate:
     """What a drone's links let through. ``admit`` takes each decoded message (its buffer holds the frame as it
     arrived, signature included) and says whether the services may see it, and what the link should say about
-    it: one STATUSTEXT per link the first time it drops a message for each reason (not one per message: a
-    flooding peer must not make the drone flood back), and the outcome of a SETUP_SIGNING. The drone's services
-    never see SETUP_SIGNING, and the key never appears in a parameter or a log."""
+    it: one STATUSTEXT per link the first time it drops a message for each reason, and the outcome of a
+    SETUP_SIGNING, a refusal again once per link and reason (not one per message: a flooding peer must not make
+    the drone flood back); a new key resets what was said. The drone's services never see SETUP_SIGNING, and the
+    key never appears in a parameter or a log."""
 
     def __init__(
         self, state: SigningState, identity_sysid: int, identity_compid: int, *, sign_cfg: Callable[[], int],
@@ -330,7 +331,7 @@ class SigningGate:
         self._compid = identity_compid
         self._sign_cfg = sign_cfg
         self._armed = armed
-        self._warned: set[tuple[int, Verdict]] = set()
+        self._said: set[tuple[int, str]] = set()  # (link id, warning) said once already
 
     def admit(self, msg: MAVLinkMessage, link_id: int) -> tuple[bool, list[tuple[int, str]]]:
         """(deliver to the services?, [(severity, text) for the link to send])."""
@@ -344,22 +345,27 @@ class SigningGate:
             return False, []
         verdict = self.state.check(frame, msg_id, sysid, compid, self._sign_cfg())
         if not verdict.accepted:
-            if (link_id, verdict) in self._warned:
-                return False, []
-            self._warned.add((link_id, verdict))
-            return False, [(mavlink.MAV_SEVERITY_WARNING, REJECTION_TEXT[verdict])]
+            return False, self._warn_once(link_id, REJECTION_TEXT[verdict])
         if msg_id == mavlink.MAVLINK_MSG_ID_SETUP_SIGNING:
-            return False, self._setup(msg, signed=verdict is Verdict.SIGNED)
+            return False, self._setup(msg, link_id, signed=verdict is Verdict.SIGNED)
         return True, []
 
-    def _setup(self, msg: MAVLinkMessage, *, signed: bool) -> list[tuple[int, str]]:
+    def _warn_once(self, link_id: int, text: str) -> list[tuple[int, str]]:
+        if (link_id, text) in self._said:
+            return []
+        self._said.add((link_id, text))
+        return [(mavlink.MAV_SEVERITY_WARNING, text)]
+
+    def _setup(self, msg: MAVLinkMessage, link_id: int, *, signed: bool) -> list[tuple[int, str]]:
         try:
             if not addressed_to(msg, Identity(sysid=self._sysid, compid=self._compid)):
                 return []
             key = bytes(int(b) & 0xFF for b in msg.secret_key)
             initial = read_int(msg, "initial_timestamp", lo=0, hi=2**64 - 1)
         except (PeerInputError, TypeError, ValueError):
-            return [(mavlink.MAV_SEVERITY_WARNING, "SETUP_SIGNING refused: malformed")]
+            return self._warn_once(link_id, "SETUP_SIGNING refused: malformed")
         result = self.state.setup(key, initial, signed=signed, armed=self._armed())
-        self._warned.clear()  # a new key (or none): say again why anything is dropped
-        return [(mavlink.MAV_SEVERITY_INFO if result.applied else mavlink.MAV_SEVERITY_WARNING, result.text)]
+        if not result.applied:
+            return self._warn_once(link_id, result.text)
+        self._said.clear()  # a new key (or none): say again why anything is dropped
+        return [(mavlink.MAV_SEVERITY_INFO, result.text)]

@@ -318,8 +318,11 @@ def test_setup_signing_must_be_signed_with_the_current_key_to_change_or_clear_it
     gate.armed = True
     _, texts = gate.admit(_signed_by_client(_setup(OTHER_KEY), timestamp=T0 + 1))
     assert gate.state.key == KEY and "disarm first" in texts[0][1]
+    # a flood of refused SETUP_SIGNING is answered once, not once per message
+    assert gate.admit(_signed_by_client(_setup(OTHER_KEY), timestamp=T0 + 2)) == (False, [])
+    assert gate.admit(_unsigned(_setup(OTHER_KEY), sysid=255, compid=190)) == (False, [])
     gate.armed = False
-    gate.admit(_signed_by_client(_setup(OTHER_KEY), timestamp=T0 + 2))
+    gate.admit(_signed_by_client(_setup(OTHER_KEY), timestamp=T0 + 3))
     assert gate.state.key == OTHER_KEY
     _, texts = gate.admit(_signed_by_client(_setup(bytes(32), timestamp=0), key=OTHER_KEY, timestamp=T0 + 600))
     assert gate.state.key is None and "off" in texts[0][1]
