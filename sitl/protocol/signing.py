@@ -3,9 +3,10 @@
 A signed frame has bit 0x01 (MAVLINK_IFLAG_SIGNED) set in its incompatibility flags and 13 bytes after the CRC:
 the link id (1 byte), a 48-bit timestamp in 10 us units since 2015-01-01 00:00 UTC, and the first 6 bytes of
 SHA-256(secret key + header + payload + CRC + link id + timestamp) (mavlink.io, "Message Signing"). The header is
-part of the CRC, so setting the flag changes the CRC: a frame is signed by packing it with the flag set.
+part of the CRC, so signing a packed frame sets the flag and recomputes the CRC before appending the signature.
 
-What a drone does with it follows PX4 (src/modules/mavlink/mavlink_sign_control.cpp and its MAV_SIGN_CFG):
+What a drone does with it follows PX4 (src/modules/mavlink/mavlink_sign_control.cpp and its MAV_SIGN_CFG, which
+PX4's current main has since dropped: there a key alone makes signing required, as MAV_SIGN_CFG 2 here):
 - with a key, every frame it sends is signed, whatever MAV_SIGN_CFG says;
 - MAV_SIGN_CFG 0 accepts unsigned and wrongly signed frames (signing optional); 1 (required except on USB, and a
   simulated drone has only UDP links) and 2 (always required) drop them, except HEARTBEAT, RADIO_STATUS,
@@ -47,7 +48,7 @@ _FRAME_HEADER_LEN: Final = 10
 _CRC: Final = struct.Struct("<H")
 _LINK_AND_TIME: Final = struct.Struct("<BQ")  # link id, timestamp (the top two bytes cut off: 48 bits)
 
-# MAV_SIGN_CFG (PX4 v1.15-v1.16, MavlinkSignControl::PROTO_SIGN_*).
+# MAV_SIGN_CFG, as PX4's signing support (PX4-Autopilot PR #25284, 2025) added it: MavlinkSignControl::PROTO_SIGN_*.
 SIGN_OPTIONAL: Final = 0
 SIGN_NON_USB: Final = 1
 SIGN_ALWAYS: Final = 2
