@@ -211,9 +211,9 @@ class Drone:
                 counts = self.endpoint.signing.counters
                 if self.endpoint.signing.active or counts.signed_in or counts.bad_signatures:
                     self.say(
-                        f"MAVLink signing: {counts.signed_out} sent signed, {counts.signed_in} received signed, "
-                        f"dropped {counts.rejected_unsigned} unsigned, {counts.bad_signatures} with a bad signature, "
-                        f"{counts.replays} replayed"
+                        f"MAVLink signing: {counts.signed_out} sent signed, {counts.signed_in} received signed; "
+                        f"{counts.rejected_unsigned} unsigned dropped, {counts.bad_signatures} bad signatures, "
+                        f"{counts.replays} replays"
                     )
                 self.endpoint.close()
         finally:

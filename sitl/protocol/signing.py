@@ -205,6 +205,9 @@ class SetupResult:
 
 @dataclass(slots=True)
 class SigningCounters:
+    """Frames by fate, for the drone's closing line: bad signatures and replays are counted whether or not
+    MAV_SIGN_CFG drops them; ``rejected_unsigned`` counts the unsigned frames dropped."""
+
     signed_in: int = 0
     unsigned_accepted: int = 0
     rejected_unsigned: int = 0
@@ -216,7 +219,7 @@ class SigningCounters:
 class SigningState:
     """One drone's key, timestamp and incoming streams, shared by its links (as PX4 keeps one key for all).
 
-    ``sign`` and ``check`` take the wall-clock time as an argument and touch nothing else outside."""
+    Nothing here reads a clock or a socket: ``sign`` and ``sign_frames`` are given the wall-clock time."""
 
     def __init__(self, key: bytes | None = None, *, initial_timestamp: int = 0) -> None:
         if key is not None and len(key) != KEY_LEN:
