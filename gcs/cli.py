@@ -27,6 +27,7 @@ from gcs.harness import LAYOUTS, Simulation, SpawnError, SpawnPlan, parse_drones
 from gcs.losses import LOSS_POLICIES, LossPolicy
 from gcs.mission_file import MissionFileError, build_flock, build_follow, load_mission
 from gcs.mission_runner import MissionRunner
+from gcs.signing import SigningKeyError, load_key
 from gcs.station import Station, format_status
 from gcs.swarm import Swarm, SwarmError
 from gcs.transport import parse_host_port
@@ -122,6 +123,25 @@ def _add_forward_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-forward", action="store_true", help="do not forward drone traffic to a ground station")
 
 
+def _add_signing_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--signing-key", type=Path, default=None, metavar="FILE",
+                        help="MAVLink 2 signing key file (64 hex digits, or a one-line passphrase as MAVProxy and "
+                        "QGroundControl take it): the supervisor signs what it sends, the drones sign theirs and "
+                        "drop unsigned messages")  # fmt: skip
+
+
+def _signing_key_file(args: argparse.Namespace) -> Path | None:
+    """The key file, checked now so a bad one is one line before anything starts (absolute: drones start
+    elsewhere)."""
+    if args.signing_key is None:
+        return None
+    try:
+        load_key(args.signing_key)
+    except SigningKeyError as exc:
+        raise UsageError(str(exc)) from None
+    return Path(args.signing_key).resolve()
+
+
 def _add_timing_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--speed", type=_positive, default=None, help="speed factor (default 1; with --lockstep: as fast as possible)"
@@ -212,6 +232,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="what the others do when a drone is lost: continue (re-plan over the survivors; default), "
                     "hold, land, or abort (every drone returns to launch and lands)")  # fmt: skip
     _add_forward_options(up)
+    _add_signing_option(up)
     fly = sub.add_parser("fly", help="run a mission file end to end and write a flight report")
     fly.add_argument(
         "mission", type=Path, nargs="?", default=DEFAULT_MISSION, help=f"mission file (default {DEFAULT_MISSION})"
@@ -223,6 +244,7 @@ def build_parser() -> argparse.ArgumentParser:
     fly.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
     fly.add_argument("--seed", type=int, default=0, help="base random seed (drone i uses seed+i)")
     _add_forward_options(fly)
+    _add_signing_option(fly)
     add_bench_parser(sub)
     sub.add_parser("status", help="table of every drone")
     takeoff = sub.add_parser("takeoff", help="arm and take off every drone")
@@ -326,6 +348,7 @@ def run_up(args: argparse.Namespace, simulation: Simulation) -> int:
         camera_drones=_camera_drones(args, args.drones),
         camera_dir=Path("camera-frames"),
         drones_per_process=args.drones_per_process,
+        signing_key_file=_signing_key_file(args),
     )
     stop = _Stop()
     signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
@@ -389,7 +412,8 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
                            forward=None if args.no_forward else args.forward, lockstep=args.lockstep,
                            lockstep_quantum=_quantum(args),
                            camera_drones=_camera_drones(args, mission.swarm.drones),
-                           drones_per_process=args.drones_per_process)  # fmt: skip
+                           drones_per_process=args.drones_per_process,
+                           signing_key_file=_signing_key_file(args))  # fmt: skip
     signal.signal(signal.SIGTERM, _interrupt)  # a terminated run lands and stops its drones like Ctrl-C
     try:
         out = runner.run()

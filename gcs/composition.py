@@ -32,6 +32,7 @@ def launch_plan(plan: SpawnPlan) -> LaunchPlan:
         camera_drones=plan.camera_drones,
         camera_dir=plan.camera_dir,
         drones_per_process=plan.drones_per_process,
+        signing_key_file=plan.signing_key_file,
     )
 
 

@@ -69,6 +69,9 @@ class SpawnPlan:
     # process per usable CPU). A hosted drone is the same vehicle on the wire; hosting saves the CPU every process
     # pays for its wake-ups (docs/architecture.md, "Drone hosts").
     drones_per_process: int | Literal["auto"] = 1
+    # MAVLink 2 signing: the key file every drone and the ground station sign with (one key for the swarm); the
+    # drones then require signed messages (MAV_SIGN_CFG = 2). None: no signing.
+    signing_key_file: Path | None = None
 
     def offsets_ne_m(self) -> list[tuple[float, float]]:
         """Each drone's spawn position, north/east metres from the origin in the swarm frame (spawn order)."""

@@ -180,6 +180,7 @@ class FlightMetrics:
     failsafes: tuple[EventRecord, ...] = ()
     policy_events: tuple[EventRecord, ...] = ()
     requested_speed: float | None = None  # paced flights only
+    signing_key_id: str | None = None  # MAVLink signing: the key's id (not the key) when on, None when off
     realtime_factor_min: float | None = None  # the drones' achieved pace, over 5 s windows
     realtime_factor_mean: float | None = None
 
@@ -214,6 +215,7 @@ class FlightMetrics:
                 {"time_s": _r(e.time_s), "sysid": e.sysid, "text": e.text} for e in self.policy_events
             ],
             "requested_speed": _r(self.requested_speed),
+            "signing": {"on": self.signing_key_id is not None, "key_id": self.signing_key_id},
             "realtime_factor_min": _r(self.realtime_factor_min),
             "realtime_factor_mean": _r(self.realtime_factor_mean),
             "parameters": {
@@ -593,6 +595,7 @@ def compute_metrics(recording: FlightRecording) -> FlightMetrics:
         failsafes=tuple(recording.failsafes),
         policy_events=tuple(recording.policy_events),
         requested_speed=recording.requested_speed,
+        signing_key_id=recording.signing_key_id,
         realtime_factor_min=min(recording.realtime_factors, default=None),
         realtime_factor_mean=(
             sum(recording.realtime_factors) / len(recording.realtime_factors) if recording.realtime_factors else None

@@ -58,7 +58,8 @@ class MissionRunner:
                  first_instance: int, report_dir: Path, say: Say, airframe: str | None = None, seed: int = 0,
                  forward: tuple[str, int] | None = None, lockstep: bool = False,
                  lockstep_quantum: int = 1, camera_drones: frozenset[int] = frozenset(),
-                 drones_per_process: int | Literal["auto"] = 1) -> None:  # fmt: skip
+                 drones_per_process: int | Literal["auto"] = 1,
+                 signing_key_file: Path | None = None) -> None:  # fmt: skip
         self.mission = mission
         self.speed = speed_factor
         self.say = say
@@ -79,6 +80,7 @@ class MissionRunner:
             camera_drones=camera_drones,
             camera_dir=report_dir / "camera",
             drones_per_process=drones_per_process,
+            signing_key_file=signing_key_file,
         )
         self.swarm = Swarm(plan, simulation.harness(plan), forward=forward, relay=mission.swarm.relay)
         self.streamer = FormationStreamer(self.swarm, self.swarm_frame)
@@ -95,6 +97,7 @@ class MissionRunner:
         self._next_status_s = 0.0
         self._step_name = "spawn"
         self.recording.loss_policy = mission.loss_policy.value
+        self.recording.signing_key_id = self.swarm.signing_key_id
         self._pending_faults: list[tuple[float, FaultStep]] = []  # (mission time due, step)
         self._policy_taken = False  # a loss policy other than continue has taken the survivors out of the mission
 

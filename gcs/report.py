@@ -294,6 +294,10 @@ def summary_text(metrics: FlightMetrics) -> str:
         f"Flight report: {metrics.mission_name}",
         f"drones: {metrics.n_drones} (reporting: {sysids})",
         f"duration: {metrics.duration_s:.1f} s",
+        "MAVLink signing: "
+        + (
+            f"on (key {metrics.signing_key_id}; the drones drop unsigned messages)" if metrics.signing_key_id else "off"
+        ),
     ]
     if metrics.requested_speed is not None and metrics.realtime_factor_min is not None:
         speed, low = metrics.requested_speed, metrics.realtime_factor_min

@@ -50,6 +50,7 @@ class Station:
             mission_name="swarm-up", n_drones=swarm.plan.n_drones, collision_radius_m=contact_distance_m
         )
         self.recording.loss_policy = loss_policy.value
+        self.recording.signing_key_id = swarm.signing_key_id
         self.recorder: FlightRecorder | None = None
         if report_dir is not None:
             report_dir.mkdir(parents=True, exist_ok=True)

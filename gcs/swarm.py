@@ -36,6 +36,7 @@ from gcs.losses import MAV_STATE_FLIGHT_TERMINATION, DroneLoss
 from gcs.params import ParamClient, ParamResult
 from gcs.px4_modes import set_mode_params
 from gcs.relay import NeighbourRelay
+from gcs.signing import key_id, load_key
 from gcs.transport import GcsSocket
 
 ARM_TIMEOUT_S = 30.0  # simulated seconds for every drone to pass its pre-arm checks before it is armed
@@ -75,7 +76,9 @@ class Swarm:
         self._wall_t0 = time.monotonic()
         self._gate_progress = (0.0, time.monotonic())  # (common time, wall time it was first seen)
         self._next_exit_check = 0.0
-        self.link = GcsSocket()
+        key = load_key(plan.signing_key_file) if plan.signing_key_file is not None else None
+        self.link = GcsSocket(signing_key=key)  # signs what the supervisor sends when the plan has a key
+        self.signing_key_id = key_id(key) if key is not None else None  # what the report names the key by
         self.fleet = Fleet()
         self.listeners: list[Callable[[Any, float], None]] = []  # e.g. the flight recorder, the relay
         # Commands and parameter writes the swarm sends, as packed MAVLink frames (the flight log keeps them)

@@ -22,6 +22,7 @@ from sitl.demo import DemoFlight
 from sitl.mav_vehicle import SimVehicleApi
 from sitl.mavlink_io import MavlinkEndpoint
 from sitl.protocol import Identity
+from sitl.protocol.signing import SIGN_ALWAYS, SIGN_CFG_PARAM, key_id
 from sitl.simulation import SimConfig, Simulation
 from sitl.specs import DroneSpec, ProcessSpec
 from sitl.world import END_EXITED, END_FAILED, SharedWorld, WorldParticipant, lockstep_epoch_steps
@@ -111,7 +112,13 @@ class Drone:
         )
         api = SimVehicleApi(sim)
         identity = Identity(sysid=spec.instance + 1)
-        self.endpoint = MavlinkEndpoint(identity, api, sim.params, list(spec.links)) if spec.links else None
+        if common.signing_required:
+            sim.params.set(SIGN_CFG_PARAM, SIGN_ALWAYS)
+        self.endpoint = (
+            MavlinkEndpoint(identity, api, sim.params, list(spec.links), signing_key=common.signing_key)
+            if spec.links
+            else None
+        )
         sim.part_clock_ns = clock_ns
         self.awareness = Awareness(
             sim,
@@ -132,6 +139,9 @@ class Drone:
                 f"MAVLink {link.config.name} link on udp {link.config.bind[0]}:{link.port}"
                 + (f", streaming to {remote[0]}:{remote[1]}" if remote else "")
             )
+        if common.signing_key is not None or common.signing_required:
+            key = f"key {key_id(common.signing_key)}" if common.signing_key is not None else "no key yet"
+            self.say(f"MAVLink signing: {key}, MAV_SIGN_CFG {sim.params[SIGN_CFG_PARAM]:g}")
 
     def say(self, text: str) -> None:
         self.output.say(f"sitl {self.instance}: {text}")
@@ -204,6 +214,13 @@ class Drone:
         self.ended = True
         try:
             if self.endpoint is not None:
+                counts = self.endpoint.signing.counters
+                if self.endpoint.signing.active or counts.signed_in or counts.bad_signatures:
+                    self.say(
+                        f"MAVLink signing: {counts.signed_out} sent signed, {counts.signed_in} received signed; "
+                        f"{counts.rejected_unsigned} unsigned dropped, {counts.bad_signatures} bad signatures, "
+                        f"{counts.replays} replays"
+                    )
                 self.endpoint.close()
         finally:
             if self.participant is not None:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import socket
+import time
 from collections.abc import Iterable
 from dataclasses import dataclass
 
@@ -23,6 +24,7 @@ from sitl.params import ParamStore
 from sitl.protocol import Identity, LinkServices, Send, VehicleApi, framing
 from sitl.protocol.core import Effect, MAVLinkMessage
 from sitl.protocol.neighbours import NeighbourTable
+from sitl.protocol.signing import SIGN_CFG_PARAM, SigningGate, SigningState
 from sitl.protocol.telemetry import PollShare
 
 log = logging.getLogger(__name__)
@@ -82,9 +84,16 @@ def reset_parser(parser: mavlink.MAVLink) -> None:
 
 
 class UdpLink:
-    def __init__(self, config: LinkConfig, identity: Identity, services: LinkServices) -> None:
+    def __init__(
+        self, config: LinkConfig, identity: Identity, services: LinkServices, *, signing: SigningState | None = None,
+        link_id: int = 0,
+    ) -> None:  # fmt: skip
+        """``signing``: the drone's signing state (its key signs what this link sends); ``link_id``: this link's
+        id in the signatures (PX4 uses its MAVLink instance number)."""
         self.config = config
         self.services = services
+        self.signing = signing
+        self.link_id = link_id
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
@@ -182,6 +191,8 @@ class UdpLink:
             encoder.seq = (encoder.seq + 1) % 256
         if not frames:
             return
+        if self.signing is not None and self.signing.active:
+            frames = self.signing.sign_frames(frames, self.link_id, time.time())
         for data in datagrams(frames) if len(frames) > 1 else frames:
             for address in self._peers:
                 try:
@@ -197,18 +208,29 @@ class UdpLink:
 class MavlinkEndpoint:
     """All links of one drone, driven by the runtime once per wake-up with the simulation time."""
 
-    def __init__(self, identity: Identity, vehicle: VehicleApi, params: ParamStore, links: list[LinkConfig]) -> None:
+    def __init__(
+        self, identity: Identity, vehicle: VehicleApi, params: ParamStore, links: list[LinkConfig], *,
+        signing_key: bytes | None = None,
+    ) -> None:  # fmt: skip
+        """``signing_key``: sign everything sent with it from boot (SETUP_SIGNING may install one later)."""
         self.links: list[UdpLink] = []
         self._vehicle = vehicle
+        # One key and one set of incoming streams for all links, as PX4 keeps them; MAV_SIGN_CFG says whether
+        # unsigned messages are dropped (sitl/protocol/signing.py).
+        self.signing = SigningState(signing_key)
+        self._gate = SigningGate(
+            self.signing, identity.sysid, identity.compid, sign_cfg=lambda: int(params[SIGN_CFG_PARAM]),
+            armed=lambda: vehicle.snapshot().armed,
+        )  # fmt: skip
         self.silenced = False  # set for good once the vehicle reports an injected MAVLink failure
         # One table for the drone, fed by whichever link the relayed positions arrive on.
         self.neighbours = NeighbourTable(identity.sysid)
         # One vehicle snapshot and one message per stream for all links at each poll (see PollShare).
         self._share = PollShare(vehicle)
         try:
-            for config in links:
+            for link_id, config in enumerate(links):
                 services = LinkServices(identity, vehicle, params, neighbours=self.neighbours, share=self._share)
-                self.links.append(UdpLink(config, identity, services))
+                self.links.append(UdpLink(config, identity, services, signing=self.signing, link_id=link_id))
         except LinkError:
             self.close()
             raise
@@ -225,9 +247,20 @@ class MavlinkEndpoint:
             for msg in link.receive():
                 if self.silenced:
                     continue  # the rest of this batch arrived after the radio died
+                if not self._admitted(link, msg):
+                    continue
                 link.send(link.services.handle(msg, now_s))
                 if self._vehicle.mavlink_failed():
                     self._silence()
+
+    def _admitted(self, link: UdpLink, msg: MAVLinkMessage) -> bool:
+        """Whether signing lets ``msg`` through to the services; says once per link and reason why not."""
+        admit, texts = self._gate.admit(msg, link.link_id)
+        for severity, text in texts:
+            log.log(logging.WARNING if severity <= mavlink.MAV_SEVERITY_WARNING else logging.INFO, "%s link: %s",
+                    link.config.name, text)  # fmt: skip
+            link.send(link.services.statustext(severity, text))
+        return admit
 
     def _silence(self) -> None:
         self.silenced = True

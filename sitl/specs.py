@@ -36,3 +36,5 @@ class ProcessSpec:
     world_name: str | None = None
     lockstep: bool = False
     lockstep_quantum: int = 1
+    signing_key: bytes | None = None  # MAVLink 2 signing key every drone signs with (one key per swarm)
+    signing_required: bool = False  # MAV_SIGN_CFG = 2 at boot: unsigned messages dropped once a key is set

@@ -65,6 +65,7 @@ class LaunchPlan:
     camera_drones: frozenset[int] = frozenset()  # drones (1..n, in spawn order) whose camera frames are saved...
     camera_dir: Path | None = None  # ...as PNG under camera_dir/drone-<instance>/
     drones_per_process: int | Literal["auto"] = 1  # drones one process hosts; "auto": one process per usable CPU
+    signing_key_file: Path | None = None  # every drone signs with this key and requires signed messages
 
     @property
     def n_drones(self) -> int:
@@ -169,6 +170,8 @@ def _common_args(plan: LaunchPlan, gcs_port: int, world: str | None) -> list[str
         cmd += ["--world", world]
         if plan.lockstep:
             cmd += ["--lockstep", "--lockstep-quantum", str(plan.lockstep_quantum)]
+    if plan.signing_key_file is not None:
+        cmd += ["--signing-key", str(plan.signing_key_file), "--signing-required"]
     return cmd
 
 
