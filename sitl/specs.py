@@ -8,6 +8,7 @@ from pathlib import Path
 
 from sitl.airframe import Airframe
 from sitl.dynamics.plant import GeoPoint
+from sitl.linkmodel import LinkProfile
 from sitl.mavlink_io import LinkConfig
 from sitl.wind import WindConfig
 
@@ -26,7 +27,8 @@ class DroneSpec:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class ProcessSpec:
-    """What every drone of one process shares: one airframe, one clock, one world, one wind."""
+    """What every drone of one process shares: one airframe, one clock, one world, one wind, one link profile (each
+    drone draws its own link decisions from its seed and instance: sitl/linkmodel.py ``drone_channels``)."""
 
     airframe: Airframe
     speed_factor: float
@@ -36,3 +38,4 @@ class ProcessSpec:
     world_name: str | None = None
     lockstep: bool = False
     lockstep_quantum: int = 1
+    links: LinkProfile = LinkProfile()
