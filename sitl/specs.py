@@ -3,7 +3,7 @@ these before the heavy imports)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from sitl.airframe import Airframe
@@ -38,4 +38,4 @@ class ProcessSpec:
     world_name: str | None = None
     lockstep: bool = False
     lockstep_quantum: int = 1
-    links: LinkProfile = LinkProfile()
+    links: LinkProfile = field(default_factory=LinkProfile)
