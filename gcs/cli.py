@@ -162,7 +162,7 @@ def _add_link_options(parser: argparse.ArgumentParser) -> None:
         "burst_good_s": ("S", "burst outages: mean time between them (exponential)"),
         "burst_bad_s": ("S", "burst outages: mean length (exponential)"),
         "burst_loss": ("P", "probability a frame is lost during an outage (default 1)"),
-        "bandwidth_bps": ("BPS", "air rate cap in bit/s: frames queue, up to 1 s behind each other"),
+        "bandwidth_bps": ("BPS", "air rate cap in bit/s: frames queue behind each other (docs/links.md)"),
     }
     for option, key in LINK_OPTIONS.items():
         metavar, text = helps[key]
