@@ -326,6 +326,13 @@ def drone_channels(profile: LinkProfile, *, seed: int, instance: int) -> dict[tu
     return out
 
 
+def counters_by_class(
+    channels: dict[tuple[LinkClass, Direction], LinkChannel],
+) -> dict[tuple[LinkClass, Direction], LinkCounters]:
+    """A snapshot of every channel's counters (a drone's figures for its log or the report), by (class, direction)."""
+    return {key: chan.counters() for key, chan in channels.items()}
+
+
 # ---- the drone's --link option -------------------------------------------------------------------------------------
 
 

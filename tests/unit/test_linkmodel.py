@@ -24,6 +24,7 @@ from sitl.linkmodel import (
     LinkImpairment,
     LinkProfile,
     channel_seed,
+    counters_by_class,
     drone_channels,
     link_arguments,
     link_profile,
@@ -243,6 +244,14 @@ def test_a_drone_s_draws_do_not_depend_on_the_other_drones_or_classes() -> None:
     assert alone[("neighbour", "up")] == with_others[("neighbour", "up")]
     seeds = {str(channel_seed(0, i, c, d).entropy) for i in range(3) for c in LINK_CLASSES for d in DIRECTIONS}
     assert len(seeds) == 3 * len(LINK_CLASSES) * len(DIRECTIONS)
+
+
+def test_a_drone_s_counters_come_by_class_and_direction() -> None:
+    channels = drone_channels(LinkProfile(gcs=LinkImpairment(loss=0.5)), seed=1, instance=2)
+    channels[("gcs", "up")].transmit(0.0, 10)
+    snapshot = counters_by_class(channels)
+    assert set(snapshot) == {("gcs", "up"), ("gcs", "down")}
+    assert snapshot[("gcs", "up")].frames_offered == 1 and snapshot[("gcs", "down")] == LinkCounters()
 
 
 def test_only_impaired_classes_get_channels() -> None:
