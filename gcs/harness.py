@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal, Protocol
 
@@ -26,6 +26,7 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs.geodesy import DEFAULT_ORIGIN, GeoPoint
+from gcs.links import LinkPlan
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -72,6 +73,8 @@ class SpawnPlan:
     # MAVLink 2 signing: the key file every drone and the ground station sign with (one key for the swarm); the
     # drones then require signed messages (MAV_SIGN_CFG = 2). None: no signing.
     signing_key_file: Path | None = None
+    # The link model's settings per link class, the same for every drone (each draws its own: docs/links.md).
+    links: LinkPlan = field(default_factory=LinkPlan)
 
     def offsets_ne_m(self) -> list[tuple[float, float]]:
         """Each drone's spawn position, north/east metres from the origin in the swarm frame (spawn order)."""

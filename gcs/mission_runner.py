@@ -24,6 +24,7 @@ from gcs.formation import SETPOINT_STREAM_HZ
 from gcs.frames import SwarmFrame
 from gcs.geodesy import GeoPoint
 from gcs.harness import Simulation, SpawnPlan
+from gcs.links import LinkPlan
 from gcs.losses import LossPolicy, loss_line
 from gcs.mission_file import (
     FaultStep,
@@ -58,7 +59,7 @@ class MissionRunner:
                  first_instance: int, report_dir: Path, say: Say, airframe: str | None = None, seed: int = 0,
                  forward: tuple[str, int] | None = None, lockstep: bool = False,
                  lockstep_quantum: int = 1, camera_drones: frozenset[int] = frozenset(),
-                 drones_per_process: int | Literal["auto"] = 1,
+                 drones_per_process: int | Literal["auto"] = 1, links: LinkPlan | None = None,
                  signing_key_file: Path | None = None) -> None:  # fmt: skip
         self.mission = mission
         self.speed = speed_factor
@@ -81,6 +82,7 @@ class MissionRunner:
             camera_dir=report_dir / "camera",
             drones_per_process=drones_per_process,
             signing_key_file=signing_key_file,
+            links=mission.swarm.links if links is None else links,  # None: the mission's own [swarm.links]
         )
         self.swarm = Swarm(plan, simulation.harness(plan), forward=forward, relay=mission.swarm.relay)
         self.streamer = FormationStreamer(self.swarm, self.swarm_frame)

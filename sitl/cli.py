@@ -18,6 +18,7 @@ from typing import NoReturn
 from sitl.airframe import DEFAULT_AIRFRAME, AirframeError, load_airframe
 from sitl.dynamics.geodesy import geo_from_ned
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
+from sitl.linkmodel import IMPAIRMENT_KEYS, LinkProfile, link_profile
 from sitl.mavlink_io import LinkConfig, LinkError, parse_host_port
 from sitl.protocol.signing import SigningKeyError, load_key
 from sitl.specs import DroneSpec, ProcessSpec
@@ -179,6 +180,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--lockstep-quantum", type=int, default=1, help="lockstep: steps run between waits (skew bound; default 1)"
     )
     parser.add_argument(
+        "--link",
+        action="append",
+        default=None,
+        metavar="CLASS:KEY=VALUE[,...]",
+        help="impair a link class (gcs, api, neighbour or all) with the link model; repeatable, later keys win; "
+        f"keys: {', '.join(IMPAIRMENT_KEYS)} (docs/links.md)",
+    )
+    parser.add_argument(
         "--camera-frames",
         type=Path,
         default=None,
@@ -233,6 +242,7 @@ def _main(argv: Sequence[str] | None) -> int:
     if args.demo and len(instances) > 1:
         raise UsageError("--demo flies one drone: give --instance, not several --instances")
     wind = _float_list(args.wind, 3, "--wind")
+    links = _link_profile(args.link or [])
     speed = _speed_factor(args.speed)
     homes = _homes(args, len(instances))
     cameras = set(parse_instances(args.camera_instances)) if args.camera_instances else set(instances)
@@ -272,6 +282,7 @@ def _main(argv: Sequence[str] | None) -> int:
             lockstep_quantum=args.lockstep_quantum,
             signing_key=signing_key,
             signing_required=args.signing_required,
+            links=links,
         ),
     )
 
@@ -300,6 +311,13 @@ def _signing_key(path: str | None) -> bytes | None:
         return load_key(path)
     except SigningKeyError as exc:
         raise UsageError(str(exc)) from None
+
+
+def _link_profile(options: list[str]) -> LinkProfile:
+    try:
+        return link_profile(options)
+    except ValueError as exc:
+        raise UsageError(f"--link: {exc}") from None
 
 
 def _camera_dir(root: Path | None, instance: int, count: int) -> Path | None:
