@@ -321,6 +321,7 @@ class MissionRunner:
             self.streamer.stop()
             self.recording.losses = list(self.swarm.losses.values())
             self.swarm.shutdown()
+            self.recording.link_counters = self.swarm.harness.link_counters()
             self.recorder.close()
         out = write_report(self.recording, self.report_dir)
         self.say((out / "summary.txt").read_text().rstrip())

@@ -85,6 +85,7 @@ class Station:
             return None
         self._end_step(self.recording.steps[-1].end_s if self.recording.steps else 0.0)
         self.recording.losses = list(self.swarm.losses.values())
+        self.recording.link_counters = self.swarm.harness.link_counters()
         self.recorder.close()
         return write_report(self.recording, self.report_dir)
 

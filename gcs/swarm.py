@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import logging
 import math
 import os
 import selectors
@@ -39,12 +40,15 @@ from gcs.relay import NeighbourRelay
 from gcs.signing import key_id, load_key
 from gcs.transport import GcsSocket
 
+log = logging.getLogger(__name__)
+
 ARM_TIMEOUT_S = 30.0  # simulated seconds for every drone to pass its pre-arm checks before it is armed
 # How far the drones may run ahead of the supervisor's last look. Under load the drones sit at this limit, so it is
 # the lag of setpoints and relayed positions in simulated time: 50 ms let an eight-drone swap touch on a busy machine.
 LOCKSTEP_LEAD_S = 0.02
 LOCKSTEP_STALL_S = 10.0  # wall seconds without progress before the supervisor calls the simulation stalled
 LOCKSTEP_MAX_WAIT_S = 0.005  # wall-clock cap on one wait for traffic in lockstep (simulated time has no wall rate)
+LOCKSTEP_AWAIT_S = 1.0  # wall seconds the supervisor waits for a datagram a drone says it has sent
 # Relayed positions (and copies for another ground station) are held up to this long, in simulated seconds, and
 # leave with the next setpoint tick in one datagram per drone (gcs/transport.py). A drone then wakes once per tick
 # instead of once per neighbour report: with 8 neighbours reporting at 10 Hz that is 20 wake-ups a second instead of
@@ -97,7 +101,8 @@ class Swarm:
         self._flush_due_s = math.inf  # when the queued traffic must leave (-inf: at the next pump)
         self.losses: dict[int, DroneLoss] = {}  # sysid -> the loss, recorded once
         self._next_gcs_heartbeat_s = 0.0
-        self._heard_wall_s: dict[int, float] = {}  # sysid -> wall time of its last HEARTBEAT
+        self._heard_wall_s: dict[int, float] = {}
+        self._said_late_traffic = False  # sysid -> wall time of its last HEARTBEAT
 
     def clock(self) -> float:
         """Simulated seconds: the drones' common clock in lockstep, else wall time times the speed factor."""
@@ -138,6 +143,8 @@ class Swarm:
             ahead_s = (now + LOCKSTEP_LEAD_S) / self.plan.speed_factor - (time.monotonic() - self._wall_t0)
             if ahead_s > 0:
                 time.sleep(ahead_s)
+        addresses = self.link.addresses
+        self.harness.note_sent_to_drones({s: self.link.sent_to.get(a, 0) for s, a in addresses.items()})
         if self.harness.advance_lockstep(LOCKSTEP_LEAD_S) is None:
             # Not every drone has joined yet (nobody starts before the rest): nothing runs, nothing to wait for.
             self._gate_selector.select(LOCKSTEP_MAX_WAIT_S)
@@ -147,6 +154,31 @@ class Swarm:
             self._check_members(now)
             if self._gate_selector.select(LOCKSTEP_MAX_WAIT_S) and self._wake_fd is not None:
                 _consume(self._wake_fd)  # that wake-up is read: the next one is news
+
+    def _read_frame(self) -> list[tuple[Any, tuple[str, int]]]:
+        """Lockstep: everything the drones sent up to the common time, in sysid order (each sender's own order kept).
+        Loopback UDP may hand a datagram over a little after its ``sendto`` returned, so the supervisor reads until
+        it has as many from each drone as the drone says it sent; one that never comes (a full buffer) is given up
+        after LOCKSTEP_AWAIT_S, and said once."""
+        messages: list[tuple[Any, tuple[str, int]]] = []
+        sent = self.harness.sent_by_drones()
+        deadline = time.monotonic() + LOCKSTEP_AWAIT_S
+        while True:
+            while batch := self.link.receive():
+                messages.extend(batch)
+            addresses, received = self.link.addresses, self.link.received_from
+            missing = [s for s, n in sent.items() if n > received.get(addresses.get(s, ("", 0)), 0)]
+            missing = [s for s in missing if s not in self.losses and s in addresses]
+            if not missing:
+                break
+            if time.monotonic() > deadline:
+                if not self._said_late_traffic:
+                    self._said_late_traffic = True
+                    log.warning("lockstep: datagrams from sysid %s never arrived; going on", missing)
+                break
+            self._selector.select(LOCKSTEP_MAX_WAIT_S)
+        messages.sort(key=lambda item: int(item[0].get_srcSystem()))
+        return messages
 
     def drone_time_s(self) -> float | None:
         """The slowest running drone's own simulated time; None before every drone has one."""
@@ -252,10 +284,7 @@ class Swarm:
         if self._lockstep_running:
             self._lockstep_frame()
             now = self.clock()
-            messages: list[tuple[Any, tuple[str, int]]] = []
-            while batch := self.link.receive():
-                messages.extend(batch)
-            messages.sort(key=lambda item: int(item[0].get_srcSystem()))  # stable: each sender's own order kept
+            messages = self._read_frame()
         else:
             if wait_s > 0:
                 if self.link.queued:

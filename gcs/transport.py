@@ -73,6 +73,10 @@ class GcsSocket:
         self.addresses: dict[int, Address] = {}  # sysid -> where its link lives
         self._outbox: dict[Address, list[bytes]] = {}
         self.datagrams_sent = 0
+        # Datagrams sent to and read from each address (lockstep delivery: gcs/swarm.py compares them with the
+        # drones' own counts)
+        self.sent_to: dict[Address, int] = {}
+        self.received_from: dict[Address, int] = {}
 
     @property
     def port(self) -> int:
@@ -90,6 +94,7 @@ class GcsSocket:
             except OSError:
                 continue
             addr = (address[0], address[1])
+            self.received_from[addr] = self.received_from.get(addr, 0) + 1
             parser = self._parsers.get(addr)
             if parser is None or parser.buf_len() > 0:
                 # A datagram holds whole frames, so a parser left holding part of one (a truncated datagram) holds
@@ -132,6 +137,7 @@ class GcsSocket:
         except OSError:
             return False
         self.datagrams_sent += 1
+        self.sent_to[address] = self.sent_to.get(address, 0) + 1
         return True
 
     def queue(self, sysid: int, msg: Any) -> bool:

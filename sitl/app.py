@@ -31,8 +31,6 @@ def run(specs: Sequence[DroneSpec], common: ProcessSpec) -> int:
     try:
         for spec in specs:
             drones.append(Drone(spec, common, clock_ns=clock_ns))
-            if not common.links.is_perfect:  # a drone's log says which links it was given (tests read it)
-                drones[-1].say(f"links: {common.links.describe()}")
         if common.lockstep and common.world_name is not None:
             world = SharedWorld.attach(common.world_name)
             clock = LockstepSteps(LockstepMember(world, [d.instance for d in drones], common.lockstep_quantum))

@@ -18,10 +18,11 @@ A frame's way through a channel, in the order a radio imposes:
 
 from __future__ import annotations
 
+import heapq
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, fields, replace
-from typing import Final, Literal
+from typing import Final, Generic, Literal, TypeVar
 
 import numpy as np
 
@@ -38,6 +39,7 @@ LINK_CLASSES: Final[tuple[LinkClass, ...]] = ("gcs", "api", "neighbour")
 DIRECTIONS: Final[tuple[Direction, ...]] = ("up", "down")  # up: to the drone; down: from the drone
 ALL_CLASSES: Final = "all"  # the --link class that sets every class at once
 
+T = TypeVar("T")
 # A frame's jitter is redrawn while it would make the delay negative. With latency >= 0 at least half of the normal
 # lies above -latency, so a draw is kept with probability >= 1/2; this bound is never reached in practice (2^-64)
 # and only guards the loop.
@@ -331,6 +333,36 @@ def counters_by_class(
 ) -> dict[tuple[LinkClass, Direction], LinkCounters]:
     """A snapshot of every channel's counters (a drone's figures for its log or the report), by (class, direction)."""
     return {key: chan.counters() for key, chan in channels.items()}
+
+
+class DelayLine(Generic[T]):
+    """Items held until their simulated delivery time, handed out in delivery order (ties: the order they came in).
+
+    What the link model delays waits here on the receiving side of its channel; whoever holds the line asks for what
+    is due at fixed points of its own clock, so in lockstep a delayed message is used at the same simulated time in
+    every run."""
+
+    def __init__(self) -> None:
+        self._heap: list[tuple[float, int, T]] = []
+        self._count = 0
+
+    def __len__(self) -> int:
+        return len(self._heap)
+
+    @property
+    def next_due_s(self) -> float:
+        return self._heap[0][0] if self._heap else math.inf
+
+    def push(self, due_s: float, item: T) -> None:
+        heapq.heappush(self._heap, (due_s, self._count, item))
+        self._count += 1
+
+    def pop_due(self, now_s: float) -> list[T]:
+        out: list[T] = []
+        heap = self._heap
+        while heap and heap[0][0] <= now_s:
+            out.append(heapq.heappop(heap)[2])
+        return out
 
 
 # ---- the drone's --link option -------------------------------------------------------------------------------------

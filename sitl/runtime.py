@@ -250,11 +250,13 @@ def run_loop(
                 due = min(due, max(0, math.ceil((options.duration_s - time_s) / dt_s - 1e-9)))
             if due > 0:
                 if step_major:
+                    each(Drone.await_supervisor, live)
                     for _ in range(due):
                         each(Drone.step, [d for d in live if not d.ended])
                         completed += 1
                         if completed % LOCKSTEP_POLL_STEPS == 0:
                             each(Drone.after_batch, [d for d in live if not d.ended])
+                        each(Drone.publish_sent, [d for d in live if not d.ended])
                         steps_clock.completed(completed)
                 else:
                     each(functools.partial(_run_steps, steps=due), live)

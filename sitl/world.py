@@ -30,6 +30,7 @@ from __future__ import annotations
 import contextlib
 import math
 import mmap
+from collections.abc import Mapping
 from dataclasses import dataclass
 from multiprocessing import shared_memory
 from pathlib import Path
@@ -38,10 +39,11 @@ import numpy as np
 import numpy.typing as npt
 
 from sitl.dynamics.plant import PlantState
+from sitl.linkmodel import DIRECTIONS, LINK_CLASSES, Direction, LinkClass, LinkCounters
 from sitl.mathutil import GRAVITY_MPS2
 
 MAX_DRONES = 256
-COLUMNS = 20
+COLUMNS = 22
 VALID, TIME, LAT, LON, ALT, VN, VE, VD, RADIUS, CRASHED, STEP = range(11)
 CPU_PHYSICS, CPU_CONTROL, CPU_PERCEPTION, CPU_LINK = range(11, 15)  # seconds spent so far, for benchmarks
 WAITING = 15  # 1 while a lockstep member sleeps until woken
@@ -51,6 +53,12 @@ ENDED, REST_ALT = 16, 17  # 1 once the drone's process is gone (its body falls);
 # row ended, for whoever did not end it (the supervisor learns of a hosted drone's end from here).
 STOP_REQUEST, END_CAUSE = 18, 19
 END_UNKNOWN, END_EXITED, END_STOPPED, END_FAILED = 0.0, 1.0, 2.0, 3.0  # END_CAUSE values
+# Lockstep delivery (sitl/runtime.py, gcs/swarm.py): the datagrams the supervisor has sent to the drone's
+# ground-station link, and the datagrams the drone has sent to the supervisor, each counted by its sender. Loopback UDP
+# may hand a datagram over a little after ``sendto`` returns (the kernel finishes the delivery in a deferred
+# routine, later on a busy machine), so a receiver that has not yet read as many as were sent waits for the rest
+# before it moves on: every message is then used at the same simulated time in every run.
+SUPERVISOR_SENT, DRONE_SENT = 20, 21
 HEADER_SLOTS = 4
 GATE_STEP, GATE_OPEN = range(2)  # header: steps every member may complete; 1 once the supervisor opened the gate
 EARTH_RADIUS_M = 6_371_000.0
@@ -117,7 +125,12 @@ OBSTACLES_OFFSET = TABLE_BYTES + HEADER_SLOTS * 8
 # obstacles: the copy of the table as it was at the last epoch every member has completed.
 SNAPSHOTS = 2
 SNAPSHOTS_OFFSET = OBSTACLES_OFFSET + MAX_OBSTACLES * OBSTACLE_COLUMNS * 8
-SIZE_BYTES = SNAPSHOTS_OFFSET + SNAPSHOTS * TABLE_BYTES
+# What the link model did to each drone's traffic (sitl/linkmodel.py), for the flight report: one row per drone, for
+# each (class, direction) channel in LINK_CHANNELS order the frames offered, lost and delayed and the total delay.
+LINK_CHANNELS: tuple[tuple[LinkClass, Direction], ...] = tuple((c, d) for c in LINK_CLASSES for d in DIRECTIONS)
+LINK_FIELDS = ("frames_offered", "frames_lost", "delayed", "total_delay_s")
+LINKS_OFFSET = SNAPSHOTS_OFFSET + SNAPSHOTS * TABLE_BYTES
+SIZE_BYTES = LINKS_OFFSET + MAX_DRONES * len(LINK_CHANNELS) * len(LINK_FIELDS) * 8
 PUBLISH_EVERY_STEPS = 4  # a drone publishes its truth (and looks for contacts) every this many physics steps
 SHM_DIR = Path("/dev/shm")
 
@@ -141,6 +154,9 @@ class SharedWorld:
         self.snapshots: npt.NDArray[np.float64] = np.ndarray(
             (SNAPSHOTS, MAX_DRONES, COLUMNS), dtype=np.float64, buffer=buffer, offset=SNAPSHOTS_OFFSET
         )
+        self.link_table: npt.NDArray[np.float64] = np.ndarray(
+            (MAX_DRONES, len(LINK_CHANNELS), len(LINK_FIELDS)), dtype=np.float64, buffer=buffer, offset=LINKS_OFFSET
+        )
         # The table this mapping reads the other bodies from: the live table, or in lockstep the snapshot of the
         # last completed epoch (``WorldParticipant`` switches it; each drone maps the world for itself).
         self.bodies: npt.NDArray[np.float64] = self.table
@@ -159,6 +175,7 @@ class SharedWorld:
         world.header[:] = 0.0
         world.obstacle_table[:] = 0.0
         world.snapshots[:] = 0.0
+        world.link_table[:] = 0.0
         return world
 
     @classmethod
@@ -225,6 +242,13 @@ class SharedWorld:
 
     def write_cpu(self, instance: int, physics_s: float, control_s: float, perception_s: float, link_s: float) -> None:
         self.table[instance, CPU_PHYSICS : CPU_LINK + 1] = (physics_s, control_s, perception_s, link_s)
+
+    def write_link_counters(self, instance: int, counters: Mapping[tuple[LinkClass, Direction], LinkCounters]) -> None:
+        row = self.link_table[instance]
+        for k, key in enumerate(LINK_CHANNELS):
+            c = counters.get(key)
+            if c is not None:
+                row[k] = (c.frames_offered, c.frames_lost, c.delayed, c.total_delay_s)
 
     def others_ned_m(self, instance: int) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]:
         """Instances and NED offsets (from drone ``instance``) of every other valid body, ended ones where they have
@@ -297,6 +321,7 @@ class SharedWorld:
     def close(self) -> None:
         self.table = self.bodies = np.zeros((0, COLUMNS))
         self.snapshots = np.zeros((0, 0, COLUMNS))
+        self.link_table = np.zeros((0, len(LINK_CHANNELS), len(LINK_FIELDS)))
         self.header = np.zeros(HEADER_SLOTS)
         self.obstacle_table = np.zeros((0, OBSTACLE_COLUMNS))
         if self._map is not None:
