@@ -213,8 +213,10 @@ def _fit_cone(
     for bodies mostly outside the frame (docs/perception.md).
     """
     f = camera.focal_px
+    f_sq = f * f
     tolerance = 1.5 / f
     bu, bv = boundary_px[:, 0], boundary_px[:, 1]
+    bu_c, bv_c = bu - camera.cx_px, bv - camera.cy_px  # the same in both iterations
     for iteration in range(2):
         ax, ay, az = vec
         sin_a = math.sin(alpha)
@@ -225,8 +227,8 @@ def _fit_cone(
         py, pz = (ay / rho, az / rho) if rho > 0.0 else (1.0, 0.0)
         du, dv = bu - (camera.cx_px + f * c_n * py), bv - (camera.cy_px + f * c_n * pz)
         push = 0.5 / np.maximum(np.sqrt(du * du + dv * dv), 1e-9)
-        ry, rz = bu - camera.cx_px + du * push, bv - camera.cy_px + dv * push
-        inv = 1.0 / np.sqrt(f * f + ry * ry + rz * rz)
+        ry, rz = bu_c + du * push, bv_c + dv * push
+        inv = 1.0 / np.sqrt(f_sq + ry * ry + rz * rz)
         rx, ry, rz = f * inv, ry * inv, rz * inv
         if select or iteration > 0:
             # |angle to axis - alpha| <= tolerance, to first order in cosines.
@@ -248,6 +250,24 @@ def _fit_cone(
     return vec, alpha
 
 
+def _inscribed_peak(padded: GrayImage) -> tuple[int, int, float]:
+    """Column, row and distance to the background of the blob pixel farthest from it (the first in row order of
+    those equally far): the centre of the largest inscribed circle.
+
+    OpenCV's precise distance transform is the exact Euclidean one, but its float32 square roots are not reproducible:
+    the same mask gives a distance a last bit apart from one call to the next (its vector and scalar code paths round
+    differently, and which pixels take which depends on where its buffers lie in memory), and a bit decides between
+    equally far pixels, so the same frame could yield detections that differ in the twelfth digit, or by a pixel's
+    choice of peak, and two runs of the same swarm flight drifted apart. The squared distances are integers (pixel
+    offsets), recovered exactly from the float32 distances (relative error 6e-8, squared distances under 2^20), and
+    the peak is taken on them."""
+    dist = cv2.distanceTransform(padded, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    squared = np.rint(dist.astype(np.float64) ** 2)
+    flat = int(np.argmax(squared))
+    pv, pu = divmod(flat, squared.shape[1])
+    return pu, pv, math.sqrt(float(squared.flat[flat]))
+
+
 def _split_merged(
     camera: Camera, mask: GrayImage, x0: int, y0: int, known_body_radius_m: float, min_area_px: int, whole: Detection
 ) -> list[Detection]:
@@ -259,8 +279,7 @@ def _split_merged(
     (``whole``: its area-based range is short of the nearest body's, the safe side).
     """
     padded = cv2.copyMakeBorder(mask, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
-    dist = cv2.distanceTransform(padded, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    _, peak, _, (pu, pv) = cv2.minMaxLoc(dist)
+    pu, pv, peak = _inscribed_peak(padded)
     u, v = x0 + pu - 1.0, y0 + pv - 1.0
     f = camera.focal_px
     # The distance transform at the centre of a pixel disc of radius R is about R + 0.5 (distance to the centre of
