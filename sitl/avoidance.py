@@ -223,7 +223,7 @@ def fuse_fields(
             gate = gate_m + gate_frac * math.sqrt(cx * cx + cy * cy + cz * cz)
             moved.append((cx, cy, cz, gate * gate))
         if len(cams) * len(relays) >= vector_pairs:
-            candidates = _gate_pairs_numpy(moved, relay_positions)
+            candidates = _gate_pairs_numpy(moved, relay_positions)  # sorted
         else:
             candidates = []
             for ci, (cx, cy, cz, gate_sq) in enumerate(moved):
@@ -232,12 +232,15 @@ def fuse_fields(
                     d_sq = dx * dx + dy * dy + dz * dz
                     if d_sq <= gate_sq:  # a square root only for the few within the gate
                         candidates.append((math.sqrt(d_sq), ci, ri))
-        candidates.sort()
+            candidates.sort()
         used_relay: set[int] = set()
+        pairs = min(len(cams), len(relays))
         for _, ci, ri in candidates:
             if ci not in cam_match and ri not in used_relay:
                 cam_match[ci] = ri
                 used_relay.add(ri)
+                if len(cam_match) == pairs:
+                    break  # every detection or every entry is taken: no later pair can be
 
     out: list[Obstacle] = []
     for ci, c in enumerate(cams):
@@ -266,8 +269,9 @@ def fuse_fields(
 def _gate_pairs_numpy(
     moved: list[tuple[float, float, float, float]], relay_positions: list[Vec3]
 ) -> list[tuple[float, int, int]]:
-    """(distance, camera index, relay index) of every pair within the camera's gate: the loop of ``fuse_fields`` as
-    array operations (a difference, three products and two sums per pair, each rounded as the loop rounds it)."""
+    """(distance, camera index, relay index) of every pair within the camera's gate, sorted as the tuples sort: the
+    loop of ``fuse_fields`` as array operations (a difference, three products and two sums per pair, each rounded as
+    the loop rounds it, and a correctly rounded square root)."""
     cam = np.array(moved)
     rel = np.array(relay_positions)
     dx = rel[:, 0] - cam[:, 0:1]
@@ -275,7 +279,9 @@ def _gate_pairs_numpy(
     dz = rel[:, 2] - cam[:, 2:3]
     d_sq = dx * dx + dy * dy + dz * dz
     ci, ri = np.nonzero(d_sq <= cam[:, 3:4])
-    return [(math.sqrt(d), c, r) for d, c, r in zip(d_sq[ci, ri].tolist(), ci.tolist(), ri.tolist(), strict=True)]
+    dist = np.sqrt(d_sq[ci, ri])  # correctly rounded, as math.sqrt
+    order = np.lexsort((ri, ci, dist))  # the order of sorted (distance, camera, relay) tuples
+    return list(zip(dist[order].tolist(), ci[order].tolist(), ri[order].tolist(), strict=True))
 
 
 def _fuse_pair(cam_pos: Vec3, cam_radius_m: float, rel: Obstacle, cam_age_s: float, own_vel: Vec3,
