@@ -286,68 +286,14 @@ def render_rig(
     rig: CameraRig, own_att_q_frd_to_ned: npt.ArrayLike, bodies: Sequence[Body], rng: np.random.Generator
 ) -> list[GrayImage]:
     """One frame per camera of the rig (each the camera's own reused buffer)."""
-    return [
-        render(camera, own_att_q_frd_to_ned, seen, rng)
-        for camera, seen in zip(rig.cameras, _in_view(rig, own_att_q_frd_to_ned, bodies), strict=True)
-    ]
+    return [render(camera, own_att_q_frd_to_ned, bodies, rng) for camera in rig.cameras]
 
 
 def render_rig_if_drawn(
     rig: CameraRig, own_att_q_frd_to_ned: npt.ArrayLike, bodies: Sequence[Body], rng: np.random.Generator
 ) -> list[GrayImage | None]:
     """``render_if_drawn`` for every camera of the rig: None for a frame with nothing the detector could find."""
-    return [
-        render_if_drawn(camera, own_att_q_frd_to_ned, seen, rng)
-        for camera, seen in zip(rig.cameras, _in_view(rig, own_att_q_frd_to_ned, bodies), strict=True)
-    ]
-
-
-# From this many spheres on, each camera's spheres are culled all at once with numpy before drawing; below it the
-# drawing loop's own culling is cheaper than building the arrays.
-VECTOR_CULL_SPHERES = 8
-# How far past the renderer's own culling limits the array test culls: numpy's arccos and arcsin may round a last bit
-# differently from the math module's, and a sphere that close to the limit is left to the renderer's exact test.
-_CULL_MARGIN = 1e-9
-
-
-def _in_view(rig: CameraRig, own_att_q_frd_to_ned: npt.ArrayLike, bodies: Sequence[Body]) -> list[Sequence[Body]]:
-    """For each camera of the rig, the bodies it may draw: ``bodies`` less the spheres its drawing loop would cull
-    (beyond range, or wholly outside the field of view), in their order.
-
-    In a crowd most spheres miss most cameras (four cameras, each sphere in one or two), and the drawing loop spends
-    a few microseconds on each before culling it. The test here is the loop's, as array operations on the same
-    rotated offsets (the same products and sums, so the same figures), with a margin on the angles; whatever it
-    keeps still goes through the loop's exact test, so the frames are the ones the loop alone draws."""
-    sphere_rows = [i for i, body in enumerate(bodies) if isinstance(body, Sphere)]
-    if len(sphere_rows) < VECTOR_CULL_SPHERES:
-        return [bodies] * len(rig.cameras)
-    spheres_only = [bodies[i] for i in sphere_rows]
-    offsets = np.array([b.offset_ned_m for b in spheres_only])
-    radius = np.array([b.radius_m for b in spheres_only])
-    n, e, d = offsets[:, 0], offsets[:, 1], offsets[:, 2]
-    r_ned = quat_to_dcm(np.asarray(own_att_q_frd_to_ned, dtype=np.float64)).T
-    out: list[Sequence[Body]] = []
-    for camera in rig.cameras:
-        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = (camera.rot_body_cam.T @ r_ned).tolist()
-        x = r00 * n + r01 * e + r02 * d
-        y = r10 * n + r11 * e + r12 * d
-        z = r20 * n + r21 * e + r22 * d
-        dist = np.sqrt(x * x + y * y + z * z)
-        inside = dist <= radius
-        with np.errstate(divide="ignore", invalid="ignore"):
-            safe = np.where(inside, 1.0, dist)  # the loop fills the frame for a camera inside a body
-            off_axis = np.arccos(np.clip(x / safe, -1.0, 1.0)) - np.arcsin(np.minimum(radius / safe, 1.0))
-        culled = ~inside & (
-            (dist - radius > camera.config.max_range_m) | (off_axis > camera.corner_angle_rad + _CULL_MARGIN)
-        )
-        if not culled.any():
-            out.append(bodies)
-            continue
-        keep = [True] * len(bodies)
-        for row in np.flatnonzero(culled).tolist():
-            keep[sphere_rows[row]] = False
-        out.append([body for body, kept in zip(bodies, keep, strict=True) if kept])
-    return out
+    return [render_if_drawn(camera, own_att_q_frd_to_ned, bodies, rng) for camera in rig.cameras]
 
 
 def sphere_silhouette(theta_rad: float, sin_alpha: float) -> tuple[float, float, float]:

@@ -371,11 +371,10 @@ def kept_once(found: list[Detection]) -> list[Detection]:
 
 
 @pytest.mark.parametrize("seed", range(6))
-def test_a_crowd_culled_for_the_whole_rig_at_once_draws_every_frame_as_each_camera_alone_does(seed: int) -> None:
-    """``render_rig`` and ``render_rig_if_drawn`` cull a crowd of spheres for all cameras with numpy before drawing;
-    each frame must be the one a camera draws from every body itself, pixel for pixel, and the detections and the
-    random stream the same: crowds near and far, around the range limit and the field of view's edge, one camera
-    inside a body, a cylinder among them."""
+def test_a_crowd_seen_by_the_rig_is_reported_once_per_body_as_pair_by_pair_arc_cosines_say(seed: int) -> None:
+    """``detect_rig`` skips the arc cosine for pairs of detections clearly apart: what it keeps must be what the pair
+    by pair rule keeps (``kept_once``), on crowds near and far, around the range limit and the field of view's edge,
+    one camera inside a body, a cylinder among them; and the rig's frames are each camera's own, pixel for pixel."""
     rng_scene = np.random.default_rng(seed)
     rig = CameraRig.omni(CameraConfig(noise_seed=seed))
     alone = CameraRig.omni(CameraConfig(noise_seed=seed))  # the same cameras, buffers of their own
