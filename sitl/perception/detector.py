@@ -250,7 +250,7 @@ def _fit_cone(
     return vec, alpha
 
 
-def _inscribed_peak(padded: GrayImage) -> tuple[int, int, float]:
+def _inscribed_peak(padded: npt.NDArray[Any]) -> tuple[int, int, float]:
     """Column, row and distance to the background of the blob pixel farthest from it (the first in row order of
     those equally far): the centre of the largest inscribed circle.
 
