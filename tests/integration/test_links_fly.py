@@ -1,0 +1,112 @@
+"""Reproducible lockstep and the link model, judged by real ``swarm fly`` runs and their flight reports.
+
+- The same lockstep mission with the same seeds flies the same: two runs of the antipodal swap, the second with
+  both CPUs kept busy by other work, give the same MAVLink messages in their flight logs, message for message.
+- Lossy and late links (the link model acting on every drone's traffic, both ways) still fly the shipped missions
+  without a collision, and the report counts what the model did.
+
+Policy: loopback only (--no-forward); instances 30-38; lockstep, so no outcome depends on the machine's load; a time
+limit on every test; the CPU burners (low priority) are stopped by PID and reaped.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import pytest
+from pymavlink import mavutil
+
+from tests.integration.mission_flight import fly_mission
+
+pytestmark = [pytest.mark.sim_only]
+
+FIRST_INSTANCE = "30"
+# A process that only spins, at a lower priority than the swarm's: it takes every moment the swarm's processes are
+# not running (and their caches with it) and is preempted at each of their wake-ups, so the order and timing of
+# everything on the machine changes, yet the flight still ends within the test's time. At the same priority each
+# hand-over between the supervisor and a drone waits for a burner's time slice, and the flight takes half an hour.
+BURN = "import os; os.nice(10)\nwhile True: pass"
+
+
+def tlog_messages(path: Path) -> list[tuple[int, str, bytes]]:
+    """Every message of a flight log: sender, type and bytes (the log's own timestamps left out)."""
+    log = mavutil.mavlogfile(str(path))
+    out: list[tuple[int, str, bytes]] = []
+    while (msg := log.recv_match()) is not None:
+        if msg.get_type() != "BAD_DATA":
+            out.append((msg.get_srcSystem(), msg.get_type(), bytes(msg.get_msgbuf())))
+    return out
+
+
+@contextmanager
+def busy_cpus() -> Iterator[None]:
+    """Every CPU kept busy by a process that only spins (BURN), for as long as the block runs."""
+    burners = [subprocess.Popen([sys.executable, "-c", BURN]) for _ in range(os.cpu_count() or 2)]
+    try:
+        yield
+    finally:
+        for proc in burners:
+            proc.kill()
+        for proc in burners:
+            proc.wait(timeout=10)
+
+
+def fly(mission: str, tmp_path: Path, *extra: str) -> tuple[dict[str, Any], Path]:
+    args = ["--lockstep", "--first-instance", FIRST_INSTANCE, "--drones-per-process", "auto", *extra]
+    metrics, _ = fly_mission(mission, args, tmp_path, 600)
+    return metrics, tmp_path / "report"
+
+
+@pytest.mark.timeout(1300)
+def test_the_same_lockstep_mission_flies_the_same_on_an_idle_and_a_loaded_machine(tmp_path: Path) -> None:
+    # GIVEN the antipodal swap flown in lockstep with the default seeds
+    first, first_report = fly("antipodal_swap.toml", tmp_path / "idle")
+    # WHEN it is flown again with the same seeds while other processes keep every CPU busy
+    with busy_cpus():
+        second, second_report = fly("antipodal_swap.toml", tmp_path / "loaded")
+    # THEN both flight logs hold the same messages in the same order
+    a, b = tlog_messages(first_report / "flight.tlog"), tlog_messages(second_report / "flight.tlog")
+    assert len(a) > 10_000
+    first_difference = next((k for k, (x, y) in enumerate(zip(a, b, strict=False)) if x != y), None)
+    assert first_difference is None, (first_difference, a[first_difference][:2], b[first_difference][:2])
+    assert len(a) == len(b)
+    # AND the reports agree to the last digit
+    for key in ("min_separation_m", "collisions", "avoidance_events", "distance_flown_m", "steps"):
+        assert first[key] == second[key], key
+
+
+@pytest.mark.timeout(600)
+def test_nine_drones_fly_grid_to_circle_with_a_fifth_of_every_link_lost(tmp_path: Path) -> None:
+    # GIVEN every link of every drone losing 20 % of its frames, both ways
+    metrics, _ = fly("grid_to_circle.toml", tmp_path, "--link-loss", "0.2")
+    # THEN the mission completes without a collision and the circle still holds to 0.3 m RMS
+    assert metrics["collisions"] == 0, metrics["collision_events"]
+    circle = next(s for s in metrics["steps"] if s["name"] == "circle")
+    assert circle["formation_rms_m"] is not None and circle["formation_rms_m"] < 0.3, circle
+    # AND the report counts about a fifth of the frames lost on every channel that carried traffic
+    links = metrics["links"]
+    assert {"gcs up", "gcs down", "neighbour up"} <= set(links), links
+    for name in ("gcs up", "gcs down", "neighbour up"):
+        assert links[name]["frames_offered"] > 1000, (name, links[name])
+        assert 0.17 < links[name]["loss_rate"] < 0.23, (name, links[name])
+
+
+@pytest.mark.timeout(600)
+def test_the_swap_holds_with_late_and_jittery_neighbour_positions(tmp_path: Path) -> None:
+    # GIVEN neighbour positions arriving 200 ms late with 50 ms of jitter (and so out of order)
+    mission = (Path(__file__).resolve().parents[2] / "missions" / "antipodal_swap.toml").read_text()
+    mission += "\n[swarm.links.neighbour]\nlatency_ms = 200\njitter_ms = 50\n"
+    path = tmp_path / "late_neighbours.toml"
+    path.write_text(mission)
+    metrics, _ = fly(str(path), tmp_path)
+    # THEN nobody collided, and the report shows the delay on neighbour traffic alone
+    assert metrics["collisions"] == 0, metrics["collision_events"]
+    links = metrics["links"]
+    assert set(links) == {"neighbour up"}, links  # only relayed positions go through the neighbour channel
+    assert 180.0 < links["neighbour up"]["mean_delay_ms"] < 220.0, links
