@@ -637,9 +637,9 @@ class FuzzReport:
             self.failures.append("no PARAM_VALUE answered PARAM_REQUEST_READ after the run")
         if not self.command_round_trip:
             self.failures.append("no COMMAND_ACK answered COMMAND_LONG after the run")
+        if self.max_heartbeat_gap_s > MAX_HEARTBEAT_GAP_S:
+            self.failures.append(f"heartbeats stopped for {self.max_heartbeat_gap_s:.1f} s")
         if self.mode == "a":
-            if self.max_heartbeat_gap_s > MAX_HEARTBEAT_GAP_S:
-                self.failures.append(f"heartbeats stopped for {self.max_heartbeat_gap_s:.1f} s")
             drift = max(self.max_horizontal_drift_m, self.max_vertical_drift_m)
             if not drift <= HOVER_TOLERANCE_M:
                 self.failures.append(f"drifted {drift:.2f} m from the hover point (limit {HOVER_TOLERANCE_M} m)")

@@ -184,6 +184,10 @@ class TelemetryScheduler:
     def set_message_interval(self, msg_id: int, interval_us: float, now_s: float) -> CommandResult:
         """MAV_CMD_SET_MESSAGE_INTERVAL: 0 = default rate, -1 = off, > 0 = interval in microseconds."""
         check_now(now_s)
+        if msg_id == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+            # PX4 refuses (FAILED) to change the heartbeat: it is how every client knows the vehicle is there, and a
+            # command turning it off or down to once an hour would make the vehicle look lost to all of them.
+            return CommandResult.FAILED
         if msg_id not in BUILDERS:
             return CommandResult.UNSUPPORTED
         # MESSAGE_INTERVAL reports an interval as int32 microseconds: one it could not report (beyond 35 minutes) is
