@@ -397,6 +397,11 @@ class StartedDrone:
     def alive(self) -> bool:
         return self.popen.poll() is None
 
+    def cpu_s(self) -> float:
+        """CPU seconds (user + system) the drone process has used so far."""
+        fields = Path(f"/proc/{self.popen.pid}/stat").read_text().rpartition(")")[2].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
     def true_geo(self) -> tuple[float, float, float] | None:
         row = self.world.table[self.address.instance]
         if row[VALID] != 1.0:
@@ -604,6 +609,7 @@ class FuzzReport:
     message_types_sent: int = 0
     message_types_in_dialect: int = len(mavlink.mavlink_map)
     fuzz_wall_s: float = 0.0
+    drone_cpu_fraction: float = math.nan  # CPU seconds of the drone per wall second while fuzzed (started drone)
     drone_alive: bool = False
     exit_code: int | None = None
     heartbeat_hz: float = 0.0
@@ -649,7 +655,8 @@ class FuzzReport:
             f"fuzz: mode {self.mode} ({'commands to the drone' if self.mode == 'b' else 'no command to the drone'}), "
             f"seed {self.seed}",
             f"  frames sent: {self.frames_sent} in {self.datagrams_sent} datagrams, {self.fuzz_wall_s:.1f} s wall "
-            f"({self.frames_sent / max(self.fuzz_wall_s, 1e-9):.0f} frames/s)",
+            f"({self.frames_sent / max(self.fuzz_wall_s, 1e-9):.0f} frames/s); the drone used "
+            f"{self.drone_cpu_fraction:.0%} of a core meanwhile",
             "  by kind: " + ", ".join(f"{k} {v}" for k, v in sorted(self.by_kind.items())),
             f"  message types sent: {self.message_types_sent} of {self.message_types_in_dialect} in the common "
             f"dialect (fewest: {min(self.by_message.values(), default=0)} frames of one type)",
@@ -752,6 +759,7 @@ def run(config: FuzzConfig, *, progress: Callable[[str], None] | None = None) ->
         heartbeats_before = len(client.watch.heartbeats_s)
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # replies to fuzz frames are not read
+            cpu_start = drone.cpu_s() if drone is not None else math.nan
             fuzz_start = time.monotonic()
             next_report = fuzz_start + 10.0
             sent = 0
@@ -778,6 +786,8 @@ def run(config: FuzzConfig, *, progress: Callable[[str], None] | None = None) ->
                     say(f"  {sent} frames, drift {meter.max_horizontal_m:.2f}/{meter.max_vertical_m:.2f} m")
                     next_report += 10.0
             report.fuzz_wall_s = time.monotonic() - fuzz_start
+            if drone is not None and drone.alive():
+                report.drone_cpu_fraction = (drone.cpu_s() - cpu_start) / max(report.fuzz_wall_s, 1e-9)
         report.frames_sent = sent
         report.by_kind = dict(by_kind)
         report.by_message = dict(sorted(by_message.items()))
