@@ -60,9 +60,14 @@ from pymavlink.dialects.v10 import common as mavlink1
 from pymavlink.dialects.v20 import common as mavlink
 
 import sitl.protocol
-from sitl.protocol.framing import crc_x25
+from sitl.mav_vehicle import SimVehicleApi
+from sitl.protocol import Identity, LinkServices
+from sitl.protocol.framing import crc_x25, parse_datagram
+from sitl.protocol.neighbours import NeighbourTable
+from sitl.protocol.vehicle_api import Arm, LandedState
 from sitl.simulation import build_param_store
 from sitl.world import ALT, LAT, LON, VALID, SharedWorld
+from tests.closed_loop.flight import make_sim
 
 LOOPBACK: Final = "127.0.0.1"
 API_REMOTE_BASE_PORT: Final = 14540  # PX4 SITL convention: the drone streams to 14540+i
@@ -165,10 +170,14 @@ class FrameFactory:
     """Seeded frames for one target drone. ``next()`` gives a kind, the message name (or the kind) and the
     datagrams that carry the frame."""
 
-    def __init__(self, rng: random.Random, *, drone_sysid: int, commands_to_drone: bool,
-                 drone_lat_deg: float) -> None:  # fmt: skip
+    def __init__(self, rng: random.Random, *, drone_sysid: int, commands_to_drone: bool, drone_lat_deg: float,
+                 drone_share: float = DRONE_VOCABULARY_SHARE, aimed_share: float = 0.0) -> None:  # fmt: skip
+        """``drone_share``: of the well-formed messages, the share of a type the drone handles; ``aimed_share``
+        (mode b only): the share of those addressed to the drone before the usual choice of target."""
         self._rng = rng
         self._sysid = drone_sysid
+        self._drone_share = drone_share
+        self._aimed_share = aimed_share if commands_to_drone else 0.0
         self._commands = commands_to_drone
         self._drone_lat_e7 = round(drone_lat_deg * 1e7)
         self._handled = drone_handled_ids()
@@ -260,6 +269,8 @@ class FrameFactory:
         """The drone, broadcast or another system; in mode (a) never the drone for what it would act on."""
         rng = self._rng
         protected = not self._commands and msg_id in self._handled and msg_id not in READ_ONLY_REQUESTS
+        if self._aimed_share and rng.random() < self._aimed_share:
+            return self._sysid
         while True:
             choice = rng.randrange(4)
             target = (self._sysid, 0, rng.randint(0, 255), 255)[choice] if choice != 3 else rng.choice((1, 255))
@@ -268,7 +279,7 @@ class FrameFactory:
 
     def _message(self, classes: Sequence[Any]) -> Any:
         rng = self._rng
-        if classes is self._classes and rng.random() < DRONE_VOCABULARY_SHARE:
+        if classes is self._classes and rng.random() < self._drone_share:
             classes = self._handled_classes
         cls = rng.choice(classes)
         lengths = dict(zip(cls.ordered_fieldnames, cls.array_lengths, strict=True))
@@ -838,6 +849,160 @@ def _command_round_trip(client: Client) -> bool:
 
 
 # ---------------------------------------------------------------------------------------------------------------
+# In process: the same frames through the drone's MAVLink services over a real Simulation, many times faster
+
+IN_PROCESS_DRONE_SHARE: Final = 0.97  # nearly every well-formed message is one the drone handles...
+IN_PROCESS_AIMED_SHARE: Final = 0.8  # ...and most are addressed to it
+EPISODE_FRAMES: Final = 20_000  # a fresh drone at least this often, so that no one vehicle's state dominates
+# Kept out in process, so that the drone spends its time flying rather than lying disarmed: a kill and a disarm
+# (forced or not) end a flight at once; the live modes send them.
+GROUNDING_COMMANDS: Final = frozenset({mavlink.MAV_CMD_DO_FLIGHTTERMINATION, mavlink.MAV_CMD_COMPONENT_ARM_DISARM})
+
+
+@dataclass(slots=True, kw_only=True)
+class InProcessReport:
+    seed: int
+    frames: int = 0
+    messages_handled: int = 0
+    episodes: int = 0
+    crashed_episodes: int = 0  # the vehicle was brought down (an accepted command did it: allowed)
+    sim_s: float = 0.0
+    armed_s: float = 0.0
+    wall_s: float = 0.0
+    errors: dict[str, int] = field(default_factory=dict)  # "where: exception" -> count
+    examples: dict[str, str] = field(default_factory=dict)  # the first message behind each error
+    nonfinite: int = 0
+
+    @property
+    def passed(self) -> bool:
+        return not self.errors and not self.nonfinite
+
+    def text(self) -> str:
+        lines = [
+            f"fuzz in process: seed {self.seed}, {self.frames} frames ({self.messages_handled} messages handled) in "
+            f"{self.wall_s:.0f} s wall, {self.sim_s:.0f} s simulated ({self.armed_s:.0f} s armed), "
+            f"{self.episodes} drones ({self.crashed_episodes} brought down by what they were told)",
+            f"  exceptions: {sum(self.errors.values())}; non-finite states: {self.nonfinite}",
+        ]
+        for key, count in sorted(self.errors.items(), key=lambda kv: -kv[1]):
+            lines.append(f"  {count} x {key}\n    first after: {self.examples[key]}")
+        lines.append("PASS" if self.passed else "FAIL")
+        return "\n".join(lines)
+
+
+def run_in_process(frames: int, seed: int, *, frames_per_step: int = 2,
+                   progress: Callable[[str], None] | None = None) -> InProcessReport:  # fmt: skip
+    """Feed ``frames`` frames, ``frames_per_step`` per physics step, to ``LinkServices`` over a ``Simulation``
+    behind its MAVLink adapter, as the drone's UDP shell would (framing's fast parser, else pymavlink's; every reply
+    packed). Any exception, and any NaN or infinite position, velocity or attitude, is a failure."""
+    say = progress or (lambda _text: None)
+    report = InProcessReport(seed=seed)
+    start = time.monotonic()
+    while report.frames < frames:
+        report.episodes += 1
+        _InProcessDrone(seed * 10_000 + report.episodes, report).fly(
+            min(EPISODE_FRAMES, frames - report.frames), frames_per_step
+        )
+        say(f"  drone {report.episodes}: {report.frames} frames so far, {sum(report.errors.values())} exceptions")
+    report.wall_s = time.monotonic() - start
+    return report
+
+
+class _InProcessDrone:
+    """One simulated drone behind its MAVLink services, fed frames until it is brought down or the budget ends."""
+
+    def __init__(self, seed: int, report: InProcessReport) -> None:
+        self.report = report
+        self.sim = make_sim(seed=seed)
+        self.vehicle = SimVehicleApi(self.sim)
+        self.services = LinkServices(Identity(sysid=1), self.vehicle, self.sim.params, neighbours=NeighbourTable(1))
+        self.factory = FrameFactory(random.Random(seed), drone_sysid=1, commands_to_drone=True,
+                                    drone_lat_deg=self.sim.truth.geo.lat_deg, drone_share=IN_PROCESS_DRONE_SHARE,
+                                    aimed_share=IN_PROCESS_AIMED_SHARE)  # fmt: skip
+        self._encoder = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+        self._client = mavlink.MAVLink(None, srcSystem=CLIENT_SYSID, srcComponent=CLIENT_COMPID)
+        self._last: Any = None
+
+    def note(self, where: str, context: Any) -> None:
+        """Record the exception being handled (every failure is recorded, the run goes on)."""
+        exc = sys.exc_info()[1]
+        key = f"{where}: {type(exc).__name__}: {exc}"[:200]
+        self.report.errors[key] = self.report.errors.get(key, 0) + 1
+        self.report.examples.setdefault(key, str(context)[:400])
+
+    def handle(self, msg: Any) -> None:
+        for effect in self.services.handle(msg, self.sim.time_s):
+            try:
+                effect.msg.pack(self._encoder)
+            except Exception:
+                self.note("pack", msg)
+
+    def command(self, number: int, *params: float) -> None:
+        p = [*params, *([math.nan] * (7 - len(params)))]
+        frame = mavlink.MAVLink_command_long_message(1, 1, number, 0, *p).pack(self._client)
+        for msg in mavlink.MAVLink(None).parse_buffer(frame) or []:
+            self.handle(msg)
+
+    def receive(self, datagram: bytes) -> None:
+        """One datagram as the UDP shell takes it: the fast parser, else a fresh pymavlink parser."""
+        try:
+            messages = parse_datagram(datagram)
+            if messages is None:
+                parser = mavlink.MAVLink(None)
+                parser.robust_parsing = True
+                messages = parser.parse_buffer(datagram) or []
+        except Exception:
+            self.note("parse", datagram.hex())
+            return
+        for msg in messages:
+            kind = msg.get_type()
+            if kind in ("BAD_DATA", "UNKNOWN") or (
+                kind in ("COMMAND_LONG", "COMMAND_INT") and msg.command in GROUNDING_COMMANDS
+            ):
+                continue
+            self._last = msg
+            self.report.messages_handled += 1
+            try:
+                self.handle(msg)
+            except Exception:
+                self.note("handle", msg)
+
+    def fly(self, budget: int, frames_per_step: int) -> None:
+        sim, vehicle, report = self.sim, self.vehicle, self.report
+        sim.run_until(lambda _s: vehicle.snapshot().prearm_ok, 20.0)
+        self.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
+        self.command(mavlink.MAV_CMD_NAV_TAKEOFF)
+        sim.run_for(6.0)
+        sent = 0
+        while sent < budget:
+            for _ in range(frames_per_step):
+                for datagram in self.factory.next()[2]:
+                    self.receive(datagram)
+            sent += frames_per_step
+            report.frames += frames_per_step
+            try:
+                sim.step()
+                for effect in self.services.poll(sim.time_s):
+                    effect.msg.pack(self._encoder)
+            except Exception:
+                self.note("step", self._last)
+                break
+            snap = vehicle.snapshot()
+            report.armed_s += sim.dt_s if snap.armed else 0.0
+            state = (*sim.truth.pos_ned_m, *snap.pos_ned_m, *snap.vel_ned_mps, *snap.att_q_wxyz)
+            if not all(math.isfinite(float(v)) for v in state):
+                report.nonfinite += 1
+                report.examples.setdefault("non-finite state", str(self._last)[:400])
+                break
+            if sim.vehicle.crashed:
+                report.crashed_episodes += 1
+                break
+            if not snap.armed and snap.landed_state is LandedState.ON_GROUND and vehicle.command(Arm(), sim.time_s).ok:
+                self.command(mavlink.MAV_CMD_NAV_TAKEOFF)
+        report.sim_s += sim.time_s
+
+
+# ---------------------------------------------------------------------------------------------------------------
 # The command line
 
 
@@ -878,6 +1043,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--sysid", type=int, default=None, help="with --attach: its system id (default 1)")
     parser.add_argument("--drone-log", type=Path, default=None, help="with --attach: its log, read for tracebacks")
     parser.add_argument("--json", type=Path, default=None, help="also write the report here as JSON")
+    parser.add_argument("--in-process", action="store_true",
+                        help="no sitl process: the frames go through the drone's MAVLink services over a "
+                        "Simulation, mostly commands to it (finds faults faster)")  # fmt: skip
     return parser
 
 
@@ -893,6 +1061,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     base = args.instance if args.port_base is None else args.port_base
     if not 0 <= base <= 65535 - GCS_BIND_BASE_PORT:
         parser.error(f"--port-base must be in 0..{65535 - GCS_BIND_BASE_PORT}, got {base}")
+    if args.in_process:
+        in_process = run_in_process(args.frames, args.seed, progress=lambda text: print(text, flush=True))
+        print(in_process.text())
+        if args.json is not None:
+            args.json.write_text(json.dumps(asdict(in_process), indent=1) + "\n")
+        return 0 if in_process.passed else 1
     config = FuzzConfig(
         frames=args.frames, seed=args.seed, commands_to_drone=args.commands_to_drone, rate_hz=args.rate,
         instance=args.instance, port_base=args.port_base, log_dir=args.log_dir, attach=args.attach,

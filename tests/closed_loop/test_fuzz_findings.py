@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import pytest
 
+from bench.fuzz import run_in_process
 from sitl.mav_vehicle import SimVehicleApi
 from sitl.protocol import vehicle_api as api
 from sitl.protocol.modes import Px4Mode
@@ -43,3 +44,14 @@ def test_land_at_a_point_far_away_flies_there_first_and_touches_down_gently(nort
     assert not sim.vehicle.crashed
     assert sim.truth.on_ground and not vehicle.snapshot().armed
     assert (sim.truth.pos_ned_m - home)[:2] == pytest.approx((north_m, 0.0), abs=0.5)
+
+
+def test_hostile_commands_and_setpoints_into_a_flying_drone_raise_nothing_and_keep_its_state_finite() -> None:
+    # GIVEN a flying drone behind its MAVLink services WHEN 4,000 seeded hostile frames arrive, most of them commands
+    # and setpoints addressed to it (bench/fuzz.py --in-process)
+    report = run_in_process(4_000, seed=20261125)
+
+    # THEN no handler, reply or step raised, and its position, velocity and attitude stayed finite
+    assert report.frames == 4_000 and report.messages_handled > 2_000
+    assert report.errors == {}, report.text()
+    assert report.nonfinite == 0, report.text()
