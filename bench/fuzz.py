@@ -666,8 +666,12 @@ class FuzzReport:
             f"fuzz: mode {self.mode} ({'commands to the drone' if self.mode == 'b' else 'no command to the drone'}), "
             f"seed {self.seed}",
             f"  frames sent: {self.frames_sent} in {self.datagrams_sent} datagrams, {self.fuzz_wall_s:.1f} s wall "
-            f"({self.frames_sent / max(self.fuzz_wall_s, 1e-9):.0f} frames/s); the drone used "
-            f"{self.drone_cpu_fraction:.0%} of a core meanwhile",
+            f"({self.frames_sent / max(self.fuzz_wall_s, 1e-9):.0f} frames/s)"
+            + (
+                ""
+                if math.isnan(self.drone_cpu_fraction)
+                else f"; the drone used {self.drone_cpu_fraction:.0%} of a core"
+            ),
             "  by kind: " + ", ".join(f"{k} {v}" for k, v in sorted(self.by_kind.items())),
             f"  message types sent: {self.message_types_sent} of {self.message_types_in_dialect} in the common "
             f"dialect (fewest: {min(self.by_message.values(), default=0)} frames of one type)",
