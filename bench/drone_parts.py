@@ -30,6 +30,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 PARTS = ("physics", "control", "perception", "mavlink", "total")
 
@@ -127,20 +128,50 @@ def lone(sim_seconds: float) -> dict[str, float]:
     }
 
 
-def circle(sim_seconds: float) -> dict[str, float]:
+def circle(sim_seconds: float, *, drones: int = 8, radius_m: float = 4.0, rate_radps: float = 0.3) -> dict[str, float]:
+    """The circle flight timed per part, and ``digest``: a hash of every drone's true state at every step, so two
+    trees that should fly alike can be seen to (the same digest) in the same run that times them."""
     sys.path.insert(0, os.getcwd())
+    import hashlib
+    import struct
+
     from tests.closed_loop.circle_swarm import CircleScenario, fly_circle_past_a_silent_drone
 
-    out = fly_circle_past_a_silent_drone(CircleScenario(rotate_s=max(sim_seconds - 10.0, 5.0)))
+    digest = hashlib.sha256()
+    flown: list[Any] = []
+
+    def trace(sims: list[Any], _now: float) -> None:
+        if not flown:
+            flown.extend(sims)
+        for sim in sims:
+            t = sim.truth
+            digest.update(struct.pack("<3d3d4d", *t.pos_ned_m, *t.vel_ned_mps, *t.att_q_frd_to_ned))
+
+    scenario = CircleScenario(drones=drones, radius_m=radius_m, rate_radps=rate_radps,
+                              rotate_s=max(sim_seconds - 10.0, 5.0))  # fmt: skip
+    out = fly_circle_past_a_silent_drone(scenario, on_tick=trace)
     return {
+        "physics": 1e-6 * sum(s.physics_ns for s in flown) / (len(flown) * out.sim_s),
         "control": out.control_ms_per_drone_sim_s,
         "perception": out.perception_ms_per_drone_sim_s,
         "total": out.cpu_ms_per_drone_sim_s,
+        "digest": int(digest.hexdigest()[:15], 16),
+        "collisions": out.collisions,
     }
 
 
-def one(sim_seconds: float) -> dict[str, dict[str, float]]:
-    return {"lone": lone(sim_seconds), "circle": circle(sim_seconds)}
+# The dense circle: 24 drones and the silent one, on the radius ``swarm bench`` gives 24 slots (2 m apart), turning
+# at half the rate so the rim keeps the 9-drone circle's pace: nearly every drone is within camera range of each.
+DENSE = {"drones": 24, "radius_m": 8.0, "rate_radps": 0.15}
+
+
+def one(sim_seconds: float, scenarios: list[str]) -> dict[str, dict[str, float]]:
+    runs = {
+        "lone": lambda: lone(sim_seconds),
+        "circle": lambda: circle(sim_seconds),
+        "dense": lambda: circle(sim_seconds, **DENSE),  # type: ignore[arg-type]
+    }
+    return {name: runs[name]() for name in scenarios}
 
 
 def main() -> None:
@@ -148,22 +179,29 @@ def main() -> None:
     parser.add_argument("--sim-seconds", type=float, default=30.0)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--trees", nargs="+", type=Path, default=None)
+    parser.add_argument("--scenarios", nargs="+", choices=("lone", "circle", "dense"), default=["circle", "dense"])
     parser.add_argument("--one", action="store_true", help=argparse.SUPPRESS)  # a subprocess of --trees
     args = parser.parse_args()
     if args.one:
-        print(json.dumps(one(args.sim_seconds)), flush=True)
+        print(json.dumps(one(args.sim_seconds, args.scenarios)), flush=True)
         return
     trees = [p.resolve() for p in args.trees] if args.trees else [Path.cwd()]
     results: dict[Path, list[dict[str, dict[str, float]]]] = {t: [] for t in trees}
     for rep in range(args.repeats):
         for tree in trees:
             env = {**os.environ, "PYTHONPATH": str(tree)}
-            cmd = [sys.executable, str(Path(__file__).resolve()), "--one", "--sim-seconds", str(args.sim_seconds)]
+            cmd = [sys.executable, str(Path(__file__).resolve()), "--one", "--sim-seconds", str(args.sim_seconds),
+                   "--scenarios", *args.scenarios]  # fmt: skip
             proc = subprocess.run(cmd, env=env, cwd=tree, capture_output=True, text=True, check=True)
             row = json.loads(proc.stdout.strip().splitlines()[-1])
             results[tree].append(row)
             print(f"repeat {rep + 1} {tree}: {json.dumps(row)}", flush=True)
-    for scenario, reference in (("lone", "physics"), ("circle", "control")):
+    for scenario in args.scenarios:
+        reference = "physics"
+        if any(r[scenario].get("digest") is not None for runs in results.values() for r in runs):
+            digests = {tree: sorted({r[scenario]["digest"] for r in runs}) for tree, runs in results.items()}
+            same = len({tuple(d) for d in digests.values()}) == 1
+            print(f"\n{scenario}: flight digests {digests}: {'identical' if same else 'DIFFERENT'}")
         print(f"\n{scenario}: ms of CPU per drone per simulated second, median of {args.repeats}")
         _print_medians(results, scenario, ".2f")
         # The machine's speed drifts between runs (other work, cache sharing): each part as a multiple of a part

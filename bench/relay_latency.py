@@ -14,12 +14,14 @@ import json
 import subprocess
 import sys
 
-from gcs.supervisor import SpawnPlan
+from gcs.composition import SITL
+from gcs.harness import SpawnPlan
 from gcs.swarm import Swarm
 
 
 def measure(n_drones: int, seconds: float) -> dict[str, float]:
-    swarm = Swarm(SpawnPlan(n_drones=n_drones, first_instance=120))
+    plan = SpawnPlan(n_drones=n_drones, first_instance=120)
+    swarm = Swarm(plan, SITL.harness(plan))
     try:
         swarm.up()
         home = swarm.plan.origin

@@ -13,7 +13,7 @@ import re
 import signal
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import FrameType
 from typing import Any, Literal, NoReturn
@@ -24,9 +24,11 @@ from gcs.control import ControlClient, ControlError, ControlServer
 from gcs.faults import CRASH, FAULT_NAMES, FaultError, fault_request
 from gcs.geodesy import DEFAULT_ORIGIN, GeoPoint
 from gcs.harness import LAYOUTS, Simulation, SpawnError, SpawnPlan, parse_drones_per_process
+from gcs.links import LINK_OPTIONS, LinkPlan, parse_link_value
 from gcs.losses import LOSS_POLICIES, LossPolicy
 from gcs.mission_file import MissionFileError, build_flock, build_follow, load_mission
 from gcs.mission_runner import MissionRunner
+from gcs.signing import SigningKeyError, load_key
 from gcs.station import Station, format_status
 from gcs.swarm import Swarm, SwarmError
 from gcs.transport import parse_host_port
@@ -122,6 +124,25 @@ def _add_forward_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-forward", action="store_true", help="do not forward drone traffic to a ground station")
 
 
+def _add_signing_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--signing-key", type=Path, default=None, metavar="FILE",
+                        help="MAVLink 2 signing key file (64 hex digits, or a one-line passphrase as MAVProxy and "
+                        "QGroundControl take it): the supervisor signs what it sends, the drones sign theirs and "
+                        "drop unsigned messages")  # fmt: skip
+
+
+def _signing_key_file(args: argparse.Namespace) -> Path | None:
+    """The key file, checked now so a bad one is one line before anything starts (absolute: drones start
+    elsewhere)."""
+    if args.signing_key is None:
+        return None
+    try:
+        load_key(args.signing_key)
+    except SigningKeyError as exc:
+        raise UsageError(str(exc)) from None
+    return Path(args.signing_key).resolve()
+
+
 def _add_timing_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--speed", type=_positive, default=None, help="speed factor (default 1; with --lockstep: as fast as possible)"
@@ -149,6 +170,43 @@ def _add_timing_options(parser: argparse.ArgumentParser) -> None:
         metavar="K|auto",
         help="drones each simulation process runs (default 1: one process per drone; auto: one process per CPU)",
     )
+
+
+def _add_link_options(parser: argparse.ArgumentParser) -> None:
+    """The link model's settings for every link class (over a mission's ``[swarm.links]``; docs/links.md)."""
+    group = parser.add_argument_group("link model (every link class: ground station, API, neighbour)")
+    helps = {
+        "loss": ("P", "probability a frame is lost (0..1) while the channel is good"),
+        "latency_ms": ("MS", "one-way delay of every frame"),
+        "jitter_ms": ("MS", "standard deviation of the delay's random part (a normal, truncated at 0 delay)"),
+        "burst_good_s": ("S", "burst outages: mean time between them (exponential)"),
+        "burst_bad_s": ("S", "burst outages: mean length (exponential)"),
+        "burst_loss": ("P", "probability a frame is lost during an outage (default 1)"),
+        "bandwidth_bps": ("BPS", "air rate cap in bit/s: frames queue behind each other (docs/links.md)"),
+    }
+    for option, key in LINK_OPTIONS.items():
+        metavar, text = helps[key]
+        group.add_argument(option, type=_link_value(key), default=None, metavar=metavar, help=text)
+
+
+def _link_value(key: str) -> Callable[[str], float]:
+    def parse(text: str) -> float:
+        try:
+            return parse_link_value(key, text)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    return parse
+
+
+def _link_plan(args: argparse.Namespace, base: LinkPlan) -> LinkPlan:
+    """``base`` (a mission's links, or perfect ones) with the ``--link-*`` options given set for every class."""
+    given = {key: getattr(args, option[2:].replace("-", "_")) for option, key in LINK_OPTIONS.items()}
+    values = {key: value for key, value in given.items() if value is not None}
+    try:
+        return base.overridden(values)
+    except ValueError as exc:
+        raise UsageError(f"--link-* options: {exc}") from None
 
 
 def drones_per_process_arg(text: str) -> int | Literal["auto"]:
@@ -197,6 +255,7 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--spacing", type=_positive, default=2.0, help="spawn spacing in metres (default 2)")
     up.add_argument("--layout", choices=sorted(LAYOUTS), default="grid", help="spawn layout (default grid)")
     _add_timing_options(up)
+    _add_link_options(up)
     up.add_argument("--first-instance", type=int, default=0, help="instance of the first drone (sysid = instance+1)")
     up.add_argument("--origin", type=_origin, default=DEFAULT_ORIGIN, help="swarm origin LAT,LON,ALT_AMSL")
     up.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
@@ -212,17 +271,20 @@ def build_parser() -> argparse.ArgumentParser:
                     help="what the others do when a drone is lost: continue (re-plan over the survivors; default), "
                     "hold, land, or abort (every drone returns to launch and lands)")  # fmt: skip
     _add_forward_options(up)
+    _add_signing_option(up)
     fly = sub.add_parser("fly", help="run a mission file end to end and write a flight report")
     fly.add_argument(
         "mission", type=Path, nargs="?", default=DEFAULT_MISSION, help=f"mission file (default {DEFAULT_MISSION})"
     )
     fly.add_argument("--report", type=Path, default=None, help="report directory (default reports/<mission>-<time>)")
     _add_timing_options(fly)
+    _add_link_options(fly)
     fly.add_argument("--first-instance", type=int, default=0, help="instance of the first drone")
     fly.add_argument("--origin", type=_origin, default=DEFAULT_ORIGIN, help="swarm origin LAT,LON,ALT_AMSL")
     fly.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
     fly.add_argument("--seed", type=int, default=0, help="base random seed (drone i uses seed+i)")
     _add_forward_options(fly)
+    _add_signing_option(fly)
     add_bench_parser(sub)
     sub.add_parser("status", help="table of every drone")
     takeoff = sub.add_parser("takeoff", help="arm and take off every drone")
@@ -326,6 +388,8 @@ def run_up(args: argparse.Namespace, simulation: Simulation) -> int:
         camera_drones=_camera_drones(args, args.drones),
         camera_dir=Path("camera-frames"),
         drones_per_process=args.drones_per_process,
+        signing_key_file=_signing_key_file(args),
+        links=_link_plan(args, LinkPlan()),
     )
     stop = _Stop()
     signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
@@ -382,6 +446,7 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
         raise UsageError(str(exc)) from None
     if args.first_instance < 0 or args.first_instance + mission.swarm.drones > 255:
         raise UsageError("--first-instance must leave room for every sysid (instance + 1 <= 255)")
+    links = _link_plan(args, mission.swarm.links)
     report = args.report or Path("reports") / f"{mission.name}-{time.strftime('%Y%m%d-%H%M%S')}"
     runner = MissionRunner(mission, simulation, speed_factor=_speed(args), origin=args.origin,
                            first_instance=args.first_instance, report_dir=report, say=_say, airframe=args.airframe,
@@ -389,7 +454,8 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
                            forward=None if args.no_forward else args.forward, lockstep=args.lockstep,
                            lockstep_quantum=_quantum(args),
                            camera_drones=_camera_drones(args, mission.swarm.drones),
-                           drones_per_process=args.drones_per_process)  # fmt: skip
+                           drones_per_process=args.drones_per_process, links=links,
+                           signing_key_file=_signing_key_file(args))  # fmt: skip
     signal.signal(signal.SIGTERM, _interrupt)  # a terminated run lands and stops its drones like Ctrl-C
     try:
         out = runner.run()

@@ -12,7 +12,8 @@ from __future__ import annotations
 from typing import Literal
 
 from gcs.harness import SimulationHarness, SpawnPlan
-from sitl.harness import GeoPoint, LaunchPlan, SitlHarness
+from gcs.links import LinkPlan
+from sitl.harness import GeoPoint, LaunchPlan, LinkImpairment, LinkProfile, SitlHarness
 from sitl.harness import simulation as sim
 
 
@@ -32,6 +33,17 @@ def launch_plan(plan: SpawnPlan) -> LaunchPlan:
         camera_drones=plan.camera_drones,
         camera_dir=plan.camera_dir,
         drones_per_process=plan.drones_per_process,
+        signing_key_file=plan.signing_key_file,
+        links=link_profile(plan.links),
+    )
+
+
+def link_profile(plan: LinkPlan) -> LinkProfile:
+    """The simulation's link profile for the ground station's link settings (the same keys on both sides)."""
+    return LinkProfile(
+        gcs=LinkImpairment(**plan.gcs.values()),
+        api=LinkImpairment(**plan.api.values()),
+        neighbour=LinkImpairment(**plan.neighbour.values()),
     )
 
 

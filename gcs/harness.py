@@ -17,8 +17,8 @@ instances; the composition root turns it into the simulation's own launch plan.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal, Protocol
 
@@ -26,6 +26,7 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs.geodesy import DEFAULT_ORIGIN, GeoPoint
+from gcs.links import LinkPlan
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -69,6 +70,11 @@ class SpawnPlan:
     # process per usable CPU). A hosted drone is the same vehicle on the wire; hosting saves the CPU every process
     # pays for its wake-ups (docs/architecture.md, "Drone hosts").
     drones_per_process: int | Literal["auto"] = 1
+    # MAVLink 2 signing: the key file every drone and the ground station sign with (one key for the swarm); the
+    # drones then require signed messages (MAV_SIGN_CFG = 2). None: no signing.
+    signing_key_file: Path | None = None
+    # The link model's settings per link class, the same for every drone (each draws its own: docs/links.md).
+    links: LinkPlan = field(default_factory=LinkPlan)
 
     def offsets_ne_m(self) -> list[tuple[float, float]]:
         """Each drone's spawn position, north/east metres from the origin in the swarm frame (spawn order)."""
@@ -149,6 +155,22 @@ class SimulationHarness(Protocol):
 
     def clock_columns(self) -> tuple[FloatArray, FloatArray]:
         """For measurement: each drone's published simulated time and lockstep step count (spawn order), one read."""
+        ...
+
+    def note_sent_to_drones(self, datagrams: Mapping[int, int]) -> None:
+        """Lockstep delivery: the datagrams the ground station has sent so far to each drone (by sysid), said before
+        it lets them run on; a drone reads them all before its next step (gcs/swarm.py ``_lockstep_frame``)."""
+        ...
+
+    def sent_by_drones(self) -> dict[int, int]:
+        """Lockstep delivery: the datagrams each drone (by sysid) has sent the ground station so far, as of the
+        common time; the ground station reads them all before it acts at that time."""
+        ...
+
+    def link_counters(self) -> dict[str, dict[str, float]]:
+        """What the link model did to the swarm's traffic, summed over the drones, by channel (``"gcs up"``: the
+        ground-station links towards the drones; ``down``: from them) with ``frames_offered``, ``frames_lost``,
+        ``delayed`` and ``total_delay_s``; still answers after ``close``. Empty when every link is perfect."""
         ...
 
     def cpu_parts_s(self) -> FloatArray:

@@ -180,6 +180,8 @@ class FlightMetrics:
     failsafes: tuple[EventRecord, ...] = ()
     policy_events: tuple[EventRecord, ...] = ()
     requested_speed: float | None = None  # paced flights only
+    signing_key_id: str | None = None  # MAVLink signing: the key's id (not the key) when on, None when off
+    link_counters: dict[str, dict[str, float]] = field(default_factory=dict)  # the link model's counts by channel
     realtime_factor_min: float | None = None  # the drones' achieved pace, over 5 s windows
     realtime_factor_mean: float | None = None
 
@@ -214,6 +216,8 @@ class FlightMetrics:
                 {"time_s": _r(e.time_s), "sysid": e.sysid, "text": e.text} for e in self.policy_events
             ],
             "requested_speed": _r(self.requested_speed),
+            "signing": {"on": self.signing_key_id is not None, "key_id": self.signing_key_id},
+            "links": {name: link_summary(c) for name, c in self.link_counters.items()},
             "realtime_factor_min": _r(self.realtime_factor_min),
             "realtime_factor_mean": _r(self.realtime_factor_mean),
             "parameters": {
@@ -235,6 +239,21 @@ class FlightMetrics:
 def _loss_dict(loss: DroneLoss) -> dict[str, Any]:
     down = [_r(v) for v in loss.down_ne_m] if loss.down_ne_m is not None else None
     return {"sysid": loss.sysid, "time_s": _r(loss.time_s), "cause": loss.cause, "down_ne_m": down}
+
+
+def link_summary(counts: dict[str, float]) -> dict[str, Any]:
+    """One channel's counts with the rates a reader wants: the share of frames lost, the mean delay."""
+    offered = counts.get("frames_offered", 0.0)
+    lost = counts.get("frames_lost", 0.0)
+    delayed = counts.get("delayed", 0.0)
+    delivered = offered - lost
+    return {
+        "frames_offered": int(offered),
+        "frames_lost": int(lost),
+        "loss_rate": _r(lost / offered) if offered else None,
+        "frames_delayed": int(delayed),
+        "mean_delay_ms": _r(1000.0 * counts.get("total_delay_s", 0.0) / delivered) if delivered else None,
+    }
 
 
 def _step_dict(step: StepMetrics) -> dict[str, Any]:
@@ -593,6 +612,8 @@ def compute_metrics(recording: FlightRecording) -> FlightMetrics:
         failsafes=tuple(recording.failsafes),
         policy_events=tuple(recording.policy_events),
         requested_speed=recording.requested_speed,
+        signing_key_id=recording.signing_key_id,
+        link_counters=dict(recording.link_counters),
         realtime_factor_min=min(recording.realtime_factors, default=None),
         realtime_factor_mean=(
             sum(recording.realtime_factors) / len(recording.realtime_factors) if recording.realtime_factors else None

@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 import re
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +39,7 @@ from gcs.behaviours import FlockSpec, FollowSpec
 from gcs.faults import FAULT_NAMES, FaultError, FaultRequest, fault_request
 from gcs.formation import CircleSpec, Formation, FormationError, GridSpec, LineSpec, VSpec
 from gcs.harness import LAYOUTS
+from gcs.links import LINK_CLASSES, LINK_KEYS, LinkPlan, plan_from_tables, value_problem
 from gcs.losses import LOSS_POLICIES, LossPolicy
 
 MAX_DRONES = 100
@@ -56,6 +57,8 @@ class SwarmSpec:
     # Drone parameters set over MAVLink (PARAM_SET) before arming; an int travels as INT32, a float as REAL32.
     params: tuple[tuple[str, int | float], ...] = ()
     relay: bool = True  # false: no neighbour relay, the drones see each other only with their cameras
+    # [swarm.links]: the link model's settings per link class (docs/links.md)
+    links: LinkPlan = field(default_factory=LinkPlan)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -509,6 +512,38 @@ def _params(reader: _Reader, table: Any, where: tuple[str | None, int | None]) -
     return tuple(out)
 
 
+def _links(reader: _Reader, table: Any) -> LinkPlan:
+    """``[swarm.links]``: keys for every link class, and ``[swarm.links.CLASS]`` tables over them for one class."""
+    where: tuple[str | None, int | None] = ("swarm.links", None)
+    if not isinstance(table, dict):
+        raise reader.fail(("swarm", None), "links", "must be a table ([swarm.links])")
+    reader.check_keys(table, {*LINK_KEYS, *LINK_CLASSES}, where)
+    common = _link_values(reader, {k: v for k, v in table.items() if k in LINK_KEYS}, where)
+    per_class: dict[str, dict[str, float]] = {}
+    for link_class in LINK_CLASSES:
+        if link_class not in table:
+            continue
+        sub: tuple[str | None, int | None] = (f"swarm.links.{link_class}", None)
+        if not isinstance(table[link_class], dict):
+            raise reader.fail(where, link_class, f"must be a table ([swarm.links.{link_class}])")
+        reader.check_keys(table[link_class], set(LINK_KEYS), sub)
+        per_class[link_class] = _link_values(reader, table[link_class], sub)
+    try:
+        return plan_from_tables(common, per_class)
+    except ValueError as exc:  # a burst pair half given: named by its class's table, or the common one
+        link_class, _, problem = str(exc).partition(": ")
+        place = (f"swarm.links.{link_class}", None) if link_class in per_class else where
+        raise reader.fail(place, None, problem) from None
+
+
+def _link_values(reader: _Reader, table: dict[str, Any], where: tuple[str | None, int | None]) -> dict[str, float]:
+    for key, value in table.items():
+        problem = value_problem(key, value)
+        if problem is not None:  # the label names the key already: the problem without it
+            raise reader.fail(where, key, problem.removeprefix(f"{key} "))
+    return {key: float(value) for key, value in table.items()}
+
+
 def _obstacles(reader: _Reader, data: Any, max_obstacles: int | None) -> tuple[ObstacleSpec, ...]:
     if not isinstance(data, list):
         raise reader.fail((None, None), "obstacles", "must be [[obstacles]] tables")
@@ -551,7 +586,7 @@ def parse_mission(text: str, path: Path, *, max_obstacles: int | None = None) ->
     if not isinstance(swarm, dict):
         raise reader.fail((None, None), None, "missing [swarm] table with 'drones'")
     where_swarm: tuple[str | None, int | None] = ("swarm", None)
-    reader.check_keys(swarm, {"drones", "layout", "spacing_m", "params", "relay", "loss_policy"}, where_swarm)
+    reader.check_keys(swarm, {"drones", "layout", "spacing_m", "params", "relay", "loss_policy", "links"}, where_swarm)
     if "drones" not in swarm:
         raise reader.fail(where_swarm, None, "missing field 'drones'")
     drones = int(reader.number(swarm, "drones", where_swarm, "count"))
@@ -581,7 +616,14 @@ def parse_mission(text: str, path: Path, *, max_obstacles: int | None = None) ->
     return MissionSpec(
         name=name,
         description=description,
-        swarm=SwarmSpec(drones=drones, layout=layout, spacing_m=spacing, params=params, relay=relay),
+        swarm=SwarmSpec(
+            drones=drones,
+            layout=layout,
+            spacing_m=spacing,
+            params=params,
+            relay=relay,
+            links=_links(reader, swarm.get("links", {})),
+        ),
         steps=steps,
         loss_policy=LossPolicy(policy),
         path=path,

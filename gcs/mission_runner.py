@@ -24,6 +24,7 @@ from gcs.formation import SETPOINT_STREAM_HZ
 from gcs.frames import SwarmFrame
 from gcs.geodesy import GeoPoint
 from gcs.harness import Simulation, SpawnPlan
+from gcs.links import LinkPlan
 from gcs.losses import LossPolicy, loss_line
 from gcs.mission_file import (
     FaultStep,
@@ -58,7 +59,8 @@ class MissionRunner:
                  first_instance: int, report_dir: Path, say: Say, airframe: str | None = None, seed: int = 0,
                  forward: tuple[str, int] | None = None, lockstep: bool = False,
                  lockstep_quantum: int = 1, camera_drones: frozenset[int] = frozenset(),
-                 drones_per_process: int | Literal["auto"] = 1) -> None:  # fmt: skip
+                 drones_per_process: int | Literal["auto"] = 1, links: LinkPlan | None = None,
+                 signing_key_file: Path | None = None) -> None:  # fmt: skip
         self.mission = mission
         self.speed = speed_factor
         self.say = say
@@ -79,6 +81,8 @@ class MissionRunner:
             camera_drones=camera_drones,
             camera_dir=report_dir / "camera",
             drones_per_process=drones_per_process,
+            signing_key_file=signing_key_file,
+            links=mission.swarm.links if links is None else links,  # None: the mission's own [swarm.links]
         )
         self.swarm = Swarm(plan, simulation.harness(plan), forward=forward, relay=mission.swarm.relay)
         self.streamer = FormationStreamer(self.swarm, self.swarm_frame)
@@ -95,6 +99,7 @@ class MissionRunner:
         self._next_status_s = 0.0
         self._step_name = "spawn"
         self.recording.loss_policy = mission.loss_policy.value
+        self.recording.signing_key_id = self.swarm.signing_key_id
         self._pending_faults: list[tuple[float, FaultStep]] = []  # (mission time due, step)
         self._policy_taken = False  # a loss policy other than continue has taken the survivors out of the mission
 
@@ -316,6 +321,7 @@ class MissionRunner:
             self.streamer.stop()
             self.recording.losses = list(self.swarm.losses.values())
             self.swarm.shutdown()
+            self.recording.link_counters = self.swarm.harness.link_counters()
             self.recorder.close()
         out = write_report(self.recording, self.report_dir)
         self.say((out / "summary.txt").read_text().rstrip())

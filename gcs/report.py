@@ -26,6 +26,7 @@ from gcs.metrics import (
     TAKEOFF_TOLERANCE_M,
     FlightMetrics,
     compute_metrics,
+    link_summary,
 )
 from gcs.pace_monitor import SLOW_FRACTION
 from gcs.recording import DroneSample, FlightRecording, StepRecord
@@ -294,7 +295,18 @@ def summary_text(metrics: FlightMetrics) -> str:
         f"Flight report: {metrics.mission_name}",
         f"drones: {metrics.n_drones} (reporting: {sysids})",
         f"duration: {metrics.duration_s:.1f} s",
+        "MAVLink signing: "
+        + (
+            f"on (key {metrics.signing_key_id}; the drones drop unsigned messages)" if metrics.signing_key_id else "off"
+        ),
     ]
+    for name, counts in metrics.link_counters.items():
+        link = link_summary(counts)
+        lines.append(
+            f"link model, {name}: {link['frames_lost']} of {link['frames_offered']} frames lost "
+            f"({100.0 * (link['loss_rate'] or 0.0):.1f} %), {link['frames_delayed']} delayed"
+            + (f" (mean {link['mean_delay_ms']:.1f} ms)" if link["mean_delay_ms"] is not None else "")
+        )
     if metrics.requested_speed is not None and metrics.realtime_factor_min is not None:
         speed, low = metrics.requested_speed, metrics.realtime_factor_min
         behind = low < SLOW_FRACTION * speed

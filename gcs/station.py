@@ -50,6 +50,7 @@ class Station:
             mission_name="swarm-up", n_drones=swarm.plan.n_drones, collision_radius_m=contact_distance_m
         )
         self.recording.loss_policy = loss_policy.value
+        self.recording.signing_key_id = swarm.signing_key_id
         self.recorder: FlightRecorder | None = None
         if report_dir is not None:
             report_dir.mkdir(parents=True, exist_ok=True)
@@ -84,6 +85,7 @@ class Station:
             return None
         self._end_step(self.recording.steps[-1].end_s if self.recording.steps else 0.0)
         self.recording.losses = list(self.swarm.losses.values())
+        self.recording.link_counters = self.swarm.harness.link_counters()
         self.recorder.close()
         return write_report(self.recording, self.report_dir)
 

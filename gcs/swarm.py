@@ -16,8 +16,11 @@ it starts the drones, says which ended and why, crashes one on request, and runs
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import logging
 import math
+import os
 import selectors
 import time
 from collections.abc import Callable, Iterable
@@ -34,7 +37,10 @@ from gcs.losses import MAV_STATE_FLIGHT_TERMINATION, DroneLoss
 from gcs.params import ParamClient, ParamResult
 from gcs.px4_modes import set_mode_params
 from gcs.relay import NeighbourRelay
+from gcs.signing import key_id, load_key
 from gcs.transport import GcsSocket
+
+log = logging.getLogger(__name__)
 
 ARM_TIMEOUT_S = 30.0  # simulated seconds for every drone to pass its pre-arm checks before it is armed
 # How far the drones may run ahead of the supervisor's last look. Under load the drones sit at this limit, so it is
@@ -42,6 +48,7 @@ ARM_TIMEOUT_S = 30.0  # simulated seconds for every drone to pass its pre-arm ch
 LOCKSTEP_LEAD_S = 0.02
 LOCKSTEP_STALL_S = 10.0  # wall seconds without progress before the supervisor calls the simulation stalled
 LOCKSTEP_MAX_WAIT_S = 0.005  # wall-clock cap on one wait for traffic in lockstep (simulated time has no wall rate)
+LOCKSTEP_AWAIT_S = 1.0  # wall seconds the supervisor waits for a datagram a drone says it has sent
 # Relayed positions (and copies for another ground station) are held up to this long, in simulated seconds, and
 # leave with the next setpoint tick in one datagram per drone (gcs/transport.py). A drone then wakes once per tick
 # instead of once per neighbour report: with 8 neighbours reporting at 10 Hz that is 20 wake-ups a second instead of
@@ -73,13 +80,16 @@ class Swarm:
         self._wall_t0 = time.monotonic()
         self._gate_progress = (0.0, time.monotonic())  # (common time, wall time it was first seen)
         self._next_exit_check = 0.0
-        self.link = GcsSocket()
+        key = load_key(plan.signing_key_file) if plan.signing_key_file is not None else None
+        self.link = GcsSocket(signing_key=key)  # signs what the supervisor sends when the plan has a key
+        self.signing_key_id = key_id(key) if key is not None else None  # what the report names the key by
         self.fleet = Fleet()
         self.listeners: list[Callable[[Any, float], None]] = []  # e.g. the flight recorder, the relay
         # Commands and parameter writes the swarm sends, as packed MAVLink frames (the flight log keeps them)
         self.sent_listeners: list[Callable[[bytes, float], None]] = []
         self._selector = selectors.DefaultSelector()
         self._selector.register(self.link.sock, selectors.EVENT_READ)
+        self._gate_selector = selectors.DefaultSelector()  # lockstep: woken by the drones reaching the gate
         # The MAVLink command and parameter protocols (no IO of their own: the swarm feeds them and sends for them)
         self.commands = CommandClient()
         self.params = ParamClient()
@@ -91,7 +101,8 @@ class Swarm:
         self._flush_due_s = math.inf  # when the queued traffic must leave (-inf: at the next pump)
         self.losses: dict[int, DroneLoss] = {}  # sysid -> the loss, recorded once
         self._next_gcs_heartbeat_s = 0.0
-        self._heard_wall_s: dict[int, float] = {}  # sysid -> wall time of its last HEARTBEAT
+        self._heard_wall_s: dict[int, float] = {}
+        self._said_late_traffic = False  # sysid -> wall time of its last HEARTBEAT
 
     def clock(self) -> float:
         """Simulated seconds: the drones' common clock in lockstep, else wall time times the speed factor."""
@@ -104,24 +115,70 @@ class Swarm:
             return min(sim_s, LOCKSTEP_MAX_WAIT_S)
         return sim_s / self.plan.speed_factor
 
-    def _advance_gate(self) -> None:
-        """Let the drones run on to just past the supervisor's time; notice a stall or a dead member."""
-        if not self._lockstep_running:
-            return
+    def _check_members(self, now: float) -> None:
+        """Notice a drone that ended (it leaves the lockstep gate: it must hold nobody back) and a stalled
+        simulation; both on the wall clock, at most every EXIT_CHECK_S."""
         wall = time.monotonic()
-        if wall >= self._next_exit_check:
-            self._next_exit_check = wall + EXIT_CHECK_S
-            self.harness.ended()  # a drone that ended leaves the lockstep gate: it must hold nobody back
-        until = math.inf
-        if self.plan.speed_factor > 0:  # paced lockstep: the common clock follows the wall clock
-            until = (wall - self._wall_t0) * self.plan.speed_factor
-        now = self.harness.advance_lockstep(LOCKSTEP_LEAD_S, until)
-        if now is None:
-            return  # not every drone has joined yet: nobody starts before the rest
+        if wall < self._next_exit_check:
+            return
+        self._next_exit_check = wall + EXIT_CHECK_S
+        self.harness.ended()
         if now != self._gate_progress[0]:
             self._gate_progress = (now, wall)
         elif wall - self._gate_progress[1] > LOCKSTEP_STALL_S and len(self.harness.ended()) < len(self._sysids):
             raise SwarmError(f"simulation stalled at t={now:.3f} s: no drone advanced for {LOCKSTEP_STALL_S:g} s")
+
+    def _lockstep_frame(self) -> None:
+        """One frame of the lockstep clock: let the drones run LOCKSTEP_LEAD_S on and wait until every one of them
+        stands at the gate; then read everything they sent, in sysid order, at that one simulated time.
+
+        Every message then meets a fixed simulated time on both sides: what a drone sent up to the gate's step is
+        read at the gate's time (it publishes a step only after sending what is due at it), and what the supervisor
+        sends between frames reaches every drone while it waits at the gate, so it is handled there too (and
+        delayed from there by the link model). Nothing depends on when a datagram happened to arrive, so the same
+        mission with the same seeds flies the same, on an idle machine or a loaded one. The price is that the
+        drones wait while the supervisor works, instead of running on into its lead."""
+        now = self.clock()
+        if self.plan.speed_factor > 0:  # paced lockstep: the frame starts when the wall clock has caught up with it
+            ahead_s = (now + LOCKSTEP_LEAD_S) / self.plan.speed_factor - (time.monotonic() - self._wall_t0)
+            if ahead_s > 0:
+                time.sleep(ahead_s)
+        addresses = self.link.addresses
+        self.harness.note_sent_to_drones({s: self.link.sent_to.get(a, 0) for s, a in addresses.items()})
+        if self.harness.advance_lockstep(LOCKSTEP_LEAD_S) is None:
+            # Not every drone has joined yet (nobody starts before the rest): nothing runs, nothing to wait for.
+            self._gate_selector.select(LOCKSTEP_MAX_WAIT_S)
+            return
+        target = now + LOCKSTEP_LEAD_S - 1e-9
+        while (now := self.clock()) < target and len(self.harness.ended()) < len(self._sysids):
+            self._check_members(now)
+            if self._gate_selector.select(LOCKSTEP_MAX_WAIT_S) and self._wake_fd is not None:
+                _consume(self._wake_fd)  # that wake-up is read: the next one is news
+
+    def _read_frame(self) -> list[tuple[Any, tuple[str, int]]]:
+        """Lockstep: everything the drones sent up to the common time, in sysid order (each sender's own order kept).
+        Loopback UDP may hand a datagram over a little after its ``sendto`` returned, so the supervisor reads until
+        it has as many from each drone as the drone says it sent; one that never comes (a full buffer) is given up
+        after LOCKSTEP_AWAIT_S, and said once."""
+        messages: list[tuple[Any, tuple[str, int]]] = []
+        sent = self.harness.sent_by_drones()
+        deadline = time.monotonic() + LOCKSTEP_AWAIT_S
+        while True:
+            while batch := self.link.receive():
+                messages.extend(batch)
+            addresses, received = self.link.addresses, self.link.received_from
+            missing = [s for s, n in sent.items() if n > received.get(addresses.get(s, ("", 0)), 0)]
+            missing = [s for s in missing if s not in self.losses and s in addresses]
+            if not missing:
+                break
+            if time.monotonic() > deadline:
+                if not self._said_late_traffic:
+                    self._said_late_traffic = True
+                    log.warning("lockstep: datagrams from sysid %s never arrived; going on", missing)
+                break
+            self._selector.select(LOCKSTEP_MAX_WAIT_S)
+        messages.sort(key=lambda item: int(item[0].get_srcSystem()))
+        return messages
 
     def drone_time_s(self) -> float | None:
         """The slowest running drone's own simulated time; None before every drone has one."""
@@ -221,14 +278,21 @@ class Swarm:
 
     # ---- IO --------------------------------------------------------------------------------------------------------
     def pump(self, wait_s: float = 0.0) -> None:
-        """Send what is due, then handle every waiting message, waiting up to ``wait_s`` (simulated) for the first."""
+        """Send what is due, then handle every waiting message, waiting up to ``wait_s`` (simulated) for the first.
+        In lockstep, one frame of the common clock instead (``_lockstep_frame``), whatever ``wait_s``."""
         self._flush(self.clock())
-        if wait_s > 0:
-            if self.link.queued:
-                wait_s = min(wait_s, max(0.0, self._flush_due_s - self.clock()))
-            self._selector.select(self._wall_wait_s(wait_s))
-        now = self.clock()
-        for msg, _sender in self.link.receive():
+        if self._lockstep_running:
+            self._lockstep_frame()
+            now = self.clock()
+            messages = self._read_frame()
+        else:
+            if wait_s > 0:
+                if self.link.queued:
+                    wait_s = min(wait_s, max(0.0, self._flush_due_s - self.clock()))
+                self._selector.select(self._wall_wait_s(wait_s))
+            now = self.clock()
+            messages = self.link.receive()
+        for msg, _sender in messages:
             if msg.get_srcComponent() != 1:
                 self._route_from_ground_station(msg)
                 continue
@@ -251,7 +315,6 @@ class Swarm:
                 listener(msg, now)
         self._send_gcs_heartbeat(now)
         self._flush(now)
-        self._advance_gate()
 
     def _send_gcs_heartbeat(self, now: float) -> None:
         """The ground station's own HEARTBEAT to every drone at 1 Hz (simulated time), as QGroundControl sends it:
@@ -327,7 +390,7 @@ class Swarm:
         self._wall_t0 = time.monotonic()
         self._wake_fd = self.harness.wake_fileno()
         if self._wake_fd is not None:
-            self._selector.register(self._wake_fd, selectors.EVENT_READ)
+            self._gate_selector.register(self._wake_fd, selectors.EVENT_READ)
         self._lockstep_running = self.plan.lockstep
         expected = set(self.sysids)
         end = time.monotonic() + ready_timeout_s  # start-up is wall-clock work (Python, JSBSim), whatever the mode
@@ -406,12 +469,13 @@ class Swarm:
                     self.force_disarm(still)
         finally:
             if self._wake_fd is not None:
-                self._selector.unregister(self._wake_fd)
+                self._gate_selector.unregister(self._wake_fd)
                 self._wake_fd = None
             try:
                 self.harness.close()
             finally:
                 self._selector.close()
+                self._gate_selector.close()
                 self.link.close()
 
     # ---- commands --------------------------------------------------------------------------------------------------
@@ -487,6 +551,13 @@ class Swarm:
 
 
 CRASH_TEXT_AGE_S = 5.0  # a warning this recent says why a drone crashed; an older one is about something else
+
+
+def _consume(fd: int) -> None:
+    """Read every datagram waiting on a non-blocking descriptor."""
+    with contextlib.suppress(BlockingIOError, InterruptedError):
+        while True:
+            os.read(fd, 64)
 
 
 def crash_cause(texts: list[tuple[float, int, str]], now_s: float) -> str:

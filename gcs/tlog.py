@@ -3,8 +3,9 @@
 Keeping the raw packets of a flight lets anyone replay or inspect it with standard tools (QGroundControl,
 ``mavlogdump.py``, ``mavplayback.py``) independently of our own recording. The format has no header: each record is
 the receive time as an 8-byte big-endian unsigned integer of microseconds since the Unix epoch, followed by one
-complete MAVLink packet (v1 or v2) exactly as it was on the wire. Readers find the packet's length by parsing it, so
-a record must hold exactly one whole packet.
+complete MAVLink packet (v1 or v2) as it was on the wire, except that a signed packet is logged unsigned (its
+signature dropped, as the MAVLink signing specification asks of logs: gcs/signing.py). Readers find the packet's
+length by parsing it, so a record must hold exactly one whole packet.
 
 The writer takes the time from its caller (no clock of its own), so logs are reproducible and tests need no sleeping.
 """
@@ -16,6 +17,8 @@ import struct
 from pathlib import Path
 from types import TracebackType
 from typing import BinaryIO
+
+from gcs.signing import without_signature
 
 _TIMESTAMP = struct.Struct(">Q")
 _MAVLINK_STX = (0xFE, 0xFD)  # start bytes of MAVLink 1 and MAVLink 2 packets
@@ -41,7 +44,7 @@ class TlogWriter:
         time_us = operator.index(unix_time_us)  # integers only: a float here is a units mistake
         if not 0 <= time_us < 2**64:
             raise ValueError(f"timestamp {time_us} us is out of range for a tlog record")
-        self._file.write(_TIMESTAMP.pack(time_us) + bytes(packet_bytes))
+        self._file.write(_TIMESTAMP.pack(time_us) + without_signature(bytes(packet_bytes)))
         self.records_written += 1
 
     def flush(self) -> None:

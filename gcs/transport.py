@@ -14,10 +14,13 @@ of traffic instead of once per message: on a busy machine a wake-up costs a dron
 from __future__ import annotations
 
 import socket
+import time
 from collections.abc import Iterable
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
+
+from gcs import signing
 
 GCS_SYSID = 255
 GCS_COMPID = mavlink.MAV_COMP_ID_MISSIONPLANNER
@@ -55,16 +58,25 @@ def datagrams(frames: Iterable[bytes], max_bytes: int = MAX_BATCH_BYTES) -> list
 
 
 class GcsSocket:
-    def __init__(self, bind: Address = ("127.0.0.1", 0)) -> None:
+    def __init__(self, bind: Address = ("127.0.0.1", 0), signing_key: bytes | None = None) -> None:
+        """``signing_key``: sign every frame this socket packs (gcs/signing.py); relayed and forwarded frames pass
+        unchanged, with their own signatures."""
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
         self.sock.bind(bind)
         self.sock.setblocking(False)
         self._encoder = mavlink.MAVLink(None, srcSystem=GCS_SYSID, srcComponent=GCS_COMPID)
+        self.signing_key = signing_key
+        if signing_key is not None:
+            signing.enable(self._encoder, signing_key, time.time())
         self._parsers: dict[Address, mavlink.MAVLink] = {}
         self.addresses: dict[int, Address] = {}  # sysid -> where its link lives
         self._outbox: dict[Address, list[bytes]] = {}
         self.datagrams_sent = 0
+        # Datagrams sent to and read from each address (lockstep delivery: gcs/swarm.py compares them with the
+        # drones' own counts)
+        self.sent_to: dict[Address, int] = {}
+        self.received_from: dict[Address, int] = {}
 
     @property
     def port(self) -> int:
@@ -82,6 +94,7 @@ class GcsSocket:
             except OSError:
                 continue
             addr = (address[0], address[1])
+            self.received_from[addr] = self.received_from.get(addr, 0) + 1
             parser = self._parsers.get(addr)
             if parser is None or parser.buf_len() > 0:
                 # A datagram holds whole frames, so a parser left holding part of one (a truncated datagram) holds
@@ -102,6 +115,8 @@ class GcsSocket:
         return out
 
     def pack(self, msg: Any) -> bytes:
+        if self.signing_key is not None:
+            signing.refresh(self._encoder, time.time())
         data: bytes = msg.pack(self._encoder)
         self._encoder.seq = (self._encoder.seq + 1) % 256
         return data
@@ -122,6 +137,7 @@ class GcsSocket:
         except OSError:
             return False
         self.datagrams_sent += 1
+        self.sent_to[address] = self.sent_to.get(address, 0) + 1
         return True
 
     def queue(self, sysid: int, msg: Any) -> bool:

@@ -26,6 +26,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Final, Literal
 
+import numpy as np
+
 from sitl.mathutil import fast_constructor
 
 Vec3 = tuple[float, float, float]
@@ -158,77 +160,135 @@ def fuse(
     - Unmatched detections stay camera-only (relay cut or an unknown body); unmatched relay entries stay as relayed
       (the relay sees all around, the camera only ahead).
     """
+    return fuse_fields(
+        [(c.rel_pos_ned_m, c.radius_m, c.age_s) for c in camera],
+        [(r.rel_pos_ned_m, r.vel_ned_mps, r.radius_m, r.age_s) for r in relay],
+        own_vel_ned_mps,
+        config,
+    )
+
+
+# Camera detection for ``fuse_fields``: (relative position, radius, age); relay entry: (relative position, velocity,
+# radius, age), each as ``Obstacle`` holds it.
+CameraFields = tuple[Vec3, float, float]
+RelayFields = tuple[Vec3, Vec3, float, float]
+# From this many camera-relay pairs on, the association gate is checked for all pairs at once with numpy (the same
+# element-wise float operations in the same order, so the same figures to the last bit); below it a Python loop is
+# cheaper than building the arrays. A 50-drone circle has some 14 of each within camera and relay range.
+VECTOR_PAIRS = 48
+
+
+def fuse_fields(
+    camera: Sequence[CameraFields],
+    relay: Sequence[RelayFields],
+    own_vel_ned_mps: Vec3,
+    config: AvoidanceConfig,
+    *,
+    vector_pairs: int = VECTOR_PAIRS,
+) -> list[Obstacle]:
+    """``fuse`` on the obstacles' fields rather than on ``Obstacle`` records: collision prevention builds its inputs
+    at the avoidance rate for every neighbour, and a record per input that fusion only takes apart again cost more
+    than fusion itself in a crowd. ``vector_pairs`` is exposed so tests can hold both association paths to one
+    result."""
     own_vx, own_vy, own_vz = own_vel_ned_mps if _within3(own_vel_ned_mps, MAX_SPEED_MPS) else _ZERO3
+    max_age = config.relay_max_age_s
     relays: list[Obstacle] = []
-    for r in relay:
-        age = r.age_s
-        if not (
-            age <= config.relay_max_age_s
-            and _within3(r.rel_pos_ned_m, MAX_REL_POS_M)
-            and _within3(r.vel_ned_mps, MAX_SPEED_MPS)
-        ):
+    for pos, vel, radius, age in relay:
+        if not (age <= max_age and _within3(pos, MAX_REL_POS_M) and _within3(vel, MAX_SPEED_MPS)):
             continue
         age = max(0.0, age)
-        (px, py, pz), (vx, vy, vz) = r.rel_pos_ned_m, r.vel_ned_mps
+        (px, py, pz), (vx, vy, vz) = pos, vel
         relays.append(
             new_obstacle(
                 rel_pos_ned_m=(px + vx * age, py + vy * age, pz + vz * age),
-                vel_ned_mps=r.vel_ned_mps,
+                vel_ned_mps=vel,
                 vel_known=True,
-                radius_m=r.radius_m,
+                radius_m=radius,
                 source="relay",
                 age_s=age,
             )
         )
-    cams = [c for c in camera if _within3(c.rel_pos_ned_m, MAX_REL_POS_M) and c.age_s <= MAX_AGE_S]
+    cams = [c for c in camera if _within3(c[0], MAX_REL_POS_M) and c[2] <= MAX_AGE_S]
 
-    candidates: list[tuple[float, int, int]] = []
-    relay_positions = [r.rel_pos_ned_m for r in relays] if cams else []
-    for ci, c in enumerate(cams):
-        cx, cy, cz = c.rel_pos_ned_m
-        age = max(0.0, c.age_s)
-        cx, cy, cz = cx - own_vx * age, cy - own_vy * age, cz - own_vz * age
-        gate = config.gate_m + config.gate_range_frac * math.sqrt(cx * cx + cy * cy + cz * cz)
-        gate_sq = gate * gate
-        for ri, (rx, ry, rz) in enumerate(relay_positions):
-            # The relay velocity also moves the camera position forward once matched; gate on the static guess.
-            dx, dy, dz = rx - cx, ry - cy, rz - cz
-            d_sq = dx * dx + dy * dy + dz * dz
-            if d_sq <= gate_sq:  # a square root only for the few within the gate
-                candidates.append((math.sqrt(d_sq), ci, ri))
-    candidates.sort()
     cam_match: dict[int, int] = {}
-    used_relay: set[int] = set()
-    for _, ci, ri in candidates:
-        if ci not in cam_match and ri not in used_relay:
-            cam_match[ci] = ri
-            used_relay.add(ri)
+    if cams and relays:
+        relay_positions = [r.rel_pos_ned_m for r in relays]
+        # Each detection where it is now on the static guess (the relay velocity also moves it once matched), and
+        # the square of its gate.
+        moved: list[tuple[float, float, float, float]] = []
+        gate_m, gate_frac = config.gate_m, config.gate_range_frac
+        for (cx, cy, cz), _radius, age in cams:
+            age = max(0.0, age)
+            cx, cy, cz = cx - own_vx * age, cy - own_vy * age, cz - own_vz * age
+            gate = gate_m + gate_frac * math.sqrt(cx * cx + cy * cy + cz * cz)
+            moved.append((cx, cy, cz, gate * gate))
+        if len(cams) * len(relays) >= vector_pairs:
+            candidates = _gate_pairs_numpy(moved, relay_positions)  # sorted
+        else:
+            candidates = []
+            for ci, (cx, cy, cz, gate_sq) in enumerate(moved):
+                for ri, (rx, ry, rz) in enumerate(relay_positions):
+                    dx, dy, dz = rx - cx, ry - cy, rz - cz
+                    d_sq = dx * dx + dy * dy + dz * dz
+                    if d_sq <= gate_sq:  # a square root only for the few within the gate
+                        candidates.append((math.sqrt(d_sq), ci, ri))
+            candidates.sort()
+        used_relay: set[int] = set()
+        pairs = min(len(cams), len(relays))
+        for _, ci, ri in candidates:
+            if ci not in cam_match and ri not in used_relay:
+                cam_match[ci] = ri
+                used_relay.add(ri)
+                if len(cam_match) == pairs:
+                    break  # every detection or every entry is taken: no later pair can be
 
     out: list[Obstacle] = []
     for ci, c in enumerate(cams):
-        age = max(0.0, c.age_s)
+        age = max(0.0, c[2])
         ri_match = cam_match.get(ci)
         if ri_match is None:
-            cx, cy, cz = c.rel_pos_ned_m
+            cx, cy, cz = c[0]
             out.append(
                 new_obstacle(
                     rel_pos_ned_m=(cx - own_vx * age, cy - own_vy * age, cz - own_vz * age),
-                    radius_m=c.radius_m,
+                    radius_m=c[1],
                     source="camera",
                     age_s=age,
                 )
             )
             continue
-        r = relays[ri_match]
-        out.append(_fuse_pair(c, r, age, (own_vx, own_vy, own_vz), config))
-    out.extend(r for ri, r in enumerate(relays) if ri not in used_relay)
+        out.append(_fuse_pair(c[0], c[1], relays[ri_match], age, (own_vx, own_vy, own_vz), config))
+    if cam_match:
+        matched = set(cam_match.values())
+        out.extend(r for ri, r in enumerate(relays) if ri not in matched)
+    else:
+        out.extend(relays)
     return out
 
 
-def _fuse_pair(cam: Obstacle, rel: Obstacle, cam_age_s: float, own_vel: Vec3, config: AvoidanceConfig) -> Obstacle:
+def _gate_pairs_numpy(
+    moved: list[tuple[float, float, float, float]], relay_positions: list[Vec3]
+) -> list[tuple[float, int, int]]:
+    """(distance, camera index, relay index) of every pair within the camera's gate, sorted as the tuples sort: the
+    loop of ``fuse_fields`` as array operations (a difference, three products and two sums per pair, each rounded as
+    the loop rounds it, and a correctly rounded square root)."""
+    cam = np.array(moved)
+    rel = np.array(relay_positions)
+    dx = rel[:, 0] - cam[:, 0:1]
+    dy = rel[:, 1] - cam[:, 1:2]
+    dz = rel[:, 2] - cam[:, 2:3]
+    d_sq = dx * dx + dy * dy + dz * dz
+    ci, ri = np.nonzero(d_sq <= cam[:, 3:4])
+    dist = np.sqrt(d_sq[ci, ri])  # correctly rounded, as math.sqrt
+    order = np.lexsort((ri, ci, dist))  # the order of sorted (distance, camera, relay) tuples
+    return list(zip(dist[order].tolist(), ci[order].tolist(), ri[order].tolist(), strict=True))
+
+
+def _fuse_pair(cam_pos: Vec3, cam_radius_m: float, rel: Obstacle, cam_age_s: float, own_vel: Vec3,
+               config: AvoidanceConfig) -> Obstacle:  # fmt: skip
     """Camera bearing with the inverse-variance mean of camera and relay range, relay velocity."""
     vx, vy, vz = rel.vel_ned_mps
-    cx, cy, cz = cam.rel_pos_ned_m
+    cx, cy, cz = cam_pos
     cx += (vx - own_vel[0]) * cam_age_s
     cy += (vy - own_vel[1]) * cam_age_s
     cz += (vz - own_vel[2]) * cam_age_s
@@ -247,7 +307,7 @@ def _fuse_pair(cam: Obstacle, rel: Obstacle, cam_age_s: float, own_vel: Vec3, co
         rel_pos_ned_m=pos,
         vel_ned_mps=rel.vel_ned_mps,
         vel_known=True,
-        radius_m=max(cam.radius_m, rel.radius_m),
+        radius_m=max(cam_radius_m, rel.radius_m),
         source="fused",
         age_s=cam_age_s,
     )
@@ -383,11 +443,47 @@ def avoid(
     this same algorithm and gets the reciprocal half of each manoeuvre; anything else (unknown velocity, or a
     camera track) is avoided in full, as if it would not move out of the way.
     """
+    return avoid_prepared(own_vel_ned_mps, desired_vel_ned_mps, prepare(obstacles, config), config)
+
+
+@dataclass(frozen=True, slots=True)
+class Prepared:
+    """What ``avoid`` works out of its obstacles whatever the velocities: the closest centre distance, and each
+    usable obstacle with its figures (``prepare``). Collision prevention asks ``avoid`` twice about the same
+    obstacles (the position loop's demand, then the mission's pace), and prepares them once."""
+
+    closest_m: float
+    # (obstacle, rel z, obstacle vz, separation to keep, horizontal distance squared, gap, obstacle horizontal speed)
+    usable: list[tuple[Obstacle, float, float, float, float, float, float]]
+
+
+def prepare(obstacles: Sequence[Obstacle], config: AvoidanceConfig) -> Prepared:
+    """The closest distance and the usable obstacles (those within physical sense) with the figures ``avoid`` needs of
+    each, in input order."""
     closest = math.inf
+    usable: list[tuple[Obstacle, float, float, float, float, float, float]] = []
     for ob in obstacles:
         p = ob.rel_pos_ned_m
         if _finite3(p):
             closest = min(closest, math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]))
+        if not _within3(p, MAX_REL_POS_M):
+            continue
+        if ob.vel_known and not _within3(ob.vel_ned_mps, MAX_SPEED_MPS):
+            continue
+        px, py, pz = p
+        bvx, bvy, bvz = ob.vel_ned_mps if ob.vel_known else _ZERO3
+        radius = min(ob.radius_m, MAX_REL_POS_M) if ob.radius_m > 0.0 else 0.0  # NaN compares false: 0
+        r = required_separation_m(radius, config)
+        dist_sq = px * px + py * py
+        usable.append((ob, pz, bvz, r, dist_sq, math.sqrt(dist_sq) - r, math.sqrt(bvx * bvx + bvy * bvy)))
+    return Prepared(closest_m=closest, usable=usable)
+
+
+def avoid_prepared(
+    own_vel_ned_mps: Vec3, desired_vel_ned_mps: Vec3, prepared: Prepared, config: AvoidanceConfig
+) -> AvoidanceResult:
+    """``avoid`` on obstacles already through ``prepare`` (with the same config)."""
+    closest = prepared.closest_m
     dvx, dvy, dvz = desired_vel_ned_mps
     if not (config.enabled and math.isfinite(dvx) and math.isfinite(dvy)):
         return AvoidanceResult(vel_ned_mps=desired_vel_ned_mps, active=False, closest_m=closest, constraining=0)
@@ -415,7 +511,7 @@ def avoid(
     # (nx, ny, distance, required separation, obstacle vx, vy, responsibility) for the safety layer.
     near: list[tuple[float, float, float, float, float, float, float]] = []
     constraining = 0
-    for ob, r, dist_sq in _in_reach(obstacles, ovz, tau, reach_speed, config):
+    for ob, r, dist_sq in _in_reach(prepared, ovz, tau, reach_speed, config):
         px, py, _pz = ob.rel_pos_ned_m
         bvx, bvy, _bvz = ob.vel_ned_mps if ob.vel_known else _ZERO3
         dist = math.sqrt(dist_sq)
@@ -488,28 +584,18 @@ def avoid(
 
 
 def _in_reach(
-    obstacles: Sequence[Obstacle], own_vz: float, tau: float, reach_speed: float, config: AvoidanceConfig
+    prepared: Prepared, own_vz: float, tau: float, reach_speed: float, config: AvoidanceConfig
 ) -> list[tuple[Obstacle, float, float]]:
     """(obstacle, separation to keep, horizontal distance squared) of every usable obstacle that can be reached
     within the horizon, at most ``config.max_obstacles`` of them, the nearest by gap; in input order."""
     band = config.vertical_band_m
     found: list[tuple[float, int, Obstacle, float, float]] = []
-    for ob in obstacles:
-        if not _within3(ob.rel_pos_ned_m, MAX_REL_POS_M):
-            continue
-        if ob.vel_known and not _within3(ob.vel_ned_mps, MAX_SPEED_MPS):
-            continue
-        px, py, pz = ob.rel_pos_ned_m
-        bvx, bvy, bvz = ob.vel_ned_mps if ob.vel_known else _ZERO3
+    for ob, pz, bvz, r, dist_sq, gap, b_speed in prepared.usable:
         if abs(pz) > band:
             pz_end = pz + (bvz - own_vz) * tau
             if pz * pz_end > 0.0 and abs(pz_end) > band:
                 continue
-        radius = min(ob.radius_m, MAX_REL_POS_M) if ob.radius_m > 0.0 else 0.0  # NaN compares false: 0
-        r = required_separation_m(radius, config)
-        dist_sq = px * px + py * py
-        gap = math.sqrt(dist_sq) - r
-        if gap > tau * (reach_speed + math.sqrt(bvx * bvx + bvy * bvy)):
+        if gap > tau * (reach_speed + b_speed):
             continue  # out of reach within the horizon whatever either does
         found.append((gap, len(found), ob, r, dist_sq))
     if 0 < config.max_obstacles < len(found):

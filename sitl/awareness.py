@@ -24,9 +24,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from sitl.avoidance import Obstacle
+from sitl.avoidance import new_obstacle as _new_obstacle
 from sitl.collision_prevention import RelayedNeighbour
 from sitl.dynamics.geodesy import LocalFrame
+from sitl.mathutil import fast_constructor
 from sitl.params import ParamStore
 from sitl.perception.camera import (
     Body,
@@ -38,12 +39,15 @@ from sitl.perception.camera import (
     render_rig_if_drawn,
     spheres,
 )
-from sitl.perception.detector import detect_rig, to_ned
-from sitl.protocol.neighbours import NeighbourTable
+from sitl.perception.detector import detect_rig, to_ned_all
+from sitl.protocol.neighbours import Neighbour, NeighbourTable
 from sitl.simulation import Simulation
 from sitl.world import SharedWorld
 
 RELAY_PERIOD_S = 0.05
+_new_relayed = fast_constructor(RelayedNeighbour)
+# Rounding allowance when leaving out drones beyond camera range (metres; distances differ between frames by ~1e-14).
+_RANGE_MARGIN_M = 1e-6
 
 
 class Awareness:
@@ -79,6 +83,7 @@ class Awareness:
         self._rig: CameraRig | None = None
         self._next_frame_s = 0.0
         self._next_relay_s = 0.0
+        self._relayed: dict[int, tuple[Neighbour, RelayedNeighbour]] = {}  # by sysid: the report and its conversion
         self.frames = 0
         # Time spent on actual work (a relay update or a frame), read by benchmarks; the steps with nothing due are
         # not timed, so the clock is read a few dozen times a second instead of twice per physics step.
@@ -126,10 +131,20 @@ class Awareness:
         assert self._neighbours is not None
         frame = self._frame
         out = []
+        converted: dict[int, tuple[Neighbour, RelayedNeighbour]] = {}
         for n in self._neighbours.entries(now_s):
-            pos = frame.ned_from_geodetic_rad(math.radians(n.lat_deg), math.radians(n.lon_deg), n.alt_amsl_m)
-            stamp = n.sender_time_s if self._shared_clock else n.received_s
-            out.append(RelayedNeighbour(sysid=n.sysid, pos_ned_m=pos, vel_ned_mps=n.vel_ned_mps, received_s=stamp))
+            known = self._relayed.get(n.sysid)
+            if known is not None and known[0] is n:
+                # The same report as at the last update (neighbours report at 10 Hz, this runs at 20): its
+                # conversion, a function of the report alone, is the one made then.
+                relayed = known[1]
+            else:
+                pos = frame.ned_from_geodetic_rad(math.radians(n.lat_deg), math.radians(n.lon_deg), n.alt_amsl_m)
+                stamp = n.sender_time_s if self._shared_clock else n.received_s
+                relayed = _new_relayed(sysid=n.sysid, pos_ned_m=pos, vel_ned_mps=n.vel_ned_mps, received_s=stamp)
+            converted[n.sysid] = (n, relayed)
+            out.append(relayed)
+        self._relayed = converted
         self._prevention.set_relay(out)
 
     def _capture(self, now_s: float) -> None:
@@ -139,6 +154,13 @@ class Awareness:
             return
         rig = self._camera_rig()
         _ids, offsets = self._world.others_ned_m(self._instance)
+        # Drones beyond every camera's range (by more than rounding: the renderer measures the distance in each
+        # camera's frame) would be culled by each camera in turn; in a large swarm most are, so they are left out
+        # before being built. A NaN row is kept, to be met as the renderer meets it.
+        reach_m = max(camera.config.max_range_m for camera in rig.cameras) + self._radius_m + _RANGE_MARGIN_M
+        far = np.einsum("ij,ij->i", offsets, offsets) > reach_m * reach_m
+        if far.any():
+            offsets = offsets[~far]
         bodies: list[Body] = list(spheres(offsets, self._radius_m))
         for ob in self._world.obstacles_from(self._instance):  # static obstacles the mission declared
             if ob.cylinder:
@@ -159,8 +181,11 @@ class Awareness:
             # A camera that nothing reaches is neither composed nor searched: the detections are the same (none
             # from it), and so is the noise of every later frame (docs/perception.md, "Empty frames").
             detections = detect_rig(render_rig_if_drawn(rig, q_true, bodies, self._rng), rig, self._radius_m)
-        q = est.att_q_frd_to_ned
+        radius = self._radius_m
         self._prevention.set_camera(
-            [Obstacle(rel_pos_ned_m=to_ned(d, q), radius_m=self._radius_m, source="camera") for d in detections],
+            [
+                _new_obstacle(rel_pos_ned_m=pos, radius_m=radius, source="camera")
+                for pos in to_ned_all(detections, est.att_q_frd_to_ned)
+            ],
             now_s,
         )

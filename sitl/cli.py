@@ -18,7 +18,9 @@ from typing import NoReturn
 from sitl.airframe import DEFAULT_AIRFRAME, AirframeError, load_airframe
 from sitl.dynamics.geodesy import geo_from_ned
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
+from sitl.linkmodel import IMPAIRMENT_KEYS, LinkProfile, link_profile
 from sitl.mavlink_io import LinkConfig, LinkError, parse_host_port
+from sitl.protocol.signing import SigningKeyError, load_key
 from sitl.specs import DroneSpec, ProcessSpec
 from sitl.wind import WindConfig
 from sitl.world import WorldError
@@ -178,6 +180,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--lockstep-quantum", type=int, default=1, help="lockstep: steps run between waits (skew bound; default 1)"
     )
     parser.add_argument(
+        "--link",
+        action="append",
+        default=None,
+        metavar="CLASS:KEY=VALUE[,...]",
+        help="impair a link class (gcs, api, neighbour or all) with the link model; repeatable, later keys win; "
+        f"keys: {', '.join(IMPAIRMENT_KEYS)} (docs/links.md)",
+    )
+    parser.add_argument(
         "--camera-frames",
         type=Path,
         default=None,
@@ -188,6 +198,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--log-dir", type=Path, default=None, help="each drone's output in drone-<instance>.log here (default stdout)"
+    )
+    parser.add_argument(
+        "--signing-key",
+        default=None,
+        help="MAVLink 2 signing key file: 64 hex digits, or a one-line passphrase (key = its SHA-256, as MAVProxy "
+        "and QGroundControl derive it); every message sent is signed",
+    )
+    parser.add_argument(
+        "--signing-required",
+        action="store_true",
+        help="set MAV_SIGN_CFG = 2: drop unsigned or wrongly signed messages (except HEARTBEAT, RADIO_STATUS, "
+        "ADSB_VEHICLE, COLLISION)",
     )
     parser.add_argument("--duration", type=float, default=None, help="exit after this many simulated seconds")
     parser.add_argument("--demo", action="store_true", help="take off to 3 m, hover, land and exit, printing progress")
@@ -220,10 +242,12 @@ def _main(argv: Sequence[str] | None) -> int:
     if args.demo and len(instances) > 1:
         raise UsageError("--demo flies one drone: give --instance, not several --instances")
     wind = _float_list(args.wind, 3, "--wind")
+    links = _link_profile(args.link or [])
     speed = _speed_factor(args.speed)
     homes = _homes(args, len(instances))
     cameras = set(parse_instances(args.camera_instances)) if args.camera_instances else set(instances)
     airframe = load_airframe(args.airframe)
+    signing_key = _signing_key(args.signing_key)
     if args.log_dir is not None:
         try:
             args.log_dir.mkdir(parents=True, exist_ok=True)
@@ -256,6 +280,9 @@ def _main(argv: Sequence[str] | None) -> int:
             world_name=args.world,
             lockstep=args.lockstep,
             lockstep_quantum=args.lockstep_quantum,
+            signing_key=signing_key,
+            signing_required=args.signing_required,
+            links=links,
         ),
     )
 
@@ -275,6 +302,22 @@ def _instances(args: argparse.Namespace) -> list[int]:
     if not 0 <= instance <= MAX_INSTANCE:
         raise UsageError(f"--instance must be in 0..{MAX_INSTANCE}, got {instance}")
     return [instance]
+
+
+def _signing_key(path: str | None) -> bytes | None:
+    if path is None:
+        return None
+    try:
+        return load_key(path)
+    except SigningKeyError as exc:
+        raise UsageError(str(exc)) from None
+
+
+def _link_profile(options: list[str]) -> LinkProfile:
+    try:
+        return link_profile(options)
+    except ValueError as exc:
+        raise UsageError(f"--link: {exc}") from None
 
 
 def _camera_dir(root: Path | None, instance: int, count: int) -> Path | None:

@@ -20,7 +20,15 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from sitl.avoidance import AvoidanceConfig, Obstacle, avoid, fuse, new_obstacle
+from sitl.avoidance import (
+    AvoidanceConfig,
+    CameraFields,
+    Obstacle,
+    RelayFields,
+    avoid_prepared,
+    fuse_fields,
+    prepare,
+)
 from sitl.control.cascade import TrajectorySetpoint
 from sitl.control.position import PositionController
 from sitl.mathutil import Vec3
@@ -114,40 +122,29 @@ class CollisionPrevention:
         return self._config
 
     def _obstacles(self, pos_ned_m: Vec3f, own_vel: Vec3f, now_s: float) -> list[Obstacle]:
-        camera: list[Obstacle] = []
+        # Fusion's inputs as fields (``fuse_fields``), not as records: built for every neighbour at the avoidance
+        # rate, records cost more than fusing them in a crowd.
+        camera: list[CameraFields] = []
         if now_s - self._camera_time_s <= INPUT_TIMEOUT_S:
             age = now_s - self._camera_time_s
-            camera = [
-                new_obstacle(rel_pos_ned_m=d.rel_pos_ned_m, vel_ned_mps=d.vel_ned_mps, vel_known=d.vel_known,
-                             radius_m=d.radius_m, source=d.source, age_s=d.age_s + age)
-                for d in self._camera
-            ]  # fmt: skip
+            camera = [(d.rel_pos_ned_m, d.radius_m, d.age_s + age) for d in self._camera]
         config = self.config()
         neighbours: Sequence[RelayedNeighbour] = self._relay
+        x, y, z = pos_ned_m
         if config.max_obstacles > 0 and len(neighbours) > RELAY_CANDIDATES_PER_OBSTACLE * config.max_obstacles:
             # ``avoid`` keeps the nearest few; fusing neighbours it will drop anyway is most of the cost in a crowd.
-            x, y, z = pos_ned_m
             neighbours = heapq.nsmallest(
                 RELAY_CANDIDATES_PER_OBSTACLE * config.max_obstacles,
                 neighbours,
                 key=lambda n: (n.pos_ned_m[0] - x) ** 2 + (n.pos_ned_m[1] - y) ** 2 + (n.pos_ned_m[2] - z) ** 2,
             )
-        relay = [
-            new_obstacle(
-                rel_pos_ned_m=(
-                    n.pos_ned_m[0] - pos_ned_m[0],
-                    n.pos_ned_m[1] - pos_ned_m[1],
-                    n.pos_ned_m[2] - pos_ned_m[2],
-                ),
-                vel_ned_mps=n.vel_ned_mps,
-                vel_known=True,
-                radius_m=self._own_radius_m,  # the swarm flies one airframe; a relay report carries no size
-                source="relay",
-                age_s=max(0.0, now_s - n.received_s),
-            )
+        radius = self._own_radius_m  # the swarm flies one airframe; a relay report carries no size
+        relay: list[RelayFields] = [
+            ((n.pos_ned_m[0] - x, n.pos_ned_m[1] - y, n.pos_ned_m[2] - z), n.vel_ned_mps, radius,
+             max(0.0, now_s - n.received_s))
             for n in neighbours
-        ]
-        return fuse(camera, relay, own_vel, config)
+        ]  # fmt: skip
+        return fuse_fields(camera, relay, own_vel, config)
 
     # ---- the correction --------------------------------------------------------------------------------------------
     def apply(
@@ -177,12 +174,12 @@ class CollisionPrevention:
 
     def _run(self, setpoint: TrajectorySetpoint, pos: Vec3f, own_vel: Vec3f, now_s: float) -> None:
         demand = self._position.update(pos, setpoint.pos_ned_m, setpoint.vel_ned_mps)
-        obstacles = self._obstacles(pos, own_vel, now_s)
         config = self.config()
+        obstacles = prepare(self._obstacles(pos, own_vel, now_s), config)  # asked about twice below
         # Whether to correct is decided on what the drone would really fly (the position loop's demand, which may be
         # a sprint to catch up with its setpoint), not on the capped pace: a pace that is clear says nothing about a
         # sprint, and two drones sprinting to catch up after a detour met at 6 m/s closing speed that way.
-        result = avoid(own_vel, demand, obstacles, config)
+        result = avoid_prepared(own_vel, demand, obstacles, config)
         if not result.active:
             self._vel_xy = None
             self._end_episode(now_s)
@@ -190,7 +187,7 @@ class CollisionPrevention:
         vel = result.vel_ned_mps
         preferred = _preferred(demand, setpoint)
         if preferred != demand:  # correct around the mission's pace (which may need no change), not the sprint
-            vel = avoid(own_vel, preferred, obstacles, config).vel_ned_mps
+            vel = avoid_prepared(own_vel, preferred, obstacles, config).vel_ned_mps
         self._vel_xy = (vel[0], vel[1])
         if self._last_active_s is None:
             self.episodes += 1

@@ -10,6 +10,7 @@ and log. Only the loop around it, and who owns the process, differ.
 from __future__ import annotations
 
 import logging
+import selectors
 import sys
 import time
 import traceback
@@ -19,13 +20,24 @@ from typing import TextIO
 
 from sitl.awareness import Awareness
 from sitl.demo import DemoFlight
+from sitl.linkmodel import drone_channels
 from sitl.mav_vehicle import SimVehicleApi
 from sitl.mavlink_io import MavlinkEndpoint
 from sitl.protocol import Identity
+from sitl.protocol.signing import SIGN_ALWAYS, SIGN_CFG_PARAM, key_id
 from sitl.simulation import SimConfig, Simulation
 from sitl.specs import DroneSpec, ProcessSpec
-from sitl.world import END_EXITED, END_FAILED, SharedWorld, WorldParticipant
+from sitl.world import (
+    DRONE_SENT,
+    END_EXITED,
+    END_FAILED,
+    SUPERVISOR_SENT,
+    SharedWorld,
+    WorldParticipant,
+    lockstep_epoch_steps,
+)
 
+AWAIT_SUPERVISOR_S = 1.0  # wall seconds a lockstep drone waits for a datagram the supervisor has sent
 CPU_REPORT_STEPS = 100  # how often the time spent per part is published in the shared world (for benchmarks)
 
 
@@ -99,13 +111,35 @@ class Drone:
         # falls.
         rest_alt = sim.truth.geo.alt_amsl_m
         self.participant = (
-            WorldParticipant(world, spec.instance, airframe.collision_radius_m, rest_alt_amsl_m=rest_alt)
+            WorldParticipant(
+                world,
+                spec.instance,
+                airframe.collision_radius_m,
+                rest_alt_amsl_m=rest_alt,
+                epoch_steps=lockstep_epoch_steps(common.lockstep_quantum) if common.lockstep else None,
+            )
             if world is not None
             else None
         )
         api = SimVehicleApi(sim)
         identity = Identity(sysid=spec.instance + 1)
-        self.endpoint = MavlinkEndpoint(identity, api, sim.params, list(spec.links)) if spec.links else None
+        if common.signing_required:
+            sim.params.set(SIGN_CFG_PARAM, SIGN_ALWAYS)
+        self.endpoint = (
+            MavlinkEndpoint(identity, api, sim.params, list(spec.links), signing_key=common.signing_key)
+            if spec.links
+            else None
+        )
+        # The link that talks to the swarm's supervisor (the ground-station link streaming to it), for lockstep delivery
+        self._supervisor_link = next(
+            (link for link in self.endpoint.links if link.link_class == "gcs" and link.config.remote is not None), None
+        ) if self.endpoint is not None else None  # fmt: skip
+        self._said_late_traffic = False
+        # The link model: only a drone whose links are impaired looks at delay queues after its steps.
+        self._impaired = self.endpoint is not None and not common.links.is_perfect
+        if self.endpoint is not None and self._impaired:
+            self.endpoint.impair(drone_channels(common.links, seed=spec.seed, instance=spec.instance))
+            self.say(f"links: {common.links.describe()}")
         sim.part_clock_ns = clock_ns
         self.awareness = Awareness(
             sim,
@@ -126,6 +160,9 @@ class Drone:
                 f"MAVLink {link.config.name} link on udp {link.config.bind[0]}:{link.port}"
                 + (f", streaming to {remote[0]}:{remote[1]}" if remote else "")
             )
+        if common.signing_key is not None or common.signing_required:
+            key = f"key {key_id(common.signing_key)}" if common.signing_key is not None else "no key yet"
+            self.say(f"MAVLink signing: {key}, MAV_SIGN_CFG {sim.params[SIGN_CFG_PARAM]:g}")
 
     def say(self, text: str) -> None:
         self.output.say(f"sitl {self.instance}: {text}")
@@ -154,6 +191,39 @@ class Drone:
             self.endpoint.receive(self.sim.time_s)
             self.link_ns += self._clock_ns() - t0
 
+    def publish_sent(self) -> None:
+        """Lockstep: say how many datagrams this drone has sent the supervisor, before its step is published."""
+        link = self._supervisor_link
+        if link is not None and self.world is not None:
+            self.world.table[self.instance, DRONE_SENT] = float(link.to_remote)
+
+    def await_supervisor(self) -> None:
+        """Lockstep, before the first step the gate allows: read until every datagram the supervisor sent before it
+        opened the gate is in (sitl/world.py SUPERVISOR_SENT), so that all of it is used at this simulated time.
+        A datagram still missing after AWAIT_SUPERVISOR_S was lost (a full socket buffer): the drone goes on, and
+        says so once."""
+        link = self._supervisor_link
+        if link is None or self.world is None or self.endpoint is None or self.endpoint.silenced:
+            return
+        sent = self.world.table[self.instance, SUPERVISOR_SENT]
+        if link.from_remote >= sent:
+            return
+        deadline = time.monotonic() + AWAIT_SUPERVISOR_S
+        with selectors.DefaultSelector() as selector:
+            selector.register(link.sock, selectors.EVENT_READ)
+            while link.from_remote < sent and not self.endpoint.silenced:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    if not self._said_late_traffic:
+                        self._said_late_traffic = True
+                        self.say(
+                            f"lockstep: {int(sent - link.from_remote)} datagram(s) from the supervisor never arrived "
+                            f"at t={self.sim.time_s:.3f} s; going on"
+                        )
+                    return
+                selector.select(remaining)
+                self.receive()
+
     def step(self) -> None:
         sim = self.sim
         sim.step()
@@ -163,10 +233,19 @@ class Drone:
             for contact in self.participant.after_step(sim.truth, sim.vehicle.crashed):
                 sim.vehicle.crash(contact.text())
         self.awareness.update(sim.time_s)
+        if self._impaired:
+            assert self.endpoint is not None
+            self.endpoint.deliver_due(sim.time_s)
         self._steps += 1
         if self.world is not None and self._steps % CPU_REPORT_STEPS == 0:
             self.world.write_cpu(self.instance, sim.physics_ns * 1e-9, sim.control_ns * 1e-9,
                                  self.awareness.cpu_ns * 1e-9, self.link_ns * 1e-9)  # fmt: skip
+            self._publish_link_counters()
+
+    def _publish_link_counters(self) -> None:
+        """What the link model did to this drone's traffic, into the world for the flight report."""
+        if self._impaired and self.world is not None and self.endpoint is not None:
+            self.world.write_link_counters(self.instance, self.endpoint.link_counters())
 
     def after_batch(self) -> None:
         """Between batches: the autopilot's events out as STATUSTEXT (and into the demo's log), telemetry due."""
@@ -198,6 +277,21 @@ class Drone:
         self.ended = True
         try:
             if self.endpoint is not None:
+                counts = self.endpoint.signing.counters
+                if self.endpoint.signing.active or counts.signed_in or counts.bad_signatures:
+                    self.say(
+                        f"MAVLink signing: {counts.signed_out} sent signed, {counts.signed_in} received signed; "
+                        f"{counts.rejected_unsigned} unsigned dropped, {counts.bad_signatures} bad signatures, "
+                        f"{counts.replays} replays"
+                    )
+                if self._impaired:
+                    self._publish_link_counters()
+                    for (link_class, direction), c in sorted(self.endpoint.link_counters().items()):
+                        self.say(
+                            f"link model {link_class} {direction}: {c.frames_offered} frames, {c.frames_lost} lost "
+                            f"({c.lost_random} random, {c.lost_burst} burst, {c.lost_queue} queue), {c.delayed} "
+                            f"delayed (mean {c.mean_delay_s * 1000:.1f} ms, max {c.max_delay_s * 1000:.1f} ms)"
+                        )
                 self.endpoint.close()
         finally:
             if self.participant is not None:

@@ -14,15 +14,18 @@ from __future__ import annotations
 
 import logging
 import socket
+import time
 from collections.abc import Iterable
 from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.linkmodel import DelayLine, Direction, LinkChannel, LinkClass, LinkCounters, counters_by_class
 from sitl.params import ParamStore
 from sitl.protocol import Identity, LinkServices, Send, VehicleApi, framing
 from sitl.protocol.core import Effect, MAVLinkMessage
 from sitl.protocol.neighbours import NeighbourTable
+from sitl.protocol.signing import SIGN_CFG_PARAM, SigningGate, SigningState
 from sitl.protocol.telemetry import PollShare
 
 log = logging.getLogger(__name__)
@@ -82,9 +85,16 @@ def reset_parser(parser: mavlink.MAVLink) -> None:
 
 
 class UdpLink:
-    def __init__(self, config: LinkConfig, identity: Identity, services: LinkServices) -> None:
+    def __init__(
+        self, config: LinkConfig, identity: Identity, services: LinkServices, *, signing: SigningState | None = None,
+        link_id: int = 0,
+    ) -> None:  # fmt: skip
+        """``signing``: the drone's signing state (its key signs what this link sends); ``link_id``: this link's
+        id in the signatures (PX4 uses its MAVLink instance number)."""
         self.config = config
         self.services = services
+        self.signing = signing
+        self.link_id = link_id
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
@@ -97,6 +107,15 @@ class UdpLink:
         self._encoder = mavlink.MAVLink(None, srcSystem=identity.sysid, srcComponent=identity.compid)
         self._parser = self._new_parser()
         self._peers: list[Address] = [config.remote] if config.remote is not None else []
+        # The link model's channel for what this link sends (None: a perfect link), the frames it delays, and the
+        # simulated time of what is being sent (set by the endpoint before it sends).
+        self.channel: LinkChannel | None = None
+        # Datagrams sent to and read from the configured remote (the supervisor, for a swarm's ground-station
+        # link): lockstep delivery compares them with the other side's count (sitl/world.py SUPERVISOR_SENT).
+        self.to_remote = 0
+        self.from_remote = 0
+        self._outbox: DelayLine[bytes] = DelayLine()
+        self.now_s = 0.0
         self.sent = 0
         self.received = 0
         self.bad = 0
@@ -106,6 +125,11 @@ class UdpLink:
         parser = mavlink.MAVLink(None)
         parser.robust_parsing = True
         return parser
+
+    @property
+    def link_class(self) -> LinkClass:
+        """The link model's class of this link: the ground-station link is ``gcs``, any other a client's ``api``."""
+        return "gcs" if self.config.name.lower() == "gcs" else "api"
 
     @property
     def port(self) -> int:
@@ -129,6 +153,8 @@ class UdpLink:
             except OSError:  # e.g. ICMP port unreachable reported on a later call: not our problem
                 continue
             self._learn((address[0], address[1]))
+            if address == self.config.remote:
+                self.from_remote += 1
             # The common datagram (relayed positions, setpoints, heartbeats) is parsed by precomputed layouts;
             # anything else goes to pymavlink's parser, as every datagram used to.
             messages = framing.parse_datagram(data)
@@ -155,11 +181,13 @@ class UdpLink:
         """Read and drop whatever arrived (a silenced link): at most MAX_RECEIVE_DATAGRAMS datagrams a call."""
         for _ in range(MAX_RECEIVE_DATAGRAMS):
             try:
-                self.sock.recv(MAX_DATAGRAM)
+                _data, address = self.sock.recvfrom(MAX_DATAGRAM)
             except (BlockingIOError, InterruptedError):
                 return
             except OSError:
                 continue
+            if address == self.config.remote:
+                self.from_remote += 1  # read, though dropped: lockstep delivery waits for nothing more
 
     def send(self, effects: Iterable[Effect]) -> None:
         """Send the messages among ``effects`` to every peer, together: the streams due at one poll (several share
@@ -182,11 +210,42 @@ class UdpLink:
             encoder.seq = (encoder.seq + 1) % 256
         if not frames:
             return
+        if self.signing is not None and self.signing.active:
+            frames = self.signing.sign_frames(frames, self.link_id, time.time())
+        if self.channel is not None:
+            frames = self._through_channel(frames)
+        self._send_frames(frames)
+
+    def _through_channel(self, frames: list[bytes]) -> list[bytes]:
+        """The frames the link model lets through now; the ones it delays wait in the outbox, the lost are gone."""
+        assert self.channel is not None
+        now_s = self.now_s
+        out: list[bytes] = []
+        for frame in frames:
+            due_s = self.channel.transmit(now_s, len(frame))
+            if due_s is None:
+                continue
+            if due_s <= now_s:
+                out.append(frame)
+            else:
+                self._outbox.push(due_s, frame)
+        return out
+
+    def send_due(self, now_s: float) -> None:
+        """Send the delayed frames whose time has come."""
+        if self._outbox.next_due_s <= now_s:
+            self._send_frames(self._outbox.pop_due(now_s))
+
+    def _send_frames(self, frames: list[bytes]) -> None:
+        if not frames:
+            return
         for data in datagrams(frames) if len(frames) > 1 else frames:
             for address in self._peers:
                 try:
                     self.sock.sendto(data, address)
                     self.sent += 1
+                    if address == self.config.remote:
+                        self.to_remote += 1
                 except OSError:  # the peer's port is closed or the buffer is full: UDP drops, as the wire would
                     pass
 
@@ -197,18 +256,34 @@ class UdpLink:
 class MavlinkEndpoint:
     """All links of one drone, driven by the runtime once per wake-up with the simulation time."""
 
-    def __init__(self, identity: Identity, vehicle: VehicleApi, params: ParamStore, links: list[LinkConfig]) -> None:
+    def __init__(
+        self, identity: Identity, vehicle: VehicleApi, params: ParamStore, links: list[LinkConfig], *,
+        signing_key: bytes | None = None,
+    ) -> None:  # fmt: skip
+        """``signing_key``: sign everything sent with it from boot (SETUP_SIGNING may install one later)."""
         self.links: list[UdpLink] = []
         self._vehicle = vehicle
+        # One key and one set of incoming streams for all links, as PX4 keeps them; MAV_SIGN_CFG says whether
+        # unsigned messages are dropped (sitl/protocol/signing.py).
+        self.signing = SigningState(signing_key)
+        self._gate = SigningGate(
+            self.signing, identity.sysid, identity.compid, sign_cfg=lambda: int(params[SIGN_CFG_PARAM]),
+            armed=lambda: vehicle.snapshot().armed,
+        )  # fmt: skip
         self.silenced = False  # set for good once the vehicle reports an injected MAVLink failure
+        self._sysid = identity.sysid
+        # The link model (``impair``): channels by class and direction, and what arrived but is delayed.
+        self._channels: dict[tuple[LinkClass, Direction], LinkChannel] = {}
+        self._inbox: DelayLine[tuple[UdpLink, MAVLinkMessage]] = DelayLine()
+        self._delaying: list[UdpLink] = []  # the links whose sending goes through a channel
         # One table for the drone, fed by whichever link the relayed positions arrive on.
         self.neighbours = NeighbourTable(identity.sysid)
         # One vehicle snapshot and one message per stream for all links at each poll (see PollShare).
         self._share = PollShare(vehicle)
         try:
-            for config in links:
+            for link_id, config in enumerate(links):
                 services = LinkServices(identity, vehicle, params, neighbours=self.neighbours, share=self._share)
-                self.links.append(UdpLink(config, identity, services))
+                self.links.append(UdpLink(config, identity, services, signing=self.signing, link_id=link_id))
         except LinkError:
             self.close()
             raise
@@ -216,18 +291,72 @@ class MavlinkEndpoint:
     def sockets(self) -> list[socket.socket]:
         return [link.sock for link in self.links]
 
+    def impair(self, channels: dict[tuple[LinkClass, Direction], LinkChannel]) -> None:
+        """Put the link model's channels on this drone's links (sitl/linkmodel.py): each link sends through the
+        down channel of its class; what arrives goes through the up channel of its class, except neighbours'
+        positions, which go through the neighbour class's (they are neighbour traffic, whichever link brings them).
+        A class without a channel is perfect."""
+        self._channels = channels
+        for link in self.links:
+            link.channel = channels.get((link.link_class, "down"))
+        self._delaying = [link for link in self.links if link.channel is not None]
+
+    def link_counters(self) -> dict[tuple[LinkClass, Direction], LinkCounters]:
+        return counters_by_class(self._channels)
+
+    def _up_channel(self, link: UdpLink, msg: MAVLinkMessage) -> LinkChannel | None:
+        if not self._channels:
+            return None
+        if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT and msg.get_srcSystem() != self._sysid:
+            return self._channels.get(("neighbour", "up"))
+        return self._channels.get((link.link_class, "up"))
+
     def receive(self, now_s: float) -> None:
         if self.silenced:
             for link in self.links:
                 link.drain()
             return
         for link in self.links:
+            link.now_s = now_s
             for msg in link.receive():
-                if self.silenced:
-                    continue  # the rest of this batch arrived after the radio died
-                link.send(link.services.handle(msg, now_s))
-                if self._vehicle.mavlink_failed():
-                    self._silence()
+                channel = self._up_channel(link, msg)
+                if channel is not None:
+                    due_s = channel.transmit(now_s, len(msg.get_msgbuf()))
+                    if due_s is None:
+                        continue
+                    if due_s > now_s:
+                        self._inbox.push(due_s, (link, msg))
+                        continue
+                self._handle(link, msg, now_s)
+
+    def deliver_due(self, now_s: float) -> None:
+        """Hand the services what the link model delayed until now, and send what it held back; called after every
+        physics step (a look at two queues when nothing waits), so a delay ends at a step, the same in every run."""
+        if self._inbox.next_due_s <= now_s:
+            for link, msg in self._inbox.pop_due(now_s):
+                link.now_s = now_s
+                self._handle(link, msg, now_s)
+        for link in self._delaying:
+            link.now_s = now_s
+            link.send_due(now_s)
+
+    def _handle(self, link: UdpLink, msg: MAVLinkMessage, now_s: float) -> None:
+        if self.silenced:
+            return  # arrived after the radio died
+        if not self._admitted(link, msg):
+            return
+        link.send(link.services.handle(msg, now_s))
+        if self._vehicle.mavlink_failed():
+            self._silence()
+
+    def _admitted(self, link: UdpLink, msg: MAVLinkMessage) -> bool:
+        """Whether signing lets ``msg`` through to the services; says once per link and reason why not."""
+        admit, texts = self._gate.admit(msg, link.link_id)
+        for severity, text in texts:
+            log.log(logging.WARNING if severity <= mavlink.MAV_SEVERITY_WARNING else logging.INFO, "%s link: %s",
+                    link.config.name, text)  # fmt: skip
+            link.send(link.services.statustext(severity, text))
+        return admit
 
     def _silence(self) -> None:
         self.silenced = True
@@ -239,6 +368,7 @@ class MavlinkEndpoint:
         self._share.open()
         try:
             for link in self.links:
+                link.now_s = now_s
                 link.send(link.services.poll(now_s))
         finally:
             self._share.close()

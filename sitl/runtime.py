@@ -70,6 +70,10 @@ class StepClock(Protocol):
 
 
 PACED_WAKE_STEPS = 8  # 32 ms of simulated time at 250 Hz
+# In lockstep the telemetry is polled (and the autopilot's events sent) after every this many steps of the common
+# clock, before the step is published as completed: whoever sees a step completed has everything sent up to it, and
+# what is sent when does not depend on how the barrier happened to cut the batches (reproducible flights).
+LOCKSTEP_POLL_STEPS = 4  # 16 ms of simulated time at 250 Hz
 BOOT_FAST_FORWARD_MAX_S = 10.0  # simulated seconds a boot may be fast-forwarded at most
 
 
@@ -232,17 +236,27 @@ def run_loop(
             live = [d for d in live if not d.ended]
             if not live:
                 return
-            ready = {key.data for key, _ in selector.select(0)}
-            each(Drone.receive, [d for d in live if d in ready])
+            # How far the drones may go is asked before the sockets are read: in lockstep the supervisor sends
+            # before it opens the gate, so whatever it sent for this time is read now, before the first step it
+            # allows, however the two processes happened to interleave (reproducible flights).
             time_s = live[0].time_s
             due = steps_clock.steps_due(time_s, completed, max_batch)
+            ready = {key.data for key, _ in selector.select(0)}
+            each(Drone.receive, [d for d in live if d in ready])
+            live = [d for d in live if not d.ended]
+            if not live:
+                return
             if options.duration_s is not None:
                 due = min(due, max(0, math.ceil((options.duration_s - time_s) / dt_s - 1e-9)))
             if due > 0:
                 if step_major:
+                    each(Drone.await_supervisor, live)
                     for _ in range(due):
                         each(Drone.step, [d for d in live if not d.ended])
                         completed += 1
+                        if completed % LOCKSTEP_POLL_STEPS == 0:
+                            each(Drone.after_batch, [d for d in live if not d.ended])
+                        each(Drone.publish_sent, [d for d in live if not d.ended])
                         steps_clock.completed(completed)
                 else:
                     each(functools.partial(_run_steps, steps=due), live)
@@ -253,7 +267,8 @@ def run_loop(
                 return
             if options.duration_s is not None and live[0].time_s >= options.duration_s - 1e-9:
                 return
-            each(Drone.after_batch, live)
+            if not step_major:
+                each(Drone.after_batch, live)
             if router is not None:
                 router.current = None
             steps_clock.wait(selector, live[0].time_s)

@@ -26,6 +26,7 @@ from sitl.fault_params import FAULT_PARAMS
 from sitl.faults import FaultState
 from sitl.params import ParamStore
 from sitl.sensors.models import GpsSample, SensorConfig, SensorReadings, SensorSuite
+from sitl.signing_params import SIGNING_PARAMS
 from sitl.vehicle import Vehicle
 from sitl.wind import WindConfig, WindModel
 
@@ -37,7 +38,7 @@ GROUND_IMPACT_SPEED_MPS = 3.0
 
 def build_param_store() -> ParamStore:
     """Every parameter of one drone, in the order the MAVLink parameter protocol indexes them."""
-    return ParamStore((*CONTROL_PARAMS, *AUTOPILOT_PARAMS, *AVOIDANCE_PARAMS, *FAULT_PARAMS))
+    return ParamStore((*CONTROL_PARAMS, *AUTOPILOT_PARAMS, *AVOIDANCE_PARAMS, *FAULT_PARAMS, *SIGNING_PARAMS))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -3,11 +3,12 @@ these before the heavy imports)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from sitl.airframe import Airframe
 from sitl.dynamics.plant import GeoPoint
+from sitl.linkmodel import LinkProfile
 from sitl.mavlink_io import LinkConfig
 from sitl.wind import WindConfig
 
@@ -26,7 +27,8 @@ class DroneSpec:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class ProcessSpec:
-    """What every drone of one process shares: one airframe, one clock, one world, one wind."""
+    """What every drone of one process shares: one airframe, one clock, one world, one wind, one link profile (each
+    drone draws its own link decisions from its seed and instance: sitl/linkmodel.py ``drone_channels``)."""
 
     airframe: Airframe
     speed_factor: float
@@ -36,3 +38,6 @@ class ProcessSpec:
     world_name: str | None = None
     lockstep: bool = False
     lockstep_quantum: int = 1
+    signing_key: bytes | None = None  # MAVLink 2 signing key every drone signs with (one key per swarm)
+    signing_required: bool = False  # MAV_SIGN_CFG = 2 at boot: unsigned messages dropped once a key is set
+    links: LinkProfile = field(default_factory=LinkProfile)

@@ -30,6 +30,7 @@ from __future__ import annotations
 import contextlib
 import math
 import mmap
+from collections.abc import Mapping
 from dataclasses import dataclass
 from multiprocessing import shared_memory
 from pathlib import Path
@@ -38,10 +39,11 @@ import numpy as np
 import numpy.typing as npt
 
 from sitl.dynamics.plant import PlantState
+from sitl.linkmodel import DIRECTIONS, LINK_CLASSES, Direction, LinkClass, LinkCounters
 from sitl.mathutil import GRAVITY_MPS2
 
 MAX_DRONES = 256
-COLUMNS = 20
+COLUMNS = 22
 VALID, TIME, LAT, LON, ALT, VN, VE, VD, RADIUS, CRASHED, STEP = range(11)
 CPU_PHYSICS, CPU_CONTROL, CPU_PERCEPTION, CPU_LINK = range(11, 15)  # seconds spent so far, for benchmarks
 WAITING = 15  # 1 while a lockstep member sleeps until woken
@@ -51,6 +53,12 @@ ENDED, REST_ALT = 16, 17  # 1 once the drone's process is gone (its body falls);
 # row ended, for whoever did not end it (the supervisor learns of a hosted drone's end from here).
 STOP_REQUEST, END_CAUSE = 18, 19
 END_UNKNOWN, END_EXITED, END_STOPPED, END_FAILED = 0.0, 1.0, 2.0, 3.0  # END_CAUSE values
+# Lockstep delivery (sitl/runtime.py, gcs/swarm.py): the datagrams the supervisor has sent to the drone's
+# ground-station link, and the datagrams the drone has sent to the supervisor, each counted by its sender. Loopback UDP
+# may hand a datagram over a little after ``sendto`` returns (the kernel finishes the delivery in a deferred
+# routine, later on a busy machine), so a receiver that has not yet read as many as were sent waits for the rest
+# before it moves on: every message is then used at the same simulated time in every run.
+SUPERVISOR_SENT, DRONE_SENT = 20, 21
 HEADER_SLOTS = 4
 GATE_STEP, GATE_OPEN = range(2)  # header: steps every member may complete; 1 once the supervisor opened the gate
 EARTH_RADIUS_M = 6_371_000.0
@@ -113,7 +121,17 @@ O_VALID, O_KIND, O_LAT, O_LON, O_ALT, O_RADIUS, O_HEIGHT = range(OBSTACLE_COLUMN
 SPHERE, CYLINDER = 0.0, 1.0  # O_KIND; a cylinder stands vertically, O_ALT is its mid-height
 TABLE_BYTES = MAX_DRONES * COLUMNS * 8
 OBSTACLES_OFFSET = TABLE_BYTES + HEADER_SLOTS * 8
-SIZE_BYTES = OBSTACLES_OFFSET + MAX_OBSTACLES * OBSTACLE_COLUMNS * 8
+# In lockstep the bodies are also published into one of two snapshot tables (see ``WorldParticipant``), after the
+# obstacles: the copy of the table as it was at the last epoch every member has completed.
+SNAPSHOTS = 2
+SNAPSHOTS_OFFSET = OBSTACLES_OFFSET + MAX_OBSTACLES * OBSTACLE_COLUMNS * 8
+# What the link model did to each drone's traffic (sitl/linkmodel.py), for the flight report: one row per drone, for
+# each (class, direction) channel in LINK_CHANNELS order the frames offered, lost and delayed and the total delay.
+LINK_CHANNELS: tuple[tuple[LinkClass, Direction], ...] = tuple((c, d) for c in LINK_CLASSES for d in DIRECTIONS)
+LINK_FIELDS = ("frames_offered", "frames_lost", "delayed", "total_delay_s")
+LINKS_OFFSET = SNAPSHOTS_OFFSET + SNAPSHOTS * TABLE_BYTES
+SIZE_BYTES = LINKS_OFFSET + MAX_DRONES * len(LINK_CHANNELS) * len(LINK_FIELDS) * 8
+PUBLISH_EVERY_STEPS = 4  # a drone publishes its truth (and looks for contacts) every this many physics steps
 SHM_DIR = Path("/dev/shm")
 
 
@@ -133,6 +151,15 @@ class SharedWorld:
         self.obstacle_table: npt.NDArray[np.float64] = np.ndarray(
             (MAX_OBSTACLES, OBSTACLE_COLUMNS), dtype=np.float64, buffer=buffer, offset=OBSTACLES_OFFSET
         )
+        self.snapshots: npt.NDArray[np.float64] = np.ndarray(
+            (SNAPSHOTS, MAX_DRONES, COLUMNS), dtype=np.float64, buffer=buffer, offset=SNAPSHOTS_OFFSET
+        )
+        self.link_table: npt.NDArray[np.float64] = np.ndarray(
+            (MAX_DRONES, len(LINK_CHANNELS), len(LINK_FIELDS)), dtype=np.float64, buffer=buffer, offset=LINKS_OFFSET
+        )
+        # The table this mapping reads the other bodies from: the live table, or in lockstep the snapshot of the
+        # last completed epoch (``WorldParticipant`` switches it; each drone maps the world for itself).
+        self.bodies: npt.NDArray[np.float64] = self.table
 
     @property
     def name(self) -> str:
@@ -147,6 +174,8 @@ class SharedWorld:
         world.table[:, STEP] = np.inf  # a row that is no lockstep member never holds anyone back
         world.header[:] = 0.0
         world.obstacle_table[:] = 0.0
+        world.snapshots[:] = 0.0
+        world.link_table[:] = 0.0
         return world
 
     @classmethod
@@ -182,6 +211,9 @@ class SharedWorld:
             row[END_CAUSE] = cause
         if row[VALID] == 1.0:
             row[ENDED] = 1.0
+        for snapshot in self.snapshots:  # the body falls for lockstep readers too
+            if snapshot[instance, VALID] == 1.0:
+                snapshot[instance, ENDED] = 1.0
 
     def end_cause(self, instance: int) -> float | None:
         """Why row ``instance`` ended (an ``END_*`` value), or None while it has not."""
@@ -211,10 +243,17 @@ class SharedWorld:
     def write_cpu(self, instance: int, physics_s: float, control_s: float, perception_s: float, link_s: float) -> None:
         self.table[instance, CPU_PHYSICS : CPU_LINK + 1] = (physics_s, control_s, perception_s, link_s)
 
+    def write_link_counters(self, instance: int, counters: Mapping[tuple[LinkClass, Direction], LinkCounters]) -> None:
+        row = self.link_table[instance]
+        for k, key in enumerate(LINK_CHANNELS):
+            c = counters.get(key)
+            if c is not None:
+                row[k] = (c.frames_offered, c.frames_lost, c.delayed, c.total_delay_s)
+
     def others_ned_m(self, instance: int) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]:
         """Instances and NED offsets (from drone ``instance``) of every other valid body, ended ones where they have
         fallen to at drone ``instance``'s last published time."""
-        table = self.table
+        table = self.bodies
         me = table[instance]
         valid = table[:, VALID] == 1.0
         valid[instance] = False
@@ -245,7 +284,7 @@ class SharedWorld:
     def obstacles_from(self, instance: int) -> list[StaticObstacle]:
         """Every declared obstacle as seen from drone ``instance`` (offsets from its published position)."""
         rows = self.obstacle_table
-        me = self.table[instance]
+        me = self.bodies[instance]
         out = []
         cos_lat = math.cos(math.radians(me[LAT]))
         for k in np.flatnonzero(rows[:, O_VALID] == 1.0):
@@ -264,7 +303,7 @@ class SharedWorld:
         ids, offsets = self.others_ned_m(instance)
         if len(ids):
             distance = np.sqrt(np.einsum("ij,ij->i", offsets, offsets))
-            hits = np.flatnonzero(distance < self.table[ids, RADIUS] + own_radius)
+            hits = np.flatnonzero(distance < self.bodies[ids, RADIUS] + own_radius)
             found = [Contact(instance=int(ids[k]), distance_m=float(distance[k])) for k in hits]
         if self.obstacle_table[:, O_VALID].any():
             for ob in self.obstacles_from(instance):
@@ -280,7 +319,9 @@ class SharedWorld:
         return found
 
     def close(self) -> None:
-        self.table = np.zeros((0, COLUMNS))
+        self.table = self.bodies = np.zeros((0, COLUMNS))
+        self.snapshots = np.zeros((0, 0, COLUMNS))
+        self.link_table = np.zeros((0, len(LINK_CHANNELS), len(LINK_FIELDS)))
         self.header = np.zeros(HEADER_SLOTS)
         self.obstacle_table = np.zeros((0, OBSTACLE_COLUMNS))
         if self._map is not None:
@@ -291,23 +332,44 @@ class SharedWorld:
                 self._shm.unlink()
 
 
+def lockstep_epoch_steps(quantum_steps: int) -> int:
+    """Steps of a lockstep epoch (``WorldParticipant``): a whole number of quanta, and of publishing periods."""
+    return math.lcm(PUBLISH_EVERY_STEPS, quantum_steps)
+
+
 class WorldParticipant:
-    """One drone's side of the shared world: publishes its truth and crashes on contact, every few steps."""
+    """One drone's side of the shared world: publishes its truth and crashes on contact, every few steps.
+
+    Paced, a drone reads the live table: whatever the others last wrote. In lockstep (``epoch_steps`` given) that
+    would make a flight depend on the machine: a drone in another process may be a step ahead or behind (the
+    barrier's skew), so a camera frame or a contact check would see it one step or another. There, every member
+    also publishes its row into snapshot ``k % 2`` at the end of epoch k (step ``k * epoch_steps``), and during the
+    steps of epoch k + 1 reads the others from that snapshot only: every member has completed epoch k by then (an
+    epoch is a whole number of lockstep quanta, and a quantum's end is a barrier), and none can have reached the end
+    of epoch k + 2, which would overwrite it. So every drone sees every other at one simulated time, the same in
+    every run, and contacts are judged on that same picture at the first step of each epoch."""
 
     def __init__(self, world: SharedWorld, instance: int, radius_m: float, *, rest_alt_amsl_m: float,
-                 every_n_steps: int = 4) -> None:  # fmt: skip
+                 every_n_steps: int = PUBLISH_EVERY_STEPS, epoch_steps: int | None = None) -> None:  # fmt: skip
         self.world = world
         self.instance = instance
         self.radius_m = radius_m
         self.rest_alt_amsl_m = rest_alt_amsl_m
-        self.every_n_steps = every_n_steps
+        self.every_n_steps = every_n_steps if epoch_steps is None else epoch_steps
+        self.epoch_steps = epoch_steps
         self._count = 0
+        self._steps = 0
         world.table[instance, STOP_REQUEST] = 0.0  # a row reused by a new drone starts with no request, no end
         world.table[instance, END_CAUSE] = END_UNKNOWN
+        if epoch_steps is not None:
+            world.snapshots[:, instance, VALID] = 0.0  # nothing from an earlier drone on this row
+            world.bodies = world.snapshots[0]  # epoch 0's picture, empty until its end: nobody has published yet
 
     def after_step(self, truth: PlantState, crashed: bool) -> list[Contact]:
         """Call after every physics step: every ``every_n_steps`` steps publishes the truth and returns the contacts
         (``update``); on the steps between it costs a counter."""
+        if self.epoch_steps is not None:
+            return self._after_lockstep_step(truth, crashed)
         self._count += 1
         if self._count < self.every_n_steps:
             return []
@@ -315,6 +377,26 @@ class WorldParticipant:
         geo, v = truth.geo, truth.vel_ned_mps
         return self.update(truth.time_s, (geo.lat_deg, geo.lon_deg, geo.alt_amsl_m),
                            (float(v[0]), float(v[1]), float(v[2])), crashed)  # fmt: skip
+
+    def _after_lockstep_step(self, truth: PlantState, crashed: bool) -> list[Contact]:
+        """Step ``s`` done: at the first step of an epoch read the others from the snapshot of the last one and look
+        for contacts in it; at an epoch's last step publish into its snapshot."""
+        self._steps += 1
+        steps, epoch = self._steps, self.epoch_steps
+        assert epoch is not None
+        world = self.world
+        contacts: list[Contact] = []
+        if (steps - 1) % epoch == 0:
+            world.bodies = world.snapshots[((steps - 1) // epoch) % SNAPSHOTS]
+            if steps > 1 and not crashed:
+                contacts = world.contacts(self.instance)
+        if steps % epoch == 0:
+            geo, v = truth.geo, truth.vel_ned_mps
+            world.write(self.instance, truth.time_s, (geo.lat_deg, geo.lon_deg, geo.alt_amsl_m),
+                        (float(v[0]), float(v[1]), float(v[2])), self.radius_m, crashed,
+                        rest_alt_amsl_m=self.rest_alt_amsl_m)  # fmt: skip
+            world.snapshots[(steps // epoch) % SNAPSHOTS, self.instance] = world.table[self.instance]
+        return contacts
 
     def update(self, time_s: float, geo: tuple[float, float, float], vel_ned_mps: tuple[float, float, float],
                crashed: bool) -> list[Contact]:  # fmt: skip

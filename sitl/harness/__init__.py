@@ -7,5 +7,6 @@ The ground station depends on the interface it declares (gcs/harness.py); only i
 from sitl.dynamics.plant import GeoPoint
 from sitl.harness.harness import SitlHarness
 from sitl.harness.processes import LaunchPlan, SpawnError, process_exit_cause
+from sitl.linkmodel import LinkImpairment, LinkProfile
 
-__all__ = ["GeoPoint", "LaunchPlan", "SitlHarness", "SpawnError", "process_exit_cause"]
+__all__ = ["GeoPoint", "LaunchPlan", "LinkImpairment", "LinkProfile", "SitlHarness", "SpawnError", "process_exit_cause"]

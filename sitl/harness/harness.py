@@ -23,6 +23,7 @@ import dataclasses
 import math
 import shutil
 import tempfile
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +32,23 @@ import numpy.typing as npt
 from sitl.dynamics.plant import PHYSICS_RATE_HZ
 from sitl.harness.processes import DroneProcess, LaunchPlan, ProcessGroup, process_exit_cause
 from sitl.lockstep import LockstepGate
-from sitl.world import ALT, CPU_LINK, CPU_PHYSICS, END_FAILED, END_STOPPED, LAT, LON, STEP, TIME, VALID, SharedWorld
+from sitl.world import (
+    ALT,
+    CPU_LINK,
+    CPU_PHYSICS,
+    DRONE_SENT,
+    END_FAILED,
+    END_STOPPED,
+    LAT,
+    LINK_CHANNELS,
+    LINK_FIELDS,
+    LON,
+    STEP,
+    SUPERVISOR_SENT,
+    TIME,
+    VALID,
+    SharedWorld,
+)
 
 # A live drone's body (crashed or silent, still writing its row) is "down" once it is this close to its launch
 # altitude (the ground, in this flat world).
@@ -56,6 +73,7 @@ class SitlHarness:
         self._gate: LockstepGate | None = None
         self._ended: dict[int, str] = {}  # sysid -> cause, for every drone seen ended (marked in the world once)
         self._final_time_s = 0.0  # the common lockstep time when the gate closed
+        self._final_link_counters: dict[str, dict[str, float]] = {}  # the link model's counts when the world closed
 
     # ---- lifecycle -------------------------------------------------------------------------------------------------
     def launch(self, gcs_port: int) -> list[int]:
@@ -81,6 +99,7 @@ class SitlHarness:
         try:
             self._processes.terminate()
         finally:
+            self._final_link_counters = self.link_counters()  # the drones published their last counts as they ended
             if self._gate is not None:
                 self._gate.close()
                 self._gate = None
@@ -89,6 +108,37 @@ class SitlHarness:
                 self._world = None
             if self._temp_logs is not None:
                 shutil.rmtree(self._temp_logs, ignore_errors=True)
+
+    def note_sent_to_drones(self, datagrams: Mapping[int, int]) -> None:
+        """Lockstep delivery (``SimulationHarness``): into each drone's row, before the gate opens."""
+        if self._world is None:
+            return
+        table = self._world.table
+        for d in self._processes.drones:
+            count = datagrams.get(d.sysid)
+            if count is not None:
+                table[d.instance, SUPERVISOR_SENT] = float(count)
+
+    def sent_by_drones(self) -> dict[int, int]:
+        """Lockstep delivery (``SimulationHarness``): each drone's count, from its row."""
+        if self._world is None:
+            return {}
+        table = self._world.table
+        return {d.sysid: int(table[d.instance, DRONE_SENT]) for d in self._processes.drones}
+
+    def link_counters(self) -> dict[str, dict[str, float]]:
+        """What the link model did to the swarm's traffic, summed over the drones (``SimulationHarness``)."""
+        if self._world is None:
+            return self._final_link_counters
+        rows = self._world.link_table[[d.instance for d in self._processes.drones]]
+        totals = rows.sum(axis=0)
+        out: dict[str, dict[str, float]] = {}
+        for k, (link_class, direction) in enumerate(LINK_CHANNELS):
+            if totals[k, 0] > 0:
+                out[f"{link_class} {direction}"] = {
+                    name: float(v) for name, v in zip(LINK_FIELDS, totals[k], strict=True)
+                }
+        return out
 
     # ---- ends and faults -------------------------------------------------------------------------------------------
     def ended(self) -> dict[int, str]:

@@ -16,13 +16,14 @@ import os
 import signal
 import subprocess
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
 from sitl.dynamics.geodesy import geo_from_ned
 from sitl.dynamics.plant import GeoPoint
 from sitl.harness.factory import DroneFactory, FactoryError, ForkedProcess
+from sitl.linkmodel import LinkProfile, link_arguments
 from sitl.zygote import die_with_parent
 
 TERMINATE_WAIT_S = 5.0
@@ -65,6 +66,8 @@ class LaunchPlan:
     camera_drones: frozenset[int] = frozenset()  # drones (1..n, in spawn order) whose camera frames are saved...
     camera_dir: Path | None = None  # ...as PNG under camera_dir/drone-<instance>/
     drones_per_process: int | Literal["auto"] = 1  # drones one process hosts; "auto": one process per usable CPU
+    signing_key_file: Path | None = None  # every drone signs with this key and requires signed messages
+    links: LinkProfile = field(default_factory=LinkProfile)  # every drone's link model settings (--link)
 
     @property
     def n_drones(self) -> int:
@@ -165,10 +168,13 @@ def _common_args(plan: LaunchPlan, gcs_port: int, world: str | None) -> list[str
     cmd = ["--speed", "0" if plan.lockstep else f"{plan.speed_factor:g}", "--gcs-remote", f"127.0.0.1:{gcs_port}"]
     if plan.airframe is not None:
         cmd += ["--airframe", plan.airframe]
+    cmd += link_arguments(plan.links)
     if world is not None:
         cmd += ["--world", world]
         if plan.lockstep:
             cmd += ["--lockstep", "--lockstep-quantum", str(plan.lockstep_quantum)]
+    if plan.signing_key_file is not None:
+        cmd += ["--signing-key", str(plan.signing_key_file), "--signing-required"]
     return cmd
 
 

@@ -23,7 +23,7 @@ from sitl.perception.camera import (
     render_rig_if_drawn,
     spheres,
 )
-from sitl.perception.detector import Detection, detect, detect_rig, to_ned
+from sitl.perception.detector import Detection, detect, detect_rig, to_ned, to_ned_all
 
 __all__ = [
     "Body",
@@ -41,4 +41,5 @@ __all__ = [
     "render_rig_if_drawn",
     "spheres",
     "to_ned",
+    "to_ned_all",
 ]

@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from sitl.mathutil import quat_to_dcm
+from sitl.mathutil import fast_constructor, quat_to_dcm
 
 GrayImage = npt.NDArray[np.uint8]
 
@@ -104,6 +104,8 @@ class VerticalCylinder:
 
 
 Body = Sphere | VerticalCylinder
+# Every other drone is a sphere in every frame: built through its slots, the same frozen record (sitl/mathutil.py).
+_new_sphere = fast_constructor(Sphere)
 
 
 def spheres(offsets_ned_m: npt.ArrayLike, radius_m: npt.ArrayLike) -> list[Sphere]:
@@ -111,7 +113,7 @@ def spheres(offsets_ned_m: npt.ArrayLike, radius_m: npt.ArrayLike) -> list[Spher
     (e.g. the table's radius column)."""
     rows = np.asarray(offsets_ned_m, dtype=np.float64).reshape(-1, 3)
     radii = np.broadcast_to(np.asarray(radius_m, dtype=np.float64), (len(rows),)).tolist()
-    return [Sphere(offset_ned_m=(n, e, d), radius_m=r) for (n, e, d), r in zip(rows.tolist(), radii, strict=True)]
+    return [_new_sphere(offset_ned_m=(n, e, d), radius_m=r) for (n, e, d), r in zip(rows.tolist(), radii, strict=True)]
 
 
 def _mount_rotation(yaw_rad: float, pitch_rad: float) -> npt.NDArray[np.float64]:

@@ -43,7 +43,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from sitl.mathutil import quat_to_dcm
+from sitl.mathutil import fast_constructor, quat_to_dcm
 from sitl.perception.camera import Camera, CameraRig, GrayImage, sphere_silhouette
 
 # A blob of this many pixels or more is checked for being two bodies; below it pixelation alone makes shapes vary.
@@ -58,6 +58,8 @@ _REMAINDER_MIN_FRACTION = 0.05
 _UPRIGHT_ASPECT = 2.0
 # Detections from two cameras of a rig closer than this (or than the larger angular radius) are one body.
 _DUPLICATE_ANGLE_RAD = math.radians(3.0)
+# A pair whose cosine is this far below a threshold's cosine is apart whatever the last bits of either.
+_COSINE_MARGIN = 1e-9
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -128,6 +130,11 @@ def _solve_sphere(c_n: float, target: float, *, by_area: bool) -> tuple[float, f
     return (t1 + t2) / 2.0, (t2 - t1) / 2.0, a_n, b_n
 
 
+# A frame of a crowd yields dozens of detections, at the camera rate on every drone: built through its slots (the
+# same frozen record) at a third of the cost of its ``__init__`` (sitl/mathutil.py).
+_new_detection = fast_constructor(Detection)
+
+
 def _ray(camera: Camera, u: float, v: float, theta: float) -> tuple[float, float, float]:
     """Unit vector (camera frame) theta off the optical axis, in the image direction of pixel (u, v)."""
     xn, yn = (u - camera.cx_px) / camera.focal_px, (v - camera.cy_px) / camera.focal_px
@@ -148,7 +155,7 @@ def _make(
     truncated: bool,
     merged: bool,
 ) -> Detection:
-    return Detection(
+    return _new_detection(
         camera_name=camera.config.name,
         centroid_px=centroid_px,
         area_px=area_px,
@@ -206,8 +213,10 @@ def _fit_cone(
     for bodies mostly outside the frame (docs/perception.md).
     """
     f = camera.focal_px
+    f_sq = f * f
     tolerance = 1.5 / f
     bu, bv = boundary_px[:, 0], boundary_px[:, 1]
+    bu_c, bv_c = bu - camera.cx_px, bv - camera.cy_px  # the same in both iterations
     for iteration in range(2):
         ax, ay, az = vec
         sin_a = math.sin(alpha)
@@ -218,8 +227,8 @@ def _fit_cone(
         py, pz = (ay / rho, az / rho) if rho > 0.0 else (1.0, 0.0)
         du, dv = bu - (camera.cx_px + f * c_n * py), bv - (camera.cy_px + f * c_n * pz)
         push = 0.5 / np.maximum(np.sqrt(du * du + dv * dv), 1e-9)
-        ry, rz = bu - camera.cx_px + du * push, bv - camera.cy_px + dv * push
-        inv = 1.0 / np.sqrt(f * f + ry * ry + rz * rz)
+        ry, rz = bu_c + du * push, bv_c + dv * push
+        inv = 1.0 / np.sqrt(f_sq + ry * ry + rz * rz)
         rx, ry, rz = f * inv, ry * inv, rz * inv
         if select or iteration > 0:
             # |angle to axis - alpha| <= tolerance, to first order in cosines.
@@ -241,6 +250,24 @@ def _fit_cone(
     return vec, alpha
 
 
+def _inscribed_peak(padded: npt.NDArray[Any]) -> tuple[int, int, float]:
+    """Column, row and distance to the background of the blob pixel farthest from it (the first in row order of
+    those equally far): the centre of the largest inscribed circle.
+
+    OpenCV's precise distance transform is the exact Euclidean one, but its float32 square roots are not reproducible:
+    the same mask gives a distance a last bit apart from one call to the next (its vector and scalar code paths round
+    differently, and which pixels take which depends on where its buffers lie in memory), and a bit decides between
+    equally far pixels, so the same frame could yield detections that differ in the twelfth digit, or by a pixel's
+    choice of peak, and two runs of the same swarm flight drifted apart. The squared distances are integers (pixel
+    offsets), recovered exactly from the float32 distances (relative error 6e-8, squared distances under 2^20), and
+    the peak is taken on them."""
+    dist = cv2.distanceTransform(padded, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    squared = np.rint(dist.astype(np.float64) ** 2)
+    flat = int(np.argmax(squared))
+    pv, pu = divmod(flat, squared.shape[1])
+    return pu, pv, math.sqrt(float(squared.flat[flat]))
+
+
 def _split_merged(
     camera: Camera, mask: GrayImage, x0: int, y0: int, known_body_radius_m: float, min_area_px: int, whole: Detection
 ) -> list[Detection]:
@@ -252,8 +279,7 @@ def _split_merged(
     (``whole``: its area-based range is short of the nearest body's, the safe side).
     """
     padded = cv2.copyMakeBorder(mask, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
-    dist = cv2.distanceTransform(padded, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    _, peak, _, (pu, pv) = cv2.minMaxLoc(dist)
+    pu, pv, peak = _inscribed_peak(padded)
     u, v = x0 + pu - 1.0, y0 + pv - 1.0
     f = camera.focal_px
     # The distance transform at the centre of a pixel disc of radius R is about R + 0.5 (distance to the centre of
@@ -407,20 +433,54 @@ def detect_rig(
     ]
     found.sort(key=lambda det: (det.truncated, -det.area_px))
     kept: list[Detection] = []
+    # Per kept detection: its camera, direction, and the cosine of the largest angle it alone would call the same
+    # body. Two are one body when the angle between them is below the larger of both thresholds: when the cosine of
+    # that angle is clearly below the smaller of both cosines (by far more than rounding), the arc cosine is not
+    # needed to say no, and most pairs in a crowd are far apart.
+    seen: list[tuple[str, float, float, float, float]] = []
     for det in found:
-        if not any(
-            other.camera_name != det.camera_name
-            and _angle_between(other.unit_frd, det.unit_frd)
-            < max(_DUPLICATE_ANGLE_RAD, other.angular_radius_rad, det.angular_radius_rad)
-            for other in kept
-        ):
+        ax, ay, az = det.unit_frd
+        own_cos = math.cos(max(_DUPLICATE_ANGLE_RAD, det.angular_radius_rad))
+        duplicate = False
+        for (name, bx, by, bz, other_cos), other in zip(seen, kept, strict=True):
+            if name == det.camera_name:
+                continue
+            dot = bx * ax + by * ay + bz * az  # as ``_angle_between`` computes it
+            if dot < min(own_cos, other_cos) - _COSINE_MARGIN:
+                continue
+            if _angle_between(other.unit_frd, det.unit_frd) < max(
+                _DUPLICATE_ANGLE_RAD, other.angular_radius_rad, det.angular_radius_rad
+            ):
+                duplicate = True
+                break
+        if not duplicate:
             kept.append(det)
+            seen.append((det.camera_name, ax, ay, az, own_cos))
     return kept
 
 
 def _angle_between(a: tuple[float, float, float], b: tuple[float, float, float]) -> float:
     dot = a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
     return math.acos(max(-1.0, min(1.0, dot)))
+
+
+def to_ned_all(
+    detections: Sequence[Detection], own_att_q_frd_to_ned: npt.ArrayLike
+) -> list[tuple[float, float, float]]:
+    """``to_ned`` of every detection of a frame, the rotation worked out once: the same figures to the last bit (each
+    product and sum in the same order, on the same float64 values)."""
+    if not detections:
+        return []
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = quat_to_dcm(
+        np.asarray(own_att_q_frd_to_ned, dtype=np.float64)
+    ).tolist()
+    out = []
+    for detection in detections:
+        range_m = detection.range_m
+        ux, uy, uz = detection.unit_frd
+        x, y, z = ux * range_m, uy * range_m, uz * range_m
+        out.append((r00 * x + r01 * y + r02 * z, r10 * x + r11 * y + r12 * z, r20 * x + r21 * y + r22 * z))
+    return out
 
 
 def to_ned(detection: Detection, own_att_q_frd_to_ned: npt.ArrayLike) -> tuple[float, float, float]:

@@ -14,11 +14,12 @@ through the same C implementation pymavlink uses when it is installed, else a ta
 pymavlink's (tests/unit/test_framing.py packs every such message class of the dialect both ways with random field
 values).
 
-Parsing takes the fast path only for a datagram that is nothing but well-formed, unsigned MAVLink 2 frames of
-classes without arrays, with correct CRCs, and builds the objects pymavlink's parser would (fields, header, buffer,
-payload, CRC). Anything else (MAVLink 1, signing, an unknown id, text or array fields, a bad CRC, a truncated
-frame, garbage) returns None and the caller hands the whole datagram to pymavlink, so every unusual input is
-treated exactly as before.
+Parsing takes the fast path only for a datagram that is nothing but well-formed MAVLink 2 frames of classes
+without arrays, with correct CRCs, unsigned or signed (the signature is kept in the frame's buffer for
+sitl/protocol/signing.py to check, not checked here), and builds the objects pymavlink's parser without a key would
+(fields, header, buffer, payload, CRC). Anything else (MAVLink 1, other incompatibility flags, an unknown id, text or
+array fields, a bad CRC, a truncated frame, garbage) returns None and the caller hands the whole datagram to
+pymavlink, so every unusual input is treated exactly as before.
 """
 
 from __future__ import annotations
@@ -37,6 +38,8 @@ _HEADER: Final = struct.Struct("<BBBBBBBHB")  # magic, len, incompat, compat, se
 _CRC: Final = struct.Struct("<H")
 HEADER_LEN: Final = 10
 MAGIC_V2: Final = mavlink.PROTOCOL_MARKER_V2
+IFLAG_SIGNED: Final = mavlink.MAVLINK_IFLAG_SIGNED  # incompatibility flag: 13 signature bytes follow the CRC
+SIGNATURE_LEN: Final = mavlink.MAVLINK_SIGNATURE_BLOCK_LEN  # link id 1 + timestamp 6 + signature 6
 
 
 def _crc_table() -> tuple[int, ...]:
@@ -154,26 +157,28 @@ def parse_datagram(data: bytes) -> list[MAVLinkMessage] | None:
         if end - i < HEADER_LEN + 2 or data[i] != MAGIC_V2:
             return None
         _magic, mlen, incompat, compat, seq, sysid, compid, id_low, id_high = _HEADER.unpack_from(data, i)
-        if incompat != 0:
+        if incompat & ~IFLAG_SIGNED:
             return None
+        signed = incompat == IFLAG_SIGNED
         layout = layouts.get(id_low | id_high << 16)
-        frame_end = i + HEADER_LEN + mlen + 2
+        crc_end = i + HEADER_LEN + mlen + 2
+        frame_end = crc_end + SIGNATURE_LEN if signed else crc_end
         if layout is None or frame_end > end:
             return None
-        crc = _CRC.unpack_from(data, frame_end - 2)[0]
-        if crc_x25(data[i + 1 : frame_end - 2] + bytes((layout.crc_extra,)), 0xFFFF) != crc:
+        crc = _CRC.unpack_from(data, crc_end - 2)[0]
+        if crc_x25(data[i + 1 : crc_end - 2] + bytes((layout.crc_extra,)), 0xFFFF) != crc:
             return None
         size = layout.payload.size
-        payload = data[i + HEADER_LEN : frame_end - 2]
+        payload = data[i + HEADER_LEN : crc_end - 2]
         if mlen > size:
             return None  # longer than the class: pymavlink cuts it, and so may we not
         wire = layout.payload.unpack(payload + bytes(size - mlen))
         msg = layout.cls(*[wire[k] for k in layout.wire_to_args])
         # What pymavlink's decode sets (its payload slice starts at 6 even for MAVLink 2: kept as it is).
         msgbuf = bytearray(data[i:frame_end])
-        msg._signed = False
+        msg._signed = False  # pymavlink's parser without a key says the same of a signed frame: it checked nothing
         msg._msgbuf = msgbuf
-        msg._payload = msgbuf[6:-2]
+        msg._payload = msgbuf[6 : crc_end - i - 2]
         msg._crc = crc
         msg._header = mavlink.MAVLink_header(layout.msg_id, incompat, compat, mlen, seq, sysid, compid)
         out.append(msg)

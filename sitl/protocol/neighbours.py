@@ -8,6 +8,7 @@ Entries expire after ``NEIGHBOUR_TIMEOUT_S`` without news, so a lost relay shows
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Final
 
@@ -85,6 +86,10 @@ class NeighbourTable:
     def __init__(self, own_sysid: int) -> None:
         self.own_sysid = own_sysid
         self._entries: dict[int, Neighbour] = {}
+        # No entry arrived before this time (a lower bound: an entry refreshed later only makes it older than need
+        # be): while it is within the timeout of now, nothing can have expired and ``poll`` need not look. Polled at
+        # every pass of the loop, the look over a crowd's table cost more than the table's updates.
+        self._oldest_received_s = math.inf
         self.updates = 0
 
     def handle(self, msg: MAVLinkMessage, now_s: float) -> list[Effect]:
@@ -106,14 +111,19 @@ class NeighbourTable:
             sender_time_s=boot_ms * 1e-3,
             received_s=now_s,
         )
+        if now_s < self._oldest_received_s:
+            self._oldest_received_s = now_s
         self.updates += 1
         return []
 
     def poll(self, now_s: float) -> list[Effect]:
         now_s = check_now(now_s)
+        if now_s - self._oldest_received_s <= NEIGHBOUR_TIMEOUT_S:
+            return []  # every entry arrived at or after the oldest, so none is older than the timeout
         stale = [s for s, n in self._entries.items() if n.age_s(now_s) > NEIGHBOUR_TIMEOUT_S]
         for sysid in stale:
             del self._entries[sysid]
+        self._oldest_received_s = min((n.received_s for n in self._entries.values()), default=math.inf)
         return []
 
     def entries(self, now_s: float) -> list[Neighbour]:

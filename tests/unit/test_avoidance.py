@@ -27,6 +27,7 @@ from sitl.avoidance import (
     Vec3,
     avoid,
     fuse,
+    fuse_fields,
     required_separation_m,
 )
 
@@ -512,3 +513,32 @@ def test_fusion_never_invents_obstacles_and_never_loses_a_detection(
     usable_cameras = [c for c in camera if max(map(abs, c.rel_pos_ned_m)) <= MAX_REL_POS_M and c.age_s <= MAX_AGE_S]
     assert len([o for o in fused if o.source in ("camera", "fused")]) == len(usable_cameras)
     assert len(fused) <= len(camera) + len(relay)
+
+
+def _crowd(rng: np.random.Generator, count: int, spread_m: float) -> list[Obstacle]:
+    return [
+        Obstacle(
+            rel_pos_ned_m=tuple(rng.uniform(-spread_m, spread_m, 3).tolist()),
+            vel_ned_mps=tuple(rng.uniform(-2.0, 2.0, 3).tolist()),
+            vel_known=True,
+            radius_m=0.35,
+            source="relay",
+            age_s=float(rng.uniform(0.0, 1.2)),
+        )
+        for _ in range(count)
+    ]
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_association_checked_with_arrays_gives_the_loops_result_to_the_last_bit(seed: int) -> None:
+    # GIVEN a crowd of detections and relayed neighbours close enough that many pairs fall within each other's gates
+    rng = np.random.default_rng(seed)
+    cams = [(o.rel_pos_ned_m, o.radius_m, o.age_s * 0.1) for o in _crowd(rng, int(rng.integers(1, 25)), 6.0)]
+    relays = [(o.rel_pos_ned_m, o.vel_ned_mps, o.radius_m, o.age_s) for o in _crowd(rng, int(rng.integers(1, 25)), 6.0)]
+    own = tuple(rng.uniform(-3.0, 3.0, 3).tolist())
+    # WHEN fused with the pairs gated by numpy and by the Python loop
+    by_arrays = fuse_fields(cams, relays, own, CONFIG, vector_pairs=0)
+    by_loop = fuse_fields(cams, relays, own, CONFIG, vector_pairs=10**9)
+    # THEN the obstacles are the same, every figure equal, and some detections were matched
+    assert by_arrays == by_loop
+    assert any(o.source == "fused" for o in by_loop)

@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
+from sitl.avoidance import Obstacle, fuse
 from sitl.collision_prevention import CollisionPrevention, RelayedNeighbour
 from sitl.control.cascade import TrajectorySetpoint
 from sitl.control.params import position_config
@@ -53,3 +55,33 @@ def test_in_a_crowd_only_the_nearest_neighbours_are_fused_and_the_correction_is_
     # THEN the drone corrects, and exactly as if only the nearest had been reported
     assert corrected[0] != setpoint
     assert corrected[0] == corrected[1]
+
+
+def test_the_obstacles_fused_from_fields_are_those_fused_from_records() -> None:
+    # GIVEN a drone with a dozen camera detections of a second-old frame and thirty relayed neighbours around it
+    rng = np.random.default_rng(7)
+    cp, _events = prevention()
+    detections = [Obstacle(rel_pos_ned_m=tuple(rng.uniform(-8.0, 8.0, 3).tolist()), radius_m=0.35) for _ in range(12)]
+    neighbours = [
+        RelayedNeighbour(sysid=k + 2, pos_ned_m=tuple(rng.uniform(-9.0, 9.0, 3).tolist()),
+                         vel_ned_mps=tuple(rng.uniform(-1.0, 1.0, 3).tolist()),
+                         received_s=float(rng.uniform(9.0, 10.0)))
+        for k in range(30)
+    ]  # fmt: skip
+    cp.set_camera(detections, 9.6)
+    cp.set_relay(neighbours)
+    pos, vel, now_s = (0.3, -0.2, -3.0), (1.0, 0.5, 0.0), 10.0
+    # WHEN collision prevention builds its obstacles, and the records are built as fusion's docstring describes
+    got = cp._obstacles(pos, vel, now_s)
+    config = cp.config()
+    nearest = sorted(neighbours, key=lambda n: math.dist(n.pos_ned_m, pos))[: 2 * config.max_obstacles]
+    relay = [
+        Obstacle(rel_pos_ned_m=(n.pos_ned_m[0] - pos[0], n.pos_ned_m[1] - pos[1], n.pos_ned_m[2] - pos[2]),
+                 vel_ned_mps=n.vel_ned_mps, vel_known=True, radius_m=0.35, source="relay",
+                 age_s=max(0.0, now_s - n.received_s))
+        for n in nearest  # nearest first, as collision prevention picks them
+    ]  # fmt: skip
+    camera = [Obstacle(rel_pos_ned_m=d.rel_pos_ned_m, radius_m=0.35, age_s=now_s - 9.6) for d in detections]
+    # THEN both give the same obstacles, every figure equal
+    assert got == fuse(camera, relay, vel, config)
+    assert any(o.source == "fused" for o in got)

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import pytest
 
+from gcs.composition import launch_plan
+from gcs.harness import SpawnPlan
 from sitl.cli import build_parser, parse_instances
 from sitl.dynamics.plant import DEFAULT_HOME
 from sitl.harness.processes import LaunchPlan, host_args, host_groups, sitl_args
@@ -45,3 +47,14 @@ def test_a_host_starts_its_drones_as_each_would_be_started_alone(tmp_path: Path)
             assert getattr(alone, option) == getattr(hosted, option), option
         expected_camera = tmp_path / "camera" / f"drone-{instance}" if instance == 41 else None
         assert alone.camera_frames == expected_camera
+
+
+def test_a_plan_with_a_signing_key_starts_every_drone_signing_and_requiring_signatures(tmp_path: Path) -> None:
+    key_file = tmp_path / "swarm.key"
+    plan = launch_plan(SpawnPlan(n_drones=3, first_instance=40, signing_key_file=key_file))
+    homes = plan.homes()
+    for args in (host_args(plan, [40, 41, 42], homes, 14550, None), sitl_args(plan, 40, homes[0], 14550, None)):
+        parsed = build_parser().parse_args(args)
+        assert parsed.signing_key == str(key_file) and parsed.signing_required
+    unsigned = build_parser().parse_args(sitl_args(launch_plan(SpawnPlan(n_drones=1)), 0, homes[0], 14550, None))
+    assert unsigned.signing_key is None and not unsigned.signing_required

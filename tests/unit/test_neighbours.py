@@ -93,3 +93,22 @@ def test_the_one_pass_field_check_accepts_and_refuses_exactly_what_the_field_by_
         assert plain is None or plain == expected  # the fast path never accepts what the checks refuse
         if expected is not None and all(type(v) is int for v in expected):
             assert plain == expected  # and takes every well-formed report
+
+
+def test_a_poll_forgets_each_silent_neighbour_as_soon_as_it_is_too_old_and_not_before() -> None:
+    # GIVEN three neighbours heard at 0, 1 and 2 s, the first heard again at 2.5 s
+    table = NeighbourTable(own_sysid=1)
+    for sysid, now in ((2, 0.0), (3, 1.0), (4, 2.0), (2, 2.5)):
+        table.handle(wire(position(473977420, 491000), sysid), now)
+    # WHEN polled as time passes, THEN each goes once it is older than the timeout, in the order it fell silent
+    remaining = []
+    for now in (3.9, 4.0, 4.01, 5.0, 5.01, 5.5, 5.51):
+        table.poll(now)
+        remaining.append(sorted(table._entries))
+    assert remaining == [[2, 3, 4], [2, 3, 4], [2, 4], [2, 4], [2], [2], []]
+    # AND an entry stamped earlier than any before (a clock that restarted) is still forgotten on time
+    table.handle(wire(position(473977420, 491000), 5), 0.5)
+    table.poll(3.5)
+    assert sorted(table._entries) == [5]
+    table.poll(3.51)
+    assert table._entries == {}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -10,7 +11,7 @@ import pytest
 from sitl.dynamics.plant import GeoPoint, PlantState
 from sitl.lockstep import LockstepGate, LockstepMember
 from sitl.mathutil import GRAVITY_MPS2, vec3
-from sitl.world import STEP, SharedWorld, WorldParticipant
+from sitl.world import STEP, SharedWorld, WorldParticipant, lockstep_epoch_steps
 
 LAT, LON, ALT = 47.397742, 8.545594, 490.0
 M_PER_DEG_LAT = 6_371_000.0 * 3.141592653589793 / 180.0
@@ -184,3 +185,40 @@ def test_a_member_that_ended_holds_no_lockstep_member_back() -> None:
         gate.close()
     finally:
         world.close()
+
+
+def _north_truth(time_s: float, north_m: float) -> PlantState:
+    state = _truth(time_s, ALT + 3.0)
+    geo = GeoPoint(lat_deg=LAT + north_m / M_PER_DEG_LAT, lon_deg=LON, alt_amsl_m=ALT + 3.0)
+    return dataclasses.replace(state, geo=geo)
+
+
+def test_in_lockstep_a_drone_sees_the_others_as_they_were_at_the_end_of_the_last_epoch() -> None:
+    world = SharedWorld.create()
+    try:
+        # GIVEN two lockstep drones with epochs of 4 steps; drone 1 stands 0.5 m north of where drone 0 hovers
+        a = WorldParticipant(SharedWorld.attach(world.name), 0, 0.35, rest_alt_amsl_m=ALT, epoch_steps=4)
+        b = WorldParticipant(SharedWorld.attach(world.name), 1, 0.35, rest_alt_amsl_m=ALT, epoch_steps=4)
+        for k in range(1, 5):  # epoch 0: both publish at its last step
+            b.after_step(_north_truth(0.004 * k, 0.5), crashed=False)
+            assert a.after_step(_north_truth(0.004 * k, 0.0), crashed=False) == []
+        # WHEN drone 1 runs a step ahead into the next epoch and moves 3 m away
+        b.after_step(_north_truth(0.020, 3.0), crashed=False)
+        b.world.write(1, 0.020, (LAT + 3.0 / M_PER_DEG_LAT, LON, ALT + 3.0), (0.0, 0.0, 0.0), 0.35, False,
+                      rest_alt_amsl_m=ALT)  # fmt: skip
+        # THEN drone 0's first step of the epoch still sees it where it was at the epoch's end, touching (0.5 m)
+        (contact,) = a.after_step(_north_truth(0.020, 0.0), crashed=False)
+        assert contact.instance == 1 and contact.distance_m == pytest.approx(0.5, abs=1e-6)
+        ids, offsets = a.world.others_ned_m(0)
+        assert list(ids) == [1] and offsets[0][0] == pytest.approx(0.5, abs=1e-6)
+        # AND the live table, which paced drones read, has the move
+        ids, offsets = world.others_ned_m(0)
+        assert offsets[0][0] == pytest.approx(3.0, abs=1e-6)
+        a.close()
+        b.close()
+    finally:
+        world.close()
+
+
+def test_an_epoch_is_a_whole_number_of_quanta_and_of_publishing_periods() -> None:
+    assert [lockstep_epoch_steps(q) for q in (1, 2, 3, 4, 8)] == [4, 4, 12, 4, 8]

@@ -1,0 +1,173 @@
+"""Link impairment settings as the ground station takes them: from ``swarm up``/``swarm fly`` options and from a
+mission's ``[swarm.links]`` table, validated here, before anything is spawned.
+
+The simulation applies them (its link model; docs/links.md). The ground station never imports the simulation, so
+the settings and their rules are declared again on this side: the same keys, ranges and one-line messages as the
+drone's ``--link`` option, which a test holds against one table of cases.
+
+Three link classes: ``gcs`` (the ground station and a drone, both ways), ``api`` (a client such as MAVSDK and a
+drone's API link), ``neighbour`` (neighbour positions relayed to a drone, and the drone-to-drone mesh).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from typing import Final
+
+LINK_CLASSES: Final = ("gcs", "api", "neighbour")
+LINK_KEYS: Final = ("loss", "latency_ms", "jitter_ms", "burst_good_s", "burst_bad_s", "burst_loss", "bandwidth_bps")
+_PROBABILITIES: Final = ("loss", "burst_loss")
+_NONNEGATIVE: Final = ("burst_good_s", "burst_bad_s", "latency_ms", "jitter_ms")
+
+
+def value_problem(key: str, value: object) -> str | None:
+    """Why one setting is not valid on its own (a whole line naming the key), or None."""
+    if key not in LINK_KEYS:
+        return f"unknown key {key!r} (keys: {', '.join(LINK_KEYS)})"
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        return f"{key} must be a finite number, got {value!r}"
+    if key in _PROBABILITIES and not 0 <= value <= 1:
+        return f"{key} must be in [0, 1], got {value:g}"
+    if key in _NONNEGATIVE and value < 0:
+        return f"{key} must be >= 0, got {value:g}"
+    if key == "bandwidth_bps" and value <= 0:
+        return f"bandwidth_bps must be > 0 (leave it out for no cap), got {value:g}"
+    return None
+
+
+def settings_problem(values: Mapping[str, float]) -> str | None:
+    """Why a whole class's settings make no link (each key alone, then the burst pair), or None."""
+    for key, value in values.items():
+        problem = value_problem(key, value)
+        if problem is not None:
+            return problem
+    good, bad = values.get("burst_good_s", 0.0), values.get("burst_bad_s", 0.0)
+    if (good > 0) != (bad > 0):
+        return f"burst_good_s and burst_bad_s must both be > 0 (bursts) or both 0 (none), got {good:g} and {bad:g}"
+    return None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LinkSettings:
+    """One link class's impairment; the defaults are a perfect link (the meanings: docs/links.md)."""
+
+    loss: float = 0.0  # probability that a frame is lost while the channel is good
+    burst_good_s: float = 0.0  # Gilbert-Elliott mean good time; 0 and 0: no bursts
+    burst_bad_s: float = 0.0  # Gilbert-Elliott mean bad time (the mean outage)
+    burst_loss: float = 1.0  # probability that a frame is lost while the channel is bad
+    latency_ms: float = 0.0
+    jitter_ms: float = 0.0
+    bandwidth_bps: float | None = None  # None: no cap
+
+    def __post_init__(self) -> None:
+        problem = settings_problem(self.values())
+        if problem is not None:
+            raise ValueError(problem)
+
+    def values(self) -> dict[str, float]:
+        """The settings that are set (a cap given), by key in ``LINK_KEYS`` order."""
+        out: dict[str, float] = {}
+        for key in LINK_KEYS:
+            value = getattr(self, key)
+            if value is not None:
+                out[key] = value
+        return out
+
+    def given(self) -> dict[str, float]:
+        """The settings that differ from a perfect link's."""
+        return {k: v for k, v in self.values().items() if v != getattr(PERFECT, k)}
+
+    @property
+    def is_perfect(self) -> bool:
+        return (
+            self.loss == 0
+            and not (self.burst_bad_s > 0 and self.burst_loss > 0)
+            and self.latency_ms == 0
+            and self.jitter_ms == 0
+            and self.bandwidth_bps is None
+        )
+
+    def describe(self) -> str:
+        given = self.given()
+        return ",".join(f"{k}={v:g}" for k, v in given.items()) if given else "perfect"
+
+
+PERFECT: Final = LinkSettings()
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LinkPlan:
+    """The settings of every link class for a swarm (every drone gets the same; their draws differ by seed)."""
+
+    gcs: LinkSettings = field(default=PERFECT)
+    api: LinkSettings = field(default=PERFECT)
+    neighbour: LinkSettings = field(default=PERFECT)
+
+    def of(self, link_class: str) -> LinkSettings:
+        if link_class not in LINK_CLASSES:
+            raise ValueError(f"link class must be {', '.join(LINK_CLASSES)}, got {link_class!r}")
+        settings: LinkSettings = getattr(self, link_class)
+        return settings
+
+    @property
+    def is_perfect(self) -> bool:
+        return all(self.of(c).is_perfect for c in LINK_CLASSES)
+
+    def overridden(self, values: Mapping[str, float]) -> LinkPlan:
+        """These settings for every class, the others kept (the CLI's options over a mission's table).
+
+        ValueError with one line (naming the class) when a class's result is no link."""
+        out: dict[str, LinkSettings] = {}
+        for link_class in LINK_CLASSES:
+            merged = {**self.of(link_class).values(), **values}
+            problem = settings_problem(merged)
+            if problem is not None:
+                raise ValueError(f"{link_class}: {problem}")
+            out[link_class] = replace(PERFECT, **merged)
+        return LinkPlan(**out)
+
+    def describe(self) -> str:
+        """One line: each class's settings (``perfect`` when nothing is impaired)."""
+        if self.is_perfect:
+            return "perfect"
+        return "; ".join(f"{c} {self.of(c).describe()}" for c in LINK_CLASSES)
+
+
+def plan_from_tables(common: Mapping[str, float], per_class: Mapping[str, Mapping[str, float]]) -> LinkPlan:
+    """A plan from a mission's ``[swarm.links]`` keys (every class) and its ``[swarm.links.CLASS]`` tables (that
+    class, over the common keys). ValueError with one line naming the class when a class's result is no link; the
+    keys and values are the caller's to have checked one by one (``value_problem``), to name their line."""
+    out: dict[str, LinkSettings] = {}
+    for link_class in LINK_CLASSES:
+        merged = {**common, **per_class.get(link_class, {})}
+        problem = settings_problem(merged)
+        if problem is not None:
+            raise ValueError(f"{link_class}: {problem}")
+        out[link_class] = replace(PERFECT, **merged)
+    return LinkPlan(**out)
+
+
+# The swarm's --link-* options and the key each sets (every class at once).
+LINK_OPTIONS: Final = {
+    "--link-loss": "loss",
+    "--link-latency-ms": "latency_ms",
+    "--link-jitter-ms": "jitter_ms",
+    "--link-burst-good-s": "burst_good_s",
+    "--link-burst-bad-s": "burst_bad_s",
+    "--link-burst-loss": "burst_loss",
+    "--link-bandwidth-bps": "bandwidth_bps",
+}
+
+
+def parse_link_value(key: str, text: str) -> float:
+    """One ``--link-*`` option's value; ValueError with the one line that says why it is no value for ``key``."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"{key} must be a number, got {text!r}") from None
+    problem = value_problem(key, value)
+    if problem is not None:
+        raise ValueError(problem)
+    return value
