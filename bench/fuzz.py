@@ -125,6 +125,11 @@ READ_ONLY_REQUESTS: Final = frozenset(
 )
 # A simulated dead radio is, by design, a drone that stops answering: the fuzzer never enables failure injection.
 NEVER_SET_PARAMS: Final = frozenset({"SYS_FAILURE_EN"})
+# Taken by the link's signing gate before any service sees it (sitl/protocol/signing.py).
+GATE_MESSAGES: Final = frozenset({mavlink.MAVLINK_MSG_ID_SETUP_SIGNING})
+# Never addressed to the drone, even in mode b: a key from SETUP_SIGNING makes the drone require signing, and an
+# unsigned client, this tool's included, is then refused by design (as by PX4).
+NEVER_TO_DRONE: Final = frozenset({mavlink.MAVLINK_MSG_ID_SETUP_SIGNING})
 
 # Kinds of frame and their weights: mostly well-formed messages, the rest every way a frame can be broken.
 KIND_WEIGHTS: Final[dict[str, float]] = {
@@ -142,9 +147,10 @@ DRONE_VOCABULARY_SHARE: Final = 0.3  # of the well-formed messages, this share i
 
 
 def drone_handled_ids() -> frozenset[int]:
-    """Every message id some MAVLink service of the drone handles: the union of the ``handles`` of the service
-    classes in sitl.protocol, read from the code so that a service added later is fuzzed (and protected) too."""
-    ids: set[int] = set()
+    """Every message id the drone acts on: the union of the ``handles`` of the service classes in sitl.protocol,
+    read from the code so that a service added later is fuzzed (and protected) too, and what the link's signing
+    gate takes before them."""
+    ids: set[int] = set(GATE_MESSAGES)
     for module_info in pkgutil.iter_modules(sitl.protocol.__path__):
         module = importlib.import_module(f"sitl.protocol.{module_info.name}")
         for obj in vars(module).values():
@@ -268,8 +274,10 @@ class FrameFactory:
     def _target_system(self, msg_id: int) -> int:
         """The drone, broadcast or another system; in mode (a) never the drone for what it would act on."""
         rng = self._rng
-        protected = not self._commands and msg_id in self._handled and msg_id not in READ_ONLY_REQUESTS
-        if self._aimed_share and rng.random() < self._aimed_share:
+        protected = msg_id in NEVER_TO_DRONE or (
+            not self._commands and msg_id in self._handled and msg_id not in READ_ONLY_REQUESTS
+        )
+        if self._aimed_share and not protected and rng.random() < self._aimed_share:
             return self._sysid
         while True:
             choice = rng.randrange(4)
