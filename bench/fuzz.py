@@ -881,6 +881,7 @@ class InProcessReport:
     sim_s: float = 0.0
     armed_s: float = 0.0
     wall_s: float = 0.0
+    cpu_s: float = 0.0  # this process's CPU time: what the run cost, whatever else the machine was doing
     errors: dict[str, int] = field(default_factory=dict)  # "where: exception" -> count
     examples: dict[str, str] = field(default_factory=dict)  # the first message behind each error
     nonfinite: int = 0
@@ -892,8 +893,9 @@ class InProcessReport:
     def text(self) -> str:
         lines = [
             f"fuzz in process: seed {self.seed}, {self.frames} frames ({self.messages_handled} messages handled) in "
-            f"{self.wall_s:.0f} s wall, {self.sim_s:.0f} s simulated ({self.armed_s:.0f} s armed), "
-            f"{self.episodes} drones ({self.crashed_episodes} brought down by what they were told)",
+            f"{self.wall_s:.0f} s wall ({self.cpu_s:.0f} s CPU), {self.sim_s:.0f} s simulated "
+            f"({self.armed_s:.0f} s armed), {self.episodes} drones "
+            f"({self.crashed_episodes} brought down by what they were told)",
             f"  exceptions: {sum(self.errors.values())}; non-finite states: {self.nonfinite}",
         ]
         for key, count in sorted(self.errors.items(), key=lambda kv: -kv[1]):
@@ -909,7 +911,7 @@ def run_in_process(frames: int, seed: int, *, frames_per_step: int = 2,
     packed). Any exception, and any NaN or infinite position, velocity or attitude, is a failure."""
     say = progress or (lambda _text: None)
     report = InProcessReport(seed=seed)
-    start = time.monotonic()
+    start, cpu_start = time.monotonic(), time.process_time()
     while report.frames < frames:
         report.episodes += 1
         _InProcessDrone(seed * 10_000 + report.episodes, report).fly(
@@ -917,6 +919,7 @@ def run_in_process(frames: int, seed: int, *, frames_per_step: int = 2,
         )
         say(f"  drone {report.episodes}: {report.frames} frames so far, {sum(report.errors.values())} exceptions")
     report.wall_s = time.monotonic() - start
+    report.cpu_s = time.process_time() - cpu_start
     return report
 
 
