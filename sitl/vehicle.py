@@ -205,7 +205,13 @@ class Vehicle:
 
     def track_setpoint(self, limits: MotionLimits, max_speed_mps: float, dt_s: float) -> TrajectorySetpoint:
         """Advance the smooth reference towards the target and fly it."""
-        ref = self.trajectory.update(self.target_ned_m, limits, dt_s, max_speed_mps)
+        return self.track_setpoint_to(self.target_ned_m, limits, max_speed_mps, dt_s)
+
+    def track_setpoint_to(
+        self, goal_ned_m: Vec3, limits: MotionLimits, max_speed_mps: float, dt_s: float
+    ) -> TrajectorySetpoint:
+        """Advance the smooth reference towards ``goal_ned_m`` and fly it."""
+        ref = self.trajectory.update(goal_ned_m, limits, dt_s, max_speed_mps)
         return TrajectorySetpoint(
             pos_ned_m=_tuple3(ref.pos_ned_m),
             vel_ned_mps=_tuple3(ref.vel_ned_mps),
@@ -215,12 +221,19 @@ class Vehicle:
 
     def land_descent_setpoint(self, limits: MotionLimits, max_speed_mps: float, dt_s: float) -> TrajectorySetpoint:
         """Descend at the landing speed into the ground: the land detector ends the descent, not a target.
-        Horizontally the reference glides to the landing point (it is already there when landing in place)."""
+        Horizontally the reference glides to the landing point (it is already there when landing in place).
+
+        A landing point farther than NAV_ACC_RAD is first flown to at the current altitude, as PX4's mission inserts
+        a "move to land" leg for a multicopter: gliding there while descending, a point more than a few metres
+        away was reached only at the ground, and the vehicle touched down at cruise speed and broke."""
+        ref_z = float(self.trajectory.position[2])
+        goal = vec3(self.target_ned_m[0], self.target_ned_m[1], ref_z)
+        ahead = goal[:2] - self.trajectory.position[:2]
+        if math.hypot(float(ahead[0]), float(ahead[1])) > self.p("NAV_ACC_RAD"):
+            return self.track_setpoint_to(goal, limits, max_speed_mps, dt_s)
         land_speed = self.p("MPC_LAND_SPEED")
         if self.altitude_above_home_m() > self.p("MPC_LAND_ALT2"):
             land_speed = self.p("MPC_Z_V_AUTO_DN")
-        ref_z = float(self.trajectory.position[2])
-        goal = vec3(self.target_ned_m[0], self.target_ned_m[1], ref_z)
         ref = self.trajectory.update(goal, limits, dt_s, max_speed_mps)
         return TrajectorySetpoint(
             pos_ned_m=(float(ref.pos_ned_m[0]), float(ref.pos_ned_m[1]), math.nan),

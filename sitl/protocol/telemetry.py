@@ -21,7 +21,7 @@ from typing import Final
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.protocol import messages
-from sitl.protocol.core import Effect, Identity, MAVLinkMessage, Send, check_now
+from sitl.protocol.core import INT32_MAX, Effect, Identity, MAVLinkMessage, Send, check_now
 from sitl.protocol.messages import BUILDERS
 from sitl.protocol.modes import base_mode, system_status
 from sitl.protocol.statustext import StatusTextEncoder
@@ -184,9 +184,15 @@ class TelemetryScheduler:
     def set_message_interval(self, msg_id: int, interval_us: float, now_s: float) -> CommandResult:
         """MAV_CMD_SET_MESSAGE_INTERVAL: 0 = default rate, -1 = off, > 0 = interval in microseconds."""
         check_now(now_s)
+        if msg_id == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+            # PX4 refuses (FAILED) to change the heartbeat: it is how every client knows the vehicle is there, and a
+            # command turning it off or down to once an hour would make the vehicle look lost to all of them.
+            return CommandResult.FAILED
         if msg_id not in BUILDERS:
             return CommandResult.UNSUPPORTED
-        if not math.isfinite(interval_us) or (interval_us < 0 and interval_us != -1):
+        # MESSAGE_INTERVAL reports an interval as int32 microseconds: one it could not report (beyond 35 minutes) is
+        # as invalid as a negative one, and storing it would make GET_MESSAGE_INTERVAL unpackable.
+        if not math.isfinite(interval_us) or (interval_us < 0 and interval_us != -1) or interval_us > INT32_MAX:
             return CommandResult.DENIED
         if interval_us == -1:
             self._streams.pop(msg_id, None)
@@ -208,7 +214,7 @@ class TelemetryScheduler:
         if msg_id not in BUILDERS:
             return 0
         stream = self._streams.get(msg_id)
-        return -1 if stream is None else round(stream.interval_s * 1e6)
+        return -1 if stream is None else min(round(stream.interval_s * 1e6), INT32_MAX)
 
     def request_message(self, msg_id: int, now_s: float) -> tuple[CommandResult, list[Effect]]:
         """MAV_CMD_REQUEST_MESSAGE: the message now, or DENIED when it cannot be produced (PX4's answer)."""
