@@ -88,8 +88,15 @@ class _Work:
     retries_left: int
     due_s: float  # when this try times out
     confirmation: int = 0
+    frame: int | None = None  # COMMAND_INT in this MAV_FRAME (params 5/6 are x/y); None: COMMAND_LONG
 
     def message(self) -> Any:
+        if self.frame is not None:  # COMMAND_INT has no confirmation field: its retries are sent as they are
+            p = self.params
+            return mavlink.MAVLink_command_int_message(
+                self.sysid, self.compid, self.frame, self.command, 0, 0, p[0], p[1], p[2], p[3], int(p[4]), int(p[5]),
+                p[6],
+            )  # fmt: skip
         return mavlink.MAVLink_command_long_message(
             self.sysid, self.compid, self.command, self.confirmation, *self.params
         )
@@ -115,9 +122,10 @@ class CommandClient:
 
     def start(
         self, sysid: int, command: int, params: tuple[float, ...] = (), now_s: float = 0.0, *,
-        compid: int = AUTOPILOT_COMPID,
+        compid: int = AUTOPILOT_COMPID, frame: int | None = None,
     ) -> list[Send]:  # fmt: skip
-        """Begin a command (params 1-7; missing ones are 0); returns its first COMMAND_LONG to send now."""
+        """Begin a command (params 1-7; missing ones are 0); returns its first COMMAND_LONG to send now, or its
+        first COMMAND_INT in ``frame`` (params 5 and 6 then are the integers x and y: latitude, longitude in degE7)."""
         key = (sysid, command)
         if key in self._work:
             raise CommandInFlight(f"command {command} to sysid {sysid} is already waiting for its answer")
@@ -125,7 +133,7 @@ class CommandClient:
             raise ValueError(f"COMMAND_LONG has 7 params, got {len(params)}")
         self._done.pop(key, None)
         work = _Work(sysid=sysid, compid=compid, command=command, params=(*params, *([0.0] * (7 - len(params)))),
-                     retries_left=self.retries, due_s=now_s + self.timeout_s)  # fmt: skip
+                     retries_left=self.retries, due_s=now_s + self.timeout_s, frame=frame)  # fmt: skip
         self._work[key] = work
         return [Send(sysid, work.message())]
 

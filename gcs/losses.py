@@ -9,6 +9,8 @@ lists every loss.
 from __future__ import annotations
 
 import enum
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 
@@ -18,6 +20,39 @@ class DroneLoss:
     time_s: float  # on the supervisor's clock (simulated seconds)
     cause: str  # one line: "process killed by SIGKILL", "crashed: Collision with drone 2 at 0.61 m", "link lost"
     down_ne_m: tuple[float, float] | None = None  # where it came to rest, north/east of the swarm origin, once known
+
+
+# How far from a wreck (centre to centre, horizontally) a survivor lands: two collision radii (0.7 m for the F450)
+# and twice a landing's lateral error to spare.
+WRECK_CLEARANCE_M = 1.5
+LANDING_SEARCH_STEP_M = 0.25  # the rings searched for a clear landing point, up to 10 m out, 16 bearings each
+LANDING_SEARCH_RINGS = 40
+LANDING_SEARCH_BEARINGS = 16
+
+
+def landing_clear_of(position_ne_m: tuple[float, float], wrecks_ne_m: Sequence[tuple[float, float]],
+                     clearance_m: float = WRECK_CLEARANCE_M) -> tuple[float, float] | None:  # fmt: skip
+    """Where a drone hovering at ``position_ne_m`` should land to stay ``clearance_m`` from every wreck: None when
+    straight down is clear already; else the nearest clear point on rings of LANDING_SEARCH_STEP_M around it, each
+    ring searched from the direction straight away from the nearest wreck (north when right above it). A pilot
+    side-steps a wreck before descending; PX4 lands where it is."""
+    north, east = position_ne_m
+
+    def clear(n: float, e: float) -> bool:
+        return all(math.hypot(n - wn, e - we) >= clearance_m - 1e-9 for wn, we in wrecks_ne_m)
+
+    if clear(north, east):
+        return None
+    _, wn, we = min((math.hypot(north - wn, east - we), wn, we) for wn, we in wrecks_ne_m)
+    away = math.atan2(east - we, north - wn) if math.hypot(north - wn, east - we) > 1e-6 else 0.0
+    for ring in range(1, LANDING_SEARCH_RINGS + 1):
+        radius = ring * LANDING_SEARCH_STEP_M
+        for k in range(LANDING_SEARCH_BEARINGS):  # away first, then alternately either side of it
+            bearing = away + (k + 1) // 2 * (1 if k % 2 else -1) * 2.0 * math.pi / LANDING_SEARCH_BEARINGS
+            n, e = north + radius * math.cos(bearing), east + radius * math.sin(bearing)
+            if clear(n, e):
+                return n, e
+    return None  # wrecks all around for 10 m: nothing better than straight down
 
 
 # HEARTBEAT system_status values the ground station acts on (MAV_STATE): PX4 reports CRITICAL while a failsafe acts

@@ -33,7 +33,7 @@ from gcs.faults import BATTERY_LEVEL_PARAM, ENABLE_PARAM, FAULTS, FaultRequest
 from gcs.fleet import LINK_LOST_S, Fleet
 from gcs.geodesy import GeoPoint, NedFrame
 from gcs.harness import SimulationHarness, SpawnError, SpawnPlan
-from gcs.losses import MAV_STATE_FLIGHT_TERMINATION, DroneLoss
+from gcs.losses import MAV_STATE_FLIGHT_TERMINATION, DroneLoss, landing_clear_of
 from gcs.params import ParamClient, ParamResult
 from gcs.px4_modes import set_mode_params
 from gcs.relay import NeighbourRelay
@@ -42,6 +42,7 @@ from gcs.transport import GcsSocket
 
 log = logging.getLogger(__name__)
 
+INT32_MAX = 2**31 - 1  # COMMAND_INT x/y: no position given (MAVLink's convention)
 ARM_TIMEOUT_S = 30.0  # simulated seconds for every drone to pass its pre-arm checks before it is armed
 # How far the drones may run ahead of the supervisor's last look. Under load the drones sit at this limit, so it is
 # the lag of setpoints and relayed positions in simulated time: 50 ms let an eight-drone swap touch on a busy machine.
@@ -436,8 +437,28 @@ class Swarm:
         if return_to_launch:
             check(self.command_all(mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, sysids=flying), "return to launch")
         else:
-            check(self.command_all(mavlink.MAV_CMD_NAV_LAND, *[math.nan] * 7, sysids=flying), "land")
+            check(self._land_clear_of_wrecks(flying), "land")
         return flying
+
+    def _land_clear_of_wrecks(self, sysids: list[int]) -> list[Ack]:
+        """NAV_LAND for ``sysids``, each where it is, except a drone above or beside a lost drone's wreck, which is
+        sent to land WRECK_CLEARANCE_M from it (NAV_LAND at a point: it flies there at its altitude, then descends).
+        The point goes as COMMAND_INT, whose degE7 integers keep centimetres that COMMAND_LONG's floats would round
+        to decimetres."""
+        wrecks = [loss.down_ne_m for loss in self.losses.values() if loss.down_ne_m is not None]
+        params: dict[int, tuple[float, ...]] = {}
+        for sysid in sysids:
+            x, y = INT32_MAX, INT32_MAX  # no point: land where it is
+            view = self.fleet.drones.get(sysid)
+            if wrecks and view is not None and math.isfinite(view.lat_deg):
+                here = GeoPoint(lat_deg=view.lat_deg, lon_deg=view.lon_deg, alt_amsl_m=0.0)
+                north, east, _ = self._swarm_frame.ned_from_geo(here)
+                spot = landing_clear_of((north, east), wrecks)
+                if spot is not None:
+                    point = self._swarm_frame.geo_from_ned((spot[0], spot[1], 0.0))
+                    x, y = round(point.lat_deg * 1e7), round(point.lon_deg * 1e7)
+            params[sysid] = (0.0, 0.0, 0.0, math.nan, float(x), float(y), math.nan)
+        return self.command_each(mavlink.MAV_CMD_NAV_LAND, params, frame=mavlink.MAV_FRAME_GLOBAL)
 
     def hold_all(self) -> list[int]:
         """Every armed surviving drone into PX4 Hold (AUTO.LOITER), where it is; returns those sysids."""
@@ -462,7 +483,7 @@ class Swarm:
         try:
             flying = [s for s in self.armed_sysids() if not self.fleet.drones[s].lost(self.clock())]
             if flying:
-                self.command_all(mavlink.MAV_CMD_NAV_LAND, sysids=flying)
+                self._land_clear_of_wrecks(flying)
                 self.wait_until(lambda: not self.armed_sysids(flying), land_timeout_s)
                 still = self.armed_sysids(flying)
                 if still:  # a drone that cannot land in time is disarmed where it is
@@ -484,12 +505,15 @@ class Swarm:
         targets = self.sysids if sysids is None else sysids
         return self.command_each(command, {sysid: params for sysid in targets})
 
-    def command_each(self, command: int, params: dict[int, tuple[float, ...]]) -> list[Ack]:
+    def command_each(
+        self, command: int, params: dict[int, tuple[float, ...]], *, frame: int | None = None
+    ) -> list[Ack]:
         """One command to several drones at once, each with its own params (sysid -> params 1-7), each retried
-        until answered; the answers in the order of ``params``."""
+        until answered; the answers in the order of ``params``. With ``frame``, as COMMAND_INT in that frame."""
         targets = list(params)
         for sysid in targets:
-            self._send_effects(self.commands.start(sysid, command, params[sysid], self.clock()), now=True)
+            effects = self.commands.start(sysid, command, params[sysid], self.clock(), frame=frame)
+            self._send_effects(effects, now=True)
         return self._serve(self.commands, command, targets, now=True)
 
     def force_disarm(self, sysids: Iterable[int]) -> list[Ack]:

@@ -287,3 +287,21 @@ def test_echoes_of_other_names_or_drones_do_not_count_and_several_drones_are_set
     client.cancel(1, "MPC_XY_VEL_MAX")
     assert client.poll(100.0) == []
     client.start(1, "MPC_XY_VEL_MAX", 6.0, now_s=1.0)
+
+
+def test_a_command_in_a_frame_goes_as_command_int_with_integer_coordinates_and_is_retried_the_same() -> None:
+    client = CommandClient()
+    # GIVEN a land command at a point, in the global frame
+    (first,) = client.start(7, mavlink.MAV_CMD_NAV_LAND, (0, 0, 0, math.nan, 473977123.0, 85455941.0, math.nan),
+                            0.0, frame=mavlink.MAV_FRAME_GLOBAL)  # fmt: skip
+    # THEN it leaves as COMMAND_INT, the point in degE7 to the unit
+    msg = first.message
+    assert msg.get_type() == "COMMAND_INT" and msg.frame == mavlink.MAV_FRAME_GLOBAL
+    assert (msg.x, msg.y) == (473977123, 85455941) and msg.target_system == 7
+    # AND a timeout resends the same COMMAND_INT (it has no confirmation count to raise)
+    (again,) = client.poll(COMMAND_TIMEOUT_S + 0.01)
+    assert again.message.get_type() == "COMMAND_INT" and (again.message.x, again.message.y) == (473977123, 85455941)
+    # AND its COMMAND_ACK ends it as any other
+    client.handle(from_drone(mavlink.MAVLink_command_ack_message(mavlink.MAV_CMD_NAV_LAND, ACCEPTED, 0, 0, GCS_SYSID,
+                                                                 GCS_COMPID), 7), 1.0)  # fmt: skip
+    assert client.take(7, mavlink.MAV_CMD_NAV_LAND) == Ack(7, ACCEPTED)

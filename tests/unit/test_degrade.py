@@ -15,7 +15,7 @@ from gcs.behaviours import FollowSpec, LeaderFollower, SwarmState
 from gcs.cli import main as swarm_main
 from gcs.faults import FAULT_NAMES, FAULTS, FaultError, fault_request
 from gcs.formation import CircleSpec, FormationEngine, TransitionLimits, min_pairwise_distance_m
-from gcs.losses import DroneLoss, LossPolicy, loss_line
+from gcs.losses import WRECK_CLEARANCE_M, DroneLoss, LossPolicy, landing_clear_of, loss_line
 from gcs.metrics import compute_metrics
 from gcs.mission_file import FaultStep, MissionFileError, parse_mission
 from gcs.recording import DroneSample, FlightRecording, StepRecord
@@ -269,3 +269,18 @@ def test_swarm_fly_with_an_unknown_airframe_is_one_line_and_exit_code_2_before_a
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("swarm: error: ") and "no such airframe file" in err[0], err
     assert not (tmp_path / "report").exists()
+
+
+def test_a_survivor_lands_clear_of_every_wreck_and_straight_down_when_nothing_is_near() -> None:
+    # GIVEN a wreck at the origin
+    wrecks = [(0.0, 0.0)]
+    # THEN a drone 3 m away lands where it is
+    assert landing_clear_of((3.0, 0.0), wrecks) is None
+    # AND one 0.5 m east of it moves straight away to the clearance, one right above it goes north
+    assert landing_clear_of((0.0, 0.5), wrecks) == pytest.approx((0.0, WRECK_CLEARANCE_M))
+    assert landing_clear_of((0.0, 0.0), wrecks) == pytest.approx((WRECK_CLEARANCE_M, 0.0))
+    # AND between two wrecks 2 m apart, the point found is clear of both
+    two = [(0.0, 0.0), (0.0, 2.0)]
+    spot = landing_clear_of((0.0, 0.9), two)
+    assert spot is not None
+    assert all(math.hypot(spot[0] - n, spot[1] - e) >= WRECK_CLEARANCE_M - 1e-9 for n, e in two), spot
