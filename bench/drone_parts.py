@@ -1,23 +1,26 @@
 """Benchmark: CPU per drone per simulated second of each part of a drone, and two code trees compared in one run.
 
-Two flights, each timed per part on the thread's CPU clock exactly as a swarm drone times itself
+Flights, each timed per part on the thread's CPU clock exactly as a swarm drone times itself
 (``Simulation.physics_ns`` / ``control_ns``, ``Awareness.cpu_ns``, the loop's ``LoopStats.link_ns``):
 
-- **lone**: one drone as ``sitl`` runs it (``run_loop`` unpaced, so its batches of 8 steps and its telemetry polls
-  are a paced drone's), with both MAVLink links streaming to a UDP sink nobody reads and a shared world in which it
-  is alone: it takes off to 3 m, flies 10 m north and hovers. Every camera frame is empty. The ground-station link
-  receives what a supervisor of a 9-drone swarm sends it: every 50 ms one datagram with an offboard setpoint and the
-  relayed positions of 8 neighbours at 10 Hz (4 a tick), and a ground-station HEARTBEAT every second.
+- **lone**: one drone as ``sitl`` ran it before drone hosts (``run_loop`` unpaced, with both MAVLink links streaming
+  to a UDP sink nobody reads and a shared world in which it is alone: it takes off to 3 m, flies 10 m north and
+  hovers; the ground-station link receives what a supervisor of a 9-drone swarm sends it). It calls ``run_loop``
+  with the signature it had before drones were hosted and does not run on the current tree; not a default.
 - **circle**: tests/closed_loop/circle_swarm.py, nine drones on one shared world (eight on a rotating 4 m circle
   and a silent one), omnidirectional cameras: every drone has others in view. No MAVLink.
+- **dense**: the same with 24 drones on an 8 m circle (the radius ``swarm bench`` gives 24 slots) turning at half
+  the rate, and the silent one: every drone has 20-odd others in camera range and 23 relayed.
 
-    python bench/drone_parts.py [--sim-seconds 30] [--repeats 3] [--trees DIR ...]
+The circle flights also report a digest of every drone's true state at every step: trees that should fly alike
+show the same digest in the same run that times them.
+
+    python bench/drone_parts.py [--sim-seconds 20] [--repeats 3] [--scenarios circle dense] [--trees DIR ...]
 
 With ``--trees``, each repeat runs every tree in a subprocess of its own (``PYTHONPATH=DIR``), interleaved, so the
-machine's load falls on all alike; medians are printed per tree, and each part as a multiple of a part whose code
-the trees share (physics for the lone drone, control for the circle), which cancels the machine's drift between
-runs. A tree is a checkout of this repository (for
-example ``git worktree add /tmp/base HEAD~3`` or ``git archive``).
+machine's load falls on all alike; medians are printed per tree, and each part as a multiple of physics (code the
+trees share) in the same run, which cancels the machine's drift between runs. A tree is a checkout of this
+repository (for example ``git worktree add /tmp/base HEAD~3`` or ``git archive``).
 """
 
 from __future__ import annotations

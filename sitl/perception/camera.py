@@ -254,6 +254,11 @@ def _draw_bodies(camera: Camera, own_att_q_frd_to_ned: npt.ArrayLike, bodies: Se
         if isinstance(body, Sphere):
             n, e, d = body.offset_ned_m
             x = r00 * n + r01 * e + r02 * d
+            if x < -body.radius_m:
+                # Wholly behind the camera: at least 90 deg off axis beyond its angular radius, past any corner of
+                # the image (under 90 deg), so ``_draw_sphere`` would cull it; with four cameras, about half the
+                # spheres for each.
+                continue
             y = r10 * n + r11 * e + r12 * d
             z = r20 * n + r21 * e + r22 * d
             drawn = _draw_sphere(camera, x, y, z, math.sqrt(x * x + y * y + z * z), body.radius_m) or drawn
