@@ -190,14 +190,9 @@ def test_kill_9_of_one_drone_of_a_rotating_circle_of_6_leaves_a_circle_of_5_and_
     assert [(x["sysid"], x["cause"]) for x in metrics["losses"]] == [(203, cause)]
     assert [(f["sysid"], f["fault"]) for f in metrics["faults"]] == [(203, "crash")]
     assert [s["name"] for s in metrics["steps"]] == ["takeoff", "circle"]
-    # (nobody hit the falling body while the swarm flew, and where it came down is reported; ``down`` lands each
-    # survivor where it is, and a survivor that happens to be above the wreck then lands on it: the only contact
-    # allowed after the flight, a known limit in docs/drone-loss.md)
-    flight_end_s = metrics["steps"][-1]["end_s"]
-    in_flight = [e for e in metrics["collision_events"] if e["time_s"] <= flight_end_s]
-    on_the_wreck = [e for e in metrics["collision_events"] if e["time_s"] > flight_end_s]
-    assert in_flight == [], metrics["collision_events"]
-    assert all(e["text"].startswith("Collision with drone 203 ") for e in on_the_wreck), on_the_wreck
+    # (nobody hit the falling body while the swarm flew, nor its wreck when ``down`` landed the others: a survivor
+    # above or beside it side-steps before it descends; and where it came down is reported)
+    assert metrics["collision_events"] == [], metrics["collision_events"]
     down = metrics["losses"][0]["down_ne_m"]
     assert down is not None and abs(math.hypot(*down) - RADIUS_M) < 1.0, down  # below its place on the circle
 
