@@ -20,7 +20,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.behaviours import Behaviour, Flock, FlockSpec, FollowSpec, LeaderFollower, SwarmState
 from gcs.crossing import CrossingMove, antipodal_goals
-from gcs.formation import Formation, FormationEngine, FormationError, Setpoint, TransitionLimits
+from gcs.formation import SETPOINT_STREAM_HZ, Formation, FormationEngine, FormationError, Setpoint, TransitionLimits
 from gcs.frames import DroneFrame, SwarmFrame, Vec3, origin_from_home
 from gcs.geodesy import GeoPoint
 from gcs.swarm import Swarm, SwarmError, check
@@ -45,6 +45,8 @@ _ACC_BITS = (
 # Horizontal velocity with acceleration feed-forward, altitude by position (flocking): x, y, vz, az, yaw ignored.
 TYPE_MASK_VEL_XY_POS_Z = TYPE_MASK_POS_VEL_ACC | _POS_BITS[0] | _POS_BITS[1] | _VEL_BITS[2] | _ACC_BITS[2]
 OFFBOARD_MODE = (1.0, 6.0, 0.0)  # DO_SET_MODE: custom mode enabled, main mode OFFBOARD
+OFFBOARD_ATTEMPTS = 3  # switches asked of a drone that refuses OFFBOARD for want of a setpoint...
+OFFBOARD_RETRY_S = 0.5  # ...with this long of setpoints streamed in between (10 at SETPOINT_STREAM_HZ)
 DEFAULT_LIMITS = TransitionLimits(max_speed_mps=1.5, max_accel_mps2=1.0)
 
 
@@ -170,11 +172,21 @@ class FormationStreamer:
         self._offboard(now_s)
 
     def _offboard(self, now_s: float) -> None:
+        """Stream, then switch every drone to OFFBOARD. PX4 accepts OFFBOARD only once setpoints are arriving: a
+        drone whose first setpoint was lost on the way (a lossy link) refuses, so the stream goes on for
+        OFFBOARD_RETRY_S and the drones that refused are asked again, up to OFFBOARD_ATTEMPTS times. On a perfect
+        link the first answer is yes and nothing waits."""
         if not self.active:
             self.active = True
-            self.tick(now_s)  # PX4 accepts OFFBOARD only once setpoints are arriving
-            active = self.swarm.active_sysids
-            check(self.swarm.command_all(mavlink.MAV_CMD_DO_SET_MODE, *OFFBOARD_MODE, sysids=active), "offboard")
+            self.tick(now_s)
+            pending = self.swarm.active_sysids
+            for attempt in range(OFFBOARD_ATTEMPTS):
+                acks = self.swarm.command_all(mavlink.MAV_CMD_DO_SET_MODE, *OFFBOARD_MODE, sysids=pending)
+                pending = [ack.sysid for ack in acks if not ack.ok]
+                if not pending or attempt == OFFBOARD_ATTEMPTS - 1:
+                    break
+                self.swarm.run_for(OFFBOARD_RETRY_S, tick=self.tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
+            check(acks, "offboard")
 
     def handle_loss(self, sysid: int, now_s: float) -> str | None:
         """Carry on without drone ``sysid`` (already in ``swarm.losses``): a formation re-plans over the survivors
