@@ -10,8 +10,10 @@ Row layout (float64): valid, time_s, lat_deg, lon_deg, alt_amsl_m, vn, ve, vd, r
 lockstep column: physics steps completed (infinite while the row is no lockstep member), then the seconds the drone
 has spent so far on physics, control, perception and MAVLink (read by ``swarm bench``), a lockstep member's
 "waiting to be woken" flag, then ``ended`` (1 once the drone's process is gone) and ``rest_alt_amsl_m``, the altitude
-its centre has when it rests on the ground below it (terrain elevation plus the centre's height on its gear). After
-the rows, a small header holds the lockstep gate (sitl/lockstep.py).
+its centre has when it rests on the ground below it (terrain elevation plus the centre's height on its gear), a stop
+request and the cause of the row's end (hosted drones), and the datagrams the supervisor and the drone have sent each
+other (lockstep delivery). After the rows, a small header holds the lockstep gate (sitl/lockstep.py); then the
+declared obstacles, the two lockstep snapshots of the rows (``WorldParticipant``) and the link model's counts.
 
 A drone whose process ends (a normal exit, or SIGKILL noticed by the supervisor, which calls ``mark_ended``) leaves
 its body behind: from its last written state (position, velocity, time) it falls ballistically under gravity and
