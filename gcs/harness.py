@@ -144,9 +144,9 @@ class SimulationHarness(Protocol):
         """In lockstep, the drones' common simulated time (0 before they start; frozen once closed)."""
         ...
 
-    def advance_lockstep(self, lead_s: float, until_s: float = math.inf) -> float | None:
-        """In lockstep, let the drones run to ``lead_s`` past their common time, at most to ``until_s``; returns the
-        common time it started from, or None while not every drone has joined (nobody starts before the rest)."""
+    def advance_lockstep(self, lead_s: float) -> float | None:
+        """In lockstep, let the drones run to ``lead_s`` past their common time; returns the common time it started
+        from, or None while not every drone has joined (nobody starts before the rest)."""
         ...
 
     def process_ids(self) -> dict[int, int]:

@@ -111,11 +111,6 @@ class Swarm:
             return self.harness.lockstep_time_s()
         return (time.monotonic() - self._wall_t0) * self.plan.speed_factor
 
-    def _wall_wait_s(self, sim_s: float) -> float:
-        if self.plan.lockstep:
-            return min(sim_s, LOCKSTEP_MAX_WAIT_S)
-        return sim_s / self.plan.speed_factor
-
     def _check_members(self, now: float) -> None:
         """Notice a drone that ended (it leaves the lockstep gate: it must hold nobody back) and a stalled
         simulation; both on the wall clock, at most every EXIT_CHECK_S."""
@@ -290,7 +285,7 @@ class Swarm:
             if wait_s > 0:
                 if self.link.queued:
                     wait_s = min(wait_s, max(0.0, self._flush_due_s - self.clock()))
-                self._selector.select(self._wall_wait_s(wait_s))
+                self._selector.select(wait_s / self.plan.speed_factor)
             now = self.clock()
             messages = self.link.receive()
         for msg, _sender in messages:
@@ -401,7 +396,7 @@ class Swarm:
             if time.monotonic() > end:
                 missing = sorted(expected - set(self.fleet.drones))
                 raise SpawnError(f"no HEARTBEAT within {ready_timeout_s:g} s from sysid {', '.join(map(str, missing))}")
-            self.pump(self.plan.speed_factor * 0.05 if not self.plan.lockstep else LOCKSTEP_MAX_WAIT_S)
+            self.pump(self.plan.speed_factor * 0.05)  # paced: 50 ms of wall time; in lockstep one frame
 
     def armed_sysids(self, sysids: Iterable[int] | None = None) -> list[int]:
         """Of ``sysids`` (default: every drone), those not lost whose last HEARTBEAT said armed (a lost drone's last

@@ -305,8 +305,6 @@ class MavlinkEndpoint:
         return counters_by_class(self._channels)
 
     def _up_channel(self, link: UdpLink, msg: MAVLinkMessage) -> LinkChannel | None:
-        if not self._channels:
-            return None
         if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT and msg.get_srcSystem() != self._sysid:
             return self._channels.get(("neighbour", "up"))
         return self._channels.get((link.link_class, "up"))
@@ -316,10 +314,11 @@ class MavlinkEndpoint:
             for link in self.links:
                 link.drain()
             return
+        impaired = bool(self._channels)
         for link in self.links:
             link.now_s = now_s
             for msg in link.receive():
-                channel = self._up_channel(link, msg)
+                channel = self._up_channel(link, msg) if impaired else None
                 if channel is not None:
                     due_s = channel.transmit(now_s, len(msg.get_msgbuf()))
                     if due_s is None:

@@ -254,9 +254,10 @@ def run_loop(
                     for _ in range(due):
                         each(Drone.step, [d for d in live if not d.ended])
                         completed += 1
+                        flying = [d for d in live if not d.ended]
                         if completed % LOCKSTEP_POLL_STEPS == 0:
-                            each(Drone.after_batch, [d for d in live if not d.ended])
-                        each(Drone.publish_sent, [d for d in live if not d.ended])
+                            each(Drone.after_batch, flying)
+                        each(Drone.publish_sent, [d for d in flying if not d.ended])
                         steps_clock.completed(completed)
                 else:
                     each(functools.partial(_run_steps, steps=due), live)

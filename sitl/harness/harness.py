@@ -237,8 +237,8 @@ class SitlHarness:
         and where it stood once ``close`` has stopped the drones."""
         return self._gate.time_s() if self._gate is not None else self._final_time_s
 
-    def advance_lockstep(self, lead_s: float, until_s: float = math.inf) -> float | None:
-        """Let the lockstep drones run on to ``lead_s`` past their common time (at most to ``until_s``); returns
+    def advance_lockstep(self, lead_s: float) -> float | None:
+        """Let the lockstep drones run on to ``lead_s`` past their common time; returns
         the common time, or None while not every drone has joined (nobody starts before the rest). Clears pending
         wake-ups first, so the next one is news."""
         gate = self._gate
@@ -249,7 +249,7 @@ class SitlHarness:
         now = steps * gate.dt_s
         if steps == 0 and gate.members() < len(self._processes.drones):
             return None
-        gate.open_until(min(now + lead_s, until_s))
+        gate.open_until(now + lead_s)
         return now
 
     # ---- measurement (the bench) -----------------------------------------------------------------------------------

@@ -3,8 +3,8 @@ its simulated time, and a delay line hands out in delivery order."""
 
 from __future__ import annotations
 
+import selectors
 import socket
-import time
 
 import numpy as np
 import pytest
@@ -63,6 +63,13 @@ def _endpoint(client: _Client) -> tuple[MavlinkEndpoint, FakeVehicle]:
     return MavlinkEndpoint(Identity(sysid=SYSID), vehicle, ParamStore(()), [link]), vehicle
 
 
+def _await_readable(sock: socket.socket) -> None:
+    """Until a datagram sent on loopback can be read (within a second)."""
+    with selectors.DefaultSelector() as selector:
+        selector.register(sock, selectors.EVENT_READ)
+        assert selector.select(1.0), "nothing arrived"
+
+
 def _gcs_heartbeat() -> mavlink.MAVLink_heartbeat_message:
     return mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3)
 
@@ -75,7 +82,7 @@ def test_a_delayed_uplink_message_is_handled_at_its_delivery_time_and_a_lost_one
         endpoint.impair({("gcs", "up"): _channel(latency_ms=40.0)})
         # WHEN a ground-station HEARTBEAT arrives at t = 1.000 s
         client.send(_gcs_heartbeat(), endpoint.links[0].port)
-        time.sleep(0.05)
+        _await_readable(endpoint.links[0].sock)
         endpoint.receive(1.000)
         # THEN the vehicle hears it only at the first step at or after 1.040 s
         endpoint.deliver_due(1.036)
@@ -85,7 +92,7 @@ def test_a_delayed_uplink_message_is_handled_at_its_delivery_time_and_a_lost_one
         # AND with every frame lost, nothing more is heard
         endpoint.impair({("gcs", "up"): _channel(loss=1.0)})
         client.send(_gcs_heartbeat(), endpoint.links[0].port)
-        time.sleep(0.05)
+        _await_readable(endpoint.links[0].sock)
         endpoint.receive(2.0)
         endpoint.deliver_due(3.0)
         assert len(vehicle.gcs_heartbeats) == 1
@@ -103,15 +110,15 @@ def test_downlink_frames_wait_in_the_outbox_until_their_time_and_lost_ones_are_n
         # GIVEN a drone whose telemetry reaches the ground station 100 ms late
         endpoint.impair({("gcs", "down"): _channel(latency_ms=100.0)})
         # WHEN it polls its streams at t = 1.0 s
+        link = endpoint.links[0]
         endpoint.poll(1.0)
-        time.sleep(0.02)
         # THEN nothing has left yet; at 1.1 s everything polled at 1.0 s leaves at once
-        assert client.replies() == []
+        assert link.sent == 0
         endpoint.deliver_due(1.099)
-        time.sleep(0.02)
-        assert client.replies() == []
+        assert link.sent == 0
         endpoint.deliver_due(1.1)
-        time.sleep(0.02)
+        assert link.sent > 0
+        _await_readable(client.sock)
         sent = client.replies()
         assert "HEARTBEAT" in {m.get_type() for m in sent}
         counts = endpoint.link_counters()[("gcs", "down")]
@@ -131,9 +138,9 @@ def test_neighbour_positions_go_through_the_neighbour_channel_whatever_link_brin
         # WHEN another drone's GLOBAL_POSITION_INT (relayed, its own sysid) and a ground-station HEARTBEAT arrive
         neighbour = Wire(SYSID + 1, 1)
         position = mavlink.MAVLink_global_position_int_message(1000, 473977420, 85455940, 491000, 3000, 0, 0, 0, 0)
-        client.sock.sendto(neighbour(position).get_msgbuf(), ("127.0.0.1", endpoint.links[0].port))
-        client.send(_gcs_heartbeat(), endpoint.links[0].port)
-        time.sleep(0.05)
+        both = bytes(neighbour(position).get_msgbuf()) + bytes(client.wire(_gcs_heartbeat()).get_msgbuf())
+        client.sock.sendto(both, ("127.0.0.1", endpoint.links[0].port))  # one datagram: both read at once
+        _await_readable(endpoint.links[0].sock)
         endpoint.receive(1.0)
         # THEN the neighbour table stays empty while the HEARTBEAT went through untouched
         assert endpoint.neighbours.entries(1.0) == []
@@ -143,7 +150,7 @@ def test_neighbour_positions_go_through_the_neighbour_channel_whatever_link_brin
         # AND with the neighbour class perfect again, the same report reaches the table
         endpoint.impair({})
         client.sock.sendto(neighbour(position).get_msgbuf(), ("127.0.0.1", endpoint.links[0].port))
-        time.sleep(0.05)
+        _await_readable(endpoint.links[0].sock)
         endpoint.receive(1.1)
         assert [n.sysid for n in endpoint.neighbours.entries(1.1)] == [SYSID + 1]
     finally:
