@@ -101,6 +101,7 @@ class Swarm:
         self.batch_hold_s = batch_hold_s
         self._flush_due_s = math.inf  # when the queued traffic must leave (-inf: at the next pump)
         self.losses: dict[int, DroneLoss] = {}  # sysid -> the loss, recorded once
+        self.regained: list[DroneLoss] = []  # losses that ended: silent drones heard again (``detect_regains``)
         self._next_gcs_heartbeat_s = 0.0
         self._heard_wall_s: dict[int, float] = {}
         self._said_late_traffic = False  # sysid -> wall time of its last HEARTBEAT
@@ -209,10 +210,25 @@ class Swarm:
             if view.system_status == MAV_STATE_FLIGHT_TERMINATION:
                 new.append(self._record_loss(sysid, time_s, crash_cause(view.texts, now)))
             elif view.lost(now) and (self.plan.lockstep or self._silent_on_the_wall_clock(sysid)):
-                cause = f"link lost (no HEARTBEAT for {view.link_age_s(now):.1f} s)"
-                new.append(self._record_loss(sysid, time_s, cause))
+                cause = f"link lost (nothing heard for {view.link_age_s(now):.1f} s)"
+                new.append(self._record_loss(sysid, time_s, cause, silent=True))
         self._settle_down_positions()
         return new
+
+    def detect_regains(self, time_s: float) -> list[DroneLoss]:
+        """Take back every drone lost for silence that has been heard again (QGroundControl's "communication
+        regained"), once: it leaves ``losses`` and its ended loss, with ``regained_s``, goes to ``regained``. A drone
+        lost any other way stays lost. What the swarm flies takes it in again (gcs/degrade.py ``apply_regain``)."""
+        back: list[DroneLoss] = []
+        now = self.clock()
+        for sysid, loss in list(self.losses.items()):
+            view = self.fleet.drones.get(sysid)
+            if loss.silent and view is not None and not view.lost(now):
+                del self.losses[sysid]
+                ended = dataclasses.replace(loss, regained_s=time_s)
+                self.regained.append(ended)
+                back.append(ended)
+        return back
 
     def _silent_on_the_wall_clock(self, sysid: int) -> bool:
         """Paced, a drone is lost when it is silent for the link-loss time on both clocks: a loaded machine that
@@ -222,8 +238,8 @@ class Swarm:
         counting wall seconds there kept a silent drone in the swarm when the simulation ran faster than real time."""
         return time.monotonic() - self._heard_wall_s.get(sysid, -math.inf) > LINK_LOST_S
 
-    def _record_loss(self, sysid: int, time_s: float, cause: str) -> DroneLoss:
-        loss = DroneLoss(sysid=sysid, time_s=time_s, cause=cause)
+    def _record_loss(self, sysid: int, time_s: float, cause: str, *, silent: bool = False) -> DroneLoss:
+        loss = DroneLoss(sysid=sysid, time_s=time_s, cause=cause, silent=silent)
         self.losses[sysid] = loss
         return loss
 
@@ -269,7 +285,8 @@ class Swarm:
         if kind.battery_level is not None:
             self.set_param(sysid, BATTERY_LEVEL_PARAM, kind.battery_level)
         command = mavlink.MAV_CMD_INJECT_FAILURE
-        acks = self.command_all(command, kind.unit, kind.failure_type, fault.instance, sysids=[sysid])
+        acks = self.command_all(command, kind.unit, kind.failure_type, fault.instance, fault.duration_param,
+                                sysids=[sysid])  # fmt: skip
         return acks[0]
 
     # ---- IO --------------------------------------------------------------------------------------------------------
@@ -295,17 +312,18 @@ class Swarm:
             if self.forward is not None:
                 self._hold(bytes(msg.get_msgbuf()), self.forward, now)
             self.fleet.handle(msg, now)
-            if msg.get_type() == "GLOBAL_POSITION_INT" and self.relay is not None:
+            kind = msg.get_type()
+            if kind == "GLOBAL_POSITION_INT" and self.relay is not None:
                 data = bytes(msg.get_msgbuf())
                 for target in self.relay.targets(msg.get_srcSystem(), now, self.fleet):
                     address = self.link.addresses.get(target)
                     if address is not None:
                         self._hold(data, address, now)
-            if msg.get_type() == "HEARTBEAT":
+            if kind != "RADIO_STATUS":  # any other message is a sign of life (gcs/fleet.py LINK_LOST_S)
                 self._heard_wall_s[msg.get_srcSystem()] = time.monotonic()
-            elif msg.get_type() == "COMMAND_ACK":
+            if kind == "COMMAND_ACK":
                 self.commands.handle(msg, now)
-            elif msg.get_type() == "PARAM_VALUE":
+            elif kind == "PARAM_VALUE":
                 self._send_effects(self.params.handle(msg, now), now=False)
             for listener in self.listeners:
                 listener(msg, now)
@@ -507,9 +525,22 @@ class Swarm:
         until answered; the answers in the order of ``params``. With ``frame``, as COMMAND_INT in that frame."""
         targets = list(params)
         for sysid in targets:
+            self.commands.cancel(sysid, command)  # superseded: one begun with ``command_start`` still waiting
             effects = self.commands.start(sysid, command, params[sysid], self.clock(), frame=frame)
             self._send_effects(effects, now=True)
         return self._serve(self.commands, command, targets, now=True)
+
+    def command_start(self, sysid: int, command: int, *params: float) -> None:
+        """Begin a COMMAND_LONG without waiting for its answer (the streamer's, from inside a tick); its outcome
+        comes from ``command_outcome``. A later ``command_all`` of the same command to the drone supersedes it."""
+        self.commands.cancel(sysid, command)
+        self._send_effects(self.commands.start(sysid, command, params, self.clock()), now=True)
+
+    def command_outcome(self, sysid: int, command: int) -> Ack | None:
+        """How a command begun with ``command_start`` ended, once; None while it waits (resending what timed out)
+        or when it was superseded (``commands.in_flight`` tells the two apart)."""
+        self._send_effects(self.commands.poll(self.clock()), now=True)
+        return self.commands.take(sysid, command)
 
     def force_disarm(self, sysids: Iterable[int]) -> list[Ack]:
         """Disarm where they are, in the air too (the motors stop: the drones fall)."""
