@@ -101,6 +101,7 @@ class FormationStreamer:
         self.behaviour: Behaviour | None = None
         self._frames: dict[int, DroneFrame] = {}
         self._rejoining: dict[int, _Rejoin] = {}  # sysid -> its way back into OFFBOARD
+        swarm.stream_tick = self.tick  # setpoints go on while a command waits for its answer
 
     def drone_frame(self, sysid: int) -> DroneFrame | None:
         """The drone's local frame, once its HOME_POSITION has arrived."""
@@ -178,6 +179,11 @@ class FormationStreamer:
                                  accel_mps2=accel_mps2)  # fmt: skip
         self._start_behaviour(behaviour, now_s)
         return behaviour
+
+    def command_behaviour(self, behaviour: Behaviour, now_s: float, what: str = "a controller") -> None:
+        """Stream any ``Behaviour`` (a user's controller, gcs/api) to every drone, in OFFBOARD."""
+        self._check_ready(what)
+        self._start_behaviour(behaviour, now_s)
 
     def _start_behaviour(self, behaviour: Behaviour, now_s: float) -> None:
         self.behaviour = behaviour

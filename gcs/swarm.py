@@ -47,6 +47,7 @@ ARM_TIMEOUT_S = 30.0  # simulated seconds for every drone to pass its pre-arm ch
 # How far the drones may run ahead of the supervisor's last look. Under load the drones sit at this limit, so it is
 # the lag of setpoints and relayed positions in simulated time: 50 ms let an eight-drone swap touch on a busy machine.
 LOCKSTEP_LEAD_S = 0.02
+TICK_S = 0.05  # the period of a waiting loop's ``tick`` (the setpoint stream's 20 Hz)
 LOCKSTEP_STALL_S = 10.0  # wall seconds without progress before the supervisor calls the simulation stalled
 LOCKSTEP_MAX_WAIT_S = 0.005  # wall-clock cap on one wait for traffic in lockstep (simulated time has no wall rate)
 LOCKSTEP_AWAIT_S = 1.0  # wall seconds the supervisor waits for a datagram a drone says it has sent
@@ -102,6 +103,9 @@ class Swarm:
         self._flush_due_s = math.inf  # when the queued traffic must leave (-inf: at the next pump)
         self.losses: dict[int, DroneLoss] = {}  # sysid -> the loss, recorded once
         self.regained: list[DroneLoss] = []  # losses that ended: silent drones heard again (``detect_regains``)
+        # Streaming that must go on while a command or a parameter waits for its answer (the setpoint stream: PX4
+        # leaves OFFBOARD after COM_OF_LOSS_T without a setpoint, and on a lossy link an answer can take retries).
+        self.stream_tick: Callable[[float], None] | None = None
         self._next_gcs_heartbeat_s = 0.0
         self._heard_wall_s: dict[int, float] = {}
         self._said_late_traffic = False  # sysid -> wall time of its last HEARTBEAT
@@ -366,14 +370,14 @@ class Swarm:
             if address is not None:
                 self.link.send_raw(data, address)
 
-    def run_for(self, seconds: float, tick: Callable[[float], None] | None = None, tick_s: float = 0.05) -> None:
+    def run_for(self, seconds: float, tick: Callable[[float], None] | None = None, tick_s: float = TICK_S) -> None:
         """Pump telemetry for a while, calling ``tick(now)`` every ``tick_s``."""
         end = self.clock() + seconds
         next_tick = self.clock()
         while (now := self.clock()) < end:
             if tick is not None and now >= next_tick:
                 tick(now)
-                next_tick = now + tick_s
+                next_tick = _next_tick_s(next_tick, now, tick_s)
             self.pump(max(0.0, min(next_tick, end) - self.clock()))
 
     def wait_until(
@@ -388,7 +392,7 @@ class Swarm:
             now = self.clock()
             if tick is not None and now >= next_tick:
                 tick(now)
-                next_tick = now + 0.05
+                next_tick = _next_tick_s(next_tick, now, TICK_S)
             if condition():
                 return True
             self.pump(min(0.05, max(0.0, end - self.clock())))
@@ -558,11 +562,15 @@ class Swarm:
                     results[sysid] = outcome
             return len(results) == len(targets)
 
+        next_tick = self.clock()
         try:
             while not collect():
                 self._send_effects(client.poll(self.clock()), now=now)
                 if collect():
                     break
+                if self.stream_tick is not None and (clock := self.clock()) >= next_tick:
+                    self.stream_tick(clock)
+                    next_tick = _next_tick_s(next_tick, clock, TICK_S)
                 self.pump(min(0.02, max(0.0, client.next_due_s() - self.clock())))
         finally:
             for sysid in targets:
@@ -627,6 +635,13 @@ def check(acks: list[Ack], what: str) -> None:
     if bad:
         names = ", ".join(f"sysid {a.sysid} ({'no answer' if a.result is None else f'result {a.result}'})" for a in bad)
         raise SwarmError(f"{what} failed for {names}")
+
+
+def _next_tick_s(due_s: float, now_s: float, period_s: float) -> float:
+    """When the next tick is due after one due at ``due_s`` ran at ``now_s``: a period after the one due, so that
+    ticks keep their rate on average when the clock moves in steps that do not divide the period (lockstep frames
+    of 0.02 s would otherwise tick every 0.06 s); a tick more than a period late starts the cadence afresh."""
+    return due_s + period_s if now_s - due_s < period_s else now_s + period_s
 
 
 class SwarmError(RuntimeError):
