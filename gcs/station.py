@@ -59,7 +59,7 @@ class Station:
                                            report_dir / "flight.tlog", say=None)  # fmt: skip
         self._step: StepRecord | None = None  # the command being flown, for the report
 
-    def _begin_step(self, request: dict[str, Any]) -> None:
+    def begin_step(self, request: dict[str, Any]) -> None:
         """A command that changes what the swarm flies ends the report's current step and starts the next."""
         now = self.mission_time()
         self._end_step(now)
@@ -128,7 +128,7 @@ class Station:
     def handle(self, request: dict[str, Any]) -> dict[str, Any]:
         response = self._handle(request)
         if response.get("ok") and request["cmd"] in STEP_COMMANDS:
-            self._begin_step(request)
+            self.begin_step(request)
         return response
 
     def _handle(self, request: dict[str, Any]) -> dict[str, Any]:
