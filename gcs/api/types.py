@@ -45,6 +45,10 @@ class LaunchOptions:
     ready_timeout_s: float = 60.0  # wall seconds for every drone to come up
 
     def __post_init__(self) -> None:
+        for name in ("report_dir", "log_dir", "signing_key_file"):  # a path may come as a string (launch's **options)
+            value = getattr(self, name)
+            if value is not None and not isinstance(value, Path):
+                object.__setattr__(self, name, Path(value))
         if not 1 <= self.drones <= 100:
             raise ValueError(f"drones must be in 1..100, got {self.drones}")
         if self.first_instance < 0 or self.first_instance + self.drones > 255:
