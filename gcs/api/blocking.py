@@ -13,7 +13,7 @@ from contextlib import contextmanager
 from types import TracebackType
 from typing import Any, TypeVar
 
-from gcs.api.engine import LAND_TIMEOUT_S, Controller, Engine
+from gcs.api.engine import LAND_TIMEOUT_S, Controller, Engine, Readings
 from gcs.api.session import TAKEOFF_TIMEOUT_S, _default_simulation
 from gcs.api.types import DroneState, Event, FlightResult, LaunchOptions
 from gcs.behaviours import FlockSpec, FollowSpec
@@ -23,7 +23,7 @@ from gcs.harness import Simulation
 T = TypeVar("T")
 
 
-class BlockingSession:
+class BlockingSession(Readings):
     """A running swarm, driven by blocking calls. Made by ``launch_blocking`` (or ``BlockingSession.start``)."""
 
     def __init__(self, engine: Engine) -> None:
@@ -47,17 +47,6 @@ class BlockingSession:
 
     def _run(self, work: Callable[[], T]) -> T:
         return self._engine.submit(work).result()
-
-    @property
-    def sysids(self) -> list[int]:
-        return sorted(self._engine.drones())
-
-    def drones(self) -> dict[int, DroneState]:
-        return self._engine.drones()
-
-    @property
-    def time_s(self) -> float:
-        return self._engine.time_s
 
     def takeoff(self, alt_m: float = 3.0, timeout_s: float = TAKEOFF_TIMEOUT_S) -> None:
         self._run(lambda: self._engine.do_takeoff(alt_m, timeout_s))

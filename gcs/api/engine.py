@@ -427,3 +427,24 @@ class Engine:
 
     def do_kill(self, sysid: int) -> str:
         return self.do_fault(sysid, CRASH, None, None)
+
+
+class Readings:
+    """What both faces of a session read without waiting: the last tick's snapshot (gcs/api/session.py documents
+    the asyncio face; the blocking face reads the same)."""
+
+    _engine: Engine
+
+    @property
+    def sysids(self) -> list[int]:
+        """Every drone's MAVLink system id, in spawn order."""
+        return sorted(self._engine.drones())
+
+    def drones(self) -> dict[int, DroneState]:
+        """Every drone's state as of the last tick, by sysid (a snapshot: it does not change under you)."""
+        return self._engine.drones()
+
+    @property
+    def time_s(self) -> float:
+        """The swarm's clock: simulated seconds since the drones came up."""
+        return self._engine.time_s

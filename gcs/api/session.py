@@ -16,7 +16,7 @@ from contextlib import asynccontextmanager
 from types import TracebackType
 from typing import Any, TypeVar
 
-from gcs.api.engine import LAND_TIMEOUT_S, Controller, Engine
+from gcs.api.engine import LAND_TIMEOUT_S, Controller, Engine, Readings
 from gcs.api.types import DroneState, Event, FlightResult, LaunchOptions
 from gcs.behaviours import FlockSpec, FollowSpec
 from gcs.formation import Formation
@@ -26,7 +26,7 @@ T = TypeVar("T")
 TAKEOFF_TIMEOUT_S = 60.0  # simulated seconds for every drone to hold its takeoff altitude
 
 
-class Session:
+class Session(Readings):
     """A running swarm, driven from asyncio. Made by ``launch`` (or ``Session.start``)."""
 
     def __init__(self, engine: Engine) -> None:
@@ -56,21 +56,7 @@ class Session:
     async def _run(self, work: Callable[[], T]) -> T:
         return await asyncio.wrap_future(self._engine.submit(work))
 
-    # ---- what the swarm knows ------------------------------------------------------------------------------------
-    @property
-    def sysids(self) -> list[int]:
-        """Every drone's MAVLink system id, in spawn order."""
-        return sorted(self._engine.drones())
-
-    def drones(self) -> dict[int, DroneState]:
-        """Every drone's state as of the last tick, by sysid (a snapshot: it does not change under you)."""
-        return self._engine.drones()
-
-    @property
-    def time_s(self) -> float:
-        """The swarm's clock: simulated seconds since the drones came up."""
-        return self._engine.time_s
-
+    # ---- what the swarm knows (``sysids``, ``drones()``, ``time_s``: ``Readings``) --------------------------------
     async def events(self) -> AsyncIterator[Event]:
         """Everything that happens from now on (warnings, losses, returns, failsafes), as it happens:
         ``async for event in swarm.events(): ...``. Each iterator gets every event."""

@@ -33,18 +33,18 @@ SPACING_M = 3.0
 # corner, (3, 3) m. A circle about the origin through that corner puts the silent drone on everybody's path.
 SILENT_RADIUS_M = math.hypot(SPACING_M, SPACING_M)
 
+
+def takeoff_of(drones: int) -> str:
+    """A mission's swarm (on a grid SPACING_M apart) and its takeoff to ALT_M."""
+    return (f'[swarm]\ndrones = {drones}\nlayout = "grid"\nspacing_m = {SPACING_M}\n\n'
+            f'[[steps]]\naction = "takeoff"\nalt_m = {ALT_M}')  # fmt: skip
+
+
 SILENT_MISSION = f"""
 name = "silent_drone_in_the_circle"
 description = "drone 9 goes silent (link fault) and holds; the other 8 turn a circle through where it hovers"
 
-[swarm]
-drones = 9
-layout = "grid"
-spacing_m = {SPACING_M}
-
-[[steps]]
-action = "takeoff"
-alt_m = {ALT_M}
+{takeoff_of(9)}
 
 [[steps]]
 action = "fault"
@@ -71,14 +71,7 @@ MOTOR_MISSION = f"""
 name = "rotor_out_of_the_circle"
 description = "a circle of 6 turning; drone 3 loses a rotor"
 
-[swarm]
-drones = 6
-layout = "grid"
-spacing_m = {SPACING_M}
-
-[[steps]]
-action = "takeoff"
-alt_m = {ALT_M}
+{takeoff_of(6)}
 
 [[steps]]
 action = "fault"
@@ -104,14 +97,7 @@ OUTAGE_MISSION = f"""
 name = "outage_in_the_circle"
 description = "a circle of 5 turning; drone 2's links go silent for 5 s, then come back"
 
-[swarm]
-drones = 5
-layout = "grid"
-spacing_m = {SPACING_M}
-
-[[steps]]
-action = "takeoff"
-alt_m = {ALT_M}
+{takeoff_of(5)}
 
 [[steps]]
 action = "fault"
