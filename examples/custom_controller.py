@@ -1,7 +1,7 @@
 """Your own centralised swarm algorithm through the Python API: every tick the ground station computes each drone's
-setpoint from everyone's reported state. Here, a potential-field controller: each drone is pulled towards its place
-on a ring (the ring's slots shared out by angle) and pushed away from any drone closer than 2.5 m. Onboard avoidance
-stays under it as the safety layer.
+setpoint from everyone's reported state. Here, a potential-field controller: each drone is pulled towards its
+place on a turning ring (the ring's slots shared out by angle, their motion fed forward) and pushed away from any
+drone closer than 2.5 m. Onboard avoidance stays under it as the safety layer.
 
     python examples/custom_controller.py [--drones 6] [--seconds 40]
 
@@ -20,33 +20,46 @@ import numpy as np
 from gcs.api import DroneState, Setpoint, launch_blocking
 
 RING_M = 5.0
+RING_RATE_RADPS = 0.1
 ALT_M = 3.0
 GAIN_PER_S = 0.6  # velocity per metre from the slot
 REPULSION_M = 2.5
 MAX_SPEED_MPS = 1.5
 
 
-def ring_controller(t_s: float, drones: dict[int, DroneState]) -> dict[int, Setpoint]:
-    """Velocity setpoints: to the slot on the ring, away from near neighbours, capped at MAX_SPEED_MPS."""
-    flying = {s: d for s, d in drones.items() if not d.lost and all(math.isfinite(v) for v in d.pos_ned_m)}
-    order = sorted(flying, key=lambda s: math.atan2(flying[s].pos_ned_m[1], flying[s].pos_ned_m[0]))
-    out: dict[int, Setpoint] = {}
-    for k, sysid in enumerate(order):
-        here = np.array(flying[sysid].pos_ned_m[:2])
-        angle = 2.0 * math.pi * k / len(order) + 0.1 * t_s  # the ring turns slowly
-        slot = RING_M * np.array([math.cos(angle), math.sin(angle)])
-        velocity = GAIN_PER_S * (slot - here)
-        for other, state in flying.items():
-            away = here - np.array(state.pos_ned_m[:2])
-            distance = float(np.linalg.norm(away))
-            if other != sysid and 1e-6 < distance < REPULSION_M:
-                velocity += (REPULSION_M - distance) / distance * away
-        speed = float(np.linalg.norm(velocity))
-        if speed > MAX_SPEED_MPS:
-            velocity *= MAX_SPEED_MPS / speed
-        out[sysid] = Setpoint(pos_ned_m=(math.nan, math.nan, -ALT_M), vel_ned_mps=(velocity[0], velocity[1], math.nan),
-                              acc_ned_mps2=(math.nan, math.nan, math.nan), yaw_rad=math.nan)  # fmt: skip
-    return out
+class RingController:
+    """Velocity setpoints: to the drone's slot on the ring (its motion fed forward), away from near neighbours,
+    capped at MAX_SPEED_MPS. The slots are shared out once, in the order the drones stand round the centre (and
+    again if a drone is lost): re-sorting at every tick would swap two drones' slots whenever they stand level."""
+
+    def __init__(self) -> None:
+        self.slot_of: dict[int, int] = {}
+
+    def __call__(self, t_s: float, drones: dict[int, DroneState]) -> dict[int, Setpoint]:
+        flying = {s: d for s, d in drones.items() if not d.lost and all(math.isfinite(v) for v in d.pos_ned_m)}
+        if set(self.slot_of) != set(flying):
+            by_angle = sorted(flying, key=lambda s: math.atan2(flying[s].pos_ned_m[1], flying[s].pos_ned_m[0]))
+            self.slot_of = {sysid: k for k, sysid in enumerate(by_angle)}
+        phase = RING_RATE_RADPS * t_s  # the ring turns slowly; slot k sits at phase + 2 pi k / n
+        out: dict[int, Setpoint] = {}
+        for sysid, k in self.slot_of.items():
+            here = np.array(flying[sysid].pos_ned_m[:2])
+            angle = phase + 2.0 * math.pi * k / len(self.slot_of)
+            slot = RING_M * np.array([math.cos(angle), math.sin(angle)])
+            slot_velocity = RING_M * RING_RATE_RADPS * np.array([-math.sin(angle), math.cos(angle)])
+            velocity = slot_velocity + GAIN_PER_S * (slot - here)  # the slot's own motion, fed forward, plus the error
+            for other, state in flying.items():
+                away = here - np.array(state.pos_ned_m[:2])
+                distance = float(np.linalg.norm(away))
+                if other != sysid and 1e-6 < distance < REPULSION_M:
+                    velocity += (REPULSION_M - distance) / distance * away
+            speed = float(np.linalg.norm(velocity))
+            if speed > MAX_SPEED_MPS:
+                velocity *= MAX_SPEED_MPS / speed
+            out[sysid] = Setpoint(pos_ned_m=(math.nan, math.nan, -ALT_M),
+                                  vel_ned_mps=(velocity[0], velocity[1], math.nan),
+                                  acc_ned_mps2=(math.nan, math.nan, math.nan), yaw_rad=math.nan)  # fmt: skip
+        return out
 
 
 def main() -> int:
@@ -59,7 +72,7 @@ def main() -> int:
     with launch_blocking(args.drones, first_instance=args.first_instance, drones_per_process="auto",
                          report_dir=args.report, say=print) as swarm:  # fmt: skip
         swarm.takeoff(ALT_M)
-        swarm.control(ring_controller)
+        swarm.control(RingController())
         swarm.sleep(args.seconds)
         off_ring = {s: round(abs(math.hypot(d.pos_ned_m[0], d.pos_ned_m[1]) - RING_M), 2)
                     for s, d in swarm.drones().items()}  # fmt: skip

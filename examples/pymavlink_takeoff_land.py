@@ -35,18 +35,22 @@ def fly(port: int) -> bool:
     try:
         conn.wait_heartbeat(timeout=30)
         print(f"heartbeat from system {conn.target_system}")
-        # PX4 refuses to arm before its pre-arm checks pass (SYS_STATUS health bit): ask until it accepts
-        for _ in range(30):
-            conn.arducopter_arm()
-            ack = wait(conn, "COMMAND_ACK", lambda m: m.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
-            if ack is not None and ack.result == mavlink.MAV_RESULT_ACCEPTED:  # type: ignore[attr-defined]
-                break
+        # PX4 refuses to arm before its pre-arm checks pass: SYS_STATUS says when they do
+        prearm = mavlink.MAV_SYS_STATUS_PREARM_CHECK
+        if wait(conn, "SYS_STATUS", lambda m: m.onboard_control_sensors_health & prearm, 60.0) is None:
+            print("the pre-arm checks never passed")
+            return False
+        conn.arducopter_arm()
+        if wait(conn, "HEARTBEAT", lambda m: m.get_srcSystem() == conn.target_system
+                and m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED, 10.0) is None:  # fmt: skip
+            print("arming refused")
+            return False
         # NAV_TAKEOFF's param7 is an altitude above mean sea level: the ground's is the position's minus its height
         ground = wait(conn, "GLOBAL_POSITION_INT", lambda m: True, 5.0)
         target_amsl_m = (ground.alt - ground.relative_alt) * 1e-3 + ALT_M  # type: ignore[union-attr]
         conn.mav.command_long_send(conn.target_system, 1, mavlink.MAV_CMD_NAV_TAKEOFF, 0,
                                    0, 0, 0, 0, 0, 0, target_amsl_m)  # fmt: skip
-        up = wait(conn, "GLOBAL_POSITION_INT", lambda m: abs(m.relative_alt * 1e-3 - ALT_M) < 0.2, 30.0)
+        up = wait(conn, "GLOBAL_POSITION_INT", lambda m: abs(m.relative_alt * 1e-3 - ALT_M) < 0.3, 30.0)
         print(f"at {up.relative_alt * 1e-3:.2f} m" if up else "never reached the altitude")  # type: ignore[union-attr]
         conn.set_mode("LAND")  # pymavlink's PX4 mode table: AUTO.LAND
         down = wait(conn, "HEARTBEAT", lambda m: m.get_srcSystem() == conn.target_system
