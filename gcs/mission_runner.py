@@ -40,7 +40,15 @@ from gcs.mission_file import (
     SwapStep,
     TakeoffStep,
 )
-from gcs.plan_flight import copy_offsets, parse_drones, start_missions, unfinished, unreached, upload_plan
+from gcs.plan_flight import (
+    copy_offsets,
+    parse_drones,
+    spawn_offsets,
+    start_missions,
+    unfinished,
+    unreached,
+    upload_plan,
+)
 from gcs.procedures import PaceWatch, take_off_and_hold
 from gcs.recorder import FlightRecorder
 from gcs.recording import EventRecord, FaultRecord, FlightRecording, StepRecord
@@ -253,7 +261,9 @@ class MissionRunner:
         numbers = parse_drones(step.drones, range(1, len(self.swarm.sysids) + 1))
         chosen = [self.swarm.sysids[n - 1] for n in numbers]
         offsets = {
-            s: o for s, o in copy_offsets(self.swarm, chosen, step.offsets).items() if s not in self.swarm.losses
+            s: o
+            for s, o in copy_offsets(spawn_offsets(self.swarm), chosen, step.offsets).items()
+            if s not in self.swarm.losses
         }
         uploaded = upload_plan(self.swarm, step.plan, offsets)
         fence = (

@@ -79,10 +79,14 @@ def parse_offsets(text: str) -> str | list[Offset]:
     return out
 
 
-def copy_offsets(swarm: Swarm, sysids: Sequence[int], offsets: str | Sequence[Offset]) -> dict[int, Offset]:
-    """Each chosen drone's offset: its spawn offset from the swarm origin (``spawn``), none, or one given each."""
+def spawn_offsets(swarm: Swarm) -> dict[int, Offset]:
+    """Every drone's spawn offset from the swarm origin, north/east metres, by sysid."""
+    return dict(zip(swarm.sysids, swarm.plan.offsets_ne_m(), strict=True))
+
+
+def copy_offsets(spawn: dict[int, Offset], sysids: Sequence[int], offsets: str | Sequence[Offset]) -> dict[int, Offset]:
+    """Each chosen drone's offset: its spawn offset (``spawn``, from ``spawn_offsets``), none, or one given each."""
     if offsets == "spawn":
-        spawn = dict(zip(swarm.sysids, swarm.plan.offsets_ne_m(), strict=True))
         return {s: spawn[s] for s in sysids}
     if isinstance(offsets, str):
         if offsets != "none":

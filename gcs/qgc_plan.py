@@ -284,6 +284,11 @@ def parse_plan(text: str, path: Path) -> QgcPlan:
     if not isinstance(items_data, list) or not items_data:
         raise reader.fail("mission.items", "must be a non-empty list (a plan holds at least one mission item)")
     items = tuple(_item(reader, item, f"mission.items[{i}]") for i, item in enumerate(items_data))
+    jump_ids = _jump_ids(items)
+    for i, item in enumerate(items):
+        if item.command == mavlink.MAV_CMD_DO_JUMP and item.params[0] not in jump_ids:
+            raise reader.fail(f"mission.items[{i}].params[0]",
+                              f"DO_JUMP to doJumpId {item.params[0]:g}, which no item has")  # fmt: skip
     speeds = {}
     for key, default in (("cruiseSpeed", DEFAULT_CRUISE_SPEED_MPS), ("hoverSpeed", DEFAULT_HOVER_SPEED_MPS)):
         speeds[key] = reader.number(mission.get(key, default), f"mission.{key}")
@@ -377,12 +382,21 @@ def _degrees_e7(value: float) -> int:
     return round(value * 1e7) if math.isfinite(value) else 0
 
 
+def _jump_ids(items: Sequence[PlanItem]) -> dict[float, int]:
+    """doJumpId -> the item's index (an item without one has its position from 1, as QGroundControl numbers them)."""
+    return {float(item.do_jump_id if item.do_jump_id is not None else n + 1): n for n, item in enumerate(items)}
+
+
 def mission_items(plan: QgcPlan) -> list[WireItem]:
-    """The plan's mission (type 0) as MISSION_ITEM_INTs, numbered from 0 (QGroundControl uploads them this way:
-    latitude and longitude in degE7 for global frames, an unset one as 0; other frames' params 5/6 as integers)."""
+    """The plan's mission (type 0) as MISSION_ITEM_INTs, numbered from 0 (QGroundControl uploads them this way to
+    PX4: latitude and longitude in degE7 for global frames, an unset one as 0; other frames' params 5/6 as integers;
+    a DO_JUMP's target, a doJumpId in the file, as the target's sequence number)."""
     out = []
+    jump_ids = _jump_ids(plan.items)
     for seq, item in enumerate(plan.items):
         p = item.params
+        if item.command == mavlink.MAV_CMD_DO_JUMP:
+            p = (float(jump_ids[p[0]]), *p[1:])
         if item.is_global:
             x, y = _degrees_e7(p[4]), _degrees_e7(p[5])
         else:
@@ -429,8 +443,10 @@ def plan_from_items(
             lat, lon = item.x / 1e7, item.y / 1e7
         else:
             lat, lon = float(item.x), float(item.y)
+        # every item's doJumpId is its seq + 1, so a DO_JUMP to seq n names doJumpId n + 1
+        param1 = item.param1 + 1 if item.command == mavlink.MAV_CMD_DO_JUMP else item.param1
         items.append(PlanItem(command=item.command, frame=item.frame, auto_continue=item.autocontinue,
-                              params=(item.param1, item.param2, item.param3, item.param4, lat, lon, item.z),
+                              params=(param1, item.param2, item.param3, item.param4, lat, lon, item.z),
                               do_jump_id=item.seq + 1))  # fmt: skip
     polygons: list[FencePolygon] = []
     circles: list[FenceCircle] = []

@@ -25,6 +25,7 @@ from gcs.plan_flight import (
     download_plan,
     parse_drones,
     parse_offsets,
+    spawn_offsets,
     start_missions,
     upload_plan,
 )
@@ -231,7 +232,7 @@ class Station:
             start_missions(self.swarm, chosen)
             return {"ok": True, "result": f"AUTO.MISSION on sysid {', '.join(map(str, chosen))}"}
         plan = load_plan(Path(str(request.get("path"))))
-        offsets = copy_offsets(self.swarm, chosen, parse_offsets(str(request.get("offsets", "spawn"))))
+        offsets = copy_offsets(spawn_offsets(self.swarm), chosen, parse_offsets(str(request.get("offsets", "spawn"))))
         upload_plan(self.swarm, plan, offsets)
         fence = f" and {len(plan.polygons) + len(plan.circles)} fence zone(s)" if plan.has_fence else ""
         rally = f"; {len(plan.rally_points)} rally point(s) not uploaded (not stored)" if plan.rally_points else ""

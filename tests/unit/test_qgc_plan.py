@@ -30,6 +30,14 @@ from gcs.qgc_plan import (
 MISSIONS = Path(__file__).resolve().parents[2] / "missions"
 BOX_PLAN = MISSIONS / "box.plan"
 PATH = Path("survey.plan")
+JUMP = {
+    "autoContinue": True,
+    "command": 177,
+    "doJumpId": 6,
+    "frame": 2,
+    "params": [2, 1, 0, 0, 0, 0, 0],
+    "type": "SimpleItem",
+}  # back to the item with doJumpId 2, once
 
 
 def box_document() -> dict[str, Any]:
@@ -78,6 +86,20 @@ def test_items_travel_as_mission_item_int_with_degE7_and_fence_vertices_carry_th
     assert list(map(repr, fence_items(back))) == list(map(repr, fence))
     for ours, theirs in zip(back.items, plan.items, strict=True):
         assert ours.params[4:6] == pytest.approx(theirs.params[4:6], abs=0.6e-7)
+
+
+def test_a_do_jump_names_its_target_by_doJumpId_in_the_file_and_by_sequence_number_on_the_wire() -> None:
+    # GIVEN the plan with a DO_JUMP to doJumpId 2 (the first waypoint) inserted before its landing
+    data = box_document()
+    data["mission"]["items"].insert(4, JUMP)
+    data["mission"]["items"][5]["doJumpId"] = 7
+    plan = parse_plan(json.dumps(data), PATH)
+    # THEN on the wire it jumps to seq 1 (PX4 counts from 0, with no home item), as QGroundControl uploads it
+    jump = mission_items(plan)[4]
+    assert (jump.command, jump.param1, jump.param2) == (177, 1.0, 1.0)
+    # AND exported again it names doJumpId 2, the first waypoint's
+    back = plan_from_items(mission_items(plan), home=plan.planned_home)
+    assert back.items[4].params[0] == 2.0 and back.items[1].do_jump_id == 2
 
 
 def test_a_shifted_copy_keeps_the_shape_and_moves_every_coordinate_by_the_offset() -> None:
@@ -163,6 +185,8 @@ MALFORMED = [
     ("survey", _mutated(_set(["mission", "items", 2], SURVEY)),
      "survey.plan: mission.items[2]: complex item 'survey' is not supported: QGroundControl keeps only its outline "
      "in the file; convert it to waypoints in QGroundControl first"),
+    ("jump", _mutated(lambda d: d["mission"]["items"].insert(4, {**JUMP, "params": [9, 1, 0, 0, 0, 0, 0]})),
+     "survey.plan: mission.items[4].params[0]: DO_JUMP to doJumpId 9, which no item has"),
     ("cruise speed", _mutated(_set(["mission", "cruiseSpeed"], 0)),
      "survey.plan: mission.cruiseSpeed: must be a positive speed in m/s, got 0"),
     ("fence version", _mutated(_set(["geoFence", "version"], 1)),
