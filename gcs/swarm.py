@@ -97,7 +97,6 @@ class Swarm:
         self.params = ParamClient()
         self.missions = MissionClient()  # mission and fence transfers (gcs/mission_transfer.py)
         self.mission_progress = MissionProgress()  # each drone's MISSION_CURRENT / MISSION_ITEM_REACHED
-        self.listeners.append(self.mission_progress.handle)
         self.relay: NeighbourRelay | None = NeighbourRelay(radius_m=relay_radius_m) if relay else None
         # Every drone's traffic also goes to this address (QGroundControl/MAVProxy listen on 14550), and what comes
         # back from there is routed to the drones by target system, as a MAVLink router does.
@@ -345,8 +344,9 @@ class Swarm:
                 self.commands.handle(msg, now)
             elif kind == "PARAM_VALUE":
                 self._send_effects(self.params.handle(msg, now), now=False)
-            elif kind.startswith("MISSION_"):
+            elif kind.startswith("MISSION_"):  # the mission protocol (transfers) and its progress reports
                 self._send_effects(self.missions.handle(msg, now), now=True)
+                self.mission_progress.handle(msg, now)
             for listener in self.listeners:
                 listener(msg, now)
         self._send_gcs_heartbeat(now)

@@ -79,6 +79,9 @@ def test_a_qgroundcontrol_plan_flies_as_a_copy_per_drone_and_every_drone_reaches
     assert "box.plan: every drone reached every item" in result.stdout
     metrics = json.loads((report / "metrics.json").read_text())
     assert metrics["collisions"] == 0
+    # AND the report lists every drone's items reached, in order
+    reported = {sysid: [r["seq"] for r in items] for sysid, items in metrics["mission_items_reached"].items()}
+    assert reported == {"14": [0, 1, 2, 3, 4], "15": [0, 1, 2, 3, 4], "16": [0, 1, 2, 3, 4]}
     # AND the flight log shows each drone reach items 0..4 in order, come within the acceptance radius of each of
     # its own copy's waypoints, land on its copy's landing point and disarm
     positions, reached, armed = tracks(report / "flight.tlog")
