@@ -543,6 +543,9 @@ def _plan(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int | 
     start = step.get("start", True)
     if not isinstance(start, bool):
         raise reader.fail(where, "start", f"must be true or false, got {start!r}")
+    if start and not plan.items:
+        raise reader.fail(where, "file", f"{path}: the plan has no mission items to start (start = false uploads "
+                                         "its fence alone)")  # fmt: skip
     timeout = reader.number(step, "timeout_s", where, "pos") if "timeout_s" in step else 120.0
     return PlanStep(file=path, plan=plan, drones=chosen, offsets=offsets, start=start, timeout_s=timeout)
 

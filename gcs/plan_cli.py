@@ -51,7 +51,9 @@ def run_plan(args: argparse.Namespace, client: ControlClient | None = None) -> i
     client = client or ControlClient()
     try:
         if args.plan_command == "upload":
-            load_plan(args.file)
+            if not load_plan(args.file).items and args.start:
+                raise PlanUsageError(f"{args.file}: the plan has no mission items to start (upload its fence alone "
+                                     "without --start)")  # fmt: skip
             parse_offsets(args.offsets)
             request: dict[str, Any] = {"cmd": "plan_upload", "path": str(args.file.resolve()),
                                        "drones": args.drones, "offsets": args.offsets}  # fmt: skip

@@ -281,8 +281,8 @@ def parse_plan(text: str, path: Path) -> QgcPlan:
     home_lat, home_lon = reader.latlon(home_data, "mission.plannedHomePosition")
     home = (home_lat, home_lon, reader.number(home_data[2], "mission.plannedHomePosition"))
     items_data = reader.require(mission, "items", "mission")
-    if not isinstance(items_data, list) or not items_data:
-        raise reader.fail("mission.items", "must be a non-empty list (a plan holds at least one mission item)")
+    if not isinstance(items_data, list):
+        raise reader.fail("mission.items", f"must be a list of mission items, got {_kind(items_data)}")
     items = tuple(_item(reader, item, f"mission.items[{i}]") for i, item in enumerate(items_data))
     jump_ids = _jump_ids(items)
     for i, item in enumerate(items):

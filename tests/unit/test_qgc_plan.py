@@ -164,8 +164,8 @@ MALFORMED = [
      "survey.plan: mission: missing key 'plannedHomePosition'"),
     ("home latitude", _mutated(_set(["mission", "plannedHomePosition"], [97.0, 8.5, 488])),
      "survey.plan: mission.plannedHomePosition: latitude must be within -90..90 degrees, got 97"),
-    ("no items", _mutated(_set(["mission", "items"], [])),
-     "survey.plan: mission.items: must be a non-empty list (a plan holds at least one mission item)"),
+    ("no items", _mutated(_set(["mission", "items"], {})),
+     "survey.plan: mission.items: must be a list of mission items, got an object"),
     ("six params", _mutated(_set(["mission", "items", 3, "params"], [0, 0, 0, 0, 47.4, 8.5])),
      "survey.plan: mission.items[3].params: must be a list of 7 numbers or null, got 6 values"),
     ("text param", _mutated(_set(["mission", "items", 2, "params", 6], "3 m")),
@@ -246,6 +246,13 @@ def test_a_plan_step_reads_its_plan_and_names_a_broken_one_in_one_line(tmp_path:
     assert str(raised.value) == (
         f"{path}:6: steps[0].file: {broken}: mission.items[3].params: must be a list of 7 numbers or null, got 2 values"
     )
+    fence_only = tmp_path / "fence.plan"
+    fence_only.write_text(_mutated(_set(["mission", "items"], [])))
+    assert parse_mission(MISSION.format(file="fence.plan", extra="start = false"), path).steps[0].plan.items == ()  # type: ignore[union-attr]
+    with pytest.raises(
+        MissionFileError, match=r"steps\[0\].file: .*fence.plan: the plan has no mission items to start"
+    ):
+        parse_mission(MISSION.format(file="fence.plan", extra=""), path)
     with pytest.raises(MissionFileError, match=r"m.toml:7: steps\[0\].drones: 4 is not one of 1..3"):
         parse_mission(MISSION.format(file=BOX_PLAN, extra='drones = "2-4"'), path)
     with pytest.raises(MissionFileError, match=r"steps\[0\].offsets: 1 offsets for 3 drones: give one each"):
