@@ -410,19 +410,21 @@ def mission_items(plan: QgcPlan) -> list[WireItem]:
 
 def fence_items(plan: QgcPlan) -> list[WireItem]:
     """The plan's fence (type 1) as PX4 takes it: one NAV_FENCE_POLYGON_VERTEX item per vertex with the polygon's
-    vertex count in param1, one NAV_FENCE_CIRCLE item per circle with its radius in param1, frame GLOBAL."""
+    vertex count in param1, one NAV_FENCE_CIRCLE item per circle with its radius in param1, frame GLOBAL, and no
+    auto-continue (a zone is not flown; MAVSDK's importer makes the same items)."""
     out: list[WireItem] = []
     for poly in plan.polygons:
         command = POLYGON_INCLUSION if poly.inclusion else POLYGON_EXCLUSION
         for lat, lon in poly.vertices_deg:
-            out.append(WireItem(seq=len(out), frame=mavlink.MAV_FRAME_GLOBAL, command=command,
+            out.append(WireItem(seq=len(out), frame=mavlink.MAV_FRAME_GLOBAL, command=command, autocontinue=False,
                                 param1=float(len(poly.vertices_deg)), x=_degrees_e7(lat), y=_degrees_e7(lon),
                                 mission_type=MISSION_TYPE_FENCE))  # fmt: skip
     for circle in plan.circles:
         command = CIRCLE_INCLUSION if circle.inclusion else CIRCLE_EXCLUSION
         lat, lon = circle.centre_deg
-        out.append(WireItem(seq=len(out), frame=mavlink.MAV_FRAME_GLOBAL, command=command, param1=circle.radius_m,
-                            x=_degrees_e7(lat), y=_degrees_e7(lon), mission_type=MISSION_TYPE_FENCE))  # fmt: skip
+        out.append(WireItem(seq=len(out), frame=mavlink.MAV_FRAME_GLOBAL, command=command, autocontinue=False,
+                            param1=circle.radius_m, x=_degrees_e7(lat), y=_degrees_e7(lon),
+                            mission_type=MISSION_TYPE_FENCE))  # fmt: skip
     return out
 
 

@@ -17,13 +17,18 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
+from mavsdk.asyncio.plugins.mission_raw import MissionRawAsync
 from pymavlink import mavutil
 
 from gcs.geodesy import GeoPoint, NedFrame
 from gcs.harness import line_layout
-from gcs.qgc_plan import fence_items, load_plan, mission_items, shifted
+from gcs.mission_transfer import WireItem
+from gcs.qgc_plan import fence_items, load_plan, mission_items, plan_from_items, plan_text, shifted
+from tests.integration.mavsdk_client import call_within, connect
+from tests.integration.sitl_process import start_drones, stop_drone
 
 pytestmark = [pytest.mark.sim_only]
 
@@ -75,7 +80,7 @@ def test_a_qgroundcontrol_plan_flies_as_a_copy_per_drone_and_every_drone_reaches
     wall_s = time.monotonic() - started
     # THEN it succeeds, and the supervisor saw every drone reach every item
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
-    assert "box.plan: 5 items and a fence of 1 zone(s) uploaded to sysid 14, 15, 16" in result.stdout
+    assert "box.plan: 5 items and a fence of 2 zone(s) uploaded to sysid 14, 15, 16" in result.stdout
     assert "box.plan: every drone reached every item" in result.stdout
     metrics = json.loads((report / "metrics.json").read_text())
     assert metrics["collisions"] == 0
@@ -168,7 +173,7 @@ def test_swarm_plan_uploads_downloads_the_same_items_starts_and_refuses_a_broken
     # WHEN the committed plan is uploaded to both drones
     result = swarm.cli("plan", "upload", str(BOX_PLAN), "--drones", "all")
     assert result.returncode == 0, result.stderr
-    assert "5 items and 1 fence zone(s) uploaded to sysid 17, 18" in result.stdout
+    assert "5 items and 2 fence zone(s) uploaded to sysid 17, 18" in result.stdout
     # THEN a download of the second gives back its copy's items: the plan moved by its spawn offset
     out = tmp_path / "back.plan"
     result = swarm.cli("plan", "download", "18", str(out))
@@ -194,3 +199,44 @@ def test_swarm_plan_uploads_downloads_the_same_items_starts_and_refuses_a_broken
     assert all(float(row[5]) < 0.3 for row in rows), rows
     # AND a drone that does not exist is a usage error
     assert swarm.cli("plan", "download", "99", str(out)).returncode == 2
+
+
+@pytest.mark.timeout(60)
+async def test_mavsdk_reads_the_committed_plan_and_an_exported_one_into_the_items_we_upload(tmp_path: Path) -> None:
+    # GIVEN one drone, for MAVSDK to have a system, and MAVSDK's own QGroundControl importer (an independent reader
+    # of the format)
+    drones = start_drones(instances=[19], speed_factor=4.0, seed=0, log_dir=tmp_path, hosted=False)
+    try:
+        async with connect(f"udpin://127.0.0.1:{14540 + drones[0].ports.instance}", 20) as drone:
+            importer = MissionRawAsync(drone.system)
+            plan = load_plan(BOX_PLAN)
+            # WHEN MAVSDK imports the committed plan
+            imported = await call_within(importer.import_qgroundcontrol_mission(str(BOX_PLAN)), 10.0, "import")
+            # THEN it makes exactly the mission and fence items our reader makes (and uploads)
+            assert _mavsdk_items(imported.mission_items) == _our_items(mission_items(plan))
+            assert _mavsdk_items(imported.geofence_items) == _our_items(fence_items(plan))
+            # AND a plan we write (an export) imports as the same items too
+            exported = tmp_path / "exported.plan"
+            exported.write_text(
+                plan_text(plan_from_items(mission_items(plan), fence_items(plan), home=plan.planned_home))
+            )
+            again = await call_within(importer.import_qgroundcontrol_mission(str(exported)), 10.0, "import")
+            assert _mavsdk_items(again.mission_items) == _our_items(mission_items(plan))
+            assert _mavsdk_items(again.geofence_items) == _our_items(fence_items(plan))
+    finally:
+        for started in drones:
+            stop_drone(started)
+
+
+def _mavsdk_items(items: list[Any]) -> list[tuple[Any, ...]]:
+    return [(i.seq, i.frame, i.command, i.autocontinue, *(_p(p) for p in (i.param1, i.param2, i.param3, i.param4)),
+             i.x, i.y, round(i.z, 3), i.mission_type) for i in items]  # fmt: skip
+
+
+def _our_items(items: list[WireItem]) -> list[tuple[Any, ...]]:
+    return [(i.seq, i.frame, i.command, int(i.autocontinue), *(_p(p) for p in (i.param1, i.param2, i.param3, i.param4)),
+             i.x, i.y, round(i.z, 3), i.mission_type) for i in items]  # fmt: skip
+
+
+def _p(value: float) -> float | str:
+    return "nan" if math.isnan(value) else round(value, 4)

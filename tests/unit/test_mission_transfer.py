@@ -124,7 +124,7 @@ def test_a_plan_uploads_to_two_drones_at_once_and_downloads_back_the_same() -> N
     # THEN each vehicle holds them, and a download gives back exactly what was sent
     for vehicle in drones.vehicles.values():
         assert [i.command for i in vehicle.mission] == [22, 16, 16, 16, 21]
-        assert [i.command for i in vehicle.fence] == [5001] * 4
+        assert [i.command for i in vehicle.fence] == [5001] * 4 + [5004]
     for result in download(drones, client, MISSION_TYPE_MISSION):
         assert result.direction is Direction.DOWNLOAD and same_items(result.items, mission_items(plan))
     for result in download(drones, client, MISSION_TYPE_FENCE):

@@ -52,6 +52,7 @@ def test_the_committed_qgroundcontrol_plan_reads_as_drawn() -> None:
     assert math.isnan(plan.items[0].params[3])  # null yaw: "not set"
     assert plan.planned_home == (47.397742, 8.545594, 488.0)
     assert len(plan.polygons) == 1 and plan.polygons[0].inclusion and len(plan.polygons[0].vertices_deg) == 4
+    assert len(plan.circles) == 1 and not plan.circles[0].inclusion and plan.circles[0].radius_m == 2.0
     assert last_item_lands(plan)
 
 
@@ -78,7 +79,9 @@ def test_items_travel_as_mission_item_int_with_degE7_and_fence_vertices_carry_th
     assert (items[1].x, items[1].y, items[1].z) == (473977960, 85455940, 3.0)
     assert all(i.mission_type == 0 for i in items)
     fence = fence_items(plan)
-    assert [(f.command, f.param1, f.frame, f.mission_type) for f in fence] == [(5001, 4.0, 0, 1)] * 4
+    assert [(f.command, f.param1, f.frame, f.mission_type) for f in fence] == [(5001, 4.0, 0, 1)] * 4 + [
+        (5004, 2.0, 0, 1)  # the exclusion circle: its radius in param1
+    ]
     # AND a download of those items makes a plan that travels as the same items again (the export; coordinates are
     # kept to the wire's 1e-7 degrees, about 1 cm)
     back = plan_from_items(items, fence, home=plan.planned_home)
