@@ -266,6 +266,16 @@ class Station:
         self.streamer.command(moved, self.mission_time())
         return {"ok": True}
 
+    def _mission_progress(self, sysid: int, mode: str) -> str | None:
+        """``item 3/5 active`` while a drone flies a mission or has finished one (its MISSION_CURRENT), else None."""
+        progress = self.swarm.mission_progress.drones.get(sysid)
+        if progress is None or progress.total == 0:
+            return None
+        state = MISSION_STATE_NAMES.get(progress.state, "")
+        if mode != "AUTO.MISSION" and state != "complete":
+            return None
+        return f"item {progress.current_seq + 1}/{progress.total} {state}".rstrip()
+
     def status_rows(self) -> list[dict[str, Any]]:
         now = self.swarm.clock()
         rows = []
@@ -291,9 +301,13 @@ class Station:
                     "battery": d.battery_remaining,
                     "link_age_s": d.link_age_s(now),
                     "failsafe": failsafe_text(d.system_status, d.texts),
+                    "mission": self._mission_progress(sysid, d.mode),
                 }
             )
         return rows
+
+
+MISSION_STATE_NAMES = {2: "not started", 3: "active", 4: "paused", 5: "complete"}  # MISSION_CURRENT.mission_state
 
 
 def format_status(rows: list[dict[str, Any]]) -> str:
@@ -308,6 +322,7 @@ def format_status(rows: list[dict[str, Any]]) -> str:
             f"{r['sysid']:>5}  {r['mode']:<14} {'yes' if r['armed'] else 'no':<5} {r['lat_deg']:>11.7f} "
             f"{r['lon_deg']:>11.7f} {r['alt_m']:>6.2f} {batt:>5} {r['link_age_s']:>6.1f}"
             + (f"  FAILSAFE: {r['failsafe']}" if r.get("failsafe") else "")
+            + (f"  mission: {r['mission']}" if r.get("mission") else "")
         )
     return "\n".join(lines)
 

@@ -188,15 +188,20 @@ def test_swarm_plan_uploads_downloads_the_same_items_starts_and_refuses_a_broken
     assert result.returncode == 0, result.stderr
     # THEN both take off, fly it, land and disarm (seen by the supervisor's status)
     flown: set[str] = set()
+    progress: set[str] = set()  # what the status table said of the missions
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
-        rows = [line.split() for line in swarm.cli("status").stdout.strip().splitlines()[1:]]
+        lines = swarm.cli("status").stdout.strip().splitlines()[1:]
+        rows = [line.split() for line in lines]
+        progress |= {line.split("mission: ")[1] for line in lines if "mission: " in line}
         flown |= {row[1] for row in rows}
         if "AUTO.MISSION" in flown and all(row[2] == "no" for row in rows):
             break
         time.sleep(0.5)
     assert "AUTO.MISSION" in flown and all(row[2] == "no" for row in rows), rows
     assert all(float(row[5]) < 0.3 for row in rows), rows
+    # AND while they flew, the status table showed their progress through the mission (ending complete)
+    assert any(p.endswith(" active") for p in progress) and "item 5/5 complete" in progress, progress
     # AND a drone that does not exist is a usage error
     assert swarm.cli("plan", "download", "99", str(out)).returncode == 2
 
