@@ -26,7 +26,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from gcs.mission_transfer import MISSION_TYPE_FENCE, MISSION_TYPE_MISSION, TransferResult
 from gcs.px4_modes import set_mode_params
 from gcs.qgc_plan import FenceItemsError, QgcPlan, fence_items, last_item_lands, mission_items, plan_from_items, shifted
-from gcs.swarm import ARM_TIMEOUT_S, Swarm, SwarmError, check
+from gcs.swarm import ARM_TIMEOUT_S, HOLD_MODE, Swarm, SwarmError, check
 
 OFFSET_MODES: Final = ("spawn", "none")
 MISSION_MODE: Final = set_mode_params("MISSION")  # DO_SET_MODE params for PX4 AUTO.MISSION
@@ -132,7 +132,13 @@ def _check(results: list[TransferResult]) -> None:
 
 def start_missions(swarm: Swarm, sysids: Sequence[int]) -> None:
     """AUTO.MISSION on every chosen drone (DO_SET_MODE, as QGroundControl starts a PX4 mission), arming first the
-    ones on the ground (QGroundControl's "start mission" arms too): a plan that begins with a takeoff takes off."""
+    ones on the ground (QGroundControl's "start mission" arms too): a plan that begins with a takeoff takes off.
+
+    The caller has stopped the setpoint stream (the chosen drones leave OFFBOARD); every other drone in the air is
+    put in Hold where it is, so that it hovers instead of meeting the offboard-loss failsafe."""
+    others = [s for s in swarm.armed_sysids() if s not in sysids]
+    if others:
+        check(swarm.command_all(mavlink.MAV_CMD_DO_SET_MODE, *HOLD_MODE, sysids=others), "hold")
     for sysid in sysids:
         swarm.mission_progress.reset(sysid)
     disarmed = [s for s in sysids if s not in swarm.armed_sysids(sysids)]

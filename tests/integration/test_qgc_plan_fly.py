@@ -112,6 +112,56 @@ def test_a_qgroundcontrol_plan_flies_as_a_copy_per_drone_and_every_drone_reaches
           f" s simulated, min separation {metrics['min_separation_m']:.2f} m")  # fmt: skip
 
 
+SUBSET_MISSION = f"""name = "plan_for_one"
+[swarm]
+drones = 2
+layout = "line"
+spacing_m = 8.0
+[[steps]]
+action = "takeoff"
+alt_m = 3.0
+[[steps]]
+action = "plan"
+file = "{BOX_PLAN}"
+drones = "2"
+[[steps]]
+action = "land"
+"""
+
+
+@pytest.mark.timeout(120)
+def test_a_plan_for_some_drones_after_a_takeoff_leaves_the_others_holding_where_they_are(tmp_path: Path) -> None:
+    # GIVEN two drones in the air (OFFBOARD, after the takeoff step), and the plan for the second only
+    mission = tmp_path / "one.toml"
+    mission.write_text(SUBSET_MISSION)
+    report = tmp_path / "report"
+    # WHEN the mission is flown
+    result = subprocess.run(
+        [*SWARM, "fly", str(mission), "--first-instance", "82", "--report", str(report), *FAST],
+        capture_output=True, text=True, timeout=100,
+    )  # fmt: skip
+    # THEN the second flies the whole plan, and the first hovers in Hold meanwhile: no failsafe, hardly a move
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    metrics = json.loads((report / "metrics.json").read_text())
+    assert {k: [r["seq"] for r in v] for k, v in metrics["mission_items_reached"].items()} == {"84": [0, 1, 2, 3, 4]}
+    assert metrics["failsafes"] == [] and metrics["collisions"] == 0
+    log = mavutil.mavlink_connection(str(report / "flight.tlog"))
+    modes: set[str] = set()
+    while (msg := log.recv_match(type="HEARTBEAT")) is not None:
+        if msg.get_srcSystem() == 83 and msg.get_srcComponent() == 1:
+            modes.add(mavutil.interpret_px4_mode(msg.base_mode, msg.custom_mode))
+    assert "LOITER" in modes and "MISSION" not in modes, modes
+    positions, _, _ = tracks(report / "flight.tlog")
+    start = positions[83][len(positions[83]) // 2]  # hovering, half way through the flight
+    frame = NedFrame(GeoPoint(lat_deg=start[0], lon_deg=start[1], alt_amsl_m=0.0))
+    drift = max(
+        math.hypot(*frame.ned_from_geo(GeoPoint(lat_deg=lat, lon_deg=lon, alt_amsl_m=0.0))[:2])
+        for lat, lon, alt in positions[83]
+        if alt > 2.5
+    )
+    assert drift < 0.5, f"drone 1 moved {drift:.2f} m while it should have held"
+
+
 class RunningSwarm:
     """``swarm up`` in lockstep, its readiness read from its own output; stopped by ``swarm down``, or by PID."""
 
