@@ -43,8 +43,13 @@ MISSION_TIMEOUT_S: Final = 0.5  # MAVSDK's per-try timeout of a mission transfer
 MISSION_RETRIES: Final = 5  # MAVSDK's tries again without progress before a transfer fails
 MISSION_TYPE_MISSION: Final = mavlink.MAV_MISSION_TYPE_MISSION
 MISSION_TYPE_FENCE: Final = mavlink.MAV_MISSION_TYPE_FENCE
-# MISSION_CURRENT.mission_state (MISSION_STATE): the mission has run to its end
-MISSION_STATE_COMPLETE: Final = 5
+# MISSION_CURRENT.mission_state: complete means the mission has run to its end (MAVSDK's is_mission_finished)
+MISSION_STATE_COMPLETE: Final = mavlink.MISSION_STATE_COMPLETE
+MISSION_STATE_NAMES: Final = {  # MISSION_STATE_NOT_STARTED -> "not started", as the status table shows them
+    value: entry.name.removeprefix("MISSION_STATE_").replace("_", " ").lower()
+    for value, entry in mavlink.enums["MISSION_STATE"].items()
+    if entry.name.startswith("MISSION_STATE_") and not entry.name.endswith("ENUM_END")
+}
 GLOBAL_FRAMES: Final = frozenset(
     {
         mavlink.MAV_FRAME_GLOBAL,
@@ -113,7 +118,7 @@ class Direction(Enum):
     DOWNLOAD = "download"
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
 class TransferResult:
     """How one transfer with one drone ended: ``error`` None when it succeeded (a download's items then in
     ``items``), else one line saying why (refused with a MAV_MISSION_RESULT, or no answer)."""
@@ -309,8 +314,8 @@ class MissionClient:
         what = f"{type_name(work.mission_type)} {work.direction.value}"
         items = tuple(work.items) if work.direction is Direction.DOWNLOAD and error is None else ()
         self._done[(work.sysid, work.mission_type)] = TransferResult(
-            work.sysid, work.mission_type, work.direction, items,
-            None if error is None else f"sysid {work.sysid}: {what} {error}", result,
+            sysid=work.sysid, mission_type=work.mission_type, direction=work.direction, items=items,
+            error=None if error is None else f"sysid {work.sysid}: {what} {error}", result=result,
         )  # fmt: skip
 
     # ---- the caller's side -----------------------------------------------------------------------------------------

@@ -30,6 +30,8 @@ from gcs.swarm import ARM_TIMEOUT_S, HOLD_MODE, Swarm, SwarmError, check
 
 OFFSET_MODES: Final = ("spawn", "none")
 MISSION_MODE: Final = set_mode_params("MISSION")  # DO_SET_MODE params for PX4 AUTO.MISSION
+# Items PX4 reports with MISSION_ITEM_REACHED when flown (not the instant ones: speed changes, camera ...)
+_REPORTED: Final = frozenset({mavlink.MAV_CMD_NAV_WAYPOINT, mavlink.MAV_CMD_NAV_TAKEOFF, mavlink.MAV_CMD_NAV_LAND})
 _RANGE = re.compile(r"^\s*(\d+)\s*(?:-\s*(\d+)\s*)?$")
 
 Offset = tuple[float, float]
@@ -173,10 +175,6 @@ def unreached(swarm: Swarm, uploaded: Uploaded) -> dict[int, list[int]]:
         if missing and sysid not in swarm.losses:
             out[sysid] = missing
     return out
-
-
-# Items PX4 reports with MISSION_ITEM_REACHED when flown (not the instant ones: speed changes, camera ...)
-_REPORTED: Final = frozenset({mavlink.MAV_CMD_NAV_WAYPOINT, mavlink.MAV_CMD_NAV_TAKEOFF, mavlink.MAV_CMD_NAV_LAND})
 
 
 def download_plan(swarm: Swarm, sysid: int) -> QgcPlan:

@@ -19,6 +19,7 @@ from gcs.faults import CRASH, FaultError, fault_request, result_text
 from gcs.frames import SwarmFrame
 from gcs.losses import MAV_STATE_CRITICAL, LossPolicy, loss_line, regain_line
 from gcs.mission_file import build_flock, build_follow, build_formation
+from gcs.mission_transfer import MISSION_STATE_NAMES
 from gcs.plan_flight import (
     PlanUsageError,
     copy_offsets,
@@ -305,9 +306,6 @@ class Station:
                 }
             )
         return rows
-
-
-MISSION_STATE_NAMES = {2: "not started", 3: "active", 4: "paused", 5: "complete"}  # MISSION_CURRENT.mission_state
 
 
 def format_status(rows: list[dict[str, Any]]) -> str:
