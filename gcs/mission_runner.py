@@ -265,6 +265,11 @@ class MissionRunner:
             for s, o in copy_offsets(spawn_offsets(self.swarm), chosen, step.offsets).items()
             if s not in self.swarm.losses
         }
+        if step.start:
+            # The setpoint stream cannot run while the transfer is served (a lossy link can stretch it over seconds):
+            # every drone in the air waits in Hold rather than meet the offboard-loss failsafe.
+            self.streamer.stop()
+            self.swarm.hold_all()
         uploaded = upload_plan(self.swarm, step.plan, offsets)
         fence = (
             f" and a fence of {len(step.plan.polygons) + len(step.plan.circles)} zone(s)" if step.plan.has_fence else ""
@@ -273,7 +278,6 @@ class MissionRunner:
                  f"{', '.join(map(str, offsets))}")  # fmt: skip
         if not step.start:
             return
-        self.streamer.stop()  # the drones leave OFFBOARD for AUTO.MISSION
         start_missions(self.swarm, list(offsets))
         if not self._wait(lambda: not unfinished(self.swarm, uploaded), step.timeout_s):
             late = unfinished(self.swarm, uploaded)
