@@ -11,7 +11,9 @@ Mission types 0 (mission) and 1 (fence) travel the same way, as PX4 and QGroundC
   MISSION_ITEM_INT -> MISSION_ACK ends it. A request for an item already sent is answered again (our item was
   lost); the vehicle drives the pace and re-requests what it misses. Without any answer to MISSION_COUNT it is sent
   again every ``timeout_s``; while items flow the client only waits, as MAVSDK does, since the vehicle's own
-  re-requests recover lost items and a client resending on its own timer would race them.
+  re-requests recover lost items and a client resending on its own timer would race them. Only after the last item
+  does nobody else recover a loss: if no MISSION_ACK comes, the last item is sent again, which a vehicle holding
+  the whole mission answers with its ACK again (the ACK was lost) and one still waiting for it takes (the item was).
 - Download: MISSION_REQUEST_LIST -> MISSION_COUNT -> we request each item with MISSION_REQUEST_INT -> the last one
   is acknowledged with MISSION_ACK ACCEPTED. A silent try is repeated (the list request, or the request of the item
   we wait for).
@@ -302,6 +304,12 @@ class MissionClient:
             if work.direction is Direction.UPLOAD:
                 if work.last_requested is None:
                     out.append(self._count(work))  # MISSION_COUNT lost, or its first request: announce again
+                elif work.last_requested == len(work.items) - 1:
+                    # The last item sent and no MISSION_ACK: the item or the ACK was lost. The vehicle asks for
+                    # nothing more, so send the last item again; a vehicle that has the whole mission answers a
+                    # repeated last item with its ACK again (PX4 does).
+                    last = work.items[-1]
+                    out.append(Send(work.sysid, last.message(work.sysid)))
                 # else: the vehicle re-requests what it misses; we only count its silence
             elif work.count is None:
                 out.append(self._request_list(work))

@@ -158,6 +158,39 @@ def test_lost_items_and_requests_are_recovered_by_the_vehicles_re_requests() -> 
         assert len(vehicle.mission) == len(items)
 
 
+def test_a_lost_final_ack_is_recovered_by_sending_the_last_item_again() -> None:
+    # GIVEN a link that loses the first MISSION_ACK each drone sends, and the first copy of the last item to one
+    drones, client = Drones(), MissionClient()
+    items = mission_items(load_plan(BOX_PLAN))
+    acked: set[int] = set()
+    last_sent: set[int] = set()
+
+    def lose_down(msg: Any) -> bool:
+        if msg.get_type() == "MISSION_ACK" and msg.get_srcSystem() not in acked:
+            acked.add(msg.get_srcSystem())
+            return True
+        return False
+
+    def lose_up(msg: Any) -> bool:
+        last = msg.get_type() == "MISSION_ITEM_INT" and msg.seq == len(items) - 1 and msg.target_system == SYSIDS[1]
+        if last and not last_sent:
+            last_sent.add(msg.target_system)
+            return True
+        return False
+
+    drones.lose_down, drones.lose_up = lose_down, lose_up
+    # WHEN the mission is uploaded
+    results = upload(drones, client, items, MISSION_TYPE_MISSION)
+    # THEN both uploads succeed, each after the last item was sent again once its ACK (or the item) went missing
+    assert all(r.ok for r in results), results
+    assert acked == set(SYSIDS) and last_sent == {SYSIDS[1]}
+    for sysid in SYSIDS:
+        lasts = [m for m in drones.sent_up if m.get_type() == "MISSION_ITEM_INT" and m.target_system == sysid
+                 and m.seq == len(items) - 1]  # fmt: skip
+        assert len(lasts) >= 2
+        assert len(drones.vehicles[sysid].mission) == len(items)
+
+
 def test_a_silent_drone_ends_the_upload_with_no_answer_after_the_retries_and_a_cancel() -> None:
     # GIVEN a drone that hears nothing
     drones, client = Drones(), MissionClient()
