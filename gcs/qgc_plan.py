@@ -139,8 +139,8 @@ class _Reader:
         if value is None and null:
             return math.nan
         if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-            return_kind = "a number or null" if null else "a number"
-            raise self.fail(where, f"must be {return_kind}, got {value!r}")
+            expected = "a number or null" if null else "a number"
+            raise self.fail(where, f"must be {expected}, got {value!r}")
         return float(value)
 
     def integer(self, value: Any, where: str, lo: int, hi: int) -> int:
