@@ -28,6 +28,7 @@ from gcs.links import LINK_OPTIONS, LinkPlan, parse_link_value
 from gcs.losses import LOSS_POLICIES, LossPolicy
 from gcs.mission_file import MissionFileError, build_flock, build_follow, load_mission
 from gcs.mission_runner import MissionRunner
+from gcs.plan_cli import add_plan_parser, run_plan
 from gcs.signing import SigningKeyError, load_key
 from gcs.station import Station, format_status
 from gcs.swarm import Swarm, SwarmError
@@ -351,6 +352,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser("land", help="land every drone where it is")
     sub.add_parser("rtl", help="every drone returns to its launch point and lands")
     sub.add_parser("down", help="land, disarm and stop every drone, then the supervisor")
+    add_plan_parser(sub)
     return parser
 
 
@@ -577,6 +579,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return run_fly(args, SITL)
         if args.command == "bench":
             return run_bench(args, SITL)
+        if args.command == "plan":
+            return run_plan(args)
         return run_client(args)
     except (UsageError, MissionFileError) as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)

@@ -39,6 +39,10 @@ Airborne
     Null for a drone outside the band at the step's end. ``takeoff_time_s`` is the maximum over drones (null if any
     drone is null or none flew). Every takeoff step also carries its own values in ``steps``.
 
+``mission_items_reached``
+    Per drone that flew a mission (a plan step, ``swarm plan start``), each MISSION_ITEM_REACHED it sent, in order:
+    ``seq`` and ``time_s`` (a repeated report of the same arrival counted once).
+
 ``steps``
     One entry per step: ``index, name, kind, start_s, end_s``, and, when drones had a commanded slot during the step:
     - swarm error e(t) at a grid instant in [start_s, end_s) (at end_s the next step's command is in force): the
@@ -98,7 +102,7 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs.losses import DroneLoss
-from gcs.recording import DroneSample, EventRecord, FaultRecord, FlightRecording, StepRecord
+from gcs.recording import DroneSample, EventRecord, FaultRecord, FlightRecording, ItemReached, StepRecord
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -185,6 +189,7 @@ class FlightMetrics:
     link_counters: dict[str, dict[str, float]] = field(default_factory=dict)  # the link model's counts by channel
     realtime_factor_min: float | None = None  # the drones' achieved pace, over 5 s windows
     realtime_factor_mean: float | None = None
+    items_reached: tuple[ItemReached, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: fixed key order, rounded floats, None for undefined values, drone keys as strings."""
@@ -222,6 +227,10 @@ class FlightMetrics:
             "links": {name: link_summary(c) for name, c in self.link_counters.items()},
             "realtime_factor_min": _r(self.realtime_factor_min),
             "realtime_factor_mean": _r(self.realtime_factor_mean),
+            "mission_items_reached": {
+                str(sysid): [{"seq": r.seq, "time_s": _r(r.time_s)} for r in self.items_reached if r.sysid == sysid]
+                for sysid in sorted({r.sysid for r in self.items_reached})
+            },
             "parameters": {
                 "grid_hz": GRID_HZ,
                 "max_gap_s": MAX_GAP_S,
@@ -632,6 +641,7 @@ def compute_metrics(recording: FlightRecording) -> FlightMetrics:
         realtime_factor_mean=(
             sum(recording.realtime_factors) / len(recording.realtime_factors) if recording.realtime_factors else None
         ),
+        items_reached=tuple(recording.items_reached),
     )
 
 

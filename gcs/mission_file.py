@@ -41,6 +41,8 @@ from gcs.formation import CircleSpec, Formation, FormationError, GridSpec, LineS
 from gcs.harness import LAYOUTS
 from gcs.links import LINK_CLASSES, LINK_KEYS, LinkPlan, plan_from_tables, value_problem
 from gcs.losses import LOSS_POLICIES, LossPolicy
+from gcs.plan_flight import OFFSET_MODES, PlanUsageError, parse_drones
+from gcs.qgc_plan import PlanFileError, QgcPlan, load_plan
 
 MAX_DRONES = 100
 
@@ -140,7 +142,32 @@ class FaultStep:
     after_s: float = 0.0
 
 
-Step = TakeoffStep | FormationStep | FlockStep | FollowStep | SwapStep | HoldStep | LandStep | RtlStep | FaultStep
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PlanStep:
+    """A QGroundControl plan flown in AUTO.MISSION by some of the drones, each its own copy moved by an offset
+    (gcs/plan_flight.py): uploaded, started (``start``), and over when every one has finished it (and landed, when
+    the plan ends with a land or a return) or fails after ``timeout_s``."""
+
+    file: Path
+    plan: QgcPlan  # read and checked with the mission file, before anything flies
+    drones: str = "all"  # "all" or drone numbers 1..drones like "1,3-5"
+    offsets: str | tuple[tuple[float, float], ...] = "spawn"  # spawn | none | one (north, east) per drone
+    start: bool = True
+    timeout_s: float = 120.0
+
+
+Step = (
+    PlanStep
+    | TakeoffStep
+    | FormationStep
+    | FlockStep
+    | FollowStep
+    | SwapStep
+    | HoldStep
+    | LandStep
+    | RtlStep
+    | FaultStep
+)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -469,13 +496,58 @@ def _step(reader: _Reader, step: Any, index: int, drones: int) -> Step:
         return HoldStep(duration_s=reader.number(step, "duration_s", where, "pos"))
     if action == "fault":
         return _fault(reader, step, where, drones)
+    if action == "plan":
+        return _plan(reader, step, where, drones)
     if action in ("land", "rtl"):
         reader.check_keys(step, {"action", "timeout_s"}, where)
         cls = LandStep if action == "land" else RtlStep
         return cls(timeout_s=reader.number(step, "timeout_s", where, "pos")) if "timeout_s" in step else cls()
     raise reader.fail(
-        where, "action", f"must be takeoff, formation, flock, follow, swap, hold, fault, land or rtl, got {action!r}"
+        where,
+        "action",
+        f"must be takeoff, plan, formation, flock, follow, swap, hold, fault, land or rtl, got {action!r}",
     )
+
+
+def _plan(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int | None], drones: int) -> PlanStep:
+    reader.check_keys(step, {"action", "file", "drones", "offsets", "start", "timeout_s"}, where)
+    if not isinstance(step.get("file"), str):
+        raise reader.fail(where, "file" if "file" in step else None, "missing field 'file' (a QGroundControl .plan)")
+    path = Path(step["file"])
+    if not path.is_absolute() and reader.path.parent != Path():
+        path = reader.path.parent / path  # relative to the mission file, wherever swarm fly runs
+    try:
+        plan = load_plan(path)
+    except PlanFileError as exc:
+        raise reader.fail(where, "file", str(exc)) from None
+    chosen = step.get("drones", "all")
+    known = list(range(1, drones + 1))
+    if not isinstance(chosen, str):
+        raise reader.fail(where, "drones", f'must be a string: all, or drone numbers like "1,3-5", got {chosen!r}')
+    try:
+        count = len(parse_drones(chosen, known))
+    except PlanUsageError as exc:
+        raise reader.fail(where, "drones", str(exc).removeprefix("drones: ")) from None
+    offsets: str | tuple[tuple[float, float], ...] = "spawn"
+    if "offsets" in step:
+        value = step["offsets"]
+        if isinstance(value, str):
+            if value not in OFFSET_MODES:
+                raise reader.fail(where, "offsets", f"must be spawn, none or [[north, east], ...], got {value!r}")
+            offsets = value
+        else:
+            reader.field(step, "offsets", where, "points")
+            offsets = tuple((float(n), float(e)) for n, e in value)
+            if len(offsets) != count:
+                raise reader.fail(where, "offsets", f"{len(offsets)} offsets for {count} drones: give one each")
+    start = step.get("start", True)
+    if not isinstance(start, bool):
+        raise reader.fail(where, "start", f"must be true or false, got {start!r}")
+    if start and not plan.items:
+        raise reader.fail(where, "file", f"{path}: the plan has no mission items to start (start = false uploads "
+                                         "its fence alone)")  # fmt: skip
+    timeout = reader.number(step, "timeout_s", where, "pos") if "timeout_s" in step else 120.0
+    return PlanStep(file=path, plan=plan, drones=chosen, offsets=offsets, start=start, timeout_s=timeout)
 
 
 def _fault(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int | None], drones: int) -> FaultStep:
@@ -610,8 +682,10 @@ def parse_mission(text: str, path: Path, *, max_obstacles: int | None = None) ->
     if not isinstance(steps_data, list) or not steps_data:
         raise reader.fail((None, None), None, "missing [[steps]]: a mission needs at least one step")
     steps = tuple(_step(reader, s, i, drones) for i, s in enumerate(steps_data))
-    if not isinstance(steps[0], TakeoffStep):
-        raise reader.fail(("steps", 0), "action", "the first step must be a takeoff")
+    if not isinstance(steps[0], TakeoffStep | PlanStep):
+        raise reader.fail(
+            ("steps", 0), "action", "the first step must be a takeoff (or a plan whose mission takes off)"
+        )
     name = data.get("name", path.stem)
     description = data.get("description", "")
     if not isinstance(name, str) or not isinstance(description, str):

@@ -34,10 +34,20 @@ from gcs.mission_file import (
     HoldStep,
     LandStep,
     MissionSpec,
+    PlanStep,
     RtlStep,
     Step,
     SwapStep,
     TakeoffStep,
+)
+from gcs.plan_flight import (
+    copy_offsets,
+    parse_drones,
+    spawn_offsets,
+    start_missions,
+    unfinished,
+    unreached,
+    upload_plan,
 )
 from gcs.procedures import PaceWatch, take_off_and_hold
 from gcs.recorder import FlightRecorder
@@ -246,6 +256,39 @@ class MissionRunner:
         if not self._wait(arrived, step.timeout_s):
             raise SwarmError(f"not every drone reached the opposite point within {step.timeout_s:g} s")
 
+    def _plan(self, step: PlanStep) -> None:
+        """Upload the plan's copies to the step's drones and, with ``start``, fly it in AUTO.MISSION to its end."""
+        numbers = parse_drones(step.drones, range(1, len(self.swarm.sysids) + 1))
+        chosen = [self.swarm.sysids[n - 1] for n in numbers]
+        offsets = {
+            s: o
+            for s, o in copy_offsets(spawn_offsets(self.swarm), chosen, step.offsets).items()
+            if s not in self.swarm.losses
+        }
+        if step.start:
+            # The setpoint stream cannot run while the transfer is served (a lossy link can stretch it over seconds):
+            # every drone in the air waits in Hold rather than meet the offboard-loss failsafe.
+            self.streamer.stop()
+            self.swarm.hold_all()
+        uploaded = upload_plan(self.swarm, step.plan, offsets)
+        fence = (
+            f" and a fence of {len(step.plan.polygons) + len(step.plan.circles)} zone(s)" if step.plan.has_fence else ""
+        )
+        self.say(f"[{self.now():6.1f} s] {step.file.name}: {len(step.plan.items)} items{fence} uploaded to sysid "
+                 f"{', '.join(map(str, offsets))}")  # fmt: skip
+        if not step.start:
+            return
+        start_missions(self.swarm, list(offsets))
+        if not self._wait(lambda: not unfinished(self.swarm, uploaded), step.timeout_s):
+            late = unfinished(self.swarm, uploaded)
+            raise SwarmError(f"plan {step.file.name}: sysid {late} did not finish within {step.timeout_s:g} s")
+        missing = unreached(self.swarm, uploaded)
+        if missing:
+            listed = "; ".join(f"sysid {s}: items {m}" for s, m in missing.items())
+            self.say(f"[{self.now():6.1f} s] {step.file.name}: not reported reached: {listed}")
+        else:
+            self.say(f"[{self.now():6.1f} s] {step.file.name}: every drone reached every item")
+
     def _land(self, step: LandStep | RtlStep) -> None:
         """Land (or return) every drone still armed; a crashed or already landed drone has nothing to do."""
         self.streamer.stop()
@@ -283,6 +326,8 @@ class MissionRunner:
             self._follow(step)
         elif isinstance(step, HoldStep):
             self._hold(step.duration_s)
+        elif isinstance(step, PlanStep):
+            self._plan(step)
         elif isinstance(step, FaultStep):
             self._pending_faults.append((start + step.after_s, step))
             self._inject_due_faults(self.now())

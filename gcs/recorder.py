@@ -18,7 +18,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.losses import MAV_STATE_CRITICAL
 from gcs.metrics import LiveMetrics
-from gcs.recording import DroneSample, EventRecord, FlightRecording
+from gcs.recording import DroneSample, EventRecord, FlightRecording, ItemReached
 from gcs.streamer import FormationStreamer
 from gcs.tlog import TlogWriter
 
@@ -60,6 +60,7 @@ class FlightRecorder:
         self.live = LiveMetrics()
         self.collisions = CollisionPairs()
         self._system_status: dict[int, int] = {}
+        self._last_reached: dict[int, int] = {}  # sysid -> the seq of its last MISSION_ITEM_REACHED
         self._epoch_us = int(time.time() * 1e6)
         self._tlog = TlogWriter(tlog_path)
         self.swarm.listeners.append(self.on_message)
@@ -101,6 +102,10 @@ class FlightRecorder:
                 # (its warning was printed as it came, with the other STATUSTEXTs)
                 text = warnings[-1] if warnings else "system status CRITICAL (no warning received)"
                 self.recording.failsafes.append(EventRecord(time_s=now, sysid=sysid, text=text))
+        elif kind == "MISSION_ITEM_REACHED":
+            if self._last_reached.get(sysid) != msg.seq:  # PX4 may repeat the report of one arrival
+                self._last_reached[sysid] = msg.seq
+                self.recording.items_reached.append(ItemReached(time_s=now, sysid=sysid, seq=msg.seq))
         elif kind == "STATUSTEXT":
             if self.collisions.observe(sysid, msg.text) is False:
                 return  # the other drone's report of a collision already recorded

@@ -55,6 +55,15 @@ class FaultRecord:
     result: str  # "accepted", "denied", "process 1234 killed", "not injected: drone already lost"
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ItemReached:
+    """A drone's MISSION_ITEM_REACHED: it reached item ``seq`` of its mission (a plan flown in AUTO.MISSION)."""
+
+    time_s: float
+    sysid: int
+    seq: int
+
+
 @dataclass(slots=True)
 class FlightRecording:
     mission_name: str
@@ -76,3 +85,4 @@ class FlightRecording:
     faults: list[FaultRecord] = field(default_factory=list)
     failsafes: list[EventRecord] = field(default_factory=list)  # a drone entering failsafe, with its warning
     policy_events: list[EventRecord] = field(default_factory=list)  # what the swarm did about each loss
+    items_reached: list[ItemReached] = field(default_factory=list)  # mission items reached (each arrival once)

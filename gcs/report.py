@@ -366,6 +366,13 @@ def summary_text(metrics: FlightMetrics) -> str:
     )
     flown = "  ".join(f"{k}: {v:.1f} m" for k, v in metrics.distance_flown_m.items()) or "-"
     lines += [f"distance flown: {flown}", ""]
+    if metrics.items_reached:
+        lines.append("mission items reached (AUTO.MISSION):")
+        for sysid in sorted({r.sysid for r in metrics.items_reached}):
+            reached = [r for r in metrics.items_reached if r.sysid == sysid]
+            seqs = " ".join(str(r.seq) for r in reached)
+            lines.append(f"  drone {sysid}: {seqs} (last at {reached[-1].time_s:.1f} s)")
+        lines.append("")
     lines += faults_text(metrics)
     return "\n".join(lines)
 

@@ -19,7 +19,19 @@ from gcs.faults import CRASH, FaultError, fault_request, result_text
 from gcs.frames import SwarmFrame
 from gcs.losses import MAV_STATE_CRITICAL, LossPolicy, loss_line, regain_line
 from gcs.mission_file import build_flock, build_follow, build_formation
+from gcs.mission_transfer import MISSION_STATE_NAMES
+from gcs.plan_flight import (
+    PlanUsageError,
+    copy_offsets,
+    download_plan,
+    parse_drones,
+    parse_offsets,
+    spawn_offsets,
+    start_missions,
+    upload_plan,
+)
 from gcs.procedures import PaceWatch
+from gcs.qgc_plan import PlanFileError, load_plan, plan_text
 from gcs.recorder import FlightRecorder
 from gcs.recording import EventRecord, FaultRecord, FlightRecording, StepRecord
 from gcs.report import write_report
@@ -30,7 +42,7 @@ Say = Callable[[str], None]
 
 
 # Commands that start what the report calls a step (name and kind taken from the request)
-STEP_COMMANDS = ("takeoff", "formation", "flock", "follow", "goto", "land", "rtl")
+STEP_COMMANDS = ("takeoff", "formation", "flock", "follow", "goto", "land", "rtl", "plan_start")
 
 
 class Station:
@@ -63,7 +75,7 @@ class Station:
         """A command that changes what the swarm flies ends the report's current step and starts the next."""
         now = self.mission_time()
         self._end_step(now)
-        cmd = request["cmd"]
+        cmd = request["cmd"].removesuffix("_start")  # plan_start: a plan step
         name = str(request.get("shape", cmd)) if cmd == "formation" else cmd
         kind = "formation" if cmd == "goto" else cmd
         alt = float(request.get("alt", 3.0)) if cmd == "takeoff" else None
@@ -170,6 +182,10 @@ class Station:
                 return {"ok": True}
             if cmd == "fault":
                 return self.fault(request)
+            if cmd in ("plan_upload", "plan_start", "plan_download"):
+                return self.plan(request)
+        except (PlanUsageError, PlanFileError) as exc:
+            return {"ok": False, "usage": True, "error": str(exc)}
         except (SwarmError, FaultError, ValueError) as exc:
             return {"ok": False, "error": str(exc)}
         return {"ok": False, "error": f"unknown command {cmd!r}"}
@@ -199,6 +215,32 @@ class Station:
             return {"ok": False, "error": f"drone {sysid} refused fault {fault.describe()}: {result_text(ack.result)}"}
         return {"ok": True, "result": result_text(ack.result)}
 
+    def plan(self, request: dict[str, Any]) -> dict[str, Any]:
+        """``swarm plan upload/start/download``: a QGroundControl plan to some drones (each its own copy, moved by
+        an offset), AUTO.MISSION on them, or one drone's mission and fence back as a plan (gcs/plan_flight.py)."""
+        cmd = request["cmd"]
+        if cmd == "plan_download":
+            sysid = request.get("sysid")
+            if isinstance(sysid, bool) or not isinstance(sysid, int) or sysid not in self.swarm.sysids:
+                raise PlanUsageError(f"no drone with sysid {sysid!r} (sysids {self.swarm.sysids})")
+            return {"ok": True, "plan": plan_text(download_plan(self.swarm, sysid))}
+        chosen = parse_drones(str(request.get("drones", "all")), self.swarm.sysids)
+        chosen = [s for s in chosen if s not in self.swarm.losses]
+        if not chosen:
+            return {"ok": False, "error": "every chosen drone is lost"}
+        if cmd == "plan_start":
+            self.streamer.stop()  # the drones leave OFFBOARD for AUTO.MISSION
+            start_missions(self.swarm, chosen)
+            return {"ok": True, "result": f"AUTO.MISSION on sysid {', '.join(map(str, chosen))}"}
+        plan = load_plan(Path(str(request.get("path"))))
+        offsets = copy_offsets(spawn_offsets(self.swarm), chosen, parse_offsets(str(request.get("offsets", "spawn"))))
+        upload_plan(self.swarm, plan, offsets)
+        fence = f" and {len(plan.polygons) + len(plan.circles)} fence zone(s)" if plan.has_fence else ""
+        rally = f"; {len(plan.rally_points)} rally point(s) not uploaded (not stored)" if plan.rally_points else ""
+        text = f"{len(plan.items)} items{fence} uploaded to sysid {', '.join(map(str, chosen))}{rally}"
+        self.say(f"swarm: plan {Path(str(request.get('path'))).name}: {text}")
+        return {"ok": True, "result": text}
+
     def _record_fault(self, sysid: int, what: str, result: str) -> None:
         record = FaultRecord(time_s=self.mission_time(), sysid=sysid, fault=what, result=result)
         self.recording.faults.append(record)
@@ -225,6 +267,16 @@ class Station:
         self.streamer.command(moved, self.mission_time())
         return {"ok": True}
 
+    def _mission_progress(self, sysid: int, mode: str) -> str | None:
+        """``item 3/5 active`` while a drone flies a mission or has finished one (its MISSION_CURRENT), else None."""
+        progress = self.swarm.mission_progress.drones.get(sysid)
+        if progress is None or progress.total == 0:
+            return None
+        state = MISSION_STATE_NAMES.get(progress.state, "")
+        if mode != "AUTO.MISSION" and state != "complete":
+            return None
+        return f"item {progress.current_seq + 1}/{progress.total} {state}".rstrip()
+
     def status_rows(self) -> list[dict[str, Any]]:
         now = self.swarm.clock()
         rows = []
@@ -250,6 +302,7 @@ class Station:
                     "battery": d.battery_remaining,
                     "link_age_s": d.link_age_s(now),
                     "failsafe": failsafe_text(d.system_status, d.texts),
+                    "mission": self._mission_progress(sysid, d.mode),
                 }
             )
         return rows
@@ -267,6 +320,7 @@ def format_status(rows: list[dict[str, Any]]) -> str:
             f"{r['sysid']:>5}  {r['mode']:<14} {'yes' if r['armed'] else 'no':<5} {r['lat_deg']:>11.7f} "
             f"{r['lon_deg']:>11.7f} {r['alt_m']:>6.2f} {batt:>5} {r['link_age_s']:>6.1f}"
             + (f"  FAILSAFE: {r['failsafe']}" if r.get("failsafe") else "")
+            + (f"  mission: {r['mission']}" if r.get("mission") else "")
         )
     return "\n".join(lines)
 

@@ -34,6 +34,7 @@ from gcs.fleet import LINK_LOST_S, Fleet
 from gcs.geodesy import GeoPoint, NedFrame
 from gcs.harness import SimulationHarness, SpawnError, SpawnPlan
 from gcs.losses import MAV_STATE_FLIGHT_TERMINATION, DroneLoss, landing_clear_of
+from gcs.mission_transfer import MISSION_TYPE_MISSION, MissionClient, MissionProgress, TransferResult, WireItem
 from gcs.params import ParamClient, ParamResult
 from gcs.px4_modes import set_mode_params
 from gcs.relay import NeighbourRelay
@@ -95,6 +96,8 @@ class Swarm:
         # The MAVLink command and parameter protocols (no IO of their own: the swarm feeds them and sends for them)
         self.commands = CommandClient()
         self.params = ParamClient()
+        self.missions = MissionClient()  # mission and fence transfers (gcs/mission_transfer.py)
+        self.mission_progress = MissionProgress()  # each drone's MISSION_CURRENT / MISSION_ITEM_REACHED
         self.relay: NeighbourRelay | None = NeighbourRelay(radius_m=relay_radius_m) if relay else None
         # Every drone's traffic also goes to this address (QGroundControl/MAVProxy listen on 14550), and what comes
         # back from there is routed to the drones by target system, as a MAVLink router does.
@@ -282,6 +285,22 @@ class Swarm:
             self._send_effects(self.params.start(sysid, name, value, self.clock()), now=False)
         return self._serve(self.params, name, targets, now=False)
 
+    def upload_mission(
+        self, items: dict[int, list[WireItem]], mission_type: int = MISSION_TYPE_MISSION
+    ) -> list[TransferResult]:
+        """A mission (or fence: ``mission_type`` 1) to several drones at once, each its own list (sysid -> items),
+        with MAVSDK's timeouts and retries (gcs/mission_transfer.py); the outcomes in the order of ``items``."""
+        for sysid, own in items.items():
+            self._send_effects(self.missions.start_upload(sysid, own, mission_type, self.clock()), now=True)
+        return self._serve(self.missions, mission_type, list(items), now=True)
+
+    def download_mission(self, sysids: Iterable[int], mission_type: int = MISSION_TYPE_MISSION) -> list[TransferResult]:
+        """Several drones' missions (or fences) at once; each outcome carries the items downloaded."""
+        targets = list(sysids)
+        for sysid in targets:
+            self._send_effects(self.missions.start_download(sysid, mission_type, self.clock()), now=True)
+        return self._serve(self.missions, mission_type, targets, now=True)
+
     def inject_fault(self, sysid: int, fault: FaultRequest) -> Ack:
         """MAV_CMD_INJECT_FAILURE as PX4 takes it, after SYS_FAILURE_EN = 1 (and the battery level it needs)."""
         kind = FAULTS[fault.kind]
@@ -329,6 +348,9 @@ class Swarm:
                 self.commands.handle(msg, now)
             elif kind == "PARAM_VALUE":
                 self._send_effects(self.params.handle(msg, now), now=False)
+            elif kind.startswith("MISSION_"):  # the mission protocol (transfers) and its progress reports
+                self._send_effects(self.missions.handle(msg, now), now=True)
+                self.mission_progress.handle(msg, now)
             for listener in self.listeners:
                 listener(msg, now)
         self._send_gcs_heartbeat(now)
@@ -550,7 +572,9 @@ class Swarm:
         """Disarm where they are, in the air too (the motors stop: the drones fall)."""
         return self.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, FORCE_DISARM_MAGIC, sysids=sysids)
 
-    def _serve(self, client: CommandClient | ParamClient, key: Any, targets: list[int], *, now: bool) -> list[Any]:
+    def _serve(
+        self, client: CommandClient | ParamClient | MissionClient, key: Any, targets: list[int], *, now: bool
+    ) -> list[Any]:
         """Pump until the work ``key`` (a command, a parameter name) has ended on every target, sending what the
         client's ``poll`` asks for when its timers come due; the outcomes in the order of ``targets``. Interrupted or
         failed, nothing is left in flight to block the next use of the same command or parameter (the shutdown's)."""
