@@ -105,6 +105,14 @@ class CollisionPrevention:
     def set_relay(self, neighbours: Sequence[RelayedNeighbour]) -> None:
         self._relay = tuple(neighbours)
 
+    def relayed(self) -> tuple[RelayedNeighbour, ...]:
+        """The neighbours as last converted to this drone's frame (an onboard behaviour reads them too)."""
+        return self._relay
+
+    def camera(self) -> tuple[Obstacle, ...]:
+        """The last frame's detections (an onboard behaviour reads them too)."""
+        return self._camera
+
     def config(self) -> AvoidanceConfig:
         """The algorithm's configuration from the parameter table (rebuilt only when a parameter changed)."""
         if self._config_version != self._params.version:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,7 +24,7 @@ from sitl.dynamics.plant import DEFAULT_HOME, PHYSICS_RATE_HZ, GeoPoint, PlantSt
 from sitl.estimation import Estimate, Estimator, EstimatorConfig
 from sitl.fault_params import FAULT_PARAMS
 from sitl.faults import FaultState
-from sitl.params import ParamStore
+from sitl.params import ParamDef, ParamStore
 from sitl.sensors.models import GpsSample, SensorConfig, SensorReadings, SensorSuite
 from sitl.signing_params import SIGNING_PARAMS
 from sitl.vehicle import Vehicle
@@ -36,9 +36,10 @@ from sitl.wind import WindConfig, WindModel
 GROUND_IMPACT_SPEED_MPS = 3.0
 
 
-def build_param_store() -> ParamStore:
-    """Every parameter of one drone, in the order the MAVLink parameter protocol indexes them."""
-    return ParamStore((*CONTROL_PARAMS, *AUTOPILOT_PARAMS, *AVOIDANCE_PARAMS, *FAULT_PARAMS, *SIGNING_PARAMS))
+def build_param_store(extra: Iterable[ParamDef] = ()) -> ParamStore:
+    """Every parameter of one drone, in the order the MAVLink parameter protocol indexes them; ``extra`` (an onboard
+    behaviour's, sitl/onboard) come last."""
+    return ParamStore((*CONTROL_PARAMS, *AUTOPILOT_PARAMS, *AVOIDANCE_PARAMS, *FAULT_PARAMS, *SIGNING_PARAMS, *extra))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
