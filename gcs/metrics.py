@@ -247,13 +247,23 @@ def link_summary(counts: dict[str, float]) -> dict[str, Any]:
     lost = counts.get("frames_lost", 0.0)
     delayed = counts.get("delayed", 0.0)
     delivered = offered - lost
-    return {
+    out: dict[str, Any] = {
         "frames_offered": int(offered),
         "frames_lost": int(lost),
         "loss_rate": _r(lost / offered) if offered else None,
         "frames_delayed": int(delayed),
         "mean_delay_ms": _r(1000.0 * counts.get("total_delay_s", 0.0) / delivered) if delivered else None,
     }
+    # The drone-to-drone mesh (docs/links.md "Mesh") says why each report was not heard, and what the neighbour
+    # tables took from each source.
+    for key in MESH_DETAIL_KEYS:
+        if key in counts:
+            out[key] = int(counts[key])
+    return out
+
+
+MESH_DETAIL_KEYS = ("frames_delivered", "lost_range", "lost_path", "lost_model", "lost_overrun", "relay_updates",
+                    "mesh_updates")  # fmt: skip
 
 
 def _step_dict(step: StepMetrics) -> dict[str, Any]:

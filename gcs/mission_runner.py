@@ -83,6 +83,7 @@ class MissionRunner:
             drones_per_process=drones_per_process,
             signing_key_file=signing_key_file,
             links=mission.swarm.links if links is None else links,  # None: the mission's own [swarm.links]
+            mesh=mission.swarm.mesh,
         )
         self.swarm = Swarm(plan, simulation.harness(plan), forward=forward, relay=mission.swarm.relay)
         self.streamer = FormationStreamer(self.swarm, self.swarm_frame)
