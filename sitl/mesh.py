@@ -66,6 +66,9 @@ MESH_RATE_HZ: Final = 10.0
 # neighbour channels, so switching the mesh on changes none of their draws.
 MESH_SEED_INDEX: Final = len(DIRECTIONS)
 _NEIGHBOUR_INDEX: Final = LINK_CLASSES.index("neighbour")
+# A delay that ends on a physics step is heard at that step, not the next one, whatever the rounding of the post's
+# time plus the latency against the step's time (0.1 + 0.04 is not 0.14 in floating point).
+_TIME_TOLERANCE_S: Final = 1e-9
 
 
 def mesh_problem(range_m: object, exponent: object) -> str | None:
@@ -232,7 +235,8 @@ class MeshRadio:
             if posts:
                 self._receive(posts, now_s)
         inbox = self._inbox
-        return inbox.pop_due(now_s) if inbox.next_due_s <= now_s else []
+        due_by_s = now_s + _TIME_TOLERANCE_S
+        return inbox.pop_due(due_by_s) if inbox.next_due_s <= due_by_s else []
 
     def _receive(self, posts: list[tuple[float, int, bytes]], now_s: float) -> None:
         world = self.medium.world
