@@ -247,9 +247,11 @@ class Drone:
         if self._impaired:
             assert self.endpoint is not None
             self.endpoint.deliver_due(sim.time_s)
-        if self.mesh is not None:
+        if self.mesh is not None:  # the radio is part of the drone's MAVLink, and timed with it
             assert self.endpoint is not None
+            t0 = self._clock_ns()
             self.endpoint.hear_mesh(sim.time_s)
+            self.link_ns += self._clock_ns() - t0
         self._steps += 1
         if self.world is not None and self._steps % CPU_REPORT_STEPS == 0:
             self.world.write_cpu(self.instance, sim.physics_ns * 1e-9, sim.control_ns * 1e-9,
@@ -314,7 +316,8 @@ class Drone:
                     self.say(
                         "neighbour table: "
                         + ", ".join(
-                            f"{c.updates} reports by {source} (mean age {c.mean_age_s * 1000:.0f} ms)"
+                            f"{c.updates} reports by {source} (mean age at use {c.mean_age_s * 1000:.0f} ms since "
+                            f"received, {c.mean_sent_age_s * 1000:.0f} ms since sent)"
                             for source, c in table.items()
                             if c.updates
                         )

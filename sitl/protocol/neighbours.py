@@ -97,12 +97,20 @@ class SourceCounts:
     """What one source brought to the table: reports taken, and the ages of its entries when the table was read."""
 
     updates: int = 0  # reports that replaced an entry (or made one)
-    age_sum_s: float = 0.0  # over the entries of this source handed out by ``entries``
+    age_sum_s: float = 0.0  # since it arrived, over the entries of this source handed out by ``entries``
+    sent_age_sum_s: float = 0.0  # since the neighbour sent it (its time_boot_ms: one clock in lockstep)
     age_samples: int = 0
 
     @property
     def mean_age_s(self) -> float:
         return self.age_sum_s / self.age_samples if self.age_samples else 0.0
+
+    @property
+    def mean_sent_age_s(self) -> float:
+        """How old the reports were when used, counted from their sending: the way's own delay included (the
+        relay's hop through the supervisor, the mesh's quantum, the link model's latency). Paced, each drone's
+        clock starts at its own boot, so this is off by the difference of their start-ups."""
+        return self.sent_age_sum_s / self.age_samples if self.age_samples else 0.0
 
 
 class NeighbourTable:
@@ -122,6 +130,7 @@ class NeighbourTable:
         self.stale = 0  # reports not newer than the entry they would replace (a second copy, or overtaken)
         self._updates = dict.fromkeys(SOURCES, 0)
         self._age_sum_s = dict.fromkeys(SOURCES, 0.0)
+        self._sent_age_sum_s = dict.fromkeys(SOURCES, 0.0)
         self._age_samples = dict.fromkeys(SOURCES, 0)
 
     def handle(self, msg: MAVLinkMessage, now_s: float) -> list[Effect]:
@@ -176,12 +185,18 @@ class NeighbourTable:
         out = [n for _, n in sorted(self._entries.items()) if n.age_s(now_s) <= NEIGHBOUR_TIMEOUT_S]
         for n in out:
             self._age_sum_s[n.source] += now_s - n.received_s
+            self._sent_age_sum_s[n.source] += now_s - n.sender_time_s
             self._age_samples[n.source] += 1
         return out
 
     def counts(self) -> dict[NeighbourSource, SourceCounts]:
         """What each source brought, for the drone's log and the flight report."""
         return {
-            s: SourceCounts(updates=self._updates[s], age_sum_s=self._age_sum_s[s], age_samples=self._age_samples[s])
+            s: SourceCounts(
+                updates=self._updates[s],
+                age_sum_s=self._age_sum_s[s],
+                sent_age_sum_s=self._sent_age_sum_s[s],
+                age_samples=self._age_samples[s],
+            )
             for s in SOURCES
         }

@@ -71,7 +71,7 @@ def test_nine_drones_fly_grid_to_circle_on_the_mesh_alone_with_a_tenth_of_every_
     # AND each drone's log says what its radio heard and what its table took from where
     log = (report / "logs" / "drone-172.log").read_text()
     assert "sitl 172: mesh radio: range 15 m, path loss (d/range)^4" in log
-    assert "sitl 172: mesh: " in log and " reports by mesh (mean age " in log and " by relay" not in log
+    assert "sitl 172: mesh: " in log and " reports by mesh (mean age at use " in log and " by relay" not in log
     summary = (report / "summary.txt").read_text()
     assert "link model, neighbour mesh: " in summary and "0 from the relay" in summary
 

@@ -236,9 +236,11 @@ def test_each_entry_says_its_source_and_a_late_relayed_copy_does_not_replace_a_n
 def test_the_table_counts_the_age_of_each_source_s_entries_where_they_are_read() -> None:
     table = NeighbourTable(own_sysid=1)
     table.receive(decoded(report(2, 1000)), 1.0, MESH)
-    table.handle(decoded(report(3, 1000)), 1.0)
+    table.handle(decoded(report(3, 900)), 1.0)
     table.entries(1.1)
     table.entries(1.3)
     counts = table.counts()
     assert counts[MESH].mean_age_s == pytest.approx(0.2) and counts[RELAY].mean_age_s == pytest.approx(0.2)
     assert counts[MESH].age_samples == 2
+    assert counts[MESH].mean_sent_age_s == pytest.approx(0.2)  # sent at 1.0 s (time_boot_ms 1000)
+    assert counts[RELAY].mean_sent_age_s == pytest.approx(0.3)  # sent at 0.9 s: 0.1 s on the way
