@@ -3,17 +3,21 @@
 - The 9-drone grid_to_circle flies on the mesh alone (no relay: the supervisor forwards nothing), radio range 15 m,
   every link losing 10 %: it completes without a collision, and the report counts what the mesh delivered and what
   the path loss and the link model took.
+- Paced and signed, the mesh still carries the reports: every drone signs what it broadcasts and, requiring
+  signatures, takes what it hears only after checking them (none dropped, none bad).
 - Two lockstep runs of a mesh mission with the same seeds, the second with every CPU kept busy by other work, give
   the same MAVLink messages in their flight logs and the same mesh counts: what a drone hears over the mesh does
   not depend on the machine's load. The range there is short enough for the opposite drones of the circle to be
   out of each other's range.
 
-Policy: loopback only (--no-forward); instances 172-180; lockstep, so no outcome depends on the machine's load; a
+Policy: loopback only (--no-forward); instances 172-180 and 197-198; lockstep (but for the paced test, whose
+outcome does not depend on timing), so no outcome depends on the machine's load; a
 time limit on every test; the CPU burners are stopped by PID and reaped (tests/integration/test_links_fly.py).
 """
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +29,27 @@ from tests.integration.test_links_fly import busy_cpus, tlog_messages
 pytestmark = [pytest.mark.sim_only]
 
 FIRST_INSTANCE = "172"
+PACED_FIRST_INSTANCE = "197"
+
+SIGNED_MESH = """
+name = "signed_mesh"
+[swarm]
+drones = 2
+layout = "line"
+spacing_m = 3.0
+neighbours = "mesh"
+
+[[steps]]
+action = "takeoff"
+alt_m = 3.0
+
+[[steps]]
+action = "hold"
+duration_s = 3.0
+
+[[steps]]
+action = "land"
+"""
 
 
 def mesh_mission(tmp_path: Path, name: str, swarm: str, tables: str) -> str:
@@ -100,3 +125,25 @@ def test_a_mesh_mission_flies_the_same_on_an_idle_and_a_loaded_machine(tmp_path:
     assert first["links"] == second["links"]
     for key in ("min_separation_m", "collisions", "avoidance_events", "distance_flown_m", "steps"):
         assert first[key] == second[key], key
+
+
+@pytest.mark.timeout(240)
+def test_a_paced_signed_swarm_hears_its_neighbours_signed_reports_over_the_mesh(tmp_path: Path) -> None:
+    # GIVEN two drones 3 m apart on the mesh alone, every drone signing and requiring signatures
+    key_file = tmp_path / "swarm.key"
+    key_file.write_text("mesh signing test\n")
+    mission = tmp_path / "signed_mesh.toml"
+    mission.write_text(SIGNED_MESH)
+    # WHEN the mission is flown paced (each drone on its own clock, reading whatever has been posted)
+    args = ["--first-instance", PACED_FIRST_INSTANCE, "--drones-per-process", "auto", "--signing-key", str(key_file)]
+    metrics, _ = fly_mission(str(mission), args, tmp_path, 200)
+    # THEN each drone heard the other's reports over the mesh, signed, and dropped none for its signature
+    assert metrics["collisions"] == 0
+    for instance in (197, 198):
+        log = (tmp_path / "report" / "logs" / f"drone-{instance}.log").read_text()
+        heard = re.search(rf"sitl {instance}: neighbour table: (\d+) reports by mesh", log)
+        assert heard is not None and int(heard.group(1)) > 50, log[-2000:]
+        assert " by relay" not in log
+        assert "0 unsigned dropped, 0 bad signatures, 0 replays" in log, log[-2000:]
+    mesh = metrics["links"]["neighbour mesh"]
+    assert mesh["lost_range"] == 0 and mesh["frames_delivered"] == mesh["frames_offered"] - mesh["lost_path"], mesh
