@@ -343,23 +343,24 @@ class MavlinkEndpoint:
         frames = mesh.after_step(now_s)
         if not frames or self.silenced:
             return  # a silenced drone's radio is dead: it hears nothing
-        for frame in frames:
-            messages = framing.parse_datagram(frame)
-            if messages is None:
-                reset_parser(self._mesh_parser)
-                try:
-                    messages = [m for m in self._mesh_parser.parse_buffer(frame) or [] if m.get_type() != "BAD_DATA"]
-                except Exception:  # a frame torn in the medium fails its CRC: not heard
-                    self._mesh_parser = UdpLink._new_parser()
-                    continue
-            for msg in messages:
-                if msg.get_msgId() != mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
-                    continue
-                admit, texts = self._gate.admit(msg, self._mesh_link_id)
-                for _severity, text in texts:
-                    log.warning("mesh: %s", text)
-                if admit:
-                    self.neighbours.receive(msg, now_s, MESH)
+        # The frames heard at one step parsed together, as a datagram of several frames is: one call, not one each.
+        data = b"".join(frames)
+        messages = framing.parse_datagram(data)
+        if messages is None:
+            reset_parser(self._mesh_parser)
+            try:
+                messages = [m for m in self._mesh_parser.parse_buffer(data) or [] if m.get_type() != "BAD_DATA"]
+            except Exception:  # frames torn in the medium fail their CRC: not heard
+                self._mesh_parser = UdpLink._new_parser()
+                return
+        for msg in messages:
+            if msg.get_msgId() != mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
+                continue
+            admit, texts = self._gate.admit(msg, self._mesh_link_id)
+            for _severity, text in texts:
+                log.warning("mesh: %s", text)
+            if admit:
+                self.neighbours.receive(msg, now_s, MESH)
 
     def link_counters(self) -> dict[tuple[LinkClass, Direction], LinkCounters]:
         return counters_by_class(self._channels)
