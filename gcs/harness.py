@@ -175,7 +175,8 @@ class SimulationHarness(Protocol):
         ``delayed`` and ``total_delay_s``; still answers after ``close``. Empty when every link is perfect and there
         is no mesh. With the drone-to-drone mesh, ``"neighbour mesh"``: the reports the drones heard of each other,
         with ``frames_delivered`` and the losses by cause (``lost_range``, ``lost_path``, ``lost_model``,
-        ``lost_overrun``), and the neighbour tables' updates by source (``relay_updates``, ``mesh_updates``)."""
+        ``lost_overrun``), and the neighbour tables' updates by source (``relay_updates``: on the ground-station link,
+        ``link_updates``: on another MAVLink link, ``mesh_updates``)."""
         ...
 
     def cpu_parts_s(self) -> FloatArray:

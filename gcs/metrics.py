@@ -263,7 +263,7 @@ def link_summary(counts: dict[str, float]) -> dict[str, Any]:
 
 
 MESH_DETAIL_KEYS = ("frames_delivered", "lost_range", "lost_path", "lost_model", "lost_overrun", "relay_updates",
-                    "mesh_updates")  # fmt: skip
+                    "link_updates", "mesh_updates")  # fmt: skip
 
 
 def _step_dict(step: StepMetrics) -> dict[str, Any]:

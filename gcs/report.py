@@ -310,6 +310,7 @@ def summary_text(metrics: FlightMetrics) -> str:
                 f"; lost {link['lost_range']} beyond range, {link['lost_path']} to path loss, {link['lost_model']} "
                 f"to the link model; the neighbour tables took {link['mesh_updates']} reports from the mesh, "
                 f"{link['relay_updates']} from the relay"
+                + (f", {link['link_updates']} from other MAVLink links" if link.get("link_updates") else "")
                 if "lost_range" in link
                 else ""
             )

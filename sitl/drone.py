@@ -25,7 +25,6 @@ from sitl.mav_vehicle import SimVehicleApi
 from sitl.mavlink_io import MavlinkEndpoint
 from sitl.mesh import MeshMedium, MeshRadio
 from sitl.protocol import Identity
-from sitl.protocol.neighbours import MESH, RELAY
 from sitl.protocol.signing import SIGN_ALWAYS, SIGN_CFG_PARAM, key_id
 from sitl.simulation import SimConfig, Simulation
 from sitl.specs import DroneSpec, ProcessSpec
@@ -263,8 +262,7 @@ class Drone:
         if self._impaired and self.world is not None and self.endpoint is not None:
             self.world.write_link_counters(self.instance, self.endpoint.link_counters())
         if self.mesh is not None and self.endpoint is not None:
-            counts = self.endpoint.neighbours.counts()
-            self.mesh.publish(counts[RELAY].updates, counts[MESH].updates)
+            self.mesh.publish({source: c.updates for source, c in self.endpoint.neighbours.counts().items()})
 
     def after_batch(self) -> None:
         """Between batches: the autopilot's events out as STATUSTEXT (and into the demo's log), telemetry due."""

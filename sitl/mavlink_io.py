@@ -25,7 +25,7 @@ from sitl.linkmodel import DelayLine, Direction, LinkChannel, LinkClass, LinkCou
 from sitl.params import ParamStore
 from sitl.protocol import Identity, LinkServices, Send, VehicleApi, framing
 from sitl.protocol.core import Effect, MAVLinkMessage
-from sitl.protocol.neighbours import MESH, NeighbourTable
+from sitl.protocol.neighbours import LINK, MESH, RELAY, NeighbourFeed, NeighbourTable
 from sitl.protocol.signing import SIGN_CFG_PARAM, SigningGate, SigningState
 from sitl.protocol.telemetry import PollShare
 
@@ -57,6 +57,11 @@ def parse_host_port(text: str) -> Address | None:
     if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
         return None
     return host, int(port)
+
+
+def link_class_of(config: LinkConfig) -> LinkClass:
+    """The link model's class of a link: the ground-station link is ``gcs``, any other a client's ``api``."""
+    return "gcs" if config.name.lower() == "gcs" else "api"
 
 
 class LinkError(OSError):
@@ -132,8 +137,7 @@ class UdpLink:
 
     @property
     def link_class(self) -> LinkClass:
-        """The link model's class of this link: the ground-station link is ``gcs``, any other a client's ``api``."""
-        return "gcs" if self.config.name.lower() == "gcs" else "api"
+        return link_class_of(self.config)
 
     @property
     def port(self) -> int:
@@ -291,7 +295,9 @@ class MavlinkEndpoint:
         self._share = PollShare(vehicle)
         try:
             for link_id, config in enumerate(links):
-                services = LinkServices(identity, vehicle, params, neighbours=self.neighbours, share=self._share)
+                # Positions on the ground-station link are the supervisor's relay; on another link, a client's.
+                feed = NeighbourFeed(self.neighbours, RELAY if link_class_of(config) == "gcs" else LINK)
+                services = LinkServices(identity, vehicle, params, neighbours=feed, share=self._share)
                 self.links.append(UdpLink(config, identity, services, signing=self.signing, link_id=link_id))
         except LinkError:
             self.close()

@@ -35,6 +35,7 @@ the delay from its own time of taking the post.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Final
 
@@ -295,10 +296,10 @@ class MeshRadio:
             total_delay_s=model.total_delay_s,
         )
 
-    def publish(self, relay_updates: int, mesh_updates: int) -> None:
+    def publish(self, updates: Mapping[str, int]) -> None:
         """This drone's counts into the world (``MESH_FIELDS``) for the flight report, with the neighbour table's
-        updates by source."""
+        updates by source (``relay``, ``link``, ``mesh``)."""
         c = self.counters()
-        values = {f: getattr(c, f) for f in MESH_FIELDS if hasattr(c, f)}
-        values.update(relay_updates=relay_updates, mesh_updates=mesh_updates)
+        values: dict[str, float] = {f: getattr(c, f) for f in MESH_FIELDS if hasattr(c, f)}
+        values.update({f"{source}_updates": count for source, count in updates.items()})
         self.medium.world.mesh_stats[self.medium.instance] = [values[f] for f in MESH_FIELDS]

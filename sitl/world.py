@@ -143,7 +143,7 @@ MESH_SLOTS = 64
 MESH_SLOT_BYTES = 64
 MESH_STEP, MESH_TIME, MESH_LENGTH = range(3)
 MESH_FIELDS = ("frames_offered", "frames_delivered", "lost_range", "lost_path", "lost_model", "lost_overrun",
-               "delayed", "total_delay_s", "relay_updates", "mesh_updates")  # fmt: skip
+               "delayed", "total_delay_s", "relay_updates", "link_updates", "mesh_updates")  # fmt: skip
 MESH_META_OFFSET = MESH_OFFSET + MAX_DRONES * 8
 MESH_STATS_OFFSET = MESH_META_OFFSET + MAX_DRONES * MESH_SLOTS * 3 * 8
 MESH_FRAMES_OFFSET = MESH_STATS_OFFSET + MAX_DRONES * len(MESH_FIELDS) * 8

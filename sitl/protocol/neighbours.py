@@ -1,8 +1,9 @@
 """What a drone knows of its neighbours: their own position reports, each with where it came from and its age.
 
 A neighbour's GLOBAL_POSITION_INT reaches a drone two ways: forwarded unchanged by the ground station's relay
-(original system id kept, as a MAVLink router does; any other system on a MAVLink link counts the same), or heard
-directly from the neighbour's radio over the drone-to-drone mesh (sitl/mesh.py). Either way a neighbour is exactly
+(original system id kept, as a MAVLink router does), or heard directly from the neighbour's radio over the
+drone-to-drone mesh (sitl/mesh.py). Any other system that sends one on a MAVLink link (the API link: a client, a
+vehicle sharing a radio) is a neighbour too, counted apart as ``link``. Either way a neighbour is exactly
 what that drone reports of itself. This table is the only source of neighbour positions for the autopilot besides
 its camera; it never reads the simulation's shared world.
 
@@ -27,10 +28,11 @@ from sitl.protocol.core import Effect, MAVLinkMessage, PeerInputError, check_now
 
 NEIGHBOUR_TIMEOUT_S: Final = 3.0
 
-NeighbourSource = Literal["relay", "mesh"]
-RELAY: Final[NeighbourSource] = "relay"  # over a MAVLink link: the ground station's relay, or any system on a link
+NeighbourSource = Literal["relay", "link", "mesh"]
+RELAY: Final[NeighbourSource] = "relay"  # on the ground-station link: the supervisor's relay
+LINK: Final[NeighbourSource] = "link"  # on another MAVLink link (the API link): a client, another vehicle
 MESH: Final[NeighbourSource] = "mesh"  # heard from the neighbour's own radio (sitl/mesh.py)
-SOURCES: Final[tuple[NeighbourSource, ...]] = (RELAY, MESH)
+SOURCES: Final[tuple[NeighbourSource, ...]] = (RELAY, LINK, MESH)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -114,8 +116,8 @@ class SourceCounts:
 
 
 class NeighbourTable:
-    """A service on every link: GLOBAL_POSITION_INT from other systems updates the (shared) table. The mesh radio
-    hands its reports in through ``receive`` with ``source=MESH``."""
+    """One table per drone: GLOBAL_POSITION_INT from other systems updates it, each link through its own
+    ``NeighbourFeed`` (the source it counts as), the mesh radio through ``receive`` with ``source=MESH``."""
 
     handles: frozenset[int] = frozenset({mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT})
 
@@ -134,7 +136,7 @@ class NeighbourTable:
         self._age_samples = dict.fromkeys(SOURCES, 0)
 
     def handle(self, msg: MAVLinkMessage, now_s: float) -> list[Effect]:
-        """A report that came over a MAVLink link (the relay)."""
+        """A report that came over the ground-station link (the relay)."""
         self.receive(msg, now_s, RELAY)
         return []
 
@@ -200,3 +202,20 @@ class NeighbourTable:
             )
             for s in SOURCES
         }
+
+
+class NeighbourFeed:
+    """A link's service that feeds the drone's one table, counting what it brings as ``source``."""
+
+    handles: frozenset[int] = NeighbourTable.handles
+
+    def __init__(self, table: NeighbourTable, source: NeighbourSource) -> None:
+        self.table = table
+        self.source = source
+
+    def handle(self, msg: MAVLinkMessage, now_s: float) -> list[Effect]:
+        self.table.receive(msg, now_s, self.source)
+        return []
+
+    def poll(self, now_s: float) -> list[Effect]:
+        return self.table.poll(now_s)

@@ -79,10 +79,10 @@ def test_nine_drones_fly_grid_to_circle_on_the_mesh_alone_with_a_tenth_of_every_
     assert metrics["collisions"] == 0, metrics["collision_events"]
     circle = next(s for s in metrics["steps"] if s["name"] == "circle")
     assert circle["formation_rms_m"] is not None and circle["formation_rms_m"] < 0.3, circle
-    # AND nothing was relayed: no neighbour traffic on any MAVLink link, the tables filled from the mesh alone
-    links = metrics["links"]
-    assert "neighbour up" not in links, links
-    mesh = links["neighbour mesh"]
+    # AND nothing was relayed: no neighbour position came on a ground-station link, the tables filled from the mesh
+    # (a drone's API link streams to the API port of the instance 40 below it: another test's drones there, flying
+    # at the same time, would be heard over that link, and counted apart as link_updates)
+    mesh = metrics["links"]["neighbour mesh"]
     assert mesh["relay_updates"] == 0 and mesh["mesh_updates"] > 0, mesh
     # AND the report counts the mesh: 9 drones x 8 neighbours x ~10 reports/s x ~50 s offered, every one delivered
     # or lost for one reason; nobody beyond 15 m in a 6 m circle, some path loss, and the model's tenth of the rest
@@ -92,7 +92,7 @@ def test_nine_drones_fly_grid_to_circle_on_the_mesh_alone_with_a_tenth_of_every_
     assert mesh["lost_range"] == 0 and mesh["lost_overrun"] == 0, mesh
     assert 0 < mesh["lost_path"] < 0.05 * mesh["frames_offered"], mesh
     assert 0.08 < mesh["lost_model"] / (mesh["frames_offered"] - mesh["lost_path"]) < 0.12, mesh
-    assert mesh["mesh_updates"] <= mesh["frames_delivered"]
+    assert mesh["mesh_updates"] == mesh["frames_delivered"]  # the mesh alone: no copy of a report came another way
     # AND each drone's log says what its radio heard and what its table took from where
     log = (report / "logs" / "drone-172.log").read_text()
     assert "sitl 172: mesh radio: range 15 m, path loss (d/range)^4" in log

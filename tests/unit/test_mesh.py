@@ -15,7 +15,7 @@ from sitl.dynamics.geodesy import geo_from_ned
 from sitl.dynamics.plant import DEFAULT_HOME
 from sitl.linkmodel import LinkImpairment
 from sitl.mesh import MESH_RATE_HZ, MeshCounters, MeshMedium, MeshRadio, MeshSettings, mesh_problem
-from sitl.protocol.neighbours import MESH, RELAY, NeighbourTable
+from sitl.protocol.neighbours import LINK, MESH, RELAY, NeighbourFeed, NeighbourTable
 from sitl.world import MESH_SLOT_BYTES, MESH_SLOTS, SharedWorld
 
 pytestmark = pytest.mark.timeout(60)
@@ -244,3 +244,15 @@ def test_the_table_counts_the_age_of_each_source_s_entries_where_they_are_read()
     assert counts[MESH].age_samples == 2
     assert counts[MESH].mean_sent_age_s == pytest.approx(0.2)  # sent at 1.0 s (time_boot_ms 1000)
     assert counts[RELAY].mean_sent_age_s == pytest.approx(0.3)  # sent at 0.9 s: 0.1 s on the way
+
+
+def test_each_link_feeds_the_one_table_as_its_own_source() -> None:
+    table = NeighbourTable(own_sysid=1)
+    relay, client = NeighbourFeed(table, RELAY), NeighbourFeed(table, LINK)
+    assert relay.handles == client.handles == NeighbourTable.handles
+    relay.handle(decoded(report(2, 1000)), 1.0)
+    client.handle(decoded(report(3, 1000)), 1.0)
+    assert [(n.sysid, n.source) for n in table.entries(1.0)] == [(2, RELAY), (3, LINK)]
+    assert {s: c.updates for s, c in table.counts().items()} == {RELAY: 1, LINK: 1, MESH: 0}
+    client.poll(5.0)  # any feed's poll expires the shared table's stale entries
+    assert table.entries(5.0) == []
