@@ -51,6 +51,39 @@ duration_s = 3.0
 action = "land"
 """
 
+# Four drones from a 2 x 2 grid onto a turning circle of radius 2.5 m and down again, on a short mesh.
+MESH_CIRCLE = """
+name = "mesh_circle"
+[swarm]
+drones = 4
+layout = "grid"
+spacing_m = 2.5
+neighbours = "mesh"
+
+[swarm.mesh]
+range_m = 4
+
+[swarm.links.neighbour]
+loss = 0.1
+latency_ms = 30
+jitter_ms = 20
+
+[[steps]]
+action = "takeoff"
+alt_m = 3.0
+
+[[steps]]
+action = "formation"
+shape = "circle"
+radius_m = 2.5
+alt_m = 3.0
+angular_rate_radps = 0.3
+hold_s = 6.0
+
+[[steps]]
+action = "land"
+"""
+
 
 def mesh_mission(tmp_path: Path, name: str, swarm: str, tables: str) -> str:
     """A shipped mission with ``swarm`` added to its [swarm] table and ``tables`` after it, written to tmp_path."""
@@ -103,22 +136,21 @@ def test_nine_drones_fly_grid_to_circle_on_the_mesh_alone_with_a_tenth_of_every_
 
 @pytest.mark.timeout(900)
 def test_a_mesh_mission_flies_the_same_on_an_idle_and_a_loaded_machine(tmp_path: Path) -> None:
-    # GIVEN four drones on a 2.5 m circle hearing each other over a 4 m mesh (the opposite ones, 5 m apart, out of
-    # range) with a lossy, late and jittery neighbour link
-    mission = mesh_mission(tmp_path, "square_four.toml", 'neighbours = "mesh"\n',
-                           "[swarm.mesh]\nrange_m = 4\n\n[swarm.links.neighbour]\nloss = 0.1\nlatency_ms = 30\n"
-                           "jitter_ms = 20\n")  # fmt: skip
+    # GIVEN four drones turning on a 2.5 m circle, hearing each other over a 4 m mesh (the opposite ones, 5 m apart,
+    # out of range) with a lossy, late and jittery neighbour link
+    mission = tmp_path / "mesh_circle.toml"
+    mission.write_text(MESH_CIRCLE)
     # WHEN it is flown twice with the same seeds, the second time with every CPU kept busy by other work
-    first, first_report = fly(mission, tmp_path / "idle")
+    first, first_report = fly(str(mission), tmp_path / "idle")
     with busy_cpus():
-        second, second_report = fly(mission, tmp_path / "loaded")
+        second, second_report = fly(str(mission), tmp_path / "loaded")
     # THEN the mesh delivered and lost reports for every reason the mission allows
     mesh = first["links"]["neighbour mesh"]
-    assert mesh["frames_delivered"] > 1000 and mesh["lost_range"] > 0 and mesh["lost_path"] > 0, mesh
+    assert mesh["frames_delivered"] > 500 and mesh["lost_range"] > 0 and mesh["lost_path"] > 0, mesh
     assert mesh["lost_model"] > 0 and mesh["frames_delayed"] > 0, mesh
     # AND both flight logs hold the same messages in the same order, and both reports the same figures
     a, b = tlog_messages(first_report / "flight.tlog"), tlog_messages(second_report / "flight.tlog")
-    assert len(a) > 5000
+    assert len(a) > 3000
     first_difference = next((k for k, (x, y) in enumerate(zip(a, b, strict=False)) if x != y), None)
     assert first_difference is None, (first_difference, a[first_difference][:2], b[first_difference][:2])
     assert len(a) == len(b)
