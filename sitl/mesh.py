@@ -200,11 +200,11 @@ class MeshMedium:
             k = first
             while k < count:
                 slot = k % MESH_SLOTS
-                row = meta[slot]
+                row = meta[slot].tolist()  # one call for the three numbers (numpy scalars cost one each)
                 if until_step is not None and row[MESH_STEP] > until_step:
                     self._waiting = True  # not due yet: look again at the next step, changed counts or not
                     break
-                out.append((float(row[MESH_TIME]), sender, frames[slot, : int(row[MESH_LENGTH])].tobytes()))
+                out.append((row[MESH_TIME], sender, frames[slot, : int(row[MESH_LENGTH])].tobytes()))
                 k += 1
             self._read[sender] = k
         out.sort(key=lambda post: (post[0], post[1]))
@@ -227,7 +227,8 @@ class MeshRadio:
             LinkChannel(impairment, channel_rng) if impairment is not None and not impairment.is_perfect else None
         )
         self._path_rng = path_rng
-        self._inbox: DelayLine[bytes] = DelayLine()
+        self._inbox: DelayLine[bytes] = DelayLine()  # heard later than the step that took them (latency, jitter)
+        self._ready: list[bytes] = []  # heard at the step that took them, in order
         self._steps = 0
         self._next_post_s = -math.inf
         self._offered = 0
@@ -257,7 +258,11 @@ class MeshRadio:
                 self._receive(posts, now_s)
         inbox = self._inbox
         due_by_s = now_s + _TIME_TOLERANCE_S
-        return inbox.pop_due(due_by_s) if inbox.next_due_s <= due_by_s else []
+        heard = inbox.pop_due(due_by_s) if inbox.next_due_s <= due_by_s else []
+        if self._ready:
+            heard += self._ready
+            self._ready = []
+        return heard
 
     def _receive(self, posts: list[tuple[float, int, bytes]], now_s: float) -> None:
         """Range, path loss (one draw per post, whatever its distance: the draws stay aligned with the posts) and the
@@ -267,7 +272,7 @@ class MeshRadio:
         loss = self.settings.loss_probabilities(distances_m(bodies[self.medium.instance], bodies[senders])).tolist()
         draws = self._path_rng.random(len(posts)).tolist()
         lockstep = self.quantum_steps is not None
-        channel, inbox = self.channel, self._inbox
+        channel, inbox, ready = self.channel, self._inbox, self._ready
         self._offered += len(posts)
         for (time_s, _sender, frame), p, draw in zip(posts, loss, draws, strict=True):
             if p >= 1.0:
@@ -281,7 +286,10 @@ class MeshRadio:
             if due_s is None:
                 continue
             self._delivered += 1
-            inbox.push(due_s, frame)
+            if due_s <= now_s and not inbox:  # heard now, and nothing is held before it: no need to queue
+                ready.append(frame)
+            else:
+                inbox.push(due_s, frame)
 
     def counters(self) -> MeshCounters:
         model = self.channel.counters() if self.channel is not None else LinkCounters()
