@@ -23,6 +23,7 @@ import argparse
 import json
 import os
 import re
+import signal
 import subprocess
 import sys
 import tempfile
@@ -105,6 +106,33 @@ def tlog_counts(path: Path) -> dict[int, int]:
     return counts
 
 
+def _interrupt(_signum: int, _frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def watch(proc: subprocess.Popen[str], first: int, last: int, sample_s: float, samples: list[dict[str, float]],
+          start: float) -> None:  # fmt: skip
+    """Until the swarm ends: follow its simulated time from its status lines and sample its drones' memory and CPU
+    every ``sample_s`` wall seconds (each sample also to stderr, so a long soak shows its progress)."""
+    sim_s = 0.0
+    next_sample = start
+    drones = last - first + 1
+    while proc.poll() is None:
+        for line in proc.stdout or []:
+            if match := STATUS_TIME.search(line):
+                sim_s = float(match.group(1))
+        if time.monotonic() >= next_sample:
+            pids = drone_processes(first, last)
+            if pids:
+                pss_mb, cpu_s = sample(pids)
+                samples.append({"wall_s": round(time.monotonic() - start, 1), "sim_s": sim_s,
+                                "pss_mb_per_drone": round(pss_mb / drones, 2),
+                                "cpu_s_per_drone": round(cpu_s / drones, 2)})  # fmt: skip
+                print(f"soak: {samples[-1]}", file=sys.stderr, flush=True)
+            next_sample += sample_s
+        time.sleep(0.5)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--minutes", type=float, default=60.0, help="simulated minutes on the circle (default 60)")
@@ -126,27 +154,20 @@ def main() -> int:
            "--no-forward"]  # fmt: skip
     last = args.first_instance + args.drones - 1
     samples: list[dict[str, float]] = []
-    sim_s = 0.0
     start = time.monotonic()
+    interrupted = False
+    signal.signal(signal.SIGTERM, _interrupt)  # a soak stopped from outside stops its swarm and still reports
     with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1) as proc:
         os.set_blocking(proc.stdout.fileno(), False)  # type: ignore[union-attr]
-        next_sample = start
-        while proc.poll() is None:
-            for line in proc.stdout or []:
-                if match := STATUS_TIME.search(line):
-                    sim_s = float(match.group(1))
-            if time.monotonic() >= next_sample:
-                pids = drone_processes(args.first_instance, last)
-                if pids:
-                    pss_mb, cpu_s = sample(pids)
-                    samples.append({"wall_s": round(time.monotonic() - start, 1), "sim_s": sim_s,
-                                    "pss_mb_per_drone": round(pss_mb / args.drones, 2),
-                                    "cpu_s_per_drone": round(cpu_s / args.drones, 2)})  # fmt: skip
-                next_sample += args.sample_s
-            time.sleep(0.5)
+        try:
+            watch(proc, args.first_instance, last, args.sample_s, samples, start)
+        except KeyboardInterrupt:
+            interrupted = True
+            proc.terminate()  # swarm fly lands, stops every drone and writes its report
+        proc.wait()
         rest = proc.stdout.read() if proc.stdout else ""
         code = proc.returncode
-    if code != 0:
+    if code != 0 and not interrupted:
         print(f"soak: error: swarm fly exited with {code}: {rest[-500:]}", file=sys.stderr)
         return 1
     metrics: dict[str, Any] = json.loads((out / "metrics.json").read_text())
@@ -160,7 +181,8 @@ def main() -> int:
         growth = round((final - first) / first, 4)
     circle: dict[str, Any] = next((s for s in metrics["steps"] if s["name"] == "circle"), {})
     print(json.dumps({
-        "simulated_minutes": args.minutes, "loss": args.loss, "drones": args.drones,
+        "simulated_minutes": args.minutes, "loss": args.loss, "drones": args.drones, "interrupted": interrupted,
+        "simulated_s_flown": samples[-1]["sim_s"] if samples else 0.0,
         "wall_s": round(time.monotonic() - start, 1), "report": str(out),
         "memory_growth_after_first_minute": growth,
         "links": metrics["links"],

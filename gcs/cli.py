@@ -372,6 +372,14 @@ def build_parser() -> argparse.ArgumentParser:
     fault.add_argument("sysid", type=_sysid, help="the drone's sysid")
     fault.add_argument("kind", choices=FAULT_NAMES, metavar="KIND", help=f"one of: {', '.join(FAULT_NAMES)}")
     fault.add_argument("--motor", type=int, default=None, help="motor fault: the rotor, 1-based (default 1; 0 = all)")
+    fault.add_argument(
+        "--for",
+        dest="for_s",
+        type=float,
+        default=None,
+        metavar="S",
+        help="link fault: the links come back after S simulated seconds (default: silent for good)",
+    )
     kill = sub.add_parser("kill", help="kill one drone's process with SIGKILL (a crash of its flight software)")
     kill.add_argument("sysid", type=_sysid, help="the drone's sysid")
     sub.add_parser("land", help="land every drone where it is")
@@ -584,10 +592,11 @@ def run_client(args: argparse.Namespace) -> int:
     elif args.command in ("fault", "kill"):
         kind = CRASH if args.command == "kill" else args.kind
         try:
-            fault_request(kind, getattr(args, "motor", None))
+            fault_request(kind, getattr(args, "motor", None), getattr(args, "for_s", None))
         except FaultError as exc:
             raise UsageError(str(exc)) from None
-        request = {"cmd": "fault", "sysid": args.sysid, "kind": kind, "motor": getattr(args, "motor", None)}
+        request = {"cmd": "fault", "sysid": args.sysid, "kind": kind, "motor": getattr(args, "motor", None),
+                   "for_s": getattr(args, "for_s", None)}  # fmt: skip
     response = ControlClient().request(request)
     if not response.get("ok"):
         print(f"swarm: error: {response.get('error', 'failed')}", file=sys.stderr)

@@ -21,6 +21,7 @@ _OK, _OFF, _WRONG = mavlink.FAILURE_TYPE_OK, mavlink.FAILURE_TYPE_OFF, mavlink.F
 ENABLE_PARAM = "SYS_FAILURE_EN"
 BATTERY_LEVEL_PARAM = "SYS_FAIL_BAT_LVL"
 CRASH = "crash"
+MAX_LINK_FAULT_S = 86_400.0  # a link fault lasts at most a day of simulated time (longer: leave the duration out)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -50,7 +51,7 @@ FAULTS: dict[str, FaultKind] = {
         FaultKind(name="battery-off", unit=_BATTERY, failure_type=_OFF,
                   help="the pack reads empty"),
         FaultKind(name="link", unit=_LINK, failure_type=_OFF,
-                  help="both MAVLink links go silent for good; the drone flies on"),
+                  help="both MAVLink links go silent, for good or for a time (--for S); the drone flies on"),
         FaultKind(name="motor-ok", unit=_MOTOR, failure_type=_OK,
                   help="clears a motor fault"),
         FaultKind(name="gps-ok", unit=_GPS, failure_type=_OK,
@@ -75,24 +76,42 @@ class FaultError(ValueError):
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class FaultRequest:
-    """One injection: the fault, and for a motor fault which rotor (1-based; 0 = all)."""
+    """One injection: the fault, for a motor fault which rotor (1-based; 0 = all), for a link fault how long."""
 
     kind: str  # a key of FAULTS, or CRASH
     motor: int = 1
+    for_s: float | None = None  # link: silent this long (INJECT_FAILURE param4, the simulator's own), else for good
 
     @property
     def instance(self) -> int:
         """INJECT_FAILURE param3: the rotor for a motor fault, else 0 (every instance of the unit)."""
         return self.motor if self.kind in FAULTS and FAULTS[self.kind].unit == _MOTOR else 0
 
+    @property
+    def duration_param(self) -> float:
+        """INJECT_FAILURE param4: a link fault's duration in seconds, 0 (PX4's value: unused) for good."""
+        return self.for_s if self.for_s is not None else 0.0
+
     def describe(self) -> str:
-        return f"motor {self.motor} off" if self.kind == "motor" else self.kind
+        if self.kind == "motor":
+            return f"motor {self.motor} off"
+        return f"{self.kind} for {self.for_s:g} s" if self.for_s is not None else self.kind
 
 
-def fault_request(kind: object, motor: object = None) -> FaultRequest:
-    """Check a fault name (and rotor number) from the CLI or a mission file; FaultError says what is wrong."""
+def fault_request(kind: object, motor: object = None, for_s: object = None) -> FaultRequest:
+    """Check a fault name (and rotor number, or a link fault's duration) from the CLI or a mission file; FaultError
+    says what is wrong."""
     if not isinstance(kind, str) or kind not in FAULT_NAMES:
         raise FaultError(f"unknown fault {kind!r} (faults: {', '.join(FAULT_NAMES)})")
+    if for_s is not None:
+        if kind != "link":
+            raise FaultError(f"a duration applies only to the link fault, not to {kind!r}")
+        if motor is not None:
+            raise FaultError(f"a motor number applies only to the motor fault, not to {kind!r}")
+        if isinstance(for_s, bool) or not isinstance(for_s, int | float) or not 0 < for_s <= MAX_LINK_FAULT_S:
+            raise FaultError(f"a link fault's duration must be a number of seconds in (0, {MAX_LINK_FAULT_S:g}], "
+                             f"got {for_s!r}")  # fmt: skip
+        return FaultRequest(kind=kind, for_s=float(for_s))
     if motor is None:
         return FaultRequest(kind=kind)
     if kind not in ("motor", "motor-ok"):

@@ -1,9 +1,10 @@
 """Drones the swarm has lost, as the ground station records them: when, why, and where each came down.
 
 A drone is lost when its flight software ends for any reason (the simulation harness says how), when it crashes
-(a collision, a motor failure), or when its link stays silent (no HEARTBEAT for the link-loss time). The supervisor
+(a collision, a motor failure), or when its link stays silent (nothing heard for the link-loss time). The supervisor
 records each loss once; formations and behaviours plan over the drones that are not lost, and the flight report
-lists every loss.
+lists every loss. A silent drone that is heard again is taken back, as QGroundControl says "communication regained":
+its loss ends (``regained_s``) and what the swarm flies takes it in again (gcs/degrade.py ``apply_regain``).
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ class DroneLoss:
     time_s: float  # on the supervisor's clock (simulated seconds)
     cause: str  # one line: "process killed by SIGKILL", "crashed: Collision with drone 2 at 0.61 m", "link lost"
     down_ne_m: tuple[float, float] | None = None  # where it came to rest, north/east of the swarm origin, once known
+    silent: bool = False  # lost because nothing was heard from it: taken back when it is heard again
+    regained_s: float | None = None  # when it was heard again (supervisor's clock), for a silent loss that ended
 
 
 # How far from a wreck (centre to centre, horizontally) a survivor lands: two collision radii (0.7 m for the F450)
@@ -81,3 +84,9 @@ LOSS_POLICIES = tuple(p.value for p in LossPolicy)
 def loss_line(loss: DroneLoss) -> str:
     """The supervisor's one line for a loss: ``drone 3 lost at t=22.4 s: process killed by SIGKILL``."""
     return f"drone {loss.sysid} lost at t={loss.time_s:.1f} s: {loss.cause}"
+
+
+def regain_line(loss: DroneLoss) -> str:
+    """The supervisor's one line for a silent drone heard again: ``drone 3 link regained at t=27.0 s (lost 1.6 s)``."""
+    regained_s = loss.time_s if loss.regained_s is None else loss.regained_s
+    return f"drone {loss.sysid} link regained at t={regained_s:.1f} s (lost {regained_s - loss.time_s:.1f} s)"

@@ -176,6 +176,7 @@ class FlightMetrics:
     separation: SeparationSeries
     loss_policy: str = "continue"
     losses: tuple[DroneLoss, ...] = ()
+    regained: tuple[DroneLoss, ...] = ()  # silent drones heard again and taken back
     faults: tuple[FaultRecord, ...] = ()
     failsafes: tuple[EventRecord, ...] = ()
     policy_events: tuple[EventRecord, ...] = ()
@@ -208,6 +209,7 @@ class FlightMetrics:
             "distance_flown_m": {str(k): _r(v) for k, v in self.distance_flown_m.items()},
             "loss_policy": self.loss_policy,
             "losses": [_loss_dict(x) for x in self.losses],
+            "regained": [_loss_dict(x) for x in self.regained],
             "faults": [
                 {"time_s": _r(f.time_s), "sysid": f.sysid, "fault": f.fault, "result": f.result} for f in self.faults
             ],
@@ -238,7 +240,10 @@ class FlightMetrics:
 
 def _loss_dict(loss: DroneLoss) -> dict[str, Any]:
     down = [_r(v) for v in loss.down_ne_m] if loss.down_ne_m is not None else None
-    return {"sysid": loss.sysid, "time_s": _r(loss.time_s), "cause": loss.cause, "down_ne_m": down}
+    out = {"sysid": loss.sysid, "time_s": _r(loss.time_s), "cause": loss.cause, "down_ne_m": down}
+    if loss.regained_s is not None:
+        out["regained_s"] = _r(loss.regained_s)
+    return out
 
 
 def link_summary(counts: dict[str, float]) -> dict[str, Any]:
@@ -573,11 +578,19 @@ def _distance_flown(track: _Track) -> float:
 
 
 def flying_samples(recording: FlightRecording) -> list[DroneSample]:
-    """The samples of drones still in the swarm: a lost drone's from before its loss only, so that formation
-    errors and separations are those of the drones still flying (a falling or silent drone is no formation
-    member; its stale last report is no separation)."""
+    """The samples of drones still in the swarm: a lost drone's from before its loss only (a silent one heard again:
+    none from its loss to its return), so that formation errors and separations are those of the drones still
+    flying (a falling or silent drone is no formation member; its stale last report is no separation)."""
     lost_at = {loss.sysid: loss.time_s for loss in recording.losses}
-    return [s for s in recording.samples if s.time_s < lost_at.get(s.sysid, math.inf)]
+    away: dict[int, list[tuple[float, float]]] = {}  # silent drones heard again: out of the swarm while lost
+    for loss in recording.regained:
+        away.setdefault(loss.sysid, []).append((loss.time_s, math.inf if loss.regained_s is None else loss.regained_s))
+    return [
+        s
+        for s in recording.samples
+        if s.time_s < lost_at.get(s.sysid, math.inf)
+        and not any(start <= s.time_s < end for start, end in away.get(s.sysid, ()))
+    ]
 
 
 def compute_metrics(recording: FlightRecording) -> FlightMetrics:
@@ -618,6 +631,7 @@ def compute_metrics(recording: FlightRecording) -> FlightMetrics:
         separation=SeparationSeries(time_s=grid, min_separation_m=series),
         loss_policy=recording.loss_policy,
         losses=tuple(recording.losses),
+        regained=tuple(recording.regained),
         faults=tuple(recording.faults),
         failsafes=tuple(recording.failsafes),
         policy_events=tuple(recording.policy_events),

@@ -18,8 +18,8 @@ hold_s = 30.0
 
 ``flock`` and ``follow`` steps carry the fields of ``FlockSpec`` and ``FollowSpec`` (gcs/behaviours.py; angles in
 degrees), and ``[swarm] params = { NAME = value }`` lists drone parameters set before arming (docs/missions.md).
-A ``fault`` step (``drone``, ``fault``, optional ``motor`` and ``after_s``) injects a fault (gcs/faults.py) and
-``[swarm] loss_policy`` says what the others do when a drone is lost (gcs/losses.py).
+A ``fault`` step (``drone``, ``fault``, optional ``motor``, ``for_s`` and ``after_s``) injects a fault
+(gcs/faults.py) and ``[swarm] loss_policy`` says what the others do when a drone is lost (gcs/losses.py).
 
 TOML is in the standard library (no new dependency) and reads well. A mistake is reported as one line
 ``FILE:LINE: steps[2].radius_m: must be a positive number``; tomllib gives no positions for values, so the line is
@@ -36,7 +36,7 @@ from pathlib import Path
 from typing import Any
 
 from gcs.behaviours import FlockSpec, FollowSpec
-from gcs.faults import FAULT_NAMES, FaultError, FaultRequest, fault_request
+from gcs.faults import FaultError, FaultRequest, fault_request
 from gcs.formation import CircleSpec, Formation, FormationError, GridSpec, LineSpec, VSpec
 from gcs.harness import LAYOUTS
 from gcs.links import (
@@ -492,7 +492,7 @@ def _step(reader: _Reader, step: Any, index: int, drones: int) -> Step:
 
 
 def _fault(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int | None], drones: int) -> FaultStep:
-    reader.check_keys(step, {"action", "drone", "fault", "motor", "after_s"}, where)
+    reader.check_keys(step, {"action", "drone", "fault", "motor", "after_s", "for_s"}, where)
     for key in ("drone", "fault"):
         if key not in step:
             raise reader.fail(where, None, f"missing field '{key}' for a fault step")
@@ -501,9 +501,12 @@ def _fault(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int |
         raise reader.fail(where, "drone", f"must be one of the swarm's drones 1..{drones}, got {drone}")
     try:
         fault_request(step["fault"])
-        fault = fault_request(step["fault"], step.get("motor"))
     except FaultError as exc:
-        raise reader.fail(where, "motor" if step["fault"] in FAULT_NAMES else "fault", str(exc)) from None
+        raise reader.fail(where, "fault", str(exc)) from None
+    try:
+        fault = fault_request(step["fault"], step.get("motor"), step.get("for_s"))
+    except FaultError as exc:
+        raise reader.fail(where, "for_s" if "for_s" in step else "motor", str(exc)) from None
     after = reader.number(step, "after_s", where, "nonneg") if "after_s" in step else 0.0
     return FaultStep(drone=drone, fault=fault, after_s=after)
 

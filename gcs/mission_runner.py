@@ -18,14 +18,14 @@ from pathlib import Path
 from typing import Literal
 
 from gcs.behaviours import LeaderFollower
-from gcs.degrade import apply_loss_policy
+from gcs.degrade import apply_loss_policy, apply_regain
 from gcs.faults import CRASH, result_text
 from gcs.formation import SETPOINT_STREAM_HZ
 from gcs.frames import SwarmFrame
 from gcs.geodesy import GeoPoint
 from gcs.harness import Simulation, SpawnPlan
 from gcs.links import LinkPlan
-from gcs.losses import LossPolicy, loss_line
+from gcs.losses import LossPolicy, loss_line, regain_line
 from gcs.mission_file import (
     FaultStep,
     FlockStep,
@@ -125,12 +125,19 @@ class MissionRunner:
             self.say(f"[{now:6.1f} s] {self._step_name:<10} {live}{pace}")
 
     def _watch_losses(self, now: float) -> None:
-        """Each new loss: one line, one record, and the mission's loss policy."""
+        """Each new loss: one line, one record, and the mission's loss policy; each silent drone heard again: one
+        line, and it is taken back."""
         for loss in self.swarm.detect_losses(now):
             self.say(loss_line(loss))
             line = apply_loss_policy(self.mission.loss_policy, self.streamer, loss, now)
             if self.mission.loss_policy is not LossPolicy.CONTINUE:
                 self._policy_taken = True
+            if line is not None:
+                self.say(f"  swarm: {line}")
+                self.recording.policy_events.append(EventRecord(time_s=now, sysid=loss.sysid, text=line))
+        for loss in self.swarm.detect_regains(now):
+            self.say(regain_line(loss))
+            line = apply_regain(self.mission.loss_policy, self.streamer, loss, now, policy_taken=self._policy_taken)
             if line is not None:
                 self.say(f"  swarm: {line}")
                 self.recording.policy_events.append(EventRecord(time_s=now, sysid=loss.sysid, text=line))
@@ -321,6 +328,7 @@ class MissionRunner:
         finally:
             self.streamer.stop()
             self.recording.losses = list(self.swarm.losses.values())
+            self.recording.regained = list(self.swarm.regained)
             self.swarm.shutdown()
             self.recording.link_counters = self.swarm.harness.link_counters()
             self.recorder.close()

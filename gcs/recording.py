@@ -72,6 +72,7 @@ class FlightRecording:
     # What the link model did, by channel ("gcs up", ...), summed over the drones (SimulationHarness.link_counters)
     link_counters: dict[str, dict[str, float]] = field(default_factory=dict)
     losses: list[DroneLoss] = field(default_factory=list)  # as finally known (where each came down, once it did)
+    regained: list[DroneLoss] = field(default_factory=list)  # silent drones heard again (each with regained_s)
     faults: list[FaultRecord] = field(default_factory=list)
     failsafes: list[EventRecord] = field(default_factory=list)  # a drone entering failsafe, with its warning
     policy_events: list[EventRecord] = field(default_factory=list)  # what the swarm did about each loss

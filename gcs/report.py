@@ -387,13 +387,19 @@ def faults_text(metrics: FlightMetrics) -> list[str]:
     if metrics.failsafes:
         lines.append(f"failsafes: {len(metrics.failsafes)}")
         lines += [f"  {e.time_s:7.1f} s  drone {e.sysid}: {e.text}" for e in metrics.failsafes]
-    lines.append(f"drones lost: {len(metrics.losses)} (loss policy: {metrics.loss_policy})")
+    regained = f", {len(metrics.regained)} more heard again" if metrics.regained else ""
+    lines.append(f"drones lost: {len(metrics.losses)}{regained} (loss policy: {metrics.loss_policy})")
     for loss in metrics.losses:
         down = loss.down_ne_m
         where = "not seen on the ground" if down is None else f"down at {down[0]:.1f} m N, {down[1]:.1f} m E"
         lines.append(f"  {loss.time_s:7.1f} s  drone {loss.sysid}: {loss.cause}; {where}")
+    for loss in metrics.regained:
+        lines.append(f"  {loss.time_s:7.1f} s  drone {loss.sysid}: {loss.cause}; regained at {loss.regained_s:.1f} s")
     lines += [f"  {e.time_s:7.1f} s  swarm: {e.text}" for e in metrics.policy_events]
-    if metrics.losses:
-        lines.append("  (formation errors and separations count each lost drone only until its loss)")
+    if metrics.losses or metrics.regained:
+        lines.append(
+            "  (formation errors and separations count each lost drone only until its loss, and each drone "
+            "heard again from its return)"
+        )
     lines.append("")
     return lines

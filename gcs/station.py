@@ -14,10 +14,10 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.degrade import apply_loss_policy
+from gcs.degrade import apply_loss_policy, apply_regain
 from gcs.faults import CRASH, FaultError, fault_request, result_text
 from gcs.frames import SwarmFrame
-from gcs.losses import MAV_STATE_CRITICAL, LossPolicy, loss_line
+from gcs.losses import MAV_STATE_CRITICAL, LossPolicy, loss_line, regain_line
 from gcs.mission_file import build_flock, build_follow, build_formation
 from gcs.procedures import PaceWatch
 from gcs.recorder import FlightRecorder
@@ -40,6 +40,7 @@ class Station:
         self.swarm = swarm
         self.say = say
         self.loss_policy = loss_policy
+        self._policy_taken = False  # a loss policy other than continue has taken the survivors out of the flight
         self.streamer = FormationStreamer(swarm, SwarmFrame(swarm.plan.origin))
         self._t0 = swarm.clock()
         self.stop_requested = False
@@ -58,7 +59,7 @@ class Station:
                                            report_dir / "flight.tlog", say=None)  # fmt: skip
         self._step: StepRecord | None = None  # the command being flown, for the report
 
-    def _begin_step(self, request: dict[str, Any]) -> None:
+    def begin_step(self, request: dict[str, Any]) -> None:
         """A command that changes what the swarm flies ends the report's current step and starts the next."""
         now = self.mission_time()
         self._end_step(now)
@@ -85,6 +86,7 @@ class Station:
             return None
         self._end_step(self.recording.steps[-1].end_s if self.recording.steps else 0.0)
         self.recording.losses = list(self.swarm.losses.values())
+        self.recording.regained = list(self.swarm.regained)
         self.recording.link_counters = self.swarm.harness.link_counters()
         self.recorder.close()
         return write_report(self.recording, self.report_dir)
@@ -110,15 +112,23 @@ class Station:
         for loss in self.swarm.detect_losses(self.mission_time()):
             self.say(loss_line(loss))
             line = apply_loss_policy(self.loss_policy, self.streamer, loss, self.mission_time())
+            self._policy_taken = self._policy_taken or self.loss_policy is not LossPolicy.CONTINUE
             if line is not None:
                 self.say(f"swarm: {line}")
                 self.recording.policy_events.append(EventRecord(time_s=loss.time_s, sysid=loss.sysid, text=line))
+        now = self.mission_time()
+        for loss in self.swarm.detect_regains(now):
+            self.say(regain_line(loss))
+            line = apply_regain(self.loss_policy, self.streamer, loss, now, policy_taken=self._policy_taken)
+            if line is not None:
+                self.say(f"swarm: {line}")
+                self.recording.policy_events.append(EventRecord(time_s=now, sysid=loss.sysid, text=line))
 
     # ---- requests --------------------------------------------------------------------------------------------------
     def handle(self, request: dict[str, Any]) -> dict[str, Any]:
         response = self._handle(request)
         if response.get("ok") and request["cmd"] in STEP_COMMANDS:
-            self._begin_step(request)
+            self.begin_step(request)
         return response
 
     def _handle(self, request: dict[str, Any]) -> dict[str, Any]:
@@ -174,7 +184,7 @@ class Station:
         if sysid in self.swarm.losses:
             return {"ok": False, "error": f"drone {sysid} is already lost ({self.swarm.losses[sysid].cause})"}
         try:
-            fault = fault_request(request.get("kind"), request.get("motor"))
+            fault = fault_request(request.get("kind"), request.get("motor"), request.get("for_s"))
         except FaultError as exc:
             return {"ok": False, "usage": True, "error": str(exc)}
         if fault.kind == CRASH:

@@ -14,7 +14,9 @@ altitude (``TYPE_MASK_VEL_XY_POS_Z``).
 
 from __future__ import annotations
 
+import logging
 import math
+from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -23,7 +25,9 @@ from gcs.crossing import CrossingMove, antipodal_goals
 from gcs.formation import SETPOINT_STREAM_HZ, Formation, FormationEngine, FormationError, Setpoint, TransitionLimits
 from gcs.frames import DroneFrame, SwarmFrame, Vec3, origin_from_home
 from gcs.geodesy import GeoPoint
-from gcs.swarm import Swarm, SwarmError, check
+from gcs.swarm import HOLD_MODE, Swarm, SwarmError, check
+
+log = logging.getLogger(__name__)
 
 # Position setpoint with velocity and acceleration feed-forward; yaw and yaw rate ignored (type_mask bits 10, 11).
 TYPE_MASK_POS_VEL_ACC = 0b0000_1100_0000_0000
@@ -48,6 +52,16 @@ OFFBOARD_MODE = (1.0, 6.0, 0.0)  # DO_SET_MODE: custom mode enabled, main mode O
 OFFBOARD_ATTEMPTS = 3  # switches asked of a drone that refuses OFFBOARD for want of a setpoint...
 OFFBOARD_RETRY_S = 0.5  # ...with this long of setpoints streamed in between (10 at SETPOINT_STREAM_HZ)
 DEFAULT_LIMITS = TransitionLimits(max_speed_mps=1.5, max_accel_mps2=1.0)
+_SET_MODE = mavlink.MAV_CMD_DO_SET_MODE
+
+
+@dataclass(slots=True)
+class _Rejoin:
+    """A drone taken back after its link came back, on its way into OFFBOARD (``FormationStreamer.tick``)."""
+
+    due_s: float  # when to ask for OFFBOARD (after OFFBOARD_RETRY_S of setpoints)
+    attempts: int = 0  # switches asked so far
+    asked: bool = False  # one is waiting for its answer
 
 
 def type_mask(sp: Setpoint) -> int:
@@ -86,6 +100,8 @@ class FormationStreamer:
         self.formation: Formation | None = None
         self.behaviour: Behaviour | None = None
         self._frames: dict[int, DroneFrame] = {}
+        self._rejoining: dict[int, _Rejoin] = {}  # sysid -> its way back into OFFBOARD
+        swarm.stream_tick = self.tick  # setpoints go on while a command waits for its answer
 
     def drone_frame(self, sysid: int) -> DroneFrame | None:
         """The drone's local frame, once its HOME_POSITION has arrived."""
@@ -164,6 +180,11 @@ class FormationStreamer:
         self._start_behaviour(behaviour, now_s)
         return behaviour
 
+    def command_behaviour(self, behaviour: Behaviour, now_s: float, what: str = "a controller") -> None:
+        """Stream any ``Behaviour`` (a user's controller, gcs/api) to every drone, in OFFBOARD."""
+        self._check_ready(what)
+        self._start_behaviour(behaviour, now_s)
+
     def _start_behaviour(self, behaviour: Behaviour, now_s: float) -> None:
         self.behaviour = behaviour
         self.formation = None
@@ -176,12 +197,13 @@ class FormationStreamer:
         drone whose first setpoint was lost on the way (a lossy link) refuses, so the stream goes on for
         OFFBOARD_RETRY_S and the drones that refused are asked again, up to OFFBOARD_ATTEMPTS times. On a perfect
         link the first answer is yes and nothing waits."""
+        self._rejoining.clear()  # every drone is asked below
         if not self.active:
             self.active = True
             self.tick(now_s)
             pending = self.swarm.active_sysids
             for attempt in range(OFFBOARD_ATTEMPTS):
-                acks = self.swarm.command_all(mavlink.MAV_CMD_DO_SET_MODE, *OFFBOARD_MODE, sysids=pending)
+                acks = self.swarm.command_all(_SET_MODE, *OFFBOARD_MODE, sysids=pending)
                 pending = [ack.sysid for ack in acks if not ack.ok]
                 if not pending or attempt == OFFBOARD_ATTEMPTS - 1:
                     break
@@ -213,9 +235,67 @@ class FormationStreamer:
             return f"flocking goes on with {len(survivors)} drones"
         return None
 
+    def handle_regain(self, sysid: int, now_s: float) -> str | None:
+        """Take drone ``sysid`` back into what is being flown (heard again after a link loss, already out of
+        ``swarm.losses``), if it still flies. A formation re-plans over every drone with it (the same synchronised,
+        collision-aware transition as a change); flocking counts it again. Its setpoints stream at once, and after
+        OFFBOARD_RETRY_S of them it is switched back to OFFBOARD (``tick``): meanwhile its offboard-loss failsafe
+        has it holding or landing. Leader-follower and a swap were planned without it and cannot take it in
+        mid-flight: it holds where it is (PX4 Hold) until the next formation or behaviour command. A drone that
+        came down meanwhile stays on the ground. Returns one line saying what happened, or None."""
+        if not self.active:
+            return None
+        view = self.swarm.fleet.drones.get(sysid)
+        if view is None or not view.armed or view.landed_state == mavlink.MAV_LANDED_STATE_ON_GROUND:
+            return f"sysid {sysid} is on the ground: it stays out of the flight"
+        if self.behaviour is None and self.formation is not None:
+            positions = self.positions()
+            try:
+                transition = self.engine.command(self.formation, now_s, positions)
+            except FormationError as exc:
+                self.swarm.command_start(sysid, _SET_MODE, *HOLD_MODE)
+                return f"formation not re-planned with sysid {sysid} ({exc}): it holds where it is"
+            self._rejoining[sysid] = _Rejoin(due_s=now_s + OFFBOARD_RETRY_S)
+            return (
+                f"formation re-planned over {len(positions)} drones, sysid {sysid} back "
+                f"(arrival in {transition.duration_s:.1f} s)"
+            )
+        if isinstance(self.behaviour, Flock):
+            self._rejoining[sysid] = _Rejoin(due_s=now_s + OFFBOARD_RETRY_S)
+            return f"sysid {sysid} flocks again"
+        self.swarm.command_start(sysid, _SET_MODE, *HOLD_MODE)
+        return f"sysid {sysid} holds where it is until the next formation or behaviour command"
+
+    def _rejoin_due(self, now_s: float) -> None:
+        """Switch the drones taken back into OFFBOARD once their setpoints have streamed for a while; a refusal (a
+        setpoint lost on the way) is asked again after OFFBOARD_RETRY_S more, up to OFFBOARD_ATTEMPTS times, as
+        ``_offboard`` does. Never waits: the answers are picked up at later ticks."""
+        for sysid, rejoin in list(self._rejoining.items()):
+            if sysid in self.swarm.losses:  # lost again on its way back
+                del self._rejoining[sysid]
+                continue
+            if rejoin.asked:
+                ack = self.swarm.command_outcome(sysid, _SET_MODE)
+                if ack is None and self.swarm.commands.in_flight(sysid, _SET_MODE):
+                    continue
+                rejoin.asked = False
+                if ack is None or ack.ok:  # superseded by a later command, or back in OFFBOARD
+                    del self._rejoining[sysid]
+                    continue
+                if rejoin.attempts >= OFFBOARD_ATTEMPTS:
+                    log.warning("sysid %s refused OFFBOARD %d times after its link came back", sysid, rejoin.attempts)
+                    del self._rejoining[sysid]
+                    continue
+                rejoin.due_s = now_s + OFFBOARD_RETRY_S
+            if now_s >= rejoin.due_s:
+                self.swarm.command_start(sysid, _SET_MODE, *OFFBOARD_MODE)
+                rejoin.attempts += 1
+                rejoin.asked = True
+
     def stop(self) -> None:
         """Stop streaming (before a land or RTL command takes the drones out of OFFBOARD)."""
         self.active = False
+        self._rejoining.clear()
 
     def targets(self, now_s: float) -> dict[int, Vec3]:
         if not self.active:
@@ -225,6 +305,8 @@ class FormationStreamer:
     def tick(self, now_s: float) -> None:
         if not self.active:
             return
+        if self._rejoining:
+            self._rejoin_due(now_s)
         boot_ms = int(now_s * 1000) & 0xFFFFFFFF
         if self.behaviour is not None:
             state = self.state()

@@ -47,6 +47,7 @@ ARM_TIMEOUT_S = 30.0  # simulated seconds for every drone to pass its pre-arm ch
 # How far the drones may run ahead of the supervisor's last look. Under load the drones sit at this limit, so it is
 # the lag of setpoints and relayed positions in simulated time: 50 ms let an eight-drone swap touch on a busy machine.
 LOCKSTEP_LEAD_S = 0.02
+TICK_S = 0.05  # the period of a waiting loop's ``tick`` (the setpoint stream's 20 Hz)
 LOCKSTEP_STALL_S = 10.0  # wall seconds without progress before the supervisor calls the simulation stalled
 LOCKSTEP_MAX_WAIT_S = 0.005  # wall-clock cap on one wait for traffic in lockstep (simulated time has no wall rate)
 LOCKSTEP_AWAIT_S = 1.0  # wall seconds the supervisor waits for a datagram a drone says it has sent
@@ -101,6 +102,10 @@ class Swarm:
         self.batch_hold_s = batch_hold_s
         self._flush_due_s = math.inf  # when the queued traffic must leave (-inf: at the next pump)
         self.losses: dict[int, DroneLoss] = {}  # sysid -> the loss, recorded once
+        self.regained: list[DroneLoss] = []  # losses that ended: silent drones heard again (``detect_regains``)
+        # Streaming that must go on while a command or a parameter waits for its answer (the setpoint stream: PX4
+        # leaves OFFBOARD after COM_OF_LOSS_T without a setpoint, and on a lossy link an answer can take retries).
+        self.stream_tick: Callable[[float], None] | None = None
         self._next_gcs_heartbeat_s = 0.0
         self._heard_wall_s: dict[int, float] = {}
         self._said_late_traffic = False  # sysid -> wall time of its last HEARTBEAT
@@ -209,10 +214,25 @@ class Swarm:
             if view.system_status == MAV_STATE_FLIGHT_TERMINATION:
                 new.append(self._record_loss(sysid, time_s, crash_cause(view.texts, now)))
             elif view.lost(now) and (self.plan.lockstep or self._silent_on_the_wall_clock(sysid)):
-                cause = f"link lost (no HEARTBEAT for {view.link_age_s(now):.1f} s)"
-                new.append(self._record_loss(sysid, time_s, cause))
+                cause = f"link lost (nothing heard for {view.link_age_s(now):.1f} s)"
+                new.append(self._record_loss(sysid, time_s, cause, silent=True))
         self._settle_down_positions()
         return new
+
+    def detect_regains(self, time_s: float) -> list[DroneLoss]:
+        """Take back every drone lost for silence that has been heard again (QGroundControl's "communication
+        regained"), once: it leaves ``losses`` and its ended loss, with ``regained_s``, goes to ``regained``. A drone
+        lost any other way stays lost. What the swarm flies takes it in again (gcs/degrade.py ``apply_regain``)."""
+        back: list[DroneLoss] = []
+        now = self.clock()
+        for sysid, loss in list(self.losses.items()):
+            view = self.fleet.drones.get(sysid)
+            if loss.silent and view is not None and not view.lost(now):
+                del self.losses[sysid]
+                ended = dataclasses.replace(loss, regained_s=time_s)
+                self.regained.append(ended)
+                back.append(ended)
+        return back
 
     def _silent_on_the_wall_clock(self, sysid: int) -> bool:
         """Paced, a drone is lost when it is silent for the link-loss time on both clocks: a loaded machine that
@@ -222,8 +242,8 @@ class Swarm:
         counting wall seconds there kept a silent drone in the swarm when the simulation ran faster than real time."""
         return time.monotonic() - self._heard_wall_s.get(sysid, -math.inf) > LINK_LOST_S
 
-    def _record_loss(self, sysid: int, time_s: float, cause: str) -> DroneLoss:
-        loss = DroneLoss(sysid=sysid, time_s=time_s, cause=cause)
+    def _record_loss(self, sysid: int, time_s: float, cause: str, *, silent: bool = False) -> DroneLoss:
+        loss = DroneLoss(sysid=sysid, time_s=time_s, cause=cause, silent=silent)
         self.losses[sysid] = loss
         return loss
 
@@ -269,7 +289,8 @@ class Swarm:
         if kind.battery_level is not None:
             self.set_param(sysid, BATTERY_LEVEL_PARAM, kind.battery_level)
         command = mavlink.MAV_CMD_INJECT_FAILURE
-        acks = self.command_all(command, kind.unit, kind.failure_type, fault.instance, sysids=[sysid])
+        acks = self.command_all(command, kind.unit, kind.failure_type, fault.instance, fault.duration_param,
+                                sysids=[sysid])  # fmt: skip
         return acks[0]
 
     # ---- IO --------------------------------------------------------------------------------------------------------
@@ -295,17 +316,18 @@ class Swarm:
             if self.forward is not None:
                 self._hold(bytes(msg.get_msgbuf()), self.forward, now)
             self.fleet.handle(msg, now)
-            if msg.get_type() == "GLOBAL_POSITION_INT" and self.relay is not None:
+            kind = msg.get_type()
+            if kind == "GLOBAL_POSITION_INT" and self.relay is not None:
                 data = bytes(msg.get_msgbuf())
                 for target in self.relay.targets(msg.get_srcSystem(), now, self.fleet):
                     address = self.link.addresses.get(target)
                     if address is not None:
                         self._hold(data, address, now)
-            if msg.get_type() == "HEARTBEAT":
+            if kind != "RADIO_STATUS":  # any other message is a sign of life (gcs/fleet.py LINK_LOST_S)
                 self._heard_wall_s[msg.get_srcSystem()] = time.monotonic()
-            elif msg.get_type() == "COMMAND_ACK":
+            if kind == "COMMAND_ACK":
                 self.commands.handle(msg, now)
-            elif msg.get_type() == "PARAM_VALUE":
+            elif kind == "PARAM_VALUE":
                 self._send_effects(self.params.handle(msg, now), now=False)
             for listener in self.listeners:
                 listener(msg, now)
@@ -348,14 +370,14 @@ class Swarm:
             if address is not None:
                 self.link.send_raw(data, address)
 
-    def run_for(self, seconds: float, tick: Callable[[float], None] | None = None, tick_s: float = 0.05) -> None:
+    def run_for(self, seconds: float, tick: Callable[[float], None] | None = None, tick_s: float = TICK_S) -> None:
         """Pump telemetry for a while, calling ``tick(now)`` every ``tick_s``."""
         end = self.clock() + seconds
         next_tick = self.clock()
         while (now := self.clock()) < end:
             if tick is not None and now >= next_tick:
                 tick(now)
-                next_tick = now + tick_s
+                next_tick = _next_tick_s(next_tick, now, tick_s)
             self.pump(max(0.0, min(next_tick, end) - self.clock()))
 
     def wait_until(
@@ -370,7 +392,7 @@ class Swarm:
             now = self.clock()
             if tick is not None and now >= next_tick:
                 tick(now)
-                next_tick = now + 0.05
+                next_tick = _next_tick_s(next_tick, now, TICK_S)
             if condition():
                 return True
             self.pump(min(0.05, max(0.0, end - self.clock())))
@@ -507,9 +529,22 @@ class Swarm:
         until answered; the answers in the order of ``params``. With ``frame``, as COMMAND_INT in that frame."""
         targets = list(params)
         for sysid in targets:
+            self.commands.cancel(sysid, command)  # superseded: one begun with ``command_start`` still waiting
             effects = self.commands.start(sysid, command, params[sysid], self.clock(), frame=frame)
             self._send_effects(effects, now=True)
         return self._serve(self.commands, command, targets, now=True)
+
+    def command_start(self, sysid: int, command: int, *params: float) -> None:
+        """Begin a COMMAND_LONG without waiting for its answer (the streamer's, from inside a tick); its outcome
+        comes from ``command_outcome``. A later ``command_all`` of the same command to the drone supersedes it."""
+        self.commands.cancel(sysid, command)
+        self._send_effects(self.commands.start(sysid, command, params, self.clock()), now=True)
+
+    def command_outcome(self, sysid: int, command: int) -> Ack | None:
+        """How a command begun with ``command_start`` ended, once; None while it waits (resending what timed out)
+        or when it was superseded (``commands.in_flight`` tells the two apart)."""
+        self._send_effects(self.commands.poll(self.clock()), now=True)
+        return self.commands.take(sysid, command)
 
     def force_disarm(self, sysids: Iterable[int]) -> list[Ack]:
         """Disarm where they are, in the air too (the motors stop: the drones fall)."""
@@ -527,11 +562,15 @@ class Swarm:
                     results[sysid] = outcome
             return len(results) == len(targets)
 
+        next_tick = self.clock()
         try:
             while not collect():
                 self._send_effects(client.poll(self.clock()), now=now)
                 if collect():
                     break
+                if self.stream_tick is not None and (clock := self.clock()) >= next_tick:
+                    self.stream_tick(clock)
+                    next_tick = _next_tick_s(next_tick, clock, TICK_S)
                 self.pump(min(0.02, max(0.0, client.next_due_s() - self.clock())))
         finally:
             for sysid in targets:
@@ -596,6 +635,13 @@ def check(acks: list[Ack], what: str) -> None:
     if bad:
         names = ", ".join(f"sysid {a.sysid} ({'no answer' if a.result is None else f'result {a.result}'})" for a in bad)
         raise SwarmError(f"{what} failed for {names}")
+
+
+def _next_tick_s(due_s: float, now_s: float, period_s: float) -> float:
+    """When the next tick is due after one due at ``due_s`` ran at ``now_s``: a period after the one due, so that
+    ticks keep their rate on average when the clock moves in steps that do not divide the period (lockstep frames
+    of 0.02 s would otherwise tick every 0.06 s); a tick more than a period late starts the cadence afresh."""
+    return due_s + period_s if now_s - due_s < period_s else now_s + period_s
 
 
 class SwarmError(RuntimeError):

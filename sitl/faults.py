@@ -3,7 +3,8 @@
 Pure, no IO. The MAVLink side (sitl/mav_vehicle.py) turns an accepted ``FaultRequest`` into a change of
 ``FaultState`` and pushes the state into the parts that make each fault real: the plant (a failed rotor gives no
 thrust), the GPS receiver (no fix, or a fix offset by ``GPS_GLITCH_OFFSET_NE_M``), the battery monitor (a reading
-just below a failsafe threshold, or empty) and the MAVLink endpoint (silent for the rest of the process).
+just below a failsafe threshold, or empty) and the MAVLink endpoint (silent for the rest of the process, or for
+param4 seconds).
 
 Faults the project supports (param1 unit, param2 type, param3 instance: 0 = all, else 1-based):
 
@@ -12,13 +13,17 @@ Faults the project supports (param1 unit, param2 type, param3 instance: 0 = all,
 | 101 SYSTEM_MOTOR | rotor N (or all) gives no thrust | - | rotor works again |
 | 4 SENSOR_GPS | the receiver reports no fix | every fix jumps by GPS_GLITCH_OFFSET_NE_M | normal fixes |
 | 100 SYSTEM_BATTERY | the pack reads empty | charge reads just below the SYS_FAIL_BAT_LVL threshold | true reading |
-| 105 SYSTEM_MAVLINK_SIGNAL | both links silent for good | - | (cannot be heard) |
+| 105 SYSTEM_MAVLINK_SIGNAL | both links silent for good, or for param4 seconds | - | (cannot be heard) |
 
-Everything else is UNSUPPORTED, as PX4 answers a failure its simulator cannot produce.
+Everything else is UNSUPPORTED, as PX4 answers a failure its simulator cannot produce. param4 (a duration) is this
+simulator's own: PX4 ignores it (it is reserved there), so a client that leaves it 0 gets PX4's behaviour. A radio
+that comes back is what a link fault is mostly about in a swarm (the ground station must take the drone back), and a
+drone whose links are off cannot hear the OK that would end the fault.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 from enum import Enum, IntEnum
 from typing import Final
@@ -77,6 +82,7 @@ class FaultRequest:
     unit: FailureUnit
     type: FailureType
     instance: int  # 0 = all, else 1-based
+    duration_s: float = math.inf  # param4 for a MAVLink signal fault: how long the links stay silent
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -87,7 +93,7 @@ class FaultState:
     gps: GpsFault = GpsFault.NONE
     battery: BatteryFault = BatteryFault.NONE
     battery_remaining: float | None = None  # the reading the monitor reports while a battery fault is in force
-    link_off: bool = False
+    link_off_until_s: float = -math.inf  # simulated time until which every MAVLink link is silent (inf: for good)
 
 
 class FaultError(ValueError):
@@ -98,15 +104,20 @@ class FaultError(ValueError):
         self.unsupported = unsupported
 
 
-def decode_request(unit: int | None, failure_type: int | None, instance: int | None) -> FaultRequest:
-    """The request of INJECT_FAILURE params 1-3 (already rounded to ints); FaultError when it is not supported."""
+def decode_request(
+    unit: int | None, failure_type: int | None, instance: int | None, duration_s: float = math.inf
+) -> FaultRequest:
+    """The request of INJECT_FAILURE params 1-3 (already rounded to ints) and param4 (a link fault's duration:
+    anything but a finite positive number means for good); FaultError when it is not supported."""
     if unit is None or failure_type is None or instance is None or instance < 0:
         raise FaultError("Failure injection: parameters not valid", unsupported=False)
     if unit not in FailureUnit.__members__.values():
         raise FaultError(f"Failure unit {unit} not supported", unsupported=True)
     if failure_type not in FailureType.__members__.values():
         raise FaultError(f"Failure type {failure_type} not supported", unsupported=True)
-    request = FaultRequest(unit=FailureUnit(unit), type=FailureType(failure_type), instance=instance)
+    lasting = unit == FailureUnit.SYSTEM_MAVLINK_SIGNAL and math.isfinite(duration_s) and duration_s > 0
+    request = FaultRequest(unit=FailureUnit(unit), type=FailureType(failure_type), instance=instance,
+                           duration_s=duration_s if lasting else math.inf)  # fmt: skip
     if request.type is FailureType.WRONG and request.unit not in (FailureUnit.SENSOR_GPS, FailureUnit.SYSTEM_BATTERY):
         raise FaultError(f"Failure type wrong not supported for {_UNIT_NAMES[request.unit]}", unsupported=True)
     return request
@@ -127,7 +138,9 @@ def announcement(request: FaultRequest) -> str:
     unit = _UNIT_NAMES[request.unit]
     if request.type is FailureType.OK:
         return f"Cleared: {unit}, {which}"
-    return f"Injected: {unit} {request.type.name.lower()}, {which}"
+    # (PX4's words, plus how long: "Injected: mavlink_signal off 5 s, all instances" fits one 50-character text)
+    lasting = f" {request.duration_s:g} s" if math.isfinite(request.duration_s) else ""
+    return f"Injected: {unit} {request.type.name.lower()}{lasting}, {which}"
 
 
 def apply_request(
@@ -137,8 +150,10 @@ def apply_request(
     rotor_count: int,
     battery_level: int,
     battery_thresholds: dict[str, float],
+    now_s: float = 0.0,
 ) -> tuple[FaultState, str]:
-    """The fault state after ``request`` and the STATUSTEXT that announces it; FaultError if it cannot be done.
+    """The fault state after ``request`` (at simulated time ``now_s``) and the STATUSTEXT that announces it;
+    FaultError if it cannot be done.
 
     ``battery_level`` is SYS_FAIL_BAT_LVL; ``battery_thresholds`` holds the BAT_*_THR parameters by name (only
     those declared: a level whose threshold is missing is refused rather than guessed)."""
@@ -166,4 +181,6 @@ def apply_request(
             return replace(state, battery=fault, battery_remaining=remaining), text
         return replace(state, battery=BatteryFault.NONE, battery_remaining=None), text
     # SYSTEM_MAVLINK_SIGNAL: OK changes nothing (a drone whose link is off never hears it)
-    return replace(state, link_off=state.link_off or kind is FailureType.OFF), text
+    if kind is FailureType.OFF:
+        return replace(state, link_off_until_s=max(state.link_off_until_s, now_s + request.duration_s)), text
+    return state, text

@@ -89,8 +89,8 @@ class SimVehicleApi:
     def note_gcs_heartbeat(self, now_s: float) -> None:
         self.vehicle.note_gcs_heartbeat(now_s)
 
-    def mavlink_failed(self) -> bool:
-        return self.sim.faults.link_off
+    def mavlink_silent_until_s(self) -> float:
+        return self.sim.faults.link_off_until_s
 
     def set_offboard_setpoint(self, setpoint: api.OffboardSetpoint | api.AttitudeSetpoint, now_s: float) -> None:
         if isinstance(setpoint, api.OffboardSetpoint):
@@ -195,13 +195,14 @@ class SimVehicleApi:
         # BAT_EMERGEN_THR may be absent from an older parameter table: that level is then refused, never guessed.
         thresholds = {name: params[name] for _, name in BATTERY_LEVELS.values() if name in params}
         try:
-            fault = decode_request(request.unit, request.failure_type, request.instance)
+            fault = decode_request(request.unit, request.failure_type, request.instance, request.duration_s)
             state, text = apply_request(
                 self.sim.faults,
                 fault,
                 rotor_count=len(self.sim.config.airframe.rotors),
                 battery_level=round(params["SYS_FAIL_BAT_LVL"]),
                 battery_thresholds=thresholds,
+                now_s=self.sim.time_s,
             )
         except FaultError as exc:
             result = api.CommandResult.UNSUPPORTED if exc.unsupported else api.CommandResult.DENIED

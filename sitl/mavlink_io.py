@@ -6,13 +6,15 @@ address that has sent it something (PX4's behaviour), so a client on any port is
 pymavlink's robust parser: garbage becomes "bad data" and is dropped; nothing a peer sends can raise out of here.
 
 An injected MAVLink failure (FAILURE_UNIT_SYSTEM_MAVLINK_SIGNAL, see sitl/faults.py) silences every link for the rest
-of the process, as a dead radio would: the reply that accepted the injection still leaves, then nothing is sent, and
-whatever arrives is read and dropped unparsed (read, so that the loop's select does not wake on it for ever).
+of the process or for the time it asks, as a dead radio would: the reply that accepted the injection still leaves,
+then nothing is sent, and whatever arrives is read and dropped unparsed (read, so that the loop's select does not
+wake on it for ever). When the time is up the links simply work again, as a radio that comes back in range.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import socket
 import time
 from collections.abc import Iterable
@@ -278,7 +280,8 @@ class MavlinkEndpoint:
             self.signing, identity.sysid, identity.compid, sign_cfg=lambda: int(params[SIGN_CFG_PARAM]),
             armed=lambda: vehicle.snapshot().armed,
         )  # fmt: skip
-        self.silenced = False  # set for good once the vehicle reports an injected MAVLink failure
+        self.silenced = False  # while an injected MAVLink failure is in force: nothing is sent or read
+        self._silent_until_s = -math.inf  # simulated time it ends (inf: for good)
         self._sysid = identity.sysid
         # The link model (``impair``): channels by class and direction, and what arrived but is delayed.
         self._channels: dict[tuple[LinkClass, Direction], LinkChannel] = {}
@@ -377,7 +380,7 @@ class MavlinkEndpoint:
         return self._channels.get((link.link_class, "up"))
 
     def receive(self, now_s: float) -> None:
-        if self.silenced:
+        if self._still_silent(now_s):
             for link in self.links:
                 link.drain()
             return
@@ -412,8 +415,9 @@ class MavlinkEndpoint:
         if not self._admitted(link, msg):
             return
         link.send(link.services.handle(msg, now_s))
-        if self._vehicle.mavlink_failed():
-            self._silence()
+        until_s = self._vehicle.mavlink_silent_until_s()
+        if until_s > now_s:
+            self._silence(until_s)
 
     def _admitted(self, link: UdpLink, msg: MAVLinkMessage) -> bool:
         """Whether signing lets ``msg`` through to the services; says once per link and reason why not."""
@@ -424,12 +428,21 @@ class MavlinkEndpoint:
             link.send(link.services.statustext(severity, text))
         return admit
 
-    def _silence(self) -> None:
-        self.silenced = True
-        log.warning("MAVLink signal lost (injected failure): all links silent from now on")
+    def _silence(self, until_s: float) -> None:
+        self.silenced, self._silent_until_s = True, until_s
+        lasting = "from now on" if math.isinf(until_s) else f"until t={until_s:.3f} s"
+        log.warning("MAVLink signal lost (injected failure): all links silent %s", lasting)
+
+    def _still_silent(self, now_s: float) -> bool:
+        """Whether the links are silent at ``now_s``; the first call after an injected failure's time is up ends
+        it, and says so."""
+        if self.silenced and now_s >= self._silent_until_s:
+            self.silenced = False
+            log.warning("MAVLink signal back (the injected failure ended)")
+        return self.silenced
 
     def poll(self, now_s: float) -> None:
-        if self.silenced:
+        if self._still_silent(now_s):
             return
         self._share.open()
         report: MAVLinkMessage | None = None

@@ -91,7 +91,7 @@ class Simulation:
 
     def set_faults(self, faults: FaultState) -> None:
         """Put injected faults in force where they act: the plant's rotors, the GPS receiver, the battery monitor.
-        (A link fault acts in the MAVLink endpoint, which reads ``faults.link_off``.)"""
+        (A link fault acts in the MAVLink endpoint, which reads ``faults.link_off_until_s``.)"""
         self.faults = faults
         self.plant.failed_motors = faults.motors_off
         self.sensors.gps.fault = faults.gps

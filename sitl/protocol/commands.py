@@ -434,11 +434,12 @@ class CommandService:
     def _inject_failure(self, cmd: DecodedCommand, now_s: float) -> _Reply:
         """MAV_CMD_INJECT_FAILURE. An accepted injection is announced with a STATUSTEXT (sent before the ACK) so that
         every log of the link, a ground station's tlog included, records when which failure began."""
-        p1, p2, p3 = cmd.params[:3]
+        p1, p2, p3, p4 = cmd.params[:4]
         request = InjectFailure(
             unit=param_to_int(p1),
             failure_type=param_to_int(p2),
             instance=0 if math.isnan(p3) else param_to_int(p3),  # unset (NaN) means all instances
+            duration_s=p4 if math.isfinite(p4) and p4 > 0 else math.inf,  # unset (0, NaN): for good
         )
         reply = self._ask(request, now_s)
         if reply.result is CommandResult.ACCEPTED and reply.reason:

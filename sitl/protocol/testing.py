@@ -85,7 +85,7 @@ class FakeVehicle:
         self.setpoints: list[tuple[OffboardSetpoint | AttitudeSetpoint, float]] = []
         self.fence: list[MissionItem] = []
         self.gcs_heartbeats: list[float] = []
-        self.link_failed = False
+        self.link_silent_until_s = -math.inf
 
     # ---- VehicleApi ------------------------------------------------------------------------------------------------
     def snapshot(self) -> VehicleSnapshot:
@@ -111,8 +111,8 @@ class FakeVehicle:
     def note_gcs_heartbeat(self, now_s: float) -> None:
         self.gcs_heartbeats.append(now_s)
 
-    def mavlink_failed(self) -> bool:
-        return self.link_failed
+    def mavlink_silent_until_s(self) -> float:
+        return self.link_silent_until_s
 
     # ---- test helpers ----------------------------------------------------------------------------------------------
     def refuse(self, request_type: type, result: CommandResult, reason: str = "") -> None:

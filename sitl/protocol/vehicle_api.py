@@ -259,7 +259,8 @@ class SetFence:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class InjectFailure:
-    """MAV_CMD_INJECT_FAILURE: param1 FAILURE_UNIT, param2 FAILURE_TYPE, param3 instance (0 all, else 1-based).
+    """MAV_CMD_INJECT_FAILURE: param1 FAILURE_UNIT, param2 FAILURE_TYPE, param3 instance (0 all, else 1-based);
+    param4, this simulator's own, how long a MAVLink signal fault lasts (PX4 ignores it; see sitl/faults.py).
 
     The vehicle refuses it (DENIED) unless SYS_FAILURE_EN = 1, as PX4 does; an accepted outcome's ``reason`` is the
     text announcing the failure, which the command service sends as a STATUSTEXT."""
@@ -267,6 +268,7 @@ class InjectFailure:
     unit: int | None  # None: the parameter was not a usable integer
     failure_type: int | None
     instance: int | None
+    duration_s: float = math.inf  # param4 (unset: for good)
 
 
 VehicleRequest: TypeAlias = (
@@ -469,6 +471,7 @@ class VehicleApi(Protocol):
         """A HEARTBEAT from a ground station (MAV_TYPE_GCS) arrived at ``now_s`` (datalink-loss failsafe input)."""
         ...
 
-    def mavlink_failed(self) -> bool:
-        """True once an injected failure cut the MAVLink signal: every link then stops sending and receiving."""
+    def mavlink_silent_until_s(self) -> float:
+        """Until when (simulated seconds) an injected failure has cut the MAVLink signal: every link stops sending
+        and receiving until then; -inf when no such failure is in force, inf when it is for good."""
         ...

@@ -7,6 +7,8 @@ request the MAVLink command service makes of MAV_CMD_INJECT_FAILURE; ground trut
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
@@ -162,9 +164,14 @@ def test_a_low_battery_fault_reaches_the_autopilot() -> None:
     assert any("battery" in e.text.lower() for e in sim.vehicle.events), [e.text for e in sim.vehicle.events]
 
 
-def test_link_off_is_only_a_flag_for_the_endpoint() -> None:
+def test_link_off_is_only_a_time_for_the_endpoint_for_good_or_for_param4_seconds() -> None:
     sim = enabled_sim(seed=9)
     vehicle_api = SimVehicleApi(sim)
-    assert not vehicle_api.mavlink_failed()
+    assert vehicle_api.mavlink_silent_until_s() == -math.inf
+    sim.run_for(1.0)
+    lasting = api.InjectFailure(unit=int(LINK), failure_type=int(OFF), instance=0, duration_s=6.0)
+    assert vehicle_api.command(lasting, sim.time_s).reason == "Injected: mavlink_signal off 6 s, all instances"
+    assert vehicle_api.mavlink_silent_until_s() == pytest.approx(sim.time_s + 6.0)
+    # param4 unset (0, NaN: what PX4's clients send) is for good, as PX4's failure
     assert inject(sim, LINK, OFF).reason == "Injected: mavlink_signal off, all instances"
-    assert vehicle_api.mavlink_failed()
+    assert vehicle_api.mavlink_silent_until_s() == math.inf

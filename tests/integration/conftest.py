@@ -191,7 +191,10 @@ def vehicle(request: pytest.FixtureRequest) -> VehicleLink:
     return VehicleLink.of(spawn()[0])
 
 
-def _child_pids() -> set[int]:
+def child_pids() -> set[int]:
+    """This process's children (started from any thread), but Python's shared-memory resource tracker: a process
+    that creates shared memory (an in-process swarm session, gcs/api) starts one, and it lives until that process
+    ends, whatever the session does."""
     me = os.getpid()
     children: set[int] = set()
     for entry in os.scandir("/proc"):
@@ -203,7 +206,9 @@ def _child_pids() -> set[int]:
             continue
         # the command name (field 2) may contain spaces; the parent PID is the 2nd field after its ")"
         if int(stat.rpartition(")")[2].split()[1]) == me:
-            children.add(int(entry.name))
+            with contextlib.suppress(OSError):
+                if b"multiprocessing.resource_tracker" not in Path(entry.path, "cmdline").read_bytes():
+                    children.add(int(entry.name))
     return children
 
 
@@ -214,13 +219,13 @@ def _os_thread_count() -> int:
 @pytest.fixture(autouse=True)
 def no_leftover_processes_or_threads() -> Iterator[None]:
     """After a test, every process it started is reaped and every thread it started (native too) has ended."""
-    children_before = _child_pids()
+    children_before = child_pids()
     threads_before = _os_thread_count()
     py_threads_before = set(threading.enumerate())
     yield
     deadline = time.monotonic() + LEAK_SETTLE_S
     while True:
-        children = _child_pids() - children_before
+        children = child_pids() - children_before
         extra_threads = _os_thread_count() - threads_before
         py_threads = [t.name for t in threading.enumerate() if t not in py_threads_before]
         if not children and extra_threads <= 0 and not py_threads:

@@ -1,7 +1,7 @@
 """Losing a drone in flight, as a user does it: real ``swarm`` and ``sitl`` processes in lockstep on loopback.
 
-Policy: instances 200-239; every process found by PID and gone at the end; readiness and progress read from the
-supervisor's output and ``swarm status``, never slept for.
+Policy: instances 200-239 and 56-57; every process found by PID and gone at the end; readiness and progress read from
+the supervisor's output and ``swarm status``, never slept for.
 """
 
 from __future__ import annotations
@@ -212,6 +212,30 @@ def test_loss_policy_hold_puts_the_survivor_in_hold_where_it_is(supervisors: Cal
     row = swarm.status()[225]
     assert row[2] == "yes" and float(row[5]) > 2.5, row
     assert "swarm: loss policy hold: every drone holds where it is" in swarm.lines, swarm.lines
+
+
+@pytest.mark.timeout(300)
+def test_a_drone_heard_again_under_loss_policy_hold_is_held_too(
+    supervisors: Callable[[list[str]], Supervisor],
+) -> None:
+    # GIVEN two drones flying a line under loss policy hold
+    swarm = supervisors(["-n", "2", "--lockstep", "--first-instance", "56", "--no-forward", "--loss-policy", "hold"])
+    swarm.command("takeoff", "--alt", "3")
+    swarm.wait_for(lambda: all(float(r[5]) > 2.7 for r in swarm.status().values()), 120, "the takeoff")
+    swarm.command("formation", "line", "--spacing", "4", "--alt", "3")
+    swarm.wait_for(lambda: all(r[1] == "OFFBOARD" for r in swarm.status().values()), 120, "OFFBOARD")
+    # WHEN the second drone's links go silent for 5 s
+    result = swarm.cli("fault", "58", "link", "--for", "5")
+    assert result.returncode == 0 and result.stdout == "swarm: drone 58: accepted\n", result
+    # THEN it is lost after 3 s of silence and the survivor holds, as the policy says
+    swarm.wait_for(lambda: any(ln.startswith("drone 58 lost at t=") for ln in swarm.lines), 120, "the loss")
+    swarm.wait_for(lambda: swarm.status()[57][1] == "AUTO.LOITER", 120, "Hold")
+    # AND once heard again it is told the same: both hold, in the air
+    swarm.wait_for(lambda: any(ln.startswith("drone 58 link regained at t=") for ln in swarm.lines), 120, "the regain")
+    assert "swarm: loss policy hold: sysid 58 holds where it is too" in swarm.lines, swarm.lines
+    swarm.wait_for(lambda: swarm.status()[58][1] == "AUTO.LOITER", 120, "Hold")
+    rows = swarm.status()
+    assert all(rows[s][2] == "yes" and float(rows[s][5]) > 2.5 for s in (57, 58)), rows
 
 
 @pytest.mark.timeout(300)

@@ -5,8 +5,10 @@ processes in lockstep on loopback, the outcome read from the flight report.
   nobody relays it, the ground station loses it; the others, with default parameters, see it with their cameras.
 - A drone whose rotor fails falls out of a rotating circle: it breaks on the ground, the ground station records the
   loss, the others fly on without touching the falling body.
+- A drone whose links go silent for a few seconds in a rotating circle is lost, then heard again: the ground station
+  takes it back, the circle re-plans with it and it flies its slot again in OFFBOARD.
 
-Policy: loopback only (--no-forward); instances 180-199; a time limit on every run.
+Policy: loopback only (--no-forward); instances 180-199 and 50-54; a time limit on every run.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from pymavlink import mavutil
 
 from tests.integration.mission_flight import SWARM
 
@@ -30,18 +33,18 @@ SPACING_M = 3.0
 # corner, (3, 3) m. A circle about the origin through that corner puts the silent drone on everybody's path.
 SILENT_RADIUS_M = math.hypot(SPACING_M, SPACING_M)
 
+
+def takeoff_of(drones: int) -> str:
+    """A mission's swarm (on a grid SPACING_M apart) and its takeoff to ALT_M."""
+    return (f'[swarm]\ndrones = {drones}\nlayout = "grid"\nspacing_m = {SPACING_M}\n\n'
+            f'[[steps]]\naction = "takeoff"\nalt_m = {ALT_M}')  # fmt: skip
+
+
 SILENT_MISSION = f"""
 name = "silent_drone_in_the_circle"
 description = "drone 9 goes silent (link fault) and holds; the other 8 turn a circle through where it hovers"
 
-[swarm]
-drones = 9
-layout = "grid"
-spacing_m = {SPACING_M}
-
-[[steps]]
-action = "takeoff"
-alt_m = {ALT_M}
+{takeoff_of(9)}
 
 [[steps]]
 action = "fault"
@@ -68,14 +71,7 @@ MOTOR_MISSION = f"""
 name = "rotor_out_of_the_circle"
 description = "a circle of 6 turning; drone 3 loses a rotor"
 
-[swarm]
-drones = 6
-layout = "grid"
-spacing_m = {SPACING_M}
-
-[[steps]]
-action = "takeoff"
-alt_m = {ALT_M}
+{takeoff_of(6)}
 
 [[steps]]
 action = "fault"
@@ -95,6 +91,33 @@ hold_s = 22.0
 [[steps]]
 action = "land"
 """
+
+
+OUTAGE_MISSION = f"""
+name = "outage_in_the_circle"
+description = "a circle of 5 turning; drone 2's links go silent for 5 s, then come back"
+
+{takeoff_of(5)}
+
+[[steps]]
+action = "fault"
+drone = 2
+fault = "link"
+for_s = 5.0
+after_s = 10.0
+
+[[steps]]
+action = "formation"
+shape = "circle"
+radius_m = 4.0
+alt_m = {ALT_M}
+angular_rate_radps = 0.2
+hold_s = 30.0
+
+[[steps]]
+action = "land"
+"""
+OFFBOARD_CUSTOM_MODE = 6 << 16  # PX4's custom_mode for OFFBOARD (main mode 6)
 
 
 def fly(tmp_path: Path, mission_text: str, first_instance: int) -> tuple[dict[str, Any], str]:
@@ -147,3 +170,32 @@ def test_a_rotor_failure_in_a_rotating_circle_brings_one_drone_down_and_the_othe
     assert list(steps) == ["takeoff", "circle", "land"], metrics["steps"]
     assert steps["circle"]["start_s"] < metrics["losses"][0]["time_s"] < steps["circle"]["end_s"], metrics
     assert steps["circle"]["formation_rms_m"] < 0.5, steps["circle"]
+
+
+@pytest.mark.timeout(420)
+def test_a_drone_whose_links_come_back_after_an_outage_is_taken_back_into_the_rotating_circle(tmp_path: Path) -> None:
+    # GIVEN a circle of five turning WHEN drone 2's links go silent for 5 s (the drone holds, then its link is back)
+    metrics, out = fly(tmp_path, OUTAGE_MISSION, 50)
+    drone = 52
+    assert [(f["sysid"], f["fault"]) for f in metrics["faults"]] == [(drone, "link for 5 s")], metrics["faults"]
+    # THEN the ground station lost it for its silence, heard it again 2-3 s later (5 s of silence, of which the
+    # first 3 make a loss), and the report lists it as regained, not lost
+    assert metrics["losses"] == [], metrics["losses"]
+    [regained] = metrics["regained"]
+    assert regained["sysid"] == drone and regained["cause"].startswith("link lost"), regained
+    assert 1.5 < regained["regained_s"] - regained["time_s"] < 3.0, regained
+    assert len(re.findall(rf"^drone {drone} link regained at t=", out, re.M)) == 1, out
+    assert re.search(rf"formation re-planned over 5 drones, sysid {drone} back", out), out
+    # AND it went back to OFFBOARD after its failsafe took it out of it (its own HEARTBEATs say so)
+    log = mavutil.mavlogfile(str(tmp_path / "report" / "flight.tlog"))
+    modes: list[int] = []
+    while (msg := log.recv_match(type="HEARTBEAT")) is not None:
+        if msg.get_srcSystem() == drone and msg.get_srcComponent() == 1 and (not modes or modes[-1] != msg.custom_mode):
+            modes.append(msg.custom_mode)
+    offboard = [k for k, mode in enumerate(modes) if mode == OFFBOARD_CUSTOM_MODE]
+    assert len(offboard) == 2 and offboard[1] - offboard[0] >= 2, modes
+    # AND the circle held with it, nobody touched anybody, and everybody landed
+    circle = next(s for s in metrics["steps"] if s["kind"] == "formation")
+    assert circle["formation_rms_m"] is not None and circle["formation_rms_m"] < 0.3, circle
+    assert circle["start_s"] + circle["time_to_formation_s"] > regained["regained_s"], circle
+    assert metrics["collisions"] == 0, metrics["collision_events"]

@@ -112,6 +112,14 @@ def test_faults_map_to_px4_failure_units_and_types() -> None:
         fault_request("gps", 2)
     with pytest.raises(FaultError, match=r"motor must be a whole number in 0\.\.8"):
         fault_request("motor", 9)
+    # a link fault for a time: INJECT_FAILURE param4, the simulator's own (0, PX4's unused value: for good)
+    assert (fault_request("link", for_s=6).duration_param, fault_request("link").duration_param) == (6.0, 0.0)
+    assert fault_request("link", for_s=6.5).describe() == "link for 6.5 s"
+    with pytest.raises(FaultError, match="a duration applies only to the link fault, not to 'gps'"):
+        fault_request("gps", for_s=3.0)
+    for bad in (0.0, -2.0, math.inf, math.nan, True, "6"):
+        with pytest.raises(FaultError, match="link fault's duration must be a number of seconds"):
+            fault_request("link", for_s=bad)
 
 
 # ---- mission files --------------------------------------------------------------------------------------------------
@@ -138,6 +146,12 @@ drone = 4
 fault = "crash"
 
 [[steps]]
+action = "fault"
+drone = 3
+fault = "link"
+for_s = 6.0
+
+[[steps]]
 action = "land"
 """
 
@@ -149,7 +163,9 @@ def test_fault_steps_and_the_loss_policy_are_read() -> None:
     assert [(f.drone, f.fault.kind, f.fault.motor, f.after_s) for f in faults] == [
         (2, "motor", 3, 5.0),
         (4, "crash", 1, 0.0),
+        (3, "link", 1, 0.0),
     ]
+    assert faults[2].fault.for_s == 6.0
 
 
 @pytest.mark.parametrize(
@@ -161,6 +177,8 @@ def test_fault_steps_and_the_loss_policy_are_read() -> None:
         ("after_s = 5.0", "after_s = -1.0", "m.toml:15: steps[1].after_s: must be >= 0, got -1.0"),
         ("after_s = 5.0", 'after_s = "soon"', "m.toml:15: steps[1].after_s: must be a number, got 'soon'"),
         ("drone = 2\n", "", "steps[1]: missing field 'drone' for a fault step"),
+        ("for_s = 6.0", "for_s = -6.0", "m.toml:26: steps[3].for_s: a link fault's duration must be a number"),
+        ("motor = 3", "motor = 3\nfor_s = 2.0", "m.toml:15: steps[1].for_s: a duration applies only to the link"),
         ('loss_policy = "land"', 'loss_policy = "panic"', "m.toml:4: swarm.loss_policy: must be one of continue"),
     ],
 )
@@ -178,6 +196,9 @@ def test_fault_step_mistakes_are_one_line_naming_file_line_and_field(old: str, n
         (["fault", "three", "motor"], "argument sysid: must be a drone's sysid"),
         (["fault", "3", "gps", "--motor", "2"], "a motor number applies only to the motor fault"),
         (["fault", "3", "motor", "--motor", "9"], "motor must be a whole number in 0..8"),
+        (["fault", "3", "gps", "--for", "5"], "a duration applies only to the link fault, not to 'gps'"),
+        (["fault", "3", "link", "--for", "0"], "link fault's duration must be a number of seconds in (0, 86400]"),
+        (["fault", "3", "link", "--for", "soon"], "argument --for: invalid float value: 'soon'"),
         (["kill", "0"], "argument sysid: must be a sysid in 1..255"),
         (["up", "-n", "2", "--loss-policy", "panic"], "argument --loss-policy: invalid choice: 'panic'"),
     ],
@@ -215,6 +236,33 @@ def test_the_report_lists_the_loss_and_counts_formation_metrics_over_the_drones_
     assert metrics.to_dict()["losses"] == [
         {"sysid": 2, "time_s": 5.0, "cause": "process killed by SIGKILL", "down_ne_m": [0.1, 4.2]}
     ]
+
+
+def test_a_silent_drone_heard_again_counts_out_of_the_formation_only_while_it_was_lost() -> None:
+    # GIVEN two drones in a formation step; drone 2 is lost for silence from 4 s to 7 s, off its slot meanwhile
+    recording = FlightRecording(mission_name="t", n_drones=2, collision_radius_m=0.5)
+    for k in range(101):
+        t = 0.1 * k
+        off = 2.0 if 4.0 <= t < 7.0 else 0.0
+        for sysid, east in ((1, 0.0), (2, 4.0)):
+            recording.samples.append(DroneSample(time_s=t, sysid=sysid, pos_ned_m=(0.0, east + off * (sysid == 2),
+                                                 -3.0), vel_ned_mps=(0, 0, 0), armed=True, mode="OFFBOARD",
+                                                 target_ned_m=(0.0, east, -3.0)))  # fmt: skip
+    recording.steps.append(StepRecord(index=0, name="circle", kind="formation", start_s=0.0, end_s=10.0))
+    recording.regained.append(DroneLoss(sysid=2, time_s=4.0, cause="link lost (nothing heard for 3.0 s)",
+                                        silent=True, regained_s=7.0))  # fmt: skip
+    # WHEN the metrics are computed
+    metrics = compute_metrics(recording)
+    # THEN its time away is no formation error, it counts again once back, and the summary and JSON say so
+    assert metrics.steps[0].max_error_m == pytest.approx(0.0, abs=1e-9)
+    assert metrics.distance_flown_m[2] == pytest.approx(0.0, abs=1e-9)
+    text = summary_text(metrics)
+    assert "drones lost: 0, 1 more heard again (loss policy: continue)" in text
+    assert "drone 2: link lost (nothing heard for 3.0 s); regained at 7.0 s" in text
+    assert metrics.to_dict()["regained"] == [
+        {"sysid": 2, "time_s": 4.0, "cause": "link lost (nothing heard for 3.0 s)", "down_ne_m": None,
+         "regained_s": 7.0}
+    ]  # fmt: skip
 
 
 def test_a_crash_is_blamed_on_the_first_recent_warning_not_on_its_consequences() -> None:

@@ -43,9 +43,12 @@ def test_fleet_tracks_mode_arming_position_home_and_liveness() -> None:
     assert view.relative_alt_m == pytest.approx(3.0) and view.vel_ned_mps == pytest.approx((1.0, -0.5, 0.0))
     assert view.home == pytest.approx((47.397742, 8.545594, 488.0))
     assert view.home_local_ned_m == pytest.approx((0.1, 0.2, 0.3))
-    # WHEN no heartbeat for more than 3 s THEN it is lost; a message from another component changes nothing
+    # WHEN nothing is heard from it for more than 3 s THEN it is lost (any message of its autopilot counts, as in
+    # QGroundControl: the last was HOME_POSITION at 1.2 s); a message from another component changes nothing, nor
+    # does RADIO_STATUS, which a radio sends of itself
     fleet.handle(decoded(heartbeat(65536, False), 7, compid=190), 2.0)
-    assert fleet.drones[7].armed and fleet.lost(4.1) == [7] and fleet.lost(3.9) == []
+    fleet.handle(decoded(mavlink.MAVLink_radio_status_message(200, 180, 50, 40, 30, 0, 0), 7), 2.5)
+    assert fleet.drones[7].armed and fleet.lost(4.3) == [7] and fleet.lost(4.1) == []
 
 
 def test_control_channel_answers_requests_and_reports_errors(tmp_path: Path) -> None:

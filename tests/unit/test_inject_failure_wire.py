@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import socket
 import time
 
@@ -102,7 +103,7 @@ def test_a_link_fault_silences_every_link_after_the_accepting_reply() -> None:
 
         def command(request: object, now_s: float) -> CommandOutcome:
             outcome = original(request, now_s)  # type: ignore[arg-type]
-            vehicle.link_failed = True
+            vehicle.link_silent_until_s = math.inf
             return outcome
 
         vehicle.command = command  # type: ignore[method-assign]

@@ -1,0 +1,109 @@
+"""The blocking face of the API, for scripts and notebooks: ``with launch_blocking(9) as swarm: swarm.takeoff(3)``.
+
+The same calls as ``Session`` (gcs/api/session.py documents each), waiting for their answer instead of being
+awaited. Ctrl-C during a call ends it, lands every drone, stops every process the session started and writes the
+report before the KeyboardInterrupt goes on.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
+from types import TracebackType
+from typing import Any, TypeVar
+
+from gcs.api.engine import LAND_TIMEOUT_S, Controller, Engine, Readings
+from gcs.api.session import TAKEOFF_TIMEOUT_S, _default_simulation
+from gcs.api.types import DroneState, Event, FlightResult, LaunchOptions
+from gcs.behaviours import FlockSpec, FollowSpec
+from gcs.formation import Formation
+from gcs.harness import Simulation
+
+T = TypeVar("T")
+
+
+class BlockingSession(Readings):
+    """A running swarm, driven by blocking calls. Made by ``launch_blocking`` (or ``BlockingSession.start``)."""
+
+    def __init__(self, engine: Engine) -> None:
+        self._engine = engine
+        self.result: FlightResult | None = None
+
+    @classmethod
+    def start(cls, options: LaunchOptions, simulation: Simulation, say: Callable[[str], None] | None = None,
+              on_event: Callable[[Event], None] | None = None) -> BlockingSession:  # fmt: skip
+        """Spawn the swarm of ``options``; returns once every drone is up. ``on_event`` is called (in the
+        supervisor's thread: keep it short) with every ``Event``."""
+        engine = Engine(options, simulation, say=say, on_event=on_event)
+        engine.start_thread()
+        try:
+            engine.ready.result()
+        except BaseException:
+            with contextlib.suppress(Exception):  # whatever started is stopped before this returns
+                engine.close(interrupt=True).result()
+            raise
+        return cls(engine)
+
+    def _run(self, work: Callable[[], T]) -> T:
+        return self._engine.submit(work).result()
+
+    def takeoff(self, alt_m: float = 3.0, timeout_s: float = TAKEOFF_TIMEOUT_S) -> None:
+        self._run(lambda: self._engine.do_takeoff(alt_m, timeout_s))
+
+    def formation(self, formation: Formation) -> float:
+        return self._run(lambda: self._engine.do_formation(formation))
+
+    def flock(self, spec: FlockSpec) -> None:
+        self._run(lambda: self._engine.do_flock(spec))
+
+    def follow(self, spec: FollowSpec) -> None:
+        self._run(lambda: self._engine.do_follow(spec))
+
+    def control(self, controller: Controller) -> None:
+        self._run(lambda: self._engine.do_control(controller))
+
+    def sleep(self, seconds: float) -> None:
+        self._run(lambda: self._engine.do_sleep(seconds))
+
+    def wait_until(self, predicate: Callable[[dict[int, DroneState]], bool], timeout_s: float) -> bool:
+        return self._run(lambda: self._engine.do_wait_until(predicate, timeout_s))
+
+    def land(self, timeout_s: float = LAND_TIMEOUT_S) -> None:
+        self._run(lambda: self._engine.do_land(return_to_launch=False, timeout_s=timeout_s))
+
+    def return_to_launch(self, timeout_s: float = LAND_TIMEOUT_S) -> None:
+        self._run(lambda: self._engine.do_land(return_to_launch=True, timeout_s=timeout_s))
+
+    def set_param(self, name: str, value: float, sysids: Iterable[int] | None = None) -> None:
+        targets = None if sysids is None else list(sysids)
+        self._run(lambda: self._engine.do_set_param(name, value, targets))
+
+    def inject_fault(self, sysid: int, kind: str, *, motor: int | None = None, for_s: float | None = None) -> str:
+        return self._run(lambda: self._engine.do_fault(sysid, kind, motor, for_s))
+
+    def kill(self, sysid: int) -> str:
+        return self._run(lambda: self._engine.do_kill(sysid))
+
+    def close(self, *, interrupt: bool = False) -> FlightResult:
+        """Land what flies, stop every drone process and write the report (once; later calls return the same)."""
+        if self.result is None:
+            self.result = self._engine.close(interrupt=interrupt).result()
+        return self.result
+
+    def __enter__(self) -> BlockingSession:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:
+        self.close(interrupt=kind is not None)
+
+
+@contextmanager
+def launch_blocking(
+    drones: int, *, simulation: Simulation | None = None, say: Callable[[str], None] | None = None,
+    on_event: Callable[[Event], None] | None = None, **options: Any,
+) -> Iterator[BlockingSession]:  # fmt: skip
+    """``with launch_blocking(9, report_dir=Path("report")) as swarm:`` as ``launch``, for code without asyncio."""
+    options_ = LaunchOptions(drones=drones, **options)
+    with BlockingSession.start(options_, simulation or _default_simulation(), say, on_event) as session:
+        yield session

@@ -1,0 +1,450 @@
+"""The supervisor of an API session, in a thread of its own; both faces of the API (async and blocking) post work
+to it and wait for the answer.
+
+Why a thread: the supervisor (gcs/swarm.py) is a synchronous loop that waits on its sockets and, in lockstep, on the
+simulation's gate. Run in the user's event loop it would stall every other task of theirs; rewritten for asyncio it
+would be a second supervisor to keep in step with the first. In its own thread it stays the one supervisor that
+``swarm up`` and ``swarm fly`` run, and the user's loop only awaits futures.
+
+Clock: paced, the thread keeps the swarm going between calls (real time does not stop). In lockstep it does not: the
+simulation advances only inside a call (``sleep``, ``wait_until``, ``takeoff``, ...), so a script's outcome does not
+depend on how long its own Python takes between calls, and the same script with the same seeds flies the same.
+
+Work runs one call at a time, in order. The user's code called from the thread (a controller each tick, a
+``wait_until`` predicate) runs there too, between two pumps of the loop, so it sees a consistent swarm.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import json
+import logging
+import math
+import queue
+import threading
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from gcs.api.types import ControllerError, DroneState, Event, FlightResult, LaunchOptions
+from gcs.behaviours import NAN3, FlockSpec, FollowSpec, SwarmState
+from gcs.faults import CRASH
+from gcs.formation import SETPOINT_STREAM_HZ, CircleSpec, Formation, GridSpec, LineSpec, Setpoint, VSpec
+from gcs.frames import Vec3
+from gcs.harness import Simulation, SpawnPlan
+from gcs.losses import MAV_STATE_CRITICAL
+from gcs.procedures import take_off_and_hold
+from gcs.report import METRICS_FILE
+from gcs.station import Station, failsafe_text
+from gcs.swarm import Swarm, SwarmError
+
+log = logging.getLogger(__name__)
+
+T = TypeVar("T")
+Controller = Callable[[float, Mapping[int, DroneState]], Mapping[int, "Setpoint | Vec3"]]
+_IDLE_PUMP_S = 0.02  # paced: the idle loop's wait for traffic, and so the longest a posted call waits to start
+LAND_TIMEOUT_S = 120.0  # the default wait for every drone to land and disarm
+_NOT_IN_AIR = (mavlink.MAV_LANDED_STATE_UNDEFINED, mavlink.MAV_LANDED_STATE_ON_GROUND)
+_SHAPES: dict[type, str] = {GridSpec: "grid", CircleSpec: "circle", LineSpec: "line", VSpec: "v"}
+
+
+class SessionClosed(RuntimeError):
+    """The session has ended (closed, or its supervisor failed): nothing more can be asked of it."""
+
+
+class _Cancelled(BaseException):
+    """Raised inside the thread's current call when the session is closed under it (Ctrl-C)."""
+
+
+def _as_setpoint(value: Setpoint | Vec3) -> Setpoint:
+    """A user's setpoint: a ``Setpoint``, or a bare (north, east, down) position."""
+    if isinstance(value, Setpoint):
+        return value
+    north, east, down = (float(v) for v in value)
+    return Setpoint(pos_ned_m=(north, east, down), vel_ned_mps=NAN3, acc_ned_mps2=NAN3, yaw_rad=math.nan)
+
+
+class ControllerBehaviour:
+    """A user's function as a behaviour the streamer runs every tick (gcs/behaviours.py ``Behaviour``): it gets the
+    swarm's time and every drone's state and returns setpoints for the drones it commands. If it raises, the error
+    is kept for the engine (which holds every drone) and it commands nothing more."""
+
+    def __init__(self, controller: Controller, states: Callable[[], dict[int, DroneState]]) -> None:
+        self.controller = controller
+        self._states = states
+        self._targets: dict[int, Vec3] = {}
+        self.error: BaseException | None = None
+
+    def setpoints(self, now_s: float, state: SwarmState) -> dict[int, Setpoint]:
+        if self.error is not None:
+            return {}
+        try:
+            out = {int(sysid): _as_setpoint(sp) for sysid, sp in self.controller(now_s, self._states()).items()}
+        except Exception as exc:
+            self.error = exc
+            return {}
+        self._targets = {s: sp.pos_ned_m for s, sp in out.items() if all(math.isfinite(v) for v in sp.pos_ned_m)}
+        return out
+
+    def targets(self) -> dict[int, Vec3]:
+        return dict(self._targets)
+
+
+@dataclass(slots=True)
+class _Call:
+    work: Callable[[], Any]
+    future: concurrent.futures.Future[Any]
+
+
+class Engine:
+    """One swarm and its supervisor in a thread. ``start`` spawns it (and raises what stopped it), ``call`` runs
+    work in the thread, ``close`` lands, stops every drone and writes the report."""
+
+    def __init__(self, options: LaunchOptions, simulation: Simulation, *, say: Callable[[str], None] | None = None,
+                 on_event: Callable[[Event], None] | None = None) -> None:  # fmt: skip
+        self.options = options
+        self._simulation = simulation
+        self._say = say or (lambda text: log.info("%s", text))
+        self._on_event = on_event
+        self._calls: queue.SimpleQueue[_Call | None] = queue.SimpleQueue()
+        self._ready: concurrent.futures.Future[None] = concurrent.futures.Future()
+        self._result: concurrent.futures.Future[FlightResult] = concurrent.futures.Future()
+        self._cancel = threading.Event()
+        self._closing = False
+        self._states: dict[int, DroneState] = {}  # replaced whole at each tick: readers in other threads see a snapshot
+        self._time_s = 0.0
+        self._controller: ControllerBehaviour | None = None
+        self._pending: ControllerError | None = None  # a controller that failed between calls (paced), for the next
+        self._status: dict[int, int] = {}  # each drone's last HEARTBEAT system_status (failsafe events)
+        self._thread = threading.Thread(target=self._main, name="swarm-supervisor", daemon=True)
+        self.swarm: Swarm | None = None
+        self.station: Station | None = None
+
+    # ---- from any thread -------------------------------------------------------------------------------------------
+    def start_thread(self) -> None:
+        """Spawn the swarm in the supervisor's thread; ``ready`` completes once every drone is up (or with what
+        stopped it: SpawnError, one line)."""
+        self._thread.start()
+
+    @property
+    def ready(self) -> concurrent.futures.Future[None]:
+        return self._ready
+
+    def submit(self, work: Callable[[], T]) -> concurrent.futures.Future[T]:
+        """Run ``work`` in the supervisor's thread after the calls before it; its result or exception in the future."""
+        future: concurrent.futures.Future[T] = concurrent.futures.Future()
+        if self._closing:
+            future.set_exception(SessionClosed("the swarm session is closed"))
+            return future
+        self._calls.put(_Call(work, future))
+        return future
+
+    def close(self, *, interrupt: bool = False) -> concurrent.futures.Future[FlightResult]:
+        """Land what flies, stop every drone, write the report; ``interrupt`` first ends the call in progress (Ctrl-C).
+        The future holds the outcome; a second close returns the same future."""
+        if interrupt:
+            self._cancel.set()
+        if not self._closing:
+            self._closing = True
+            self._calls.put(None)
+        return self._result
+
+    def drones(self) -> dict[int, DroneState]:
+        """Every drone's state at the last tick (a snapshot: it does not change under the caller)."""
+        return self._states
+
+    @property
+    def time_s(self) -> float:
+        """The swarm's clock at the last tick: simulated seconds since the drones came up."""
+        return self._time_s
+
+    # ---- in the supervisor's thread ------------------------------------------------------------------------------
+    def _main(self) -> None:
+        try:
+            self._up()
+        except BaseException as exc:
+            self._ready.set_exception(exc)
+            self._result.set_exception(SessionClosed(f"the swarm did not start: {exc}"))
+            self._stop_swarm()
+            return
+        self._ready.set_result(None)
+        try:
+            self._serve()
+        finally:
+            try:
+                self._result.set_result(self._shut_down())
+            except BaseException as exc:
+                self._result.set_exception(exc)
+
+    def _up(self) -> None:
+        o = self.options
+        speed = o.speed if o.speed is not None else (0.0 if o.lockstep else 1.0)
+        plan = SpawnPlan(n_drones=o.drones, spacing_m=o.spacing_m, layout=o.layout, origin=o.origin,
+                         speed_factor=speed, lockstep=o.lockstep, lockstep_quantum=o.quantum,
+                         first_instance=o.first_instance, airframe=o.airframe, seed=o.seed, log_dir=o.log_dir,
+                         drones_per_process=o.drones_per_process, signing_key_file=o.signing_key_file,
+                         links=o.links)  # fmt: skip
+        contact = self._simulation.contact_distance_m(o.airframe)
+        self.swarm = swarm = Swarm(plan, self._simulation.harness(plan), forward=o.forward)
+        self.station = Station(swarm, self._say, o.loss_policy, report_dir=o.report_dir, contact_distance_m=contact)
+        swarm.listeners.append(self._on_message)
+        swarm.up(ready_timeout_s=o.ready_timeout_s)
+        for name, value in o.params.items():
+            for result in swarm.set_params(name, value, swarm.sysids):
+                if not result.ok:
+                    raise SwarmError(f"drone {result.sysid}: parameter {name} = {value:g} not set")
+        # ready means every drone has a home and a position, so states and formations can use them at once
+        if not swarm.wait_until(lambda: all(math.isfinite(s.pos_ned_m[0]) for s in self._snapshot().values()),
+                                o.ready_timeout_s, tick=self._tick):  # fmt: skip
+            raise SwarmError(f"not every drone reported its home and position within {o.ready_timeout_s:g} s")
+        self._publish()
+
+    def _serve(self) -> None:
+        swarm = self.swarm
+        assert swarm is not None
+        while not self._cancel.is_set():
+            try:
+                call = self._calls.get(block=swarm.plan.lockstep)  # lockstep: the clock stands still between calls
+            except queue.Empty:  # paced: keep the swarm going
+                swarm.pump(_IDLE_PUMP_S)
+                try:
+                    self._tick(swarm.clock())
+                except ControllerError as exc:
+                    self._pending = exc
+                except _Cancelled:
+                    break
+                continue
+            if call is None:
+                return
+            if not call.future.set_running_or_notify_cancel():
+                continue
+            try:
+                if self._pending is not None:
+                    failed, self._pending = self._pending, None
+                    raise failed
+                result = call.work()
+                self._publish()
+                call.future.set_result(result)
+            except _Cancelled:
+                call.future.set_exception(SessionClosed("the swarm session was closed during this call"))
+                return
+            except BaseException as exc:
+                self._publish()
+                call.future.set_exception(exc)
+        # closed under a call: whatever else was posted will not run
+        while True:
+            try:
+                pending = self._calls.get_nowait()
+            except queue.Empty:
+                break
+            if pending is not None:
+                pending.future.set_exception(SessionClosed("the swarm session is closed"))
+
+    def _tick(self, now_s: float) -> None:
+        """Every pass of a waiting loop: the streamer's setpoints, losses and returns, the snapshot, the controller's
+        health; a close (Ctrl-C) ends the call in progress from here."""
+        if self._cancel.is_set():
+            raise _Cancelled
+        station, swarm = self.station, self.swarm
+        assert station is not None and swarm is not None
+        station.tick()
+        losses, regained, policy = set(swarm.losses), len(swarm.regained), len(station.recording.policy_events)
+        station.watch(now_s)
+        t = station.mission_time()
+        for sysid in sorted(set(swarm.losses) - losses):
+            self._emit(Event(kind="lost", time_s=t, sysid=sysid, text=swarm.losses[sysid].cause))
+        for loss in swarm.regained[regained:]:
+            self._emit(Event(kind="regained", time_s=t, sysid=loss.sysid, text=f"link regained ({loss.cause})"))
+        for record in station.recording.policy_events[policy:]:
+            self._emit(Event(kind="policy", time_s=record.time_s, sysid=record.sysid, text=record.text))
+        self._publish()
+        controller = self._controller
+        if controller is not None and controller.error is not None:
+            self._controller = None
+            station.streamer.stop()
+            held = swarm.hold_all()
+            self._say(f"swarm: the controller raised {type(controller.error).__name__}: {controller.error}; "
+                      f"sysid {held} hold where they are")  # fmt: skip
+            raise ControllerError(f"the controller raised {controller.error!r}") from controller.error
+
+    def _publish(self) -> None:
+        """A new snapshot for readers in other threads (``drones``, ``time_s``): at every tick and after every call,
+        so a call's caller sees the state it ended in."""
+        assert self.station is not None
+        self._time_s = self.station.mission_time()
+        self._states = self._snapshot()
+
+    def _snapshot(self) -> dict[int, DroneState]:
+        swarm, station = self.swarm, self.station
+        assert swarm is not None and station is not None
+        now = swarm.clock()
+        t = station.mission_time()
+        out: dict[int, DroneState] = {}
+        for sysid in swarm.sysids:
+            view = swarm.fleet.drones.get(sysid)
+            if view is None:
+                continue
+            frame = station.streamer.drone_frame(sysid)
+            known = frame is not None and all(math.isfinite(v) for v in view.local_ned_m)
+            pos = frame.to_swarm(view.local_ned_m) if known and frame is not None else NAN3
+            moving = frame is not None and all(math.isfinite(v) for v in view.vel_ned_mps)
+            vel = frame.vector_to_swarm(view.vel_ned_mps) if moving and frame is not None else NAN3
+            out[sysid] = DroneState(
+                sysid=sysid, time_s=t, pos_ned_m=pos, vel_ned_mps=vel, armed=view.armed, mode=view.mode,
+                in_air=view.landed_state not in _NOT_IN_AIR,
+                battery_remaining=view.battery_remaining, link_age_s=view.link_age_s(now),
+                lost=sysid in swarm.losses, failsafe=failsafe_text(view.system_status, view.texts),
+            )  # fmt: skip
+        return out
+
+    def _on_message(self, msg: Any, _now_s: float) -> None:
+        if self._on_event is None or self.station is None:
+            return
+        kind = msg.get_type()
+        sysid = msg.get_srcSystem()
+        if kind == "STATUSTEXT":
+            self._emit(Event(kind="statustext", time_s=self.station.mission_time(), sysid=sysid, text=msg.text,
+                             severity=msg.severity))  # fmt: skip
+        elif kind == "HEARTBEAT" and msg.get_srcComponent() == 1:
+            before = self._status.get(sysid)
+            self._status[sysid] = msg.system_status
+            if msg.system_status == MAV_STATE_CRITICAL and before != MAV_STATE_CRITICAL:
+                view = self.swarm.fleet.drones.get(sysid) if self.swarm is not None else None
+                text = failsafe_text(msg.system_status, view.texts) if view is not None else None
+                self._emit(Event(kind="failsafe", time_s=self.station.mission_time(), sysid=sysid,
+                                 text=text or "failsafe"))  # fmt: skip
+
+    def _emit(self, event: Event) -> None:
+        if self._on_event is not None:
+            try:
+                self._on_event(event)
+            except Exception:  # a subscriber's mistake must not take the supervisor down
+                log.exception("an event subscriber raised")
+
+    def _shut_down(self) -> FlightResult:
+        station, swarm = self.station, self.swarm
+        assert station is not None and swarm is not None
+        self._cancel.clear()  # the shutdown's own waits run to their end
+        station.streamer.stop()
+        station.end_session()
+        try:
+            swarm.shutdown()
+        finally:
+            report = station.write_report()
+        metrics = json.loads((report / METRICS_FILE).read_text()) if report is not None else {}
+        return FlightResult(report_dir=report, metrics=metrics)
+
+    def _stop_swarm(self) -> None:
+        """After a failed start: stop whatever did start."""
+        if self.swarm is not None:
+            try:
+                self.swarm.shutdown()
+            except Exception:
+                log.exception("stopping the swarm after a failed start")
+
+    # ---- the work the faces post (each runs in the supervisor's thread) --------------------------------------------
+    def _parts(self) -> tuple[Swarm, Station]:
+        assert self.swarm is not None and self.station is not None
+        return self.swarm, self.station
+
+    def _begin(self, cmd: str, **fields: Any) -> None:
+        """A new report step (takeoff, a formation, a behaviour, land), as ``swarm up`` records its commands."""
+        _, station = self._parts()
+        station.begin_step({"cmd": cmd, **fields})
+
+    def do_takeoff(self, alt_m: float, timeout_s: float) -> None:
+        swarm, station = self._parts()
+        if not (math.isfinite(alt_m) and 0.5 <= alt_m <= 100.0):
+            raise ValueError(f"alt_m must be between 0.5 and 100 m, got {alt_m:g}")
+        self._begin("takeoff", alt=alt_m)
+        take_off_and_hold(swarm, station.streamer, alt_m, timeout_s, tick=self._tick)
+
+    def do_formation(self, formation: Formation) -> float:
+        _, station = self._parts()
+        shape = _SHAPES.get(type(formation))
+        if shape is None:
+            raise TypeError(f"not a formation: {formation!r} (GridSpec, CircleSpec, LineSpec or VSpec)")
+        self._controller = None
+        station.streamer.command(formation, station.mission_time())
+        self._begin("formation", shape=shape)
+        transition = station.streamer.engine.transition
+        return transition.arrival_s - station.mission_time() if transition is not None else 0.0
+
+    def do_flock(self, spec: FlockSpec) -> None:
+        _, station = self._parts()
+        self._controller = None
+        station.streamer.command_flock(spec, station.mission_time())
+        self._begin("flock")
+
+    def do_follow(self, spec: FollowSpec) -> None:
+        _, station = self._parts()
+        self._controller = None
+        station.streamer.command_follow(spec, station.mission_time())
+        self._begin("follow")
+
+    def do_control(self, controller: Controller) -> None:
+        _, station = self._parts()
+        behaviour = ControllerBehaviour(controller, self._snapshot)
+        self._controller = behaviour
+        station.streamer.command_behaviour(behaviour, station.mission_time())
+        self._begin("control")
+
+    def do_sleep(self, seconds: float) -> None:
+        swarm, _ = self._parts()
+        if not (math.isfinite(seconds) and seconds >= 0):
+            raise ValueError(f"seconds must be a finite number >= 0, got {seconds!r}")
+        swarm.run_for(seconds, tick=self._tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
+
+    def do_wait_until(self, predicate: Callable[[dict[int, DroneState]], bool], timeout_s: float) -> bool:
+        swarm, _ = self._parts()
+        return swarm.wait_until(lambda: bool(predicate(self._states)), timeout_s, tick=self._tick)
+
+    def do_land(self, *, return_to_launch: bool, timeout_s: float) -> None:
+        swarm, station = self._parts()
+        self._controller = None
+        station.streamer.stop()
+        self._begin("rtl" if return_to_launch else "land")
+        flying = swarm.land_all(return_to_launch=return_to_launch)
+        if not swarm.wait_until(lambda: not swarm.armed_sysids(flying), timeout_s, tick=self._tick):
+            raise SwarmError(f"not every drone landed and disarmed within {timeout_s:g} s")
+
+    def do_set_param(self, name: str, value: float, sysids: list[int] | None) -> None:
+        swarm, _ = self._parts()
+        for result in swarm.set_params(name, value, swarm.sysids if sysids is None else sysids):
+            if result.refused:
+                raise SwarmError(f"drone {result.sysid}: parameter {name} = {value:g} refused (kept {result.kept:g})")
+            if not result.ok:
+                raise SwarmError(f"drone {result.sysid}: no answer to setting parameter {name}")
+
+    def do_fault(self, sysid: int, kind: str, motor: int | None, for_s: float | None) -> str:
+        _, station = self._parts()
+        answer = station.fault({"sysid": sysid, "kind": kind, "motor": motor, "for_s": for_s})
+        if not answer.get("ok"):
+            raise (ValueError if answer.get("usage") else SwarmError)(answer["error"])
+        return str(answer["result"])
+
+    def do_kill(self, sysid: int) -> str:
+        return self.do_fault(sysid, CRASH, None, None)
+
+
+class Readings:
+    """What both faces of a session read without waiting: the last tick's snapshot (gcs/api/session.py documents
+    the asyncio face; the blocking face reads the same)."""
+
+    _engine: Engine
+
+    @property
+    def sysids(self) -> list[int]:
+        """Every drone's MAVLink system id, in spawn order."""
+        return sorted(self._engine.drones())
+
+    def drones(self) -> dict[int, DroneState]:
+        """Every drone's state as of the last tick, by sysid (a snapshot: it does not change under you)."""
+        return self._engine.drones()
+
+    @property
+    def time_s(self) -> float:
+        """The swarm's clock: simulated seconds since the drones came up."""
+        return self._engine.time_s

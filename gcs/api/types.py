@@ -1,0 +1,107 @@
+"""What the Python API hands its user: launch options, each drone's state, events, the flight's outcome.
+
+Plain frozen dataclasses with units in their names, built from MAVLink telemetry only (gcs/fleet.py): a drone's
+state is what a ground station would know of a real PX4 vehicle, in the swarm frame (north, east, down metres from
+the swarm origin), never simulation truth.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from gcs.frames import Vec3
+from gcs.geodesy import DEFAULT_ORIGIN, GeoPoint
+from gcs.links import LinkPlan
+from gcs.losses import LossPolicy
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LaunchOptions:
+    """Everything ``launch`` needs, with the defaults of ``swarm up`` except ``lockstep`` (on: an API user's
+    script is reproducible unless asked otherwise)."""
+
+    drones: int
+    layout: str = "grid"  # grid or line (gcs/harness.py LAYOUTS)
+    spacing_m: float = 2.0
+    origin: GeoPoint = DEFAULT_ORIGIN
+    lockstep: bool = True
+    speed: float | None = None  # paced: the speed factor (default 1); lockstep: a pace (default: as fast as it can)
+    quantum: int = 1  # lockstep: physics steps every drone runs between waits
+    seed: int = 0
+    first_instance: int = 0
+    airframe: str | None = None
+    drones_per_process: int | Literal["auto"] = 1
+    params: Mapping[str, float] = field(default_factory=dict)  # drone parameters set before anything flies
+    links: LinkPlan = field(default_factory=LinkPlan)
+    loss_policy: LossPolicy = LossPolicy.CONTINUE
+    report_dir: Path | None = None  # write the flight report here at the end (None: no report)
+    log_dir: Path | None = None  # each drone's log (None: a temporary directory)
+    forward: tuple[str, int] | None = None  # forward all drone traffic to a ground station (QGroundControl)
+    signing_key_file: Path | None = None
+    ready_timeout_s: float = 60.0  # wall seconds for every drone to come up
+
+    def __post_init__(self) -> None:
+        for name in ("report_dir", "log_dir", "signing_key_file"):  # a path may come as a string (launch's **options)
+            value = getattr(self, name)
+            if value is not None and not isinstance(value, Path):
+                object.__setattr__(self, name, Path(value))
+        if not 1 <= self.drones <= 100:
+            raise ValueError(f"drones must be in 1..100, got {self.drones}")
+        if self.first_instance < 0 or self.first_instance + self.drones > 255:
+            raise ValueError("first_instance must leave room for every sysid (instance + 1 <= 255)")
+        if self.speed is not None and not (math.isfinite(self.speed) and self.speed > 0):
+            raise ValueError(f"speed must be a positive number, got {self.speed!r}")
+        if self.quantum < 1:
+            raise ValueError(f"quantum must be at least 1, got {self.quantum}")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DroneState:
+    """One drone as its telemetry reports it, at ``time_s`` on the swarm's clock (simulated seconds)."""
+
+    sysid: int
+    time_s: float
+    pos_ned_m: Vec3  # swarm frame; NaN until the drone has reported a position and its home
+    vel_ned_mps: Vec3
+    armed: bool
+    mode: str  # PX4's name: OFFBOARD, AUTO.LOITER, AUTO.LAND, ...
+    in_air: bool  # EXTENDED_SYS_STATE: not on the ground
+    battery_remaining: float  # 0..1, NaN unknown
+    link_age_s: float  # since anything was last heard from it
+    lost: bool  # the swarm has lost it (process ended, crashed, or silent): see ``Event`` DroneLost
+    failsafe: str | None  # its warning while it reports MAV_STATE_CRITICAL (a failsafe in force)
+
+    @property
+    def alt_m(self) -> float:
+        """Altitude above the swarm origin."""
+        return -self.pos_ned_m[2]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Event:
+    """Something that happened, as the supervisor would print it: ``kind`` is ``statustext`` (a drone's warning or
+    information text), ``lost`` (the swarm lost a drone), ``regained`` (a silent drone heard again), ``failsafe`` (a
+    drone entered a failsafe) or ``policy`` (what the swarm did about a loss or a return)."""
+
+    kind: Literal["statustext", "lost", "regained", "failsafe", "policy"]
+    time_s: float
+    sysid: int | None  # None: the whole swarm
+    text: str
+    severity: int | None = None  # MAV_SEVERITY of a statustext
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FlightResult:
+    """The outcome of a session: where the report went (None without ``report_dir``) and its metrics (the content
+    of metrics.json: docs/missions.md lists every figure)."""
+
+    report_dir: Path | None
+    metrics: dict[str, Any]
+
+
+class ControllerError(RuntimeError):
+    """The user's controller raised: it was stopped and every drone holds where it is (the cause is chained)."""

@@ -1,0 +1,132 @@
+"""The Python API (gcs/api) flying real ``sitl`` drones in lockstep: asyncio and blocking, a user's controller, events,
+faults, errors, and every process gone at the end, however the session ends.
+
+Policy: loopback only; instances 40-49; a time limit on every test; the drone processes are children of this test
+process (started by the session's supervisor thread) and each test checks that none is left.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import math
+from pathlib import Path
+
+import pytest
+
+from gcs.api import (
+    CircleSpec,
+    ControllerError,
+    DroneState,
+    Event,
+    LaunchOptions,
+    Setpoint,
+    launch,
+    launch_blocking,
+)
+from tests.integration.conftest import child_pids
+from tests.integration.test_swarm import wait_dead
+
+pytestmark = [pytest.mark.sim_only]
+
+ALT_M = 3.0
+
+
+def on_circle(drones: dict[int, DroneState], radius_m: float, tolerance_m: float) -> bool:
+    return all(abs(math.hypot(d.pos_ned_m[0], d.pos_ned_m[1]) - radius_m) < tolerance_m for d in drones.values())
+
+
+@pytest.mark.timeout(180)
+def test_an_async_session_flies_a_formation_and_a_users_controller_then_lands_and_reports(tmp_path: Path) -> None:
+    events: list[Event] = []
+    spread: dict[str, float] = {}
+
+    async def fly() -> dict[str, object]:
+        async with launch(3, lockstep=True, first_instance=40, drones_per_process="auto",
+                          report_dir=tmp_path / "report") as swarm:  # fmt: skip
+            collecting = asyncio.create_task(collect(swarm.events()))
+            assert swarm.sysids == [41, 42, 43]
+            # GIVEN three drones up, WHEN they take off THEN the call returns with every drone at the altitude
+            await swarm.takeoff(ALT_M)
+            assert all(abs(d.alt_m - ALT_M) < 0.25 and d.armed and d.in_air for d in swarm.drones().values())
+            # WHEN they fly a rotating circle THEN they are on it by the time the call said
+            arrival_s = await swarm.formation(CircleSpec(radius_m=3.0, alt_m=ALT_M, angular_rate_radps=0.3))
+            await swarm.sleep(arrival_s + 2.0)
+            assert on_circle(swarm.drones(), 3.0, 0.3), swarm.drones()
+            # WHEN the user's own function commands them (a wider circle turning the other way, as bare positions)
+            seen: list[float] = []
+
+            def widen(t_s: float, drones: dict[int, DroneState]) -> dict[int, tuple[float, float, float]]:
+                seen.append(t_s)
+                return {s: (5.0 * math.cos(2.0944 * k - 0.2 * t_s), 5.0 * math.sin(2.0944 * k - 0.2 * t_s), -ALT_M)
+                        for k, s in enumerate(sorted(drones))}  # fmt: skip
+
+            await swarm.control(widen)
+            reached = await swarm.wait_until(lambda drones: on_circle(drones, 5.0, 0.3), timeout_s=30.0)
+            assert reached, swarm.drones()
+            # THEN it was called every tick, 20 times a simulated second (lockstep frames are 0.02 s, so a tick
+            # comes 0.04 or 0.06 s after the last), and they follow it
+            steps = [b - a for a, b in itertools.pairwise(seen)]
+            assert len(steps) > 20 and max(steps) < 0.061, steps[:20]
+            assert abs((seen[-1] - seen[0]) / len(steps) - 0.05) < 0.001, (seen[0], seen[-1], len(steps))
+            await swarm.sleep(3.0)
+            assert on_circle(swarm.drones(), 5.0, 0.3), swarm.drones()
+            spread["time_s"] = swarm.time_s
+            await swarm.land()
+            assert not any(d.armed for d in swarm.drones().values())
+            collecting.cancel()
+        assert swarm.result is not None and swarm.result.report_dir == tmp_path / "report"
+        return swarm.result.metrics
+
+    async def collect(stream: object) -> None:
+        async for event in stream:  # type: ignore[attr-defined]
+            events.append(event)
+
+    metrics = asyncio.run(fly())
+    # AND the report has every step, no collision, and the session's processes are all gone
+    assert [s["name"] for s in metrics["steps"]] == ["takeoff", "circle", "control", "land"], metrics["steps"]  # type: ignore[index]
+    assert metrics["collisions"] == 0
+    assert (tmp_path / "report" / "flight.tlog").stat().st_size > 100_000
+    assert any(e.kind == "statustext" and e.sysid in (41, 42, 43) for e in events), events[:5]
+    assert wait_dead(sorted(child_pids()), 10) == []
+
+
+@pytest.mark.timeout(180)
+def test_a_controller_that_raises_holds_the_swarm_and_an_exception_in_the_block_still_stops_everything(
+    tmp_path: Path,
+) -> None:
+    said: list[str] = []
+
+    def broken(t_s: float, drones: dict[int, DroneState]) -> dict[int, Setpoint]:
+        if t_s > start_s + 1.0:
+            raise ZeroDivisionError("the user's bug")
+        return {s: Setpoint(pos_ned_m=d.pos_ned_m, vel_ned_mps=(0.0, 0.0, 0.0), acc_ned_mps2=(0.0, 0.0, 0.0),
+                            yaw_rad=math.nan) for s, d in drones.items()}  # fmt: skip
+
+    with pytest.raises(RuntimeError, match="the script's own failure"), \
+            launch_blocking(2, lockstep=True, first_instance=44, say=said.append) as swarm:  # fmt: skip
+        swarm.takeoff(ALT_M)
+        start_s = swarm.time_s
+        swarm.control(broken)
+        # WHEN the controller raises THEN the call in progress raises ControllerError (the cause chained) and every
+        # drone holds where it is, still flying
+        with pytest.raises(ControllerError) as info:
+            swarm.sleep(5.0)
+        assert isinstance(info.value.__cause__, ZeroDivisionError)
+        swarm.sleep(1.0)
+        assert all(d.mode == "AUTO.LOITER" and d.in_air for d in swarm.drones().values()), swarm.drones()
+        assert any("the controller raised ZeroDivisionError: the user's bug" in line for line in said), said
+        # WHEN the user's script then fails inside the block
+        raise RuntimeError("the script's own failure")
+    # THEN the session still landed and stopped every drone process
+    assert swarm.result is not None and swarm.result.report_dir is None
+    assert wait_dead(sorted(child_pids()), 10) == []
+
+
+def test_bad_launch_options_are_one_line_before_anything_starts() -> None:
+    for bad, fragment in (({"drones": 0}, "drones must be in 1..100, got 0"),
+                          ({"drones": 3, "first_instance": 253}, "first_instance must leave room"),
+                          ({"drones": 3, "speed": -1.0}, "speed must be a positive number")):  # fmt: skip
+        with pytest.raises(ValueError, match=fragment):
+            LaunchOptions(**bad)  # type: ignore[arg-type]
+    assert child_pids() == set()

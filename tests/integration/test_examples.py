@@ -1,0 +1,72 @@
+"""Every example in examples/ runs as a user runs it (a subprocess, short settings) and checks its own outcome
+(exit code 0). The classic demo through the Python API flies like ``swarm fly missions/grid_to_circle.toml``: the
+same figures within noise. (examples/test_my_swarm.py runs in tests/integration/test_pytest_plugin.py.)
+
+Policy: loopback only; instances 30-38 (the mission), 60-68 (the API demo), 72-75, 77, 78-79; a time limit on each.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.integration.mission_flight import fly_mission
+
+pytestmark = [pytest.mark.sim_only]
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+
+
+def run_example(name: str, *args: str, timeout_s: float = 240) -> subprocess.CompletedProcess[str]:
+    result = subprocess.run([sys.executable, str(EXAMPLES / name), *args], capture_output=True, text=True,
+                            timeout=timeout_s)  # fmt: skip
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    return result
+
+
+def step(metrics: dict[str, Any], name: str) -> dict[str, Any]:
+    return next(s for s in metrics["steps"] if s["name"] == name)
+
+
+@pytest.mark.timeout(600)
+def test_the_classic_demo_through_the_api_flies_like_the_mission_file(tmp_path: Path) -> None:
+    # GIVEN the grid-to-circle mission flown by ``swarm fly`` in lockstep
+    mission, _ = fly_mission("grid_to_circle.toml", ["--lockstep", "--first-instance", "30",
+                                                     "--drones-per-process", "auto"], tmp_path, 300)  # fmt: skip
+    # WHEN the API example flies the same steps
+    run_example("classic_demo.py", "--first-instance", "60", "--report", str(tmp_path / "api"))
+    api = json.loads((tmp_path / "api" / "metrics.json").read_text())
+    # THEN both fly without a collision, with the same steps, and their figures agree within noise
+    assert mission["collisions"] == api["collisions"] == 0
+    assert [s["name"] for s in api["steps"]] == ["takeoff", "grid", "circle", "land"], api["steps"]
+    assert abs(api["min_separation_m"] - mission["min_separation_m"]) < 0.15, (api["min_separation_m"],
+                                                                               mission["min_separation_m"])  # fmt: skip
+    for name in ("grid", "circle"):
+        a, m = step(api, name)["formation_rms_m"], step(mission, name)["formation_rms_m"]
+        assert a is not None and m is not None and abs(a - m) < 0.05, (name, a, m)
+    assert abs(api["takeoff_time_s"] - mission["takeoff_time_s"]) < 0.5, (api["takeoff_time_s"],
+                                                                          mission["takeoff_time_s"])  # fmt: skip
+
+
+@pytest.mark.timeout(300)
+def test_the_custom_controller_example_brings_four_drones_onto_its_ring(tmp_path: Path) -> None:
+    result = run_example("custom_controller.py", "--drones", "4", "--seconds", "25", "--first-instance", "72",
+                         "--report", str(tmp_path / "report"))  # fmt: skip
+    assert "collisions 0" in result.stdout, result.stdout[-2000:]
+
+
+@pytest.mark.timeout(200)
+def test_the_pymavlink_example_takes_one_drone_off_and_lands_it() -> None:
+    result = run_example("pymavlink_takeoff_land.py", "--start-drone", "--instance", "77")
+    assert "landed and disarmed" in result.stdout, result.stdout
+
+
+@pytest.mark.timeout(200)
+def test_the_mavsdk_example_flies_two_drones_at_once() -> None:
+    result = run_example("mavsdk_several_drones.py", "--drones", "2", "--first-instance", "78")
+    assert result.stdout.count("landed and disarmed") == 2, result.stdout[-2000:]

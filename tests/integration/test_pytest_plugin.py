@@ -1,0 +1,40 @@
+"""The pytest plugin (gcs/pytest_plugin.py) judged as a user meets it: a user's test file run by pytest in a
+subprocess, with the plugin found through its entry point. The example test passes; the same test with the drones
+told to fly 0.3 m apart, avoidance off, fails on ``assert_no_collisions`` with the collision in its message.
+
+Policy: loopback only; instances 45-46 (each test of the file launches one session there); a time
+limit; the subprocess's drones are its own (the plugin closes every session).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+pytestmark = [pytest.mark.sim_only]
+pytest_plugins = ["pytester"]
+
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "test_my_swarm.py"
+COLLIDING = """
+
+@pytest.mark.timeout(180)
+@pytest.mark.swarm(2, layout="line", spacing_m=3.0, params={"AVOID_ENABLE": 0})
+def test_two_drones_told_to_fly_0_3_m_apart(swarm: BlockingSession) -> None:
+    swarm.takeoff(3.0)
+    swarm.formation(LineSpec(spacing_m=0.3, alt_m=3.0))
+    swarm.sleep(8.0)
+    assert_no_collisions(swarm.close())
+"""
+
+
+@pytest.mark.timeout(300)
+def test_a_user_test_passes_when_its_drones_keep_apart_and_fails_when_they_collide(pytester: pytest.Pytester) -> None:
+    # GIVEN the example user test file, and beside it the same kind of test commanding a collision
+    pytester.makepyfile(test_user=EXAMPLE.read_text() + COLLIDING)
+    # WHEN pytest runs it (the plugin comes from the installed entry point)
+    result = pytester.runpytest_subprocess("-p", "no:cacheprovider", "--swarm-first-instance", "45", "-q",
+                                           timeout=280)  # fmt: skip
+    # THEN the well-behaved test passes and the colliding one fails on the assertion, naming the collision
+    result.assert_outcomes(passed=1, failed=1)
+    result.stdout.fnmatch_lines(["*AssertionError: 1 collision event(s); the first at t=*Collision with drone*"])
