@@ -14,8 +14,14 @@ from pymavlink.dialects.v20 import common as mavlink
 from sitl.dynamics.geodesy import geo_from_ned
 from sitl.dynamics.plant import DEFAULT_HOME
 from sitl.linkmodel import LinkImpairment
+from sitl.mavlink_io import MavlinkEndpoint
 from sitl.mesh import MESH_RATE_HZ, MeshCounters, MeshMedium, MeshRadio, MeshSettings, mesh_problem
+from sitl.params import ParamStore
+from sitl.protocol import Identity
 from sitl.protocol.neighbours import LINK, MESH, RELAY, NeighbourFeed, NeighbourTable
+from sitl.protocol.signing import SIGN_ALWAYS, SIGN_CFG_PARAM
+from sitl.protocol.testing import FakeVehicle
+from sitl.signing_params import SIGNING_PARAMS
 from sitl.world import MESH_SLOT_BYTES, MESH_SLOTS, SharedWorld
 
 pytestmark = pytest.mark.timeout(60)
@@ -256,3 +262,48 @@ def test_each_link_feeds_the_one_table_as_its_own_source() -> None:
     assert {s: c.updates for s, c in table.counts().items()} == {RELAY: 1, LINK: 1, MESH: 0}
     client.poll(5.0)  # any feed's poll expires the shared table's stale entries
     assert table.entries(5.0) == []
+
+
+# ---- through a drone's MAVLink endpoint ----------------------------------------------------------------------------
+
+
+def endpoint_with_radio(world: SharedWorld, instance: int, *, key: bytes | None, required: bool) -> MavlinkEndpoint:
+    """A drone's MAVLink side (no links: the mesh alone) with a mesh radio on ``world``."""
+    params = ParamStore(SIGNING_PARAMS)
+    if required:
+        params.set(SIGN_CFG_PARAM, SIGN_ALWAYS)
+    endpoint = MavlinkEndpoint(Identity(sysid=instance + 1), FakeVehicle(), params, [], signing_key=key)
+    endpoint.attach_mesh(radio(world, instance))
+    return endpoint
+
+
+def hear(receiver: MavlinkEndpoint, steps: int = 2) -> None:
+    for step in range(1, steps + 1):
+        receiver.hear_mesh(step * 0.004)
+
+
+@pytest.mark.parametrize(
+    ("sender_key", "receiver_key", "heard"),
+    [(None, None, True), (b"k" * 32, b"k" * 32, True), (None, b"k" * 32, False), (b"x" * 32, b"k" * 32, False)],
+)
+def test_a_drone_that_requires_signing_takes_only_correctly_signed_mesh_reports(
+    world: SharedWorld, sender_key: bytes | None, receiver_key: bytes | None, heard: bool
+) -> None:
+    # GIVEN two drones side by side, the receiver requiring signatures when it has a key
+    place(world, 0, 0.0)
+    place(world, 1, 1.0)
+    sender = endpoint_with_radio(world, 0, key=sender_key, required=False)
+    receiver = endpoint_with_radio(world, 1, key=receiver_key, required=receiver_key is not None)
+    try:
+        # WHEN the sender broadcasts its position report (its poll, as after a step) and the receiver steps
+        msg = mavlink.MAVLink_global_position_int_message(100, 473977420, 85455940, 491000, 3000, 0, 0, 0, 0)
+        sender._broadcast(msg, 0.0)
+        hear(receiver)
+        # THEN the report is in the receiver's table as heard over the mesh, or not at all
+        entries = receiver.neighbours.entries(0.01)
+        assert [(n.sysid, n.source) for n in entries] == ([(1, MESH)] if heard else [])
+        assert receiver.mesh is not None and receiver.mesh.counters().frames_delivered == 1  # the radio heard it
+        assert (receiver.signing.counters.signed_in == 1) == (heard and receiver_key is not None)
+    finally:
+        sender.close()
+        receiver.close()
