@@ -227,6 +227,15 @@ class NeighbourPlan:
             return "both" if self.mesh is not None else "relay"
         return "mesh" if self.mesh is not None else "none"
 
+    def describe(self) -> str:
+        """One line for the flight report: ``relay``, ``mesh (range 15 m, path loss (d/range)^4)``, ..."""
+        mesh = (
+            f"mesh (range {self.mesh.range_m:g} m, path loss (d/range)^{self.mesh.exponent:g})"
+            if self.mesh is not None
+            else ""
+        )
+        return {"relay": "relay", "mesh": mesh, "both": f"relay and {mesh}", "none": "none (cameras only)"}[self.mode]
+
     def with_mode(self, mode: str) -> NeighbourPlan:
         """This plan with the mode ``mode`` (one of NEIGHBOUR_MODES); a mesh keeps its settings, or takes the
         defaults. ValueError (one line) for another mode."""

@@ -182,6 +182,7 @@ class FlightMetrics:
     policy_events: tuple[EventRecord, ...] = ()
     requested_speed: float | None = None  # paced flights only
     signing_key_id: str | None = None  # MAVLink signing: the key's id (not the key) when on, None when off
+    neighbours: str = "relay"  # how neighbours' positions travelled: relay, mesh (with its range), both, none
     link_counters: dict[str, dict[str, float]] = field(default_factory=dict)  # the link model's counts by channel
     realtime_factor_min: float | None = None  # the drones' achieved pace, over 5 s windows
     realtime_factor_mean: float | None = None
@@ -219,6 +220,7 @@ class FlightMetrics:
             ],
             "requested_speed": _r(self.requested_speed),
             "signing": {"on": self.signing_key_id is not None, "key_id": self.signing_key_id},
+            "neighbours": self.neighbours,
             "links": {name: link_summary(c) for name, c in self.link_counters.items()},
             "realtime_factor_min": _r(self.realtime_factor_min),
             "realtime_factor_mean": _r(self.realtime_factor_mean),
@@ -637,6 +639,7 @@ def compute_metrics(recording: FlightRecording) -> FlightMetrics:
         policy_events=tuple(recording.policy_events),
         requested_speed=recording.requested_speed,
         signing_key_id=recording.signing_key_id,
+        neighbours=recording.neighbours,
         link_counters=dict(recording.link_counters),
         realtime_factor_min=min(recording.realtime_factors, default=None),
         realtime_factor_mean=(

@@ -299,6 +299,7 @@ def summary_text(metrics: FlightMetrics) -> str:
         + (
             f"on (key {metrics.signing_key_id}; the drones drop unsigned messages)" if metrics.signing_key_id else "off"
         ),
+        f"neighbours: {metrics.neighbours}",
     ]
     for name, counts in metrics.link_counters.items():
         link = link_summary(counts)

@@ -132,6 +132,8 @@ def test_nine_drones_fly_grid_to_circle_on_the_mesh_alone_with_a_tenth_of_every_
     assert "sitl 172: mesh: " in log and " reports by mesh (mean age at use " in log and " by relay" not in log
     summary = (report / "summary.txt").read_text()
     assert "link model, neighbour mesh: " in summary and "0 from the relay" in summary
+    assert metrics["neighbours"] == "mesh (range 15 m, path loss (d/range)^4)"
+    assert "\nneighbours: mesh (range 15 m, path loss (d/range)^4)\n" in summary
 
 
 @pytest.mark.timeout(900)

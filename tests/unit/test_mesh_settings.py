@@ -201,3 +201,12 @@ def test_a_bad_mesh_option_of_the_drone_is_one_line_and_exit_code_2(
 ) -> None:
     assert sitl_main(argv) == 2
     assert capsys.readouterr().err == line + "\n"
+
+
+def test_the_report_names_the_way_neighbours_travelled() -> None:
+    assert NeighbourPlan().describe() == "relay"
+    assert NeighbourPlan(relay=False, mesh=MeshPlan()).describe() == "mesh (range 15 m, path loss (d/range)^4)"
+    assert NeighbourPlan(relay=True, mesh=MeshPlan(range_m=30.0, exponent=2.0)).describe() == (
+        "relay and mesh (range 30 m, path loss (d/range)^2)"
+    )
+    assert NeighbourPlan(relay=False).describe() == "none (cameras only)"
