@@ -8,6 +8,7 @@ a non-zero exit code.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import re
 import signal
@@ -24,7 +25,7 @@ from gcs.control import ControlClient, ControlError, ControlServer
 from gcs.faults import CRASH, FAULT_NAMES, FaultError, fault_request
 from gcs.geodesy import DEFAULT_ORIGIN, GeoPoint
 from gcs.harness import LAYOUTS, Simulation, SpawnError, SpawnPlan, parse_drones_per_process
-from gcs.links import LINK_OPTIONS, LinkPlan, parse_link_value
+from gcs.links import LINK_OPTIONS, NEIGHBOUR_MODES, LinkPlan, NeighbourPlan, parse_link_value, parse_mesh_value
 from gcs.losses import LOSS_POLICIES, LossPolicy
 from gcs.mission_file import MissionFileError, build_flock, build_follow, load_mission
 from gcs.mission_runner import MissionRunner
@@ -190,6 +191,37 @@ def _add_link_options(parser: argparse.ArgumentParser) -> None:
         group.add_argument(option, type=_link_value(key), default=None, metavar=metavar, help=text)
 
 
+def _add_neighbour_options(parser: argparse.ArgumentParser) -> None:
+    """How neighbours' positions travel (over a mission's ``[swarm] neighbours`` and ``[swarm.mesh]``)."""
+    group = parser.add_argument_group('neighbour positions (docs/links.md, "Mesh")')
+    group.add_argument("--neighbours", choices=NEIGHBOUR_MODES, default=None,
+                       help="relay: the supervisor forwards each drone's position to the others (default); mesh: the "
+                       "drones hear each other directly over a simulated radio, no relay; both")  # fmt: skip
+    group.add_argument("--mesh-range-m", type=_mesh_value("range_m"), default=None, metavar="M",
+                       help="mesh radio range in metres (default 15): nothing heard beyond it, a report lost with "
+                       "probability (distance / range)^4 within it")  # fmt: skip
+
+
+def _mesh_value(key: str) -> Callable[[str], float]:
+    def parse(text: str) -> float:
+        try:
+            return parse_mesh_value(key, text)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    return parse
+
+
+def _neighbour_plan(args: argparse.Namespace, base: NeighbourPlan) -> NeighbourPlan:
+    """``base`` (a mission's, or the relay alone) with ``--neighbours`` and ``--mesh-range-m`` over it."""
+    plan = base.with_mode(args.neighbours) if args.neighbours is not None else base
+    if args.mesh_range_m is not None:
+        if plan.mesh is None:
+            raise UsageError("--mesh-range-m needs the mesh: --neighbours mesh or both (or a mission that has it)")
+        plan = NeighbourPlan(relay=plan.relay, mesh=dataclasses.replace(plan.mesh, range_m=args.mesh_range_m))
+    return plan
+
+
 def _link_value(key: str) -> Callable[[str], float]:
     def parse(text: str) -> float:
         try:
@@ -257,6 +289,7 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--layout", choices=sorted(LAYOUTS), default="grid", help="spawn layout (default grid)")
     _add_timing_options(up)
     _add_link_options(up)
+    _add_neighbour_options(up)
     up.add_argument("--first-instance", type=int, default=0, help="instance of the first drone (sysid = instance+1)")
     up.add_argument("--origin", type=_origin, default=DEFAULT_ORIGIN, help="swarm origin LAT,LON,ALT_AMSL")
     up.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
@@ -280,6 +313,7 @@ def build_parser() -> argparse.ArgumentParser:
     fly.add_argument("--report", type=Path, default=None, help="report directory (default reports/<mission>-<time>)")
     _add_timing_options(fly)
     _add_link_options(fly)
+    _add_neighbour_options(fly)
     fly.add_argument("--first-instance", type=int, default=0, help="instance of the first drone")
     fly.add_argument("--origin", type=_origin, default=DEFAULT_ORIGIN, help="swarm origin LAT,LON,ALT_AMSL")
     fly.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
@@ -383,6 +417,7 @@ def run_up(args: argparse.Namespace, simulation: Simulation) -> int:
             contact = simulation.contact_distance_m(args.airframe)
         except ValueError as exc:
             raise UsageError(str(exc)) from None
+    neighbours = _neighbour_plan(args, NeighbourPlan())
     plan = SpawnPlan(
         n_drones=args.drones,
         spacing_m=args.spacing,
@@ -400,12 +435,14 @@ def run_up(args: argparse.Namespace, simulation: Simulation) -> int:
         drones_per_process=args.drones_per_process,
         signing_key_file=_signing_key_file(args),
         links=_link_plan(args, LinkPlan()),
+        mesh=neighbours.mesh,
     )
     stop = _Stop()
     signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     for sig in signals:  # while the drones start, a signal ends the start-up at once (and stops what started)
         signal.signal(sig, _interrupt)
-    swarm = Swarm(plan, simulation.harness(plan), forward=None if args.no_forward else args.forward)
+    swarm = Swarm(plan, simulation.harness(plan), forward=None if args.no_forward else args.forward,
+                  relay=neighbours.relay)  # fmt: skip
     station = Station(swarm, _say, LossPolicy(args.loss_policy), report_dir=args.report, contact_distance_m=contact)
     server: ControlServer | None = None
     try:
@@ -457,6 +494,10 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
     if args.first_instance < 0 or args.first_instance + mission.swarm.drones > 255:
         raise UsageError("--first-instance must leave room for every sysid (instance + 1 <= 255)")
     links = _link_plan(args, mission.swarm.links)
+    neighbours = _neighbour_plan(args, NeighbourPlan(relay=mission.swarm.relay, mesh=mission.swarm.mesh))
+    mission = dataclasses.replace(
+        mission, swarm=dataclasses.replace(mission.swarm, relay=neighbours.relay, mesh=neighbours.mesh)
+    )
     report = args.report or Path("reports") / f"{mission.name}-{time.strftime('%Y%m%d-%H%M%S')}"
     runner = MissionRunner(mission, simulation, speed_factor=_speed(args), origin=args.origin,
                            first_instance=args.first_instance, report_dir=report, say=_say, airframe=args.airframe,

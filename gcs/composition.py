@@ -13,7 +13,7 @@ from typing import Literal
 
 from gcs.harness import SimulationHarness, SpawnPlan
 from gcs.links import LinkPlan
-from sitl.harness import GeoPoint, LaunchPlan, LinkImpairment, LinkProfile, SitlHarness
+from sitl.harness import GeoPoint, LaunchPlan, LinkImpairment, LinkProfile, MeshSettings, SitlHarness
 from sitl.harness import simulation as sim
 
 
@@ -35,6 +35,7 @@ def launch_plan(plan: SpawnPlan) -> LaunchPlan:
         drones_per_process=plan.drones_per_process,
         signing_key_file=plan.signing_key_file,
         links=link_profile(plan.links),
+        mesh=MeshSettings(range_m=plan.mesh.range_m, exponent=plan.mesh.exponent) if plan.mesh is not None else None,
     )
 
 

@@ -26,7 +26,7 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs.geodesy import DEFAULT_ORIGIN, GeoPoint
-from gcs.links import LinkPlan
+from gcs.links import LinkPlan, MeshPlan
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -75,6 +75,8 @@ class SpawnPlan:
     signing_key_file: Path | None = None
     # The link model's settings per link class, the same for every drone (each draws its own: docs/links.md).
     links: LinkPlan = field(default_factory=LinkPlan)
+    # The drone-to-drone mesh radio of every drone (docs/links.md "Mesh"); None: no mesh.
+    mesh: MeshPlan | None = None
 
     def offsets_ne_m(self) -> list[tuple[float, float]]:
         """Each drone's spawn position, north/east metres from the origin in the swarm frame (spawn order)."""
@@ -170,7 +172,11 @@ class SimulationHarness(Protocol):
     def link_counters(self) -> dict[str, dict[str, float]]:
         """What the link model did to the swarm's traffic, summed over the drones, by channel (``"gcs up"``: the
         ground-station links towards the drones; ``down``: from them) with ``frames_offered``, ``frames_lost``,
-        ``delayed`` and ``total_delay_s``; still answers after ``close``. Empty when every link is perfect."""
+        ``delayed`` and ``total_delay_s``; still answers after ``close``. Empty when every link is perfect and there
+        is no mesh. With the drone-to-drone mesh, ``"neighbour mesh"``: the reports the drones heard of each other,
+        with ``frames_delivered`` and the losses by cause (``lost_range``, ``lost_path``, ``lost_model``,
+        ``lost_overrun``), and the neighbour tables' updates by source (``relay_updates``: on the ground-station link,
+        ``link_updates``: on another MAVLink link, ``mesh_updates``)."""
         ...
 
     def cpu_parts_s(self) -> FloatArray:

@@ -6,7 +6,9 @@ the settings and their rules are declared again on this side: the same keys, ran
 drone's ``--link`` option, which a test holds against one table of cases.
 
 Three link classes: ``gcs`` (the ground station and a drone, both ways), ``api`` (a client such as MAVSDK and a
-drone's API link), ``neighbour`` (neighbour positions relayed to a drone, and the drone-to-drone mesh).
+drone's API link), ``neighbour`` (neighbour positions relayed to a drone, and the drone-to-drone mesh). Here too:
+which way neighbours' positions travel (``NeighbourPlan``: the relay, the mesh, or both) and the mesh radio's
+range and path loss (``MeshPlan``), with the drone's rules and words (sitl/mesh.py ``mesh_problem``).
 """
 
 from __future__ import annotations
@@ -168,6 +170,88 @@ def parse_link_value(key: str, text: str) -> float:
     except ValueError:
         raise ValueError(f"{key} must be a number, got {text!r}") from None
     problem = value_problem(key, value)
+    if problem is not None:
+        raise ValueError(problem)
+    return value
+
+
+# ---- how neighbours' positions travel: the ground station's relay, the drone-to-drone mesh, or both -------------
+
+NEIGHBOUR_MODES: Final = ("relay", "mesh", "both")
+DEFAULT_MESH_RANGE_M: Final = 15.0
+DEFAULT_MESH_EXPONENT: Final = 4.0
+MAX_MESH_EXPONENT: Final = 20.0  # the drone's own limit (sitl/mesh.py); beyond it the rule is a step at the range
+MESH_KEYS: Final = ("range_m", "exponent")
+
+
+def mesh_value_problem(key: str, value: object) -> str | None:
+    """Why one mesh setting is not valid (a whole line naming the key, the drone's words), or None."""
+    if key not in MESH_KEYS:
+        return f"unknown key {key!r} (keys: {', '.join(MESH_KEYS)})"
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        return f"{key} must be a finite number, got {value!r}"
+    if key == "range_m" and value <= 0:
+        return f"range_m must be > 0, got {value:g}"
+    if key == "exponent" and not 0 < value <= MAX_MESH_EXPONENT:
+        return f"exponent must be in (0, {MAX_MESH_EXPONENT:g}], got {value:g}"
+    return None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MeshPlan:
+    """The drones' mesh radio (docs/links.md "Mesh"): heard up to ``range_m``, a report lost with probability
+    ``(distance / range_m) ** exponent`` within it, and the neighbour link class's impairment on top."""
+
+    range_m: float = DEFAULT_MESH_RANGE_M
+    exponent: float = DEFAULT_MESH_EXPONENT
+
+    def __post_init__(self) -> None:
+        for key in MESH_KEYS:
+            problem = mesh_value_problem(key, getattr(self, key))
+            if problem is not None:
+                raise ValueError(problem)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class NeighbourPlan:
+    """How the drones learn each other's positions: the supervisor's relay, the mesh (``mesh`` set), both, or
+    neither (the cameras alone)."""
+
+    relay: bool = True
+    mesh: MeshPlan | None = None
+
+    @property
+    def mode(self) -> str:
+        """``relay``, ``mesh``, ``both`` or ``none``."""
+        if self.relay:
+            return "both" if self.mesh is not None else "relay"
+        return "mesh" if self.mesh is not None else "none"
+
+    def describe(self) -> str:
+        """One line for the flight report: ``relay``, ``mesh (range 15 m, path loss (d/range)^4)``, ..."""
+        mesh = (
+            f"mesh (range {self.mesh.range_m:g} m, path loss (d/range)^{self.mesh.exponent:g})"
+            if self.mesh is not None
+            else ""
+        )
+        return {"relay": "relay", "mesh": mesh, "both": f"relay and {mesh}", "none": "none (cameras only)"}[self.mode]
+
+    def with_mode(self, mode: str) -> NeighbourPlan:
+        """This plan with the mode ``mode`` (one of NEIGHBOUR_MODES); a mesh keeps its settings, or takes the
+        defaults. ValueError (one line) for another mode."""
+        if mode not in NEIGHBOUR_MODES:
+            raise ValueError(f"must be one of {', '.join(NEIGHBOUR_MODES)}, got {mode!r}")
+        mesh = (self.mesh or MeshPlan()) if mode in ("mesh", "both") else None
+        return NeighbourPlan(relay=mode in ("relay", "both"), mesh=mesh)
+
+
+def parse_mesh_value(key: str, text: str) -> float:
+    """One mesh option's value (``--mesh-range-m``); ValueError with the one line that says why it is no value."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"{key} must be a number, got {text!r}") from None
+    problem = mesh_value_problem(key, value)
     if problem is not None:
         raise ValueError(problem)
     return value

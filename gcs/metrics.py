@@ -186,6 +186,7 @@ class FlightMetrics:
     policy_events: tuple[EventRecord, ...] = ()
     requested_speed: float | None = None  # paced flights only
     signing_key_id: str | None = None  # MAVLink signing: the key's id (not the key) when on, None when off
+    neighbours: str = "relay"  # how neighbours' positions travelled: relay, mesh (with its range), both, none
     link_counters: dict[str, dict[str, float]] = field(default_factory=dict)  # the link model's counts by channel
     realtime_factor_min: float | None = None  # the drones' achieved pace, over 5 s windows
     realtime_factor_mean: float | None = None
@@ -224,6 +225,7 @@ class FlightMetrics:
             ],
             "requested_speed": _r(self.requested_speed),
             "signing": {"on": self.signing_key_id is not None, "key_id": self.signing_key_id},
+            "neighbours": self.neighbours,
             "links": {name: link_summary(c) for name, c in self.link_counters.items()},
             "realtime_factor_min": _r(self.realtime_factor_min),
             "realtime_factor_mean": _r(self.realtime_factor_mean),
@@ -261,13 +263,23 @@ def link_summary(counts: dict[str, float]) -> dict[str, Any]:
     lost = counts.get("frames_lost", 0.0)
     delayed = counts.get("delayed", 0.0)
     delivered = offered - lost
-    return {
+    out: dict[str, Any] = {
         "frames_offered": int(offered),
         "frames_lost": int(lost),
         "loss_rate": _r(lost / offered) if offered else None,
         "frames_delayed": int(delayed),
         "mean_delay_ms": _r(1000.0 * counts.get("total_delay_s", 0.0) / delivered) if delivered else None,
     }
+    # The drone-to-drone mesh (docs/links.md "Mesh") says why each report was not heard, and what the neighbour
+    # tables took from each source.
+    for key in MESH_DETAIL_KEYS:
+        if key in counts:
+            out[key] = int(counts[key])
+    return out
+
+
+MESH_DETAIL_KEYS = ("frames_delivered", "lost_range", "lost_path", "lost_model", "lost_overrun", "relay_updates",
+                    "link_updates", "mesh_updates")  # fmt: skip
 
 
 def _step_dict(step: StepMetrics) -> dict[str, Any]:
@@ -636,6 +648,7 @@ def compute_metrics(recording: FlightRecording) -> FlightMetrics:
         policy_events=tuple(recording.policy_events),
         requested_speed=recording.requested_speed,
         signing_key_id=recording.signing_key_id,
+        neighbours=recording.neighbours,
         link_counters=dict(recording.link_counters),
         realtime_factor_min=min(recording.realtime_factors, default=None),
         realtime_factor_mean=(

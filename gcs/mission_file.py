@@ -39,7 +39,18 @@ from gcs.behaviours import FlockSpec, FollowSpec
 from gcs.faults import FaultError, FaultRequest, fault_request
 from gcs.formation import CircleSpec, Formation, FormationError, GridSpec, LineSpec, VSpec
 from gcs.harness import LAYOUTS
-from gcs.links import LINK_CLASSES, LINK_KEYS, LinkPlan, plan_from_tables, value_problem
+from gcs.links import (
+    LINK_CLASSES,
+    LINK_KEYS,
+    MESH_KEYS,
+    NEIGHBOUR_MODES,
+    LinkPlan,
+    MeshPlan,
+    NeighbourPlan,
+    mesh_value_problem,
+    plan_from_tables,
+    value_problem,
+)
 from gcs.losses import LOSS_POLICIES, LossPolicy
 from gcs.plan_flight import OFFSET_MODES, PlanUsageError, parse_drones
 from gcs.qgc_plan import PlanFileError, QgcPlan, load_plan
@@ -58,7 +69,9 @@ class SwarmSpec:
     spacing_m: float = 2.0
     # Drone parameters set over MAVLink (PARAM_SET) before arming; an int travels as INT32, a float as REAL32.
     params: tuple[tuple[str, int | float], ...] = ()
-    relay: bool = True  # false: no neighbour relay, the drones see each other only with their cameras
+    relay: bool = True  # false: no neighbour relay (the mesh, if any, or the cameras alone)
+    # [swarm] neighbours = "mesh" | "both" and [swarm.mesh]: the drone-to-drone mesh radio; None: no mesh
+    mesh: MeshPlan | None = None
     # [swarm.links]: the link model's settings per link class (docs/links.md)
     links: LinkPlan = field(default_factory=LinkPlan)
 
@@ -611,6 +624,41 @@ def _links(reader: _Reader, table: Any) -> LinkPlan:
         raise reader.fail(place, None, problem) from None
 
 
+def _neighbours(reader: _Reader, swarm: dict[str, Any]) -> NeighbourPlan:
+    """``relay = true|false`` (the older key), ``neighbours = "relay"|"mesh"|"both"`` and ``[swarm.mesh]``; a
+    combination that says two things (relay = true with neighbours = "mesh") is refused, not resolved."""
+    where: tuple[str | None, int | None] = ("swarm", None)
+    relay = swarm.get("relay", True)
+    if not isinstance(relay, bool):
+        raise reader.fail(where, "relay", f"must be true or false, got {relay!r}")
+    mesh = _mesh(reader, swarm["mesh"]) if "mesh" in swarm else None
+    if "neighbours" not in swarm:
+        if mesh is not None:
+            raise reader.fail(("swarm.mesh", None), None, 'needs neighbours = "mesh" or "both" in [swarm]')
+        return NeighbourPlan(relay=relay)
+    mode = swarm["neighbours"]
+    if mode not in NEIGHBOUR_MODES:
+        raise reader.fail(where, "neighbours", f"must be one of {', '.join(NEIGHBOUR_MODES)}, got {mode!r}")
+    plan = NeighbourPlan(relay=True, mesh=mesh).with_mode(mode)
+    if "relay" in swarm and relay != plan.relay:
+        raise reader.fail(where, "relay", f"relay = {str(relay).lower()} contradicts neighbours = {mode!r}")
+    if mesh is not None and plan.mesh is None:
+        raise reader.fail(("swarm.mesh", None), None, f"is set but neighbours = {mode!r} has no mesh")
+    return plan
+
+
+def _mesh(reader: _Reader, table: Any) -> MeshPlan:
+    where: tuple[str | None, int | None] = ("swarm.mesh", None)
+    if not isinstance(table, dict):
+        raise reader.fail(("swarm", None), "mesh", "must be a table ([swarm.mesh])")
+    reader.check_keys(table, set(MESH_KEYS), where)
+    for key, value in table.items():
+        problem = mesh_value_problem(key, value)
+        if problem is not None:  # the label names the key already: the problem without it
+            raise reader.fail(where, key, problem.removeprefix(f"{key} "))
+    return MeshPlan(**{key: float(value) for key, value in table.items()})
+
+
 def _link_values(reader: _Reader, table: dict[str, Any], where: tuple[str | None, int | None]) -> dict[str, float]:
     for key, value in table.items():
         problem = value_problem(key, value)
@@ -661,7 +709,8 @@ def parse_mission(text: str, path: Path, *, max_obstacles: int | None = None) ->
     if not isinstance(swarm, dict):
         raise reader.fail((None, None), None, "missing [swarm] table with 'drones'")
     where_swarm: tuple[str | None, int | None] = ("swarm", None)
-    reader.check_keys(swarm, {"drones", "layout", "spacing_m", "params", "relay", "loss_policy", "links"}, where_swarm)
+    reader.check_keys(swarm, {"drones", "layout", "spacing_m", "params", "relay", "loss_policy", "links",
+                              "neighbours", "mesh"}, where_swarm)  # fmt: skip
     if "drones" not in swarm:
         raise reader.fail(where_swarm, None, "missing field 'drones'")
     drones = int(reader.number(swarm, "drones", where_swarm, "count"))
@@ -672,9 +721,7 @@ def parse_mission(text: str, path: Path, *, max_obstacles: int | None = None) ->
         raise reader.fail(where_swarm, "layout", f"must be one of {', '.join(sorted(LAYOUTS))}, got {layout!r}")
     spacing = reader.number(swarm, "spacing_m", where_swarm, "pos") if "spacing_m" in swarm else 2.0
     params = _params(reader, swarm.get("params", {}), where_swarm)
-    relay = swarm.get("relay", True)
-    if not isinstance(relay, bool):
-        raise reader.fail(where_swarm, "relay", f"must be true or false, got {relay!r}")
+    neighbours = _neighbours(reader, swarm)
     policy = swarm.get("loss_policy", LossPolicy.CONTINUE.value)
     if policy not in LOSS_POLICIES:
         raise reader.fail(where_swarm, "loss_policy", f"must be one of {', '.join(LOSS_POLICIES)}, got {policy!r}")
@@ -698,7 +745,8 @@ def parse_mission(text: str, path: Path, *, max_obstacles: int | None = None) ->
             layout=layout,
             spacing_m=spacing,
             params=params,
-            relay=relay,
+            relay=neighbours.relay,
+            mesh=neighbours.mesh,
             links=_links(reader, swarm.get("links", {})),
         ),
         steps=steps,

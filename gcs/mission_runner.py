@@ -24,7 +24,7 @@ from gcs.formation import SETPOINT_STREAM_HZ
 from gcs.frames import SwarmFrame
 from gcs.geodesy import GeoPoint
 from gcs.harness import Simulation, SpawnPlan
-from gcs.links import LinkPlan
+from gcs.links import LinkPlan, NeighbourPlan
 from gcs.losses import LossPolicy, loss_line, regain_line
 from gcs.mission_file import (
     FaultStep,
@@ -93,6 +93,7 @@ class MissionRunner:
             drones_per_process=drones_per_process,
             signing_key_file=signing_key_file,
             links=mission.swarm.links if links is None else links,  # None: the mission's own [swarm.links]
+            mesh=mission.swarm.mesh,
         )
         self.swarm = Swarm(plan, simulation.harness(plan), forward=forward, relay=mission.swarm.relay)
         self.streamer = FormationStreamer(self.swarm, self.swarm_frame)
@@ -110,6 +111,7 @@ class MissionRunner:
         self._step_name = "spawn"
         self.recording.loss_policy = mission.loss_policy.value
         self.recording.signing_key_id = self.swarm.signing_key_id
+        self.recording.neighbours = NeighbourPlan(relay=mission.swarm.relay, mesh=mission.swarm.mesh).describe()
         self._pending_faults: list[tuple[float, FaultStep]] = []  # (mission time due, step)
         self._policy_taken = False  # a loss policy other than continue has taken the survivors out of the mission
 

@@ -78,6 +78,7 @@ class FlightRecording:
     realtime_factors: list[float] = field(default_factory=list)
     loss_policy: str = "continue"  # what the survivors did on a loss (gcs/losses.py LossPolicy)
     signing_key_id: str | None = None  # MAVLink signing on (gcs/signing.py key_id of the key), None when off
+    neighbours: str = "relay"  # how neighbours' positions travelled (gcs/links.py NeighbourPlan.describe)
     # What the link model did, by channel ("gcs up", ...), summed over the drones (SimulationHarness.link_counters)
     link_counters: dict[str, dict[str, float]] = field(default_factory=dict)
     losses: list[DroneLoss] = field(default_factory=list)  # as finally known (where each came down, once it did)

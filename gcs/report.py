@@ -299,6 +299,7 @@ def summary_text(metrics: FlightMetrics) -> str:
         + (
             f"on (key {metrics.signing_key_id}; the drones drop unsigned messages)" if metrics.signing_key_id else "off"
         ),
+        f"neighbours: {metrics.neighbours}",
     ]
     for name, counts in metrics.link_counters.items():
         link = link_summary(counts)
@@ -306,6 +307,14 @@ def summary_text(metrics: FlightMetrics) -> str:
             f"link model, {name}: {link['frames_lost']} of {link['frames_offered']} frames lost "
             f"({100.0 * (link['loss_rate'] or 0.0):.1f} %), {link['frames_delayed']} delayed"
             + (f" (mean {link['mean_delay_ms']:.1f} ms)" if link["mean_delay_ms"] is not None else "")
+            + (
+                f"; lost {link['lost_range']} beyond range, {link['lost_path']} to path loss, {link['lost_model']} "
+                f"to the link model; the neighbour tables took {link['mesh_updates']} reports from the mesh, "
+                f"{link['relay_updates']} from the relay"
+                + (f", {link['link_updates']} from other MAVLink links" if link.get("link_updates") else "")
+                if "lost_range" in link
+                else ""
+            )
         )
     if metrics.requested_speed is not None and metrics.realtime_factor_min is not None:
         speed, low = metrics.requested_speed, metrics.realtime_factor_min

@@ -17,6 +17,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from gcs.degrade import apply_loss_policy, apply_regain
 from gcs.faults import CRASH, FaultError, fault_request, result_text
 from gcs.frames import SwarmFrame
+from gcs.links import NeighbourPlan
 from gcs.losses import MAV_STATE_CRITICAL, LossPolicy, loss_line, regain_line
 from gcs.mission_file import build_flock, build_follow, build_formation
 from gcs.mission_transfer import MISSION_STATE_NAMES
@@ -64,6 +65,7 @@ class Station:
         )
         self.recording.loss_policy = loss_policy.value
         self.recording.signing_key_id = swarm.signing_key_id
+        self.recording.neighbours = NeighbourPlan(relay=swarm.relay is not None, mesh=swarm.plan.mesh).describe()
         self.recorder: FlightRecorder | None = None
         if report_dir is not None:
             report_dir.mkdir(parents=True, exist_ok=True)

@@ -20,6 +20,7 @@ from sitl.dynamics.geodesy import geo_from_ned
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
 from sitl.linkmodel import IMPAIRMENT_KEYS, LinkProfile, link_profile
 from sitl.mavlink_io import LinkConfig, LinkError, parse_host_port
+from sitl.mesh import DEFAULT_EXPONENT, MeshSettings, mesh_problem
 from sitl.protocol.signing import SigningKeyError, load_key
 from sitl.specs import DroneSpec, ProcessSpec
 from sitl.wind import WindConfig
@@ -188,6 +189,21 @@ def build_parser() -> argparse.ArgumentParser:
         f"keys: {', '.join(IMPAIRMENT_KEYS)} (docs/links.md)",
     )
     parser.add_argument(
+        "--mesh-range-m",
+        type=float,
+        default=None,
+        metavar="M",
+        help="broadcast position reports to the other drones over the simulated drone-to-drone mesh, heard up to "
+        "this range (needs --world; docs/links.md)",
+    )
+    parser.add_argument(
+        "--mesh-exponent",
+        type=float,
+        default=None,
+        metavar="X",
+        help=f"mesh path loss: a report is lost with probability (distance / range)^X (default {DEFAULT_EXPONENT:g})",
+    )
+    parser.add_argument(
         "--camera-frames",
         type=Path,
         default=None,
@@ -243,6 +259,7 @@ def _main(argv: Sequence[str] | None) -> int:
         raise UsageError("--demo flies one drone: give --instance, not several --instances")
     wind = _float_list(args.wind, 3, "--wind")
     links = _link_profile(args.link or [])
+    mesh = _mesh(args)
     speed = _speed_factor(args.speed)
     homes = _homes(args, len(instances))
     cameras = set(parse_instances(args.camera_instances)) if args.camera_instances else set(instances)
@@ -283,6 +300,7 @@ def _main(argv: Sequence[str] | None) -> int:
             signing_key=signing_key,
             signing_required=args.signing_required,
             links=links,
+            mesh=mesh,
         ),
     )
 
@@ -318,6 +336,21 @@ def _link_profile(options: list[str]) -> LinkProfile:
         return link_profile(options)
     except ValueError as exc:
         raise UsageError(f"--link: {exc}") from None
+
+
+def _mesh(args: argparse.Namespace) -> MeshSettings | None:
+    if args.mesh_range_m is None:
+        if args.mesh_exponent is not None:
+            raise UsageError("--mesh-exponent needs --mesh-range-m (the mesh is off without a range)")
+        return None
+    if args.world is None:
+        raise UsageError("--mesh-range-m needs --world (the mesh's medium is in the swarm's shared world)")
+    exponent = DEFAULT_EXPONENT if args.mesh_exponent is None else args.mesh_exponent
+    problem = mesh_problem(args.mesh_range_m, exponent)
+    if problem is not None:
+        key, _, rest = problem.partition(" ")  # "range_m must be > 0, got -1" -> "--mesh-range-m must be > 0, ..."
+        raise UsageError(f"--mesh-{key.replace('_', '-')} {rest}")
+    return MeshSettings(range_m=args.mesh_range_m, exponent=exponent)
 
 
 def _camera_dir(root: Path | None, instance: int, count: int) -> Path | None:

@@ -23,6 +23,7 @@ from sitl.demo import DemoFlight
 from sitl.linkmodel import drone_channels
 from sitl.mav_vehicle import SimVehicleApi
 from sitl.mavlink_io import MavlinkEndpoint
+from sitl.mesh import MeshMedium, MeshRadio
 from sitl.protocol import Identity
 from sitl.protocol.signing import SIGN_ALWAYS, SIGN_CFG_PARAM, key_id
 from sitl.simulation import SimConfig, Simulation
@@ -140,6 +141,15 @@ class Drone:
         if self.endpoint is not None and self._impaired:
             self.endpoint.impair(drone_channels(common.links, seed=spec.seed, instance=spec.instance))
             self.say(f"links: {common.links.describe()}")
+        # The drone-to-drone mesh: a radio on the shared world's medium (sitl/mesh.py), heard after every step.
+        self.mesh: MeshRadio | None = None
+        if common.mesh is not None and world is not None and self.endpoint is not None:
+            self.mesh = MeshRadio(
+                MeshMedium(world, spec.instance), common.mesh, common.links.neighbour, seed=spec.seed,
+                instance=spec.instance, quantum_steps=common.lockstep_quantum if common.lockstep else None,
+            )  # fmt: skip
+            self.endpoint.attach_mesh(self.mesh)
+            self.say(f"mesh radio: {common.mesh.describe()}")
         sim.part_clock_ns = clock_ns
         self.awareness = Awareness(
             sim,
@@ -236,6 +246,11 @@ class Drone:
         if self._impaired:
             assert self.endpoint is not None
             self.endpoint.deliver_due(sim.time_s)
+        if self.mesh is not None:  # the radio is part of the drone's MAVLink, and timed with it
+            assert self.endpoint is not None
+            t0 = self._clock_ns()
+            self.endpoint.hear_mesh(sim.time_s)
+            self.link_ns += self._clock_ns() - t0
         self._steps += 1
         if self.world is not None and self._steps % CPU_REPORT_STEPS == 0:
             self.world.write_cpu(self.instance, sim.physics_ns * 1e-9, sim.control_ns * 1e-9,
@@ -246,6 +261,8 @@ class Drone:
         """What the link model did to this drone's traffic, into the world for the flight report."""
         if self._impaired and self.world is not None and self.endpoint is not None:
             self.world.write_link_counters(self.instance, self.endpoint.link_counters())
+        if self.mesh is not None and self.endpoint is not None:
+            self.mesh.publish({source: c.updates for source, c in self.endpoint.neighbours.counts().items()})
 
     def after_batch(self) -> None:
         """Between batches: the autopilot's events out as STATUSTEXT (and into the demo's log), telemetry due."""
@@ -284,8 +301,27 @@ class Drone:
                         f"{counts.rejected_unsigned} unsigned dropped, {counts.bad_signatures} bad signatures, "
                         f"{counts.replays} replays"
                     )
+                self._publish_link_counters()
+                if self.mesh is not None:
+                    m = self.mesh.counters()
+                    self.say(
+                        f"mesh: {self.mesh.posted} reports broadcast; heard {m.frames_delivered} of {m.frames_offered} "
+                        f"({m.lost_range} beyond range, {m.lost_path} path loss, {m.lost_model} link model, "
+                        f"{m.lost_overrun} overrun)"
+                    )
+                table = self.endpoint.neighbours.counts()
+                if any(c.updates for c in table.values()):
+                    self.say(
+                        "neighbour table: "
+                        + ", ".join(
+                            f"{c.updates} reports by {source} (mean age at use {c.mean_age_s * 1000:.0f} ms since "
+                            f"received, {c.mean_sent_age_s * 1000:.0f} ms since sent)"
+                            for source, c in table.items()
+                            if c.updates
+                        )
+                        + f", {self.endpoint.neighbours.stale} older copies ignored"
+                    )
                 if self._impaired:
-                    self._publish_link_counters()
                     for (link_class, direction), c in sorted(self.endpoint.link_counters().items()):
                         self.say(
                             f"link model {link_class} {direction}: {c.frames_offered} frames, {c.frames_lost} lost "

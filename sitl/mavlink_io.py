@@ -19,6 +19,7 @@ import socket
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -26,9 +27,12 @@ from sitl.linkmodel import DelayLine, Direction, LinkChannel, LinkClass, LinkCou
 from sitl.params import ParamStore
 from sitl.protocol import Identity, LinkServices, Send, VehicleApi, framing
 from sitl.protocol.core import Effect, MAVLinkMessage
-from sitl.protocol.neighbours import NeighbourTable
+from sitl.protocol.neighbours import LINK, MESH, RELAY, NeighbourFeed, NeighbourTable
 from sitl.protocol.signing import SIGN_CFG_PARAM, SigningGate, SigningState
 from sitl.protocol.telemetry import PollShare
+
+if TYPE_CHECKING:
+    from sitl.mesh import MeshRadio
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +59,11 @@ def parse_host_port(text: str) -> Address | None:
     if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
         return None
     return host, int(port)
+
+
+def link_class_of(config: LinkConfig) -> LinkClass:
+    """The link model's class of a link: the ground-station link is ``gcs``, any other a client's ``api``."""
+    return "gcs" if config.name.lower() == "gcs" else "api"
 
 
 class LinkError(OSError):
@@ -130,8 +139,7 @@ class UdpLink:
 
     @property
     def link_class(self) -> LinkClass:
-        """The link model's class of this link: the ground-station link is ``gcs``, any other a client's ``api``."""
-        return "gcs" if self.config.name.lower() == "gcs" else "api"
+        return link_class_of(self.config)
 
     @property
     def port(self) -> int:
@@ -279,13 +287,20 @@ class MavlinkEndpoint:
         self._channels: dict[tuple[LinkClass, Direction], LinkChannel] = {}
         self._inbox: DelayLine[tuple[UdpLink, MAVLinkMessage]] = DelayLine()
         self._delaying: list[UdpLink] = []  # the links whose sending goes through a channel
-        # One table for the drone, fed by whichever link the relayed positions arrive on.
+        # One table for the drone, fed by whichever link the relayed positions arrive on, and by the mesh radio.
         self.neighbours = NeighbourTable(identity.sysid)
+        self._identity = identity
+        self.mesh: MeshRadio | None = None  # the drone-to-drone mesh radio (``attach_mesh``)
+        self._mesh_link_id = 0
+        self._mesh_seq = 0
+        self._mesh_parser = UdpLink._new_parser()
         # One vehicle snapshot and one message per stream for all links at each poll (see PollShare).
         self._share = PollShare(vehicle)
         try:
             for link_id, config in enumerate(links):
-                services = LinkServices(identity, vehicle, params, neighbours=self.neighbours, share=self._share)
+                # Positions on the ground-station link are the supervisor's relay; on another link, a client's.
+                feed = NeighbourFeed(self.neighbours, RELAY if link_class_of(config) == "gcs" else LINK)
+                services = LinkServices(identity, vehicle, params, neighbours=feed, share=self._share)
                 self.links.append(UdpLink(config, identity, services, signing=self.signing, link_id=link_id))
         except LinkError:
             self.close()
@@ -303,6 +318,58 @@ class MavlinkEndpoint:
         for link in self.links:
             link.channel = channels.get((link.link_class, "down"))
         self._delaying = [link for link in self.links if link.channel is not None]
+
+    def attach_mesh(self, radio: MeshRadio) -> None:
+        """Give the drone a mesh radio (sitl/mesh.py): its own position reports are broadcast on it at each poll
+        that streams one, and what it hears goes to the neighbour table (``hear_mesh``). The radio is one more link
+        of the drone, with its own sequence numbers and, when signing, its own link id in the signatures."""
+        self.mesh = radio
+        self._mesh_link_id = len(self.links)
+
+    def _broadcast(self, msg: MAVLinkMessage, now_s: float) -> None:
+        assert self.mesh is not None
+        identity = self._identity
+        layout = framing.layout_of(msg)
+        try:
+            if layout is not None:
+                frame = framing.pack(layout, msg, self._mesh_seq, identity.sysid, identity.compid)
+            else:
+                frame = msg.pack(mavlink.MAVLink(None, srcSystem=identity.sysid, srcComponent=identity.compid))
+        except Exception:  # a message that cannot be packed is a bug, but not a crash
+            log.exception("cannot pack %s for the mesh", msg.get_type())
+            return
+        self._mesh_seq = (self._mesh_seq + 1) % 256
+        if self.signing.active:
+            frame = self.signing.sign_frames([frame], self._mesh_link_id, time.time())[0]
+        self.mesh.broadcast(frame, now_s)
+
+    def hear_mesh(self, now_s: float) -> None:
+        """After every physics step: what the mesh radio heard by now into the neighbour table, through the signing
+        gate as on any link (a drone that requires signing drops unsigned reports)."""
+        mesh = self.mesh
+        if mesh is None:
+            return
+        frames = mesh.after_step(now_s)
+        if not frames or self.silenced:
+            return  # a silenced drone's radio is dead: it hears nothing
+        # The frames heard at one step parsed together, as a datagram of several frames is: one call, not one each.
+        data = b"".join(frames)
+        messages = framing.parse_datagram(data)
+        if messages is None:
+            reset_parser(self._mesh_parser)
+            try:
+                messages = [m for m in self._mesh_parser.parse_buffer(data) or [] if m.get_type() != "BAD_DATA"]
+            except Exception:  # frames torn in the medium fail their CRC: not heard
+                self._mesh_parser = UdpLink._new_parser()
+                return
+        for msg in messages:
+            if msg.get_msgId() != mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
+                continue
+            admit, texts = self._gate.admit(msg, self._mesh_link_id)
+            for _severity, text in texts:
+                log.warning("mesh: %s", text)
+            if admit:
+                self.neighbours.receive(msg, now_s, MESH)
 
     def link_counters(self) -> dict[tuple[LinkClass, Direction], LinkCounters]:
         return counters_by_class(self._channels)
@@ -378,12 +445,18 @@ class MavlinkEndpoint:
         if self._still_silent(now_s):
             return
         self._share.open()
+        report: MAVLinkMessage | None = None
         try:
             for link in self.links:
                 link.now_s = now_s
-                link.send(link.services.poll(now_s))
+                effects = link.services.poll(now_s)
+                if self.mesh is not None and report is None:
+                    report = _position_report(effects)
+                link.send(effects)
         finally:
             self._share.close()
+        if report is not None:
+            self._broadcast(report, now_s)
 
     def statustext(self, severity: int, text: str) -> None:
         if self.silenced:
@@ -394,3 +467,11 @@ class MavlinkEndpoint:
     def close(self) -> None:
         for link in self.links:
             link.close()
+
+
+def _position_report(effects: list[Effect]) -> MAVLinkMessage | None:
+    """The drone's own GLOBAL_POSITION_INT among a poll's effects (the stream is due), or None."""
+    for effect in effects:
+        if isinstance(effect, Send) and effect.msg.get_msgId() == mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
+            return effect.msg
+    return None

@@ -10,6 +10,7 @@ from sitl.airframe import Airframe
 from sitl.dynamics.plant import GeoPoint
 from sitl.linkmodel import LinkProfile
 from sitl.mavlink_io import LinkConfig
+from sitl.mesh import MeshSettings
 from sitl.wind import WindConfig
 
 
@@ -41,3 +42,4 @@ class ProcessSpec:
     signing_key: bytes | None = None  # MAVLink 2 signing key every drone signs with (one key per swarm)
     signing_required: bool = False  # MAV_SIGN_CFG = 2 at boot: unsigned messages dropped once a key is set
     links: LinkProfile = field(default_factory=LinkProfile)
+    mesh: MeshSettings | None = None  # the drone-to-drone mesh radio (needs the shared world); None: no mesh

@@ -13,7 +13,9 @@ has spent so far on physics, control, perception and MAVLink (read by ``swarm be
 its centre has when it rests on the ground below it (terrain elevation plus the centre's height on its gear), a stop
 request and the cause of the row's end (hosted drones), and the datagrams the supervisor and the drone have sent each
 other (lockstep delivery). After the rows, a small header holds the lockstep gate (sitl/lockstep.py); then the
-declared obstacles, the two lockstep snapshots of the rows (``WorldParticipant``) and the link model's counts.
+declared obstacles, the two lockstep snapshots of the rows (``WorldParticipant``), the link model's counts, and the
+drone-to-drone mesh: each drone's ring of the position reports it has broadcast (the simulated radio medium,
+sitl/mesh.py) and its counts of what it heard.
 
 A drone whose process ends (a normal exit, or SIGKILL noticed by the supervisor, which calls ``mark_ended``) leaves
 its body behind: from its last written state (position, velocity, time) it falls ballistically under gravity and
@@ -132,7 +134,20 @@ SNAPSHOTS_OFFSET = OBSTACLES_OFFSET + MAX_OBSTACLES * OBSTACLE_COLUMNS * 8
 LINK_CHANNELS: tuple[tuple[LinkClass, Direction], ...] = tuple((c, d) for c in LINK_CLASSES for d in DIRECTIONS)
 LINK_FIELDS = ("frames_offered", "frames_lost", "delayed", "total_delay_s")
 LINKS_OFFSET = SNAPSHOTS_OFFSET + SNAPSHOTS * TABLE_BYTES
-SIZE_BYTES = LINKS_OFFSET + MAX_DRONES * len(LINK_CHANNELS) * len(LINK_FIELDS) * 8
+MESH_OFFSET = LINKS_OFFSET + MAX_DRONES * len(LINK_CHANNELS) * len(LINK_FIELDS) * 8
+# The drone-to-drone mesh (sitl/mesh.py): one ring per drone of the frames it broadcast, each slot with the physics
+# step and simulated time it was sent at and its length. 64 slots are 6.4 s of 10 Hz reports, more than a lockstep
+# reader can be behind (twice the largest quantum, 400 steps, is 3.2 s at 250 Hz); 64 bytes hold a signed
+# GLOBAL_POSITION_INT (53). Then each drone's counts of what it heard, for the flight report.
+MESH_SLOTS = 64
+MESH_SLOT_BYTES = 64
+MESH_STEP, MESH_TIME, MESH_LENGTH = range(3)
+MESH_FIELDS = ("frames_offered", "frames_delivered", "lost_range", "lost_path", "lost_model", "lost_overrun",
+               "delayed", "total_delay_s", "relay_updates", "link_updates", "mesh_updates")  # fmt: skip
+MESH_META_OFFSET = MESH_OFFSET + MAX_DRONES * 8
+MESH_STATS_OFFSET = MESH_META_OFFSET + MAX_DRONES * MESH_SLOTS * 3 * 8
+MESH_FRAMES_OFFSET = MESH_STATS_OFFSET + MAX_DRONES * len(MESH_FIELDS) * 8
+SIZE_BYTES = MESH_FRAMES_OFFSET + MAX_DRONES * MESH_SLOTS * MESH_SLOT_BYTES
 PUBLISH_EVERY_STEPS = 4  # a drone publishes its truth (and looks for contacts) every this many physics steps
 SHM_DIR = Path("/dev/shm")
 
@@ -159,6 +174,18 @@ class SharedWorld:
         self.link_table: npt.NDArray[np.float64] = np.ndarray(
             (MAX_DRONES, len(LINK_CHANNELS), len(LINK_FIELDS)), dtype=np.float64, buffer=buffer, offset=LINKS_OFFSET
         )
+        self.mesh_posts: npt.NDArray[np.float64] = np.ndarray(
+            (MAX_DRONES,), dtype=np.float64, buffer=buffer, offset=MESH_OFFSET
+        )
+        self.mesh_meta: npt.NDArray[np.float64] = np.ndarray(
+            (MAX_DRONES, MESH_SLOTS, 3), dtype=np.float64, buffer=buffer, offset=MESH_META_OFFSET
+        )
+        self.mesh_stats: npt.NDArray[np.float64] = np.ndarray(
+            (MAX_DRONES, len(MESH_FIELDS)), dtype=np.float64, buffer=buffer, offset=MESH_STATS_OFFSET
+        )
+        self.mesh_frames: npt.NDArray[np.uint8] = np.ndarray(
+            (MAX_DRONES, MESH_SLOTS, MESH_SLOT_BYTES), dtype=np.uint8, buffer=buffer, offset=MESH_FRAMES_OFFSET
+        )
         # The table this mapping reads the other bodies from: the live table, or in lockstep the snapshot of the
         # last completed epoch (``WorldParticipant`` switches it; each drone maps the world for itself).
         self.bodies: npt.NDArray[np.float64] = self.table
@@ -178,6 +205,10 @@ class SharedWorld:
         world.obstacle_table[:] = 0.0
         world.snapshots[:] = 0.0
         world.link_table[:] = 0.0
+        world.mesh_posts[:] = 0.0
+        world.mesh_meta[:] = 0.0
+        world.mesh_stats[:] = 0.0
+        world.mesh_frames[:] = 0
         return world
 
     @classmethod
@@ -324,6 +355,10 @@ class SharedWorld:
         self.table = self.bodies = np.zeros((0, COLUMNS))
         self.snapshots = np.zeros((0, 0, COLUMNS))
         self.link_table = np.zeros((0, len(LINK_CHANNELS), len(LINK_FIELDS)))
+        self.mesh_posts = np.zeros(0)
+        self.mesh_meta = np.zeros((0, MESH_SLOTS, 3))
+        self.mesh_stats = np.zeros((0, len(MESH_FIELDS)))
+        self.mesh_frames = np.zeros((0, MESH_SLOTS, MESH_SLOT_BYTES), dtype=np.uint8)
         self.header = np.zeros(HEADER_SLOTS)
         self.obstacle_table = np.zeros((0, OBSTACLE_COLUMNS))
         if self._map is not None:

@@ -8,5 +8,15 @@ from sitl.dynamics.plant import GeoPoint
 from sitl.harness.harness import SitlHarness
 from sitl.harness.processes import LaunchPlan, SpawnError, process_exit_cause
 from sitl.linkmodel import LinkImpairment, LinkProfile
+from sitl.mesh import MeshSettings
 
-__all__ = ["GeoPoint", "LaunchPlan", "LinkImpairment", "LinkProfile", "SitlHarness", "SpawnError", "process_exit_cause"]
+__all__ = [
+    "GeoPoint",
+    "LaunchPlan",
+    "LinkImpairment",
+    "LinkProfile",
+    "MeshSettings",
+    "SitlHarness",
+    "SpawnError",
+    "process_exit_cause",
+]

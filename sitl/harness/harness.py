@@ -43,6 +43,7 @@ from sitl.world import (
     LINK_CHANNELS,
     LINK_FIELDS,
     LON,
+    MESH_FIELDS,
     STEP,
     SUPERVISOR_SENT,
     TIME,
@@ -58,6 +59,10 @@ HOSTED_KILL_CAUSE = "killed inside its host process"
 REST_TOLERANCE_M = 0.01  # an ended drone's falling body is down once within this of where it comes to rest
 
 FloatArray = npt.NDArray[np.float64]
+
+
+# The report's name for what the drones heard over the drone-to-drone mesh, next to the link model's channels.
+MESH_CHANNEL = "neighbour mesh"
 
 
 class SitlHarness:
@@ -138,6 +143,11 @@ class SitlHarness:
                 out[f"{link_class} {direction}"] = {
                     name: float(v) for name, v in zip(LINK_FIELDS, totals[k], strict=True)
                 }
+        mesh = dict(zip(MESH_FIELDS, self._world.mesh_stats[[d.instance for d in self._processes.drones]].sum(axis=0),
+                        strict=True))  # fmt: skip
+        if mesh["frames_offered"] > 0:  # what the drones heard over the mesh (sitl/mesh.py), in the same terms
+            lost = mesh["lost_range"] + mesh["lost_path"] + mesh["lost_model"] + mesh["lost_overrun"]
+            out[MESH_CHANNEL] = {"frames_lost": float(lost), **{k: float(v) for k, v in mesh.items()}}
         return out
 
     # ---- ends and faults -------------------------------------------------------------------------------------------

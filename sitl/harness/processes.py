@@ -24,6 +24,7 @@ from sitl.dynamics.geodesy import geo_from_ned
 from sitl.dynamics.plant import GeoPoint
 from sitl.harness.factory import DroneFactory, FactoryError, ForkedProcess
 from sitl.linkmodel import LinkProfile, link_arguments
+from sitl.mesh import MeshSettings
 from sitl.zygote import die_with_parent
 
 TERMINATE_WAIT_S = 5.0
@@ -68,6 +69,7 @@ class LaunchPlan:
     drones_per_process: int | Literal["auto"] = 1  # drones one process hosts; "auto": one process per usable CPU
     signing_key_file: Path | None = None  # every drone signs with this key and requires signed messages
     links: LinkProfile = field(default_factory=LinkProfile)  # every drone's link model settings (--link)
+    mesh: MeshSettings | None = None  # the drone-to-drone mesh radio of every drone (--mesh-range-m); None: off
 
     @property
     def n_drones(self) -> int:
@@ -171,6 +173,8 @@ def _common_args(plan: LaunchPlan, gcs_port: int, world: str | None) -> list[str
     cmd += link_arguments(plan.links)
     if world is not None:
         cmd += ["--world", world]
+        if plan.mesh is not None:
+            cmd += ["--mesh-range-m", repr(plan.mesh.range_m), "--mesh-exponent", repr(plan.mesh.exponent)]
         if plan.lockstep:
             cmd += ["--lockstep", "--lockstep-quantum", str(plan.lockstep_quantum)]
     if plan.signing_key_file is not None:

@@ -31,7 +31,6 @@ from sitl.protocol.core import (
     source_of,
 )
 from sitl.protocol.mission import MissionServer
-from sitl.protocol.neighbours import NeighbourTable
 from sitl.protocol.offboard import OffboardService
 from sitl.protocol.params import ParamService
 from sitl.protocol.statustext import StatusTextEncoder
@@ -138,10 +137,11 @@ class LinkServices:
         params: ParamStore,
         *,
         rates_hz: Mapping[int, float] = DEFAULT_RATES_HZ,
-        neighbours: NeighbourTable | None = None,
+        neighbours: Service | None = None,
         share: PollShare | None = None,
     ) -> None:
-        """``share``: one ``PollShare`` for all links of a drone, opened around a poll of them all."""
+        """``share``: one ``PollShare`` for all links of a drone, opened around a poll of them all; ``neighbours``:
+        the service that takes other systems' positions (a ``NeighbourTable``, or a ``NeighbourFeed`` into one)."""
         self.identity = identity
         text = StatusTextEncoder()
         self.telemetry = TelemetryScheduler(identity, vehicle, rates_hz=rates_hz, statustext=text, share=share)

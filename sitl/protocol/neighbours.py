@@ -1,16 +1,25 @@
-"""What a drone knows of its neighbours: positions relayed over MAVLink, each with its age.
+"""What a drone knows of its neighbours: their own position reports, each with where it came from and its age.
 
-The ground station forwards every drone's GLOBAL_POSITION_INT to the others unchanged (original system id kept, as a
-MAVLink router does), so a neighbour is exactly what that drone reports of itself. This table is the only source of
-neighbour positions for the autopilot besides its camera; it never reads the simulation's shared world.
-Entries expire after ``NEIGHBOUR_TIMEOUT_S`` without news, so a lost relay shows as an empty table, not stale data.
+A neighbour's GLOBAL_POSITION_INT reaches a drone two ways: forwarded unchanged by the ground station's relay
+(original system id kept, as a MAVLink router does), or heard directly from the neighbour's radio over the
+drone-to-drone mesh (sitl/mesh.py). Any other system that sends one on a MAVLink link (the API link: a client, a
+vehicle sharing a radio) is a neighbour too, counted apart as ``link``. Either way a neighbour is exactly
+what that drone reports of itself. This table is the only source of neighbour positions for the autopilot besides
+its camera; it never reads the simulation's shared world.
+
+With both ways on, the same report may arrive twice, and a late copy of an old one after a newer one: an entry is
+replaced only by a report the neighbour sent later (its time_boot_ms), whichever way it came, so a relayed copy
+delayed by the ground station cannot push back a newer one heard over the mesh. Entries expire after
+``NEIGHBOUR_TIMEOUT_S`` without news, so a lost relay (or a neighbour out of radio range) shows as an empty table,
+not stale data. A neighbour that reboots (its clock starting again from zero) is believed again once its old entry
+has expired.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Final
+from typing import Final, Literal
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -18,6 +27,12 @@ from sitl.mathutil import fast_constructor
 from sitl.protocol.core import Effect, MAVLinkMessage, PeerInputError, check_now, read_int, source_of
 
 NEIGHBOUR_TIMEOUT_S: Final = 3.0
+
+NeighbourSource = Literal["relay", "link", "mesh"]
+RELAY: Final[NeighbourSource] = "relay"  # on the ground-station link: the supervisor's relay
+LINK: Final[NeighbourSource] = "link"  # on another MAVLink link (the API link): a client, another vehicle
+MESH: Final[NeighbourSource] = "mesh"  # heard from the neighbour's own radio (sitl/mesh.py)
+SOURCES: Final[tuple[NeighbourSource, ...]] = (RELAY, LINK, MESH)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -29,6 +44,7 @@ class Neighbour:
     vel_ned_mps: tuple[float, float, float]
     sender_time_s: float  # the neighbour's own time_boot_ms, in seconds
     received_s: float  # our simulation time when it arrived
+    source: NeighbourSource = RELAY  # the way the report came
 
     def age_s(self, now_s: float) -> float:
         return now_s - self.received_s
@@ -78,8 +94,30 @@ def _checked_fields(msg: MAVLinkMessage) -> tuple[int, int, int, int, int, int, 
     )
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SourceCounts:
+    """What one source brought to the table: reports taken, and the ages of its entries when the table was read."""
+
+    updates: int = 0  # reports that replaced an entry (or made one)
+    age_sum_s: float = 0.0  # since it arrived, over the entries of this source handed out by ``entries``
+    sent_age_sum_s: float = 0.0  # since the neighbour sent it (its time_boot_ms: one clock in lockstep)
+    age_samples: int = 0
+
+    @property
+    def mean_age_s(self) -> float:
+        return self.age_sum_s / self.age_samples if self.age_samples else 0.0
+
+    @property
+    def mean_sent_age_s(self) -> float:
+        """How old the reports were when used, counted from their sending: the way's own delay included (the
+        relay's hop through the supervisor, the mesh's quantum, the link model's latency). Paced, each drone's
+        clock starts at its own boot, so this is off by the difference of their start-ups."""
+        return self.sent_age_sum_s / self.age_samples if self.age_samples else 0.0
+
+
 class NeighbourTable:
-    """A service on every link: GLOBAL_POSITION_INT from other systems updates the (shared) table."""
+    """One table per drone: GLOBAL_POSITION_INT from other systems updates it, each link through its own
+    ``NeighbourFeed`` (the source it counts as), the mesh radio through ``receive`` with ``source=MESH``."""
 
     handles: frozenset[int] = frozenset({mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT})
 
@@ -91,30 +129,47 @@ class NeighbourTable:
         # every pass of the loop, the look over a crowd's table cost more than the table's updates.
         self._oldest_received_s = math.inf
         self.updates = 0
+        self.stale = 0  # reports not newer than the entry they would replace (a second copy, or overtaken)
+        self._updates = dict.fromkeys(SOURCES, 0)
+        self._age_sum_s = dict.fromkeys(SOURCES, 0.0)
+        self._sent_age_sum_s = dict.fromkeys(SOURCES, 0.0)
+        self._age_samples = dict.fromkeys(SOURCES, 0)
 
     def handle(self, msg: MAVLinkMessage, now_s: float) -> list[Effect]:
+        """A report that came over the ground-station link (the relay)."""
+        self.receive(msg, now_s, RELAY)
+        return []
+
+    def receive(self, msg: MAVLinkMessage, now_s: float, source: NeighbourSource) -> None:
+        """A neighbour's report, from ``source``; taken when it is newer than the entry it would replace."""
         now_s = check_now(now_s)
         try:
-            source = source_of(msg)
-            if source.sysid == self.own_sysid:
-                return []
+            sender = source_of(msg).sysid
+            if sender == self.own_sysid:
+                return
             # Not plain ints in range: the field-by-field checks say which, or accept what they accept.
             lat, lon, alt, vx, vy, vz, boot_ms = _plain_fields(msg) or _checked_fields(msg)
         except PeerInputError:
-            return []
-        self._entries[source.sysid] = _new_neighbour(
-            sysid=source.sysid,
+            return
+        sender_time_s = boot_ms * 1e-3
+        known = self._entries.get(sender)
+        if known is not None and sender_time_s <= known.sender_time_s and known.age_s(now_s) <= NEIGHBOUR_TIMEOUT_S:
+            self.stale += 1
+            return
+        self._entries[sender] = _new_neighbour(
+            sysid=sender,
             lat_deg=lat * 1e-7,
             lon_deg=lon * 1e-7,
             alt_amsl_m=alt * 1e-3,
             vel_ned_mps=(vx * 0.01, vy * 0.01, vz * 0.01),
-            sender_time_s=boot_ms * 1e-3,
+            sender_time_s=sender_time_s,
             received_s=now_s,
+            source=source,
         )
         if now_s < self._oldest_received_s:
             self._oldest_received_s = now_s
         self.updates += 1
-        return []
+        self._updates[source] += 1
 
     def poll(self, now_s: float) -> list[Effect]:
         now_s = check_now(now_s)
@@ -127,5 +182,40 @@ class NeighbourTable:
         return []
 
     def entries(self, now_s: float) -> list[Neighbour]:
-        """Current neighbours (none older than the timeout), by system id."""
-        return [n for _, n in sorted(self._entries.items()) if n.age_s(now_s) <= NEIGHBOUR_TIMEOUT_S]
+        """Current neighbours (none older than the timeout), by system id. Their ages are counted per source: the
+        table is read where it is used (collision prevention's 20 Hz look), so the mean is the age at use."""
+        out = [n for _, n in sorted(self._entries.items()) if n.age_s(now_s) <= NEIGHBOUR_TIMEOUT_S]
+        for n in out:
+            self._age_sum_s[n.source] += now_s - n.received_s
+            self._sent_age_sum_s[n.source] += now_s - n.sender_time_s
+            self._age_samples[n.source] += 1
+        return out
+
+    def counts(self) -> dict[NeighbourSource, SourceCounts]:
+        """What each source brought, for the drone's log and the flight report."""
+        return {
+            s: SourceCounts(
+                updates=self._updates[s],
+                age_sum_s=self._age_sum_s[s],
+                sent_age_sum_s=self._sent_age_sum_s[s],
+                age_samples=self._age_samples[s],
+            )
+            for s in SOURCES
+        }
+
+
+class NeighbourFeed:
+    """A link's service that feeds the drone's one table, counting what it brings as ``source``."""
+
+    handles: frozenset[int] = NeighbourTable.handles
+
+    def __init__(self, table: NeighbourTable, source: NeighbourSource) -> None:
+        self.table = table
+        self.source = source
+
+    def handle(self, msg: MAVLinkMessage, now_s: float) -> list[Effect]:
+        self.table.receive(msg, now_s, self.source)
+        return []
+
+    def poll(self, now_s: float) -> list[Effect]:
+        return self.table.poll(now_s)

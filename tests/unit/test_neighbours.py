@@ -96,10 +96,10 @@ def test_the_one_pass_field_check_accepts_and_refuses_exactly_what_the_field_by_
 
 
 def test_a_poll_forgets_each_silent_neighbour_as_soon_as_it_is_too_old_and_not_before() -> None:
-    # GIVEN three neighbours heard at 0, 1 and 2 s, the first heard again at 2.5 s
+    # GIVEN three neighbours heard at 0, 1 and 2 s, the first heard again at 2.5 s (a newer report)
     table = NeighbourTable(own_sysid=1)
     for sysid, now in ((2, 0.0), (3, 1.0), (4, 2.0), (2, 2.5)):
-        table.handle(wire(position(473977420, 491000), sysid), now)
+        table.handle(wire(position(473977420, 491000, boot_ms=1000 + int(now * 1000)), sysid), now)
     # WHEN polled as time passes, THEN each goes once it is older than the timeout, in the order it fell silent
     remaining = []
     for now in (3.9, 4.0, 4.01, 5.0, 5.01, 5.5, 5.51):

@@ -1,0 +1,183 @@
+"""The drone-to-drone mesh, judged by real ``swarm fly`` runs and their flight reports.
+
+- The 9-drone grid_to_circle flies on the mesh alone (no relay: the supervisor forwards nothing), radio range 15 m,
+  every link losing 10 %: it completes without a collision, and the report counts what the mesh delivered and what
+  the path loss and the link model took.
+- Paced and signed, the mesh still carries the reports: every drone signs what it broadcasts and, requiring
+  signatures, takes what it hears only after checking them (none dropped, none bad).
+- Two lockstep runs of a mesh mission with the same seeds, the second with every CPU kept busy by other work, give
+  the same MAVLink messages in their flight logs and the same mesh counts: what a drone hears over the mesh does
+  not depend on the machine's load. The range there is short enough for the opposite drones of the circle to be
+  out of each other's range.
+
+Policy: loopback only (--no-forward); instances 172-180 and 197-198; lockstep (but for the paced test, whose
+outcome does not depend on timing), so no outcome depends on the machine's load; a
+time limit on every test; the CPU burners are stopped by PID and reaped (tests/integration/test_links_fly.py).
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.integration.mission_flight import MISSIONS, fly_mission
+from tests.integration.test_links_fly import busy_cpus, tlog_messages
+
+pytestmark = [pytest.mark.sim_only]
+
+FIRST_INSTANCE = "172"
+PACED_FIRST_INSTANCE = "197"
+
+SIGNED_MESH = """
+name = "signed_mesh"
+[swarm]
+drones = 2
+layout = "line"
+spacing_m = 3.0
+neighbours = "mesh"
+
+[[steps]]
+action = "takeoff"
+alt_m = 3.0
+
+[[steps]]
+action = "hold"
+duration_s = 3.0
+
+[[steps]]
+action = "land"
+"""
+
+# Four drones from a 2 x 2 grid onto a turning circle of radius 2.5 m and down again, on a short mesh.
+MESH_CIRCLE = """
+name = "mesh_circle"
+[swarm]
+drones = 4
+layout = "grid"
+spacing_m = 2.5
+neighbours = "mesh"
+
+[swarm.mesh]
+range_m = 4
+
+[swarm.links.neighbour]
+loss = 0.1
+latency_ms = 30
+jitter_ms = 20
+
+[[steps]]
+action = "takeoff"
+alt_m = 3.0
+
+[[steps]]
+action = "formation"
+shape = "circle"
+radius_m = 2.5
+alt_m = 3.0
+angular_rate_radps = 0.3
+hold_s = 6.0
+
+[[steps]]
+action = "land"
+"""
+
+
+def mesh_mission(tmp_path: Path, name: str, swarm: str, tables: str) -> str:
+    """A shipped mission with ``swarm`` added to its [swarm] table and ``tables`` after it, written to tmp_path."""
+    text = (MISSIONS / name).read_text()
+    assert text.count("\n[[steps]]") >= 1
+    head, sep, rest = text.partition("\n[[steps]]")
+    path = tmp_path / name
+    path.write_text(f"{head}{swarm}\n{tables}{sep}{rest}")
+    return str(path)
+
+
+def fly(mission: str, tmp_path: Path) -> tuple[dict[str, Any], Path]:
+    args = ["--lockstep", "--first-instance", FIRST_INSTANCE, "--drones-per-process", "auto"]
+    metrics, _ = fly_mission(mission, args, tmp_path, 600)
+    return metrics, tmp_path / "report"
+
+
+@pytest.mark.timeout(600)
+def test_nine_drones_fly_grid_to_circle_on_the_mesh_alone_with_a_tenth_of_every_link_lost(tmp_path: Path) -> None:
+    # GIVEN the grid_to_circle mission with neighbours heard over the mesh only (range 15 m), every link 10 % lossy
+    mission = mesh_mission(tmp_path, "grid_to_circle.toml", 'neighbours = "mesh"\n',
+                           "[swarm.mesh]\nrange_m = 15\n\n[swarm.links]\nloss = 0.1\n")  # fmt: skip
+    # WHEN it is flown in lockstep
+    metrics, report = fly(mission, tmp_path)
+    # THEN it completes without a collision, the circle held as on the relay
+    assert metrics["collisions"] == 0, metrics["collision_events"]
+    circle = next(s for s in metrics["steps"] if s["name"] == "circle")
+    assert circle["formation_rms_m"] is not None and circle["formation_rms_m"] < 0.3, circle
+    # AND nothing was relayed: no neighbour position came on a ground-station link, the tables filled from the mesh
+    # (a drone's API link streams to the API port of the instance 40 below it: another test's drones there, flying
+    # at the same time, would be heard over that link, and counted apart as link_updates)
+    mesh = metrics["links"]["neighbour mesh"]
+    assert mesh["relay_updates"] == 0 and mesh["mesh_updates"] > 0, mesh
+    # AND the report counts the mesh: 9 drones x 8 neighbours x ~10 reports/s x ~50 s offered, every one delivered
+    # or lost for one reason; nobody beyond 15 m in a 6 m circle, some path loss, and the model's tenth of the rest
+    assert mesh["frames_offered"] > 25_000, mesh
+    assert mesh["frames_offered"] == mesh["frames_delivered"] + mesh["frames_lost"], mesh
+    assert mesh["frames_lost"] == mesh["lost_range"] + mesh["lost_path"] + mesh["lost_model"] + mesh["lost_overrun"]
+    assert mesh["lost_range"] == 0 and mesh["lost_overrun"] == 0, mesh
+    assert 0 < mesh["lost_path"] < 0.05 * mesh["frames_offered"], mesh
+    assert 0.08 < mesh["lost_model"] / (mesh["frames_offered"] - mesh["lost_path"]) < 0.12, mesh
+    assert mesh["mesh_updates"] == mesh["frames_delivered"]  # the mesh alone: no copy of a report came another way
+    # AND each drone's log says what its radio heard and what its table took from where
+    log = (report / "logs" / "drone-172.log").read_text()
+    assert "sitl 172: mesh radio: range 15 m, path loss (d/range)^4" in log
+    assert "sitl 172: mesh: " in log and " reports by mesh (mean age at use " in log and " by relay" not in log
+    summary = (report / "summary.txt").read_text()
+    assert "link model, neighbour mesh: " in summary and "0 from the relay" in summary
+    assert metrics["neighbours"] == "mesh (range 15 m, path loss (d/range)^4)"
+    assert "\nneighbours: mesh (range 15 m, path loss (d/range)^4)\n" in summary
+
+
+@pytest.mark.timeout(900)
+def test_a_mesh_mission_flies_the_same_on_an_idle_and_a_loaded_machine(tmp_path: Path) -> None:
+    # GIVEN four drones turning on a 2.5 m circle, hearing each other over a 4 m mesh (the opposite ones, 5 m apart,
+    # out of range) with a lossy, late and jittery neighbour link
+    mission = tmp_path / "mesh_circle.toml"
+    mission.write_text(MESH_CIRCLE)
+    # WHEN it is flown twice with the same seeds, the second time with every CPU kept busy by other work
+    first, first_report = fly(str(mission), tmp_path / "idle")
+    with busy_cpus():
+        second, second_report = fly(str(mission), tmp_path / "loaded")
+    # THEN the mesh delivered and lost reports for every reason the mission allows
+    mesh = first["links"]["neighbour mesh"]
+    assert mesh["frames_delivered"] > 500 and mesh["lost_range"] > 0 and mesh["lost_path"] > 0, mesh
+    assert mesh["lost_model"] > 0 and mesh["frames_delayed"] > 0, mesh
+    # AND both flight logs hold the same messages in the same order, and both reports the same figures
+    a, b = tlog_messages(first_report / "flight.tlog"), tlog_messages(second_report / "flight.tlog")
+    assert len(a) > 3000
+    first_difference = next((k for k, (x, y) in enumerate(zip(a, b, strict=False)) if x != y), None)
+    assert first_difference is None, (first_difference, a[first_difference][:2], b[first_difference][:2])
+    assert len(a) == len(b)
+    assert first["links"] == second["links"]
+    for key in ("min_separation_m", "collisions", "avoidance_events", "distance_flown_m", "steps"):
+        assert first[key] == second[key], key
+
+
+@pytest.mark.timeout(240)
+def test_a_paced_signed_swarm_hears_its_neighbours_signed_reports_over_the_mesh(tmp_path: Path) -> None:
+    # GIVEN two drones 3 m apart on the mesh alone, every drone signing and requiring signatures
+    key_file = tmp_path / "swarm.key"
+    key_file.write_text("mesh signing test\n")
+    mission = tmp_path / "signed_mesh.toml"
+    mission.write_text(SIGNED_MESH)
+    # WHEN the mission is flown paced (each drone on its own clock, reading whatever has been posted)
+    args = ["--first-instance", PACED_FIRST_INSTANCE, "--drones-per-process", "auto", "--signing-key", str(key_file)]
+    metrics, _ = fly_mission(str(mission), args, tmp_path, 200)
+    # THEN each drone heard the other's reports over the mesh, signed, and dropped none for its signature
+    assert metrics["collisions"] == 0
+    for instance in (197, 198):
+        log = (tmp_path / "report" / "logs" / f"drone-{instance}.log").read_text()
+        heard = re.search(rf"sitl {instance}: neighbour table: (\d+) reports by mesh", log)
+        assert heard is not None and int(heard.group(1)) > 50, log[-2000:]
+        assert " by relay" not in log
+        assert "0 unsigned dropped, 0 bad signatures, 0 replays" in log, log[-2000:]
+    mesh = metrics["links"]["neighbour mesh"]
+    assert mesh["lost_range"] == 0 and mesh["frames_delivered"] == mesh["frames_offered"] - mesh["lost_path"], mesh
