@@ -13,7 +13,7 @@ import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import NoReturn
+from typing import TYPE_CHECKING, NoReturn
 
 from sitl.airframe import DEFAULT_AIRFRAME, AirframeError, load_airframe
 from sitl.dynamics.geodesy import geo_from_ned
@@ -29,6 +29,9 @@ from sitl.world import WorldError
 EXIT_USAGE = 2
 MAX_INSTANCE = 254  # MAVLink sysid i + 1 <= 255
 SPEED_ENV = "PX4_SIM_SPEED_FACTOR"
+
+if TYPE_CHECKING:
+    from sitl.onboard.loader import LoadedBehaviour
 
 
 class UsageError(Exception):
@@ -204,6 +207,12 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"mesh path loss: a report is lost with probability (distance / range)^X (default {DEFAULT_EXPONENT:g})",
     )
     parser.add_argument(
+        "--behaviour",
+        default=None,
+        metavar="FILE.py:CLASS",
+        help="an onboard behaviour every drone runs, from BHV_EN = 1 on (docs/onboard.md)",
+    )
+    parser.add_argument(
         "--camera-frames",
         type=Path,
         default=None,
@@ -260,6 +269,7 @@ def _main(argv: Sequence[str] | None) -> int:
     wind = _float_list(args.wind, 3, "--wind")
     links = _link_profile(args.link or [])
     mesh = _mesh(args)
+    behaviour = _behaviour(args.behaviour)
     speed = _speed_factor(args.speed)
     homes = _homes(args, len(instances))
     cameras = set(parse_instances(args.camera_instances)) if args.camera_instances else set(instances)
@@ -301,6 +311,7 @@ def _main(argv: Sequence[str] | None) -> int:
             signing_required=args.signing_required,
             links=links,
             mesh=mesh,
+            behaviour=behaviour,
         ),
     )
 
@@ -336,6 +347,18 @@ def _link_profile(options: list[str]) -> LinkProfile:
         return link_profile(options)
     except ValueError as exc:
         raise UsageError(f"--link: {exc}") from None
+
+
+def _behaviour(spec: str | None) -> LoadedBehaviour | None:
+    """The onboard behaviour, loaded and checked before any drone starts (one line if it cannot be)."""
+    if spec is None:
+        return None
+    from sitl.onboard.loader import BehaviourError, load_behaviour  # imports the simulation: only when asked
+
+    try:
+        return load_behaviour(spec)
+    except BehaviourError as exc:
+        raise UsageError(f"--behaviour {exc}") from None
 
 
 def _mesh(args: argparse.Namespace) -> MeshSettings | None:

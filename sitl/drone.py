@@ -24,9 +24,10 @@ from sitl.linkmodel import drone_channels
 from sitl.mav_vehicle import SimVehicleApi
 from sitl.mavlink_io import MavlinkEndpoint
 from sitl.mesh import MeshMedium, MeshRadio
+from sitl.onboard.runner import OnboardRunner
 from sitl.protocol import Identity
 from sitl.protocol.signing import SIGN_ALWAYS, SIGN_CFG_PARAM, key_id
-from sitl.simulation import SimConfig, Simulation
+from sitl.simulation import SimConfig, Simulation, build_param_store
 from sitl.specs import DroneSpec, ProcessSpec
 from sitl.world import (
     DRONE_SENT,
@@ -93,7 +94,9 @@ class Drone:
         self.output = DroneOutput(spec.instance, spec.log_path)
         self.ended = False
         self.failed = False
-        sim = Simulation(SimConfig(airframe=common.airframe, seed=spec.seed, home=spec.home, wind=common.wind))
+        behaviour = common.behaviour
+        sim = Simulation(SimConfig(airframe=common.airframe, seed=spec.seed, home=spec.home, wind=common.wind),
+                         params=build_param_store(behaviour.params) if behaviour is not None else None)  # fmt: skip
         self.sim = sim
         airframe = common.airframe
         pace = common.speed_factor
@@ -164,6 +167,17 @@ class Drone:
         self._clock_ns = clock_ns
         self.link_ns = 0
         self._steps = 0
+        # An onboard behaviour, run beside the autopilot as a companion computer runs one (sitl/onboard).
+        self.onboard: OnboardRunner | None = None
+        if behaviour is not None:
+            prevention = sim.vehicle.collision_prevention
+            self.onboard = OnboardRunner(behaviour, sysid=identity.sysid, vehicle=sim.vehicle, params=sim.params,
+                                         estimate=lambda: sim.estimate, relayed=prevention.relayed,
+                                         camera=prevention.camera)  # fmt: skip
+            if self.endpoint is not None:
+                self.endpoint.on_named_value = self.onboard.receive
+            self.say(f"onboard behaviour {behaviour.name} ({behaviour.spec}) at {behaviour.rate_hz:g} Hz; "
+                     f"BHV_EN = 1 runs it")  # fmt: skip
         for link in self.endpoint.links if self.endpoint is not None else []:
             remote = link.config.remote
             self.say(
@@ -243,6 +257,8 @@ class Drone:
             for contact in self.participant.after_step(sim.truth, sim.vehicle.crashed):
                 sim.vehicle.crash(contact.text())
         self.awareness.update(sim.time_s)
+        if self.onboard is not None:
+            self.onboard.tick(sim.time_s)
         if self._impaired:
             assert self.endpoint is not None
             self.endpoint.deliver_due(sim.time_s)

@@ -17,13 +17,14 @@ import logging
 import math
 import socket
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.linkmodel import DelayLine, Direction, LinkChannel, LinkClass, LinkCounters, counters_by_class
+from sitl.onboard.interface import GroundMessage
 from sitl.params import ParamStore
 from sitl.protocol import Identity, LinkServices, Send, VehicleApi, framing
 from sitl.protocol.core import Effect, MAVLinkMessage
@@ -281,6 +282,8 @@ class MavlinkEndpoint:
             armed=lambda: vehicle.snapshot().armed,
         )  # fmt: skip
         self.silenced = False  # while an injected MAVLink failure is in force: nothing is sent or read
+        # Where a NAMED_VALUE_FLOAT sent to this drone goes (an onboard behaviour's messages, sitl/onboard)
+        self.on_named_value: Callable[[GroundMessage], None] | None = None
         self._silent_until_s = -math.inf  # simulated time it ends (inf: for good)
         self._sysid = identity.sysid
         # The link model (``impair``): channels by class and direction, and what arrived but is delayed.
@@ -415,9 +418,20 @@ class MavlinkEndpoint:
         if not self._admitted(link, msg):
             return
         link.send(link.services.handle(msg, now_s))
+        if self.on_named_value is not None and msg.get_msgId() == mavlink.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT:
+            self._named_value(msg, now_s)
         until_s = self._vehicle.mavlink_silent_until_s()
         if until_s > now_s:
             self._silence(until_s)
+
+    def _named_value(self, msg: MAVLinkMessage, now_s: float) -> None:
+        """A NAMED_VALUE_FLOAT for the onboard behaviour; one that is not a finite number with a name is dropped."""
+        assert self.on_named_value is not None
+        name, value = getattr(msg, "name", None), getattr(msg, "value", None)
+        if isinstance(name, bytes):
+            name = name.rstrip(b"\0").decode("ascii", "replace")
+        if isinstance(name, str) and name and isinstance(value, float) and math.isfinite(value):
+            self.on_named_value(GroundMessage(name=name.rstrip("\0"), value=value, time_s=now_s))
 
     def _admitted(self, link: UdpLink, msg: MAVLinkMessage) -> bool:
         """Whether signing lets ``msg`` through to the services; says once per link and reason why not."""

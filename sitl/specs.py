@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from sitl.airframe import Airframe
 from sitl.dynamics.plant import GeoPoint
@@ -12,6 +13,9 @@ from sitl.linkmodel import LinkProfile
 from sitl.mavlink_io import LinkConfig
 from sitl.mesh import MeshSettings
 from sitl.wind import WindConfig
+
+if TYPE_CHECKING:
+    from sitl.onboard.loader import LoadedBehaviour
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -43,3 +47,4 @@ class ProcessSpec:
     signing_required: bool = False  # MAV_SIGN_CFG = 2 at boot: unsigned messages dropped once a key is set
     links: LinkProfile = field(default_factory=LinkProfile)
     mesh: MeshSettings | None = None  # the drone-to-drone mesh radio (needs the shared world); None: no mesh
+    behaviour: LoadedBehaviour | None = None  # an onboard behaviour every drone of the process runs (sitl/onboard)
