@@ -212,6 +212,20 @@ def _mesh_value(key: str) -> Callable[[str], float]:
     return parse
 
 
+def _behaviour(spec: str | None, simulation: Simulation) -> str | None:
+    """``--behaviour FILE.py:CLASS``, made absolute (the drones start elsewhere) and loaded as the drones will load
+    it: a mistake is one line before anything starts."""
+    if spec is None:
+        return None
+    file, _, cls = spec.rpartition(":")
+    absolute = f"{Path(file).resolve()}:{cls}" if file else spec
+    try:
+        simulation.check_behaviour(absolute)
+    except ValueError as exc:
+        raise UsageError(f"--behaviour {exc}") from None
+    return absolute
+
+
 def _neighbour_plan(args: argparse.Namespace, base: NeighbourPlan) -> NeighbourPlan:
     """``base`` (a mission's, or the relay alone) with ``--neighbours`` and ``--mesh-range-m`` over it."""
     plan = base.with_mode(args.neighbours) if args.neighbours is not None else base
@@ -290,6 +304,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_timing_options(up)
     _add_link_options(up)
     _add_neighbour_options(up)
+    up.add_argument("--behaviour", default=None, metavar="FILE.py:CLASS",
+                    help="an onboard behaviour every drone carries; 'swarm behaviour start' (or BHV_EN = 1 by "
+                    "PARAM_SET) runs it (docs/onboard.md)")  # fmt: skip
     up.add_argument("--first-instance", type=int, default=0, help="instance of the first drone (sysid = instance+1)")
     up.add_argument("--origin", type=_origin, default=DEFAULT_ORIGIN, help="swarm origin LAT,LON,ALT_AMSL")
     up.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
@@ -314,6 +331,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_timing_options(fly)
     _add_link_options(fly)
     _add_neighbour_options(fly)
+    fly.add_argument("--behaviour", default=None, metavar="FILE.py:CLASS",
+                     help="the onboard behaviour every drone carries (instead of the mission's [swarm] behaviour); "
+                     "a mission's behaviour steps run it (docs/onboard.md)")  # fmt: skip
     fly.add_argument("--first-instance", type=int, default=0, help="instance of the first drone")
     fly.add_argument("--origin", type=_origin, default=DEFAULT_ORIGIN, help="swarm origin LAT,LON,ALT_AMSL")
     fly.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
@@ -383,6 +403,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     kill = sub.add_parser("kill", help="kill one drone's process with SIGKILL (a crash of its flight software)")
     kill.add_argument("sysid", type=_sysid, help="the drone's sysid")
+    behaviour = sub.add_parser(
+        "behaviour", help="every drone's onboard behaviour (swarm up --behaviour): start or stop"
+    )
+    behaviour.add_argument("action", choices=("start", "stop"), help="start: BHV_EN = 1; stop: BHV_EN = 0, then Hold")
     sub.add_parser("land", help="land every drone where it is")
     sub.add_parser("rtl", help="every drone returns to its launch point and lands")
     sub.add_parser("down", help="land, disarm and stop every drone, then the supervisor")
@@ -435,6 +459,7 @@ def run_up(args: argparse.Namespace, simulation: Simulation) -> int:
         drones_per_process=args.drones_per_process,
         signing_key_file=_signing_key_file(args),
         links=_link_plan(args, LinkPlan()),
+        behaviour=_behaviour(args.behaviour, simulation),
         mesh=neighbours.mesh,
     )
     stop = _Stop()
@@ -495,8 +520,15 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
         raise UsageError("--first-instance must leave room for every sysid (instance + 1 <= 255)")
     links = _link_plan(args, mission.swarm.links)
     neighbours = _neighbour_plan(args, NeighbourPlan(relay=mission.swarm.relay, mesh=mission.swarm.mesh))
+    behaviour = _behaviour(args.behaviour, simulation) if args.behaviour is not None else mission.swarm.behaviour
+    if behaviour is not None and args.behaviour is None:
+        try:  # the mission's own: checked as the drones will load it, and named by the mission file
+            simulation.check_behaviour(behaviour)
+        except ValueError as exc:
+            raise UsageError(f"{args.mission}: swarm.behaviour: {exc}") from None
     mission = dataclasses.replace(
-        mission, swarm=dataclasses.replace(mission.swarm, relay=neighbours.relay, mesh=neighbours.mesh)
+        mission,
+        swarm=dataclasses.replace(mission.swarm, relay=neighbours.relay, mesh=neighbours.mesh, behaviour=behaviour),
     )
     report = args.report or Path("reports") / f"{mission.name}-{time.strftime('%Y%m%d-%H%M%S')}"
     runner = MissionRunner(mission, simulation, speed_factor=_speed(args), origin=args.origin,
@@ -591,6 +623,8 @@ def run_client(args: argparse.Namespace) -> int:
         request["fields"] = _behaviour_fields(args)
     elif args.command == "goto":
         request.update(north_m=args.north, east_m=args.east, alt_m=args.alt)
+    elif args.command == "behaviour":
+        request["action"] = args.action
     elif args.command in ("fault", "kill"):
         kind = CRASH if args.command == "kill" else args.kind
         try:
@@ -607,6 +641,8 @@ def run_client(args: argparse.Namespace) -> int:
         print(format_status(response["drones"]))
     elif args.command in ("fault", "kill"):
         print(f"swarm: drone {args.sysid}: {response.get('result', 'done')}")
+    elif args.command == "behaviour":
+        print(f"swarm: {response.get('result', 'done')}")
     return 0
 
 

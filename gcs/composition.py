@@ -36,6 +36,7 @@ def launch_plan(plan: SpawnPlan) -> LaunchPlan:
         signing_key_file=plan.signing_key_file,
         links=link_profile(plan.links),
         mesh=MeshSettings(range_m=plan.mesh.range_m, exponent=plan.mesh.exponent) if plan.mesh is not None else None,
+        behaviour=plan.behaviour,
     )
 
 
@@ -71,6 +72,9 @@ class SitlSimulation:
 
     def bare_plant_cpu_ms_per_sim_s(self) -> float:
         return sim.bare_plant_cpu_ms_per_sim_s()
+
+    def check_behaviour(self, spec: str) -> None:
+        sim.check_behaviour(spec)
 
     def drones_per_host(self, n_drones: int, drones_per_process: int | Literal["auto"]) -> list[int]:
         return sim.drones_per_host(n_drones, drones_per_process)

@@ -77,6 +77,8 @@ class SpawnPlan:
     links: LinkPlan = field(default_factory=LinkPlan)
     # The drone-to-drone mesh radio of every drone (docs/links.md "Mesh"); None: no mesh.
     mesh: MeshPlan | None = None
+    # An onboard behaviour every drone runs from BHV_EN = 1 on (path/to/file.py:ClassName, absolute; docs/onboard.md)
+    behaviour: str | None = None
 
     def offsets_ne_m(self) -> list[tuple[float, float]]:
         """Each drone's spawn position, north/east metres from the origin in the swarm frame (spawn order)."""
@@ -211,6 +213,10 @@ class Simulation(Protocol):
 
     def bare_plant_cpu_ms_per_sim_s(self) -> float:
         """CPU ms per simulated second of the physics alone (the bench's machine-independent yardstick)."""
+        ...
+
+    def check_behaviour(self, spec: str) -> None:
+        """Load an onboard behaviour as the drones will; ValueError with one line if it cannot be."""
         ...
 
     def drones_per_host(self, n_drones: int, drones_per_process: int | Literal["auto"]) -> list[int]:

@@ -6,7 +6,7 @@ name = "grid_to_circle"
 drones = 9            # spawned on a grid (or line) with this spacing
 spacing_m = 2.0
 [[steps]]
-action = "takeoff"    # takeoff | formation | flock | follow | swap | hold | fault | land | rtl
+action = "takeoff"    # takeoff | plan | formation | flock | follow | swap | hold | behaviour | fault | land | rtl
 alt_m = 3.0
 [[steps]]
 action = "formation"
@@ -74,6 +74,9 @@ class SwarmSpec:
     mesh: MeshPlan | None = None
     # [swarm.links]: the link model's settings per link class (docs/links.md)
     links: LinkPlan = field(default_factory=LinkPlan)
+    # [swarm] behaviour = "file.py:Class": the onboard behaviour every drone carries (path absolute, read relative to
+    # the mission file; docs/onboard.md); a ``behaviour`` step runs it
+    behaviour: str | None = None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -136,6 +139,13 @@ class HoldStep:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class BehaviourStep:
+    """Every drone runs the mission's onboard behaviour for ``duration_s`` (BHV_EN = 1, then 0 and Hold)."""
+
+    duration_s: float
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class LandStep:
     timeout_s: float = 60.0
 
@@ -180,6 +190,7 @@ Step = (
     | LandStep
     | RtlStep
     | FaultStep
+    | BehaviourStep
 )
 
 
@@ -507,6 +518,11 @@ def _step(reader: _Reader, step: Any, index: int, drones: int) -> Step:
         if "duration_s" not in step:
             raise reader.fail(where, None, "missing field 'duration_s'")
         return HoldStep(duration_s=reader.number(step, "duration_s", where, "pos"))
+    if action == "behaviour":
+        reader.check_keys(step, {"action", "duration_s"}, where)
+        if "duration_s" not in step:
+            raise reader.fail(where, None, "missing field 'duration_s'")
+        return BehaviourStep(duration_s=reader.number(step, "duration_s", where, "pos"))
     if action == "fault":
         return _fault(reader, step, where, drones)
     if action == "plan":
@@ -518,7 +534,7 @@ def _step(reader: _Reader, step: Any, index: int, drones: int) -> Step:
     raise reader.fail(
         where,
         "action",
-        f"must be takeoff, plan, formation, flock, follow, swap, hold, fault, land or rtl, got {action!r}",
+        f"must be takeoff, plan, formation, flock, follow, swap, hold, behaviour, fault, land or rtl, got {action!r}",
     )
 
 
@@ -710,7 +726,7 @@ def parse_mission(text: str, path: Path, *, max_obstacles: int | None = None) ->
         raise reader.fail((None, None), None, "missing [swarm] table with 'drones'")
     where_swarm: tuple[str | None, int | None] = ("swarm", None)
     reader.check_keys(swarm, {"drones", "layout", "spacing_m", "params", "relay", "loss_policy", "links",
-                              "neighbours", "mesh"}, where_swarm)  # fmt: skip
+                              "neighbours", "mesh", "behaviour"}, where_swarm)  # fmt: skip
     if "drones" not in swarm:
         raise reader.fail(where_swarm, None, "missing field 'drones'")
     drones = int(reader.number(swarm, "drones", where_swarm, "count"))
@@ -729,6 +745,10 @@ def parse_mission(text: str, path: Path, *, max_obstacles: int | None = None) ->
     if not isinstance(steps_data, list) or not steps_data:
         raise reader.fail((None, None), None, "missing [[steps]]: a mission needs at least one step")
     steps = tuple(_step(reader, s, i, drones) for i, s in enumerate(steps_data))
+    behaviour = _behaviour(reader, swarm, path)
+    if behaviour is None and any(isinstance(s, BehaviourStep) for s in steps):
+        k = next(i for i, s in enumerate(steps) if isinstance(s, BehaviourStep))
+        raise reader.fail(("steps", k), "action", 'a behaviour step needs [swarm] behaviour = "file.py:Class"')
     if not isinstance(steps[0], TakeoffStep | PlanStep):
         raise reader.fail(
             ("steps", 0), "action", "the first step must be a takeoff (or a plan whose mission takes off)"
@@ -748,12 +768,25 @@ def parse_mission(text: str, path: Path, *, max_obstacles: int | None = None) ->
             relay=neighbours.relay,
             mesh=neighbours.mesh,
             links=_links(reader, swarm.get("links", {})),
+            behaviour=behaviour,
         ),
         steps=steps,
         loss_policy=LossPolicy(policy),
         path=path,
         obstacles=_obstacles(reader, data.get("obstacles", []), max_obstacles),
     )
+
+
+def _behaviour(reader: _Reader, swarm: dict[str, Any], path: Path) -> str | None:
+    """``[swarm] behaviour = "file.py:Class"``, the file relative to the mission's folder, made absolute (the drones
+    start elsewhere). Whether the class loads is the simulation's to say (the CLI asks it before anything starts)."""
+    if "behaviour" not in swarm:
+        return None
+    spec = swarm["behaviour"]
+    file, sep, cls = spec.rpartition(":") if isinstance(spec, str) else ("", "", "")
+    if not sep or not file or not cls.isidentifier():
+        raise reader.fail(("swarm", None), "behaviour", f'must be "path/to/file.py:ClassName", got {spec!r}')
+    return f"{(path.parent / file).resolve()}:{cls}"
 
 
 def load_mission(path: Path, *, max_obstacles: int | None = None) -> MissionSpec:

@@ -27,6 +27,7 @@ from gcs.harness import Simulation, SpawnPlan
 from gcs.links import LinkPlan, NeighbourPlan
 from gcs.losses import LossPolicy, loss_line, regain_line
 from gcs.mission_file import (
+    BehaviourStep,
     FaultStep,
     FlockStep,
     FollowStep,
@@ -49,7 +50,7 @@ from gcs.plan_flight import (
     unreached,
     upload_plan,
 )
-from gcs.procedures import PaceWatch, take_off_and_hold
+from gcs.procedures import PaceWatch, start_onboard_behaviours, stop_onboard_behaviours, take_off_and_hold
 from gcs.recorder import FlightRecorder
 from gcs.recording import EventRecord, FaultRecord, FlightRecording, StepRecord
 from gcs.report import write_report
@@ -94,6 +95,7 @@ class MissionRunner:
             signing_key_file=signing_key_file,
             links=mission.swarm.links if links is None else links,  # None: the mission's own [swarm.links]
             mesh=mission.swarm.mesh,
+            behaviour=mission.swarm.behaviour,
         )
         self.swarm = Swarm(plan, simulation.harness(plan), forward=forward, relay=mission.swarm.relay)
         self.streamer = FormationStreamer(self.swarm, self.swarm_frame)
@@ -181,6 +183,12 @@ class MissionRunner:
     def _hold(self, duration_sim_s: float) -> None:
         """Fly on for ``duration_sim_s`` (the step's time), or until a loss policy takes over."""
         self._wait(lambda: False, duration_sim_s)
+
+    def _behaviour(self, step: BehaviourStep) -> None:
+        """Every drone runs its onboard behaviour (docs/onboard.md) for the step's time, then holds."""
+        start_onboard_behaviours(self.swarm, self.streamer)
+        self._hold(step.duration_s)
+        stop_onboard_behaviours(self.swarm)
 
     def _set_params(self) -> None:
         """The mission's drone parameters on every drone, each confirmed by its PARAM_VALUE echo (as MAVSDK does)."""
@@ -328,6 +336,8 @@ class MissionRunner:
             self._follow(step)
         elif isinstance(step, HoldStep):
             self._hold(step.duration_s)
+        elif isinstance(step, BehaviourStep):
+            self._behaviour(step)
         elif isinstance(step, PlanStep):
             self._plan(step)
         elif isinstance(step, FaultStep):

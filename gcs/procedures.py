@@ -5,6 +5,8 @@
 - ``take_off_and_hold``: arm (after the pre-arm checks) unless armed, NAV_TAKEOFF for every drone, then wait for
   ``SteadyAltitude``.
 - ``PaceWatch``: the pace monitor (gcs/pace_monitor.py) fed from a running swarm, its warning said once.
+- ``start_onboard_behaviours`` / ``stop_onboard_behaviours``: every drone's onboard behaviour on (BHV_EN = 1, the
+  ground station's own setpoint stream stopped) or off (BHV_EN = 0, then Hold); docs/onboard.md.
 
 Arming, pre-arm waiting and the forced disarm are the swarm's own commands (``Swarm.arm_all``, ``wait_prearm``,
 ``force_disarm``); collisions are counted by ``CollisionPairs`` (gcs/recorder.py).
@@ -93,3 +95,28 @@ class PaceWatch:
         if warning is not None:
             self.say(warning)
         return self.monitor.rate()
+
+
+BEHAVIOUR_ENABLE_PARAM: Final = "BHV_EN"  # a drone's onboard behaviour runs while it is 1 (docs/onboard.md)
+
+
+def start_onboard_behaviours(swarm: Swarm, streamer: FormationStreamer) -> list[int]:
+    """Every drone still in the swarm runs its onboard behaviour: the ground station stops its own setpoint stream
+    (the behaviour feeds the offboard input now) and sets BHV_EN = 1; returns those sysids."""
+    streamer.stop()
+    sysids = swarm.active_sysids
+    _set_enable(swarm, sysids, 1)
+    return sysids
+
+
+def stop_onboard_behaviours(swarm: Swarm) -> list[int]:
+    """BHV_EN = 0 on every drone, then Hold where they are (from where the next command takes them); returns the
+    sysids put in Hold."""
+    _set_enable(swarm, swarm.active_sysids, 0)
+    return swarm.hold_all()
+
+
+def _set_enable(swarm: Swarm, sysids: list[int], value: int) -> None:
+    bad = [r.sysid for r in swarm.set_params(BEHAVIOUR_ENABLE_PARAM, value, sysids) if not r.ok]
+    if bad:
+        raise SwarmError(f"{BEHAVIOUR_ENABLE_PARAM} = {value} not set on sysid {bad} (no onboard behaviour loaded?)")

@@ -31,7 +31,7 @@ from gcs.plan_flight import (
     start_missions,
     upload_plan,
 )
-from gcs.procedures import PaceWatch
+from gcs.procedures import PaceWatch, start_onboard_behaviours, stop_onboard_behaviours
 from gcs.qgc_plan import PlanFileError, load_plan, plan_text
 from gcs.recorder import FlightRecorder
 from gcs.recording import EventRecord, FaultRecord, FlightRecording, StepRecord
@@ -43,7 +43,7 @@ Say = Callable[[str], None]
 
 
 # Commands that start what the report calls a step (name and kind taken from the request)
-STEP_COMMANDS = ("takeoff", "formation", "flock", "follow", "goto", "land", "rtl", "plan_start")
+STEP_COMMANDS = ("takeoff", "formation", "flock", "follow", "goto", "land", "rtl", "plan_start", "behaviour")
 
 
 class Station:
@@ -179,6 +179,8 @@ class Station:
             if cmd == "rtl":
                 self.swarm.land_all(return_to_launch=True)
                 return {"ok": True}
+            if cmd == "behaviour":
+                return self.behaviour(request.get("action"))
             if cmd == "down":
                 self.stop_requested = True
                 return {"ok": True}
@@ -191,6 +193,16 @@ class Station:
         except (SwarmError, FaultError, ValueError) as exc:
             return {"ok": False, "error": str(exc)}
         return {"ok": False, "error": f"unknown command {cmd!r}"}
+
+    def behaviour(self, action: object) -> dict[str, Any]:
+        """``swarm behaviour start|stop``: every drone's onboard behaviour on (BHV_EN = 1) or off (0, then Hold)."""
+        if action == "start":
+            sysids = start_onboard_behaviours(self.swarm, self.streamer)
+        elif action == "stop":
+            sysids = stop_onboard_behaviours(self.swarm)
+        else:
+            return {"ok": False, "usage": True, "error": f"behaviour must be start or stop, got {action!r}"}
+        return {"ok": True, "result": f"sysid {sysids}: behaviour {action}"}
 
     def fault(self, request: dict[str, Any]) -> dict[str, Any]:
         """Inject a fault into one drone (``swarm fault``, ``swarm kill``): a MAVLink fault or a killed process."""

@@ -70,6 +70,7 @@ class LaunchPlan:
     signing_key_file: Path | None = None  # every drone signs with this key and requires signed messages
     links: LinkProfile = field(default_factory=LinkProfile)  # every drone's link model settings (--link)
     mesh: MeshSettings | None = None  # the drone-to-drone mesh radio of every drone (--mesh-range-m); None: off
+    behaviour: str | None = None  # the onboard behaviour every drone runs (path/file.py:Class, absolute); None: none
 
     @property
     def n_drones(self) -> int:
@@ -179,6 +180,8 @@ def _common_args(plan: LaunchPlan, gcs_port: int, world: str | None) -> list[str
             cmd += ["--lockstep", "--lockstep-quantum", str(plan.lockstep_quantum)]
     if plan.signing_key_file is not None:
         cmd += ["--signing-key", str(plan.signing_key_file), "--signing-required"]
+    if plan.behaviour is not None:
+        cmd += ["--behaviour", plan.behaviour]
     return cmd
 
 

@@ -38,6 +38,14 @@ def contact_distance_m(airframe: str | None) -> float:
     return 2.0 * frame.collision_radius_m
 
 
+def check_behaviour(spec: str) -> None:
+    """Load an onboard behaviour (``path/file.py:Class``) as every drone will; ValueError (one line) if it cannot be:
+    the ground station says so before anything is spawned."""
+    from sitl.onboard.loader import load_behaviour  # imports the simulation: only when a behaviour is asked for
+
+    load_behaviour(spec)
+
+
 def drones_per_host(n_drones: int, drones_per_process: int | Literal["auto"]) -> list[int]:
     """How many drones each process runs for a swarm of ``n_drones`` with this setting (spawn order), on this
     machine (``auto`` counts its usable CPUs)."""

@@ -2,11 +2,12 @@
 takes off, PARAM_SET turns the behaviour on (BHV_EN = 1) and changes its own parameter, NAMED_VALUE_FLOAT sends it a
 message, and the drone flies where the behaviour says; a broken behaviour file is one line and exit code 2.
 
-Policy: loopback only; instance 59; a time limit; the process is stopped by its PID.
+Policy: loopback only; instances 59 and 5-7; a time limit; processes are stopped by their PIDs.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import struct
 import subprocess
@@ -116,3 +117,84 @@ def test_a_broken_behaviour_file_is_one_line_and_exit_code_2(tmp_path: Path) -> 
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].endswith("beacon.py:14: SyntaxError: expected ':'"), result.stderr
+
+
+CLIMB = '''
+from sitl.onboard import OnboardSetpoint
+
+
+class Climb:
+    """Holds its place and climbs to CLB_ALT."""
+
+    RATE_HZ = 5
+    PARAMS = {"CLB_ALT": (4.0, 1.0, 10.0)}
+
+    def __init__(self):
+        self.place = None
+
+    def step(self, state):
+        if self.place is None:
+            self.place = state.pos_ned_m[:2]
+        return OnboardSetpoint(pos_ned_m=(*self.place, -state.params["CLB_ALT"]))
+'''
+CLIMB_MISSION = """
+name = "climb"
+[swarm]
+drones = 3
+layout = "line"
+spacing_m = 3.0
+behaviour = "climb.py:Climb"
+params = { CLB_ALT = 5.5 }
+
+[[steps]]
+action = "takeoff"
+alt_m = 3.0
+
+[[steps]]
+action = "behaviour"
+duration_s = 10.0
+
+[[steps]]
+action = "land"
+"""
+
+
+@pytest.mark.timeout(240)
+def test_a_mission_runs_its_onboard_behaviour_on_every_drone_for_a_step(tmp_path: Path) -> None:
+    # GIVEN a mission whose drones carry a behaviour (in a file beside it) tuned by a mission parameter
+    (tmp_path / "climb.py").write_text(CLIMB)
+    (tmp_path / "climb.toml").write_text(CLIMB_MISSION)
+    report = tmp_path / "report"
+    result = subprocess.run([sys.executable, "-m", "gcs.cli", "fly", str(tmp_path / "climb.toml"), "--lockstep",
+                             "--first-instance", "5", "--drones-per-process", "auto", "--report", str(report),
+                             "--no-forward"], capture_output=True, text=True, timeout=220)  # fmt: skip
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    # THEN every drone started it, climbed to the mission's CLB_ALT under it, and was stopped and held at the step's end
+    log = mavutil.mavlogfile(str(report / "flight.tlog"))
+    texts: dict[int, list[str]] = {}
+    top: dict[int, float] = {}
+    while (msg := log.recv_match(type=["STATUSTEXT", "GLOBAL_POSITION_INT"])) is not None:
+        sysid = msg.get_srcSystem()
+        if msg.get_type() == "STATUSTEXT":
+            texts.setdefault(sysid, []).append(msg.text)
+        else:
+            top[sysid] = max(top.get(sysid, 0.0), msg.relative_alt * 1e-3)
+    assert sorted(top) == [6, 7, 8], top
+    for sysid in (6, 7, 8):
+        assert "Behaviour Climb started" in texts[sysid], texts[sysid]
+        assert any(t.startswith("Behaviour Climb stopped") for t in texts[sysid]), texts[sysid]
+        assert abs(top[sysid] - 5.5) < 0.3, top
+    metrics = json.loads((report / "metrics.json").read_text())
+    assert [s["kind"] for s in metrics["steps"]] == ["takeoff", "behaviour", "land"], metrics["steps"]
+    assert metrics["collisions"] == 0
+
+
+def test_a_mission_whose_behaviour_does_not_load_is_one_line_and_exit_code_2(tmp_path: Path) -> None:
+    (tmp_path / "climb.py").write_text(CLIMB.replace("RATE_HZ = 5", "RATE_HZ = -5"))
+    (tmp_path / "climb.toml").write_text(CLIMB_MISSION)
+    result = subprocess.run([sys.executable, "-m", "gcs.cli", "fly", str(tmp_path / "climb.toml"), "--lockstep",
+                             "--first-instance", "5", "--no-forward"],
+                            capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "climb.toml: swarm.behaviour:" in lines[0] and "RATE_HZ must be" in lines[0], lines

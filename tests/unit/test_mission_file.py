@@ -10,6 +10,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.formation import CircleSpec, GridSpec
 from gcs.mission_file import (
+    BehaviourStep,
     FlockStep,
     FollowStep,
     FormationStep,
@@ -284,3 +285,16 @@ def test_obstacle_and_swap_mistakes_are_one_line(old: str, new: str, expected: s
 def test_relay_must_be_true_or_false() -> None:
     with pytest.raises(MissionFileError, match=r"swarm\.relay: must be true or false"):
         parse_mission(GOOD.replace("spacing_m = 2.5", 'spacing_m = 2.5\nrelay = "off"'), Path("m.toml"))
+
+
+def test_a_mission_names_its_onboard_behaviour_beside_it_and_runs_it_in_a_behaviour_step(tmp_path: Path) -> None:
+    text = ('name = "b"\n[swarm]\ndrones = 2\nbehaviour = "behaviours/climb.py:Climb"\n'
+            '[[steps]]\naction = "takeoff"\nalt_m = 3.0\n'
+            '[[steps]]\naction = "behaviour"\nduration_s = 12.0\n')  # fmt: skip
+    mission = parse_mission(text, tmp_path / "m.toml")
+    assert mission.swarm.behaviour == f"{tmp_path.resolve()}/behaviours/climb.py:Climb"
+    assert mission.steps[1] == BehaviourStep(duration_s=12.0)
+    with pytest.raises(MissionFileError, match=r'm.toml:4: swarm.behaviour: must be "path/to/file.py:ClassName"'):
+        parse_mission(text.replace(":Climb", ""), tmp_path / "m.toml")
+    with pytest.raises(MissionFileError, match=r"steps\[1\].action: a behaviour step needs \[swarm\] behaviour"):
+        parse_mission(text.replace('behaviour = "behaviours/climb.py:Climb"\n', ""), tmp_path / "m.toml")
