@@ -63,6 +63,12 @@ class BlockingSession(Readings):
     def control(self, controller: Controller) -> None:
         self._run(lambda: self._engine.do_control(controller))
 
+    def start_behaviours(self) -> list[int]:
+        return self._run(lambda: self._engine.do_behaviour(run=True))
+
+    def stop_behaviours(self) -> list[int]:
+        return self._run(lambda: self._engine.do_behaviour(run=False))
+
     def sleep(self, seconds: float) -> None:
         self._run(lambda: self._engine.do_sleep(seconds))
 

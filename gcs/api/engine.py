@@ -24,6 +24,7 @@ import queue
 import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, TypeVar
 
 from pymavlink.dialects.v20 import common as mavlink
@@ -35,7 +36,7 @@ from gcs.formation import SETPOINT_STREAM_HZ, CircleSpec, Formation, GridSpec, L
 from gcs.frames import Vec3
 from gcs.harness import Simulation, SpawnPlan
 from gcs.losses import MAV_STATE_CRITICAL
-from gcs.procedures import take_off_and_hold
+from gcs.procedures import start_onboard_behaviours, stop_onboard_behaviours, take_off_and_hold
 from gcs.report import METRICS_FILE
 from gcs.station import Station, failsafe_text
 from gcs.swarm import Swarm, SwarmError
@@ -185,7 +186,7 @@ class Engine:
                          speed_factor=speed, lockstep=o.lockstep, lockstep_quantum=o.quantum,
                          first_instance=o.first_instance, airframe=o.airframe, seed=o.seed, log_dir=o.log_dir,
                          drones_per_process=o.drones_per_process, signing_key_file=o.signing_key_file,
-                         links=o.links)  # fmt: skip
+                         links=o.links, behaviour=self._behaviour())  # fmt: skip
         contact = self._simulation.contact_distance_m(o.airframe)
         self.swarm = swarm = Swarm(plan, self._simulation.harness(plan), forward=o.forward)
         self.station = Station(swarm, self._say, o.loss_policy, report_dir=o.report_dir, contact_distance_m=contact)
@@ -200,6 +201,16 @@ class Engine:
                                 o.ready_timeout_s, tick=self._tick):  # fmt: skip
             raise SwarmError(f"not every drone reported its home and position within {o.ready_timeout_s:g} s")
         self._publish()
+
+    def _behaviour(self) -> str | None:
+        """The onboard behaviour, made absolute and loaded as the drones will (ValueError: one line)."""
+        spec = self.options.behaviour
+        if spec is None:
+            return None
+        file, _, cls = spec.rpartition(":")
+        absolute = f"{Path(file).resolve()}:{cls}" if file else spec
+        self._simulation.check_behaviour(absolute)
+        return absolute
 
     def _serve(self) -> None:
         swarm = self.swarm
@@ -390,6 +401,16 @@ class Engine:
         self._controller = behaviour
         station.streamer.command_behaviour(behaviour, station.mission_time())
         self._begin("control")
+
+    def do_behaviour(self, *, run: bool) -> list[int]:
+        """Every drone's onboard behaviour on (BHV_EN = 1) or off (BHV_EN = 0, then Hold)."""
+        swarm, station = self._parts()
+        self._controller = None
+        if run:
+            sysids = start_onboard_behaviours(swarm, station.streamer)
+            self._begin("behaviour")
+            return sysids
+        return stop_onboard_behaviours(swarm)
 
     def do_sleep(self, seconds: float) -> None:
         swarm, _ = self._parts()

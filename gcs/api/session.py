@@ -101,6 +101,15 @@ class Session(Readings):
         progress (or the next one) raises ``ControllerError``."""
         await self._run(lambda: self._engine.do_control(controller))
 
+    async def start_behaviours(self) -> list[int]:
+        """Every drone runs its onboard behaviour (``launch(behaviour="file.py:Class")``, docs/onboard.md): the
+        ground station stops its own setpoints and sets BHV_EN = 1; returns the sysids."""
+        return await self._run(lambda: self._engine.do_behaviour(run=True))
+
+    async def stop_behaviours(self) -> list[int]:
+        """BHV_EN = 0 on every drone, then Hold where they are; returns the sysids put in Hold."""
+        return await self._run(lambda: self._engine.do_behaviour(run=False))
+
     async def sleep(self, seconds: float) -> None:
         """Let the swarm fly for ``seconds`` of simulated time."""
         await self._run(lambda: self._engine.do_sleep(seconds))

@@ -42,6 +42,7 @@ class LaunchOptions:
     log_dir: Path | None = None  # each drone's log (None: a temporary directory)
     forward: tuple[str, int] | None = None  # forward all drone traffic to a ground station (QGroundControl)
     signing_key_file: Path | None = None
+    behaviour: str | None = None  # an onboard behaviour every drone carries: "path/to/file.py:ClassName"
     ready_timeout_s: float = 60.0  # wall seconds for every drone to come up
 
     def __post_init__(self) -> None:
