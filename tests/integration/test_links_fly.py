@@ -1,7 +1,8 @@
 """Reproducible lockstep and the link model, judged by real ``swarm fly`` runs and their flight reports.
 
-- The same lockstep mission with the same seeds flies the same: two runs of the antipodal swap, the second with
-  both CPUs kept busy by other work, give the same MAVLink messages in their flight logs, message for message.
+- The same lockstep mission with the same seeds flies the same: two runs of the antipodal swap (neighbours relayed
+  and heard over the mesh, on a lossy and late neighbour link), the second with both CPUs kept busy by other work,
+  give the same MAVLink messages in their flight logs, message for message, and the same report.
 - Lossy and late links (the link model acting on every drone's traffic, both ways) still fly the shipped missions
   without a collision, and the report counts what the model did.
 
@@ -22,7 +23,7 @@ from typing import Any
 import pytest
 from pymavlink import mavutil
 
-from tests.integration.mission_flight import fly_mission
+from tests.integration.mission_flight import MISSIONS, fly_mission
 
 pytestmark = [pytest.mark.sim_only]
 
@@ -63,21 +64,46 @@ def fly(mission: str, tmp_path: Path, *extra: str) -> tuple[dict[str, Any], Path
     return metrics, tmp_path / "report"
 
 
+# The swap with neighbours heard both ways (the relay and a 10 m mesh, so the drones across the circle, 12 m apart, are
+# out of radio range at first) over a lossy, late, jittery neighbour link: every path a message can take between
+# drones is in the flight, so one pair of runs judges the lockstep delivery of all of them.
+BOTH_WAYS = """
+neighbours = "both"
+
+[swarm.mesh]
+range_m = 10
+
+[swarm.links.neighbour]
+loss = 0.1
+latency_ms = 30
+jitter_ms = 20
+"""
+
+
 @pytest.mark.timeout(1300)
 def test_the_same_lockstep_mission_flies_the_same_on_an_idle_and_a_loaded_machine(tmp_path: Path) -> None:
-    # GIVEN the antipodal swap flown in lockstep with the default seeds
-    first, first_report = fly("antipodal_swap.toml", tmp_path / "idle")
+    # GIVEN the antipodal swap flown in lockstep with the default seeds, its neighbours relayed and heard over the mesh
+    text = (MISSIONS / "antipodal_swap.toml").read_text()
+    assert text.count("[swarm]\n") == 1 and "[[steps]]" in text
+    mission = tmp_path / "antipodal_swap.toml"
+    swarm_end = text.index("[[steps]]")
+    mission.write_text(text[:swarm_end] + BOTH_WAYS + "\n" + text[swarm_end:])
+    first, first_report = fly(str(mission), tmp_path / "idle")
     # WHEN it is flown again with the same seeds while other processes keep every CPU busy
     with busy_cpus():
-        second, second_report = fly("antipodal_swap.toml", tmp_path / "loaded")
-    # THEN both flight logs hold the same messages in the same order
+        second, second_report = fly(str(mission), tmp_path / "loaded")
+    # THEN the mesh delivered, and lost reports for every reason the mission allows
+    mesh = first["links"]["neighbour mesh"]
+    assert mesh["frames_delivered"] > 1000 and mesh["lost_range"] > 0 and mesh["lost_path"] > 0, mesh
+    assert mesh["lost_model"] > 0 and mesh["frames_delayed"] > 0, mesh
+    # AND both flight logs hold the same messages in the same order
     a, b = tlog_messages(first_report / "flight.tlog"), tlog_messages(second_report / "flight.tlog")
     assert len(a) > 10_000
     first_difference = next((k for k, (x, y) in enumerate(zip(a, b, strict=False)) if x != y), None)
     assert first_difference is None, (first_difference, a[first_difference][:2], b[first_difference][:2])
     assert len(a) == len(b)
     # AND the reports agree to the last digit
-    for key in ("min_separation_m", "collisions", "avoidance_events", "distance_flown_m", "steps"):
+    for key in ("min_separation_m", "collisions", "avoidance_events", "distance_flown_m", "steps", "links"):
         assert first[key] == second[key], key
 
 
