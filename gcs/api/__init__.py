@@ -26,7 +26,7 @@ from gcs.api.session import Session, launch
 from gcs.api.types import ControllerError, DroneState, Event, FlightResult, LaunchOptions
 from gcs.behaviours import FlockSpec, FollowSpec
 from gcs.formation import CircleSpec, GridSpec, LineSpec, Setpoint, VSpec
-from gcs.links import LinkPlan
+from gcs.links import LinkPlan, MeshPlan, NeighbourPlan
 from gcs.losses import LossPolicy
 from gcs.swarm import SwarmError
 
@@ -44,6 +44,8 @@ __all__ = [
     "LineSpec",
     "LinkPlan",
     "LossPolicy",
+    "MeshPlan",
+    "NeighbourPlan",
     "Session",
     "SessionClosed",
     "Setpoint",

@@ -186,9 +186,9 @@ class Engine:
                          speed_factor=speed, lockstep=o.lockstep, lockstep_quantum=o.quantum,
                          first_instance=o.first_instance, airframe=o.airframe, seed=o.seed, log_dir=o.log_dir,
                          drones_per_process=o.drones_per_process, signing_key_file=o.signing_key_file,
-                         links=o.links, behaviour=self._behaviour())  # fmt: skip
+                         links=o.links, mesh=o.neighbours.mesh, behaviour=self._behaviour())  # fmt: skip
         contact = self._simulation.contact_distance_m(o.airframe)
-        self.swarm = swarm = Swarm(plan, self._simulation.harness(plan), forward=o.forward)
+        self.swarm = swarm = Swarm(plan, self._simulation.harness(plan), forward=o.forward, relay=o.neighbours.relay)
         self.station = Station(swarm, self._say, o.loss_policy, report_dir=o.report_dir, contact_distance_m=contact)
         swarm.listeners.append(self._on_message)
         swarm.up(ready_timeout_s=o.ready_timeout_s)

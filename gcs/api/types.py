@@ -15,7 +15,7 @@ from typing import Any, Literal
 
 from gcs.frames import Vec3
 from gcs.geodesy import DEFAULT_ORIGIN, GeoPoint
-from gcs.links import LinkPlan
+from gcs.links import LinkPlan, NeighbourPlan
 from gcs.losses import LossPolicy
 
 
@@ -37,6 +37,8 @@ class LaunchOptions:
     drones_per_process: int | Literal["auto"] = 1
     params: Mapping[str, float] = field(default_factory=dict)  # drone parameters set before anything flies
     links: LinkPlan = field(default_factory=LinkPlan)
+    # How the drones hear each other: the supervisor's relay and/or the drone-to-drone mesh (docs/links.md)
+    neighbours: NeighbourPlan = field(default_factory=NeighbourPlan)
     loss_policy: LossPolicy = LossPolicy.CONTINUE
     report_dir: Path | None = None  # write the flight report here at the end (None: no report)
     log_dir: Path | None = None  # each drone's log (None: a temporary directory)
