@@ -27,8 +27,9 @@ from gcs.geodesy import DEFAULT_ORIGIN, GeoPoint
 from gcs.harness import LAYOUTS, Simulation, SpawnError, SpawnPlan, parse_drones_per_process
 from gcs.links import LINK_OPTIONS, NEIGHBOUR_MODES, LinkPlan, NeighbourPlan, parse_link_value, parse_mesh_value
 from gcs.losses import LOSS_POLICIES, LossPolicy
-from gcs.mission_file import MissionFileError, build_flock, build_follow, load_mission
+from gcs.mission_file import MissionFileError, build_flock, build_follow, flown_onboard, load_mission
 from gcs.mission_runner import MissionRunner
+from gcs.onboard import is_module_spec
 from gcs.plan_cli import add_plan_parser, run_plan
 from gcs.signing import SigningKeyError, load_key
 from gcs.station import Station, format_status
@@ -218,7 +219,7 @@ def _behaviour(spec: str | None, simulation: Simulation) -> str | None:
     if spec is None:
         return None
     file, _, cls = spec.rpartition(":")
-    absolute = f"{Path(file).resolve()}:{cls}" if file else spec
+    absolute = f"{Path(file).resolve()}:{cls}" if file and not is_module_spec(spec) else spec
     try:
         simulation.check_behaviour(absolute)
     except ValueError as exc:
@@ -334,6 +335,9 @@ def build_parser() -> argparse.ArgumentParser:
     fly.add_argument("--behaviour", default=None, metavar="FILE.py:CLASS",
                      help="the onboard behaviour every drone carries (instead of the mission's [swarm] behaviour); "
                      "a mission's behaviour steps run it (docs/onboard.md)")  # fmt: skip
+    fly.add_argument("--onboard", action="store_true",
+                     help="every flock and follow step flown by the drones themselves (the shipped onboard "
+                     "behaviours, docs/onboard.md) instead of the ground station")  # fmt: skip
     fly.add_argument("--first-instance", type=int, default=0, help="instance of the first drone")
     fly.add_argument("--origin", type=_origin, default=DEFAULT_ORIGIN, help="swarm origin LAT,LON,ALT_AMSL")
     fly.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
@@ -512,6 +516,8 @@ def _loop(swarm: Swarm, station: Station, server: ControlServer, stop: _Stop) ->
 
 def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
     mission = load_mission(args.mission, max_obstacles=simulation.max_obstacles)
+    if args.onboard:
+        mission = flown_onboard(mission)
     try:  # a bad airframe is one line before anything starts (the runner needs its size for the report)
         simulation.contact_distance_m(args.airframe)
     except ValueError as exc:

@@ -28,6 +28,7 @@ found by locating the step's ``[[steps]]`` header and the key inside it.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import tomllib
@@ -52,6 +53,8 @@ from gcs.links import (
     value_problem,
 )
 from gcs.losses import LOSS_POLICIES, LossPolicy
+from gcs.onboard import FLOCKING, LEADER_FOLLOWER, is_module_spec
+from gcs.onboard import MAX_POINTS as ONBOARD_MAX_POINTS
 from gcs.plan_flight import OFFSET_MODES, PlanUsageError, parse_drones
 from gcs.qgc_plan import PlanFileError, QgcPlan, load_plan
 
@@ -113,6 +116,7 @@ class FlockStep:
     name: str
     spec: FlockSpec
     duration_s: float
+    onboard: bool = False  # every drone flies the law itself (gcs/onboard.py), not the ground station
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -121,6 +125,7 @@ class FollowStep:
     spec: FollowSpec  # leader_sysid None: resolved from leader_drone when the swarm is up
     leader_drone: int | None  # 1..drones: the swarm's n-th drone leads (its sysid depends on --first-instance)
     duration_s: float | None  # None: until the leader reaches its last waypoint
+    onboard: bool = False  # every drone flies the law itself (gcs/onboard.py), not the ground station
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -447,7 +452,7 @@ def _step_name(reader: _Reader, step: dict[str, Any], where: tuple[str | None, i
 
 
 def _flock(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int | None]) -> FlockStep:
-    reader.check_keys(step, {"action", "name", "duration_s", *_FLOCK_FIELDS}, where)
+    reader.check_keys(step, {"action", "name", "duration_s", "onboard", *_FLOCK_FIELDS}, where)
     for key in sorted(_FLOCK_REQUIRED | {"duration_s"}):
         if key not in step:
             raise reader.fail(where, None, f"missing field '{key}' for a flock step")
@@ -459,12 +464,25 @@ def _flock(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int |
         spec = build_flock({k: step[k] for k in _FLOCK_FIELDS if k in step})
     except ValueError as exc:
         raise reader.fail(where, None, str(exc)) from None
-    return FlockStep(name=_step_name(reader, step, where, "flock"), spec=spec, duration_s=duration)
+    onboard = _onboard(reader, step, where, "migration_ne_m", spec.migration_ne_m)
+    return FlockStep(name=_step_name(reader, step, where, "flock"), spec=spec, duration_s=duration, onboard=onboard)
+
+
+def _onboard(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int | None], points_key: str,
+             points: tuple[tuple[float, float], ...]) -> bool:  # fmt: skip
+    """``onboard = true``: the drones fly the step's law themselves; their parameters hold at most MAX_POINTS."""
+    onboard = step.get("onboard", False)
+    if not isinstance(onboard, bool):
+        raise reader.fail(where, "onboard", f"must be true or false, got {onboard!r}")
+    if onboard and len(points) > ONBOARD_MAX_POINTS:
+        raise reader.fail(where, points_key, f"an onboard step takes at most {ONBOARD_MAX_POINTS} points, "
+                                             f"got {len(points)}")  # fmt: skip
+    return onboard
 
 
 def _follow(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int | None], drones: int) -> FollowStep:
     fields = {k: v for k, v in _FOLLOW_FIELDS.items() if k != "leader_sysid"}
-    reader.check_keys(step, {"action", "name", "duration_s", "leader_drone", *fields}, where)
+    reader.check_keys(step, {"action", "name", "duration_s", "leader_drone", "onboard", *fields}, where)
     for key in sorted(_FOLLOW_REQUIRED):
         if key not in step:
             raise reader.fail(where, None, f"missing field '{key}' for a follow step")
@@ -485,7 +503,8 @@ def _follow(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int 
     except ValueError as exc:
         raise reader.fail(where, None, str(exc)) from None
     name = _step_name(reader, step, where, "follow")
-    return FollowStep(name=name, spec=spec, leader_drone=leader, duration_s=duration)
+    onboard = _onboard(reader, step, where, "waypoints_ne_m", spec.waypoints_ne_m)
+    return FollowStep(name=name, spec=spec, leader_drone=leader, duration_s=duration, onboard=onboard)
 
 
 def _step(reader: _Reader, step: Any, index: int, drones: int) -> Step:
@@ -745,7 +764,10 @@ def parse_mission(text: str, path: Path, *, max_obstacles: int | None = None) ->
     if not isinstance(steps_data, list) or not steps_data:
         raise reader.fail((None, None), None, "missing [[steps]]: a mission needs at least one step")
     steps = tuple(_step(reader, s, i, drones) for i, s in enumerate(steps_data))
-    behaviour = _behaviour(reader, swarm, path)
+    try:
+        behaviour = onboard_behaviour(steps, _behaviour(reader, swarm, path))
+    except OnboardConflict as exc:
+        raise reader.fail(("steps", exc.step), "onboard", str(exc)) from None
     if behaviour is None and any(isinstance(s, BehaviourStep) for s in steps):
         k = next(i for i, s in enumerate(steps) if isinstance(s, BehaviourStep))
         raise reader.fail(("steps", k), "action", 'a behaviour step needs [swarm] behaviour = "file.py:Class"')
@@ -777,6 +799,41 @@ def parse_mission(text: str, path: Path, *, max_obstacles: int | None = None) ->
     )
 
 
+def flown_onboard(mission: MissionSpec) -> MissionSpec:
+    """The same mission with every flock and follow step flown by the drones themselves (``swarm fly --onboard``);
+    MissionFileError if it has no such step or the drones would need two behaviours (or carry another)."""
+    steps = tuple(dataclasses.replace(s, onboard=True) if isinstance(s, FlockStep | FollowStep) else s
+                  for s in mission.steps)  # fmt: skip
+    if not any(isinstance(s, FlockStep | FollowStep) for s in steps):
+        raise MissionFileError(f"{mission.path}: --onboard: the mission has no flock or follow step")
+    try:
+        behaviour = onboard_behaviour(steps, mission.swarm.behaviour)
+    except OnboardConflict as exc:
+        raise MissionFileError(f"{mission.path}: --onboard: steps[{exc.step}]: {exc}") from None
+    return dataclasses.replace(mission, steps=steps, swarm=dataclasses.replace(mission.swarm, behaviour=behaviour))
+
+
+class OnboardConflict(ValueError):
+    """A step flown onboard needs another behaviour than the drones carry."""
+
+    def __init__(self, step: int, problem: str) -> None:
+        super().__init__(problem)
+        self.step = step
+
+
+def onboard_behaviour(steps: tuple[Step, ...], behaviour: str | None) -> str | None:
+    """The behaviour the drones carry: a step flown onboard needs the shipped one (set here when [swarm] names none);
+    a drone carries one behaviour, so one kind of onboard step per mission."""
+    needed = {(k, FLOCKING if isinstance(s, FlockStep) else LEADER_FOLLOWER) for k, s in enumerate(steps)
+              if isinstance(s, FlockStep | FollowStep) and s.onboard}  # fmt: skip
+    for k, spec in sorted(needed):
+        if behaviour is not None and behaviour != spec:
+            raise OnboardConflict(k, f"flown onboard with {spec}, but the drones carry {behaviour} (one onboard "
+                                     "behaviour per mission)")  # fmt: skip
+        behaviour = spec
+    return behaviour
+
+
 def _behaviour(reader: _Reader, swarm: dict[str, Any], path: Path) -> str | None:
     """``[swarm] behaviour = "file.py:Class"``, the file relative to the mission's folder, made absolute (the drones
     start elsewhere). Whether the class loads is the simulation's to say (the CLI asks it before anything starts)."""
@@ -786,7 +843,7 @@ def _behaviour(reader: _Reader, swarm: dict[str, Any], path: Path) -> str | None
     file, sep, cls = spec.rpartition(":") if isinstance(spec, str) else ("", "", "")
     if not sep or not file or not cls.isidentifier():
         raise reader.fail(("swarm", None), "behaviour", f'must be "path/to/file.py:ClassName", got {spec!r}')
-    return f"{(path.parent / file).resolve()}:{cls}"
+    return spec if is_module_spec(spec) else f"{(path.parent / file).resolve()}:{cls}"
 
 
 def load_mission(path: Path, *, max_obstacles: int | None = None) -> MissionSpec:

@@ -17,7 +17,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Literal
 
-from gcs.behaviours import LeaderFollower
+from gcs.behaviours import FollowSpec, LeaderFollower
 from gcs.degrade import apply_loss_policy, apply_regain
 from gcs.faults import CRASH, result_text
 from gcs.formation import SETPOINT_STREAM_HZ
@@ -41,6 +41,7 @@ from gcs.mission_file import (
     SwapStep,
     TakeoffStep,
 )
+from gcs.onboard_flight import FollowObserver, leader_arrived, start_onboard_flock, start_onboard_follow
 from gcs.plan_flight import (
     copy_offsets,
     parse_drones,
@@ -216,13 +217,38 @@ class MissionRunner:
         self._hold(step.hold_s)
 
     def _flock(self, step: FlockStep) -> None:
+        if step.onboard:  # every drone flocks by itself (gcs/onboard_flight.py)
+            start_onboard_flock(self.swarm, self.streamer, step.spec)
+            self._hold(step.duration_s)
+            stop_onboard_behaviours(self.swarm)
+            return
         self.streamer.command_flock(step.spec, self.now())
         self._hold(step.duration_s)
+
+    def _follow_onboard(self, step: FollowStep, spec: FollowSpec) -> None:
+        """Every drone flies leader-follower by itself; the step ends when the leader reports itself at its last
+        waypoint (or after ``duration_s``), the flight report's slots come from the ground law's observer."""
+        follow = start_onboard_follow(self.swarm, self.streamer, spec, self.now())
+        self.streamer.observer = FollowObserver(follow, self.streamer, spec, self.now())
+        try:
+            if step.duration_s is not None:
+                self._hold(step.duration_s)
+            elif not self._wait(lambda: leader_arrived(follow, self.streamer, self.now()),
+                                follow.latest_end_s - self.now()):  # fmt: skip
+                margin = follow.latest_end_s - follow.earliest_end_s
+                raise SwarmError(f"leader sysid {follow.leader} did not reach its last waypoint within "
+                                 f"{margin:.0f} s of the earliest it could")  # fmt: skip
+        finally:
+            self.streamer.observer = None
+        stop_onboard_behaviours(self.swarm)
 
     def _follow(self, step: FollowStep) -> None:
         spec = step.spec
         if step.leader_drone is not None:
             spec = dataclasses.replace(spec, leader_sysid=self.swarm.sysids[step.leader_drone - 1])
+        if step.onboard:
+            self._follow_onboard(step, spec)
+            return
         behaviour = self.streamer.command_follow(spec, self.now())
         if step.duration_s is not None:
             self._hold(step.duration_s)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink
@@ -101,6 +102,7 @@ class FormationStreamer:
         self.behaviour: Behaviour | None = None
         self._frames: dict[int, DroneFrame] = {}
         self._rejoining: dict[int, _Rejoin] = {}  # sysid -> its way back into OFFBOARD
+        self.observer: Callable[[float], dict[int, Vec3]] | None = None  # slots of drones flying themselves
         swarm.stream_tick = self.tick  # setpoints go on while a command waits for its answer
 
     def drone_frame(self, sysid: int) -> DroneFrame | None:
@@ -298,8 +300,10 @@ class FormationStreamer:
         self._rejoining.clear()
 
     def targets(self, now_s: float) -> dict[int, Vec3]:
+        """Each commanded drone's slot now; while the drones fly themselves (an onboard behaviour), the
+        ``observer``'s, if one watches them (gcs/onboard_flight.py)."""
         if not self.active:
-            return {}
+            return self.observer(now_s) if self.observer is not None else {}
         return self.behaviour.targets() if self.behaviour is not None else self.engine.targets(now_s)
 
     def tick(self, now_s: float) -> None:

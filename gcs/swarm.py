@@ -23,7 +23,7 @@ import math
 import os
 import selectors
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
@@ -280,10 +280,13 @@ class Swarm:
 
     def set_params(self, name: str, value: int | float, sysids: Iterable[int]) -> list[ParamResult]:
         """One parameter on several drones at once, each confirmed by its echo or retried (gcs/params.py)."""
-        targets = list(sysids)
-        for sysid in targets:
+        return self.set_param_each(name, dict.fromkeys(sysids, value))
+
+    def set_param_each(self, name: str, values: Mapping[int, int | float]) -> list[ParamResult]:
+        """One parameter, a value of its own on each drone (sysid -> value), all at once as ``set_params``."""
+        for sysid, value in values.items():
             self._send_effects(self.params.start(sysid, name, value, self.clock()), now=False)
-        return self._serve(self.params, name, targets, now=False)
+        return self._serve(self.params, name, list(values), now=False)
 
     def upload_mission(
         self, items: dict[int, list[WireItem]], mission_type: int = MISSION_TYPE_MISSION

@@ -1,4 +1,5 @@
-"""Read an onboard behaviour from ``path/to/file.py:ClassName``, checked before any drone flies it.
+"""Read an onboard behaviour from ``path/to/file.py:ClassName`` (or an installed module's, ``package.module:ClassName``,
+as the shipped ``sitl.onboard.behaviours.flocking:Flocking``), checked before any drone flies it.
 
 Every mistake is one line naming the file (and the line, when there is one) and the problem: a file that is not
 there, a syntax error, an exception while the module runs, a missing class, a class without ``step``, a bad
@@ -35,7 +36,8 @@ class LoadedBehaviour:
     """A checked behaviour class and what the drone declares for it."""
 
     cls: type
-    spec: str  # as given: path:ClassName
+    spec: str  # as given: path:ClassName or module:ClassName
+    file: Path  # the file the class is in (an error in flight names it)
     name: str  # the class's name
     rate_hz: float
     params: tuple[ParamDef, ...]  # its own, then BHV_EN
@@ -47,14 +49,19 @@ def enable_param() -> ParamDef:
 
 
 def load_behaviour(spec: str) -> LoadedBehaviour:
-    """The behaviour class of ``spec`` (``path/to/file.py:ClassName``), checked; BehaviourError names the problem."""
+    """The behaviour class of ``spec`` (``path/to/file.py:ClassName`` or ``package.module:ClassName``), checked;
+    BehaviourError names the problem."""
     path_text, sep, class_name = spec.rpartition(":")
     if not sep or not path_text or not class_name.isidentifier():
         raise BehaviourError(f"{spec}: a behaviour is given as path/to/file.py:ClassName")
-    path = Path(path_text)
-    if not path.is_file():
-        raise BehaviourError(f"{path}: no such file")
-    module = _run_module(path)
+    if is_module_name(path_text):
+        module = _import_module(path_text)
+        path = Path(module.__file__ or path_text)
+    else:
+        path = Path(path_text)
+        if not path.is_file():
+            raise BehaviourError(f"{path}: no such file")
+        module = _run_module(path)
     cls = getattr(module, class_name, None)
     if not isinstance(cls, type):
         raise BehaviourError(f"{path}: no class {class_name}")
@@ -64,8 +71,29 @@ def load_behaviour(spec: str) -> LoadedBehaviour:
     rate = getattr(cls, "RATE_HZ", None)
     if isinstance(rate, bool) or not isinstance(rate, int | float) or not 0 < rate <= MAX_RATE_HZ:
         raise BehaviourError(f"{where}: RATE_HZ must be a number in (0, {MAX_RATE_HZ:g}], got {rate!r}")
-    return LoadedBehaviour(cls=cls, spec=spec, name=class_name, rate_hz=float(rate),
+    return LoadedBehaviour(cls=cls, spec=spec, file=path, name=class_name, rate_hz=float(rate),
                            params=(*_params(where, getattr(cls, "PARAMS", {})), enable_param()))  # fmt: skip
+
+
+def is_module_name(text: str) -> bool:
+    """``package.module`` (dotted identifiers, no ``.py``), as opposed to a file's path."""
+    return not text.endswith(".py") and all(part.isidentifier() for part in text.split("."))
+
+
+def _import_module(name: str) -> Any:
+    """An installed module; an error in it is one line with its file and line."""
+    try:
+        return importlib.import_module(name)
+    except ModuleNotFoundError as exc:
+        if exc.name is not None and name.startswith(exc.name):
+            raise BehaviourError(f"{name}: no such module") from None
+        raise BehaviourError(f"{name}: {type(exc).__name__}: {exc}") from None
+    except SyntaxError as exc:
+        raise BehaviourError(f"{exc.filename}:{exc.lineno}: SyntaxError: {exc.msg}") from None
+    except Exception as exc:
+        frames = traceback.extract_tb(exc.__traceback__)
+        where = f"{frames[-1].filename}:{frames[-1].lineno}" if frames else name
+        raise BehaviourError(f"{where}: {type(exc).__name__}: {exc}") from None
 
 
 def _run_module(path: Path) -> Any:

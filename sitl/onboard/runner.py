@@ -18,7 +18,6 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable, Sequence
-from pathlib import Path
 
 from sitl.avoidance import Obstacle
 from sitl.collision_prevention import RelayedNeighbour
@@ -134,7 +133,7 @@ class OnboardRunner:
 
     def _fail(self, exc: Exception) -> None:
         """The behaviour raised: it stops, the drone holds where it is, and the drone says why, in one line."""
-        path = Path(self.loaded.spec.rpartition(":")[0])
+        path = self.loaded.file
         log.error("behaviour %s raised", self.loaded.spec, exc_info=exc)
         self._stop(f"stopped: {type(exc).__name__} at {path.name}:{error_line(exc, path)}", SEVERITY_CRITICAL)
         if self._vehicle.status.armed and not self._vehicle.landed:
