@@ -29,7 +29,7 @@ from gcs.links import LINK_OPTIONS, NEIGHBOUR_MODES, LinkPlan, NeighbourPlan, pa
 from gcs.losses import LOSS_POLICIES, LossPolicy
 from gcs.mission_file import MissionFileError, build_flock, build_follow, flown_onboard, load_mission
 from gcs.mission_runner import MissionRunner
-from gcs.onboard import is_module_spec
+from gcs.onboard import absolute_spec
 from gcs.plan_cli import add_plan_parser, run_plan
 from gcs.signing import SigningKeyError, load_key
 from gcs.station import Station, format_status
@@ -218,8 +218,7 @@ def _behaviour(spec: str | None, simulation: Simulation) -> str | None:
     it: a mistake is one line before anything starts."""
     if spec is None:
         return None
-    file, _, cls = spec.rpartition(":")
-    absolute = f"{Path(file).resolve()}:{cls}" if file and not is_module_spec(spec) else spec
+    absolute = absolute_spec(spec, Path.cwd())
     try:
         simulation.check_behaviour(absolute)
     except ValueError as exc:

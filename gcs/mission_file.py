@@ -53,7 +53,7 @@ from gcs.links import (
     value_problem,
 )
 from gcs.losses import LOSS_POLICIES, LossPolicy
-from gcs.onboard import FLOCKING, LEADER_FOLLOWER, is_module_spec
+from gcs.onboard import FLOCKING, LEADER_FOLLOWER, absolute_spec
 from gcs.onboard import MAX_POINTS as ONBOARD_MAX_POINTS
 from gcs.plan_flight import OFFSET_MODES, PlanUsageError, parse_drones
 from gcs.qgc_plan import PlanFileError, QgcPlan, load_plan
@@ -843,7 +843,7 @@ def _behaviour(reader: _Reader, swarm: dict[str, Any], path: Path) -> str | None
     file, sep, cls = spec.rpartition(":") if isinstance(spec, str) else ("", "", "")
     if not sep or not file or not cls.isidentifier():
         raise reader.fail(("swarm", None), "behaviour", f'must be "path/to/file.py:ClassName", got {spec!r}')
-    return spec if is_module_spec(spec) else f"{(path.parent / file).resolve()}:{cls}"
+    return absolute_spec(spec, path.parent)
 
 
 def load_mission(path: Path, *, max_obstacles: int | None = None) -> MissionSpec:

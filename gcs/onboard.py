@@ -9,6 +9,7 @@ each drone's own local frame) and turns the behaviour on.
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Final
 
 from gcs.behaviours import FlockSpec
@@ -20,6 +21,15 @@ MAX_POINTS: Final = 6  # points a shipped behaviour holds in its parameters (sit
 
 class OnboardSpecError(ValueError):
     """Something a shipped behaviour cannot take (one line)."""
+
+
+def absolute_spec(spec: str, base: Path) -> str:
+    """A behaviour as the drones load it, wherever they start: a file relative to ``base`` made absolute, a module
+    (``package.module:Class``) as it is."""
+    if is_module_spec(spec):
+        return spec
+    file, _, cls = spec.rpartition(":")
+    return f"{(base / file).resolve()}:{cls}" if file else spec
 
 
 def is_module_spec(spec: str) -> bool:

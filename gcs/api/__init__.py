@@ -28,9 +28,12 @@ from gcs.behaviours import FlockSpec, FollowSpec
 from gcs.formation import CircleSpec, GridSpec, LineSpec, Setpoint, VSpec
 from gcs.links import LinkPlan, MeshPlan, NeighbourPlan
 from gcs.losses import LossPolicy
+from gcs.onboard import FLOCKING, LEADER_FOLLOWER
 from gcs.swarm import SwarmError
 
 __all__ = [
+    "FLOCKING",
+    "LEADER_FOLLOWER",
     "BlockingSession",
     "CircleSpec",
     "ControllerError",

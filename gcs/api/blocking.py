@@ -54,11 +54,11 @@ class BlockingSession(Readings):
     def formation(self, formation: Formation) -> float:
         return self._run(lambda: self._engine.do_formation(formation))
 
-    def flock(self, spec: FlockSpec) -> None:
-        self._run(lambda: self._engine.do_flock(spec))
+    def flock(self, spec: FlockSpec, *, onboard: bool = False) -> None:
+        self._run(lambda: self._engine.do_flock(spec, onboard=onboard))
 
-    def follow(self, spec: FollowSpec) -> None:
-        self._run(lambda: self._engine.do_follow(spec))
+    def follow(self, spec: FollowSpec, *, onboard: bool = False) -> None:
+        self._run(lambda: self._engine.do_follow(spec, onboard=onboard))
 
     def control(self, controller: Controller) -> None:
         self._run(lambda: self._engine.do_control(controller))

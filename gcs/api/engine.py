@@ -36,6 +36,8 @@ from gcs.formation import SETPOINT_STREAM_HZ, CircleSpec, Formation, GridSpec, L
 from gcs.frames import Vec3
 from gcs.harness import Simulation, SpawnPlan
 from gcs.losses import MAV_STATE_CRITICAL
+from gcs.onboard import absolute_spec
+from gcs.onboard_flight import start_onboard_flock, start_onboard_follow
 from gcs.procedures import start_onboard_behaviours, stop_onboard_behaviours, take_off_and_hold
 from gcs.report import METRICS_FILE
 from gcs.station import Station, failsafe_text
@@ -117,6 +119,7 @@ class Engine:
         self._states: dict[int, DroneState] = {}  # replaced whole at each tick: readers in other threads see a snapshot
         self._time_s = 0.0
         self._controller: ControllerBehaviour | None = None
+        self._onboard = False  # the drones' onboard behaviours fly them (BHV_EN = 1)
         self._pending: ControllerError | None = None  # a controller that failed between calls (paced), for the next
         self._status: dict[int, int] = {}  # each drone's last HEARTBEAT system_status (failsafe events)
         self._thread = threading.Thread(target=self._main, name="swarm-supervisor", daemon=True)
@@ -207,8 +210,7 @@ class Engine:
         spec = self.options.behaviour
         if spec is None:
             return None
-        file, _, cls = spec.rpartition(":")
-        absolute = f"{Path(file).resolve()}:{cls}" if file else spec
+        absolute = absolute_spec(spec, Path.cwd())
         self._simulation.check_behaviour(absolute)
         return absolute
 
@@ -372,31 +374,46 @@ class Engine:
         self._begin("takeoff", alt=alt_m)
         take_off_and_hold(swarm, station.streamer, alt_m, timeout_s, tick=self._tick)
 
+    def _take_over(self) -> tuple[Swarm, Station]:
+        """Before a command of the ground station's own: any controller ends, and drones flying their onboard
+        behaviour stop it and hold (BHV_EN = 0), so that only one source feeds their offboard input."""
+        swarm, station = self._parts()
+        self._controller = None
+        if self._onboard:
+            self._onboard = False
+            stop_onboard_behaviours(swarm)
+        return swarm, station
+
     def do_formation(self, formation: Formation) -> float:
-        _, station = self._parts()
         shape = _SHAPES.get(type(formation))
         if shape is None:
             raise TypeError(f"not a formation: {formation!r} (GridSpec, CircleSpec, LineSpec or VSpec)")
-        self._controller = None
+        _, station = self._take_over()
         station.streamer.command(formation, station.mission_time())
         self._begin("formation", shape=shape)
         transition = station.streamer.engine.transition
         return transition.arrival_s - station.mission_time() if transition is not None else 0.0
 
-    def do_flock(self, spec: FlockSpec) -> None:
-        _, station = self._parts()
-        self._controller = None
-        station.streamer.command_flock(spec, station.mission_time())
+    def do_flock(self, spec: FlockSpec, *, onboard: bool) -> None:
+        swarm, station = self._take_over()
+        if onboard:  # every drone flocks by itself (gcs/onboard_flight.py)
+            start_onboard_flock(swarm, station.streamer, spec)
+            self._onboard = True
+        else:
+            station.streamer.command_flock(spec, station.mission_time())
         self._begin("flock")
 
-    def do_follow(self, spec: FollowSpec) -> None:
-        _, station = self._parts()
-        self._controller = None
-        station.streamer.command_follow(spec, station.mission_time())
+    def do_follow(self, spec: FollowSpec, *, onboard: bool) -> None:
+        swarm, station = self._take_over()
+        if onboard:
+            start_onboard_follow(swarm, station.streamer, spec, station.mission_time())
+            self._onboard = True
+        else:
+            station.streamer.command_follow(spec, station.mission_time())
         self._begin("follow")
 
     def do_control(self, controller: Controller) -> None:
-        _, station = self._parts()
+        _, station = self._take_over()
         behaviour = ControllerBehaviour(controller, self._snapshot)
         self._controller = behaviour
         station.streamer.command_behaviour(behaviour, station.mission_time())
@@ -406,6 +423,7 @@ class Engine:
         """Every drone's onboard behaviour on (BHV_EN = 1) or off (BHV_EN = 0, then Hold)."""
         swarm, station = self._parts()
         self._controller = None
+        self._onboard = run
         if run:
             sysids = start_onboard_behaviours(swarm, station.streamer)
             self._begin("behaviour")
@@ -425,6 +443,7 @@ class Engine:
     def do_land(self, *, return_to_launch: bool, timeout_s: float) -> None:
         swarm, station = self._parts()
         self._controller = None
+        self._onboard = False  # landing takes the drones out of OFFBOARD: their behaviours stop by themselves
         station.streamer.stop()
         self._begin("rtl" if return_to_launch else "land")
         flying = swarm.land_all(return_to_launch=return_to_launch)

@@ -85,13 +85,16 @@ class Session(Readings):
         drones keep flying it (a rotating circle keeps turning) until the next command."""
         return await self._run(lambda: self._engine.do_formation(formation))
 
-    async def flock(self, spec: FlockSpec) -> None:
-        """Reynolds flocking of every drone (computed by the ground station)."""
-        await self._run(lambda: self._engine.do_flock(spec))
+    async def flock(self, spec: FlockSpec, *, onboard: bool = False) -> None:
+        """Reynolds flocking of every drone, computed by the ground station; ``onboard=True``: by every drone itself,
+        from its own estimate and neighbour table (``launch(behaviour=FLOCKING)``; docs/onboard.md). Stop an
+        onboard flock with ``stop_behaviours`` (or any other command)."""
+        await self._run(lambda: self._engine.do_flock(spec, onboard=onboard))
 
-    async def follow(self, spec: FollowSpec) -> None:
-        """Leader-follower: the leader flies the waypoints, the others hold their slots around it."""
-        await self._run(lambda: self._engine.do_follow(spec))
+    async def follow(self, spec: FollowSpec, *, onboard: bool = False) -> None:
+        """Leader-follower: the leader flies the waypoints, the others hold their slots around it; ``onboard=True``:
+        each drone flies its part itself (``launch(behaviour=LEADER_FOLLOWER)``; docs/onboard.md)."""
+        await self._run(lambda: self._engine.do_follow(spec, onboard=onboard))
 
     async def control(self, controller: Controller) -> None:
         """Stream your own setpoints: ``controller(t_s, drones)`` is called every tick (20 Hz of simulated time)

@@ -15,10 +15,12 @@ from pathlib import Path
 import pytest
 
 from gcs.api import (
+    FLOCKING,
     CircleSpec,
     ControllerError,
     DroneState,
     Event,
+    FlockSpec,
     LaunchOptions,
     Setpoint,
     launch,
@@ -96,6 +98,7 @@ def test_a_controller_that_raises_holds_the_swarm_and_an_exception_in_the_block_
     tmp_path: Path,
 ) -> None:
     said: list[str] = []
+    events: list[Event] = []
 
     def broken(t_s: float, drones: dict[int, DroneState]) -> dict[int, Setpoint]:
         if t_s > start_s + 1.0:
@@ -104,10 +107,22 @@ def test_a_controller_that_raises_holds_the_swarm_and_an_exception_in_the_block_
                             yaw_rad=math.nan) for s, d in drones.items()}  # fmt: skip
 
     with pytest.raises(RuntimeError, match="the script's own failure"), \
-            launch_blocking(2, lockstep=True, first_instance=44, say=said.append) as swarm:  # fmt: skip
+            launch_blocking(2, lockstep=True, first_instance=44, say=said.append, on_event=events.append,
+                            behaviour=FLOCKING) as swarm:  # fmt: skip
         swarm.takeoff(ALT_M)
+        # GIVEN the two drones flocking by themselves (the shipped onboard behaviour) towards a point 8 m north
+        north_before = [d.pos_ned_m[0] for d in swarm.drones().values()]
+        swarm.flock(FlockSpec(alt_m=ALT_M, migration_ne_m=((8.0, 0.0),)), onboard=True)
+        swarm.sleep(5.0)
+        drones = swarm.drones().values()
+        assert all(d.mode == "OFFBOARD" for d in drones), drones
+        assert all(d.pos_ned_m[0] - n > 2.0 for d, n in zip(drones, north_before, strict=True)), drones
+        # WHEN the user's controller takes over THEN their behaviours stop (BHV_EN 0) and it alone feeds them
         start_s = swarm.time_s
         swarm.control(broken)
+        swarm.sleep(0.5)
+        stopped = [e for e in events if e.kind == "statustext" and e.text == "Behaviour Flocking stopped (BHV_EN 0)"]
+        assert sorted(e.sysid for e in stopped) == [45, 46], events
         # WHEN the controller raises THEN the call in progress raises ControllerError (the cause chained) and every
         # drone holds where it is, still flying
         with pytest.raises(ControllerError) as info:

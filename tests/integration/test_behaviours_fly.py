@@ -53,10 +53,13 @@ def test_leader_follower_mission_keeps_the_followers_on_their_slots_round_the_sq
 
 
 @pytest.mark.timeout(420)
-def test_twelve_drones_flock_out_and_back_aligned_and_without_a_collision(tmp_path: Path) -> None:
+@pytest.mark.parametrize("by", ["ground", "onboard"])
+def test_twelve_drones_flock_out_and_back_aligned_and_without_a_collision(tmp_path: Path, by: str) -> None:
     # GIVEN the 12-drone flocking mission: 60 s towards a migration point 40 m north and back, then land
-    # WHEN it is flown as shipped, onboard avoidance on, in lockstep
-    metrics = fly("flocking.toml", ["--lockstep", "--quantum", "8"], 210, tmp_path, 400, avoidance=True)
+    # WHEN it is flown as shipped, onboard avoidance on, in lockstep: by the ground station's law, or by every drone
+    # itself (the shipped onboard behaviour, from its own estimate and neighbour table)
+    where = ["--onboard"] if by == "onboard" else []
+    metrics = fly("flocking.toml", ["--lockstep", "--quantum", "8", *where], 210, tmp_path, 400, avoidance=True)
     # THEN no drone collided or came within 1 m of another
     assert metrics["n_drones"] == 12 and len(metrics["sysids"]) == 12
     assert metrics["collisions"] == 0
@@ -69,3 +72,20 @@ def test_twelve_drones_flock_out_and_back_aligned_and_without_a_collision(tmp_pa
     assert alignment["mean"] > 0.9
     # AND it migrated: every drone flew out and most of the way back
     assert min(metrics["distance_flown_m"].values()) > 60.0
+
+
+@pytest.mark.timeout(240)
+def test_onboard_leader_follower_flies_the_square_with_each_follower_keeping_its_own_slot(tmp_path: Path) -> None:
+    # GIVEN the 5-drone leader-follower mission, flown by the drones themselves: the leader its own path, each
+    # follower its slot from the leader's relayed reports (avoidance off: the error is the law's own)
+    metrics = fly("leader_follower.toml", ["--lockstep", "--onboard"], 220, tmp_path, 220, avoidance=False)
+    # THEN nobody touched anybody
+    assert len(metrics["sysids"]) == 5 and metrics["collisions"] == 0
+    assert metrics["min_separation_m"] > 1.5
+    # AND the step lasted until the leader reported itself back at its last waypoint, having flown the 44 m path
+    follow = next(s for s in metrics["steps"] if s["kind"] == "follow")
+    assert follow["end_s"] - follow["start_s"] > 30.0
+    assert metrics["distance_flown_m"]["223"] > 40.0
+    # AND the followers kept to their slots as the ground station computes them from the same reports (its own law,
+    # as an observer): within 1 m RMS over the whole step, the join from the line included
+    assert follow["step_rms_m"] < 1.0

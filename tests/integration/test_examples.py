@@ -76,3 +76,10 @@ def test_the_pymavlink_example_takes_one_drone_off_and_lands_it() -> None:
 def test_the_mavsdk_example_flies_two_drones_at_once() -> None:
     result = run_example("mavsdk_several_drones.py", "--drones", "2", "--first-instance", "58")
     assert result.stdout.count("landed and disarmed") == 2, result.stdout[-2000:]
+
+
+@pytest.mark.timeout(300)
+def test_the_onboard_behaviour_example_gathers_four_drones_that_decide_for_themselves(tmp_path: Path) -> None:
+    result = run_example("onboard_behaviour.py", "--drones", "4", "--seconds", "20", "--first-instance", "8",
+                         "--report", str(tmp_path / "report"))  # fmt: skip
+    assert "collisions 0" in result.stdout, result.stdout[-2000:]
