@@ -233,11 +233,14 @@ class MissionRunner:
         try:
             if step.duration_s is not None:
                 self._hold(step.duration_s)
-            elif not self._wait(lambda: leader_arrived(follow, self.streamer, self.now()),
+            elif not self._wait(lambda: follow.leader in self.swarm.losses
+                                or leader_arrived(follow, self.streamer, self.now()),
                                 follow.latest_end_s - self.now()):  # fmt: skip
                 margin = follow.latest_end_s - follow.earliest_end_s
                 raise SwarmError(f"leader sysid {follow.leader} did not reach its last waypoint within "
                                  f"{margin:.0f} s of the earliest it could")  # fmt: skip
+            if follow.leader in self.swarm.losses:  # no hand-over onboard: the followers hold where they are
+                self.say(f"[{self.now():6.1f} s] follow: leader sysid {follow.leader} lost, the step ends")
         finally:
             self.streamer.observer = None
         stop_onboard_behaviours(self.swarm)

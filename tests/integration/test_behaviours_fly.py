@@ -2,8 +2,10 @@
 
 Leader-follower is flown with the drones' onboard collision avoidance switched off (``AVOID_ENABLE = 0`` in the
 mission's [swarm] params), so a follower's error is the law's own. The flock is flown as shipped, avoidance on, in
-lockstep (one simulated clock, quantum 8 steps), so the result does not depend on the machine's load: the whole
-system, separation rule and onboard avoidance together, must keep 12 drones apart and aligned.
+lockstep (one simulated clock, quantum 8 steps, the drones hosted several to a process), so the result does not
+depend on the machine's load: the whole system, separation rule and onboard avoidance together, must keep 12 drones
+apart and aligned, whether the ground station computes the flock or every drone flocks by itself (the shipped onboard
+behaviour).
 
 Policy: loopback only (--no-forward); instances 200-239; a time limit on every test.
 """
@@ -59,7 +61,8 @@ def test_twelve_drones_flock_out_and_back_aligned_and_without_a_collision(tmp_pa
     # WHEN it is flown as shipped, onboard avoidance on, in lockstep: by the ground station's law, or by every drone
     # itself (the shipped onboard behaviour, from its own estimate and neighbour table)
     where = ["--onboard"] if by == "onboard" else []
-    metrics = fly("flocking.toml", ["--lockstep", "--quantum", "8", *where], 210, tmp_path, 400, avoidance=True)
+    timing = ["--lockstep", "--quantum", "8", "--drones-per-process", "auto"]
+    metrics = fly("flocking.toml", [*timing, *where], 210, tmp_path, 400, avoidance=True)
     # THEN no drone collided or came within 1 m of another
     assert metrics["n_drones"] == 12 and len(metrics["sysids"]) == 12
     assert metrics["collisions"] == 0
@@ -78,7 +81,8 @@ def test_twelve_drones_flock_out_and_back_aligned_and_without_a_collision(tmp_pa
 def test_onboard_leader_follower_flies_the_square_with_each_follower_keeping_its_own_slot(tmp_path: Path) -> None:
     # GIVEN the 5-drone leader-follower mission, flown by the drones themselves: the leader its own path, each
     # follower its slot from the leader's relayed reports (avoidance off: the error is the law's own)
-    metrics = fly("leader_follower.toml", ["--lockstep", "--onboard"], 220, tmp_path, 220, avoidance=False)
+    timing = ["--lockstep", "--drones-per-process", "auto"]
+    metrics = fly("leader_follower.toml", [*timing, "--onboard"], 220, tmp_path, 220, avoidance=False)
     # THEN nobody touched anybody
     assert len(metrics["sysids"]) == 5 and metrics["collisions"] == 0
     assert metrics["min_separation_m"] > 1.5
