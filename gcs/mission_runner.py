@@ -210,7 +210,8 @@ class MissionRunner:
 
     # ---- steps -----------------------------------------------------------------------------------------------------
     def _takeoff(self, step: TakeoffStep) -> None:
-        take_off_and_hold(self.swarm, self.streamer, step.alt_m, step.timeout_s, wait=self._wait, tick=self._tick)
+        take_off_and_hold(self.swarm, self.streamer, step.alt_m, step.timeout_s, wait=self._wait, tick=self._tick,
+                          say=self.say)  # fmt: skip
 
     def _formation(self, step: FormationStep) -> None:
         self.streamer.command(step.formation, self.now())

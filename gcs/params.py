@@ -63,12 +63,12 @@ class ParamResult:
 
     sysid: int
     name: str
-    value: int | float  # what was sent
+    value: int | float | None  # what was sent; None: a read (PARAM_REQUEST_READ)
     kept: float | None  # the value the drone's last echo carried; None when it never answered
 
     @property
     def ok(self) -> bool:
-        return self.kept is not None and same_value(self.kept, self.value)
+        return self.kept is not None and (self.value is None or same_value(self.kept, self.value))
 
     @property
     def refused(self) -> bool:
@@ -79,7 +79,7 @@ class ParamResult:
 class _Set:
     sysid: int
     name: str
-    value: int | float
+    value: int | float | None  # None: a read
     retries_left: int
     due_s: float
     kept: float | None = None
@@ -98,15 +98,16 @@ class ParamClient:
         self._work: dict[tuple[int, str], _Set] = {}
         self._done: dict[tuple[int, str], ParamResult] = {}
 
-    def start(self, sysid: int, name: str, value: int | float, now_s: float) -> list[Send]:
-        """Begin setting ``name`` on drone ``sysid`` (an int as INT32, a float as REAL32); the first PARAM_SET."""
+    def start(self, sysid: int, name: str, value: int | float | None, now_s: float) -> list[Send]:
+        """Begin setting ``name`` on drone ``sysid`` (an int as INT32, a float as REAL32); the first PARAM_SET.
+        ``value`` None reads it instead: PARAM_REQUEST_READ, ended by any PARAM_VALUE of the name (same retries)."""
         key = (sysid, name)
         if key in self._work:
             raise ParamInFlight(f"parameter {name} on sysid {sysid} is already being set")
         self._done.pop(key, None)
         self._work[key] = _Set(sysid=sysid, name=name, value=value, retries_left=self.retries,
                                due_s=now_s + self.timeout_s)  # fmt: skip
-        return [Send(sysid, param_set_message(sysid, name, value))]
+        return [self._message(self._work[key])]
 
     def handle(self, msg: Any, now_s: float) -> list[Send]:
         """A received message; a PARAM_VALUE echo from a drone being set ends the set or sends it again."""
@@ -117,7 +118,7 @@ class ParamClient:
         if work is None:
             return []
         work.kept = param_value(msg)
-        if same_value(work.kept, work.value):
+        if work.value is None or same_value(work.kept, work.value):
             self._finish(key)
             return []
         return self._again(key, now_s)
@@ -137,7 +138,14 @@ class ParamClient:
             return []
         work.retries_left -= 1
         work.due_s = now_s + self.timeout_s
-        return [Send(work.sysid, param_set_message(work.sysid, work.name, work.value))]
+        return [self._message(work)]
+
+    @staticmethod
+    def _message(work: _Set) -> Send:
+        if work.value is None:
+            name = work.name.encode()
+            return Send(work.sysid, mavlink.MAVLink_param_request_read_message(work.sysid, AUTOPILOT_COMPID, name, -1))
+        return Send(work.sysid, param_set_message(work.sysid, work.name, work.value))
 
     def _finish(self, key: tuple[int, str]) -> None:
         work = self._work.pop(key)

@@ -3,7 +3,7 @@
 - ``SteadyAltitude`` (pure): the takeoff is done when every drone holds the target altitude within
   ``ALT_TOLERANCE_M`` for ``ALT_HOLD_S`` without a break.
 - ``take_off_and_hold``: arm (after the pre-arm checks) unless armed, NAV_TAKEOFF for every drone, then wait for
-  ``SteadyAltitude``.
+  ``SteadyAltitude`` (at the drones' MIS_TAKEOFF_ALT when asked for less: they climb that high, as PX4).
 - ``PaceWatch``: the pace monitor (gcs/pace_monitor.py) fed from a running swarm, its warning said once.
 - ``start_onboard_behaviours`` / ``stop_onboard_behaviours``: every drone's onboard behaviour on (BHV_EN = 1, the
   ground station's own setpoint stream stopped) or off (BHV_EN = 0, then Hold); docs/onboard.md.
@@ -24,6 +24,7 @@ from gcs.swarm import Swarm, SwarmError
 
 ALT_TOLERANCE_M: Final = 0.2  # takeoff is done when every drone holds the target altitude within this...
 ALT_HOLD_S: Final = 1.0  # ...for this long (simulated seconds)
+TAKEOFF_MIN_PARAM: Final = "MIS_TAKEOFF_ALT"  # PX4's minimum takeoff altitude above home
 
 Say = Callable[[str], None]
 # A wait: (condition, timeout in simulated seconds) -> whether it ended with the condition (``Swarm.wait_until``)
@@ -52,18 +53,32 @@ class SteadyAltitude:
         return now_s - self._since_s >= self.hold_s
 
 
+def takeoff_floor_m(swarm: Swarm) -> float:
+    """The highest MIS_TAKEOFF_ALT among the drones (read from each): PX4 climbs at least that high on NAV_TAKEOFF
+    ("Using minimum takeoff altitude"), whatever altitude the command asks for."""
+    answers = [r.kept for r in swarm.read_params(TAKEOFF_MIN_PARAM, swarm.active_sysids) if r.kept is not None]
+    return max(answers, default=0.0)
+
+
 def take_off_and_hold(
     swarm: Swarm, streamer: FormationStreamer, alt_m: float, timeout_s: float, *, wait: Wait | None = None,
-    tick: Callable[[float], None] | None = None,
-) -> None:  # fmt: skip
+    tick: Callable[[float], None] | None = None, say: Say | None = None,
+) -> float:  # fmt: skip
     """Arm every surviving drone unless all are armed (after their pre-arm checks), take them off to ``alt_m``
-    above their own homes, and wait until they hold it (``SteadyAltitude``).
+    above their own homes, and wait until they hold it (``SteadyAltitude``); the altitude they hold.
 
-    ``wait`` replaces the swarm's own wait (a mission's also ends early, successfully, when a loss policy takes
-    over); SwarmError when they do not hold it within ``timeout_s``."""
+    Below the drones' minimum takeoff altitude (MIS_TAKEOFF_ALT) they climb to that instead, as PX4 does, and that is
+    the altitude waited for (``say`` is told). ``wait`` replaces the swarm's own wait (a mission's also ends early,
+    successfully, when a loss policy takes over); SwarmError when they do not hold it within ``timeout_s``."""
     if not all(swarm.fleet.drones[s].armed for s in swarm.active_sysids):
         swarm.arm_all(tick=tick)
-    swarm.takeoff_all(alt_m)
+    floor = takeoff_floor_m(swarm)
+    swarm.takeoff_all(alt_m)  # what was asked: the drones apply their own minimum, as PX4
+    if alt_m < floor:
+        if say is not None:
+            say(f"takeoff to {alt_m:g} m: below the drones' {TAKEOFF_MIN_PARAM} ({floor:g} m), they climb to "
+                f"{floor:g} m (as PX4); a later step sets the altitude")  # fmt: skip
+        alt_m = floor
     steady = SteadyAltitude(alt_m)
 
     def holding() -> bool:
@@ -71,6 +86,7 @@ def take_off_and_hold(
 
     if not (wait or (lambda c, t: swarm.wait_until(c, t, tick=tick)))(holding, timeout_s):
         raise SwarmError(f"takeoff to {alt_m:g} m not reached within {timeout_s:g} s")
+    return alt_m
 
 
 class PaceWatch:

@@ -282,8 +282,14 @@ class Swarm:
         """One parameter on several drones at once, each confirmed by its echo or retried (gcs/params.py)."""
         return self.set_param_each(name, dict.fromkeys(sysids, value))
 
-    def set_param_each(self, name: str, values: Mapping[int, int | float]) -> list[ParamResult]:
-        """One parameter, a value of its own on each drone (sysid -> value), all at once as ``set_params``."""
+    def read_params(self, name: str, sysids: Iterable[int]) -> list[ParamResult]:
+        """One parameter read from several drones at once (PARAM_REQUEST_READ, retried as a set); ``kept`` is the
+        value, None for a drone that never answered."""
+        return self.set_param_each(name, dict.fromkeys(sysids, None))
+
+    def set_param_each(self, name: str, values: Mapping[int, int | float | None]) -> list[ParamResult]:
+        """One parameter, a value of its own on each drone (sysid -> value; None reads it), all at once as
+        ``set_params``."""
         for sysid, value in values.items():
             self._send_effects(self.params.start(sysid, name, value, self.clock()), now=False)
         return self._serve(self.params, name, list(values), now=False)

@@ -11,7 +11,7 @@ AUTOPILOT_PARAMS: tuple[ParamDef, ...] = (
         min=0.5,
         max=100.0,
         unit="m",
-        description="Takeoff altitude above home when the takeoff command gives none",
+        description="Takeoff altitude above home when the takeoff command gives none, and the least it climbs to",
     ),
     ParamDef(
         name="RTL_RETURN_ALT",

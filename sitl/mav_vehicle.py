@@ -25,6 +25,8 @@ from sitl.protocol.fence import to_geofence
 from sitl.protocol.modes import Px4Mode
 from sitl.simulation import Simulation
 
+ALT_QUANTUM_M = 0.001  # HOME_POSITION's altitude is whole millimetres: a ground station's "home + 2.5 m" may be less
+
 _MISSION_STATE = {
     MissionRun.NO_MISSION: api.MissionState.NO_MISSION,
     MissionRun.NOT_STARTED: api.MissionState.NOT_STARTED,
@@ -139,6 +141,8 @@ class SimVehicleApi:
             case api.Takeoff(alt_amsl_m=alt):
                 minimum = self.sim.params["MIS_TAKEOFF_ALT"]
                 relative = alt - self.home_alt_amsl_m() if math.isfinite(alt) else minimum
+                if relative < minimum - ALT_QUANTUM_M:  # as PX4's takeoff: never lower than the minimum, and says so
+                    v.event(mavlink.MAV_SEVERITY_INFO, f"Using minimum takeoff altitude: {minimum:.2f} m")
                 return v.takeoff(max(relative, minimum))
             case api.Land(lat_deg=lat, lon_deg=lon):
                 return v.land(self._local_of(lat, lon, math.nan) if math.isfinite(lat) else None)

@@ -372,7 +372,7 @@ class Engine:
         if not (math.isfinite(alt_m) and 0.5 <= alt_m <= 100.0):
             raise ValueError(f"alt_m must be between 0.5 and 100 m, got {alt_m:g}")
         self._begin("takeoff", alt=alt_m)
-        take_off_and_hold(swarm, station.streamer, alt_m, timeout_s, tick=self._tick)
+        take_off_and_hold(swarm, station.streamer, alt_m, timeout_s, tick=self._tick, say=self._say)
 
     def _take_over(self) -> tuple[Swarm, Station]:
         """Before a command of the ground station's own: any controller ends, and drones flying their onboard

@@ -109,7 +109,13 @@ def test_a_controller_that_raises_holds_the_swarm_and_an_exception_in_the_block_
     with pytest.raises(RuntimeError, match="the script's own failure"), \
             launch_blocking(2, lockstep=True, first_instance=44, say=said.append, on_event=events.append,
                             behaviour=FLOCKING) as swarm:  # fmt: skip
-        swarm.takeoff(ALT_M)
+        # GIVEN a takeoff to 2 m, below the drones' MIS_TAKEOFF_ALT (2.5 m): they climb to 2.5 m and say so, as PX4,
+        # and the call returns once they hold that
+        swarm.takeoff(2.0)
+        assert all(abs(d.alt_m - 2.5) < 0.25 for d in swarm.drones().values()), swarm.drones()
+        assert any("takeoff to 2 m: below the drones' MIS_TAKEOFF_ALT (2.5 m)" in line for line in said), said
+        minimum = [e.sysid for e in events if e.text == "Using minimum takeoff altitude: 2.50 m"]
+        assert sorted(minimum) == [45, 46], events
         # GIVEN the two drones flocking by themselves (the shipped onboard behaviour) towards a point 8 m north
         north_before = [d.pos_ned_m[0] for d in swarm.drones().values()]
         swarm.flock(FlockSpec(alt_m=ALT_M, migration_ne_m=((8.0, 0.0),)), onboard=True)

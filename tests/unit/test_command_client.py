@@ -271,6 +271,21 @@ def test_no_echo_is_retried_per_timeout_then_ends_with_no_answer() -> None:
     assert sends == PARAM_RETRIES
 
 
+def test_a_read_asks_by_name_is_retried_without_an_answer_and_ends_with_whatever_value_comes() -> None:
+    # GIVEN a read of MIS_TAKEOFF_ALT (None for the value): PARAM_REQUEST_READ by name (index -1) to the autopilot
+    client = ParamClient()
+    [send] = client.start(2, "MIS_TAKEOFF_ALT", None, now_s=0.0)
+    assert send.message.get_type() == "PARAM_REQUEST_READ"
+    assert (send.message.target_system, send.message.param_id, send.message.param_index) == (2, "MIS_TAKEOFF_ALT", -1)
+    # WHEN the first try goes unanswered THEN it is asked again, the same way
+    [again] = client.poll(client.next_due_s())
+    assert again.message.get_type() == "PARAM_REQUEST_READ"
+    # WHEN the value comes THEN the read ends with it, whatever it is
+    client.handle(echo(2, "MIS_TAKEOFF_ALT", 2.5), 1.1)
+    result = client.take(2, "MIS_TAKEOFF_ALT")
+    assert result is not None and result.ok and not result.refused and result.kept == 2.5
+
+
 def test_echoes_of_other_names_or_drones_do_not_count_and_several_drones_are_set_at_once() -> None:
     client = ParamClient()
     for sysid in (1, 2):

@@ -5,20 +5,21 @@ Every drone runs the same class; ``LF_LEADER`` (a sysid) says who leads:
 
 - **The leader** hovers ``LF_WAIT`` seconds (the followers join their slots meanwhile), then flies its waypoints
   (``LF_WP_CNT``, ``LF_WP1_N``, ``LF_WP1_E``, ...; its own local frame) at ``LF_ALT`` above its home: a reference
-  point moves along the polyline at up to ``LF_SPEED``, accelerating and braking within ``LF_AMAX`` (at rest at the
-  last waypoint), and the drone tracks it (position plus velocity feed-forward), as PX4 tracks a mission.
+  point moves along the path, each corner rounded by an arc of ``LF_TURN_R``, at up to ``LF_SPEED``, accelerating
+  and braking within ``LF_AMAX`` (along the path, and across it on arcs: v^2 / R), at rest at the last waypoint;
+  the drone tracks it (position plus velocity feed-forward), as PX4 tracks a mission.
 - **A follower** holds ``(LF_FWD, LF_RIGHT)`` metres (forward, right) in the leader's *heading frame*: its slot is
   the leader's reported position plus the offset rotated by the heading, at ``LF_ALT``, with the leader's reported
-  velocity (and the slot's turn) as velocity feed-forward. The heading starts at ``LF_HDG0`` (degrees, the first leg's course) and
-  follows the course of the leader's reported velocity through a first-order, rate-limited filter (time constant
-  0.5 s, at most ``LF_TURN_RATE`` rad/s, held while the leader moves slower than 0.3 m/s): the ground station's law
-  (gcs/behaviours.py ``LeaderFollower``). Until the leader is heard a follower holds where it is; it joins its slot
-  by a point moving towards it at ``LF_SPEED``, so nobody jumps at a slot metres away. Collision prevention stays
-  under it all.
+  velocity (and the slot's turn) as velocity feed-forward. The heading starts at ``LF_HDG0`` (degrees, the first
+  leg's course) and follows the course of the leader's reported velocity through a first-order, rate-limited
+  filter (time constant 0.5 s, at most ``LF_TURN_RATE`` rad/s, held while the leader moves slower than 0.3 m/s):
+  the ground station's law (gcs/behaviours.py ``LeaderFollower``). Until the leader is heard a follower holds where
+  it is; it joins its slot by a point moving towards it at ``LF_SPEED``, so nobody jumps at a slot metres away.
+  Collision prevention stays under it all.
 
-What differs from the ground station's leader-follower: the leader's path has no rounded corners (the reference turns
-at each waypoint, the position loop rounds it), and the join is each follower's straight line to its slot rather
-than a synchronised, collision-checked transition; ``LF_WAIT`` stands for the join's duration.
+What differs from the ground station's leader-follower: the join is each follower's straight line to its slot rather
+than a synchronised, collision-checked transition (``LF_WAIT`` stands for the join's duration), and a lost leader is
+not replaced (the followers hold where they are).
 """
 
 from __future__ import annotations
