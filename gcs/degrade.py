@@ -26,14 +26,13 @@ def apply_loss_policy(policy: LossPolicy, streamer: FormationStreamer, loss: Dro
     try:
         if policy is LossPolicy.CONTINUE:
             return streamer.handle_loss(loss.sysid, now_s)
-        streamer.stop()
         if policy is LossPolicy.HOLD:
-            swarm.hold_all()
+            streamer.hand_over(swarm.hold_all)
             return "loss policy hold: every drone holds where it is"
         if policy is LossPolicy.LAND:
-            swarm.land_all()
+            streamer.hand_over(swarm.land_all)
             return "loss policy land: every drone lands where it is"
-        swarm.land_all(return_to_launch=True)
+        streamer.hand_over(lambda: swarm.land_all(return_to_launch=True))
         return "loss policy abort: every drone returns to launch and lands"
     except SwarmError as exc:
         return f"loss policy {policy.value}: {exc}"

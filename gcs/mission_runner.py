@@ -308,8 +308,7 @@ class MissionRunner:
         if step.start:
             # The setpoint stream cannot run while the transfer is served (a lossy link can stretch it over seconds):
             # every drone in the air waits in Hold rather than meet the offboard-loss failsafe.
-            self.streamer.stop()
-            self.swarm.hold_all()
+            self.streamer.hand_over(self.swarm.hold_all)
         uploaded = upload_plan(self.swarm, step.plan, offsets)
         fence = (
             f" and a fence of {len(step.plan.polygons) + len(step.plan.circles)} zone(s)" if step.plan.has_fence else ""
@@ -331,8 +330,7 @@ class MissionRunner:
 
     def _land(self, step: LandStep | RtlStep) -> None:
         """Land (or return) every drone still armed; a crashed or already landed drone has nothing to do."""
-        self.streamer.stop()
-        flying = self.swarm.land_all(return_to_launch=isinstance(step, RtlStep))
+        flying = self.streamer.hand_over(lambda: self.swarm.land_all(return_to_launch=isinstance(step, RtlStep)))
         if not self._wait(lambda: not self.swarm.armed_sysids(flying), step.timeout_s):
             raise SwarmError(f"not every drone landed and disarmed within {step.timeout_s:g} s")
 

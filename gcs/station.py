@@ -171,13 +171,11 @@ class Station:
                 return {"ok": True}
             if cmd == "goto":
                 return self.goto(request)
-            if cmd in ("land", "rtl"):
-                self.streamer.stop()
             if cmd == "land":
-                self.swarm.land_all()
+                self.streamer.hand_over(self.swarm.land_all)
                 return {"ok": True}
             if cmd == "rtl":
-                self.swarm.land_all(return_to_launch=True)
+                self.streamer.hand_over(lambda: self.swarm.land_all(return_to_launch=True))
                 return {"ok": True}
             if cmd == "behaviour":
                 return self.behaviour(request.get("action"))
@@ -243,8 +241,7 @@ class Station:
         if not chosen:
             return {"ok": False, "error": "every chosen drone is lost"}
         if cmd == "plan_start":
-            self.streamer.stop()  # the drones leave OFFBOARD for AUTO.MISSION
-            start_missions(self.swarm, chosen)
+            self.streamer.hand_over(lambda: start_missions(self.swarm, chosen))  # OFFBOARD -> AUTO.MISSION
             return {"ok": True, "result": f"AUTO.MISSION on sysid {', '.join(map(str, chosen))}"}
         plan = load_plan(Path(str(request.get("path"))))
         offsets = copy_offsets(spawn_offsets(self.swarm), chosen, parse_offsets(str(request.get("offsets", "spawn"))))

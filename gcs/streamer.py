@@ -18,6 +18,7 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TypeVar
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -49,6 +50,7 @@ _ACC_BITS = (
 )
 # Horizontal velocity with acceleration feed-forward, altitude by position (flocking): x, y, vz, az, yaw ignored.
 TYPE_MASK_VEL_XY_POS_Z = TYPE_MASK_POS_VEL_ACC | _POS_BITS[0] | _POS_BITS[1] | _VEL_BITS[2] | _ACC_BITS[2]
+T = TypeVar("T")
 OFFBOARD_MODE = (1.0, 6.0, 0.0)  # DO_SET_MODE: custom mode enabled, main mode OFFBOARD
 OFFBOARD_ATTEMPTS = 3  # switches asked of a drone that refuses OFFBOARD for want of a setpoint...
 OFFBOARD_RETRY_S = 0.5  # ...with this long of setpoints streamed in between (10 at SETPOINT_STREAM_HZ)
@@ -295,9 +297,19 @@ class FormationStreamer:
                 rejoin.asked = True
 
     def stop(self) -> None:
-        """Stop streaming (before a land or RTL command takes the drones out of OFFBOARD)."""
+        """Stop streaming (once a land, Hold or Return command has taken the drones out of OFFBOARD: ``hand_over``)."""
         self.active = False
         self._rejoining.clear()
+
+    def hand_over(self, command: Callable[[], T]) -> T:
+        """Run ``command`` (land, Hold, Return, a mission start: anything that takes the drones out of OFFBOARD)
+        while the setpoints still stream, then stop streaming. Stopping first would leave a drone without setpoints
+        while the command, or its answer, is lost and sent again on a lossy link: after COM_OF_LOSS_T it enters the
+        offboard-loss failsafe before the command arrives (found by the soak, docs/reliability.md)."""
+        try:
+            return command()
+        finally:
+            self.stop()
 
     def targets(self, now_s: float) -> dict[int, Vec3]:
         """Each commanded drone's slot now; while the drones fly themselves (an onboard behaviour), the

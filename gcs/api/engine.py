@@ -444,9 +444,8 @@ class Engine:
         swarm, station = self._parts()
         self._controller = None
         self._onboard = False  # landing takes the drones out of OFFBOARD: their behaviours stop by themselves
-        station.streamer.stop()
         self._begin("rtl" if return_to_launch else "land")
-        flying = swarm.land_all(return_to_launch=return_to_launch)
+        flying = station.streamer.hand_over(lambda: swarm.land_all(return_to_launch=return_to_launch))
         if not swarm.wait_until(lambda: not swarm.armed_sysids(flying), timeout_s, tick=self._tick):
             raise SwarmError(f"not every drone landed and disarmed within {timeout_s:g} s")
 
