@@ -35,6 +35,9 @@ from gcs.signing import SigningKeyError, load_key
 from gcs.station import Station, format_status
 from gcs.swarm import Swarm, SwarmError
 from gcs.transport import parse_host_port
+from gcs.view.feed import ViewFeed
+from gcs.view.server import DEFAULT_PORT as DEFAULT_VIEW_PORT
+from gcs.view.server import ViewError, ViewServer, serve_view
 
 EXIT_USAGE = 2
 DEFAULT_MISSION = Path(__file__).resolve().parent.parent / "missions" / "grid_to_circle.toml"
@@ -132,6 +135,29 @@ def _add_signing_option(parser: argparse.ArgumentParser) -> None:
                         help="MAVLink 2 signing key file (64 hex digits, or a one-line passphrase as MAVProxy and "
                         "QGroundControl take it): the supervisor signs what it sends, the drones sign theirs and "
                         "drop unsigned messages")  # fmt: skip
+
+
+def _add_view_options(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("live view (docs/view.md)")
+    group.add_argument("--view-port", type=int, default=None, metavar="PORT",
+                       help=f"serve the live view on 127.0.0.1:PORT (default: {DEFAULT_VIEW_PORT} or the next free "
+                       "port)")  # fmt: skip
+    group.add_argument("--no-view", action="store_true", help="do not serve the live view")
+
+
+def _start_view(args: argparse.Namespace) -> ViewServer | None:
+    """The live view's server, started before anything flies (its address said); a port that cannot be had is one
+    line, exit code 2."""
+    if args.no_view:
+        if args.view_port is not None:
+            raise UsageError("--view-port and --no-view contradict each other")
+        return None
+    try:
+        server = serve_view(args.view_port)
+    except ViewError as exc:
+        raise UsageError(str(exc)) from None
+    _say(f"swarm: live view on {server.url}")
+    return server
 
 
 def _signing_key_file(args: argparse.Namespace) -> Path | None:
@@ -323,6 +349,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "hold, land, or abort (every drone returns to launch and lands)")  # fmt: skip
     _add_forward_options(up)
     _add_signing_option(up)
+    _add_view_options(up)
     fly = sub.add_parser("fly", help="run a mission file end to end and write a flight report")
     fly.add_argument(
         "mission", type=Path, nargs="?", default=DEFAULT_MISSION, help=f"mission file (default {DEFAULT_MISSION})"
@@ -343,6 +370,7 @@ def build_parser() -> argparse.ArgumentParser:
     fly.add_argument("--seed", type=int, default=0, help="base random seed (drone i uses seed+i)")
     _add_forward_options(fly)
     _add_signing_option(fly)
+    _add_view_options(fly)
     add_bench_parser(sub)
     sub.add_parser("status", help="table of every drone")
     takeoff = sub.add_parser("takeoff", help="arm and take off every drone")
@@ -465,6 +493,7 @@ def run_up(args: argparse.Namespace, simulation: Simulation) -> int:
         behaviour=_behaviour(args.behaviour, simulation),
         mesh=neighbours.mesh,
     )
+    view = _start_view(args)
     stop = _Stop()
     signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     for sig in signals:  # while the drones start, a signal ends the start-up at once (and stops what started)
@@ -472,6 +501,8 @@ def run_up(args: argparse.Namespace, simulation: Simulation) -> int:
     swarm = Swarm(plan, simulation.harness(plan), forward=None if args.no_forward else args.forward,
                   relay=neighbours.relay)  # fmt: skip
     station = Station(swarm, _say, LossPolicy(args.loss_policy), report_dir=args.report, contact_distance_m=contact)
+    if view is not None:
+        station.view = ViewFeed(view, station.streamer)
     server: ControlServer | None = None
     try:
         swarm.up()
@@ -502,6 +533,8 @@ def run_up(args: argparse.Namespace, simulation: Simulation) -> int:
         report = station.write_report()
         if report is not None:
             _say(f"swarm: report in {report}")
+        if view is not None:
+            view.stop()
     return 0
 
 
@@ -544,6 +577,8 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
                            camera_drones=_camera_drones(args, mission.swarm.drones),
                            drones_per_process=args.drones_per_process, links=links,
                            signing_key_file=_signing_key_file(args))  # fmt: skip
+    view = _start_view(args)
+    runner.view = view
     signal.signal(signal.SIGTERM, _interrupt)  # a terminated run lands and stops its drones like Ctrl-C
     try:
         out = runner.run()
@@ -554,6 +589,9 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
     except KeyboardInterrupt:
         print(f"swarm: interrupted; drones landed and stopped; partial report in {report}", file=sys.stderr)
         return 130
+    finally:
+        if view is not None:
+            view.stop()
     _say(f"swarm: report in {out}")
     return 0
 

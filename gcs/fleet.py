@@ -34,6 +34,7 @@ class DroneView:
     alt_amsl_m: float = math.nan
     relative_alt_m: float = math.nan
     vel_ned_mps: tuple[float, float, float] = (math.nan, math.nan, math.nan)
+    heading_deg: float = math.nan  # GLOBAL_POSITION_INT.hdg: 0..360 from north, NaN unknown
     local_ned_m: tuple[float, float, float] = (math.nan, math.nan, math.nan)
     home: tuple[float, float, float] | None = None  # lat, lon, alt AMSL
     home_local_ned_m: tuple[float, float, float] | None = None  # home in the drone's own local frame
@@ -50,7 +51,8 @@ class DroneView:
         return self.link_age_s(now_s) > LINK_LOST_S
 
 
-PREARM_BIT = 0x10000000  # MAV_SYS_STATUS_PREARM_CHECK
+PREARM_BIT = 0x10000000
+HEADING_UNKNOWN = 0xFFFF  # GLOBAL_POSITION_INT.hdg: UINT16_MAX when not known  # MAV_SYS_STATUS_PREARM_CHECK
 
 
 class Fleet:
@@ -79,6 +81,7 @@ class Fleet:
             view.lat_deg, view.lon_deg = msg.lat * 1e-7, msg.lon * 1e-7
             view.alt_amsl_m, view.relative_alt_m = msg.alt * 1e-3, msg.relative_alt * 1e-3
             view.vel_ned_mps = (msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
+            view.heading_deg = msg.hdg * 0.01 if msg.hdg != HEADING_UNKNOWN else math.nan
         elif kind == "LOCAL_POSITION_NED":
             view.local_ned_m = (msg.x, msg.y, msg.z)
             view.vel_ned_mps = (msg.vx, msg.vy, msg.vz)

@@ -57,6 +57,9 @@ from gcs.recording import EventRecord, FaultRecord, FlightRecording, StepRecord
 from gcs.report import write_report
 from gcs.streamer import FormationStreamer
 from gcs.swarm import Swarm, SwarmError
+from gcs.view.feed import ViewFeed
+from gcs.view.scene import obstacle_shape
+from gcs.view.server import ViewServer
 
 Say = Callable[[str], None]
 STATUS_EVERY_S = 2.0
@@ -117,6 +120,8 @@ class MissionRunner:
         self.recording.neighbours = NeighbourPlan(relay=mission.swarm.relay, mesh=mission.swarm.mesh).describe()
         self._pending_faults: list[tuple[float, FaultStep]] = []  # (mission time due, step)
         self._policy_taken = False  # a loss policy other than continue has taken the survivors out of the mission
+        self.view: ViewServer | None = None  # the live view, if one is served: fed from the first tick
+        self._view_feed: ViewFeed | None = None
 
     # ---- time and telemetry ----------------------------------------------------------------------------------------
     def now(self) -> float:
@@ -128,6 +133,8 @@ class MissionRunner:
         self._watch_losses(now)
         self._inject_due_faults(now)
         self.streamer.tick(now)
+        if self._view_feed is not None:
+            self._view_feed.tick(now)
         rate = self._pace.tick()
         if now >= self._next_status_s:
             self._next_status_s = now + STATUS_EVERY_S
@@ -398,6 +405,9 @@ class MissionRunner:
                 if self.swarm.plan.lockstep else f"speed {self.speed:g}x"  # fmt: skip
             self.say(f"mission {self.mission.name}: spawning {self.mission.swarm.drones} drones ({pace})")
             self.swarm.up()
+            if self.view is not None:
+                shapes = [obstacle_shape(o) for o in self.mission.obstacles]
+                self._view_feed = ViewFeed(self.view, self.streamer, shapes)
             self._place_obstacles()
             self._set_params()
             self._t0_s = self.swarm.clock()

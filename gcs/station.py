@@ -38,6 +38,7 @@ from gcs.recording import EventRecord, FaultRecord, FlightRecording, StepRecord
 from gcs.report import write_report
 from gcs.streamer import FormationStreamer
 from gcs.swarm import Swarm, SwarmError
+from gcs.view.feed import ViewFeed
 
 Say = Callable[[str], None]
 
@@ -67,6 +68,7 @@ class Station:
         self.recording.signing_key_id = swarm.signing_key_id
         self.recording.neighbours = NeighbourPlan(relay=swarm.relay is not None, mesh=swarm.plan.mesh).describe()
         self.recorder: FlightRecorder | None = None
+        self.view: ViewFeed | None = None  # the live view, if one is served (gcs/view)
         if report_dir is not None:
             report_dir.mkdir(parents=True, exist_ok=True)
             self.recorder = FlightRecorder(self.streamer, self.recording, self.mission_time,
@@ -117,7 +119,10 @@ class Station:
         return self.swarm.clock() - self._t0
 
     def tick(self) -> None:
-        self.streamer.tick(self.mission_time())
+        now = self.mission_time()
+        self.streamer.tick(now)
+        if self.view is not None:
+            self.view.tick(now)
 
     def watch(self, now_s: float) -> None:
         """Record and report each lost drone once (one line), apply the loss policy, and report a swarm that cannot

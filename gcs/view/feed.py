@@ -1,0 +1,74 @@
+"""Feeds the live view from a running swarm: at most ``RATE_HZ`` frames a wall-clock second, whatever the pace.
+
+Called from the supervisor's tick (``swarm fly``, ``swarm up``, the Python API). Building a frame reads what the
+ground station already holds (a few microseconds a drone); at a lockstep pace of 10x only one tick in many builds
+one, so the view costs the simulation next to nothing (docs/benchmarks.md, "Live view").
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterable
+from typing import Final
+
+from gcs.frames import Vec3
+from gcs.metrics import AIRBORNE_HEIGHT_M
+from gcs.streamer import FormationStreamer
+from gcs.view.scene import ObstacleShape, frame
+from gcs.view.server import RATE_HZ, ViewServer
+
+RTF_SMOOTHING: Final = 0.2  # weight of the newest reading in the real-time factor shown
+
+
+class ViewFeed:
+    """One swarm into one view server."""
+
+    def __init__(self, server: ViewServer, streamer: FormationStreamer, obstacles: Iterable[ObstacleShape] = (),
+                 clock: Callable[[], float] = time.monotonic) -> None:  # fmt: skip
+        self.server = server
+        self.streamer = streamer
+        self.min_separation_m: float | None = None  # over the frames so far (the report's figure is over every sample)
+        self.obstacles = tuple(obstacles)
+        self.clock = clock
+        self._last_wall_s = -math.inf
+        self._last_time_s = math.nan
+        self._rtf: float | None = None
+
+    def tick(self, time_s: float) -> None:
+        """The mission time now; a frame goes out if the last is a frame period old (wall clock)."""
+        wall = self.clock()
+        if wall - self._last_wall_s < 1.0 / RATE_HZ:
+            return
+        if math.isfinite(self._last_wall_s) and math.isfinite(self._last_time_s) and wall > self._last_wall_s:
+            reading = (time_s - self._last_time_s) / (wall - self._last_wall_s)
+            self._rtf = reading if self._rtf is None else self._rtf + RTF_SMOOTHING * (reading - self._rtf)
+        self._last_wall_s, self._last_time_s = wall, time_s
+        self.server.publish(self.build(time_s))
+
+    def build(self, time_s: float) -> dict[str, object]:
+        swarm = self.streamer.swarm
+        positions: dict[int, Vec3] = {}
+        homes: dict[int, Vec3] = {}
+        for sysid, view in swarm.fleet.drones.items():
+            drone_frame = self.streamer.drone_frame(sysid)
+            if drone_frame is None:
+                continue
+            if all(math.isfinite(v) for v in view.local_ned_m):
+                positions[sysid] = drone_frame.to_swarm(view.local_ned_m)
+            if view.home_local_ned_m is not None:
+                homes[sysid] = drone_frame.to_swarm(view.home_local_ned_m)
+        airborne = [p for s, p in positions.items() if s not in swarm.losses and swarm.fleet.drones[s].armed
+                    and homes.get(s, p)[2] - p[2] > AIRBORNE_HEIGHT_M]  # fmt: skip
+        separation = _separation(airborne)
+        if separation is not None and (self.min_separation_m is None or separation < self.min_separation_m):
+            self.min_separation_m = separation
+        return frame(time_s=time_s, drones=swarm.fleet.drones, positions_ned_m=positions, homes_ned_m=homes,
+                     slots_ned_m=self.streamer.targets(time_s), lost=swarm.losses, now_s=swarm.clock(),
+                     separation_m=separation, min_separation_m=self.min_separation_m, realtime_factor=self._rtf,
+                     obstacles=self.obstacles)  # fmt: skip
+
+
+def _separation(points: list[Vec3]) -> float | None:
+    """The smallest distance between two of the points (None for fewer than two)."""
+    return min((math.dist(a, b) for i, a in enumerate(points) for b in points[i + 1 :]), default=None)

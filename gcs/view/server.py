@@ -1,0 +1,161 @@
+"""The live view's web server: the page, its static files, and a stream of frames to every tab that watches.
+
+It runs aiohttp on an asyncio loop in a thread of its own, beside the supervisor's loop (a synchronous select loop,
+or the lockstep clock), which only hands it the latest frame (``publish``: one reference swapped, no copy, no wait).
+Each WebSocket client gets the newest frame at most ``RATE_HZ`` times a second; a slow client skips frames rather
+than queueing them, so nothing a browser does can slow the simulation or grow the supervisor's memory. Why aiohttp:
+it serves files and WebSockets from one small, well-kept asyncio library, and the project's other asyncio code (the
+Python API, MAVSDK) already runs on asyncio loops in threads.
+
+The socket is bound in the caller's thread, before anything flies, so a port in use or a bad address is one line
+(``ViewError``) rather than an error in a thread nobody watches. Loopback by default.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import socket
+import threading
+from importlib import resources
+from typing import Any, Final
+
+from aiohttp import WSMsgType, web
+
+RATE_HZ: Final = 10.0  # frames per second to each client, at most
+DEFAULT_PORT: Final = 8765
+DEFAULT_PORTS_TRIED: Final = 10  # without an explicit port: DEFAULT_PORT and the next ones, then any free port
+STATIC = resources.files("gcs.view") / "static"
+
+
+class ViewError(ValueError):
+    """The view cannot be served (one line)."""
+
+
+class ViewServer:
+    """Serve the live view on ``host:port`` (port 0: any free port); ``url`` once started."""
+
+    def __init__(self, host: str = "127.0.0.1", port: int = DEFAULT_PORT) -> None:
+        if not 0 <= port <= 65535:
+            raise ViewError(f"view port must be 0..65535, got {port}")
+        self.host, self.port = host, port
+        self._frame: dict[str, Any] | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._thread: threading.Thread | None = None
+        self._runner: web.AppRunner | None = None
+        self._stopping: asyncio.Event | None = None
+        self.clients = 0
+
+    @property
+    def url(self) -> str:
+        return f"http://{self.host}:{self.port}/"
+
+    def start(self) -> str:
+        """Bind, then serve in a thread; the page's address."""
+        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        try:
+            sock.bind((self.host, self.port))
+        except OSError as exc:
+            sock.close()
+            raise ViewError(f"cannot serve the view on {self.host}:{self.port}: {exc.strerror}") from None
+        sock.listen(16)
+        self.port = sock.getsockname()[1]
+        ready = threading.Event()
+        self._thread = threading.Thread(target=self._serve, args=(sock, ready), name="view", daemon=True)
+        self._thread.start()
+        ready.wait(10.0)
+        return self.url
+
+    def publish(self, frame: dict[str, Any]) -> None:
+        """The newest frame (the caller builds a fresh dict each time and does not touch it again)."""
+        self._frame = frame
+
+    def stop(self) -> None:
+        loop, stopping = self._loop, self._stopping
+        if loop is not None and stopping is not None and not loop.is_closed():
+            loop.call_soon_threadsafe(stopping.set)
+        if self._thread is not None:
+            self._thread.join(10.0)
+
+    # ---- in the view's thread -----------------------------------------------------------------------------------
+    def _serve(self, sock: socket.socket, ready: threading.Event) -> None:
+        loop = asyncio.new_event_loop()
+        self._loop = loop
+        try:
+            loop.run_until_complete(self._main(sock, ready))
+        finally:
+            loop.close()
+
+    async def _main(self, sock: socket.socket, ready: threading.Event) -> None:
+        self._stopping = asyncio.Event()
+        app = web.Application()
+        app.router.add_get("/", self._index)
+        app.router.add_get("/frame", self._latest)
+        app.router.add_get("/ws", self._websocket)
+        app.router.add_get("/static/{path:.+}", self._static)
+        self._runner = web.AppRunner(app, access_log=None)
+        await self._runner.setup()
+        await web.SockSite(self._runner, sock).start()
+        ready.set()
+        await self._stopping.wait()
+        await self._runner.cleanup()
+
+    async def _index(self, _request: web.Request) -> web.StreamResponse:
+        return web.Response(text=(STATIC / "index.html").read_text(), content_type="text/html")
+
+    async def _static(self, request: web.Request) -> web.StreamResponse:
+        parts = request.match_info["path"].split("/")
+        if any(p in ("", ".", "..") for p in parts):
+            raise web.HTTPNotFound()
+        target = STATIC.joinpath(*parts)
+        if not target.is_file():
+            raise web.HTTPNotFound()
+        kind = {"js": "text/javascript", "css": "text/css", "html": "text/html"}.get(parts[-1].rpartition(".")[2])
+        return web.Response(body=target.read_bytes(), content_type=kind or "application/octet-stream")
+
+    async def _latest(self, _request: web.Request) -> web.StreamResponse:
+        return web.json_response(self._frame)
+
+    async def _websocket(self, request: web.Request) -> web.StreamResponse:
+        ws = web.WebSocketResponse(heartbeat=10.0)
+        await ws.prepare(request)
+        self.clients += 1
+        reader = asyncio.ensure_future(self._drain(ws))
+        try:
+            sent: dict[str, Any] | None = None
+            while not ws.closed and not reader.done():
+                frame = self._frame
+                if frame is not None and frame is not sent:
+                    await ws.send_str(json.dumps(frame, separators=(",", ":")))
+                    sent = frame
+                await asyncio.sleep(1.0 / RATE_HZ)
+        except (ConnectionError, RuntimeError):
+            pass  # the tab went away mid-send
+        finally:
+            self.clients -= 1
+            reader.cancel()
+        return ws
+
+    @staticmethod
+    async def _drain(ws: web.WebSocketResponse) -> None:
+        """Read what the page sends (nothing yet) so that its close is noticed."""
+        async for msg in ws:
+            if msg.type in (WSMsgType.CLOSE, WSMsgType.ERROR):
+                break
+
+
+def serve_view(port: int | None, host: str = "127.0.0.1") -> ViewServer:
+    """A started view server: on ``port`` (ViewError if it cannot be had), or with None on the first free port from
+    DEFAULT_PORT on (several swarms on one machine each get their own page), else any free port."""
+    if port is not None:
+        server = ViewServer(host, port)
+        server.start()
+        return server
+    for candidate in [*range(DEFAULT_PORT, DEFAULT_PORT + DEFAULT_PORTS_TRIED), 0]:
+        server = ViewServer(host, candidate)
+        try:
+            server.start()
+        except ViewError:
+            continue
+        return server
+    raise ViewError(f"no free port to serve the view on {host}")

@@ -1,0 +1,119 @@
+"""The live view of a running swarm, opened in a real (headless) browser: every drone drawn where its telemetry says,
+and a killed drone marked lost at once. Screenshots of the page go to docs/images/ when SWARM_DOCS_SCREENSHOTS is set.
+
+The reference is independent of the page: a MAVLink client on the supervisor's forward port (as QGroundControl),
+whose GLOBAL_POSITION_INT reports are converted into the swarm frame here (gcs/geodesy.py).
+
+Policy: loopback only; instances 90-98; the view on a port the system picks; paced lockstep at 1x, so the page
+watches in real time; a time limit; every process stopped by PID.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import re
+import signal
+import socket
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+from pymavlink import mavutil
+
+from gcs.frames import SwarmFrame
+from gcs.geodesy import DEFAULT_ORIGIN, GeoPoint
+from tests.integration.browser import Browser
+from tests.integration.test_swarm import SWARM, children_of, state_env, wait_dead  # noqa: F401 (a fixture)
+
+pytestmark = [pytest.mark.sim_only, pytest.mark.timeout(240)]
+
+FIRST_INSTANCE = 90
+DOCS_IMAGES = Path(__file__).resolve().parents[2] / "docs" / "images"
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def telemetry_ned(link: mavutil.mavfile, seconds: float) -> dict[int, tuple[float, float, float]]:
+    """The newest GLOBAL_POSITION_INT of every drone heard within ``seconds``, in the swarm frame."""
+    frame = SwarmFrame(DEFAULT_ORIGIN)
+    out: dict[int, tuple[float, float, float]] = {}
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        msg = link.recv_match(type="GLOBAL_POSITION_INT", blocking=True, timeout=0.05)
+        if msg is not None:
+            out[msg.get_srcSystem()] = frame.ned_from_geo(
+                GeoPoint(lat_deg=msg.lat * 1e-7, lon_deg=msg.lon * 1e-7, alt_amsl_m=msg.alt * 1e-3)
+            )
+    return out
+
+
+def test_the_live_view_draws_nine_drones_where_their_telemetry_says_and_a_killed_one_lost_at_once(
+    state_env: dict[str, str],
+    tmp_path: Path,  # noqa: F811
+) -> None:
+    forward = free_udp_port()
+    link = mavutil.mavlink_connection(f"udpin:127.0.0.1:{forward}", source_system=250)
+    proc = subprocess.Popen([*SWARM, "up", "-n", "9", "--lockstep", "--speed", "1", "--drones-per-process", "auto",
+                             "--first-instance", str(FIRST_INSTANCE), "--forward", f"127.0.0.1:{forward}",
+                             "--view-port", "0"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            env=state_env)  # fmt: skip
+    children: list[int] = []
+    try:
+        assert proc.stdout is not None
+        url = None
+        for line in proc.stdout:
+            found = re.search(r"live view on (http://127\.0\.0\.1:\d+/)", line)
+            url = found.group(1) if found else url
+            if "drones up" in line:
+                break
+        assert url is not None
+        children = [*children_of(proc.pid), *(d for c in children_of(proc.pid) for d in children_of(c))]
+
+        def cli(*args: str) -> None:
+            result = subprocess.run([*SWARM, *args], capture_output=True, text=True, env=state_env, timeout=60)
+            assert result.returncode == 0, result.stderr
+
+        # GIVEN nine drones flying a rotating circle
+        cli("takeoff", "--alt", "3")
+        cli("formation", "circle", "--radius", "4", "--rate", "0.2")
+        with Browser() as browser:
+            # WHEN the page is opened
+            browser.open(url)
+            browser.wait_for("window.swarmView && swarmView.frames() > 20 && "
+                             "Object.keys(swarmView.drones()).length === 9", 60)  # fmt: skip
+            # THEN each drone of the page's own scene is within 0.5 m of where its telemetry puts it
+            time.sleep(3.0)  # on the circle
+            scene = browser.evaluate("swarmView.drones()")
+            reported = telemetry_ned(link, 0.3)
+            assert sorted(int(s) for s in scene) == sorted(reported) == list(range(91, 100))
+            gaps = {s: math.dist(scene[str(s)]["pos_ned_m"], reported[s]) for s in reported}
+            assert max(gaps.values()) < 0.5, gaps
+            assert browser.evaluate("swarmView.webgl()") is True  # drawn in 3D, not only on the map
+            rows = browser.evaluate("document.querySelectorAll('#drones tbody tr').length")
+            assert rows == 9
+            if os.environ.get("SWARM_DOCS_SCREENSHOTS"):
+                browser.screenshot(DOCS_IMAGES / "live-view.png")
+            # WHEN a drone's process is killed THEN the page marks it lost within 2 s
+            killed = 95
+            started = time.monotonic()
+            cli("kill", str(killed))
+            browser.wait_for(f"swarmView.drones()['{killed}'].state === 'lost'", 5.0)
+            assert time.monotonic() - started < 2.0
+            assert browser.evaluate(f"swarmView.drones()['{killed}'].colour") == "#212121"
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        assert wait_dead(children, 15) == []
+        link.close()
