@@ -13,12 +13,9 @@ import json
 import logging
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-from matplotlib import colormaps
-from matplotlib.axes import Axes
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
 
 from gcs.metrics import (
     AIRBORNE_HEIGHT_M,
@@ -30,6 +27,10 @@ from gcs.metrics import (
 )
 from gcs.pace_monitor import SLOW_FRACTION
 from gcs.recording import DroneSample, FlightRecording, StepRecord
+
+if TYPE_CHECKING:  # matplotlib is imported when a report is drawn: every `swarm` command would wait for it otherwise
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
 log = logging.getLogger(__name__)
 
@@ -67,6 +68,8 @@ def write_report(recording: FlightRecording, out_dir: str | Path) -> Path:
 
 def drone_colours(sysids: Sequence[int]) -> dict[int, Colour]:
     """Distinct colours per drone: qualitative palettes while they last, then an evenly sampled colour map."""
+    from matplotlib import colormaps
+
     n = len(sysids)
     if n <= 10:
         palette = colormaps["tab10"]
@@ -89,6 +92,9 @@ def _by_drone(samples: Sequence[DroneSample]) -> dict[int, list[DroneSample]]:
 
 
 def _new_figure(width_in: float, height_in: float) -> tuple[Figure, Axes]:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
     fig = Figure(figsize=(width_in, height_in), layout="constrained")
     FigureCanvasAgg(fig)
     return fig, fig.add_subplot()

@@ -18,9 +18,10 @@ import json
 import socket
 import threading
 from importlib import resources
-from typing import Any, Final
+from typing import TYPE_CHECKING, Any, Final
 
-from aiohttp import WSMsgType, web
+if TYPE_CHECKING:  # aiohttp is imported when a view is served: every `swarm` command would wait for it otherwise
+    from aiohttp import web
 
 RATE_HZ: Final = 10.0  # frames per second to each client, at most
 DEFAULT_PORT: Final = 8765
@@ -87,6 +88,8 @@ class ViewServer:
             loop.close()
 
     async def _main(self, sock: socket.socket, ready: threading.Event) -> None:
+        from aiohttp import web
+
         self._stopping = asyncio.Event()
         app = web.Application()
         app.router.add_get("/", self._index)
@@ -101,9 +104,13 @@ class ViewServer:
         await self._runner.cleanup()
 
     async def _index(self, _request: web.Request) -> web.StreamResponse:
+        from aiohttp import web
+
         return web.Response(text=(STATIC / "index.html").read_text(), content_type="text/html")
 
     async def _static(self, request: web.Request) -> web.StreamResponse:
+        from aiohttp import web
+
         parts = request.match_info["path"].split("/")
         if any(p in ("", ".", "..") for p in parts):
             raise web.HTTPNotFound()
@@ -114,9 +121,13 @@ class ViewServer:
         return web.Response(body=target.read_bytes(), content_type=kind or "application/octet-stream")
 
     async def _latest(self, _request: web.Request) -> web.StreamResponse:
+        from aiohttp import web
+
         return web.json_response(self._frame)
 
     async def _websocket(self, request: web.Request) -> web.StreamResponse:
+        from aiohttp import web
+
         ws = web.WebSocketResponse(heartbeat=10.0)
         await ws.prepare(request)
         self.clients += 1
@@ -139,6 +150,8 @@ class ViewServer:
     @staticmethod
     async def _drain(ws: web.WebSocketResponse) -> None:
         """Read what the page sends (nothing yet) so that its close is noticed."""
+        from aiohttp import WSMsgType
+
         async for msg in ws:
             if msg.type in (WSMsgType.CLOSE, WSMsgType.ERROR):
                 break

@@ -26,12 +26,18 @@ from pymavlink import mavutil
 from gcs.frames import SwarmFrame
 from gcs.geodesy import DEFAULT_ORIGIN, GeoPoint
 from tests.integration.browser import Browser
-from tests.integration.test_swarm import SWARM, children_of, state_env, wait_dead  # noqa: F401 (a fixture)
+from tests.integration.test_swarm import SWARM, children_of, wait_dead
 
 pytestmark = [pytest.mark.sim_only, pytest.mark.timeout(240)]
 
 FIRST_INSTANCE = 90
 DOCS_IMAGES = Path(__file__).resolve().parents[2] / "docs" / "images"
+
+
+@pytest.fixture
+def state_env(tmp_path: Path) -> dict[str, str]:
+    """The supervisor's control-channel state in the test's own folder (as tests/integration/test_swarm.py)."""
+    return {**os.environ, "SWARM_STATE_DIR": str(tmp_path / "state")}
 
 
 def free_udp_port() -> int:
@@ -56,7 +62,6 @@ def telemetry_ned(link: mavutil.mavfile, seconds: float) -> dict[int, tuple[floa
 
 def test_the_live_view_draws_nine_drones_where_their_telemetry_says_and_a_killed_one_lost_at_once(
     state_env: dict[str, str],
-    tmp_path: Path,  # noqa: F811
 ) -> None:
     forward = free_udp_port()
     link = mavutil.mavlink_connection(f"udpin:127.0.0.1:{forward}", source_system=250)
@@ -88,8 +93,10 @@ def test_the_live_view_draws_nine_drones_where_their_telemetry_says_and_a_killed
             browser.open(url)
             browser.wait_for("window.swarmView && swarmView.frames() > 20 && "
                              "Object.keys(swarmView.drones()).length === 9", 60)  # fmt: skip
+            # (once the circle has formed: every drone within 0.5 m of its slot, as the page shows them)
+            browser.wait_for("swarmView.frame().drones.every((d) => d.slot_ned_m && Math.hypot("
+                             "...d.pos_ned_m.map((v, k) => v - d.slot_ned_m[k])) < 0.5)", 60)  # fmt: skip
             # THEN each drone of the page's own scene is within 0.5 m of where its telemetry puts it
-            time.sleep(3.0)  # on the circle
             scene = browser.evaluate("swarmView.drones()")
             reported = telemetry_ned(link, 0.3)
             assert sorted(int(s) for s in scene) == sorted(reported) == list(range(91, 100))

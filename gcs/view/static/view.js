@@ -58,9 +58,20 @@ async function make3d() {
 
 const toThree = (ned) => [ned[1], -ned[2], -ned[0]];
 
+function frameCamera(s, frame) {  // once, on the first frame with positions: look at the swarm from the south-west
+  const points = frame.drones.filter((d) => d.pos_ned_m).map((d) => toThree(d.pos_ned_m));
+  if (!points.length) return;
+  const c = [0, 1, 2].map((k) => points.reduce((sum, p) => sum + p[k], 0) / points.length);
+  const spread = Math.max(6, ...points.map((p) => Math.hypot(p[0] - c[0], p[2] - c[2])));
+  s.controls.target.set(c[0], Math.max(c[1], 1), c[2]);
+  s.camera.position.set(c[0] - 1.2 * spread, c[1] + 1.4 * spread, c[2] + 2.0 * spread);
+  s.framed = true;
+}
+
 function update3d(frame) {
   const s = view.scene3d;
   if (!s) return;
+  if (!s.framed) frameCamera(s, frame);
   const { THREE } = s;
   const seen = new Set();
   for (const d of frame.drones) {
@@ -159,13 +170,15 @@ function drawMap(frame) {
 // ---- table and details -------------------------------------------------------------------------------------------
 function fmt(v, digits = 1) { return v === null || v === undefined ? "-" : typeof v === "number" ? v.toFixed(digits) : String(v); }
 
+function escape(text) { return text.replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]); }
+
 function drawTable(frame) {
   const body = document.querySelector("#drones tbody");
   const rows = frame.drones.map((d) => `<tr data-sysid="${d.sysid}" class="${d.sysid === view.selected ? "selected" : ""}">` +
     `<td>${d.sysid}</td><td class="state" style="color:${COLOURS[d.state] === "#212121" ? "#e53935" : COLOURS[d.state]}">${d.state}</td>` +
     `<td>${d.mode}</td><td>${d.armed ? "yes" : "no"}</td><td>${fmt(d.alt_m, 2)}</td>` +
     `<td>${d.battery === null ? "-" : Math.round(d.battery * 100) + " %"}</td><td>${fmt(d.link_age_s, 2)}</td>` +
-    `<td>${d.text === null ? "" : d.text.replace(/[<>&]/g, "")}</td></tr>`);
+    `<td>${d.text === null ? "" : escape(d.text)}</td></tr>`);
   body.innerHTML = rows.join("");
   const details = document.getElementById("details");
   const chosen = frame.drones.find((d) => d.sysid === view.selected);
