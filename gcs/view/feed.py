@@ -1,8 +1,7 @@
 """Feeds the live view from a running swarm: at most ``RATE_HZ`` frames a wall-clock second, whatever the pace.
 
-Called from the supervisor's tick (``swarm fly``, ``swarm up``, the Python API). Building a frame reads what the
-ground station already holds (a few microseconds a drone); at a lockstep pace of 10x only one tick in many builds
-one, so the view costs the simulation next to nothing (docs/benchmarks.md, "Live view").
+Called from the supervisor's tick (``swarm fly``, ``swarm up``). Building a frame reads what the ground station
+already holds; at a lockstep pace of 10x only one tick in many builds one.
 """
 
 from __future__ import annotations
