@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from gcs.px4_modes import mode_name
+from gcs.statustext import StatusTextAssembler
 
 # A drone is lost when nothing has been heard from it for this long. QGroundControl counts any message but RADIO_STATUS
 # (a radio's own report says nothing of the vehicle behind it) as a sign of life and says "communication regained" when
@@ -58,6 +59,7 @@ HEADING_UNKNOWN = 0xFFFF  # GLOBAL_POSITION_INT.hdg: UINT16_MAX when not known  
 class Fleet:
     def __init__(self) -> None:
         self.drones: dict[int, DroneView] = {}
+        self._texts = StatusTextAssembler()  # long texts arrive in chunks
 
     def handle(self, msg: Any, now_s: float) -> None:
         """Update from one message of any system (messages from other components than the autopilot are ignored)."""
@@ -95,8 +97,10 @@ class Fleet:
         elif kind == "EXTENDED_SYS_STATE":
             view.landed_state = msg.landed_state
         elif kind == "STATUSTEXT":
-            view.texts.append((now_s, msg.severity, msg.text))
-            del view.texts[:-50]
+            text = self._texts.feed(sysid, msg)
+            if text is not None:
+                view.texts.append((now_s, msg.severity, text))
+                del view.texts[:-50]
 
     def lost(self, now_s: float) -> list[int]:
         return sorted(s for s, v in self.drones.items() if v.lost(now_s))

@@ -19,6 +19,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from gcs.losses import MAV_STATE_CRITICAL
 from gcs.metrics import LiveMetrics
 from gcs.recording import DroneSample, EventRecord, FlightRecording, ItemReached
+from gcs.statustext import StatusTextAssembler
 from gcs.streamer import FormationStreamer
 from gcs.tlog import TlogWriter
 
@@ -54,6 +55,7 @@ class FlightRecorder:
         the caller prints them itself)."""
         self.streamer = streamer
         self.swarm = streamer.swarm
+        self._texts = StatusTextAssembler()  # long texts arrive in chunks: each is recorded once, whole
         self.recording = recording
         self.clock = clock
         self.say = say
@@ -107,11 +109,14 @@ class FlightRecorder:
                 self._last_reached[sysid] = msg.seq
                 self.recording.items_reached.append(ItemReached(time_s=now, sysid=sysid, seq=msg.seq))
         elif kind == "STATUSTEXT":
-            if self.collisions.observe(sysid, msg.text) is False:
+            whole = self._texts.feed(sysid, msg)
+            if whole is None:
+                return  # a chunk of a long text: it is recorded once whole
+            if self.collisions.observe(sysid, whole) is False:
                 return  # the other drone's report of a collision already recorded
-            self.recording.events.append(EventRecord(time_s=now, sysid=sysid, text=msg.text))
+            self.recording.events.append(EventRecord(time_s=now, sysid=sysid, text=whole))
             if self.say is not None and msg.severity <= mavlink.MAV_SEVERITY_WARNING:
-                self.say(f"  sysid {sysid}: {msg.text}")
+                self.say(f"  sysid {sysid}: {whole}")
 
     def close(self) -> None:
         self._tlog.close()

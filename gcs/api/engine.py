@@ -41,6 +41,7 @@ from gcs.onboard_flight import start_onboard_flock, start_onboard_follow
 from gcs.procedures import start_onboard_behaviours, stop_onboard_behaviours, take_off_and_hold
 from gcs.report import METRICS_FILE
 from gcs.station import Station, failsafe_text
+from gcs.statustext import StatusTextAssembler
 from gcs.swarm import Swarm, SwarmError
 
 log = logging.getLogger(__name__)
@@ -120,6 +121,7 @@ class Engine:
         self._time_s = 0.0
         self._controller: ControllerBehaviour | None = None
         self._onboard = False  # the drones' onboard behaviours fly them (BHV_EN = 1)
+        self._texts = StatusTextAssembler()
         self._pending: ControllerError | None = None  # a controller that failed between calls (paced), for the next
         self._status: dict[int, int] = {}  # each drone's last HEARTBEAT system_status (failsafe events)
         self._thread = threading.Thread(target=self._main, name="swarm-supervisor", daemon=True)
@@ -318,8 +320,10 @@ class Engine:
         kind = msg.get_type()
         sysid = msg.get_srcSystem()
         if kind == "STATUSTEXT":
-            self._emit(Event(kind="statustext", time_s=self.station.mission_time(), sysid=sysid, text=msg.text,
-                             severity=msg.severity))  # fmt: skip
+            text = self._texts.feed(sysid, msg)
+            if text is not None:  # a long text comes out once, whole
+                self._emit(Event(kind="statustext", time_s=self.station.mission_time(), sysid=sysid, text=text,
+                                 severity=msg.severity))  # fmt: skip
         elif kind == "HEARTBEAT" and msg.get_srcComponent() == 1:
             before = self._status.get(sysid)
             self._status[sysid] = msg.system_status
