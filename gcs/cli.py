@@ -230,9 +230,15 @@ def _add_neighbour_options(parser: argparse.ArgumentParser) -> None:
 
 
 def _mesh_value(key: str) -> Callable[[str], float]:
+    return _option_value(parse_mesh_value, key)
+
+
+def _option_value(parse_value: Callable[[str, str], float], key: str) -> Callable[[str], float]:
+    """An argparse type for ``key``: ``parse_value``'s one-line ValueError becomes argparse's own error."""
+
     def parse(text: str) -> float:
         try:
-            return parse_mesh_value(key, text)
+            return parse_value(key, text)
         except ValueError as exc:
             raise argparse.ArgumentTypeError(str(exc)) from None
 
@@ -263,13 +269,7 @@ def _neighbour_plan(args: argparse.Namespace, base: NeighbourPlan) -> NeighbourP
 
 
 def _link_value(key: str) -> Callable[[str], float]:
-    def parse(text: str) -> float:
-        try:
-            return parse_link_value(key, text)
-        except ValueError as exc:
-            raise argparse.ArgumentTypeError(str(exc)) from None
-
-    return parse
+    return _option_value(parse_link_value, key)
 
 
 def _link_plan(args: argparse.Namespace, base: LinkPlan) -> LinkPlan:
@@ -576,9 +576,8 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
                            lockstep_quantum=_quantum(args),
                            camera_drones=_camera_drones(args, mission.swarm.drones),
                            drones_per_process=args.drones_per_process, links=links,
-                           signing_key_file=_signing_key_file(args))  # fmt: skip
-    view = _start_view(args)
-    runner.view = view
+                           signing_key_file=_signing_key_file(args), view=_start_view(args))  # fmt: skip
+    view = runner.view
     signal.signal(signal.SIGTERM, _interrupt)  # a terminated run lands and stops its drones like Ctrl-C
     try:
         out = runner.run()

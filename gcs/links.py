@@ -14,7 +14,7 @@ range and path loss (``MeshPlan``), with the drone's rules and words (sitl/mesh.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Final
 
@@ -165,11 +165,16 @@ LINK_OPTIONS: Final = {
 
 def parse_link_value(key: str, text: str) -> float:
     """One ``--link-*`` option's value; ValueError with the one line that says why it is no value for ``key``."""
+    return _parse_value(key, text, value_problem)
+
+
+def _parse_value(key: str, text: str, problem_of: Callable[[str, float], str | None]) -> float:
+    """A number for ``key``, checked by ``problem_of``; ValueError with the one line that says why it is none."""
     try:
         value = float(text)
     except ValueError:
         raise ValueError(f"{key} must be a number, got {text!r}") from None
-    problem = value_problem(key, value)
+    problem = problem_of(key, value)
     if problem is not None:
         raise ValueError(problem)
     return value
@@ -247,11 +252,4 @@ class NeighbourPlan:
 
 def parse_mesh_value(key: str, text: str) -> float:
     """One mesh option's value (``--mesh-range-m``); ValueError with the one line that says why it is no value."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise ValueError(f"{key} must be a number, got {text!r}") from None
-    problem = mesh_value_problem(key, value)
-    if problem is not None:
-        raise ValueError(problem)
-    return value
+    return _parse_value(key, text, mesh_value_problem)

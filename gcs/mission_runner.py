@@ -75,7 +75,7 @@ class MissionRunner:
                  forward: tuple[str, int] | None = None, lockstep: bool = False,
                  lockstep_quantum: int = 1, camera_drones: frozenset[int] = frozenset(),
                  drones_per_process: int | Literal["auto"] = 1, links: LinkPlan | None = None,
-                 signing_key_file: Path | None = None) -> None:  # fmt: skip
+                 signing_key_file: Path | None = None, view: ViewServer | None = None) -> None:  # fmt: skip
         self.mission = mission
         self.speed = speed_factor
         self.say = say
@@ -120,7 +120,7 @@ class MissionRunner:
         self.recording.neighbours = NeighbourPlan(relay=mission.swarm.relay, mesh=mission.swarm.mesh).describe()
         self._pending_faults: list[tuple[float, FaultStep]] = []  # (mission time due, step)
         self._policy_taken = False  # a loss policy other than continue has taken the survivors out of the mission
-        self.view: ViewServer | None = None  # the live view, if one is served: fed from the first tick
+        self.view = view  # the live view, if one is served: fed once the drones are up
         self._view_feed: ViewFeed | None = None
 
     # ---- time and telemetry ----------------------------------------------------------------------------------------

@@ -11,6 +11,9 @@ import time
 from collections.abc import Callable, Iterable
 from typing import Final
 
+import numpy as np
+
+from gcs.behaviours import pairwise_offsets
 from gcs.frames import Vec3
 from gcs.metrics import AIRBORNE_HEIGHT_M
 from gcs.streamer import FormationStreamer
@@ -70,4 +73,7 @@ class ViewFeed:
 
 def _separation(points: list[Vec3]) -> float | None:
     """The smallest distance between two of the points (None for fewer than two)."""
-    return min((math.dist(a, b) for i, a in enumerate(points) for b in points[i + 1 :]), default=None)
+    if len(points) < 2:
+        return None
+    _, dist = pairwise_offsets(np.array(points, dtype=np.float64))
+    return float(dist.min())

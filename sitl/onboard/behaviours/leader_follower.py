@@ -29,6 +29,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar, Final
 
+from sitl.mathutil import wrap_pi
 from sitl.onboard.behaviours.points import Vec2, add, norm, point_params, read_points, scale, sub
 from sitl.onboard.interface import NeighbourReport, OnboardSetpoint, OnboardState
 
@@ -38,10 +39,6 @@ HEADING_TIME_CONSTANT_S: Final = 0.5
 MAX_STEP_S: Final = 0.5  # a longer gap between steps is integrated as this long, not as a jump
 MIN_LEG_M: Final = 0.01  # waypoints closer than this to the previous point are dropped
 STRAIGHT_RAD: Final = 1e-3  # corners flatter than this get no arc
-
-
-def wrap_pi(angle_rad: float) -> float:
-    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def rotate(forward_right: Vec2, heading_rad: float) -> Vec2:

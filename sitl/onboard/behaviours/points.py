@@ -28,17 +28,6 @@ def point_params(prefix: str) -> dict[str, tuple[float, float, float]]:
     return table
 
 
-def point_values(prefix: str, points_ne_m: tuple[Vec2, ...]) -> dict[str, float]:
-    """The parameter values that carry ``points_ne_m`` (the unused slots zero); ValueError past MAX_POINTS."""
-    if len(points_ne_m) > MAX_POINTS:
-        raise ValueError(f"at most {MAX_POINTS} points, got {len(points_ne_m)}")
-    values = {f"{prefix}_CNT": float(len(points_ne_m))}
-    for k in range(1, MAX_POINTS + 1):
-        north, east = points_ne_m[k - 1] if k <= len(points_ne_m) else (0.0, 0.0)
-        values[f"{prefix}{k}_N"], values[f"{prefix}{k}_E"] = float(north), float(east)
-    return values
-
-
 def read_points(params: Mapping[str, float], prefix: str) -> tuple[Vec2, ...]:
     """The points a drone's parameters hold now."""
     count = min(int(params[f"{prefix}_CNT"]), MAX_POINTS)
