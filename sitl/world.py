@@ -34,7 +34,7 @@ from __future__ import annotations
 import contextlib
 import math
 import mmap
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from multiprocessing import shared_memory
 from pathlib import Path
@@ -153,9 +153,9 @@ SHM_DIR = Path("/dev/shm")
 
 
 class SharedWorld:
-    """The creator owns the segment (``multiprocessing.shared_memory``, whose tracker unlinks it even if the
-    supervisor is killed); drones map it directly from /dev/shm, so attaching neither starts a tracker process per
-    drone nor lets a drone's exit remove the table."""
+    """The creator owns the segment (``multiprocessing.shared_memory``) and removes its name once every drone has
+    mapped it (``release_name``), so no kill of any process can leave it in /dev/shm; drones map it directly from
+    /dev/shm, so attaching neither starts a tracker process per drone nor lets a drone's exit remove the table."""
 
     def __init__(self, name: str, buffer: memoryview | mmap.mmap, shm: shared_memory.SharedMemory | None) -> None:
         self._name = name
@@ -210,6 +210,21 @@ class SharedWorld:
         world.mesh_stats[:] = 0.0
         world.mesh_frames[:] = 0
         return world
+
+    def all_mapped(self, instances: Sequence[int]) -> bool:
+        """True once every drone of ``instances`` has mapped the world: its row holds a body or a lockstep count. A
+        process maps the world for all its drones before any of them steps, so a row written proves that its
+        process holds its mappings."""
+        rows = self.table[np.asarray(instances, dtype=np.intp)]
+        return bool(np.all((rows[:, VALID] == 1.0) | np.isfinite(rows[:, STEP])))
+
+    def release_name(self) -> None:
+        """Remove the segment's name from /dev/shm once nobody needs to attach any more (the creator only). Every
+        mapping lives on until it is closed, and the kernel frees the memory with the last one, so a supervisor
+        killed with SIGKILL (whose tracker dies with it) leaves nothing behind."""
+        if self._shm is not None:
+            with contextlib.suppress(FileNotFoundError):
+                self._shm.unlink()
 
     @classmethod
     def attach(cls, name: str) -> SharedWorld:

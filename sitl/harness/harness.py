@@ -76,6 +76,7 @@ class SitlHarness:
         self._processes = ProcessGroup()
         self._world: SharedWorld | None = None
         self._gate: LockstepGate | None = None
+        self._name_released = False  # the world's name leaves /dev/shm once every drone has mapped it
         self._ended: dict[int, str] = {}  # sysid -> cause, for every drone seen ended (marked in the world once)
         self._final_time_s = 0.0  # the common lockstep time when the gate closed
         self._final_link_counters: dict[str, dict[str, float]] = {}  # the link model's counts when the world closed
@@ -91,6 +92,7 @@ class SitlHarness:
             self._temp_logs = tempfile.mkdtemp(prefix="swarm-logs-")
             self.plan = dataclasses.replace(self.plan, log_dir=Path(self._temp_logs))
         self._world = SharedWorld.create()  # simulation truth for collisions; the drones attach to it by name
+        self._name_released = False
         self._processes.spawn(self.plan, gcs_port, self._world.name)
         if self.plan.lockstep:
             self._gate = LockstepGate(self._world, 1.0 / PHYSICS_RATE_HZ)
@@ -163,6 +165,11 @@ class SitlHarness:
             assert code is not None
             self._note_end(d, process_exit_cause(code) if not d.hosted else f"its host {process_exit_cause(code)}")
         world = self._world
+        if world is not None and not self._name_released:
+            living = [d.instance for d in self._processes.drones if d.sysid not in self._ended]
+            if world.all_mapped(living):
+                world.release_name()
+                self._name_released = True
         if world is not None:
             for d in self._processes.drones:
                 if d.hosted and d.sysid not in self._ended and (cause := world.end_cause(d.instance)) is not None:

@@ -148,9 +148,21 @@ def test_cli_commands_fly_a_running_swarm_and_down_stops_every_process(swarm_fac
     assert swarm.cli("status").returncode == 1
 
 
+def shm_mappings(pid: int) -> list[str]:
+    """The shared-memory segments process ``pid`` maps, as /proc shows them ("... (deleted)" once unlinked)."""
+    lines = Path(f"/proc/{pid}/maps").read_text().splitlines()
+    return sorted({line.split(None, 5)[5] for line in lines if "/dev/shm/psm_" in line})
+
+
 def test_killing_the_supervisor_with_sigkill_leaves_no_drone_process(swarm_factory: type[RunningSwarm]) -> None:
     swarm = swarm_factory(3, 64)
     assert len(swarm.drones) == 3
+    # AND the shared world's name has already left /dev/shm (only the mappings hold the memory), so nothing can
+    # outlive the kill there either
+    deadline = time.monotonic() + 5
+    while not (segments := shm_mappings(swarm.proc.pid)) or not all(s.endswith("(deleted)") for s in segments):
+        assert time.monotonic() < deadline, f"the world segment still has its name: {segments}"
+        time.sleep(0.1)
     swarm.proc.send_signal(signal.SIGKILL)
     swarm.proc.wait()
     assert wait_dead(swarm.children, 10) == []
