@@ -356,7 +356,7 @@ def _tracks(samples: Iterable[DroneSample]) -> dict[int, _Track]:
 
 
 @dataclass(frozen=True, slots=True)
-class _Resampled:
+class Resampled:
     pos_ned_m: FloatArray  # (T, 3), NaN where not present
     vel_ned_mps: FloatArray  # (T, 3), NaN where not present
     airborne: BoolArray  # (T,)
@@ -364,7 +364,7 @@ class _Resampled:
     target_since_s: FloatArray  # (T,) time of the sample the slot is held from
 
 
-def _resample(track: _Track, grid_s: FloatArray) -> _Resampled:
+def _resample(track: _Track, grid_s: FloatArray) -> Resampled:
     t = track.time_s
     n = t.size
     last = np.searchsorted(t, grid_s, side="right") - 1  # latest sample at or before each instant
@@ -380,7 +380,14 @@ def _resample(track: _Track, grid_s: FloatArray) -> _Resampled:
     target = track.target_ned_m[i0].copy()
     target[~present] = np.nan
     airborne = present & track.armed[i0] & (track.ground_down_m - pos[:, 2] > AIRBORNE_HEIGHT_M)
-    return _Resampled(pos_ned_m=pos, vel_ned_mps=vel, airborne=airborne, target_ned_m=target, target_since_s=t[i0])
+    return Resampled(pos_ned_m=pos, vel_ned_mps=vel, airborne=airborne, target_ned_m=target, target_since_s=t[i0])
+
+
+def resample_samples(samples: Iterable[DroneSample], grid_s: FloatArray) -> dict[int, Resampled]:
+    """Each drone's samples on the grid ``grid_s``, by sysid, as the metrics see them (linear between samples, absent
+    across gaps of more than MAX_GAP_S, airborne as defined above). The flight report's replay draws from this, so
+    that what it shows between two grid instants is what the metrics assume there."""
+    return {sysid: _resample(track, grid_s) for sysid, track in _tracks(samples).items()}
 
 
 def time_grid(start_s: float, end_s: float, rate_hz: float = GRID_HZ) -> FloatArray:
@@ -401,7 +408,7 @@ class _Closest:
 
 
 def _separation(
-    grid_s: FloatArray, sysids: Sequence[int], resampled: Sequence[_Resampled]
+    grid_s: FloatArray, sysids: Sequence[int], resampled: Sequence[Resampled]
 ) -> tuple[FloatArray, _Closest | None]:
     n_t = grid_s.size
     pos = np.full((n_t, len(sysids), 3), np.nan)
@@ -454,7 +461,7 @@ def alignment_order_parameter(vel_ne_mps: npt.ArrayLike) -> FloatArray:
     return np.asarray(np.where(defined, resultant / np.where(defined, total, 1.0), np.nan), dtype=np.float64)
 
 
-def _alignment(step: StepRecord, grid_s: FloatArray, resampled: Sequence[_Resampled]) -> AlignmentMetrics:
+def _alignment(step: StepRecord, grid_s: FloatArray, resampled: Sequence[Resampled]) -> AlignmentMetrics:
     in_step = (grid_s >= step.start_s - 1e-9) & (grid_s < step.end_s - 1e-9)
     times = grid_s[in_step]
     vel = np.full((times.size, len(resampled), 2), np.nan)
@@ -531,7 +538,7 @@ def _slowest(per_drone: dict[int, float | None]) -> float | None:
 
 
 def _step_metrics(
-    step: StepRecord, grid_s: FloatArray, resampled: Sequence[_Resampled], tracks: dict[int, _Track]
+    step: StepRecord, grid_s: FloatArray, resampled: Sequence[Resampled], tracks: dict[int, _Track]
 ) -> StepMetrics:
     # half-open: at end_s the next step's command is already in force
     in_step = (grid_s >= step.start_s - 1e-9) & (grid_s < step.end_s - 1e-9)

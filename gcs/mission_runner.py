@@ -405,9 +405,9 @@ class MissionRunner:
                 if self.swarm.plan.lockstep else f"speed {self.speed:g}x"  # fmt: skip
             self.say(f"mission {self.mission.name}: spawning {self.mission.swarm.drones} drones ({pace})")
             self.swarm.up()
+            self.recording.obstacles = [obstacle_shape(o) for o in self.mission.obstacles]
             if self.view is not None:
-                shapes = [obstacle_shape(o) for o in self.mission.obstacles]
-                self._view_feed = ViewFeed(self.view, self.streamer, shapes)
+                self._view_feed = ViewFeed(self.view, self.streamer, self.recording.obstacles)
             self._place_obstacles()
             self._set_params()
             self._t0_s = self.swarm.clock()

@@ -64,6 +64,17 @@ class ItemReached:
     seq: int
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ObstacleShape:
+    """A static obstacle as the live view and the report page draw it (swarm frame)."""
+
+    kind: str  # cylinder (standing on the ground) or sphere
+    north_m: float
+    east_m: float
+    radius_m: float
+    height_m: float  # cylinder: its height; sphere: its centre's altitude
+
+
 @dataclass(slots=True)
 class FlightRecording:
     mission_name: str
@@ -87,3 +98,4 @@ class FlightRecording:
     failsafes: list[EventRecord] = field(default_factory=list)  # a drone entering failsafe, with its warning
     policy_events: list[EventRecord] = field(default_factory=list)  # what the swarm did about each loss
     items_reached: list[ItemReached] = field(default_factory=list)  # mission items reached (each arrival once)
+    obstacles: list[ObstacleShape] = field(default_factory=list)  # the mission's static obstacles

@@ -2,7 +2,8 @@
 
 One call, ``write_report(recording, out_dir)``, turns a FlightRecording into files a person can open without our
 tools: ``metrics.json`` (the numbers defined in gcs/metrics.py, for scripts and acceptance checks),
-``trajectories.png``, ``altitude.png``, ``separation.png`` and ``summary.txt``. Plots are drawn on matplotlib Figure
+``trajectories.png``, ``altitude.png``, ``separation.png``, ``summary.txt`` and ``report.html``, a page that replays
+the flight and holds everything else (gcs/view/report_page.py). Plots are drawn on matplotlib Figure
 objects with the Agg canvas directly (no pyplot state, no display), so reports can be written from any thread or a
 headless machine.
 """
@@ -27,6 +28,8 @@ from gcs.metrics import (
 )
 from gcs.pace_monitor import SLOW_FRACTION
 from gcs.recording import DroneSample, FlightRecording, StepRecord
+from gcs.view.replay import replay_document
+from gcs.view.report_page import write_report_page
 
 if TYPE_CHECKING:  # matplotlib is imported when a report is drawn: every `swarm` command would wait for it otherwise
     from matplotlib.axes import Axes
@@ -61,7 +64,10 @@ def write_report(recording: FlightRecording, out_dir: str | Path) -> Path:
     _save(_trajectories_figure(recording, tracks, colours), out / TRAJECTORIES_FILE)
     _save(_altitude_figure(recording, tracks, colours), out / ALTITUDE_FILE)
     _save(_separation_figure(recording, metrics), out / SEPARATION_FILE)
-    (out / SUMMARY_FILE).write_text(summary_text(metrics), encoding="utf-8")
+    summary = summary_text(metrics)
+    (out / SUMMARY_FILE).write_text(summary, encoding="utf-8")
+    write_report_page(replay_document(recording), out, title=recording.mission_name, summary=summary,
+                      plots=[out / TRAJECTORIES_FILE, out / ALTITUDE_FILE, out / SEPARATION_FILE])  # fmt: skip
     log.info("flight report written to %s", out)
     return out
 

@@ -16,8 +16,9 @@ import numpy as np
 from gcs.behaviours import pairwise_offsets
 from gcs.frames import Vec3
 from gcs.metrics import AIRBORNE_HEIGHT_M
+from gcs.recording import ObstacleShape
 from gcs.streamer import FormationStreamer
-from gcs.view.scene import ObstacleShape, frame
+from gcs.view.scene import frame
 from gcs.view.server import RATE_HZ, ViewServer
 
 RTF_SMOOTHING: Final = 0.2  # weight of the newest reading in the real-time factor shown

@@ -15,27 +15,16 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
 from typing import Any, Final
 
 from gcs.fleet import DroneView
+from gcs.metrics import AVOIDANCE_PREFIX
 from gcs.mission_file import ObstacleSpec
+from gcs.recording import ObstacleShape
 
 MAV_STATE_CRITICAL: Final = 5
-AVOIDANCE_START: Final = "Avoidance:"
 AVOIDANCE_END: Final = "Avoidance ended"
 DECIMALS: Final = 3  # millimetres: the frame's size, not its precision, is what costs
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class ObstacleShape:
-    """A static obstacle as the page draws it (swarm frame)."""
-
-    kind: str  # cylinder (standing on the ground) or sphere
-    north_m: float
-    east_m: float
-    radius_m: float
-    height_m: float  # cylinder: its height; sphere: its centre's altitude
 
 
 def obstacle_shape(spec: ObstacleSpec) -> ObstacleShape:
@@ -56,7 +45,7 @@ def drone_state(view: DroneView, lost: bool) -> str:
     for _time, _severity, text in reversed(view.texts):
         if text.startswith(AVOIDANCE_END):
             break
-        if text.startswith(AVOIDANCE_START):
+        if text.startswith(AVOIDANCE_PREFIX):
             return "avoiding"
     return "armed" if view.armed else "disarmed"
 

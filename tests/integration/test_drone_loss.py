@@ -32,6 +32,7 @@ from gcs.swarm import Swarm
 from sitl.dynamics.geodesy import ned_from_geo
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
 from sitl.harness.harness import HOSTED_KILL_CAUSE
+from tests.integration.report_page import check_report_page
 from tests.integration.test_swarm import alive, children_of, wait_dead
 
 pytestmark = [pytest.mark.sim_only]
@@ -326,6 +327,9 @@ def test_a_mission_crash_fault_is_in_the_report_with_the_loss_and_metrics_over_t
     # AND the circle step's formation error is that of the three still flying, settled on their circle of three
     circle = next(s for s in metrics["steps"] if s["name"] == "circle")
     assert circle["formation_rms_m"] is not None and circle["formation_rms_m"] < 0.3, circle
+    # AND the report page replays the flight to the end with the same minimum separation, the killed drone drawn
+    # lost, and the crash and the loss marked on its timeline
+    check_report_page(report, metrics, lost=(212,), marks=("fault", "loss"), screenshot_at_s=circle["start_s"] + 8.0)
 
 
 ABORT_MISSION = """\

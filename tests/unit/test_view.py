@@ -72,8 +72,10 @@ def test_the_server_serves_the_page_and_streams_the_newest_frame_to_every_tab() 
 
         async def check() -> list[list[dict[str, Any]]]:
             async with aiohttp.ClientSession() as session:
-                for path, kind in (("", "text/html"), ("static/view.js", "text/javascript"),
-                                   ("static/vendor/three/three.core.js", "text/javascript")):  # fmt: skip
+                script = "text/javascript"
+                pages = (("", "text/html"), ("static/live.js", script), ("static/draw.js", script),
+                         ("static/vendor/three/three.core.js", script))  # fmt: skip
+                for path, kind in pages:
                     async with session.get(server.url + path) as response:
                         assert response.status == 200 and response.content_type == kind
                 for path in ("static/../server.py", "static/nothing.js", "static/vendor//three/LICENSE"):

@@ -1,0 +1,128 @@
+"""The flight report page: its replay document (gcs/view/replay.py) and the self-contained report.html."""
+
+from __future__ import annotations
+
+import base64
+import gzip
+import json
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+from gcs.losses import DroneLoss
+from gcs.metrics import compute_metrics
+from gcs.recording import EventRecord, FaultRecord, FlightRecording, ObstacleShape
+from gcs.report import write_report
+from gcs.view.replay import replay_document
+from gcs.view.report_page import PAYLOADS, REPORT_PAGE_FILE
+from gcs.view.server import STATIC
+from tests.unit.test_report import synthetic_flight
+
+
+def positions(document: dict, k: int) -> np.ndarray:
+    d = document["drones"][k]
+    return np.array([d["north_m"], d["east_m"], d["down_m"]], dtype=float).T  # None -> NaN
+
+
+def page_min_separation(document: dict) -> float:
+    """What the page computes (static/replay.js), in numpy: every grid instant's distance between pairs airborne
+    then, and the closest approach of their linear relative motion between consecutive instants both airborne."""
+    pos = [positions(document, k) for k in range(len(document["drones"]))]
+    air = [
+        np.array(d["airborne"], dtype=bool) & ~np.isnan(p[:, 0]) for d, p in zip(document["drones"], pos, strict=True)
+    ]
+    best = math.inf
+    for a in range(len(pos)):
+        for b in range(a + 1, len(pos)):
+            both = air[a] & air[b]
+            rel = pos[a] - pos[b]
+            dist = np.linalg.norm(rel, axis=1)
+            if both.any():
+                best = min(best, float(dist[both].min()))
+            ok = both[:-1] & both[1:]
+            r0, dr = rel[:-1][ok], (rel[1:] - rel[:-1])[ok]
+            dr2 = np.einsum("ij,ij->i", dr, dr)
+            s = np.clip(np.divide(-np.einsum("ij,ij->i", r0, dr), dr2, out=np.zeros_like(dr2), where=dr2 > 0), 0, 1)
+            if ok.any():
+                best = min(best, float(np.linalg.norm(r0 + s[:, None] * dr, axis=1).min()))
+    return best
+
+
+def flight_with_everything() -> FlightRecording:
+    """The synthetic three-drone flight with a loss and return, a failsafe, avoidance, a fault and an obstacle."""
+    rec = synthetic_flight()
+    rec.events.append(EventRecord(time_s=9.8, sysid=2, text="Avoidance ended: closest approach 0.80 m"))
+    rec.losses = [DroneLoss(sysid=3, time_s=12.0, cause="link lost", silent=True, regained_s=14.0)]
+    rec.regained = list(rec.losses)
+    rec.failsafes = [EventRecord(time_s=21.0, sysid=1, text="Failsafe: battery critical")]
+    rec.faults = [FaultRecord(time_s=11.5, sysid=3, fault="comms", result="accepted")]
+    rec.obstacles = [ObstacleShape(kind="cylinder", north_m=5.0, east_m=5.0, radius_m=0.5, height_m=8.0)]
+    return rec
+
+
+def test_the_pages_minimum_separation_from_the_drawn_positions_is_the_metrics_one() -> None:
+    rec = flight_with_everything()
+    document = replay_document(rec)
+    metrics = compute_metrics(rec)
+    assert metrics.min_separation_m is not None
+    assert abs(page_min_separation(document) - metrics.min_separation_m) < 1e-3
+    # and the document is plain JSON (no NaN), on the metrics' grid
+    json.dumps(document, allow_nan=False)
+    assert np.allclose(document["time_s"][:3], [0.0, 0.1, 0.2])
+
+
+def test_states_follow_losses_failsafes_and_avoidance_as_the_live_view_colours_them() -> None:
+    document = replay_document(flight_with_everything())
+    states = {d["sysid"]: d["states"] for d in document["drones"]}
+    # drone 1: disarmed until it arms at 1 s, failsafe from 21 s until it disarms at 25 s
+    assert states[1] == [[0.0, "disarmed"], [1.0, "armed"], [21.0, "failsafe"], [25.0, "disarmed"]]
+    # drone 2: avoiding from its "Avoidance:" text until "Avoidance ended"
+    assert [9.0, "avoiding"] in states[2] and [9.8, "armed"] in states[2]
+    # drone 3: lost while silent, taken back when heard again
+    assert [12.0, "lost"] in states[3] and [14.0, "armed"] in states[3]
+    # a lost drone is no separation: airborne only while flying
+    drone3 = document["drones"][2]
+    lost_instants = [a for t, a in zip(document["time_s"], drone3["airborne"], strict=True) if 12.0 <= t < 14.0]
+    assert lost_instants and not any(lost_instants)
+
+
+def test_marks_are_every_event_kind_in_time_order() -> None:
+    document = replay_document(flight_with_everything())
+    kinds = [(m["time_s"], m["kind"]) for m in document["marks"]]
+    assert kinds == [(9.0, "avoidance"), (9.5, "collision"), (11.5, "fault"), (12.0, "loss"), (14.0, "regained"),
+                     (21.0, "failsafe")]  # fmt: skip
+    assert document["obstacles"] == [{"kind": "cylinder", "north_m": 5.0, "east_m": 5.0, "radius_m": 0.5,
+                                      "height_m": 8.0}]  # fmt: skip
+    assert [s["name"] for s in document["steps"]] == ["takeoff", "circle", "land"]
+
+
+def unpack(page: str, element_id: str) -> bytes:
+    match = re.search(rf'<script type="application/octet-stream" id="{element_id}">\s*([A-Za-z0-9+/=]+)\s*</script>',
+                      page)  # fmt: skip
+    assert match is not None, element_id
+    return gzip.decompress(base64.b64decode(match.group(1)))
+
+
+def test_report_html_is_one_self_contained_file_the_same_for_the_same_flight(tmp_path: Path) -> None:
+    first = (write_report(flight_with_everything(), tmp_path / "a") / REPORT_PAGE_FILE).read_text()
+    second = (write_report(flight_with_everything(), tmp_path / "b") / REPORT_PAGE_FILE).read_text()
+    assert first == second
+    # nothing is fetched: every src and href is inline data, and there is no address to go to
+    assert re.findall(r'(?:src|href)="(?!data:)', first) == []
+    assert "http://" not in first.split("<script")[0] and "https://" not in first.split("<script")[0]
+    # the scripts are the package's own, unchanged, and the flight is the replay document
+    for element_id, name in PAYLOADS.items():
+        assert unpack(first, element_id) == (STATIC / name).read_bytes()
+    assert json.loads(unpack(first, "flight")) == json.loads(json.dumps(replay_document(flight_with_everything())))
+    # the plots and the summary are in it
+    assert first.count('src="data:image/png;base64,') == 3
+    assert "circle_demo" in first and "min separation" in first
+
+
+def test_an_empty_flight_still_gets_a_page(tmp_path: Path) -> None:
+    out = write_report(FlightRecording(mission_name="aborted", n_drones=2, collision_radius_m=0.7), tmp_path)
+    page = (out / REPORT_PAGE_FILE).read_text()
+    document = json.loads(unpack(page, "flight"))
+    assert document["drones"] == [] and document["time_s"] == []
