@@ -23,6 +23,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.avoidance import new_obstacle as _new_obstacle
 from sitl.collision_prevention import RelayedNeighbour
@@ -40,6 +41,7 @@ from sitl.perception.camera import (
     spheres,
 )
 from sitl.perception.detector import detect_rig, to_ned_all
+from sitl.protocol.images import EncodedImage
 from sitl.protocol.neighbours import Neighbour, NeighbourTable
 from sitl.simulation import Simulation
 from sitl.world import SharedWorld
@@ -85,6 +87,7 @@ class Awareness:
         self._next_relay_s = 0.0
         self._relayed: dict[int, tuple[Neighbour, RelayedNeighbour]] = {}  # by sysid: the report and its conversion
         self.frames = 0
+        self._snapshots = 0  # images sent on request so far (each seeds its own noise)
         # Time spent on actual work (a relay update or a frame), read by benchmarks; the steps with nothing due are
         # not timed, so the clock is read a few dozen times a second instead of twice per physics step.
         self._clock_ns = clock_ns
@@ -147,11 +150,9 @@ class Awareness:
         self._relayed = converted
         self._prevention.set_relay(out)
 
-    def _capture(self, now_s: float) -> None:
+    def _bodies(self) -> list[Body]:
+        """Every body the cameras could see now: the other drones within range and the static obstacles."""
         assert self._world is not None
-        est = self._sim.estimate
-        if est is None or not est.attitude_valid:
-            return
         rig = self._camera_rig()
         _ids, offsets = self._world.others_ned_m(self._instance)
         # Drones beyond every camera's range (by more than rounding: the renderer measures the distance in each
@@ -169,6 +170,35 @@ class Awareness:
                 )
             else:
                 bodies.append(Sphere(offset_ned_m=ob.offset_ned_m, radius_m=ob.radius_m))
+        return bodies
+
+    def image(self, kind: int, quality: int) -> EncodedImage | None:
+        """What the cameras see now, side by side, encoded for a MAVLink image request (sitl/protocol/images.py):
+        JPEG at ``quality`` or PNG. Rendered on demand with noise of its own, so looking changes nothing the drone
+        does (the flight's camera noise, and so a lockstep flight, stay the same with or without a viewer). None
+        without a shared world (nothing to see) or before the estimator has an attitude."""
+        est = self._sim.estimate
+        if self._world is None or est is None or not est.attitude_valid:
+            return None
+        rng = np.random.default_rng(self._snapshots)
+        self._snapshots += 1
+        images = render_rig(self._camera_rig(), self._sim.truth.att_q_frd_to_ned, self._bodies(), rng)
+        picture = cv2.hconcat(list(images)) if len(images) > 1 else images[0]
+        if kind == mavlink.MAVLINK_DATA_STREAM_IMG_JPEG:
+            ok, data = cv2.imencode(".jpg", picture, [cv2.IMWRITE_JPEG_QUALITY, quality])
+        else:
+            ok, data = cv2.imencode(".png", picture)
+        if not ok:
+            return None
+        return EncodedImage(data=data.tobytes(), width_px=int(picture.shape[1]), height_px=int(picture.shape[0]))
+
+    def _capture(self, now_s: float) -> None:
+        assert self._world is not None
+        est = self._sim.estimate
+        if est is None or not est.attitude_valid:
+            return
+        rig = self._camera_rig()
+        bodies = self._bodies()
         q_true = self._sim.truth.att_q_frd_to_ned
         self.frames += 1
         if self._frames_dir is not None:

@@ -164,6 +164,8 @@ class Drone:
             shared_clock=common.lockstep and world is not None,
             clock_ns=clock_ns,
         )
+        if self.endpoint is not None:
+            self.endpoint.camera = self.awareness.image  # MAVLink image requests: what the cameras see now
         self._clock_ns = clock_ns
         self.link_ns = 0
         self._steps = 0

@@ -28,6 +28,7 @@ from sitl.onboard.interface import GroundMessage
 from sitl.params import ParamStore
 from sitl.protocol import Identity, LinkServices, Send, VehicleApi, framing
 from sitl.protocol.core import Effect, MAVLinkMessage
+from sitl.protocol.images import EncodedImage, ImageSource
 from sitl.protocol.neighbours import LINK, MESH, RELAY, NeighbourFeed, NeighbourTable
 from sitl.protocol.signing import SIGN_CFG_PARAM, SigningGate, SigningState
 from sitl.protocol.telemetry import PollShare
@@ -284,6 +285,8 @@ class MavlinkEndpoint:
         self.silenced = False  # while an injected MAVLink failure is in force: nothing is sent or read
         # Where a NAMED_VALUE_FLOAT sent to this drone goes (an onboard behaviour's messages, sitl/onboard)
         self.on_named_value: Callable[[GroundMessage], None] | None = None
+        # What the drone's camera sees, for MAVLink image requests (sitl/protocol/images.py); set once it has one
+        self.camera: ImageSource | None = None
         self._silent_until_s = -math.inf  # simulated time it ends (inf: for good)
         self._sysid = identity.sysid
         # The link model (``impair``): channels by class and direction, and what arrived but is delayed.
@@ -303,11 +306,15 @@ class MavlinkEndpoint:
             for link_id, config in enumerate(links):
                 # Positions on the ground-station link are the supervisor's relay; on another link, a client's.
                 feed = NeighbourFeed(self.neighbours, RELAY if link_class_of(config) == "gcs" else LINK)
-                services = LinkServices(identity, vehicle, params, neighbours=feed, share=self._share)
+                services = LinkServices(identity, vehicle, params, neighbours=feed, share=self._share,
+                                        images=self._camera_image)  # fmt: skip
                 self.links.append(UdpLink(config, identity, services, signing=self.signing, link_id=link_id))
         except LinkError:
             self.close()
             raise
+
+    def _camera_image(self, kind: int, quality: int) -> EncodedImage | None:
+        return self.camera(kind, quality) if self.camera is not None else None
 
     def sockets(self) -> list[socket.socket]:
         return [link.sock for link in self.links]

@@ -9,12 +9,13 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Iterable
-from typing import Final
+from typing import Any, Final
 
 import numpy as np
 
 from gcs.behaviours import pairwise_offsets
 from gcs.frames import Vec3
+from gcs.images import ImageAssembler, image_request
 from gcs.metrics import AIRBORNE_HEIGHT_M
 from gcs.recording import ObstacleShape
 from gcs.streamer import FormationStreamer
@@ -22,6 +23,8 @@ from gcs.view.scene import frame
 from gcs.view.server import RATE_HZ, ViewServer
 
 RTF_SMOOTHING: Final = 0.2  # weight of the newest reading in the real-time factor shown
+CAMERA_RATE_HZ: Final = 2.0  # images asked of a drone whose camera a page shows, per wall second
+CAMERA_MESSAGES: Final = frozenset({"DATA_TRANSMISSION_HANDSHAKE", "ENCAPSULATED_DATA"})
 
 
 class ViewFeed:
@@ -37,6 +40,20 @@ class ViewFeed:
         self._last_wall_s = -math.inf
         self._last_time_s = math.nan
         self._rtf: float | None = None
+        self._images = ImageAssembler()
+        self._next_request_s: dict[int, float] = {}  # sysid -> wall time its camera may be asked again
+        streamer.swarm.listeners.append(self._on_message)
+
+    def _on_message(self, msg: Any, now_s: float) -> None:
+        if msg.get_type() in CAMERA_MESSAGES and (image := self._images.feed(msg, now_s)) is not None:
+            self.server.publish_image(image)
+
+    def _ask_cameras(self, wall_s: float) -> None:
+        """Ask each drone whose camera a page is showing for its next image, CAMERA_RATE_HZ at most."""
+        for sysid in self.server.cameras_wanted(wall_s):
+            if wall_s >= self._next_request_s.get(sysid, -math.inf) and sysid in self.streamer.swarm.fleet.drones:
+                self._next_request_s[sysid] = wall_s + 1.0 / CAMERA_RATE_HZ
+                self.streamer.swarm.send(sysid, image_request())
 
     def tick(self, time_s: float) -> None:
         """The mission time now; a frame goes out if the last is a frame period old (wall clock)."""
@@ -48,6 +65,7 @@ class ViewFeed:
             self._rtf = reading if self._rtf is None else self._rtf + RTF_SMOOTHING * (reading - self._rtf)
         self._last_wall_s, self._last_time_s = wall, time_s
         self.server.publish(self.build(time_s))
+        self._ask_cameras(wall)
 
     def build(self, time_s: float) -> dict[str, object]:
         swarm = self.streamer.swarm

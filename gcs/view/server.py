@@ -17,13 +17,17 @@ import asyncio
 import json
 import socket
 import threading
+import time
 from importlib import resources
 from typing import TYPE_CHECKING, Any, Final
+
+from gcs.images import CameraImage
 
 if TYPE_CHECKING:  # aiohttp is imported when a view is served: every `swarm` command would wait for it otherwise
     from aiohttp import web
 
 RATE_HZ: Final = 10.0  # frames per second to each client, at most
+CAMERA_WANTED_S: Final = 3.0  # a drone's camera is asked for while a page has fetched its image this recently
 DEFAULT_PORT: Final = 8765
 DEFAULT_PORTS_TRIED: Final = 10  # without an explicit port: DEFAULT_PORT and the next ones, then any free port
 STATIC = resources.files("gcs.view") / "static"
@@ -46,6 +50,10 @@ class ViewServer:
         self._runner: web.AppRunner | None = None
         self._stopping: asyncio.Event | None = None
         self.clients = 0
+        # Camera images: the newest of each drone (set by the supervisor's thread), and when a page last asked for a
+        # drone's (set by this server's thread, read by the supervisor's to decide whom to ask over MAVLink).
+        self._images: dict[int, CameraImage] = {}
+        self._camera_wanted: dict[int, float] = {}
 
     @property
     def url(self) -> str:
@@ -71,6 +79,13 @@ class ViewServer:
         """The newest frame (the caller builds a fresh dict each time and does not touch it again)."""
         self._frame = frame
 
+    def publish_image(self, image: CameraImage) -> None:
+        self._images[image.sysid] = image
+
+    def cameras_wanted(self, now_wall_s: float) -> list[int]:
+        """The drones whose camera a page has asked for within CAMERA_WANTED_S (wall clock, ``time.monotonic``)."""
+        return [sysid for sysid, t in list(self._camera_wanted.items()) if now_wall_s - t <= CAMERA_WANTED_S]
+
     def stop(self) -> None:
         loop, stopping = self._loop, self._stopping
         if loop is not None and stopping is not None and not loop.is_closed():
@@ -95,6 +110,7 @@ class ViewServer:
         app.router.add_get("/", self._index)
         app.router.add_get("/frame", self._latest)
         app.router.add_get("/ws", self._websocket)
+        app.router.add_get("/camera/{sysid:[0-9]+}", self._camera)
         app.router.add_get("/static/{path:.+}", self._static)
         self._runner = web.AppRunner(app, access_log=None)
         await self._runner.setup()
@@ -124,6 +140,19 @@ class ViewServer:
         from aiohttp import web
 
         return web.json_response(self._frame)
+
+    async def _camera(self, request: web.Request) -> web.StreamResponse:
+        """The newest image of drone ``sysid``'s camera (204 while there is none yet); asking for it is what makes
+        the ground station request images from that drone, for CAMERA_WANTED_S."""
+        from aiohttp import web
+
+        sysid = int(request.match_info["sysid"])
+        self._camera_wanted[sysid] = time.monotonic()
+        image = self._images.get(sysid)
+        if image is None:
+            return web.Response(status=204, headers={"Cache-Control": "no-store"})
+        headers = {"Cache-Control": "no-store", "X-Image-Time-S": f"{image.time_s:.3f}"}
+        return web.Response(body=image.data, content_type=image.mime, headers=headers)
 
     async def _websocket(self, request: web.Request) -> web.StreamResponse:
         from aiohttp import web

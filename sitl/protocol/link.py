@@ -30,6 +30,7 @@ from sitl.protocol.core import (
     read_int,
     source_of,
 )
+from sitl.protocol.images import ImageService, ImageSource
 from sitl.protocol.mission import MissionServer
 from sitl.protocol.offboard import OffboardService
 from sitl.protocol.params import ParamService
@@ -139,9 +140,12 @@ class LinkServices:
         rates_hz: Mapping[int, float] = DEFAULT_RATES_HZ,
         neighbours: Service | None = None,
         share: PollShare | None = None,
+        images: ImageSource | None = None,
     ) -> None:
         """``share``: one ``PollShare`` for all links of a drone, opened around a poll of them all; ``neighbours``:
-        the service that takes other systems' positions (a ``NeighbourTable``, or a ``NeighbourFeed`` into one)."""
+        the service that takes other systems' positions (a ``NeighbourTable``, or a ``NeighbourFeed`` into one);
+        ``images``: what the drone's camera sees, for MAVLink image requests (none: every request gets an empty
+        answer)."""
         self.identity = identity
         text = StatusTextEncoder()
         self.telemetry = TelemetryScheduler(identity, vehicle, rates_hz=rates_hz, statustext=text, share=share)
@@ -152,6 +156,7 @@ class LinkServices:
         self.timesync = TimesyncService()
         self.ping = PingService()
         self.peers = PeerMonitor(identity, vehicle)
+        self.images = ImageService(images if images is not None else lambda _kind, _quality: None)
         self._services: tuple[Service, ...] = (
             self.commands,
             self.params,
@@ -160,6 +165,7 @@ class LinkServices:
             self.timesync,
             self.ping,
             self.peers,
+            self.images,
             self.telemetry,
             *((neighbours,) if neighbours is not None else ()),
         )

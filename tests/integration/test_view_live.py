@@ -50,6 +50,8 @@ def telemetry_ned(link: mavutil.mavfile, seconds: float) -> dict[int, tuple[floa
     """The newest GLOBAL_POSITION_INT of every drone heard within ``seconds``, in the swarm frame."""
     frame = SwarmFrame(DEFAULT_ORIGIN)
     out: dict[int, tuple[float, float, float]] = {}
+    while link.recv_match(blocking=False) is not None:
+        pass  # what queued up while the page was being looked at is old news
     end = time.monotonic() + seconds
     while time.monotonic() < end:
         msg = link.recv_match(type="GLOBAL_POSITION_INT", blocking=True, timeout=0.05)
@@ -105,6 +107,12 @@ def test_the_live_view_draws_nine_drones_where_their_telemetry_says_and_a_killed
             assert browser.evaluate("swarmView.webgl()") is True  # drawn in 3D, not only on the map
             rows = browser.evaluate("document.querySelectorAll('#drones tbody tr').length")
             assert rows == 9
+            # WHEN a drone is clicked THEN its details show what its camera sees, fetched over MAVLink image
+            # transmission and kept fresh
+            browser.evaluate("document.querySelector('#drones tbody tr[data-sysid=\"92\"]').click()")
+            first = browser.wait_for("swarmView.camera() && swarmView.camera().sysid === 92 && swarmView.camera()", 10)
+            assert (first["width"], first["height"]) == (4 * 160, 120), first  # the default rig's four cameras
+            browser.wait_for(f"swarmView.camera().time_s > {first['time_s']}", 10)
             if os.environ.get("SWARM_DOCS_SCREENSHOTS"):
                 browser.screenshot(DOCS_IMAGES / "live-view.png")
             # WHEN a drone's process is killed THEN the page marks it lost within 2 s

@@ -190,9 +190,23 @@ export function createView(THREE, OrbitControls) {
     details.hidden = !chosen;
     if (chosen) {
       const text = details.querySelector("pre");
-      text.textContent = JSON.stringify(chosen, null, 1);
+      text.textContent = detailText(chosen);
       if (view.detail) view.detail(chosen, details);
     }
+  }
+
+  function detailText(d) {
+    const vec = (v, digits = 2) => (v ? v.map((x) => fmt(x, digits)).join(", ") : "-");
+    return [
+      `sysid ${d.sysid}: ${d.state}, ${d.mode}, ${d.armed ? "armed" : "disarmed"}`,
+      `position N, E, D  ${vec(d.pos_ned_m)} m`,
+      `velocity N, E, D  ${vec(d.vel_ned_mps)} m/s`,
+      `heading ${fmt(d.heading_deg, 1)} deg, altitude ${fmt(d.alt_m, 2)} m`,
+      `slot  ${vec(d.slot_ned_m)}`,
+      `home  ${vec(d.home_ned_m)}`,
+      `battery ${d.battery === null ? "-" : Math.round(d.battery * 100) + " %"}, link age ${fmt(d.link_age_s, 2)} s`,
+      `last text: ${d.text === null ? "-" : d.text}`,
+    ].join("\n");
   }
 
   document.querySelector("#drones tbody").addEventListener("click", (ev) => {

@@ -19,6 +19,47 @@ const [THREE, OrbitControls] = await loadThree();
 const view = createView(THREE, OrbitControls);
 const trails = new Map();
 
+// ---- the selected drone's camera: its newest image, asked for over MAVLink by the ground station while shown ----
+const CAMERA_POLL_MS = 500;
+const camera = { sysid: null, shown: null, timer: null };
+window.swarmView.camera = () => camera.shown;
+
+view.onDetail((drone, box) => {
+  let figure = box.querySelector("figure");
+  if (!figure) {
+    figure = document.createElement("figure");
+    figure.innerHTML = '<img class="camera" alt="what its camera sees"><figcaption>camera: asking...</figcaption>';
+    box.prepend(figure);
+  }
+  if (camera.sysid !== drone.sysid) {
+    camera.sysid = drone.sysid;
+    camera.shown = null;
+    figure.querySelector("img").removeAttribute("src");
+    figure.querySelector("figcaption").textContent = "camera: asking...";
+    clearTimeout(camera.timer);
+    pollCamera(figure);
+  }
+});
+
+async function pollCamera(figure) {
+  const sysid = camera.sysid;
+  if (sysid === null || window.swarmView.selected() !== sysid) { camera.sysid = null; return; }
+  try {
+    const response = await fetch(`/camera/${sysid}`, { cache: "no-store" });
+    if (response.status === 200 && camera.sysid === sysid) {
+      const img = figure.querySelector("img");
+      const url = URL.createObjectURL(await response.blob());
+      await new Promise((resolve) => { img.onload = resolve; img.onerror = resolve; img.src = url; });
+      const time = Number(response.headers.get("X-Image-Time-S"));
+      figure.querySelector("figcaption").textContent = `camera at t ${time.toFixed(1)} s (${img.naturalWidth}x${img.naturalHeight})`;
+      camera.shown = { sysid, time_s: time, width: img.naturalWidth, height: img.naturalHeight };
+    }
+  } catch (err) {
+    figure.querySelector("figcaption").textContent = `camera: ${err}`;
+  }
+  camera.timer = setTimeout(() => pollCamera(figure), CAMERA_POLL_MS);
+}
+
 function receive(frame) {
   for (const d of frame.drones) {
     if (!d.pos_ned_m) continue;
