@@ -407,7 +407,7 @@ class MissionRunner:
             self.swarm.up()
             self.recording.obstacles = [obstacle_shape(o) for o in self.mission.obstacles]
             if self.view is not None:
-                self._view_feed = ViewFeed(self.view, self.streamer, self.recording.obstacles)
+                self._view_feed = ViewFeed(self.view, self.streamer, self.recording.obstacles, live=self.recorder.live)
             self._place_obstacles()
             self._set_params()
             self._t0_s = self.swarm.clock()

@@ -16,7 +16,7 @@ import numpy as np
 from gcs.behaviours import pairwise_offsets
 from gcs.frames import Vec3
 from gcs.images import ImageAssembler, image_request
-from gcs.metrics import AIRBORNE_HEIGHT_M
+from gcs.metrics import AIRBORNE_HEIGHT_M, LiveMetrics
 from gcs.recording import ObstacleShape
 from gcs.streamer import FormationStreamer
 from gcs.view.scene import frame
@@ -27,17 +27,38 @@ CAMERA_RATE_HZ: Final = 2.0  # images asked of a drone whose camera a page shows
 CAMERA_MESSAGES: Final = frozenset({"DATA_TRANSMISSION_HANDSHAKE", "ENCAPSULATED_DATA"})
 
 
+class FramePacer:
+    """When frames are due: on a grid of periods of the wall clock, so that ticks that do not fall on it (the
+    supervisor's 20 Hz, jittered) still give ``rate_hz`` frames a second; more than a period late (a slow tick, a
+    pause with nobody watching), the grid starts again from now."""
+
+    def __init__(self, rate_hz: float) -> None:
+        self.period_s = 1.0 / rate_hz
+        self._next_s = -math.inf
+
+    def due(self, wall_s: float) -> bool:
+        if wall_s < self._next_s:
+            return False
+        late = wall_s - self._next_s >= self.period_s
+        self._next_s = wall_s + self.period_s if late else self._next_s + self.period_s
+        return True
+
+
 class ViewFeed:
     """One swarm into one view server."""
 
     def __init__(self, server: ViewServer, streamer: FormationStreamer, obstacles: Iterable[ObstacleShape] = (),
-                 clock: Callable[[], float] = time.monotonic) -> None:  # fmt: skip
+                 clock: Callable[[], float] = time.monotonic, live: LiveMetrics | None = None) -> None:  # fmt: skip
+        """``live``: the flight recorder's running metrics, whose minimum separation (over every sample, as the
+        report's) the header shows; without it, the minimum over the frames built."""
         self.server = server
         self.streamer = streamer
-        self.min_separation_m: float | None = None  # over the frames so far (the report's figure is over every sample)
+        self.live = live
+        self.min_separation_m: float | None = None
         self.obstacles = tuple(obstacles)
         self.clock = clock
         self._last_wall_s = -math.inf
+        self._pacer = FramePacer(RATE_HZ)
         self._last_time_s = math.nan
         self._rtf: float | None = None
         self._images = ImageAssembler()
@@ -56,9 +77,10 @@ class ViewFeed:
                 self.streamer.swarm.send(sysid, image_request())
 
     def tick(self, time_s: float) -> None:
-        """The mission time now; a frame goes out if the last is a frame period old (wall clock)."""
+        """The mission time now; a frame goes out if the last is a frame period old (wall clock) and a page is
+        watching: nobody watching, the view costs the swarm nothing."""
         wall = self.clock()
-        if wall - self._last_wall_s < 1.0 / RATE_HZ:
+        if not self.server.watched(wall) or not self._pacer.due(wall):
             return
         if math.isfinite(self._last_wall_s) and math.isfinite(self._last_time_s) and wall > self._last_wall_s:
             reading = (time_s - self._last_time_s) / (wall - self._last_wall_s)
@@ -84,6 +106,8 @@ class ViewFeed:
         separation = _separation(airborne)
         if separation is not None and (self.min_separation_m is None or separation < self.min_separation_m):
             self.min_separation_m = separation
+        if self.live is not None:
+            self.min_separation_m = self.live.status().min_separation_m
         return frame(time_s=time_s, drones=swarm.fleet.drones, positions_ned_m=positions, homes_ned_m=homes,
                      slots_ned_m=self.streamer.targets(time_s), lost=swarm.losses, now_s=swarm.clock(),
                      separation_m=separation, min_separation_m=self.min_separation_m, realtime_factor=self._rtf,

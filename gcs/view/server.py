@@ -2,10 +2,11 @@
 
 It runs aiohttp on an asyncio loop in a thread of its own, beside the supervisor's loop (a synchronous select loop,
 or the lockstep clock), which only hands it the latest frame (``publish``: one reference swapped, no copy, no wait).
-Each WebSocket client gets the newest frame at most ``RATE_HZ`` times a second; a slow client skips frames rather
-than queueing them, so nothing a browser does can slow the simulation or grow the supervisor's memory. Why aiohttp:
-it serves files and WebSockets from one small, well-kept asyncio library, and the project's other asyncio code (the
-Python API, MAVSDK) already runs on asyncio loops in threads.
+Each WebSocket client is woken by each frame the supervisor publishes (at most ``RATE_HZ`` a wall second, encoded
+once for all clients) and gets the newest; a slow client skips frames rather than queueing them, so nothing a
+browser does can slow the simulation or grow the supervisor's memory. Nobody watching, no frame is built. Why
+aiohttp: it serves files and WebSockets from one small, well-kept asyncio library, and the project's other asyncio
+code (the Python API, MAVSDK) already runs on asyncio loops in threads.
 
 The socket is bound in the caller's thread, before anything flies, so a port in use or a bad address is one line
 (``ViewError``) rather than an error in a thread nobody watches. Loopback by default.
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import math
 import socket
 import threading
 import time
@@ -27,6 +29,8 @@ if TYPE_CHECKING:  # aiohttp is imported when a view is served: every `swarm` co
     from aiohttp import web
 
 RATE_HZ: Final = 10.0  # frames per second to each client, at most
+WATCH_HOLD_S: Final = 3.0  # after the last /frame request, frames are still built this long
+FRESH_WAIT_S: Final = 1.0  # /frame waits this long at most for a fresh frame after nobody watched
 CAMERA_WANTED_S: Final = 3.0  # a drone's camera is asked for while a page has fetched its image this recently
 DEFAULT_PORT: Final = 8765
 DEFAULT_PORTS_TRIED: Final = 10  # without an explicit port: DEFAULT_PORT and the next ones, then any free port
@@ -54,6 +58,10 @@ class ViewServer:
         # drone's (set by this server's thread, read by the supervisor's to decide whom to ask over MAVLink).
         self._images: dict[int, CameraImage] = {}
         self._camera_wanted: dict[int, float] = {}
+        self._frame_asked_s = -math.inf  # when /frame was last asked for (wall clock, time.monotonic)
+        self._frame_built_s = -math.inf  # when the newest frame was published
+        self._published: asyncio.Future[None] | None = None  # resolved by the next publish (in the view's loop)
+        self._encoded: tuple[dict[str, Any] | None, str] = (None, "")
 
     @property
     def url(self) -> str:
@@ -78,6 +86,14 @@ class ViewServer:
     def publish(self, frame: dict[str, Any]) -> None:
         """The newest frame (the caller builds a fresh dict each time and does not touch it again)."""
         self._frame = frame
+        self._frame_built_s = time.monotonic()
+        loop = self._loop
+        if self.clients and loop is not None and not loop.is_closed():
+            loop.call_soon_threadsafe(self._announce)
+
+    def watched(self, now_wall_s: float) -> bool:
+        """Whether anyone is looking: a page connected, or /frame asked for within WATCH_HOLD_S."""
+        return self.clients > 0 or now_wall_s - self._frame_asked_s <= WATCH_HOLD_S
 
     def publish_image(self, image: CameraImage) -> None:
         self._images[image.sysid] = image
@@ -106,6 +122,7 @@ class ViewServer:
         from aiohttp import web
 
         self._stopping = asyncio.Event()
+        self._published = asyncio.get_running_loop().create_future()
         app = web.Application()
         app.router.add_get("/", self._index)
         app.router.add_get("/frame", self._latest)
@@ -137,9 +154,16 @@ class ViewServer:
         return web.Response(body=target.read_bytes(), content_type=kind or "application/octet-stream")
 
     async def _latest(self, _request: web.Request) -> web.StreamResponse:
+        """The newest frame; after a pause with nobody watching (no frame built), the next one, within a second."""
         from aiohttp import web
 
-        return web.json_response(self._frame)
+        asked = self._frame_asked_s = time.monotonic()
+        while asked - self._frame_built_s > 2.0 / RATE_HZ and time.monotonic() - asked < FRESH_WAIT_S:
+            if self._frame_built_s >= asked:
+                break
+            await asyncio.sleep(0.02)
+        return web.Response(text=self._text(self._frame) if self._frame is not None else "null",
+                            content_type="application/json")  # fmt: skip
 
     async def _camera(self, request: web.Request) -> web.StreamResponse:
         """The newest image of drone ``sysid``'s camera (204 while there is none yet); asking for it is what makes
@@ -154,6 +178,18 @@ class ViewServer:
         headers = {"Cache-Control": "no-store", "X-Image-Time-S": f"{image.time_s:.3f}"}
         return web.Response(body=image.data, content_type=image.mime, headers=headers)
 
+    def _announce(self) -> None:
+        """In the view's loop: wake every client's task for the frame just published."""
+        waiter, self._published = self._published, asyncio.get_running_loop().create_future()
+        if waiter is not None and not waiter.done():
+            waiter.set_result(None)
+
+    def _text(self, frame: dict[str, Any]) -> str:
+        """A frame's JSON, encoded once for every client."""
+        if self._encoded[0] is not frame:
+            self._encoded = (frame, json.dumps(frame, separators=(",", ":")))
+        return self._encoded[1]
+
     async def _websocket(self, request: web.Request) -> web.StreamResponse:
         from aiohttp import web
 
@@ -166,9 +202,12 @@ class ViewServer:
             while not ws.closed and not reader.done():
                 frame = self._frame
                 if frame is not None and frame is not sent:
-                    await ws.send_str(json.dumps(frame, separators=(",", ":")))
+                    await ws.send_str(self._text(frame))  # a slow tab: the newest frame after this one, no queue
                     sent = frame
-                await asyncio.sleep(1.0 / RATE_HZ)
+                if self._frame is sent:  # wait for the next one (each publish wakes every client)
+                    assert self._published is not None
+                    await asyncio.wait({self._published, reader}, timeout=1.0,
+                                       return_when=asyncio.FIRST_COMPLETED)  # fmt: skip
         except (ConnectionError, RuntimeError):
             pass  # the tab went away mid-send
         finally:

@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import json
 import math
+import random
 import socket
 import subprocess
 import sys
@@ -17,6 +19,7 @@ import aiohttp
 import pytest
 
 from gcs.fleet import DroneView
+from gcs.view.feed import FramePacer
 from gcs.view.scene import ObstacleShape, drone_state, frame
 from gcs.view.server import DEFAULT_PORT, ViewError, ViewServer, serve_view
 
@@ -142,3 +145,15 @@ def test_swarm_up_refuses_a_port_in_use_with_one_line_and_exit_code_2() -> None:
         taken.close()
     assert result.returncode == 2
     assert result.stderr == f"swarm: error: cannot serve the view on 127.0.0.1:{port}: Address already in use\n"
+
+
+def test_frames_keep_their_rate_on_a_jittered_tick_and_restart_after_a_pause() -> None:
+    pacer = FramePacer(10.0)
+    rng = random.Random(3)
+    ticks = [k * 0.05 + rng.uniform(0.0, 0.01) for k in range(400)]  # the supervisor's 20 Hz, jittered: 20 s
+    frames = [t for t in ticks if pacer.due(t)]
+    assert len(frames) in (199, 200, 201)  # 10 a second, not the 6-7 of "a period since the last"
+    gaps = [b - a for a, b in itertools.pairwise(frames)]
+    assert 0.03 < min(gaps) and max(gaps) < 0.16  # one frame per tick at most, none skipped for long
+    # after a pause (nobody watching), the first tick gives a frame and the grid starts from it
+    assert pacer.due(100.0) and not pacer.due(100.05) and pacer.due(100.1)
