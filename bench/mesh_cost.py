@@ -121,8 +121,8 @@ def in_process(drones: int, sim_s: float = 20.0) -> dict[str, float]:
             geo = geo_from_ned((float(i // side), float(i % side), -3.0), DEFAULT_HOME)
             world.write(i, 0.0, (geo.lat_deg, geo.lon_deg, geo.alt_amsl_m), (0.0, 0.0, 0.0), 0.35, False,
                         rest_alt_amsl_m=DEFAULT_HOME.alt_amsl_m)  # fmt: skip
-        radios = [MeshRadio(MeshMedium(world, i), MeshSettings(range_m=1e6), None, seed=i, instance=i,
-                            quantum_steps=1) for i in range(drones)]  # fmt: skip
+        radios = [MeshRadio(MeshMedium(world, i), MeshSettings(range_m=1e6), None, seed=i, quantum_steps=1)
+                  for i in range(drones)]  # fmt: skip
         encoders = [mavlink.MAVLink(None, srcSystem=i + 1, srcComponent=1) for i in range(drones)]
         mesh_table, relay_table = NeighbourTable(1), NeighbourTable(1)
         mesh_ns = relay_ns = 0

@@ -133,7 +133,8 @@ def fly_windows(args: argparse.Namespace, work: Path) -> list[dict[str, Any]]:
     mission = work / "view_cost.toml"
     mission.write_text(mission_text(args.drones, args.hold_s))
     cmd = [sys.executable, "-m", "gcs.cli", "fly", str(mission), "--lockstep", "--drones-per-process", "auto",
-           "--first-instance", str(args.first_instance), "--no-forward", "--view-port", "0"]  # fmt: skip
+           "--first-instance", str(args.first_instance), "--no-forward", "--view-port", "0",
+           "--report", str(work / "report")]  # fmt: skip
     bounds = [WINDOW_FROM_S + k * args.window_s for k in range(int((args.hold_s - 4.0) // args.window_s) + 1)]
     watcher: Watcher | None = None
     url = None

@@ -949,7 +949,7 @@ def _configure(parser: argparse.ArgumentParser) -> None:
         metavar="I",
         help=f"instance of the first drone (sysid = instance+1; default {DEFAULT_FIRST_INSTANCE})",
     )
-    parser.add_argument("--seed", type=int, default=0, help="base random seed (drone i uses seed+i)")
+    parser.add_argument("--seed", type=int, default=0, help="base random seed (the k-th drone, from 0, uses seed+k)")
     parser.add_argument(
         "--drones-per-process",
         type=_modes_arg,

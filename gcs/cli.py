@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import os
 import re
 import signal
 import sys
@@ -27,13 +28,15 @@ from gcs.geodesy import DEFAULT_ORIGIN, GeoPoint
 from gcs.harness import LAYOUTS, Simulation, SpawnError, SpawnPlan, parse_drones_per_process
 from gcs.links import LINK_OPTIONS, NEIGHBOUR_MODES, LinkPlan, NeighbourPlan, parse_link_value, parse_mesh_value
 from gcs.losses import LOSS_POLICIES, LossPolicy
-from gcs.mission_file import MissionFileError, build_flock, build_follow, flown_onboard, load_mission
+from gcs.mission_file import MissionFileError, MissionSpec, build_flock, build_follow, flown_onboard, load_mission
 from gcs.mission_runner import MissionRunner
 from gcs.onboard import absolute_spec
 from gcs.plan_cli import add_plan_parser, run_plan
 from gcs.signing import SigningKeyError, load_key
 from gcs.station import Station, format_status
 from gcs.swarm import Swarm, SwarmError
+from gcs.sweep.cli import add_sweep_parser, run_sweep_command
+from gcs.sweep.plan import SweepError
 from gcs.transport import parse_host_port
 from gcs.view.feed import ViewFeed
 from gcs.view.server import DEFAULT_PORT as DEFAULT_VIEW_PORT
@@ -336,7 +339,7 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--first-instance", type=int, default=0, help="instance of the first drone (sysid = instance+1)")
     up.add_argument("--origin", type=_origin, default=DEFAULT_ORIGIN, help="swarm origin LAT,LON,ALT_AMSL")
     up.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
-    up.add_argument("--seed", type=int, default=0, help="base random seed (drone i uses seed+i)")
+    up.add_argument("--seed", type=int, default=0, help="base random seed (the k-th drone, from 0, uses seed+k)")
     up.add_argument("--logs", type=Path, default=None, help="directory for each drone's log (default: none)")
     up.add_argument(
         "--report",
@@ -367,11 +370,15 @@ def build_parser() -> argparse.ArgumentParser:
     fly.add_argument("--first-instance", type=int, default=0, help="instance of the first drone")
     fly.add_argument("--origin", type=_origin, default=DEFAULT_ORIGIN, help="swarm origin LAT,LON,ALT_AMSL")
     fly.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
-    fly.add_argument("--seed", type=int, default=0, help="base random seed (drone i uses seed+i)")
+    fly.add_argument("--seed", type=int, default=0, help="base random seed (the k-th drone, from 0, uses seed+k)")
+    fly.add_argument("--param", action="append", default=[], type=_param_setting, metavar="NAME=VALUE",
+                     help="set a drone parameter on every drone before arming, over the mission's [swarm] params "
+                     "(repeatable; docs/parameters.md)")  # fmt: skip
     _add_forward_options(fly)
     _add_signing_option(fly)
     _add_view_options(fly)
     add_bench_parser(sub)
+    add_sweep_parser(sub)
     sub.add_parser("status", help="table of every drone")
     takeoff = sub.add_parser("takeoff", help="arm and take off every drone")
     takeoff.add_argument("--alt", type=_positive, default=3.0, help="altitude above home in metres (default 3)")
@@ -502,7 +509,7 @@ def run_up(args: argparse.Namespace, simulation: Simulation) -> int:
                   relay=neighbours.relay)  # fmt: skip
     station = Station(swarm, _say, LossPolicy(args.loss_policy), report_dir=args.report, contact_distance_m=contact)
     if view is not None:
-        station.view = ViewFeed(view, station.streamer)
+        station.view = ViewFeed(view, station.streamer, live=station.recorder.live if station.recorder else None)
     server: ControlServer | None = None
     try:
         swarm.up()
@@ -546,6 +553,35 @@ def _loop(swarm: Swarm, station: Station, server: ControlServer, stop: _Stop) ->
         station.watch(swarm.clock())
 
 
+def _param_setting(text: str) -> tuple[str, float]:
+    """``NAME=VALUE`` for ``--param``."""
+    name, equals, value = text.partition("=")
+    try:
+        number = float(value)
+    except ValueError:
+        number = math.nan
+    if not equals or not name or not math.isfinite(number):
+        raise argparse.ArgumentTypeError(f"{text!r} is not NAME=VALUE with a number, e.g. AVOID_MIN_DIST=1.5")
+    return name.strip(), number
+
+
+def _checked_params(mission: MissionSpec, given: list[tuple[str, float]], simulation: Simulation,
+                    behaviour: str | None) -> tuple[tuple[str, int | float], ...]:  # fmt: skip
+    """The mission's [swarm] params with ``--param`` over them, each checked against the drones' own table (one
+    line before anything starts, instead of a PARAM_SET nobody answers). With an onboard behaviour, names the
+    drones' table does not know may be the behaviour's: they go through."""
+    merged: dict[str, int | float] = dict(mission.swarm.params)
+    merged.update(given)
+    for name, value in merged.items():
+        try:  # typed as the drone's parameter: AVOID_MIN_DIST = 1 goes out as REAL32 1.0, not INT32 1
+            merged[name] = simulation.parameter_value(name, float(value))
+        except ValueError as exc:
+            if behaviour is None or "is not a parameter" not in str(exc):
+                where = "--param" if any(n == name for n, _ in given) else f"{mission.path}: swarm.params"
+                raise UsageError(f"{where}: {exc}") from None
+    return tuple(merged.items())
+
+
 def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
     mission = load_mission(args.mission, max_obstacles=simulation.max_obstacles)
     if args.onboard:
@@ -557,6 +593,7 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
     if args.first_instance < 0 or args.first_instance + mission.swarm.drones > 255:
         raise UsageError("--first-instance must leave room for every sysid (instance + 1 <= 255)")
     links = _link_plan(args, mission.swarm.links)
+    params = _checked_params(mission, args.param, simulation, behaviour=args.behaviour or mission.swarm.behaviour)
     neighbours = _neighbour_plan(args, NeighbourPlan(relay=mission.swarm.relay, mesh=mission.swarm.mesh))
     behaviour = _behaviour(args.behaviour, simulation) if args.behaviour is not None else mission.swarm.behaviour
     if behaviour is not None and args.behaviour is None:
@@ -566,7 +603,9 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
             raise UsageError(f"{args.mission}: swarm.behaviour: {exc}") from None
     mission = dataclasses.replace(
         mission,
-        swarm=dataclasses.replace(mission.swarm, relay=neighbours.relay, mesh=neighbours.mesh, behaviour=behaviour),
+        swarm=dataclasses.replace(
+            mission.swarm, relay=neighbours.relay, mesh=neighbours.mesh, behaviour=behaviour, params=params
+        ),
     )
     report = args.report or Path("reports") / f"{mission.name}-{time.strftime('%Y%m%d-%H%M%S')}"
     runner = MissionRunner(mission, simulation, speed_factor=_speed(args), origin=args.origin,
@@ -700,8 +739,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return run_bench(args, SITL)
         if args.command == "plan":
             return run_plan(args)
+        if args.command == "sweep":
+            return run_sweep_command(args, SITL, len(os.sched_getaffinity(0)))
         return run_client(args)
-    except (UsageError, MissionFileError) as exc:
+    except (UsageError, MissionFileError, SweepError) as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except ControlError as exc:

@@ -79,5 +79,8 @@ class SitlSimulation:
     def drones_per_host(self, n_drones: int, drones_per_process: int | Literal["auto"]) -> list[int]:
         return sim.drones_per_host(n_drones, drones_per_process)
 
+    def parameter_value(self, name: str, value: float) -> int | float:
+        return sim.parameter_value(name, value)
+
 
 SITL = SitlSimulation()

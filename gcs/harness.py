@@ -222,3 +222,9 @@ class Simulation(Protocol):
     def drones_per_host(self, n_drones: int, drones_per_process: int | Literal["auto"]) -> list[int]:
         """How many drones each process would run for a swarm of ``n_drones`` with this setting, in spawn order."""
         ...
+
+    def parameter_value(self, name: str, value: float) -> int | float:
+        """``value`` as every drone takes parameter ``name``: an int for an integer parameter (sent as INT32), a
+        float otherwise; ValueError with one line when it is no parameter of theirs, out of range or not of its
+        type. Onboard behaviours' parameters are not in this table."""
+        ...

@@ -142,14 +142,14 @@ class Drone:
         # The link model: only a drone whose links are impaired looks at delay queues after its steps.
         self._impaired = self.endpoint is not None and not common.links.is_perfect
         if self.endpoint is not None and self._impaired:
-            self.endpoint.impair(drone_channels(common.links, seed=spec.seed, instance=spec.instance))
+            self.endpoint.impair(drone_channels(common.links, seed=spec.seed))
             self.say(f"links: {common.links.describe()}")
         # The drone-to-drone mesh: a radio on the shared world's medium (sitl/mesh.py), heard after every step.
         self.mesh: MeshRadio | None = None
         if common.mesh is not None and world is not None and self.endpoint is not None:
             self.mesh = MeshRadio(
                 MeshMedium(world, spec.instance), common.mesh, common.links.neighbour, seed=spec.seed,
-                instance=spec.instance, quantum_steps=common.lockstep_quantum if common.lockstep else None,
+                quantum_steps=common.lockstep_quantum if common.lockstep else None,
             )  # fmt: skip
             self.endpoint.attach_mesh(self.mesh)
             self.say(f"mesh radio: {common.mesh.describe()}")

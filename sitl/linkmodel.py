@@ -45,6 +45,8 @@ T = TypeVar("T")
 # and only guards the loop.
 _MAX_JITTER_DRAWS = 64
 
+CHANNEL_SEED_TAG = 0x4C494E4B  # "LINK": keeps the link channels' entropy apart from SeedSequence(seed) itself
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class LinkImpairment:
@@ -307,14 +309,15 @@ class LinkProfile:
         return "; ".join(f"{c} {self.of(c).describe()}" for c in LINK_CLASSES)
 
 
-def channel_seed(seed: int, instance: int, link_class: LinkClass, direction: Direction) -> np.random.SeedSequence:
-    """The seed of one channel of one drone: its own entropy from (seed, instance, class, direction), so a run is
+def channel_seed(seed: int, link_class: LinkClass, direction: Direction) -> np.random.SeedSequence:
+    """The seed of one channel of one drone: its own entropy from (the drone's seed, class, direction), so a run is
     reproducible from the seed, the channels draw independently of each other and of the drone's other generators
-    (sensors, wind: ``SeedSequence(seed)`` and its children), and adding a drone leaves the others' draws alone."""
-    return np.random.SeedSequence([seed, instance, LINK_CLASSES.index(link_class), DIRECTIONS.index(direction)])
+    (sensors, wind: ``SeedSequence(seed)`` and its children), and adding a drone leaves the others' draws alone.
+    Not from the drone's instance: which instances a swarm runs on (its UDP ports) changes nothing it does."""
+    return np.random.SeedSequence([seed, CHANNEL_SEED_TAG, LINK_CLASSES.index(link_class), DIRECTIONS.index(direction)])
 
 
-def drone_channels(profile: LinkProfile, *, seed: int, instance: int) -> dict[tuple[LinkClass, Direction], LinkChannel]:
+def drone_channels(profile: LinkProfile, *, seed: int) -> dict[tuple[LinkClass, Direction], LinkChannel]:
     """The channels of one drone, by (class, direction), for the classes that are impaired; a class absent from the
     result is perfect and its frames bypass the model."""
     out: dict[tuple[LinkClass, Direction], LinkChannel] = {}
@@ -323,7 +326,7 @@ def drone_channels(profile: LinkProfile, *, seed: int, instance: int) -> dict[tu
         if impairment.is_perfect:
             continue
         for direction in DIRECTIONS:
-            rng = np.random.default_rng(channel_seed(seed, instance, link_class, direction))
+            rng = np.random.default_rng(channel_seed(seed, link_class, direction))
             out[(link_class, direction)] = LinkChannel(impairment, rng)
     return out
 

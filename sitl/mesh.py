@@ -26,7 +26,7 @@ not before. Running step k + Q, the receiver knows every member has completed st
 than Q steps ahead of the slowest), and a member posts at a step before publishing it as completed, so every post a
 receiver takes is already written whatever the machine's load, and a post it does not take yet is one it would not
 take in any run. Posts are taken in a fixed order (time, then sender), and each receiver draws from generators
-seeded from (seed, instance, the neighbour class, the mesh), so two runs hear the same frames at the same steps.
+seeded from (the drone's seed, the neighbour class, the mesh), so two runs hear the same frames at the same steps.
 Latency is counted from the post: a frame due before the step it is taken at is heard at that step. Paced, a
 receiver takes whatever has been posted up to now, and the sender's time is its own clock, so the receiver counts
 the delay from its own time of taking the post.
@@ -42,7 +42,15 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from sitl.linkmodel import DIRECTIONS, LINK_CLASSES, DelayLine, LinkChannel, LinkCounters, LinkImpairment
+from sitl.linkmodel import (
+    CHANNEL_SEED_TAG,
+    DIRECTIONS,
+    LINK_CLASSES,
+    DelayLine,
+    LinkChannel,
+    LinkCounters,
+    LinkImpairment,
+)
 from sitl.world import (
     ALT,
     EARTH_RADIUS_M,
@@ -111,9 +119,9 @@ class MeshSettings:
         return f"range {self.range_m:g} m, path loss (d/range)^{self.exponent:g}"
 
 
-def mesh_seed(seed: int, instance: int) -> np.random.SeedSequence:
+def mesh_seed(seed: int) -> np.random.SeedSequence:
     """The seed of one drone's mesh reception (the neighbour class, after its up and down channels)."""
-    return np.random.SeedSequence([seed, instance, _NEIGHBOUR_INDEX, MESH_SEED_INDEX])
+    return np.random.SeedSequence([seed, CHANNEL_SEED_TAG, _NEIGHBOUR_INDEX, MESH_SEED_INDEX])
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -218,11 +226,11 @@ class MeshRadio:
     None when paced. ``impairment``: the neighbour class's link model settings (None or perfect: no model)."""
 
     def __init__(self, medium: MeshMedium, settings: MeshSettings, impairment: LinkImpairment | None, *, seed: int,
-                 instance: int, quantum_steps: int | None) -> None:  # fmt: skip
+                 quantum_steps: int | None) -> None:  # fmt: skip
         self.medium = medium
         self.settings = settings
         self.quantum_steps = quantum_steps
-        channel_rng, path_rng = np.random.default_rng(mesh_seed(seed, instance)).spawn(2)
+        channel_rng, path_rng = np.random.default_rng(mesh_seed(seed)).spawn(2)
         self.channel = (
             LinkChannel(impairment, channel_rng) if impairment is not None and not impairment.is_perfect else None
         )

@@ -140,7 +140,7 @@ def sitl_args(plan: LaunchPlan, instance: int, home: GeoPoint, gcs_port: int, wo
     """The ``sitl`` command-line arguments of one drone of the plan, alone in its process."""
     cmd = [
         "--instance", str(instance),
-        "--seed", str(plan.seed + instance),
+        "--seed", str(plan.seed + instance - plan.first_instance),
         "--home", _home_arg(home),
     ]  # fmt: skip
     if plan.camera_dir is not None and instance - plan.first_instance + 1 in plan.camera_drones:
@@ -156,7 +156,7 @@ def host_args(
     drone-<instance>.log in the plan's log directory, as when it runs alone."""
     contiguous = instances == list(range(instances[0], instances[-1] + 1))
     selection = f"{instances[0]}-{instances[-1]}" if contiguous else ",".join(map(str, instances))
-    cmd = ["--instances", selection, "--seed", str(plan.seed + instances[0])]
+    cmd = ["--instances", selection, "--seed", str(plan.seed + instances[0] - plan.first_instance)]
     for home in homes:
         cmd += ["--home", _home_arg(home)]
     if plan.log_dir is not None:

@@ -24,6 +24,7 @@ __all__ = [
     "bare_plant_cpu_ms_per_sim_s",
     "contact_distance_m",
     "drones_per_host",
+    "parameter_value",
 ]
 
 MAX_INSTANCES = MAX_DRONES  # instances 0..MAX_INSTANCES-1 (one shared-world row each)
@@ -44,6 +45,22 @@ def check_behaviour(spec: str) -> None:
     from sitl.onboard.loader import load_behaviour  # imports the simulation: only when a behaviour is asked for
 
     load_behaviour(spec)
+
+
+def parameter_value(name: str, value: float) -> int | float:
+    """``value`` as a drone takes parameter ``name`` (an int for an integer parameter, which goes out as INT32, a
+    float for a REAL32 one); ValueError (one line) unless a PARAM_SET of it would be accepted."""
+    from sitl.params import ParamError, ParamType
+    from sitl.simulation import build_param_store
+
+    store = build_param_store()
+    if name not in store:
+        raise ValueError(f"{name} is not a parameter of the simulated drones (docs/parameters.md lists them)")
+    try:
+        store.set(name, value)
+    except ParamError as exc:
+        raise ValueError(str(exc)) from None
+    return int(value) if store.definition(name).type is ParamType.INT else float(value)
 
 
 def drones_per_host(n_drones: int, drones_per_process: int | Literal["auto"]) -> list[int]:

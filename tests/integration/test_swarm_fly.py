@@ -63,6 +63,29 @@ def test_a_mission_file_mistake_is_one_line_with_field_and_line(tmp_path: Path) 
     assert f"{bad}:" in lines[0] and "steps[2].radius_m: must be a positive number" in lines[0]
 
 
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize(
+    ("args", "line"),
+    [
+        (["--param", "NOT_A_PARAM=1"], "--param: NOT_A_PARAM is not a parameter of the simulated drones"),
+        (["--param", "AVOID_ENABLE=0.5"], "--param: AVOID_ENABLE: integer parameter cannot take 0.5"),
+        (["--param", "AVOID_MIN_DIST"], "is not NAME=VALUE"),
+    ],
+)
+def test_a_bad_drone_parameter_is_one_line_before_anything_flies(tmp_path: Path, args: list[str], line: str) -> None:
+    """On the command line or in the mission's [swarm] params: checked against the drones' own table at once,
+    instead of a PARAM_SET nobody answers once the swarm is up."""
+    result = subprocess.run([*SWARM, "fly", str(MISSIONS / "square_four.toml"), "--no-view", *args],
+                            capture_output=True, text=True, timeout=30)  # fmt: skip
+    assert result.returncode == 2 and result.stderr.count("\n") == 1 and line in result.stderr, result.stderr
+    mission = tmp_path / "typo.toml"
+    mission.write_text(
+        (MISSIONS / "square_four.toml").read_text().replace("[swarm]\n", "[swarm]\nparams = { AVOID_MIN_DIS = 2 }\n")
+    )
+    result = subprocess.run([*SWARM, "fly", str(mission), "--no-view"], capture_output=True, text=True, timeout=30)
+    assert result.returncode == 2 and f"{mission}: swarm.params: AVOID_MIN_DIS is not a parameter" in result.stderr
+
+
 @pytest.mark.timeout(180)
 def test_drones_commanded_into_each_other_collide_crash_and_are_counted_once(tmp_path: Path) -> None:
     # GIVEN two drones without onboard avoidance told to fly a line with 0.3 m spacing: closer than two collision

@@ -220,34 +220,33 @@ def test_an_offered_rate_over_the_cap_is_cut_to_the_cap() -> None:
 IMPAIRED = LinkImpairment(loss=0.1, burst_good_s=2, burst_bad_s=0.5, latency_ms=30, jitter_ms=10)
 
 
-def decisions(profile: LinkProfile, seed: int, instance: int) -> dict[tuple[str, str], list[float | None]]:
-    channels = drone_channels(profile, seed=seed, instance=instance)
+def decisions(profile: LinkProfile, seed: int) -> dict[tuple[str, str], list[float | None]]:
+    channels = drone_channels(profile, seed=seed)
     return {key: send_every(chan, 0.02, 2000) for key, chan in channels.items()}
 
 
-def test_the_same_seed_gives_the_same_decisions_and_another_instance_or_seed_others() -> None:
+def test_the_same_seed_gives_the_same_decisions_and_another_seed_others() -> None:
     profile = LinkProfile(gcs=IMPAIRED, api=IMPAIRED, neighbour=IMPAIRED)
-    first = decisions(profile, seed=5, instance=3)
-    assert first == decisions(profile, seed=5, instance=3)
-    assert first != decisions(profile, seed=5, instance=4)
-    assert first != decisions(profile, seed=6, instance=3)
+    first = decisions(profile, seed=5)
+    assert first == decisions(profile, seed=5)
+    assert first != decisions(profile, seed=6)
     # every class and direction draws its own: no two channels decide alike
     fates = [tuple(v) for v in first.values()]
     assert len(fates) == len(LINK_CLASSES) * len(DIRECTIONS) == len(set(fates))
 
 
 def test_a_drone_s_draws_do_not_depend_on_the_other_drones_or_classes() -> None:
-    # Channels are seeded from (seed, instance, class, direction) alone: a drone added to the swarm, or another
+    # Channels are seeded from (the drone's seed, class, direction) alone: a drone added to the swarm, or another
     # class impaired, leaves a channel's decisions unchanged.
-    alone = decisions(LinkProfile(neighbour=IMPAIRED), seed=0, instance=7)
-    with_others = decisions(LinkProfile(gcs=IMPAIRED, neighbour=IMPAIRED), seed=0, instance=7)
+    alone = decisions(LinkProfile(neighbour=IMPAIRED), seed=7)
+    with_others = decisions(LinkProfile(gcs=IMPAIRED, neighbour=IMPAIRED), seed=7)
     assert alone[("neighbour", "up")] == with_others[("neighbour", "up")]
-    seeds = {str(channel_seed(0, i, c, d).entropy) for i in range(3) for c in LINK_CLASSES for d in DIRECTIONS}
+    seeds = {str(channel_seed(s, c, d).entropy) for s in range(3) for c in LINK_CLASSES for d in DIRECTIONS}
     assert len(seeds) == 3 * len(LINK_CLASSES) * len(DIRECTIONS)
 
 
 def test_a_drone_s_counters_come_by_class_and_direction() -> None:
-    channels = drone_channels(LinkProfile(gcs=LinkImpairment(loss=0.5)), seed=1, instance=2)
+    channels = drone_channels(LinkProfile(gcs=LinkImpairment(loss=0.5)), seed=1)
     channels[("gcs", "up")].transmit(0.0, 10)
     snapshot = counters_by_class(channels)
     assert set(snapshot) == {("gcs", "up"), ("gcs", "down")}
@@ -255,8 +254,8 @@ def test_a_drone_s_counters_come_by_class_and_direction() -> None:
 
 
 def test_only_impaired_classes_get_channels() -> None:
-    assert drone_channels(LinkProfile(), seed=0, instance=0) == {}
-    assert set(drone_channels(LinkProfile(api=IMPAIRED), seed=0, instance=0)) == {("api", "up"), ("api", "down")}
+    assert drone_channels(LinkProfile(), seed=0) == {}
+    assert set(drone_channels(LinkProfile(api=IMPAIRED), seed=0)) == {("api", "up"), ("api", "down")}
 
 
 def test_counters_merge_into_totals() -> None:

@@ -126,9 +126,10 @@ def test_a_frame_larger_than_a_slot_is_not_posted(world: SharedWorld) -> None:
 
 
 def radio(world: SharedWorld, instance: int, *, range_m: float = 15.0, quantum: int | None = 1,
-          impairment: LinkImpairment | None = None, seed: int = 7) -> MeshRadio:  # fmt: skip
-    return MeshRadio(MeshMedium(world, instance), MeshSettings(range_m=range_m), impairment, seed=seed,
-                     instance=instance, quantum_steps=quantum)  # fmt: skip
+          impairment: LinkImpairment | None = None, seed: int | None = None) -> MeshRadio:  # fmt: skip
+    """Drone ``instance``'s radio; its seed is 7 + instance unless given (a swarm's drones have seeds of their own)."""
+    return MeshRadio(MeshMedium(world, instance), MeshSettings(range_m=range_m), impairment,
+                     seed=7 + instance if seed is None else seed, quantum_steps=quantum)  # fmt: skip
 
 
 def run(radios: list[MeshRadio], steps: int, dt_s: float = 0.004) -> dict[int, list[tuple[int, bytes]]]:

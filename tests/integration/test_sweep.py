@@ -1,0 +1,257 @@
+"""``swarm sweep`` end to end: real runs side by side, two sweeps at once, a run flown again on other instances, the
+same runs on a local Ray head, a sweep killed halfway and resumed, and bad input.
+
+Policy: loopback only (Ray too: RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0 keeps a single-machine Ray on 127.0.0.1); a
+mission of two drones; the sweeps' instance locks in a folder of their own (TMPDIR), the runs on instances 20 up;
+every process started here is stopped by PID (a sweep and the Ray head by their process groups); time limits.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+pytestmark = [pytest.mark.sim_only]
+
+SWARM = [sys.executable, "-m", "gcs.cli"]
+MISSION = """\
+name = "sweep_swap"
+[swarm]
+drones = 2
+layout = "line"
+spacing_m = 4.0
+
+[[steps]]
+action = "takeoff"
+alt_m = 2.5
+
+[[steps]]
+action = "formation"
+shape = "line"
+spacing_m = 4.0
+alt_m = 2.5
+hold_s = 1.0
+
+[[steps]]
+action = "swap"
+speed_mps = 2.0
+timeout_s = 20.0
+
+[[steps]]
+action = "land"
+"""
+SETTINGS = ["--param", "AVOID_MIN_DIST=1.0,1.5"]
+
+
+@pytest.fixture(scope="module")
+def lock_dir() -> Iterator[dict[str, str]]:
+    """The sweeps' environment: their instance locks in a temporary folder of their own."""
+    with tempfile.TemporaryDirectory(prefix="sweep-tmp-") as tmp:
+        yield {**os.environ, "TMPDIR": tmp, "RAY_USAGE_STATS_ENABLED": "0", "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0"}
+
+
+@pytest.fixture(scope="module")
+def mission(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("mission") / "sweep_swap.toml"
+    path.write_text(MISSION)
+    return path
+
+
+def sweep(mission: Path, out: Path, env: dict[str, str], *args: str) -> subprocess.Popen[str]:
+    return subprocess.Popen([*SWARM, "sweep", str(mission), "--out", str(out), *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env, start_new_session=True)  # fmt: skip
+
+
+def finish(proc: subprocess.Popen[str], timeout_s: float) -> tuple[int, str, str]:
+    try:
+        out, err = proc.communicate(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGTERM)
+        out, err = proc.communicate(timeout=60)
+        pytest.fail(f"sweep did not finish within {timeout_s:g} s: {out[-2000:]} {err[-2000:]}")
+    return proc.returncode, out, err
+
+
+def run_files(out: Path) -> dict[str, dict[str, Any]]:
+    """Every complete run's run.json, by run name."""
+    return {data["name"]: data for data in (json.loads(p.read_text()) for p in sorted(out.glob("runs/*/*/run.json")))}
+
+
+@pytest.fixture(scope="module")
+def two_sweeps_at_once(mission: Path, lock_dir: dict[str, str],
+                       tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:  # fmt: skip
+    """Sweep A (2 settings x 2 seeds, two runs at a time) and sweep B (2 seeds) started together on this machine."""
+    base = tmp_path_factory.mktemp("sweeps")
+    a = sweep(mission, base / "a", lock_dir, "--seeds", "1-2", *SETTINGS, "--jobs", "2")
+    b = sweep(mission, base / "b", lock_dir, "--seeds", "7-8", "--jobs", "2")
+    return {"a": (base / "a", *finish(a, 400)), "b": (base / "b", *finish(b, 400))}
+
+
+@pytest.mark.timeout(600)
+def test_two_sweeps_at_once_both_complete_with_every_report_and_a_summary(two_sweeps_at_once: dict[str, Any]) -> None:
+    out, code, stdout, stderr = two_sweeps_at_once["a"]
+    assert code == 0, stdout[-3000:] + stderr[-3000:]
+    runs = run_files(out)
+    assert sorted(runs) == sorted(f"AVOID_MIN_DIST={v}/seed-000{s}" for v in ("1", "1.5") for s in (1, 2))
+    assert all(r["ok"] for r in runs.values())
+    for name in runs:
+        assert (out / "runs" / name / "report" / "report.html").exists()
+    summary = json.loads((out / "summary.json").read_text())
+    assert {k: v["runs"] for k, v in summary["settings"].items()} == {"AVOID_MIN_DIST=1": 2, "AVOID_MIN_DIST=1.5": 2}
+    assert summary["worst_runs"] and summary["slowest_runs"]
+    assert len((out / "runs.csv").read_text().splitlines()) == 5
+    assert (out / "plots" / "min_separation_m.png").exists()
+    assert "AVOID_MIN_DIST=1.5" in stdout and "worst runs" in stdout
+    # AND sweep B, flown at the same time, completed too, and no two runs that flew at once shared instances
+    out_b, code_b, stdout_b, stderr_b = two_sweeps_at_once["b"]
+    assert code_b == 0, stdout_b[-3000:] + stderr_b[-3000:]
+    assert sorted(run_files(out_b)) == ["default/seed-0007", "default/seed-0008"]
+    firsts = [int(r["command"][r["command"].index("--first-instance") + 1])
+              for o in (out, out_b) for r in run_files(o).values()]  # fmt: skip
+    assert len(set(firsts)) >= 3, firsts  # four runs side by side (two per sweep) need four blocks at most
+
+
+@pytest.mark.timeout(600)
+def test_a_run_gives_the_same_metrics_on_other_instances(two_sweeps_at_once: dict[str, Any], mission: Path,
+                                                         lock_dir: dict[str, str], tmp_path: Path) -> None:  # fmt: skip
+    """Reproducible from its seed and setting alone: one run of sweep A flown again, alone, on other instances."""
+    out = two_sweeps_at_once["a"][0]
+    first = run_files(out)["AVOID_MIN_DIST=1.5/seed-0002"]
+    command = list(first["command"][1:])
+    command[command.index("--first-instance") + 1] = "230"
+    command[command.index("--report") + 1] = str(tmp_path / "again")
+    result = subprocess.run([*SWARM, *command], capture_output=True, text=True, env=lock_dir, timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+    again = json.loads((tmp_path / "again" / "metrics.json").read_text())
+    original = json.loads((out / "runs" / "AVOID_MIN_DIST=1.5" / "seed-0002" / "report" / "metrics.json").read_text())
+    assert again["sysids"] == [231, 232] and again["sysids"] != original["sysids"]
+    assert by_drone_index(again) == by_drone_index(original)  # every figure, each drone named by its place
+
+
+def by_drone_index(metrics: dict[str, Any]) -> Any:
+    """metrics.json with each sysid replaced by the drone's place in the swarm (0, 1, ...)."""
+    place = {sysid: k for k, sysid in enumerate(metrics["sysids"])}
+
+    def walk(value: Any, key: str = "") -> Any:
+        if isinstance(value, dict):
+            renamed = {k: str(place[int(k)]) if k.isdigit() and int(k) in place else k for k in value}
+            return {renamed[k]: walk(v, k) for k, v in value.items()}
+        if isinstance(value, list):
+            return [walk(v, key) for v in value]
+        if key in ("sysids", "min_separation_pair", "sysid") and isinstance(value, int):
+            return place.get(value, value)
+        return value
+
+    return walk(metrics)
+
+
+@pytest.fixture
+def ray_head(lock_dir: dict[str, str]) -> Iterator[str]:
+    """A local Ray head on loopback with two CPUs, stopped (its whole process group) at the end."""
+    pytest.importorskip("ray")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    temp = tempfile.mkdtemp(prefix="ray-", dir="/tmp")  # Ray's socket paths must stay short
+    ray = Path(sys.executable).with_name("ray")
+    head = subprocess.Popen([str(ray), "start", "--head", "--port", str(port), "--num-cpus", "2",
+                             "--include-dashboard", "false", "--disable-usage-stats", "--temp-dir", temp, "--block"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=lock_dir,
+                            start_new_session=True)  # fmt: skip
+    try:
+        yield f"127.0.0.1:{port}"
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(head.pid, signal.SIGTERM)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            head.wait(5)  # its servers take their time over SIGTERM: what is left after 5 s is killed
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(head.pid, signal.SIGKILL)
+        head.wait(10)
+        subprocess.run(["rm", "-rf", temp], check=False)
+
+
+@pytest.mark.timeout(600)
+def test_the_same_sweep_on_a_local_ray_head_gives_the_same_runs_and_summary(
+    two_sweeps_at_once: dict[str, Any], mission: Path, lock_dir: dict[str, str], ray_head: str, tmp_path: Path
+) -> None:
+    local = two_sweeps_at_once["a"][0]
+    proc = sweep(mission, tmp_path / "ray", lock_dir, "--seeds", "1-2", *SETTINGS, "--ray", ray_head)
+    code, stdout, stderr = finish(proc, 500)
+    assert code == 0, stdout[-3000:] + stderr[-3000:]
+    assert "Ray cluster at" in stdout
+    on_ray, here = run_files(tmp_path / "ray"), run_files(local)
+    assert sorted(on_ray) == sorted(here)
+    assert {n: r["metrics"] for n, r in on_ray.items()} == {n: r["metrics"] for n, r in here.items()}
+    for name in on_ray:
+        assert (tmp_path / "ray" / "runs" / name / "report" / "report.html").exists()
+    summary_ray = json.loads((tmp_path / "ray" / "summary.json").read_text())
+    summary_here = json.loads((local / "summary.json").read_text())
+    assert summary_ray["settings"] == summary_here["settings"]
+
+
+@pytest.mark.timeout(600)
+def test_a_sweep_killed_halfway_finishes_only_the_missing_runs_when_run_again(
+    mission: Path, lock_dir: dict[str, str], tmp_path: Path
+) -> None:
+    out = tmp_path / "sweep"
+    proc = sweep(mission, out, lock_dir, "--seeds", "1-3", "--jobs", "1")
+    deadline = time.monotonic() + 300
+    while len(run_files(out)) < 1 and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.2)
+    assert len(run_files(out)) == 1, proc.communicate(timeout=5)
+    os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C, as a terminal sends it to the whole group
+    code, _stdout, stderr = finish(proc, 120)
+    assert code == 130 and "interrupted" in stderr and "Traceback" not in stderr, stderr
+    done = run_files(out)
+    assert 1 <= len(done) < 3
+    before = {name: (out / "runs" / name / "run.json").stat().st_mtime_ns for name in done}
+    # WHEN run again with the same folder
+    code, stdout, stderr = finish(sweep(mission, out, lock_dir, "--seeds", "1-3", "--jobs", "1"), 400)
+    assert code == 0, stdout[-3000:] + stderr[-3000:]
+    assert f"{len(done)} complete already, {3 - len(done)} to fly" in stdout
+    assert sorted(run_files(out)) == ["default/seed-0001", "default/seed-0002", "default/seed-0003"]
+    assert {name: (out / "runs" / name / "run.json").stat().st_mtime_ns for name in done} == before
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize(
+    ("args", "line"),
+    [
+        (["--seeds", "1-2", "--param", "NOT_A_PARAM=1,2"], "NOT_A_PARAM is not a parameter of the simulated drones"),
+        (["--seeds", "1-2", "--param", "AVOID_MIN_DIST=0.1,1"], "AVOID_MIN_DIST: 0.1 outside"),
+        (["--seeds", "5-1"], "must be a range from low to high"),
+        (["--seeds", "1-2", "--link-loss", "0,1.5"], "every probability must be in [0, 1)"),
+        (["--seeds", "1-2", "--jobs", "0"], "--jobs must be at least 1"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_code_2(mission: Path, lock_dir: dict[str, str], tmp_path: Path,
+                                               args: list[str], line: str) -> None:  # fmt: skip
+    result = subprocess.run([*SWARM, "sweep", str(mission), "--out", str(tmp_path / "o"), *args],
+                            capture_output=True, text=True, env=lock_dir, timeout=60)  # fmt: skip
+    assert result.returncode == 2, result.stderr
+    assert result.stderr.count("\n") == 1 and line in result.stderr, result.stderr
+    assert not (tmp_path / "o").exists()  # nothing flown, nothing written
+
+
+@pytest.mark.timeout(120)
+def test_ray_missing_is_one_line_and_exit_code_2(mission: Path, lock_dir: dict[str, str], tmp_path: Path) -> None:
+    """As on a machine without the [cluster] extra: ``import ray`` fails."""
+    code = "import sys; sys.modules['ray'] = None; from gcs.cli import main; sys.exit(main(sys.argv[1:]))"
+    result = subprocess.run([sys.executable, "-c", code, "sweep", str(mission), "--seeds", "1", "--ray", "auto",
+                             "--out", str(tmp_path / "o")], capture_output=True, text=True, env=lock_dir,
+                            timeout=60)  # fmt: skip
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert "--ray needs Ray" in result.stderr and "pip install" in result.stderr
