@@ -49,8 +49,8 @@ def fly_on_node(plan_data: dict[str, Any], mission_text: bytes, index: int) -> t
         plan = _plan_from(plan_data, mission)
         run = plan.runs()[index]
         folder = Path(tmp) / "run"
-        with InstanceLocks(plan.n_drones).block() as first:
-            result = fly(plan, run, folder, first)
+        with InstanceLocks(plan.n_drones).block() as block:
+            result = fly(plan, run, folder, block.first, lock_fds=block.fds)
         packed = io.BytesIO()
         with tarfile.open(fileobj=packed, mode="w:gz") as tar:
             tar.add(folder, arcname=".")

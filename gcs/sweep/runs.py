@@ -41,6 +41,12 @@ RUN_TIMEOUT_S: Final = 3600.0
 POLL_S: Final = 0.5
 
 
+@dataclass(frozen=True, slots=True)
+class Block:
+    first: int  # the block's first instance
+    fds: tuple[int, ...]  # the open lock files: a process given them holds the locks too
+
+
 class InstanceLocks:
     """Blocks of consecutive instances, each held by one run at a time across every process on the machine."""
 
@@ -64,8 +70,9 @@ class InstanceLocks:
         return held
 
     @contextlib.contextmanager
-    def block(self, stop: threading.Event | None = None) -> Iterator[int]:
-        """The first instance of a free block, held until the ``with`` ends; waits while every block is taken."""
+    def block(self, stop: threading.Event | None = None) -> Iterator[Block]:
+        """A free block of instances, held until the ``with`` ends (and by any process its ``fds`` are passed to);
+        waits while every block is taken."""
         self.lock_dir.mkdir(parents=True, exist_ok=True)
         starts = range(FIRST_SWEEP_INSTANCE, MAX_INSTANCE - self.n + 2, self.n)
         if not starts:
@@ -84,7 +91,7 @@ class InstanceLocks:
             if stop is None:
                 time.sleep(POLL_S)
         try:
-            yield first
+            yield Block(first, tuple(h.fileno() for h in held))
         finally:
             for handle in held:
                 handle.close()
@@ -138,7 +145,12 @@ class Stopped(Exception):
 
 
 def fly(
-    plan: SweepPlan, run: Run, run_dir: Path, first_instance: int, stop: threading.Event | None = None
+    plan: SweepPlan,
+    run: Run,
+    run_dir: Path,
+    first_instance: int,
+    stop: threading.Event | None = None,
+    lock_fds: tuple[int, ...] = (),
 ) -> RunResult:
     """Fly ``run`` into ``run_dir`` (its report, fly.log, then run.json) on instances from ``first_instance``."""
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -146,8 +158,10 @@ def fly(
     args = fly_command(plan, run, first_instance=first_instance, report=run_dir / "report")
     started = time.monotonic()
     with (run_dir / LOG_FILE).open("w") as log:
-        proc = subprocess.Popen([sys.executable, "-m", "gcs.cli", *args], stdout=log, stderr=subprocess.STDOUT,
-                                stdin=subprocess.DEVNULL, start_new_session=True)  # fmt: skip
+        # The run holds its instances' locks itself (pass_fds), so they stay taken while it flies even if whoever
+        # started it is gone; and it ends with its parent (gcs/sweep/child.py).
+        proc = subprocess.Popen([sys.executable, "-m", "gcs.sweep.child", *args], stdout=log, stderr=subprocess.STDOUT,
+                                stdin=subprocess.DEVNULL, start_new_session=True, pass_fds=lock_fds)  # fmt: skip
         try:
             while True:
                 try:

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any, Final
 
 from gcs.sweep.plan import SweepPlan, setting_key
 from gcs.sweep.runs import RunResult
-from gcs.sweep.stats import EVENT_METRICS, metric_names, summarise
+from gcs.sweep.stats import metric_names, summarise
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -157,7 +157,7 @@ def _plots(plan: SweepPlan, per_setting: dict[str, dict[str, Any]], results: Seq
         others = "+".join(f"{a}={v:g}" for a, v in setting.items() if a != x_axis) or "all runs"
         runs = [r for r in results if r.ok and setting_key(r.setting) == key]
         groups.setdefault(others, []).append((setting.get(x_axis, 0.0) if x_axis else 0.0, figures, runs))
-    for name in [*EVENT_METRICS[:1], *names]:
+    for name in names:
         fig = Figure(figsize=(6.4, 4.0), dpi=110)
         ax: Axes = fig.add_subplot()
         for label, points in groups.items():

@@ -128,8 +128,8 @@ def local_flyer(plan: SweepPlan, out: Path, jobs: int) -> Flyer:
     locks = InstanceLocks(plan.n_drones)
 
     def one(run: Run, stop: threading.Event) -> RunResult:
-        with locks.block(stop) as first:
-            return fly(plan, run, run_dir(out, run), first, stop)
+        with locks.block(stop) as block:
+            return fly(plan, run, run_dir(out, run), block.first, stop, lock_fds=block.fds)
 
     def flyer(pending: list[Run], finished: Callable[[RunResult], None], stop: threading.Event) -> None:
         pool = concurrent.futures.ThreadPoolExecutor(max_workers=jobs, thread_name_prefix="sweep")

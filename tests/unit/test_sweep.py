@@ -122,13 +122,14 @@ def test_a_runs_figures_come_from_its_metrics_json(tmp_path: Path) -> None:
 def test_runs_side_by_side_get_disjoint_instances_and_free_them_when_done(tmp_path: Path) -> None:
     first, second = InstanceLocks(100, tmp_path), InstanceLocks(100, tmp_path)  # as two sweeps on one machine
     with first.block() as a, second.block() as b:
-        assert a == FIRST_SWEEP_INSTANCE and b == FIRST_SWEEP_INSTANCE + 100
+        assert a.first == FIRST_SWEEP_INSTANCE and b.first == FIRST_SWEEP_INSTANCE + 100
+        assert len(a.fds) == 100
         stop = threading.Event()
         stop.set()
         with pytest.raises(InterruptedError), InstanceLocks(100, tmp_path).block(stop):
             pass  # every block of 100 taken: a third waits (here: is stopped while waiting)
     with second.block() as again:
-        assert again == FIRST_SWEEP_INSTANCE  # freed
+        assert again.first == FIRST_SWEEP_INSTANCE  # freed
 
 
 # ---- the summary ---------------------------------------------------------------------------------------------
