@@ -423,8 +423,10 @@ class MissionRunner:
             self.streamer.stop()
             self.recording.losses = list(self.swarm.losses.values())
             self.recording.regained = list(self.swarm.regained)
-            self.swarm.shutdown()
+            # The link model's counts as the flight ends, published by the drones at steps the lockstep clock fixes;
+            # what reaches them while they are stopped depends on the machine's timing and is not the flight's.
             self.recording.link_counters = self.swarm.harness.link_counters()
+            self.swarm.shutdown()
             self.recorder.close()
         out = write_report(self.recording, self.report_dir)
         self.say((out / "summary.txt").read_text().rstrip())

@@ -558,12 +558,21 @@ class Swarm:
     ) -> list[Ack]:
         """One command to several drones at once, each with its own params (sysid -> params 1-7), each retried
         until answered; the answers in the order of ``params``. With ``frame``, as COMMAND_INT in that frame."""
-        targets = list(params)
-        for sysid in targets:
-            self.commands.cancel(sysid, command)  # superseded: one begun with ``command_start`` still waiting
-            effects = self.commands.start(sysid, command, params[sysid], self.clock(), frame=frame)
-            self._send_effects(effects, now=True)
-        return self._serve(self.commands, command, targets, now=True)
+        acks: dict[int, Ack] = {}
+        waiting = list(params)
+        for _round in range(NO_ANSWER_ROUNDS):
+            for sysid in waiting:
+                self.commands.cancel(sysid, command)  # superseded: one begun with ``command_start`` still waiting
+                effects = self.commands.start(sysid, command, params[sysid], self.clock(), frame=frame)
+                self._send_effects(effects, now=True)
+            acks.update((a.sysid, a) for a in self._serve(self.commands, command, waiting, now=True))
+            # A drone that never answered, on a lossy link, is asked again (commands are idempotent, as PX4's); one
+            # that is lost or gone is not
+            waiting = [a.sysid for a in acks.values() if a.result is None and a.sysid in self.active_sysids
+                       and not self.fleet.drones[a.sysid].lost(self.clock())]  # fmt: skip
+            if not waiting:
+                break
+        return [acks[sysid] for sysid in params]
 
     def command_start(self, sysid: int, command: int, *params: float) -> None:
         """Begin a COMMAND_LONG without waiting for its answer (the streamer's, from inside a tick); its outcome
@@ -641,6 +650,9 @@ class Swarm:
         self.link.send(sysid, msg)
 
 
+# Rounds of a command's retries (each MAVSDK's: the first try and 3 resends) for a drone that answers none: on a link
+# losing 20 % each way one round goes unanswered 1.7 % of the time, three rounds once in 200,000.
+NO_ANSWER_ROUNDS = 3
 CRASH_TEXT_AGE_S = 5.0  # a warning this recent says why a drone crashed; an older one is about something else
 
 

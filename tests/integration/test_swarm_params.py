@@ -1,7 +1,9 @@
 """``swarm fly`` mission parameters through the ground station's parameter client, against real drones.
 
-A value the drones refuse (out of its declared range: they echo the value they kept) and a name they do not know
-(no echo at all, as PX4) must each end the flight before arming with one line naming the parameter and the drones.
+A value out of the drones' declared range is refused before anything is spawned (the ground station checks every
+parameter against the drones' table first: one line, exit code 2). A name the drones do not know can only reach
+them when an onboard behaviour may declare it; then no drone echoes it (as PX4) and the flight ends before arming
+with one line naming the parameter and the drones.
 
 Policy: loopback only (--no-forward); lockstep, so the retries' timing does not depend on the machine's load;
 instances 250-253; a time limit on every test.
@@ -20,10 +22,12 @@ pytestmark = [pytest.mark.sim_only]
 SWARM = [sys.executable, "-m", "gcs.cli"]
 
 
-def fly_with_params(tmp_path: Path, params: str, first_instance: int) -> subprocess.CompletedProcess[str]:
+def fly_with_params(
+    tmp_path: Path, params: str, first_instance: int, behaviour: str = ""
+) -> subprocess.CompletedProcess[str]:
     mission = tmp_path / "params.toml"
     mission.write_text(
-        f'name = "params"\n[swarm]\ndrones = 2\nspacing_m = 3.0\nparams = {{ {params} }}\n'
+        f'name = "params"\n[swarm]\ndrones = 2\nspacing_m = 3.0\nparams = {{ {params} }}\n{behaviour}'
         '[[steps]]\naction = "takeoff"\nalt_m = 2.0\n[[steps]]\naction = "land"\n'
     )
     return subprocess.run(
@@ -38,17 +42,19 @@ def test_a_value_the_drones_refuse_ends_the_mission_naming_the_drones_and_the_va
     # GIVEN a mission that sets MPC_XY_CRUISE far above its range (the drones keep 5 m/s)
     # WHEN it is flown
     result = fly_with_params(tmp_path, "MPC_XY_CRUISE = 1000.0", 250)
-    # THEN it fails before arming, in one line naming both drones and the value kept
-    assert result.returncode == 1, result.stdout[-2000:] + result.stderr[-2000:]
-    assert "swarm: error: parameter MPC_XY_CRUISE = 1000 refused by sysid [251, 252] (kept 5)" in result.stderr
-    assert "step 1/2" not in result.stdout
+    # THEN it is refused before any drone is spawned, in one line naming the parameter and its range
+    assert result.returncode == 2, result.stdout[-2000:] + result.stderr[-2000:]
+    assert result.stderr.count("\n") == 1 and "swarm.params: MPC_XY_CRUISE: 1000 outside [0.5, 20] m/s" in result.stderr
+    assert "spawning" not in result.stdout
 
 
 @pytest.mark.timeout(120)
 def test_a_parameter_the_drones_do_not_know_ends_the_mission_with_no_answer(tmp_path: Path) -> None:
-    # GIVEN a mission that sets a parameter no drone has (PX4 sends no PARAM_VALUE for it)
+    # GIVEN a mission with an onboard behaviour (whose own parameters the drones' table does not list) that sets a
+    # parameter no drone has (PX4 sends no PARAM_VALUE for it)
     # WHEN it is flown
-    result = fly_with_params(tmp_path, "NO_SUCH_PARAM = 1", 252)
+    behaviour = 'behaviour = "sitl.onboard.behaviours.flocking:Flocking"\n'
+    result = fly_with_params(tmp_path, "NO_SUCH_PARAM = 1", 252, behaviour)
     # THEN every retry goes unanswered and the flight ends before arming, naming the drones
     assert result.returncode == 1, result.stdout[-2000:] + result.stderr[-2000:]
     assert "swarm: error: parameter NO_SUCH_PARAM: no answer from sysid [253, 254]" in result.stderr
