@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import io
 import logging
-import math
 import shutil
 import tarfile
 import tempfile
@@ -24,15 +23,10 @@ from typing import Any, Final
 
 from gcs.sweep.plan import Axis, Run, SweepError, SweepPlan
 from gcs.sweep.runs import InstanceLocks, RunResult, fly
-from gcs.sweep.sweep import Flyer, run_dir
+from gcs.sweep.sweep import Flyer, cpus_per_run, run_dir
 
 MAX_RETRIES: Final = 3
 WAIT_S: Final = 0.5
-
-
-def cpus_for(plan: SweepPlan, drones_per_process: int) -> int:
-    """The CPUs one run asks of the cluster: one per drone process it starts."""
-    return max(1, math.ceil(plan.n_drones / drones_per_process))
 
 
 def _plan_from(data: dict[str, Any], mission: Path) -> SweepPlan:
@@ -81,7 +75,7 @@ def ray_flyer(plan: SweepPlan, out: Path, address: str, drones_per_process: int,
                 from None  # fmt: skip
         refs: dict[Any, Run] = {}
         try:
-            cpus = cpus_for(plan, drones_per_process)
+            cpus = cpus_per_run(plan.n_drones, drones_per_process)
             total = ray.cluster_resources().get("CPU", 0)
             say(f"sweep: Ray cluster at {address}: {total:g} CPUs, {cpus} per run, up to {int(total // cpus)} runs "
                 f"at once")  # fmt: skip

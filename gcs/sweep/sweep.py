@@ -149,6 +149,11 @@ def local_flyer(plan: SweepPlan, out: Path, jobs: int) -> Flyer:
     return flyer
 
 
-def default_jobs(usable_cpus: int, n_drones: int, drones_per_cpu: int) -> int:
-    """Runs side by side by default: as many as the machine has CPUs for, one CPU per ``drones_per_cpu`` drones."""
-    return max(1, usable_cpus // max(1, math.ceil(n_drones / drones_per_cpu)))
+def cpus_per_run(n_drones: int, drones_per_process: int) -> int:
+    """The CPUs one run needs: one per drone process it starts (the local default and each Ray task's size)."""
+    return max(1, math.ceil(n_drones / drones_per_process))
+
+
+def default_jobs(usable_cpus: int, n_drones: int, drones_per_process: int) -> int:
+    """Runs side by side by default: as many as the machine has CPUs for."""
+    return max(1, usable_cpus // cpus_per_run(n_drones, drones_per_process))

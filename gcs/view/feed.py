@@ -104,10 +104,10 @@ class ViewFeed:
         airborne = [p for s, p in positions.items() if s not in swarm.losses and swarm.fleet.drones[s].armed
                     and homes.get(s, p)[2] - p[2] > AIRBORNE_HEIGHT_M]  # fmt: skip
         separation = _separation(airborne)
-        if separation is not None and (self.min_separation_m is None or separation < self.min_separation_m):
-            self.min_separation_m = separation
         if self.live is not None:
             self.min_separation_m = self.live.status().min_separation_m
+        elif separation is not None and (self.min_separation_m is None or separation < self.min_separation_m):
+            self.min_separation_m = separation
         return frame(time_s=time_s, drones=swarm.fleet.drones, positions_ned_m=positions, homes_ned_m=homes,
                      slots_ned_m=self.streamer.targets(time_s), lost=swarm.losses, now_s=swarm.clock(),
                      separation_m=separation, min_separation_m=self.min_separation_m, realtime_factor=self._rtf,

@@ -158,10 +158,9 @@ class ViewServer:
         from aiohttp import web
 
         asked = self._frame_asked_s = time.monotonic()
-        while asked - self._frame_built_s > 2.0 / RATE_HZ and time.monotonic() - asked < FRESH_WAIT_S:
-            if self._frame_built_s >= asked:
-                break
-            await asyncio.sleep(0.02)
+        if asked - self._frame_built_s > 2.0 / RATE_HZ:  # stale: wait for the feed to notice a page is watching
+            while self._frame_built_s < asked and time.monotonic() - asked < FRESH_WAIT_S:
+                await asyncio.sleep(0.02)
         return web.Response(text=self._text(self._frame) if self._frame is not None else "null",
                             content_type="application/json")  # fmt: skip
 
