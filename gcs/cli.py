@@ -38,7 +38,6 @@ from gcs.swarm import Swarm, SwarmError
 from gcs.sweep.cli import add_sweep_parser, run_sweep_command
 from gcs.sweep.plan import SweepError
 from gcs.transport import parse_host_port
-from gcs.view.feed import ViewFeed
 from gcs.view.server import DEFAULT_PORT as DEFAULT_VIEW_PORT
 from gcs.view.server import ViewError, ViewServer, serve_view
 
@@ -509,7 +508,7 @@ def run_up(args: argparse.Namespace, simulation: Simulation) -> int:
                   relay=neighbours.relay)  # fmt: skip
     station = Station(swarm, _say, LossPolicy(args.loss_policy), report_dir=args.report, contact_distance_m=contact)
     if view is not None:
-        station.view = ViewFeed(view, station.streamer, live=station.recorder.live if station.recorder else None)
+        station.serve(view)
     server: ControlServer | None = None
     try:
         swarm.up()

@@ -39,6 +39,7 @@ from gcs.report import write_report
 from gcs.streamer import FormationStreamer
 from gcs.swarm import Swarm, SwarmError
 from gcs.view.feed import ViewFeed
+from gcs.view.server import ViewServer
 
 Say = Callable[[str], None]
 
@@ -74,6 +75,11 @@ class Station:
             self.recorder = FlightRecorder(self.streamer, self.recording, self.mission_time,
                                            report_dir / "flight.tlog", say=None)  # fmt: skip
         self._step: StepRecord | None = None  # the command being flown, for the report
+
+    def serve(self, server: ViewServer) -> None:
+        """Feed the live view served by ``server`` from now on (gcs/view): the streamer's slots, the drones'
+        telemetry, and the live recording's events when there is one."""
+        self.view = ViewFeed(server, self.streamer, live=self.recorder.live if self.recorder is not None else None)
 
     def begin_step(self, request: dict[str, Any]) -> None:
         """A command that changes what the swarm flies ends the report's current step and starts the next."""

@@ -43,6 +43,7 @@ from gcs.report import METRICS_FILE
 from gcs.station import Station, failsafe_text
 from gcs.statustext import StatusTextAssembler
 from gcs.swarm import Swarm, SwarmError
+from gcs.view.server import ViewServer, serve_view
 
 log = logging.getLogger(__name__)
 
@@ -127,6 +128,7 @@ class Engine:
         self._thread = threading.Thread(target=self._main, name="swarm-supervisor", daemon=True)
         self.swarm: Swarm | None = None
         self.station: Station | None = None
+        self.view: ViewServer | None = None  # the live view, when asked for
 
     # ---- from any thread -------------------------------------------------------------------------------------------
     def start_thread(self) -> None:
@@ -193,8 +195,13 @@ class Engine:
                          drones_per_process=o.drones_per_process, signing_key_file=o.signing_key_file,
                          links=o.links, mesh=o.neighbours.mesh, behaviour=self._behaviour())  # fmt: skip
         contact = self._simulation.contact_distance_m(o.airframe)
+        if o.view:  # before anything starts: a port that cannot be had is a ValueError (ViewError) of one line
+            self.view = serve_view(o.view_port)
+            self._say(f"swarm: live view on {self.view.url}")
         self.swarm = swarm = Swarm(plan, self._simulation.harness(plan), forward=o.forward, relay=o.neighbours.relay)
         self.station = Station(swarm, self._say, o.loss_policy, report_dir=o.report_dir, contact_distance_m=contact)
+        if self.view is not None:
+            self.station.serve(self.view)
         swarm.listeners.append(self._on_message)
         swarm.up(ready_timeout_s=o.ready_timeout_s)
         for name, value in o.params.items():
@@ -349,7 +356,10 @@ class Engine:
         try:
             swarm.shutdown()
         finally:
-            report = station.write_report()
+            try:
+                report = station.write_report()
+            finally:
+                self._stop_view()
         metrics = json.loads((report / METRICS_FILE).read_text()) if report is not None else {}
         return FlightResult(report_dir=report, metrics=metrics)
 
@@ -360,6 +370,12 @@ class Engine:
                 self.swarm.shutdown()
             except Exception:
                 log.exception("stopping the swarm after a failed start")
+        self._stop_view()
+
+    def _stop_view(self) -> None:
+        if self.view is not None:
+            self.view.stop()
+            self.view = None
 
     # ---- the work the faces post (each runs in the supervisor's thread) --------------------------------------------
     def _parts(self) -> tuple[Swarm, Station]:
@@ -491,3 +507,9 @@ class Readings:
     def time_s(self) -> float:
         """The swarm's clock: simulated seconds since the drones came up."""
         return self._engine.time_s
+
+    @property
+    def view_url(self) -> str | None:
+        """The live view's address (``launch(..., view=True)``, docs/view.md), None without one."""
+        view = self._engine.view
+        return view.url if view is not None else None

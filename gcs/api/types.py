@@ -46,6 +46,8 @@ class LaunchOptions:
     signing_key_file: Path | None = None
     behaviour: str | None = None  # an onboard behaviour every drone carries: "path/to/file.py:ClassName"
     ready_timeout_s: float = 60.0  # wall seconds for every drone to come up
+    view: bool = False  # serve the live view (docs/view.md); its address is the session's ``view_url``
+    view_port: int | None = None  # the live view's port (None: 8765 or the next free one; 0: any free port)
 
     def __post_init__(self) -> None:
         for name in ("report_dir", "log_dir", "signing_key_file"):  # a path may come as a string (launch's **options)
@@ -60,6 +62,8 @@ class LaunchOptions:
             raise ValueError(f"speed must be a positive number, got {self.speed!r}")
         if self.quantum < 1:
             raise ValueError(f"quantum must be at least 1, got {self.quantum}")
+        if self.view_port is not None and not self.view:
+            raise ValueError("view_port needs view=True")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

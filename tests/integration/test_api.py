@@ -9,8 +9,12 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+import json
 import math
+import urllib.error
+import urllib.request
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -34,6 +38,11 @@ pytestmark = [pytest.mark.sim_only]
 ALT_M = 3.0
 
 
+def get_json(url: str) -> Any:
+    with urllib.request.urlopen(url, timeout=10) as response:
+        return json.loads(response.read())
+
+
 def on_circle(drones: dict[int, DroneState], radius_m: float, tolerance_m: float) -> bool:
     return all(abs(math.hypot(d.pos_ned_m[0], d.pos_ned_m[1]) - radius_m) < tolerance_m for d in drones.values())
 
@@ -45,9 +54,11 @@ def test_an_async_session_flies_a_formation_and_a_users_controller_then_lands_an
 
     async def fly() -> dict[str, object]:
         async with launch(3, lockstep=True, first_instance=40, drones_per_process="auto",
-                          report_dir=tmp_path / "report") as swarm:  # fmt: skip
+                          report_dir=tmp_path / "report", view=True, view_port=0) as swarm:  # fmt: skip
             collecting = asyncio.create_task(collect(swarm.events()))
             assert swarm.sysids == [41, 42, 43]
+            assert swarm.view_url is not None
+            view["url"] = swarm.view_url
             # GIVEN three drones up, WHEN they take off THEN the call returns with every drone at the altitude
             await swarm.takeoff(ALT_M)
             assert all(abs(d.alt_m - ALT_M) < 0.25 and d.armed and d.in_air for d in swarm.drones().values())
@@ -55,6 +66,12 @@ def test_an_async_session_flies_a_formation_and_a_users_controller_then_lands_an
             arrival_s = await swarm.formation(CircleSpec(radius_m=3.0, alt_m=ALT_M, angular_rate_radps=0.3))
             await swarm.sleep(arrival_s + 2.0)
             assert on_circle(swarm.drones(), 3.0, 0.3), swarm.drones()
+            # AND the live view the session serves, asked for its newest frame while the swarm flies, draws them
+            # there too (lockstep: the clock, and the view's frames, stand still between calls)
+            fetched, _ = await asyncio.gather(asyncio.to_thread(get_json, f"{swarm.view_url}frame"), swarm.sleep(2.0))
+            drawn = {d["sysid"]: d["pos_ned_m"] for d in fetched["drones"]}
+            assert sorted(drawn) == [41, 42, 43], fetched
+            assert all(abs(math.hypot(n, e) - 3.0) < 0.3 and abs(-d - ALT_M) < 0.3 for n, e, d in drawn.values()), drawn
             # WHEN the user's own function commands them (a wider circle turning the other way, as bare positions)
             seen: list[float] = []
 
@@ -84,7 +101,11 @@ def test_an_async_session_flies_a_formation_and_a_users_controller_then_lands_an
         async for event in stream:  # type: ignore[attr-defined]
             events.append(event)
 
+    view: dict[str, str] = {}
     metrics = asyncio.run(fly())
+    # AND the live view stopped with the session
+    with pytest.raises(urllib.error.URLError):
+        get_json(f"{view['url']}frame")
     # AND the report has every step, no collision, and the session's processes are all gone
     assert [s["name"] for s in metrics["steps"]] == ["takeoff", "circle", "control", "land"], metrics["steps"]  # type: ignore[index]
     assert metrics["collisions"] == 0
@@ -147,7 +168,8 @@ def test_a_controller_that_raises_holds_the_swarm_and_an_exception_in_the_block_
 def test_bad_launch_options_are_one_line_before_anything_starts() -> None:
     for bad, fragment in (({"drones": 0}, "drones must be in 1..100, got 0"),
                           ({"drones": 3, "first_instance": 253}, "first_instance must leave room"),
-                          ({"drones": 3, "speed": -1.0}, "speed must be a positive number")):  # fmt: skip
+                          ({"drones": 3, "speed": -1.0}, "speed must be a positive number"),
+                          ({"drones": 3, "view_port": 8765}, "view_port needs view=True")):  # fmt: skip
         with pytest.raises(ValueError, match=fragment):
             LaunchOptions(**bad)  # type: ignore[arg-type]
     assert child_pids() == set()
