@@ -342,7 +342,7 @@ class Flock:
         goals = self._goals
         centroid = pos.mean(axis=0)
         while self.goal_index < goals.shape[0] - 1 and (
-            float(np.linalg.norm(centroid - goals[self.goal_index])) <= self.spec.arrival_radius_m
+            math.hypot(*(centroid - goals[self.goal_index])) <= self.spec.arrival_radius_m
         ):
             self.goal_index += 1
         goal = goals[self.goal_index] if goals.shape[0] else None
@@ -393,7 +393,7 @@ class LeaderPath:
         points = [np.asarray(start_ned_m, dtype=np.float64).reshape(3)]
         for wp in waypoints_ned_m:
             p = np.asarray(wp, dtype=np.float64).reshape(3)
-            if float(np.linalg.norm(p - points[-1])) >= _MIN_LEG_M:
+            if math.hypot(*(p - points[-1])) >= _MIN_LEG_M:
                 points.append(p)
         if not all(np.all(np.isfinite(p)) for p in points):
             raise FormationError("path points must be finite")
@@ -431,7 +431,7 @@ class LeaderPath:
         f = min(max((s - float(self._s[i])) / ds, 0.0), 1.0) if ds > 0 else 0.0
         pos = self._pos[i] + f * (self._pos[i + 1] - self._pos[i])
         tangent = self._tangent[i] + f * (self._tangent[i + 1] - self._tangent[i])
-        tangent = tangent / max(float(np.linalg.norm(tangent)), 1e-12)
+        tangent = tangent / max(math.hypot(*tangent), 1e-12)
         curvature = self._curvature[i] + f * (self._curvature[i + 1] - self._curvature[i])
         return _vec(pos), _vec(v * tangent), _vec(a * tangent + v * v * curvature)
 
@@ -457,7 +457,7 @@ def _vec(values: FloatArray) -> Vec3:
 
 
 def _unit(v: FloatArray) -> FloatArray:
-    return np.asarray(v / float(np.linalg.norm(v)), dtype=np.float64)
+    return np.asarray(v / math.hypot(*v), dtype=np.float64)
 
 
 def _arc_lengths(pos: FloatArray) -> FloatArray:
@@ -466,7 +466,7 @@ def _arc_lengths(pos: FloatArray) -> FloatArray:
 
 def _line(a: FloatArray, b: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Samples of the segment from a to b, a included, b excluded, and the tangent."""
-    length = float(np.linalg.norm(b - a))
+    length = math.hypot(*(b - a))
     if length < 1e-9:  # two arcs meeting mid-leg leave no straight part
         return np.zeros((0, 3)), np.zeros((0, 3))
     count = max(1, math.ceil(length / _PATH_STEP_M))
@@ -493,9 +493,7 @@ def _sample_path(
         else:
             u_in, u_out = _unit(corner - points[k - 1]), _unit(points[k + 1] - corner)
             theta = math.acos(min(1.0, max(-1.0, float(u_in @ u_out))))
-            half_legs = 0.5 * min(
-                float(np.linalg.norm(corner - points[k - 1])), float(np.linalg.norm(points[k + 1] - corner))
-            )
+            half_legs = 0.5 * min(math.hypot(*(corner - points[k - 1])), math.hypot(*(points[k + 1] - corner)))
             if theta < _STRAIGHT_RAD:
                 leg_end, arc = corner, None
             elif theta > math.pi - _STRAIGHT_RAD:
@@ -835,4 +833,4 @@ class LeaderFollower:
         """The leader's reference is at the last waypoint and so is the leader, by its last report."""
         if now_s < self.finish_s:
             return False
-        return float(np.linalg.norm(self._leader_pos - self.path.end_ned_m)) <= ARRIVAL_TOLERANCE_M
+        return math.hypot(*(self._leader_pos - self.path.end_ned_m)) <= ARRIVAL_TOLERANCE_M

@@ -575,7 +575,7 @@ class FormationEngine:
             old_index = {drone: k for k, drone in enumerate(self._ids)}
             for k, drone in enumerate(ids):
                 j = old_index.get(drone)
-                if j is not None and float(np.linalg.norm(planned[1, j] - points[k])) <= self._resume_tolerance_m:
+                if j is not None and math.hypot(*(planned[1, j] - points[k])) <= self._resume_tolerance_m:
                     start_points[k] = planned[1, j]
                     vels[k] = (planned[2, j] - planned[0, j]) / (2.0 * h)
         peak_speed = float(np.max(np.linalg.norm(vels, axis=1)))

@@ -712,7 +712,7 @@ class LiveMetrics:
         here = np.array(sample.pos_ned_m)
         for sysid, other in self._fresh_airborne(sample.time_s).items():
             if sysid != sample.sysid:
-                distance = float(np.linalg.norm(here - other))
+                distance = math.hypot(*(here - other))
                 if self._min_separation_m is None or distance < self._min_separation_m:
                     self._min_separation_m = distance
 
@@ -722,9 +722,7 @@ class LiveMetrics:
         now = self._now_s
         positions = self._fresh_airborne(now)
         points = list(positions.values())
-        separation = min(
-            (float(np.linalg.norm(a - b)) for i, a in enumerate(points) for b in points[i + 1 :]), default=None
-        )
+        separation = min((math.hypot(*(a - b)) for i, a in enumerate(points) for b in points[i + 1 :]), default=None)
         squared = [
             float(np.sum((_extrapolate(s, now) - np.array(s.target_ned_m)) ** 2))
             for s in self._latest.values()

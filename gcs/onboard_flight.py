@@ -100,7 +100,7 @@ def start_onboard_follow(swarm: Swarm, streamer: FormationStreamer, spec: Follow
     offsets = spec.offsets(len(followers))
     slots = start + rotate_ne(offsets, heading)
     chosen = assign_min_squared_distance(np.array([here[s][:2] for s in followers]).reshape(-1, 2), slots)
-    joins = [float(np.linalg.norm(np.array(here[s][:2]) - slots[k])) for s, k in zip(followers, chosen, strict=True)]
+    joins = [math.hypot(*(np.array(here[s][:2]) - slots[k])) for s, k in zip(followers, chosen, strict=True)]
     join_m = max(joins, default=0.0)
     wait_s = join_m / spec.speed_mps + JOIN_SETTLE_S
     shared = {"LF_LEADER": float(leader), "LF_SPEED": spec.speed_mps, "LF_AMAX": spec.max_accel_mps2,

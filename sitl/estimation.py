@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sitl.mathutil import GRAVITY_MPS2, Quat, Vec3, dcm_to_quat, fast_constructor
+from sitl.mathutil import GRAVITY_MPS2, Quat, Vec3, dcm_to_quat, fast_constructor, mat_mul
 from sitl.sensors.models import SensorReadings
 
 _Floats3 = tuple[float, float, float]
@@ -114,16 +114,16 @@ class Estimator:
     def _init_attitude(self, accel_frd: Vec3, mag_frd: Vec3) -> None:
         """Level from gravity, heading from the magnetometer (TRIAD)."""
         accel = np.asarray(accel_frd, dtype=np.float64)
-        down = -accel / max(float(np.linalg.norm(accel)), 1e-6)  # body-frame direction of NED down
+        down = -accel / max(math.hypot(*accel), 1e-6)  # body-frame direction of NED down
         east = np.cross(down, np.asarray(mag_frd, dtype=np.float64))
-        east /= max(float(np.linalg.norm(east)), 1e-9)
+        east /= max(math.hypot(*east), 1e-9)
         north = np.cross(east, down)
         body_to_ned_meas = np.vstack((north, east, down))  # rows: NED axes in body coordinates
         # Correct for the magnetic declination: the reference field's horizontal direction is not true north.
         decl = self._mag_ref_heading_rad
         c, s = math.cos(decl), math.sin(decl)
         rz = np.array(((c, -s, 0.0), (s, c, 0.0), (0.0, 0.0, 1.0)))
-        w, x, y, z = dcm_to_quat(rz @ body_to_ned_meas).tolist()
+        w, x, y, z = dcm_to_quat(mat_mul(rz, body_to_ned_meas)).tolist()
         self._q = (w, x, y, z)
         self._att_initialised = True
 

@@ -5,6 +5,11 @@ Conventions used everywhere in the project:
 - World frame is local NED (north, east, down) anchored at home; body frame is FRD (forward, right, down).
 - Quaternions are (w, x, y, z) numpy arrays rotating body-frame vectors into NED: v_ned = R(q) @ v_frd.
 - Euler angles are ZYX (yaw, pitch, roll) in radians, as in PX4 and MAVLink ATTITUDE.
+
+Flight code never calls BLAS or LAPACK (``@`` on arrays, ``np.dot``, ``np.linalg.norm`` of a vector, ``pinv``):
+OpenBLAS picks its kernels by CPU, and their rounding differs, so a flight would differ in its last bits from one
+machine to the next (a sweep's runs on a cluster of mixed CPUs, CI against a recorded flight). ``mat_mul`` and
+``math.hypot`` stand in for them; numpy's elementwise arithmetic and reductions give the same bits on every CPU.
 """
 
 from __future__ import annotations
@@ -29,6 +34,12 @@ _T = TypeVar("_T")
 
 def vec3(x: float, y: float, z: float) -> Vec3:
     return np.array((x, y, z), dtype=np.float64)
+
+
+def mat_mul(a: npt.NDArray[np.float64], b: Mat3) -> npt.NDArray[np.float64]:
+    """``a @ b`` for an (N, 3) or (3, 3) ``a`` and a (3, 3) ``b``, without BLAS (module docstring): the same bits on
+    every CPU."""
+    return np.asarray((a[:, :, None] * b[None, :, :]).sum(axis=1), dtype=np.float64)
 
 
 def quat_to_dcm(q: Quat) -> Mat3:
@@ -59,7 +70,7 @@ def dcm_to_quat(r: Mat3) -> Quat:
         s = math.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1]) * 2.0
         q = ((r[1, 0] - r[0, 1]) / s, (r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s)
     out = np.array(q)
-    out /= np.linalg.norm(out)
+    out /= math.hypot(*out)
     return out if out[0] >= 0.0 else -out
 
 

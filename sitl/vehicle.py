@@ -193,7 +193,7 @@ class Vehicle:
         pos = self.current_pos()
         if self._est is not None and self.status.armed and not self.landed:
             vel = self._est.vel_ned_mps
-            speed = float(np.linalg.norm(vel))
+            speed = math.hypot(*vel)
             if speed > 0.1:
                 pos = pos + vel * (speed / (2.0 * self.p("MPC_ACC_HOR")))
                 # The reference starts from the vehicle's own motion and brakes along it to that point; from rest

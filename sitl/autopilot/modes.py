@@ -143,7 +143,7 @@ class Takeoff(TrackTarget):
     def advance(self, v: ModeContext, est: Estimate, now_s: float) -> None:
         if (
             abs(est.pos_ned_m[2] - v.target_ned_m[2]) < TAKEOFF_DONE_M
-            and float(np.linalg.norm(v.trajectory.position - v.target_ned_m)) < ARRIVED_M
+            and math.hypot(*(v.trajectory.position - v.target_ned_m)) < ARRIVED_M
         ):
             v.event(6, "Takeoff complete")
             v.enter(Px4Mode.AUTO_LOITER)
@@ -206,7 +206,7 @@ class ReturnToLaunch(TrackTarget):
         plan = self.plan
         if plan is None:
             return
-        arrived = float(np.linalg.norm(v.trajectory.position - v.target_ned_m)) < ARRIVED_M
+        arrived = math.hypot(*(v.trajectory.position - v.target_ned_m)) < ARRIVED_M
         if not arrived:
             return
         home = v.home_ned_m

@@ -65,6 +65,35 @@ def effectiveness_matrix(airframe: Airframe) -> np.ndarray:
     return np.array(columns, dtype=np.float64).T
 
 
+def pseudo_inverse(b: np.ndarray) -> np.ndarray | None:
+    """B+ = B^T (B B^T)^-1 of a 4 x n effectiveness matrix, or None when B's rank is below 4 (some axis cannot be
+    controlled). Worked out in plain floats by Gauss-Jordan elimination with partial pivoting rather than with
+    LAPACK, whose result depends in its last bits on the CPU (sitl/mathutil.py): every step's motor commands
+    come from it."""
+    rows = b.tolist()
+    gram = [[math.fsum(x * y for x, y in zip(ri, rj, strict=True)) for rj in rows] for ri in rows]
+    size = len(gram)
+    inverse = [[float(i == j) for j in range(size)] for i in range(size)]
+    scale = max(abs(v) for row in gram for v in row)
+    for col in range(size):
+        pivot = max(range(col, size), key=lambda r: abs(gram[r][col]))
+        if abs(gram[pivot][col]) <= 1e-12 * scale:
+            return None
+        gram[col], gram[pivot] = gram[pivot], gram[col]
+        inverse[col], inverse[pivot] = inverse[pivot], inverse[col]
+        head = gram[col][col]
+        gram[col] = [v / head for v in gram[col]]
+        inverse[col] = [v / head for v in inverse[col]]
+        for r in range(size):
+            if r != col and gram[r][col] != 0.0:
+                factor = gram[r][col]
+                gram[r] = [v - factor * w for v, w in zip(gram[r], gram[col], strict=True)]
+                inverse[r] = [v - factor * w for v, w in zip(inverse[r], inverse[col], strict=True)]
+    columns = list(zip(*rows, strict=True))  # B^T, one row per rotor
+    return np.array([[math.fsum(c * inverse[k][j] for k, c in enumerate(column)) for j in range(size)]
+                     for column in columns], dtype=np.float64)  # fmt: skip
+
+
 # In the helpers below, rotor i must satisfy lo_i <= k + g * yaw_i <= hi_i: k the collective, g the yaw share.
 
 
@@ -131,9 +160,9 @@ class ControlAllocator:
 
     def __init__(self, airframe: Airframe) -> None:
         self.effectiveness = effectiveness_matrix(airframe)
-        if np.linalg.matrix_rank(self.effectiveness) < 4:
+        mix = pseudo_inverse(self.effectiveness)  # n x 4: columns roll, pitch, yaw, collective
+        if mix is None:
             raise ValueError(f"airframe {airframe.name}: rotor layout cannot control roll, pitch, yaw and thrust")
-        mix = np.linalg.pinv(self.effectiveness)  # n x 4: columns roll, pitch, yaw, collective
         self.rotor_count = len(airframe.rotors)
         self.thrust_max_n = airframe.max_thrust_per_rotor_n
         if mix[:, 3].min() <= 0.0:

@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from sitl.mathutil import fast_constructor, quat_to_dcm
+from sitl.mathutil import fast_constructor, mat_mul, quat_to_dcm
 
 GrayImage = npt.NDArray[np.uint8]
 
@@ -122,7 +122,7 @@ def _mount_rotation(yaw_rad: float, pitch_rad: float) -> npt.NDArray[np.float64]
     cp, sp = math.cos(pitch_rad), math.sin(pitch_rad)
     rz = np.array(((cy, -sy, 0.0), (sy, cy, 0.0), (0.0, 0.0, 1.0)))
     ry = np.array(((cp, 0.0, sp), (0.0, 1.0, 0.0), (-sp, 0.0, cp)))
-    return rz @ ry
+    return mat_mul(rz, ry)
 
 
 class Camera:
@@ -247,7 +247,7 @@ def _draw_bodies(camera: Camera, own_att_q_frd_to_ned: npt.ArrayLike, bodies: Se
     camera._transmittance.fill(1.0)
     if not bodies:
         return False
-    r_cam_ned = camera.rot_body_cam.T @ quat_to_dcm(np.asarray(own_att_q_frd_to_ned, dtype=np.float64)).T
+    r_cam_ned = mat_mul(camera.rot_body_cam.T, quat_to_dcm(np.asarray(own_att_q_frd_to_ned, dtype=np.float64)).T)
     (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = r_cam_ned.tolist()
     drawn = False
     for body in bodies:
@@ -388,7 +388,7 @@ def _draw_cylinder(camera: Camera, r_cam_ned: npt.NDArray[np.float64], body: Ver
     ring = np.column_stack((n + body.radius_m * _RING[:, 0], e + body.radius_m * _RING[:, 1]))
     top = np.column_stack((ring, np.full(_CYLINDER_SIDES, d - half_h)))
     bottom = np.column_stack((ring, np.full(_CYLINDER_SIDES, d + half_h)))
-    pts = np.concatenate((top, bottom)) @ r_cam_ned.T
+    pts = mat_mul(np.concatenate((top, bottom)), r_cam_ned.T)
     front = pts[:, 0] >= _NEAR_CLIP_M
     if not front.any():
         return False

@@ -237,8 +237,9 @@ def _fit_cone(
             tolerance = 1.0 / f
         if len(rx) < 8:
             return None
-        sxx, syy, szz = float(rx @ rx), float(ry @ ry), float(rz @ rz)
-        sxy, sxz, syz = float(rx @ ry), float(rx @ rz), float(ry @ rz)
+        # sums of products, not ``@`` (BLAS: its last bits depend on the CPU, sitl/mathutil.py)
+        sxx, syy, szz = float((rx * rx).sum()), float((ry * ry).sum()), float((rz * rz).sum())
+        sxy, sxz, syz = float((rx * ry).sum()), float((rx * rz).sum()), float((ry * rz).sum())
         sums = [float(rx.sum()), float(ry.sum()), float(rz.sum())]
         normal = _solve3([[sxx, sxy, sxz], [sxy, syy, syz], [sxz, syz, szz]], sums)
         if normal is None:
