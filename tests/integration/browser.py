@@ -62,6 +62,9 @@ class Browser:
         self._profile = tempfile.TemporaryDirectory(prefix="swarm-browser-")
         flags = ["--headless=new", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader",
                  "--use-angle=swiftshader", "--no-first-run", "--disable-extensions",
+                 # nothing in the background: no component updates or sync writing into the profile, no connections
+                 # refused by a closed network
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
                  "--remote-debugging-address=127.0.0.1", "--remote-debugging-port=0",
                  f"--user-data-dir={self._profile.name}", f"--window-size={width},{height}"]  # fmt: skip
         # Its own session (process group): Chromium's helpers (renderer, GPU, crash handler) write into the profile

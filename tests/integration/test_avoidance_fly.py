@@ -3,6 +3,8 @@
 Each test flies a shipped mission with ``swarm fly --lockstep`` (all drones on one simulated clock, as fast as the
 two cores allow, with a quantum of 8 physics steps = 20 ms), so the outcome does not depend on how loaded the machine
 is. Collisions are real: the shared world crashes both drones of any pair closer than two collision radii (0.7 m).
+The 8-drone swap flies both ways (a process per drone, and hosted); the other large swarms fly hosted, which costs
+this 2-CPU machine less (docs/benchmarks.md).
 
 Policy: loopback only (--no-forward); instances 100-149; a time limit on every test.
 """
@@ -47,7 +49,8 @@ def test_eight_drones_swap_through_the_centre_without_touching(tmp_path: Path, p
 @pytest.mark.timeout(240)
 def test_the_same_swap_without_avoidance_collides(tmp_path: Path) -> None:
     # GIVEN the same mission with AVOID_ENABLE = 0 on every drone WHEN it is flown
-    metrics = fly("antipodal_swap.toml", 110, tmp_path, 220, avoidance=False, expect_ok=False)
+    metrics = fly("antipodal_swap.toml", 110, tmp_path, 220, avoidance=False, expect_ok=False,
+                  extra=("--drones-per-process", "auto"))  # fmt: skip
     # THEN drones collide in the centre: the scenario is a real test
     assert metrics["collisions"] >= 1
     assert metrics["avoidance_events"] == 0
@@ -70,7 +73,7 @@ def test_a_head_on_pair_with_the_relay_cut_avoids_with_cameras_alone(tmp_path: P
 
 @pytest.mark.timeout(420)
 def test_sixteen_drones_change_from_grid_to_circle_without_a_collision(tmp_path: Path) -> None:
-    metrics = fly("grid_to_circle_16.toml", 130, tmp_path, 400)
+    metrics = fly("grid_to_circle_16.toml", 130, tmp_path, 400, extra=("--drones-per-process", "auto"))
     assert metrics["n_drones"] == 16 and len(metrics["sysids"]) == 16
     assert metrics["collisions"] == 0, metrics["collision_events"]
     circle = next(s for s in metrics["steps"] if s["name"] == "circle")
