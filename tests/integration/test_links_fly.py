@@ -119,8 +119,8 @@ def test_the_same_lockstep_mission_flies_the_same_on_an_idle_and_a_loaded_machin
     # WHEN it is flown again with the same seeds while other processes keep every CPU busy
     with busy_cpus() as load:
         second, second_report = fly(str(mission), tmp_path / "loaded")
-    # (the machine was loaded: the burners took a real share of it, every moment the swarm left free; 44 CPU s of
-    # the 90 two CPUs had in the 45 s of one run)
+    # (the machine was loaded: the burners took every moment the swarm left free, 44 of the 90 CPU seconds two
+    # CPUs offered during one 45 s run)
     assert load.cpu_s > 0.25 * load.wall_s, load
     # THEN the mesh delivered, and lost reports for every reason the mission allows
     mesh = first["links"]["neighbour mesh"]
