@@ -41,6 +41,7 @@ from typing import Final, Protocol
 import numpy as np
 import numpy.typing as npt
 
+from gcs.arrays import mat_mul
 from gcs.formation import (
     FormationEngine,
     FormationError,
@@ -250,14 +251,16 @@ def separation_term(
 def alignment_term(vel_ne_mps: FloatArray, own_vel_ne_mps: FloatArray, mask: BoolArray) -> FloatArray:
     """Mean reported velocity of each drone's neighbours minus its own velocity (m/s); zero without neighbours."""
     count = mask.sum(axis=1)
-    mean = np.divide(mask @ vel_ne_mps, count[:, None], out=np.zeros_like(own_vel_ne_mps), where=count[:, None] > 0)
+    mean = np.divide(
+        mat_mul(mask, vel_ne_mps), count[:, None], out=np.zeros_like(own_vel_ne_mps), where=count[:, None] > 0
+    )
     return np.where(count[:, None] > 0, mean - own_vel_ne_mps, 0.0)
 
 
 def cohesion_term(pos_ne_m: FloatArray, mask: BoolArray) -> FloatArray:
     """From each drone to the centroid of its neighbours (m); zero without neighbours."""
     count = mask.sum(axis=1)
-    centroid = np.divide(mask @ pos_ne_m, count[:, None], out=np.zeros_like(pos_ne_m), where=count[:, None] > 0)
+    centroid = np.divide(mat_mul(mask, pos_ne_m), count[:, None], out=np.zeros_like(pos_ne_m), where=count[:, None] > 0)
     return np.where(count[:, None] > 0, centroid - pos_ne_m, 0.0)
 
 
@@ -276,7 +279,7 @@ def migration_term(
     ball around it (leaving spacing to the separation term alone); steering the centroid moves the flock as a body.
     """
     with_self = mask | np.eye(mask.shape[0], dtype=bool)
-    centroid = (with_self @ pos_ne_m) / with_self.sum(axis=1)[:, None]
+    centroid = mat_mul(with_self, pos_ne_m) / with_self.sum(axis=1)[:, None]
     to_goal = goal_ne_m[None, :] - centroid
     distance = np.linalg.norm(to_goal, axis=1, keepdims=True)
     desired = speed_mps * to_goal / np.maximum(distance, slowing_radius_m)
@@ -492,7 +495,7 @@ def _sample_path(
             leg_end, arc = corner, None
         else:
             u_in, u_out = _unit(corner - points[k - 1]), _unit(points[k + 1] - corner)
-            theta = math.acos(min(1.0, max(-1.0, float(u_in @ u_out))))
+            theta = math.acos(min(1.0, max(-1.0, float((u_in * u_out).sum()))))
             half_legs = 0.5 * min(math.hypot(*(corner - points[k - 1])), math.hypot(*(points[k + 1] - corner)))
             if theta < _STRAIGHT_RAD:
                 leg_end, arc = corner, None
@@ -518,7 +521,7 @@ def _sample_path(
             lim.append(np.zeros(1))
             leg_start = corner
             continue
-        normal = _unit(u_out - float(u_in @ u_out) * u_in)  # towards the arc's centre, in the plane of the legs
+        normal = _unit(u_out - float((u_in * u_out).sum()) * u_in)  # towards the arc's centre, in the plane of the legs
         centre = leg_end + radius * normal
         count = max(1, math.ceil(radius * theta / _PATH_STEP_M))
         phi = (np.arange(count) / count * theta)[:, None]

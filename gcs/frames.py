@@ -39,6 +39,7 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
+from gcs.arrays import mat_mul
 from gcs.geodesy import GeoPoint, NedFrame
 
 Vec3 = tuple[float, float, float]
@@ -102,7 +103,7 @@ class DroneFrame:
         self._swarm = swarm
         self._origin = drone_origin
         self._local = NedFrame(drone_origin)
-        self._local_from_swarm = _ned_from_ecef_matrix(drone_origin) @ _ned_from_ecef_matrix(swarm.origin).T
+        self._local_from_swarm = mat_mul(_ned_from_ecef_matrix(drone_origin), _ned_from_ecef_matrix(swarm.origin).T)
 
     @property
     def origin(self) -> GeoPoint:
@@ -124,12 +125,12 @@ class DroneFrame:
 
     def vector_to_local(self, swarm_vec: Sequence[float] | npt.ArrayLike) -> Vec3:
         """A free vector (velocity, acceleration) from swarm NED axes to the drone's NED axes."""
-        v = self._local_from_swarm @ np.asarray(_as_vec3(swarm_vec, "swarm NED vector"))
+        v = mat_mul(self._local_from_swarm, _as_vec3(swarm_vec, "swarm NED vector"))
         return (float(v[0]), float(v[1]), float(v[2]))
 
     def vector_to_swarm(self, local_vec: Sequence[float] | npt.ArrayLike) -> Vec3:
         """A free vector from the drone's NED axes to swarm NED axes."""
-        v = self._local_from_swarm.T @ np.asarray(_as_vec3(local_vec, "local NED vector"))
+        v = mat_mul(self._local_from_swarm.T, _as_vec3(local_vec, "local NED vector"))
         return (float(v[0]), float(v[1]), float(v[2]))
 
 
