@@ -36,9 +36,9 @@ def vec3(x: float, y: float, z: float) -> Vec3:
     return np.array((x, y, z), dtype=np.float64)
 
 
-def mat_mul(a: npt.NDArray[np.float64], b: Mat3) -> npt.NDArray[np.float64]:
-    """``a @ b`` for an (N, 3) or (3, 3) ``a`` and a (3, 3) ``b``, without BLAS (module docstring): the same bits on
-    every CPU."""
+def mat_mul(a: npt.NDArray[Any], b: npt.NDArray[Any]) -> npt.NDArray[np.float64]:
+    """``a @ b`` for 2-D ``a`` and ``b`` (a rotation, points times a rotation), without BLAS (module docstring): the
+    same bits on every CPU."""
     return np.asarray((a[:, :, None] * b[None, :, :]).sum(axis=1), dtype=np.float64)
 
 
