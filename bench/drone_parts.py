@@ -33,7 +33,6 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any
 
 PARTS = ("physics", "control", "perception", "mavlink", "total")
 
@@ -140,48 +139,31 @@ def lone(sim_seconds: float) -> dict[str, float]:
     }
 
 
-def circle(sim_seconds: float, *, drones: int = 8, radius_m: float = 4.0, rate_radps: float = 0.3) -> dict[str, float]:
-    """The circle flight timed per part, and ``digest``: a hash of every drone's true state at every step, so two
-    trees that should fly alike can be seen to (the same digest) in the same run that times them."""
+def circle(sim_seconds: float, *, dense: bool = False) -> dict[str, float]:
+    """The circle flight (or the dense one) timed per part, and ``digest``: a hash of every drone's true state at
+    every step, so two trees that should fly alike can be seen to (the same digest) in the same run that times them."""
     sys.path.insert(0, os.getcwd())
-    import hashlib
-    import struct
+    from dataclasses import replace
 
-    from tests.closed_loop.circle_swarm import CircleScenario, fly_circle_past_a_silent_drone
+    from tests.closed_loop.circle_swarm import CIRCLE, DENSE, fly_with_digest
 
-    digest = hashlib.sha256()
-    flown: list[Any] = []
-
-    def trace(sims: list[Any], _now: float) -> None:
-        if not flown:
-            flown.extend(sims)
-        for sim in sims:
-            t = sim.truth
-            digest.update(struct.pack("<3d3d4d", *t.pos_ned_m, *t.vel_ned_mps, *t.att_q_frd_to_ned))
-
-    scenario = CircleScenario(drones=drones, radius_m=radius_m, rate_radps=rate_radps,
-                              rotate_s=max(sim_seconds - 10.0, 5.0))  # fmt: skip
-    out = fly_circle_past_a_silent_drone(scenario, on_tick=trace)
+    scenario = replace(DENSE if dense else CIRCLE, rotate_s=max(sim_seconds - 10.0, 5.0))
+    digest, out, flown = fly_with_digest(scenario)
     return {
         "physics": 1e-6 * sum(s.physics_ns for s in flown) / (len(flown) * out.sim_s),
         "control": out.control_ms_per_drone_sim_s,
         "perception": out.perception_ms_per_drone_sim_s,
         "total": out.cpu_ms_per_drone_sim_s,
-        "digest": int(digest.hexdigest()[:15], 16),
+        "digest": int(digest[:15], 16),
         "collisions": out.collisions,
     }
-
-
-# The dense circle: 24 drones and the silent one, on the radius ``swarm bench`` gives 24 slots (2 m apart), turning
-# at half the rate so the rim keeps the 9-drone circle's pace: nearly every drone is within camera range of each.
-DENSE = {"drones": 24, "radius_m": 8.0, "rate_radps": 0.15}
 
 
 def one(sim_seconds: float, scenarios: list[str]) -> dict[str, dict[str, float]]:
     runs = {
         "lone": lambda: lone(sim_seconds),
         "circle": lambda: circle(sim_seconds),
-        "dense": lambda: circle(sim_seconds, **DENSE),  # type: ignore[arg-type]
+        "dense": lambda: circle(sim_seconds, dense=True),
     }
     return {name: runs[name]() for name in scenarios}
 

@@ -16,7 +16,9 @@ Used by tests/closed_loop/test_silent_drone.py and bench/silent_drone.py (which 
 
 from __future__ import annotations
 
+import hashlib
 import math
+import struct
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -203,3 +205,28 @@ def fly_circle_past_a_silent_drone(
         )
     finally:
         world.close()
+
+
+# The two flights whose digests tests/closed_loop/test_reference_flight.py holds (beside the reference flight) and
+# bench/drone_parts.py prints: the 9-drone circle and the dense circle, 24 drones on the radius ``swarm bench`` gives
+# 24 slots (2 m apart), turning at half the rate so the rim keeps the 9-drone circle's pace.
+CIRCLE = CircleScenario(rotate_s=5.0)
+DENSE = CircleScenario(drones=24, radius_m=8.0, rate_radps=0.15, rotate_s=5.0)
+
+
+def fly_with_digest(scenario: CircleScenario) -> tuple[str, CircleOutcome, list[Simulation]]:
+    """Fly ``scenario`` and hash every drone's true position, velocity and attitude at every step (SHA-256 of the
+    float64 bytes): a single bit anywhere in any drone's flight changes it. Returns the hex digest, the outcome and
+    the drones, so a caller can read their parts' clocks."""
+    digest = hashlib.sha256()
+    flown: list[Simulation] = []
+
+    def trace(sims: list[Simulation], _now: float) -> None:
+        if not flown:
+            flown.extend(sims)
+        for sim in sims:
+            t = sim.truth
+            digest.update(struct.pack("<3d3d4d", *t.pos_ned_m, *t.vel_ned_mps, *t.att_q_frd_to_ned))
+
+    outcome = fly_circle_past_a_silent_drone(scenario, on_tick=trace)
+    return digest.hexdigest(), outcome, flown

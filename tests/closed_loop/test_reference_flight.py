@@ -9,6 +9,10 @@ The flight is flown twice: in this process, with whatever BLAS kernels numpy's O
 a child with OpenBLAS forced to its SSE-only kernels (OPENBLAS_CORETYPE=Nehalem, which every x86-64 CPU runs). Both
 must give the recorded figures, which holds only while flight code keeps off BLAS and LAPACK (sitl/mathutil.py):
 before that, a CPU with AVX-512 flew the recorded flight a few 1e-9 m apart from one without.
+
+Beside it, two swarm flights are held to recorded digests of every drone's true state at every step: the 9-drone
+circle and the dense circle (cameras, detector, fusion, ORCA and the safety layer at work in every drone), so moving a
+drone's numeric work into compiled kernels is seen to change no bit.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.closed_loop.circle_swarm import CIRCLE, DENSE, CircleScenario, fly_with_digest
 from tests.closed_loop.reference_flight import fly
 
 pytestmark = pytest.mark.timeout(60)
@@ -41,6 +46,13 @@ RECORDED_FINAL_TRUTH = (
     0.018986518902098997,
 )
 ROOT = Path(__file__).resolve().parents[2]
+# Every drone's true state at every step of the two swarm flights (tests/closed_loop/circle_swarm.py): the 9-drone
+# circle with a silent drone, and the dense circle of 24 and the silent one, where every drone has 20-odd others in
+# camera range and relayed, so perception, association, ORCA and the safety layer all shape the flight.
+RECORDED_SWARM_DIGESTS = {
+    "circle": "2129aecb4db76a25db2cb4a9c793418ca1b1099d5ff35c65117ced7486676c02",
+    "dense": "ef5322275ac36e474ef41cef2ffa2dc648f3f9165ba469eac6244ecb9052aa31",
+}
 
 
 def test_the_reference_flight_is_bit_identical_to_the_recorded_one() -> None:
@@ -60,3 +72,10 @@ def test_the_reference_flight_is_the_same_with_other_blas_kernels() -> None:
     assert out.returncode == 0, out.stderr[-2000:]
     steps, final_truth, motor_sha256 = ast.literal_eval(out.stdout.strip().splitlines()[-1])
     assert (steps, final_truth, motor_sha256) == (RECORDED_STEPS, RECORDED_FINAL_TRUTH, RECORDED_MOTOR_SHA256)
+
+
+@pytest.mark.parametrize(("name", "scenario"), [("circle", CIRCLE), ("dense", DENSE)])
+def test_the_swarm_flights_are_bit_identical_to_the_recorded_ones(name: str, scenario: CircleScenario) -> None:
+    digest, outcome, _ = fly_with_digest(scenario)
+    assert outcome.collisions == 0
+    assert digest == RECORDED_SWARM_DIGESTS[name]
