@@ -31,7 +31,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-
 import numpy.typing as npt
 
 from sitl.kernels import estimator as ek

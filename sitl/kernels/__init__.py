@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -53,6 +53,7 @@ def kernel(signature: str) -> Callable[[F], F]:
             return function
         import numba
 
-        return numba.njit(signature, cache=True, fastmath=False, parallel=False, nogil=False)(function)  # type: ignore[no-any-return]
+        compile_ = numba.njit(signature, cache=True, fastmath=False, parallel=False, nogil=False)
+        return cast(F, compile_(function))
 
     return wrap

@@ -294,8 +294,6 @@ def step(
     out[O_PITCH] = math.asin(sin_pitch)
     out[O_YAW] = math.atan2(r10, r00)
     out[O_ATT_VALID] = 1.0 if s[ATT_INITIALISED] != 0.0 and time_s - s[ATT_SINCE] >= cfg[C_CONVERGE] else 0.0
-    position_valid = (
-        time_s - s[GPS_SINCE] >= cfg[C_GPS_CONVERGE] and time_s - s[LAST_POS_FUSED] <= cfg[C_GPS_TIMEOUT]
-    )
+    position_valid = time_s - s[GPS_SINCE] >= cfg[C_GPS_CONVERGE] and time_s - s[LAST_POS_FUSED] <= cfg[C_GPS_TIMEOUT]
     out[O_POS_VALID] = 1.0 if position_valid else 0.0
     out[O_ALT_VALID] = s[HAVE_BARO]

@@ -30,13 +30,12 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from sitl.kernels import render as rk
+from sitl.kernels.render import sphere_silhouette as sphere_silhouette  # one definition, here and in kernels
 from sitl.mathutil import fast_constructor, mat_mul, quat_to_dcm
 
 GrayImage = npt.NDArray[np.uint8]
 
-# A silhouette whose conic is this close to a parabola (sphere grazing the plane through the camera centre parallel
-# to the image) is unbounded in the image; the whole frame is then evaluated instead of a bounding box.
-_MIN_CONIC_MARGIN = 0.02
 # Near clipping plane for polygonal obstacles, metres in front of the camera.
 _NEAR_CLIP_M = 0.05
 # Fixed-point fraction bits for OpenCV polygon vertices (1/16 px).
@@ -147,13 +146,17 @@ class Camera:
         v = (np.arange(h, dtype=np.float64) - self.cy_px) / self.focal_px
         x_n, y_n = np.meshgrid(u, v)
         inv_norm = 1.0 / np.sqrt(1.0 + x_n * x_n + y_n * y_n)
-        # Unit ray of every pixel in the camera frame, (x, y, z) per pixel: one cv2.transform per body then gives
-        # the cosine of the angle between each pixel's ray and the body's centre.
-        self._rays = np.dstack((inv_norm, x_n * inv_norm, y_n * inv_norm)).astype(np.float32)
+        # Unit ray of every pixel in the camera frame, (x, y, z) per pixel: its dot product with a body's direction
+        # is the cosine of the angle between the pixel's ray and the body's centre (sitl/kernels/render.py).
+        self._rays = np.ascontiguousarray(np.dstack((inv_norm, x_n * inv_norm, y_n * inv_norm)), dtype=np.float32)
+        self._params = np.zeros(rk.PARAMS_SIZE)
+        self._params[rk.P_FOCAL] = self.focal_px
+        self._params[rk.P_CX] = self.cx_px
+        self._params[rk.P_CY] = self.cy_px
+        self._params[rk.P_CORNER_ANGLE] = self.corner_angle_rad
+        self._params[rk.P_MAX_RANGE] = config.max_range_m
         # Fraction of each pixel's light that passes every body drawn so far (1 = background shows through).
         self._transmittance = np.ones((h, w), np.float32)
-        self._work = np.zeros((h, w), np.float32)
-        self._transform = np.zeros((1, 4), np.float32)
         self._canvas = np.zeros((h, w), np.uint8)
         noise_rng = np.random.default_rng(config.noise_seed)
         tile = noise_rng.normal(config.background_level, config.pixel_noise_sigma, (2 * h, 2 * w))
@@ -248,21 +251,12 @@ def _draw_bodies(camera: Camera, own_att_q_frd_to_ned: npt.ArrayLike, bodies: Se
     if not bodies:
         return False
     r_cam_ned = mat_mul(camera.rot_body_cam.T, quat_to_dcm(np.asarray(own_att_q_frd_to_ned, dtype=np.float64)).T)
-    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = r_cam_ned.tolist()
-    drawn = False
+    rows = [(*b.offset_ned_m, b.radius_m) for b in bodies if isinstance(b, Sphere)]
+    drawn = bool(rows) and rk.draw_spheres(
+        r_cam_ned, camera._params, np.array(rows, dtype=np.float64), camera._rays, camera._transmittance
+    )
     for body in bodies:
-        if isinstance(body, Sphere):
-            n, e, d = body.offset_ned_m
-            x = r00 * n + r01 * e + r02 * d
-            if x < -body.radius_m:
-                # Wholly behind the camera: at least 90 deg off axis beyond its angular radius, past any corner of
-                # the image (under 90 deg), so ``_draw_sphere`` would cull it; with four cameras, about half the
-                # spheres for each.
-                continue
-            y = r10 * n + r11 * e + r12 * d
-            z = r20 * n + r21 * e + r22 * d
-            drawn = _draw_sphere(camera, x, y, z, math.sqrt(x * x + y * y + z * z), body.radius_m) or drawn
-        else:
+        if isinstance(body, VerticalCylinder):
             drawn = _draw_cylinder(camera, r_cam_ned, body) or drawn
     return drawn
 
@@ -299,60 +293,6 @@ def render_rig_if_drawn(
 ) -> list[GrayImage | None]:
     """``render_if_drawn`` for every camera of the rig: None for a frame with nothing the detector could find."""
     return [render_if_drawn(camera, own_att_q_frd_to_ned, bodies, rng) for camera in rig.cameras]
-
-
-def sphere_silhouette(theta_rad: float, sin_alpha: float) -> tuple[float, float, float]:
-    """Exact image of a sphere in normalised image units (focal length 1): (centre distance from the principal
-    point, semi-axis along that radial direction, semi-axis across it), for a sphere whose centre is theta off the
-    optical axis and whose angular radius alpha has sine ``sin_alpha``. Valid while cos^2 theta > sin^2 alpha."""
-    cos_t = math.cos(theta_rad)
-    conic = cos_t * cos_t - sin_alpha * sin_alpha
-    return (
-        math.sin(theta_rad) * cos_t / conic,
-        sin_alpha * math.sqrt(1.0 - sin_alpha * sin_alpha) / conic,
-        sin_alpha / math.sqrt(conic),
-    )
-
-
-def _draw_sphere(camera: Camera, x: float, y: float, z: float, dist: float, radius: float) -> bool:
-    """Draw one sphere; False when it was culled (beyond range, outside the field of view) and nothing was drawn."""
-    transmittance = camera._transmittance
-    if dist <= radius:
-        transmittance.fill(0.0)
-        return True
-    if dist - radius > camera.config.max_range_m:
-        return False
-    s = radius / dist
-    cos_t = max(-1.0, min(1.0, x / dist))
-    if math.acos(cos_t) - math.asin(s) > camera.corner_angle_rad:
-        return False
-    f = camera.focal_px
-    h, w = transmittance.shape
-    u0, u1, v0, v1 = 0, w, 0, h
-    if cos_t * cos_t - s * s > _MIN_CONIC_MARGIN and cos_t > 0.0:
-        rho = math.hypot(y, z)
-        py, pz = (y / rho, z / rho) if rho > 1e-12 * dist else (1.0, 0.0)
-        c_n, a_n, b_n = sphere_silhouette(math.acos(cos_t), s)
-        uc = camera.cx_px + f * c_n * py
-        vc = camera.cy_px + f * c_n * pz
-        half_u = f * math.hypot(a_n * py, b_n * pz) + 2.0
-        half_v = f * math.hypot(a_n * pz, b_n * py) + 2.0
-        u0, u1 = max(0, math.floor(uc - half_u)), min(w, math.ceil(uc + half_u) + 1)
-        v0, v1 = max(0, math.floor(vc - half_v)), min(h, math.ceil(vc + half_v) + 1)
-        if u0 >= u1 or v0 >= v1:
-            return False
-    # 1 - coverage = 0.5 - (cos(ray to centre) - cos(alpha)) * ramp, clipped to [0, 1]: the ramp makes one pixel
-    # across the edge (at the body's distance off axis) go from covered to clear; coverage is exactly 0.5 on the
-    # true silhouette whatever the ramp, so thresholding recovers the silhouette.
-    ramp = f / (s * max(cos_t, 0.2))
-    k = ramp / dist
-    camera._transform[0, :] = (-k * x, -k * y, -k * z, 0.5 + ramp * math.sqrt(1.0 - s * s))
-    clear = cv2.transform(camera._rays[v0:v1, u0:u1], camera._transform, dst=camera._work[v0:v1, u0:u1])
-    cv2.threshold(clear, 1.0, 1.0, cv2.THRESH_TRUNC, dst=clear)
-    cv2.threshold(clear, 0.0, 0.0, cv2.THRESH_TOZERO, dst=clear)
-    t = transmittance[v0:v1, u0:u1]
-    cv2.multiply(t, clear, dst=t)
-    return True
 
 
 _RING = np.array(

@@ -51,7 +51,7 @@ ROOT = Path(__file__).resolve().parents[2]
 # camera range and relayed, so perception, association, ORCA and the safety layer all shape the flight.
 RECORDED_SWARM_DIGESTS = {
     "circle": "2129aecb4db76a25db2cb4a9c793418ca1b1099d5ff35c65117ced7486676c02",
-    "dense": "ef5322275ac36e474ef41cef2ffa2dc648f3f9165ba469eac6244ecb9052aa31",
+    "dense": "dce47cb8c1204dabdbed1f1b07c5230c07ee7fb2d4764f4ae9c55b102d5a3df7",
 }
 
 
