@@ -149,12 +149,13 @@ class Camera:
         # Unit ray of every pixel in the camera frame, (x, y, z) per pixel: its dot product with a body's direction
         # is the cosine of the angle between the pixel's ray and the body's centre (sitl/kernels/render.py).
         self._rays = np.ascontiguousarray(np.dstack((inv_norm, x_n * inv_norm, y_n * inv_norm)), dtype=np.float32)
-        self._params = np.zeros(rk.PARAMS_SIZE)
-        self._params[rk.P_FOCAL] = self.focal_px
-        self._params[rk.P_CX] = self.cx_px
-        self._params[rk.P_CY] = self.cy_px
-        self._params[rk.P_CORNER_ANGLE] = self.corner_angle_rad
-        self._params[rk.P_MAX_RANGE] = config.max_range_m
+        # The camera as the compiled kernels take it (sitl/kernels/render.py, detector.py): one float64 row.
+        self.kernel_row = np.zeros(rk.PARAMS_SIZE)
+        self.kernel_row[rk.P_FOCAL] = self.focal_px
+        self.kernel_row[rk.P_CX] = self.cx_px
+        self.kernel_row[rk.P_CY] = self.cy_px
+        self.kernel_row[rk.P_CORNER_ANGLE] = self.corner_angle_rad
+        self.kernel_row[rk.P_MAX_RANGE] = config.max_range_m
         # Fraction of each pixel's light that passes every body drawn so far (1 = background shows through).
         self._transmittance = np.ones((h, w), np.float32)
         self._canvas = np.zeros((h, w), np.uint8)
@@ -253,7 +254,7 @@ def _draw_bodies(camera: Camera, own_att_q_frd_to_ned: npt.ArrayLike, bodies: Se
     r_cam_ned = mat_mul(camera.rot_body_cam.T, quat_to_dcm(np.asarray(own_att_q_frd_to_ned, dtype=np.float64)).T)
     rows = [(*b.offset_ned_m, b.radius_m) for b in bodies if isinstance(b, Sphere)]
     drawn = bool(rows) and rk.draw_spheres(
-        r_cam_ned, camera._params, np.array(rows, dtype=np.float64), camera._rays, camera._transmittance
+        r_cam_ned, camera.kernel_row, np.array(rows, dtype=np.float64), camera._rays, camera._transmittance
     )
     for body in bodies:
         if isinstance(body, VerticalCylinder):

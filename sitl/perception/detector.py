@@ -43,6 +43,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from sitl.kernels import detector as dk
 from sitl.mathutil import fast_constructor, quat_to_dcm
 from sitl.perception.camera import Camera, CameraRig, GrayImage, sphere_silhouette
 
@@ -82,52 +83,10 @@ class Detection:
     merged: bool
 
 
-def _across_axis(c_n: float, a_n: float) -> tuple[float, float]:
-    """Across-axis semi-axis b of a sphere's image, and db/da, given its centre distance c and radial semi-axis a
-    (normalised units, focal length 1).
-
-    The radial extremes of the ellipse are t1 = tan(theta - alpha) = c - a and t2 = tan(theta + alpha) = c + a, and
-    b = sin(alpha) / sqrt(cos(theta - alpha) cos(theta + alpha)) = sin(alpha) ((1 + t1^2)(1 + t2^2))^(1/4).
-    """
-    t1, t2 = c_n - a_n, c_n + a_n
-    q1, q2 = 1.0 + t1 * t1, 1.0 + t2 * t2
-    alpha = (math.atan(t2) - math.atan(t1)) / 2.0
-    root4 = (q1 * q2) ** 0.25
-    d_alpha = (1.0 / q2 + 1.0 / q1) / 2.0
-    d_product = 2.0 * (t2 * q1 - t1 * q2)
-    sin_a = math.sin(alpha)
-    return sin_a * root4, math.cos(alpha) * d_alpha * root4 + sin_a * 0.25 * root4 / (q1 * q2) * d_product
-
-
 def _solve_sphere(c_n: float, target: float, *, by_area: bool) -> tuple[float, float, float, float]:
     """Invert the sphere silhouette: from its centre distance and its area (or across-axis semi-axis), all in
-    normalised units, to (theta, alpha, radial semi-axis, across semi-axis).
-
-    Newton's method on the radial semi-axis from the small-angle guess, kept inside a shrinking bracket; area and
-    across-axis semi-axis both grow with it. Two or three iterations at drone ranges.
-    """
-    stretch = math.sqrt(1.0 + c_n * c_n)
-    a_n = math.sqrt(target / math.pi * stretch) if by_area else target * stretch
-    lo, hi = 0.0, math.inf
-    b_n = 0.0
-    for _ in range(40):
-        b_n, slope = _across_axis(c_n, a_n)
-        if by_area:
-            err, slope = math.pi * a_n * b_n - target, math.pi * (b_n + a_n * slope)
-        else:
-            err = b_n - target
-        if abs(err) <= 1e-8 * target:
-            break
-        if err > 0.0:
-            hi = a_n
-        else:
-            lo = a_n
-        nxt = a_n - err / slope if slope > 0.0 else math.nan
-        if not lo < nxt < hi:
-            nxt = 0.5 * (lo + hi) if hi < math.inf else 2.0 * a_n
-        a_n = nxt
-    t1, t2 = math.atan(c_n - a_n), math.atan(c_n + a_n)
-    return (t1 + t2) / 2.0, (t2 - t1) / 2.0, a_n, b_n
+    normalised units, to (theta, alpha, radial semi-axis, across semi-axis) (the kernel ``solve_sphere``)."""
+    return dk.solve_sphere(c_n, target, by_area)
 
 
 # A frame of a crowd yields dozens of detections, at the camera rate on every drone: built through its slots (the
@@ -137,11 +96,7 @@ _new_detection = fast_constructor(Detection)
 
 def _ray(camera: Camera, u: float, v: float, theta: float) -> tuple[float, float, float]:
     """Unit vector (camera frame) theta off the optical axis, in the image direction of pixel (u, v)."""
-    xn, yn = (u - camera.cx_px) / camera.focal_px, (v - camera.cy_px) / camera.focal_px
-    rho = math.hypot(xn, yn)
-    py, pz = (xn / rho, yn / rho) if rho > 0.0 else (1.0, 0.0)
-    sin_t = math.sin(theta)
-    return (math.cos(theta), sin_t * py, sin_t * pz)
+    return dk.ray(camera.kernel_row, u, v, theta)
 
 
 def _make(
@@ -155,12 +110,13 @@ def _make(
     truncated: bool,
     merged: bool,
 ) -> Detection:
+    azimuth, elevation = dk.bearing(vec_cam[0], vec_cam[1], vec_cam[2])
     return _new_detection(
         camera_name=camera.config.name,
         centroid_px=centroid_px,
         area_px=area_px,
-        azimuth_rad=math.atan2(vec_cam[1], vec_cam[0]),
-        elevation_rad=math.atan2(-vec_cam[2], math.hypot(vec_cam[0], vec_cam[1])),
+        azimuth_rad=azimuth,
+        elevation_rad=elevation,
         unit_frd=camera.camera_to_body(vec_cam),
         range_m=known_body_radius_m / math.sin(alpha) if alpha > 0.0 else math.inf,
         angular_radius_rad=alpha,
@@ -170,7 +126,7 @@ def _make(
 
 
 def _normalised(camera: Camera, u: float, v: float) -> float:
-    return math.hypot(u - camera.cx_px, v - camera.cy_px) / camera.focal_px
+    return dk.normalised(camera.kernel_row, u, v)
 
 
 def _elongation(m: dict[str, float]) -> float:
@@ -181,21 +137,6 @@ def _elongation(m: dict[str, float]) -> float:
     half_diff = math.hypot((mu20 - mu02) / 2.0, mu11)
     major, minor = mean + half_diff - 1.0 / 12.0, mean - half_diff - 1.0 / 12.0
     return math.sqrt(major / minor) if minor > 0.0 else math.inf
-
-
-def _solve3(m: list[list[float]], rhs: list[float]) -> tuple[float, float, float] | None:
-    """Solve a 3x3 linear system by Cramer's rule (numpy.linalg costs 5 us of overhead per call here)."""
-    (a, b, c), (d, e, f), (g, h, i) = m
-    co0, co1, co2 = e * i - f * h, f * g - d * i, d * h - e * g
-    det = a * co0 + b * co1 + c * co2
-    if abs(det) < 1e-12:
-        return None
-    r0, r1, r2 = rhs
-    return (
-        (r0 * co0 + b * (f * r2 - r1 * i) + c * (r1 * h - e * r2)) / det,
-        (a * (r1 * i - f * r2) + r0 * co1 + c * (d * r2 - r1 * g)) / det,
-        (a * (e * r2 - r1 * h) + b * (r1 * g - d * r2) + r0 * co2) / det,
-    )
 
 
 def _fit_cone(
@@ -212,43 +153,10 @@ def _fit_cone(
     estimate unchanged (None). Short arcs are not refused: even a sixth of the outline beat the fallback estimate
     for bodies mostly outside the frame (docs/perception.md).
     """
-    f = camera.focal_px
-    f_sq = f * f
-    tolerance = 1.5 / f
-    bu, bv = boundary_px[:, 0], boundary_px[:, 1]
-    bu_c, bv_c = bu - camera.cx_px, bv - camera.cy_px  # the same in both iterations
-    for iteration in range(2):
-        ax, ay, az = vec
-        sin_a = math.sin(alpha)
-        if ax <= 0.0 or ax * ax - sin_a * sin_a <= 0.02:
-            return None
-        c_n, _, _ = sphere_silhouette(math.acos(min(1.0, ax)), sin_a)
-        rho = math.hypot(ay, az)
-        py, pz = (ay / rho, az / rho) if rho > 0.0 else (1.0, 0.0)
-        du, dv = bu - (camera.cx_px + f * c_n * py), bv - (camera.cy_px + f * c_n * pz)
-        push = 0.5 / np.maximum(np.sqrt(du * du + dv * dv), 1e-9)
-        ry, rz = bu_c + du * push, bv_c + dv * push
-        inv = 1.0 / np.sqrt(f_sq + ry * ry + rz * rz)
-        rx, ry, rz = f * inv, ry * inv, rz * inv
-        if select or iteration > 0:
-            # |angle to axis - alpha| <= tolerance, to first order in cosines.
-            keep = np.abs(rx * ax + ry * ay + rz * az - math.cos(alpha)) <= tolerance * sin_a
-            rx, ry, rz = rx[keep], ry[keep], rz[keep]
-            tolerance = 1.0 / f
-        if len(rx) < 8:
-            return None
-        # sums of products, not ``@`` (BLAS: its last bits depend on the CPU, sitl/mathutil.py)
-        sxx, syy, szz = float((rx * rx).sum()), float((ry * ry).sum()), float((rz * rz).sum())
-        sxy, sxz, syz = float((rx * ry).sum()), float((rx * rz).sum()), float((ry * rz).sum())
-        sums = [float(rx.sum()), float(ry.sum()), float(rz.sum())]
-        normal = _solve3([[sxx, sxy, sxz], [sxy, syy, syz], [sxz, syz, szz]], sums)
-        if normal is None:
-            return None
-        length = math.sqrt(normal[0] ** 2 + normal[1] ** 2 + normal[2] ** 2)
-        if length <= 1.0:
-            return None
-        vec, alpha = (normal[0] / length, normal[1] / length, normal[2] / length), math.acos(1.0 / length)
-    return vec, alpha
+    fitted, ax, ay, az, fitted_alpha = dk.fit_cone(
+        camera.kernel_row, np.ascontiguousarray(boundary_px, dtype=np.float64), vec[0], vec[1], vec[2], alpha, select
+    )
+    return ((ax, ay, az), fitted_alpha) if fitted else None
 
 
 def _inscribed_peak(padded: npt.NDArray[Any]) -> tuple[int, int, float]:
