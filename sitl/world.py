@@ -84,7 +84,12 @@ def body_geo_at(rows: npt.NDArray[np.float64], time_s: float) -> npt.NDArray[np.
     fall_s = np.where(rows[:, ENDED] == 1.0, np.clip(time_s - rows[:, TIME], 0.0, landing_s), 0.0)
     down = vd * fall_s + 0.5 * GRAVITY_MPS2 * fall_s * fall_s
     lat = rows[:, LAT] + np.degrees(vn * fall_s / EARTH_RADIUS_M)
-    lon = rows[:, LON] + np.degrees(ve * fall_s / (EARTH_RADIUS_M * np.cos(np.radians(rows[:, LAT]))))
+    # cos(lat) only where a body falls (elsewhere fall_s is 0 and the quotient 0 whatever it is), with the C library's
+    # cos: numpy's SIMD cos differs between CPUs in the last bit (sitl/kernels/__init__.py).
+    cos_lat = np.ones(len(rows))
+    for i in np.flatnonzero(fall_s).tolist():
+        cos_lat[i] = math.cos(math.radians(rows[i, LAT]))
+    lon = rows[:, LON] + np.degrees(ve * fall_s / (EARTH_RADIUS_M * cos_lat))
     return np.column_stack((lat, lon, np.fmax(alt - down, np.fmin(alt, rows[:, REST_ALT]))))
 
 
