@@ -16,15 +16,18 @@ Rules every kernel follows (``kernel`` enforces the first three):
 - **no** ``fastmath`` **and no** ``parallel``: no reassociation, no fused multiply-adds, no threads, so a kernel
   gives the bits its Python form gives (tests/unit/test_kernels.py compares both on random states) and the same
   bits on every x86-64 CPU;
-- no numpy transcendentals (``np.sin``, ``np.arctan2``, ``np.exp`` ...) and no ``math.hypot`` in flight code: the
-  first are SIMD code chosen by CPU, the second is libm's in a kernel but CPython's own algorithm in Python
-  (tests/unit/test_kernels.py lints sitl/ for the first);
+- no numpy transcendentals (``np.arctan2``, ``np.exp`` ...) in flight code: they are SIMD code chosen by CPU
+  (tests/unit/test_kernels.py lints sitl/ and the ground station's flight laws); and in a kernel
+  ``pymath.hypot2``/``hypot3`` instead of ``math.hypot``, which is the C library's in a kernel but CPython's own
+  algorithm in Python;
 - state lives in float64 arrays with named indices (``FIELD = 3``), one row per drone, so a host can hold the rows
   of all its drones in one array; records built for the event-driven Python parts are built from them.
 
 ``SWARM_KERNELS=python`` (or numba's own ``NUMBA_DISABLE_JIT=1``) runs every kernel as plain Python, for a debugger
-or a bisection. That is slower, and not bit-identical: Python's ``math.hypot`` and rounding of the few integer
-conversions differ from the compiled forms in the last bit.
+or a bisection, many times slower. Kernels are written to give their Python form's bits (CPython's ``math.hypot``
+and numpy's pairwise sums are spelled out in ``pymath``), and tests/unit/test_kernels.py flies a takeoff both ways
+to the same bits, but that is not promised for every flight: treat the Python form as a debugging aid, not as the
+reference.
 """
 
 from __future__ import annotations

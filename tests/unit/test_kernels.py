@@ -1,0 +1,153 @@
+"""The compiled kernels (sitl/kernels): the rules sitl/kernels/__init__.py states, each checked.
+
+- the helpers that make a kernel give Python's bits: CPython's ``math.hypot`` and numpy's pairwise ``sum``;
+- every kernel is compiled when its module is imported (explicit signatures), so a forked drone never compiles;
+- processes compiling at once into an empty cache all succeed and fly the same, and the next process only loads;
+- ``SWARM_KERNELS=python`` runs the kernels as Python, and a takeoff flies the same bits both ways;
+- no numpy transcendental function in flight code: the drone's (all of sitl/) and the ground station's flight laws
+  (gcs/ but its live view), where only ``np.sin`` and ``np.cos`` are allowed (numpy computes them with the C
+  library's code for float64; its arctan2, arcsin, exp... are SIMD code that rounds differently by CPU).
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import json
+import math
+import os
+import pkgutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import sitl.kernels
+from sitl.kernels.pymath import hypot2, hypot3, np_sum
+
+pytestmark = pytest.mark.timeout(120)
+
+ROOT = Path(__file__).resolve().parents[2]
+NUMPY_TRANSCENDENTALS = frozenset({
+    "sin", "cos", "tan", "arcsin", "arccos", "arctan", "arctan2", "sinh", "cosh", "tanh", "arcsinh", "arccosh",
+    "arctanh", "exp", "exp2", "expm1", "log", "log2", "log10", "log1p", "power", "float_power", "hypot", "cbrt",
+})  # fmt: skip
+STABLE_IN_NUMPY = frozenset({"sin", "cos"})
+
+
+@pytest.mark.skipif(sys.version_info[:2] != (3, 11), reason="CPython 3.12 computes math.hypot with fma")
+def test_hypot_is_cpythons_to_the_last_bit_at_every_scale() -> None:
+    rng = np.random.default_rng(7)
+    specials = [
+        (0.0, 0.0, 0.0),
+        (-0.0, 3.0, 4.0),
+        (math.inf, math.nan, 1.0),
+        (math.nan, 1.0, 2.0),
+        (5e-324, 0.0, 1e-310),
+    ]
+    for scale in (1e-310, 1e-150, 1e-3, 1.0, 1e4, 1e150, 1e300):
+        rows = rng.standard_normal((20000, 3)) * scale * np.exp(rng.uniform(-4.0, 4.0, (20000, 3)))
+        for x, y, z in [*rows.tolist(), *specials]:
+            for got, want in ((hypot2(x, y), math.hypot(x, y)), (hypot3(x, y, z), math.hypot(x, y, z))):
+                assert got == want or (math.isnan(got) and math.isnan(want)), (x, y, z, got, want)
+
+
+def test_np_sum_adds_up_as_numpy_does() -> None:
+    rng = np.random.default_rng(8)
+    for n in [*range(0, 300), 511, 1000, 4099]:
+        values = rng.standard_normal(n) * np.exp(rng.uniform(-8.0, 8.0, n))
+        assert np_sum(values) == float(values.sum()), n
+
+
+def _kernel_modules() -> list[str]:
+    return [f"sitl.kernels.{m.name}" for m in pkgutil.iter_modules(sitl.kernels.__path__)]
+
+
+@pytest.mark.skipif(not sitl.kernels.compiled(), reason="kernels switched off in this process")
+def test_every_kernel_is_compiled_when_its_module_is_imported_and_never_again() -> None:
+    import numba.core.registry
+
+    found = 0
+    for name in _kernel_modules():
+        module = importlib.import_module(name)
+        for value in vars(module).values():
+            if isinstance(value, numba.core.registry.CPUDispatcher) and value.__module__ == name:
+                found += 1
+                assert value.signatures, f"{name}.{value.__name__} has no compiled signature"
+                assert not value._can_compile, f"{name}.{value.__name__} would compile on a new argument type"
+    assert found >= 10
+
+
+_FLY = """
+import hashlib, json, sys
+import numba.core.registry
+import sitl.app, sitl.perception.detector  # every drone module, as the zygote imports them before it forks
+from sitl.kernels import compiled
+from tests.closed_loop.flight import arm_when_ready, make_sim
+sim = make_sim(seed=4)
+arm_when_ready(sim)
+assert sim.vehicle.takeoff(2.0).ok
+digest = hashlib.sha256()
+for _ in range(750):
+    digest.update(sim.step().pos_ned_m.tobytes())
+stats = {"hits": 0, "misses": 0}
+for module in [m for name, m in list(sys.modules.items()) if name.startswith("sitl.kernels.")]:
+    for value in vars(module).values():
+        if isinstance(value, numba.core.registry.CPUDispatcher):
+            stats["hits"] += sum(value.stats.cache_hits.values())
+            stats["misses"] += sum(value.stats.cache_misses.values())
+print(json.dumps({"digest": digest.hexdigest(), "compiled": compiled(), **stats}))
+"""
+
+
+def _start(env: dict[str, str]) -> subprocess.Popen[str]:
+    return subprocess.Popen([sys.executable, "-c", _FLY], cwd=ROOT, env={**os.environ, **env}, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
+
+
+def _result(proc: subprocess.Popen[str]) -> dict[str, object]:
+    out, err = proc.communicate(timeout=100)
+    assert proc.returncode == 0, err[-3000:]
+    return dict(json.loads(out.strip().splitlines()[-1]))
+
+
+def test_processes_compiling_at_once_into_an_empty_cache_fly_alike_and_the_next_only_loads(tmp_path: Path) -> None:
+    env = {"NUMBA_CACHE_DIR": str(tmp_path / "cache"), "SWARM_KERNELS": "", "NUMBA_DISABLE_JIT": "0"}
+    first, second = _start(env), _start(env)  # a sweep's two jobs on a cold cache
+    a, b = _result(first), _result(second)
+    assert a["compiled"] and b["compiled"]
+    assert a["misses"] and b["misses"]  # both compiled: the cache was empty
+    assert a["digest"] == b["digest"]
+    third = _result(_start(env))
+    assert third["hits"] and not third["misses"], third
+    assert third["digest"] == a["digest"]
+    uncompiled = _result(_start({"SWARM_KERNELS": "python"}))
+    assert uncompiled["compiled"] is False and not uncompiled["hits"] and not uncompiled["misses"]
+    assert uncompiled["digest"] == a["digest"]  # the kernels are written to give their Python form's bits
+
+
+def _banned_calls(path: Path, allowed: frozenset[str]) -> list[str]:
+    tree = ast.parse(path.read_text(), str(path))
+    return [
+        f"{path.relative_to(ROOT)}:{node.lineno}: np.{node.attr}"
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Attribute)
+        and isinstance(node.value, ast.Name)
+        and node.value.id in ("np", "numpy")
+        and node.attr in NUMPY_TRANSCENDENTALS - allowed
+    ]
+
+
+def test_no_numpy_transcendental_in_flight_code() -> None:
+    found = [hit for path in sorted((ROOT / "sitl").rglob("*.py")) for hit in _banned_calls(path, frozenset())]
+    found += [
+        hit
+        for path in sorted((ROOT / "gcs").rglob("*.py"))
+        if "view" not in path.relative_to(ROOT / "gcs").parts
+        for hit in _banned_calls(path, STABLE_IN_NUMPY)
+    ]
+    assert not found, "numpy's SIMD transcendentals round differently by CPU; use math (or a kernel):\n" + "\n".join(
+        found
+    )
