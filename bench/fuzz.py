@@ -61,6 +61,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 import sitl.protocol
 from sitl.mav_vehicle import SimVehicleApi
+from sitl.ports import MAX_INSTANCE, InstancePorts, instance_ports
 from sitl.protocol import Identity, LinkServices
 from sitl.protocol.framing import crc_x25, parse_datagram
 from sitl.protocol.neighbours import NeighbourTable
@@ -70,9 +71,10 @@ from sitl.world import ALT, LAT, LON, VALID, SharedWorld
 from tests.closed_loop.flight import make_sim
 
 LOOPBACK: Final = "127.0.0.1"
-API_REMOTE_BASE_PORT: Final = 14540  # PX4 SITL convention: the drone streams to 14540+i
-API_BIND_BASE_PORT: Final = 14580  # and listens on 14580+i
-GCS_BIND_BASE_PORT: Final = 18570
+# With --port-base B the drone's ports are set explicitly, PX4 SITL's numbers for B (B may lie beyond the instances):
+API_REMOTE_BASE_PORT: Final = 14540  # it streams to 14540+B
+API_BIND_BASE_PORT: Final = 14580  # and listens on 14580+B
+GCS_BIND_BASE_PORT: Final = 18570  # and its ground-station link on 18570+B
 CLIENT_SYSID, CLIENT_COMPID = 255, 190  # a ground station, as QGroundControl identifies itself
 PX4_AUTO_LOITER: Final = 50593792  # custom_mode of AUTO.LOITER (Hold)
 HOVER_TOLERANCE_M: Final = 0.5  # mode (a): the hovering drone stays this close to its hover point
@@ -387,15 +389,16 @@ class DroneAddress:
 class StartedDrone:
     """A ``sitl`` process started by the tool, with its shared world; ``stop()`` ends it by PID and reaps it."""
 
-    def __init__(self, *, instance: int, port_base: int, seed: int, log_path: Path, speed: float) -> None:
+    def __init__(self, *, instance: int, ports: InstancePorts, seed: int, log_path: Path, speed: float) -> None:
         self.world = SharedWorld.create()
         self.log_path = log_path
         self._sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # the ground-station link streams here
         self._sink.bind((LOOPBACK, 0))
         self.address = DroneAddress(
-            sysid=instance + 1, api_host=LOOPBACK, api_port=API_BIND_BASE_PORT + port_base,
-            listen_port=API_REMOTE_BASE_PORT + port_base, instance=instance,
+            sysid=instance + 1, api_host=LOOPBACK, api_port=ports.api_bind, listen_port=ports.api_remote,
+            instance=instance,
         )  # fmt: skip
+        self.gcs_port = ports.gcs_bind
         script = Path(sys.executable).with_name("sitl")
         command = [str(script)] if script.exists() else [sys.executable, "-m", "sitl.cli"]
         argv = [
@@ -403,7 +406,7 @@ class StartedDrone:
             "--world", self.world.name,
             "--api-port", str(self.address.api_port),
             "--api-remote", f"{LOOPBACK}:{self.address.listen_port}",
-            "--gcs-port", str(GCS_BIND_BASE_PORT + port_base),
+            "--gcs-port", str(self.gcs_port),
             "--gcs-remote", f"{LOOPBACK}:{self._sink.getsockname()[1]}",
         ]  # fmt: skip
         self._log: IO[bytes] = log_path.open("wb")
@@ -607,7 +610,7 @@ class FuzzConfig:
     commands_to_drone: bool
     rate_hz: float
     instance: int = 0
-    port_base: int | None = None  # ports 14580/14540/18570 + this; default: the instance
+    port_base: int | None = None  # ports 14580/14540/18570 + this; default: the instance's own (sitl/ports.py)
     speed: float = 1.0
     log_dir: Path = Path(".")
     attach: tuple[str, int] | None = None  # a running drone's API address instead of starting one
@@ -708,18 +711,25 @@ def count_tracebacks(log_path: Path | None) -> tuple[int, str]:
     return count, "\n".join(text[start:].splitlines()[:30])
 
 
+def _ports(instance: int, port_base: int | None) -> InstancePorts:
+    """The started drone's ports: the instance's own, or PX4 SITL's numbers for ``port_base``."""
+    if port_base is None:
+        return instance_ports(instance)
+    return InstancePorts(api_bind=API_BIND_BASE_PORT + port_base, api_remote=API_REMOTE_BASE_PORT + port_base,
+                         gcs_bind=GCS_BIND_BASE_PORT + port_base)  # fmt: skip
+
+
 @contextlib.contextmanager
 def _drone(config: FuzzConfig) -> Iterator[tuple[DroneAddress, StartedDrone | None, Path | None]]:
     if config.attach is not None:
-        listen = config.attach_listen_port or API_REMOTE_BASE_PORT
+        listen = config.attach_listen_port or instance_ports(0).api_remote  # sysid 1 by default: instance 0
         sysid = config.attach_sysid or 1
         yield DroneAddress(sysid=sysid, api_host=config.attach[0], api_port=config.attach[1],
                            listen_port=listen, instance=None), None, config.attach_log  # fmt: skip
         return
-    base = config.instance if config.port_base is None else config.port_base
     log_path = config.log_dir / f"fuzz-sitl-{config.instance}.log"
-    drone = StartedDrone(instance=config.instance, port_base=base, seed=config.seed, log_path=log_path,
-                         speed=config.speed)  # fmt: skip
+    drone = StartedDrone(instance=config.instance, ports=_ports(config.instance, config.port_base), seed=config.seed,
+                         log_path=log_path, speed=config.speed)  # fmt: skip
     try:
         yield drone.address, drone, log_path
     finally:
@@ -775,7 +785,7 @@ def run(config: FuzzConfig, *, progress: Callable[[str], None] | None = None) ->
                                drone_lat_deg=client.watch.lat_deg or 0.0)  # fmt: skip
         targets = [(address.api_host, address.api_port)]
         if config.gcs_port_too and drone is not None:
-            targets.append((LOOPBACK, address.api_port - API_BIND_BASE_PORT + GCS_BIND_BASE_PORT))
+            targets.append((LOOPBACK, drone.gcs_port))
         say(f"fuzzing: {config.frames} frames at {config.rate_hz:g} frames/s")
         by_kind: Counter[str] = Counter()
         by_message: Counter[str] = Counter()
@@ -1049,7 +1059,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--rate", type=float, default=2000.0, help="frames per second (default 2000)")
     parser.add_argument("--instance", type=int, default=220, help="instance of the drone started (sysid i+1)")
     parser.add_argument("--port-base", type=int, default=None, help="its ports are 14580/14540/18570 + this "
-                        "(default: the instance)")  # fmt: skip
+                        "(default: the instance's own, docs/mavlink.md)")  # fmt: skip
     parser.add_argument("--gcs-port-too", action="store_true", help="alternate frames with the ground-station link")
     parser.add_argument("--log-dir", type=Path, default=Path("."), help="where the started drone's log goes")
     parser.add_argument("--attach", type=_host_port, default=None, metavar="HOST:PORT",
@@ -1071,11 +1081,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--frames must be >= 0, got {args.frames}")
     if not (math.isfinite(args.rate) and args.rate > 0):
         parser.error(f"--rate must be a positive number of frames per second, got {args.rate}")
-    if not 0 <= args.instance <= 254:
-        parser.error(f"--instance must be in 0..254, got {args.instance}")
-    base = args.instance if args.port_base is None else args.port_base
-    if not 0 <= base <= 65535 - GCS_BIND_BASE_PORT:
-        parser.error(f"--port-base must be in 0..{65535 - GCS_BIND_BASE_PORT}, got {base}")
+    if not 0 <= args.instance <= MAX_INSTANCE:
+        parser.error(f"--instance must be in 0..{MAX_INSTANCE}, got {args.instance}")
+    if args.port_base is not None and not 0 <= args.port_base <= 65535 - GCS_BIND_BASE_PORT:
+        parser.error(f"--port-base must be in 0..{65535 - GCS_BIND_BASE_PORT}, got {args.port_base}")
     if args.in_process:
         in_process = run_in_process(args.frames, args.seed, progress=lambda text: print(text, flush=True))
         print(in_process.text())

@@ -23,8 +23,7 @@ from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
 from gcs.api import launch
-
-API_PORT = 14540  # a drone of instance i streams its API link to 127.0.0.1:14540+i, as PX4 SITL does
+from sitl.ports import instance_ports  # a drone's API link streams to 127.0.0.1:14540+i, as PX4 SITL's (i < 40)
 
 
 async def first(
@@ -75,7 +74,7 @@ async def main(drones: int, first_instance: int) -> bool:
         mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
         try:
             for k in range(drones):
-                await mavsdk.add_any_connection(f"udpin://127.0.0.1:{API_PORT + first_instance + k}")
+                await mavsdk.add_any_connection(f"udpin://127.0.0.1:{instance_ports(first_instance + k).api_remote}")
             systems = await discover(mavsdk, drones, 30.0)
             print(f"MAVSDK found sysid {sorted(systems)}")
             results = await asyncio.gather(*(fly_one(s, system) for s, system in sorted(systems.items())))

@@ -17,6 +17,8 @@ import time
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.ports import instance_ports  # the drone's API port: PX4 SITL's 14540+instance below 40
+
 ALT_M = 3.0
 
 
@@ -64,13 +66,14 @@ def fly(port: int) -> bool:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--start-drone", action="store_true", help="start one simulated drone first")
-    parser.add_argument("--instance", type=int, default=0, help="its instance (sysid instance+1, port 14540+instance)")
+    parser.add_argument("--instance", type=int, default=0, help="its instance (sysid instance+1, port "
+                        "14540+instance, 15000+instance from 40 on)")  # fmt: skip
     args = parser.parse_args()
     drone = None
     if args.start_drone:
         drone = subprocess.Popen([sys.executable, "-m", "sitl.cli", "--instance", str(args.instance), "--no-gcs"])
     try:
-        return 0 if fly(14540 + args.instance) else 1
+        return 0 if fly(instance_ports(args.instance).api_remote) else 1
     finally:
         if drone is not None:
             drone.terminate()

@@ -50,8 +50,8 @@ from gcs.commands import COMMAND_TIMEOUT_S
 from gcs.formation import SETPOINT_STREAM_HZ, CircleSpec, FormationError, TransitionLimits
 from gcs.frames import SwarmFrame
 from gcs.geodesy import DEFAULT_ORIGIN
-from gcs.harness import Simulation, SpawnError, SpawnPlan, parse_drones_per_process
-from gcs.probe import PROBE_SYSIDS, percentile
+from gcs.harness import MAX_DRONES, Simulation, SpawnError, SpawnPlan, parse_drones_per_process
+from gcs.probe import percentile, probe_sysids
 from gcs.procedures import take_off_and_hold
 from gcs.recorder import CollisionPairs
 from gcs.streamer import DEFAULT_LIMITS, FormationStreamer
@@ -62,7 +62,7 @@ DEFAULT_DRONE_COUNTS = (1, 3, 9, 20, 50, 100)
 DEFAULT_MODES: tuple[PerProcess, ...] = (1, "auto")  # each N with a process per drone, then hosted
 DEFAULT_SIM_SECONDS = 20.0
 DEFAULT_FIRST_INSTANCE = 100  # well clear of a user's drones at 0 and of the test suites' blocks
-MAX_BENCH_DRONES = 100  # as ``swarm up -n``
+MAX_BENCH_DRONES = MAX_DRONES  # as ``swarm up -n``
 SPAWN_SPACING_M = 2.0
 TAKEOFF_ALT_M = 3.0
 CIRCLE_RATE_RADPS = 0.2
@@ -112,21 +112,20 @@ def parse_drone_counts(text: str) -> tuple[int, ...]:
 
 
 def check_instances(first_instance: int, largest_n: int, max_instances: int) -> None:
-    """Every drone needs an instance the simulation runs (0..max_instances - 1), a sysid (instance + 1) below 256,
-    and a sysid that is not one of the relay probe's two vehicles."""
+    """Every drone needs an instance the simulation runs (0..max_instances - 1) and a sysid (instance + 1) that is
+    not the ground station's (255). The relay probe's two vehicles take sysids no drone has (``swarm_probe_sysids``)."""
     last = first_instance + largest_n - 1
-    top = min(max_instances, 255) - 1
+    top = min(max_instances, MAX_DRONES) - 1
     if first_instance < 0 or last > top:
         raise BenchUsageError(
             f"--first-instance {first_instance} with {largest_n} drones needs instances up to {last}; "
             f"they must lie in 0..{top}"
         )
-    clash = sorted(set(range(first_instance + 1, last + 2)) & set(PROBE_SYSIDS))
-    if clash:
-        raise BenchUsageError(
-            f"--first-instance {first_instance} with {largest_n} drones gives sysid {clash[0]}, which the relay "
-            f"probe uses (sysids {PROBE_SYSIDS[0]}, {PROBE_SYSIDS[1]})"
-        )
+
+
+def swarm_probe_sysids(plan: SpawnPlan) -> tuple[int, int] | None:
+    """The relay probe's sysids beside this swarm (None: it leaves no two free, and the relay hop is not timed)."""
+    return probe_sysids(range(plan.first_instance + 1, plan.first_instance + plan.n_drones + 1))
 
 
 def spread(values: Iterable[float]) -> float:
@@ -689,10 +688,15 @@ class ScenarioFlight:
         return latency_figures(rtts, sent)
 
     def relay_latency(self) -> LatencyFigures:
-        """``python -m gcs.probe PORT`` in a process of its own while this supervisor keeps pumping and streaming."""
+        """``python -m gcs.probe PORT`` in a process of its own while this supervisor keeps pumping and streaming
+        (no figures when the swarm leaves the probe no two sysids of its own)."""
+        sysids = swarm_probe_sysids(self.swarm.plan)
+        if sysids is None:
+            return LatencyFigures()
         origin = self.swarm.plan.origin
         cmd = [sys.executable, "-m", "gcs.probe", str(self.swarm.link.port), "--seconds", f"{PROBE_SECONDS:g}",
-               "--anchor", f"{origin.lat_deg:.7f},{origin.lon_deg:.7f},{origin.alt_amsl_m:.2f}"]  # fmt: skip
+               "--anchor", f"{origin.lat_deg:.7f},{origin.lon_deg:.7f},{origin.alt_amsl_m:.2f}",
+               "--sysids", f"{sysids[0]},{sysids[1]}"]  # fmt: skip
         probe = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
             deadline = time.monotonic() + PROBE_SECONDS + PROBE_EXTRA_WALL_S
@@ -748,7 +752,11 @@ def run_paced(n: int, config: BenchConfig, say: Say, mode: PerProcess = 1) -> Pa
         window = window_figures(before, after, float(os.sysconf("SC_CLK_TCK")))
         sizes, kind = drone_memory(flight.swarm)
         spreads = flight.samples.time_spreads_ms
-        say(f"  paced: rtf {window.rtf:.3f}; timing command round trips and the relay hop")
+        if swarm_probe_sysids(flight.swarm.plan) is None:
+            say(f"  paced: rtf {window.rtf:.3f}; timing command round trips (the relay hop is not: {n} drones leave "
+                "the probe no two sysids)")  # fmt: skip
+        else:
+            say(f"  paced: rtf {window.rtf:.3f}; timing command round trips and the relay hop")
         rtt = flight.command_round_trips()
         relay = flight.relay_latency()
         return PacedFigures(

@@ -25,7 +25,7 @@ from gcs.composition import SITL
 from gcs.control import ControlClient, ControlError, ControlServer
 from gcs.faults import CRASH, FAULT_NAMES, FaultError, fault_request
 from gcs.geodesy import DEFAULT_ORIGIN, GeoPoint
-from gcs.harness import LAYOUTS, Simulation, SpawnError, SpawnPlan, parse_drones_per_process
+from gcs.harness import LAYOUTS, MAX_DRONES, Simulation, SpawnError, SpawnPlan, parse_drones_per_process
 from gcs.links import LINK_OPTIONS, NEIGHBOUR_MODES, LinkPlan, NeighbourPlan, parse_link_value, parse_mesh_value
 from gcs.losses import LOSS_POLICIES, LossPolicy
 from gcs.mission_file import MissionFileError, MissionSpec, build_flock, build_follow, flown_onboard, load_mission
@@ -326,7 +326,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="swarm", description="Ground station for a swarm of simulated PX4-like drones.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     up = sub.add_parser("up", help="spawn N drones and supervise them (foreground; Ctrl-C lands and stops them)")
-    up.add_argument("-n", "--drones", type=int, required=True, help="number of drones (1..100)")
+    up.add_argument("-n", "--drones", type=int, required=True, help=f"number of drones (1..{MAX_DRONES})")
     up.add_argument("--spacing", type=_positive, default=2.0, help="spawn spacing in metres (default 2)")
     up.add_argument("--layout", choices=sorted(LAYOUTS), default="grid", help="spawn layout (default grid)")
     _add_timing_options(up)
@@ -467,11 +467,18 @@ def _say(text: str) -> None:
     print(text, flush=True)
 
 
+def _check_first_instance(first_instance: int, drones: int) -> None:
+    if first_instance < 0 or first_instance + drones > MAX_DRONES:
+        raise UsageError(
+            f"--first-instance {first_instance} with {drones} drones: every sysid (instance + 1) must lie in "
+            f"1..{MAX_DRONES} (255 is the ground station's)"
+        )
+
+
 def run_up(args: argparse.Namespace, simulation: Simulation) -> int:
-    if not 1 <= args.drones <= 100:
-        raise UsageError(f"-n must be in 1..100, got {args.drones}")
-    if args.first_instance < 0 or args.first_instance + args.drones > 255:
-        raise UsageError("--first-instance must leave room for every sysid (instance + 1 <= 255)")
+    if not 1 <= args.drones <= MAX_DRONES:
+        raise UsageError(f"-n must be in 1..{MAX_DRONES}, got {args.drones}")
+    _check_first_instance(args.first_instance, args.drones)
     contact = 0.0
     if args.report is not None:  # the report's contact distance (a bad airframe is named by the drones otherwise)
         try:
@@ -589,8 +596,7 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
         simulation.contact_distance_m(args.airframe)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    if args.first_instance < 0 or args.first_instance + mission.swarm.drones > 255:
-        raise UsageError("--first-instance must leave room for every sysid (instance + 1 <= 255)")
+    _check_first_instance(args.first_instance, mission.swarm.drones)
     links = _link_plan(args, mission.swarm.links)
     params = _checked_params(mission, args.param, simulation, behaviour=args.behaviour or mission.swarm.behaviour)
     neighbours = _neighbour_plan(args, NeighbourPlan(relay=mission.swarm.relay, mesh=mission.swarm.mesh))

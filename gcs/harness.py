@@ -30,6 +30,12 @@ from gcs.links import LinkPlan, MeshPlan
 
 FloatArray = npt.NDArray[np.float64]
 
+# A swarm's drones are sysids 1..254 (instances 0..253): 255 is the ground station's own (gcs.transport.GCS_SYSID),
+# as QGroundControl's. The simulation gives each of them ports of its own (docs/mavlink.md); tests/unit/test_ports.py
+# holds this and the simulation's limit to the same number.
+MAX_DRONES = 254
+LAST_INSTANCE = MAX_DRONES - 1
+
 
 def grid_layout(n: int, spacing_m: float) -> list[tuple[float, float]]:
     """North/east spawn offsets on a square-ish grid centred on the origin, row by row."""

@@ -39,7 +39,7 @@ from typing import Any
 from gcs.behaviours import FlockSpec, FollowSpec
 from gcs.faults import FaultError, FaultRequest, fault_request
 from gcs.formation import CircleSpec, Formation, FormationError, GridSpec, LineSpec, VSpec
-from gcs.harness import LAYOUTS
+from gcs.harness import LAYOUTS, MAX_DRONES
 from gcs.links import (
     LINK_CLASSES,
     LINK_KEYS,
@@ -57,8 +57,6 @@ from gcs.onboard import FLOCKING, LEADER_FOLLOWER, absolute_spec
 from gcs.onboard import MAX_POINTS as ONBOARD_MAX_POINTS
 from gcs.plan_flight import OFFSET_MODES, PlanUsageError, parse_drones
 from gcs.qgc_plan import PlanFileError, QgcPlan, load_plan
-
-MAX_DRONES = 100
 
 
 class MissionFileError(ValueError):

@@ -19,17 +19,30 @@ import selectors
 import socket
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import common as mavlink
+
+from gcs.transport import GCS_SYSID
 
 HEARTBEAT_INTERVAL_S = 0.5
 # After the last report, how long the probe keeps listening for replies still on their way: a report sent just before
 # the end is not lost because the run stopped first (on a loaded machine the hop can take a good part of a second).
 DRAIN_S = 1.0
 PROBE_OFFSET_NORTH_DEG = 0.09  # about 10 km
-PROBE_SYSIDS = (240, 241)
+PROBE_SYSIDS = (240, 241)  # A and B unless the swarm flies them (probe_sysids)
+MAX_SYSID = GCS_SYSID - 1  # 255 is the ground station's
+
+
+def probe_sysids(drone_sysids: Iterable[int]) -> tuple[int, int] | None:
+    """The probe's two sysids beside a swarm of these drones: PROBE_SYSIDS, or the highest two no drone has if it
+    flies one of them; None if the swarm leaves fewer than two (253 or 254 drones)."""
+    taken = set(drone_sysids)
+    if not taken & set(PROBE_SYSIDS):
+        return PROBE_SYSIDS
+    free = [s for s in range(MAX_SYSID, 0, -1) if s not in taken]
+    return (free[0], free[1]) if len(free) >= 2 else None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -76,14 +89,16 @@ class RelayProbe:
         anchor_lat_lon_alt: tuple[float, float, float],
         rate_hz: float = 10.0,
         clock: Callable[[], float] = time.monotonic,
+        sysids: tuple[int, int] = PROBE_SYSIDS,
     ) -> None:
         self._gcs = ("127.0.0.1", gcs_port)
+        self.sysids = sysids
         self._clock = clock
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", 0))
         self.sock.setblocking(False)
-        self._sender = mavlink.MAVLink(None, srcSystem=PROBE_SYSIDS[0], srcComponent=1)
-        self._other = mavlink.MAVLink(None, srcSystem=PROBE_SYSIDS[1], srcComponent=1)
+        self._sender = mavlink.MAVLink(None, srcSystem=sysids[0], srcComponent=1)
+        self._other = mavlink.MAVLink(None, srcSystem=sysids[1], srcComponent=1)
         self._parser = mavlink.MAVLink(None)
         self._parser.robust_parsing = True
         lat, lon, alt = anchor_lat_lon_alt
@@ -123,7 +138,7 @@ class RelayProbe:
                 return
             now = self._clock()
             for msg in self._parser.parse_buffer(data) or []:
-                if msg.get_type() != "GLOBAL_POSITION_INT" or msg.get_srcSystem() != PROBE_SYSIDS[0]:
+                if msg.get_type() != "GLOBAL_POSITION_INT" or msg.get_srcSystem() != self.sysids[0]:
                     continue
                 sent = self._sent_at.pop(msg.time_boot_ms, None)
                 if sent is not None:
@@ -159,13 +174,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=10.0, help="how long to probe (default 10)")
     parser.add_argument("--rate", type=float, default=10.0, help="reports per second (default 10)")
     parser.add_argument("--anchor", default="47.397742,8.545594,488.0", help="LAT,LON,ALT near the swarm")
+    parser.add_argument("--sysids", default=f"{PROBE_SYSIDS[0]},{PROBE_SYSIDS[1]}",
+                        help=f"A,B: the probe's two sysids, none of the swarm's (default {PROBE_SYSIDS[0]},"
+                        f"{PROBE_SYSIDS[1]})")  # fmt: skip
     args = parser.parse_args(argv)
     try:
         lat, lon, alt = (float(v) for v in args.anchor.split(","))
     except ValueError:
         print(f"error: --anchor must be LAT,LON,ALT, got {args.anchor!r}", file=sys.stderr)
         return 2
-    probe = RelayProbe(args.port, (lat, lon, alt), rate_hz=args.rate)
+    try:
+        a, b = (int(v) for v in args.sysids.split(","))
+    except ValueError:
+        a = b = 0
+    if not (1 <= a <= MAX_SYSID and 1 <= b <= MAX_SYSID and a != b):
+        print(f"error: --sysids must be two different sysids in 1..{MAX_SYSID}, got {args.sysids!r}", file=sys.stderr)
+        return 2
+    probe = RelayProbe(args.port, (lat, lon, alt), rate_hz=args.rate, sysids=(a, b))
     try:
         stats = probe.run_for(args.seconds)
     finally:

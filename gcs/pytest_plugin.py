@@ -30,7 +30,8 @@ INSTANCES_PER_SESSION = 50  # each session of a test starts this many instances 
 def pytest_addoption(parser: pytest.Parser) -> None:
     group = parser.getgroup("swarmsitl", "simulated drone swarms")
     group.addoption("--swarm-first-instance", type=int, default=0, metavar="N",
-                    help="instance of the first simulated drone (sysid N+1, ports 14540+N...; default 0)")  # fmt: skip
+                    help="instance of the first simulated drone (sysid N+1, its ports as docs/mavlink.md gives "
+                    "them; default 0)")  # fmt: skip
 
 
 def pytest_configure(config: pytest.Config) -> None:

@@ -21,13 +21,13 @@ from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
 from sitl.linkmodel import IMPAIRMENT_KEYS, LinkProfile, link_profile
 from sitl.mavlink_io import LinkConfig, LinkError, parse_host_port
 from sitl.mesh import DEFAULT_EXPONENT, MeshSettings, mesh_problem
+from sitl.ports import GCS_REMOTE_PORT, MAX_INSTANCE, instance_ports
 from sitl.protocol.signing import SigningKeyError, load_key
 from sitl.specs import DroneSpec, ProcessSpec
 from sitl.wind import WindConfig
 from sitl.world import WorldError
 
 EXIT_USAGE = 2
-MAX_INSTANCE = 254  # MAVLink sysid i + 1 <= 255
 SPEED_ENV = "PX4_SIM_SPEED_FACTOR"
 
 if TYPE_CHECKING:
@@ -82,21 +82,23 @@ def _port(value: int | None, default: int, what: str) -> int:
 
 
 def _links(args: argparse.Namespace, i: int) -> tuple[LinkConfig, ...]:
-    """PX4 SITL's port convention for instance i: API 14580+i -> 14540+i, ground station 18570+i -> 14550."""
+    """Instance i's links on its ports (sitl/ports.py): PX4 SITL's for i < 40 (API 14580+i -> 14540+i, ground
+    station 18570+i -> 14550), API 16000+i -> 15000+i from 40 on."""
     if args.no_mavlink:
         return ()
+    ports = instance_ports(i)
     links = [
         LinkConfig(
             name="API",
-            bind=(args.host, _port(args.api_port, 14580 + i, "--api-port")),
-            remote=_address(args.api_remote or f"127.0.0.1:{14540 + i}", "--api-remote"),
+            bind=(args.host, _port(args.api_port, ports.api_bind, "--api-port")),
+            remote=_address(args.api_remote or f"127.0.0.1:{ports.api_remote}", "--api-remote"),
         )
     ]
     if not args.no_gcs:
         links.append(
             LinkConfig(
                 name="GCS",
-                bind=(args.host, _port(args.gcs_port, 18570 + i, "--gcs-port")),
+                bind=(args.host, _port(args.gcs_port, ports.gcs_bind, "--gcs-port")),
                 remote=_address(args.gcs_remote, "--gcs-remote"),
             )
         )
@@ -104,7 +106,7 @@ def _links(args: argparse.Namespace, i: int) -> tuple[LinkConfig, ...]:
 
 
 def parse_instances(text: str) -> list[int]:
-    """``0-24``, ``3`` or ``0-3,8,10-11``: instance numbers, each in 0..254, in order, without repeats."""
+    """``0-24``, ``3`` or ``0-3,8,10-11``: instance numbers, each in 0..MAX_INSTANCE, in order, without repeats."""
     out: list[int] = []
     for part in text.split(","):
         low, sep, high = part.strip().partition("-")
@@ -168,12 +170,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--wind", default="0,0,0", help="steady wind N,E,D in m/s (the direction it blows to)")
     parser.add_argument("--gust", type=float, default=0.0, help="gust RMS intensity in m/s")
     parser.add_argument("--host", default="127.0.0.1", help="address the MAVLink links bind (default loopback)")
-    parser.add_argument("--api-port", type=int, default=None, help="API link UDP port (default 14580+instance)")
+    parser.add_argument("--api-port", type=int, default=None, help="API link UDP port (default 14580+instance; "
+                        "16000+instance from instance 40 on)")  # fmt: skip
     parser.add_argument(
-        "--api-remote", default=None, help="HOST:PORT the API link streams to (default 127.0.0.1:14540+instance)"
+        "--api-remote",
+        default=None,
+        help="HOST:PORT the API link streams to (default 127.0.0.1:14540+instance; 15000+instance from instance 40 on)",
     )
     parser.add_argument("--gcs-port", type=int, default=None, help="ground-station link port (default 18570+instance)")
-    parser.add_argument("--gcs-remote", default="127.0.0.1:14550", help="HOST:PORT of the ground station")
+    parser.add_argument("--gcs-remote", default=f"127.0.0.1:{GCS_REMOTE_PORT}", help="HOST:PORT of the ground station")
     parser.add_argument("--no-gcs", action="store_true", help="no ground-station link")
     parser.add_argument("--no-mavlink", action="store_true", help="no MAVLink links at all (e.g. for --demo)")
     parser.add_argument("--world", default=None, help="name of the swarm's shared-world table (set by swarm)")

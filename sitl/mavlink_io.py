@@ -1,9 +1,10 @@
 """MAVLink over UDP for one drone: sockets, framing, and the routing of effects. The only IO of the protocol stack.
 
-Each link (the API link on 14580+i and the ground-station link on 18570+i, PX4's SITL convention) is a non-blocking
-UDP socket with its own ``LinkServices``. A link streams to its configured remote from boot and also answers every
-address that has sent it something (PX4's behaviour), so a client on any port is heard. Datagrams are parsed with
-pymavlink's robust parser: garbage becomes "bad data" and is dropped; nothing a peer sends can raise out of here.
+Each link (the API link on 14580+i and the ground-station link on 18570+i, PX4's SITL convention; from instance 40
+on the API link is on 16000+i, sitl/ports.py) is a non-blocking UDP socket with its own ``LinkServices``. A link
+streams to its configured remote from boot and also answers every address that has sent it something (PX4's
+behaviour), so a client on any port is heard. Datagrams are parsed with pymavlink's robust parser: garbage becomes
+"bad data" and is dropped; nothing a peer sends can raise out of here.
 
 An injected MAVLink failure (FAILURE_UNIT_SYSTEM_MAVLINK_SIGNAL, see sitl/faults.py) silences every link for the rest
 of the process or for the time it asks, as a dead radio would: the reply that accepted the injection still leaves,

@@ -15,6 +15,7 @@ from typing import Any, Literal
 
 from gcs.frames import Vec3
 from gcs.geodesy import DEFAULT_ORIGIN, GeoPoint
+from gcs.harness import MAX_DRONES
 from gcs.links import LinkPlan, NeighbourPlan
 from gcs.losses import LossPolicy
 
@@ -54,10 +55,10 @@ class LaunchOptions:
             value = getattr(self, name)
             if value is not None and not isinstance(value, Path):
                 object.__setattr__(self, name, Path(value))
-        if not 1 <= self.drones <= 100:
-            raise ValueError(f"drones must be in 1..100, got {self.drones}")
-        if self.first_instance < 0 or self.first_instance + self.drones > 255:
-            raise ValueError("first_instance must leave room for every sysid (instance + 1 <= 255)")
+        if not 1 <= self.drones <= MAX_DRONES:
+            raise ValueError(f"drones must be in 1..{MAX_DRONES}, got {self.drones}")
+        if self.first_instance < 0 or self.first_instance + self.drones > MAX_DRONES:
+            raise ValueError(f"first_instance must leave room for every sysid (instance + 1 <= {MAX_DRONES})")
         if self.speed is not None and not (math.isfinite(self.speed) and self.speed > 0):
             raise ValueError(f"speed must be a positive number, got {self.speed!r}")
         if self.quantum < 1:

@@ -1,12 +1,13 @@
 """Flying one run of a sweep: a ``swarm fly --lockstep`` in a process of its own, on instances nobody else holds.
 
 Runs that share a machine must not share UDP ports, and a drone's ports follow its instance (PX4's convention:
-18570 + instance, 14580 + instance), so every run holds a lock on each instance it flies (``InstanceLocks``:
-``fcntl.flock`` on one small file per instance in a directory every sweep on the machine uses). The kernel drops a
-lock with its holder, so a sweep killed with SIGKILL frees its instances. The rest is already per run: each swarm's
-shared world has a name of its own, its lockstep sockets are named after it, its report goes to the run's folder,
-and its supervisor's ports are chosen by the system. Which instances a run gets does not change what it does: a
-drone's randomness comes from its seed alone (drone k of the swarm: seed + k).
+18570+instance, 14580+instance, and a block of their own from instance 40 on: docs/mavlink.md), so every run holds a
+lock on each instance it flies (``InstanceLocks``: ``fcntl.flock`` on one small file per instance in a directory
+every sweep on the machine uses). The kernel drops a lock with its holder, so a sweep killed with SIGKILL frees its
+instances. The rest is already per run: each swarm's shared world has a name of its own, its lockstep sockets are
+named after it, its report goes to the run's folder, and its supervisor's ports are chosen by the system. Which
+instances a run gets does not change what it does: a drone's randomness comes from its seed alone (drone k of the
+swarm: seed + k).
 
 A run is complete when its ``run.json`` exists: written last, after the report, so a run cut short by Ctrl-C or a
 lost node leaves no ``run.json`` and is flown again when the sweep resumes.
@@ -29,13 +30,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, Final
 
+from gcs.harness import LAST_INSTANCE
 from gcs.sweep.plan import Run, SweepPlan, fly_command
 from gcs.sweep.stats import run_metrics
 
 RUN_FILE: Final = "run.json"
 LOG_FILE: Final = "fly.log"
 FIRST_SWEEP_INSTANCE: Final = 20  # below it: the instances `swarm up` and `swarm fly` take by default
-MAX_INSTANCE: Final = 254  # sysid = instance + 1 <= 255
+MAX_INSTANCE: Final = LAST_INSTANCE  # sysid = instance + 1 <= 254
 LOCK_DIR: Final = Path(tempfile.gettempdir()) / "swarm-sweep-instances"
 RUN_TIMEOUT_S: Final = 3600.0
 POLL_S: Final = 0.5

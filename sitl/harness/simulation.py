@@ -14,7 +14,8 @@ from typing import Literal
 from sitl.airframe import AirframeError, load_airframe
 from sitl.dynamics.plant import PHYSICS_RATE_HZ
 from sitl.harness.processes import host_groups, usable_cpus
-from sitl.world import MAX_DRONES, MAX_OBSTACLES
+from sitl.ports import INSTANCES
+from sitl.world import MAX_OBSTACLES
 
 __all__ = [
     "MAX_INSTANCES",
@@ -27,7 +28,7 @@ __all__ = [
     "parameter_value",
 ]
 
-MAX_INSTANCES = MAX_DRONES  # instances 0..MAX_INSTANCES-1 (one shared-world row each)
+MAX_INSTANCES = INSTANCES  # instances 0..MAX_INSTANCES-1: sysids 1..254, each on its own ports (sitl/ports.py)
 BARE_SIM_SECONDS = 10.0
 BARE_REPEATS = 3
 

@@ -72,7 +72,7 @@ def pytest_addoption(parser: pytest.Parser) -> None:
         type=int,
         default=20,
         metavar="I",
-        help="first sitl instance number this run may use (default 20; ports 14540+I, 14580+I, 18570+I)",
+        help="first sitl instance number this run may use (default 20; its ports: sitl/ports.py)",
     )
 
 
@@ -115,7 +115,7 @@ def _worker_index() -> int:
 
 def _instance_block(base: int, worker: int) -> int:
     """First instance of a pytest-xdist worker's block: the ``worker``-th block of 10 from ``base`` on whose ports
-    are clear of a user's instances 0-9 and of 14550 (instances 40-49 would stream to user drones' ports)."""
+    are clear of a user's instances 0-9 and of 14550 (instance 10 streams to 14550, as in PX4)."""
     blocks = (b for b in range(base, 255 - INSTANCES_PER_WORKER, INSTANCES_PER_WORKER) if _block_is_clear(b))
     for _ in range(worker):
         next(blocks, None)

@@ -26,12 +26,10 @@ from typing import IO, Final
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.ports import MAX_INSTANCE, instance_ports
 from sitl.world import SharedWorld
 
 LOOPBACK: Final = "127.0.0.1"
-API_REMOTE_BASE_PORT: Final = 14540  # the drone streams to 14540+i (PX4 SITL convention)
-API_BIND_BASE_PORT: Final = 14580  # and listens on 14580+i
-GCS_BIND_BASE_PORT: Final = 18570  # ground-station link listens on 18570+i
 AUTOPILOT_COMPID: Final = 1
 READY_TIMEOUT_S: Final = 30.0  # wall clock: Python + JSBSim start-up on a loaded 2-core machine
 STOP_GRACE_S: Final = 10.0  # SIGTERM is answered within a loop iteration; SIGKILL after this
@@ -54,7 +52,7 @@ class SitlStartError(RuntimeError):
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class DronePorts:
-    """The UDP ports of one instance, by the PX4 SITL convention."""
+    """The UDP ports of one instance, as the drone computes them (sitl/ports.py: PX4 SITL's below instance 40)."""
 
     instance: int
 
@@ -64,15 +62,15 @@ class DronePorts:
 
     @property
     def api_remote(self) -> int:
-        return API_REMOTE_BASE_PORT + self.instance
+        return instance_ports(self.instance).api_remote
 
     @property
     def api_bind(self) -> int:
-        return API_BIND_BASE_PORT + self.instance
+        return instance_ports(self.instance).api_bind
 
     @property
     def gcs_bind(self) -> int:
-        return GCS_BIND_BASE_PORT + self.instance
+        return instance_ports(self.instance).gcs_bind
 
     def all(self) -> tuple[int, int, int]:
         return (self.api_remote, self.api_bind, self.gcs_bind)
@@ -107,8 +105,8 @@ class InstanceAllocator:
     """
 
     def __init__(self, base: int, span: int) -> None:
-        if base < 1 or span < 2 or base + span > 255:
-            raise ValueError(f"instance range {base}..{base + span - 1} must lie within 1..254")
+        if base < 1 or span < 2 or base + span > MAX_INSTANCE + 1:
+            raise ValueError(f"instance range {base}..{base + span - 1} must lie within 1..{MAX_INSTANCE}")
         self._base = base
         self._span = span
         self._next = 0
@@ -244,7 +242,7 @@ def start_drone(
     extra_args: tuple[str, ...] = (),
     ready_timeout_s: float = READY_TIMEOUT_S,
 ) -> SitlDrone:
-    """Start ``sitl --instance instance`` and return once its first HEARTBEAT arrived on 127.0.0.1:14540+i.
+    """Start ``sitl --instance instance`` and return once its first HEARTBEAT arrived on its API remote port.
 
     The caller owns the result and must pass it to ``stop_drone``; if start-up fails, everything started here is
     stopped and reaped before the error propagates.
@@ -267,7 +265,7 @@ def start_drones(
     hosted: bool,
 ) -> list[SitlDrone]:
     """Start drones on ``instances``, each in its own process or (``hosted``) all in one ``sitl --instances``
-    process, and return once every one's first HEARTBEAT arrived on 127.0.0.1:14540+i; drone i's seed is
+    process, and return once every one's first HEARTBEAT arrived on its API remote port; drone i's seed is
     ``seed + (i - instances[0])``. A hosted drone's ``process`` is its host (stopping one stops them all) and its
     log is its own ``drone-<i>.log``.
 

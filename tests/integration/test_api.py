@@ -166,7 +166,8 @@ def test_a_controller_that_raises_holds_the_swarm_and_an_exception_in_the_block_
 
 
 def test_bad_launch_options_are_one_line_before_anything_starts() -> None:
-    for bad, fragment in (({"drones": 0}, "drones must be in 1..100, got 0"),
+    for bad, fragment in (({"drones": 0}, "drones must be in 1..254, got 0"),
+                          ({"drones": 255}, "drones must be in 1..254, got 255"),
                           ({"drones": 3, "first_instance": 253}, "first_instance must leave room"),
                           ({"drones": 3, "speed": -1.0}, "speed must be a positive number"),
                           ({"drones": 3, "view_port": 8765}, "view_port needs view=True")):  # fmt: skip

@@ -37,7 +37,7 @@ def test_forked_drones_report_exit_codes_take_signals_and_stop_with_the_factory(
         # A bad argument: the drone's own one-line error and exit code 2, as from the command line
         bad = factory.spawn(["--instance", "999"], tmp_path / "bad.log", 0)
         assert bad.wait(20) == 2
-        assert "--instance must be in 0..254" in (tmp_path / "bad.log").read_text()
+        assert "--instance must be in 0..253" in (tmp_path / "bad.log").read_text()
         # A short unpaced flight ends by itself with 0
         short = factory.spawn(["--instance", "61", "--no-mavlink", "--speed", "0", "--duration", "1"], None, 0)
         assert short.wait(20) == 0

@@ -22,6 +22,8 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.ports import instance_ports
+
 pytestmark = [pytest.mark.sim_only]
 
 INSTANCE = 59
@@ -80,7 +82,7 @@ def test_a_ground_station_turns_a_behaviour_on_tunes_it_and_messages_it(tmp_path
     path = tmp_path / "beacon.py"
     path.write_text(BEHAVIOUR)
     with drone(path):
-        conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{14540 + INSTANCE}", source_system=255)
+        conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{instance_ports(INSTANCE).api_remote}", source_system=255)
         try:
             conn.wait_heartbeat(timeout=30)
             # GIVEN the drone in the air, its behaviour's parameter listed among the drone's

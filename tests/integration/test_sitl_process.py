@@ -18,6 +18,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from tests.integration.mavlink_client import mavlink_connection, wait_vehicle_heartbeat
 from tests.integration.sitl_process import (
     LOOPBACK,
+    DronePorts,
     InstanceAllocator,
     SpawnDrones,
     sitl_command,
@@ -57,7 +58,7 @@ def test_a_drone_whose_api_port_is_taken_exits_with_one_line_naming_the_port(
     (instance,) = instance_allocator.take()
     try:
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as squatter:
-            api_port = 14580 + instance
+            api_port = DronePorts(instance=instance).api_bind
             squatter.bind((LOOPBACK, api_port))
             # WHEN a drone is started on that instance
             result = subprocess.run(

@@ -252,7 +252,9 @@ def test_a_drone_that_cannot_start_is_named_in_one_line(state_env: dict[str, str
     ("args", "code", "fragment"),
     [
         (("status",), 1, "no swarm is running"),
-        (("up", "-n", "0"), 2, "-n must be in 1..100"),
+        (("up", "-n", "0"), 2, "-n must be in 1..254"),
+        (("up", "-n", "255"), 2, "-n must be in 1..254, got 255"),
+        (("up", "-n", "4", "--first-instance", "251"), 2, "every sysid (instance + 1) must lie in 1..254"),
         (("up", "-n", "2", "--speed", "fast"), 2, "--speed"),
         (("fly-away",), 2, "invalid choice"),
     ],

@@ -40,14 +40,15 @@ from gcs.bench import (
     row_json,
     run_bench,
     spread,
+    swarm_probe_sysids,
     window_figures,
     write_plot,
 )
 from gcs.cli import main as swarm_main
 from gcs.composition import SITL
 from gcs.formation import CircleSpec, FormationEngine, FormationError, slots_at
-from gcs.harness import grid_layout
-from gcs.probe import PROBE_SYSIDS, latency_stats
+from gcs.harness import SpawnPlan, grid_layout
+from gcs.probe import PROBE_SYSIDS, latency_stats, probe_sysids
 from gcs.streamer import DEFAULT_LIMITS
 from sitl.harness.simulation import bare_plant_cpu_ms_per_sim_s
 
@@ -79,26 +80,40 @@ REQUIRED_ROW_KEYS = {
 def test_drone_counts_are_parsed_distinct_and_run_smallest_first() -> None:
     assert parse_drone_counts("9, 1,3") == (1, 3, 9)
     assert parse_drone_counts("100") == (100,)
+    assert parse_drone_counts("254") == (254,)
 
 
 @pytest.mark.parametrize(
     ("text", "complaint"),
-    [("0", "1..100"), ("101", "1..100"), ("1,x", "whole numbers"), ("3,3", "twice"), ("", "whole numbers")],
+    [("0", "1..254"), ("255", "1..254"), ("1,x", "whole numbers"), ("3,3", "twice"), ("", "whole numbers")],
 )
 def test_bad_drone_counts_say_what_is_wrong(text: str, complaint: str) -> None:
     with pytest.raises(BenchUsageError, match=complaint):
         parse_drone_counts(text)
 
 
-def test_instances_must_fit_the_world_and_keep_clear_of_the_probe_sysids() -> None:
+def test_instances_must_fit_the_sysids_below_the_ground_stations() -> None:
     limit = SITL.max_instances
     check_instances(100, 100, limit)  # sysids 101..200
-    with pytest.raises(BenchUsageError, match=f"sysid {PROBE_SYSIDS[0]}"):
-        check_instances(200, 50, limit)
+    check_instances(200, 50, limit)  # over the probe's usual sysids: it moves aside
+    check_instances(0, 254, limit)  # sysids 1..254
+    with pytest.raises(BenchUsageError, match=r"must lie in 0\.\.253"):
+        check_instances(1, 254, limit)
     with pytest.raises(BenchUsageError, match="must lie in"):
         check_instances(250, 10, limit)
     with pytest.raises(BenchUsageError, match="must lie in"):
         check_instances(-1, 1, limit)
+
+
+def test_the_relay_probe_takes_two_sysids_no_drone_has() -> None:
+    assert probe_sysids(range(101, 201)) == PROBE_SYSIDS  # clear of the swarm: its usual pair
+    assert probe_sysids(range(201, 251)) == (254, 253)  # the swarm flies 240: the highest free pair
+    assert probe_sysids(range(1, 253)) == (254, 253)
+    assert probe_sysids(range(3, 255)) == (2, 1)
+    assert probe_sysids(range(1, 254)) is None  # 253 drones leave one sysid: the relay hop is not timed
+    assert probe_sysids(range(1, 255)) is None
+    plan = SpawnPlan(n_drones=50, first_instance=200)
+    assert swarm_probe_sysids(plan) == (254, 253)
 
 
 def test_the_subcommand_parses_like_the_standalone_command() -> None:
@@ -120,12 +135,11 @@ def test_bad_arguments_end_with_one_error_line_and_exit_2(argv: list[str], capsy
     assert len(err) == 1 and err[0].startswith("swarm: error:"), err
 
 
-def test_a_probe_sysid_clash_is_refused_before_anything_is_spawned(capsys: pytest.CaptureFixture[str]) -> None:
-    args = argparse.Namespace(drones=(1, 3), first_instance=PROBE_SYSIDS[0] - 2, sim_seconds=1.0, seed=0,
-                              json=None, plot=None)  # fmt: skip
+def test_instances_beyond_the_sysids_are_refused_before_anything_is_spawned(capsys: pytest.CaptureFixture[str]) -> None:
+    args = argparse.Namespace(drones=(1, 254), first_instance=1, sim_seconds=1.0, seed=0, json=None, plot=None)
     assert run_bench(args, SITL) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "probe" in err[0], err
+    assert len(err) == 1 and "needs instances up to 254; they must lie in 0..253" in err[0], err
 
 
 # ------------------------------------------------------------------------------------------------ statistics

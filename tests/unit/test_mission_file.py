@@ -74,7 +74,7 @@ def test_grid_to_circle_is_the_classic_demo() -> None:
         ("radius_m = 2.5", "radius = 2.5", 13, "steps[1].radius: unknown field"),
         ('shape = "circle"', 'shape = "hexagon"', 12, "steps[1].shape: must be one of"),
         ("drones = 4", "drones = 0", 3, "swarm.drones: must be a whole number >= 1"),
-        ("drones = 4", "drones = 500", 3, "swarm.drones: at most 100"),
+        ("drones = 4", "drones = 500", 3, "swarm.drones: at most 254"),
         ('action = "land"', 'action = "teleport"', 18, "steps[2].action: must be takeoff"),
         (
             'alt_m = 3.0\n\n[[steps]]\naction = "formation"',
