@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -47,6 +48,9 @@ def add_sweep_parser(sub: Any) -> None:
                        help=f"drones each simulation process of a run hosts (default {DRONES_PER_CPU}); a run asks "
                        "one CPU per process")  # fmt: skip
     sweep.add_argument("--quantum", type=int, default=None, help="lockstep quantum of every run (swarm fly --quantum)")
+    sweep.add_argument("--speed", type=float, default=None, metavar="F",
+                       help="pace every run's lockstep clock at F times real time (swarm fly --speed; default: as "
+                       "fast as the CPU allows); a run flies the same at any pace")  # fmt: skip
     sweep.add_argument("--airframe", default=None, help="airframe of every drone (swarm fly --airframe)")
 
 
@@ -70,6 +74,10 @@ def _plan(args: argparse.Namespace, simulation: Simulation) -> tuple[SweepPlan, 
         if args.quantum < 1:
             raise SweepError(f"--quantum must be at least 1, got {args.quantum}")
         fly_args += ["--quantum", str(args.quantum)]
+    if args.speed is not None:
+        if not (math.isfinite(args.speed) and args.speed > 0):
+            raise SweepError(f"--speed must be a positive number, got {args.speed:g}")
+        fly_args += ["--speed", f"{args.speed:g}"]
     if args.airframe is not None:
         try:
             simulation.contact_distance_m(args.airframe)

@@ -246,28 +246,55 @@ def test_the_same_sweep_on_a_local_ray_head_gives_the_same_runs_and_summary(
     assert summary_ray["settings"] == summary_here["settings"]
 
 
+# Paced runs: a run's lockstep clock goes no faster than PACE x the wall clock, so a run cannot end sooner than its
+# flight's simulated time / PACE after it starts, however fast the drones compute. This mission's take-off,
+# formation, swap and landing take 14 simulated seconds (its metrics' duration_s), so a run lasts over 4.7 s at
+# PACE 3: RUN_FLOOR_S, with a margin. The run's results do not depend on the pace (lockstep).
+PACE = 3.0
+RUN_FLOOR_S = 4.0
+
+
+def complete_run_names(out: Path) -> list[str]:
+    """The runs whose run.json is there and whole (a poll may meet one half written)."""
+    names = []
+    for path in sorted(out.glob("runs/*/*/run.json")):
+        with contextlib.suppress(OSError, ValueError):
+            names.append(json.loads(path.read_text())["name"])
+    return names
+
+
 @pytest.mark.timeout(600)
 def test_a_sweep_killed_halfway_finishes_only_the_missing_runs_when_run_again(
     mission: Path, sweep_env: dict[str, str], tmp_path: Path
 ) -> None:
+    """Ctrl-C lands while the second of two runs flies, whatever the drones' speed: with one job the second run
+    starts only once the first has written its run.json, and, paced, it flies for at least RUN_FLOOR_S after that;
+    the test interrupts as soon as it sees that run.json."""
     out = tmp_path / "sweep"
-    proc = sweep(mission, out, sweep_env, "--seeds", "1-2", "--jobs", "1")
+    args = ["--seeds", "1-2", "--jobs", "1", "--speed", f"{PACE:g}"]
+    proc = sweep(mission, out, sweep_env, *args)
     deadline = time.monotonic() + 300
-    while len(run_files(out)) < 1 and time.monotonic() < deadline and proc.poll() is None:
-        time.sleep(0.2)
-    assert len(run_files(out)) == 1, proc.communicate(timeout=5)
+    while not complete_run_names(out) and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    seen = time.monotonic()
+    assert complete_run_names(out) == ["default/seed-0001"], proc.communicate(timeout=5)
     os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C, as a terminal sends it to the whole group
+    assert time.monotonic() - seen < RUN_FLOOR_S / 2  # well within the second run's flight
     code, _stdout, stderr = finish(proc, 120)
     assert code == 130 and "interrupted" in stderr and "Traceback" not in stderr, stderr
     done = run_files(out)
-    assert len(done) == 1  # the second run was under way: stopped, not complete
+    assert sorted(done) == ["default/seed-0001"]  # the second run was under way: stopped, not complete
+    assert done["default/seed-0001"]["wall_s"] >= RUN_FLOOR_S  # the pace held the first run that long too
     before = {name: (out / "runs" / name / "run.json").stat().st_mtime_ns for name in done}
     # WHEN run again with the same folder
-    code, stdout, stderr = finish(sweep(mission, out, sweep_env, "--seeds", "1-2", "--jobs", "1"), 400)
+    code, stdout, stderr = finish(sweep(mission, out, sweep_env, *args), 400)
     assert code == 0, stdout[-3000:] + stderr[-3000:]
+    # THEN it flies only the missing run, and keeps the complete one as it was
     assert "1 complete already, 1 to fly" in stdout
     assert sorted(run_files(out)) == ["default/seed-0001", "default/seed-0002"]
+    assert all(r["ok"] for r in run_files(out).values())
     assert {name: (out / "runs" / name / "run.json").stat().st_mtime_ns for name in done} == before
+    assert "--speed" in run_files(out)["default/seed-0002"]["command"]
 
 
 @pytest.mark.timeout(120)
@@ -279,6 +306,7 @@ def test_a_sweep_killed_halfway_finishes_only_the_missing_runs_when_run_again(
         (["--seeds", "5-1"], "must be a range from low to high"),
         (["--seeds", "1-2", "--link-loss", "0,1.5"], "every probability must be in [0, 1)"),
         (["--seeds", "1-2", "--jobs", "0"], "--jobs must be at least 1"),
+        (["--seeds", "1-2", "--speed", "0"], "--speed must be a positive number, got 0"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_code_2(mission: Path, sweep_env: dict[str, str], tmp_path: Path,
