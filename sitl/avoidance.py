@@ -13,33 +13,37 @@ position error, limited) and flies ``avoid(...).vel_ned_mps`` instead. Two pure 
   and avoided in full. A small, deterministic preference for passing on the right breaks the exactly symmetric cases
   (head-on pairs, antipodal swaps) that otherwise end in a standstill.
 
-Both functions are pure and allocate only a few small lists per call: plain float arithmetic, because numpy's call
-overhead on 2-vectors would cost more than the algorithm itself. docs/avoidance.md has the algorithm, its limits and
-measured figures.
+Both functions are pure. Their arithmetic is compiled (sitl/kernels/avoidance.py, on obstacles as float64 rows); this
+module holds the configuration and the records, and turns one into the other. docs/avoidance.md has the algorithm,
+its limits and measured figures.
 """
 
 from __future__ import annotations
 
-import heapq
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Final, Literal
 
 import numpy as np
+import numpy.typing as npt
 
+from sitl.kernels import avoidance as ak
+from sitl.kernels.avoidance import MAX_AGE_S as MAX_AGE_S
+from sitl.kernels.avoidance import MAX_REL_POS_M as MAX_REL_POS_M
+from sitl.kernels.avoidance import MAX_SPEED_MPS as MAX_SPEED_MPS
 from sitl.mathutil import fast_constructor
 
 Vec3 = tuple[float, float, float]
 ObstacleSource = Literal["camera", "relay", "fused"]
 
 _ZERO3: Final[Vec3] = (0.0, 0.0, 0.0)
-_EPS: Final = 1e-9
-# Bounds of physical sense for inputs (a relative position beyond 1000 km, a speed beyond 1 km/s, an age beyond
-# 1000 s is corrupt data, not an obstacle); they keep every intermediate product finite.
-MAX_REL_POS_M: Final = 1e6
-MAX_SPEED_MPS: Final = 1e3
-MAX_AGE_S: Final = 1e3
+_SOURCES: Final[dict[float, ObstacleSource]] = {
+    ak.SOURCE_CAMERA: "camera",
+    ak.SOURCE_RELAY: "relay",
+    ak.SOURCE_FUSED: "fused",
+}
+_SOURCE_CODES: Final[dict[str, float]] = {name: code for code, name in _SOURCES.items()}
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -124,14 +128,56 @@ class AvoidanceResult:
     constraining: int
 
 
-def _finite3(v: Sequence[float]) -> bool:
-    return len(v) == 3 and math.isfinite(v[0]) and math.isfinite(v[1]) and math.isfinite(v[2])
+def config_row(config: AvoidanceConfig) -> npt.NDArray[np.float64]:
+    """The configuration as the kernels take it (one float64 row)."""
+    row = np.empty(ak.CONFIG_SIZE)
+    row[ak.K_ENABLED] = 1.0 if config.enabled else 0.0
+    row[ak.K_OWN_RADIUS] = config.own_radius_m
+    row[ak.K_MIN_DIST] = config.min_distance_m
+    row[ak.K_HORIZON] = config.horizon_s
+    row[ak.K_RECOVERY] = config.recovery_time_s
+    row[ak.K_MAX_CORR] = config.max_correction_mps
+    row[ak.K_MAX_SPEED] = config.max_speed_mps
+    row[ak.K_MAX_ACCEL] = config.max_accel_mps2
+    row[ak.K_BAND] = config.vertical_band_m
+    row[ak.K_TILT] = config.pass_right_tilt_rad
+    row[ak.K_TIE] = config.pass_right_tie_sin
+    row[ak.K_MAX_OBSTACLES] = config.max_obstacles
+    row[ak.K_RELAY_MAX_AGE] = config.relay_max_age_s
+    row[ak.K_GATE] = config.gate_m
+    row[ak.K_GATE_FRAC] = config.gate_range_frac
+    row[ak.K_CAM_SIGMA_FRAC] = config.camera_range_sigma_frac
+    row[ak.K_RELAY_SIGMA] = config.relay_pos_sigma_m
+    row[ak.K_RELAY_AGE_SIGMA] = config.relay_age_sigma_mps
+    return row
 
 
-def _within3(v: Sequence[float], limit: float) -> bool:
-    """All three components in [-limit, limit] (false for NaN): inputs beyond physical sense are ignored, so no
-    intermediate product can overflow."""
-    return len(v) == 3 and -limit <= v[0] <= limit and -limit <= v[1] <= limit and -limit <= v[2] <= limit
+def obstacle_rows(obstacles: Sequence[Obstacle]) -> npt.NDArray[np.float64]:
+    """Obstacle records as the kernels take them, one row each."""
+    rows = np.empty((len(obstacles), ak.OBSTACLE_SIZE))
+    for row, ob in zip(rows, obstacles, strict=True):
+        row[ak.O_POS : ak.O_POS + 3] = ob.rel_pos_ned_m
+        row[ak.O_VEL : ak.O_VEL + 3] = ob.vel_ned_mps
+        row[ak.O_VEL_KNOWN] = 1.0 if ob.vel_known else 0.0
+        row[ak.O_RADIUS] = ob.radius_m
+        row[ak.O_SOURCE] = _SOURCE_CODES[ob.source]
+        row[ak.O_AGE] = ob.age_s
+    return rows
+
+
+def obstacles_from_rows(rows: npt.NDArray[np.float64]) -> list[Obstacle]:
+    """The records of obstacle rows (``obstacle_rows`` undone)."""
+    return [
+        new_obstacle(
+            rel_pos_ned_m=(px, py, pz),
+            vel_ned_mps=(vx, vy, vz),
+            vel_known=known != 0.0,
+            radius_m=radius,
+            source=_SOURCES[source],
+            age_s=age,
+        )
+        for px, py, pz, vx, vy, vz, known, radius, source, age in rows.tolist()
+    ]
 
 
 # ---------------------------------------------------------------------------------------------------------------------
@@ -172,248 +218,29 @@ def fuse(
 # radius, age), each as ``Obstacle`` holds it.
 CameraFields = tuple[Vec3, float, float]
 RelayFields = tuple[Vec3, Vec3, float, float]
-# From this many camera-relay pairs on, the association gate is checked for all pairs at once with numpy (the same
-# element-wise float operations in the same order, so the same figures to the last bit); below it a Python loop is
-# cheaper than building the arrays. A 50-drone circle has some 14 of each within camera and relay range.
-VECTOR_PAIRS = 48
 
 
-def fuse_fields(
+def fuse_rows(
     camera: Sequence[CameraFields],
     relay: Sequence[RelayFields],
     own_vel_ned_mps: Vec3,
-    config: AvoidanceConfig,
-    *,
-    vector_pairs: int = VECTOR_PAIRS,
+    config: npt.NDArray[np.float64],
+) -> npt.NDArray[np.float64]:
+    """``fuse`` on the obstacles' fields, to obstacle rows (``config`` as ``config_row`` gives it): what collision
+    prevention runs at the avoidance rate, with no record built."""
+    cams = np.array([(*pos, radius, age) for pos, radius, age in camera], dtype=np.float64).reshape(-1, ak.CAMERA_SIZE)
+    rels = np.array([(*pos, *vel, radius, age) for pos, vel, radius, age in relay],
+                    dtype=np.float64).reshape(-1, ak.RELAY_SIZE)  # fmt: skip
+    out = np.empty((len(cams) + len(rels), ak.OBSTACLE_SIZE))
+    own = np.array(own_vel_ned_mps, dtype=np.float64).reshape(3)
+    return out[: ak.fuse(cams, rels, own, config, out)]
+
+
+def fuse_fields(
+    camera: Sequence[CameraFields], relay: Sequence[RelayFields], own_vel_ned_mps: Vec3, config: AvoidanceConfig
 ) -> list[Obstacle]:
-    """``fuse`` on the obstacles' fields rather than on ``Obstacle`` records: collision prevention builds its inputs
-    at the avoidance rate for every neighbour, and a record per input that fusion only takes apart again cost more
-    than fusion itself in a crowd. ``vector_pairs`` is exposed so tests can hold both association paths to one
-    result."""
-    own_vx, own_vy, own_vz = own_vel_ned_mps if _within3(own_vel_ned_mps, MAX_SPEED_MPS) else _ZERO3
-    max_age = config.relay_max_age_s
-    relays: list[Obstacle] = []
-    for pos, vel, radius, age in relay:
-        if not (age <= max_age and _within3(pos, MAX_REL_POS_M) and _within3(vel, MAX_SPEED_MPS)):
-            continue
-        age = max(0.0, age)
-        (px, py, pz), (vx, vy, vz) = pos, vel
-        relays.append(
-            new_obstacle(
-                rel_pos_ned_m=(px + vx * age, py + vy * age, pz + vz * age),
-                vel_ned_mps=vel,
-                vel_known=True,
-                radius_m=radius,
-                source="relay",
-                age_s=age,
-            )
-        )
-    cams = [c for c in camera if _within3(c[0], MAX_REL_POS_M) and c[2] <= MAX_AGE_S]
-
-    cam_match: dict[int, int] = {}
-    if cams and relays:
-        relay_positions = [r.rel_pos_ned_m for r in relays]
-        # Each detection where it is now on the static guess (the relay velocity also moves it once matched), and
-        # the square of its gate.
-        moved: list[tuple[float, float, float, float]] = []
-        gate_m, gate_frac = config.gate_m, config.gate_range_frac
-        for (cx, cy, cz), _radius, age in cams:
-            age = max(0.0, age)
-            cx, cy, cz = cx - own_vx * age, cy - own_vy * age, cz - own_vz * age
-            gate = gate_m + gate_frac * math.sqrt(cx * cx + cy * cy + cz * cz)
-            moved.append((cx, cy, cz, gate * gate))
-        if len(cams) * len(relays) >= vector_pairs:
-            candidates = _gate_pairs_numpy(moved, relay_positions)  # sorted
-        else:
-            candidates = []
-            for ci, (cx, cy, cz, gate_sq) in enumerate(moved):
-                for ri, (rx, ry, rz) in enumerate(relay_positions):
-                    dx, dy, dz = rx - cx, ry - cy, rz - cz
-                    d_sq = dx * dx + dy * dy + dz * dz
-                    if d_sq <= gate_sq:  # a square root only for the few within the gate
-                        candidates.append((math.sqrt(d_sq), ci, ri))
-            candidates.sort()
-        used_relay: set[int] = set()
-        pairs = min(len(cams), len(relays))
-        for _, ci, ri in candidates:
-            if ci not in cam_match and ri not in used_relay:
-                cam_match[ci] = ri
-                used_relay.add(ri)
-                if len(cam_match) == pairs:
-                    break  # every detection or every entry is taken: no later pair can be
-
-    out: list[Obstacle] = []
-    for ci, c in enumerate(cams):
-        age = max(0.0, c[2])
-        ri_match = cam_match.get(ci)
-        if ri_match is None:
-            cx, cy, cz = c[0]
-            out.append(
-                new_obstacle(
-                    rel_pos_ned_m=(cx - own_vx * age, cy - own_vy * age, cz - own_vz * age),
-                    radius_m=c[1],
-                    source="camera",
-                    age_s=age,
-                )
-            )
-            continue
-        out.append(_fuse_pair(c[0], c[1], relays[ri_match], age, (own_vx, own_vy, own_vz), config))
-    if cam_match:
-        matched = set(cam_match.values())
-        out.extend(r for ri, r in enumerate(relays) if ri not in matched)
-    else:
-        out.extend(relays)
-    return out
-
-
-def _gate_pairs_numpy(
-    moved: list[tuple[float, float, float, float]], relay_positions: list[Vec3]
-) -> list[tuple[float, int, int]]:
-    """(distance, camera index, relay index) of every pair within the camera's gate, sorted as the tuples sort: the
-    loop of ``fuse_fields`` as array operations (a difference, three products and two sums per pair, each rounded as
-    the loop rounds it, and a correctly rounded square root)."""
-    cam = np.array(moved)
-    rel = np.array(relay_positions)
-    dx = rel[:, 0] - cam[:, 0:1]
-    dy = rel[:, 1] - cam[:, 1:2]
-    dz = rel[:, 2] - cam[:, 2:3]
-    d_sq = dx * dx + dy * dy + dz * dz
-    ci, ri = np.nonzero(d_sq <= cam[:, 3:4])
-    dist = np.sqrt(d_sq[ci, ri])  # correctly rounded, as math.sqrt
-    order = np.lexsort((ri, ci, dist))  # the order of sorted (distance, camera, relay) tuples
-    return list(zip(dist[order].tolist(), ci[order].tolist(), ri[order].tolist(), strict=True))
-
-
-def _fuse_pair(cam_pos: Vec3, cam_radius_m: float, rel: Obstacle, cam_age_s: float, own_vel: Vec3,
-               config: AvoidanceConfig) -> Obstacle:  # fmt: skip
-    """Camera bearing with the inverse-variance mean of camera and relay range, relay velocity."""
-    vx, vy, vz = rel.vel_ned_mps
-    cx, cy, cz = cam_pos
-    cx += (vx - own_vel[0]) * cam_age_s
-    cy += (vy - own_vel[1]) * cam_age_s
-    cz += (vz - own_vel[2]) * cam_age_s
-    cam_range = math.sqrt(cx * cx + cy * cy + cz * cz)
-    rx, ry, rz = rel.rel_pos_ned_m
-    relay_range = math.sqrt(rx * rx + ry * ry + rz * rz)
-    if cam_range < _EPS:
-        pos = rel.rel_pos_ned_m
-    else:
-        var_cam = max(config.camera_range_sigma_frac * cam_range, 0.01) ** 2
-        var_relay = max(config.relay_pos_sigma_m + config.relay_age_sigma_mps * rel.age_s, 0.01) ** 2
-        rng = (cam_range / var_cam + relay_range / var_relay) / (1.0 / var_cam + 1.0 / var_relay)
-        k = rng / cam_range
-        pos = (cx * k, cy * k, cz * k)
-    return new_obstacle(
-        rel_pos_ned_m=pos,
-        vel_ned_mps=rel.vel_ned_mps,
-        vel_known=True,
-        radius_m=max(cam_radius_m, rel.radius_m),
-        source="fused",
-        age_s=cam_age_s,
-    )
-
-
-# ---------------------------------------------------------------------------------------------------------------------
-# ORCA linear programs (after RVO2's Agent.cpp). A line is (point x, point y, direction x, direction y); the permitted
-# half-plane lies to the left of the direction, i.e. det(direction, point - v) <= 0.
-
-
-def _lp1(
-    lines: list[tuple[float, float, float, float]],
-    n: int,
-    radius: float,
-    opt_x: float,
-    opt_y: float,
-    direction_opt: bool,
-) -> tuple[float, float] | None:
-    """Best point on line n within the disk and lines 0..n-1, or None when there is none."""
-    px, py, dx, dy = lines[n]
-    dot = px * dx + py * dy
-    disc = dot * dot + radius * radius - (px * px + py * py)
-    if disc < 0.0:
-        return None
-    sq = math.sqrt(disc)
-    t_left = -dot - sq
-    t_right = -dot + sq
-    for i in range(n):
-        qx, qy, ex, ey = lines[i]
-        denom = dx * ey - dy * ex
-        numer = ex * (py - qy) - ey * (px - qx)
-        if abs(denom) <= 1e-6:
-            if numer < 0.0:
-                return None
-            continue
-        t = numer / denom
-        if denom >= 0.0:
-            t_right = min(t_right, t)
-        else:
-            t_left = max(t_left, t)
-        if t_left > t_right:
-            return None
-    if direction_opt:
-        t = t_right if opt_x * dx + opt_y * dy > 0.0 else t_left
-    else:
-        t = dx * (opt_x - px) + dy * (opt_y - py)
-        t = t_left if t < t_left else (t_right if t > t_right else t)
-    return px + t * dx, py + t * dy
-
-
-def _lp2(
-    lines: list[tuple[float, float, float, float]],
-    radius: float,
-    opt_x: float,
-    opt_y: float,
-    direction_opt: bool,
-) -> tuple[int, float, float]:
-    """(index of the first line that cannot be met or len(lines), result x, result y)."""
-    if direction_opt:
-        rx, ry = opt_x * radius, opt_y * radius
-    else:
-        norm_sq = opt_x * opt_x + opt_y * opt_y
-        if norm_sq > radius * radius:
-            s = radius / math.sqrt(norm_sq)
-            rx, ry = opt_x * s, opt_y * s
-        else:
-            rx, ry = opt_x, opt_y
-    for i, (px, py, dx, dy) in enumerate(lines):
-        if dx * (py - ry) - dy * (px - rx) > 0.0:
-            res = _lp1(lines, i, radius, opt_x, opt_y, direction_opt)
-            if res is None:
-                return i, rx, ry
-            rx, ry = res
-    return len(lines), rx, ry
-
-
-def _lp3(
-    lines: list[tuple[float, float, float, float]], begin: int, radius: float, rx: float, ry: float
-) -> tuple[float, float]:
-    """The velocity that minimises the largest violation of any line (all lines are soft: no static polygons)."""
-    distance = 0.0
-    for i in range(begin, len(lines)):
-        px, py, dx, dy = lines[i]
-        if dx * (py - ry) - dy * (px - rx) <= distance:
-            continue
-        proj: list[tuple[float, float, float, float]] = []
-        for j in range(i):
-            qx, qy, ex, ey = lines[j]
-            determinant = dx * ey - dy * ex
-            if abs(determinant) <= 1e-6:
-                if dx * ex + dy * ey > 0.0:
-                    continue
-                lx, ly = 0.5 * (px + qx), 0.5 * (py + qy)
-            else:
-                s = (ex * (py - qy) - ey * (px - qx)) / determinant
-                lx, ly = px + s * dx, py + s * dy
-            nx, ny = ex - dx, ey - dy
-            norm = math.sqrt(nx * nx + ny * ny)
-            if norm < _EPS:
-                continue
-            proj.append((lx, ly, nx / norm, ny / norm))
-        fail, tx, ty = _lp2(proj, radius, -dy, dx, True)
-        if fail >= len(proj):
-            rx, ry = tx, ty
-        distance = dx * (py - ry) - dy * (px - rx)
-    return rx, ry
+    """``fuse`` on the obstacles' fields rather than on ``Obstacle`` records."""
+    return obstacles_from_rows(fuse_rows(camera, relay, own_vel_ned_mps, config_row(config)))
 
 
 # ---------------------------------------------------------------------------------------------------------------------
@@ -422,7 +249,7 @@ def _lp3(
 
 def required_separation_m(radius_m: float, config: AvoidanceConfig) -> float:
     """Centre distance to keep from a body of this radius: min_distance for our own size, the same gap otherwise."""
-    return max(config.own_radius_m + radius_m, config.min_distance_m + radius_m - config.own_radius_m)
+    return ak.separation_m(radius_m, config_row(config))
 
 
 def avoid(
@@ -443,215 +270,43 @@ def avoid(
     this same algorithm and gets the reciprocal half of each manoeuvre; anything else (unknown velocity, or a
     camera track) is avoided in full, as if it would not move out of the way.
     """
-    return avoid_prepared(own_vel_ned_mps, desired_vel_ned_mps, prepare(obstacles, config), config)
+    row = config_row(config)
+    return avoid_prepared(own_vel_ned_mps, desired_vel_ned_mps, prepare_rows(obstacle_rows(obstacles), row), row)
 
 
 @dataclass(frozen=True, slots=True)
 class Prepared:
     """What ``avoid`` works out of its obstacles whatever the velocities: the closest centre distance, and each
-    usable obstacle with its figures (``prepare``). Collision prevention asks ``avoid`` twice about the same
-    obstacles (the position loop's demand, then the mission's pace), and prepares them once."""
+    usable obstacle's row with its figures (``prepare_rows``). Collision prevention asks ``avoid`` twice about the
+    same obstacles (the position loop's demand, then the mission's pace), and prepares them once."""
 
     closest_m: float
-    # (obstacle, rel z, obstacle vz, separation to keep, horizontal distance squared, gap, obstacle horizontal speed)
-    usable: list[tuple[Obstacle, float, float, float, float, float, float]]
+    usable: npt.NDArray[np.float64]  # (n, USABLE_SIZE) of sitl/kernels/avoidance.py
+
+
+def prepare_rows(obstacles: npt.NDArray[np.float64], config: npt.NDArray[np.float64]) -> Prepared:
+    """The closest distance and the usable obstacles (those within physical sense) with the figures ``avoid`` needs of
+    each, in input order."""
+    usable = np.empty((len(obstacles), ak.USABLE_SIZE))
+    count = np.zeros(1, np.int64)
+    closest = ak.prepare(np.ascontiguousarray(obstacles), config, usable, count)
+    return Prepared(closest_m=closest, usable=usable[: int(count[0])])
 
 
 def prepare(obstacles: Sequence[Obstacle], config: AvoidanceConfig) -> Prepared:
-    """The closest distance and the usable obstacles (those within physical sense) with the figures ``avoid`` needs of
-    each, in input order."""
-    closest = math.inf
-    usable: list[tuple[Obstacle, float, float, float, float, float, float]] = []
-    for ob in obstacles:
-        p = ob.rel_pos_ned_m
-        if _finite3(p):
-            closest = min(closest, math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]))
-        if not _within3(p, MAX_REL_POS_M):
-            continue
-        if ob.vel_known and not _within3(ob.vel_ned_mps, MAX_SPEED_MPS):
-            continue
-        px, py, pz = p
-        bvx, bvy, bvz = ob.vel_ned_mps if ob.vel_known else _ZERO3
-        radius = min(ob.radius_m, MAX_REL_POS_M) if ob.radius_m > 0.0 else 0.0  # NaN compares false: 0
-        r = required_separation_m(radius, config)
-        dist_sq = px * px + py * py
-        usable.append((ob, pz, bvz, r, dist_sq, math.sqrt(dist_sq) - r, math.sqrt(bvx * bvx + bvy * bvy)))
-    return Prepared(closest_m=closest, usable=usable)
+    """``prepare_rows`` on obstacle records."""
+    return prepare_rows(obstacle_rows(obstacles), config_row(config))
 
 
 def avoid_prepared(
-    own_vel_ned_mps: Vec3, desired_vel_ned_mps: Vec3, prepared: Prepared, config: AvoidanceConfig
+    own_vel_ned_mps: Vec3, desired_vel_ned_mps: Vec3, prepared: Prepared, config: npt.NDArray[np.float64]
 ) -> AvoidanceResult:
-    """``avoid`` on obstacles already through ``prepare`` (with the same config)."""
+    """``avoid`` on obstacles already through ``prepare`` (``config`` as ``config_row`` gives it)."""
     closest = prepared.closest_m
     dvx, dvy, dvz = desired_vel_ned_mps
-    if not (config.enabled and math.isfinite(dvx) and math.isfinite(dvy)):
+    if not (config[ak.K_ENABLED] != 0.0 and math.isfinite(dvx) and math.isfinite(dvy)):
         return AvoidanceResult(vel_ned_mps=desired_vel_ned_mps, active=False, closest_m=closest, constraining=0)
-
-    vmax = max(0.0, config.max_speed_mps)
-    cap = max(0.0, config.max_correction_mps)
-    des_speed = math.hypot(dvx, dvy)
-    if des_speed > vmax:
-        dvx, dvy = dvx / des_speed * vmax, dvy / des_speed * vmax
-        des_speed = vmax
     ovx, ovy, ovz = own_vel_ned_mps
-    if not (-MAX_SPEED_MPS <= ovx <= MAX_SPEED_MPS and -MAX_SPEED_MPS <= ovy <= MAX_SPEED_MPS):
-        ovx, ovy = dvx, dvy
-    if not -MAX_SPEED_MPS <= ovz <= MAX_SPEED_MPS:
-        ovz = dvz if -MAX_SPEED_MPS <= dvz <= MAX_SPEED_MPS else 0.0
-
-    tau = max(config.horizon_s, 1e-3)
-    inv_tau = 1.0 / tau
-    inv_rec = 1.0 / max(config.recovery_time_s, 1e-3)
-    tie = config.pass_right_tie_sin
-    cos_r, sin_r = math.cos(config.pass_right_tilt_rad), math.sin(config.pass_right_tilt_rad)
-    reach_speed = des_speed + cap
-
-    lines: list[tuple[float, float, float, float]] = []
-    # (nx, ny, distance, required separation, obstacle vx, vy, responsibility) for the safety layer.
-    near: list[tuple[float, float, float, float, float, float, float]] = []
-    constraining = 0
-    for ob, r, dist_sq in _in_reach(prepared, ovz, tau, reach_speed, config):
-        px, py, _pz = ob.rel_pos_ned_m
-        bvx, bvy, _bvz = ob.vel_ned_mps if ob.vel_known else _ZERO3
-        dist = math.sqrt(dist_sq)
-        resp = 0.5 if (ob.vel_known and ob.source != "camera") else 1.0
-        if dist < 1e-6:
-            # Coincident centres: no bearing to go by; take the obstacle as straight ahead of the desired heading
-            # (or north when hovering), so the drone backs off deterministically.
-            ux, uy = (dvx / des_speed, dvy / des_speed) if des_speed > _EPS else (1.0, 0.0)
-            px, py, dist, dist_sq = ux * 1e-6, uy * 1e-6, 1e-6, 1e-12
-        rvx, rvy = ovx - bvx, ovy - bvy  # our velocity relative to the obstacle
-        r_sq = r * r
-        if dist_sq > r_sq:
-            wx, wy = rvx - inv_tau * px, rvy - inv_tau * py
-            w_len_sq = wx * wx + wy * wy
-            dot1 = wx * px + wy * py
-            if dot1 < 0.0 and dot1 * dot1 > r_sq * w_len_sq:
-                # Closest boundary point is on the cut-off circle (the horizon end of the cone).
-                w_len = math.sqrt(w_len_sq)
-                uwx, uwy = wx / w_len, wy / w_len
-                ldx, ldy = uwy, -uwx
-                k = r * inv_tau - w_len
-                ux, uy = k * uwx, k * uwy
-            else:
-                leg = math.sqrt(dist_sq - r_sq)
-                det_pw = px * wy - py * wx
-                # det > 0: relative velocity right of the bearing (NED), pass with the obstacle on our left.
-                if det_pw > -tie * dist * math.sqrt(w_len_sq):
-                    ldx, ldy = (px * leg - py * r) / dist_sq, (px * r + py * leg) / dist_sq
-                else:
-                    ldx, ldy = -(px * leg + py * r) / dist_sq, -(-px * r + py * leg) / dist_sq
-                dot2 = rvx * ldx + rvy * ldy
-                ux, uy = dot2 * ldx - rvx, dot2 * ldy - rvy
-        else:
-            # Already too close: the cut-off circle of the recovery time, i.e. separation restored within it.
-            wx, wy = rvx - inv_rec * px, rvy - inv_rec * py
-            w_len = math.sqrt(wx * wx + wy * wy)
-            if w_len < _EPS:
-                uwx, uwy = -px / dist, -py / dist
-                w_len = 0.0
-            else:
-                uwx, uwy = wx / w_len, wy / w_len
-            ldx, ldy = uwy, -uwx
-            k = r * inv_rec - w_len
-            ux, uy = k * uwx, k * uwy
-        lpx, lpy = ovx + resp * ux - dvx, ovy + resp * uy - dvy  # line point relative to the desired velocity
-        # Tilt the half-plane about its point, from north towards west: passing right of the obstacle gets cheaper.
-        ldx, ldy = ldx * cos_r + ldy * sin_r, ldy * cos_r - ldx * sin_r
-        lines.append((lpx, lpy, ldx, ldy))
-        if ldx * lpy - ldy * lpx > 1e-9:
-            constraining += 1
-        near.append((px / dist, py / dist, dist, r, bvx, bvy, resp))
-
-    if not lines:
-        out = (dvx, dvy, desired_vel_ned_mps[2])
-        return AvoidanceResult(vel_ned_mps=out, active=False, closest_m=closest, constraining=0)
-
-    # Linear program in coordinates centred on the desired velocity, over the disk of the correction cap.
-    fail, cx, cy = _lp2(lines, cap, 0.0, 0.0, False)
-    if fail < len(lines):
-        cx, cy = _lp3(lines, fail, cap, cx, cy)
-    vx, vy = dvx + cx, dvy + cy
-
-    vx, vy, braked = _safety_layer(vx, vy, near, config)
-    constraining = max(constraining, braked)
-    vx, vy = _limit(dvx, dvy, vx, vy, cap, vmax)
-    active = (vx - dvx) ** 2 + (vy - dvy) ** 2 > 1e-12
-    return AvoidanceResult(
-        vel_ned_mps=(vx, vy, desired_vel_ned_mps[2]), active=active, closest_m=closest, constraining=constraining
-    )
-
-
-def _in_reach(
-    prepared: Prepared, own_vz: float, tau: float, reach_speed: float, config: AvoidanceConfig
-) -> list[tuple[Obstacle, float, float]]:
-    """(obstacle, separation to keep, horizontal distance squared) of every usable obstacle that can be reached
-    within the horizon, at most ``config.max_obstacles`` of them, the nearest by gap; in input order."""
-    band = config.vertical_band_m
-    found: list[tuple[float, int, Obstacle, float, float]] = []
-    for ob, pz, bvz, r, dist_sq, gap, b_speed in prepared.usable:
-        if abs(pz) > band:
-            pz_end = pz + (bvz - own_vz) * tau
-            if pz * pz_end > 0.0 and abs(pz_end) > band:
-                continue
-        if gap > tau * (reach_speed + b_speed):
-            continue  # out of reach within the horizon whatever either does
-        found.append((gap, len(found), ob, r, dist_sq))
-    if 0 < config.max_obstacles < len(found):
-        found = sorted(heapq.nsmallest(config.max_obstacles, found), key=lambda item: item[1])
-    return [(ob, r, dist_sq) for _, _, ob, r, dist_sq in found]
-
-
-def _safety_layer(
-    vx: float, vy: float, near: list[tuple[float, float, float, float, float, float, float]], config: AvoidanceConfig
-) -> tuple[float, float, int]:
-    """Hard limit on the speed of approach to each obstacle, whatever the linear program had to give up.
-
-    Outside the separation r the closing speed (relative to the obstacle) may not exceed what braking at
-    ``max_accel_mps2`` cancels before r (a reciprocal neighbour brakes too, so its share doubles the distance); inside
-    r the drone must open the distance at its share of (r - d) / recovery time. The excess over each limit is removed
-    along that obstacle's direction, all computed from the same input and summed, so two obstacles pulling opposite
-    ways (a drone squeezed between two) cancel rather than the last one winning.
-    """
-    acc = max(config.max_accel_mps2, 0.0)
-    inv_rec = 1.0 / max(config.recovery_time_s, 1e-3)
-    push_x = push_y = 0.0
-    touched = 0
-    for nx, ny, dist, r, bvx, bvy, resp in near:
-        gap = dist - r
-        limit = math.sqrt(2.0 * acc * gap / resp) if gap >= 0.0 else resp * gap * inv_rec
-        excess = (vx - bvx) * nx + (vy - bvy) * ny - limit
-        if excess > 1e-9:
-            push_x -= excess * nx
-            push_y -= excess * ny
-            touched += 1
-    return vx + push_x, vy + push_y, touched
-
-
-def _limit(dvx: float, dvy: float, vx: float, vy: float, cap: float, vmax: float) -> tuple[float, float]:
-    """Pull v back towards the (speed-limited) desired velocity until it is inside both the cap and speed disks.
-
-    Both disks contain the desired velocity and are convex, so the largest fraction of the way from desired to v
-    that stays in both is inside their intersection.
-    """
-    ex, ey = vx - dvx, vy - dvy
-    e_sq = ex * ex + ey * ey
-    if e_sq <= 0.0:
-        return vx, vy
-    t = 1.0
-    if e_sq > cap * cap:
-        t = cap / math.sqrt(e_sq)
-    # |d + t e| = vmax: the positive root of e^2 t^2 + 2 (d.e) t + d^2 - vmax^2 = 0.
-    wx, wy = dvx + t * ex, dvy + t * ey
-    if wx * wx + wy * wy > vmax * vmax:
-        de = dvx * ex + dvy * ey
-        c = min(dvx * dvx + dvy * dvy - vmax * vmax, 0.0)  # desired is inside (or, by rounding, on) the circle
-        t = min(t, max(0.0, (-de + math.sqrt(de * de - e_sq * c)) / e_sq))
-    out_x, out_y = dvx + t * ex, dvy + t * ey
-    # Rounding can leave the speed a hair above the limit; never report more than promised.
-    sp_sq = out_x * out_x + out_y * out_y
-    if sp_sq > vmax * vmax:
-        s = vmax / math.sqrt(sp_sq)
-        out_x, out_y = out_x * s, out_y * s
-    return out_x, out_y
+    vx, vy, active, constraining = ak.avoid(prepared.usable, len(prepared.usable), float(ovx), float(ovy),
+                                            float(ovz), float(dvx), float(dvy), float(dvz), config)  # fmt: skip
+    return AvoidanceResult(vel_ned_mps=(vx, vy, dvz), active=active, closest_m=closest, constraining=constraining)

@@ -20,14 +20,18 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+import numpy as np
+import numpy.typing as npt
+
 from sitl.avoidance import (
     AvoidanceConfig,
     CameraFields,
     Obstacle,
     RelayFields,
     avoid_prepared,
-    fuse_fields,
-    prepare,
+    config_row,
+    fuse_rows,
+    prepare_rows,
 )
 from sitl.control.cascade import TrajectorySetpoint
 from sitl.control.position import PositionController
@@ -86,6 +90,7 @@ class CollisionPrevention:
         self._event = event
         self._config_version = -1
         self._config = AvoidanceConfig()
+        self._config_row = config_row(self._config)
         self._camera: tuple[Obstacle, ...] = ()
         self._camera_time_s = -math.inf
         self._relay: tuple[RelayedNeighbour, ...] = ()
@@ -127,9 +132,10 @@ class CollisionPrevention:
                 max_speed_mps=p["MPC_XY_VEL_MAX"],
                 max_accel_mps2=p["MPC_ACC_HOR"],
             )
+            self._config_row = config_row(self._config)
         return self._config
 
-    def _obstacles(self, pos_ned_m: Vec3f, own_vel: Vec3f, now_s: float) -> list[Obstacle]:
+    def _obstacles(self, pos_ned_m: Vec3f, own_vel: Vec3f, now_s: float) -> npt.NDArray[np.float64]:
         # Fusion's inputs as fields (``fuse_fields``), not as records: built for every neighbour at the avoidance
         # rate, records cost more than fusing them in a crowd.
         camera: list[CameraFields] = []
@@ -152,7 +158,7 @@ class CollisionPrevention:
              max(0.0, now_s - n.received_s))
             for n in neighbours
         ]  # fmt: skip
-        return fuse_fields(camera, relay, own_vel, config)
+        return fuse_rows(camera, relay, own_vel, self._config_row)
 
     # ---- the correction --------------------------------------------------------------------------------------------
     def apply(
@@ -182,8 +188,9 @@ class CollisionPrevention:
 
     def _run(self, setpoint: TrajectorySetpoint, pos: Vec3f, own_vel: Vec3f, now_s: float) -> None:
         demand = self._position.update(pos, setpoint.pos_ned_m, setpoint.vel_ned_mps)
-        config = self.config()
-        obstacles = prepare(self._obstacles(pos, own_vel, now_s), config)  # asked about twice below
+        self.config()
+        config = self._config_row
+        obstacles = prepare_rows(self._obstacles(pos, own_vel, now_s), config)  # asked about twice below
         # Whether to correct is decided on what the drone would really fly (the position loop's demand, which may be
         # a sprint to catch up with its setpoint), not on the capped pace: a pace that is clear says nothing about a
         # sprint, and two drones sprinting to catch up after a detour met at 6 m/s closing speed that way.

@@ -14,7 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from sitl.kernels import kernel
-from sitl.kernels.pymath import hypot2, np_sum
+from sitl.kernels.pymath import hypot2, np_sum, py_square
 from sitl.kernels.render import P_CX, P_CY, P_FOCAL, sphere_silhouette
 
 # A camera's row is the renderer's (sitl/kernels/render.py): focal length and principal point in pixels.
@@ -188,7 +188,7 @@ def fit_cone(
         n0 = (r0 * co0 + b * (f3 * r2 - r1 * k) + c * (r1 * h - e * r2)) / det
         n1 = (a * (r1 * k - f3 * r2) + r0 * co1 + c * (d * r2 - r1 * g)) / det
         n2 = (a * (e * r2 - r1 * h) + b * (r1 * g - d * r2) + r0 * co2) / det
-        length = math.sqrt(n0**2 + n1**2 + n2**2)
+        length = math.sqrt(py_square(n0) + py_square(n1) + py_square(n2))
         if length <= 1.0:
             return False, ax, ay, az, alpha
         ax, ay, az, alpha = n0 / length, n1 / length, n2 / length, math.acos(1.0 / length)

@@ -7,6 +7,10 @@ library's, which differs in the last bit on about one input in ten, so kernels c
 as CPython 3.11 computes it (tests/unit/test_kernels.py holds both to ``math.hypot`` on random inputs of every
 scale). Python 3.12 switched the exact squares to ``fma``, which gives the same result but for a rare last bit.
 
+CPython's ``x ** 2`` is the C library's ``pow(x, 2.0)``, which is not always ``x * x`` (glibc's pow is within about
+half an ulp, not correctly rounded); in a kernel ``x ** 2`` is ``x * x``, and LLVM turns ``pow(x, 2.0)`` into it too,
+so ``py_square`` hides the exponent from the optimiser.
+
 numpy sums a float64 array pairwise (blocks of at most 128 with eight accumulators, halves above that, from an
 identity of 0.0), not from left to right; ``np_sum`` does the same, so a kernel's sum of a pixel set is numpy's.
 """
@@ -96,6 +100,13 @@ def hypot3(x: float, y: float, z: float) -> float:
 def hypot2(x: float, y: float) -> float:
     """``math.hypot(x, y)`` as CPython 3.11 computes it (a zero third coordinate changes none of its sums)."""
     return hypot3(x, y, 0.0)
+
+
+@kernel("float64(float64)")
+def py_square(x: float) -> float:
+    """CPython's ``x ** 2``: the C library's ``pow(x, 2.0)``. The exponent is computed (``2.0 + 0.0 * x`` is 2.0 for
+    every finite x), so the compiler cannot replace the call by ``x * x``."""
+    return x ** (2.0 + 0.0 * x)
 
 
 _PAIRWISE_BLOCK = 128  # numpy's PW_BLOCKSIZE

@@ -26,10 +26,12 @@ from sitl.avoidance import (
     Obstacle,
     Vec3,
     avoid,
+    config_row,
     fuse,
-    fuse_fields,
     required_separation_m,
 )
+from sitl.kernels import avoidance as ak
+from sitl.kernels import compiled
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -529,16 +531,29 @@ def _crowd(rng: np.random.Generator, count: int, spread_m: float) -> list[Obstac
     ]
 
 
+@pytest.mark.skipif(not compiled(), reason="kernels switched off in this process")
 @pytest.mark.parametrize("seed", range(20))
-def test_association_checked_with_arrays_gives_the_loops_result_to_the_last_bit(seed: int) -> None:
+def test_compiled_fusion_and_avoidance_give_their_python_forms_bits(seed: int) -> None:
     # GIVEN a crowd of detections and relayed neighbours close enough that many pairs fall within each other's gates
     rng = np.random.default_rng(seed)
-    cams = [(o.rel_pos_ned_m, o.radius_m, o.age_s * 0.1) for o in _crowd(rng, int(rng.integers(1, 25)), 6.0)]
-    relays = [(o.rel_pos_ned_m, o.vel_ned_mps, o.radius_m, o.age_s) for o in _crowd(rng, int(rng.integers(1, 25)), 6.0)]
-    own = tuple(rng.uniform(-3.0, 3.0, 3).tolist())
-    # WHEN fused with the pairs gated by numpy and by the Python loop
-    by_arrays = fuse_fields(cams, relays, own, CONFIG, vector_pairs=0)
-    by_loop = fuse_fields(cams, relays, own, CONFIG, vector_pairs=10**9)
-    # THEN the obstacles are the same, every figure equal, and some detections were matched
-    assert by_arrays == by_loop
-    assert any(o.source == "fused" for o in by_loop)
+    cams = np.array([(*o.rel_pos_ned_m, o.radius_m, o.age_s * 0.1) for o in _crowd(rng, int(rng.integers(1, 25)), 6.0)])
+    relays = np.array([(*o.rel_pos_ned_m, *o.vel_ned_mps, o.radius_m, o.age_s)
+                       for o in _crowd(rng, int(rng.integers(1, 25)), 6.0)])  # fmt: skip
+    own = rng.uniform(-3.0, 3.0, 3)
+    row = config_row(CONFIG)
+    # WHEN fused, prepared and avoided by the compiled kernels and by the same code run as Python
+    fused = [np.empty((len(cams) + len(relays), ak.OBSTACLE_SIZE)) for _ in range(2)]
+    n_compiled = ak.fuse(cams, relays, own, row, fused[0])
+    n_python = ak.fuse.py_func(cams, relays, own, row, fused[1])
+    usable = [np.empty((n_compiled, ak.USABLE_SIZE)) for _ in range(2)]
+    counts = [np.zeros(1, np.int64) for _ in range(2)]
+    closest = (ak.prepare(fused[0][:n_compiled], row, usable[0], counts[0]),
+               ak.prepare.py_func(fused[1][:n_python], row, usable[1], counts[1]))  # fmt: skip
+    desired = rng.uniform(-4.0, 4.0, 2)
+    args = (int(counts[0][0]), *own.tolist(), *desired.tolist(), 0.0, row)
+    # THEN every figure is the same, and some detections were matched and some velocities corrected
+    assert n_compiled == n_python and np.array_equal(fused[0][:n_compiled], fused[1][:n_python])
+    assert counts[0][0] == counts[1][0] and closest[0] == closest[1]
+    assert np.array_equal(usable[0][: counts[0][0]], usable[1][: counts[1][0]])
+    assert ak.avoid(usable[0][: args[0]], *args) == ak.avoid.py_func(usable[1][: args[0]], *args)
+    assert (fused[0][:n_compiled, ak.O_SOURCE] == ak.SOURCE_FUSED).any()

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from sitl.avoidance import Obstacle, fuse
+from sitl.avoidance import Obstacle, fuse, obstacles_from_rows
 from sitl.collision_prevention import CollisionPrevention, RelayedNeighbour
 from sitl.control.cascade import TrajectorySetpoint
 from sitl.control.params import position_config
@@ -72,7 +72,7 @@ def test_the_obstacles_fused_from_fields_are_those_fused_from_records() -> None:
     cp.set_relay(neighbours)
     pos, vel, now_s = (0.3, -0.2, -3.0), (1.0, 0.5, 0.0), 10.0
     # WHEN collision prevention builds its obstacles, and the records are built as fusion's docstring describes
-    got = cp._obstacles(pos, vel, now_s)
+    got = obstacles_from_rows(cp._obstacles(pos, vel, now_s))
     config = cp.config()
     nearest = sorted(neighbours, key=lambda n: math.dist(n.pos_ned_m, pos))[: 2 * config.max_obstacles]
     relay = [

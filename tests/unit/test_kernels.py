@@ -1,6 +1,6 @@
 """The compiled kernels (sitl/kernels): the rules sitl/kernels/__init__.py states, each checked.
 
-- the helpers that make a kernel give Python's bits: CPython's ``math.hypot`` and numpy's pairwise ``sum``;
+- the helpers that make a kernel give Python's bits: CPython's ``math.hypot`` and ``x ** 2``, numpy's ``sum``;
 - every kernel is compiled when its module is imported (explicit signatures), so a forked drone never compiles;
 - processes compiling at once into an empty cache all succeed and fly the same, and the next process only loads;
 - ``SWARM_KERNELS=python`` runs the kernels as Python, and a takeoff flies the same bits both ways;
@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 
 import sitl.kernels
-from sitl.kernels.pymath import hypot2, hypot3, np_sum
+from sitl.kernels.pymath import hypot2, hypot3, np_sum, py_square
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -52,6 +52,14 @@ def test_hypot_is_cpythons_to_the_last_bit_at_every_scale() -> None:
         for x, y, z in [*rows.tolist(), *specials]:
             for got, want in ((hypot2(x, y), math.hypot(x, y)), (hypot3(x, y, z), math.hypot(x, y, z))):
                 assert got == want or (math.isnan(got) and math.isnan(want)), (x, y, z, got, want)
+
+
+def test_py_square_is_cpythons_power_of_two_not_a_product() -> None:
+    rng = np.random.default_rng(9)
+    values = (rng.standard_normal(100_000) * np.exp(rng.uniform(-20.0, 20.0, 100_000))).tolist()
+    assert all(py_square(x) == x**2 for x in values)
+    # and x ** 2 is not always x * x in CPython (the C library's pow): otherwise py_square would be needless
+    assert any(x**2 != x * x for x in values)
 
 
 def test_np_sum_adds_up_as_numpy_does() -> None:

@@ -1,0 +1,579 @@
+"""Collision prevention's numeric core as kernels: fusion of camera and relay, the obstacles' figures, and ORCA's
+linear programs with the safety layer (sitl/avoidance.py is the shell: configuration, records, the documented
+functions; docs/avoidance.md has the algorithm).
+
+An obstacle is a row of ``OBSTACLE_SIZE`` float64 (relative position, velocity, whether the velocity is known,
+radius, source, age); a prepared obstacle adds the figures ``avoid`` needs whatever the velocities. Python's
+``min``/``max`` are spelled out (``_pmin``/``_pmax``: the first argument unless the second is strictly beyond it),
+and every sum is in the Python's order, so the kernels give the bits the Python form gave.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+
+from sitl.kernels import kernel
+from sitl.kernels.pymath import hypot2, py_square
+
+EPS = 1e-9
+# Bounds of physical sense for inputs (a relative position beyond 1000 km, a speed beyond 1 km/s, an age beyond
+# 1000 s is corrupt data, not an obstacle); they keep every intermediate product finite.
+MAX_REL_POS_M = 1e6
+MAX_SPEED_MPS = 1e3
+MAX_AGE_S = 1e3
+
+# Obstacle row.
+O_POS = 0
+O_VEL = 3
+O_VEL_KNOWN = 6
+O_RADIUS = 7
+O_SOURCE = 8
+O_AGE = 9
+OBSTACLE_SIZE = 10
+SOURCE_CAMERA = 0.0
+SOURCE_RELAY = 1.0
+SOURCE_FUSED = 2.0
+# A prepared obstacle: its row, then the separation to keep, horizontal distance squared, gap, horizontal speed.
+U_SEPARATION = OBSTACLE_SIZE
+U_DIST_SQ = OBSTACLE_SIZE + 1
+U_GAP = OBSTACLE_SIZE + 2
+U_SPEED = OBSTACLE_SIZE + 3
+USABLE_SIZE = OBSTACLE_SIZE + 4
+# Fusion's inputs: a camera detection (relative position, radius, age) and a relay entry (relative position,
+# velocity, radius, age).
+CAMERA_SIZE = 5
+RELAY_SIZE = 8
+
+# Configuration row (sitl.avoidance.AvoidanceConfig).
+K_ENABLED = 0
+K_OWN_RADIUS = 1
+K_MIN_DIST = 2
+K_HORIZON = 3
+K_RECOVERY = 4
+K_MAX_CORR = 5
+K_MAX_SPEED = 6
+K_MAX_ACCEL = 7
+K_BAND = 8
+K_TILT = 9
+K_TIE = 10
+K_MAX_OBSTACLES = 11
+K_RELAY_MAX_AGE = 12
+K_GATE = 13
+K_GATE_FRAC = 14
+K_CAM_SIGMA_FRAC = 15
+K_RELAY_SIGMA = 16
+K_RELAY_AGE_SIGMA = 17
+CONFIG_SIZE = 18
+
+
+@kernel("float64(float64, float64)")
+def _pmax(a: float, b: float) -> float:
+    """Python's ``max(a, b)``."""
+    return b if b > a else a
+
+
+@kernel("float64(float64, float64)")
+def _pmin(a: float, b: float) -> float:
+    """Python's ``min(a, b)``."""
+    return b if b < a else a
+
+
+@kernel("boolean(float64, float64, float64, float64)")
+def within3(x: float, y: float, z: float, limit: float) -> bool:
+    """All three components in [-limit, limit] (false for NaN)."""
+    return -limit <= x <= limit and -limit <= y <= limit and -limit <= z <= limit
+
+
+@kernel("float64(float64, float64[::1])")
+def separation_m(radius_m: float, cfg: npt.NDArray[np.float64]) -> float:
+    """Centre distance to keep from a body of this radius: min_distance for our own size, the same gap otherwise."""
+    own = cfg[K_OWN_RADIUS]
+    return _pmax(own + radius_m, cfg[K_MIN_DIST] + radius_m - own)
+
+
+@kernel("void(float64[::1], float64[::1], float64, float64, float64, float64, float64[::1], float64[::1])")
+def _fuse_pair(
+    cam: npt.NDArray[np.float64],
+    rel: npt.NDArray[np.float64],
+    cam_age_s: float,
+    own_vx: float,
+    own_vy: float,
+    own_vz: float,
+    cfg: npt.NDArray[np.float64],
+    out: npt.NDArray[np.float64],
+) -> None:
+    """Camera bearing with the inverse-variance mean of camera and relay range, relay velocity."""
+    vx, vy, vz = rel[O_VEL], rel[O_VEL + 1], rel[O_VEL + 2]
+    cx, cy, cz = cam[0], cam[1], cam[2]
+    cx += (vx - own_vx) * cam_age_s
+    cy += (vy - own_vy) * cam_age_s
+    cz += (vz - own_vz) * cam_age_s
+    cam_range = math.sqrt(cx * cx + cy * cy + cz * cz)
+    rx, ry, rz = rel[O_POS], rel[O_POS + 1], rel[O_POS + 2]
+    relay_range = math.sqrt(rx * rx + ry * ry + rz * rz)
+    if cam_range < EPS:
+        out[O_POS], out[O_POS + 1], out[O_POS + 2] = rx, ry, rz
+    else:
+        var_cam = py_square(_pmax(cfg[K_CAM_SIGMA_FRAC] * cam_range, 0.01))
+        var_relay = py_square(_pmax(cfg[K_RELAY_SIGMA] + cfg[K_RELAY_AGE_SIGMA] * rel[O_AGE], 0.01))
+        rng = (cam_range / var_cam + relay_range / var_relay) / (1.0 / var_cam + 1.0 / var_relay)
+        k = rng / cam_range
+        out[O_POS], out[O_POS + 1], out[O_POS + 2] = cx * k, cy * k, cz * k
+    out[O_VEL], out[O_VEL + 1], out[O_VEL + 2] = vx, vy, vz
+    out[O_VEL_KNOWN] = 1.0
+    out[O_RADIUS] = _pmax(cam[3], rel[O_RADIUS])
+    out[O_SOURCE] = SOURCE_FUSED
+    out[O_AGE] = cam_age_s
+
+
+@kernel("int64(float64[:, ::1], float64[:, ::1], float64[::1], float64[::1], float64[:, ::1])")
+def fuse(
+    camera: npt.NDArray[np.float64],
+    relay: npt.NDArray[np.float64],
+    own_vel: npt.NDArray[np.float64],
+    cfg: npt.NDArray[np.float64],
+    out: npt.NDArray[np.float64],
+) -> int:
+    """One obstacle list from camera detections and relayed neighbours, all brought up to now, written to ``out``
+    (room for every input); returns how many rows it wrote. See ``sitl.avoidance.fuse`` for the rules."""
+    if within3(own_vel[0], own_vel[1], own_vel[2], MAX_SPEED_MPS):
+        own_vx, own_vy, own_vz = own_vel[0], own_vel[1], own_vel[2]
+    else:
+        own_vx, own_vy, own_vz = 0.0, 0.0, 0.0
+    max_age = cfg[K_RELAY_MAX_AGE]
+    relays = np.empty((relay.shape[0], OBSTACLE_SIZE))
+    n_rel = 0
+    for i in range(relay.shape[0]):
+        px, py, pz = relay[i, 0], relay[i, 1], relay[i, 2]
+        vx, vy, vz = relay[i, 3], relay[i, 4], relay[i, 5]
+        age = relay[i, 7]
+        if not (age <= max_age and within3(px, py, pz, MAX_REL_POS_M) and within3(vx, vy, vz, MAX_SPEED_MPS)):
+            continue
+        age = _pmax(0.0, age)
+        row = relays[n_rel]
+        row[O_POS], row[O_POS + 1], row[O_POS + 2] = px + vx * age, py + vy * age, pz + vz * age
+        row[O_VEL], row[O_VEL + 1], row[O_VEL + 2] = vx, vy, vz
+        row[O_VEL_KNOWN] = 1.0
+        row[O_RADIUS] = relay[i, 6]
+        row[O_SOURCE] = SOURCE_RELAY
+        row[O_AGE] = age
+        n_rel += 1
+    cams = np.empty(camera.shape[0], np.int64)
+    n_cam = 0
+    for i in range(camera.shape[0]):
+        if within3(camera[i, 0], camera[i, 1], camera[i, 2], MAX_REL_POS_M) and camera[i, 4] <= MAX_AGE_S:
+            cams[n_cam] = i
+            n_cam += 1
+
+    cam_match = np.full(n_cam, -1, np.int64)
+    matches = 0
+    if n_cam > 0 and n_rel > 0:
+        # Each detection where it is now on the static guess (the relay velocity also moves it once matched), and the
+        # square of its gate; then every pair within its gate, nearest first (ties in camera, then relay order, as
+        # sorted tuples of (distance, camera, relay) would go), matched greedily.
+        gate_m, gate_frac = cfg[K_GATE], cfg[K_GATE_FRAC]
+        dist = np.empty(n_cam * n_rel)
+        pair_cam = np.empty(n_cam * n_rel, np.int64)
+        pair_rel = np.empty(n_cam * n_rel, np.int64)
+        n_pairs = 0
+        for ci in range(n_cam):
+            c = camera[cams[ci]]
+            age = _pmax(0.0, c[4])
+            cx, cy, cz = c[0] - own_vx * age, c[1] - own_vy * age, c[2] - own_vz * age
+            gate = gate_m + gate_frac * math.sqrt(cx * cx + cy * cy + cz * cz)
+            gate_sq = gate * gate
+            for ri in range(n_rel):
+                dx, dy, dz = relays[ri, 0] - cx, relays[ri, 1] - cy, relays[ri, 2] - cz
+                d_sq = dx * dx + dy * dy + dz * dz
+                if d_sq <= gate_sq:
+                    dist[n_pairs] = math.sqrt(d_sq)
+                    pair_cam[n_pairs] = ci
+                    pair_rel[n_pairs] = ri
+                    n_pairs += 1
+        order = np.argsort(dist[:n_pairs], kind="mergesort")
+        used_relay = np.zeros(n_rel, np.bool_)
+        pairs = min(n_cam, n_rel)
+        for k in range(n_pairs):
+            ci, ri = pair_cam[order[k]], pair_rel[order[k]]
+            if cam_match[ci] < 0 and not used_relay[ri]:
+                cam_match[ci] = ri
+                used_relay[ri] = True
+                matches += 1
+                if matches == pairs:
+                    break
+
+    n_out = 0
+    for ci in range(n_cam):
+        c = camera[cams[ci]]
+        age = _pmax(0.0, c[4])
+        row = out[n_out]
+        ri = cam_match[ci]
+        if ri < 0:
+            row[O_POS], row[O_POS + 1], row[O_POS + 2] = c[0] - own_vx * age, c[1] - own_vy * age, c[2] - own_vz * age
+            row[O_VEL], row[O_VEL + 1], row[O_VEL + 2] = 0.0, 0.0, 0.0
+            row[O_VEL_KNOWN] = 0.0
+            row[O_RADIUS] = c[3]
+            row[O_SOURCE] = SOURCE_CAMERA
+            row[O_AGE] = age
+        else:
+            _fuse_pair(c, relays[ri], age, own_vx, own_vy, own_vz, cfg, row)
+        n_out += 1
+    for ri in range(n_rel):
+        matched = False
+        for ci in range(n_cam):
+            if cam_match[ci] == ri:
+                matched = True
+                break
+        if not matched:
+            out[n_out, :] = relays[ri]
+            n_out += 1
+    return n_out
+
+
+@kernel("float64(float64[:, ::1], float64[::1], float64[:, ::1], int64[::1])")
+def prepare(
+    obstacles: npt.NDArray[np.float64],
+    cfg: npt.NDArray[np.float64],
+    usable: npt.NDArray[np.float64],
+    count: npt.NDArray[np.int64],
+) -> float:
+    """The closest centre distance of the obstacles (inf with none); the usable ones (within physical sense) with the
+    figures ``avoid`` needs, in input order, in ``usable`` (``count[0]`` of them)."""
+    closest = math.inf
+    n = 0
+    for i in range(obstacles.shape[0]):
+        ob = obstacles[i]
+        px, py, pz = ob[O_POS], ob[O_POS + 1], ob[O_POS + 2]
+        if math.isfinite(px) and math.isfinite(py) and math.isfinite(pz):
+            closest = _pmin(closest, math.sqrt(px * px + py * py + pz * pz))
+        if not within3(px, py, pz, MAX_REL_POS_M):
+            continue
+        known = ob[O_VEL_KNOWN] != 0.0
+        if known and not within3(ob[O_VEL], ob[O_VEL + 1], ob[O_VEL + 2], MAX_SPEED_MPS):
+            continue
+        if known:
+            bvx, bvy = ob[O_VEL], ob[O_VEL + 1]
+        else:
+            bvx, bvy = 0.0, 0.0
+        radius = _pmin(ob[O_RADIUS], MAX_REL_POS_M) if ob[O_RADIUS] > 0.0 else 0.0  # NaN compares false: 0
+        r = separation_m(radius, cfg)
+        dist_sq = px * px + py * py
+        row = usable[n]
+        row[:OBSTACLE_SIZE] = ob
+        row[U_SEPARATION] = r
+        row[U_DIST_SQ] = dist_sq
+        row[U_GAP] = math.sqrt(dist_sq) - r
+        row[U_SPEED] = math.sqrt(bvx * bvx + bvy * bvy)
+        n += 1
+    count[0] = n
+    return closest
+
+
+# ORCA linear programs (after RVO2's Agent.cpp). A line is a row (point x, point y, direction x, direction y); the
+# permitted half-plane lies to the left of the direction, i.e. det(direction, point - v) <= 0.
+
+
+@kernel("Tuple((boolean, float64, float64))(float64[:, ::1], int64, float64, float64, float64, boolean)")
+def _lp1(
+    lines: npt.NDArray[np.float64], n: int, radius: float, opt_x: float, opt_y: float, direction_opt: bool
+) -> tuple[bool, float, float]:
+    """Best point on line n within the disk and lines 0..n-1, or (False, ...) when there is none."""
+    px, py, dx, dy = lines[n, 0], lines[n, 1], lines[n, 2], lines[n, 3]
+    dot = px * dx + py * dy
+    disc = dot * dot + radius * radius - (px * px + py * py)
+    if disc < 0.0:
+        return False, 0.0, 0.0
+    sq = math.sqrt(disc)
+    t_left = -dot - sq
+    t_right = -dot + sq
+    for i in range(n):
+        qx, qy, ex, ey = lines[i, 0], lines[i, 1], lines[i, 2], lines[i, 3]
+        denom = dx * ey - dy * ex
+        numer = ex * (py - qy) - ey * (px - qx)
+        if abs(denom) <= 1e-6:
+            if numer < 0.0:
+                return False, 0.0, 0.0
+            continue
+        t = numer / denom
+        if denom >= 0.0:
+            t_right = _pmin(t_right, t)
+        else:
+            t_left = _pmax(t_left, t)
+        if t_left > t_right:
+            return False, 0.0, 0.0
+    if direction_opt:
+        t = t_right if opt_x * dx + opt_y * dy > 0.0 else t_left
+    else:
+        t = dx * (opt_x - px) + dy * (opt_y - py)
+        t = t_left if t < t_left else (t_right if t > t_right else t)
+    return True, px + t * dx, py + t * dy
+
+
+@kernel("Tuple((int64, float64, float64))(float64[:, ::1], int64, float64, float64, float64, boolean)")
+def _lp2(
+    lines: npt.NDArray[np.float64], count: int, radius: float, opt_x: float, opt_y: float, direction_opt: bool
+) -> tuple[int, float, float]:
+    """(index of the first of the first ``count`` lines that cannot be met, or ``count``; result x, result y)."""
+    if direction_opt:
+        rx, ry = opt_x * radius, opt_y * radius
+    else:
+        norm_sq = opt_x * opt_x + opt_y * opt_y
+        if norm_sq > radius * radius:
+            s = radius / math.sqrt(norm_sq)
+            rx, ry = opt_x * s, opt_y * s
+        else:
+            rx, ry = opt_x, opt_y
+    for i in range(count):
+        px, py, dx, dy = lines[i, 0], lines[i, 1], lines[i, 2], lines[i, 3]
+        if dx * (py - ry) - dy * (px - rx) > 0.0:
+            ok, tx, ty = _lp1(lines, i, radius, opt_x, opt_y, direction_opt)
+            if not ok:
+                return i, rx, ry
+            rx, ry = tx, ty
+    return count, rx, ry
+
+
+@kernel("UniTuple(float64, 2)(float64[:, ::1], int64, int64, float64, float64, float64)")
+def _lp3(
+    lines: npt.NDArray[np.float64], count: int, begin: int, radius: float, rx: float, ry: float
+) -> tuple[float, float]:
+    """The velocity that minimises the largest violation of any line (all lines are soft: no static polygons)."""
+    distance = 0.0
+    proj = np.empty((count, 4))
+    for i in range(begin, count):
+        px, py, dx, dy = lines[i, 0], lines[i, 1], lines[i, 2], lines[i, 3]
+        if dx * (py - ry) - dy * (px - rx) <= distance:
+            continue
+        n_proj = 0
+        for j in range(i):
+            qx, qy, ex, ey = lines[j, 0], lines[j, 1], lines[j, 2], lines[j, 3]
+            determinant = dx * ey - dy * ex
+            if abs(determinant) <= 1e-6:
+                if dx * ex + dy * ey > 0.0:
+                    continue
+                lx, ly = 0.5 * (px + qx), 0.5 * (py + qy)
+            else:
+                s = (ex * (py - qy) - ey * (px - qx)) / determinant
+                lx, ly = px + s * dx, py + s * dy
+            nx, ny = ex - dx, ey - dy
+            norm = math.sqrt(nx * nx + ny * ny)
+            if norm < EPS:
+                continue
+            proj[n_proj, 0], proj[n_proj, 1], proj[n_proj, 2], proj[n_proj, 3] = lx, ly, nx / norm, ny / norm
+            n_proj += 1
+        fail, tx, ty = _lp2(proj, n_proj, radius, -dy, dx, True)
+        if fail >= n_proj:
+            rx, ry = tx, ty
+        distance = dx * (py - ry) - dy * (px - rx)
+    return rx, ry
+
+
+@kernel("int64(float64[:, ::1], int64, float64, float64, float64, float64[::1], int64[::1])")
+def _in_reach(
+    usable: npt.NDArray[np.float64],
+    count: int,
+    own_vz: float,
+    tau: float,
+    reach_speed: float,
+    cfg: npt.NDArray[np.float64],
+    chosen: npt.NDArray[np.int64],
+) -> int:
+    """Indices (into ``usable``) of every usable obstacle that can be reached within the horizon, at most
+    ``K_MAX_OBSTACLES`` of them, the nearest by gap (ties: the earlier), in input order; returns how many."""
+    band = cfg[K_BAND]
+    gaps = np.empty(count)
+    n = 0
+    for i in range(count):
+        u = usable[i]
+        pz = u[O_POS + 2]
+        bvz = u[O_VEL + 2] if u[O_VEL_KNOWN] != 0.0 else 0.0
+        if abs(pz) > band:
+            pz_end = pz + (bvz - own_vz) * tau
+            if pz * pz_end > 0.0 and abs(pz_end) > band:
+                continue
+        if u[U_GAP] > tau * (reach_speed + u[U_SPEED]):
+            continue  # out of reach within the horizon whatever either does
+        chosen[n] = i
+        gaps[n] = u[U_GAP]
+        n += 1
+    limit = int(cfg[K_MAX_OBSTACLES])
+    if 0 < limit < n:
+        nearest = np.sort(np.argsort(gaps[:n], kind="mergesort")[:limit])
+        kept = chosen[:n][nearest]
+        chosen[:limit] = kept
+        n = limit
+    return n
+
+
+@kernel("Tuple((float64, float64, int64))(float64, float64, float64[:, ::1], int64, float64[::1])")
+def _safety_layer(
+    vx: float, vy: float, near: npt.NDArray[np.float64], count: int, cfg: npt.NDArray[np.float64]
+) -> tuple[float, float, int]:
+    """Hard limit on the speed of approach to each obstacle, whatever the linear program had to give up (rows of
+    ``near``: bearing x, y, distance, separation, obstacle vx, vy, responsibility); see ``sitl.avoidance``."""
+    acc = _pmax(cfg[K_MAX_ACCEL], 0.0)
+    inv_rec = 1.0 / _pmax(cfg[K_RECOVERY], 1e-3)
+    push_x = 0.0
+    push_y = 0.0
+    touched = 0
+    for i in range(count):
+        nx, ny, dist, r = near[i, 0], near[i, 1], near[i, 2], near[i, 3]
+        bvx, bvy, resp = near[i, 4], near[i, 5], near[i, 6]
+        gap = dist - r
+        limit = math.sqrt(2.0 * acc * gap / resp) if gap >= 0.0 else resp * gap * inv_rec
+        excess = (vx - bvx) * nx + (vy - bvy) * ny - limit
+        if excess > 1e-9:
+            push_x -= excess * nx
+            push_y -= excess * ny
+            touched += 1
+    return vx + push_x, vy + push_y, touched
+
+
+@kernel("UniTuple(float64, 2)(float64, float64, float64, float64, float64, float64)")
+def _limit(dvx: float, dvy: float, vx: float, vy: float, cap: float, vmax: float) -> tuple[float, float]:
+    """Pull v back towards the (speed-limited) desired velocity until it is inside both the cap and speed disks."""
+    ex, ey = vx - dvx, vy - dvy
+    e_sq = ex * ex + ey * ey
+    if e_sq <= 0.0:
+        return vx, vy
+    t = 1.0
+    if e_sq > cap * cap:
+        t = cap / math.sqrt(e_sq)
+    # |d + t e| = vmax: the positive root of e^2 t^2 + 2 (d.e) t + d^2 - vmax^2 = 0.
+    wx, wy = dvx + t * ex, dvy + t * ey
+    if wx * wx + wy * wy > vmax * vmax:
+        de = dvx * ex + dvy * ey
+        c = _pmin(dvx * dvx + dvy * dvy - vmax * vmax, 0.0)  # desired is inside (or, by rounding, on) the circle
+        t = _pmin(t, _pmax(0.0, (-de + math.sqrt(de * de - e_sq * c)) / e_sq))
+    out_x, out_y = dvx + t * ex, dvy + t * ey
+    # Rounding can leave the speed a hair above the limit; never report more than promised.
+    sp_sq = out_x * out_x + out_y * out_y
+    if sp_sq > vmax * vmax:
+        s = vmax / math.sqrt(sp_sq)
+        out_x, out_y = out_x * s, out_y * s
+    return out_x, out_y
+
+
+@kernel(
+    "Tuple((float64, float64, boolean, int64))"
+    "(float64[:, ::1], int64, float64, float64, float64, float64, float64, float64, float64[::1])"
+)
+def avoid(
+    usable: npt.NDArray[np.float64],
+    count: int,
+    own_vx: float,
+    own_vy: float,
+    own_vz: float,
+    dvx: float,
+    dvy: float,
+    dvz: float,
+    cfg: npt.NDArray[np.float64],
+) -> tuple[float, float, bool, int]:
+    """ORCA on prepared obstacles for a finite desired horizontal velocity (avoidance enabled): the horizontal
+    velocity to fly, whether it differs from the desired one, and how many obstacles forced a change. See
+    ``sitl.avoidance.avoid`` for the guarantees and the responsibility rule."""
+    vmax = _pmax(0.0, cfg[K_MAX_SPEED])
+    cap = _pmax(0.0, cfg[K_MAX_CORR])
+    des_speed = hypot2(dvx, dvy)
+    if des_speed > vmax:
+        dvx, dvy = dvx / des_speed * vmax, dvy / des_speed * vmax
+        des_speed = vmax
+    ovx, ovy, ovz = own_vx, own_vy, own_vz
+    if not (-MAX_SPEED_MPS <= ovx <= MAX_SPEED_MPS and -MAX_SPEED_MPS <= ovy <= MAX_SPEED_MPS):
+        ovx, ovy = dvx, dvy
+    if not -MAX_SPEED_MPS <= ovz <= MAX_SPEED_MPS:
+        ovz = dvz if -MAX_SPEED_MPS <= dvz <= MAX_SPEED_MPS else 0.0
+
+    tau = _pmax(cfg[K_HORIZON], 1e-3)
+    inv_tau = 1.0 / tau
+    inv_rec = 1.0 / _pmax(cfg[K_RECOVERY], 1e-3)
+    tie = cfg[K_TIE]
+    cos_r, sin_r = math.cos(cfg[K_TILT]), math.sin(cfg[K_TILT])
+    reach_speed = des_speed + cap
+
+    chosen = np.empty(count, np.int64)
+    n = _in_reach(usable, count, ovz, tau, reach_speed, cfg, chosen)
+    lines = np.empty((n, 4))
+    near = np.empty((n, 7))
+    constraining = 0
+    for k in range(n):
+        ob = usable[chosen[k]]
+        r = ob[U_SEPARATION]
+        dist_sq = ob[U_DIST_SQ]
+        px, py = ob[O_POS], ob[O_POS + 1]
+        known = ob[O_VEL_KNOWN] != 0.0
+        if known:
+            bvx, bvy = ob[O_VEL], ob[O_VEL + 1]
+        else:
+            bvx, bvy = 0.0, 0.0
+        dist = math.sqrt(dist_sq)
+        resp = 0.5 if (known and ob[O_SOURCE] != SOURCE_CAMERA) else 1.0
+        if dist < 1e-6:
+            # Coincident centres: no bearing to go by; take the obstacle as straight ahead of the desired heading
+            # (or north when hovering), so the drone backs off deterministically.
+            if des_speed > EPS:
+                ux, uy = dvx / des_speed, dvy / des_speed
+            else:
+                ux, uy = 1.0, 0.0
+            px, py, dist, dist_sq = ux * 1e-6, uy * 1e-6, 1e-6, 1e-12
+        rvx, rvy = ovx - bvx, ovy - bvy  # our velocity relative to the obstacle
+        r_sq = r * r
+        if dist_sq > r_sq:
+            wx, wy = rvx - inv_tau * px, rvy - inv_tau * py
+            w_len_sq = wx * wx + wy * wy
+            dot1 = wx * px + wy * py
+            if dot1 < 0.0 and dot1 * dot1 > r_sq * w_len_sq:
+                # Closest boundary point is on the cut-off circle (the horizon end of the cone).
+                w_len = math.sqrt(w_len_sq)
+                uwx, uwy = wx / w_len, wy / w_len
+                ldx, ldy = uwy, -uwx
+                kk = r * inv_tau - w_len
+                ux, uy = kk * uwx, kk * uwy
+            else:
+                leg = math.sqrt(dist_sq - r_sq)
+                det_pw = px * wy - py * wx
+                # det > 0: relative velocity right of the bearing (NED), pass with the obstacle on our left.
+                if det_pw > -tie * dist * math.sqrt(w_len_sq):
+                    ldx, ldy = (px * leg - py * r) / dist_sq, (px * r + py * leg) / dist_sq
+                else:
+                    ldx, ldy = -(px * leg + py * r) / dist_sq, -(-px * r + py * leg) / dist_sq
+                dot2 = rvx * ldx + rvy * ldy
+                ux, uy = dot2 * ldx - rvx, dot2 * ldy - rvy
+        else:
+            # Already too close: the cut-off circle of the recovery time, i.e. separation restored within it.
+            wx, wy = rvx - inv_rec * px, rvy - inv_rec * py
+            w_len = math.sqrt(wx * wx + wy * wy)
+            if w_len < EPS:
+                uwx, uwy = -px / dist, -py / dist
+                w_len = 0.0
+            else:
+                uwx, uwy = wx / w_len, wy / w_len
+            ldx, ldy = uwy, -uwx
+            kk = r * inv_rec - w_len
+            ux, uy = kk * uwx, kk * uwy
+        lpx, lpy = ovx + resp * ux - dvx, ovy + resp * uy - dvy  # line point relative to the desired velocity
+        # Tilt the half-plane about its point, from north towards west: passing right of the obstacle gets cheaper.
+        ldx, ldy = ldx * cos_r + ldy * sin_r, ldy * cos_r - ldx * sin_r
+        lines[k, 0], lines[k, 1], lines[k, 2], lines[k, 3] = lpx, lpy, ldx, ldy
+        if ldx * lpy - ldy * lpx > 1e-9:
+            constraining += 1
+        near[k, 0], near[k, 1], near[k, 2], near[k, 3] = px / dist, py / dist, dist, r
+        near[k, 4], near[k, 5], near[k, 6] = bvx, bvy, resp
+
+    if n == 0:
+        return dvx, dvy, False, 0
+
+    # Linear program in coordinates centred on the desired velocity, over the disk of the correction cap.
+    fail, cx, cy = _lp2(lines, n, cap, 0.0, 0.0, False)
+    if fail < n:
+        cx, cy = _lp3(lines, n, fail, cap, cx, cy)
+    vx, vy = dvx + cx, dvy + cy
+
+    vx, vy, braked = _safety_layer(vx, vy, near, n, cfg)
+    constraining = max(constraining, braked)
+    vx, vy = _limit(dvx, dvy, vx, vy, cap, vmax)
+    active = py_square(vx - dvx) + py_square(vy - dvy) > 1e-12
+    return vx, vy, active, constraining
