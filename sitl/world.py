@@ -43,6 +43,7 @@ import numpy as np
 import numpy.typing as npt
 
 from sitl.dynamics.plant import PlantState
+from sitl.kernels import world as wk
 from sitl.linkmodel import DIRECTIONS, LINK_CLASSES, Direction, LinkClass, LinkCounters
 from sitl.mathutil import GRAVITY_MPS2
 
@@ -125,6 +126,8 @@ class StaticObstacle:
 
 # Static obstacles a mission declares, after the header: one row each, written once by the supervisor.
 MAX_OBSTACLES = 32
+# The columns sitl/kernels/world.py reads, in its order.
+_WORLD_COLUMNS = np.array((VALID, LAT, LON, ALT, ENDED), dtype=np.int64)
 OBSTACLE_COLUMNS = 7
 O_VALID, O_KIND, O_LAT, O_LON, O_ALT, O_RADIUS, O_HEIGHT = range(OBSTACLE_COLUMNS)
 SPHERE, CYLINDER = 0.0, 1.0  # O_KIND; a cylinder stands vertically, O_ALT is its mid-height
@@ -307,14 +310,18 @@ class SharedWorld:
         """Instances and NED offsets (from drone ``instance``) of every other valid body, ended ones where they have
         fallen to at drone ``instance``'s last published time."""
         table = self.bodies
+        ids = np.empty(len(table), np.int64)
+        offsets = np.empty((len(table), 3))
+        n = wk.others_offsets(table, instance, _WORLD_COLUMNS, EARTH_RADIUS_M, ids, offsets)
+        if n >= 0:
+            return ids[:n], offsets[:n]
+        # A body has ended: where it has fallen to depends on time (``body_geo_at``), worked out for all at once.
         me = table[instance]
         valid = table[:, VALID] == 1.0
         valid[instance] = False
         ids = np.nonzero(valid)[0]
         rows = table[ids]
-        lat, lon, alt = rows[:, LAT], rows[:, LON], rows[:, ALT]
-        if rows[:, ENDED].any():
-            lat, lon, alt = body_geo_at(rows, float(me[TIME])).T
+        lat, lon, alt = body_geo_at(rows, float(me[TIME])).T
         north = np.radians(lat - me[LAT]) * EARTH_RADIUS_M
         east = np.radians(lon - me[LON]) * EARTH_RADIUS_M * math.cos(math.radians(me[LAT]))
         down = me[ALT] - alt

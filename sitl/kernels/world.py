@@ -1,0 +1,55 @@
+"""The shared world's geometry a drone reads at its camera and contact rates (sitl/world.py is the shell: the table,
+its layout, falling bodies, static obstacles).
+
+Every other valid body's offset from one drone, in its local NED frame, from the table's geodetic positions: the same
+operations in the same order as the numpy they replaced (degrees to radians by one product with pi/180, then the
+Earth's radius, then the cosine of the drone's latitude), so offsets keep their bits.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+
+from sitl.kernels import kernel
+
+_RAD_PER_DEG = math.pi / 180.0  # numpy's deg2rad and CPython's math.radians multiply by this
+# ``columns``: the table's column of each figure (the layout is sitl/world.py's).
+C_VALID = 0
+C_LAT = 1
+C_LON = 2
+C_ALT = 3
+C_ENDED = 4
+
+
+@kernel("int64(float64[:, ::1], int64, int64[::1], float64, int64[::1], float64[:, ::1])")
+def others_offsets(
+    bodies: npt.NDArray[np.float64],
+    instance: int,
+    columns: npt.NDArray[np.int64],
+    earth_radius_m: float,
+    ids: npt.NDArray[np.int64],
+    offsets: npt.NDArray[np.float64],
+) -> int:
+    """The instances (``ids``) and NED offsets from drone ``instance`` of every other valid body, in table order;
+    returns how many, or -1 when one of them has ended (its body falls: the shell works out where it is now)."""
+    valid, ended = columns[C_VALID], columns[C_ENDED]
+    lat_c, lon_c, alt_c = columns[C_LAT], columns[C_LON], columns[C_ALT]
+    me_lat = bodies[instance, lat_c]
+    me_lon = bodies[instance, lon_c]
+    me_alt = bodies[instance, alt_c]
+    cos_lat = math.cos(me_lat * _RAD_PER_DEG)
+    n = 0
+    for i in range(bodies.shape[0]):
+        if i == instance or bodies[i, valid] != 1.0:
+            continue
+        if bodies[i, ended] != 0.0:
+            return -1
+        ids[n] = i
+        offsets[n, 0] = (bodies[i, lat_c] - me_lat) * _RAD_PER_DEG * earth_radius_m
+        offsets[n, 1] = (bodies[i, lon_c] - me_lon) * _RAD_PER_DEG * earth_radius_m * cos_lat
+        offsets[n, 2] = me_alt - bodies[i, alt_c]
+        n += 1
+    return n
