@@ -30,15 +30,10 @@ import numpy as np
 
 from sitl.airframe import Airframe
 from sitl.control import Vec3f
+from sitl.kernels import cascade as ck
 from sitl.mathutil import fast_constructor
 
 Bool3 = tuple[bool, bool, bool]
-
-# Rounding slack (N, in collective units) when testing whether a demand fits: bounds are compared in thrust
-# units, never after dividing by a possibly tiny yaw coefficient.
-_TOL = 1e-9
-
-_NOT_CUT: Bool3 = (False, False, False)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -94,67 +89,6 @@ def pseudo_inverse(b: np.ndarray) -> np.ndarray | None:
                      for column in columns], dtype=np.float64)  # fmt: skip
 
 
-# In the helpers below, rotor i must satisfy lo_i <= k + g * yaw_i <= hi_i: k the collective, g the yaw share.
-
-
-def _shares_at(lo: list[float], hi: list[float], yaw: list[float], k: float) -> tuple[float, float]:
-    """Interval of yaw shares in [0, 1] that fit at collective k (empty when first > second)."""
-    g_lo = 0.0
-    g_hi = 1.0
-    for lo_i, hi_i, y in zip(lo, hi, yaw, strict=True):
-        if y > 0.0:
-            bound_lo = (lo_i - _TOL - k) / y
-            bound_hi = (hi_i + _TOL - k) / y
-        elif y < 0.0:
-            bound_lo = (hi_i + _TOL - k) / y
-            bound_hi = (lo_i - _TOL - k) / y
-        elif lo_i - _TOL <= k <= hi_i + _TOL:
-            continue
-        else:
-            return 1.0, 0.0
-        if bound_lo > g_lo:
-            g_lo = bound_lo
-        if bound_hi < g_hi:
-            g_hi = bound_hi
-    return g_lo, g_hi
-
-
-def _feasible_shares(lo: list[float], hi: list[float], yaw: list[float]) -> tuple[float, float]:
-    """Interval of yaw shares in [0, 1] that fit at some collective: g (yaw_j - yaw_i) <= hi_j - lo_i."""
-    g_start = 0.0
-    g_end = 1.0
-    for lo_i, y_i in zip(lo, yaw, strict=True):
-        for hi_j, y_j in zip(hi, yaw, strict=True):
-            room = hi_j - lo_i + _TOL
-            slope = y_j - y_i
-            if slope > 0.0:
-                if room < g_end * slope:
-                    g_end = room / slope
-            elif slope < 0.0:
-                if room < g_start * slope:  # i.e. room / slope > g_start, slope being negative
-                    g_start = room / slope
-            elif room < 0.0:
-                return 1.0, 0.0
-    return g_start, g_end
-
-
-def _max_collective(hi: list[float], yaw: list[float], g_start: float, g_end: float) -> float:
-    """Largest k that fits with some share in [g_start, g_end]: the maximum of min_i(hi_i - g * yaw_i).
-
-    That function is concave and piecewise linear in g, so its maximum is at an end of the interval or where a
-    falling bound (yaw_i > 0) crosses a rising one (yaw_j < 0).
-    """
-    candidates = [g_start, g_end]
-    for hi_i, y_i in zip(hi, yaw, strict=True):
-        if y_i > 0.0:
-            for hi_j, y_j in zip(hi, yaw, strict=True):
-                if y_j < 0.0:
-                    g = (hi_i - hi_j) / (y_i - y_j)
-                    if g_start < g < g_end:
-                        candidates.append(g)
-    return max(min(h - g * y for h, y in zip(hi, yaw, strict=True)) for g in candidates)
-
-
 class ControlAllocator:
     """Pseudo-inverse allocation with roll/pitch > collective > yaw priority under saturation."""
 
@@ -169,9 +103,9 @@ class ControlAllocator:
             raise ValueError(f"airframe {airframe.name}: some rotor does not add to the collective thrust")
         # Per rotor i, everything in units of its collective share c_i (so that a collective k adds k to every
         # rotor): roll, pitch and yaw coefficients divided by c_i, c_i itself, and T_max / c_i.
-        self._rows: tuple[tuple[float, float, float, float, float], ...] = tuple(
-            (r / c, p / c, y / c, c, self.thrust_max_n / c) for r, p, y, c in mix.tolist()
-        )
+        self.rows = np.array(
+            [(r / c, p / c, y / c, c, self.thrust_max_n / c) for r, p, y, c in mix.tolist()], dtype=np.float64
+        )  # the kernels' allocation rows (sitl/kernels/cascade.py: L_ROLL ... L_HI_MAX)
 
     @property
     def collective_max_n(self) -> float:
@@ -186,91 +120,23 @@ class ControlAllocator:
         return float(out[0]), float(out[1]), float(out[2]), float(out[3])
 
     def allocate(self, torque_frd_nm: Vec3f, thrust_n: float) -> AllocationResult:
-        """Rotor commands for a torque (N m, FRD) and collective thrust (N) demand, saturating by priority."""
-        t_max = self.thrust_max_n
+        """Rotor commands for a torque (N m, FRD) and collective thrust (N) demand, saturating by priority (the
+        kernel ``allocate``)."""
+        n = self.rotor_count
+        cmds, thrusts, flags = np.empty(n), np.empty(n), np.empty(ck.FLAGS_SIZE)
         roll_t, pitch_t, yaw_t = torque_frd_nm
-        rows = self._rows
+        ck.allocate(self.rows, self.thrust_max_n, roll_t, pitch_t, yaw_t, thrust_n, cmds, thrusts, flags)
+        return result_from(cmds.tolist(), thrusts.tolist(), flags.tolist())
 
-        # The common case first, in one pass: every rotor fits as demanded (the same per-rotor arithmetic as the
-        # general path below with the full yaw share and the demanded collective).
-        thrusts: list[float] = []
-        cmds: list[float] = []
-        for r, p, y_coef, c, hi_max in rows:
-            a = r * roll_t + p * pitch_t
-            y = y_coef * yaw_t
-            if not -a - _TOL <= thrust_n + y <= hi_max - a + _TOL:
-                break
-            t = c * (a + thrust_n + y)
-            t = 0.0 if t < 0.0 else (t_max if t > t_max else t)
-            thrusts.append(t)
-            cmds.append(math.sqrt(t / t_max))
-        else:
-            return _new_result(
-                motor_cmds=tuple(cmds),
-                rotor_thrusts_n=tuple(thrusts),
-                saturated_pos=_NOT_CUT,
-                saturated_neg=_NOT_CUT,
-                thrust_saturation=0,
-            )
-        return self._allocate_saturated(roll_t, pitch_t, yaw_t, thrust_n)
 
-    def _allocate_saturated(self, roll_t: float, pitch_t: float, yaw_t: float, thrust_n: float) -> AllocationResult:
-        """The general case: some rotor would leave [0, T_max], so cut by priority (see the module docstring)."""
-        t_max = self.thrust_max_n
-        rows = self._rows
-
-        # Rotor i takes c_i * (rp_i + k + g * yaw_i): rp_i and yaw_i are its roll/pitch and yaw parts in
-        # collective units, k the collective, g the yaw share. Staying inside [0, T_max] means
-        # lo_i = -rp_i <= k + g * yaw_i <= T_max / c_i - rp_i = hi_i.
-        rp = [r * roll_t + p * pitch_t for r, p, _, _, _ in rows]
-        yaw = [row[2] * yaw_t for row in rows]
-        lo = [-a for a in rp]
-        hi = [row[4] - a for a, row in zip(rp, rows, strict=True)]
-        collective = thrust_n
-        rp_scale = 1.0
-        thrust_saturation = 0
-        # The demanded collective with a reduced yaw share (roll/pitch then fit too)?
-        g_lo, g_hi = _shares_at(lo, hi, yaw, collective)
-        if g_lo > g_hi:
-            g_start, g_end = _feasible_shares(lo, hi, yaw)
-            if g_start > g_end:
-                # (a) Scale roll/pitch by the largest s with s * (rp_j - rp_i) <= T_max / c_j for all i, j.
-                for a_j, row_j in zip(rp, rows, strict=True):
-                    for a_i in rp:
-                        if a_j > a_i:
-                            rp_scale = min(rp_scale, row_j[4] / (a_j - a_i))
-                rp = [a * rp_scale for a in rp]
-                lo = [-a for a in rp]
-                hi = [row[4] - a for a, row in zip(rp, rows, strict=True)]
-                g_start, g_end = 0.0, max(0.0, _feasible_shares(lo, hi, yaw)[1])
-            # (b) The collective nearest to the demand at which roll/pitch fit with some yaw share.
-            g_lo, g_hi = _shares_at(lo, hi, yaw, collective)
-            if g_lo > g_hi:
-                if collective > min(h - g_start * y for h, y in zip(hi, yaw, strict=True)):
-                    collective = _max_collective(hi, yaw, g_start, g_end)
-                    thrust_saturation = 1
-                else:  # the mirror image: the smallest collective, via negated bounds
-                    neg_lo = [-v for v in lo]
-                    collective = -_max_collective(neg_lo, [-y for y in yaw], g_start, g_end)
-                    thrust_saturation = -1
-                g_hi = _shares_at(lo, hi, yaw, collective)[1]
-        # (c) The largest yaw share at that collective.
-        yaw_share = min(max(g_hi, 0.0), 1.0)
-
-        thrusts = []
-        cmds = []
-        for a, y, row in zip(rp, yaw, rows, strict=True):
-            t = row[3] * (a + collective + yaw_share * y)
-            t = 0.0 if t < 0.0 else (t_max if t > t_max else t)
-            thrusts.append(t)
-            cmds.append(math.sqrt(t / t_max))
-
-        rp_cut = rp_scale < 1.0 - _TOL
-        yaw_cut = yaw_share < 1.0 - _TOL
-        return _new_result(
-            motor_cmds=tuple(cmds),
-            rotor_thrusts_n=tuple(thrusts),
-            saturated_pos=(rp_cut and roll_t > 0.0, rp_cut and pitch_t > 0.0, yaw_cut and yaw_t > 0.0),
-            saturated_neg=(rp_cut and roll_t < 0.0, rp_cut and pitch_t < 0.0, yaw_cut and yaw_t < 0.0),
-            thrust_saturation=thrust_saturation,
-        )
+def result_from(cmds: list[float], thrusts: list[float], flags: list[float]) -> AllocationResult:
+    """The record of the allocation kernel's output."""
+    sp = ck.F_SAT_POS
+    sn = ck.F_SAT_NEG
+    return _new_result(
+        motor_cmds=tuple(cmds),
+        rotor_thrusts_n=tuple(thrusts),
+        saturated_pos=(flags[sp] != 0.0, flags[sp + 1] != 0.0, flags[sp + 2] != 0.0),
+        saturated_neg=(flags[sn] != 0.0, flags[sn + 1] != 0.0, flags[sn + 2] != 0.0),
+        thrust_saturation=int(flags[ck.F_THRUST_SAT]),
+    )

@@ -23,7 +23,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from sitl.control import Vec3f
+from sitl.kernels import cascade as ck
 
 Quat4f = tuple[float, float, float, float]
 
@@ -47,18 +50,6 @@ def quat_mul(a: Quat4f, b: Quat4f) -> Quat4f:
         aw * bx + ax * bw + ay * bz - az * by,
         aw * by - ax * bz + ay * bw + az * bx,
         aw * bz + ax * by - ay * bx + az * bw,
-    )
-
-
-def _conj_mul(a: Quat4f, b: Quat4f) -> Quat4f:
-    """conj(a) * b for unit quaternions: the rotation from a to b."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return (
-        aw * bw + ax * bx + ay * by + az * bz,
-        aw * bx - ax * bw - ay * bz + az * by,
-        aw * by + ax * bz - ay * bw - az * bx,
-        aw * bz - ax * by + ay * bx - az * bw,
     )
 
 
@@ -125,37 +116,29 @@ def thrust_to_attitude(thrust_ned_n: Vec3f, yaw_rad: float) -> Quat4f:
     return _dcm_to_quat(bx_x, by_x, bz_x, bx_y, by_y, bz_y, bx_z, by_z, bz_z)
 
 
-def _quat_between(src: Vec3f, dst: Vec3f) -> Quat4f:
-    """Shortest rotation taking unit vector src onto unit vector dst."""
-    sx, sy, sz = src
-    dx, dy, dz = dst
-    cx = sy * dz - sz * dy
-    cy = sz * dx - sx * dz
-    cz = sx * dy - sy * dx
-    dot = sx * dx + sy * dy + sz * dz
-    if cx * cx + cy * cy + cz * cz < 1e-10 and dot < 0.0:
-        # Opposite vectors: rotate half a turn about any axis orthogonal to src (the least aligned base axis).
-        ax_, ay_, az_ = abs(sx), abs(sy), abs(sz)
-        if ax_ < ay_:
-            base = (1.0, 0.0, 0.0) if ax_ < az_ else (0.0, 0.0, 1.0)
-        else:
-            base = (0.0, 1.0, 0.0) if ay_ < az_ else (0.0, 0.0, 1.0)
-        cx = sy * base[2] - sz * base[1]
-        cy = sz * base[0] - sx * base[2]
-        cz = sx * base[1] - sy * base[0]
-        w = 0.0
-    else:
-        w = dot + 1.0
-    n = math.sqrt(w * w + cx * cx + cy * cy + cz * cz)
-    return w / n, cx / n, cy / n, cz / n
-
-
 class AttitudeController:
     """Quaternion attitude P controller with roll/pitch priority; ``update`` returns FRD body-rate
-    setpoints."""
+    setpoints. The arithmetic is the kernel ``attitude_rates`` (sitl/kernels/cascade.py)."""
 
     def __init__(self, config: AttitudeConfig) -> None:
         self.config = config
+
+    @property
+    def config(self) -> AttitudeConfig:
+        return self._config
+
+    @config.setter
+    def config(self, config: AttitudeConfig) -> None:
+        self._config = config
+        row = np.empty(ck.ATTITUDE_SIZE)
+        row[ck.A_ROLL_P] = config.roll_p_per_s
+        row[ck.A_PITCH_P] = config.pitch_p_per_s
+        row[ck.A_YAW_P] = config.yaw_p_per_s
+        row[ck.A_YAW_WEIGHT] = config.yaw_weight
+        row[ck.A_ROLL_MAX] = config.roll_rate_max_radps
+        row[ck.A_PITCH_MAX] = config.pitch_rate_max_radps
+        row[ck.A_YAW_MAX] = config.yaw_rate_max_radps
+        self.row = row  # the configuration as the kernels take it
 
     def reset(self) -> None:
         """Nothing to forget: the attitude loop has no memory."""
@@ -166,56 +149,6 @@ class AttitudeController:
 
         The yaw-rate feed-forward is about the NED down axis (a heading rate), projected into the body frame.
         """
-        cfg = self.config
         qw, qx, qy, qz = att_q
-        # Body z axes (third DCM columns) of the current and desired attitude, in NED.
-        ez = (2.0 * (qx * qz + qw * qy), 2.0 * (qy * qz - qw * qx), 1.0 - 2.0 * (qx * qx + qy * qy))
         dw, dx, dy, dz = att_sp_q
-        ez_d = (2.0 * (dx * dz + dw * dy), 2.0 * (dy * dz - dw * dx), 1.0 - 2.0 * (dx * dx + dy * dy))
-
-        # Reduced setpoint: the current attitude tilted (in the world frame) so that its thrust axis matches.
-        tilt = _quat_between(ez, ez_d)
-        weight = cfg.yaw_weight
-        yaw_gain = cfg.yaw_p_per_s / weight if weight > 1e-4 else cfg.yaw_p_per_s
-        if abs(tilt[1]) > 1.0 - 1e-5 or abs(tilt[2]) > 1.0 - 1e-5:
-            # Thrust axes exactly opposed: no preferred tilt axis, so steer by the full attitude error.
-            ew, ex, ey, ez_ = _conj_mul(att_q, att_sp_q)
-            sign = 2.0 if ew >= 0.0 else -2.0
-            rate_x = sign * ex * cfg.roll_p_per_s
-            rate_y = sign * ey * cfg.pitch_p_per_s
-            rate_z = sign * ez_ * cfg.yaw_p_per_s
-        else:
-            # reduced = tilt * att_q, then conj(att_q) * reduced and conj(reduced) * att_sp_q, written out with
-            # only the components used (this runs every control step).
-            tw, tx, ty, tz = tilt
-            rw = tw * qw - tx * qx - ty * qy - tz * qz
-            rx = tw * qx + tx * qw + ty * qz - tz * qy
-            ry = tw * qy - tx * qz + ty * qw + tz * qx
-            rz = tw * qz + tx * qy - ty * qx + tz * qw
-            # Tilt error in the body frame (its axis lies in the body x-y plane), as 2 sin(angle / 2) * axis.
-            ex = qw * rx - qx * rw - qy * rz + qz * ry
-            ey = qw * ry + qx * rz - qy * rw - qz * rx
-            rate_x = 2.0 * ex * cfg.roll_p_per_s
-            rate_y = 2.0 * ey * cfg.pitch_p_per_s
-            # Remaining heading error about the thrust axis, of which only the weighted share is used.
-            mw = rw * dw + rx * dx + ry * dy + rz * dz
-            mz = rw * dz - rx * dy + ry * dx - rz * dw
-            if mw < 0.0:
-                mz = -mz
-            mz = mz if mz > -1.0 else -1.0
-            mz = mz if mz < 1.0 else 1.0
-            rate_z = 2.0 * math.sin(weight * math.asin(mz)) * yaw_gain
-
-        if yawspeed_ff_radps == yawspeed_ff_radps:
-            # NED down axis seen from the body: third row of the body->NED rotation matrix.
-            rate_x += 2.0 * (qx * qz - qw * qy) * yawspeed_ff_radps
-            rate_y += 2.0 * (qy * qz + qw * qx) * yawspeed_ff_radps
-            rate_z += (1.0 - 2.0 * (qx * qx + qy * qy)) * yawspeed_ff_radps
-
-        lim = cfg.roll_rate_max_radps
-        rate_x = -lim if rate_x < -lim else (lim if rate_x > lim else rate_x)
-        lim = cfg.pitch_rate_max_radps
-        rate_y = -lim if rate_y < -lim else (lim if rate_y > lim else rate_y)
-        lim = cfg.yaw_rate_max_radps
-        rate_z = -lim if rate_z < -lim else (lim if rate_z > lim else rate_z)
-        return rate_x, rate_y, rate_z
+        return ck.attitude_rates(qw, qx, qy, qz, dw, dx, dy, dz, yawspeed_ff_radps, self.row)

@@ -30,7 +30,7 @@ import numpy.typing as npt
 
 from sitl.airframe import Airframe
 from sitl.control import Vec3f
-from sitl.control.allocation import AllocationResult, ControlAllocator
+from sitl.control.allocation import AllocationResult, ControlAllocator, result_from
 from sitl.control.attitude import AttitudeController, Quat4f, thrust_to_attitude
 from sitl.control.heading import follow_travel
 from sitl.control.params import (
@@ -42,8 +42,9 @@ from sitl.control.params import (
     velocity_config,
 )
 from sitl.control.position import PositionController
-from sitl.control.rate import NO_SATURATION, RateController
+from sitl.control.rate import RateController
 from sitl.control.velocity import VelocityController
+from sitl.kernels import cascade as ck
 from sitl.mathutil import fast_constructor
 from sitl.params import ParamStore
 
@@ -140,6 +141,7 @@ class Cascade:
         self.attitude = AttitudeController(attitude_config(params))
         self.rate = RateController(rate_config(params, airframe))
         self.allocator = ControlAllocator(airframe)
+        self._inner_out = np.zeros(ck.O_ROTORS + 2 * self.allocator.rotor_count)
         self.heading = heading_config(params)
         self._params_version = params.version
         self._outer_period_s = outer_loop_period_s(params)
@@ -157,8 +159,6 @@ class Cascade:
         self.rate.reset()
         self.allocator.reset()
         self._yaw_sp_prev = _NAN
-        self._sat_pos = NO_SATURATION
-        self._sat_neg = NO_SATURATION
         self._forget_outer()
 
     def _forget_outer(self) -> None:
@@ -298,13 +298,21 @@ class Cascade:
         dt_s: float,
         landed: bool,
     ) -> tuple[Vec3f, Vec3f, AllocationResult]:
-        """Attitude (unless rates are given), rate and allocation stages; keeps the saturation feedback."""
-        if rates_sp is None:
-            rates_sp = self.attitude.update((att_q[0], att_q[1], att_q[2], att_q[3]), att_sp_q, yawspeed_ff)
-        torque = self.rate.torque_setpoint(
-            _floats3(state.rates_frd_radps), rates_sp, dt_s, self._sat_pos, self._sat_neg, landed
-        )
-        alloc = self.allocator.allocate(torque, collective)
-        self._sat_pos = alloc.saturated_pos
-        self._sat_neg = alloc.saturated_neg
-        return rates_sp, torque, alloc
+        """Attitude (unless rates are given), rate and allocation stages in one kernel (``inner``); the saturation
+        feedback stays in the rate controller's state row."""
+        qw, qx, qy, qz = att_q
+        dw, dx, dy, dz = att_sp_q
+        spx, spy, spz = rates_sp if rates_sp is not None else NAN3
+        wx, wy, wz = _floats3(state.rates_frd_radps)
+        allocator = self.allocator
+        out = self._inner_out
+        ck.inner(qw, qx, qy, qz, dw, dx, dy, dz, yawspeed_ff, rates_sp is not None, spx, spy, spz, wx, wy, wz,
+                 collective, dt_s, landed, self.attitude.row, self.rate.row, self.rate.state, allocator.rows,
+                 allocator.thrust_max_n, out)  # fmt: skip
+        values = out.tolist()
+        n = allocator.rotor_count
+        rotors = ck.O_ROTORS
+        alloc = result_from(values[rotors : rotors + n], values[rotors + n : rotors + 2 * n],
+                            values[ck.O_FLAGS : ck.O_FLAGS + ck.FLAGS_SIZE])  # fmt: skip
+        r, t = ck.O_RATES_SP, ck.O_TORQUE
+        return (values[r], values[r + 1], values[r + 2]), (values[t], values[t + 1], values[t + 2]), alloc

@@ -11,14 +11,12 @@ torque units, and PX4 values do not carry over.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
-from sitl.control import Vec3f
+import numpy as np
 
-# PX4's I-term attenuation: the integration rate shrinks smoothly for large rate errors (flips, big steps),
-# which otherwise wind the integrator up during the manoeuvre and make it bounce back afterwards.
-_I_ATTENUATION_RATE_RADPS = math.radians(400.0)
+from sitl.control import Vec3f
+from sitl.kernels import cascade as ck
 
 NO_SATURATION: tuple[bool, bool, bool] = (False, False, False)
 
@@ -34,19 +32,37 @@ class RateConfig:
 
 
 class RateController:
-    """Rate PID; ``update`` returns the FRD torque setpoint (N m).
-
-    Written out per axis rather than looped over three indices: it runs at the physics rate for every drone.
-    """
+    """Rate PID; ``update`` returns the FRD torque setpoint (N m). The arithmetic is the kernel ``rate_torque``
+    (sitl/kernels/cascade.py) on the controller's state row (integrator, filtered angular acceleration, previous
+    rates, and the allocation's saturation report that the cascade's ``inner`` kernel writes into it)."""
 
     def __init__(self, config: RateConfig) -> None:
         self.config = config
-        self.reset()
+        self.state = np.zeros(ck.RATE_STATE_SIZE)
+
+    @property
+    def config(self) -> RateConfig:
+        return self._config
+
+    @config.setter
+    def config(self, config: RateConfig) -> None:
+        self._config = config
+        row = np.empty(ck.RATE_CONFIG_SIZE)
+        row[ck.R_P : ck.R_P + 3] = config.p_per_s
+        row[ck.R_I : ck.R_I + 3] = config.i_per_s2
+        row[ck.R_D : ck.R_D + 3] = config.d
+        row[ck.R_INT_LIM : ck.R_INT_LIM + 3] = config.int_lim_radps2
+        row[ck.R_INERTIA : ck.R_INERTIA + 3] = config.inertia_kg_m2
+        row[ck.R_CUTOFF] = config.deriv_cutoff_hz
+        self.row = row  # the configuration as the kernels take it
+
+    @property
+    def integral_radps2(self) -> list[float]:
+        """The integrator, rad/s^2 per axis."""
+        return self.state[ck.S_INTEGRAL : ck.S_INTEGRAL + 3].tolist()
 
     def reset(self) -> None:
-        self.integral_radps2: list[float] = [0.0, 0.0, 0.0]
-        self._ang_acc: Vec3f = (0.0, 0.0, 0.0)
-        self._prev_rates: Vec3f | None = None
+        self.state.fill(0.0)
 
     def update(
         self,
@@ -59,78 +75,9 @@ class RateController:
         freeze_integrator: bool = False,
     ) -> Vec3f:
         """One step. ``saturated_pos[i]``: the allocation could not deliver more positive torque on axis i."""
-        return self.torque_setpoint(
-            rates_frd_radps, rates_sp_frd_radps, dt_s, saturated_pos, saturated_neg, freeze_integrator
-        )
-
-    def torque_setpoint(
-        self,
-        rates_frd_radps: Vec3f,
-        rates_sp_frd_radps: Vec3f,
-        dt_s: float,
-        saturated_pos: tuple[bool, bool, bool],
-        saturated_neg: tuple[bool, bool, bool],
-        freeze_integrator: bool,
-    ) -> Vec3f:
-        """``update`` with positional arguments (the cascade's per-step call)."""
-        cfg = self.config
+        state = self.state
+        state[ck.S_SAT_POS : ck.S_SAT_POS + 3] = saturated_pos
+        state[ck.S_SAT_NEG : ck.S_SAT_NEG + 3] = saturated_neg
         wx, wy, wz = rates_frd_radps
-        # Low-passed angular acceleration from the measured rates (the D term acts on the measurement).
-        acc_x, acc_y, acc_z = self._ang_acc
-        prev = self._prev_rates
-        self._prev_rates = rates_frd_radps
-        if prev is not None and dt_s > 0.0:
-            cutoff = cfg.deriv_cutoff_hz
-            alpha = 1.0 if cutoff <= 0.0 else dt_s / (dt_s + 1.0 / (2.0 * math.pi * cutoff))
-            acc_x += alpha * ((wx - prev[0]) / dt_s - acc_x)
-            acc_y += alpha * ((wy - prev[1]) / dt_s - acc_y)
-            acc_z += alpha * ((wz - prev[2]) / dt_s - acc_z)
-            self._ang_acc = (acc_x, acc_y, acc_z)
-
-        integ = self.integral_radps2
-        p_x, p_y, p_z = cfg.p_per_s
-        d_x, d_y, d_z = cfg.d
-        sp_x, sp_y, sp_z = rates_sp_frd_radps
-        err_x = sp_x - wx
-        err_y = sp_y - wy
-        err_z = sp_z - wz
-        demand_x = p_x * err_x + integ[0] - d_x * acc_x
-        demand_y = p_y * err_y + integ[1] - d_y * acc_y
-        demand_z = p_z * err_z + integ[2] - d_z * acc_z
-        if not freeze_integrator and dt_s > 0.0:
-            # Per axis: no integration towards a side the allocation reports saturated, an integration rate
-            # attenuated for large errors, and a bound.
-            i_x, i_y, i_z = cfg.i_per_s2
-            lim_x, lim_y, lim_z = cfg.int_lim_radps2
-            sat_x, sat_y, sat_z = saturated_pos
-            neg_x, neg_y, neg_z = saturated_neg
-            if (sat_x and err_x > 0.0) or (neg_x and err_x < 0.0):
-                err_x = 0.0
-            factor = err_x / _I_ATTENUATION_RATE_RADPS
-            factor = 1.0 - factor * factor
-            if factor > 0.0:
-                value = integ[0] + factor * i_x * err_x * dt_s
-                integ[0] = -lim_x if value < -lim_x else (lim_x if value > lim_x else value)
-            if (sat_y and err_y > 0.0) or (neg_y and err_y < 0.0):
-                err_y = 0.0
-            factor = err_y / _I_ATTENUATION_RATE_RADPS
-            factor = 1.0 - factor * factor
-            if factor > 0.0:
-                value = integ[1] + factor * i_y * err_y * dt_s
-                integ[1] = -lim_y if value < -lim_y else (lim_y if value > lim_y else value)
-            if (sat_z and err_z > 0.0) or (neg_z and err_z < 0.0):
-                err_z = 0.0
-            factor = err_z / _I_ATTENUATION_RATE_RADPS
-            factor = 1.0 - factor * factor
-            if factor > 0.0:
-                value = integ[2] + factor * i_z * err_z * dt_s
-                integ[2] = -lim_z if value < -lim_z else (lim_z if value > lim_z else value)
-
-        jx, jy, jz = cfg.inertia_kg_m2
-        # Euler's equation: J dw/dt = tau - w x (J w), so the torque that yields the demanded acceleration
-        # adds the gyroscopic term back.
-        return (
-            jx * demand_x + (jz - jy) * wy * wz,
-            jy * demand_y + (jx - jz) * wz * wx,
-            jz * demand_z + (jy - jx) * wx * wy,
-        )
+        spx, spy, spz = rates_sp_frd_radps
+        return ck.rate_torque(state, self.row, wx, wy, wz, spx, spy, spz, dt_s, freeze_integrator)

@@ -1,0 +1,446 @@
+"""The cascade's inner loops as kernels: attitude P to body rates, the rate PID to a torque, and the allocation of
+torque and collective thrust to motor commands (sitl/control/attitude.py, rate.py, allocation.py are their shells:
+configuration from parameters, records for telemetry). ``inner`` runs all three at once, as the cascade does at
+every physics step.
+
+The same operations in the same order as the Python they replaced, with Python's ``min``/``max`` spelled out, so
+motor commands keep their bits (the reference flight hashes every one of them).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+
+from sitl.kernels import kernel
+from sitl.kernels.avoidance import _pmax, _pmin
+
+# Attitude configuration row (sitl.control.attitude.AttitudeConfig).
+A_ROLL_P = 0
+A_PITCH_P = 1
+A_YAW_P = 2
+A_YAW_WEIGHT = 3
+A_ROLL_MAX = 4
+A_PITCH_MAX = 5
+A_YAW_MAX = 6
+ATTITUDE_SIZE = 7
+# Rate configuration row (sitl.control.rate.RateConfig): per axis P, I, D, integrator limit, inertia; D cutoff.
+R_P = 0
+R_I = 3
+R_D = 6
+R_INT_LIM = 9
+R_INERTIA = 12
+R_CUTOFF = 15
+RATE_CONFIG_SIZE = 16
+# Rate state row: integrator, filtered angular acceleration, previous rates and whether there are any, and the
+# allocation's saturation report of the last step (1.0 = saturated), positive then negative side per axis.
+S_INTEGRAL = 0
+S_ANG_ACC = 3
+S_PREV = 6
+S_HAVE_PREV = 9
+S_SAT_POS = 10
+S_SAT_NEG = 13
+RATE_STATE_SIZE = 16
+# Allocation rows (sitl.control.allocation.ControlAllocator): per rotor its roll, pitch and yaw coefficients in
+# collective units, its collective share, and T_max over that share.
+L_ROLL = 0
+L_PITCH = 1
+L_YAW = 2
+L_SHARE = 3
+L_HI_MAX = 4
+# Allocation report: saturated_pos (3), saturated_neg (3), thrust saturation (+1, -1, 0).
+F_SAT_POS = 0
+F_SAT_NEG = 3
+F_THRUST_SAT = 6
+FLAGS_SIZE = 7
+
+# Rounding slack (N, in collective units) when testing whether a demand fits: bounds are compared in thrust units,
+# never after dividing by a possibly tiny yaw coefficient.
+TOL = 1e-9
+# PX4's I-term attenuation: the integration rate shrinks smoothly for large rate errors (flips, big steps), which
+# otherwise wind the integrator up during the manoeuvre and make it bounce back afterwards.
+I_ATTENUATION_RATE_RADPS = math.radians(400.0)
+
+
+@kernel("UniTuple(float64, 4)(float64, float64, float64, float64, float64, float64)")
+def quat_between(sx: float, sy: float, sz: float, dx: float, dy: float, dz: float) -> tuple[float, float, float, float]:
+    """Shortest rotation taking unit vector src onto unit vector dst."""
+    cx = sy * dz - sz * dy
+    cy = sz * dx - sx * dz
+    cz = sx * dy - sy * dx
+    dot = sx * dx + sy * dy + sz * dz
+    if cx * cx + cy * cy + cz * cz < 1e-10 and dot < 0.0:
+        # Opposite vectors: rotate half a turn about any axis orthogonal to src (the least aligned base axis).
+        ax_, ay_, az_ = abs(sx), abs(sy), abs(sz)
+        if ax_ < ay_:
+            b0, b1, b2 = (1.0, 0.0, 0.0) if ax_ < az_ else (0.0, 0.0, 1.0)
+        else:
+            b0, b1, b2 = (0.0, 1.0, 0.0) if ay_ < az_ else (0.0, 0.0, 1.0)
+        cx = sy * b2 - sz * b1
+        cy = sz * b0 - sx * b2
+        cz = sx * b1 - sy * b0
+        w = 0.0
+    else:
+        w = dot + 1.0
+    n = math.sqrt(w * w + cx * cx + cy * cy + cz * cz)
+    return w / n, cx / n, cy / n, cz / n
+
+
+@kernel(
+    "UniTuple(float64, 3)(float64, float64, float64, float64, float64, float64, float64, float64, float64,"
+    " float64[::1])"
+)
+def attitude_rates(
+    qw: float,
+    qx: float,
+    qy: float,
+    qz: float,
+    dw: float,
+    dx: float,
+    dy: float,
+    dz: float,
+    yawspeed_ff: float,
+    cfg: npt.NDArray[np.float64],
+) -> tuple[float, float, float]:
+    """Body-rate setpoint (rad/s, FRD) steering attitude q to the setpoint d; NaN yaw-rate feed-forward = none."""
+    # Body z axes (third DCM columns) of the current and desired attitude, in NED.
+    ez0, ez1, ez2 = 2.0 * (qx * qz + qw * qy), 2.0 * (qy * qz - qw * qx), 1.0 - 2.0 * (qx * qx + qy * qy)
+    ed0, ed1, ed2 = 2.0 * (dx * dz + dw * dy), 2.0 * (dy * dz - dw * dx), 1.0 - 2.0 * (dx * dx + dy * dy)
+    # Reduced setpoint: the current attitude tilted (in the world frame) so that its thrust axis matches.
+    tw, tx, ty, tz = quat_between(ez0, ez1, ez2, ed0, ed1, ed2)
+    weight = cfg[A_YAW_WEIGHT]
+    yaw_gain = cfg[A_YAW_P] / weight if weight > 1e-4 else cfg[A_YAW_P]
+    if abs(tx) > 1.0 - 1e-5 or abs(ty) > 1.0 - 1e-5:
+        # Thrust axes exactly opposed: no preferred tilt axis, so steer by the full attitude error (conj(q) q_sp).
+        ew = qw * dw + qx * dx + qy * dy + qz * dz
+        ex = qw * dx - qx * dw - qy * dz + qz * dy
+        ey = qw * dy + qx * dz - qy * dw - qz * dx
+        ez_ = qw * dz - qx * dy + qy * dx - qz * dw
+        sign = 2.0 if ew >= 0.0 else -2.0
+        rate_x = sign * ex * cfg[A_ROLL_P]
+        rate_y = sign * ey * cfg[A_PITCH_P]
+        rate_z = sign * ez_ * cfg[A_YAW_P]
+    else:
+        # reduced = tilt * q, then conj(q) * reduced and conj(reduced) * q_sp, with only the components used.
+        rw = tw * qw - tx * qx - ty * qy - tz * qz
+        rx = tw * qx + tx * qw + ty * qz - tz * qy
+        ry = tw * qy - tx * qz + ty * qw + tz * qx
+        rz = tw * qz + tx * qy - ty * qx + tz * qw
+        # Tilt error in the body frame (its axis lies in the body x-y plane), as 2 sin(angle / 2) * axis.
+        ex = qw * rx - qx * rw - qy * rz + qz * ry
+        ey = qw * ry + qx * rz - qy * rw - qz * rx
+        rate_x = 2.0 * ex * cfg[A_ROLL_P]
+        rate_y = 2.0 * ey * cfg[A_PITCH_P]
+        # Remaining heading error about the thrust axis, of which only the weighted share is used.
+        mw = rw * dw + rx * dx + ry * dy + rz * dz
+        mz = rw * dz - rx * dy + ry * dx - rz * dw
+        if mw < 0.0:
+            mz = -mz
+        mz = mz if mz > -1.0 else -1.0
+        mz = mz if mz < 1.0 else 1.0
+        rate_z = 2.0 * math.sin(weight * math.asin(mz)) * yaw_gain
+    if yawspeed_ff == yawspeed_ff:
+        # NED down axis seen from the body: third row of the body->NED rotation matrix.
+        rate_x += 2.0 * (qx * qz - qw * qy) * yawspeed_ff
+        rate_y += 2.0 * (qy * qz + qw * qx) * yawspeed_ff
+        rate_z += (1.0 - 2.0 * (qx * qx + qy * qy)) * yawspeed_ff
+    lim = cfg[A_ROLL_MAX]
+    rate_x = -lim if rate_x < -lim else (lim if rate_x > lim else rate_x)
+    lim = cfg[A_PITCH_MAX]
+    rate_y = -lim if rate_y < -lim else (lim if rate_y > lim else rate_y)
+    lim = cfg[A_YAW_MAX]
+    rate_z = -lim if rate_z < -lim else (lim if rate_z > lim else rate_z)
+    return rate_x, rate_y, rate_z
+
+
+@kernel(
+    "UniTuple(float64, 3)(float64[::1], float64[::1], float64, float64, float64, float64, float64, float64, float64,"
+    " boolean)"
+)
+def rate_torque(
+    state: npt.NDArray[np.float64],
+    cfg: npt.NDArray[np.float64],
+    wx: float,
+    wy: float,
+    wz: float,
+    spx: float,
+    spy: float,
+    spz: float,
+    dt_s: float,
+    freeze_integrator: bool,
+) -> tuple[float, float, float]:
+    """The torque setpoint (N m, FRD) of the rate PID, its ``state`` row advanced (the saturation report in the row is
+    the allocation's of the last step)."""
+    rates = (wx, wy, wz)
+    rates_sp = (spx, spy, spz)
+    acc = np.empty(3)
+    for k in range(3):
+        acc[k] = state[S_ANG_ACC + k]
+    if state[S_HAVE_PREV] != 0.0 and dt_s > 0.0:
+        cutoff = cfg[R_CUTOFF]
+        alpha = 1.0 if cutoff <= 0.0 else dt_s / (dt_s + 1.0 / (2.0 * math.pi * cutoff))
+        for k in range(3):
+            acc[k] += alpha * ((rates[k] - state[S_PREV + k]) / dt_s - acc[k])
+            state[S_ANG_ACC + k] = acc[k]
+    for k in range(3):
+        state[S_PREV + k] = rates[k]
+    state[S_HAVE_PREV] = 1.0
+    demand = np.empty(3)
+    for k in range(3):
+        err = rates_sp[k] - rates[k]
+        demand[k] = cfg[R_P + k] * err + state[S_INTEGRAL + k] - cfg[R_D + k] * acc[k]
+        if not freeze_integrator and dt_s > 0.0:
+            # No integration towards a side the allocation reports saturated, an integration rate attenuated for
+            # large errors, and a bound.
+            if (state[S_SAT_POS + k] != 0.0 and err > 0.0) or (state[S_SAT_NEG + k] != 0.0 and err < 0.0):
+                err = 0.0
+            factor = err / I_ATTENUATION_RATE_RADPS
+            factor = 1.0 - factor * factor
+            if factor > 0.0:
+                lim = cfg[R_INT_LIM + k]
+                value = state[S_INTEGRAL + k] + factor * cfg[R_I + k] * err * dt_s
+                state[S_INTEGRAL + k] = -lim if value < -lim else (lim if value > lim else value)
+    jx, jy, jz = cfg[R_INERTIA], cfg[R_INERTIA + 1], cfg[R_INERTIA + 2]
+    # Euler's equation: J dw/dt = tau - w x (J w), so the torque that yields the demanded acceleration adds the
+    # gyroscopic term back.
+    return (
+        jx * demand[0] + (jz - jy) * wy * wz,
+        jy * demand[1] + (jx - jz) * wz * wx,
+        jz * demand[2] + (jy - jx) * wx * wy,
+    )
+
+
+# In the helpers below, rotor i must satisfy lo_i <= k + g * yaw_i <= hi_i: k the collective, g the yaw share.
+
+
+@kernel("UniTuple(float64, 2)(float64[::1], float64[::1], float64[::1], float64)")
+def _shares_at(
+    lo: npt.NDArray[np.float64], hi: npt.NDArray[np.float64], yaw: npt.NDArray[np.float64], k: float
+) -> tuple[float, float]:
+    """Interval of yaw shares in [0, 1] that fit at collective k (empty when first > second)."""
+    g_lo = 0.0
+    g_hi = 1.0
+    for i in range(lo.shape[0]):
+        lo_i, hi_i, y = lo[i], hi[i], yaw[i]
+        if y > 0.0:
+            bound_lo = (lo_i - TOL - k) / y
+            bound_hi = (hi_i + TOL - k) / y
+        elif y < 0.0:
+            bound_lo = (hi_i + TOL - k) / y
+            bound_hi = (lo_i - TOL - k) / y
+        elif lo_i - TOL <= k <= hi_i + TOL:
+            continue
+        else:
+            return 1.0, 0.0
+        if bound_lo > g_lo:
+            g_lo = bound_lo
+        if bound_hi < g_hi:
+            g_hi = bound_hi
+    return g_lo, g_hi
+
+
+@kernel("UniTuple(float64, 2)(float64[::1], float64[::1], float64[::1])")
+def _feasible_shares(
+    lo: npt.NDArray[np.float64], hi: npt.NDArray[np.float64], yaw: npt.NDArray[np.float64]
+) -> tuple[float, float]:
+    """Interval of yaw shares in [0, 1] that fit at some collective: g (yaw_j - yaw_i) <= hi_j - lo_i."""
+    g_start = 0.0
+    g_end = 1.0
+    n = lo.shape[0]
+    for i in range(n):
+        for j in range(n):
+            room = hi[j] - lo[i] + TOL
+            slope = yaw[j] - yaw[i]
+            if slope > 0.0:
+                if room < g_end * slope:
+                    g_end = room / slope
+            elif slope < 0.0:
+                if room < g_start * slope:  # i.e. room / slope > g_start, slope being negative
+                    g_start = room / slope
+            elif room < 0.0:
+                return 1.0, 0.0
+    return g_start, g_end
+
+
+@kernel("float64(float64[::1], float64[::1], float64)")
+def _lowest_bound(hi: npt.NDArray[np.float64], yaw: npt.NDArray[np.float64], g: float) -> float:
+    """min_i(hi_i - g * yaw_i), as Python's ``min`` over them in rotor order."""
+    best = hi[0] - g * yaw[0]
+    for i in range(1, hi.shape[0]):
+        v = hi[i] - g * yaw[i]
+        if v < best:
+            best = v
+    return best
+
+
+@kernel("float64(float64[::1], float64[::1], float64, float64)")
+def _max_collective(hi: npt.NDArray[np.float64], yaw: npt.NDArray[np.float64], g_start: float, g_end: float) -> float:
+    """Largest k that fits with some share in [g_start, g_end]: the maximum of min_i(hi_i - g * yaw_i), which is
+    concave and piecewise linear in g, so at an end of the interval or where a falling bound (yaw_i > 0) crosses a
+    rising one (yaw_j < 0); candidates in the order the Python listed them, the first of equal maxima kept."""
+    best = _lowest_bound(hi, yaw, g_start)
+    v = _lowest_bound(hi, yaw, g_end)
+    if v > best:
+        best = v
+    n = hi.shape[0]
+    for i in range(n):
+        if yaw[i] > 0.0:
+            for j in range(n):
+                if yaw[j] < 0.0:
+                    g = (hi[i] - hi[j]) / (yaw[i] - yaw[j])
+                    if g_start < g < g_end:
+                        v = _lowest_bound(hi, yaw, g)
+                        if v > best:
+                            best = v
+    return best
+
+
+@kernel("void(float64[:, ::1], float64, float64, float64, float64, float64, float64[::1], float64[::1], float64[::1])")
+def allocate(
+    rows: npt.NDArray[np.float64],
+    t_max: float,
+    roll_t: float,
+    pitch_t: float,
+    yaw_t: float,
+    thrust_n: float,
+    cmds: npt.NDArray[np.float64],
+    thrusts: npt.NDArray[np.float64],
+    flags: npt.NDArray[np.float64],
+) -> None:
+    """Rotor commands and thrusts for a torque (N m, FRD) and collective thrust (N) demand, saturating by priority
+    (sitl/control/allocation.py); which axes were cut and the thrust saturation in ``flags``."""
+    n = rows.shape[0]
+    for k in range(FLAGS_SIZE):
+        flags[k] = 0.0
+    # The common case first, in one pass: every rotor fits as demanded.
+    fits = True
+    for i in range(n):
+        a = rows[i, L_ROLL] * roll_t + rows[i, L_PITCH] * pitch_t
+        y = rows[i, L_YAW] * yaw_t
+        if not -a - TOL <= thrust_n + y <= rows[i, L_HI_MAX] - a + TOL:
+            fits = False
+            break
+        t = rows[i, L_SHARE] * (a + thrust_n + y)
+        t = 0.0 if t < 0.0 else (t_max if t > t_max else t)
+        thrusts[i] = t
+        cmds[i] = math.sqrt(t / t_max)
+    if fits:
+        return
+    # The general case: some rotor would leave [0, T_max], so cut by priority. Rotor i takes c_i * (rp_i + k + g *
+    # yaw_i); staying inside [0, T_max] means lo_i = -rp_i <= k + g * yaw_i <= T_max / c_i - rp_i = hi_i.
+    rp = np.empty(n)
+    yaw = np.empty(n)
+    lo = np.empty(n)
+    hi = np.empty(n)
+    for i in range(n):
+        rp[i] = rows[i, L_ROLL] * roll_t + rows[i, L_PITCH] * pitch_t
+        yaw[i] = rows[i, L_YAW] * yaw_t
+        lo[i] = -rp[i]
+        hi[i] = rows[i, L_HI_MAX] - rp[i]
+    collective = thrust_n
+    rp_scale = 1.0
+    thrust_saturation = 0.0
+    # The demanded collective with a reduced yaw share (roll/pitch then fit too)?
+    g_lo, g_hi = _shares_at(lo, hi, yaw, collective)
+    if g_lo > g_hi:
+        g_start, g_end = _feasible_shares(lo, hi, yaw)
+        if g_start > g_end:
+            # (a) Scale roll/pitch by the largest s with s * (rp_j - rp_i) <= T_max / c_j for all i, j.
+            for j in range(n):
+                for i in range(n):
+                    if rp[j] > rp[i]:
+                        rp_scale = _pmin(rp_scale, rows[j, L_HI_MAX] / (rp[j] - rp[i]))
+            for i in range(n):
+                rp[i] = rp[i] * rp_scale
+                lo[i] = -rp[i]
+                hi[i] = rows[i, L_HI_MAX] - rp[i]
+            g_start, g_end = 0.0, _pmax(0.0, _feasible_shares(lo, hi, yaw)[1])
+        # (b) The collective nearest to the demand at which roll/pitch fit with some yaw share.
+        g_lo, g_hi = _shares_at(lo, hi, yaw, collective)
+        if g_lo > g_hi:
+            if collective > _lowest_bound(hi, yaw, g_start):
+                collective = _max_collective(hi, yaw, g_start, g_end)
+                thrust_saturation = 1.0
+            else:  # the mirror image: the smallest collective, via negated bounds
+                neg_lo = np.empty(n)
+                neg_yaw = np.empty(n)
+                for i in range(n):
+                    neg_lo[i] = -lo[i]
+                    neg_yaw[i] = -yaw[i]
+                collective = -_max_collective(neg_lo, neg_yaw, g_start, g_end)
+                thrust_saturation = -1.0
+            g_hi = _shares_at(lo, hi, yaw, collective)[1]
+    # (c) The largest yaw share at that collective.
+    yaw_share = _pmin(_pmax(g_hi, 0.0), 1.0)
+    for i in range(n):
+        t = rows[i, L_SHARE] * (rp[i] + collective + yaw_share * yaw[i])
+        t = 0.0 if t < 0.0 else (t_max if t > t_max else t)
+        thrusts[i] = t
+        cmds[i] = math.sqrt(t / t_max)
+    rp_cut = rp_scale < 1.0 - TOL
+    yaw_cut = yaw_share < 1.0 - TOL
+    flags[F_SAT_POS] = 1.0 if rp_cut and roll_t > 0.0 else 0.0
+    flags[F_SAT_POS + 1] = 1.0 if rp_cut and pitch_t > 0.0 else 0.0
+    flags[F_SAT_POS + 2] = 1.0 if yaw_cut and yaw_t > 0.0 else 0.0
+    flags[F_SAT_NEG] = 1.0 if rp_cut and roll_t < 0.0 else 0.0
+    flags[F_SAT_NEG + 1] = 1.0 if rp_cut and pitch_t < 0.0 else 0.0
+    flags[F_SAT_NEG + 2] = 1.0 if yaw_cut and yaw_t < 0.0 else 0.0
+    flags[F_THRUST_SAT] = thrust_saturation
+
+
+# ``inner``'s output row: body-rate setpoint, torque setpoint, the allocation's report, then per rotor its command and
+# its thrust.
+O_RATES_SP = 0
+O_TORQUE = 3
+O_FLAGS = 6
+O_ROTORS = O_FLAGS + FLAGS_SIZE
+
+
+@kernel(
+    "void(float64, float64, float64, float64, float64, float64, float64, float64, float64, boolean, float64, float64,"
+    " float64, float64, float64, float64, float64, float64, boolean, float64[::1], float64[::1], float64[::1],"
+    " float64[:, ::1], float64, float64[::1])"
+)
+def inner(
+    qw: float,
+    qx: float,
+    qy: float,
+    qz: float,
+    dw: float,
+    dx: float,
+    dy: float,
+    dz: float,
+    yawspeed_ff: float,
+    rates_given: bool,
+    spx: float,
+    spy: float,
+    spz: float,
+    wx: float,
+    wy: float,
+    wz: float,
+    collective: float,
+    dt_s: float,
+    landed: bool,
+    attitude_cfg: npt.NDArray[np.float64],
+    rate_cfg: npt.NDArray[np.float64],
+    rate_state: npt.NDArray[np.float64],
+    alloc_rows: npt.NDArray[np.float64],
+    t_max: float,
+    out: npt.NDArray[np.float64],
+) -> None:
+    """The inner loops of one step: attitude (unless the body rates are given), rate and allocation; the
+    allocation's saturation report goes into the rate state for the next step's integrator."""
+    if not rates_given:
+        spx, spy, spz = attitude_rates(qw, qx, qy, qz, dw, dx, dy, dz, yawspeed_ff, attitude_cfg)
+    tx, ty, tz = rate_torque(rate_state, rate_cfg, wx, wy, wz, spx, spy, spz, dt_s, landed)
+    n = alloc_rows.shape[0]
+    flags = out[O_FLAGS : O_FLAGS + FLAGS_SIZE]
+    allocate(alloc_rows, t_max, tx, ty, tz, collective, out[O_ROTORS : O_ROTORS + n],
+             out[O_ROTORS + n : O_ROTORS + 2 * n], flags)  # fmt: skip
+    for k in range(3):
+        rate_state[S_SAT_POS + k] = flags[F_SAT_POS + k]
+        rate_state[S_SAT_NEG + k] = flags[F_SAT_NEG + k]
+    out[O_RATES_SP], out[O_RATES_SP + 1], out[O_RATES_SP + 2] = spx, spy, spz
+    out[O_TORQUE], out[O_TORQUE + 1], out[O_TORQUE + 2] = tx, ty, tz
