@@ -62,58 +62,13 @@ def dcm_columns_to_quat(
     r00, r10, r20 = c0
     r01, r11, r21 = c1
     r02, r12, r22 = c2
-    return _dcm_to_quat(r00, r01, r02, r10, r11, r12, r20, r21, r22)
-
-
-def _dcm_to_quat(
-    r00: float, r01: float, r02: float, r10: float, r11: float, r12: float, r20: float, r21: float, r22: float
-) -> Quat4f:
-    tr = r00 + r11 + r22
-    if tr > 0.0:
-        s = math.sqrt(tr + 1.0) * 2.0
-        w, x, y, z = 0.25 * s, (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s
-    elif r00 > r11 and r00 > r22:
-        s = math.sqrt(1.0 + r00 - r11 - r22) * 2.0
-        w, x, y, z = (r21 - r12) / s, 0.25 * s, (r01 + r10) / s, (r02 + r20) / s
-    elif r11 > r22:
-        s = math.sqrt(1.0 + r11 - r00 - r22) * 2.0
-        w, x, y, z = (r02 - r20) / s, (r01 + r10) / s, 0.25 * s, (r12 + r21) / s
-    else:
-        s = math.sqrt(1.0 + r22 - r00 - r11) * 2.0
-        w, x, y, z = (r10 - r01) / s, (r02 + r20) / s, (r12 + r21) / s, 0.25 * s
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    if w < 0.0:
-        n = -n
-    return w / n, x / n, y / n, z / n
+    return ck.dcm_to_quat(r00, r01, r02, r10, r11, r12, r20, r21, r22)
 
 
 def thrust_to_attitude(thrust_ned_n: Vec3f, yaw_rad: float) -> Quat4f:
-    """Attitude whose body z axis opposes the thrust vector, with the heading closest to ``yaw_rad``."""
+    """Attitude whose body z axis opposes the thrust vector, with the heading closest to ``yaw_rad`` (the kernel)."""
     tx, ty, tz = thrust_ned_n
-    norm = math.sqrt(tx * tx + ty * ty + tz * tz)
-    if norm < 1e-9:
-        bz_x, bz_y, bz_z = 0.0, 0.0, 1.0  # no thrust, no direction: level is the safe choice
-    else:
-        bz_x, bz_y, bz_z = -tx / norm, -ty / norm, -tz / norm
-    sin_yaw = math.sin(yaw_rad)
-    cos_yaw = math.cos(yaw_rad)
-    # body x = (yaw direction rotated by 90 degrees) x body z, which lies in the plane of the yaw heading.
-    bx_x = cos_yaw * bz_z
-    bx_y = sin_yaw * bz_z
-    bx_z = -sin_yaw * bz_y - cos_yaw * bz_x
-    if bz_z < 0.0:  # upside down: keep the nose towards the heading
-        bx_x, bx_y, bx_z = -bx_x, -bx_y, -bx_z
-    if abs(bz_z) < 1e-6:  # thrust in the horizontal plane: heading undefined, any orthogonal x will do
-        bx_x, bx_y, bx_z = 0.0, 0.0, 1.0
-    n = math.sqrt(bx_x * bx_x + bx_y * bx_y + bx_z * bx_z)
-    bx_x /= n
-    bx_y /= n
-    bx_z /= n
-    by_x = bz_y * bx_z - bz_z * bx_y
-    by_y = bz_z * bx_x - bz_x * bx_z
-    by_z = bz_x * bx_y - bz_y * bx_x
-    # The rotation matrix has columns body x, body y, body z.
-    return _dcm_to_quat(bx_x, by_x, bz_x, bx_y, by_y, bz_y, bx_z, by_z, bz_z)
+    return ck.thrust_to_attitude(tx, ty, tz, yaw_rad)
 
 
 class AttitudeController:

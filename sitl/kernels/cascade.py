@@ -16,6 +16,8 @@ import numpy.typing as npt
 
 from sitl.kernels import kernel
 from sitl.kernels.avoidance import _pmax, _pmin
+from sitl.kernels.pymath import hypot2
+from sitl.mathutil import GRAVITY_MPS2
 
 # Attitude configuration row (sitl.control.attitude.AttitudeConfig).
 A_ROLL_P = 0
@@ -444,3 +446,306 @@ def inner(
         rate_state[S_SAT_NEG + k] = flags[F_SAT_NEG + k]
     out[O_RATES_SP], out[O_RATES_SP + 1], out[O_RATES_SP + 2] = spx, spy, spz
     out[O_TORQUE], out[O_TORQUE + 1], out[O_TORQUE + 2] = tx, ty, tz
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# The outer loops (at MPC_LOOP_HZ): position P to a velocity setpoint, the velocity PID to an acceleration and a thrust
+# vector, and the attitude that produces that thrust at the heading setpoint.
+
+# Position configuration row (sitl.control.position.PositionConfig).
+P_XY_P = 0
+P_Z_P = 1
+P_XY_VEL_MAX = 2
+P_Z_VEL_MAX_UP = 3
+P_Z_VEL_MAX_DN = 4
+POSITION_SIZE = 5
+# Velocity configuration row (sitl.control.velocity.VelocityConfig).
+V_XY_P = 0
+V_XY_I = 1
+V_XY_D = 2
+V_Z_P = 3
+V_Z_I = 4
+V_Z_D = 5
+V_CUTOFF = 6
+V_TILT_MAX = 7
+V_THRUST_MIN = 8
+V_THRUST_MAX = 9
+V_XY_MARGIN = 10
+V_MASS = 11
+VELOCITY_SIZE = 12
+# Velocity state row: integrator, filtered derivative of the measured velocity, the previous velocity and whether
+# there is one.
+VS_INTEGRAL = 0
+VS_DERIV = 3
+VS_PREV = 6
+VS_HAVE_PREV = 9
+VELOCITY_STATE_SIZE = 10
+
+
+@kernel("UniTuple(float64, 2)(float64, float64, float64, float64, float64)")
+def constrain_xy(prio_x: float, prio_y: float, extra_x: float, extra_y: float, max_norm: float) -> tuple[float, float]:
+    """Limit |prio + extra| to max_norm, keeping as much of the priority vector as fits (PX4 constrainXY)."""
+    sum_x = prio_x + extra_x
+    sum_y = prio_y + extra_y
+    if sum_x * sum_x + sum_y * sum_y <= max_norm * max_norm:
+        return sum_x, sum_y
+    prio_norm = hypot2(prio_x, prio_y)
+    if prio_norm >= max_norm or hypot2(extra_x - prio_x, extra_y - prio_y) < 1e-3:
+        scale = max_norm / prio_norm if prio_norm > 0.0 else 0.0
+        return prio_x * scale, prio_y * scale
+    extra_norm = hypot2(extra_x, extra_y)
+    if prio_norm < 1e-3:
+        scale = max_norm / extra_norm
+        return extra_x * scale, extra_y * scale
+    # Walk from the priority vector along the extra vector's direction until the circle of radius max_norm:
+    # |prio + s * unit_extra| = max_norm, the positive root of a quadratic in s.
+    ux = extra_x / extra_norm
+    uy = extra_y / extra_norm
+    m = ux * prio_x + uy * prio_y
+    c = prio_x * prio_x + prio_y * prio_y - max_norm * max_norm
+    s = -m + math.sqrt(m * m - c)
+    return prio_x + ux * s, prio_y + uy * s
+
+
+@kernel(
+    "UniTuple(float64, 3)(float64[::1], float64, float64, float64, float64, float64, float64, float64, float64,"
+    " float64)"
+)
+def position_velocity_sp(
+    cfg: npt.NDArray[np.float64],
+    pos_x: float,
+    pos_y: float,
+    pos_z: float,
+    sp_x: float,
+    sp_y: float,
+    sp_z: float,
+    ff_x: float,
+    ff_y: float,
+    ff_z: float,
+) -> tuple[float, float, float]:
+    """The NED velocity setpoint of the position P loop, NaN on axes left to acceleration control: P on the position
+    error plus the velocity feed-forward; a NaN position leaves the feed-forward alone, a NaN feed-forward adds
+    nothing."""
+    if sp_x == sp_x:
+        pos_part_x = cfg[P_XY_P] * (sp_x - pos_x)
+        vel_x = pos_part_x + ff_x if ff_x == ff_x else pos_part_x
+    else:
+        vel_x, pos_part_x = ff_x, 0.0
+    if sp_y == sp_y:
+        pos_part_y = cfg[P_XY_P] * (sp_y - pos_y)
+        vel_y = pos_part_y + ff_y if ff_y == ff_y else pos_part_y
+    else:
+        vel_y, pos_part_y = ff_y, 0.0
+    if sp_z == sp_z:
+        vel_z = cfg[P_Z_P] * (sp_z - pos_z)
+        if ff_z == ff_z:
+            vel_z = vel_z + ff_z
+    else:
+        vel_z = ff_z
+    nan_x = vel_x != vel_x
+    nan_y = vel_y != vel_y
+    if not (nan_x and nan_y):
+        lim_x, lim_y = constrain_xy(
+            pos_part_x,
+            pos_part_y,
+            0.0 if nan_x else vel_x - pos_part_x,
+            0.0 if nan_y else vel_y - pos_part_y,
+            cfg[P_XY_VEL_MAX],
+        )
+        vel_x = math.nan if nan_x else lim_x
+        vel_y = math.nan if nan_y else lim_y
+    if vel_z < -cfg[P_Z_VEL_MAX_UP]:
+        vel_z = -cfg[P_Z_VEL_MAX_UP]
+    elif vel_z > cfg[P_Z_VEL_MAX_DN]:
+        vel_z = cfg[P_Z_VEL_MAX_DN]
+    return vel_x, vel_y, vel_z
+
+
+@kernel(
+    "UniTuple(float64, 6)(float64[::1], float64[::1], float64, float64, float64, float64, float64, float64, float64,"
+    " float64, float64, float64, boolean)"
+)
+def velocity_thrust(
+    state: npt.NDArray[np.float64],
+    cfg: npt.NDArray[np.float64],
+    vx: float,
+    vy: float,
+    vz: float,
+    sp_x: float,
+    sp_y: float,
+    sp_z: float,
+    ff_x: float,
+    ff_y: float,
+    ff_z: float,
+    dt_s: float,
+    freeze_integrator: bool,
+) -> tuple[float, float, float, float, float, float]:
+    """(acceleration setpoint, thrust setpoint) of the velocity PID (sitl/control/velocity.py), its ``state`` row
+    advanced."""
+    # Low-passed derivative of the measured velocity (the D term acts on the measurement).
+    dx, dy, dz = state[VS_DERIV], state[VS_DERIV + 1], state[VS_DERIV + 2]
+    if state[VS_HAVE_PREV] != 0.0 and dt_s > 0.0:
+        cutoff = cfg[V_CUTOFF]
+        alpha = 1.0 if cutoff <= 0.0 else dt_s / (dt_s + 1.0 / (2.0 * math.pi * cutoff))
+        dx += alpha * ((vx - state[VS_PREV]) / dt_s - dx)
+        dy += alpha * ((vy - state[VS_PREV + 1]) / dt_s - dy)
+        dz += alpha * ((vz - state[VS_PREV + 2]) / dt_s - dz)
+        state[VS_DERIV], state[VS_DERIV + 1], state[VS_DERIV + 2] = dx, dy, dz
+    state[VS_PREV], state[VS_PREV + 1], state[VS_PREV + 2] = vx, vy, vz
+    state[VS_HAVE_PREV] = 1.0
+
+    # PID per axis. A NaN velocity setpoint with an acceleration set is acceleration control (the PID stays out);
+    # with neither set the axis brakes to zero velocity.
+    p_xy = cfg[V_XY_P]
+    d_xy = cfg[V_XY_D]
+    if sp_x == sp_x or ff_x != ff_x:
+        err_x = (sp_x if sp_x == sp_x else 0.0) - vx
+        acc_x = p_xy * err_x + state[VS_INTEGRAL] - d_xy * dx
+        if ff_x == ff_x:
+            acc_x = acc_x + ff_x
+    else:
+        err_x = math.nan
+        acc_x = ff_x
+    if sp_y == sp_y or ff_y != ff_y:
+        err_y = (sp_y if sp_y == sp_y else 0.0) - vy
+        acc_y = p_xy * err_y + state[VS_INTEGRAL + 1] - d_xy * dy
+        if ff_y == ff_y:
+            acc_y = acc_y + ff_y
+    else:
+        err_y = math.nan
+        acc_y = ff_y
+    if sp_z == sp_z or ff_z != ff_z:
+        err_z = (sp_z if sp_z == sp_z else 0.0) - vz
+        acc_z = cfg[V_Z_P] * err_z + state[VS_INTEGRAL + 2] - cfg[V_Z_D] * dz
+        if ff_z == ff_z:
+            acc_z = acc_z + ff_z
+    else:
+        err_z = math.nan
+        acc_z = ff_z
+
+    # Thrust direction (body z axis, pointing down through the vehicle) from a_sp - g, tilt-limited. A demand to
+    # fall faster than gravity cannot be met by rotors: it is flown level-ish at minimum thrust.
+    up_component = GRAVITY_MPS2 - acc_z
+    if up_component < 0.0:
+        up_component = 0.0
+    norm = math.sqrt(acc_x * acc_x + acc_y * acc_y + up_component * up_component)
+    if norm < 1e-9:
+        bz_x, bz_y, bz_z = 0.0, 0.0, 1.0
+    else:
+        bz_x, bz_y, bz_z = -acc_x / norm, -acc_y / norm, up_component / norm
+        cos_max = math.cos(cfg[V_TILT_MAX])
+        if bz_z < cos_max:
+            horiz = hypot2(bz_x, bz_y)
+            sin_max = math.sin(cfg[V_TILT_MAX])
+            if horiz < 1e-9:
+                bz_x, bz_y = sin_max, 0.0
+            else:
+                bz_x, bz_y = bz_x / horiz * sin_max, bz_y / horiz * sin_max
+            bz_z = cos_max
+
+    # The collective keeps the demanded vertical force through the tilt limit (PX4 projects it the same way).
+    mass = cfg[V_MASS]
+    thrust_min = cfg[V_THRUST_MIN]
+    collective = mass * (GRAVITY_MPS2 - acc_z) / bz_z
+    if collective < thrust_min:
+        collective = thrust_min
+    thr_x = -bz_x * collective
+    thr_y = -bz_y * collective
+    thr_z = -bz_z * collective
+
+    # Vertical anti-windup: no integration further into a saturated collective.
+    thrust_max = cfg[V_THRUST_MAX]
+    if (-thr_z <= thrust_min and err_z >= 0.0) or (-thr_z >= thrust_max and err_z <= 0.0):
+        err_z = 0.0
+
+    # Vertical priority with a horizontal margin, then the horizontal part gets what remains.
+    thr_xy = hypot2(thr_x, thr_y)
+    margin = cfg[V_XY_MARGIN]
+    allocated_xy = margin if margin < thr_xy else thr_xy  # min(thr_xy, margin)
+    thr_up_max_sq = thrust_max * thrust_max - allocated_xy * allocated_xy
+    thr_up_max = math.sqrt(thr_up_max_sq) if thr_up_max_sq > 0.0 else 0.0
+    if -thr_z > thr_up_max:
+        thr_z = -thr_up_max
+    thr_xy_max_sq = thrust_max * thrust_max - thr_z * thr_z
+    thr_xy_max = math.sqrt(thr_xy_max_sq) if thr_xy_max_sq > 0.0 else 0.0
+    if thr_xy > thr_xy_max:
+        scale = thr_xy_max / thr_xy
+        thr_x *= scale
+        thr_y *= scale
+
+    if not freeze_integrator and dt_s > 0.0:
+        # Horizontal tracking anti-reset-windup (Rundqwist 1990, as PX4): while the produced horizontal acceleration
+        # falls short of the demand, the shortfall is fed back against the integrator.
+        if p_xy > 0.0 and err_x == err_x and err_y == err_y:
+            prod_x = thr_x / mass
+            prod_y = thr_y / mass
+            if acc_x * acc_x + acc_y * acc_y > prod_x * prod_x + prod_y * prod_y:
+                arw_gain = 2.0 / p_xy
+                err_x -= arw_gain * (acc_x - prod_x)
+                err_y -= arw_gain * (acc_y - prod_y)
+        i_xy = cfg[V_XY_I]
+        if err_x == err_x:
+            state[VS_INTEGRAL] += i_xy * err_x * dt_s
+        if err_y == err_y:
+            state[VS_INTEGRAL + 1] += i_xy * err_y * dt_s
+        if err_z == err_z:
+            state[VS_INTEGRAL + 2] += cfg[V_Z_I] * err_z * dt_s
+        # The vertical integrator never needs to cancel more than gravity.
+        if state[VS_INTEGRAL + 2] > GRAVITY_MPS2:
+            state[VS_INTEGRAL + 2] = GRAVITY_MPS2
+        elif state[VS_INTEGRAL + 2] < -GRAVITY_MPS2:
+            state[VS_INTEGRAL + 2] = -GRAVITY_MPS2
+    return acc_x, acc_y, acc_z, thr_x, thr_y, thr_z
+
+
+@kernel("UniTuple(float64, 4)(float64, float64, float64, float64, float64, float64, float64, float64, float64)")
+def dcm_to_quat(
+    r00: float, r01: float, r02: float, r10: float, r11: float, r12: float, r20: float, r21: float, r22: float
+) -> tuple[float, float, float, float]:
+    """Unit quaternion (w >= 0) of a rotation matrix, row by row (Shepperd's method)."""
+    tr = r00 + r11 + r22
+    if tr > 0.0:
+        s = math.sqrt(tr + 1.0) * 2.0
+        w, x, y, z = 0.25 * s, (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s
+    elif r00 > r11 and r00 > r22:
+        s = math.sqrt(1.0 + r00 - r11 - r22) * 2.0
+        w, x, y, z = (r21 - r12) / s, 0.25 * s, (r01 + r10) / s, (r02 + r20) / s
+    elif r11 > r22:
+        s = math.sqrt(1.0 + r11 - r00 - r22) * 2.0
+        w, x, y, z = (r02 - r20) / s, (r01 + r10) / s, 0.25 * s, (r12 + r21) / s
+    else:
+        s = math.sqrt(1.0 + r22 - r00 - r11) * 2.0
+        w, x, y, z = (r10 - r01) / s, (r02 + r20) / s, (r12 + r21) / s, 0.25 * s
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    if w < 0.0:
+        n = -n
+    return w / n, x / n, y / n, z / n
+
+
+@kernel("UniTuple(float64, 4)(float64, float64, float64, float64)")
+def thrust_to_attitude(tx: float, ty: float, tz: float, yaw_rad: float) -> tuple[float, float, float, float]:
+    """Attitude whose body z axis opposes the thrust vector, with the heading closest to ``yaw_rad``."""
+    norm = math.sqrt(tx * tx + ty * ty + tz * tz)
+    if norm < 1e-9:
+        bz_x, bz_y, bz_z = 0.0, 0.0, 1.0  # no thrust, no direction: level is the safe choice
+    else:
+        bz_x, bz_y, bz_z = -tx / norm, -ty / norm, -tz / norm
+    sin_yaw = math.sin(yaw_rad)
+    cos_yaw = math.cos(yaw_rad)
+    # body x = (yaw direction rotated by 90 degrees) x body z, which lies in the plane of the yaw heading.
+    bx_x = cos_yaw * bz_z
+    bx_y = sin_yaw * bz_z
+    bx_z = -sin_yaw * bz_y - cos_yaw * bz_x
+    if bz_z < 0.0:  # upside down: keep the nose towards the heading
+        bx_x, bx_y, bx_z = -bx_x, -bx_y, -bx_z
+    if abs(bz_z) < 1e-6:  # thrust in the horizontal plane: heading undefined, any orthogonal x will do
+        bx_x, bx_y, bx_z = 0.0, 0.0, 1.0
+    n = math.sqrt(bx_x * bx_x + bx_y * bx_y + bx_z * bx_z)
+    bx_x /= n
+    bx_y /= n
+    bx_z /= n
+    by_x = bz_y * bx_z - bz_z * bx_y
+    by_y = bz_z * bx_x - bz_x * bx_z
+    by_z = bz_x * bx_y - bz_y * bx_x
+    # The rotation matrix has columns body x, body y, body z.
+    return dcm_to_quat(bx_x, by_x, bz_x, bx_y, by_y, bz_y, bx_z, by_z, bz_z)
