@@ -159,3 +159,50 @@ def test_no_numpy_transcendental_in_flight_code() -> None:
     assert not found, "numpy's SIMD transcendentals round differently by CPU; use math (or a kernel):\n" + "\n".join(
         found
     )
+
+
+@pytest.mark.skipif(not sitl.kernels.compiled(), reason="kernels switched off in this process")
+def test_the_compiled_cascade_gives_its_python_forms_bits_saturated_or_not() -> None:
+    from sitl.airframe import load_airframe
+    from sitl.control.cascade import Cascade
+    from sitl.kernels import cascade as ck
+    from sitl.simulation import build_param_store
+
+    cascade = Cascade(load_airframe(), build_param_store())
+    rng = np.random.default_rng(11)
+    rows, t_max = cascade.allocator.rows, cascade.allocator.thrust_max_n
+    saturated = 0
+    for _ in range(3000):
+        q = rng.standard_normal(4)
+        q /= math.sqrt(float((q * q).sum()))
+        d = rng.standard_normal(4)
+        d /= math.sqrt(float((d * d).sum()))
+        ff = float(rng.choice([math.nan, rng.standard_normal()]))
+        args = (*q.tolist(), *d.tolist(), ff, cascade.attitude.row)
+        assert ck.attitude_rates(*args) == ck.attitude_rates.py_func(*args)
+        rates = (rng.standard_normal(6) * 2.0).tolist()
+        states = [np.array(rng.standard_normal(ck.RATE_STATE_SIZE).clip(0.0, None)) for _ in range(2)]
+        states[1][:] = states[0]
+        step = (*rates, 0.004, bool(rng.integers(0, 2)))
+        assert ck.rate_torque(states[0], cascade.rate.row, *step) == ck.rate_torque.py_func(
+            states[1], cascade.rate.row, *step
+        )
+        assert np.array_equal(states[0], states[1])
+        demand = (
+            *(rng.standard_normal(3) * (0.1, 0.1, 0.02) * rng.choice([1.0, 10.0])).tolist(),
+            float(rng.uniform(-5.0, 60.0)),
+        )
+        outs = [(np.empty(len(rows)), np.empty(len(rows)), np.empty(ck.FLAGS_SIZE)) for _ in range(2)]
+        ck.allocate(rows, t_max, *demand, *outs[0])
+        ck.allocate.py_func(rows, t_max, *demand, *outs[1])
+        assert all(np.array_equal(a, b) for a, b in zip(*outs, strict=True))
+        saturated += bool(outs[0][2].any())
+        velocity = [np.array(rng.standard_normal(ck.VELOCITY_STATE_SIZE)) for _ in range(2)]
+        velocity[1][:] = velocity[0]
+        vel = [x if rng.random() > 0.2 else math.nan for x in (rng.standard_normal(9) * 3.0).tolist()]
+        got = ck.velocity_thrust(velocity[0], cascade.velocity.row, *vel, 0.01, False)
+        want = ck.velocity_thrust.py_func(velocity[1], cascade.velocity.row, *vel, 0.01, False)
+        assert np.array_equal(np.array(got), np.array(want), equal_nan=True) and np.array_equal(
+            *velocity, equal_nan=True
+        )
+    assert saturated > 300  # the priority path was exercised, not only the common one
