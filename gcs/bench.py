@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import importlib.metadata
 import json
 import math
 import os
@@ -538,6 +539,13 @@ def drone_memory(swarm: Swarm) -> tuple[list[float], str]:
     return sizes, "rss" if "rss" in kinds else "pss"
 
 
+def _package_version(name: str) -> str:
+    try:
+        return importlib.metadata.version(name)
+    except importlib.metadata.PackageNotFoundError:
+        return ""
+
+
 def machine_info(physics_rate_hz: float) -> dict[str, Any]:
     cpuinfo = _read("/proc/cpuinfo") or ""
     model = re.search(r"^model name\s*:\s*(.+)$", cpuinfo, re.MULTILINE)
@@ -549,6 +557,9 @@ def machine_info(physics_rate_hz: float) -> dict[str, Any]:
         jsbsim_version = ""
     return {
         "cpu_model": model.group(1).strip() if model else platform.processor(),
+        # the drones' compiled kernels and their arrays: read from the installed metadata, not imported
+        "numba": _package_version("numba"),
+        "numpy": _package_version("numpy"),
         "logical_cpus": os.cpu_count(),
         "usable_cpus": len(os.sched_getaffinity(0)),
         "platform": platform.platform(),

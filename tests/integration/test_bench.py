@@ -89,6 +89,7 @@ def test_bench_measures_every_figure_for_each_swarm_size_and_leaves_nothing_behi
     doc: dict[str, Any] = json.loads(json_path.read_text())
     assert {"rows", "machine", "largest_n_real_time", "sim_seconds"} <= doc.keys()
     assert doc["machine"]["logical_cpus"] >= 1 and len(doc["machine"]["loadavg_after"]) == 3
+    assert doc["machine"]["numba"] and doc["machine"]["numpy"]  # the versions the drones' kernels ran on
     rows = doc["rows"]
     assert [(r["n_drones"], r["drones_per_process"], r["hosts"]) for r in rows] == [(2, 1, 2), (2, 2, 1)]
     for row in rows:
