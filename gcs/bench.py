@@ -112,6 +112,11 @@ def parse_drone_counts(text: str) -> tuple[int, ...]:
     return tuple(sorted(counts))
 
 
+def default_first_instance(largest_n: int, max_instances: int) -> int:
+    """``DEFAULT_FIRST_INSTANCE``, or as much lower as the largest swarm needs to fit below ``max_instances``."""
+    return max(0, min(DEFAULT_FIRST_INSTANCE, min(max_instances, MAX_DRONES) - largest_n))
+
+
 def check_instances(first_instance: int, largest_n: int, max_instances: int) -> None:
     """Every drone needs an instance the simulation runs (0..max_instances - 1) and a sysid (instance + 1) that is
     not the ground station's (255). The relay probe's two vehicles take sysids no drone has (``swarm_probe_sysids``)."""
@@ -964,9 +969,10 @@ def _configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--first-instance",
         type=int,
-        default=DEFAULT_FIRST_INSTANCE,
+        default=None,
         metavar="I",
-        help=f"instance of the first drone (sysid = instance+1; default {DEFAULT_FIRST_INSTANCE})",
+        help=f"instance of the first drone (sysid = instance+1; default {DEFAULT_FIRST_INSTANCE}, or lower when the "
+        "largest swarm would not fit above it)",
     )
     parser.add_argument("--seed", type=int, default=0, help="base random seed (the k-th drone, from 0, uses seed+k)")
     parser.add_argument(
@@ -1007,6 +1013,8 @@ def _say(text: str) -> None:
 
 def run_bench(args: argparse.Namespace, simulation: Simulation) -> int:
     """``swarm bench``: 0 when every run succeeded, 1 when one failed, 2 for bad arguments, 130 when interrupted."""
+    if args.first_instance is None:
+        args.first_instance = default_first_instance(max(args.drones), simulation.max_instances)
     try:
         check_instances(args.first_instance, max(args.drones), simulation.max_instances)
     except BenchUsageError as exc:

@@ -29,6 +29,7 @@ from gcs.bench import (
     circle_limits,
     circle_radius_m,
     consistent_read,
+    default_first_instance,
     format_table,
     largest_real_time,
     latency_figures,
@@ -123,7 +124,7 @@ def test_the_subcommand_parses_like_the_standalone_command() -> None:
     # WHEN bench is given its options THEN they arrive parsed and checked
     args = parser.parse_args(["bench", "--drones", "3,1", "--sim-seconds", "4", "--json", "out.json"])
     assert args.command == "bench" and args.drones == (1, 3) and args.sim_seconds == 4.0
-    assert args.json == Path("out.json") and args.plot is None and args.first_instance == 100
+    assert args.json == Path("out.json") and args.plot is None and args.first_instance is None  # chosen by size
     defaults = parser.parse_args(["bench"])
     assert defaults.drones == (1, 3, 9, 20, 50, 100) and defaults.sim_seconds > 0
 
@@ -140,6 +141,14 @@ def test_instances_beyond_the_sysids_are_refused_before_anything_is_spawned(caps
     assert run_bench(args, SITL) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "needs instances up to 254; they must lie in 0..253" in err[0], err
+
+
+def test_the_first_instance_is_100_unless_the_largest_swarm_needs_room_below_it() -> None:
+    assert default_first_instance(100, SITL.max_instances) == 100
+    assert default_first_instance(154, SITL.max_instances) == 100  # instances 100..253
+    assert default_first_instance(200, SITL.max_instances) == 54  # instances 54..253: sysids 55..254
+    assert default_first_instance(254, SITL.max_instances) == 0
+    check_instances(default_first_instance(254, SITL.max_instances), 254, SITL.max_instances)  # fits
 
 
 # ------------------------------------------------------------------------------------------------ statistics
