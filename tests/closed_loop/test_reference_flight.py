@@ -5,10 +5,12 @@ It exercises takeoff, goto, hold, offboard (position and attitude), offboard los
 one started on the ground, RTL, land and a critical battery. A change meant to leave behaviour alone (a refactor)
 must leave these figures alone; a deliberate behaviour change re-records them and says why in its commit.
 
-The flight is flown twice: in this process, with whatever BLAS kernels numpy's OpenBLAS chose for this CPU, and in
-a child with OpenBLAS forced to its SSE-only kernels (OPENBLAS_CORETYPE=Nehalem, which every x86-64 CPU runs). Both
-must give the recorded figures, which holds only while flight code keeps off BLAS and LAPACK (sitl/mathutil.py):
-before that, a CPU with AVX-512 flew the recorded flight a few 1e-9 m apart from one without.
+The flight is flown twice: in this process, with whatever BLAS kernels numpy's OpenBLAS chose for this CPU and the
+drone's compiled kernels built for this CPU, and in a child with OpenBLAS forced to its SSE-only kernels
+(OPENBLAS_CORETYPE=Nehalem, which every x86-64 CPU runs) and the compiled kernels built for a generic x86-64
+(NUMBA_CPU_NAME=generic, without SVML). Both must give the recorded figures, which holds only while flight code
+keeps off BLAS and LAPACK (sitl/mathutil.py) and kernels off fused multiply-adds and reassociation (no fastmath,
+sitl/kernels): before the first, a CPU with AVX-512 flew the recorded flight a few 1e-9 m apart from one without.
 
 Beside it, two swarm flights are held to recorded digests of every drone's true state at every step: the 9-drone
 circle and the dense circle (cameras, detector, fusion, ORCA and the safety layer at work in every drone), so moving a
@@ -62,13 +64,19 @@ def test_the_reference_flight_is_bit_identical_to_the_recorded_one() -> None:
     assert figures.motor_sha256 == RECORDED_MOTOR_SHA256
 
 
+@pytest.mark.timeout(240)
 @pytest.mark.skipif(platform.machine() != "x86_64", reason="OpenBLAS kernel names are x86-64's")
-def test_the_reference_flight_is_the_same_with_other_blas_kernels() -> None:
+def test_the_reference_flight_is_the_same_with_other_blas_kernels_and_kernels_compiled_for_any_cpu(
+    tmp_path: Path,
+) -> None:
+    """OpenBLAS forced to its SSE-only kernels, and the drone's compiled kernels built for a generic x86-64 CPU
+    (no AVX, no FMA) without Intel's SVML, into a cache of their own: the recorded bits all the same."""
     script = (
         "from tests.closed_loop.reference_flight import fly; f = fly(); print((f.steps, f.final_truth, f.motor_sha256))"
     )
-    env = {**os.environ, "OPENBLAS_CORETYPE": "Nehalem"}
-    out = subprocess.run([sys.executable, "-c", script], cwd=ROOT, env=env, capture_output=True, text=True, timeout=50)
+    env = {**os.environ, "OPENBLAS_CORETYPE": "Nehalem", "NUMBA_CPU_NAME": "generic", "NUMBA_DISABLE_INTEL_SVML": "1",
+           "NUMBA_CACHE_DIR": str(tmp_path / "generic-cache"), "SWARM_KERNELS": ""}  # fmt: skip
+    out = subprocess.run([sys.executable, "-c", script], cwd=ROOT, env=env, capture_output=True, text=True, timeout=220)
     assert out.returncode == 0, out.stderr[-2000:]
     steps, final_truth, motor_sha256 = ast.literal_eval(out.stdout.strip().splitlines()[-1])
     assert (steps, final_truth, motor_sha256) == (RECORDED_STEPS, RECORDED_FINAL_TRUTH, RECORDED_MOTOR_SHA256)
