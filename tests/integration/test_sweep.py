@@ -71,9 +71,16 @@ def mission(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
+def _as_in_a_terminal() -> None:
+    """Ctrl-C interrupts, as for a command typed in a terminal. A shell that starts a job in the background has it
+    ignore SIGINT, and the tests may be run from such a job: the sweep would inherit that and never be interrupted."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def sweep(mission: Path, out: Path, env: dict[str, str], *args: str) -> subprocess.Popen[str]:
     return subprocess.Popen([*SWARM, "sweep", str(mission), "--out", str(out), *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=env, start_new_session=True)  # fmt: skip
+                            stderr=subprocess.PIPE, text=True, env=env, start_new_session=True,
+                            preexec_fn=_as_in_a_terminal)  # fmt: skip
 
 
 def finish(proc: subprocess.Popen[str], timeout_s: float) -> tuple[int, str, str]:
