@@ -4,7 +4,7 @@ functions; docs/avoidance.md has the algorithm).
 
 An obstacle is a row of ``OBSTACLE_SIZE`` float64 (relative position, velocity, whether the velocity is known,
 radius, source, age); a prepared obstacle adds the figures ``avoid`` needs whatever the velocities. Python's
-``min``/``max`` are spelled out (``_pmin``/``_pmax``: the first argument unless the second is strictly beyond it),
+``min``/``max`` are spelled out (``pymath.pmin``/``pmax``: the first argument unless the second is strictly beyond it),
 and every sum is in the Python's order, so the kernels give the bits the Python form gave.
 """
 
@@ -16,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from sitl.kernels import kernel
-from sitl.kernels.pymath import hypot2, py_square
+from sitl.kernels.pymath import hypot2, pmax, pmin, py_square
 
 EPS = 1e-9
 # Bounds of physical sense for inputs (a relative position beyond 1000 km, a speed beyond 1 km/s, an age beyond
@@ -69,18 +69,6 @@ K_RELAY_AGE_SIGMA = 17
 CONFIG_SIZE = 18
 
 
-@kernel("float64(float64, float64)")
-def _pmax(a: float, b: float) -> float:
-    """Python's ``max(a, b)``."""
-    return b if b > a else a
-
-
-@kernel("float64(float64, float64)")
-def _pmin(a: float, b: float) -> float:
-    """Python's ``min(a, b)``."""
-    return b if b < a else a
-
-
 @kernel("boolean(float64, float64, float64, float64)")
 def within3(x: float, y: float, z: float, limit: float) -> bool:
     """All three components in [-limit, limit] (false for NaN)."""
@@ -91,7 +79,7 @@ def within3(x: float, y: float, z: float, limit: float) -> bool:
 def separation_m(radius_m: float, cfg: npt.NDArray[np.float64]) -> float:
     """Centre distance to keep from a body of this radius: min_distance for our own size, the same gap otherwise."""
     own = cfg[K_OWN_RADIUS]
-    return _pmax(own + radius_m, cfg[K_MIN_DIST] + radius_m - own)
+    return pmax(own + radius_m, cfg[K_MIN_DIST] + radius_m - own)
 
 
 @kernel("void(float64[::1], float64[::1], float64, float64, float64, float64, float64[::1], float64[::1])")
@@ -117,14 +105,14 @@ def _fuse_pair(
     if cam_range < EPS:
         out[O_POS], out[O_POS + 1], out[O_POS + 2] = rx, ry, rz
     else:
-        var_cam = py_square(_pmax(cfg[K_CAM_SIGMA_FRAC] * cam_range, 0.01))
-        var_relay = py_square(_pmax(cfg[K_RELAY_SIGMA] + cfg[K_RELAY_AGE_SIGMA] * rel[O_AGE], 0.01))
+        var_cam = py_square(pmax(cfg[K_CAM_SIGMA_FRAC] * cam_range, 0.01))
+        var_relay = py_square(pmax(cfg[K_RELAY_SIGMA] + cfg[K_RELAY_AGE_SIGMA] * rel[O_AGE], 0.01))
         rng = (cam_range / var_cam + relay_range / var_relay) / (1.0 / var_cam + 1.0 / var_relay)
         k = rng / cam_range
         out[O_POS], out[O_POS + 1], out[O_POS + 2] = cx * k, cy * k, cz * k
     out[O_VEL], out[O_VEL + 1], out[O_VEL + 2] = vx, vy, vz
     out[O_VEL_KNOWN] = 1.0
-    out[O_RADIUS] = _pmax(cam[3], rel[O_RADIUS])
+    out[O_RADIUS] = pmax(cam[3], rel[O_RADIUS])
     out[O_SOURCE] = SOURCE_FUSED
     out[O_AGE] = cam_age_s
 
@@ -152,7 +140,7 @@ def fuse(
         age = relay[i, 7]
         if not (age <= max_age and within3(px, py, pz, MAX_REL_POS_M) and within3(vx, vy, vz, MAX_SPEED_MPS)):
             continue
-        age = _pmax(0.0, age)
+        age = pmax(0.0, age)
         row = relays[n_rel]
         row[O_POS], row[O_POS + 1], row[O_POS + 2] = px + vx * age, py + vy * age, pz + vz * age
         row[O_VEL], row[O_VEL + 1], row[O_VEL + 2] = vx, vy, vz
@@ -181,7 +169,7 @@ def fuse(
         n_pairs = 0
         for ci in range(n_cam):
             c = camera[cams[ci]]
-            age = _pmax(0.0, c[4])
+            age = pmax(0.0, c[4])
             cx, cy, cz = c[0] - own_vx * age, c[1] - own_vy * age, c[2] - own_vz * age
             gate = gate_m + gate_frac * math.sqrt(cx * cx + cy * cy + cz * cz)
             gate_sq = gate * gate
@@ -208,7 +196,7 @@ def fuse(
     n_out = 0
     for ci in range(n_cam):
         c = camera[cams[ci]]
-        age = _pmax(0.0, c[4])
+        age = pmax(0.0, c[4])
         row = out[n_out]
         ri = cam_match[ci]
         if ri < 0:
@@ -248,7 +236,7 @@ def prepare(
         ob = obstacles[i]
         px, py, pz = ob[O_POS], ob[O_POS + 1], ob[O_POS + 2]
         if math.isfinite(px) and math.isfinite(py) and math.isfinite(pz):
-            closest = _pmin(closest, math.sqrt(px * px + py * py + pz * pz))
+            closest = pmin(closest, math.sqrt(px * px + py * py + pz * pz))
         if not within3(px, py, pz, MAX_REL_POS_M):
             continue
         known = ob[O_VEL_KNOWN] != 0.0
@@ -258,7 +246,7 @@ def prepare(
             bvx, bvy = ob[O_VEL], ob[O_VEL + 1]
         else:
             bvx, bvy = 0.0, 0.0
-        radius = _pmin(ob[O_RADIUS], MAX_REL_POS_M) if ob[O_RADIUS] > 0.0 else 0.0  # NaN compares false: 0
+        radius = pmin(ob[O_RADIUS], MAX_REL_POS_M) if ob[O_RADIUS] > 0.0 else 0.0  # NaN compares false: 0
         r = separation_m(radius, cfg)
         dist_sq = px * px + py * py
         row = usable[n]
@@ -299,9 +287,9 @@ def _lp1(
             continue
         t = numer / denom
         if denom >= 0.0:
-            t_right = _pmin(t_right, t)
+            t_right = pmin(t_right, t)
         else:
-            t_left = _pmax(t_left, t)
+            t_left = pmax(t_left, t)
         if t_left > t_right:
             return False, 0.0, 0.0
     if direction_opt:
@@ -414,8 +402,8 @@ def _safety_layer(
 ) -> tuple[float, float, int]:
     """Hard limit on the speed of approach to each obstacle, whatever the linear program had to give up (rows of
     ``near``: bearing x, y, distance, separation, obstacle vx, vy, responsibility); see ``sitl.avoidance``."""
-    acc = _pmax(cfg[K_MAX_ACCEL], 0.0)
-    inv_rec = 1.0 / _pmax(cfg[K_RECOVERY], 1e-3)
+    acc = pmax(cfg[K_MAX_ACCEL], 0.0)
+    inv_rec = 1.0 / pmax(cfg[K_RECOVERY], 1e-3)
     push_x = 0.0
     push_y = 0.0
     touched = 0
@@ -446,8 +434,8 @@ def _limit(dvx: float, dvy: float, vx: float, vy: float, cap: float, vmax: float
     wx, wy = dvx + t * ex, dvy + t * ey
     if wx * wx + wy * wy > vmax * vmax:
         de = dvx * ex + dvy * ey
-        c = _pmin(dvx * dvx + dvy * dvy - vmax * vmax, 0.0)  # desired is inside (or, by rounding, on) the circle
-        t = _pmin(t, _pmax(0.0, (-de + math.sqrt(de * de - e_sq * c)) / e_sq))
+        c = pmin(dvx * dvx + dvy * dvy - vmax * vmax, 0.0)  # desired is inside (or, by rounding, on) the circle
+        t = pmin(t, pmax(0.0, (-de + math.sqrt(de * de - e_sq * c)) / e_sq))
     out_x, out_y = dvx + t * ex, dvy + t * ey
     # Rounding can leave the speed a hair above the limit; never report more than promised.
     sp_sq = out_x * out_x + out_y * out_y
@@ -475,8 +463,8 @@ def avoid(
     """ORCA on prepared obstacles for a finite desired horizontal velocity (avoidance enabled): the horizontal
     velocity to fly, whether it differs from the desired one, and how many obstacles forced a change. See
     ``sitl.avoidance.avoid`` for the guarantees and the responsibility rule."""
-    vmax = _pmax(0.0, cfg[K_MAX_SPEED])
-    cap = _pmax(0.0, cfg[K_MAX_CORR])
+    vmax = pmax(0.0, cfg[K_MAX_SPEED])
+    cap = pmax(0.0, cfg[K_MAX_CORR])
     des_speed = hypot2(dvx, dvy)
     if des_speed > vmax:
         dvx, dvy = dvx / des_speed * vmax, dvy / des_speed * vmax
@@ -487,9 +475,9 @@ def avoid(
     if not -MAX_SPEED_MPS <= ovz <= MAX_SPEED_MPS:
         ovz = dvz if -MAX_SPEED_MPS <= dvz <= MAX_SPEED_MPS else 0.0
 
-    tau = _pmax(cfg[K_HORIZON], 1e-3)
+    tau = pmax(cfg[K_HORIZON], 1e-3)
     inv_tau = 1.0 / tau
-    inv_rec = 1.0 / _pmax(cfg[K_RECOVERY], 1e-3)
+    inv_rec = 1.0 / pmax(cfg[K_RECOVERY], 1e-3)
     tie = cfg[K_TIE]
     cos_r, sin_r = math.cos(cfg[K_TILT]), math.sin(cfg[K_TILT])
     reach_speed = des_speed + cap

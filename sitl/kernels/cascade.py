@@ -15,8 +15,7 @@ import numpy as np
 import numpy.typing as npt
 
 from sitl.kernels import kernel
-from sitl.kernels.avoidance import _pmax, _pmin
-from sitl.kernels.pymath import hypot2
+from sitl.kernels.pymath import hypot2, pmax, pmin
 from sitl.mathutil import GRAVITY_MPS2
 
 # Attitude configuration row (sitl.control.attitude.AttitudeConfig).
@@ -353,12 +352,12 @@ def allocate(
             for j in range(n):
                 for i in range(n):
                     if rp[j] > rp[i]:
-                        rp_scale = _pmin(rp_scale, rows[j, L_HI_MAX] / (rp[j] - rp[i]))
+                        rp_scale = pmin(rp_scale, rows[j, L_HI_MAX] / (rp[j] - rp[i]))
             for i in range(n):
                 rp[i] = rp[i] * rp_scale
                 lo[i] = -rp[i]
                 hi[i] = rows[i, L_HI_MAX] - rp[i]
-            g_start, g_end = 0.0, _pmax(0.0, _feasible_shares(lo, hi, yaw)[1])
+            g_start, g_end = 0.0, pmax(0.0, _feasible_shares(lo, hi, yaw)[1])
         # (b) The collective nearest to the demand at which roll/pitch fit with some yaw share.
         g_lo, g_hi = _shares_at(lo, hi, yaw, collective)
         if g_lo > g_hi:
@@ -375,7 +374,7 @@ def allocate(
                 thrust_saturation = -1.0
             g_hi = _shares_at(lo, hi, yaw, collective)[1]
     # (c) The largest yaw share at that collective.
-    yaw_share = _pmin(_pmax(g_hi, 0.0), 1.0)
+    yaw_share = pmin(pmax(g_hi, 0.0), 1.0)
     for i in range(n):
         t = rows[i, L_SHARE] * (rp[i] + collective + yaw_share * yaw[i])
         t = 0.0 if t < 0.0 else (t_max if t > t_max else t)

@@ -102,6 +102,19 @@ def hypot2(x: float, y: float) -> float:
     return hypot3(x, y, 0.0)
 
 
+@kernel("float64(float64, float64)")
+def pmax(a: float, b: float) -> float:
+    """Python's ``max(a, b)``: the first argument unless the second is strictly greater (NaN and signed zeros as
+    Python has them)."""
+    return b if b > a else a
+
+
+@kernel("float64(float64, float64)")
+def pmin(a: float, b: float) -> float:
+    """Python's ``min(a, b)``: the first argument unless the second is strictly smaller."""
+    return b if b < a else a
+
+
 @kernel("float64(float64)")
 def py_square(x: float) -> float:
     """CPython's ``x ** 2``: the C library's ``pow(x, 2.0)``. The exponent is computed (``2.0 + 0.0 * x`` is 2.0 for
