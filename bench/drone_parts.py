@@ -47,7 +47,8 @@ def lone(sim_seconds: float) -> dict[str, float]:
     from sitl.protocol import Identity
     from sitl.runtime import PACED_WAKE_STEPS
     from sitl.simulation import SimConfig, Simulation
-    from sitl.world import SharedWorld, WorldParticipant
+    from sitl.world import SharedWorld
+    from sitl.world_view import WorldParticipant
 
     sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sink.bind(("127.0.0.1", 0))

@@ -45,6 +45,7 @@ from sitl.protocol.images import EncodedImage
 from sitl.protocol.neighbours import Neighbour, NeighbourTable
 from sitl.simulation import Simulation
 from sitl.world import SharedWorld
+from sitl.world_view import others_ned_m
 
 RELAY_PERIOD_S = 0.05
 _new_relayed = fast_constructor(RelayedNeighbour)
@@ -154,7 +155,7 @@ class Awareness:
         """Every body the cameras could see now: the other drones within range and the static obstacles."""
         assert self._world is not None
         rig = self._camera_rig()
-        _ids, offsets = self._world.others_ned_m(self._instance)
+        _ids, offsets = others_ned_m(self._world, self._instance)
         # Drones beyond every camera's range (by more than rounding: the renderer measures the distance in each
         # camera's frame) would be culled by each camera in turn; in a large swarm most are, so they are left out
         # before being built. A NaN row is kept, to be met as the renderer meets it.

@@ -35,9 +35,9 @@ from sitl.world import (
     END_FAILED,
     SUPERVISOR_SENT,
     SharedWorld,
-    WorldParticipant,
     lockstep_epoch_steps,
 )
+from sitl.world_view import WorldParticipant
 
 AWAIT_SUPERVISOR_S = 1.0  # wall seconds a lockstep drone waits for a datagram the supervisor has sent
 CPU_REPORT_STEPS = 100  # how often the time spent per part is published in the shared world (for benchmarks)

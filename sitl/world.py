@@ -42,8 +42,6 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from sitl.dynamics.plant import PlantState
-from sitl.kernels import world as wk
 from sitl.linkmodel import DIRECTIONS, LINK_CLASSES, Direction, LinkClass, LinkCounters
 from sitl.mathutil import GRAVITY_MPS2
 
@@ -99,21 +97,6 @@ class WorldError(RuntimeError):
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class Contact:
-    """Another body closer than the two collision radii together (``obstacle`` set when it is a static one)."""
-
-    instance: int
-    distance_m: float
-    obstacle: int | None = None
-
-    def text(self) -> str:
-        """The STATUSTEXT a drone sends when it hits this body."""
-        if self.obstacle is not None:
-            return f"Collision with obstacle {self.obstacle + 1} at {self.distance_m:.2f} m"
-        return f"Collision with drone {self.instance + 1} at {self.distance_m:.2f} m"
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
 class StaticObstacle:
     """A declared obstacle seen from one drone: its centre's NED offset (mid-height for a cylinder)."""
 
@@ -126,8 +109,6 @@ class StaticObstacle:
 
 # Static obstacles a mission declares, after the header: one row each, written once by the supervisor.
 MAX_OBSTACLES = 32
-# The columns sitl/kernels/world.py reads, in its order.
-_WORLD_COLUMNS = np.array((VALID, LAT, LON, ALT, ENDED), dtype=np.int64)
 OBSTACLE_COLUMNS = 7
 O_VALID, O_KIND, O_LAT, O_LON, O_ALT, O_RADIUS, O_HEIGHT = range(OBSTACLE_COLUMNS)
 SPHERE, CYLINDER = 0.0, 1.0  # O_KIND; a cylinder stands vertically, O_ALT is its mid-height
@@ -306,27 +287,6 @@ class SharedWorld:
             if c is not None:
                 row[k] = (c.frames_offered, c.frames_lost, c.delayed, c.total_delay_s)
 
-    def others_ned_m(self, instance: int) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]:
-        """Instances and NED offsets (from drone ``instance``) of every other valid body, ended ones where they have
-        fallen to at drone ``instance``'s last published time."""
-        table = self.bodies
-        ids = np.empty(len(table), np.int64)
-        offsets = np.empty((len(table), 3))
-        n = wk.others_offsets(table, instance, _WORLD_COLUMNS, EARTH_RADIUS_M, ids, offsets)
-        if n >= 0:
-            return ids[:n], offsets[:n]
-        # A body has ended: where it has fallen to depends on time (``body_geo_at``), worked out for all at once.
-        me = table[instance]
-        valid = table[:, VALID] == 1.0
-        valid[instance] = False
-        ids = np.nonzero(valid)[0]
-        rows = table[ids]
-        lat, lon, alt = body_geo_at(rows, float(me[TIME])).T
-        north = np.radians(lat - me[LAT]) * EARTH_RADIUS_M
-        east = np.radians(lon - me[LON]) * EARTH_RADIUS_M * math.cos(math.radians(me[LAT]))
-        down = me[ALT] - alt
-        return ids, np.column_stack((north, east, down))
-
     def add_obstacle(self, *, cylinder: bool, centre: tuple[float, float, float], radius_m: float,
                      height_m: float = 0.0) -> int:  # fmt: skip
         """Declare a static obstacle (centre lat, lon, alt AMSL; mid-height for a cylinder); returns its index."""
@@ -356,28 +316,6 @@ class SharedWorld:
                                       radius_m=float(row[O_RADIUS]), height_m=float(row[O_HEIGHT])))  # fmt: skip
         return out
 
-    def contacts(self, instance: int) -> list[Contact]:
-        """Bodies closer to drone ``instance`` than the sum of both collision radii, static obstacles included."""
-        own_radius = float(self.table[instance, RADIUS])
-        found: list[Contact] = []
-        ids, offsets = self.others_ned_m(instance)
-        if len(ids):
-            distance = np.sqrt(np.einsum("ij,ij->i", offsets, offsets))
-            hits = np.flatnonzero(distance < self.bodies[ids, RADIUS] + own_radius)
-            found = [Contact(instance=int(ids[k]), distance_m=float(distance[k])) for k in hits]
-        if self.obstacle_table[:, O_VALID].any():
-            for ob in self.obstacles_from(instance):
-                n, e, d = ob.offset_ned_m
-                if ob.cylinder:  # distance to the pole's surface, within its height
-                    gap = math.hypot(n, e) - ob.radius_m
-                    touching = gap < own_radius and abs(d) < ob.height_m / 2.0 + own_radius
-                else:
-                    gap = math.sqrt(n * n + e * e + d * d) - ob.radius_m
-                    touching = gap < own_radius
-                if touching:
-                    found.append(Contact(instance=-1, distance_m=max(0.0, gap), obstacle=ob.index))
-        return found
-
     def close(self) -> None:
         self.table = self.bodies = np.zeros((0, COLUMNS))
         self.snapshots = np.zeros((0, 0, COLUMNS))
@@ -399,77 +337,3 @@ class SharedWorld:
 def lockstep_epoch_steps(quantum_steps: int) -> int:
     """Steps of a lockstep epoch (``WorldParticipant``): a whole number of quanta, and of publishing periods."""
     return math.lcm(PUBLISH_EVERY_STEPS, quantum_steps)
-
-
-class WorldParticipant:
-    """One drone's side of the shared world: publishes its truth and crashes on contact, every few steps.
-
-    Paced, a drone reads the live table: whatever the others last wrote. In lockstep (``epoch_steps`` given) that
-    would make a flight depend on the machine: a drone in another process may be a step ahead or behind (the
-    barrier's skew), so a camera frame or a contact check would see it one step or another. There, every member
-    also publishes its row into snapshot ``k % 2`` at the end of epoch k (step ``k * epoch_steps``), and during the
-    steps of epoch k + 1 reads the others from that snapshot only: every member has completed epoch k by then (an
-    epoch is a whole number of lockstep quanta, and a quantum's end is a barrier), and none can have reached the end
-    of epoch k + 2, which would overwrite it. So every drone sees every other at one simulated time, the same in
-    every run, and contacts are judged on that same picture at the first step of each epoch."""
-
-    def __init__(self, world: SharedWorld, instance: int, radius_m: float, *, rest_alt_amsl_m: float,
-                 every_n_steps: int = PUBLISH_EVERY_STEPS, epoch_steps: int | None = None) -> None:  # fmt: skip
-        self.world = world
-        self.instance = instance
-        self.radius_m = radius_m
-        self.rest_alt_amsl_m = rest_alt_amsl_m
-        self.every_n_steps = every_n_steps if epoch_steps is None else epoch_steps
-        self.epoch_steps = epoch_steps
-        self._count = 0
-        self._steps = 0
-        world.table[instance, STOP_REQUEST] = 0.0  # a row reused by a new drone starts with no request, no end
-        world.table[instance, END_CAUSE] = END_UNKNOWN
-        if epoch_steps is not None:
-            world.snapshots[:, instance, VALID] = 0.0  # nothing from an earlier drone on this row
-            world.bodies = world.snapshots[0]  # epoch 0's picture, empty until its end: nobody has published yet
-
-    def after_step(self, truth: PlantState, crashed: bool) -> list[Contact]:
-        """Call after every physics step: every ``every_n_steps`` steps publishes the truth and returns the contacts
-        (``update``); on the steps between it costs a counter."""
-        if self.epoch_steps is not None:
-            return self._after_lockstep_step(truth, crashed)
-        self._count += 1
-        if self._count < self.every_n_steps:
-            return []
-        self._count = 0
-        geo, v = truth.geo, truth.vel_ned_mps
-        return self.update(truth.time_s, (geo.lat_deg, geo.lon_deg, geo.alt_amsl_m),
-                           (float(v[0]), float(v[1]), float(v[2])), crashed)  # fmt: skip
-
-    def _after_lockstep_step(self, truth: PlantState, crashed: bool) -> list[Contact]:
-        """Step ``s`` done: at the first step of an epoch read the others from the snapshot of the last one and look
-        for contacts in it; at an epoch's last step publish into its snapshot."""
-        self._steps += 1
-        steps, epoch = self._steps, self.epoch_steps
-        assert epoch is not None
-        world = self.world
-        contacts: list[Contact] = []
-        if (steps - 1) % epoch == 0:
-            world.bodies = world.snapshots[((steps - 1) // epoch) % SNAPSHOTS]
-            if steps > 1 and not crashed:
-                contacts = world.contacts(self.instance)
-        if steps % epoch == 0:
-            geo, v = truth.geo, truth.vel_ned_mps
-            world.write(self.instance, truth.time_s, (geo.lat_deg, geo.lon_deg, geo.alt_amsl_m),
-                        (float(v[0]), float(v[1]), float(v[2])), self.radius_m, crashed,
-                        rest_alt_amsl_m=self.rest_alt_amsl_m)  # fmt: skip
-            world.snapshots[(steps // epoch) % SNAPSHOTS, self.instance] = world.table[self.instance]
-        return contacts
-
-    def update(self, time_s: float, geo: tuple[float, float, float], vel_ned_mps: tuple[float, float, float],
-               crashed: bool) -> list[Contact]:  # fmt: skip
-        """Publish this drone's truth; returns the contacts it has (none once crashed)."""
-        self.world.write(self.instance, time_s, geo, vel_ned_mps, self.radius_m, crashed,
-                         rest_alt_amsl_m=self.rest_alt_amsl_m)  # fmt: skip
-        return [] if crashed else self.world.contacts(self.instance)
-
-    def close(self, cause: float = END_EXITED) -> None:
-        """Leave the world as a killed drone does: the body falls from its last published state and stays."""
-        self.world.mark_ended(self.instance, cause)
-        self.world.close()

@@ -33,7 +33,8 @@ from sitl.dynamics.geodesy import LocalFrame
 from sitl.dynamics.plant import DEFAULT_HOME
 from sitl.protocol.modes import Px4Mode
 from sitl.simulation import SimConfig, Simulation
-from sitl.world import SharedWorld, WorldParticipant
+from sitl.world import SharedWorld
+from sitl.world_view import WorldParticipant
 
 RELAY_PERIOD_S = 0.05  # gcs/relay.py relays each drone at most 10 Hz; 20 Hz here costs nothing and errs safe
 SETPOINT_PERIOD_S = 0.05  # gcs/formation.py SETPOINT_STREAM_HZ

@@ -17,7 +17,8 @@ from sitl.awareness import Awareness
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.dynamics.plant import DEFAULT_HOME
 from sitl.simulation import SimConfig, Simulation
-from sitl.world import SharedWorld, WorldParticipant
+from sitl.world import SharedWorld
+from sitl.world_view import WorldParticipant
 from tests.closed_loop.flight import take_off
 
 pytestmark = pytest.mark.timeout(240)

@@ -14,7 +14,8 @@ from sitl.awareness import Awareness
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.protocol.images import EncodedImage
 from sitl.simulation import SimConfig, Simulation
-from sitl.world import SharedWorld, WorldParticipant
+from sitl.world import SharedWorld
+from sitl.world_view import WorldParticipant
 
 JPEG = mavlink.MAVLINK_DATA_STREAM_IMG_JPEG
 

@@ -16,7 +16,8 @@ from sitl.awareness import Awareness
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.mathutil import GRAVITY_MPS2
 from sitl.simulation import SimConfig, Simulation
-from sitl.world import SharedWorld, WorldParticipant
+from sitl.world import SharedWorld
+from sitl.world_view import WorldParticipant
 from tests.closed_loop.flight import take_off
 
 pytestmark = pytest.mark.timeout(120)

@@ -26,6 +26,7 @@ from sitl.dynamics.geodesy import LocalFrame
 from sitl.dynamics.plant import DEFAULT_HOME
 from sitl.lockstep import LockstepGate
 from sitl.world import ALT, REST_ALT, TIME, SharedWorld
+from sitl.world_view import others_ned_m
 from tests.integration.mavlink_client import arm_and_take_off, mavlink_connection, wait_vehicle_heartbeat
 from tests.integration.sitl_process import SitlDrone, start_drone, stop_drone
 from tests.integration.vehicle_link import VehicleLink
@@ -89,12 +90,12 @@ def test_a_drone_killed_in_the_air_is_on_the_ground_within_3_s_in_the_other_dron
         deadline = time.monotonic() + 10.0
         heights = []
         while time.monotonic() < deadline and table[READER, TIME] < killed_at_s + 3.0:
-            ids, offsets = world.others_ned_m(READER)
+            ids, offsets = others_ned_m(world, READER)
             (k,) = [i for i, ident in enumerate(ids) if ident == VICTIM]
             heights.append(-float(offsets[k][2]))
             time.sleep(0.01)
         assert table[READER, TIME] >= killed_at_s + 3.0, "the reader's clock did not advance"
-        ids, offsets = world.others_ned_m(READER)
+        ids, offsets = others_ned_m(world, READER)
         (k,) = [i for i, ident in enumerate(ids) if ident == VICTIM]
         assert abs(offsets[k][2]) < 0.05, offsets[k]  # both rest on their gear at the same ground level
         assert max(heights) > 1.0 and min(heights) < 0.05, heights  # it was seen up there, and coming down

@@ -11,7 +11,8 @@ import pytest
 from sitl.dynamics.plant import GeoPoint, PlantState
 from sitl.lockstep import LockstepGate, LockstepMember
 from sitl.mathutil import GRAVITY_MPS2, vec3
-from sitl.world import STEP, SharedWorld, WorldParticipant, lockstep_epoch_steps
+from sitl.world import STEP, SharedWorld, lockstep_epoch_steps
+from sitl.world_view import WorldParticipant, contacts, others_ned_m
 
 LAT, LON, ALT = 47.397742, 8.545594, 490.0
 M_PER_DEG_LAT = 6_371_000.0 * 3.141592653589793 / 180.0
@@ -25,13 +26,13 @@ def test_an_attached_table_sees_rows_written_by_the_creator_and_contacts_need_bo
         world.write(0, 1.0, (LAT, LON, ALT), (0.0, 0.0, 0.0), 0.35, False, rest_alt_amsl_m=ALT)
         world.write(1, 1.0, (LAT + 0.6 / M_PER_DEG_LAT, LON, ALT), (0.0, 0.0, 0.0), 0.35, False, rest_alt_amsl_m=ALT)
         # THEN each sees the other, from either handle
-        ids, offsets = other.others_ned_m(0)
+        ids, offsets = others_ned_m(other, 0)
         assert list(ids) == [1] and abs(offsets[0][0] - 0.6) < 1e-6
-        contacts = other.contacts(1)
-        assert [c.instance for c in contacts] == [0] and abs(contacts[0].distance_m - 0.6) < 1e-6
+        found = contacts(other, 1)
+        assert [c.instance for c in found] == [0] and abs(found[0].distance_m - 0.6) < 1e-6
         # WHEN one moves to 0.8 m THEN there is no contact
         world.write(1, 1.1, (LAT + 0.8 / M_PER_DEG_LAT, LON, ALT), (0.0, 0.0, 0.0), 0.35, False, rest_alt_amsl_m=ALT)
-        assert other.contacts(0) == []
+        assert contacts(other, 0) == []
         other.close()
     finally:
         world.close()
@@ -72,18 +73,18 @@ def test_declared_obstacles_are_seen_from_each_drone_and_touching_one_is_a_conta
         pole, ball = world.obstacles_from(0)
         assert pole.cylinder and abs(pole.offset_ned_m[0] - 1.0) < 1e-6 and abs(pole.offset_ned_m[2] + 1.0) < 1e-6
         assert not ball.cylinder and abs(ball.offset_ned_m[2] + 10.0) < 1e-6
-        assert world.contacts(0) == []  # 0.75 m from the pole's surface, 9 m below the ball's
+        assert contacts(world, 0) == []  # 0.75 m from the pole's surface, 9 m below the ball's
         # WHEN the drone drifts to 0.5 m from the pole's axis THEN it touches it (0.25 + 0.35 > 0.5)
         world.write(
             0, 1.1, (LAT + 0.5 / M_PER_DEG_LAT, LON, ALT + 3.0), (0.0, 0.0, 0.0), 0.35, False, rest_alt_amsl_m=ALT
         )
-        (contact,) = world.contacts(0)
+        (contact,) = contacts(world, 0)
         assert contact.obstacle == 0 and contact.text().startswith("Collision with obstacle 1 at 0.25 m")
         # AND above the pole's top (8 m + radius) there is nothing to touch
         world.write(
             0, 1.2, (LAT + 0.5 / M_PER_DEG_LAT, LON, ALT + 8.5), (0.0, 0.0, 0.0), 0.35, False, rest_alt_amsl_m=ALT
         )
-        assert world.contacts(0) == []
+        assert contacts(world, 0) == []
     finally:
         world.close()
 
@@ -143,17 +144,17 @@ def test_a_falling_body_is_a_contact_where_it_is_at_the_readers_time_and_frees_l
         world.mark_ended(0)
         assert world.table[0, STEP] == math.inf  # it holds no lockstep member back
         # THEN at drone 1's time 2.0 s the body is 3 m above it, no contact
-        assert world.contacts(1) == []
-        ids, offsets = world.others_ned_m(1)
+        assert contacts(world, 1) == []
+        ids, offsets = others_ned_m(world, 1)
         assert list(ids) == [0] and offsets[0][2] == pytest.approx(-3.0)
         # WHEN drone 1's clock reaches 2.7 s the body has fallen 2.4 m: 0.6 m above it, closer than 0.7 m: contact
         world.write(1, 2.7, (LAT, LON, ALT + 1.5), (0.0, 0.0, 0.0), 0.35, False, rest_alt_amsl_m=ALT)
-        (contact,) = world.contacts(1)
+        (contact,) = contacts(world, 1)
         assert contact.instance == 0 and contact.distance_m == pytest.approx(3.0 - 0.5 * GRAVITY_MPS2 * 0.49)
         # AND a drone 1 m beside where it lies touches nothing once it is down
         world.write(1, 9.0, (LAT + 1.0 / M_PER_DEG_LAT, LON, ALT), (0.0, 0.0, 0.0), 0.35, False, rest_alt_amsl_m=ALT)
-        assert world.contacts(1) == []
-        ids, offsets = world.others_ned_m(1)
+        assert contacts(world, 1) == []
+        ids, offsets = others_ned_m(world, 1)
         assert offsets[0] == pytest.approx((-1.0, 0.0, 0.0), abs=1e-6)
     finally:
         world.close()
@@ -209,10 +210,10 @@ def test_in_lockstep_a_drone_sees_the_others_as_they_were_at_the_end_of_the_last
         # THEN drone 0's first step of the epoch still sees it where it was at the epoch's end, touching (0.5 m)
         (contact,) = a.after_step(_north_truth(0.020, 0.0), crashed=False)
         assert contact.instance == 1 and contact.distance_m == pytest.approx(0.5, abs=1e-6)
-        ids, offsets = a.world.others_ned_m(0)
+        ids, offsets = others_ned_m(a.world, 0)
         assert list(ids) == [1] and offsets[0][0] == pytest.approx(0.5, abs=1e-6)
         # AND the live table, which paced drones read, has the move
-        ids, offsets = world.others_ned_m(0)
+        ids, offsets = others_ned_m(world, 0)
         assert offsets[0][0] == pytest.approx(3.0, abs=1e-6)
         a.close()
         b.close()
