@@ -79,6 +79,9 @@ class Swarm:
         self._swarm_frame = NedFrame(plan.origin)
         self._sysids: list[int] = []  # spawn order, once launched
         self._lockstep_running = False
+        # Lockstep: the common time once every drone stands at the gate. Nothing moves it until the next frame opens
+        # the gate, and the supervisor reads its clock a dozen times between frames (a read scans the world table).
+        self._gate_time_s: float | None = None
         self._wake_fd: int | None = None
         self._wall_t0 = time.monotonic()
         self._gate_progress = (0.0, time.monotonic())  # (common time, wall time it was first seen)
@@ -116,6 +119,8 @@ class Swarm:
     def clock(self) -> float:
         """Simulated seconds: the drones' common clock in lockstep, else wall time times the speed factor."""
         if self._lockstep_running:
+            if self._gate_time_s is not None:
+                return self._gate_time_s
             return self.harness.lockstep_time_s()
         return (time.monotonic() - self._wall_t0) * self.plan.speed_factor
 
@@ -149,6 +154,7 @@ class Swarm:
                 time.sleep(ahead_s)
         addresses = self.link.addresses
         self.harness.note_sent_to_drones({s: self.link.sent_to.get(a, 0) for s, a in addresses.items()})
+        self._gate_time_s = None
         if self.harness.advance_lockstep(LOCKSTEP_LEAD_S) is None:
             # Not every drone has joined yet (nobody starts before the rest): nothing runs, nothing to wait for.
             self._gate_selector.select(LOCKSTEP_MAX_WAIT_S)
@@ -158,6 +164,8 @@ class Swarm:
             self._check_members(now)
             if self._gate_selector.select(LOCKSTEP_MAX_WAIT_S) and self._wake_fd is not None:
                 _consume(self._wake_fd)  # that wake-up is read: the next one is news
+        if now >= target:
+            self._gate_time_s = now  # every drone stands at the gate: the time holds until the next frame
 
     def _read_frame(self) -> list[tuple[Any, tuple[str, int]]]:
         """Lockstep: everything the drones sent up to the common time, in sysid order (each sender's own order kept).
