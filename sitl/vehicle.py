@@ -26,6 +26,7 @@ from sitl.autopilot.failsafe import FailsafeAction, FailsafeInputs, FailsafeOrde
 from sitl.autopilot.modes import ModeUnit, build_units
 from sitl.collision_prevention import CollisionPrevention
 from sitl.control.cascade import AttitudeSetpoint, Cascade, CascadeOutput, TrajectorySetpoint
+from sitl.control.params import outer_loop_period_s
 from sitl.estimation import Estimate
 from sitl.geofence import Geofence
 from sitl.guidance import MotionLimits, StraightLineTrajectory
@@ -47,6 +48,24 @@ def _tuple3(v: Vec3) -> tuple[float, float, float]:
 
 
 ACCEPTED = CommandOutcome.accepted()
+
+
+def commander_tick_s(params: ParamStore, dt_s: float) -> float:
+    """The longest time between two commander ticks (``Vehicle.step``) at a physics step of ``dt_s``: MPC_LOOP_HZ's
+    period rounded up to whole steps. A time the commander watches (a timeout, a failsafe's delay) is acted on at most
+    this late; a command brings a tick at once."""
+    return max(1, math.ceil((outer_loop_period_s(params) - 1e-9) / dt_s)) * dt_s
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _Held:
+    """What the commander's last tick decided, repeated by the physics steps until the next tick: fixed motor
+    commands (off, or idle on the ground), or the inner loops towards an attitude setpoint or the output of the
+    position loops for a trajectory setpoint (exactly one is set)."""
+
+    motors: tuple[float, ...] | None = None
+    attitude: AttitudeSetpoint | None = None
+    trajectory: TrajectorySetpoint | None = None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -116,6 +135,11 @@ class Vehicle:
         self.collision_prevention = CollisionPrevention(
             params, cascade.position, airframe.collision_radius_m, self.event
         )
+        # The commander's tick (``step``): what the last tick decided, repeated on the physics steps until the next.
+        self._held: _Held | None = None  # None: the next step is a tick
+        self._since_tick_s = 0.0
+        self._tick_version = -1  # the parameter store's version at the last tick (a change forces a tick)
+        self._tick_period_s = outer_loop_period_s(params)
 
     # ---- helpers (also the ModeContext the mode units use) ---------------------------------------------------------
     def event(self, severity: int, text: str) -> None:
@@ -156,6 +180,7 @@ class Vehicle:
                 return CommandOutcome(CommandResult.DENIED, "Set home denied: no position")
             home_ned_m = self._est.pos_ned_m
         self._home_ned_m = np.array(home_ned_m, dtype=np.float64)
+        self._held = None
         self.event(6, "Home position set")
         return ACCEPTED
 
@@ -176,6 +201,7 @@ class Vehicle:
     def _switch_to(self, unit: ModeUnit) -> None:
         if unit is self._unit:
             return
+        self._held = None
         self._unit.exit(self)
         self._unit = unit
         mode = unit.mode
@@ -185,6 +211,7 @@ class Vehicle:
 
     def start_goto(self, target_ned_m: Vec3, yaw_rad: float = math.nan) -> None:
         """Fly to a point on a smooth trajectory, starting from where the reference currently is."""
+        self._held = None
         self.target_ned_m = np.array(target_ned_m, dtype=np.float64)
         self.target_yaw_rad = yaw_rad
 
@@ -294,6 +321,7 @@ class Vehicle:
         ):
             return CommandOutcome(CommandResult.DENIED, f"Arming denied: not possible in {self.status.mode.px4_name}")
         self.status.armed = True
+        self._held = None
         self._armed_since_s = self._now_s
         self.failsafes.on_arming()
         self._landed_since_s = self._now_s
@@ -335,6 +363,7 @@ class Vehicle:
 
     def _disarm(self, text: str) -> None:
         self.status.armed = False
+        self._held = None  # the motors stop at the next step, not at the next tick
         self.units.rtl.plan = None
         self._operator_takes_over()
         self.cascade.reset()
@@ -399,11 +428,13 @@ class Vehicle:
         if not math.isfinite(ground_speed_mps):
             return CommandOutcome(CommandResult.DENIED, "Speed change denied: not a number")
         self.speed_override_mps = math.inf if ground_speed_mps <= 0 else ground_speed_mps
+        self._held = None
         return ACCEPTED
 
     def set_mission(self, items: tuple[NavItem, ...]) -> CommandOutcome:
         """Replace the mission; flying it continues from the first item if the vehicle is in AUTO.MISSION."""
         self.mission.load(items)
+        self._held = None
         self.units.mission.leave_landing()
         if self.status.mode is Px4Mode.AUTO_MISSION and items:
             self.mission.start()
@@ -433,6 +464,7 @@ class Vehicle:
 
     def set_offboard_setpoint(self, setpoint: TrajectorySetpoint | AttitudeSetpoint, now_s: float) -> None:
         self.units.offboard.receive(setpoint, now_s)
+        self._held = None  # a new setpoint is acted on at once (the position loop runs for it at the next step)
 
     def _offboard_alive(self, now_s: float) -> bool:
         return self.units.offboard.alive(now_s, self.p("COM_OF_LOSS_T"))
@@ -452,6 +484,7 @@ class Vehicle:
     def set_fence(self, fence: Geofence) -> None:
         """The geofence in force from now on (local frame); GF_ACTION says what a breach does."""
         self._fence = fence
+        self._held = None
 
     @property
     def fence(self) -> Geofence:
@@ -551,9 +584,43 @@ class Vehicle:
 
     # ---- the step --------------------------------------------------------------------------------------------------
     def step(self, est: Estimate, now_s: float, dt_s: float) -> tuple[float, ...]:
-        """One control step: returns motor commands in [0, 1] (all zero when disarmed)."""
+        """One physics step: returns motor commands in [0, 1] (all zero when disarmed).
+
+        The commander (mode units, failsafes, the land detector, collision prevention and the position loops) runs
+        on ticks at MPC_LOOP_HZ, as PX4's flight tasks run with its position controller and its commander at about
+        100 Hz; the attitude, rate and allocation loops run at every step. Between ticks a step repeats what the last
+        tick decided: motors off, idle, or the inner loops towards the attitude the position loops last produced.
+        A command (arming, a mode, a setpoint, a target) or a parameter change makes the next step a tick, so nothing
+        waits for the commander's clock to be acted on."""
         self._est = est
         self._now_s = now_s
+        self._since_tick_s += dt_s
+        held = self._held
+        if held is not None and self.params.version == self._tick_version:
+            if held.motors is not None:
+                if self._since_tick_s < self._tick_period_s - 1e-9:
+                    return held.motors
+            elif held.attitude is not None:
+                if self._since_tick_s < self._tick_period_s - 1e-9:
+                    self.trajectory.reset(est.pos_ned_m)
+                    out = self.cascade.update_attitude(est, held.attitude, dt_s, landed=self.landed)
+                    self.status.thrust_n = out.collective_sp_n
+                    return out.motor_cmds
+            elif held.trajectory is not None and not self.cascade.outer_due(dt_s):
+                out = self.cascade.update(est, held.trajectory, dt_s, landed=self.landed)
+                self.status.thrust_n = out.collective_sp_n
+                return out.motor_cmds
+        return self._tick(est, now_s, dt_s)
+
+    def _tick(self, est: Estimate, now_s: float, dt_s: float) -> tuple[float, ...]:
+        """The commander's tick: everything ``step`` describes, with the mode units advanced by the time since the
+        last tick."""
+        tick_dt_s = self._since_tick_s
+        self._since_tick_s = 0.0
+        version = self.params.version
+        if version != self._tick_version:
+            self._tick_version = version
+            self._tick_period_s = outer_loop_period_s(self.params)
         n = len(self.airframe.rotors)
         if not self.status.armed:
             if not self.landed and self._land_detector.update(
@@ -564,6 +631,7 @@ class Vehicle:
                 self.event(6, "Landing detected")
             self.status.landed_state = LandedState.ON_GROUND if self.landed else LandedState.IN_AIR
             self.status.thrust_n = 0.0
+            self._held = _Held(motors=(0.0,) * n)
             return (0.0,) * n
         self._unit.advance(self, est, now_s)
         self._run_failsafes(est, now_s)
@@ -576,8 +644,9 @@ class Vehicle:
             self.status.thrust_n = 0.0
             self._check_auto_disarm(now_s)
             self.status.landed_state = LandedState.ON_GROUND
+            self._held = _Held(motors=self._idle) if self.status.armed else None
             return self._idle
-        out = self._control(unit, est, now_s, dt_s)
+        out = self._control(unit, est, now_s, dt_s, tick_dt_s)
         self.status.thrust_n = out.collective_sp_n
         was_landed = self.landed
         landed = self._land_detector.update(
@@ -593,17 +662,20 @@ class Vehicle:
             self._landed_since_s = now_s
             unit.on_touchdown(self, est, now_s)
             self.cascade.reset()
+            self._held = None
             return self._idle
         self.status.landed_state = unit.landed_state(landed)
         return out.motor_cmds
 
-    def _control(self, unit: ModeUnit, est: Estimate, now_s: float, dt_s: float) -> CascadeOutput:
-        setpoint = unit.setpoint(self, est, dt_s)
+    def _control(self, unit: ModeUnit, est: Estimate, now_s: float, dt_s: float, tick_dt_s: float) -> CascadeOutput:
+        setpoint = unit.setpoint(self, est, tick_dt_s)
         if isinstance(setpoint, AttitudeSetpoint):
             self.trajectory.reset(est.pos_ned_m)
+            self._held = _Held(attitude=setpoint)
             return self.cascade.update_attitude(est, setpoint, dt_s, landed=self.landed)
         if not self.landed:
             setpoint = self.collision_prevention.apply(setpoint, est.pos_ned_m, est.vel_ned_mps, now_s)
+        self._held = _Held(trajectory=setpoint)
         return self.cascade.update(est, setpoint, dt_s, landed=self.landed)
 
     def _check_auto_disarm(self, now_s: float) -> None:

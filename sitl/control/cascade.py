@@ -167,6 +167,11 @@ class Cascade:
         self._outer_setpoint: TrajectorySetpoint | None = None  # the setpoint they produced it for
         self._outer_elapsed_s = 0.0  # time since their last run
 
+    def outer_due(self, dt_s: float) -> bool:
+        """Would ``update`` run the position and velocity loops at a step of ``dt_s`` for the setpoint it last had
+        (their MPC_LOOP_HZ period has passed, or they have nothing to hold)?"""
+        return self._outer is None or self._outer_elapsed_s + dt_s >= self._outer_period_s - 1e-9
+
     def _refresh_configs(self) -> None:
         store = self.params
         if store.version == self._params_version:

@@ -59,8 +59,9 @@ CONTROL_PARAMS: tuple[ParamDef, ...] = (
         10.0,
         1000.0,
         "Hz",
-        "Rate of the position and velocity loops while the setpoint holds still (a new setpoint is acted on at"
-        " once; attitude, rate and allocation run every physics step); at or above the physics rate: every step",
+        "Rate of the autopilot's commander (modes, failsafes, land detector) and of the position and velocity loops"
+        " while the setpoint holds still (a command or a new setpoint is acted on at once; attitude, rate and"
+        " allocation run every physics step); at or above the physics rate: every step",
     ),
     # Attitude loop.
     _p("MC_ROLL_P", 6.5, 0.0, 12.0, "1/s", "Roll attitude P gain: rate setpoint per radian of error"),

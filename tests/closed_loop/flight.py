@@ -11,6 +11,7 @@ from sitl.airframe import load_airframe
 from sitl.mathutil import quat_to_dcm
 from sitl.protocol.modes import Px4Mode
 from sitl.simulation import SimConfig, Simulation
+from sitl.vehicle import commander_tick_s
 from sitl.wind import WindConfig
 
 
@@ -30,6 +31,13 @@ class Trace:
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return np.array(self.time_s), np.array(self.pos_ned_m), np.array(self.tilt_rad)
+
+
+def reaction_tolerance_s(sim: Simulation) -> float:
+    """How late a test sees the autopilot act on a time it watches (a timeout, a failsafe's delay, auto-disarm): the
+    commander checks it on its ticks (``commander_tick_s``: up to a tick after the first step past the time), and the
+    test reads ``sim.time_s`` after the step that acted, a step later."""
+    return commander_tick_s(sim.params, sim.dt_s) + sim.dt_s
 
 
 def make_sim(seed: int = 1, wind: WindConfig | None = None) -> Simulation:

@@ -18,7 +18,7 @@ from sitl.control.cascade import TrajectorySetpoint
 from sitl.protocol.modes import Px4Mode
 from sitl.protocol.vehicle_api import CommandResult, LandedState
 from sitl.simulation import Simulation
-from tests.closed_loop.flight import Trace, arm_when_ready, boot_position, make_sim, take_off
+from tests.closed_loop.flight import Trace, arm_when_ready, boot_position, make_sim, reaction_tolerance_s, take_off
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -128,14 +128,14 @@ def test_offboard_setpoint_loss_holds_then_lands_with_the_failsafe_flag_set() ->
     where_lost = sim.truth.pos_ned_m.copy()
     # THEN it stays in offboard for COM_OF_LOSS_T, then holds with the failsafe flag set
     assert sim.run_until(lambda s: s.vehicle.status.mode is not Px4Mode.OFFBOARD, 5.0)
-    assert sim.time_s - lost_at_s == pytest.approx(v.params["COM_OF_LOSS_T"], abs=0.01)
+    assert sim.time_s - lost_at_s == pytest.approx(v.params["COM_OF_LOSS_T"], abs=reaction_tolerance_s(sim))
     assert v.status.mode is Px4Mode.AUTO_LOITER
     assert v.status.failsafe
     hold_started_s = sim.time_s
     # and holds where it was (it was not moving) until COM_FAIL_ACT_T has passed
     trace = Trace()
     assert _record_until(sim, trace, lambda s: s.vehicle.status.mode is not Px4Mode.AUTO_LOITER, 10.0)
-    assert sim.time_s - hold_started_s == pytest.approx(v.params["COM_FAIL_ACT_T"], abs=0.01)
+    assert sim.time_s - hold_started_s == pytest.approx(v.params["COM_FAIL_ACT_T"], abs=reaction_tolerance_s(sim))
     _, pos, _ = trace.arrays()
     assert np.linalg.norm(pos - where_lost, axis=1).max() < 0.3
     # then it lands, still flagged, and disarms on the ground
@@ -254,7 +254,7 @@ def test_armed_on_the_ground_without_taking_off_it_disarms_after_com_disarm_prfl
     arm_when_ready(sim)
     armed_at_s = sim.time_s
     assert sim.run_until(lambda s: not s.vehicle.status.armed, 10.0)
-    assert sim.time_s - armed_at_s == pytest.approx(3.0, abs=0.01)
+    assert sim.time_s - armed_at_s == pytest.approx(3.0, abs=reaction_tolerance_s(sim))
     assert sim.vehicle.events[-1].text == "Auto-disarmed: no takeoff"
 
 

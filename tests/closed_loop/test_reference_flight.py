@@ -33,27 +33,27 @@ from tests.closed_loop.reference_flight import fly
 
 pytestmark = pytest.mark.timeout(60)
 
-RECORDED_STEPS = 15324
-RECORDED_MOTOR_SHA256 = "040c1806ce62d265deb4432dc7b0dceec1dfb4275016f0bcf5faa0e3fb3a55bd"
+RECORDED_STEPS = 15357
+RECORDED_MOTOR_SHA256 = "5bf5701a20e489667679ffaffb7a785127bd8d98fbfa9ed7f50f71d8f18dd050"
 RECORDED_FINAL_TRUTH = (
-    -0.1481682081336761,
-    -0.03302527922520244,
-    -0.11632240671769978,
-    -3.5126950830162385e-09,
-    4.1287096820571996e-09,
-    6.9473015159195535e-09,
-    0.9998197398031204,
-    -1.4802165895296716e-10,
-    2.3929793783591725e-08,
-    0.018986518902098997,
+    -0.11254673800072858,
+    -0.10693414057886415,
+    -0.11632240804266303,
+    1.9694152527265405e-09,
+    1.2952232023839264e-09,
+    -6.9172960623687664e-09,
+    0.999825128804939,
+    4.0834883061008215e-10,
+    2.3054541867451927e-08,
+    0.018700583150980308,
 )
 ROOT = Path(__file__).resolve().parents[2]
 # Every drone's true state at every step of the two swarm flights (tests/closed_loop/circle_swarm.py): the 9-drone
 # circle with a silent drone, and the dense circle of 24 and the silent one, where every drone has 20-odd others in
 # camera range and relayed, so perception, association, ORCA and the safety layer all shape the flight.
 RECORDED_SWARM_DIGESTS = {
-    "circle": "2129aecb4db76a25db2cb4a9c793418ca1b1099d5ff35c65117ced7486676c02",
-    "dense": "dce47cb8c1204dabdbed1f1b07c5230c07ee7fb2d4764f4ae9c55b102d5a3df7",
+    "circle": "de4febb7be602088c4cca144479e43b359391572cf182d970d04716eaa5bc24f",
+    "dense": "78cf6e8ae3431c7cdb41ec8d0c09e6854b2bf7b18506acda614dceb3f669e9f5",
 }
 
 
