@@ -137,6 +137,36 @@ class Estimator:
         self._s[ek.Q : ek.Q + 4] = dcm_to_quat(mat_mul(rz, body_to_ned_meas))
         self._s[ek.ATT_INITIALISED] = 1.0
 
+    def kernel_rows(
+        self,
+    ) -> tuple[
+        npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64],
+        npt.NDArray[np.float64],
+    ]:  # fmt: skip
+        """The rows its kernel's ``step`` takes (state, configuration, GPS sample, an empty vector, output), for a
+        kernel that steps the filter itself on an IMU sample alone (sitl/kernels/between_ticks.py); ``published``
+        then gives the estimate."""
+        return self._s, self._cfg, self._gps, self._no_vec, self._out
+
+    def published(self, time_s: float) -> Estimate:
+        """The estimate in the output row (of the step just taken at ``time_s``)."""
+        pn, pe, pd, vn, ve, vd, w, x, y, z, p, q, r, roll, pitch, yaw, att_valid, pos_valid, alt_valid = (
+            self._out.tolist()
+        )
+        return _new_estimate(
+            time_s=time_s,
+            pos_ned_m=np.array((pn, pe, pd)),
+            vel_ned_mps=np.array((vn, ve, vd)),
+            att_q_frd_to_ned=np.array((w, x, y, z)),
+            rates_frd_radps=np.array((p, q, r)),
+            roll_rad=roll,
+            pitch_rad=pitch,
+            yaw_rad=yaw,
+            attitude_valid=att_valid != 0.0,
+            position_valid=pos_valid != 0.0,
+            altitude_valid=alt_valid != 0.0,
+        )
+
     def update(self, readings: SensorReadings, time_s: float, dt_s: float) -> Estimate:
         imu = readings.imu
         mag = readings.mag
@@ -169,17 +199,4 @@ class Estimator:
             update_attitude,
             out,
         )
-        pn, pe, pd, vn, ve, vd, w, x, y, z, p, q, r, roll, pitch, yaw, att_valid, pos_valid, alt_valid = out.tolist()
-        return _new_estimate(
-            time_s=time_s,
-            pos_ned_m=np.array((pn, pe, pd)),
-            vel_ned_mps=np.array((vn, ve, vd)),
-            att_q_frd_to_ned=np.array((w, x, y, z)),
-            rates_frd_radps=np.array((p, q, r)),
-            roll_rad=roll,
-            pitch_rad=pitch,
-            yaw_rad=yaw,
-            attitude_valid=att_valid != 0.0,
-            position_valid=pos_valid != 0.0,
-            altitude_valid=alt_valid != 0.0,
-        )
+        return self.published(time_s)

@@ -24,8 +24,9 @@ from sitl.dynamics.plant import DEFAULT_HOME, PHYSICS_RATE_HZ, GeoPoint, PlantSt
 from sitl.estimation import Estimate, Estimator, EstimatorConfig
 from sitl.fault_params import FAULT_PARAMS
 from sitl.faults import FaultState
+from sitl.kernels import between_ticks as bt
 from sitl.params import ParamDef, ParamStore
-from sitl.sensors.models import GpsSample, SensorConfig, SensorReadings, SensorSuite
+from sitl.sensors.models import GpsSample, SensorConfig, SensorSuite
 from sitl.signing_params import SIGNING_PARAMS
 from sitl.vehicle import Vehicle
 from sitl.wind import WindConfig, WindModel
@@ -77,7 +78,6 @@ class Simulation:
         )
         self.faults = FaultState()  # injected faults in force (set_faults)
         self.truth: PlantState = self.plant.state()
-        self.readings: SensorReadings | None = None
         self.last_gps: GpsSample | None = None  # the receiver's latest report, for GPS_RAW_INT
         self.estimate: Estimate | None = None
         self.time_s = 0.0
@@ -100,17 +100,20 @@ class Simulation:
 
     def step(self) -> PlantState:
         """Advance one physics step (sensors sample at their own rates, the estimator, attitude and rate control
-        every step, position and velocity control at MPC_LOOP_HZ).
+        every step; the autopilot's commander and the position and velocity loops on its ticks, sitl/vehicle.py).
 
-        The two halves are timed (``control_ns``, ``physics_ns``) with ``part_clock_ns`` so benchmarks can say where
-        a drone's time goes without a profiler's distortion."""
+        A step between ticks with the IMU alone due is one compiled call (``_between_ticks``); the others go through
+        the parts' shells. The two halves are timed (``control_ns``, ``physics_ns``) with ``part_clock_ns`` so
+        benchmarks can say where a drone's time goes without a profiler's distortion."""
         clock = self.part_clock_ns
         t0 = clock()
-        self.readings = self.sensors.sample(self.truth)
-        if self.readings.gps is not None:
-            self.last_gps = self.readings.gps
-        self.estimate = self.estimator.update(self.readings, self.time_s, self.dt_s)
-        motors = self.vehicle.step(self.estimate, self.time_s, self.dt_s)
+        motors = self._between_ticks()
+        if motors is None:
+            readings = self.sensors.sample(self.truth)
+            if readings.gps is not None:
+                self.last_gps = readings.gps
+            self.estimate = self.estimator.update(readings, self.time_s, self.dt_s)
+            motors = self.vehicle.step(self.estimate, self.time_s, self.dt_s)
         t1 = clock()
         if not self.wind.calm:
             self.plant.set_wind(self.wind.update(self.dt_s))
@@ -128,6 +131,26 @@ class Simulation:
         self.control_ns += t1 - t0
         self.physics_ns += t2 - t1
         return self.truth
+
+    def _between_ticks(self) -> tuple[float, ...] | None:
+        """The step as one kernel (sitl/kernels/between_ticks.py) when the autopilot only runs its inner loops
+        (``Vehicle.holds_inner_loops``) and the IMU alone is due: the same sample, estimate and motor commands as
+        the shells would give. None, having changed nothing, when it cannot be."""
+        vehicle, dt_s = self.vehicle, self.dt_s
+        if not (vehicle.holds_inner_loops(dt_s) and self.sensors.imu_only(self.truth.time_s)):
+            return None
+        noise = self.sensors.imu.take_noise()
+        if noise is None:
+            return None
+        block, row = noise
+        truth, cascade = self.truth, vehicle.cascade
+        att_cfg, rate_cfg, rate_state, alloc_rows, t_max, inner_out = cascade.inner_rows()
+        est_state, est_cfg, est_gps, est_no_vec, est_out = self.estimator.kernel_rows()
+        bt.step(truth.rates_frd_radps, truth.specific_force_frd_mps2, block, row, self.sensors.imu.row,
+                est_state, est_cfg, est_gps, est_no_vec, est_out, self.time_s, dt_s, cascade.held_row,
+                vehicle.landed, att_cfg, rate_cfg, rate_state, alloc_rows, t_max, inner_out)  # fmt: skip
+        self.estimate = estimate = self.estimator.published(self.time_s)
+        return vehicle.inner_loops_stepped(estimate, self.time_s, dt_s)
 
     def _touchdown(self, before: PlantState) -> None:
         """The first step in contact with the ground: too fast a touchdown is a crash (the speed is the one just

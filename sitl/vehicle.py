@@ -30,6 +30,7 @@ from sitl.control.params import outer_loop_period_s
 from sitl.estimation import Estimate
 from sitl.geofence import Geofence
 from sitl.guidance import MotionLimits, StraightLineTrajectory
+from sitl.kernels import between_ticks as bt
 from sitl.land_detector import LandDetector, LandDetectorConfig
 from sitl.mathutil import Vec3, vec3
 from sitl.mission_exec import MissionExecutor, MissionRun
@@ -611,6 +612,28 @@ class Vehicle:
                 self.status.thrust_n = out.collective_sp_n
                 return out.motor_cmds
         return self._tick(est, now_s, dt_s)
+
+    def holds_inner_loops(self, dt_s: float) -> bool:
+        """Will the next step, of ``dt_s``, only run the inner loops towards the position loops' held output (no
+        tick, no attitude setpoint)? Then the caller may take it with ``inner_loops_stepped`` instead of ``step``."""
+        held = self._held
+        return (
+            held is not None
+            and held.trajectory is not None
+            and self.params.version == self._tick_version
+            and not self.cascade.outer_due(dt_s)
+        )
+
+    def inner_loops_stepped(self, est: Estimate, now_s: float, dt_s: float) -> tuple[float, ...]:
+        """The step ``holds_inner_loops`` announced was taken outside (sitl/kernels/between_ticks.py: the inner
+        loops on the cascade's rows, to the estimate ``est``): note it as ``step`` would have, and return its motor
+        commands."""
+        self._est = est
+        self._now_s = now_s
+        self._since_tick_s += dt_s
+        motors = self.cascade.inner_step_taken(dt_s)
+        self.status.thrust_n = float(self.cascade.held_row[bt.H_COLLECTIVE])
+        return motors
 
     def _tick(self, est: Estimate, now_s: float, dt_s: float) -> tuple[float, ...]:
         """The commander's tick: everything ``step`` describes, with the mode units advanced by the time since the

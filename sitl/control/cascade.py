@@ -44,6 +44,7 @@ from sitl.control.params import (
 from sitl.control.position import PositionController
 from sitl.control.rate import RateController
 from sitl.control.velocity import VelocityController
+from sitl.kernels import between_ticks as bt
 from sitl.kernels import cascade as ck
 from sitl.mathutil import fast_constructor
 from sitl.params import ParamStore
@@ -142,6 +143,8 @@ class Cascade:
         self.rate = RateController(rate_config(params, airframe))
         self.allocator = ControlAllocator(airframe)
         self._inner_out = np.zeros(ck.O_ROTORS + 2 * self.allocator.rotor_count)
+        # The position loops' last output as the inner loops take it (sitl/kernels/between_ticks.py).
+        self.held_row = np.zeros(bt.HELD_SIZE)
         self.heading = heading_config(params)
         self._params_version = params.version
         self._outer_period_s = outer_loop_period_s(params)
@@ -171,6 +174,26 @@ class Cascade:
         """Would ``update`` run the position and velocity loops at a step of ``dt_s`` for the setpoint it last had
         (their MPC_LOOP_HZ period has passed, or they have nothing to hold)?"""
         return self._outer is None or self._outer_elapsed_s + dt_s >= self._outer_period_s - 1e-9
+
+    def inner_rows(
+        self,
+    ) -> tuple[
+        npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64], float,
+        npt.NDArray[np.float64],
+    ]:  # fmt: skip
+        """What the inner-loop kernel takes: the attitude and rate configurations, the rate controller's state, the
+        allocation's rows and maximum thrust, and the output row (``motor_cmds_from``)."""
+        allocator = self.allocator
+        return (self.attitude.row, self.rate.row, self.rate.state, allocator.rows, allocator.thrust_max_n,
+                self._inner_out)  # fmt: skip
+
+    def inner_step_taken(self, dt_s: float) -> tuple[float, ...]:
+        """A step of the inner loops alone was taken outside ``update`` (sitl/kernels/between_ticks.py) towards the
+        held output of the position loops: count it towards their next run, as ``update`` does, and return its
+        motor commands from the output row."""
+        self._outer_elapsed_s += dt_s
+        n = self.allocator.rotor_count
+        return tuple(self._inner_out[ck.O_ROTORS : ck.O_ROTORS + n].tolist())
 
     def _refresh_configs(self) -> None:
         store = self.params
@@ -233,6 +256,10 @@ class Cascade:
             collective = math.sqrt(tx * tx + ty * ty + tz * tz)
             yawspeed_ff = setpoint.yawspeed_radps
             self._outer = (vel_sp, acc_sp, thrust, att_sp_q, collective, yawspeed_ff)
+            held = self.held_row
+            held[bt.H_ATT_SP : bt.H_ATT_SP + 4] = att_sp_q
+            held[bt.H_YAWSPEED_FF] = yawspeed_ff
+            held[bt.H_COLLECTIVE] = collective
             self._outer_setpoint = setpoint
             self._outer_elapsed_s = 0.0
         else:

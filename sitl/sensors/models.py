@@ -12,9 +12,11 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from sitl.dynamics.plant import PlantState
 from sitl.faults import GPS_GLITCH_OFFSET_NE_M, GpsFault
+from sitl.kernels import between_ticks as bt
 from sitl.mathutil import GRAVITY_MPS2, Vec3, fast_constructor, vec3
 from sitl.sensors.noise import NoiseSource
 
@@ -92,6 +94,18 @@ class Imu:
         self._gyro_bias: tuple[float, float, float] = (gyro_bias[0], gyro_bias[1], gyro_bias[2])
         self._accel_bias: tuple[float, float, float] = (accel_bias[0], accel_bias[1], accel_bias[2])
         self._noise = NoiseSource(rng)
+        # The same constants as the kernel of a step between commander ticks takes them (sitl/kernels/between_ticks.py).
+        row = np.empty(bt.IMU_SIZE)
+        row[bt.I_GYRO_BIAS : bt.I_GYRO_BIAS + 3] = self._gyro_bias
+        row[bt.I_ACCEL_BIAS : bt.I_ACCEL_BIAS + 3] = self._accel_bias
+        row[bt.I_GYRO_NOISE] = config.gyro_noise_radps
+        row[bt.I_ACCEL_NOISE] = config.accel_noise_mps2
+        self.row = row
+
+    def take_noise(self) -> tuple[npt.NDArray[np.float64], int] | None:
+        """The noise of one sample (two rows: gyro, then accelerometer) for a kernel that samples the IMU itself, or
+        None when they straddle a refill of the noise block (then ``sample`` draws them)."""
+        return self._noise.take_rows(2)
 
     def sample(self, truth: PlantState) -> ImuSample:
         # Scalar arithmetic on Python floats: at every physics step numpy's per-call overhead on 3-vectors dominates.
@@ -243,6 +257,11 @@ class SensorSuite:
         self.gps = Gps(config, streams[1])
         self.baro = Barometer(config, streams[2])
         self.mag = Magnetometer(config, streams[3])
+
+    def imu_only(self, time_s: float) -> bool:
+        """Does a sample at ``time_s`` hold the IMU alone (no GPS, barometer or magnetometer sample due)?"""
+        due_s = time_s + 1e-9
+        return due_s < self.gps.clock.next_s and due_s < self.baro.clock.next_s and due_s < self.mag.clock.next_s
 
     def sample(self, truth: PlantState) -> SensorReadings:
         # The slower sensors are asked only when due (the same test their clocks make): most physics steps carry

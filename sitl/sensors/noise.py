@@ -8,6 +8,7 @@ reproducible for a given seed (the block size is fixed, so the sequence does not
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from sitl.mathutil import Vec3
 
@@ -45,6 +46,16 @@ class NoiseSource:
         x, y, z = self._rows[self._next]
         self._next += 1
         return x, y, z
+
+    def take_rows(self, count: int) -> tuple[npt.NDArray[np.float64], int] | None:
+        """The block and the index of the next ``count`` rows, handed out at once to a kernel that reads them itself
+        (sitl/kernels/between_ticks.py): the stream is consumed as ``count`` calls of ``floats3`` would consume it.
+        None when the block holds fewer (the caller draws them one by one, refilling as ``floats3`` does)."""
+        first = self._next
+        if first + count > _BLOCK:
+            return None
+        self._next = first + count
+        return self._block, first
 
     def scalar(self) -> float:
         return self.floats3()[0]

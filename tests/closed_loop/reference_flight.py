@@ -32,25 +32,25 @@ class Figures:
 
 
 class _Recorder:
-    """Wraps the vehicle's step to hash what it commands (instrumentation only: the commands pass through)."""
+    """Wraps the plant's step to hash the motor commands it is given at every physics step, whichever path computed
+    them (instrumentation only: the commands pass through)."""
 
     def __init__(self, sim: Simulation) -> None:
         self.sim = sim
         self.hash = hashlib.sha256()
         self.steps = 0
         self.modes: list[str] = []
-        inner = sim.vehicle.step
+        inner = sim.plant.step
 
-        def step(est, now_s, dt_s):  # type: ignore[no-untyped-def]
-            motors = inner(est, now_s, dt_s)
+        def step(motors):  # type: ignore[no-untyped-def]
             self.hash.update(struct.pack(f"<{len(motors)}d", *motors))
             self.steps += 1
             mode = sim.vehicle.status.mode.px4_name
             if not self.modes or self.modes[-1] != mode:
                 self.modes.append(mode)
-            return motors
+            return inner(motors)
 
-        sim.vehicle.step = step  # type: ignore[method-assign]
+        sim.plant.step = step  # type: ignore[method-assign]
 
 
 def _stream(sim: Simulation, setpoint: TrajectorySetpoint | AttitudeSetpoint, duration_s: float) -> None:

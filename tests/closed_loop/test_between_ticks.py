@@ -1,0 +1,64 @@
+"""A physics step between two commander ticks, taken as one compiled call (sitl/kernels/between_ticks.py), flies to
+the bit what the parts' shells fly (the IMU sample, the estimator, the cascade's inner loops), and is taken on most
+of a flying drone's steps."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sitl.control.cascade import TrajectorySetpoint
+from sitl.simulation import Simulation
+from tests.closed_loop.flight import make_sim
+
+pytestmark = pytest.mark.timeout(60)
+
+
+def _flown(shells_only: bool) -> tuple[Simulation, list[np.ndarray], int]:
+    """Take off, fly offboard to a point 3 m away while the setpoint streams at 20 Hz, and record every step's truth
+    and estimate; with ``shells_only`` every step goes through the shells. Returns how many steps took the call."""
+    sim = make_sim(seed=5)
+    taken = 0
+    if shells_only:
+        sim._between_ticks = lambda: None  # type: ignore[method-assign]
+    else:
+        between = sim._between_ticks
+
+        def counted() -> tuple[float, ...] | None:
+            nonlocal taken
+            motors = between()
+            taken += motors is not None
+            return motors
+
+        sim._between_ticks = counted  # type: ignore[method-assign]
+    trace: list[np.ndarray] = []
+
+    def record(s: Simulation) -> None:
+        est = s.estimate
+        assert est is not None
+        trace.append(np.concatenate((s.truth.pos_ned_m, s.truth.att_q_frd_to_ned, est.pos_ned_m, est.att_q_frd_to_ned)))
+
+    v = sim.vehicle
+    assert sim.run_until(lambda s: s.vehicle.preflight_problem() is None, 10.0)
+    assert v.arm().ok and v.takeoff(3.0).ok
+    sim.run_for(6.0, record)
+    setpoint = TrajectorySetpoint(pos_ned_m=(3.0, 0.0, -3.0), vel_ned_mps=(0.0, 0.0, 0.0))
+    v.set_offboard_setpoint(setpoint, sim.time_s)
+    assert v.start_offboard(sim.time_s).ok
+    sim.run_for(4.0, lambda s: (s.vehicle.set_offboard_setpoint(setpoint, s.time_s) if round(s.time_s * 250) % 12 == 0
+                                else None, record(s)))  # fmt: skip
+    return sim, trace, taken
+
+
+def test_steps_between_ticks_fly_to_the_bit_what_the_shells_fly() -> None:
+    # GIVEN the same flight flown with steps between ticks as one call, and through the shells alone
+    fast, fast_trace, taken = _flown(shells_only=False)
+    slow, slow_trace, _ = _flown(shells_only=True)
+    # THEN most steps in the air took the call ...
+    assert taken > 0.4 * len(fast_trace), taken
+    # ... and every step's truth and estimate have the same bits
+    assert len(fast_trace) == len(slow_trace)
+    for k, (a, b) in enumerate(zip(fast_trace, slow_trace, strict=True)):
+        assert np.array_equal(a, b), f"step {k}: {a - b}"
+    assert fast.battery.remaining == slow.battery.remaining
+    assert np.array_equal(fast.vehicle.cascade.rate.state, slow.vehicle.cascade.rate.state)
