@@ -31,7 +31,7 @@ from bench.fuzz import (
 )
 from tests.integration.sitl_process import udp_port_is_free
 
-pytestmark = [pytest.mark.sim_only]
+pytestmark = [pytest.mark.sim_only, pytest.mark.heavy]
 
 FIRST_INSTANCE, FIRST_PORT_BASE, SLOTS = 220, 320, 20
 FRAMES_HOVERING = 20_000

@@ -108,6 +108,7 @@ jitter_ms = 20
 
 
 @pytest.mark.timeout(1300)
+@pytest.mark.heavy  # CPU burners on every core
 def test_the_same_lockstep_mission_flies_the_same_on_an_idle_and_a_loaded_machine(tmp_path: Path) -> None:
     # GIVEN the antipodal swap flown in lockstep with the default seeds, its neighbours relayed and heard over the mesh
     text = (MISSIONS / "antipodal_swap.toml").read_text()

@@ -29,7 +29,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from sitl.ports import PX4_INSTANCES, instance_ports
 from tests.integration.test_swarm import SWARM, alive, children_of, wait_dead
 
-pytestmark = [pytest.mark.sim_only, pytest.mark.timeout(240)]
+pytestmark = [pytest.mark.sim_only, pytest.mark.heavy, pytest.mark.timeout(240)]
 
 LOOPBACK = "127.0.0.1"
 FIRST_INSTANCE = 11

@@ -28,7 +28,7 @@ from gcs.geodesy import DEFAULT_ORIGIN, GeoPoint
 from tests.integration.browser import Browser
 from tests.integration.test_swarm import SWARM, children_of, wait_dead
 
-pytestmark = [pytest.mark.sim_only, pytest.mark.timeout(240)]
+pytestmark = [pytest.mark.sim_only, pytest.mark.heavy, pytest.mark.timeout(240)]
 
 FIRST_INSTANCE = 90
 DOCS_IMAGES = Path(__file__).resolve().parents[2] / "docs" / "images"
