@@ -692,13 +692,16 @@ class Vehicle:
 
     def _control(self, unit: ModeUnit, est: Estimate, now_s: float, dt_s: float, tick_dt_s: float) -> CascadeOutput:
         setpoint = unit.setpoint(self, est, tick_dt_s)
+        # Held only while armed: a failsafe that disarmed in this tick (lockdown, termination) leaves the next step a
+        # tick, which stops the motors.
+        armed = self.status.armed
         if isinstance(setpoint, AttitudeSetpoint):
             self.trajectory.reset(est.pos_ned_m)
-            self._held = _Held(attitude=setpoint)
+            self._held = _Held(attitude=setpoint) if armed else None
             return self.cascade.update_attitude(est, setpoint, dt_s, landed=self.landed)
         if not self.landed:
             setpoint = self.collision_prevention.apply(setpoint, est.pos_ned_m, est.vel_ned_mps, now_s)
-        self._held = _Held(trajectory=setpoint)
+        self._held = _Held(trajectory=setpoint) if armed else None
         return self.cascade.update(est, setpoint, dt_s, landed=self.landed)
 
     def _check_auto_disarm(self, now_s: float) -> None:

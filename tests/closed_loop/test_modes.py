@@ -111,6 +111,37 @@ def test_rtl_is_refused_on_the_ground() -> None:
 
 
 # ---- offboard loss -------------------------------------------------------------------------------------------------
+def test_a_failsafe_that_disarms_in_a_commander_tick_stops_the_motors_at_the_next_step() -> None:
+    # GIVEN a drone flying offboard with COM_OBL_RC_ACT = 7 (lockdown: disarm where it is), every motor command
+    # the plant gets recorded
+    sim = make_sim(seed=14)
+    sim.params.set("COM_OBL_RC_ACT", 7)
+    take_off(sim, 3.0)
+    v = sim.vehicle
+    assert v.estimate is not None
+    here = v.estimate.pos_ned_m
+    setpoint = TrajectorySetpoint(pos_ned_m=(here[0], here[1], here[2]), yaw_rad=0.0)
+    v.set_offboard_setpoint(setpoint, sim.time_s)
+    assert v.start_offboard(sim.time_s).ok
+    sim.run_for(1.0, lambda s: s.vehicle.set_offboard_setpoint(setpoint, s.time_s))
+    commands: list[tuple[bool, tuple[float, ...]]] = []
+    plant_step = sim.plant.step
+
+    def recorded(motors):  # type: ignore[no-untyped-def]
+        commands.append((v.status.armed, tuple(motors)))
+        return plant_step(motors)
+
+    sim.plant.step = recorded  # type: ignore[method-assign]
+    # WHEN the stream stops: offboard loss, hold, and COM_FAIL_ACT_T later the lockdown, decided in a tick
+    assert sim.run_until(lambda s: not s.vehicle.status.armed, 15.0)
+    sim.run_for(0.1)
+    # THEN from the step that disarmed on, every command the motors get is zero, the steps between ticks included
+    first = next(k for k, (armed, _) in enumerate(commands) if not armed)
+    assert any(max(m) > 0.2 for _, m in commands[:first])
+    assert all(m == (0.0,) * len(m) for _, m in commands[first + 1 :])
+    assert "Motors stopped: lockdown" in [e.text for e in v.events]
+
+
 def test_offboard_setpoint_loss_holds_then_lands_with_the_failsafe_flag_set() -> None:
     # GIVEN a drone flying offboard on a position setpoint stream
     sim = make_sim(seed=14)
