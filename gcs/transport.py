@@ -21,6 +21,7 @@ from typing import Any
 from pymavlink.dialects.v20 import common as mavlink
 
 from gcs import signing
+from gcs.wire import read_datagram
 
 GCS_SYSID = 255
 GCS_COMPID = mavlink.MAV_COMP_ID_MISSIONPLANNER
@@ -95,17 +96,9 @@ class GcsSocket:
                 continue
             addr = (address[0], address[1])
             self.received_from[addr] = self.received_from.get(addr, 0) + 1
-            parser = self._parsers.get(addr)
-            if parser is None or parser.buf_len() > 0:
-                # A datagram holds whole frames, so a parser left holding part of one (a truncated datagram) holds
-                # nothing of value: a fresh one keeps that fragment from corrupting the sender's next frame.
-                parser = self._parsers[addr] = mavlink.MAVLink(None)
-                parser.robust_parsing = True
-            try:
-                messages = parser.parse_buffer(data) or []
-            except Exception:  # a misbehaving peer must not take the ground station down
-                self._parsers.pop(addr, None)
-                continue
+            messages = read_datagram(data)  # the drones' telemetry, by precomputed layouts (gcs/wire.py)
+            if messages is None:
+                messages = self._parse(addr, data)
             for msg in messages:
                 if msg.get_type() == "BAD_DATA":
                     continue
@@ -113,6 +106,20 @@ class GcsSocket:
                     self.addresses[msg.get_srcSystem()] = addr
                 out.append((msg, addr))
         return out
+
+    def _parse(self, addr: Address, data: bytes) -> list[Any]:
+        """A datagram the fast reader left alone, through pymavlink's parser for its sender ([] when it raises)."""
+        parser = self._parsers.get(addr)
+        if parser is None or parser.buf_len() > 0:
+            # A datagram holds whole frames, so a parser left holding part of one (a truncated datagram) holds
+            # nothing of value: a fresh one keeps that fragment from corrupting the sender's next frame.
+            parser = self._parsers[addr] = mavlink.MAVLink(None)
+            parser.robust_parsing = True
+        try:
+            return parser.parse_buffer(data) or []
+        except Exception:  # a misbehaving peer must not take the ground station down
+            self._parsers.pop(addr, None)
+            return []
 
     def pack(self, msg: Any) -> bytes:
         if self.signing_key is not None:
