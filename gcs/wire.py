@@ -31,16 +31,15 @@ _SIGNED: Final = mavlink.MAVLINK_IFLAG_SIGNED
 _SIGNATURE_LEN: Final = mavlink.MAVLINK_SIGNATURE_BLOCK_LEN
 
 
-def _crc_table_mcrf4xx(data: bytes, crc: int) -> int:
-    """CRC-16/MCRF4XX, bit by bit: only where pymavlink runs without its C routine (fastcrc)."""
-    for byte in data:
-        tmp = (byte ^ crc) & 0xFF
-        tmp = (tmp ^ (tmp << 4)) & 0xFF
-        crc = ((crc >> 8) ^ (tmp << 8) ^ (tmp << 3) ^ (tmp >> 4)) & 0xFFFF
-    return crc
+def _crc_pymavlink(data: bytes, crc: int) -> int:
+    """pymavlink's own X.25 checksum object, where its C routine (fastcrc) is not installed."""
+    checksum = mavlink.x25crc()
+    checksum.crc = crc
+    checksum.accumulate(data)
+    return int(checksum.crc)
 
 
-_crc: Callable[[bytes, int], int] = getattr(mavlink, "mcrf4xx", None) or _crc_table_mcrf4xx
+_crc: Callable[[bytes, int], int] = getattr(mavlink, "mcrf4xx", None) or _crc_pymavlink
 
 
 @dataclass(frozen=True, slots=True)

@@ -30,7 +30,6 @@ from sitl.control.params import outer_loop_period_s
 from sitl.estimation import Estimate
 from sitl.geofence import Geofence
 from sitl.guidance import MotionLimits, StraightLineTrajectory
-from sitl.kernels import between_ticks as bt
 from sitl.land_detector import LandDetector, LandDetectorConfig
 from sitl.mathutil import Vec3, vec3
 from sitl.mission_exec import MissionExecutor, MissionRun
@@ -596,21 +595,18 @@ class Vehicle:
         self._est = est
         self._now_s = now_s
         self._since_tick_s += dt_s
+        # Between ticks the thrust shown (status.thrust_n) stays the one the last tick set: the held collective.
         held = self._held
         if held is not None and self.params.version == self._tick_version:
-            if held.motors is not None:
-                if self._since_tick_s < self._tick_period_s - 1e-9:
+            if held.trajectory is not None:
+                if not self.cascade.outer_due(dt_s):  # as ``holds_inner_loops`` says
+                    return self.cascade.update(est, held.trajectory, dt_s, landed=self.landed).motor_cmds
+            elif self._since_tick_s < self._tick_period_s - 1e-9:
+                if held.motors is not None:
                     return held.motors
-            elif held.attitude is not None:
-                if self._since_tick_s < self._tick_period_s - 1e-9:
+                if held.attitude is not None:
                     self.trajectory.reset(est.pos_ned_m)
-                    out = self.cascade.update_attitude(est, held.attitude, dt_s, landed=self.landed)
-                    self.status.thrust_n = out.collective_sp_n
-                    return out.motor_cmds
-            elif held.trajectory is not None and not self.cascade.outer_due(dt_s):
-                out = self.cascade.update(est, held.trajectory, dt_s, landed=self.landed)
-                self.status.thrust_n = out.collective_sp_n
-                return out.motor_cmds
+                    return self.cascade.update_attitude(est, held.attitude, dt_s, landed=self.landed).motor_cmds
         return self._tick(est, now_s, dt_s)
 
     def holds_inner_loops(self, dt_s: float) -> bool:
@@ -631,9 +627,7 @@ class Vehicle:
         self._est = est
         self._now_s = now_s
         self._since_tick_s += dt_s
-        motors = self.cascade.inner_step_taken(dt_s)
-        self.status.thrust_n = float(self.cascade.held_row[bt.H_COLLECTIVE])
-        return motors
+        return self.cascade.inner_step_taken(dt_s)
 
     def _tick(self, est: Estimate, now_s: float, dt_s: float) -> tuple[float, ...]:
         """The commander's tick: everything ``step`` describes, with the mode units advanced by the time since the

@@ -182,7 +182,7 @@ class Cascade:
         npt.NDArray[np.float64],
     ]:  # fmt: skip
         """What the inner-loop kernel takes: the attitude and rate configurations, the rate controller's state, the
-        allocation's rows and maximum thrust, and the output row (``motor_cmds_from``)."""
+        allocation's rows and maximum thrust, and the output row (read back by ``inner_step_taken``)."""
         allocator = self.allocator
         return (self.attitude.row, self.rate.row, self.rate.state, allocator.rows, allocator.thrust_max_n,
                 self._inner_out)  # fmt: skip

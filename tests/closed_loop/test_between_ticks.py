@@ -45,8 +45,13 @@ def _flown(shells_only: bool) -> tuple[Simulation, list[np.ndarray], int]:
     setpoint = TrajectorySetpoint(pos_ned_m=(3.0, 0.0, -3.0), vel_ned_mps=(0.0, 0.0, 0.0))
     v.set_offboard_setpoint(setpoint, sim.time_s)
     assert v.start_offboard(sim.time_s).ok
-    sim.run_for(4.0, lambda s: (s.vehicle.set_offboard_setpoint(setpoint, s.time_s) if round(s.time_s * 250) % 12 == 0
-                                else None, record(s)))  # fmt: skip
+
+    def stream(s: Simulation) -> None:  # a setpoint every 12 steps (about 20 Hz), as the streamer sends them
+        if round(s.time_s / s.dt_s) % 12 == 0:
+            s.vehicle.set_offboard_setpoint(setpoint, s.time_s)
+        record(s)
+
+    sim.run_for(4.0, stream)
     return sim, trace, taken
 
 
