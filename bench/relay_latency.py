@@ -1,7 +1,7 @@
 """Benchmark: how long the neighbour relay takes to move a position report from one drone to another.
 
 Brings up N drones (on the ground, idle: the relay's load is the same as in flight, every drone reports its
-position at 10 Hz), then runs the relay probe (gcs/probe.py) in a process of its own for a while and prints the
+position at 10 Hz), then runs the relay probe (gcs/bench/probe.py) in a process of its own for a while and prints the
 hop's median, 95th percentile and maximum. One run on the current machine; compare with the machine's load.
 
     python bench/relay_latency.py [--drones 9] [--seconds 10]
@@ -15,8 +15,8 @@ import subprocess
 import sys
 
 from gcs.composition import SITL
-from gcs.harness import SpawnPlan
-from gcs.swarm import Swarm
+from gcs.fleet.harness import SpawnPlan
+from gcs.fleet.swarm import Swarm
 
 
 def measure(n_drones: int, seconds: float) -> dict[str, float]:
@@ -26,7 +26,7 @@ def measure(n_drones: int, seconds: float) -> dict[str, float]:
         swarm.up()
         home = swarm.plan.origin
         probe = subprocess.Popen(
-            [sys.executable, "-m", "gcs.probe", str(swarm.link.port), "--seconds", str(seconds),
+            [sys.executable, "-m", "gcs.bench.probe", str(swarm.link.port), "--seconds", str(seconds),
              "--anchor", f"{home.lat_deg},{home.lon_deg},{home.alt_amsl_m}"],
             stdout=subprocess.PIPE, text=True,
         )  # fmt: skip

@@ -209,7 +209,7 @@ def big_swarm(n: int, first_instance: int, watch_s: float = 10.0) -> dict[str, A
 
 def frame_build_ms(drones: int, repeats: int = 200) -> float:
     """Median wall ms to build one frame of ``drones`` drones and encode it as the server does (JSON)."""
-    from gcs.fleet import DroneView
+    from gcs.fleet.telemetry import DroneView
     from gcs.view.scene import frame
 
     views = {}

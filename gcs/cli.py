@@ -1,8 +1,8 @@
 """``swarm``: the ground-station command line.
 
 ``swarm up`` runs the supervisor in the foreground; the other commands talk to it over the local control channel.
-Argument parsing only; the work is in gcs/station.py and gcs/swarm.py. Mistakes end with one line on stderr and
-a non-zero exit code.
+Argument parsing only; the work is in gcs/supervisor/station.py and gcs/fleet/swarm.py. Mistakes end with one line on
+stderr and a non-zero exit code.
 """
 
 from __future__ import annotations
@@ -20,24 +20,31 @@ from pathlib import Path
 from types import FrameType
 from typing import Any, Literal, NoReturn
 
-from gcs.bench import add_bench_parser, run_bench
+from gcs.bench.scaling import add_bench_parser, run_bench
 from gcs.composition import SITL
-from gcs.control import ControlClient, ControlError, ControlServer
-from gcs.faults import CRASH, FAULT_NAMES, FaultError, fault_request
-from gcs.geodesy import DEFAULT_ORIGIN, GeoPoint
-from gcs.harness import LAYOUTS, MAX_DRONES, Simulation, SpawnError, SpawnPlan, parse_drones_per_process
-from gcs.links import LINK_OPTIONS, NEIGHBOUR_MODES, LinkPlan, NeighbourPlan, parse_link_value, parse_mesh_value
-from gcs.losses import LOSS_POLICIES, LossPolicy
-from gcs.mission_file import MissionFileError, MissionSpec, build_flock, build_follow, flown_onboard, load_mission
-from gcs.mission_runner import MissionRunner
-from gcs.onboard import absolute_spec
-from gcs.plan_cli import add_plan_parser, run_plan
-from gcs.signing import SigningKeyError, load_key
-from gcs.station import Station, format_status
-from gcs.swarm import Swarm, SwarmError
+from gcs.fleet.faults import CRASH, FAULT_NAMES, FaultError, fault_request
+from gcs.fleet.harness import LAYOUTS, MAX_DRONES, Simulation, SpawnError, SpawnPlan, parse_drones_per_process
+from gcs.fleet.links import LINK_OPTIONS, NEIGHBOUR_MODES, LinkPlan, NeighbourPlan, parse_link_value, parse_mesh_value
+from gcs.fleet.losses import LOSS_POLICIES, LossPolicy
+from gcs.fleet.swarm import Swarm, SwarmError
+from gcs.flight.geodesy import DEFAULT_ORIGIN, GeoPoint
+from gcs.flight.onboard import absolute_spec
+from gcs.mavlink.signing import SigningKeyError, load_key
+from gcs.mavlink.transport import parse_host_port
+from gcs.missions.mission_file import (
+    MissionFileError,
+    MissionSpec,
+    build_flock,
+    build_follow,
+    flown_onboard,
+    load_mission,
+)
+from gcs.supervisor.control import ControlClient, ControlError, ControlServer
+from gcs.supervisor.mission_runner import MissionRunner
+from gcs.supervisor.plan_cli import add_plan_parser, run_plan
+from gcs.supervisor.station import Station, format_status
 from gcs.sweep.cli import add_sweep_parser, run_sweep_command
 from gcs.sweep.plan import SweepError
-from gcs.transport import parse_host_port
 from gcs.view.server import DEFAULT_PORT as DEFAULT_VIEW_PORT
 from gcs.view.server import ViewError, ViewServer, serve_view
 

@@ -1,6 +1,6 @@
 """The composition root: the one ground-station module that sees both sides and wires the simulation in.
 
-Every other module of ``gcs`` depends on the interfaces of gcs/harness.py only (the import-linter contract in
+Every other module of ``gcs`` depends on the interfaces of gcs/fleet/harness.py only (the import-linter contract in
 pyproject.toml fails the build otherwise). Here the ground station's spawn plan becomes the simulation's launch
 plan: the same origin and layout offsets, which the simulation turns into each drone's home with its own geodesy
 (the simulation decides where bodies really are), and ``SITL`` hands out ``SitlHarness`` instances. The ``swarm``
@@ -11,8 +11,8 @@ from __future__ import annotations
 
 from typing import Literal
 
-from gcs.harness import SimulationHarness, SpawnPlan
-from gcs.links import LinkPlan
+from gcs.fleet.harness import SimulationHarness, SpawnPlan
+from gcs.fleet.links import LinkPlan
 from sitl.harness import GeoPoint, LaunchPlan, LinkImpairment, LinkProfile, MeshSettings, SitlHarness
 from sitl.harness import simulation as sim
 

@@ -56,7 +56,7 @@ ENDED, REST_ALT = 16, 17  # 1 once the drone's process is gone (its body falls);
 # row ended, for whoever did not end it (the supervisor learns of a hosted drone's end from here).
 STOP_REQUEST, END_CAUSE = 18, 19
 END_UNKNOWN, END_EXITED, END_STOPPED, END_FAILED = 0.0, 1.0, 2.0, 3.0  # END_CAUSE values
-# Lockstep delivery (sitl/runtime.py, gcs/swarm.py): the datagrams the supervisor has sent to the drone's
+# Lockstep delivery (sitl/runtime.py, gcs/fleet/swarm.py): the datagrams the supervisor has sent to the drone's
 # ground-station link, and the datagrams the drone has sent to the supervisor, each counted by its sender. Loopback UDP
 # may hand a datagram over a little after ``sendto`` returns (the kernel finishes the delivery in a deferred
 # routine, later on a busy machine), so a receiver that has not yet read as many as were sent waits for the rest

@@ -24,12 +24,12 @@ from gcs.api.checks import assert_min_separation, assert_no_collisions, assert_n
 from gcs.api.engine import SessionClosed
 from gcs.api.session import Session, launch
 from gcs.api.types import ControllerError, DroneState, Event, FlightResult, LaunchOptions
-from gcs.behaviours import FlockSpec, FollowSpec
-from gcs.formation import CircleSpec, GridSpec, LineSpec, Setpoint, VSpec
-from gcs.links import LinkPlan, MeshPlan, NeighbourPlan
-from gcs.losses import LossPolicy
-from gcs.onboard import FLOCKING, LEADER_FOLLOWER
-from gcs.swarm import SwarmError
+from gcs.fleet.links import LinkPlan, MeshPlan, NeighbourPlan
+from gcs.fleet.losses import LossPolicy
+from gcs.fleet.swarm import SwarmError
+from gcs.flight.behaviours import FlockSpec, FollowSpec
+from gcs.flight.formation import CircleSpec, GridSpec, LineSpec, Setpoint, VSpec
+from gcs.flight.onboard import FLOCKING, LEADER_FOLLOWER
 
 __all__ = [
     "FLOCKING",

@@ -16,9 +16,9 @@ from typing import Any, TypeVar
 from gcs.api.engine import LAND_TIMEOUT_S, Controller, Engine, Readings
 from gcs.api.session import TAKEOFF_TIMEOUT_S, _default_simulation
 from gcs.api.types import DroneState, Event, FlightResult, LaunchOptions
-from gcs.behaviours import FlockSpec, FollowSpec
-from gcs.formation import Formation
-from gcs.harness import Simulation
+from gcs.fleet.harness import Simulation
+from gcs.flight.behaviours import FlockSpec, FollowSpec
+from gcs.flight.formation import Formation
 
 T = TypeVar("T")
 

@@ -11,7 +11,7 @@ import math
 from collections.abc import Mapping
 
 from gcs.api.types import DroneState, FlightResult
-from gcs.frames import Vec3
+from gcs.flight.frames import Vec3
 
 
 def _metrics(result: FlightResult) -> Mapping[str, object]:

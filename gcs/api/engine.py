@@ -1,8 +1,8 @@
 """The supervisor of an API session, in a thread of its own; both faces of the API (async and blocking) post work
 to it and wait for the answer.
 
-Why a thread: the supervisor (gcs/swarm.py) is a synchronous loop that waits on its sockets and, in lockstep, on the
-simulation's gate. Run in the user's event loop it would stall every other task of theirs; rewritten for asyncio it
+Why a thread: the supervisor (gcs/fleet/swarm.py) is a synchronous loop that waits on its sockets and, in lockstep, on
+the simulation's gate. Run in the user's event loop it would stall every other task of theirs; rewritten for asyncio it
 would be a second supervisor to keep in step with the first. In its own thread it stays the one supervisor that
 ``swarm up`` and ``swarm fly`` run, and the user's loop only awaits futures.
 
@@ -30,19 +30,19 @@ from typing import Any, TypeVar
 from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.api.types import ControllerError, DroneState, Event, FlightResult, LaunchOptions
-from gcs.behaviours import NAN3, FlockSpec, FollowSpec, SwarmState
-from gcs.faults import CRASH
-from gcs.formation import SETPOINT_STREAM_HZ, CircleSpec, Formation, GridSpec, LineSpec, Setpoint, VSpec
-from gcs.frames import Vec3
-from gcs.harness import Simulation, SpawnPlan
-from gcs.losses import MAV_STATE_CRITICAL
-from gcs.onboard import absolute_spec
-from gcs.onboard_flight import start_onboard_flock, start_onboard_follow
-from gcs.procedures import start_onboard_behaviours, stop_onboard_behaviours, take_off_and_hold
-from gcs.report import METRICS_FILE
-from gcs.station import Station, failsafe_text
-from gcs.statustext import StatusTextAssembler
-from gcs.swarm import Swarm, SwarmError
+from gcs.command.onboard_flight import start_onboard_flock, start_onboard_follow
+from gcs.command.procedures import start_onboard_behaviours, stop_onboard_behaviours, take_off_and_hold
+from gcs.fleet.faults import CRASH
+from gcs.fleet.harness import Simulation, SpawnPlan
+from gcs.fleet.losses import MAV_STATE_CRITICAL
+from gcs.fleet.swarm import Swarm, SwarmError
+from gcs.flight.behaviours import NAN3, FlockSpec, FollowSpec, SwarmState
+from gcs.flight.formation import SETPOINT_STREAM_HZ, CircleSpec, Formation, GridSpec, LineSpec, Setpoint, VSpec
+from gcs.flight.frames import Vec3
+from gcs.flight.onboard import absolute_spec
+from gcs.mavlink.statustext import StatusTextAssembler
+from gcs.supervisor.station import Station, failsafe_text
+from gcs.view.report import METRICS_FILE
 from gcs.view.server import ViewServer, serve_view
 
 log = logging.getLogger(__name__)
@@ -72,8 +72,8 @@ def _as_setpoint(value: Setpoint | Vec3) -> Setpoint:
 
 
 class ControllerBehaviour:
-    """A user's function as a behaviour the streamer runs every tick (gcs/behaviours.py ``Behaviour``): it gets the
-    swarm's time and every drone's state and returns setpoints for the drones it commands. If it raises, the error
+    """A user's function as a behaviour the streamer runs every tick (gcs/flight/behaviours.py ``Behaviour``): it gets
+    the swarm's time and every drone's state and returns setpoints for the drones it commands. If it raises, the error
     is kept for the engine (which holds every drone) and it commands nothing more."""
 
     def __init__(self, controller: Controller, states: Callable[[], dict[int, DroneState]]) -> None:
@@ -416,7 +416,7 @@ class Engine:
 
     def do_flock(self, spec: FlockSpec, *, onboard: bool) -> None:
         swarm, station = self._take_over()
-        if onboard:  # every drone flocks by itself (gcs/onboard_flight.py)
+        if onboard:  # every drone flocks by itself (gcs/command/onboard_flight.py)
             start_onboard_flock(swarm, station.streamer, spec)
             self._onboard = True
         else:

@@ -18,9 +18,9 @@ from typing import Any, TypeVar
 
 from gcs.api.engine import LAND_TIMEOUT_S, Controller, Engine, Readings
 from gcs.api.types import DroneState, Event, FlightResult, LaunchOptions
-from gcs.behaviours import FlockSpec, FollowSpec
-from gcs.formation import Formation
-from gcs.harness import Simulation
+from gcs.fleet.harness import Simulation
+from gcs.flight.behaviours import FlockSpec, FollowSpec
+from gcs.flight.formation import Formation
 
 T = TypeVar("T")
 TAKEOFF_TIMEOUT_S = 60.0  # simulated seconds for every drone to hold its takeoff altitude

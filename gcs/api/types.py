@@ -1,8 +1,8 @@
 """What the Python API hands its user: launch options, each drone's state, events, the flight's outcome.
 
-Plain frozen dataclasses with units in their names, built from MAVLink telemetry only (gcs/fleet.py): a drone's
-state is what a ground station would know of a real PX4 vehicle, in the swarm frame (north, east, down metres from
-the swarm origin), never simulation truth.
+Plain frozen dataclasses with units in their names, built from MAVLink telemetry only (gcs/fleet/telemetry.py): a
+drone's state is what a ground station would know of a real PX4 vehicle, in the swarm frame (north, east, down metres
+from the swarm origin), never simulation truth.
 """
 
 from __future__ import annotations
@@ -13,11 +13,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from gcs.frames import Vec3
-from gcs.geodesy import DEFAULT_ORIGIN, GeoPoint
-from gcs.harness import MAX_DRONES
-from gcs.links import LinkPlan, NeighbourPlan
-from gcs.losses import LossPolicy
+from gcs.fleet.harness import MAX_DRONES
+from gcs.fleet.links import LinkPlan, NeighbourPlan
+from gcs.fleet.losses import LossPolicy
+from gcs.flight.frames import Vec3
+from gcs.flight.geodesy import DEFAULT_ORIGIN, GeoPoint
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -26,7 +26,7 @@ class LaunchOptions:
     script is reproducible unless asked otherwise)."""
 
     drones: int
-    layout: str = "grid"  # grid or line (gcs/harness.py LAYOUTS)
+    layout: str = "grid"  # grid or line (gcs/fleet/harness.py LAYOUTS)
     spacing_m: float = 2.0
     origin: GeoPoint = DEFAULT_ORIGIN
     lockstep: bool = True

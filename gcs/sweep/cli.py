@@ -9,8 +9,8 @@ import time
 from pathlib import Path
 from typing import Any, Final
 
-from gcs.harness import Simulation
-from gcs.mission_file import load_mission
+from gcs.fleet.harness import Simulation
+from gcs.missions.mission_file import load_mission
 from gcs.sweep.plan import SweepError, SweepPlan, file_sha256, link_loss_axis, parse_param, parse_seeds
 from gcs.sweep.summary import write_summary
 from gcs.sweep.sweep import SweepInterrupted, default_jobs, local_flyer, run_sweep

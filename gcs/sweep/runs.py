@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, Final
 
-from gcs.harness import LAST_INSTANCE
+from gcs.fleet.harness import LAST_INSTANCE
 from gcs.sweep.plan import Run, SweepPlan, fly_command
 from gcs.sweep.stats import run_metrics
 

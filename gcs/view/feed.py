@@ -13,12 +13,12 @@ from typing import Any, Final
 
 import numpy as np
 
-from gcs.behaviours import pairwise_offsets
-from gcs.frames import Vec3
-from gcs.images import ImageAssembler, image_request
-from gcs.metrics import AIRBORNE_HEIGHT_M, LiveMetrics
-from gcs.recording import ObstacleShape
-from gcs.streamer import FormationStreamer
+from gcs.command.streamer import FormationStreamer
+from gcs.flight.behaviours import pairwise_offsets
+from gcs.flight.frames import Vec3
+from gcs.mavlink.images import ImageAssembler, image_request
+from gcs.record.metrics import AIRBORNE_HEIGHT_M, LiveMetrics
+from gcs.record.recording import ObstacleShape
 from gcs.view.scene import frame
 from gcs.view.server import RATE_HZ, ViewServer
 

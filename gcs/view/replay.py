@@ -1,7 +1,7 @@
 """The flight report page's replay: a recorded flight as one JSON-ready document (pure: a recording in, a dict out).
 
-Every drone is put on the metrics' common time grid (``GRID_HZ``, gcs/metrics.py) exactly as the metrics resample it,
-so the page, interpolating linearly between grid instants, draws what the metrics assume between them: the distance
+Every drone is put on the metrics' common time grid (``GRID_HZ``, gcs/record/metrics.py) exactly as the metrics resample
+it, so the page, interpolating linearly between grid instants, draws what the metrics assume between them: the distance
 it computes between two drawn drones at any instant is the metrics' distance there, and the minimum over the whole
 replay is ``min_separation_m`` of metrics.json. Per drone and grid instant the document holds the position (null
 where the drone was not heard: the page keeps it where it was last seen), its course over ground (the page's
@@ -28,7 +28,7 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from gcs.metrics import (
+from gcs.record.metrics import (
     AVOIDANCE_PREFIX,
     COLLISION_PREFIX,
     GRID_HZ,
@@ -37,7 +37,7 @@ from gcs.metrics import (
     resample_samples,
     time_grid,
 )
-from gcs.recording import DroneSample, FlightRecording
+from gcs.record.recording import DroneSample, FlightRecording
 from gcs.view.scene import AVOIDANCE_END
 
 DECIMALS: Final = 4  # 0.1 mm: rounding must not move the page's minimum separation off the metrics' (to 1e-3 m)

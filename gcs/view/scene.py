@@ -17,10 +17,10 @@ import math
 from collections.abc import Iterable, Mapping
 from typing import Any, Final
 
-from gcs.fleet import DroneView
-from gcs.metrics import AVOIDANCE_PREFIX
-from gcs.mission_file import ObstacleSpec
-from gcs.recording import ObstacleShape
+from gcs.fleet.telemetry import DroneView
+from gcs.missions.mission_file import ObstacleSpec
+from gcs.record.metrics import AVOIDANCE_PREFIX
+from gcs.record.recording import ObstacleShape
 
 MAV_STATE_CRITICAL: Final = 5
 AVOIDANCE_END: Final = "Avoidance ended"

@@ -23,7 +23,7 @@ import time
 from importlib import resources
 from typing import TYPE_CHECKING, Any, Final
 
-from gcs.images import CameraImage
+from gcs.mavlink.images import CameraImage
 
 if TYPE_CHECKING:  # aiohttp is imported when a view is served: every `swarm` command would wait for it otherwise
     from aiohttp import web

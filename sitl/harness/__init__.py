@@ -1,6 +1,6 @@
 """The simulation harness: spawning, the drone factory, the shared world and the lockstep gate behind one face.
 
-The ground station depends on the interface it declares (gcs/harness.py); only its composition root
+The ground station depends on the interface it declares (gcs/fleet/harness.py); only its composition root
 (gcs/composition.py) imports this package, and this package imports nothing from ``gcs``. See docs/architecture.md.
 """
 

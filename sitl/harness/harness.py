@@ -3,7 +3,7 @@
 A ground station flying real drones knows them only over MAVLink. Flying simulated drones it also needs someone to
 start them, to tell it when one has ended, to crash one on request and, in lockstep, to let the simulated time run
 on: that is this class, and nothing more. The ground station is handed a ``SitlHarness`` by its composition root
-and sees it through the interface it declares itself (gcs/harness.py ``SimulationHarness``): sysids, causes as one
+and sees it through the interface it declares itself (gcs/fleet/harness.py ``SimulationHarness``): sysids, causes as one
 line of text, geodetic tuples, simulated seconds. Processes, PIDs, world rows and columns, the lockstep gate and
 the drone factory stay on this side, so that the way drones are run (one process each, or several drones hosted by
 one process) can change without the ground station noticing.

@@ -4,7 +4,8 @@ The shape of ``swarm formation circle --rate`` with a drone that says nothing: e
 (the lockstep order of a real swarm), each with its world participant (contacts crash) and its perception (camera
 rendered from the world; relayed neighbours). The circle's drones hear one another through the relay, at 20 Hz
 from their estimates, as the ground station relays them; nobody hears the silent drone, which can only be seen.
-The circle is streamed as offboard position + velocity setpoints with yaw left free, as gcs/streamer.py streams it.
+The circle is streamed as offboard position + velocity setpoints with yaw left free, as gcs/command/streamer.py streams
+it.
 
 The silent drone takes off outside the circle and, once the circle has turned for ``settle_s``, flies at 1 m/s
 onto the circle's path (arriving about halfway between two drones) and holds there: a drone that went quiet in a
@@ -36,8 +37,8 @@ from sitl.simulation import SimConfig, Simulation
 from sitl.world import SharedWorld
 from sitl.world_view import WorldParticipant
 
-RELAY_PERIOD_S = 0.05  # gcs/relay.py relays each drone at most 10 Hz; 20 Hz here costs nothing and errs safe
-SETPOINT_PERIOD_S = 0.05  # gcs/formation.py SETPOINT_STREAM_HZ
+RELAY_PERIOD_S = 0.05  # gcs/fleet/relay.py relays each drone at most 10 Hz; 20 Hz here costs nothing and errs safe
+SETPOINT_PERIOD_S = 0.05  # gcs/flight/formation.py SETPOINT_STREAM_HZ
 TAKEOFF_TIMEOUT_S = 15.0
 
 

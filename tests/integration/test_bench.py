@@ -20,7 +20,7 @@ from typing import Any
 
 import pytest
 
-from gcs.bench import CPU_KEYS, CPU_PARTS
+from gcs.bench.scaling import CPU_KEYS, CPU_PARTS
 
 pytestmark = [pytest.mark.sim_only, pytest.mark.timeout(330)]
 

@@ -27,8 +27,8 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.composition import SITL
-from gcs.harness import SpawnPlan
-from gcs.swarm import Swarm
+from gcs.fleet.harness import SpawnPlan
+from gcs.fleet.swarm import Swarm
 from sitl.dynamics.geodesy import ned_from_geo
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
 from sitl.harness.harness import HOSTED_KILL_CAUSE

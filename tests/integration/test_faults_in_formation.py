@@ -29,7 +29,7 @@ pytestmark = [pytest.mark.sim_only]
 
 ALT_M = 3.0
 SPACING_M = 3.0
-# Nine drones spawn on a 3 x 3 grid centred on the origin (gcs/harness.py grid_layout): drone 9 at the north-east
+# Nine drones spawn on a 3 x 3 grid centred on the origin (gcs/fleet/harness.py grid_layout): drone 9 at the north-east
 # corner, (3, 3) m. A circle about the origin through that corner puts the silent drone on everybody's path.
 SILENT_RADIUS_M = math.hypot(SPACING_M, SPACING_M)
 

@@ -1,4 +1,4 @@
-"""The simulation harness on its own, through the face the ground station uses (gcs/harness.py): it starts real
+"""The simulation harness on its own, through the face the ground station uses (gcs/fleet/harness.py): it starts real
 drones, runs their lockstep clock, says which ended and why, kills one on request and leaves nothing behind.
 
 Policy: loopback only; instances 240-241 (sysids 241-242); lockstep, so nothing depends on the machine's load.
@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from gcs.harness import SimulationHarness
+from gcs.fleet.harness import SimulationHarness
 from sitl.dynamics.plant import DEFAULT_HOME
 from sitl.harness import LaunchPlan, SitlHarness
 

@@ -24,10 +24,10 @@ import pytest
 from mavsdk.asyncio.plugins.mission_raw import MissionRawAsync
 from pymavlink import mavutil
 
-from gcs.geodesy import GeoPoint, NedFrame
-from gcs.harness import line_layout
-from gcs.mission_transfer import WireItem
-from gcs.qgc_plan import fence_items, load_plan, mission_items, plan_from_items, plan_text, shifted
+from gcs.fleet.harness import line_layout
+from gcs.flight.geodesy import GeoPoint, NedFrame
+from gcs.mavlink.mission_transfer import WireItem
+from gcs.missions.qgc_plan import fence_items, load_plan, mission_items, plan_from_items, plan_text, shifted
 from tests.integration.mavsdk_client import call_within, connect
 from tests.integration.sitl_process import start_drones, stop_drone
 

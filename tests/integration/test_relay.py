@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.probe import PROBE_SYSIDS, RelayProbe
+from gcs.bench.probe import PROBE_SYSIDS, RelayProbe
 from sitl.dynamics.plant import DEFAULT_HOME
 from sitl.protocol.neighbours import Neighbour, NeighbourTable
 

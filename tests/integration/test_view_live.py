@@ -2,7 +2,7 @@
 and a killed drone marked lost at once. Screenshots of the page go to docs/images/ when SWARM_DOCS_SCREENSHOTS is set.
 
 The reference is independent of the page: a MAVLink client on the supervisor's forward port (as QGroundControl),
-whose GLOBAL_POSITION_INT reports are converted into the swarm frame here (gcs/geodesy.py).
+whose GLOBAL_POSITION_INT reports are converted into the swarm frame here (gcs/flight/geodesy.py).
 
 Policy: loopback only; instances 90-98; the view on a port the system picks; paced lockstep at 1x, so the page
 watches in real time; a time limit; every process stopped by PID.
@@ -23,8 +23,8 @@ from pathlib import Path
 import pytest
 from pymavlink import mavutil
 
-from gcs.frames import SwarmFrame
-from gcs.geodesy import DEFAULT_ORIGIN, GeoPoint
+from gcs.flight.frames import SwarmFrame
+from gcs.flight.geodesy import DEFAULT_ORIGIN, GeoPoint
 from tests.integration.browser import Browser
 from tests.integration.test_swarm import SWARM, children_of, wait_dead
 

@@ -1,11 +1,12 @@
-"""The BLAS-free matrix products (gcs/arrays.py, sitl/mathutil.py): ``@``'s answer, and the same bits on both sides."""
+"""The BLAS-free matrix products (gcs/flight/arrays.py, sitl/mathutil.py): ``@``'s answer, and the same bits on both
+sides."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from gcs.arrays import mat_mul as ground_mat_mul
+from gcs.flight.arrays import mat_mul as ground_mat_mul
 from sitl.mathutil import mat_mul as drone_mat_mul
 
 

@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from gcs.assignment import (
+from gcs.flight.assignment import (
     assign_min_squared_distance,
     assignment_cost,
     min_cost_assignment,

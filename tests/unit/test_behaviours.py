@@ -15,7 +15,9 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.behaviours import (
+from gcs.cli import main as swarm_main
+from gcs.command.streamer import TYPE_MASK_POS_VEL_ACC, TYPE_MASK_VEL_XY_POS_Z, type_mask
+from gcs.flight.behaviours import (
     ARRIVAL_TOLERANCE_M,
     JOIN_CLEARANCE_M,
     Flock,
@@ -35,11 +37,9 @@ from gcs.behaviours import (
     separation_term,
     turn_towards,
 )
-from gcs.cli import main as swarm_main
-from gcs.formation import FormationError, Setpoint, TransitionLimits, min_pairwise_distance_m
-from gcs.metrics import alignment_order_parameter
-from gcs.mission_file import FlockStep, FollowStep, load_mission
-from gcs.streamer import TYPE_MASK_POS_VEL_ACC, TYPE_MASK_VEL_XY_POS_Z, type_mask
+from gcs.flight.formation import FormationError, Setpoint, TransitionLimits, min_pairwise_distance_m
+from gcs.missions.mission_file import FlockStep, FollowStep, load_mission
+from gcs.record.metrics import alignment_order_parameter
 
 pytestmark = pytest.mark.timeout(60)
 

@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gcs.bench import (
+from gcs.bench.probe import PROBE_SYSIDS, latency_stats, probe_sysids
+from gcs.bench.scaling import (
     CPU_KEYS,
     CPU_PARTS,
     BenchRow,
@@ -46,11 +47,10 @@ from gcs.bench import (
     write_plot,
 )
 from gcs.cli import main as swarm_main
+from gcs.command.streamer import DEFAULT_LIMITS
 from gcs.composition import SITL
-from gcs.formation import CircleSpec, FormationEngine, FormationError, slots_at
-from gcs.harness import SpawnPlan, grid_layout
-from gcs.probe import PROBE_SYSIDS, latency_stats, probe_sysids
-from gcs.streamer import DEFAULT_LIMITS
+from gcs.fleet.harness import SpawnPlan, grid_layout
+from gcs.flight.formation import CircleSpec, FormationEngine, FormationError, slots_at
 from sitl.harness.simulation import bare_plant_cpu_ms_per_sim_s
 
 RATE_HZ = SITL.physics_rate_hz

@@ -1,4 +1,5 @@
-"""The ground station's command and parameter clients (gcs/commands.py, gcs/params.py), with a number for a clock.
+"""The ground station's command and parameter clients (gcs/mavlink/commands.py, gcs/mavlink/params.py), with a number
+for a clock.
 
 Every message a client receives here went through pymavlink's packer and parser with the sender's system and
 component ids in its header, as it would arrive from a drone; nothing is sent anywhere.
@@ -13,7 +14,7 @@ from typing import Any
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.commands import (
+from gcs.mavlink.commands import (
     COMMAND_RETRIES,
     COMMAND_TIMEOUT_S,
     MAV_RESULT_CANCELLED,
@@ -22,8 +23,8 @@ from gcs.commands import (
     CommandInFlight,
     Send,
 )
-from gcs.params import PARAM_RETRIES, PARAM_TIMEOUT_S, ParamClient, ParamInFlight, param_value
-from gcs.transport import GCS_COMPID, GCS_SYSID
+from gcs.mavlink.params import PARAM_RETRIES, PARAM_TIMEOUT_S, ParamClient, ParamInFlight, param_value
+from gcs.mavlink.transport import GCS_COMPID, GCS_SYSID
 
 ARM = mavlink.MAV_CMD_COMPONENT_ARM_DISARM
 TAKEOFF = mavlink.MAV_CMD_NAV_TAKEOFF

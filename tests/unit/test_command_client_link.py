@@ -1,8 +1,8 @@
 """The ground station's command and parameter clients against a drone's own MAVLink services, with no socket.
 
-Two real protocol objects joined by a fake link that can lose chosen messages: the clients of gcs/commands.py and
-gcs/params.py on one side, the drone's link services (sitl/protocol, with a recording fake vehicle) on the other.
-Time is a number both sides are given. What is checked is the conversation: a lost command is resent with its
+Two real protocol objects joined by a fake link that can lose chosen messages: the clients of gcs/mavlink/commands.py
+and gcs/mavlink/params.py on one side, the drone's link services (sitl/protocol, with a recording fake vehicle) on the
+other. Time is a number both sides are given. What is checked is the conversation: a lost command is resent with its
 retry count and acted on once, a lost ACK makes the drone answer the retry from its cache without acting twice, and
 a value the drone refuses comes back as the value it kept.
 """
@@ -14,8 +14,8 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.commands import COMMAND_TIMEOUT_S, Ack, CommandClient, Send
-from gcs.params import PARAM_RETRIES, ParamClient
+from gcs.mavlink.commands import COMMAND_TIMEOUT_S, Ack, CommandClient, Send
+from gcs.mavlink.params import PARAM_RETRIES, ParamClient
 from sitl.params import ParamDef, ParamStore
 from sitl.protocol import Identity, LinkServices
 from sitl.protocol.testing import FakeVehicle, Wire

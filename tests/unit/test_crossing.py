@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from gcs.crossing import CrossingError, CrossingMove, antipodal_goals
+from gcs.flight.crossing import CrossingError, CrossingMove, antipodal_goals
 
 
 def _circle(n: int, radius_m: float) -> dict[int, tuple[float, float, float]]:

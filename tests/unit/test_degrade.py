@@ -11,17 +11,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gcs.behaviours import FollowSpec, LeaderFollower, SwarmState
 from gcs.cli import main as swarm_main
-from gcs.faults import FAULT_NAMES, FAULTS, FaultError, fault_request
-from gcs.formation import CircleSpec, FormationEngine, TransitionLimits, min_pairwise_distance_m
-from gcs.losses import WRECK_CLEARANCE_M, DroneLoss, LossPolicy, landing_clear_of, loss_line
-from gcs.metrics import compute_metrics
-from gcs.mission_file import FaultStep, MissionFileError, parse_mission
-from gcs.recording import DroneSample, FlightRecording, StepRecord
-from gcs.report import summary_text
-from gcs.station import failsafe_text, format_status
-from gcs.swarm import crash_cause
+from gcs.fleet.faults import FAULT_NAMES, FAULTS, FaultError, fault_request
+from gcs.fleet.losses import WRECK_CLEARANCE_M, DroneLoss, LossPolicy, landing_clear_of, loss_line
+from gcs.fleet.swarm import crash_cause
+from gcs.flight.behaviours import FollowSpec, LeaderFollower, SwarmState
+from gcs.flight.formation import CircleSpec, FormationEngine, TransitionLimits, min_pairwise_distance_m
+from gcs.missions.mission_file import FaultStep, MissionFileError, parse_mission
+from gcs.record.metrics import compute_metrics
+from gcs.record.recording import DroneSample, FlightRecording, StepRecord
+from gcs.supervisor.station import failsafe_text, format_status
+from gcs.view.report import summary_text
 from sitl.harness import process_exit_cause
 
 LIMITS = TransitionLimits(max_speed_mps=1.5, max_accel_mps2=1.0)

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gcs.formation import (
+from gcs.flight.formation import (
     CircleSpec,
     Formation,
     FormationEngine,

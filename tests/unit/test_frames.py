@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gcs.frames import DroneFrame, SwarmFrame, origin_from_home
+from gcs.flight.frames import DroneFrame, SwarmFrame, origin_from_home
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
 

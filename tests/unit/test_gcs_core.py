@@ -9,9 +9,9 @@ from typing import Any
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.control import ControlClient, ControlError, ControlServer
-from gcs.fleet import Fleet
-from gcs.harness import grid_layout, line_layout
+from gcs.fleet.harness import grid_layout, line_layout
+from gcs.fleet.telemetry import Fleet
+from gcs.supervisor.control import ControlClient, ControlError, ControlServer
 
 pytestmark = pytest.mark.timeout(30)
 

@@ -1,6 +1,6 @@
 """The ground station's geodesy against the drone's: two implementations of one local-frame definition.
 
-gcs/geodesy.py and sitl/dynamics/geodesy.py are written independently (ECEF rotation and an ECEF-to-geodetic
+gcs/flight/geodesy.py and sitl/dynamics/geodesy.py are written independently (ECEF rotation and an ECEF-to-geodetic
 solution on one side, a closed-form projection inverted by Newton steps on the other), so a projection bug in
 either shows here instead of cancelling out in every flight.
 """
@@ -12,7 +12,7 @@ import random
 
 import pytest
 
-from gcs.geodesy import GeoPoint, NedFrame, geo_from_ned, ned_from_geo, wrap_pi
+from gcs.flight.geodesy import GeoPoint, NedFrame, geo_from_ned, ned_from_geo, wrap_pi
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.dynamics.plant import GeoPoint as DroneGeoPoint
 

@@ -1,5 +1,6 @@
-"""Link settings on the ground station's side (gcs/links.py): the ``--link-*`` options, a mission's ``[swarm.links]``,
-the same rules and messages as the drone's ``--link``, and their way into every drone's command line."""
+"""Link settings on the ground station's side (gcs/fleet/links.py): the ``--link-*`` options, a mission's
+``[swarm.links]``, the same rules and messages as the drone's ``--link``, and their way into every drone's command
+line."""
 
 from __future__ import annotations
 
@@ -11,9 +12,9 @@ import pytest
 
 from gcs.cli import main as swarm_main
 from gcs.composition import launch_plan, link_profile
-from gcs.harness import SpawnPlan
-from gcs.links import LINK_CLASSES, LINK_KEYS, LinkPlan, LinkSettings, parse_link_value
-from gcs.mission_file import MissionFileError, parse_mission
+from gcs.fleet.harness import SpawnPlan
+from gcs.fleet.links import LINK_CLASSES, LINK_KEYS, LinkPlan, LinkSettings, parse_link_value
+from gcs.missions.mission_file import MissionFileError, parse_mission
 from sitl.harness.processes import host_args, sitl_args
 from sitl.linkmodel import IMPAIRMENT_KEYS, LinkImpairment, LinkProfile
 from sitl.linkmodel import LINK_CLASSES as SITL_LINK_CLASSES

@@ -1,5 +1,5 @@
-"""The ground station's fast reader (gcs/wire.py) gives what pymavlink's parser gives, for every numeric message class
-of the dialect, signed and unsigned, several frames to a datagram, with random field values; and leaves everything
+"""The ground station's fast reader (gcs/mavlink/wire.py) gives what pymavlink's parser gives, for every numeric message
+class of the dialect, signed and unsigned, several frames to a datagram, with random field values; and leaves everything
 else to pymavlink (None)."""
 
 from __future__ import annotations
@@ -15,9 +15,9 @@ from typing import Any
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs import signing
-from gcs.transport import GcsSocket
-from gcs.wire import _READERS, _crc, _crc_pymavlink, read_datagram
+from gcs.mavlink import signing
+from gcs.mavlink.transport import GcsSocket
+from gcs.mavlink.wire import _READERS, _crc, _crc_pymavlink, read_datagram
 
 pytestmark = pytest.mark.timeout(60)
 

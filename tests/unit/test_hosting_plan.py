@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from gcs.composition import launch_plan
-from gcs.harness import SpawnPlan
+from gcs.fleet.harness import SpawnPlan
 from sitl.cli import build_parser, parse_instances
 from sitl.dynamics.plant import DEFAULT_HOME
 from sitl.harness.processes import LaunchPlan, host_args, host_groups, sitl_args

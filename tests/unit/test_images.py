@@ -1,5 +1,5 @@
 """MAVLink image transmission: the drone's answer to an image request (sitl/protocol/images.py) and the ground
-station putting the image back together (gcs/images.py), through a wire that really packs and parses."""
+station putting the image back together (gcs/mavlink/images.py), through a wire that really packs and parses."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import os
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.images import JPEG, PNG, ImageAssembler, image_request
+from gcs.mavlink.images import JPEG, PNG, ImageAssembler, image_request
 from sitl.protocol.images import MAX_IMAGES_PER_S, PAYLOAD_BYTES, EncodedImage, ImageService
 from sitl.protocol.testing import Wire
 

@@ -36,9 +36,9 @@ def test_the_ground_station_and_the_simulation_keep_to_their_import_contracts() 
 @pytest.mark.parametrize(
     ("module", "line", "complaint"),
     [
-        ("gcs/formation.py", "import sitl.world", "gcs.formation -> sitl.world"),
-        ("gcs/bench.py", "import gcs.composition", "gcs.bench -> gcs.composition"),
-        ("sitl/harness/harness.py", "import gcs.harness", "sitl.harness.harness -> gcs.harness"),
+        ("gcs/flight/formation.py", "import sitl.world", "gcs.flight.formation -> sitl.world"),
+        ("gcs/bench/scaling.py", "import gcs.composition", "gcs.bench.scaling -> gcs.composition"),
+        ("sitl/harness/harness.py", "import gcs.fleet.harness", "sitl.harness.harness -> gcs.fleet.harness"),
         ("sitl/world.py", "import sitl.world_view", "sitl.world -> sitl.world_view"),
     ],
 )

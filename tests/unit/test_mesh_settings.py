@@ -14,8 +14,8 @@ import pytest
 from gcs.cli import _neighbour_plan, build_parser
 from gcs.cli import main as swarm_main
 from gcs.composition import launch_plan
-from gcs.harness import SpawnPlan
-from gcs.links import (
+from gcs.fleet.harness import SpawnPlan
+from gcs.fleet.links import (
     DEFAULT_MESH_EXPONENT,
     DEFAULT_MESH_RANGE_M,
     MAX_MESH_EXPONENT,
@@ -23,7 +23,7 @@ from gcs.links import (
     NeighbourPlan,
     mesh_value_problem,
 )
-from gcs.mission_file import MissionFileError, parse_mission
+from gcs.missions.mission_file import MissionFileError, parse_mission
 from sitl.cli import build_parser as sitl_parser
 from sitl.cli import main as sitl_main
 from sitl.harness.processes import host_args, sitl_args

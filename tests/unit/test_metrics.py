@@ -9,7 +9,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from gcs.metrics import (
+from gcs.record.metrics import (
     ALIGNMENT_CONVERGED,
     ALIGNMENT_MIN_SPEED_MPS,
     FORMATION_SETTLED_RMS_M,
@@ -20,8 +20,8 @@ from gcs.metrics import (
     compute_metrics,
     settle_time,
 )
-from gcs.recording import DroneSample, EventRecord, FlightRecording, StepRecord, Vec3
-from gcs.report import summary_text
+from gcs.record.recording import DroneSample, EventRecord, FlightRecording, StepRecord, Vec3
+from gcs.view.report import summary_text
 
 RATE_HZ = 50.0
 

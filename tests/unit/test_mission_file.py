@@ -8,8 +8,9 @@ from pathlib import Path
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.formation import CircleSpec, GridSpec
-from gcs.mission_file import (
+from gcs.flight.formation import CircleSpec, GridSpec
+from gcs.mavlink.params import param_set_message, param_value
+from gcs.missions.mission_file import (
     BehaviourStep,
     FlockStep,
     FollowStep,
@@ -23,7 +24,6 @@ from gcs.mission_file import (
     load_mission,
     parse_mission,
 )
-from gcs.params import param_set_message, param_value
 
 MISSIONS = Path(__file__).resolve().parents[2] / "missions"
 

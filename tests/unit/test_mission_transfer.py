@@ -1,8 +1,8 @@
 """The ground station's mission client against a drone's own mission server, with no socket.
 
 Two real protocol objects joined by a fake link that can lose chosen messages: ``MissionClient``
-(gcs/mission_transfer.py) on one side, the drone's link services (sitl/protocol, a recording fake vehicle) on the
-other, every message packed and parsed by pymavlink on the way. Both sides are given the same number as the time
+(gcs/mavlink/mission_transfer.py) on one side, the drone's link services (sitl/protocol, a recording fake vehicle) on
+the other, every message packed and parsed by pymavlink on the way. Both sides are given the same number as the time
 and their timers are run by advancing it, so retries and timeouts take no wall time.
 """
 
@@ -16,8 +16,8 @@ from typing import Any
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.commands import Send
-from gcs.mission_transfer import (
+from gcs.mavlink.commands import Send
+from gcs.mavlink.mission_transfer import (
     MISSION_RETRIES,
     MISSION_TIMEOUT_S,
     MISSION_TYPE_FENCE,
@@ -29,7 +29,7 @@ from gcs.mission_transfer import (
     TransferResult,
     WireItem,
 )
-from gcs.qgc_plan import fence_items, load_plan, mission_items
+from gcs.missions.qgc_plan import fence_items, load_plan, mission_items
 from sitl.params import ParamDef, ParamStore
 from sitl.protocol import Identity, LinkServices
 from sitl.protocol.testing import FakeVehicle, Wire

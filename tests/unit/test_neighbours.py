@@ -7,8 +7,8 @@ from typing import Any
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.fleet import Fleet
-from gcs.relay import NeighbourRelay
+from gcs.fleet.relay import NeighbourRelay
+from gcs.fleet.telemetry import Fleet
 from sitl.protocol.neighbours import NEIGHBOUR_TIMEOUT_S, NeighbourTable
 
 

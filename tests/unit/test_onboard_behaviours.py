@@ -1,6 +1,6 @@
-"""The shipped onboard behaviours (sitl/onboard/behaviours) fly the ground station's laws (gcs/behaviours.py), one
-drone's view at a time: the same steering for the same neighbours, the same slots for the same leader; the ground
-station's side (gcs/onboard.py) writes parameters the drones read back; missions that fly them onboard load them,
+"""The shipped onboard behaviours (sitl/onboard/behaviours) fly the ground station's laws (gcs/flight/behaviours.py),
+one drone's view at a time: the same steering for the same neighbours, the same slots for the same leader; the ground
+station's side (gcs/flight/onboard.py) writes parameters the drones read back; missions that fly them onboard load them,
 and a mission they cannot fly is one line."""
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gcs.behaviours import FlockSpec, flock_acceleration, follower_slots, turn_towards
-from gcs.mission_file import FlockStep, MissionFileError, flown_onboard, load_mission, parse_mission
-from gcs.onboard import FLOCKING, LEADER_FOLLOWER, MAX_POINTS, OnboardSpecError, flock_params, point_values
+from gcs.flight.behaviours import FlockSpec, flock_acceleration, follower_slots, turn_towards
+from gcs.flight.onboard import FLOCKING, LEADER_FOLLOWER, MAX_POINTS, OnboardSpecError, flock_params, point_values
+from gcs.missions.mission_file import FlockStep, MissionFileError, flown_onboard, load_mission, parse_mission
 from sitl.onboard import NeighbourReport, OnboardState
 from sitl.onboard.behaviours import points
 from sitl.onboard.behaviours.flocking import Flocking, steering

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from gcs.pace_monitor import PaceMonitor
+from gcs.fleet.pace_monitor import PaceMonitor
 
 pytestmark = pytest.mark.timeout(10)
 

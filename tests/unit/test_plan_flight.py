@@ -1,4 +1,5 @@
-"""Choosing drones and offsets for a plan's copies (gcs/plan_flight.py), and `swarm plan`'s mistakes before sending."""
+"""Choosing drones and offsets for a plan's copies (gcs/missions/plan_flight.py), and `swarm plan`'s mistakes before
+sending."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from gcs.cli import main
-from gcs.plan_flight import PlanUsageError, copy_offsets, parse_drones, parse_offsets
+from gcs.missions.plan_flight import PlanUsageError, copy_offsets, parse_drones, parse_offsets
 
 SYSIDS = [14, 15, 16, 17, 18]
 SPAWN = {14: (0.0, -8.0), 15: (0.0, 0.0), 16: (0.0, 8.0), 17: (8.0, -8.0), 18: (8.0, 0.0)}

@@ -7,8 +7,8 @@ from itertools import combinations
 
 import pytest
 
-from gcs.harness import LAST_INSTANCE, MAX_DRONES
-from gcs.transport import GCS_SYSID
+from gcs.fleet.harness import LAST_INSTANCE, MAX_DRONES
+from gcs.mavlink.transport import GCS_SYSID
 from sitl.cli import _links, build_parser
 from sitl.harness.simulation import MAX_INSTANCES
 from sitl.ports import GCS_REMOTE_PORT, INSTANCES, MAX_INSTANCE, InstancePorts, instance_ports

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from gcs.probe import latency_stats
+from gcs.bench.probe import latency_stats
 
 
 def test_stats_are_nearest_rank_percentiles_in_milliseconds() -> None:

@@ -1,9 +1,10 @@
-"""The orchestration pieces ``swarm fly``, ``swarm up`` and ``swarm bench`` share (gcs/procedures.py, recorder)."""
+"""The orchestration pieces ``swarm fly``, ``swarm up`` and ``swarm bench`` share (gcs/command/procedures.py,
+recorder)."""
 
 from __future__ import annotations
 
-from gcs.procedures import ALT_HOLD_S, ALT_TOLERANCE_M, SteadyAltitude
-from gcs.recorder import CollisionPairs
+from gcs.command.procedures import ALT_HOLD_S, ALT_TOLERANCE_M, SteadyAltitude
+from gcs.record.recorder import CollisionPairs
 
 
 def at(alt_m: float, *sysids: int) -> dict[int, tuple[float, float, float]]:

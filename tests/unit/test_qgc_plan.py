@@ -11,9 +11,9 @@ from typing import Any
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.geodesy import GeoPoint, NedFrame
-from gcs.mission_file import MissionFileError, parse_mission
-from gcs.qgc_plan import (
+from gcs.flight.geodesy import GeoPoint, NedFrame
+from gcs.missions.mission_file import MissionFileError, parse_mission
+from gcs.missions.qgc_plan import (
     FenceItemsError,
     PlanFileError,
     fence_items,

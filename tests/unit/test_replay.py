@@ -11,11 +11,11 @@ from pathlib import Path
 
 import numpy as np
 
-from gcs.losses import DroneLoss
-from gcs.metrics import compute_metrics
-from gcs.recording import EventRecord, FaultRecord, FlightRecording, ObstacleShape
-from gcs.report import write_report
+from gcs.fleet.losses import DroneLoss
+from gcs.record.metrics import compute_metrics
+from gcs.record.recording import EventRecord, FaultRecord, FlightRecording, ObstacleShape
 from gcs.view.replay import replay_document
+from gcs.view.report import write_report
 from gcs.view.report_page import PAYLOADS, REPORT_PAGE_FILE
 from gcs.view.server import STATIC
 from tests.unit.test_report import synthetic_flight

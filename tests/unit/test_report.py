@@ -13,8 +13,9 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.recording import DroneSample, EventRecord, FlightRecording, StepRecord
-from gcs.report import (
+from gcs.record.recording import DroneSample, EventRecord, FlightRecording, StepRecord
+from gcs.record.tlog import TlogWriter
+from gcs.view.report import (
     ALTITUDE_FILE,
     METRICS_FILE,
     SEPARATION_FILE,
@@ -22,7 +23,6 @@ from gcs.report import (
     TRAJECTORIES_FILE,
     write_report,
 )
-from gcs.tlog import TlogWriter
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 REQUIRED_KEYS = {

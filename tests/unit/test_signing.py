@@ -11,8 +11,8 @@ from typing import Any
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs import signing as gcs_signing
-from gcs.transport import GcsSocket
+from gcs.mavlink import signing as gcs_signing
+from gcs.mavlink.transport import GcsSocket
 from sitl.protocol import framing
 from sitl.protocol.signing import (
     ACCEPT_UNSIGNED,

@@ -1,9 +1,9 @@
 """Long STATUSTEXTs, cut into chunks by the drone (sitl/protocol/statustext.py), come out whole and once at the
-ground station (gcs/statustext.py), however they interleave; a text whose end never comes does not pile up."""
+ground station (gcs/mavlink/statustext.py), however they interleave; a text whose end never comes does not pile up."""
 
 from __future__ import annotations
 
-from gcs.statustext import MAX_PENDING, StatusTextAssembler
+from gcs.mavlink.statustext import MAX_PENDING, StatusTextAssembler
 from sitl.protocol.statustext import StatusTextEncoder
 
 LONG = "Avoidance: braking for drone 7 at 1.42 m, closing at 1.9 m/s, heading 231 deg"  # 78 characters

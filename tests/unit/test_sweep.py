@@ -10,7 +10,6 @@ from pathlib import Path
 
 import pytest
 
-from gcs.report import write_report
 from gcs.sweep.plan import (
     LINK_LOSS,
     Axis,
@@ -26,6 +25,7 @@ from gcs.sweep.runs import FIRST_SWEEP_INSTANCE, InstanceLocks, RunResult
 from gcs.sweep.stats import bootstrap_mean_ci, distribution, event_rate, run_metrics, summarise, wilson_ci
 from gcs.sweep.summary import RUNS_CSV, SUMMARY_JSON, write_summary
 from gcs.sweep.sweep import PLAN_FILE, prepare
+from gcs.view.report import write_report
 from tests.unit.test_report import synthetic_flight
 
 

@@ -18,7 +18,7 @@ from typing import Any
 import aiohttp
 import pytest
 
-from gcs.fleet import DroneView
+from gcs.fleet.telemetry import DroneView
 from gcs.view.feed import FramePacer
 from gcs.view.scene import ObstacleShape, drone_state, frame
 from gcs.view.server import DEFAULT_PORT, ViewError, ViewServer, serve_view

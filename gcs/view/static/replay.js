@@ -31,7 +31,7 @@ export function startReplay(view, data) {
     return { ...d, pos, lastKnown, slot };
   }
 
-  // ---- separation: the same candidates as gcs/metrics.py, from the positions drawn ---------------------------------
+  // ---- separation: the same candidates as gcs/record/metrics.py, from the positions drawn ---------------------------------
   function airborne(d, i) { return d.airborne[i] === 1 && d.pos[i] !== null; }
   function sub(a, b) { return [a[0] - b[0], a[1] - b[1], a[2] - b[2]]; }
   function norm(v) { return Math.hypot(v[0], v[1], v[2]); }

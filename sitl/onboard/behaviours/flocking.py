@@ -1,6 +1,6 @@
 """Reynolds flocking as an onboard behaviour: each drone steers itself from its own estimate and its neighbour table.
 
-The law is the ground station's (gcs/behaviours.py, ``Flock``), for one drone: separation from every drone in the
+The law is the ground station's (gcs/flight/behaviours.py, ``Flock``), for one drone: separation from every drone in the
 table whose distance, shortened by what the pair closes in ``FLK_SEP_LOOK`` seconds, is inside ``FLK_SEP_R``;
 alignment with, and cohesion towards, the drones within ``FLK_NBR_R`` (horizontal distance); migration of the local
 centroid (itself and those neighbours) towards the current migration point. Separation comes first in the

@@ -13,8 +13,8 @@ Every drone runs the same class; ``LF_LEADER`` (a sysid) says who leads:
   velocity (and the slot's turn) as velocity feed-forward. The heading starts at ``LF_HDG0`` (degrees, the first
   leg's course) and follows the course of the leader's reported velocity through a first-order, rate-limited
   filter (time constant 0.5 s, at most ``LF_TURN_RATE`` rad/s, held while the leader moves slower than 0.3 m/s):
-  the ground station's law (gcs/behaviours.py ``LeaderFollower``). Until the leader is heard a follower holds where
-  it is; it joins its slot by a point moving towards it at ``LF_SPEED``, so nobody jumps at a slot metres away.
+  the ground station's law (gcs/flight/behaviours.py ``LeaderFollower``). Until the leader is heard a follower holds
+  where it is; it joins its slot by a point moving towards it at ``LF_SPEED``, so nobody jumps at a slot metres away.
   Collision prevention stays under it all.
 
 What differs from the ground station's leader-follower: the join is each follower's straight line to its slot rather
@@ -73,7 +73,8 @@ class Segment:
 class Path:
     """The leader's path from where it was at the start through its waypoints, each corner rounded by an arc of
     ``turn_radius_m`` (smaller where the legs are short: an arc takes at most half of each) so that the course turns
-    continuously, as the ground station's leader path (gcs/behaviours.py ``LeaderPath``); a reversal is a stop."""
+    continuously, as the ground station's leader path (gcs/flight/behaviours.py ``LeaderPath``); a reversal is a
+    stop."""
 
     def __init__(self, start: Vec2, waypoints: tuple[Vec2, ...], turn_radius_m: float, max_accel_mps2: float) -> None:
         points = [start]

@@ -58,7 +58,7 @@ def limit_norm(a: Vec2, max_norm: float) -> Vec2:
 
 def priority_sum(priority: Vec2, extra: Vec2, max_norm: float) -> Vec2:
     """``priority + s * extra`` with the largest s in [0, 1] within ``max_norm``; a priority longer than the limit is
-    cut to it and the extra dropped (the law of gcs/behaviours.py ``priority_sum``, for one drone)."""
+    cut to it and the extra dropped (the law of gcs/flight/behaviours.py ``priority_sum``, for one drone)."""
     p2 = priority[0] ** 2 + priority[1] ** 2
     m2 = max_norm * max_norm
     if p2 >= m2:

@@ -1,0 +1,1 @@
+"""Mission files and QGroundControl plans: read, checked, and flown as plans."""

@@ -1,0 +1,852 @@
+"""Mission files: a swarm flight written down as TOML, validated into frozen steps before anything flies.
+
+```toml
+name = "grid_to_circle"
+[swarm]
+drones = 9            # spawned on a grid (or line) with this spacing
+spacing_m = 2.0
+[[steps]]
+action = "takeoff"    # takeoff | plan | formation | flock | follow | swap | hold | behaviour | fault | land | rtl
+alt_m = 3.0
+[[steps]]
+action = "formation"
+shape = "circle"      # grid | circle | line | v, with the fields of that shape (docs/missions.md)
+radius_m = 3.0
+alt_m = 3.0
+hold_s = 30.0
+```
+
+``flock`` and ``follow`` steps carry the fields of ``FlockSpec`` and ``FollowSpec`` (gcs/flight/behaviours.py; angles in
+degrees), and ``[swarm] params = { NAME = value }`` lists drone parameters set before arming (docs/missions.md).
+A ``fault`` step (``drone``, ``fault``, optional ``motor``, ``for_s`` and ``after_s``) injects a fault
+(gcs/fleet/faults.py) and ``[swarm] loss_policy`` says what the others do when a drone is lost (gcs/fleet/losses.py).
+
+TOML is in the standard library (no new dependency) and reads well. A mistake is reported as one line
+``FILE:LINE: steps[2].radius_m: must be a positive number``; tomllib gives no positions for values, so the line is
+found by locating the step's ``[[steps]]`` header and the key inside it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from gcs.fleet.faults import FaultError, FaultRequest, fault_request
+from gcs.fleet.harness import LAYOUTS, MAX_DRONES
+from gcs.fleet.links import (
+    LINK_CLASSES,
+    LINK_KEYS,
+    MESH_KEYS,
+    NEIGHBOUR_MODES,
+    LinkPlan,
+    MeshPlan,
+    NeighbourPlan,
+    mesh_value_problem,
+    plan_from_tables,
+    value_problem,
+)
+from gcs.fleet.losses import LOSS_POLICIES, LossPolicy
+from gcs.flight.behaviours import FlockSpec, FollowSpec
+from gcs.flight.formation import CircleSpec, Formation, FormationError, GridSpec, LineSpec, VSpec
+from gcs.flight.onboard import FLOCKING, LEADER_FOLLOWER, absolute_spec
+from gcs.flight.onboard import MAX_POINTS as ONBOARD_MAX_POINTS
+from gcs.missions.plan_flight import OFFSET_MODES, PlanUsageError, parse_drones
+from gcs.missions.qgc_plan import PlanFileError, QgcPlan, load_plan
+
+
+class MissionFileError(ValueError):
+    """One line: file, line, field and the problem."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SwarmSpec:
+    drones: int
+    layout: str = "grid"
+    spacing_m: float = 2.0
+    # Drone parameters set over MAVLink (PARAM_SET) before arming; an int travels as INT32, a float as REAL32.
+    params: tuple[tuple[str, int | float], ...] = ()
+    relay: bool = True  # false: no neighbour relay (the mesh, if any, or the cameras alone)
+    # [swarm] neighbours = "mesh" | "both" and [swarm.mesh]: the drone-to-drone mesh radio; None: no mesh
+    mesh: MeshPlan | None = None
+    # [swarm.links]: the link model's settings per link class (docs/links.md)
+    links: LinkPlan = field(default_factory=LinkPlan)
+    # [swarm] behaviour = "file.py:Class": the onboard behaviour every drone carries (path absolute, read relative to
+    # the mission file; docs/onboard.md); a ``behaviour`` step runs it
+    behaviour: str | None = None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ObstacleSpec:
+    """A static obstacle in the swarm frame: a vertical pole standing on the ground, or a sphere in the air."""
+
+    cylinder: bool
+    north_m: float
+    east_m: float
+    radius_m: float
+    height_m: float = 0.0  # pole height above the ground (cylinder)
+    alt_m: float = 0.0  # centre altitude (sphere)
+
+    @property
+    def centre_alt_m(self) -> float:
+        return self.height_m / 2.0 if self.cylinder else self.alt_m
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TakeoffStep:
+    alt_m: float
+    timeout_s: float = 30.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FormationStep:
+    name: str
+    formation: Formation
+    hold_s: float  # time in the formation after the transition started
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FlockStep:
+    name: str
+    spec: FlockSpec
+    duration_s: float
+    onboard: bool = False  # every drone flies the law itself (gcs/flight/onboard.py), not the ground station
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FollowStep:
+    name: str
+    spec: FollowSpec  # leader_sysid None: resolved from leader_drone when the swarm is up
+    leader_drone: int | None  # 1..drones: the swarm's n-th drone leads (its sysid depends on --first-instance)
+    duration_s: float | None  # None: until the leader reaches its last waypoint
+    onboard: bool = False  # every drone flies the law itself (gcs/flight/onboard.py), not the ground station
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SwapStep:
+    """Every drone straight to the point opposite it through the swarm's centre, paths crossing (avoidance test)."""
+
+    speed_mps: float
+    accel_mps2: float = 1.0
+    timeout_s: float = 30.0  # every drone within tolerance_m of its goal within this time of the step's start
+    tolerance_m: float = 0.5
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class HoldStep:
+    duration_s: float
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class BehaviourStep:
+    """Every drone runs the mission's onboard behaviour for ``duration_s`` (BHV_EN = 1, then 0 and Hold)."""
+
+    duration_s: float
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LandStep:
+    timeout_s: float = 60.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RtlStep:
+    timeout_s: float = 120.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FaultStep:
+    """A fault injected into one drone ``after_s`` after the step is reached; the mission goes straight on to the
+    next step (so a fault placed before a formation step happens during that formation)."""
+
+    drone: int  # 1..drones: the swarm's n-th drone (its sysid depends on --first-instance)
+    fault: FaultRequest
+    after_s: float = 0.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PlanStep:
+    """A QGroundControl plan flown in AUTO.MISSION by some of the drones, each its own copy moved by an offset
+    (gcs/missions/plan_flight.py): uploaded, started (``start``), and over when every one has finished it (and landed,
+    when the plan ends with a land or a return) or fails after ``timeout_s``."""
+
+    file: Path
+    plan: QgcPlan  # read and checked with the mission file, before anything flies
+    drones: str = "all"  # "all" or drone numbers 1..drones like "1,3-5"
+    offsets: str | tuple[tuple[float, float], ...] = "spawn"  # spawn | none | one (north, east) per drone
+    start: bool = True
+    timeout_s: float = 120.0
+
+
+Step = (
+    PlanStep
+    | TakeoffStep
+    | FormationStep
+    | FlockStep
+    | FollowStep
+    | SwapStep
+    | HoldStep
+    | LandStep
+    | RtlStep
+    | FaultStep
+    | BehaviourStep
+)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MissionSpec:
+    name: str
+    description: str
+    swarm: SwarmSpec
+    steps: tuple[Step, ...]
+    loss_policy: LossPolicy = LossPolicy.CONTINUE
+    path: Path | None = None
+    obstacles: tuple[ObstacleSpec, ...] = ()
+
+
+# Per shape: the spec class and its fields (name -> kind); angles are given in degrees in files.
+_SHAPES: dict[str, tuple[type, dict[str, str]]] = {
+    "grid": (GridSpec, {"rows": "count", "cols": "count", "spacing_m": "pos", "alt_m": "pos", "heading_deg": "angle"}),
+    "circle": (
+        CircleSpec,
+        {
+            "radius_m": "pos",
+            "alt_m": "pos",
+            "angular_rate_radps": "num",
+            "alt_osc_amp_m": "nonneg",
+            "alt_osc_rate_radps": "num",
+            "alt_osc_phase_step_rad": "num",
+            "phase_deg": "angle",
+        },
+    ),
+    "line": (LineSpec, {"spacing_m": "pos", "alt_m": "pos", "heading_deg": "angle"}),
+    "v": (VSpec, {"spacing_m": "pos", "alt_m": "pos", "angle_deg": "angle", "heading_deg": "angle"}),
+}
+_REQUIRED = {"grid": {"rows", "cols", "spacing_m", "alt_m"}, "circle": {"radius_m", "alt_m"},
+             "line": {"spacing_m", "alt_m"}, "v": {"spacing_m", "alt_m"}}  # fmt: skip
+
+
+# Behaviours: their fields (name -> kind) and the spec field each fills, where the file's differs (degrees).
+_FLOCK_FIELDS: dict[str, str] = {
+    "alt_m": "pos",
+    "migration_ne_m": "points",
+    "max_speed_mps": "pos",
+    "max_accel_mps2": "pos",
+    "neighbour_radius_m": "pos",
+    "separation_radius_m": "pos",
+    "separation_weight_mps2": "pos",
+    "separation_lookahead_s": "nonneg",
+    "alignment_weight_per_s": "nonneg",
+    "cohesion_weight_per_s2": "nonneg",
+    "migration_weight_per_s": "nonneg",
+    "arrival_radius_m": "pos",
+}
+_FOLLOW_FIELDS: dict[str, str] = {
+    "waypoints_ne_m": "points",
+    "alt_m": "pos",
+    "speed_mps": "pos",
+    "leader_sysid": "count",
+    "offsets_fr_m": "offsets",
+    "spacing_m": "pos",
+    "angle_deg": "angle",
+    "turn_radius_m": "pos",
+    "max_accel_mps2": "pos",
+    "max_turn_rate_degps": "pos",
+}
+_RENAMED = {"angle_deg": "angle_rad", "max_turn_rate_degps": "max_turn_rate_radps"}
+_FLOCK_REQUIRED = {"alt_m"}
+_FOLLOW_REQUIRED = {"waypoints_ne_m", "alt_m"}
+_PAIR_LABELS = {"points": "[north, east]", "offsets": "[forward, right]"}
+
+
+def number_problem(value: Any, kind: str) -> str | None:
+    """Why ``value`` is not a valid number of this kind (count, pos, nonneg, num, angle), or None."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        return f"must be a number, got {value!r}"
+    if kind == "count" and (not isinstance(value, int) or value < 1):
+        return f"must be a whole number >= 1, got {value!r}"
+    if kind == "pos" and value <= 0:
+        return f"must be a positive number, got {value!r}"
+    if kind == "nonneg" and value < 0:
+        return f"must be >= 0, got {value!r}"
+    return None
+
+
+def field_problem(value: Any, kind: str) -> str | None:
+    """Like ``number_problem``, also for lists of pairs (kinds points, offsets)."""
+    if kind not in _PAIR_LABELS:
+        return number_problem(value, kind)
+    label = _PAIR_LABELS[kind]
+    if not isinstance(value, list | tuple) or not value:
+        return f"must be a non-empty list of {label} pairs, got {value!r}"
+    for pair in value:
+        if not isinstance(pair, list | tuple) or len(pair) != 2 or any(number_problem(v, "num") for v in pair):
+            return f"must be a list of {label} pairs of numbers, got {pair!r} in it"
+    return None
+
+
+def _convert(key: str, value: Any, kind: str) -> tuple[str, Any]:
+    if kind in _PAIR_LABELS:
+        return key, tuple((float(a), float(b)) for a, b in value)
+    if key in _RENAMED:
+        return _RENAMED[key], math.radians(value)
+    return key, int(value) if kind == "count" else float(value)
+
+
+def _build_behaviour(cls: type, what: str, kinds: dict[str, str], required: set[str], fields: dict[str, Any]) -> Any:
+    for key in fields:
+        if key not in kinds:
+            raise ValueError(f"{key}: not a field of {what} (fields: {', '.join(kinds)})")
+    missing = sorted(required - set(fields))
+    if missing:
+        raise ValueError(f"missing field '{missing[0]}' for {what}")
+    kwargs: dict[str, Any] = {}
+    for key, value in fields.items():
+        problem = field_problem(value, kinds[key])
+        if problem is not None:
+            raise ValueError(f"{key}: {problem}")
+        name, converted = _convert(key, value, kinds[key])
+        kwargs[name] = converted
+    try:
+        return cls(**kwargs)
+    except (FormationError, TypeError) as exc:
+        raise ValueError(str(exc)) from None
+
+
+def build_flock(fields: dict[str, Any]) -> FlockSpec:
+    """A flocking spec from plain fields (a mission step's, or the CLI's); ValueError says which field is wrong."""
+    spec: FlockSpec = _build_behaviour(FlockSpec, "flocking", _FLOCK_FIELDS, _FLOCK_REQUIRED, fields)
+    return spec
+
+
+def build_follow(fields: dict[str, Any]) -> FollowSpec:
+    """A leader-follower spec from plain fields (the CLI's, with ``leader_sysid``); ValueError names the field."""
+    spec: FollowSpec = _build_behaviour(FollowSpec, "leader-follower", _FOLLOW_FIELDS, _FOLLOW_REQUIRED, fields)
+    return spec
+
+
+def build_formation(shape: str, fields: dict[str, Any]) -> Formation:
+    """A formation spec from plain fields (as in a mission file step); ValueError says which field is wrong."""
+    if shape not in _SHAPES:
+        raise ValueError(f"shape must be one of {', '.join(_SHAPES)}, got {shape!r}")
+    spec_cls, kinds = _SHAPES[shape]
+    for key in fields:
+        if key not in kinds:
+            raise ValueError(f"{key}: not a field of a {shape} formation (fields: {', '.join(kinds)})")
+    missing = sorted(_REQUIRED[shape] - set(fields))
+    if missing:
+        raise ValueError(f"missing field '{missing[0]}' for a {shape} formation")
+    kwargs: dict[str, Any] = {}
+    for key, value in fields.items():
+        problem = number_problem(value, kinds[key])
+        if problem is not None:
+            raise ValueError(f"{key}: {problem}")
+        if kinds[key] == "angle":
+            kwargs[key.replace("_deg", "_rad")] = math.radians(value)
+        else:
+            kwargs[key] = int(value) if kinds[key] == "count" else float(value)
+    try:
+        formation: Formation = spec_cls(**kwargs)
+    except (FormationError, TypeError) as exc:
+        raise ValueError(str(exc)) from None
+    return formation
+
+
+# A table header line: [name] or [[name]] alone (a comment may follow). Not the continuation of a multi-line array
+# such as "  [12.0, 0.0],", which also starts with a bracket.
+_HEADER = re.compile(r"""^\s*\[\[?\s*[A-Za-z_"'][^\]]*\]\]?\s*(#.*)?$""")
+
+
+class _Locator:
+    """Finds the line of a field in the TOML text (1-based), for error messages."""
+
+    def __init__(self, text: str) -> None:
+        self.lines = text.splitlines()
+
+    def _table_start(self, table: str, index: int | None) -> int | None:
+        pattern = re.compile(rf"^\s*\[\[\s*{table}\s*\]\]" if index is not None else rf"^\s*\[\s*{table}\s*\]")
+        seen = -1
+        for n, line in enumerate(self.lines):
+            if pattern.match(line):
+                seen += 1
+                if index is None or seen == index:
+                    return n
+        return None
+
+    def line_of(self, table: str | None, index: int | None, key: str | None) -> int:
+        start = -1 if table is None else self._table_start(table, index)
+        if start is None:
+            return 1
+        key_re = re.compile(rf"^\s*{re.escape(key)}\s*=") if key else None
+        for n in range(start + 1, len(self.lines)):
+            if _HEADER.match(self.lines[n]) and n > start:
+                break
+            if key_re is not None and key_re.match(self.lines[n]):
+                return n + 1
+        return start + 1 if start >= 0 else 1
+
+
+class _Reader:
+    def __init__(self, path: Path, locator: _Locator) -> None:
+        self.path = path
+        self.locator = locator
+
+    def fail(self, where: tuple[str | None, int | None], key: str | None, problem: str) -> MissionFileError:
+        table, index = where
+        line = self.locator.line_of(table, index, key)
+        label = ".".join(p for p in ((f"{table}[{index}]" if index is not None else table), key) if p)
+        return MissionFileError(
+            f"{self.path}:{line}: {label}: {problem}" if label else f"{self.path}:{line}: {problem}"
+        )
+
+    def number(self, table: dict[str, Any], key: str, where: tuple[str | None, int | None], kind: str) -> float:
+        problem = number_problem(table[key], kind)
+        if problem is not None:
+            raise self.fail(where, key, problem)
+        return float(table[key])
+
+    def field(self, table: dict[str, Any], key: str, where: tuple[str | None, int | None], kind: str) -> None:
+        problem = field_problem(table[key], kind)
+        if problem is not None:
+            raise self.fail(where, key, problem)
+
+    def check_keys(self, table: dict[str, Any], allowed: set[str], where: tuple[str | None, int | None]) -> None:
+        for key in table:
+            if key not in allowed:
+                raise self.fail(where, key, f"unknown field (allowed: {', '.join(sorted(allowed))})")
+
+
+def _formation(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int | None]) -> FormationStep:
+    shape = step.get("shape")
+    if shape not in _SHAPES:
+        raise reader.fail(where, "shape", f"must be one of {', '.join(_SHAPES)}, got {shape!r}")
+    fields = _SHAPES[shape][1]
+    reader.check_keys(step, {"action", "shape", "hold_s", "name", *fields}, where)
+    for key in sorted(_REQUIRED[shape] | {"hold_s"}):
+        if key not in step:
+            raise reader.fail(where, None, f"missing field '{key}' for a {shape} formation")
+    for key in fields:
+        if key in step:
+            reader.number(step, key, where, fields[key])
+    try:
+        formation = build_formation(shape, {k: step[k] for k in fields if k in step})
+    except ValueError as exc:
+        raise reader.fail(where, None, str(exc)) from None
+    name = step.get("name", shape)
+    if not isinstance(name, str):
+        raise reader.fail(where, "name", "must be a string")
+    return FormationStep(name=name, formation=formation, hold_s=reader.number(step, "hold_s", where, "pos"))
+
+
+def _step_name(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int | None], default: str) -> str:
+    name = step.get("name", default)
+    if not isinstance(name, str):
+        raise reader.fail(where, "name", "must be a string")
+    return name
+
+
+def _flock(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int | None]) -> FlockStep:
+    reader.check_keys(step, {"action", "name", "duration_s", "onboard", *_FLOCK_FIELDS}, where)
+    for key in sorted(_FLOCK_REQUIRED | {"duration_s"}):
+        if key not in step:
+            raise reader.fail(where, None, f"missing field '{key}' for a flock step")
+    for key, kind in _FLOCK_FIELDS.items():
+        if key in step:
+            reader.field(step, key, where, kind)
+    duration = reader.number(step, "duration_s", where, "pos")
+    try:
+        spec = build_flock({k: step[k] for k in _FLOCK_FIELDS if k in step})
+    except ValueError as exc:
+        raise reader.fail(where, None, str(exc)) from None
+    onboard = _onboard(reader, step, where, "migration_ne_m", spec.migration_ne_m)
+    return FlockStep(name=_step_name(reader, step, where, "flock"), spec=spec, duration_s=duration, onboard=onboard)
+
+
+def _onboard(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int | None], points_key: str,
+             points: tuple[tuple[float, float], ...]) -> bool:  # fmt: skip
+    """``onboard = true``: the drones fly the step's law themselves; their parameters hold at most MAX_POINTS."""
+    onboard = step.get("onboard", False)
+    if not isinstance(onboard, bool):
+        raise reader.fail(where, "onboard", f"must be true or false, got {onboard!r}")
+    if onboard and len(points) > ONBOARD_MAX_POINTS:
+        raise reader.fail(where, points_key, f"an onboard step takes at most {ONBOARD_MAX_POINTS} points, "
+                                             f"got {len(points)}")  # fmt: skip
+    return onboard
+
+
+def _follow(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int | None], drones: int) -> FollowStep:
+    fields = {k: v for k, v in _FOLLOW_FIELDS.items() if k != "leader_sysid"}
+    reader.check_keys(step, {"action", "name", "duration_s", "leader_drone", "onboard", *fields}, where)
+    for key in sorted(_FOLLOW_REQUIRED):
+        if key not in step:
+            raise reader.fail(where, None, f"missing field '{key}' for a follow step")
+    for key, kind in fields.items():
+        if key in step:
+            reader.field(step, key, where, kind)
+    leader = None
+    if "leader_drone" in step:
+        leader = int(reader.number(step, "leader_drone", where, "count"))
+        if leader > drones:
+            raise reader.fail(where, "leader_drone", f"must be one of the swarm's drones 1..{drones}, got {leader}")
+    offsets = step.get("offsets_fr_m")
+    if offsets is not None and len(offsets) < drones - 1:
+        raise reader.fail(where, "offsets_fr_m", f"{len(offsets)} offsets for {drones - 1} followers: give one each")
+    duration = reader.number(step, "duration_s", where, "pos") if "duration_s" in step else None
+    try:
+        spec = build_follow({k: step[k] for k in fields if k in step})
+    except ValueError as exc:
+        raise reader.fail(where, None, str(exc)) from None
+    name = _step_name(reader, step, where, "follow")
+    onboard = _onboard(reader, step, where, "waypoints_ne_m", spec.waypoints_ne_m)
+    return FollowStep(name=name, spec=spec, leader_drone=leader, duration_s=duration, onboard=onboard)
+
+
+def _step(reader: _Reader, step: Any, index: int, drones: int) -> Step:
+    where: tuple[str | None, int | None] = ("steps", index)
+    if not isinstance(step, dict):
+        raise reader.fail(where, None, "must be a table")
+    action = step.get("action")
+    if action == "takeoff":
+        reader.check_keys(step, {"action", "alt_m", "timeout_s"}, where)
+        if "alt_m" not in step:
+            raise reader.fail(where, None, "missing field 'alt_m'")
+        alt = reader.number(step, "alt_m", where, "pos")
+        timeout = reader.number(step, "timeout_s", where, "pos") if "timeout_s" in step else 30.0
+        return TakeoffStep(alt_m=alt, timeout_s=timeout)
+    if action == "formation":
+        return _formation(reader, step, where)
+    if action == "flock":
+        return _flock(reader, step, where)
+    if action == "follow":
+        return _follow(reader, step, where, drones)
+    if action == "swap":
+        reader.check_keys(step, {"action", "speed_mps", "accel_mps2", "timeout_s", "tolerance_m"}, where)
+        if "speed_mps" not in step:
+            raise reader.fail(where, None, "missing field 'speed_mps'")
+        optional = {k: reader.number(step, k, where, "pos") for k in ("accel_mps2", "timeout_s", "tolerance_m")
+                    if k in step}  # fmt: skip
+        return SwapStep(speed_mps=reader.number(step, "speed_mps", where, "pos"), **optional)
+    if action == "hold":
+        reader.check_keys(step, {"action", "duration_s"}, where)
+        if "duration_s" not in step:
+            raise reader.fail(where, None, "missing field 'duration_s'")
+        return HoldStep(duration_s=reader.number(step, "duration_s", where, "pos"))
+    if action == "behaviour":
+        reader.check_keys(step, {"action", "duration_s"}, where)
+        if "duration_s" not in step:
+            raise reader.fail(where, None, "missing field 'duration_s'")
+        return BehaviourStep(duration_s=reader.number(step, "duration_s", where, "pos"))
+    if action == "fault":
+        return _fault(reader, step, where, drones)
+    if action == "plan":
+        return _plan(reader, step, where, drones)
+    if action in ("land", "rtl"):
+        reader.check_keys(step, {"action", "timeout_s"}, where)
+        cls = LandStep if action == "land" else RtlStep
+        return cls(timeout_s=reader.number(step, "timeout_s", where, "pos")) if "timeout_s" in step else cls()
+    raise reader.fail(
+        where,
+        "action",
+        f"must be takeoff, plan, formation, flock, follow, swap, hold, behaviour, fault, land or rtl, got {action!r}",
+    )
+
+
+def _plan(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int | None], drones: int) -> PlanStep:
+    reader.check_keys(step, {"action", "file", "drones", "offsets", "start", "timeout_s"}, where)
+    if not isinstance(step.get("file"), str):
+        raise reader.fail(where, "file" if "file" in step else None, "missing field 'file' (a QGroundControl .plan)")
+    path = Path(step["file"])
+    if not path.is_absolute() and reader.path.parent != Path():
+        path = reader.path.parent / path  # relative to the mission file, wherever swarm fly runs
+    try:
+        plan = load_plan(path)
+    except PlanFileError as exc:
+        raise reader.fail(where, "file", str(exc)) from None
+    chosen = step.get("drones", "all")
+    known = list(range(1, drones + 1))
+    if not isinstance(chosen, str):
+        raise reader.fail(where, "drones", f'must be a string: all, or drone numbers like "1,3-5", got {chosen!r}')
+    try:
+        count = len(parse_drones(chosen, known))
+    except PlanUsageError as exc:
+        raise reader.fail(where, "drones", str(exc).removeprefix("drones: ")) from None
+    offsets: str | tuple[tuple[float, float], ...] = "spawn"
+    if "offsets" in step:
+        value = step["offsets"]
+        if isinstance(value, str):
+            if value not in OFFSET_MODES:
+                raise reader.fail(where, "offsets", f"must be spawn, none or [[north, east], ...], got {value!r}")
+            offsets = value
+        else:
+            reader.field(step, "offsets", where, "points")
+            offsets = tuple((float(n), float(e)) for n, e in value)
+            if len(offsets) != count:
+                raise reader.fail(where, "offsets", f"{len(offsets)} offsets for {count} drones: give one each")
+    start = step.get("start", True)
+    if not isinstance(start, bool):
+        raise reader.fail(where, "start", f"must be true or false, got {start!r}")
+    if start and not plan.items:
+        raise reader.fail(where, "file", f"{path}: the plan has no mission items to start (start = false uploads "
+                                         "its fence alone)")  # fmt: skip
+    timeout = reader.number(step, "timeout_s", where, "pos") if "timeout_s" in step else 120.0
+    return PlanStep(file=path, plan=plan, drones=chosen, offsets=offsets, start=start, timeout_s=timeout)
+
+
+def _fault(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int | None], drones: int) -> FaultStep:
+    reader.check_keys(step, {"action", "drone", "fault", "motor", "after_s", "for_s"}, where)
+    for key in ("drone", "fault"):
+        if key not in step:
+            raise reader.fail(where, None, f"missing field '{key}' for a fault step")
+    drone = int(reader.number(step, "drone", where, "count"))
+    if drone > drones:
+        raise reader.fail(where, "drone", f"must be one of the swarm's drones 1..{drones}, got {drone}")
+    try:
+        fault_request(step["fault"])
+    except FaultError as exc:
+        raise reader.fail(where, "fault", str(exc)) from None
+    try:
+        fault = fault_request(step["fault"], step.get("motor"), step.get("for_s"))
+    except FaultError as exc:
+        raise reader.fail(where, "for_s" if "for_s" in step else "motor", str(exc)) from None
+    after = reader.number(step, "after_s", where, "nonneg") if "after_s" in step else 0.0
+    return FaultStep(drone=drone, fault=fault, after_s=after)
+
+
+_PARAM_NAME = re.compile(r"^[A-Za-z0-9_]{1,16}$")  # MAVLink param_id: at most 16 characters
+
+
+def _params(reader: _Reader, table: Any, where: tuple[str | None, int | None]) -> tuple[tuple[str, int | float], ...]:
+    if not isinstance(table, dict):
+        raise reader.fail(where, "params", "must be a table of NAME = number, e.g. { AVOID_ENABLE = 0 }")
+    out: list[tuple[str, int | float]] = []
+    for name, value in table.items():
+        if not _PARAM_NAME.match(name):
+            raise reader.fail(where, "params", f"{name!r} is not a parameter name (letters, digits, _; 16 at most)")
+        problem = number_problem(value, "num")
+        if problem is not None:
+            raise reader.fail(where, "params", f"{name} {problem}")
+        out.append((name, value))
+    return tuple(out)
+
+
+def _links(reader: _Reader, table: Any) -> LinkPlan:
+    """``[swarm.links]``: keys for every link class, and ``[swarm.links.CLASS]`` tables over them for one class."""
+    where: tuple[str | None, int | None] = ("swarm.links", None)
+    if not isinstance(table, dict):
+        raise reader.fail(("swarm", None), "links", "must be a table ([swarm.links])")
+    reader.check_keys(table, {*LINK_KEYS, *LINK_CLASSES}, where)
+    common = _link_values(reader, {k: v for k, v in table.items() if k in LINK_KEYS}, where)
+    per_class: dict[str, dict[str, float]] = {}
+    for link_class in LINK_CLASSES:
+        if link_class not in table:
+            continue
+        sub: tuple[str | None, int | None] = (f"swarm.links.{link_class}", None)
+        if not isinstance(table[link_class], dict):
+            raise reader.fail(where, link_class, f"must be a table ([swarm.links.{link_class}])")
+        reader.check_keys(table[link_class], set(LINK_KEYS), sub)
+        per_class[link_class] = _link_values(reader, table[link_class], sub)
+    try:
+        return plan_from_tables(common, per_class)
+    except ValueError as exc:  # a burst pair half given: named by its class's table, or the common one
+        link_class, _, problem = str(exc).partition(": ")
+        place = (f"swarm.links.{link_class}", None) if link_class in per_class else where
+        raise reader.fail(place, None, problem) from None
+
+
+def _neighbours(reader: _Reader, swarm: dict[str, Any]) -> NeighbourPlan:
+    """``relay = true|false`` (the older key), ``neighbours = "relay"|"mesh"|"both"`` and ``[swarm.mesh]``; a
+    combination that says two things (relay = true with neighbours = "mesh") is refused, not resolved."""
+    where: tuple[str | None, int | None] = ("swarm", None)
+    relay = swarm.get("relay", True)
+    if not isinstance(relay, bool):
+        raise reader.fail(where, "relay", f"must be true or false, got {relay!r}")
+    mesh = _mesh(reader, swarm["mesh"]) if "mesh" in swarm else None
+    if "neighbours" not in swarm:
+        if mesh is not None:
+            raise reader.fail(("swarm.mesh", None), None, 'needs neighbours = "mesh" or "both" in [swarm]')
+        return NeighbourPlan(relay=relay)
+    mode = swarm["neighbours"]
+    if mode not in NEIGHBOUR_MODES:
+        raise reader.fail(where, "neighbours", f"must be one of {', '.join(NEIGHBOUR_MODES)}, got {mode!r}")
+    plan = NeighbourPlan(relay=True, mesh=mesh).with_mode(mode)
+    if "relay" in swarm and relay != plan.relay:
+        raise reader.fail(where, "relay", f"relay = {str(relay).lower()} contradicts neighbours = {mode!r}")
+    if mesh is not None and plan.mesh is None:
+        raise reader.fail(("swarm.mesh", None), None, f"is set but neighbours = {mode!r} has no mesh")
+    return plan
+
+
+def _mesh(reader: _Reader, table: Any) -> MeshPlan:
+    where: tuple[str | None, int | None] = ("swarm.mesh", None)
+    if not isinstance(table, dict):
+        raise reader.fail(("swarm", None), "mesh", "must be a table ([swarm.mesh])")
+    reader.check_keys(table, set(MESH_KEYS), where)
+    for key, value in table.items():
+        problem = mesh_value_problem(key, value)
+        if problem is not None:  # the label names the key already: the problem without it
+            raise reader.fail(where, key, problem.removeprefix(f"{key} "))
+    return MeshPlan(**{key: float(value) for key, value in table.items()})
+
+
+def _link_values(reader: _Reader, table: dict[str, Any], where: tuple[str | None, int | None]) -> dict[str, float]:
+    for key, value in table.items():
+        problem = value_problem(key, value)
+        if problem is not None:  # the label names the key already: the problem without it
+            raise reader.fail(where, key, problem.removeprefix(f"{key} "))
+    return {key: float(value) for key, value in table.items()}
+
+
+def _obstacles(reader: _Reader, data: Any, max_obstacles: int | None) -> tuple[ObstacleSpec, ...]:
+    if not isinstance(data, list):
+        raise reader.fail((None, None), "obstacles", "must be [[obstacles]] tables")
+    out = []
+    for i, item in enumerate(data):
+        where: tuple[str | None, int | None] = ("obstacles", i)
+        if not isinstance(item, dict):
+            raise reader.fail(where, None, "must be a table")
+        shape = item.get("shape")
+        if shape not in ("cylinder", "sphere"):
+            raise reader.fail(where, "shape", f"must be cylinder or sphere, got {shape!r}")
+        size = "height_m" if shape == "cylinder" else "alt_m"
+        reader.check_keys(item, {"shape", "north_m", "east_m", "radius_m", size}, where)
+        for key in ("north_m", "east_m", "radius_m", size):
+            if key not in item:
+                raise reader.fail(where, None, f"missing field '{key}' for a {shape}")
+        out.append(
+            ObstacleSpec(
+                cylinder=shape == "cylinder",
+                north_m=reader.number(item, "north_m", where, "num"),
+                east_m=reader.number(item, "east_m", where, "num"),
+                radius_m=reader.number(item, "radius_m", where, "pos"),
+                **{size: reader.number(item, size, where, "pos")},
+            )
+        )
+    if max_obstacles is not None and len(out) > max_obstacles:
+        raise reader.fail((None, None), "obstacles", f"at most {max_obstacles}, got {len(out)}")
+    return tuple(out)
+
+
+def parse_mission(text: str, path: Path, *, max_obstacles: int | None = None) -> MissionSpec:
+    """The mission in ``text`` (read from ``path``); ``max_obstacles``: what the simulation's world holds."""
+    reader = _Reader(path, _Locator(text))
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise MissionFileError(f"{path}: not valid TOML: {exc}") from None
+    reader.check_keys(data, {"name", "description", "swarm", "steps", "obstacles"}, (None, None))
+    swarm = data.get("swarm")
+    if not isinstance(swarm, dict):
+        raise reader.fail((None, None), None, "missing [swarm] table with 'drones'")
+    where_swarm: tuple[str | None, int | None] = ("swarm", None)
+    reader.check_keys(swarm, {"drones", "layout", "spacing_m", "params", "relay", "loss_policy", "links",
+                              "neighbours", "mesh", "behaviour"}, where_swarm)  # fmt: skip
+    if "drones" not in swarm:
+        raise reader.fail(where_swarm, None, "missing field 'drones'")
+    drones = int(reader.number(swarm, "drones", where_swarm, "count"))
+    if drones > MAX_DRONES:
+        raise reader.fail(where_swarm, "drones", f"at most {MAX_DRONES}, got {drones}")
+    layout = swarm.get("layout", "grid")
+    if layout not in LAYOUTS:
+        raise reader.fail(where_swarm, "layout", f"must be one of {', '.join(sorted(LAYOUTS))}, got {layout!r}")
+    spacing = reader.number(swarm, "spacing_m", where_swarm, "pos") if "spacing_m" in swarm else 2.0
+    params = _params(reader, swarm.get("params", {}), where_swarm)
+    neighbours = _neighbours(reader, swarm)
+    policy = swarm.get("loss_policy", LossPolicy.CONTINUE.value)
+    if policy not in LOSS_POLICIES:
+        raise reader.fail(where_swarm, "loss_policy", f"must be one of {', '.join(LOSS_POLICIES)}, got {policy!r}")
+    steps_data = data.get("steps")
+    if not isinstance(steps_data, list) or not steps_data:
+        raise reader.fail((None, None), None, "missing [[steps]]: a mission needs at least one step")
+    steps = tuple(_step(reader, s, i, drones) for i, s in enumerate(steps_data))
+    try:
+        behaviour = onboard_behaviour(steps, _behaviour(reader, swarm, path))
+    except OnboardConflict as exc:
+        raise reader.fail(("steps", exc.step), "onboard", str(exc)) from None
+    if behaviour is None and any(isinstance(s, BehaviourStep) for s in steps):
+        k = next(i for i, s in enumerate(steps) if isinstance(s, BehaviourStep))
+        raise reader.fail(("steps", k), "action", 'a behaviour step needs [swarm] behaviour = "file.py:Class"')
+    if not isinstance(steps[0], TakeoffStep | PlanStep):
+        raise reader.fail(
+            ("steps", 0), "action", "the first step must be a takeoff (or a plan whose mission takes off)"
+        )
+    name = data.get("name", path.stem)
+    description = data.get("description", "")
+    if not isinstance(name, str) or not isinstance(description, str):
+        raise reader.fail((None, None), "name", "name and description must be strings")
+    return MissionSpec(
+        name=name,
+        description=description,
+        swarm=SwarmSpec(
+            drones=drones,
+            layout=layout,
+            spacing_m=spacing,
+            params=params,
+            relay=neighbours.relay,
+            mesh=neighbours.mesh,
+            links=_links(reader, swarm.get("links", {})),
+            behaviour=behaviour,
+        ),
+        steps=steps,
+        loss_policy=LossPolicy(policy),
+        path=path,
+        obstacles=_obstacles(reader, data.get("obstacles", []), max_obstacles),
+    )
+
+
+def flown_onboard(mission: MissionSpec) -> MissionSpec:
+    """The same mission with every flock and follow step flown by the drones themselves (``swarm fly --onboard``);
+    MissionFileError if it has no such step or the drones would need two behaviours (or carry another)."""
+    steps = tuple(dataclasses.replace(s, onboard=True) if isinstance(s, FlockStep | FollowStep) else s
+                  for s in mission.steps)  # fmt: skip
+    if not any(isinstance(s, FlockStep | FollowStep) for s in steps):
+        raise MissionFileError(f"{mission.path}: --onboard: the mission has no flock or follow step")
+    try:
+        behaviour = onboard_behaviour(steps, mission.swarm.behaviour)
+    except OnboardConflict as exc:
+        raise MissionFileError(f"{mission.path}: --onboard: steps[{exc.step}]: {exc}") from None
+    return dataclasses.replace(mission, steps=steps, swarm=dataclasses.replace(mission.swarm, behaviour=behaviour))
+
+
+class OnboardConflict(ValueError):
+    """A step flown onboard needs another behaviour than the drones carry."""
+
+    def __init__(self, step: int, problem: str) -> None:
+        super().__init__(problem)
+        self.step = step
+
+
+def onboard_behaviour(steps: tuple[Step, ...], behaviour: str | None) -> str | None:
+    """The behaviour the drones carry: a step flown onboard needs the shipped one (set here when [swarm] names none);
+    a drone carries one behaviour, so one kind of onboard step per mission."""
+    needed = {(k, FLOCKING if isinstance(s, FlockStep) else LEADER_FOLLOWER) for k, s in enumerate(steps)
+              if isinstance(s, FlockStep | FollowStep) and s.onboard}  # fmt: skip
+    for k, spec in sorted(needed):
+        if behaviour is not None and behaviour != spec:
+            raise OnboardConflict(k, f"flown onboard with {spec}, but the drones carry {behaviour} (one onboard "
+                                     "behaviour per mission)")  # fmt: skip
+        behaviour = spec
+    return behaviour
+
+
+def _behaviour(reader: _Reader, swarm: dict[str, Any], path: Path) -> str | None:
+    """``[swarm] behaviour = "file.py:Class"``, the file relative to the mission's folder, made absolute (the drones
+    start elsewhere). Whether the class loads is the simulation's to say (the CLI asks it before anything starts)."""
+    if "behaviour" not in swarm:
+        return None
+    spec = swarm["behaviour"]
+    file, sep, cls = spec.rpartition(":") if isinstance(spec, str) else ("", "", "")
+    if not sep or not file or not cls.isidentifier():
+        raise reader.fail(("swarm", None), "behaviour", f'must be "path/to/file.py:ClassName", got {spec!r}')
+    return absolute_spec(spec, path.parent)
+
+
+def load_mission(path: Path, *, max_obstacles: int | None = None) -> MissionSpec:
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise MissionFileError(f"{path}: cannot read: {exc.strerror}") from None
+    return parse_mission(text, path, max_obstacles=max_obstacles)
