@@ -17,10 +17,10 @@ import time
 
 import jsbsim
 
-from sitl.airframe import Airframe, load_airframe
+from sitl.drone.closed_loop import PHYSICS_RATE_HZ
+from sitl.dynamics.airframe import Airframe, load_airframe
 from sitl.dynamics.jsbsim_model import model_name, motor_cmd_property
 from sitl.dynamics.jsbsim_plant import JsbsimPlant
-from sitl.simulation import PHYSICS_RATE_HZ
 
 HOVER_START_NED_M = (0.0, 0.0, -10.0)
 

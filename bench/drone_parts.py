@@ -40,15 +40,15 @@ PARTS = ("physics", "control", "perception", "mavlink", "total")
 def lone(sim_seconds: float) -> dict[str, float]:
     import socket
 
-    from sitl.airframe import load_airframe
-    from sitl.awareness import Awareness
-    from sitl.mav_vehicle import SimVehicleApi
-    from sitl.mavlink_io import LinkConfig, MavlinkEndpoint
+    from sitl.drone.awareness import Awareness
+    from sitl.drone.closed_loop import SimConfig, Simulation
+    from sitl.drone.vehicle_api import SimVehicleApi
+    from sitl.dynamics.airframe import load_airframe
+    from sitl.process.mavlink_io import LinkConfig, MavlinkEndpoint
+    from sitl.process.runtime import PACED_WAKE_STEPS
     from sitl.protocol import Identity
-    from sitl.runtime import PACED_WAKE_STEPS
-    from sitl.simulation import SimConfig, Simulation
-    from sitl.world import SharedWorld
-    from sitl.world_view import WorldParticipant
+    from sitl.world.shared import SharedWorld
+    from sitl.world.view import WorldParticipant
 
     sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sink.bind(("127.0.0.1", 0))
@@ -112,7 +112,7 @@ def lone(sim_seconds: float) -> dict[str, float]:
     t0 = time.thread_time_ns()
     link_ns = 0
     try:
-        # A lone drone's unpaced loop (sitl/runtime.py): read the sockets, a batch of steps, the telemetry due.
+        # A lone drone's unpaced loop (sitl/process/runtime.py): read the sockets, a batch of steps, the telemetry due.
         while sim.time_s < sim_seconds - 1e-9:
             start = time.thread_time_ns()
             endpoint.receive(sim.time_s)

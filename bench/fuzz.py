@@ -60,14 +60,14 @@ from pymavlink.dialects.v10 import common as mavlink1
 from pymavlink.dialects.v20 import common as mavlink
 
 import sitl.protocol
-from sitl.mav_vehicle import SimVehicleApi
-from sitl.ports import MAX_INSTANCE, InstancePorts, instance_ports
+from sitl.drone.closed_loop import build_param_store
+from sitl.drone.vehicle_api import SimVehicleApi
+from sitl.process.ports import MAX_INSTANCE, InstancePorts, instance_ports
 from sitl.protocol import Identity, LinkServices
 from sitl.protocol.framing import crc_x25, parse_datagram
 from sitl.protocol.neighbours import NeighbourTable
 from sitl.protocol.vehicle_api import Arm, LandedState
-from sitl.simulation import build_param_store
-from sitl.world import ALT, LAT, LON, VALID, SharedWorld
+from sitl.world.shared import ALT, LAT, LON, VALID, SharedWorld
 from tests.closed_loop.flight import make_sim
 
 LOOPBACK: Final = "127.0.0.1"
@@ -610,7 +610,7 @@ class FuzzConfig:
     commands_to_drone: bool
     rate_hz: float
     instance: int = 0
-    port_base: int | None = None  # ports 14580/14540/18570 + this; default: the instance's own (sitl/ports.py)
+    port_base: int | None = None  # ports 14580/14540/18570 + this; default: the instance's own (sitl/process/ports.py)
     speed: float = 1.0
     log_dir: Path = Path(".")
     attach: tuple[str, int] | None = None  # a running drone's API address instead of starting one

@@ -108,10 +108,10 @@ def in_process(drones: int, sim_s: float = 20.0) -> dict[str, float]:
 
     from sitl.dynamics.geodesy import geo_from_ned
     from sitl.dynamics.plant import DEFAULT_HOME
-    from sitl.mesh import MeshMedium, MeshRadio, MeshSettings
     from sitl.protocol import framing
     from sitl.protocol.neighbours import MESH, RELAY, NeighbourTable
-    from sitl.world import SharedWorld
+    from sitl.world.mesh import MeshMedium, MeshRadio, MeshSettings
+    from sitl.world.shared import SharedWorld
 
     dt_s, steps = 0.004, int(sim_s / 0.004)
     world = SharedWorld.create()

@@ -28,9 +28,9 @@ import math
 import time
 from collections.abc import Callable
 
-from sitl.airframe import load_airframe
+from sitl.drone.closed_loop import PHYSICS_RATE_HZ, SimConfig, Simulation
+from sitl.dynamics.airframe import load_airframe
 from sitl.dynamics.jsbsim_plant import JsbsimPlant
-from sitl.simulation import PHYSICS_RATE_HZ, SimConfig, Simulation
 
 TAKEOFF_ALT_M = 3.0
 PARTS = ("jsbsim", "sensors", "estimator", "autopilot", "control cascade", "wind+battery", "other")

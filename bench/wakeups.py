@@ -33,8 +33,8 @@ from typing import NoReturn
 
 from one_drone import arm_and_take_off_when_ready  # this directory is on the path of a script run from it
 
-from sitl.airframe import load_airframe
-from sitl.simulation import PHYSICS_RATE_HZ, SimConfig, Simulation
+from sitl.drone.closed_loop import PHYSICS_RATE_HZ, SimConfig, Simulation
+from sitl.dynamics.airframe import load_airframe
 
 CLIMB_S = 3.0  # simulated seconds of climb after take-off, before the clock starts
 LONE_WAKE_STEPS = (2, 8, 32, 125)

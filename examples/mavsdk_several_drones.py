@@ -23,7 +23,7 @@ from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
 from gcs.api import launch
-from sitl.ports import instance_ports  # a drone's API link streams to 127.0.0.1:14540+i, as PX4 SITL's (i < 40)
+from sitl.process.ports import instance_ports  # a drone's API link streams to 127.0.0.1:14540+i, as PX4 SITL's (i < 40)
 
 
 async def first(

@@ -17,7 +17,7 @@ import time
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.ports import instance_ports  # the drone's API port: PX4 SITL's 14540+instance below 40
+from sitl.process.ports import instance_ports  # the drone's API port: PX4 SITL's 14540+instance below 40
 
 ALT_M = 3.0
 

@@ -15,17 +15,17 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
 
-from sitl.airframe import DEFAULT_AIRFRAME, AirframeError, load_airframe
+from sitl.dynamics.airframe import DEFAULT_AIRFRAME, AirframeError, load_airframe
 from sitl.dynamics.geodesy import geo_from_ned
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
-from sitl.linkmodel import IMPAIRMENT_KEYS, LinkProfile, link_profile
-from sitl.mavlink_io import LinkConfig, LinkError, parse_host_port
-from sitl.mesh import DEFAULT_EXPONENT, MeshSettings, mesh_problem
-from sitl.ports import GCS_REMOTE_PORT, MAX_INSTANCE, instance_ports
+from sitl.dynamics.wind import WindConfig
+from sitl.process.mavlink_io import LinkConfig, LinkError, parse_host_port
+from sitl.process.ports import GCS_REMOTE_PORT, MAX_INSTANCE, instance_ports
+from sitl.process.specs import DroneSpec, ProcessSpec
 from sitl.protocol.signing import SigningKeyError, load_key
-from sitl.specs import DroneSpec, ProcessSpec
-from sitl.wind import WindConfig
-from sitl.world import WorldError
+from sitl.world.linkmodel import IMPAIRMENT_KEYS, LinkProfile, link_profile
+from sitl.world.mesh import DEFAULT_EXPONENT, MeshSettings, mesh_problem
+from sitl.world.shared import WorldError
 
 EXIT_USAGE = 2
 SPEED_ENV = "PX4_SIM_SPEED_FACTOR"
@@ -82,7 +82,7 @@ def _port(value: int | None, default: int, what: str) -> int:
 
 
 def _links(args: argparse.Namespace, i: int) -> tuple[LinkConfig, ...]:
-    """Instance i's links on its ports (sitl/ports.py): PX4 SITL's for i < 40 (API 14580+i -> 14540+i, ground
+    """Instance i's links on its ports (sitl/process/ports.py): PX4 SITL's for i < 40 (API 14580+i -> 14540+i, ground
     station 18570+i -> 14550), API 16000+i -> 15000+i from 40 on."""
     if args.no_mavlink:
         return ()
@@ -299,7 +299,7 @@ def _main(argv: Sequence[str] | None) -> int:
     ]
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(name)s: %(message)s")
 
-    from sitl.app import run  # heavy imports (jsbsim) only after the arguments are known to be good
+    from sitl.process.app import run  # heavy imports (jsbsim) only after the arguments are known to be good
 
     return run(
         specs,

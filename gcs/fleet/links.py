@@ -8,7 +8,7 @@ drone's ``--link`` option, which a test holds against one table of cases.
 Three link classes: ``gcs`` (the ground station and a drone, both ways), ``api`` (a client such as MAVSDK and a
 drone's API link), ``neighbour`` (neighbour positions relayed to a drone, and the drone-to-drone mesh). Here too:
 which way neighbours' positions travel (``NeighbourPlan``: the relay, the mesh, or both) and the mesh radio's
-range and path loss (``MeshPlan``), with the drone's rules and words (sitl/mesh.py ``mesh_problem``).
+range and path loss (``MeshPlan``), with the drone's rules and words (sitl/world/mesh.py ``mesh_problem``).
 """
 
 from __future__ import annotations
@@ -185,7 +185,7 @@ def _parse_value(key: str, text: str, problem_of: Callable[[str, float], str | N
 NEIGHBOUR_MODES: Final = ("relay", "mesh", "both")
 DEFAULT_MESH_RANGE_M: Final = 15.0
 DEFAULT_MESH_EXPONENT: Final = 4.0
-MAX_MESH_EXPONENT: Final = 20.0  # the drone's own limit (sitl/mesh.py); beyond it the rule is a step at the range
+MAX_MESH_EXPONENT: Final = 20.0  # the drone's own limit (sitl/world/mesh.py); beyond it the rule is a step at the range
 MESH_KEYS: Final = ("range_m", "exponent")
 
 

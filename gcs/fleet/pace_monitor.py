@@ -1,6 +1,6 @@
 """Is the swarm keeping the pace it was asked for? The drones' own clocks against the wall clock.
 
-A paced drone that cannot keep up gives the lag up (sitl/pacing.py): it runs slower than asked instead of
+A paced drone that cannot keep up gives the lag up (sitl/process/pacing.py): it runs slower than asked instead of
 accumulating a debt. The supervisor's clock is the wall clock times the speed factor, so on an overloaded machine
 the mission's timing (holds, timeouts, the formation's rotation) would run ahead of the drones without anyone
 noticing. This monitor compares how far the slowest drone's simulated clock advanced with how far the wall clock

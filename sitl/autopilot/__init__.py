@@ -1,2 +1,3 @@
 """The autopilot's parts: one unit per flight mode (modes.py), the failsafe table (failsafe.py) and the typed
-phases the units move through (phases.py). sitl/vehicle.py wires them to the estimate and the controller cascade."""
+phases the units move through (phases.py). sitl/autopilot/commander.py wires them to the estimate and the controller
+cascade."""

@@ -7,9 +7,9 @@ severity: warn < hold < return < land < descend < disarm < terminate). Rows whos
 COM_FAIL_ACT_T (the link losses) hold first and take the action when that delay has passed, so an operator can take
 over; any mode the operator commands clears the failsafe (PX4's "on mode change or disarm").
 
-The module is pure: inputs and parameters in, orders out. sitl/vehicle.py applies the orders (switches mode, emits
-the STATUSTEXT) and reports the row in force as ``VehicleStatus.active_failsafe``. Adding a failsafe means one row
-in ``FAILSAFE_TABLE`` (and its parameters in sitl/autopilot_params.py).
+The module is pure: inputs and parameters in, orders out. sitl/autopilot/commander.py applies the orders (switches mode,
+emits the STATUSTEXT) and reports the row in force as ``VehicleStatus.active_failsafe``. Adding a failsafe means one row
+in ``FAILSAFE_TABLE`` (and its parameters in sitl/autopilot/params.py).
 """
 
 from __future__ import annotations

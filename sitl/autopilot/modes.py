@@ -7,8 +7,8 @@ vehicle want to be in the air (``wants_air``: on the ground and not wanting air 
 failsafe) and what happens at touchdown (``on_touchdown``). Adding a mode means one class here and its field in
 ``Units``.
 
-The units reach the vehicle through ``ModeContext``, the narrow surface sitl/vehicle.py offers them: the shared
-smooth trajectory, the target it tracks, home, the land detector's verdict and the mode switch. They never read a
+The units reach the vehicle through ``ModeContext``, the narrow surface sitl/autopilot/commander.py offers them: the
+shared smooth trajectory, the target it tracks, home, the land detector's verdict and the mode switch. They never read a
 clock or a socket either: the estimate and the simulation time come in as arguments.
 """
 
@@ -20,12 +20,12 @@ from typing import ClassVar, Protocol
 
 import numpy as np
 
+from sitl.autopilot.guidance import MotionLimits, StraightLineTrajectory
+from sitl.autopilot.mission_exec import MissionAction, MissionExecutor, MissionRun
+from sitl.autopilot.mission_plan import NavKind
 from sitl.control.cascade import AttitudeSetpoint, TrajectorySetpoint
-from sitl.estimation import Estimate
-from sitl.guidance import MotionLimits, StraightLineTrajectory
+from sitl.estimation.estimator import Estimate
 from sitl.mathutil import Vec3, vec3
-from sitl.mission_exec import MissionAction, MissionExecutor, MissionRun
-from sitl.mission_plan import NavKind
 from sitl.protocol.modes import Px4Mode
 from sitl.protocol.vehicle_api import CommandOutcome, LandedState
 
@@ -41,7 +41,7 @@ MISSION_CLIMB_DONE_M = 0.3
 
 
 class ModeContext(Protocol):
-    """What a mode unit may use of the vehicle (implemented by sitl.vehicle.Vehicle)."""
+    """What a mode unit may use of the vehicle (implemented by sitl.autopilot.commander.Vehicle)."""
 
     trajectory: StraightLineTrajectory
     target_ned_m: Vec3
@@ -229,7 +229,7 @@ class ReturnToLaunch(TrackTarget):
 
 
 class Mission(TrackTarget):
-    """AUTO.MISSION: the executor (sitl/mission_exec.py) sequences the items; this unit flies what it asks."""
+    """AUTO.MISSION: the executor (sitl/autopilot/mission_exec.py) sequences the items; this unit flies what it asks."""
 
     mode = Px4Mode.AUTO_MISSION
 

@@ -15,7 +15,7 @@ class RtlPhase(Enum):
 
 
 class MissionPhase(Enum):
-    """Where a mission run stands, beside the executor's own item progress (sitl/mission_exec.py)."""
+    """Where a mission run stands, beside the executor's own item progress (sitl/autopilot/mission_exec.py)."""
 
     NAVIGATE = "navigate"  # flying the items
     CLIMB = "climb"  # started on the ground with no takeoff item: climbing to MIS_TAKEOFF_ALT first, as PX4

@@ -28,8 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sitl.airframe import Airframe
 from sitl.control import Vec3f
+from sitl.dynamics.airframe import Airframe
 from sitl.kernels import cascade as ck
 from sitl.mathutil import fast_constructor
 

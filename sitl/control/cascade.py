@@ -28,7 +28,6 @@ from typing import Protocol
 import numpy as np
 import numpy.typing as npt
 
-from sitl.airframe import Airframe
 from sitl.control import Vec3f
 from sitl.control.allocation import AllocationResult, ControlAllocator, result_from
 from sitl.control.attitude import AttitudeController, Quat4f, thrust_to_attitude
@@ -44,6 +43,7 @@ from sitl.control.params import (
 from sitl.control.position import PositionController
 from sitl.control.rate import RateController
 from sitl.control.velocity import VelocityController
+from sitl.dynamics.airframe import Airframe
 from sitl.kernels import between_ticks as bt
 from sitl.kernels import cascade as ck
 from sitl.mathutil import fast_constructor

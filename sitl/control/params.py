@@ -14,12 +14,12 @@ from __future__ import annotations
 
 import math
 
-from sitl.airframe import Airframe
 from sitl.control.attitude import AttitudeConfig
 from sitl.control.heading import HeadingConfig
 from sitl.control.position import PositionConfig
 from sitl.control.rate import RateConfig
 from sitl.control.velocity import VelocityConfig
+from sitl.dynamics.airframe import Airframe
 from sitl.params import ParamDef, ParamStore, ParamType
 
 

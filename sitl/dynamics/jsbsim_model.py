@@ -1,7 +1,7 @@
 """Generate the JSBSim aircraft definition of a multirotor from its airframe data file.
 
 The flight model must never disagree with the controller about the vehicle, so nothing here is typed by hand:
-every mass, length, coefficient and time constant comes from ``sitl.airframe.Airframe`` and is converted from
+every mass, length, coefficient and time constant comes from ``sitl.dynamics.airframe.Airframe`` and is converted from
 SI to JSBSim's units either through JSBSim's own ``unit`` attributes or, where a property is fixed in English
 units (external force magnitudes are pounds, moments pound-feet, velocities feet per second), through the
 explicit factors below.
@@ -34,7 +34,7 @@ import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from sitl.airframe import Airframe
+from sitl.dynamics.airframe import Airframe
 
 # Exact unit definitions (international foot and pound-force).
 M_PER_FT = 0.3048

@@ -24,7 +24,7 @@ from pathlib import Path
 import jsbsim
 import numpy as np
 
-from sitl.airframe import Airframe
+from sitl.dynamics.airframe import Airframe
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.dynamics.jsbsim_model import (
     M_PER_FT,

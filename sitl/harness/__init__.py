@@ -7,8 +7,8 @@ The ground station depends on the interface it declares (gcs/fleet/harness.py); 
 from sitl.dynamics.plant import GeoPoint
 from sitl.harness.harness import SitlHarness
 from sitl.harness.processes import LaunchPlan, SpawnError, process_exit_cause
-from sitl.linkmodel import LinkImpairment, LinkProfile
-from sitl.mesh import MeshSettings
+from sitl.world.linkmodel import LinkImpairment, LinkProfile
+from sitl.world.mesh import MeshSettings
 
 __all__ = [
     "GeoPoint",

@@ -1,6 +1,6 @@
-"""Drone processes forked by the drone factory (sitl/zygote.py) instead of started from scratch.
+"""Drone processes forked by the drone factory (sitl/harness/zygote.py) instead of started from scratch.
 
-``DroneFactory`` starts one ``python -m sitl.zygote`` and asks it for drones; each comes back as a
+``DroneFactory`` starts one ``python -m sitl.harness.zygote`` and asks it for drones; each comes back as a
 ``ForkedProcess``, which answers like ``subprocess.Popen`` (``pid``, ``poll``, ``wait``, ``send_signal``, ``kill``,
 ``returncode``) so the process group treats both alike. The drones are the factory's children: it reaps them and
 reports their exit codes over its stdout, which ``collect`` reads. Signals go through a pidfd taken right after the
@@ -79,7 +79,7 @@ class DroneFactory:
         errors: IO[bytes] | int = log_path.open("wb") if log_path is not None else subprocess.DEVNULL
         try:
             self._process = subprocess.Popen(
-                [sys.executable, "-m", "sitl.zygote"],
+                [sys.executable, "-m", "sitl.harness.zygote"],
                 stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE,
                 stderr=errors,

@@ -11,9 +11,9 @@ one process) can change without the ground station noticing.
 What it owns:
 - the drone processes (sitl/harness/processes.py, forked by the drone factory sitl/harness/factory.py), their log
   files (in a temporary directory removed at ``close`` unless the plan names one);
-- the shared world (sitl/world.py): created before the drones, which attach to it by name; a drone that ended is
+- the shared world (sitl/world/shared.py): created before the drones, which attach to it by name; a drone that ended is
   marked there once (its body falls from its last state), obstacles are declared there;
-- the lockstep gate (sitl/lockstep.py) in lockstep: its wake-up socket, how far the drones have got, how far they
+- the lockstep gate (sitl/world/lockstep.py) in lockstep: its wake-up socket, how far the drones have got, how far they
   may go.
 """
 
@@ -31,8 +31,8 @@ import numpy.typing as npt
 
 from sitl.dynamics.plant import PHYSICS_RATE_HZ
 from sitl.harness.processes import DroneProcess, LaunchPlan, ProcessGroup, process_exit_cause
-from sitl.lockstep import LockstepGate
-from sitl.world import (
+from sitl.world.lockstep import LockstepGate
+from sitl.world.shared import (
     ALT,
     CPU_LINK,
     CPU_PHYSICS,
@@ -147,7 +147,7 @@ class SitlHarness:
                 }
         mesh = dict(zip(MESH_FIELDS, self._world.mesh_stats[[d.instance for d in self._processes.drones]].sum(axis=0),
                         strict=True))  # fmt: skip
-        if mesh["frames_offered"] > 0:  # what the drones heard over the mesh (sitl/mesh.py), in the same terms
+        if mesh["frames_offered"] > 0:  # what the drones heard over the mesh (sitl/world/mesh.py), in the same terms
             lost = mesh["lost_range"] + mesh["lost_path"] + mesh["lost_model"] + mesh["lost_overrun"]
             out[MESH_CHANNEL] = {"frames_lost": float(lost), **{k: float(v) for k, v in mesh.items()}}
         return out

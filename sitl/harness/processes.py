@@ -23,9 +23,9 @@ from typing import Literal
 from sitl.dynamics.geodesy import geo_from_ned
 from sitl.dynamics.plant import GeoPoint
 from sitl.harness.factory import DroneFactory, FactoryError, ForkedProcess
-from sitl.linkmodel import LinkProfile, link_arguments
-from sitl.mesh import MeshSettings
-from sitl.zygote import die_with_parent
+from sitl.harness.zygote import die_with_parent
+from sitl.world.linkmodel import LinkProfile, link_arguments
+from sitl.world.mesh import MeshSettings
 
 TERMINATE_WAIT_S = 5.0
 # Drones run at a lower scheduling priority than the supervisor. When the drones want more CPU than there is, the

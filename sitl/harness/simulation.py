@@ -11,11 +11,11 @@ import math
 import time
 from typing import Literal
 
-from sitl.airframe import AirframeError, load_airframe
+from sitl.dynamics.airframe import AirframeError, load_airframe
 from sitl.dynamics.plant import PHYSICS_RATE_HZ
 from sitl.harness.processes import host_groups, usable_cpus
-from sitl.ports import INSTANCES
-from sitl.world import MAX_OBSTACLES
+from sitl.process.ports import INSTANCES
+from sitl.world.shared import MAX_OBSTACLES
 
 __all__ = [
     "MAX_INSTANCES",
@@ -28,7 +28,7 @@ __all__ = [
     "parameter_value",
 ]
 
-MAX_INSTANCES = INSTANCES  # instances 0..MAX_INSTANCES-1: sysids 1..254, each on its own ports (sitl/ports.py)
+MAX_INSTANCES = INSTANCES  # instances 0..MAX_INSTANCES-1: sysids 1..254, each on its own ports (sitl/process/ports.py)
 BARE_SIM_SECONDS = 10.0
 BARE_REPEATS = 3
 
@@ -51,8 +51,8 @@ def check_behaviour(spec: str) -> None:
 def parameter_value(name: str, value: float) -> int | float:
     """``value`` as a drone takes parameter ``name`` (an int for an integer parameter, which goes out as INT32, a
     float for a REAL32 one); ValueError (one line) unless a PARAM_SET of it would be accepted."""
+    from sitl.drone.closed_loop import build_param_store
     from sitl.params import ParamError, ParamType
-    from sitl.simulation import build_param_store
 
     store = build_param_store()
     if name not in store:

@@ -9,7 +9,7 @@ machine code with the C library's ``sin``/``atan2`` (the same functions CPython'
 Rules every kernel follows (``kernel`` enforces the first three):
 
 - **explicit signatures**, so a kernel is compiled (or loaded from the cache) when its module is imported: the
-  zygote (sitl/zygote.py) imports every kernel module before it forks, and a forked drone never compiles;
+  zygote (sitl/harness/zygote.py) imports every kernel module before it forks, and a forked drone never compiles;
 - ``cache=True``: compiled code is kept on disk beside the module (or in ``NUMBA_CACHE_DIR``), once per machine;
   numba writes its cache files atomically, so processes compiling at once on a cold cache are safe
   (tests/unit/test_kernels.py starts them together);

@@ -1,5 +1,5 @@
 """Collision prevention's numeric core as kernels: fusion of camera and relay, the obstacles' figures, and ORCA's
-linear programs with the safety layer (sitl/avoidance.py is the shell: configuration, records, the documented
+linear programs with the safety layer (sitl/avoidance/algorithm.py is the shell: configuration, records, the documented
 functions; docs/avoidance.md has the algorithm).
 
 An obstacle is a row of ``OBSTACLE_SIZE`` float64 (relative position, velocity, whether the velocity is known,
@@ -47,7 +47,7 @@ USABLE_SIZE = OBSTACLE_SIZE + 4
 CAMERA_SIZE = 5
 RELAY_SIZE = 8
 
-# Configuration row (sitl.avoidance.AvoidanceConfig).
+# Configuration row (sitl.avoidance.algorithm.AvoidanceConfig).
 K_ENABLED = 0
 K_OWN_RADIUS = 1
 K_MIN_DIST = 2
@@ -126,7 +126,7 @@ def fuse(
     out: npt.NDArray[np.float64],
 ) -> int:
     """One obstacle list from camera detections and relayed neighbours, all brought up to now, written to ``out``
-    (room for every input); returns how many rows it wrote. See ``sitl.avoidance.fuse`` for the rules."""
+    (room for every input); returns how many rows it wrote. See ``sitl.avoidance.algorithm.fuse`` for the rules."""
     if within3(own_vel[0], own_vel[1], own_vel[2], MAX_SPEED_MPS):
         own_vx, own_vy, own_vz = own_vel[0], own_vel[1], own_vel[2]
     else:
@@ -401,7 +401,7 @@ def _safety_layer(
     vx: float, vy: float, near: npt.NDArray[np.float64], count: int, cfg: npt.NDArray[np.float64]
 ) -> tuple[float, float, int]:
     """Hard limit on the speed of approach to each obstacle, whatever the linear program had to give up (rows of
-    ``near``: bearing x, y, distance, separation, obstacle vx, vy, responsibility); see ``sitl.avoidance``."""
+    ``near``: bearing x, y, distance, separation, obstacle vx, vy, responsibility); see ``sitl.avoidance.algorithm``."""
     acc = pmax(cfg[K_MAX_ACCEL], 0.0)
     inv_rec = 1.0 / pmax(cfg[K_RECOVERY], 1e-3)
     push_x = 0.0
@@ -462,7 +462,7 @@ def avoid(
 ) -> tuple[float, float, bool, int]:
     """ORCA on prepared obstacles for a finite desired horizontal velocity (avoidance enabled): the horizontal
     velocity to fly, whether it differs from the desired one, and how many obstacles forced a change. See
-    ``sitl.avoidance.avoid`` for the guarantees and the responsibility rule."""
+    ``sitl.avoidance.algorithm.avoid`` for the guarantees and the responsibility rule."""
     vmax = pmax(0.0, cfg[K_MAX_SPEED])
     cap = pmax(0.0, cfg[K_MAX_CORR])
     des_speed = hypot2(dvx, dvy)

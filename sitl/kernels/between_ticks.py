@@ -1,12 +1,12 @@
 """A drone's physics step between two commander ticks, in one call: the IMU sample, the estimator's step and the
-inner loops towards the attitude the commander's last tick asked for (sitl/vehicle.py, ``Vehicle.step``).
+inner loops towards the attitude the commander's last tick asked for (sitl/autopilot/commander.py, ``Vehicle.step``).
 
 Between ticks nothing in a drone's step is event-driven: no mode, failsafe or land detector runs, and on most steps
 no GPS, barometer or magnetometer sample is due. What is left is numeric, and was three Python shells each building
 a record (the IMU sample, the estimate, the cascade's output) around its kernel; here the same kernels
 (sitl/kernels/estimator.py ``step``, sitl/kernels/cascade.py ``inner``) run back to back on the same rows, with the
 IMU's arithmetic written as sitl/sensors/models.py ``Imu.sample`` writes it, so a step taken here has the bits the
-shells would give (the recorded flights are the check). sitl/simulation.py decides when a step may be taken here.
+shells would give (the recorded flights are the check). sitl/drone/closed_loop.py decides when a step may be taken here.
 """
 
 from __future__ import annotations

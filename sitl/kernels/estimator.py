@@ -1,4 +1,5 @@
-"""The estimator's step as a kernel (sitl/estimation.py is its shell: configuration, first attitude, the record).
+"""The estimator's step as a kernel (sitl/estimation/estimator.py is its shell: configuration, first attitude, the
+record).
 
 One drone's filter state is a row of ``STATE_SIZE`` float64 (flags as 0.0/1.0, "never" as -inf or inf); its
 configuration a row of ``CONFIG_SIZE``. The step is the Mahony attitude update followed by the inertial prediction and
@@ -38,7 +39,7 @@ HAVE_BARO = 34
 MAG_REF_HEADING = 35
 STATE_SIZE = 36
 
-# Configuration row (sitl.estimation.EstimatorConfig, with the derived gains).
+# Configuration row (sitl.estimation.estimator.EstimatorConfig, with the derived gains).
 C_KP_ACC = 0
 C_KP_MAG = 1
 C_KI = 2

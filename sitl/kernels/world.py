@@ -1,5 +1,5 @@
-"""The shared world's geometry a drone reads at its camera and contact rates (sitl/world.py is the shell: the table,
-its layout, falling bodies, static obstacles).
+"""The shared world's geometry a drone reads at its camera and contact rates (sitl/world/shared.py is the shell: the
+table, its layout, falling bodies, static obstacles).
 
 Every other valid body's offset from one drone, in its local NED frame, from the table's geodetic positions: the same
 operations in the same order as the numpy they replaced (degrees to radians by one product with pi/180, then the
@@ -16,7 +16,7 @@ import numpy.typing as npt
 from sitl.kernels import kernel
 
 _RAD_PER_DEG = math.pi / 180.0  # numpy's deg2rad and CPython's math.radians multiply by this
-# ``columns``: the table's column of each figure (the layout is sitl/world.py's).
+# ``columns``: the table's column of each figure (the layout is sitl/world/shared.py's).
 C_VALID = 0
 C_LAT = 1
 C_LON = 2

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from sitl.drone.closed_loop import build_param_store
 from sitl.params import ParamDef, ParamType
-from sitl.simulation import build_param_store
 
 ENABLE_PARAM = "BHV_EN"
 MAX_RATE_HZ = 250.0  # the physics rate: a behaviour cannot step more often than the drone

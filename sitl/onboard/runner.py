@@ -19,15 +19,15 @@ import logging
 import math
 from collections.abc import Callable, Sequence
 
-from sitl.avoidance import Obstacle
-from sitl.collision_prevention import RelayedNeighbour
+from sitl.autopilot.commander import Vehicle
+from sitl.avoidance.algorithm import Obstacle
+from sitl.avoidance.collision_prevention import RelayedNeighbour
 from sitl.control.cascade import TrajectorySetpoint
-from sitl.estimation import Estimate
+from sitl.estimation.estimator import Estimate
 from sitl.onboard.interface import Detection, GroundMessage, NeighbourReport, OnboardSetpoint, OnboardState
 from sitl.onboard.loader import ENABLE_PARAM, LoadedBehaviour, error_line
 from sitl.params import ParamStore
 from sitl.protocol.modes import Px4Mode
-from sitl.vehicle import Vehicle
 
 log = logging.getLogger(__name__)
 

@@ -16,7 +16,7 @@ from typing import Final
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.geofence import CircleZone, FenceKind, FenceZone, Geofence, PolygonZone
+from sitl.autopilot.geofence import CircleZone, FenceKind, FenceZone, Geofence, PolygonZone
 from sitl.protocol.vehicle_api import GLOBAL_FRAMES, MissionItem
 
 POLYGON_COMMANDS: Final = {

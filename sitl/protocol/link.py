@@ -1,7 +1,7 @@
 """One MAVLink link's services composed behind a single ``handle``/``poll`` pair: what the IO shell talks to.
 
-The shell owns one ``LinkServices`` per link (the API port and the ground-station port, sitl/ports.py), feeds it every
-decoded message with the simulation time, calls ``poll`` on its loop, and sends the messages of the returned
+The shell owns one ``LinkServices`` per link (the API port and the ground-station port, sitl/process/ports.py), feeds it
+every decoded message with the simulation time, calls ``poll`` on its loop, and sends the messages of the returned
 ``Send`` effects back on the same link. Vehicle-wide state (parameters, mission, modes) lives in the vehicle and the
 ``ParamStore``, so several links see one drone. This module also holds the two services too small for a module of
 their own: TIMESYNC and PING answers, and peer heartbeat tracking.

@@ -2,7 +2,7 @@
 
 A neighbour's GLOBAL_POSITION_INT reaches a drone two ways: forwarded unchanged by the ground station's relay
 (original system id kept, as a MAVLink router does), or heard directly from the neighbour's radio over the
-drone-to-drone mesh (sitl/mesh.py). Any other system that sends one on a MAVLink link (the API link: a client, a
+drone-to-drone mesh (sitl/world/mesh.py). Any other system that sends one on a MAVLink link (the API link: a client, a
 vehicle sharing a radio) is a neighbour too, counted apart as ``link``. Either way a neighbour is exactly
 what that drone reports of itself. This table is the only source of neighbour positions for the autopilot besides
 its camera; it never reads the simulation's shared world.
@@ -31,7 +31,7 @@ NEIGHBOUR_TIMEOUT_S: Final = 3.0
 NeighbourSource = Literal["relay", "link", "mesh"]
 RELAY: Final[NeighbourSource] = "relay"  # on the ground-station link: the supervisor's relay
 LINK: Final[NeighbourSource] = "link"  # on another MAVLink link (the API link): a client, another vehicle
-MESH: Final[NeighbourSource] = "mesh"  # heard from the neighbour's own radio (sitl/mesh.py)
+MESH: Final[NeighbourSource] = "mesh"  # heard from the neighbour's own radio (sitl/world/mesh.py)
 SOURCES: Final[tuple[NeighbourSource, ...]] = (RELAY, LINK, MESH)
 
 

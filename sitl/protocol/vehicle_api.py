@@ -260,7 +260,7 @@ class SetFence:
 @dataclass(frozen=True, slots=True, kw_only=True)
 class InjectFailure:
     """MAV_CMD_INJECT_FAILURE: param1 FAILURE_UNIT, param2 FAILURE_TYPE, param3 instance (0 all, else 1-based);
-    param4, this simulator's own, how long a MAVLink signal fault lasts (PX4 ignores it; see sitl/faults.py).
+    param4, this simulator's own, how long a MAVLink signal fault lasts (PX4 ignores it; see sitl/faults/failures.py).
 
     The vehicle refuses it (DENIED) unless SYS_FAILURE_EN = 1, as PX4 does; an accepted outcome's ``reason`` is the
     text announcing the failure, which the command service sends as a STATUSTEXT."""

@@ -15,7 +15,7 @@ import numpy as np
 import numpy.typing as npt
 
 from sitl.dynamics.plant import PlantState
-from sitl.faults import GPS_GLITCH_OFFSET_NE_M, GpsFault
+from sitl.faults.failures import GPS_GLITCH_OFFSET_NE_M, GpsFault
 from sitl.kernels import between_ticks as bt
 from sitl.mathutil import GRAVITY_MPS2, Vec3, fast_constructor, vec3
 from sitl.sensors.noise import NoiseSource
@@ -148,7 +148,8 @@ class Gps:
         self._drift_e_m = 0.0
         self._alpha = math.exp(-1.0 / (config.gps_rate_hz * config.gps_drift_time_s))
         self._drift_gain = math.sqrt(1 - self._alpha**2) * config.gps_pos_drift_h_m
-        # An injected fault (sitl/faults.py): OFF reports no fix, GLITCH offsets every fix by GPS_GLITCH_OFFSET_NE_M.
+        # An injected fault (sitl/faults/failures.py): OFF reports no fix, GLITCH offsets every fix by
+        # GPS_GLITCH_OFFSET_NE_M.
         self.fault = GpsFault.NONE
 
     def sample(self, truth: PlantState) -> GpsSample | None:

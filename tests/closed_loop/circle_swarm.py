@@ -26,16 +26,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sitl.airframe import load_airframe
-from sitl.awareness import Awareness
-from sitl.collision_prevention import RelayedNeighbour
+from sitl.avoidance.collision_prevention import RelayedNeighbour
 from sitl.control.cascade import TrajectorySetpoint
+from sitl.drone.awareness import Awareness
+from sitl.drone.closed_loop import SimConfig, Simulation
+from sitl.dynamics.airframe import load_airframe
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.dynamics.plant import DEFAULT_HOME
 from sitl.protocol.modes import Px4Mode
-from sitl.simulation import SimConfig, Simulation
-from sitl.world import SharedWorld
-from sitl.world_view import WorldParticipant
+from sitl.world.shared import SharedWorld
+from sitl.world.view import WorldParticipant
 
 RELAY_PERIOD_S = 0.05  # gcs/fleet/relay.py relays each drone at most 10 Hz; 20 Hz here costs nothing and errs safe
 SETPOINT_PERIOD_S = 0.05  # gcs/flight/formation.py SETPOINT_STREAM_HZ

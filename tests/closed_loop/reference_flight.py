@@ -14,11 +14,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sitl.battery import Battery
+from sitl.autopilot.mission_plan import NavItem, NavKind
 from sitl.control.cascade import AttitudeSetpoint, TrajectorySetpoint
-from sitl.mission_plan import NavItem, NavKind
+from sitl.drone.closed_loop import Simulation
+from sitl.dynamics.battery import Battery
 from sitl.protocol.modes import Px4Mode
-from sitl.simulation import Simulation
 from tests.closed_loop.flight import make_sim
 
 

@@ -12,13 +12,13 @@ import math
 import numpy as np
 import pytest
 
-from sitl.airframe import load_airframe
-from sitl.awareness import Awareness
+from sitl.drone.awareness import Awareness
+from sitl.drone.closed_loop import SimConfig, Simulation
+from sitl.dynamics.airframe import load_airframe
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.dynamics.plant import DEFAULT_HOME
-from sitl.simulation import SimConfig, Simulation
-from sitl.world import SharedWorld
-from sitl.world_view import WorldParticipant
+from sitl.world.shared import SharedWorld
+from sitl.world.view import WorldParticipant
 from tests.closed_loop.flight import take_off
 
 pytestmark = pytest.mark.timeout(240)

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.airframe import load_airframe
-from sitl.awareness import Awareness
+from sitl.drone.awareness import Awareness
+from sitl.drone.closed_loop import SimConfig, Simulation
+from sitl.dynamics.airframe import load_airframe
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.protocol.images import EncodedImage
-from sitl.simulation import SimConfig, Simulation
-from sitl.world import SharedWorld
-from sitl.world_view import WorldParticipant
+from sitl.world.shared import SharedWorld
+from sitl.world.view import WorldParticipant
 
 JPEG = mavlink.MAVLINK_DATA_STREAM_IMG_JPEG
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from sitl.control.cascade import TrajectorySetpoint
-from sitl.simulation import Simulation
+from sitl.drone.closed_loop import Simulation
 from tests.closed_loop.flight import make_sim
 
 pytestmark = pytest.mark.timeout(60)

@@ -1,4 +1,4 @@
-"""Several drones hosted in one process (sitl/runtime.py's loop over ``Drone``s): they advance together, and an
+"""Several drones hosted in one process (sitl/process/runtime.py's loop over ``Drone``s): they advance together, and an
 exception in one drone's own code ends that drone alone, as a crashed process would end it.
 
 The exception is injected by replacing one drone's ``step`` with one that raises after a while: no real input
@@ -14,14 +14,14 @@ from pathlib import Path
 
 import pytest
 
-from sitl.airframe import load_airframe
-from sitl.drone import Drone, DroneLogRouter, cpu_clock
+from sitl.dynamics.airframe import load_airframe
 from sitl.dynamics.geodesy import geo_from_ned
 from sitl.dynamics.plant import DEFAULT_HOME
-from sitl.runtime import RunOptions, StopFlag, run_loop
-from sitl.specs import DroneSpec, ProcessSpec
-from sitl.wind import WindConfig
-from sitl.world import END_FAILED, END_STOPPED, SharedWorld
+from sitl.dynamics.wind import WindConfig
+from sitl.process.drone import Drone, DroneLogRouter, cpu_clock
+from sitl.process.runtime import RunOptions, StopFlag, run_loop
+from sitl.process.specs import DroneSpec, ProcessSpec
+from sitl.world.shared import END_FAILED, END_STOPPED, SharedWorld
 
 pytestmark = pytest.mark.timeout(120)
 DURATION_S = 3.0

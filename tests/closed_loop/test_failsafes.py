@@ -14,13 +14,13 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.battery import Battery
+from sitl.autopilot.geofence import CircleZone, FenceKind, Geofence
+from sitl.autopilot.mission_plan import NavItem, NavKind
 from sitl.control.cascade import TrajectorySetpoint
-from sitl.estimation import Estimate
-from sitl.geofence import CircleZone, FenceKind, Geofence
-from sitl.mission_plan import NavItem, NavKind
+from sitl.drone.closed_loop import Simulation
+from sitl.dynamics.battery import Battery
+from sitl.estimation.estimator import Estimate
 from sitl.protocol.modes import FailsafeKind, Px4Mode, system_status
-from sitl.simulation import Simulation
 from tests.closed_loop.flight import boot_position, make_sim, reaction_tolerance_s, take_off
 
 pytestmark = pytest.mark.timeout(60)

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.estimation import Estimate
-from sitl.faults import BATTERY_TRIGGER_MARGIN, GPS_GLITCH_OFFSET_NE_M, FailureType, FailureUnit
-from sitl.mav_vehicle import SimVehicleApi
+from sitl.drone.closed_loop import GROUND_IMPACT_SPEED_MPS, Simulation
+from sitl.drone.vehicle_api import SimVehicleApi
+from sitl.estimation.estimator import Estimate
+from sitl.faults.failures import BATTERY_TRIGGER_MARGIN, GPS_GLITCH_OFFSET_NE_M, FailureType, FailureUnit
 from sitl.protocol import vehicle_api as api
-from sitl.simulation import GROUND_IMPACT_SPEED_MPS, Simulation
 from tests.closed_loop.flight import make_sim, take_off
 
 pytestmark = pytest.mark.timeout(90)
@@ -138,7 +138,7 @@ def test_battery_faults_read_just_below_their_threshold_and_clear() -> None:
     for level, threshold, charge_state in grades:
         sim.params.set("SYS_FAIL_BAT_LVL", level)
         outcome = inject(sim, BATTERY, WRONG)
-        if threshold not in sim.params:  # declared with the battery failsafe (sitl/autopilot_params.py)
+        if threshold not in sim.params:  # declared with the battery failsafe (sitl/autopilot/params.py)
             assert outcome.result is api.CommandResult.UNSUPPORTED
             continue
         assert outcome.ok, outcome

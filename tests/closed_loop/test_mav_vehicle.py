@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.drone.closed_loop import Simulation
+from sitl.drone.vehicle_api import SimVehicleApi
 from sitl.dynamics.geodesy import ned_from_geo
 from sitl.dynamics.plant import GeoPoint
-from sitl.mav_vehicle import SimVehicleApi
 from sitl.protocol import vehicle_api as api
 from sitl.protocol.modes import Px4Mode
-from sitl.simulation import Simulation
 from tests.closed_loop.flight import boot_position, make_sim
 
 pytestmark = pytest.mark.timeout(60)

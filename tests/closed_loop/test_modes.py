@@ -13,11 +13,11 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from sitl.battery import Battery
 from sitl.control.cascade import TrajectorySetpoint
+from sitl.drone.closed_loop import Simulation
+from sitl.dynamics.battery import Battery
 from sitl.protocol.modes import Px4Mode
 from sitl.protocol.vehicle_api import CommandResult, LandedState
-from sitl.simulation import Simulation
 from tests.closed_loop.flight import Trace, arm_when_ready, boot_position, make_sim, reaction_tolerance_s, take_off
 
 pytestmark = pytest.mark.timeout(60)
@@ -266,7 +266,7 @@ def test_disarming_is_refused_in_the_air_and_kill_stops_the_motors() -> None:
 
 def test_after_a_kill_in_the_air_it_can_arm_again_once_it_lies_on_the_ground() -> None:
     sim = make_sim(seed=18)
-    take_off(sim, 0.4)  # low enough that the drop does not break it (sitl/simulation.py GROUND_IMPACT_SPEED_MPS)
+    take_off(sim, 0.4)  # low enough that the drop does not break it (sitl/drone/closed_loop.py GROUND_IMPACT_SPEED_MPS)
     v = sim.vehicle
     assert v.kill().ok
     assert sim.run_until(lambda s: s.truth.on_ground, 3.0)

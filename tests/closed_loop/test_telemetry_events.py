@@ -13,7 +13,7 @@ from typing import Any, cast
 
 import pytest
 
-from sitl.mav_vehicle import SimVehicleApi
+from sitl.drone.vehicle_api import SimVehicleApi
 from sitl.protocol import Identity
 from sitl.protocol import vehicle_api as api
 from sitl.protocol.core import Effect
@@ -23,7 +23,7 @@ from tests.closed_loop.test_mav_vehicle import Drone, _waypoint
 
 pytestmark = pytest.mark.timeout(120)
 
-POLL_STEPS = 8  # sitl/runtime.py PACED_WAKE_STEPS
+POLL_STEPS = 8  # sitl/process/runtime.py PACED_WAKE_STEPS
 
 
 class SnapshotOnly:

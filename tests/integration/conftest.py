@@ -72,7 +72,7 @@ def pytest_addoption(parser: pytest.Parser) -> None:
         type=int,
         default=20,
         metavar="I",
-        help="first sitl instance number this run may use (default 20; its ports: sitl/ports.py)",
+        help="first sitl instance number this run may use (default 20; its ports: sitl/process/ports.py)",
     )
 
 

@@ -26,8 +26,8 @@ from typing import IO, Final
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.ports import MAX_INSTANCE, instance_ports
-from sitl.world import SharedWorld
+from sitl.process.ports import MAX_INSTANCE, instance_ports
+from sitl.world.shared import SharedWorld
 
 LOOPBACK: Final = "127.0.0.1"
 AUTOPILOT_COMPID: Final = 1
@@ -52,7 +52,8 @@ class SitlStartError(RuntimeError):
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class DronePorts:
-    """The UDP ports of one instance, as the drone computes them (sitl/ports.py: PX4 SITL's below instance 40)."""
+    """The UDP ports of one instance, as the drone computes them (sitl/process/ports.py: PX4 SITL's below instance
+    40)."""
 
     instance: int
 

@@ -24,9 +24,9 @@ import pytest
 
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.dynamics.plant import DEFAULT_HOME
-from sitl.lockstep import LockstepGate
-from sitl.world import ALT, REST_ALT, TIME, SharedWorld
-from sitl.world_view import others_ned_m
+from sitl.world.lockstep import LockstepGate
+from sitl.world.shared import ALT, REST_ALT, TIME, SharedWorld
+from sitl.world.view import others_ned_m
 from tests.integration.mavlink_client import arm_and_take_off, mavlink_connection, wait_vehicle_heartbeat
 from tests.integration.sitl_process import SitlDrone, start_drone, stop_drone
 from tests.integration.vehicle_link import VehicleLink

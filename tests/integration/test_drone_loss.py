@@ -58,7 +58,7 @@ class Supervisor:
         self._reader.start()
         self.wait_for(lambda: any("drones up" in ln for ln in self.lines), 60, "the drones to come up")
         direct = children_of(self.proc.pid)
-        factories = [p for p in direct if b"sitl.zygote" in Path(f"/proc/{p}/cmdline").read_bytes()]
+        factories = [p for p in direct if b"sitl.harness.zygote" in Path(f"/proc/{p}/cmdline").read_bytes()]
         self.drones = [d for f in factories for d in children_of(f)]
         self.children = [*direct, *self.drones]
 

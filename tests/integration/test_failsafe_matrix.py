@@ -28,7 +28,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.world import ALT, LAT, LON, TIME, VALID, VE, VN, SharedWorld
+from sitl.world.shared import ALT, LAT, LON, TIME, VALID, VE, VN, SharedWorld
 from tests.integration import sitl_process
 from tests.integration.mavlink_client import (
     PX4_AUTO_LAND,
@@ -577,7 +577,8 @@ def test_a_rotor_off_in_flight_the_drone_falls_and_stays_down(tmp_path: Path) ->
         samples = gcs.watch_body(lambda s: s[-1].up_m < 0.05, 10.0, "on the ground")
         fell_s = samples[-1].time_s - stopped.time_s
         assert fell_s <= 2.0, fell_s
-        # and what a client sees after it came down: the impact broke it (sitl/simulation.py GROUND_IMPACT_SPEED_MPS)
+        # and what a client sees after it came down: the impact broke it (sitl/drone/closed_loop.py
+        # GROUND_IMPACT_SPEED_MPS)
         assert gcs.wait_text("Ground impact at ", 2.0) is not None
         hb = gcs.recv(lambda m: m.get_type() == "HEARTBEAT", 3.0, "HEARTBEAT")
         status = gcs.recv(lambda m: m.get_type() == "SYS_STATUS", 3.0, "SYS_STATUS")

@@ -17,7 +17,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.world import ALT, TIME, VALID, SharedWorld
+from sitl.world.shared import ALT, TIME, VALID, SharedWorld
 from tests.integration import sitl_process
 from tests.integration.mavlink_client import (
     arm_and_take_off,

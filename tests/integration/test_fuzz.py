@@ -6,7 +6,7 @@ the drone's API port while it hovers. With nothing addressed to it that it would
 0.5 m; with commands to it as well, it may land or disarm but must not crash, log a traceback or stop answering.
 
 The drones use instances 220-239 (sysid 221-240) on ports 14580+k, 14540+k, 18570+k for k in 320-339 (set
-explicitly: 14860-14919 and 18890-18909, none of them any instance's own, sitl/ports.py), so they never meet the
+explicitly: 14860-14919 and 18890-18909, none of them any instance's own, sitl/process/ports.py), so they never meet the
 drones of other suites. bench/fuzz.py starts and stops each drone by PID itself.
 """
 

@@ -35,8 +35,8 @@ FIRST_INSTANCE = "30"
 # the machine changes, yet the flight still ends within the test's time. At the same priority each hand-over between
 # the supervisor and a drone waits for a burner's time slice, and the flight takes half an hour; at nice 10 the
 # loaded flight took 3.5 min, at nice 19 1.8 min. Where the kernel shares the CPU between sessions first (autogroup,
-# sitl/zygote.py), a process's nice value ranks it only within its session: a burner in the test's session took the
-# whole session's share from the drones (in theirs), so each burner has a session of its own, niced as a whole.
+# sitl/harness/zygote.py), a process's nice value ranks it only within its session: a burner in the test's session took
+# the whole session's share from the drones (in theirs), so each burner has a session of its own, niced as a whole.
 BURN = """import contextlib, os
 os.nice(19)
 with contextlib.suppress(OSError), open("/proc/self/autogroup", "w") as autogroup:

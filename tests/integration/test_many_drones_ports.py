@@ -4,8 +4,8 @@ Under PX4 SITL's port numbers drone i + 40 streams its API link to 14540 + i + 4
 i. Here instances 11-52 fly together (hosted, one process per CPU, on the ground: nothing needs to take off): drones
 11 and 12 keep PX4's ports, drones 51 and 52 are where PX4's numbers would send their streams into drones 11's and
 12's API sockets. Before the swarm starts, the test binds a client socket on every drone's API remote port
-(sitl/ports.py): under PX4's numbers two of those are drones 11's and 12's own API ports, and those drones could not
-start. Each client must then hear its own drone and no other, and a broadcast request to a drone's API port must be
+(sitl/process/ports.py): under PX4's numbers two of those are drones 11's and 12's own API ports, and those drones could
+not start. Each client must then hear its own drone and no other, and a broadcast request to a drone's API port must be
 answered by that drone alone.
 
 Policy: loopback only, no ground-station forward (nothing goes to 14550); instances 11-52, clear of a user's drones
@@ -26,7 +26,7 @@ from pathlib import Path
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.ports import PX4_INSTANCES, instance_ports
+from sitl.process.ports import PX4_INSTANCES, instance_ports
 from tests.integration.test_swarm import SWARM, alive, children_of, wait_dead
 
 pytestmark = [pytest.mark.sim_only, pytest.mark.heavy, pytest.mark.timeout(240)]
@@ -110,7 +110,8 @@ def test_more_than_40_drones_each_talk_only_to_their_own_api_clients(tmp_path: P
                 stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env,
             )  # fmt: skip
         wait_for_line(log, "drones up", proc, UP_TIMEOUT_S)
-        factories = [p for p in children_of(proc.pid) if b"sitl.zygote" in Path(f"/proc/{p}/cmdline").read_bytes()]
+        factories = [p for p in children_of(proc.pid)
+                     if b"sitl.harness.zygote" in Path(f"/proc/{p}/cmdline").read_bytes()]
         children = [*children_of(proc.pid), *(host for f in factories for host in children_of(f))]
         # THEN every client hears its own drone, and nothing from any other
         heard = listen(clients, LISTEN_S)

@@ -22,7 +22,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.ports import instance_ports
+from sitl.process.ports import instance_ports
 
 pytestmark = [pytest.mark.sim_only]
 

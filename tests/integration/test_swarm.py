@@ -81,9 +81,9 @@ class RunningSwarm:
         else:
             raise AssertionError("swarm up ended before the drones were up: " + "".join(self.output))
         # Every descendant must go at the end (multiprocessing's shared-memory tracker among them); the drones are
-        # the children of the drone factory (sitl.zygote), which forks them.
+        # the children of the drone factory (sitl.harness.zygote), which forks them.
         direct = children_of(self.proc.pid)
-        factories = [p for p in direct if b"sitl.zygote" in Path(f"/proc/{p}/cmdline").read_bytes()]
+        factories = [p for p in direct if b"sitl.harness.zygote" in Path(f"/proc/{p}/cmdline").read_bytes()]
         self.drones = [d for f in factories for d in children_of(f)]
         self.children = [*direct, *self.drones]
 
@@ -186,7 +186,8 @@ def test_sigterm_while_the_drones_start_ends_the_start_up_at_once(state_env: dic
     try:
         end = time.monotonic() + 30
         while factory is None and time.monotonic() < end and proc.poll() is None:
-            found = [p for p in children_of(proc.pid) if b"sitl.zygote" in Path(f"/proc/{p}/cmdline").read_bytes()]
+            found = [p for p in children_of(proc.pid)
+                     if b"sitl.harness.zygote" in Path(f"/proc/{p}/cmdline").read_bytes()]
             factory = found[0] if found else None
             time.sleep(0.005)
         assert factory is not None, "no drone factory started"

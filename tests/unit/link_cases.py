@@ -1,5 +1,5 @@
-"""One table of link settings and what both sides say about them: the drone's ``--link`` (sitl/linkmodel.py) and the
-ground station's ``--link-*`` options and ``[swarm.links]`` (gcs/fleet/links.py) must accept and refuse alike."""
+"""One table of link settings and what both sides say about them: the drone's ``--link`` (sitl/world/linkmodel.py) and
+the ground station's ``--link-*`` options and ``[swarm.links]`` (gcs/fleet/links.py) must accept and refuse alike."""
 
 from __future__ import annotations
 

@@ -10,8 +10,8 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from sitl.airframe import Airframe, Rotor, load_airframe
 from sitl.control.allocation import ControlAllocator, effectiveness_matrix
+from sitl.dynamics.airframe import Airframe, Rotor, load_airframe
 
 QUAD = load_airframe("quad_x_f450")
 T_MAX = QUAD.max_thrust_per_rotor_n

@@ -18,7 +18,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sitl.avoidance import (
+from sitl.avoidance.algorithm import (
     MAX_AGE_S,
     MAX_REL_POS_M,
     AvoidanceConfig,
@@ -36,7 +36,7 @@ from sitl.kernels import compiled
 pytestmark = pytest.mark.timeout(60)
 
 CONFIG = AvoidanceConfig()
-CONTACT_M = 2 * CONFIG.own_radius_m  # two F450 propeller circles touch (sitl/world.py)
+CONTACT_M = 2 * CONFIG.own_radius_m  # two F450 propeller circles touch (sitl/world/shared.py)
 DT_S = 0.02
 AVOID_PERIOD_S = 0.05
 TAU_S = 0.3

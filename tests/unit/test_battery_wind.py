@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
-from sitl.airframe import load_airframe
-from sitl.battery import Battery, BatteryConfig
+from sitl.dynamics.airframe import load_airframe
+from sitl.dynamics.battery import Battery, BatteryConfig
+from sitl.dynamics.wind import WindConfig, WindModel
 from sitl.mathutil import GRAVITY_MPS2
-from sitl.wind import WindConfig, WindModel
 
 pytestmark = pytest.mark.timeout(30)
 

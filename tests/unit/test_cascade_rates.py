@@ -7,9 +7,9 @@ import math
 
 import pytest
 
-from sitl.airframe import load_airframe
 from sitl.control.cascade import AttitudeSetpoint, Cascade, CascadeOutput, TrajectorySetpoint
 from sitl.control.params import CONTROL_PARAMS
+from sitl.dynamics.airframe import load_airframe
 from sitl.mathutil import GRAVITY_MPS2
 from sitl.params import ParamStore
 

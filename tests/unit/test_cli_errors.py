@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from sitl.airframe import AIRFRAMES_DIR
+from sitl.dynamics.airframe import AIRFRAMES_DIR
 
 pytestmark = pytest.mark.timeout(60)
 

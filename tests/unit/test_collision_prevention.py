@@ -8,13 +8,13 @@ import math
 import numpy as np
 import pytest
 
-from sitl.avoidance import Obstacle, fuse, obstacles_from_rows
-from sitl.collision_prevention import CollisionPrevention, RelayedNeighbour
+from sitl.avoidance.algorithm import Obstacle, fuse, obstacles_from_rows
+from sitl.avoidance.collision_prevention import CollisionPrevention, RelayedNeighbour
 from sitl.control.cascade import TrajectorySetpoint
 from sitl.control.params import position_config
 from sitl.control.position import PositionController
+from sitl.drone.closed_loop import build_param_store
 from sitl.mathutil import vec3
-from sitl.simulation import build_param_store
 
 pytestmark = pytest.mark.timeout(10)
 

@@ -8,7 +8,6 @@ import math
 import numpy as np
 import pytest
 
-from sitl.airframe import load_airframe
 from sitl.control.attitude import AttitudeController, thrust_to_attitude
 from sitl.control.cascade import AttitudeSetpoint, Cascade, TrajectorySetpoint
 from sitl.control.params import (
@@ -21,6 +20,7 @@ from sitl.control.params import (
 from sitl.control.position import PositionController
 from sitl.control.rate import RateController
 from sitl.control.velocity import VelocityController
+from sitl.dynamics.airframe import load_airframe
 from sitl.mathutil import GRAVITY_MPS2, quat_from_euler, quat_to_euler
 from sitl.params import ParamStore
 from tests.unit.toy_plant import CONTROL_DT_S, Flight, GustyWind, NoisyEstimate, ToyPlant, fly

@@ -5,15 +5,15 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from sitl.paramdoc import render
-from sitl.simulation import build_param_store
+from sitl.drone.closed_loop import build_param_store
+from sitl.drone.paramdoc import render
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 
 
 def test_parameter_table_in_docs_is_current() -> None:
     assert (DOCS / "parameters.md").read_text() == render(build_param_store()), (
-        "docs/parameters.md is stale: run `python -m sitl.paramdoc > docs/parameters.md`"
+        "docs/parameters.md is stale: run `python -m sitl.drone.paramdoc > docs/parameters.md`"
     )
 
 

@@ -13,7 +13,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from sitl.estimation import Estimate, Estimator, EstimatorConfig
+from sitl.estimation.estimator import Estimate, Estimator, EstimatorConfig
 from sitl.mathutil import GRAVITY_MPS2, quat_from_euler, quat_to_dcm, wrap_pi
 from sitl.sensors.models import BaroSample, GpsSample, ImuSample, MagSample, SensorConfig, SensorReadings
 

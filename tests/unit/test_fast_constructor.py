@@ -8,11 +8,11 @@ import math
 import numpy as np
 import pytest
 
+from sitl.autopilot.guidance import Reference
 from sitl.control.allocation import AllocationResult
 from sitl.control.cascade import CascadeOutput, TrajectorySetpoint
 from sitl.dynamics.plant import GeoPoint, PlantState
-from sitl.estimation import Estimate
-from sitl.guidance import Reference
+from sitl.estimation.estimator import Estimate
 from sitl.mathutil import fast_constructor
 from sitl.sensors.models import ImuSample, SensorReadings
 

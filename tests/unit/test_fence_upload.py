@@ -7,7 +7,7 @@ import math
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.geofence import CircleZone, FenceKind, PolygonZone
+from sitl.autopilot.geofence import CircleZone, FenceKind, PolygonZone
 from sitl.protocol.fence import to_geofence, validate_fence
 from sitl.protocol.mission import item_from_message
 from sitl.protocol.vehicle_api import SetFence, SetMission

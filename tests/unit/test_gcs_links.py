@@ -16,9 +16,9 @@ from gcs.fleet.harness import SpawnPlan
 from gcs.fleet.links import LINK_CLASSES, LINK_KEYS, LinkPlan, LinkSettings, parse_link_value
 from gcs.missions.mission_file import MissionFileError, parse_mission
 from sitl.harness.processes import host_args, sitl_args
-from sitl.linkmodel import IMPAIRMENT_KEYS, LinkImpairment, LinkProfile
-from sitl.linkmodel import LINK_CLASSES as SITL_LINK_CLASSES
-from sitl.linkmodel import link_profile as sitl_link_profile
+from sitl.world.linkmodel import IMPAIRMENT_KEYS, LinkImpairment, LinkProfile
+from sitl.world.linkmodel import LINK_CLASSES as SITL_LINK_CLASSES
+from sitl.world.linkmodel import link_profile as sitl_link_profile
 from tests.unit.link_cases import PAIR_CASES, VALUE_CASES
 
 pytestmark = pytest.mark.timeout(60)

@@ -1,10 +1,11 @@
-"""Geofence geometry (sitl/geofence.py): polygon and circle zones, inclusion and exclusion, distance limits."""
+"""Geofence geometry (sitl/autopilot/geofence.py): polygon and circle zones, inclusion and exclusion, distance
+limits."""
 
 from __future__ import annotations
 
 import pytest
 
-from sitl.geofence import CircleZone, FenceKind, Geofence, PolygonZone
+from sitl.autopilot.geofence import CircleZone, FenceKind, Geofence, PolygonZone
 
 pytestmark = pytest.mark.timeout(10)
 

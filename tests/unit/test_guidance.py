@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from sitl.guidance import MotionLimits, Reference, StraightLineTrajectory
+from sitl.autopilot.guidance import MotionLimits, Reference, StraightLineTrajectory
 
 pytestmark = pytest.mark.timeout(30)
 

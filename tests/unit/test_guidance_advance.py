@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from sitl.guidance import MotionLimits, StraightLineTrajectory
+from sitl.autopilot.guidance import MotionLimits, StraightLineTrajectory
 
 pytestmark = pytest.mark.timeout(30)
 

@@ -9,9 +9,9 @@ import time
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.faults import FailureType, FailureUnit, FaultError, FaultState, apply_request, decode_request
-from sitl.mavlink_io import LinkConfig, MavlinkEndpoint
+from sitl.faults.failures import FailureType, FailureUnit, FaultError, FaultState, apply_request, decode_request
 from sitl.params import ParamStore
+from sitl.process.mavlink_io import LinkConfig, MavlinkEndpoint
 from sitl.protocol import Identity
 from sitl.protocol.core import MAVLinkMessage
 from sitl.protocol.testing import FakeVehicle, Wire, of_type

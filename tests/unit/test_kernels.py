@@ -91,7 +91,7 @@ def test_every_kernel_is_compiled_when_its_module_is_imported_and_never_again() 
 _FLY = """
 import hashlib, json, sys
 import numba.core.registry
-import sitl.app, sitl.perception.detector  # every drone module, as the zygote imports them before it forks
+import sitl.process.app, sitl.perception.detector  # every drone module, as the zygote imports them before it forks
 from sitl.kernels import compiled
 from tests.closed_loop.flight import arm_when_ready, make_sim
 sim = make_sim(seed=4)
@@ -163,10 +163,10 @@ def test_no_numpy_transcendental_in_flight_code() -> None:
 
 @pytest.mark.skipif(not sitl.kernels.compiled(), reason="kernels switched off in this process")
 def test_the_compiled_cascade_gives_its_python_forms_bits_saturated_or_not() -> None:
-    from sitl.airframe import load_airframe
     from sitl.control.cascade import Cascade
+    from sitl.drone.closed_loop import build_param_store
+    from sitl.dynamics.airframe import load_airframe
     from sitl.kernels import cascade as ck
-    from sitl.simulation import build_param_store
 
     cascade = Cascade(load_airframe(), build_param_store())
     rng = np.random.default_rng(11)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sitl.land_detector import LandDetector, LandDetectorConfig
+from sitl.autopilot.land_detector import LandDetector, LandDetectorConfig
 
 pytestmark = pytest.mark.timeout(10)
 

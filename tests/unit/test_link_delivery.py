@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.linkmodel import DelayLine, LinkChannel, LinkImpairment
-from sitl.mavlink_io import LinkConfig, MavlinkEndpoint
 from sitl.params import ParamStore
+from sitl.process.mavlink_io import LinkConfig, MavlinkEndpoint
 from sitl.protocol import Identity
 from sitl.protocol.testing import FakeVehicle, Wire
+from sitl.world.linkmodel import DelayLine, LinkChannel, LinkImpairment
 from tests.unit.test_protocol_commands import MAVSDK, SYSID
 
 pytestmark = pytest.mark.timeout(30)

@@ -1,5 +1,5 @@
-"""The link model (sitl/linkmodel.py): loss, burst outages, latency and jitter, the bandwidth cap, its counters, its
-seeding, and the drone's ``--link`` option.
+"""The link model (sitl/world/linkmodel.py): loss, burst outages, latency and jitter, the bandwidth cap, its counters,
+its seeding, and the drone's ``--link`` option.
 
 Statistical checks use fixed seeds and bounds of four standard deviations of the estimate: deterministic, and
 tight enough that a model a few percent off its setting fails."""
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from sitl.cli import main as sitl_main
-from sitl.linkmodel import (
+from sitl.world.linkmodel import (
     DIRECTIONS,
     LINK_CLASSES,
     MAX_QUEUE_S,

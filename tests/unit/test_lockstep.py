@@ -9,8 +9,8 @@ from collections.abc import Iterator
 
 import pytest
 
-from sitl.lockstep import GATE_WAKE_AHEAD_STEPS, LockstepGate, LockstepMember
-from sitl.world import SharedWorld
+from sitl.world.lockstep import GATE_WAKE_AHEAD_STEPS, LockstepGate, LockstepMember
+from sitl.world.shared import SharedWorld
 
 DT_S = 1.0 / 400.0
 

@@ -1,4 +1,4 @@
-"""The drone-to-drone mesh (sitl/mesh.py): the medium in a real shared world, the path-loss rule, what a radio
+"""The drone-to-drone mesh (sitl/world/mesh.py): the medium in a real shared world, the path-loss rule, what a radio
 hears and when, and the neighbour table's sources (sitl/protocol/neighbours.py)."""
 
 from __future__ import annotations
@@ -13,16 +13,16 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.dynamics.geodesy import geo_from_ned
 from sitl.dynamics.plant import DEFAULT_HOME
-from sitl.linkmodel import LinkImpairment
-from sitl.mavlink_io import MavlinkEndpoint
-from sitl.mesh import MESH_RATE_HZ, MeshCounters, MeshMedium, MeshRadio, MeshSettings, mesh_problem
 from sitl.params import ParamStore
+from sitl.process.mavlink_io import MavlinkEndpoint
 from sitl.protocol import Identity
 from sitl.protocol.neighbours import LINK, MESH, RELAY, NeighbourFeed, NeighbourTable
 from sitl.protocol.signing import SIGN_ALWAYS, SIGN_CFG_PARAM
+from sitl.protocol.signing_params import SIGNING_PARAMS
 from sitl.protocol.testing import FakeVehicle
-from sitl.signing_params import SIGNING_PARAMS
-from sitl.world import MESH_SLOT_BYTES, MESH_SLOTS, SharedWorld
+from sitl.world.linkmodel import LinkImpairment
+from sitl.world.mesh import MESH_RATE_HZ, MeshCounters, MeshMedium, MeshRadio, MeshSettings, mesh_problem
+from sitl.world.shared import MESH_SLOT_BYTES, MESH_SLOTS, SharedWorld
 
 pytestmark = pytest.mark.timeout(60)
 

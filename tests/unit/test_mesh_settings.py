@@ -27,7 +27,7 @@ from gcs.missions.mission_file import MissionFileError, parse_mission
 from sitl.cli import build_parser as sitl_parser
 from sitl.cli import main as sitl_main
 from sitl.harness.processes import host_args, sitl_args
-from sitl.mesh import DEFAULT_EXPONENT, DEFAULT_RANGE_M, MAX_EXPONENT, MeshSettings, mesh_problem
+from sitl.world.mesh import DEFAULT_EXPONENT, DEFAULT_RANGE_M, MAX_EXPONENT, MeshSettings, mesh_problem
 
 pytestmark = pytest.mark.timeout(60)
 

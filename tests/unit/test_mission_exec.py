@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from sitl.mission_exec import LAND_GOTO_ACCEPT_M, MissionAction, MissionExecutor, MissionRun
-from sitl.mission_plan import NAN3, NavItem, NavKind
+from sitl.autopilot.mission_exec import LAND_GOTO_ACCEPT_M, MissionAction, MissionExecutor, MissionRun
+from sitl.autopilot.mission_plan import NAN3, NavItem, NavKind
 
 pytestmark = pytest.mark.timeout(10)
 

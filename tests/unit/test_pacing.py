@@ -7,8 +7,8 @@ import math
 
 import pytest
 
-from sitl.pacing import Pacer
-from sitl.runtime import BOOT_FAST_FORWARD_MAX_S, WallClockSteps
+from sitl.process.pacing import Pacer
+from sitl.process.runtime import BOOT_FAST_FORWARD_MAX_S, WallClockSteps
 
 pytestmark = pytest.mark.timeout(10)
 

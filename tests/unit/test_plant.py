@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sitl.airframe import Airframe, load_airframe
+from sitl.dynamics.airframe import Airframe, load_airframe
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.dynamics.jsbsim_model import contact_count, model_name, write_model
 from sitl.dynamics.jsbsim_plant import JsbsimPlant

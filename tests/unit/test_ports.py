@@ -1,4 +1,4 @@
-"""The UDP ports of every instance (sitl/ports.py): PX4 SITL's below 40, and from there on a block that collides
+"""The UDP ports of every instance (sitl/process/ports.py): PX4 SITL's below 40, and from there on a block that collides
 with nothing, so that no drone hears another's API traffic; the limits both sides draw from the sysids."""
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ from gcs.fleet.harness import LAST_INSTANCE, MAX_DRONES
 from gcs.mavlink.transport import GCS_SYSID
 from sitl.cli import _links, build_parser
 from sitl.harness.simulation import MAX_INSTANCES
-from sitl.ports import GCS_REMOTE_PORT, INSTANCES, MAX_INSTANCE, InstancePorts, instance_ports
-from sitl.world import MAX_DRONES as WORLD_ROWS
+from sitl.process.ports import GCS_REMOTE_PORT, INSTANCES, MAX_INSTANCE, InstancePorts, instance_ports
+from sitl.world.shared import MAX_DRONES as WORLD_ROWS
 
 ALL = [instance_ports(i) for i in range(INSTANCES)]
 

@@ -10,10 +10,10 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.drone.closed_loop import build_param_store
 from sitl.protocol import Identity, LinkServices
 from sitl.protocol.core import Effect
 from sitl.protocol.testing import FakeVehicle
-from sitl.simulation import build_param_store
 
 SYSID = 1
 CLIENT = (255, 190)

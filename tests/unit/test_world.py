@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from sitl.dynamics.plant import GeoPoint, PlantState
-from sitl.lockstep import LockstepGate, LockstepMember
 from sitl.mathutil import GRAVITY_MPS2, vec3
-from sitl.world import STEP, SharedWorld, lockstep_epoch_steps
-from sitl.world_view import WorldParticipant, contacts, others_ned_m
+from sitl.world.lockstep import LockstepGate, LockstepMember
+from sitl.world.shared import STEP, SharedWorld, lockstep_epoch_steps
+from sitl.world.view import WorldParticipant, contacts, others_ned_m
 
 LAT, LON, ALT = 47.397742, 8.545594, 490.0
 M_PER_DEG_LAT = 6_371_000.0 * 3.141592653589793 / 180.0

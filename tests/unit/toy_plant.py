@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from sitl.airframe import Airframe
+from sitl.dynamics.airframe import Airframe
 from sitl.mathutil import GRAVITY_MPS2, quat_from_euler, quat_to_dcm, quat_to_euler
 
 CONTROL_DT_S = 1.0 / 400.0

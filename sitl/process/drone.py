@@ -1,8 +1,8 @@
 """One simulated drone as its process's loop drives it: the simulation, its MAVLink links, its place in the shared
 world, its perception, and its output.
 
-A process runs one drone (the default, and the shape of PX4 SITL) or hosts several (sitl/runtime.py steps them all
-in one loop). Either way each drone is built and driven the same way, through ``Drone``, so a hosted drone is on the
+A process runs one drone (the default, and the shape of PX4 SITL) or hosts several (sitl/process/runtime.py steps them
+all in one loop). Either way each drone is built and driven the same way, through ``Drone``, so a hosted drone is on the
 wire and in the world exactly what a lone one is: its own sysid, ports, JSBSim instance, autopilot, parameters, seed
 and log. Only the loop around it, and who owns the process, differ.
 """
@@ -18,18 +18,18 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TextIO
 
-from sitl.awareness import Awareness
-from sitl.demo import DemoFlight
-from sitl.linkmodel import drone_channels
-from sitl.mav_vehicle import SimVehicleApi
-from sitl.mavlink_io import MavlinkEndpoint
-from sitl.mesh import MeshMedium, MeshRadio
+from sitl.drone.awareness import Awareness
+from sitl.drone.closed_loop import SimConfig, Simulation, build_param_store
+from sitl.drone.demo import DemoFlight
+from sitl.drone.vehicle_api import SimVehicleApi
 from sitl.onboard.runner import OnboardRunner
+from sitl.process.mavlink_io import MavlinkEndpoint
+from sitl.process.specs import DroneSpec, ProcessSpec
 from sitl.protocol import Identity
 from sitl.protocol.signing import SIGN_ALWAYS, SIGN_CFG_PARAM, key_id
-from sitl.simulation import SimConfig, Simulation, build_param_store
-from sitl.specs import DroneSpec, ProcessSpec
-from sitl.world import (
+from sitl.world.linkmodel import drone_channels
+from sitl.world.mesh import MeshMedium, MeshRadio
+from sitl.world.shared import (
     DRONE_SENT,
     END_EXITED,
     END_FAILED,
@@ -37,7 +37,7 @@ from sitl.world import (
     SharedWorld,
     lockstep_epoch_steps,
 )
-from sitl.world_view import WorldParticipant
+from sitl.world.view import WorldParticipant
 
 AWAIT_SUPERVISOR_S = 1.0  # wall seconds a lockstep drone waits for a datagram the supervisor has sent
 CPU_REPORT_STEPS = 100  # how often the time spent per part is published in the shared world (for benchmarks)
@@ -83,7 +83,7 @@ class DroneLogRouter(logging.Handler):
 
 
 class Drone:
-    """One drone: built from its spec, then stepped, fed and polled by its process's loop (sitl/runtime.py).
+    """One drone: built from its spec, then stepped, fed and polled by its process's loop (sitl/process/runtime.py).
 
     ``fail`` ends it for good after an exception in its own code: the traceback goes to its log, its links close (it
     falls silent, as a crashed process does) and its body falls in the shared world; the other drones of its process
@@ -144,7 +144,7 @@ class Drone:
         if self.endpoint is not None and self._impaired:
             self.endpoint.impair(drone_channels(common.links, seed=spec.seed))
             self.say(f"links: {common.links.describe()}")
-        # The drone-to-drone mesh: a radio on the shared world's medium (sitl/mesh.py), heard after every step.
+        # The drone-to-drone mesh: a radio on the shared world's medium (sitl/world/mesh.py), heard after every step.
         self.mesh: MeshRadio | None = None
         if common.mesh is not None and world is not None and self.endpoint is not None:
             self.mesh = MeshRadio(
@@ -225,7 +225,7 @@ class Drone:
 
     def await_supervisor(self) -> None:
         """Lockstep, before the first step the gate allows: read until every datagram the supervisor sent before it
-        opened the gate is in (sitl/world.py SUPERVISOR_SENT), so that all of it is used at this simulated time.
+        opened the gate is in (sitl/world/shared.py SUPERVISOR_SENT), so that all of it is used at this simulated time.
         A datagram still missing after AWAIT_SUPERVISOR_S was lost (a full socket buffer): the drone goes on, and
         says so once."""
         link = self._supervisor_link

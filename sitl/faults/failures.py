@@ -1,6 +1,6 @@
 """Injected faults: which units of one drone have failed, decoded from MAV_CMD_INJECT_FAILURE as PX4 decodes it.
 
-Pure, no IO. The MAVLink side (sitl/mav_vehicle.py) turns an accepted ``FaultRequest`` into a change of
+Pure, no IO. The MAVLink side (sitl/drone/vehicle_api.py) turns an accepted ``FaultRequest`` into a change of
 ``FaultState`` and pushes the state into the parts that make each fault real: the plant (a failed rotor gives no
 thrust), the GPS receiver (no fix, or a fix offset by ``GPS_GLITCH_OFFSET_NE_M``), the battery monitor (a reading
 just below a failsafe threshold, or empty) and the MAVLink endpoint (silent for the rest of the process, or for
@@ -63,7 +63,8 @@ class BatteryFault(Enum):
 
 
 # A GPS glitch moves every reported fix this far (north, east). 30 m is a typical multipath or spoofing jump; it is
-# six times the estimator's innovation gate (GPS_POS_GATE_M in sitl/estimation.py), so the gate must reject it.
+# six times the estimator's innovation gate (GPS_POS_GATE_M in sitl/estimation/estimator.py), so the gate must reject
+# it.
 GPS_GLITCH_OFFSET_NE_M: Final = (30.0, 0.0)
 # PX4 reports the charge this much below the chosen threshold, so that stage of the battery failsafe triggers.
 BATTERY_TRIGGER_MARGIN: Final = 0.01

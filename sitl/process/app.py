@@ -6,11 +6,11 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 
-from sitl.drone import Drone, DroneLogRouter, cpu_clock
-from sitl.lockstep import LockstepMember
-from sitl.runtime import LockstepSteps, RunOptions, StepClock, StopFlag, run_loop
-from sitl.specs import DroneSpec, ProcessSpec
-from sitl.world import SharedWorld
+from sitl.process.drone import Drone, DroneLogRouter, cpu_clock
+from sitl.process.runtime import LockstepSteps, RunOptions, StepClock, StopFlag, run_loop
+from sitl.process.specs import DroneSpec, ProcessSpec
+from sitl.world.lockstep import LockstepMember
+from sitl.world.shared import SharedWorld
 
 EXIT_FAILED = 1  # every drone of the process ended by an exception in its own code
 

@@ -1,6 +1,6 @@
 """One drone's closed loop without any IO: plant -> sensors -> estimator -> autopilot -> plant.
 
-Tests fly this directly (no sockets, no clock); the process runtime (sitl/runtime.py) wraps it with pacing and
+Tests fly this directly (no sockets, no clock); the process runtime (sitl/process/runtime.py) wraps it with pacing and
 MAVLink. Everything random is drawn from streams spawned from one seed, so a seed fixes the whole flight.
 """
 
@@ -13,23 +13,23 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sitl.airframe import Airframe
-from sitl.autopilot_params import AUTOPILOT_PARAMS
-from sitl.avoidance_params import AVOIDANCE_PARAMS
-from sitl.battery import Battery, BatteryConfig
+from sitl.autopilot.commander import Vehicle
+from sitl.autopilot.params import AUTOPILOT_PARAMS
+from sitl.avoidance.params import AVOIDANCE_PARAMS
 from sitl.control.cascade import Cascade
 from sitl.control.params import CONTROL_PARAMS
+from sitl.dynamics.airframe import Airframe
+from sitl.dynamics.battery import Battery, BatteryConfig
 from sitl.dynamics.jsbsim_plant import JsbsimPlant
 from sitl.dynamics.plant import DEFAULT_HOME, PHYSICS_RATE_HZ, GeoPoint, PlantState
-from sitl.estimation import Estimate, Estimator, EstimatorConfig
-from sitl.fault_params import FAULT_PARAMS
-from sitl.faults import FaultState
+from sitl.dynamics.wind import WindConfig, WindModel
+from sitl.estimation.estimator import Estimate, Estimator, EstimatorConfig
+from sitl.faults.failures import FaultState
+from sitl.faults.params import FAULT_PARAMS
 from sitl.kernels import between_ticks as bt
 from sitl.params import ParamDef, ParamStore
+from sitl.protocol.signing_params import SIGNING_PARAMS
 from sitl.sensors.models import GpsSample, SensorConfig, SensorSuite
-from sitl.signing_params import SIGNING_PARAMS
-from sitl.vehicle import Vehicle
-from sitl.wind import WindConfig, WindModel
 
 # A touchdown faster than this breaks the airframe (gear, arms, props): the vehicle is crashed, as after a collision.
 # A normal landing touches down at MPC_LAND_SPEED (0.7 m/s) or slower; 3 m/s is the speed of a drop from 0.46 m, which
@@ -87,7 +87,7 @@ class Simulation:
         self.physics_ns = 0  # JSBSim, wind, battery
         # The clock the parts are timed with: monotonic by default (a read costs ~40 ns); a drone in a swarm uses its
         # thread's CPU clock instead (~0.4 us a read), because with more drones than cores a monotonic clock also
-        # counts the time a drone waits for a CPU, charged to whichever part it was preempted in (sitl/app.py).
+        # counts the time a drone waits for a CPU, charged to whichever part it was preempted in (sitl/process/app.py).
         self.part_clock_ns: Callable[[], int] = time.perf_counter_ns
 
     def set_faults(self, faults: FaultState) -> None:
@@ -100,7 +100,8 @@ class Simulation:
 
     def step(self) -> PlantState:
         """Advance one physics step (sensors sample at their own rates, the estimator, attitude and rate control
-        every step; the autopilot's commander and the position and velocity loops on its ticks, sitl/vehicle.py).
+        every step; the autopilot's commander and the position and velocity loops on its ticks,
+        sitl/autopilot/commander.py).
 
         A step between ticks with the IMU alone due is one compiled call (``_between_ticks``); the others go through
         the parts' shells. The two halves are timed (``control_ns``, ``physics_ns``) with ``part_clock_ns`` so

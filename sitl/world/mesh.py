@@ -1,8 +1,8 @@
 """The drone-to-drone mesh: every drone broadcasts its own position reports on a simulated radio, and the drones
 within range hear them directly, with no ground station in between.
 
-The medium is simulation-side, like the bodies: one ring per drone in the shared world (sitl/world.py), into which
-the drone posts the GLOBAL_POSITION_INT frame it builds for its links (at most ``MESH_RATE_HZ``), with the physics
+The medium is simulation-side, like the bodies: one ring per drone in the shared world (sitl/world/shared.py), into
+which the drone posts the GLOBAL_POSITION_INT frame it builds for its links (at most ``MESH_RATE_HZ``), with the physics
 step and simulated time it was sent at. A slot is written before the ring's count is advanced; the ring has a single
 writer, and a reader that falls a whole ring behind skips what was overwritten (counted as an overrun). The ground
 station never reads it.
@@ -16,7 +16,7 @@ which it hears:
    budget falls with a power of the distance (2 in free space, 3 to 4 near the ground and among obstacles), and
    a receiver loses frames more and more often as the signal nears its sensitivity, until it hears nothing at the
    edge. With the default exponent 4, half range loses 6 %, three quarters 32 %, 90 % of the range 66 %.
-3. **The link model** (sitl/linkmodel.py) with the neighbour class's settings: loss, bursts, latency and jitter,
+3. **The link model** (sitl/world/linkmodel.py) with the neighbour class's settings: loss, bursts, latency and jitter,
    bandwidth, on the receiver's own mesh channel, as independent events after the path loss.
 
 What survives is handed to the drone's neighbour table as a report heard over the mesh (sitl/protocol/neighbours.py).
@@ -42,7 +42,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from sitl.linkmodel import (
+from sitl.world.linkmodel import (
     CHANNEL_SEED_TAG,
     DIRECTIONS,
     LINK_CLASSES,
@@ -51,7 +51,7 @@ from sitl.linkmodel import (
     LinkCounters,
     LinkImpairment,
 )
-from sitl.world import (
+from sitl.world.shared import (
     ALT,
     EARTH_RADIUS_M,
     LAT,

@@ -5,8 +5,8 @@ numpy, JSBSim, pymavlink's message tables and OpenCV. Nine drones on two cores s
 that alone, fifty more than twelve. A fork of a process that already holds all of it costs a few milliseconds, and
 the children share those pages copy-on-write instead of each holding its own copy.
 
-The simulation harness (sitl/harness/processes.py) starts ``python -m sitl.zygote`` and talks to it over its stdin
-and stdout, one JSON object per line:
+The simulation harness (sitl/harness/processes.py) starts ``python -m sitl.harness.zygote`` and talks to it over its
+stdin and stdout, one JSON object per line:
 
 - request ``{"argv": [...], "log": PATH or null, "nice": N}``: fork a drone running ``sitl.cli.main(argv)`` with
   stdout and stderr in ``log`` (or /dev/null), at niceness ``nice``;
@@ -51,9 +51,9 @@ def _preload() -> None:
         os.environ.setdefault(var, "1")
     # The drone's whole import graph (simulation, autopilot, MAVLink, world), and OpenCV, which a drone imports
     # when its camera first runs.
-    import sitl.app
     import sitl.cli
-    import sitl.perception.detector  # noqa: F401
+    import sitl.perception.detector
+    import sitl.process.app  # noqa: F401
 
 
 def _lower_priority(nice: int) -> None:

@@ -1,6 +1,7 @@
 """What a drone perceives of the other bodies: its camera and the relayed neighbour table, fed to the autopilot.
 
-Two sensors, each at its own rate, both ending in the autopilot's collision prevention (sitl/collision_prevention.py):
+Two sensors, each at its own rate, both ending in the autopilot's collision prevention
+(sitl/avoidance/collision_prevention.py):
 
 - the camera rig renders a frame from the shared world's truth (the other drones' true positions and any static
   obstacles the mission declared, this drone's true attitude - the camera is a sensor, and sensors see the world as
@@ -25,8 +26,9 @@ import cv2
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.avoidance import new_obstacle as _new_obstacle
-from sitl.collision_prevention import RelayedNeighbour
+from sitl.avoidance.algorithm import new_obstacle as _new_obstacle
+from sitl.avoidance.collision_prevention import RelayedNeighbour
+from sitl.drone.closed_loop import Simulation
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.mathutil import fast_constructor
 from sitl.params import ParamStore
@@ -43,9 +45,8 @@ from sitl.perception.camera import (
 from sitl.perception.detector import detect_rig, to_ned_all
 from sitl.protocol.images import EncodedImage
 from sitl.protocol.neighbours import Neighbour, NeighbourTable
-from sitl.simulation import Simulation
-from sitl.world import SharedWorld
-from sitl.world_view import others_ned_m
+from sitl.world.shared import SharedWorld
+from sitl.world.view import others_ned_m
 
 RELAY_PERIOD_S = 0.05
 _new_relayed = fast_constructor(RelayedNeighbour)

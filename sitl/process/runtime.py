@@ -19,10 +19,10 @@ from dataclasses import dataclass
 from types import FrameType
 from typing import Protocol
 
-from sitl.drone import Drone, DroneLogRouter
-from sitl.lockstep import MAX_SLEEP_S, LockstepMember
-from sitl.pacing import Pacer
-from sitl.world import END_STOPPED
+from sitl.process.drone import Drone, DroneLogRouter
+from sitl.process.pacing import Pacer
+from sitl.world.lockstep import MAX_SLEEP_S, LockstepMember
+from sitl.world.shared import END_STOPPED
 
 log = logging.getLogger(__name__)
 
@@ -130,7 +130,7 @@ class WallClockSteps:
 
 
 class LockstepSteps:
-    """Advanced together with the other drones through the shared world (sitl/lockstep.py)."""
+    """Advanced together with the other drones through the shared world (sitl/world/lockstep.py)."""
 
     def __init__(self, member: LockstepMember) -> None:
         self.member = member

@@ -12,8 +12,8 @@ import math
 from dataclasses import dataclass
 from enum import Enum
 
+from sitl.autopilot.mission_plan import NavItem, NavKind
 from sitl.mathutil import Vec3
-from sitl.mission_plan import NavItem, NavKind
 
 TAKEOFF_ALT_ACCEPT_M = 0.3  # PX4 accepts the takeoff item within a fraction of a metre of its altitude
 LAND_GOTO_ACCEPT_M = 0.5

@@ -7,12 +7,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from sitl.airframe import Airframe
+from sitl.dynamics.airframe import Airframe
 from sitl.dynamics.plant import GeoPoint
-from sitl.linkmodel import LinkProfile
-from sitl.mavlink_io import LinkConfig
-from sitl.mesh import MeshSettings
-from sitl.wind import WindConfig
+from sitl.dynamics.wind import WindConfig
+from sitl.process.mavlink_io import LinkConfig
+from sitl.world.linkmodel import LinkProfile
+from sitl.world.mesh import MeshSettings
 
 if TYPE_CHECKING:
     from sitl.onboard.loader import LoadedBehaviour
@@ -33,7 +33,7 @@ class DroneSpec:
 @dataclass(frozen=True, slots=True, kw_only=True)
 class ProcessSpec:
     """What every drone of one process shares: one airframe, one clock, one world, one wind, one link profile (each
-    drone draws its own link decisions from its seed and instance: sitl/linkmodel.py ``drone_channels``)."""
+    drone draws its own link decisions from its seed and instance: sitl/world/linkmodel.py ``drone_channels``)."""
 
     airframe: Airframe
     speed_factor: float

@@ -62,8 +62,8 @@ class Battery:
         self.config = config
         self._consumed_mah = (1.0 - initial_remaining) * config.capacity_mah
         self._current_a = 0.0
-        # An injected battery failure (sitl/faults.py) is a fault of the monitor, not of the cells: the pack goes on
-        # powering the motors from its true charge while the monitor reports this charge (None: the true one).
+        # An injected battery failure (sitl/faults/failures.py) is a fault of the monitor, not of the cells: the pack
+        # goes on powering the motors from its true charge while the monitor reports this charge (None: the true one).
         self.reported_remaining: float | None = None
 
     @property

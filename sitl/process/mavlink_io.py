@@ -1,15 +1,15 @@
 """MAVLink over UDP for one drone: sockets, framing, and the routing of effects. The only IO of the protocol stack.
 
 Each link (the API link on 14580+i and the ground-station link on 18570+i, PX4's SITL convention; from instance 40
-on the API link is on 16000+i, sitl/ports.py) is a non-blocking UDP socket with its own ``LinkServices``. A link
+on the API link is on 16000+i, sitl/process/ports.py) is a non-blocking UDP socket with its own ``LinkServices``. A link
 streams to its configured remote from boot and also answers every address that has sent it something (PX4's
 behaviour), so a client on any port is heard. Datagrams are parsed with pymavlink's robust parser: garbage becomes
 "bad data" and is dropped; nothing a peer sends can raise out of here.
 
-An injected MAVLink failure (FAILURE_UNIT_SYSTEM_MAVLINK_SIGNAL, see sitl/faults.py) silences every link for the rest
-of the process or for the time it asks, as a dead radio would: the reply that accepted the injection still leaves,
-then nothing is sent, and whatever arrives is read and dropped unparsed (read, so that the loop's select does not
-wake on it for ever). When the time is up the links simply work again, as a radio that comes back in range.
+An injected MAVLink failure (FAILURE_UNIT_SYSTEM_MAVLINK_SIGNAL, see sitl/faults/failures.py) silences every link for
+the rest of the process or for the time it asks, as a dead radio would: the reply that accepted the injection still
+leaves, then nothing is sent, and whatever arrives is read and dropped unparsed (read, so that the loop's select does
+not wake on it for ever). When the time is up the links simply work again, as a radio that comes back in range.
 """
 
 from __future__ import annotations
@@ -24,7 +24,6 @@ from typing import TYPE_CHECKING
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.linkmodel import DelayLine, Direction, LinkChannel, LinkClass, LinkCounters, counters_by_class
 from sitl.onboard.interface import GroundMessage
 from sitl.params import ParamStore
 from sitl.protocol import Identity, LinkServices, Send, VehicleApi, framing
@@ -33,9 +32,10 @@ from sitl.protocol.images import EncodedImage, ImageSource
 from sitl.protocol.neighbours import LINK, MESH, RELAY, NeighbourFeed, NeighbourTable
 from sitl.protocol.signing import SIGN_CFG_PARAM, SigningGate, SigningState
 from sitl.protocol.telemetry import PollShare
+from sitl.world.linkmodel import DelayLine, Direction, LinkChannel, LinkClass, LinkCounters, counters_by_class
 
 if TYPE_CHECKING:
-    from sitl.mesh import MeshRadio
+    from sitl.world.mesh import MeshRadio
 
 log = logging.getLogger(__name__)
 
@@ -125,7 +125,7 @@ class UdpLink:
         # simulated time of what is being sent (set by the endpoint before it sends).
         self.channel: LinkChannel | None = None
         # Datagrams sent to and read from the configured remote (the supervisor, for a swarm's ground-station
-        # link): lockstep delivery compares them with the other side's count (sitl/world.py SUPERVISOR_SENT).
+        # link): lockstep delivery compares them with the other side's count (sitl/world/shared.py SUPERVISOR_SENT).
         self.to_remote = 0
         self.from_remote = 0
         self._outbox: DelayLine[bytes] = DelayLine()
@@ -321,7 +321,7 @@ class MavlinkEndpoint:
         return [link.sock for link in self.links]
 
     def impair(self, channels: dict[tuple[LinkClass, Direction], LinkChannel]) -> None:
-        """Put the link model's channels on this drone's links (sitl/linkmodel.py): each link sends through the
+        """Put the link model's channels on this drone's links (sitl/world/linkmodel.py): each link sends through the
         down channel of its class; what arrives goes through the up channel of its class, except neighbours'
         positions, which go through the neighbour class's (they are neighbour traffic, whichever link brings them).
         A class without a channel is perfect."""
@@ -331,7 +331,7 @@ class MavlinkEndpoint:
         self._delaying = [link for link in self.links if link.channel is not None]
 
     def attach_mesh(self, radio: MeshRadio) -> None:
-        """Give the drone a mesh radio (sitl/mesh.py): its own position reports are broadcast on it at each poll
+        """Give the drone a mesh radio (sitl/world/mesh.py): its own position reports are broadcast on it at each poll
         that streams one, and what it hears goes to the neighbour table (``hear_mesh``). The radio is one more link
         of the drone, with its own sequence numbers and, when signing, its own link id in the signatures."""
         self.mesh = radio

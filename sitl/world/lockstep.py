@@ -2,9 +2,9 @@
 
 Paced drones each follow the wall clock on their own, so their simulated clocks drift apart by whatever each
 process's scheduling costs, and nothing can run faster than the slowest drone keeps up with. In lockstep the clock
-lives in the shared world instead (sitl/world.py): every member publishes how many physics steps it has completed,
-and a member may complete step k + 1 only when every other member has completed step k and the supervisor's gate
-allows k + 1. Hence
+lives in the shared world instead (sitl/world/shared.py): every member publishes how many physics steps it has
+completed, and a member may complete step k + 1 only when every other member has completed step k and the supervisor's
+gate allows k + 1. Hence
 
 - no member is ever more than one physics step ahead of any other (skew <= one step, by construction), and
 - the supervisor, which moves the gate after each of its own loop iterations, is never more than its lead behind
@@ -41,7 +41,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from sitl.world import GATE_OPEN, GATE_STEP, STEP, WAITING, SharedWorld
+from sitl.world.shared import GATE_OPEN, GATE_STEP, STEP, WAITING, SharedWorld
 
 MAX_SLEEP_S = 0.005
 # The supervisor is woken when the slowest member is this many steps short of the gate (and again at the gate if

@@ -12,10 +12,10 @@ has spent so far on physics, control, perception and MAVLink (read by ``swarm be
 "waiting to be woken" flag, then ``ended`` (1 once the drone's process is gone) and ``rest_alt_amsl_m``, the altitude
 its centre has when it rests on the ground below it (terrain elevation plus the centre's height on its gear), a stop
 request and the cause of the row's end (hosted drones), and the datagrams the supervisor and the drone have sent each
-other (lockstep delivery). After the rows, a small header holds the lockstep gate (sitl/lockstep.py); then the
+other (lockstep delivery). After the rows, a small header holds the lockstep gate (sitl/world/lockstep.py); then the
 declared obstacles, the two lockstep snapshots of the rows (``WorldParticipant``), the link model's counts, and the
 drone-to-drone mesh: each drone's ring of the position reports it has broadcast (the simulated radio medium,
-sitl/mesh.py) and its counts of what it heard.
+sitl/world/mesh.py) and its counts of what it heard.
 
 A drone whose process ends (a normal exit, or SIGKILL noticed by the supervisor, which calls ``mark_ended``) leaves
 its body behind: from its last written state (position, velocity, time) it falls ballistically under gravity and
@@ -42,8 +42,8 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from sitl.linkmodel import DIRECTIONS, LINK_CLASSES, Direction, LinkClass, LinkCounters
 from sitl.mathutil import GRAVITY_MPS2
+from sitl.world.linkmodel import DIRECTIONS, LINK_CLASSES, Direction, LinkClass, LinkCounters
 
 MAX_DRONES = 256
 COLUMNS = 22
@@ -56,7 +56,7 @@ ENDED, REST_ALT = 16, 17  # 1 once the drone's process is gone (its body falls);
 # row ended, for whoever did not end it (the supervisor learns of a hosted drone's end from here).
 STOP_REQUEST, END_CAUSE = 18, 19
 END_UNKNOWN, END_EXITED, END_STOPPED, END_FAILED = 0.0, 1.0, 2.0, 3.0  # END_CAUSE values
-# Lockstep delivery (sitl/runtime.py, gcs/fleet/swarm.py): the datagrams the supervisor has sent to the drone's
+# Lockstep delivery (sitl/process/runtime.py, gcs/fleet/swarm.py): the datagrams the supervisor has sent to the drone's
 # ground-station link, and the datagrams the drone has sent to the supervisor, each counted by its sender. Loopback UDP
 # may hand a datagram over a little after ``sendto`` returns (the kernel finishes the delivery in a deferred
 # routine, later on a busy machine), so a receiver that has not yet read as many as were sent waits for the rest
@@ -118,15 +118,15 @@ OBSTACLES_OFFSET = TABLE_BYTES + HEADER_SLOTS * 8
 # obstacles: the copy of the table as it was at the last epoch every member has completed.
 SNAPSHOTS = 2
 SNAPSHOTS_OFFSET = OBSTACLES_OFFSET + MAX_OBSTACLES * OBSTACLE_COLUMNS * 8
-# What the link model did to each drone's traffic (sitl/linkmodel.py), for the flight report: one row per drone, for
-# each (class, direction) channel in LINK_CHANNELS order the frames offered, lost and delayed and the total delay.
+# What the link model did to each drone's traffic (sitl/world/linkmodel.py), for the flight report: one row per drone,
+# for each (class, direction) channel in LINK_CHANNELS order the frames offered, lost and delayed and the total delay.
 LINK_CHANNELS: tuple[tuple[LinkClass, Direction], ...] = tuple((c, d) for c in LINK_CLASSES for d in DIRECTIONS)
 LINK_FIELDS = ("frames_offered", "frames_lost", "delayed", "total_delay_s")
 LINKS_OFFSET = SNAPSHOTS_OFFSET + SNAPSHOTS * TABLE_BYTES
 MESH_OFFSET = LINKS_OFFSET + MAX_DRONES * len(LINK_CHANNELS) * len(LINK_FIELDS) * 8
-# The drone-to-drone mesh (sitl/mesh.py): one ring per drone of the frames it broadcast, each slot with the physics
-# step and simulated time it was sent at and its length. 64 slots are 6.4 s of 10 Hz reports, more than a lockstep
-# reader can be behind (twice the largest quantum, 400 steps, is 3.2 s at 250 Hz); 64 bytes hold a signed
+# The drone-to-drone mesh (sitl/world/mesh.py): one ring per drone of the frames it broadcast, each slot with the
+# physics step and simulated time it was sent at and its length. 64 slots are 6.4 s of 10 Hz reports, more than a
+# lockstep reader can be behind (twice the largest quantum, 400 steps, is 3.2 s at 250 Hz); 64 bytes hold a signed
 # GLOBAL_POSITION_INT (53). Then each drone's counts of what it heard, for the flight report.
 MESH_SLOTS = 64
 MESH_SLOT_BYTES = 64

@@ -1,4 +1,4 @@
-"""A drone's side of the shared world (sitl/world.py): where the other bodies are from it, what it touches, and
+"""A drone's side of the shared world (sitl/world/shared.py): where the other bodies are from it, what it touches, and
 the participant that publishes its truth every few steps.
 
 Apart from the table itself because only drones need it: this geometry runs in compiled kernels
@@ -15,7 +15,7 @@ import numpy.typing as npt
 
 from sitl.dynamics.plant import PlantState
 from sitl.kernels import world as wk
-from sitl.world import (
+from sitl.world.shared import (
     ALT,
     EARTH_RADIUS_M,
     END_CAUSE,

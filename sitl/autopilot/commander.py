@@ -21,19 +21,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sitl.airframe import Airframe
 from sitl.autopilot.failsafe import FailsafeAction, FailsafeInputs, FailsafeOrder, FailsafeState
+from sitl.autopilot.geofence import Geofence
+from sitl.autopilot.guidance import MotionLimits, StraightLineTrajectory
+from sitl.autopilot.land_detector import LandDetector, LandDetectorConfig
+from sitl.autopilot.mission_exec import MissionExecutor, MissionRun
+from sitl.autopilot.mission_plan import NavItem
 from sitl.autopilot.modes import ModeUnit, build_units
-from sitl.collision_prevention import CollisionPrevention
+from sitl.avoidance.collision_prevention import CollisionPrevention
 from sitl.control.cascade import AttitudeSetpoint, Cascade, CascadeOutput, TrajectorySetpoint
 from sitl.control.params import outer_loop_period_s
-from sitl.estimation import Estimate
-from sitl.geofence import Geofence
-from sitl.guidance import MotionLimits, StraightLineTrajectory
-from sitl.land_detector import LandDetector, LandDetectorConfig
+from sitl.dynamics.airframe import Airframe
+from sitl.estimation.estimator import Estimate
 from sitl.mathutil import Vec3, vec3
-from sitl.mission_exec import MissionExecutor, MissionRun
-from sitl.mission_plan import NavItem
 from sitl.params import ParamStore
 from sitl.protocol.modes import FailsafeKind, Px4Mode
 from sitl.protocol.vehicle_api import CommandOutcome, CommandResult, LandedState

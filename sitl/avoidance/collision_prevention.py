@@ -1,4 +1,4 @@
-"""Collision prevention in the autopilot: the avoidance algorithm (sitl/avoidance.py) applied to the setpoint.
+"""Collision prevention in the autopilot: the avoidance algorithm (sitl/avoidance/algorithm.py) applied to the setpoint.
 
 Every mode that flies a position (offboard position or velocity setpoints, missions, hold, goto, RTL) ends in one
 ``TrajectorySetpoint``; this module turns it into the velocity the position loop would ask for, lets ``avoid`` bend
@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from sitl.avoidance import (
+from sitl.avoidance.algorithm import (
     AvoidanceConfig,
     CameraFields,
     Obstacle,

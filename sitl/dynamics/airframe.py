@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-AIRFRAMES_DIR = Path(__file__).resolve().parent.parent / "airframes"
+AIRFRAMES_DIR = Path(__file__).resolve().parent.parent.parent / "airframes"
 DEFAULT_AIRFRAME = "quad_x_f450"
 
 

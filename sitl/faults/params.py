@@ -1,4 +1,4 @@
-"""Parameters of fault injection (sitl/faults.py), with PX4's names and defaults."""
+"""Parameters of fault injection (sitl/faults/failures.py), with PX4's names and defaults."""
 
 from __future__ import annotations
 
