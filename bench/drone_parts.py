@@ -42,7 +42,7 @@ def lone(sim_seconds: float) -> dict[str, float]:
 
     from sitl.drone.awareness import Awareness
     from sitl.drone.closed_loop import SimConfig, Simulation
-    from sitl.drone.vehicle_api import SimVehicleApi
+    from sitl.drone.sim_vehicle_api import SimVehicleApi
     from sitl.dynamics.airframe import load_airframe
     from sitl.process.mavlink_io import LinkConfig, MavlinkEndpoint
     from sitl.process.runtime import PACED_WAKE_STEPS

@@ -60,13 +60,13 @@ from pymavlink.dialects.v10 import common as mavlink1
 from pymavlink.dialects.v20 import common as mavlink
 
 import sitl.protocol
+from sitl.autopilot.vehicle_api import Arm, LandedState
 from sitl.drone.closed_loop import build_param_store
-from sitl.drone.vehicle_api import SimVehicleApi
+from sitl.drone.sim_vehicle_api import SimVehicleApi
 from sitl.process.ports import MAX_INSTANCE, InstancePorts, instance_ports
 from sitl.protocol import Identity, LinkServices
 from sitl.protocol.framing import crc_x25, parse_datagram
 from sitl.protocol.neighbours import NeighbourTable
-from sitl.protocol.vehicle_api import Arm, LandedState
 from sitl.world.shared import ALT, LAT, LON, VALID, SharedWorld
 from tests.closed_loop.flight import make_sim
 

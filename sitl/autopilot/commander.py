@@ -28,6 +28,8 @@ from sitl.autopilot.land_detector import LandDetector, LandDetectorConfig
 from sitl.autopilot.mission_exec import MissionExecutor, MissionRun
 from sitl.autopilot.mission_plan import NavItem
 from sitl.autopilot.modes import ModeUnit, build_units
+from sitl.autopilot.px4_modes import FailsafeKind, Px4Mode
+from sitl.autopilot.vehicle_api import CommandOutcome, CommandResult, LandedState
 from sitl.avoidance.collision_prevention import CollisionPrevention
 from sitl.control.cascade import AttitudeSetpoint, Cascade, CascadeOutput, TrajectorySetpoint
 from sitl.control.params import outer_loop_period_s
@@ -35,8 +37,6 @@ from sitl.dynamics.airframe import Airframe
 from sitl.estimation.estimator import Estimate
 from sitl.mathutil import Vec3, vec3
 from sitl.params import ParamStore
-from sitl.protocol.modes import FailsafeKind, Px4Mode
-from sitl.protocol.vehicle_api import CommandOutcome, CommandResult, LandedState
 
 NAN3 = (math.nan, math.nan, math.nan)
 # Armed on the ground the rotors spin at idle so a person sees the vehicle is live (PX4 and ArduPilot do this).

@@ -20,8 +20,8 @@ from dataclasses import dataclass
 from enum import Enum, IntEnum
 from typing import NamedTuple
 
+from sitl.autopilot.px4_modes import FailsafeKind, Px4Mode
 from sitl.params import ParamStore
-from sitl.protocol.modes import FailsafeKind, Px4Mode
 
 # MAV_SEVERITY of the texts: a failsafe action is critical, a warning a warning, a recovery information.
 SEVERITY_CRITICAL = 2

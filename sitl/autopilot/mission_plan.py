@@ -15,9 +15,9 @@ from enum import Enum
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.autopilot.vehicle_api import MissionItem
 from sitl.dynamics.geodesy import ned_from_geo
 from sitl.dynamics.plant import GeoPoint
-from sitl.protocol.vehicle_api import MissionItem
 
 NAN3 = (math.nan, math.nan, math.nan)
 

@@ -23,11 +23,11 @@ import numpy as np
 from sitl.autopilot.guidance import MotionLimits, StraightLineTrajectory
 from sitl.autopilot.mission_exec import MissionAction, MissionExecutor, MissionRun
 from sitl.autopilot.mission_plan import NavKind
+from sitl.autopilot.px4_modes import Px4Mode
+from sitl.autopilot.vehicle_api import CommandOutcome, LandedState
 from sitl.control.cascade import AttitudeSetpoint, TrajectorySetpoint
 from sitl.estimation.estimator import Estimate
 from sitl.mathutil import Vec3, vec3
-from sitl.protocol.modes import Px4Mode
-from sitl.protocol.vehicle_api import CommandOutcome, LandedState
 
 from .phases import MissionPhase, RtlPhase
 

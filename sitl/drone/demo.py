@@ -10,8 +10,8 @@ import math
 from collections.abc import Callable
 from enum import Enum, auto
 
+from sitl.autopilot.px4_modes import Px4Mode
 from sitl.drone.closed_loop import Simulation
-from sitl.protocol.modes import Px4Mode
 
 DEMO_ALT_M = 3.0
 DEMO_HOVER_S = 5.0

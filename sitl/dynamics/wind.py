@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sitl.dynamics.noise import NoiseSource
 from sitl.mathutil import Vec3
-from sitl.sensors.noise import NoiseSource
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -1,6 +1,6 @@
 """Injected faults: which units of one drone have failed, decoded from MAV_CMD_INJECT_FAILURE as PX4 decodes it.
 
-Pure, no IO. The MAVLink side (sitl/drone/vehicle_api.py) turns an accepted ``FaultRequest`` into a change of
+Pure, no IO. The MAVLink side (sitl/drone/sim_vehicle_api.py) turns an accepted ``FaultRequest`` into a change of
 ``FaultState`` and pushes the state into the parts that make each fault real: the plant (a failed rotor gives no
 thrust), the GPS receiver (no fix, or a fix offset by ``GPS_GLITCH_OFFSET_NE_M``), the battery monitor (a reading
 just below a failsafe threshold, or empty) and the MAVLink endpoint (silent for the rest of the process, or for

@@ -20,6 +20,7 @@ import math
 from collections.abc import Callable, Sequence
 
 from sitl.autopilot.commander import Vehicle
+from sitl.autopilot.px4_modes import Px4Mode
 from sitl.avoidance.algorithm import Obstacle
 from sitl.avoidance.collision_prevention import RelayedNeighbour
 from sitl.control.cascade import TrajectorySetpoint
@@ -27,7 +28,6 @@ from sitl.estimation.estimator import Estimate
 from sitl.onboard.interface import Detection, GroundMessage, NeighbourReport, OnboardSetpoint, OnboardState
 from sitl.onboard.loader import ENABLE_PARAM, LoadedBehaviour, error_line
 from sitl.params import ParamStore
-from sitl.protocol.modes import Px4Mode
 
 log = logging.getLogger(__name__)
 

@@ -21,7 +21,7 @@ from typing import TextIO
 from sitl.drone.awareness import Awareness
 from sitl.drone.closed_loop import SimConfig, Simulation, build_param_store
 from sitl.drone.demo import DemoFlight
-from sitl.drone.vehicle_api import SimVehicleApi
+from sitl.drone.sim_vehicle_api import SimVehicleApi
 from sitl.onboard.runner import OnboardRunner
 from sitl.process.mavlink_io import MavlinkEndpoint
 from sitl.process.specs import DroneSpec, ProcessSpec

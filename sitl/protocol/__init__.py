@@ -15,6 +15,8 @@ the only object an IO shell has to drive:
 where ``send_all`` packs each ``Send(msg)`` effect with ``mav`` and writes it to the link's remote address.
 """
 
+from sitl.autopilot.px4_modes import Px4Mode
+from sitl.autopilot.vehicle_api import CommandOutcome, CommandResult, VehicleApi, VehicleSnapshot
 from sitl.protocol.core import (
     Effect,
     Identity,
@@ -24,8 +26,6 @@ from sitl.protocol.core import (
     Send,
 )
 from sitl.protocol.link import LinkServices
-from sitl.protocol.modes import Px4Mode
-from sitl.protocol.vehicle_api import CommandOutcome, CommandResult, VehicleApi, VehicleSnapshot
 
 __all__ = [
     "CommandOutcome",

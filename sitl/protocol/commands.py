@@ -22,26 +22,8 @@ from typing import Final, Protocol
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.protocol.core import (
-    INT32_MAX,
-    Effect,
-    Identity,
-    MAVLinkMessage,
-    Peer,
-    PeerInputError,
-    Send,
-    addressed_to,
-    check_now,
-    message_id,
-    param_to_int,
-    read_float,
-    read_int,
-    source_of,
-)
-from sitl.protocol.messages import command_ack
-from sitl.protocol.modes import Px4Mode, decode_do_set_mode, decode_set_mode_message
-from sitl.protocol.statustext import Severity, StatusTextEncoder
-from sitl.protocol.vehicle_api import (
+from sitl.autopilot.px4_modes import Px4Mode
+from sitl.autopilot.vehicle_api import (
     Arm,
     ChangeSpeed,
     CommandOutcome,
@@ -61,6 +43,25 @@ from sitl.protocol.vehicle_api import (
     VehicleApi,
     VehicleRequest,
 )
+from sitl.protocol.core import (
+    INT32_MAX,
+    Effect,
+    Identity,
+    MAVLinkMessage,
+    Peer,
+    PeerInputError,
+    Send,
+    addressed_to,
+    check_now,
+    message_id,
+    param_to_int,
+    read_float,
+    read_int,
+    source_of,
+)
+from sitl.protocol.messages import command_ack
+from sitl.protocol.modes import decode_do_set_mode, decode_set_mode_message
+from sitl.protocol.statustext import Severity, StatusTextEncoder
 
 NAN = math.nan
 FORCE_MAGIC: Final = 21196  # MAV_CMD_COMPONENT_ARM_DISARM param2: force (arm without checks / disarm in the air)

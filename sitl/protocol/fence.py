@@ -17,7 +17,7 @@ from typing import Final
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.autopilot.geofence import CircleZone, FenceKind, FenceZone, Geofence, PolygonZone
-from sitl.protocol.vehicle_api import GLOBAL_FRAMES, MissionItem
+from sitl.autopilot.vehicle_api import GLOBAL_FRAMES, MissionItem
 
 POLYGON_COMMANDS: Final = {
     mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION: FenceKind.INCLUSION,

@@ -15,6 +15,7 @@ from typing import Final
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.autopilot.vehicle_api import VehicleApi
 from sitl.params import ParamStore
 from sitl.protocol.commands import CommandService
 from sitl.protocol.core import (
@@ -36,7 +37,6 @@ from sitl.protocol.offboard import OffboardService
 from sitl.protocol.params import ParamService
 from sitl.protocol.statustext import StatusTextEncoder
 from sitl.protocol.telemetry import DEFAULT_RATES_HZ, PollShare, TelemetryScheduler
-from sitl.protocol.vehicle_api import VehicleApi
 
 PEER_TIMEOUT_S: Final = 3.0  # a peer is gone after this long without a HEARTBEAT (MAVSDK uses 3 s as well)
 

@@ -15,6 +15,8 @@ from typing import Final
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.autopilot.px4_modes import Px4Mode
+from sitl.autopilot.vehicle_api import MissionState, VehicleSnapshot
 from sitl.protocol.core import (
     INT16_MAX,
     INT32_MAX,
@@ -24,8 +26,7 @@ from sitl.protocol.core import (
     f32,
     to_int,
 )
-from sitl.protocol.modes import Px4Mode, base_mode, system_status
-from sitl.protocol.vehicle_api import MissionState, VehicleSnapshot
+from sitl.protocol.modes import base_mode, system_status
 
 INT32_MIN: Final = -INT32_MAX - 1
 

@@ -34,6 +34,17 @@ from typing import Final
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.autopilot.vehicle_api import (
+    GLOBAL_FRAMES,
+    CommandOutcome,
+    CommandResult,
+    MissionItem,
+    MissionType,
+    SetFence,
+    SetMission,
+    SetMissionCurrent,
+    VehicleApi,
+)
 from sitl.protocol import messages
 from sitl.protocol.core import (
     INT32_MAX,
@@ -53,17 +64,6 @@ from sitl.protocol.core import (
 )
 from sitl.protocol.fence import validate_fence, validate_fence_item
 from sitl.protocol.statustext import Severity, StatusTextEncoder
-from sitl.protocol.vehicle_api import (
-    GLOBAL_FRAMES,
-    CommandOutcome,
-    CommandResult,
-    MissionItem,
-    MissionType,
-    SetFence,
-    SetMission,
-    SetMissionCurrent,
-    VehicleApi,
-)
 
 MISSION_RETRY_TIMEOUT_S: Final = 0.5  # re-request an item after this long (MAVSDK's own timeout is 0.5 s)
 MISSION_MAX_RETRIES: Final = 5  # re-requests of one item before the upload is abandoned (MAVSDK: 5 retries)

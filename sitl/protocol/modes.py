@@ -1,4 +1,5 @@
-"""PX4 flight modes as they appear on the wire, and the HEARTBEAT fields derived from them.
+"""PX4 flight modes as they appear on the wire (sitl/autopilot/px4_modes.py defines them), and the HEARTBEAT fields
+derived from them.
 
 A PX4 mode is a (main mode, sub mode) pair. HEARTBEAT carries it packed as ``custom_mode = main << 16 | sub << 24``;
 ``MAV_CMD_DO_SET_MODE`` carries the two small numbers in param2/param3 and the old SET_MODE message the packed word.
@@ -10,80 +11,15 @@ armed from ``base_mode``, so both must be exactly what PX4 sends (px4_custom_mod
 from __future__ import annotations
 
 import math
-from enum import Enum
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.autopilot.px4_modes import MAIN_AUTO, MAIN_OFFBOARD, Px4Mode
 from sitl.protocol.core import PeerInputError, param_to_int
-
-MAIN_MANUAL = 1
-MAIN_ALTCTL = 2
-MAIN_POSCTL = 3
-MAIN_AUTO = 4
-MAIN_ACRO = 5
-MAIN_OFFBOARD = 6
-MAIN_STABILIZED = 7
 
 _AUTO_FLAGS = (
     mavlink.MAV_MODE_FLAG_AUTO_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
 )
-
-
-class Px4Mode(Enum):
-    """PX4 modes a client can name. The value is (main mode, sub mode)."""
-
-    MANUAL = (MAIN_MANUAL, 0)
-    ALTCTL = (MAIN_ALTCTL, 0)
-    POSCTL = (MAIN_POSCTL, 0)
-    AUTO_READY = (MAIN_AUTO, 1)
-    AUTO_TAKEOFF = (MAIN_AUTO, 2)
-    AUTO_LOITER = (MAIN_AUTO, 3)  # "Hold"
-    AUTO_MISSION = (MAIN_AUTO, 4)
-    AUTO_RTL = (MAIN_AUTO, 5)
-    AUTO_LAND = (MAIN_AUTO, 6)
-    AUTO_FOLLOW_TARGET = (MAIN_AUTO, 8)
-    AUTO_PRECLAND = (MAIN_AUTO, 9)
-    ACRO = (MAIN_ACRO, 0)
-    OFFBOARD = (MAIN_OFFBOARD, 0)
-    STABILIZED = (MAIN_STABILIZED, 0)
-
-    @property
-    def main_mode(self) -> int:
-        return self.value[0]
-
-    @property
-    def sub_mode(self) -> int:
-        return self.value[1]
-
-    @property
-    def custom_mode(self) -> int:
-        """The HEARTBEAT ``custom_mode`` word."""
-        return (self.main_mode << 16) | (self.sub_mode << 24)
-
-    @property
-    def px4_name(self) -> str:
-        """The name PX4 prints (``AUTO.LOITER``, ``OFFBOARD``...)."""
-        return self.name.replace("AUTO_", "AUTO.", 1)
-
-    @classmethod
-    def from_main_sub(cls, main_mode: int, sub_mode: int) -> Px4Mode | None:
-        """Decode PX4's (main, sub) pair; None if PX4 would not know it.
-
-        As in PX4's commander, the sub mode only matters for AUTO, and AUTO with sub mode 0 means MISSION.
-        """
-        if main_mode == MAIN_AUTO:
-            if sub_mode == 0:
-                return cls.AUTO_MISSION
-            return _BY_MAIN_SUB.get((main_mode, sub_mode))
-        return _BY_MAIN_SUB.get((main_mode, 0))
-
-    @classmethod
-    def from_custom_mode(cls, custom_mode: int) -> Px4Mode | None:
-        """Decode a HEARTBEAT/SET_MODE ``custom_mode`` word."""
-        return cls.from_main_sub((custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF)
-
-
-_BY_MAIN_SUB: dict[tuple[int, int], Px4Mode] = {m.value: m for m in Px4Mode}
 
 
 def base_mode(mode: Px4Mode, armed: bool) -> int:
@@ -160,20 +96,3 @@ def decode_set_mode_message(base_mode_flags: int, custom_mode: int) -> Px4Mode |
     if mode is None:
         raise PeerInputError(f"unknown PX4 custom mode {custom_mode}")
     return mode
-
-
-class FailsafeKind(Enum):
-    """Which failsafe is in force, as a ground station shows it (``NONE`` when none is).
-
-    Defined beside the modes because it is part of what a client is told about the vehicle (the snapshot, the
-    status table, the flight report), while the decisions that set it live in sitl/autopilot/failsafe.py.
-    """
-
-    NONE = "none"
-    OFFBOARD_LOSS = "offboard_loss"
-    DATALINK_LOSS = "datalink_loss"
-    BATTERY_LOW = "battery_low"
-    BATTERY_CRITICAL = "battery_critical"
-    BATTERY_EMERGENCY = "battery_emergency"
-    POSITION_LOSS = "position_loss"
-    GEOFENCE = "geofence"

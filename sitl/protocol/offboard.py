@@ -24,6 +24,15 @@ from typing import Final
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.autopilot.vehicle_api import (
+    NAN3,
+    AttitudeSetpoint,
+    GeoPoint,
+    OffboardSetpoint,
+    Vec3,
+    VehicleApi,
+    VehicleSnapshot,
+)
 from sitl.dynamics.geodesy import ned_from_geo
 from sitl.protocol.core import (
     Effect,
@@ -39,15 +48,6 @@ from sitl.protocol.core import (
     read_int,
 )
 from sitl.protocol.statustext import Severity, StatusTextEncoder
-from sitl.protocol.vehicle_api import (
-    NAN3,
-    AttitudeSetpoint,
-    GeoPoint,
-    OffboardSetpoint,
-    Vec3,
-    VehicleApi,
-    VehicleSnapshot,
-)
 
 NAN = math.nan
 REJECT_TEXT_INTERVAL_S: Final = 5.0  # one STATUSTEXT per rejection reason per this long (setpoints come at 20 Hz)

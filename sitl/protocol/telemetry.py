@@ -20,12 +20,12 @@ from typing import Final
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.autopilot.vehicle_api import CommandResult, VehicleApi, VehicleSnapshot
 from sitl.protocol import messages
 from sitl.protocol.core import INT32_MAX, Effect, Identity, MAVLinkMessage, Send, check_now
 from sitl.protocol.messages import BUILDERS
 from sitl.protocol.modes import base_mode, system_status
 from sitl.protocol.statustext import StatusTextEncoder
-from sitl.protocol.vehicle_api import CommandResult, VehicleApi, VehicleSnapshot
 
 # Streams a PX4 multicopter sends by default (contract section 8), at rates a laptop running a swarm can afford.
 DEFAULT_RATES_HZ: Final[Mapping[int, float]] = {

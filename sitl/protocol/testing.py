@@ -15,10 +15,8 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.dynamics.plant import DEFAULT_HOME
-from sitl.protocol.core import Effect, MAVLinkMessage, Send
-from sitl.protocol.modes import Px4Mode
-from sitl.protocol.vehicle_api import (
+from sitl.autopilot.px4_modes import Px4Mode
+from sitl.autopilot.vehicle_api import (
     Arm,
     AttitudeSetpoint,
     BatteryStatus,
@@ -41,6 +39,8 @@ from sitl.protocol.vehicle_api import (
     VehicleRequest,
     VehicleSnapshot,
 )
+from sitl.dynamics.plant import DEFAULT_HOME
+from sitl.protocol.core import Effect, MAVLinkMessage, Send
 
 HOME = DEFAULT_HOME  # PX4 SITL's default home
 

@@ -14,11 +14,11 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from sitl.dynamics.noise import NoiseSource
 from sitl.dynamics.plant import PlantState
 from sitl.faults.failures import GPS_GLITCH_OFFSET_NE_M, GpsFault
 from sitl.kernels import between_ticks as bt
 from sitl.mathutil import GRAVITY_MPS2, Vec3, fast_constructor, vec3
-from sitl.sensors.noise import NoiseSource
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

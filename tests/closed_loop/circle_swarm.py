@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sitl.autopilot.px4_modes import Px4Mode
 from sitl.avoidance.collision_prevention import RelayedNeighbour
 from sitl.control.cascade import TrajectorySetpoint
 from sitl.drone.awareness import Awareness
@@ -33,7 +34,6 @@ from sitl.drone.closed_loop import SimConfig, Simulation
 from sitl.dynamics.airframe import load_airframe
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.dynamics.plant import DEFAULT_HOME
-from sitl.protocol.modes import Px4Mode
 from sitl.world.shared import SharedWorld
 from sitl.world.view import WorldParticipant
 

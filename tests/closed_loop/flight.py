@@ -8,11 +8,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sitl.autopilot.commander import commander_tick_s
+from sitl.autopilot.px4_modes import Px4Mode
 from sitl.drone.closed_loop import SimConfig, Simulation
 from sitl.dynamics.airframe import load_airframe
 from sitl.dynamics.wind import WindConfig
 from sitl.mathutil import quat_to_dcm
-from sitl.protocol.modes import Px4Mode
 
 
 @dataclass

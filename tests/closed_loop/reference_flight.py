@@ -15,10 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from sitl.autopilot.mission_plan import NavItem, NavKind
+from sitl.autopilot.px4_modes import Px4Mode
 from sitl.control.cascade import AttitudeSetpoint, TrajectorySetpoint
 from sitl.drone.closed_loop import Simulation
 from sitl.dynamics.battery import Battery
-from sitl.protocol.modes import Px4Mode
 from tests.closed_loop.flight import make_sim
 
 

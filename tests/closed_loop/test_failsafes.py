@@ -16,11 +16,12 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.autopilot.geofence import CircleZone, FenceKind, Geofence
 from sitl.autopilot.mission_plan import NavItem, NavKind
+from sitl.autopilot.px4_modes import FailsafeKind, Px4Mode
 from sitl.control.cascade import TrajectorySetpoint
 from sitl.drone.closed_loop import Simulation
 from sitl.dynamics.battery import Battery
 from sitl.estimation.estimator import Estimate
-from sitl.protocol.modes import FailsafeKind, Px4Mode, system_status
+from sitl.protocol.modes import system_status
 from tests.closed_loop.flight import boot_position, make_sim, reaction_tolerance_s, take_off
 
 pytestmark = pytest.mark.timeout(60)

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.autopilot import vehicle_api as api
 from sitl.drone.closed_loop import GROUND_IMPACT_SPEED_MPS, Simulation
-from sitl.drone.vehicle_api import SimVehicleApi
+from sitl.drone.sim_vehicle_api import SimVehicleApi
 from sitl.estimation.estimator import Estimate
 from sitl.faults.failures import BATTERY_TRIGGER_MARGIN, GPS_GLITCH_OFFSET_NE_M, FailureType, FailureUnit
-from sitl.protocol import vehicle_api as api
 from tests.closed_loop.flight import make_sim, take_off
 
 pytestmark = pytest.mark.timeout(90)

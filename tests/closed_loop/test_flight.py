@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
+from sitl.autopilot.px4_modes import Px4Mode
 from sitl.control.cascade import TrajectorySetpoint
 from sitl.dynamics.wind import WindConfig
-from sitl.protocol.modes import Px4Mode
 from tests.closed_loop.flight import Trace, arm_when_ready, boot_position, make_sim, take_off
 
 pytestmark = pytest.mark.timeout(300)

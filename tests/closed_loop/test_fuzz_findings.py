@@ -11,10 +11,10 @@ import numpy.typing as npt
 import pytest
 
 from bench.fuzz import run_in_process
+from sitl.autopilot import vehicle_api as api
+from sitl.autopilot.px4_modes import Px4Mode
 from sitl.drone.closed_loop import Simulation
-from sitl.drone.vehicle_api import SimVehicleApi
-from sitl.protocol import vehicle_api as api
-from sitl.protocol.modes import Px4Mode
+from sitl.drone.sim_vehicle_api import SimVehicleApi
 from tests.closed_loop.flight import boot_position, make_sim
 
 pytestmark = pytest.mark.timeout(120)

@@ -1,7 +1,7 @@
 """Closed-loop flights through the MAVLink adapter (SimVehicleApi): wire-level requests in, snapshots out.
 
 Policy: a Simulation stepped directly (JSBSim, sensor noise on), no sockets, no wall clock. The drone is driven only
-with sitl.protocol.vehicle_api request objects and read through ``snapshot()``, as the MAVLink services do; ground
+with sitl.autopilot.vehicle_api request objects and read through ``snapshot()``, as the MAVLink services do; ground
 truth is used only to check where it really went.
 """
 
@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.autopilot import vehicle_api as api
+from sitl.autopilot.px4_modes import Px4Mode
 from sitl.drone.closed_loop import Simulation
-from sitl.drone.vehicle_api import SimVehicleApi
+from sitl.drone.sim_vehicle_api import SimVehicleApi
 from sitl.dynamics.geodesy import ned_from_geo
 from sitl.dynamics.plant import GeoPoint
-from sitl.protocol import vehicle_api as api
-from sitl.protocol.modes import Px4Mode
 from tests.closed_loop.flight import boot_position, make_sim
 
 pytestmark = pytest.mark.timeout(60)

@@ -13,11 +13,11 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
+from sitl.autopilot.px4_modes import Px4Mode
+from sitl.autopilot.vehicle_api import CommandResult, LandedState
 from sitl.control.cascade import TrajectorySetpoint
 from sitl.drone.closed_loop import Simulation
 from sitl.dynamics.battery import Battery
-from sitl.protocol.modes import Px4Mode
-from sitl.protocol.vehicle_api import CommandResult, LandedState
 from tests.closed_loop.flight import Trace, arm_when_ready, boot_position, make_sim, reaction_tolerance_s, take_off
 
 pytestmark = pytest.mark.timeout(60)

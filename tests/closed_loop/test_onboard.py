@@ -9,10 +9,10 @@ from pathlib import Path
 
 import pytest
 
+from sitl.autopilot.px4_modes import Px4Mode
 from sitl.drone.closed_loop import SimConfig, Simulation, build_param_store
 from sitl.onboard.loader import ENABLE_PARAM, BehaviourError, load_behaviour
 from sitl.onboard.runner import OnboardRunner
-from sitl.protocol.modes import Px4Mode
 from tests.closed_loop.flight import load_airframe, take_off
 
 GOTO = """

@@ -13,11 +13,11 @@ from typing import Any, cast
 
 import pytest
 
-from sitl.drone.vehicle_api import SimVehicleApi
+from sitl.autopilot import vehicle_api as api
+from sitl.autopilot.px4_modes import Px4Mode
+from sitl.drone.sim_vehicle_api import SimVehicleApi
 from sitl.protocol import Identity
-from sitl.protocol import vehicle_api as api
 from sitl.protocol.core import Effect
-from sitl.protocol.modes import Px4Mode
 from sitl.protocol.telemetry import TelemetryScheduler
 from tests.closed_loop.test_mav_vehicle import Drone, _waypoint
 

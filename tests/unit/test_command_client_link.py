@@ -16,10 +16,10 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.mavlink.commands import COMMAND_TIMEOUT_S, Ack, CommandClient, Send
 from gcs.mavlink.params import PARAM_RETRIES, ParamClient
+from sitl.autopilot.vehicle_api import Arm
 from sitl.params import ParamDef, ParamStore
 from sitl.protocol import Identity, LinkServices
 from sitl.protocol.testing import FakeVehicle, Wire
-from sitl.protocol.vehicle_api import Arm
 
 SYSID = 7
 ARM = mavlink.MAV_CMD_COMPONENT_ARM_DISARM

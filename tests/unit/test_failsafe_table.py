@@ -8,9 +8,9 @@ import math
 import pytest
 
 from sitl.autopilot.failsafe import FailsafeAction, FailsafeInputs, FailsafeState
+from sitl.autopilot.px4_modes import FailsafeKind, Px4Mode
 from sitl.drone.closed_loop import build_param_store
 from sitl.params import ParamStore
-from sitl.protocol.modes import FailsafeKind, Px4Mode
 
 pytestmark = pytest.mark.timeout(10)
 

@@ -8,9 +8,9 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.autopilot.geofence import CircleZone, FenceKind, PolygonZone
+from sitl.autopilot.vehicle_api import SetFence, SetMission
 from sitl.protocol.fence import to_geofence, validate_fence
 from sitl.protocol.mission import item_from_message
-from sitl.protocol.vehicle_api import SetFence, SetMission
 from tests.unit.test_protocol_mission import ACCEPTED, SYSID, Harness
 
 FENCE = mavlink.MAV_MISSION_TYPE_FENCE

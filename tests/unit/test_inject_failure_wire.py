@@ -9,13 +9,13 @@ import time
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.autopilot.vehicle_api import CommandOutcome, CommandResult, InjectFailure
 from sitl.faults.failures import FailureType, FailureUnit, FaultError, FaultState, apply_request, decode_request
 from sitl.params import ParamStore
 from sitl.process.mavlink_io import LinkConfig, MavlinkEndpoint
 from sitl.protocol import Identity
 from sitl.protocol.core import MAVLinkMessage
 from sitl.protocol.testing import FakeVehicle, Wire, of_type
-from sitl.protocol.vehicle_api import CommandOutcome, CommandResult, InjectFailure
 from tests.unit.test_protocol_commands import MAVSDK, SYSID, Rig, long
 
 pytestmark = pytest.mark.timeout(30)

@@ -9,9 +9,9 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.autopilot.mission_plan import NavItem, NavKind, to_nav_items
+from sitl.autopilot.vehicle_api import MissionItem
 from sitl.dynamics.geodesy import geo_from_ned
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
-from sitl.protocol.vehicle_api import MissionItem
 
 pytestmark = pytest.mark.timeout(10)
 

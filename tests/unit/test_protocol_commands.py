@@ -8,15 +8,8 @@ from dataclasses import dataclass, field
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.params import ParamDef, ParamStore
-from sitl.protocol import Identity, LinkServices, ProtocolUsageError
-from sitl.protocol.commands import CommandService
-from sitl.protocol.core import MAVLinkMessage
-from sitl.protocol.messages import CAPABILITIES
-from sitl.protocol.modes import Px4Mode
-from sitl.protocol.telemetry import TelemetryScheduler
-from sitl.protocol.testing import FakeVehicle, Wire, make_snapshot, of_type
-from sitl.protocol.vehicle_api import (
+from sitl.autopilot.px4_modes import Px4Mode
+from sitl.autopilot.vehicle_api import (
     Arm,
     ChangeSpeed,
     CommandResult,
@@ -32,6 +25,13 @@ from sitl.protocol.vehicle_api import (
     SpeedKind,
     Takeoff,
 )
+from sitl.params import ParamDef, ParamStore
+from sitl.protocol import Identity, LinkServices, ProtocolUsageError
+from sitl.protocol.commands import CommandService
+from sitl.protocol.core import MAVLinkMessage
+from sitl.protocol.messages import CAPABILITIES
+from sitl.protocol.telemetry import TelemetryScheduler
+from sitl.protocol.testing import FakeVehicle, Wire, make_snapshot, of_type
 
 NAN = math.nan
 SYSID = 1

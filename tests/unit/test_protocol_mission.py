@@ -8,6 +8,7 @@ from collections.abc import Callable
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.autopilot.vehicle_api import CommandResult, MissionItem, SetMission, SetMissionCurrent
 from sitl.protocol.core import Identity, MAVLinkMessage
 from sitl.protocol.mission import (
     MISSION_IDLE_TIMEOUT_S,
@@ -17,7 +18,6 @@ from sitl.protocol.mission import (
     TransferState,
 )
 from sitl.protocol.testing import FakeVehicle, Wire, of_type
-from sitl.protocol.vehicle_api import CommandResult, MissionItem, SetMission, SetMissionCurrent
 
 NAN = math.nan
 SYSID = 1

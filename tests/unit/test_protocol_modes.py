@@ -8,14 +8,9 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.autopilot.px4_modes import Px4Mode
 from sitl.protocol.core import PeerInputError
-from sitl.protocol.modes import (
-    Px4Mode,
-    base_mode,
-    decode_do_set_mode,
-    decode_set_mode_message,
-    system_status,
-)
+from sitl.protocol.modes import base_mode, decode_do_set_mode, decode_set_mode_message, system_status
 
 CUSTOM = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
 NAN = math.nan

@@ -7,6 +7,7 @@ import math
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.autopilot.vehicle_api import NAN3, AttitudeSetpoint, OffboardSetpoint
 from sitl.dynamics.geodesy import geo_from_ned
 from sitl.protocol.core import Identity, MAVLinkMessage
 from sitl.protocol.offboard import (
@@ -18,7 +19,6 @@ from sitl.protocol.offboard import (
     decode_local_ned,
 )
 from sitl.protocol.testing import HOME, FakeVehicle, Wire, isclose_tuple, make_snapshot, of_type
-from sitl.protocol.vehicle_api import NAN3, AttitudeSetpoint, OffboardSetpoint
 
 NAN = math.nan
 SYSID = 1

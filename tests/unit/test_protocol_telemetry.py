@@ -9,13 +9,8 @@ from collections import Counter
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.protocol import messages
-from sitl.protocol.core import Identity
-from sitl.protocol.modes import Px4Mode
-from sitl.protocol.statustext import StatusTextEncoder
-from sitl.protocol.telemetry import DEFAULT_RATES_HZ, TelemetryScheduler
-from sitl.protocol.testing import HOME, FakeVehicle, Wire, make_snapshot, of_type
-from sitl.protocol.vehicle_api import (
+from sitl.autopilot.px4_modes import Px4Mode
+from sitl.autopilot.vehicle_api import (
     BatteryStatus,
     CommandResult,
     GeoPoint,
@@ -28,6 +23,11 @@ from sitl.protocol.vehicle_api import (
     SensorHealth,
     VehicleSnapshot,
 )
+from sitl.protocol import messages
+from sitl.protocol.core import Identity
+from sitl.protocol.statustext import StatusTextEncoder
+from sitl.protocol.telemetry import DEFAULT_RATES_HZ, TelemetryScheduler
+from sitl.protocol.testing import HOME, FakeVehicle, Wire, make_snapshot, of_type
 
 IDENT = Identity(sysid=3)
 DOWN = Wire(3, 1)

@@ -9,7 +9,8 @@ from __future__ import annotations
 from pymavlink import mavutil
 
 from gcs.mavlink.px4_modes import mode_name, set_mode_params
-from sitl.protocol.modes import Px4Mode, decode_do_set_mode
+from sitl.autopilot.px4_modes import Px4Mode
+from sitl.protocol.modes import decode_do_set_mode
 
 # Modes the drone can report that pymavlink's PX4 map does not name (it lists no READY or PRECLAND sub mode)
 NOT_IN_PYMAVLINK = {Px4Mode.AUTO_READY, Px4Mode.AUTO_PRECLAND}

@@ -24,8 +24,8 @@ from typing import Protocol, TypeAlias
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.autopilot.px4_modes import Px4Mode
 from sitl.dynamics.plant import GeoPoint
-from sitl.protocol.modes import Px4Mode
 
 NAN = math.nan
 NAN3: tuple[float, float, float] = (NAN, NAN, NAN)

@@ -12,8 +12,10 @@ from collections.abc import Sequence
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.autopilot import vehicle_api as api
 from sitl.autopilot.mission_exec import MissionRun
 from sitl.autopilot.mission_plan import NavItem, to_nav_items
+from sitl.autopilot.px4_modes import Px4Mode
 from sitl.control.cascade import AttitudeSetpoint as CascadeAttitudeSetpoint
 from sitl.control.cascade import TrajectorySetpoint
 from sitl.drone.closed_loop import Simulation
@@ -21,9 +23,7 @@ from sitl.dynamics.geodesy import LocalFrame
 from sitl.dynamics.plant import GeoPoint
 from sitl.faults.failures import BATTERY_LEVELS, FaultError, GpsFault, apply_request, decode_request
 from sitl.mathutil import Vec3, vec3
-from sitl.protocol import vehicle_api as api
 from sitl.protocol.fence import to_geofence
-from sitl.protocol.modes import Px4Mode
 
 ALT_QUANTUM_M = 0.001  # HOME_POSITION's altitude is whole millimetres: a ground station's "home + 2.5 m" may be less
 
