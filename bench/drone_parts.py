@@ -1,7 +1,7 @@
 """Benchmark: CPU per drone per simulated second of each part of a drone, and two code trees compared in one run.
 
 Flights, each timed per part on the thread's CPU clock exactly as a swarm drone times itself
-(``Simulation.physics_ns`` / ``control_ns``, ``Awareness.cpu_ns``, and the MAVLink endpoint's reads and polls):
+(``ClosedLoop.physics_ns`` / ``control_ns``, ``Awareness.cpu_ns``, and the MAVLink endpoint's reads and polls):
 
 - **lone**: one drone as an unpaced ``sitl`` runs it (batches of PACED_WAKE_STEPS steps between socket reads and
   telemetry polls, with both MAVLink links streaming to a UDP sink nobody reads and a shared world in which it is
@@ -41,7 +41,7 @@ def lone(sim_seconds: float) -> dict[str, float]:
     import socket
 
     from sitl.drone.awareness import Awareness
-    from sitl.drone.closed_loop import SimConfig, Simulation
+    from sitl.drone.closed_loop import ClosedLoop, SimConfig
     from sitl.drone.sim_vehicle_api import SimVehicleApi
     from sitl.dynamics.airframe import load_airframe
     from sitl.process.mavlink_io import LinkConfig, MavlinkEndpoint
@@ -54,7 +54,7 @@ def lone(sim_seconds: float) -> dict[str, float]:
     sink.bind(("127.0.0.1", 0))
     sink_addr = sink.getsockname()
     airframe = load_airframe()
-    sim = Simulation(SimConfig(airframe=airframe, seed=3))
+    sim = ClosedLoop(SimConfig(airframe=airframe, seed=3))
     sim.part_clock_ns = time.thread_time_ns
     world = SharedWorld.create()
     part = WorldParticipant(world, 0, airframe.collision_radius_m, rest_alt_amsl_m=sim.truth.geo.alt_amsl_m)

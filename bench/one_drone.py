@@ -2,9 +2,9 @@
 
 Three measurements of the same flight (arm as soon as the pre-arm checks pass, take off to 3 m, hover), unpaced:
 
-1. **total**: ``Simulation.step()`` itself, unmodified, with the process CPU clock read only at the start and the end
+1. **total**: ``ClosedLoop.step()`` itself, unmodified, with the process CPU clock read only at the start and the end
    of the run. This is the figure to compare (a swarm drone runs exactly this, plus its MAVLink IO).
-2. **breakdown**: the parts of a physics step called one by one, as ``Simulation.step()`` calls them (sensors,
+2. **breakdown**: the parts of a physics step called one by one, as ``ClosedLoop.step()`` calls them (sensors,
    estimator, autopilot, control cascade, JSBSim, wind and battery), each timed with the process CPU clock. A read
    of that clock is a system call (about 0.4 us, several percent of a part), so its cost is measured first and
    subtracted from every interval; the parts then add up to within a few percent of the total. (The monotonic clock
@@ -28,7 +28,7 @@ import math
 import time
 from collections.abc import Callable
 
-from sitl.drone.closed_loop import PHYSICS_RATE_HZ, SimConfig, Simulation
+from sitl.drone.closed_loop import PHYSICS_RATE_HZ, ClosedLoop, SimConfig
 from sitl.dynamics.airframe import load_airframe
 from sitl.dynamics.jsbsim_plant import JsbsimPlant
 
@@ -49,20 +49,20 @@ def bare_jsbsim(sim_seconds: float) -> float:
     return (time.process_time() - start) / sim_seconds
 
 
-def _make_sim(mpc_loop_hz: float | None) -> Simulation:
-    sim = Simulation(SimConfig(airframe=load_airframe(), seed=0))
+def _make_sim(mpc_loop_hz: float | None) -> ClosedLoop:
+    sim = ClosedLoop(SimConfig(airframe=load_airframe(), seed=0))
     if mpc_loop_hz is not None:
         sim.params.set("MPC_LOOP_HZ", mpc_loop_hz)
     return sim
 
 
-def arm_and_take_off_when_ready(sim: Simulation) -> bool:
+def arm_and_take_off_when_ready(sim: ClosedLoop) -> bool:
     vehicle = sim.vehicle
     return vehicle.preflight_problem() is None and vehicle.arm().ok and vehicle.takeoff(TAKEOFF_ALT_M).ok
 
 
 def closed_loop_total(sim_seconds: float, mpc_loop_hz: float | None = None) -> float:
-    """CPU seconds per simulated second of ``Simulation.step()`` (arming checks until armed included)."""
+    """CPU seconds per simulated second of ``ClosedLoop.step()`` (arming checks until armed included)."""
     sim = _make_sim(mpc_loop_hz)
     steps = int(sim_seconds / sim.dt_s)
     armed = False
@@ -120,7 +120,7 @@ def closed_loop_breakdown(sim_seconds: float, mpc_loop_hz: float | None = None) 
     steps = int(sim_seconds / dt_s)
     armed = False
     for _ in range(steps):
-        # The body of Simulation.step(), part by part.
+        # The body of ClosedLoop.step(), part by part.
         t0 = clock()
         readings = sensors.sample(sim.truth)
         if readings.gps is not None:

@@ -33,7 +33,7 @@ from typing import NoReturn
 
 from one_drone import arm_and_take_off_when_ready  # this directory is on the path of a script run from it
 
-from sitl.drone.closed_loop import PHYSICS_RATE_HZ, SimConfig, Simulation
+from sitl.drone.closed_loop import PHYSICS_RATE_HZ, ClosedLoop, SimConfig
 from sitl.dynamics.airframe import load_airframe
 
 CLIMB_S = 3.0  # simulated seconds of climb after take-off, before the clock starts
@@ -71,9 +71,9 @@ def extra_per_wake_ms(paced_ms: float, unpaced_ms: float, wakes_per_sim_s: float
     return (paced_ms - unpaced_ms) / wakes_per_sim_s
 
 
-def _flying_sim(seed: int) -> Simulation:
+def _flying_sim(seed: int) -> ClosedLoop:
     """A simulation armed, taken off and climbing for CLIMB_S, run unpaced: the measured stretch is flight."""
-    sim = Simulation(SimConfig(airframe=load_airframe(), seed=seed))
+    sim = ClosedLoop(SimConfig(airframe=load_airframe(), seed=seed))
     while not arm_and_take_off_when_ready(sim):
         sim.step()
     for _ in range(round(CLIMB_S / sim.dt_s)):
@@ -81,7 +81,7 @@ def _flying_sim(seed: int) -> Simulation:
     return sim
 
 
-def _fly(sim: Simulation, sim_seconds: float, wake_steps: int | None) -> float:
+def _fly(sim: ClosedLoop, sim_seconds: float, wake_steps: int | None) -> float:
     """Process CPU seconds to fly ``sim_seconds``: unpaced, or at real time sleeping until ``wake_steps`` are due."""
     steps = round(sim_seconds / sim.dt_s)
     dt_s = sim.dt_s

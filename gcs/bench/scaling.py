@@ -205,7 +205,7 @@ def memory_kb(smaps_rollup: str | None, status: str | None) -> tuple[float, str]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class DroneSample:
+class DroneCounters:
     """One drone at one instant: its own counters from the shared world."""
 
     parts_s: tuple[float, float, float, float]  # physics, control, perception, MAVLink (drone's monotonic clock)
@@ -219,7 +219,7 @@ class Snapshot:
 
     wall_s: float
     supervisor_cpu_s: float
-    drones: tuple[DroneSample, ...]
+    drones: tuple[DroneCounters, ...]
     process_cpu_ticks: tuple[int, ...]
 
 
@@ -515,7 +515,7 @@ def take_snapshot(swarm: Swarm) -> Snapshot:
     drones = []
     for k in range(len(swarm.sysids)):
         parts = (float(parts_s[k, 0]), float(parts_s[k, 1]), float(parts_s[k, 2]), float(parts_s[k, 3]))
-        drones.append(DroneSample(parts_s=parts, sim_time_s=float(times_s[k])))
+        drones.append(DroneCounters(parts_s=parts, sim_time_s=float(times_s[k])))
     ticks = []
     for pid in process_ids(swarm):
         text = _read(f"/proc/{pid}/stat")

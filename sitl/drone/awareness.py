@@ -28,7 +28,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.avoidance.algorithm import new_obstacle as _new_obstacle
 from sitl.avoidance.collision_prevention import RelayedNeighbour
-from sitl.drone.closed_loop import Simulation
+from sitl.drone.closed_loop import ClosedLoop
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.mathutil import fast_constructor
 from sitl.params import ParamStore
@@ -57,7 +57,7 @@ _RANGE_MARGIN_M = 1e-6
 class Awareness:
     def __init__(
         self,
-        sim: Simulation,
+        sim: ClosedLoop,
         instance: int,
         frame: LocalFrame,
         *,

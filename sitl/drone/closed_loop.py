@@ -56,7 +56,7 @@ class SimConfig:
     battery: BatteryConfig = field(default_factory=BatteryConfig)
 
 
-class Simulation:
+class ClosedLoop:
     def __init__(self, config: SimConfig, params: ParamStore | None = None) -> None:
         self.config = config
         self.dt_s = 1.0 / config.physics_rate_hz
@@ -161,13 +161,13 @@ class Simulation:
         if speed_mps > GROUND_IMPACT_SPEED_MPS:
             self.vehicle.crash(f"Ground impact at {speed_mps:.1f} m/s")
 
-    def run_for(self, duration_s: float, on_step: Callable[[Simulation], None] | None = None) -> None:
+    def run_for(self, duration_s: float, on_step: Callable[[ClosedLoop], None] | None = None) -> None:
         for _ in range(round(duration_s / self.dt_s)):
             self.step()
             if on_step is not None:
                 on_step(self)
 
-    def run_until(self, condition: Callable[[Simulation], bool], timeout_s: float) -> bool:
+    def run_until(self, condition: Callable[[ClosedLoop], bool], timeout_s: float) -> bool:
         """Step until the condition holds (checked after each step); False if the timeout passes first."""
         end = self.time_s + timeout_s
         while self.time_s < end - 1e-9:

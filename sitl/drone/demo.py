@@ -11,7 +11,7 @@ from collections.abc import Callable
 from enum import Enum, auto
 
 from sitl.autopilot.px4_modes import Px4Mode
-from sitl.drone.closed_loop import Simulation
+from sitl.drone.closed_loop import ClosedLoop
 
 DEMO_ALT_M = 3.0
 DEMO_HOVER_S = 5.0
@@ -27,7 +27,7 @@ class _Phase(Enum):
 
 
 class DemoFlight:
-    def __init__(self, sim: Simulation, say: Callable[[str], None]) -> None:
+    def __init__(self, sim: ClosedLoop, say: Callable[[str], None]) -> None:
         self._sim = sim
         self._say = say
         self._phase = _Phase.PREFLIGHT

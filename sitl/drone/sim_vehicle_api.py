@@ -1,4 +1,4 @@
-"""The autopilot as the MAVLink services see it: ``VehicleApi`` implemented over one ``Simulation``.
+"""The autopilot as the MAVLink services see it: ``VehicleApi`` implemented over one ``ClosedLoop``.
 
 This is the translation layer between wire concepts (geodetic coordinates, AMSL altitudes, PX4 modes, MISSION_ITEM_INT)
 and the autopilot's local-frame requests. It is pure: it reads the simulation's estimate and sensor samples (never
@@ -18,7 +18,7 @@ from sitl.autopilot.mission_plan import NavItem, to_nav_items
 from sitl.autopilot.px4_modes import Px4Mode
 from sitl.control.cascade import AttitudeSetpoint as CascadeAttitudeSetpoint
 from sitl.control.cascade import TrajectorySetpoint
-from sitl.drone.closed_loop import Simulation
+from sitl.drone.closed_loop import ClosedLoop
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.dynamics.plant import GeoPoint
 from sitl.faults.failures import BATTERY_LEVELS, FaultError, GpsFault, apply_request, decode_request
@@ -53,7 +53,7 @@ def _nan_if_invalid(values: Vec3, valid: bool) -> tuple[float, float, float]:
 class SimVehicleApi:
     """``VehicleApi`` for a simulated drone. One instance serves every MAVLink link of the process."""
 
-    def __init__(self, sim: Simulation) -> None:
+    def __init__(self, sim: ClosedLoop) -> None:
         self.sim = sim
         self.vehicle = sim.vehicle
         # The estimator's frame starts at the resting CG at boot: that point, in geodetic terms, is the origin.

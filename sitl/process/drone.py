@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import TextIO
 
 from sitl.drone.awareness import Awareness
-from sitl.drone.closed_loop import SimConfig, Simulation, build_param_store
+from sitl.drone.closed_loop import ClosedLoop, SimConfig, build_param_store
 from sitl.drone.demo import DemoFlight
 from sitl.drone.sim_vehicle_api import SimVehicleApi
 from sitl.onboard.runner import OnboardRunner
@@ -95,7 +95,7 @@ class Drone:
         self.ended = False
         self.failed = False
         behaviour = common.behaviour
-        sim = Simulation(SimConfig(airframe=common.airframe, seed=spec.seed, home=spec.home, wind=common.wind),
+        sim = ClosedLoop(SimConfig(airframe=common.airframe, seed=spec.seed, home=spec.home, wind=common.wind),
                          params=build_param_store(behaviour.params) if behaviour is not None else None)  # fmt: skip
         self.sim = sim
         airframe = common.airframe
@@ -359,5 +359,5 @@ class Drone:
 
 def cpu_clock(in_world: bool) -> Callable[[], int]:
     """The clock a drone's parts are timed on: in a swarm this thread's CPU clock, so the split stays true when
-    there are more drones than cores (``Simulation.part_clock_ns``); alone, the wall clock."""
+    there are more drones than cores (``ClosedLoop.part_clock_ns``); alone, the wall clock."""
     return time.thread_time_ns if in_world else time.perf_counter_ns

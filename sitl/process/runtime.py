@@ -1,6 +1,6 @@
 """The drone process's IO shell: pacing against the wall clock, MAVLink sockets, signals, and the main loop.
 
-Everything that flies is in the pure Simulation and the MAVLink services are sans-IO; this module decides when to
+Everything that flies is in the pure ClosedLoop and the MAVLink services are sans-IO; this module decides when to
 step the simulation, when to read sockets and poll the services, and when to stop. Socket readiness wakes the loop
 early, so a command is handled within a fraction of a physics step of its arrival, not at the next batch.
 """

@@ -1,6 +1,6 @@
 """A rotating circle of drones and one silent drone hovering in its path, flown in one process on one shared world.
 
-The shape of ``swarm formation circle --rate`` with a drone that says nothing: every Simulation steps once per tick
+The shape of ``swarm formation circle --rate`` with a drone that says nothing: every ClosedLoop steps once per tick
 (the lockstep order of a real swarm), each with its world participant (contacts crash) and its perception (camera
 rendered from the world; relayed neighbours). The circle's drones hear one another through the relay, at 20 Hz
 from their estimates, as the ground station relays them; nobody hears the silent drone, which can only be seen.
@@ -30,7 +30,7 @@ from sitl.autopilot.px4_modes import Px4Mode
 from sitl.avoidance.collision_prevention import RelayedNeighbour
 from sitl.control.cascade import TrajectorySetpoint
 from sitl.drone.awareness import Awareness
-from sitl.drone.closed_loop import SimConfig, Simulation
+from sitl.drone.closed_loop import ClosedLoop, SimConfig
 from sitl.dynamics.airframe import load_airframe
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.dynamics.plant import DEFAULT_HOME
@@ -80,7 +80,7 @@ def _slot_ne(scenario: CircleScenario, index: int, tau_s: float) -> tuple[float,
 
 
 def fly_circle_past_a_silent_drone(
-    scenario: CircleScenario, on_tick: Callable[[list[Simulation], float], None] | None = None
+    scenario: CircleScenario, on_tick: Callable[[list[ClosedLoop], float], None] | None = None
 ) -> CircleOutcome:
     """Fly the scenario; ``on_tick(sims, now)`` is called after every step of all drones (to trace a run)."""
     airframe = load_airframe()
@@ -96,11 +96,11 @@ def fly_circle_past_a_silent_drone(
     hold_ne = (scenario.radius_m * math.cos(silent_angle), scenario.radius_m * math.sin(silent_angle))
     world = SharedWorld.create()
     try:
-        sims: list[Simulation] = []
+        sims: list[ClosedLoop] = []
         parts: list[WorldParticipant] = []
         eyes: list[Awareness] = []
         for i, (north, east) in enumerate(homes_ne):
-            sim = Simulation(SimConfig(airframe=airframe, seed=scenario.seed * 100 + i,
+            sim = ClosedLoop(SimConfig(airframe=airframe, seed=scenario.seed * 100 + i,
                                        home=common.geo_from_ned((north, east, 0.0))))  # fmt: skip
             sim.part_clock_ns = time.thread_time_ns
             if scenario.yaw_follow is not None:
@@ -216,14 +216,14 @@ CIRCLE = CircleScenario(rotate_s=5.0)
 DENSE = CircleScenario(drones=24, radius_m=8.0, rate_radps=0.15, rotate_s=5.0)
 
 
-def fly_with_digest(scenario: CircleScenario) -> tuple[str, CircleOutcome, list[Simulation]]:
+def fly_with_digest(scenario: CircleScenario) -> tuple[str, CircleOutcome, list[ClosedLoop]]:
     """Fly ``scenario`` and hash every drone's true position, velocity and attitude at every step (SHA-256 of the
     float64 bytes): a single bit anywhere in any drone's flight changes it. Returns the hex digest, the outcome and
     the drones, so a caller can read their parts' clocks."""
     digest = hashlib.sha256()
-    flown: list[Simulation] = []
+    flown: list[ClosedLoop] = []
 
-    def trace(sims: list[Simulation], _now: float) -> None:
+    def trace(sims: list[ClosedLoop], _now: float) -> None:
         if not flown:
             flown.extend(sims)
         for sim in sims:

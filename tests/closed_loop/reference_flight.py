@@ -17,7 +17,7 @@ import numpy as np
 from sitl.autopilot.mission_plan import NavItem, NavKind
 from sitl.autopilot.px4_modes import Px4Mode
 from sitl.control.cascade import AttitudeSetpoint, TrajectorySetpoint
-from sitl.drone.closed_loop import Simulation
+from sitl.drone.closed_loop import ClosedLoop
 from sitl.dynamics.battery import Battery
 from tests.closed_loop.flight import make_sim
 
@@ -35,7 +35,7 @@ class _Recorder:
     """Wraps the plant's step to hash the motor commands it is given at every physics step, whichever path computed
     them (instrumentation only: the commands pass through)."""
 
-    def __init__(self, sim: Simulation) -> None:
+    def __init__(self, sim: ClosedLoop) -> None:
         self.sim = sim
         self.hash = hashlib.sha256()
         self.steps = 0
@@ -53,7 +53,7 @@ class _Recorder:
         sim.plant.step = step  # type: ignore[method-assign]
 
 
-def _stream(sim: Simulation, setpoint: TrajectorySetpoint | AttitudeSetpoint, duration_s: float) -> None:
+def _stream(sim: ClosedLoop, setpoint: TrajectorySetpoint | AttitudeSetpoint, duration_s: float) -> None:
     sim.run_for(duration_s, lambda s: s.vehicle.set_offboard_setpoint(setpoint, s.time_s))
 
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from sitl.drone.awareness import Awareness
-from sitl.drone.closed_loop import SimConfig, Simulation
+from sitl.drone.closed_loop import ClosedLoop, SimConfig
 from sitl.dynamics.airframe import load_airframe
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.dynamics.plant import DEFAULT_HOME
@@ -33,7 +33,7 @@ def _fly_head_on(avoid: bool) -> tuple[float, list[bool], list[float], list[str]
     frame = LocalFrame(DEFAULT_HOME)
     homes = [frame.geo_from_ned((0.0, 0.0, 0.0)), frame.geo_from_ned((GAP_M, 0.0, 0.0))]
     sims = [
-        Simulation(SimConfig(airframe=airframe, seed=11 + i, home=home, initial_yaw_rad=yaw))
+        ClosedLoop(SimConfig(airframe=airframe, seed=11 + i, home=home, initial_yaw_rad=yaw))
         for i, (home, yaw) in enumerate(zip(homes, (0.0, math.pi), strict=True))
     ]
     participants = [
@@ -94,7 +94,7 @@ def _fly_past_pole(avoid: bool) -> tuple[bool, float, list[str]]:
     world = SharedWorld.create()
     try:
         frame = LocalFrame(DEFAULT_HOME)
-        sim = Simulation(SimConfig(airframe=airframe, seed=21))
+        sim = ClosedLoop(SimConfig(airframe=airframe, seed=21))
         pole = frame.geo_from_ned((GAP_M / 2, 0.0, -5.0))  # 0.25 m radius, 10 m tall, halfway along the path
         world.add_obstacle(cylinder=True, centre=(pole.lat_deg, pole.lon_deg, pole.alt_amsl_m), radius_m=0.25,
                            height_m=10.0)  # fmt: skip

@@ -10,7 +10,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.drone.awareness import Awareness
-from sitl.drone.closed_loop import SimConfig, Simulation
+from sitl.drone.closed_loop import ClosedLoop, SimConfig
 from sitl.dynamics.airframe import load_airframe
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.protocol.images import EncodedImage
@@ -28,7 +28,7 @@ def test_the_cameras_render_only_while_avoidance_uses_them(avoid: int, armed: bo
     every neighbour in view on the ground) and a drone with avoidance off render nothing."""
     world = SharedWorld.create()
     try:
-        sim = Simulation(SimConfig(airframe=load_airframe(), seed=3))
+        sim = ClosedLoop(SimConfig(airframe=load_airframe(), seed=3))
         sim.params.set("AVOID_ENABLE", avoid)
         part = WorldParticipant(world, 0, 0.35, rest_alt_amsl_m=sim.truth.geo.alt_amsl_m)
         eyes = Awareness(sim, 0, LocalFrame(sim.truth.geo), world=world, neighbours=None)
@@ -54,7 +54,7 @@ def fly_looking(frames_dir: Path, look: bool) -> list[EncodedImage]:
     for every 0.25 s (as a ground station showing this drone's camera)."""
     world = SharedWorld.create()
     try:
-        sim = Simulation(SimConfig(airframe=load_airframe(), seed=3))
+        sim = ClosedLoop(SimConfig(airframe=load_airframe(), seed=3))
         part = WorldParticipant(world, 0, 0.35, rest_alt_amsl_m=sim.truth.geo.alt_amsl_m)
         eyes = Awareness(sim, 0, LocalFrame(sim.truth.geo), world=world, neighbours=None, frames_dir=frames_dir)
         home = sim.truth.geo

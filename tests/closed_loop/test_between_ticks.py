@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 
 from sitl.control.cascade import TrajectorySetpoint
-from sitl.drone.closed_loop import Simulation
+from sitl.drone.closed_loop import ClosedLoop
 from tests.closed_loop.flight import make_sim
 
 pytestmark = pytest.mark.timeout(60)
 
 
-def _flown(shells_only: bool) -> tuple[Simulation, list[np.ndarray], int]:
+def _flown(shells_only: bool) -> tuple[ClosedLoop, list[np.ndarray], int]:
     """Take off, fly offboard to a point 3 m away while the setpoint streams at 20 Hz, and record every step's truth
     and estimate; with ``shells_only`` every step goes through the shells. Returns how many steps took the call."""
     sim = make_sim(seed=5)
@@ -33,7 +33,7 @@ def _flown(shells_only: bool) -> tuple[Simulation, list[np.ndarray], int]:
         sim._between_ticks = counted  # type: ignore[method-assign]
     trace: list[np.ndarray] = []
 
-    def record(s: Simulation) -> None:
+    def record(s: ClosedLoop) -> None:
         est = s.estimate
         assert est is not None
         trace.append(np.concatenate((s.truth.pos_ned_m, s.truth.att_q_frd_to_ned, est.pos_ned_m, est.att_q_frd_to_ned)))
@@ -46,7 +46,7 @@ def _flown(shells_only: bool) -> tuple[Simulation, list[np.ndarray], int]:
     v.set_offboard_setpoint(setpoint, sim.time_s)
     assert v.start_offboard(sim.time_s).ok
 
-    def stream(s: Simulation) -> None:  # a setpoint every 12 steps (about 20 Hz), as the streamer sends them
+    def stream(s: ClosedLoop) -> None:  # a setpoint every 12 steps (about 20 Hz), as the streamer sends them
         if round(s.time_s / s.dt_s) % 12 == 0:
             s.vehicle.set_offboard_setpoint(setpoint, s.time_s)
         record(s)

@@ -1,7 +1,7 @@
 """Closed-loop flights of each row of the failsafe table (docs/failsafes.md), triggered the way the vehicle sees the
 fault: GCS heartbeats that stop, a pack swapped for a drained one, an estimate without a position, a fence.
 
-Policy: a Simulation stepped directly (JSBSim, sensor noise on), no sockets, no wall clock; positions are checked on
+Policy: a ClosedLoop stepped directly (JSBSim, sensor noise on), no sockets, no wall clock; positions are checked on
 ground truth, which the autopilot never sees. Each flight is short (a few tens of simulated seconds).
 """
 
@@ -18,7 +18,7 @@ from sitl.autopilot.geofence import CircleZone, FenceKind, Geofence
 from sitl.autopilot.mission_plan import NavItem, NavKind
 from sitl.autopilot.px4_modes import FailsafeKind, Px4Mode
 from sitl.control.cascade import TrajectorySetpoint
-from sitl.drone.closed_loop import Simulation
+from sitl.drone.closed_loop import ClosedLoop
 from sitl.dynamics.battery import Battery
 from sitl.estimation.estimator import Estimate
 from sitl.protocol.modes import system_status
@@ -27,28 +27,28 @@ from tests.closed_loop.flight import boot_position, make_sim, reaction_tolerance
 pytestmark = pytest.mark.timeout(60)
 
 
-def _texts(sim: Simulation) -> list[str]:
+def _texts(sim: ClosedLoop) -> list[str]:
     return [e.text for e in sim.vehicle.events]
 
 
-def _heartbeat_status(sim: Simulation) -> int:
+def _heartbeat_status(sim: ClosedLoop) -> int:
     status = sim.vehicle.status
     return system_status(armed=status.armed, failsafe=status.failsafe, terminated=sim.vehicle.crashed)
 
 
-def _local(sim: Simulation, north_m: float, east_m: float, alt_m: float) -> np.ndarray:
+def _local(sim: ClosedLoop, north_m: float, east_m: float, alt_m: float) -> np.ndarray:
     home = sim.vehicle.home_ned_m
     return np.array((home[0] + north_m, home[1] + east_m, home[2] - alt_m))
 
 
-def _fly_with_gcs(sim: Simulation, duration_s: float) -> None:
+def _fly_with_gcs(sim: ClosedLoop, duration_s: float) -> None:
     """Fly on while a ground station sends its 1 Hz HEARTBEAT."""
     for _ in range(round(duration_s)):
         sim.vehicle.note_gcs_heartbeat(sim.time_s)
         sim.run_for(1.0)
 
 
-def _true_distance_from_boot_m(sim: Simulation) -> float:
+def _true_distance_from_boot_m(sim: ClosedLoop) -> float:
     return math.hypot(*(sim.truth.pos_ned_m - boot_position(sim))[:2])
 
 
@@ -144,7 +144,7 @@ def test_offboard_loss_with_com_obl_rc_act_return_holds_then_returns() -> None:
 
 
 # ---- battery ---------------------------------------------------------------------------------------------------------
-def _hover_away_then_drain(seed: int, action: int, remaining: float) -> Simulation:
+def _hover_away_then_drain(seed: int, action: int, remaining: float) -> ClosedLoop:
     sim = make_sim(seed=seed)
     sim.params.set("COM_LOW_BAT_ACT", action)
     sim.params.set("RTL_RETURN_ALT", 4.0)
@@ -191,7 +191,7 @@ def test_com_low_bat_act_3_returns_at_critical_and_lands_at_emergency() -> None:
 
 
 # ---- position loss ---------------------------------------------------------------------------------------------------
-def _lose_position(sim: Simulation) -> list[bool]:
+def _lose_position(sim: ClosedLoop) -> list[bool]:
     """From now on the estimator reports no horizontal position (as with the GPS receiver off), until the returned
     switch is set back to True."""
     inner = sim.estimator.update
@@ -229,7 +229,7 @@ def test_position_loss_descends_level_at_the_landing_speed_and_disarms_on_the_gr
     # which the position loop normally trims out), slowly, and disarms on the ground
     horizontal_mps: list[float] = []
 
-    def record_until_disarmed(s: Simulation) -> bool:
+    def record_until_disarmed(s: ClosedLoop) -> bool:
         horizontal_mps.append(math.hypot(*s.truth.vel_ned_mps[:2]))
         return not s.vehicle.status.armed
 

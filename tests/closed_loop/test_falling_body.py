@@ -1,6 +1,6 @@
 """A dead drone's body falls through the shared world onto a drone hovering below it, which crashes.
 
-One Simulation hovers with its camera and collision prevention running, as in a drone process; the dead drone is a
+One ClosedLoop hovers with its camera and collision prevention running, as in a drone process; the dead drone is a
 row of the same world, written once above it and marked ended as the supervisor marks a killed process. Nothing
 moves that row afterwards: the body falls because every reader computes it from the row at its own time.
 """
@@ -12,7 +12,7 @@ import math
 import pytest
 
 from sitl.drone.awareness import Awareness
-from sitl.drone.closed_loop import SimConfig, Simulation
+from sitl.drone.closed_loop import ClosedLoop, SimConfig
 from sitl.dynamics.airframe import load_airframe
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.mathutil import GRAVITY_MPS2
@@ -30,7 +30,7 @@ def test_a_body_falling_from_3_m_above_a_hovering_drone_hits_it_and_it_crashes()
     airframe = load_airframe()
     world = SharedWorld.create()
     try:
-        sim = Simulation(SimConfig(airframe=airframe, seed=5))
+        sim = ClosedLoop(SimConfig(airframe=airframe, seed=5))
         rest_alt = sim.truth.geo.alt_amsl_m
         part = WorldParticipant(world, 0, airframe.collision_radius_m, rest_alt_amsl_m=rest_alt)
         eyes = Awareness(sim, 0, LocalFrame(sim.truth.geo), world=world, neighbours=None)

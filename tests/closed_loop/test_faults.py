@@ -1,7 +1,7 @@
 """Injected faults are real in the simulation: a failed rotor gives no thrust, a lost GPS invalidates the position,
 a glitching GPS is gated out, a battery fault reads below its threshold.
 
-Policy: a Simulation stepped directly (JSBSim, sensor noise on), faults injected through SimVehicleApi with the same
+Policy: a ClosedLoop stepped directly (JSBSim, sensor noise on), faults injected through SimVehicleApi with the same
 request the MAVLink command service makes of MAV_CMD_INJECT_FAILURE; ground truth checks what really happened.
 """
 
@@ -14,7 +14,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.autopilot import vehicle_api as api
-from sitl.drone.closed_loop import GROUND_IMPACT_SPEED_MPS, Simulation
+from sitl.drone.closed_loop import GROUND_IMPACT_SPEED_MPS, ClosedLoop
 from sitl.drone.sim_vehicle_api import SimVehicleApi
 from sitl.estimation.estimator import Estimate
 from sitl.faults.failures import BATTERY_TRIGGER_MARGIN, GPS_GLITCH_OFFSET_NE_M, FailureType, FailureUnit
@@ -27,12 +27,12 @@ MOTOR, GPS, BATTERY, LINK = (FailureUnit.SYSTEM_MOTOR, FailureUnit.SENSOR_GPS, F
 OK, OFF, WRONG = FailureType.OK, FailureType.OFF, FailureType.WRONG
 
 
-def inject(sim: Simulation, unit: int, kind: int, instance: int = 0) -> api.CommandOutcome:
+def inject(sim: ClosedLoop, unit: int, kind: int, instance: int = 0) -> api.CommandOutcome:
     request = api.InjectFailure(unit=int(unit), failure_type=int(kind), instance=instance)
     return SimVehicleApi(sim).command(request, sim.time_s)
 
 
-def enabled_sim(seed: int) -> Simulation:
+def enabled_sim(seed: int) -> ClosedLoop:
     sim = make_sim(seed=seed)
     sim.params.set("SYS_FAILURE_EN", 1)
     return sim
@@ -111,7 +111,7 @@ def test_gps_glitch_is_gated_out_then_declared_invalid() -> None:
     assert sim.last_gps is not None
     errors = []
 
-    def record(s: Simulation) -> None:
+    def record(s: ClosedLoop) -> None:
         assert s.estimate is not None
         errors.append(float(np.linalg.norm(s.estimate.pos_ned_m[:2] - s.truth.pos_ned_m[:2])))
 

@@ -1,6 +1,6 @@
 """What fuzzing a flying drone found in the autopilot (bench/fuzz.py, docs/reliability.md), pinned closed-loop.
 
-Policy: a Simulation stepped directly (JSBSim, sensor noise on) behind the MAVLink adapter, driven with the request
+Policy: a ClosedLoop stepped directly (JSBSim, sensor noise on) behind the MAVLink adapter, driven with the request
 objects the MAVLink services send; ground truth only checks where the vehicle really went.
 """
 
@@ -13,14 +13,14 @@ import pytest
 from bench.fuzz import run_in_process
 from sitl.autopilot import vehicle_api as api
 from sitl.autopilot.px4_modes import Px4Mode
-from sitl.drone.closed_loop import Simulation
+from sitl.drone.closed_loop import ClosedLoop
 from sitl.drone.sim_vehicle_api import SimVehicleApi
 from tests.closed_loop.flight import boot_position, make_sim
 
 pytestmark = pytest.mark.timeout(120)
 
 
-def _hovering(seed: int) -> tuple[Simulation, SimVehicleApi, npt.NDArray[np.float64]]:
+def _hovering(seed: int) -> tuple[ClosedLoop, SimVehicleApi, npt.NDArray[np.float64]]:
     """A drone hovering in Hold at the takeoff altitude (2.5 m), and where it booted."""
     sim = make_sim(seed=seed)
     vehicle = SimVehicleApi(sim)
@@ -32,11 +32,11 @@ def _hovering(seed: int) -> tuple[Simulation, SimVehicleApi, npt.NDArray[np.floa
     return sim, vehicle, home
 
 
-def _assert_flies_there_then_lands(sim: Simulation, vehicle: SimVehicleApi, home: npt.NDArray[np.float64],
+def _assert_flies_there_then_lands(sim: ClosedLoop, vehicle: SimVehicleApi, home: npt.NDArray[np.float64],
                                    north_m: float) -> None:  # fmt: skip
     lowest_m = [sim.altitude_above_start_m()]
 
-    def watch(_s: Simulation) -> None:
+    def watch(_s: ClosedLoop) -> None:
         if (sim.truth.pos_ned_m[0] - home[0]) < north_m - 5.0:
             lowest_m[0] = min(lowest_m[0], sim.altitude_above_start_m())
 

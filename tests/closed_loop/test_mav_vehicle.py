@@ -1,6 +1,6 @@
 """Closed-loop flights through the MAVLink adapter (SimVehicleApi): wire-level requests in, snapshots out.
 
-Policy: a Simulation stepped directly (JSBSim, sensor noise on), no sockets, no wall clock. The drone is driven only
+Policy: a ClosedLoop stepped directly (JSBSim, sensor noise on), no sockets, no wall clock. The drone is driven only
 with sitl.autopilot.vehicle_api request objects and read through ``snapshot()``, as the MAVLink services do; ground
 truth is used only to check where it really went.
 """
@@ -17,7 +17,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.autopilot import vehicle_api as api
 from sitl.autopilot.px4_modes import Px4Mode
-from sitl.drone.closed_loop import Simulation
+from sitl.drone.closed_loop import ClosedLoop
 from sitl.drone.sim_vehicle_api import SimVehicleApi
 from sitl.dynamics.geodesy import ned_from_geo
 from sitl.dynamics.plant import GeoPoint
@@ -29,10 +29,10 @@ T = TypeVar("T")
 
 
 class Drone:
-    """A Simulation behind SimVehicleApi, with the helpers a ground station script would have."""
+    """A ClosedLoop behind SimVehicleApi, with the helpers a ground station script would have."""
 
     def __init__(self, seed: int) -> None:
-        self.sim: Simulation = make_sim(seed=seed)
+        self.sim: ClosedLoop = make_sim(seed=seed)
         self.api = SimVehicleApi(self.sim)
         self.home_true = boot_position(self.sim)
 

@@ -1,7 +1,7 @@
 """Closed-loop flights of the autopilot's modes and safety rules: RTL, offboard loss failsafe, arming and disarming
 rules, kill, goto, parameter changes in flight, and the events a ground station hears.
 
-Policy: a Simulation stepped directly (JSBSim, sensor noise on), no sockets, no wall clock; every check is made on
+Policy: a ClosedLoop stepped directly (JSBSim, sensor noise on), no sockets, no wall clock; every check is made on
 ground truth, which the autopilot never sees.
 """
 
@@ -16,32 +16,32 @@ import pytest
 from sitl.autopilot.px4_modes import Px4Mode
 from sitl.autopilot.vehicle_api import CommandResult, LandedState
 from sitl.control.cascade import TrajectorySetpoint
-from sitl.drone.closed_loop import Simulation
+from sitl.drone.closed_loop import ClosedLoop
 from sitl.dynamics.battery import Battery
 from tests.closed_loop.flight import Trace, arm_when_ready, boot_position, make_sim, reaction_tolerance_s, take_off
 
 pytestmark = pytest.mark.timeout(60)
 
 
-def _horizontal_speed(sim: Simulation) -> float:
+def _horizontal_speed(sim: ClosedLoop) -> float:
     return math.hypot(float(sim.truth.vel_ned_mps[0]), float(sim.truth.vel_ned_mps[1]))
 
 
-def _local_target(sim: Simulation, north_m: float, east_m: float, alt_above_home_m: float) -> np.ndarray:
+def _local_target(sim: ClosedLoop, north_m: float, east_m: float, alt_above_home_m: float) -> np.ndarray:
     home = sim.vehicle.home_ned_m
     return np.array((home[0] + north_m, home[1] + east_m, home[2] - alt_above_home_m))
 
 
-def _record_until(sim: Simulation, trace: Trace, condition: Callable[[Simulation], bool], timeout_s: float) -> bool:
-    def record_then_check(s: Simulation) -> bool:
+def _record_until(sim: ClosedLoop, trace: Trace, condition: Callable[[ClosedLoop], bool], timeout_s: float) -> bool:
+    def record_then_check(s: ClosedLoop) -> bool:
         trace.record(s)
         return condition(s)
 
     return sim.run_until(record_then_check, timeout_s)
 
 
-def _settled_at(sim: Simulation, target_est: np.ndarray, timeout_s: float) -> bool:
-    def near(s: Simulation) -> bool:
+def _settled_at(sim: ClosedLoop, target_est: np.ndarray, timeout_s: float) -> bool:
+    def near(s: ClosedLoop) -> bool:
         est = s.vehicle.estimate
         assert est is not None
         return bool(np.linalg.norm(est.pos_ned_m - target_est) < 0.2 and np.linalg.norm(est.vel_ned_mps) < 0.1)

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from sitl.autopilot.px4_modes import Px4Mode
-from sitl.drone.closed_loop import SimConfig, Simulation, build_param_store
+from sitl.drone.closed_loop import ClosedLoop, SimConfig, build_param_store
 from sitl.onboard.loader import ENABLE_PARAM, BehaviourError, load_behaviour
 from sitl.onboard.runner import OnboardRunner
 from tests.closed_loop.flight import load_airframe, take_off
@@ -43,24 +43,24 @@ class Boom:
 """
 
 
-def drone_with(tmp_path: Path, name: str, source: str) -> tuple[Simulation, OnboardRunner]:
+def drone_with(tmp_path: Path, name: str, source: str) -> tuple[ClosedLoop, OnboardRunner]:
     path = tmp_path / f"{name.lower()}.py"
     path.write_text(source)
     loaded = load_behaviour(f"{path}:{name}")
-    sim = Simulation(SimConfig(airframe=load_airframe(), seed=3), params=build_param_store(loaded.params))
+    sim = ClosedLoop(SimConfig(airframe=load_airframe(), seed=3), params=build_param_store(loaded.params))
     prevention = sim.vehicle.collision_prevention
     runner = OnboardRunner(loaded, sysid=1, vehicle=sim.vehicle, params=sim.params, estimate=lambda: sim.estimate,
                            relayed=prevention.relayed, camera=prevention.camera)  # fmt: skip
     return sim, runner
 
 
-def fly(sim: Simulation, runner: OnboardRunner, seconds: float) -> None:
+def fly(sim: ClosedLoop, runner: OnboardRunner, seconds: float) -> None:
     for _ in range(round(seconds / sim.dt_s)):
         sim.step()
         runner.tick(sim.time_s)
 
 
-def texts(sim: Simulation) -> list[str]:
+def texts(sim: ClosedLoop) -> list[str]:
     return [e.text for e in sim.vehicle.events]
 
 

@@ -18,7 +18,7 @@ from gcs.bench.scaling import (
     CPU_PARTS,
     BenchRow,
     BenchUsageError,
-    DroneSample,
+    DroneCounters,
     LatencyFigures,
     LockstepFigures,
     PacedFigures,
@@ -252,8 +252,8 @@ def test_memory_prefers_pss_and_falls_back_to_rss() -> None:
 # ------------------------------------------------------------------------------------------------ window figures
 
 
-def _sample(parts: tuple[float, float, float, float], t: float) -> DroneSample:
-    return DroneSample(parts_s=parts, sim_time_s=t)
+def _sample(parts: tuple[float, float, float, float], t: float) -> DroneCounters:
+    return DroneCounters(parts_s=parts, sim_time_s=t)
 
 
 @pytest.mark.parametrize("hosted", [False, True], ids=["process-per-drone", "one-host"])
