@@ -30,7 +30,6 @@ from gcs.fleet.swarm import Swarm, SwarmError
 from gcs.flight.geodesy import DEFAULT_ORIGIN, GeoPoint
 from gcs.flight.onboard import absolute_spec
 from gcs.mavlink.signing import SigningKeyError, load_key
-from gcs.mavlink.transport import parse_host_port
 from gcs.missions.mission_file import (
     MissionFileError,
     MissionSpec,
@@ -47,6 +46,7 @@ from gcs.sweep.cli import add_sweep_parser, run_sweep_command
 from gcs.sweep.plan import SweepError
 from gcs.view.server import DEFAULT_PORT as DEFAULT_VIEW_PORT
 from gcs.view.server import ViewError, ViewServer, serve_view
+from swarmcommon.datagrams import parse_host_port
 
 EXIT_USAGE = 2
 DEFAULT_MISSION = Path(__file__).resolve().parent.parent / "missions" / "grid_to_circle.toml"
@@ -563,7 +563,7 @@ def _loop(swarm: Swarm, station: Station, server: ControlServer, stop: _Stop) ->
         swarm.pump(0.02)
         station.tick()
         server.poll()
-        station.watch(swarm.clock())
+        station.watch()
 
 
 def _param_setting(text: str) -> tuple[str, float]:

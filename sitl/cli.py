@@ -19,13 +19,15 @@ from sitl.dynamics.airframe import DEFAULT_AIRFRAME, AirframeError, load_airfram
 from sitl.dynamics.geodesy import geo_from_ned
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
 from sitl.dynamics.wind import WindConfig
-from sitl.process.mavlink_io import LinkConfig, LinkError, parse_host_port
+from sitl.process.mavlink_io import LinkConfig, LinkError
 from sitl.process.ports import GCS_REMOTE_PORT, MAX_INSTANCE, instance_ports
 from sitl.process.specs import DroneSpec, ProcessSpec
 from sitl.protocol.signing import SigningKeyError, load_key
-from sitl.world.linkmodel import IMPAIRMENT_KEYS, LinkProfile, link_profile
-from sitl.world.mesh import DEFAULT_EXPONENT, MeshSettings, mesh_problem
+from sitl.world.linkmodel import LinkProfile, link_profile
+from sitl.world.mesh import MeshSettings, mesh_problem
 from sitl.world.shared import WorldError
+from swarmcommon.datagrams import parse_host_port
+from swarmcommon.links import DEFAULT_MESH_EXPONENT, LINK_KEYS
 
 EXIT_USAGE = 2
 SPEED_ENV = "PX4_SIM_SPEED_FACTOR"
@@ -194,7 +196,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="CLASS:KEY=VALUE[,...]",
         help="impair a link class (gcs, api, neighbour or all) with the link model; repeatable, later keys win; "
-        f"keys: {', '.join(IMPAIRMENT_KEYS)} (docs/links.md)",
+        f"keys: {', '.join(LINK_KEYS)} (docs/links.md)",
     )
     parser.add_argument(
         "--mesh-range-m",
@@ -209,7 +211,8 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         default=None,
         metavar="X",
-        help=f"mesh path loss: a report is lost with probability (distance / range)^X (default {DEFAULT_EXPONENT:g})",
+        help=f"mesh path loss: a report is lost with probability (distance / range)^X "
+        f"(default {DEFAULT_MESH_EXPONENT:g})",
     )
     parser.add_argument(
         "--behaviour",
@@ -373,7 +376,7 @@ def _mesh(args: argparse.Namespace) -> MeshSettings | None:
         return None
     if args.world is None:
         raise UsageError("--mesh-range-m needs --world (the mesh's medium is in the swarm's shared world)")
-    exponent = DEFAULT_EXPONENT if args.mesh_exponent is None else args.mesh_exponent
+    exponent = DEFAULT_MESH_EXPONENT if args.mesh_exponent is None else args.mesh_exponent
     problem = mesh_problem(args.mesh_range_m, exponent)
     if problem is not None:
         key, _, rest = problem.partition(" ")  # "range_m must be > 0, got -1" -> "--mesh-range-m must be > 0, ..."

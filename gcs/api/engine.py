@@ -30,9 +30,7 @@ from typing import Any, TypeVar
 from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.api.types import ControllerError, DroneState, Event, FlightResult, LaunchOptions
-from gcs.command.onboard_flight import start_onboard_flock, start_onboard_follow
-from gcs.command.procedures import start_onboard_behaviours, stop_onboard_behaviours, take_off_and_hold
-from gcs.fleet.faults import CRASH
+from gcs.fleet.faults import fault_request
 from gcs.fleet.harness import Simulation, SpawnPlan
 from gcs.fleet.losses import MAV_STATE_CRITICAL
 from gcs.fleet.swarm import Swarm, SwarmError
@@ -41,7 +39,9 @@ from gcs.flight.formation import SETPOINT_STREAM_HZ, CircleSpec, Formation, Grid
 from gcs.flight.frames import Vec3
 from gcs.flight.onboard import absolute_spec
 from gcs.mavlink.statustext import StatusTextAssembler
-from gcs.supervisor.station import Station, failsafe_text
+from gcs.supervisor.session import FlightSession
+from gcs.supervisor.station import failsafe_text, swarm_note
+from gcs.supervisor.verbs import STEP_VERBS, VERBS, Started, carry_out
 from gcs.view.report import METRICS_FILE
 from gcs.view.server import ViewServer, serve_view
 
@@ -120,14 +120,12 @@ class Engine:
         self._closing = False
         self._states: dict[int, DroneState] = {}  # replaced whole at each tick: readers in other threads see a snapshot
         self._time_s = 0.0
-        self._controller: ControllerBehaviour | None = None
-        self._onboard = False  # the drones' onboard behaviours fly them (BHV_EN = 1)
         self._texts = StatusTextAssembler()
         self._pending: ControllerError | None = None  # a controller that failed between calls (paced), for the next
         self._status: dict[int, int] = {}  # each drone's last HEARTBEAT system_status (failsafe events)
         self._thread = threading.Thread(target=self._main, name="swarm-supervisor", daemon=True)
         self.swarm: Swarm | None = None
-        self.station: Station | None = None
+        self.session: FlightSession | None = None
         self.view: ViewServer | None = None  # the live view, when asked for
 
     # ---- from any thread -------------------------------------------------------------------------------------------
@@ -199,15 +197,21 @@ class Engine:
             self.view = serve_view(o.view_port)
             self._say(f"swarm: live view on {self.view.url}")
         self.swarm = swarm = Swarm(plan, self._simulation.harness(plan), forward=o.forward, relay=o.neighbours.relay)
-        self.station = Station(swarm, self._say, o.loss_policy, report_dir=o.report_dir, contact_distance_m=contact)
+        self.session = session = FlightSession.verb_by_verb(
+            swarm,
+            self._say,
+            o.loss_policy,
+            report_dir=o.report_dir,
+            contact_distance_m=contact,
+            note=swarm_note(self._say),
+        )
+        session.waiting_tick = self._tick
         if self.view is not None:
-            self.station.serve(self.view)
+            session.serve(self.view)
         swarm.listeners.append(self._on_message)
         swarm.up(ready_timeout_s=o.ready_timeout_s)
         for name, value in o.params.items():
-            for result in swarm.set_params(name, value, swarm.sysids):
-                if not result.ok:
-                    raise SwarmError(f"drone {result.sysid}: parameter {name} = {value:g} not set")
+            VERBS["param"](session, name, value)
         # ready means every drone has a home and a position, so states and formations can use them at once
         if not swarm.wait_until(lambda: all(math.isfinite(s.pos_ned_m[0]) for s in self._snapshot().values()),
                                 o.ready_timeout_s, tick=self._tick):  # fmt: skip
@@ -269,23 +273,24 @@ class Engine:
         health; a close (Ctrl-C) ends the call in progress from here."""
         if self._cancel.is_set():
             raise _Cancelled
-        station, swarm = self.station, self.swarm
-        assert station is not None and swarm is not None
-        station.tick()
-        losses, regained, policy = set(swarm.losses), len(swarm.regained), len(station.recording.policy_events)
-        station.watch(now_s)
-        t = station.mission_time()
+        session, swarm = self.session, self.swarm
+        assert session is not None and swarm is not None
+        session.tick(session.mission_time())
+        losses, regained, policy = set(swarm.losses), len(swarm.regained), len(session.recording.policy_events)
+        session.pace.tick()
+        session.watch_losses(session.mission_time())
+        t = session.mission_time()
         for sysid in sorted(set(swarm.losses) - losses):
             self._emit(Event(kind="lost", time_s=t, sysid=sysid, text=swarm.losses[sysid].cause))
         for loss in swarm.regained[regained:]:
             self._emit(Event(kind="regained", time_s=t, sysid=loss.sysid, text=f"link regained ({loss.cause})"))
-        for record in station.recording.policy_events[policy:]:
+        for record in session.recording.policy_events[policy:]:
             self._emit(Event(kind="policy", time_s=record.time_s, sysid=record.sysid, text=record.text))
         self._publish()
-        controller = self._controller
-        if controller is not None and controller.error is not None:
-            self._controller = None
-            station.streamer.stop()
+        controller = session.controller
+        if isinstance(controller, ControllerBehaviour) and controller.error is not None:
+            session.controller = None
+            session.streamer.stop()
             held = swarm.hold_all()
             self._say(f"swarm: the controller raised {type(controller.error).__name__}: {controller.error}; "
                       f"sysid {held} hold where they are")  # fmt: skip
@@ -294,21 +299,21 @@ class Engine:
     def _publish(self) -> None:
         """A new snapshot for readers in other threads (``drones``, ``time_s``): at every tick and after every call,
         so a call's caller sees the state it ended in."""
-        assert self.station is not None
-        self._time_s = self.station.mission_time()
+        assert self.session is not None
+        self._time_s = self.session.mission_time()
         self._states = self._snapshot()
 
     def _snapshot(self) -> dict[int, DroneState]:
-        swarm, station = self.swarm, self.station
-        assert swarm is not None and station is not None
+        swarm, session = self.swarm, self.session
+        assert swarm is not None and session is not None
         now = swarm.clock()
-        t = station.mission_time()
+        t = session.mission_time()
         out: dict[int, DroneState] = {}
         for sysid in swarm.sysids:
             view = swarm.fleet.drones.get(sysid)
             if view is None:
                 continue
-            frame = station.streamer.drone_frame(sysid)
+            frame = session.streamer.drone_frame(sysid)
             known = frame is not None and all(math.isfinite(v) for v in view.local_ned_m)
             pos = frame.to_swarm(view.local_ned_m) if known and frame is not None else NAN3
             moving = frame is not None and all(math.isfinite(v) for v in view.vel_ned_mps)
@@ -322,14 +327,14 @@ class Engine:
         return out
 
     def _on_message(self, msg: Any, _now_s: float) -> None:
-        if self._on_event is None or self.station is None:
+        if self._on_event is None or self.session is None:
             return
         kind = msg.get_type()
         sysid = msg.get_srcSystem()
         if kind == "STATUSTEXT":
             text = self._texts.feed(sysid, msg)
             if text is not None:  # a long text comes out once, whole
-                self._emit(Event(kind="statustext", time_s=self.station.mission_time(), sysid=sysid, text=text,
+                self._emit(Event(kind="statustext", time_s=self.session.mission_time(), sysid=sysid, text=text,
                                  severity=msg.severity))  # fmt: skip
         elif kind == "HEARTBEAT" and msg.get_srcComponent() == 1:
             before = self._status.get(sysid)
@@ -337,7 +342,7 @@ class Engine:
             if msg.system_status == MAV_STATE_CRITICAL and before != MAV_STATE_CRITICAL:
                 view = self.swarm.fleet.drones.get(sysid) if self.swarm is not None else None
                 text = failsafe_text(msg.system_status, view.texts) if view is not None else None
-                self._emit(Event(kind="failsafe", time_s=self.station.mission_time(), sysid=sysid,
+                self._emit(Event(kind="failsafe", time_s=self.session.mission_time(), sysid=sysid,
                                  text=text or "failsafe"))  # fmt: skip
 
     def _emit(self, event: Event) -> None:
@@ -348,16 +353,16 @@ class Engine:
                 log.exception("an event subscriber raised")
 
     def _shut_down(self) -> FlightResult:
-        station, swarm = self.station, self.swarm
-        assert station is not None and swarm is not None
+        session, swarm = self.session, self.swarm
+        assert session is not None and swarm is not None
         self._cancel.clear()  # the shutdown's own waits run to their end
-        station.streamer.stop()
-        station.end_session()
+        session.streamer.stop()
+        session.end_step(session.mission_time())  # the last step ends now; the shutdown's landing is still recorded
         try:
             swarm.shutdown()
         finally:
             try:
-                report = station.write_report()
+                report = session.write_report()
             finally:
                 self._stop_view()
         metrics = json.loads((report / METRICS_FILE).read_text()) if report is not None else {}
@@ -377,115 +382,61 @@ class Engine:
             self.view.stop()
             self.view = None
 
-    # ---- the work the faces post (each runs in the supervisor's thread) --------------------------------------------
-    def _parts(self) -> tuple[Swarm, Station]:
-        assert self.swarm is not None and self.station is not None
-        return self.swarm, self.station
+    # ---- the work the faces post (each runs in the supervisor's thread): the swarm's verbs ----------------------
+    def _start(self, name: str, *args: Any, **kwargs: Any) -> Started:
+        """Start a verb (gcs/supervisor/verbs.py); one that changes what the swarm flies begins a report step."""
+        assert self.session is not None
+        started = VERBS[name](self.session, *args, **kwargs)
+        if name in STEP_VERBS:
+            shape = _SHAPES.get(type(args[0])) if name == "formation" else None
+            self.session.begin_step(name, shape, args[0] if name == "takeoff" else None)
+        return started
 
-    def _begin(self, cmd: str, **fields: Any) -> None:
-        """A new report step (takeoff, a formation, a behaviour, land), as ``swarm up`` records its commands."""
-        _, station = self._parts()
-        station.begin_step({"cmd": cmd, **fields})
+    def _wait(self, condition: Callable[[], bool], timeout_s: float) -> bool:
+        assert self.swarm is not None
+        return self.swarm.wait_until(condition, timeout_s, tick=self._tick)
 
     def do_takeoff(self, alt_m: float, timeout_s: float) -> None:
-        swarm, station = self._parts()
-        if not (math.isfinite(alt_m) and 0.5 <= alt_m <= 100.0):
-            raise ValueError(f"alt_m must be between 0.5 and 100 m, got {alt_m:g}")
-        self._begin("takeoff", alt=alt_m)
-        take_off_and_hold(swarm, station.streamer, alt_m, timeout_s, tick=self._tick, say=self._say)
-
-    def _take_over(self) -> tuple[Swarm, Station]:
-        """Before a command of the ground station's own: any controller ends, and drones flying their onboard
-        behaviour stop it and hold (BHV_EN = 0), so that only one source feeds their offboard input."""
-        swarm, station = self._parts()
-        self._controller = None
-        if self._onboard:
-            self._onboard = False
-            stop_onboard_behaviours(swarm)
-        return swarm, station
+        carry_out(self._start("takeoff", alt_m, timeout_s), self._wait)
 
     def do_formation(self, formation: Formation) -> float:
-        shape = _SHAPES.get(type(formation))
-        if shape is None:
+        if type(formation) not in _SHAPES:
             raise TypeError(f"not a formation: {formation!r} (GridSpec, CircleSpec, LineSpec or VSpec)")
-        _, station = self._take_over()
-        station.streamer.command(formation, station.mission_time())
-        self._begin("formation", shape=shape)
-        transition = station.streamer.engine.transition
-        return transition.arrival_s - station.mission_time() if transition is not None else 0.0
+        return float(self._start("formation", formation).value)
 
     def do_flock(self, spec: FlockSpec, *, onboard: bool) -> None:
-        swarm, station = self._take_over()
-        if onboard:  # every drone flocks by itself (gcs/command/onboard_flight.py)
-            start_onboard_flock(swarm, station.streamer, spec)
-            self._onboard = True
-        else:
-            station.streamer.command_flock(spec, station.mission_time())
-        self._begin("flock")
+        self._start("flock", spec, onboard=onboard)
 
     def do_follow(self, spec: FollowSpec, *, onboard: bool) -> None:
-        swarm, station = self._take_over()
-        if onboard:
-            start_onboard_follow(swarm, station.streamer, spec, station.mission_time())
-            self._onboard = True
-        else:
-            station.streamer.command_follow(spec, station.mission_time())
-        self._begin("follow")
+        self._start("follow", spec, onboard=onboard)
 
     def do_control(self, controller: Controller) -> None:
-        _, station = self._take_over()
-        behaviour = ControllerBehaviour(controller, self._snapshot)
-        self._controller = behaviour
-        station.streamer.command_behaviour(behaviour, station.mission_time())
-        self._begin("control")
+        self._start("control", ControllerBehaviour(controller, self._snapshot))
 
     def do_behaviour(self, *, run: bool) -> list[int]:
         """Every drone's onboard behaviour on (BHV_EN = 1) or off (BHV_EN = 0, then Hold)."""
-        swarm, station = self._parts()
-        self._controller = None
-        self._onboard = run
-        if run:
-            sysids = start_onboard_behaviours(swarm, station.streamer)
-            self._begin("behaviour")
-            return sysids
-        return stop_onboard_behaviours(swarm)
+        sysids: list[int] = self._start("behaviour", run=run).value
+        return sysids
 
     def do_sleep(self, seconds: float) -> None:
-        swarm, _ = self._parts()
-        if not (math.isfinite(seconds) and seconds >= 0):
-            raise ValueError(f"seconds must be a finite number >= 0, got {seconds!r}")
-        swarm.run_for(seconds, tick=self._tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
+        assert self.swarm is not None
+        self._start("hold", seconds)  # the verb checks the time; the API flies on with a tick at the stream's rate
+        self.swarm.run_for(seconds, tick=self._tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
 
     def do_wait_until(self, predicate: Callable[[dict[int, DroneState]], bool], timeout_s: float) -> bool:
-        swarm, _ = self._parts()
-        return swarm.wait_until(lambda: bool(predicate(self._states)), timeout_s, tick=self._tick)
+        return self._wait(lambda: bool(predicate(self._states)), timeout_s)
 
     def do_land(self, *, return_to_launch: bool, timeout_s: float) -> None:
-        swarm, station = self._parts()
-        self._controller = None
-        self._onboard = False  # landing takes the drones out of OFFBOARD: their behaviours stop by themselves
-        self._begin("rtl" if return_to_launch else "land")
-        flying = station.streamer.hand_over(lambda: swarm.land_all(return_to_launch=return_to_launch))
-        if not swarm.wait_until(lambda: not swarm.armed_sysids(flying), timeout_s, tick=self._tick):
-            raise SwarmError(f"not every drone landed and disarmed within {timeout_s:g} s")
+        carry_out(self._start("rtl" if return_to_launch else "land", timeout_s=timeout_s), self._wait)
 
     def do_set_param(self, name: str, value: float, sysids: list[int] | None) -> None:
-        swarm, _ = self._parts()
-        for result in swarm.set_params(name, value, swarm.sysids if sysids is None else sysids):
-            if result.refused:
-                raise SwarmError(f"drone {result.sysid}: parameter {name} = {value:g} refused (kept {result.kept:g})")
-            if not result.ok:
-                raise SwarmError(f"drone {result.sysid}: no answer to setting parameter {name}")
+        self._start("param", name, value, sysids)
 
     def do_fault(self, sysid: int, kind: str, motor: int | None, for_s: float | None) -> str:
-        _, station = self._parts()
-        answer = station.fault({"sysid": sysid, "kind": kind, "motor": motor, "for_s": for_s})
-        if not answer.get("ok"):
-            raise (ValueError if answer.get("usage") else SwarmError)(answer["error"])
-        return str(answer["result"])
+        return str(self._start("fault", sysid, fault_request(kind, motor, for_s)).value)
 
     def do_kill(self, sysid: int) -> str:
-        return self.do_fault(sysid, CRASH, None, None)
+        return str(self._start("kill", sysid).value)
 
 
 class Readings:

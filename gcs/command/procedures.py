@@ -2,8 +2,10 @@
 
 - ``SteadyAltitude`` (pure): the takeoff is done when every drone holds the target altitude within
   ``ALT_TOLERANCE_M`` for ``ALT_HOLD_S`` without a break.
-- ``take_off_and_hold``: arm (after the pre-arm checks) unless armed, NAV_TAKEOFF for every drone, then wait for
-  ``SteadyAltitude`` (at the drones' MIS_TAKEOFF_ALT when asked for less: they climb that high, as PX4).
+- ``check_takeoff_alt``: the altitudes a takeoff may ask for (0.5-100 m), checked once for every front-end.
+- ``start_takeoff``: arm (after the pre-arm checks) unless armed, NAV_TAKEOFF for every drone, and the test that
+  they hold the altitude (``SteadyAltitude``; at the drones' MIS_TAKEOFF_ALT when asked for less: they climb that
+  high, as PX4); ``take_off_and_hold`` also waits for it.
 - ``PaceWatch``: the pace monitor (gcs/fleet/pace_monitor.py) fed from a running swarm, its warning said once.
 - ``start_onboard_behaviours`` / ``stop_onboard_behaviours``: every drone's onboard behaviour on (BHV_EN = 1, the
   ground station's own setpoint stream stopped) or off (BHV_EN = 0, then Hold); docs/onboard.md.
@@ -14,6 +16,7 @@ Arming, pre-arm waiting and the forced disarm are the swarm's own commands (``Sw
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Mapping
 from typing import Final
@@ -25,10 +28,10 @@ from gcs.fleet.swarm import Swarm, SwarmError
 ALT_TOLERANCE_M: Final = 0.2  # takeoff is done when every drone holds the target altitude within this...
 ALT_HOLD_S: Final = 1.0  # ...for this long (simulated seconds)
 TAKEOFF_MIN_PARAM: Final = "MIS_TAKEOFF_ALT"  # PX4's minimum takeoff altitude above home
+TAKEOFF_MIN_ALT_M: Final = 0.5  # the takeoff altitudes a user may ask for, above home: below half a metre a
+TAKEOFF_MAX_ALT_M: Final = 100.0  # quadrotor sits in ground effect; above 100 m it leaves any test field
 
 Say = Callable[[str], None]
-# A wait: (condition, timeout in simulated seconds) -> whether it ended with the condition (``Swarm.wait_until``)
-Wait = Callable[[Callable[[], bool], float], bool]
 
 
 class SteadyAltitude:
@@ -60,16 +63,22 @@ def takeoff_floor_m(swarm: Swarm) -> float:
     return max(answers, default=0.0)
 
 
-def take_off_and_hold(
-    swarm: Swarm, streamer: FormationStreamer, alt_m: float, timeout_s: float, *, wait: Wait | None = None,
-    tick: Callable[[float], None] | None = None, say: Say | None = None,
-) -> float:  # fmt: skip
-    """Arm every surviving drone unless all are armed (after their pre-arm checks), take them off to ``alt_m``
-    above their own homes, and wait until they hold it (``SteadyAltitude``); the altitude they hold.
+def check_takeoff_alt(alt_m: float) -> None:
+    """The one check of a takeoff altitude, for every front-end (ValueError: one line)."""
+    if not (math.isfinite(alt_m) and TAKEOFF_MIN_ALT_M <= alt_m <= TAKEOFF_MAX_ALT_M):
+        raise ValueError(f"takeoff altitude must be between {TAKEOFF_MIN_ALT_M:g} and {TAKEOFF_MAX_ALT_M:g} m, "
+                         f"got {alt_m:g}")  # fmt: skip
+
+
+def start_takeoff(
+    swarm: Swarm, streamer: FormationStreamer, alt_m: float, *, tick: Callable[[float], None] | None = None,
+    say: Say | None = None,
+) -> tuple[float, Callable[[], bool]]:  # fmt: skip
+    """Arm every surviving drone unless all are armed (after their pre-arm checks) and take them off to ``alt_m``
+    above their own homes; the altitude they will hold, and the test that they hold it (``SteadyAltitude``).
 
     Below the drones' minimum takeoff altitude (MIS_TAKEOFF_ALT) they climb to that instead, as PX4 does, and that is
-    the altitude waited for (``say`` is told). ``wait`` replaces the swarm's own wait (a mission's also ends early,
-    successfully, when a loss policy takes over); SwarmError when they do not hold it within ``timeout_s``."""
+    the altitude to wait for (``say`` is told)."""
     if not all(swarm.fleet.drones[s].armed for s in swarm.active_sysids):
         swarm.arm_all(tick=tick)
     floor = takeoff_floor_m(swarm)
@@ -84,9 +93,19 @@ def take_off_and_hold(
     def holding() -> bool:
         return steady.update(streamer.positions(), len(swarm.active_sysids), swarm.clock())
 
-    if not (wait or (lambda c, t: swarm.wait_until(c, t, tick=tick)))(holding, timeout_s):
-        raise SwarmError(f"takeoff to {alt_m:g} m not reached within {timeout_s:g} s")
-    return alt_m
+    return alt_m, holding
+
+
+def take_off_and_hold(
+    swarm: Swarm, streamer: FormationStreamer, alt_m: float, timeout_s: float, *,
+    tick: Callable[[float], None] | None = None, say: Say | None = None,
+) -> float:  # fmt: skip
+    """``start_takeoff``, then wait until the drones hold the altitude; the altitude they hold (SwarmError when they
+    do not hold it within ``timeout_s``). ``swarm bench`` takes off so; the front-ends through the takeoff verb."""
+    target_m, holding = start_takeoff(swarm, streamer, alt_m, tick=tick, say=say)
+    if not swarm.wait_until(holding, timeout_s, tick=tick):
+        raise SwarmError(f"takeoff to {target_m:g} m not reached within {timeout_s:g} s")
+    return target_m
 
 
 class PaceWatch:

@@ -1,54 +1,31 @@
 """Link impairment settings as the ground station takes them: from ``swarm up``/``swarm fly`` options and from a
 mission's ``[swarm.links]`` table, validated here, before anything is spawned.
 
-The simulation applies them (its link model; docs/links.md). The ground station never imports the simulation, so
-the settings and their rules are declared again on this side: the same keys, ranges and one-line messages as the
-drone's ``--link`` option, which a test holds against one table of cases.
+The simulation applies them (its link model; docs/links.md). The ground station never imports the simulation; the
+keys, ranges and one-line messages both sides read alike are swarmcommon/links.py.
 
 Three link classes: ``gcs`` (the ground station and a drone, both ways), ``api`` (a client such as MAVSDK and a
 drone's API link), ``neighbour`` (neighbour positions relayed to a drone, and the drone-to-drone mesh). Here too:
 which way neighbours' positions travel (``NeighbourPlan``: the relay, the mesh, or both) and the mesh radio's
-range and path loss (``MeshPlan``), with the drone's rules and words (sitl/world/mesh.py ``mesh_problem``).
+range and path loss (``MeshPlan``).
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Final
 
-LINK_CLASSES: Final = ("gcs", "api", "neighbour")
-LINK_KEYS: Final = ("loss", "latency_ms", "jitter_ms", "burst_good_s", "burst_bad_s", "burst_loss", "bandwidth_bps")
-_PROBABILITIES: Final = ("loss", "burst_loss")
-_NONNEGATIVE: Final = ("burst_good_s", "burst_bad_s", "latency_ms", "jitter_ms")
-
-
-def value_problem(key: str, value: object) -> str | None:
-    """Why one setting is not valid on its own (a whole line naming the key), or None."""
-    if key not in LINK_KEYS:
-        return f"unknown key {key!r} (keys: {', '.join(LINK_KEYS)})"
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        return f"{key} must be a finite number, got {value!r}"
-    if key in _PROBABILITIES and not 0 <= value <= 1:
-        return f"{key} must be in [0, 1], got {value:g}"
-    if key in _NONNEGATIVE and value < 0:
-        return f"{key} must be >= 0, got {value:g}"
-    if key == "bandwidth_bps" and value <= 0:
-        return f"bandwidth_bps must be > 0 (leave it out for no cap), got {value:g}"
-    return None
-
-
-def settings_problem(values: Mapping[str, float]) -> str | None:
-    """Why a whole class's settings make no link (each key alone, then the burst pair), or None."""
-    for key, value in values.items():
-        problem = value_problem(key, value)
-        if problem is not None:
-            return problem
-    good, bad = values.get("burst_good_s", 0.0), values.get("burst_bad_s", 0.0)
-    if (good > 0) != (bad > 0):
-        return f"burst_good_s and burst_bad_s must both be > 0 (bursts) or both 0 (none), got {good:g} and {bad:g}"
-    return None
+from swarmcommon.links import (
+    DEFAULT_MESH_EXPONENT,
+    DEFAULT_MESH_RANGE_M,
+    LINK_CLASSES,
+    LINK_KEYS,
+    MESH_KEYS,
+    mesh_value_problem,
+    settings_problem,
+    value_problem,
+)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -183,25 +160,6 @@ def _parse_value(key: str, text: str, problem_of: Callable[[str, float], str | N
 # ---- how neighbours' positions travel: the ground station's relay, the drone-to-drone mesh, or both -------------
 
 NEIGHBOUR_MODES: Final = ("relay", "mesh", "both")
-DEFAULT_MESH_RANGE_M: Final = 15.0
-DEFAULT_MESH_EXPONENT: Final = 4.0
-MAX_MESH_EXPONENT: Final = 20.0  # the drone's own limit (sitl/world/mesh.py); beyond it the rule is a step at the range
-MESH_KEYS: Final = ("range_m", "exponent")
-
-
-def mesh_value_problem(key: str, value: object) -> str | None:
-    """Why one mesh setting is not valid (a whole line naming the key, the drone's words), or None."""
-    if key not in MESH_KEYS:
-        return f"unknown key {key!r} (keys: {', '.join(MESH_KEYS)})"
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        return f"{key} must be a finite number, got {value!r}"
-    if key == "range_m" and value <= 0:
-        return f"range_m must be > 0, got {value:g}"
-    if key == "exponent" and not 0 < value <= MAX_MESH_EXPONENT:
-        return f"exponent must be in (0, {MAX_MESH_EXPONENT:g}], got {value:g}"
-    return None
-
-
 @dataclass(frozen=True, slots=True, kw_only=True)
 class MeshPlan:
     """The drones' mesh radio (docs/links.md "Mesh"): heard up to ``range_m``, a report lost with probability

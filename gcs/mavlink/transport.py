@@ -15,47 +15,23 @@ from __future__ import annotations
 
 import socket
 import time
-from collections.abc import Iterable
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.mavlink import signing
 from gcs.mavlink.wire import read_datagram
+from swarmcommon.datagrams import datagrams
 
 GCS_SYSID = 255
 GCS_COMPID = mavlink.MAV_COMP_ID_MISSIONPLANNER
 
 Address = tuple[str, int]
-MAX_BATCH_BYTES = 1400  # a datagram of several frames stays below a typical path MTU (1500 less IP/UDP headers)
 # Datagrams one ``receive`` reads at most. Drones that together send faster than the supervisor parses (fifty
 # drones on two busy cores) would otherwise keep one call reading for ever, and with it the timers, the setpoint
 # streams and the signal handling of the loop that called it; what is left waits for the next call, and what the
 # socket buffer cannot hold is dropped, as any UDP link drops under overload.
 MAX_RECEIVE_DATAGRAMS = 256
-
-
-def parse_host_port(text: str) -> Address | None:
-    """``HOST:PORT`` with a port in 1..65535, or None when the text is not one."""
-    host, sep, port = text.rpartition(":")
-    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        return None
-    return host, int(port)
-
-
-def datagrams(frames: Iterable[bytes], max_bytes: int = MAX_BATCH_BYTES) -> list[bytes]:
-    """Whole MAVLink frames packed in order into as few datagrams of at most ``max_bytes`` as they fit (a frame
-    larger than that goes alone): one system call and one wake-up of the receiver instead of one per frame."""
-    out: list[bytes] = []
-    batch = bytearray()
-    for frame in frames:
-        if batch and len(batch) + len(frame) > max_bytes:
-            out.append(bytes(batch))
-            batch.clear()
-        batch += frame
-    if batch:
-        out.append(bytes(batch))
-    return out
 
 
 class GcsSocket:

@@ -34,22 +34,12 @@ import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
+from gcs.command.procedures import check_takeoff_alt
 from gcs.fleet.faults import FaultError, FaultRequest, fault_request
 from gcs.fleet.harness import LAYOUTS, MAX_DRONES
-from gcs.fleet.links import (
-    LINK_CLASSES,
-    LINK_KEYS,
-    MESH_KEYS,
-    NEIGHBOUR_MODES,
-    LinkPlan,
-    MeshPlan,
-    NeighbourPlan,
-    mesh_value_problem,
-    plan_from_tables,
-    value_problem,
-)
+from gcs.fleet.links import NEIGHBOUR_MODES, LinkPlan, MeshPlan, NeighbourPlan, plan_from_tables
 from gcs.fleet.losses import LOSS_POLICIES, LossPolicy
 from gcs.flight.behaviours import FlockSpec, FollowSpec
 from gcs.flight.formation import CircleSpec, Formation, FormationError, GridSpec, LineSpec, VSpec
@@ -57,10 +47,17 @@ from gcs.flight.onboard import FLOCKING, LEADER_FOLLOWER, absolute_spec
 from gcs.flight.onboard import MAX_POINTS as ONBOARD_MAX_POINTS
 from gcs.missions.plan_flight import OFFSET_MODES, PlanUsageError, parse_drones
 from gcs.missions.qgc_plan import PlanFileError, QgcPlan, load_plan
+from swarmcommon.links import LINK_CLASSES, LINK_KEYS, MESH_KEYS, mesh_value_problem, value_problem
 
 
 class MissionFileError(ValueError):
     """One line: file, line, field and the problem."""
+
+
+# What a step waits for by default, in simulated seconds; the swarm's verbs wait as long (gcs/supervisor/verbs.py).
+TAKEOFF_TIMEOUT_S: Final = 30.0  # every drone holds its takeoff altitude
+LAND_TIMEOUT_S: Final = 60.0  # every drone landed and disarmed
+RTL_TIMEOUT_S: Final = 120.0  # every drone back, landed and disarmed
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -99,7 +96,7 @@ class ObstacleSpec:
 @dataclass(frozen=True, slots=True, kw_only=True)
 class TakeoffStep:
     alt_m: float
-    timeout_s: float = 30.0
+    timeout_s: float = TAKEOFF_TIMEOUT_S
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -150,12 +147,12 @@ class BehaviourStep:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class LandStep:
-    timeout_s: float = 60.0
+    timeout_s: float = LAND_TIMEOUT_S
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class RtlStep:
-    timeout_s: float = 120.0
+    timeout_s: float = RTL_TIMEOUT_S
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -515,7 +512,11 @@ def _step(reader: _Reader, step: Any, index: int, drones: int) -> Step:
         if "alt_m" not in step:
             raise reader.fail(where, None, "missing field 'alt_m'")
         alt = reader.number(step, "alt_m", where, "pos")
-        timeout = reader.number(step, "timeout_s", where, "pos") if "timeout_s" in step else 30.0
+        try:
+            check_takeoff_alt(alt)
+        except ValueError as exc:
+            raise reader.fail(where, "alt_m", str(exc)) from None
+        timeout = reader.number(step, "timeout_s", where, "pos") if "timeout_s" in step else TAKEOFF_TIMEOUT_S
         return TakeoffStep(alt_m=alt, timeout_s=timeout)
     if action == "formation":
         return _formation(reader, step, where)
@@ -652,8 +653,8 @@ def _links(reader: _Reader, table: Any) -> LinkPlan:
     try:
         return plan_from_tables(common, per_class)
     except ValueError as exc:  # a burst pair half given: named by its class's table, or the common one
-        link_class, _, problem = str(exc).partition(": ")
-        place = (f"swarm.links.{link_class}", None) if link_class in per_class else where
+        named, _, problem = str(exc).partition(": ")
+        place = (f"swarm.links.{named}", None) if named in per_class else where
         raise reader.fail(place, None, problem) from None
 
 

@@ -1,12 +1,12 @@
-"""The supervisor's main loop behind ``swarm up``: telemetry, liveness, control requests, and the swarm commands.
+"""The supervisor behind ``swarm up``: telemetry, liveness, control requests, and the swarm's verbs.
 
-Commands arrive from the control channel (gcs/supervisor/control.py) as JSON requests; each is carried out over MAVLink
-with the same messages a PX4 ground station would send, and answered with one JSON response.
+Commands arrive from the control channel (gcs/supervisor/control.py) as JSON requests; each is one of the swarm's verbs
+(gcs/supervisor/verbs.py), started over MAVLink with the messages a PX4 ground station would send and answered at
+once with one JSON response (the channel must not block: a takeoff is started here, not waited for).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Callable
 from pathlib import Path
@@ -14,104 +14,77 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.command.degrade import apply_loss_policy, apply_regain
-from gcs.command.procedures import PaceWatch, start_onboard_behaviours, stop_onboard_behaviours
 from gcs.command.streamer import FormationStreamer
-from gcs.fleet.faults import CRASH, FaultError, fault_request, result_text
-from gcs.fleet.links import NeighbourPlan
-from gcs.fleet.losses import MAV_STATE_CRITICAL, LossPolicy, loss_line, regain_line
+from gcs.fleet.faults import fault_request
+from gcs.fleet.losses import MAV_STATE_CRITICAL, LossPolicy
 from gcs.fleet.swarm import Swarm, SwarmError
-from gcs.flight.frames import SwarmFrame
+from gcs.flight.formation import Formation
 from gcs.mavlink.mission_transfer import MISSION_STATE_NAMES
 from gcs.missions.mission_file import build_flock, build_follow, build_formation
-from gcs.missions.plan_flight import (
-    PlanUsageError,
-    copy_offsets,
-    download_plan,
-    parse_drones,
-    parse_offsets,
-    spawn_offsets,
-    start_missions,
-    upload_plan,
-)
+from gcs.missions.plan_flight import PlanUsageError, copy_offsets, parse_drones, parse_offsets, spawn_offsets
 from gcs.missions.qgc_plan import PlanFileError, load_plan, plan_text
-from gcs.record.recorder import FlightRecorder
-from gcs.record.recording import EventRecord, FaultRecord, FlightRecording, StepRecord
-from gcs.view.feed import ViewFeed
-from gcs.view.report import write_report
+from gcs.record.recording import FlightRecording
+from gcs.supervisor.session import FlightSession
+from gcs.supervisor.verbs import STEP_VERBS, VERBS
 from gcs.view.server import ViewServer
 
 Say = Callable[[str], None]
 
 
-# Commands that start what the report calls a step (name and kind taken from the request)
-STEP_COMMANDS = ("takeoff", "formation", "flock", "follow", "goto", "land", "rtl", "plan_start", "behaviour")
-
-
 class Station:
+    """``swarm up``'s front-end: control requests carried out as the swarm's verbs (gcs/supervisor/verbs.py), each
+    started and answered at once (the control channel must not block), plus status and the session's report."""
+
     def __init__(self, swarm: Swarm, say: Say, loss_policy: LossPolicy = LossPolicy.CONTINUE,
                  report_dir: Path | None = None, contact_distance_m: float = 0.0) -> None:  # fmt: skip
         """``report_dir``: record the session and write a flight report there at the end (``swarm up --report``)."""
         self.swarm = swarm
         self.say = say
-        self.loss_policy = loss_policy
-        self._policy_taken = False  # a loss policy other than continue has taken the survivors out of the flight
-        self.streamer = FormationStreamer(swarm, SwarmFrame(swarm.plan.origin))
-        self._t0 = swarm.clock()
-        self.stop_requested = False
-        self._pace = PaceWatch(swarm, say)
-        swarm.listeners.append(self._on_message)
-        self.report_dir = report_dir
-        self.recording = FlightRecording(
-            mission_name="swarm-up", n_drones=swarm.plan.n_drones, collision_radius_m=contact_distance_m
+        self.session = FlightSession.verb_by_verb(
+            swarm, say, loss_policy, report_dir=report_dir, contact_distance_m=contact_distance_m, note=swarm_note(say)
         )
-        self.recording.loss_policy = loss_policy.value
-        self.recording.signing_key_id = swarm.signing_key_id
-        self.recording.neighbours = NeighbourPlan(relay=swarm.relay is not None, mesh=swarm.plan.mesh).describe()
-        self.recorder: FlightRecorder | None = None
-        self.view: ViewFeed | None = None  # the live view, if one is served (gcs/view)
-        if report_dir is not None:
-            report_dir.mkdir(parents=True, exist_ok=True)
-            self.recorder = FlightRecorder(self.streamer, self.recording, self.mission_time,
-                                           report_dir / "flight.tlog", say=None)  # fmt: skip
-        self._step: StepRecord | None = None  # the command being flown, for the report
+        self.stop_requested = False
+        swarm.listeners.append(self._on_message)
+        self.commands: dict[str, Callable[[dict[str, Any]], dict[str, Any]]] = {
+            "ping": lambda _r: {"ok": True},
+            "status": lambda _r: {"ok": True, "drones": self.status_rows()},
+            "down": self._down,
+            "takeoff": lambda r: self._verb(r, "takeoff", float(r.get("alt", 3.0))),
+            "formation": lambda r: self._verb(r, "formation", self._formation(r)),
+            "flock": lambda r: self._verb(r, "flock", build_flock(dict(r.get("fields", {})))),
+            "follow": lambda r: self._verb(r, "follow", build_follow(dict(r.get("fields", {})))),
+            "goto": lambda r: self._verb(r, "goto", float(r["north_m"]), float(r["east_m"]),
+                                         None if r.get("alt_m") is None else float(r["alt_m"])),
+            "land": lambda r: self._verb(r, "land"),
+            "rtl": lambda r: self._verb(r, "rtl"),
+            "behaviour": lambda r: self._verb(r, "behaviour", run=_start_or_stop(r.get("action"))),
+            "fault": self._fault,
+            "plan_upload": self._plan_upload,
+            "plan_start": self._plan_start,
+            "plan_download": lambda r: {"ok": True, "plan": plan_text(VERBS["plan_download"](
+                self.session, r.get("sysid")).value)},
+        }  # fmt: skip
+
+    @property
+    def streamer(self) -> FormationStreamer:
+        return self.session.streamer
+
+    @property
+    def recording(self) -> FlightRecording:
+        return self.session.recording
 
     def serve(self, server: ViewServer) -> None:
-        """Feed the live view served by ``server`` from now on (gcs/view): the streamer's slots, the drones'
-        telemetry, and the live recording's events when there is one."""
-        self.view = ViewFeed(server, self.streamer, live=self.recorder.live if self.recorder is not None else None)
-
-    def begin_step(self, request: dict[str, Any]) -> None:
-        """A command that changes what the swarm flies ends the report's current step and starts the next."""
-        now = self.mission_time()
-        self._end_step(now)
-        cmd = request["cmd"].removesuffix("_start")  # plan_start: a plan step
-        name = str(request.get("shape", cmd)) if cmd == "formation" else cmd
-        kind = "formation" if cmd == "goto" else cmd
-        alt = float(request.get("alt", 3.0)) if cmd == "takeoff" else None
-        index = len(self.recording.steps)
-        self._step = StepRecord(index=index, name=name, kind=kind, start_s=now, end_s=now, target_alt_m=alt)
-
-    def _end_step(self, now: float) -> None:
-        if self._step is not None:
-            self.recording.steps.append(dataclasses.replace(self._step, end_s=now))
-            self._step = None
+        """Feed the live view served by ``server`` from now on (gcs/view)."""
+        self.session.serve(server)
 
     def end_session(self) -> None:
         """Before the swarm shuts down (its clock goes with it): the last step ends now. The shutdown's landing
         traffic is still recorded."""
-        self._end_step(self.mission_time())
+        self.session.end_step(self.mission_time())
 
     def write_report(self) -> Path | None:
         """After the swarm is shut down: the flight report of the session (None without ``report_dir``)."""
-        if self.report_dir is None or self.recorder is None:
-            return None
-        self._end_step(self.recording.steps[-1].end_s if self.recording.steps else 0.0)
-        self.recording.losses = list(self.swarm.losses.values())
-        self.recording.regained = list(self.swarm.regained)
-        self.recording.link_counters = self.swarm.harness.link_counters()
-        self.recorder.close()
-        return write_report(self.recording, self.report_dir)
+        return self.session.write_report()
 
     def _on_message(self, msg: Any, _now_s: float) -> None:
         """A drone's warnings (collisions, failsafes, fault injections) on the supervisor's output, as a ground
@@ -122,173 +95,81 @@ class Station:
     # ---- periodic work ---------------------------------------------------------------------------------------------
     def mission_time(self) -> float:
         """Simulated seconds since the supervisor started (formations run on the drones' clock)."""
-        return self.swarm.clock() - self._t0
+        return self.session.mission_time()
 
     def tick(self) -> None:
-        now = self.mission_time()
-        self.streamer.tick(now)
-        if self.view is not None:
-            self.view.tick(now)
+        self.session.tick(self.mission_time())
 
-    def watch(self, now_s: float) -> None:
-        """Record and report each lost drone once (one line), apply the loss policy, and report a swarm that cannot
-        keep the requested pace (once)."""
-        self._pace.tick()
-        for loss in self.swarm.detect_losses(self.mission_time()):
-            self.say(loss_line(loss))
-            line = apply_loss_policy(self.loss_policy, self.streamer, loss, self.mission_time())
-            self._policy_taken = self._policy_taken or self.loss_policy is not LossPolicy.CONTINUE
-            if line is not None:
-                self.say(f"swarm: {line}")
-                self.recording.policy_events.append(EventRecord(time_s=loss.time_s, sysid=loss.sysid, text=line))
-        now = self.mission_time()
-        for loss in self.swarm.detect_regains(now):
-            self.say(regain_line(loss))
-            line = apply_regain(self.loss_policy, self.streamer, loss, now, policy_taken=self._policy_taken)
-            if line is not None:
-                self.say(f"swarm: {line}")
-                self.recording.policy_events.append(EventRecord(time_s=now, sysid=loss.sysid, text=line))
+    def watch(self) -> None:
+        """Report a swarm that cannot keep the requested pace (once), and each lost drone once, with the loss
+        policy applied."""
+        self.session.pace.tick()
+        self.session.watch_losses(self.mission_time())
 
     # ---- requests --------------------------------------------------------------------------------------------------
     def handle(self, request: dict[str, Any]) -> dict[str, Any]:
-        response = self._handle(request)
-        if response.get("ok") and request["cmd"] in STEP_COMMANDS:
-            self.begin_step(request)
-        return response
-
-    def _handle(self, request: dict[str, Any]) -> dict[str, Any]:
-        cmd = request["cmd"]
+        handler = self.commands.get(request["cmd"])
+        if handler is None:
+            return {"ok": False, "error": f"unknown command {request['cmd']!r}"}
         try:
-            if cmd == "ping":
-                return {"ok": True}
-            if cmd == "status":
-                return {"ok": True, "drones": self.status_rows()}
-            if cmd == "takeoff":
-                return self.takeoff(float(request.get("alt", 3.0)))
-            if cmd == "formation":
-                fields = dict(request.get("fields", {}))
-                if request.get("shape") == "grid" and not fields.get("rows"):
-                    n = len(self.swarm.active_sysids)
-                    fields["cols"] = max(1, math.ceil(math.sqrt(n)))
-                    fields["rows"] = math.ceil(n / fields["cols"])
-                formation = build_formation(str(request.get("shape")), fields)
-                self.streamer.command(formation, self.mission_time())
-                return {"ok": True}
-            if cmd == "flock":
-                self.streamer.command_flock(build_flock(dict(request.get("fields", {}))), self.mission_time())
-                return {"ok": True}
-            if cmd == "follow":
-                self.streamer.command_follow(build_follow(dict(request.get("fields", {}))), self.mission_time())
-                return {"ok": True}
-            if cmd == "goto":
-                return self.goto(request)
-            if cmd == "land":
-                self.streamer.hand_over(self.swarm.land_all)
-                return {"ok": True}
-            if cmd == "rtl":
-                self.streamer.hand_over(lambda: self.swarm.land_all(return_to_launch=True))
-                return {"ok": True}
-            if cmd == "behaviour":
-                return self.behaviour(request.get("action"))
-            if cmd == "down":
-                self.stop_requested = True
-                return {"ok": True}
-            if cmd == "fault":
-                return self.fault(request)
-            if cmd in ("plan_upload", "plan_start", "plan_download"):
-                return self.plan(request)
+            return handler(request)
         except (PlanUsageError, PlanFileError) as exc:
             return {"ok": False, "usage": True, "error": str(exc)}
-        except (SwarmError, FaultError, ValueError) as exc:
+        except SwarmError as exc:
             return {"ok": False, "error": str(exc)}
-        return {"ok": False, "error": f"unknown command {cmd!r}"}
+        except ValueError as exc:  # a verb's check: the user's mistake
+            return {"ok": False, "usage": True, "error": str(exc)}
 
-    def behaviour(self, action: object) -> dict[str, Any]:
-        """``swarm behaviour start|stop``: every drone's onboard behaviour on (BHV_EN = 1) or off (0, then Hold)."""
-        if action == "start":
-            sysids = start_onboard_behaviours(self.swarm, self.streamer)
-        elif action == "stop":
-            sysids = stop_onboard_behaviours(self.swarm)
-        else:
-            return {"ok": False, "usage": True, "error": f"behaviour must be start or stop, got {action!r}"}
-        return {"ok": True, "result": f"sysid {sysids}: behaviour {action}"}
+    def _verb(self, request: dict[str, Any], name: str, *args: Any, **kwargs: Any) -> dict[str, Any]:
+        """Start a verb and answer; one that changes what the swarm flies begins the report's next step."""
+        started = VERBS[name](self.session, *args, **kwargs)
+        if name in STEP_VERBS:
+            shape = str(request.get("shape", name)) if name == "formation" else name
+            kind = "formation" if name == "goto" else name
+            self.session.begin_step(kind, shape, float(request.get("alt", 3.0)) if name == "takeoff" else None)
+        return {"ok": True, "result": started.result} if started.result else {"ok": True}
 
-    def fault(self, request: dict[str, Any]) -> dict[str, Any]:
-        """Inject a fault into one drone (``swarm fault``, ``swarm kill``): a MAVLink fault or a killed process."""
+    def _down(self, _request: dict[str, Any]) -> dict[str, Any]:
+        self.stop_requested = True
+        return {"ok": True}
+
+    def _formation(self, request: dict[str, Any]) -> Formation:
+        """The formation a request names; a grid without rows is made as square as the surviving drones allow."""
+        fields = dict(request.get("fields", {}))
+        if request.get("shape") == "grid" and not fields.get("rows"):
+            n = len(self.swarm.active_sysids)
+            fields["cols"] = max(1, math.ceil(math.sqrt(n)))
+            fields["rows"] = math.ceil(n / fields["cols"])
+        return build_formation(str(request.get("shape")), fields)
+
+    def _fault(self, request: dict[str, Any]) -> dict[str, Any]:
+        """``swarm fault``, ``swarm kill``: a MAVLink fault or a killed process."""
         sysid = request.get("sysid")
         if isinstance(sysid, bool) or not isinstance(sysid, int) or sysid not in self.swarm.sysids:
-            sysids = self.swarm.sysids
-            known = f"{sysids[0]}..{sysids[-1]}" if sysids else "none"
-            return {"ok": False, "usage": True, "error": f"no drone with sysid {sysid!r} (sysids {known})"}
-        if sysid in self.swarm.losses:
-            return {"ok": False, "error": f"drone {sysid} is already lost ({self.swarm.losses[sysid].cause})"}
-        try:
-            fault = fault_request(request.get("kind"), request.get("motor"), request.get("for_s"))
-        except FaultError as exc:
-            return {"ok": False, "usage": True, "error": str(exc)}
-        if fault.kind == CRASH:
-            done = self.swarm.kill(sysid)
-            self.say(f"swarm: fault: drone {sysid}: {done}")
-            self._record_fault(sysid, fault.describe(), done)
-            return {"ok": True, "result": done}
-        ack = self.swarm.inject_fault(sysid, fault)
-        self.say(f"swarm: fault {fault.describe()} on drone {sysid}: {result_text(ack.result)}")
-        self._record_fault(sysid, fault.describe(), result_text(ack.result))
-        if not ack.ok:
-            return {"ok": False, "error": f"drone {sysid} refused fault {fault.describe()}: {result_text(ack.result)}"}
-        return {"ok": True, "result": result_text(ack.result)}
+            return self._verb(request, "fault", sysid, None)  # the verb's own answer to a drone that is not there
+        fault = fault_request(request.get("kind"), request.get("motor"), request.get("for_s"))
+        return self._verb(request, "fault", sysid, fault)
 
-    def plan(self, request: dict[str, Any]) -> dict[str, Any]:
-        """``swarm plan upload/start/download``: a QGroundControl plan to some drones (each its own copy, moved by
-        an offset), AUTO.MISSION on them, or one drone's mission and fence back as a plan
-        (gcs/missions/plan_flight.py)."""
-        cmd = request["cmd"]
-        if cmd == "plan_download":
-            sysid = request.get("sysid")
-            if isinstance(sysid, bool) or not isinstance(sysid, int) or sysid not in self.swarm.sysids:
-                raise PlanUsageError(f"no drone with sysid {sysid!r} (sysids {self.swarm.sysids})")
-            return {"ok": True, "plan": plan_text(download_plan(self.swarm, sysid))}
+    def _chosen(self, request: dict[str, Any]) -> list[int]:
         chosen = parse_drones(str(request.get("drones", "all")), self.swarm.sysids)
         chosen = [s for s in chosen if s not in self.swarm.losses]
         if not chosen:
-            return {"ok": False, "error": "every chosen drone is lost"}
-        if cmd == "plan_start":
-            self.streamer.hand_over(lambda: start_missions(self.swarm, chosen))  # OFFBOARD -> AUTO.MISSION
-            return {"ok": True, "result": f"AUTO.MISSION on sysid {', '.join(map(str, chosen))}"}
-        plan = load_plan(Path(str(request.get("path"))))
+            raise SwarmError("every chosen drone is lost")
+        return chosen
+
+    def _plan_upload(self, request: dict[str, Any]) -> dict[str, Any]:
+        """``swarm plan upload``: each chosen drone its copy of a QGroundControl plan, moved by an offset
+        (gcs/missions/plan_flight.py)."""
+        chosen = self._chosen(request)
+        path = Path(str(request.get("path")))
+        plan = load_plan(path)
         offsets = copy_offsets(spawn_offsets(self.swarm), chosen, parse_offsets(str(request.get("offsets", "spawn"))))
-        upload_plan(self.swarm, plan, offsets)
-        fence = f" and {len(plan.polygons) + len(plan.circles)} fence zone(s)" if plan.has_fence else ""
-        rally = f"; {len(plan.rally_points)} rally point(s) not uploaded (not stored)" if plan.rally_points else ""
-        text = f"{len(plan.items)} items{fence} uploaded to sysid {', '.join(map(str, chosen))}{rally}"
-        self.say(f"swarm: plan {Path(str(request.get('path'))).name}: {text}")
-        return {"ok": True, "result": text}
+        started = VERBS["plan_upload"](self.session, plan, offsets)
+        self.session.note(f"plan {path.name}: {started.result}")
+        return {"ok": True, "result": started.result}
 
-    def _record_fault(self, sysid: int, what: str, result: str) -> None:
-        record = FaultRecord(time_s=self.mission_time(), sysid=sysid, fault=what, result=result)
-        self.recording.faults.append(record)
-
-    def takeoff(self, alt_m: float) -> dict[str, Any]:
-        if not (math.isfinite(alt_m) and 0.5 <= alt_m <= 100.0):
-            return {"ok": False, "error": f"--alt must be between 0.5 and 100 m, got {alt_m:g}"}
-        self.swarm.arm_all()
-        self.swarm.takeoff_all(alt_m)
-        return {"ok": True}
-
-    def goto(self, request: dict[str, Any]) -> dict[str, Any]:
-        """Move the current formation's centre to north/east (and altitude), keeping its shape."""
-        formation = self.streamer.formation
-        if formation is None or not self.streamer.active:
-            return {"ok": False, "error": "no formation is being flown: use 'swarm formation' first"}
-        north, east = float(request["north_m"]), float(request["east_m"])
-        if not (math.isfinite(north) and math.isfinite(east)):
-            return {"ok": False, "error": "north and east must be finite numbers"}
-        changes: dict[str, Any] = {"centre_ne_m": (north, east)}
-        if request.get("alt_m") is not None:
-            changes["alt_m"] = float(request["alt_m"])
-        moved = dataclasses.replace(formation, **changes)  # type: ignore[type-var]
-        self.streamer.command(moved, self.mission_time())
-        return {"ok": True}
+    def _plan_start(self, request: dict[str, Any]) -> dict[str, Any]:
+        return self._verb(request, "plan_start", self._chosen(request))
 
     def _mission_progress(self, sysid: int, mode: str) -> str | None:
         """``item 3/5 active`` while a drone flies a mission or has finished one (its MISSION_CURRENT), else None."""
@@ -329,6 +210,17 @@ class Station:
                 }
             )
         return rows
+
+
+def swarm_note(say: Say) -> Say:
+    """What a verb did, as the supervisor says it: ``swarm: ...``."""
+    return lambda text: say(f"swarm: {text}")
+
+
+def _start_or_stop(action: object) -> bool:
+    if action not in ("start", "stop"):
+        raise ValueError(f"behaviour must be start or stop, got {action!r}")
+    return action == "start"
 
 
 def format_status(rows: list[dict[str, Any]]) -> str:

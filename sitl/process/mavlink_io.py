@@ -33,6 +33,7 @@ from sitl.protocol.neighbours import LINK, MESH, RELAY, NeighbourFeed, Neighbour
 from sitl.protocol.signing import SIGN_CFG_PARAM, SigningGate, SigningState
 from sitl.protocol.telemetry import PollShare
 from sitl.world.linkmodel import DelayLine, Direction, LinkChannel, LinkClass, LinkCounters, counters_by_class
+from swarmcommon.datagrams import datagrams
 
 if TYPE_CHECKING:
     from sitl.world.mesh import MeshRadio
@@ -42,7 +43,6 @@ log = logging.getLogger(__name__)
 Address = tuple[str, int]
 MAX_DATAGRAM = 65535
 MAX_LEARNED_PEERS = 8  # a few clients per link; the oldest is forgotten first
-MAX_BATCH_BYTES = 1400  # a datagram of several frames stays below a typical path MTU (1500 less IP/UDP headers)
 # Datagrams one ``receive`` reads at most (a whole supervisor tick is one or two). A peer that sends faster than the
 # drone parses would otherwise keep the loop reading for ever, and the drone would stop flying; bounded, the loop
 # steps its physics between reads and the socket buffer drops the excess, as a flooded radio link would.
@@ -56,14 +56,6 @@ class LinkConfig:
     remote: Address | None  # where to stream before anyone has spoken to us
 
 
-def parse_host_port(text: str) -> Address | None:
-    """``HOST:PORT`` with a port in 1..65535, or None when the text is not one."""
-    host, sep, port = text.rpartition(":")
-    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        return None
-    return host, int(port)
-
-
 def link_class_of(config: LinkConfig) -> LinkClass:
     """The link model's class of a link: the ground-station link is ``gcs``, any other a client's ``api``."""
     return "gcs" if config.name.lower() == "gcs" else "api"
@@ -71,23 +63,6 @@ def link_class_of(config: LinkConfig) -> LinkClass:
 
 class LinkError(OSError):
     """A link could not be opened (port in use, bad address); reported as one line by the CLI."""
-
-
-def datagrams(frames: Iterable[bytes], max_bytes: int = MAX_BATCH_BYTES) -> list[bytes]:
-    """Whole MAVLink frames packed in order into as few datagrams of at most ``max_bytes`` as they fit (a frame
-    larger than that goes alone). Every MAVLink parser reads a datagram as a byte stream, so frames may share one,
-    as ArduPilot's and PX4's UDP links do; one datagram instead of one per frame saves a system call on each side
-    and, more costly on a busy machine, a wake-up of the receiving process."""
-    out: list[bytes] = []
-    batch = bytearray()
-    for frame in frames:
-        if batch and len(batch) + len(frame) > max_bytes:
-            out.append(bytes(batch))
-            batch.clear()
-        batch += frame
-    if batch:
-        out.append(bytes(batch))
-    return out
 
 
 def reset_parser(parser: mavlink.MAVLink) -> None:

@@ -26,16 +26,16 @@ from typing import Final, Generic, Literal, TypeVar
 
 import numpy as np
 
+from swarmcommon.links import LINK_CLASSES, LINK_KEYS, LinkClass, settings_problem, value_problem
+
 # A radio modem holds a few kilobytes waiting to go on the air: about a second at telemetry-radio rates. A frame
 # that would wait longer is dropped at the sender, as a full buffer drops it; a longer queue would only deliver
 # position reports too stale for a swarm to act on, and would grow without bound when the offered rate exceeds the
 # cap.
 MAX_QUEUE_S: Final = 1.0
 
-LinkClass = Literal["gcs", "api", "neighbour"]
 Direction = Literal["up", "down"]
-# The order is part of the seeding (a class's index and a direction's index go into its seed): append, never reorder.
-LINK_CLASSES: Final[tuple[LinkClass, ...]] = ("gcs", "api", "neighbour")
+# The order is part of the seeding (a direction's index goes into its seed, as a class's does): append, never reorder.
 DIRECTIONS: Final[tuple[Direction, ...]] = ("up", "down")  # up: to the drone; down: from the drone
 ALL_CLASSES: Final = "all"  # the --link class that sets every class at once
 
@@ -62,7 +62,7 @@ class LinkImpairment:
     bandwidth_bps: float | None = None  # air rate; None: unlimited (no queueing)
 
     def __post_init__(self) -> None:
-        problem = impairment_problem(
+        problem = settings_problem(
             {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) is not None}
         )
         if problem is not None:
@@ -89,47 +89,13 @@ class LinkImpairment:
         return ",".join(f"{k}={v:g}" for k, v in given.items()) if given else "perfect"
 
 
-# Each key's rule, shared by the constructor, the --link parser and the messages (one line each).
-_PROBABILITIES: Final = ("loss", "burst_loss")
-_NONNEGATIVE: Final = ("burst_good_s", "burst_bad_s", "latency_ms", "jitter_ms")
-IMPAIRMENT_KEYS: Final = ("loss", "latency_ms", "jitter_ms", "burst_good_s", "burst_bad_s", "burst_loss",
-                          "bandwidth_bps")  # fmt: skip
-
-
-def value_problem(key: str, value: object) -> str | None:
-    """Why one setting is not valid on its own, in one line, or None."""
-    if key not in IMPAIRMENT_KEYS:
-        return f"unknown key {key!r} (keys: {', '.join(IMPAIRMENT_KEYS)})"
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        return f"{key} must be a finite number, got {value!r}"
-    if key in _PROBABILITIES and not 0 <= value <= 1:
-        return f"{key} must be in [0, 1], got {value:g}"
-    if key in _NONNEGATIVE and value < 0:
-        return f"{key} must be >= 0, got {value:g}"
-    if key == "bandwidth_bps" and value <= 0:
-        return f"bandwidth_bps must be > 0 (leave it out for no cap), got {value:g}"
-    return None
-
-
-def impairment_problem(values: dict[str, float]) -> str | None:
-    """Why these settings (key -> number; keys absent take the perfect link's) make no link, in one line, or None."""
-    for key, value in values.items():
-        problem = value_problem(key, value)
-        if problem is not None:
-            return problem
-    good, bad = values.get("burst_good_s", 0.0), values.get("burst_bad_s", 0.0)
-    if (good > 0) != (bad > 0):
-        return f"burst_good_s and burst_bad_s must both be > 0 (bursts) or both 0 (none), got {good:g} and {bad:g}"
-    return None
-
-
 PERFECT: Final = LinkImpairment()
 
 
 def _given_fields(impairment: LinkImpairment) -> dict[str, float]:
-    """The settings that differ from the perfect link's, in ``IMPAIRMENT_KEYS`` order."""
+    """The settings that differ from the perfect link's, in ``LINK_KEYS`` order."""
     out: dict[str, float] = {}
-    for key in IMPAIRMENT_KEYS:
+    for key in LINK_KEYS:
         value = getattr(impairment, key)
         if value is not None and value != getattr(PERFECT, key):
             out[key] = value
@@ -390,7 +356,7 @@ def parse_link_option(text: str) -> tuple[tuple[LinkClass, ...], dict[str, float
         key, eq, value = (part.strip() for part in item.partition("="))
         if not eq or not key:
             raise ValueError(f"must be CLASS:key=value[,key=value...], got {text!r}")
-        if key not in IMPAIRMENT_KEYS:
+        if key not in LINK_KEYS:
             raise ValueError(value_problem(key, 0.0))
         try:
             number = float(value)
@@ -413,7 +379,7 @@ def link_profile(options: Sequence[str]) -> LinkProfile:
             merged[link_class].update(values)
     impairments: dict[str, LinkImpairment] = {}
     for link_class, values in merged.items():
-        problem = impairment_problem(values)
+        problem = settings_problem(values)
         if problem is not None:
             raise ValueError(f"{link_class}: {problem}")
         impairments[link_class] = replace(PERFECT, **values)

@@ -45,7 +45,6 @@ import numpy.typing as npt
 from sitl.world.linkmodel import (
     CHANNEL_SEED_TAG,
     DIRECTIONS,
-    LINK_CLASSES,
     DelayLine,
     LinkChannel,
     LinkCounters,
@@ -65,10 +64,8 @@ from sitl.world.shared import (
     VALID,
     SharedWorld,
 )
+from swarmcommon.links import DEFAULT_MESH_EXPONENT, DEFAULT_MESH_RANGE_M, LINK_CLASSES, mesh_value_problem
 
-DEFAULT_RANGE_M: Final = 15.0
-DEFAULT_EXPONENT: Final = 4.0
-MAX_EXPONENT: Final = 20.0  # beyond this the rule is a step at the range: no use for a larger one
 # A drone posts at most this often (its GLOBAL_POSITION_INT stream's default rate, and the relay's limit per source):
 # a client that raises the stream's rate (SET_MESSAGE_INTERVAL) does not flood the medium or overrun its ring.
 MESH_RATE_HZ: Final = 10.0
@@ -82,15 +79,11 @@ _TIME_TOLERANCE_S: Final = 1e-9
 
 
 def mesh_problem(range_m: object, exponent: object) -> str | None:
-    """Why these mesh settings are not valid, in one line (the same words on the drone and the ground station)."""
+    """Why these mesh settings are not valid, in one line (the ground station's words: swarmcommon/links.py)."""
     for key, value in (("range_m", range_m), ("exponent", exponent)):
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-            return f"{key} must be a finite number, got {value!r}"
-    assert isinstance(range_m, int | float) and isinstance(exponent, int | float)
-    if range_m <= 0:
-        return f"range_m must be > 0, got {range_m:g}"
-    if not 0 < exponent <= MAX_EXPONENT:
-        return f"exponent must be in (0, {MAX_EXPONENT:g}], got {exponent:g}"
+        problem = mesh_value_problem(key, value)
+        if problem is not None:
+            return problem
     return None
 
 
@@ -98,8 +91,8 @@ def mesh_problem(range_m: object, exponent: object) -> str | None:
 class MeshSettings:
     """The radio of every drone of a swarm: how far it carries, and how fast reception fades towards that range."""
 
-    range_m: float = DEFAULT_RANGE_M
-    exponent: float = DEFAULT_EXPONENT
+    range_m: float = DEFAULT_MESH_RANGE_M
+    exponent: float = DEFAULT_MESH_EXPONENT
 
     def __post_init__(self) -> None:
         problem = mesh_problem(self.range_m, self.exponent)

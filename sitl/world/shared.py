@@ -43,7 +43,8 @@ import numpy as np
 import numpy.typing as npt
 
 from sitl.mathutil import GRAVITY_MPS2
-from sitl.world.linkmodel import DIRECTIONS, LINK_CLASSES, Direction, LinkClass, LinkCounters
+from sitl.world.linkmodel import DIRECTIONS, Direction, LinkCounters
+from swarmcommon.links import LINK_CLASSES, LinkClass
 
 MAX_DRONES = 256
 COLUMNS = 22

@@ -81,7 +81,7 @@ def test_a_qgroundcontrol_plan_flies_as_a_copy_per_drone_and_every_drone_reaches
     wall_s = time.monotonic() - started
     # THEN it succeeds, and the supervisor saw every drone reach every item
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
-    assert "box.plan: 5 items and a fence of 2 zone(s) uploaded to sysid 14, 15, 16" in result.stdout
+    assert "box.plan: 5 items and 2 fence zone(s) uploaded to sysid 14, 15, 16" in result.stdout
     assert "box.plan: every drone reached every item" in result.stdout
     metrics = json.loads((report / "metrics.json").read_text())
     assert metrics["collisions"] == 0

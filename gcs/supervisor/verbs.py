@@ -1,0 +1,339 @@
+"""The swarm's verbs, each written once: what it checks, how it starts, and how to know it is done.
+
+Three front-ends fly a swarm, all on a ``FlightSession`` (gcs/supervisor/session.py): the control channel of
+``swarm up`` (gcs/supervisor/station.py), which must not block and so only starts a verb and answers; a mission
+file's steps (gcs/supervisor/mission_runner.py) and the Python API (gcs/api/engine.py), which start a verb and wait
+until it is done (``carry_out``). A verb returns a ``Started``: what to answer at once, and the condition, time
+limit and complaint a front-end that waits uses. Each front-end waits in its own way (a mission's wait also ends
+when a loss policy takes the flight over; the API's ends on Ctrl-C), which is why waiting is not a verb's.
+
+``VERBS`` is the table; tests/unit/test_verbs.py holds every front-end to it. A verb need not exist in every
+front-end (a swap is a mission step, a controller an API call), but where it exists it is this code.
+
+Checks: a verb raises ``ValueError`` for a mistake in what it was asked (one line, the user's to fix: the control
+channel answers it as a usage error, exit code 2) and ``SwarmError`` when the swarm cannot do it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Final
+
+from gcs.command.onboard_flight import FollowObserver, leader_arrived, start_onboard_flock, start_onboard_follow
+from gcs.command.procedures import (
+    check_takeoff_alt,
+    start_onboard_behaviours,
+    start_takeoff,
+    stop_onboard_behaviours,
+)
+from gcs.fleet.faults import CRASH, FaultRequest, result_text
+from gcs.fleet.swarm import SwarmError
+from gcs.flight.behaviours import Behaviour, FlockSpec, FollowSpec, LeaderFollower
+from gcs.flight.formation import Formation
+from gcs.missions.mission_file import LAND_TIMEOUT_S, RTL_TIMEOUT_S, TAKEOFF_TIMEOUT_S
+from gcs.missions.plan_flight import Offset, Uploaded, download_plan, start_missions, unfinished, upload_plan
+from gcs.missions.qgc_plan import QgcPlan
+from gcs.supervisor.session import FlightSession
+
+FOLLOW_ARRIVAL_MARGIN_S: Final = 30.0  # the leader must report itself at its last waypoint this long after its path
+FOLLOW_TIMEOUT_S: Final = 3600.0  # a followed path's outer bound; it ends with the leader's arrival or its margin
+
+
+def _never() -> bool:
+    return False
+
+
+@dataclass(frozen=True, slots=True)
+class Started:
+    """A verb under way. ``result``: what the control channel answers; ``value``: what an API call returns.
+
+    A front-end that waits waits for ``done`` up to ``timeout_s`` (simulated seconds) and then raises SwarmError
+    with ``late()``, unless ``ends_by_time`` (a hold: its time is its end); ``finish`` runs after a wait that did
+    not fail, and may still raise. ``done`` None: the verb is done once started (a formation is then flown until
+    the next verb)."""
+
+    result: str = ""
+    value: Any = None
+    done: Callable[[], bool] | None = None
+    timeout_s: float = math.inf
+    late: Callable[[], str] = lambda: "not done in time"
+    ends_by_time: bool = False
+    finish: Callable[[], None] | None = None
+
+
+Wait = Callable[[Callable[[], bool], float], bool]  # (condition, timeout in simulated seconds) -> ended with it
+
+
+def carry_out(started: Started, wait: Wait) -> Any:
+    """Wait until a started verb is done, as a mission step or an API call does; its value."""
+    if started.done is not None and not wait(started.done, started.timeout_s) and not started.ends_by_time:
+        raise SwarmError(started.late())
+    if started.finish is not None:
+        started.finish()
+    return started.value
+
+
+def take_over(session: FlightSession) -> None:
+    """Before the ground station flies the drones itself: a user's controller ends, and drones flying their onboard
+    behaviour stop it and hold (BHV_EN = 0), so that only one source feeds their offboard input."""
+    session.controller = None
+    if session.onboard:
+        behaviour(session, run=False)
+
+
+# ---- the verbs ------------------------------------------------------------------------------------------------------
+def takeoff(session: FlightSession, alt_m: float, timeout_s: float = TAKEOFF_TIMEOUT_S) -> Started:
+    """Arm (unless armed) and take every surviving drone off to ``alt_m`` above its home; done when they hold it."""
+    check_takeoff_alt(alt_m)
+    target_m, holding = start_takeoff(session.swarm, session.streamer, alt_m, tick=session.waiting_tick,
+                                      say=session.say)  # fmt: skip
+    return Started(done=holding, timeout_s=timeout_s,
+                   late=lambda: f"takeoff to {target_m:g} m not reached within {timeout_s:g} s")  # fmt: skip
+
+
+def formation(session: FlightSession, spec: Formation) -> Started:
+    """Fly a formation, from wherever the drones are (a synchronised, collision-aware transition); its value is the
+    time the transition needs, in seconds."""
+    take_over(session)
+    now = session.mission_time()
+    session.streamer.command(spec, now)
+    transition = session.streamer.engine.transition
+    return Started(value=transition.arrival_s - now if transition is not None else 0.0)
+
+
+def goto(session: FlightSession, north_m: float, east_m: float, alt_m: float | None = None) -> Started:
+    """Move the formation being flown so that its centre is at north/east (and altitude), keeping its shape."""
+    flown = session.streamer.formation
+    if flown is None or not session.streamer.active:
+        raise SwarmError("no formation is being flown: use 'swarm formation' first")
+    if not (math.isfinite(north_m) and math.isfinite(east_m)):
+        raise ValueError("north and east must be finite numbers")
+    changes: dict[str, Any] = {"centre_ne_m": (north_m, east_m)}
+    if alt_m is not None:
+        changes["alt_m"] = alt_m
+    return formation(session, dataclasses.replace(flown, **changes))  # type: ignore[type-var]
+
+
+def flock(session: FlightSession, spec: FlockSpec, *, onboard: bool = False) -> Started:
+    """Reynolds flocking, computed by the ground station or (``onboard``) by every drone itself."""
+    take_over(session)
+    if onboard:  # every drone flocks by itself (gcs/command/onboard_flight.py)
+        start_onboard_flock(session.swarm, session.streamer, spec)
+        session.onboard = True
+    else:
+        session.streamer.command_flock(spec, session.mission_time())
+    return Started()
+
+
+def follow(session: FlightSession, spec: FollowSpec, *, onboard: bool = False) -> Started:
+    """Leader-follower along the leader's path; done when the leader has flown it (reported at its last waypoint)."""
+    take_over(session)
+    swarm, streamer = session.swarm, session.streamer
+    if onboard:
+        flown = start_onboard_follow(swarm, streamer, spec, session.mission_time())
+        session.onboard = True
+        # the followers' slots for the report, from the ground law's observer (the drones fly themselves)
+        streamer.observer = FollowObserver(flown, streamer, spec, session.mission_time())
+        margin = flown.latest_end_s - flown.earliest_end_s
+
+        def said_if_lost() -> None:
+            if flown.leader in swarm.losses:  # no hand-over onboard: the followers hold where they are
+                session.note(f"follow: leader sysid {flown.leader} lost, the step ends")
+
+        return Started(
+            done=lambda: flown.leader in swarm.losses or leader_arrived(flown, streamer, session.mission_time()),
+            timeout_s=flown.latest_end_s - session.mission_time(),
+            late=lambda: f"leader sysid {flown.leader} did not reach its last waypoint within {margin:.0f} s of the "
+                         "earliest it could",
+            finish=said_if_lost,
+        )  # fmt: skip
+    ground = streamer.command_follow(spec, session.mission_time())
+
+    def current() -> LeaderFollower:
+        # a lost leader hands over to a new flight (gcs/command/streamer.py handle_loss): wait for that one
+        flown = streamer.behaviour
+        return flown if isinstance(flown, LeaderFollower) else ground
+
+    def over() -> bool:
+        flown = current()
+        return flown.done(session.mission_time()) or session.mission_time() > flown.finish_s + FOLLOW_ARRIVAL_MARGIN_S
+
+    def late() -> str:
+        return (f"leader sysid {current().leader} did not reach its last waypoint within "
+                f"{FOLLOW_ARRIVAL_MARGIN_S:g} s of its reference")  # fmt: skip
+
+    def arrived() -> None:
+        if not session.policy_taken and not current().done(session.mission_time()):
+            raise SwarmError(late())
+
+    return Started(done=over, timeout_s=FOLLOW_TIMEOUT_S, late=late, finish=arrived)
+
+
+def swap(session: FlightSession, speed_mps: float, accel_mps2: float, tolerance_m: float, timeout_s: float) -> Started:
+    """Every drone straight through the centre to the opposite point (the avoidance stress test); done when each is
+    within ``tolerance_m`` of its goal."""
+    take_over(session)
+    move = session.streamer.command_swap(speed_mps, accel_mps2, session.mission_time())
+
+    def arrived() -> bool:
+        positions = session.streamer.positions()
+        return all(s in positions and math.dist(positions[s], goal) <= tolerance_m for s, goal in move.goals.items())
+
+    return Started(done=arrived, timeout_s=timeout_s,
+                   late=lambda: f"not every drone reached the opposite point within {timeout_s:g} s")  # fmt: skip
+
+
+def hold(session: FlightSession, duration_s: float) -> Started:
+    """Fly on as now for ``duration_s`` simulated seconds."""
+    if not (math.isfinite(duration_s) and duration_s >= 0):
+        raise ValueError(f"a hold's time must be a finite number of seconds >= 0, got {duration_s!r}")
+    return Started(done=_never, timeout_s=duration_s, ends_by_time=True)
+
+
+def land(session: FlightSession, *, return_to_launch: bool = False, timeout_s: float = LAND_TIMEOUT_S) -> Started:
+    """Land (or return and land) every drone still armed; done when they have landed and disarmed. A crashed or
+    landed drone has nothing to do."""
+    session.controller = None
+    session.onboard = False  # landing takes the drones out of OFFBOARD: their behaviours stop by themselves
+    swarm = session.swarm
+    flying = session.streamer.hand_over(lambda: swarm.land_all(return_to_launch=return_to_launch))
+    return Started(done=lambda: not swarm.armed_sysids(flying), timeout_s=timeout_s,
+                   late=lambda: f"not every drone landed and disarmed within {timeout_s:g} s")  # fmt: skip
+
+
+def rtl(session: FlightSession, *, timeout_s: float = RTL_TIMEOUT_S) -> Started:
+    """Return to launch and land, every drone still armed."""
+    return land(session, return_to_launch=True, timeout_s=timeout_s)
+
+
+def behaviour(session: FlightSession, *, run: bool) -> Started:
+    """Every drone's onboard behaviour on (BHV_EN = 1; the ground station's stream stops) or off (BHV_EN = 0, then
+    Hold where they are); its value is the sysids."""
+    session.controller = None
+    session.streamer.observer = None
+    if run:
+        sysids = start_onboard_behaviours(session.swarm, session.streamer)
+    else:
+        sysids = stop_onboard_behaviours(session.swarm)
+    session.onboard = run
+    return Started(result=f"sysid {sysids}: behaviour {'start' if run else 'stop'}", value=sysids)
+
+
+def fault(session: FlightSession, sysid: int, request: FaultRequest | None) -> Started:
+    """Inject a fault into one drone: PX4's MAV_CMD_INJECT_FAILURE, or (``crash``) the harness ends its flight
+    software. Noted and recorded for the report, refused or not; SwarmError when the drone refuses it."""
+    swarm = session.swarm
+    if isinstance(sysid, bool) or not isinstance(sysid, int) or sysid not in swarm.sysids:
+        known = f"{swarm.sysids[0]}..{swarm.sysids[-1]}" if swarm.sysids else "none"
+        raise ValueError(f"no drone with sysid {sysid!r} (sysids {known})")
+    if request is None:
+        raise ValueError("no fault named")
+    if sysid in swarm.losses:
+        raise SwarmError(f"drone {sysid} is already lost ({swarm.losses[sysid].cause})")
+    if request.kind == CRASH:
+        result, accepted = swarm.kill(sysid), True
+    else:
+        ack = swarm.inject_fault(sysid, request)
+        result, accepted = result_text(ack.result), ack.ok
+    session.note(f"fault {request.describe()} on drone {sysid}: {result}")
+    session.record_fault(sysid, request.describe(), result)
+    if not accepted:
+        raise SwarmError(f"drone {sysid} refused fault {request.describe()}: {result}")
+    return Started(result=result, value=result)
+
+
+def kill(session: FlightSession, sysid: int) -> Started:
+    """End one drone's flight software, as a crash would (the harness's SIGKILL, or its host's stop request)."""
+    return fault(session, sysid, FaultRequest(kind=CRASH))
+
+
+def plan_upload(session: FlightSession, plan: QgcPlan, offsets: Mapping[int, Offset], *,
+                hold_first: bool = False) -> Started:  # fmt: skip
+    """Upload a QGroundControl plan's copy to each drone named (moved by its offset); its value says what was
+    uploaded, for ``plan_start`` to watch. ``hold_first``: every drone in the air first waits in Hold, the stream
+    stopped (it cannot run while the transfer is served, and a lossy link can stretch that over seconds: Hold is
+    better than the offboard-loss failsafe)."""
+    if hold_first:
+        session.controller = None
+        session.streamer.hand_over(session.swarm.hold_all)
+    uploaded = upload_plan(session.swarm, plan, dict(offsets))
+    fence = f" and {len(plan.polygons) + len(plan.circles)} fence zone(s)" if plan.has_fence else ""
+    rally = f"; {len(plan.rally_points)} rally point(s) not uploaded (not stored)" if plan.rally_points else ""
+    result = f"{len(plan.items)} items{fence} uploaded to sysid {', '.join(map(str, offsets))}{rally}"
+    return Started(result=result, value=uploaded)
+
+
+def plan_start(session: FlightSession, sysids: Sequence[int], uploaded: Uploaded | None = None,
+               timeout_s: float = math.inf) -> Started:  # fmt: skip
+    """AUTO.MISSION on the drones named (out of OFFBOARD: the stream stops); with what was ``uploaded``, done when
+    every one has finished its mission."""
+    session.controller = None
+    session.streamer.hand_over(lambda: start_missions(session.swarm, list(sysids)))
+    result = f"AUTO.MISSION on sysid {', '.join(map(str, sysids))}"
+    if uploaded is None:
+        return Started(result=result)
+    return Started(
+        result=result,
+        done=lambda: not unfinished(session.swarm, uploaded),
+        timeout_s=timeout_s,
+        late=lambda: f"sysid {unfinished(session.swarm, uploaded)} did not finish within {timeout_s:g} s",
+    )
+
+
+def plan_download(session: FlightSession, sysid: int) -> Started:
+    """One drone's mission and fence, as a QGroundControl plan (its value)."""
+    if isinstance(sysid, bool) or not isinstance(sysid, int) or sysid not in session.swarm.sysids:
+        raise ValueError(f"no drone with sysid {sysid!r} (sysids {session.swarm.sysids})")
+    return Started(value=download_plan(session.swarm, sysid))
+
+
+def param(session: FlightSession, name: str, value: float, sysids: Sequence[int] | None = None) -> Started:
+    """Set a parameter on the drones named (all, when None), each confirmed by its PARAM_VALUE echo (as MAVSDK)."""
+    swarm = session.swarm
+    results = swarm.set_params(name, value, list(swarm.sysids if sysids is None else sysids))
+    silent = [r.sysid for r in results if r.kept is None]
+    if silent:
+        raise SwarmError(f"parameter {name}: no answer from sysid {silent} (unknown parameter?)")
+    refused = [r for r in results if r.refused]
+    if refused:
+        raise SwarmError(f"parameter {name} = {value:g} refused by sysid {[r.sysid for r in refused]} "
+                         f"(kept {refused[0].kept:g})")  # fmt: skip
+    return Started(result=f"{name} = {value:g}")
+
+
+def control(session: FlightSession, controller: Behaviour) -> Started:
+    """A user's controller flies the swarm: the streamer asks it for setpoints every tick."""
+    take_over(session)
+    session.controller = controller
+    session.streamer.command_behaviour(controller, session.mission_time())
+    return Started()
+
+
+VERBS: Final[Mapping[str, Callable[..., Started]]] = {
+    "takeoff": takeoff,
+    "goto": goto,
+    "formation": formation,
+    "flock": flock,
+    "follow": follow,
+    "swap": swap,
+    "hold": hold,
+    "land": land,
+    "rtl": rtl,
+    "behaviour": behaviour,
+    "fault": fault,
+    "kill": kill,
+    "plan_upload": plan_upload,
+    "plan_start": plan_start,
+    "plan_download": plan_download,
+    "param": param,
+    "control": control,
+}
+
+# The verbs that change what the swarm flies: each begins a new step of a report that records verbs as they come
+# (``swarm up``, the API; a mission's steps are its own).
+STEP_VERBS: Final = frozenset(
+    {"takeoff", "goto", "formation", "flock", "follow", "swap", "land", "rtl", "behaviour", "plan_start", "control"}
+)
