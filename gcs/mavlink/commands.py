@@ -25,12 +25,12 @@ sleeping.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any, Final
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from gcs.mavlink.transactions import Transactions
 from gcs.mavlink.transport import GCS_COMPID, GCS_SYSID
 
 COMMAND_TIMEOUT_S: Final = 0.5  # MAVSDK's per-try timeout
@@ -85,8 +85,8 @@ class _Work:
     compid: int
     command: int
     params: tuple[float, ...]
-    retries_left: int
-    due_s: float  # when this try times out
+    retries_left: int = 0
+    due_s: float = 0.0  # when this try times out
     confirmation: int = 0
     frame: int | None = None  # COMMAND_INT in this MAV_FRAME (params 5/6 are x/y); None: COMMAND_LONG
 
@@ -114,11 +114,10 @@ class CommandClient:
         own_compid: int = GCS_COMPID,
     ) -> None:
         self.timeout_s = timeout_s
-        self.retries = retries
         self.own_sysid = own_sysid
         self.own_compid = own_compid
-        self._work: dict[tuple[int, int], _Work] = {}  # (sysid, command) -> the command waiting for its answer
-        self._done: dict[tuple[int, int], Ack] = {}
+        # (sysid, command) -> the command waiting for its answer, and how it ended
+        self._core: Transactions[tuple[int, int], _Work, tuple[int, int], Ack] = Transactions(timeout_s, retries)
 
     def start(
         self, sysid: int, command: int, params: tuple[float, ...] = (), now_s: float = 0.0, *,
@@ -127,14 +126,13 @@ class CommandClient:
         """Begin a command (params 1-7; missing ones are 0); returns its first COMMAND_LONG to send now, or its
         first COMMAND_INT in ``frame`` (params 5 and 6 then are the integers x and y: latitude, longitude in degE7)."""
         key = (sysid, command)
-        if key in self._work:
+        if self._core.running(key) is not None:
             raise CommandInFlight(f"command {command} to sysid {sysid} is already waiting for its answer")
         if len(params) > 7:
             raise ValueError(f"COMMAND_LONG has 7 params, got {len(params)}")
-        self._done.pop(key, None)
-        work = _Work(sysid=sysid, compid=compid, command=command, params=(*params, *([0.0] * (7 - len(params)))),
-                     retries_left=self.retries, due_s=now_s + self.timeout_s, frame=frame)  # fmt: skip
-        self._work[key] = work
+        padded = (*params, *([0.0] * (7 - len(params))))
+        work = self._core.begin(key, key, _Work(sysid=sysid, compid=compid, command=command, params=padded,
+                                                frame=frame), now_s)  # fmt: skip
         return [Send(sysid, work.message())]
 
     def handle(self, msg: Any, now_s: float) -> list[Send]:
@@ -148,44 +146,39 @@ class CommandClient:
         ):
             return []  # an answer to another ground station
         key = (msg.get_srcSystem(), msg.command)
-        work = self._work.get(key)
+        work = self._core.running(key)
         if work is None or msg.get_srcComponent() != work.compid:
             return []  # not ours: another command's, or a late duplicate of one already ended
         if msg.result == mavlink.MAV_RESULT_IN_PROGRESS:
             work.due_s = now_s + max(1, work.retries_left) * self.timeout_s
         elif msg.result in FINAL_RESULTS:
-            del self._work[key]
-            self._done[key] = Ack(work.sysid, int(msg.result))
+            self._core.finish(key, key, Ack(work.sysid, int(msg.result)))
         return []
 
     def poll(self, now_s: float) -> list[Send]:
-        """Resend every command whose try timed out; end those out of retries with no answer."""
+        """Resend every command whose try timed out (counting up its confirmation); end those out of retries with
+        no answer."""
         out: list[Send] = []
-        for key, work in list(self._work.items()):
-            if now_s < work.due_s:
+        for work, exhausted in self._core.timed_out(now_s):
+            key = (work.sysid, work.command)
+            if exhausted:
+                self._core.finish(key, key, Ack(work.sysid, None))
                 continue
-            if work.retries_left <= 0:
-                del self._work[key]
-                self._done[key] = Ack(work.sysid, None)
-                continue
-            work.retries_left -= 1
             work.confirmation += 1
-            work.due_s = now_s + self.timeout_s
             out.append(Send(work.sysid, work.message()))
         return out
 
     def next_due_s(self) -> float:
         """When ``poll`` next has something to do (inf: nothing in flight)."""
-        return min((w.due_s for w in self._work.values()), default=math.inf)
+        return self._core.next_due_s()
 
     def in_flight(self, sysid: int, command: int) -> bool:
-        return (sysid, command) in self._work
+        return self._core.running((sysid, command)) is not None
 
     def cancel(self, sysid: int, command: int) -> None:
         """Forget a command (its caller gave up waiting, e.g. interrupted): no more resends, a late ACK is ignored."""
-        self._work.pop((sysid, command), None)
-        self._done.pop((sysid, command), None)
+        self._core.cancel((sysid, command), (sysid, command))
 
     def take(self, sysid: int, command: int) -> Ack | None:
         """How the command to ``sysid`` ended, once (None while it is still in flight or was never started)."""
-        return self._done.pop((sysid, command), None)
+        return self._core.take((sysid, command))

@@ -39,6 +39,7 @@ from typing import Any, Final
 from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.mavlink.commands import AUTOPILOT_COMPID, Send
+from gcs.mavlink.transactions import Transactions
 from gcs.mavlink.transport import GCS_COMPID, GCS_SYSID
 
 MISSION_TIMEOUT_S: Final = 0.5  # MAVSDK's per-try timeout of a mission transfer
@@ -147,8 +148,8 @@ class _Transfer:
     mission_type: int
     direction: Direction
     items: list[WireItem]  # upload: what to send; download: what has arrived
-    due_s: float
-    retries_left: int
+    due_s: float = 0.0
+    retries_left: int = 0
     count: int | None = None  # download: announced by the vehicle's MISSION_COUNT; upload: len(items)
     last_requested: int | None = None  # upload: the seq the vehicle asked for last
     int_mode: bool = True  # download: the vehicle answers float MISSION_ITEM, ask in kind (classic clients)
@@ -165,12 +166,11 @@ class MissionClient:
         own_sysid: int = GCS_SYSID,
         own_compid: int = GCS_COMPID,
     ) -> None:
-        self.timeout_s = timeout_s
         self.retries = retries
         self.own_sysid = own_sysid
         self.own_compid = own_compid
-        self._work: dict[int, _Transfer] = {}  # sysid -> its transfer
-        self._done: dict[tuple[int, int], TransferResult] = {}  # (sysid, mission type) -> how it ended
+        # sysid -> its transfer (one at a time with a drone), and (sysid, mission type) -> how it ended
+        self._core: Transactions[int, _Transfer, tuple[int, int], TransferResult] = Transactions(timeout_s, retries)
 
     # ---- starting --------------------------------------------------------------------------------------------------
     def start_upload(self, sysid: int, items: list[WireItem], mission_type: int, now_s: float) -> list[Send]:
@@ -190,16 +190,13 @@ class MissionClient:
 
     def _begin(self, sysid: int, mission_type: int, direction: Direction, items: list[WireItem],
                now_s: float) -> _Transfer:  # fmt: skip
-        if sysid in self._work:
-            running = self._work[sysid]
+        running = self._core.running(sysid)
+        if running is not None:
             raise TransferInFlight(
                 f"sysid {sysid}: a {type_name(running.mission_type)} {running.direction.value} is still running"
             )
-        self._done.pop((sysid, mission_type), None)
-        work = _Transfer(sysid=sysid, mission_type=mission_type, direction=direction, items=items,
-                         due_s=now_s + self.timeout_s, retries_left=self.retries)  # fmt: skip
-        self._work[sysid] = work
-        return work
+        work = _Transfer(sysid=sysid, mission_type=mission_type, direction=direction, items=items)
+        return self._core.begin(sysid, (sysid, mission_type), work, now_s)
 
     # ---- messages out ----------------------------------------------------------------------------------------------
     def _count(self, work: _Transfer) -> Send:
@@ -224,7 +221,7 @@ class MissionClient:
         kind = msg.get_type()
         if kind not in _HANDLED or msg.get_srcComponent() != AUTOPILOT_COMPID:
             return []
-        work = self._work.get(msg.get_srcSystem())
+        work = self._core.running(msg.get_srcSystem())
         if work is None:
             return []
         target_system = getattr(msg, "target_system", 0)
@@ -246,8 +243,7 @@ class MissionClient:
                 self._finish(work, f"the drone asked for item {seq} of {len(work.items)}", None)
                 return [self._ack(work, mavlink.MAV_MISSION_INVALID_SEQUENCE)]
             work.last_requested = seq
-            work.retries_left = self.retries
-            work.due_s = now_s + self.timeout_s
+            self._core.fresh(work, now_s)
             item = work.items[seq]
             if kind == "MISSION_REQUEST":  # the vehicle asks for the float flavour: answer in kind
                 return [Send(work.sysid, _float_item_message(item, work.sysid))]
@@ -266,8 +262,7 @@ class MissionClient:
     def _handle_download(self, work: _Transfer, kind: str, msg: Any, now_s: float) -> list[Send]:
         if kind == "MISSION_COUNT" and work.count is None:
             work.count = msg.count
-            work.retries_left = self.retries
-            work.due_s = now_s + self.timeout_s
+            self._core.fresh(work, now_s)
             if work.count == 0:
                 self._finish(work, None, mavlink.MAV_MISSION_ACCEPTED)
                 return [self._ack(work, mavlink.MAV_MISSION_ACCEPTED)]
@@ -276,8 +271,7 @@ class MissionClient:
             if msg.seq != len(work.items):
                 return []  # a duplicate or out of order: the request for the right one is repeated on the timer
             work.items.append(item_from_message(msg))
-            work.retries_left = self.retries
-            work.due_s = now_s + self.timeout_s
+            self._core.fresh(work, now_s)
             if len(work.items) < work.count:
                 return [self._request_item(work)]
             self._finish(work, None, mavlink.MAV_MISSION_ACCEPTED)
@@ -292,15 +286,11 @@ class MissionClient:
     def poll(self, now_s: float) -> list[Send]:
         """Repeat every try that timed out; end (and cancel on the drone) those out of retries."""
         out: list[Send] = []
-        for work in list(self._work.values()):
-            if now_s < work.due_s:
-                continue
-            if work.retries_left <= 0:
+        for work, exhausted in self._core.timed_out(now_s):
+            if exhausted:
                 self._finish(work, f"no answer after {self.retries + 1} tries", None)
                 out.append(self._ack(work, mavlink.MAV_MISSION_OPERATION_CANCELLED))
                 continue
-            work.retries_left -= 1
-            work.due_s = now_s + self.timeout_s
             if work.direction is Direction.UPLOAD:
                 if work.last_requested is None:
                     out.append(self._count(work))  # MISSION_COUNT lost, or its first request: announce again
@@ -318,32 +308,32 @@ class MissionClient:
         return out
 
     def _finish(self, work: _Transfer, error: str | None, result: int | None) -> None:
-        del self._work[work.sysid]
         what = f"{type_name(work.mission_type)} {work.direction.value}"
         items = tuple(work.items) if work.direction is Direction.DOWNLOAD and error is None else ()
-        self._done[(work.sysid, work.mission_type)] = TransferResult(
+        self._core.finish(work.sysid, (work.sysid, work.mission_type), TransferResult(
             sysid=work.sysid, mission_type=work.mission_type, direction=work.direction, items=items,
             error=None if error is None else f"sysid {work.sysid}: {what} {error}", result=result,
-        )  # fmt: skip
+        ))  # fmt: skip
 
     # ---- the caller's side -----------------------------------------------------------------------------------------
     def next_due_s(self) -> float:
         """When ``poll`` next has something to do (inf: nothing in flight)."""
-        return min((w.due_s for w in self._work.values()), default=math.inf)
+        return self._core.next_due_s()
 
     def in_flight(self, sysid: int) -> bool:
-        return sysid in self._work
+        return self._core.running(sysid) is not None
 
     def cancel(self, sysid: int, mission_type: int) -> None:
         """Forget a transfer (its caller gave up waiting): nothing more is sent, late answers are ignored."""
-        work = self._work.get(sysid)
-        if work is not None and work.mission_type == mission_type:
-            del self._work[sysid]
-        self._done.pop((sysid, mission_type), None)
+        work = self._core.running(sysid)
+        if work is None or work.mission_type == mission_type:
+            self._core.cancel(sysid, (sysid, mission_type))
+        else:  # another type's transfer runs on: only this type's outcome goes
+            self._core.take((sysid, mission_type))
 
     def take(self, sysid: int, mission_type: int) -> TransferResult | None:
         """How the transfer of ``mission_type`` with ``sysid`` ended, once (None while running or never started)."""
-        return self._done.pop((sysid, mission_type), None)
+        return self._core.take((sysid, mission_type))
 
 
 _HANDLED: Final = frozenset(

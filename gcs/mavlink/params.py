@@ -21,6 +21,7 @@ from typing import Any, Final
 from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.mavlink.commands import AUTOPILOT_COMPID, Send
+from gcs.mavlink.transactions import Transactions
 
 PARAM_TIMEOUT_S: Final = 1.0  # for a PARAM_VALUE echo, per try (on the caller's clock)
 PARAM_RETRIES: Final = 3  # MAVSDK's resends after the first try
@@ -80,8 +81,8 @@ class _Set:
     sysid: int
     name: str
     value: int | float | None  # None: a read
-    retries_left: int
-    due_s: float
+    retries_left: int = 0
+    due_s: float = 0.0
     kept: float | None = None
 
 
@@ -93,52 +94,44 @@ class ParamClient:
     """Parameter sets in flight to any number of drones; see the module docstring for the rules."""
 
     def __init__(self, *, timeout_s: float = PARAM_TIMEOUT_S, retries: int = PARAM_RETRIES) -> None:
-        self.timeout_s = timeout_s
-        self.retries = retries
-        self._work: dict[tuple[int, str], _Set] = {}
-        self._done: dict[tuple[int, str], ParamResult] = {}
+        # (sysid, name) -> the set or read waiting for its echo, and how it ended
+        self._core: Transactions[tuple[int, str], _Set, tuple[int, str], ParamResult] = Transactions(timeout_s, retries)
 
     def start(self, sysid: int, name: str, value: int | float | None, now_s: float) -> list[Send]:
         """Begin setting ``name`` on drone ``sysid`` (an int as INT32, a float as REAL32); the first PARAM_SET.
         ``value`` None reads it instead: PARAM_REQUEST_READ, ended by any PARAM_VALUE of the name (same retries)."""
         key = (sysid, name)
-        if key in self._work:
+        if self._core.running(key) is not None:
             raise ParamInFlight(f"parameter {name} on sysid {sysid} is already being set")
-        self._done.pop(key, None)
-        self._work[key] = _Set(sysid=sysid, name=name, value=value, retries_left=self.retries,
-                               due_s=now_s + self.timeout_s)  # fmt: skip
-        return [self._message(self._work[key])]
+        return [self._message(self._core.begin(key, key, _Set(sysid=sysid, name=name, value=value), now_s))]
 
     def handle(self, msg: Any, now_s: float) -> list[Send]:
         """A received message; a PARAM_VALUE echo from a drone being set ends the set or sends it again."""
         if msg.get_type() != "PARAM_VALUE" or msg.get_srcComponent() != AUTOPILOT_COMPID:
             return []
         key = (msg.get_srcSystem(), msg.param_id)
-        work = self._work.get(key)
+        work = self._core.running(key)
         if work is None:
             return []
         work.kept = param_value(msg)
         if work.value is None or same_value(work.kept, work.value):
-            self._finish(key)
+            self._finish(work)
             return []
-        return self._again(key, now_s)
+        if work.retries_left <= 0:  # a stale echo of another value, and no try left
+            self._finish(work)
+            return []
+        self._core.retry(work, now_s)  # a stale echo of another value: sent again at once
+        return [self._message(work)]
 
     def poll(self, now_s: float) -> list[Send]:
         """Send again every set whose try timed out; end those out of retries."""
         out: list[Send] = []
-        for key, work in list(self._work.items()):
-            if now_s >= work.due_s:
-                out += self._again(key, now_s)
+        for work, exhausted in self._core.timed_out(now_s):
+            if exhausted:
+                self._finish(work)
+            else:
+                out.append(self._message(work))
         return out
-
-    def _again(self, key: tuple[int, str], now_s: float) -> list[Send]:
-        work = self._work[key]
-        if work.retries_left <= 0:
-            self._finish(key)
-            return []
-        work.retries_left -= 1
-        work.due_s = now_s + self.timeout_s
-        return [self._message(work)]
 
     @staticmethod
     def _message(work: _Set) -> Send:
@@ -147,19 +140,18 @@ class ParamClient:
             return Send(work.sysid, mavlink.MAVLink_param_request_read_message(work.sysid, AUTOPILOT_COMPID, name, -1))
         return Send(work.sysid, param_set_message(work.sysid, work.name, work.value))
 
-    def _finish(self, key: tuple[int, str]) -> None:
-        work = self._work.pop(key)
-        self._done[key] = ParamResult(work.sysid, work.name, work.value, work.kept)
+    def _finish(self, work: _Set) -> None:
+        key = (work.sysid, work.name)
+        self._core.finish(key, key, ParamResult(work.sysid, work.name, work.value, work.kept))
 
     def next_due_s(self) -> float:
         """When ``poll`` next has something to do (inf: nothing in flight)."""
-        return min((w.due_s for w in self._work.values()), default=math.inf)
+        return self._core.next_due_s()
 
     def cancel(self, sysid: int, name: str) -> None:
         """Forget a set (its caller gave up waiting): no more resends, a late echo is ignored."""
-        self._work.pop((sysid, name), None)
-        self._done.pop((sysid, name), None)
+        self._core.cancel((sysid, name), (sysid, name))
 
     def take(self, sysid: int, name: str) -> ParamResult | None:
         """How setting ``name`` on ``sysid`` ended, once (None while in flight or never started)."""
-        return self._done.pop((sysid, name), None)
+        return self._core.take((sysid, name))
