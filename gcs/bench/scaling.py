@@ -616,6 +616,7 @@ class ScenarioFlight:
         self.streamer = FormationStreamer(
             self.swarm, SwarmFrame(plan.origin), circle_limits(self.radius_m, CIRCLE_RATE_RADPS)
         )
+        self.swarm.keep_streaming(self.streamer.tick)
         self.sampling = False
         self.samples = _ClockSamples()
         self._collisions = CollisionPairs()

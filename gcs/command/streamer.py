@@ -112,7 +112,6 @@ class FormationStreamer:
         self._frames: dict[int, DroneFrame] = {}
         self._rejoining: dict[int, _Rejoin] = {}  # sysid -> its way back into OFFBOARD
         self.observer: Callable[[float], dict[int, Vec3]] | None = None  # slots of drones flying themselves
-        swarm.stream_tick = self.tick  # setpoints go on while a command waits for its answer
 
     def drone_frame(self, sysid: int) -> DroneFrame | None:
         """The drone's local frame, once its HOME_POSITION has arrived."""

@@ -1,10 +1,15 @@
-"""A running swarm as the ground station sees it: its simulation harness, the MAVLink socket and the fleet view.
+"""A running swarm as the ground station sees it, and what it can be told: the facade over its parts.
 
 ``Swarm`` brings drones up (launch, then wait for each one's first HEARTBEAT; never sleep-and-hope), pumps
 telemetry into the fleet view, sends commands with PX4-client retry rules, and shuts everything down in order:
-land or disarm over MAVLink, then the harness stops every drone. The retry rules are not here: commands and
-parameter writes are protocol objects without IO (gcs/mavlink/commands.py, gcs/mavlink/params.py) that the swarm feeds
-with what it receives and whose effects it sends.
+land or disarm over MAVLink, then the harness stops every drone. It is assembled from parts with one job each:
+
+- the clock (gcs/fleet/clock.py): simulated seconds, paced on the wall clock or moved on in lockstep frames;
+- the router (gcs/fleet/router.py): the socket's traffic both ways, batching, forwarding, the relay, the ground
+  station's HEARTBEAT;
+- liveness (gcs/fleet/liveness.py): each loss recorded once, silent drones taken back;
+- the fleet view (gcs/fleet/telemetry.py) and the MAVLink clients for commands, parameters and missions
+  (gcs/mavlink/: protocol objects without IO that the swarm feeds with what it receives and whose effects it sends).
 
 Times are simulated seconds on the supervisor's clock (``Swarm.clock``): paced, the wall clock times the speed
 factor; in lockstep, the drones' common clock, which the supervisor itself moves on (through the harness) after
@@ -16,23 +21,22 @@ it starts the drones, says which ended and why, crashes one on request, and runs
 
 from __future__ import annotations
 
-import contextlib
-import dataclasses
 import logging
 import math
-import os
-import selectors
 import time
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from gcs.fleet.clock import ClockStalled, SwarmClock
 from gcs.fleet.faults import BATTERY_LEVEL_PARAM, ENABLE_PARAM, FAULTS, FaultRequest
 from gcs.fleet.harness import SimulationHarness, SpawnError, SpawnPlan
-from gcs.fleet.losses import MAV_STATE_FLIGHT_TERMINATION, DroneLoss, landing_clear_of
+from gcs.fleet.liveness import Liveness
+from gcs.fleet.losses import DroneLoss, landing_clear_of
 from gcs.fleet.relay import NeighbourRelay
-from gcs.fleet.telemetry import LINK_LOST_S, Fleet
+from gcs.fleet.router import BATCH_HOLD_S, Router
+from gcs.fleet.telemetry import Fleet
 from gcs.flight.geodesy import GeoPoint, NedFrame
 from gcs.mavlink.commands import FORCE_DISARM_MAGIC, Ack, CommandClient, Send
 from gcs.mavlink.mission_transfer import MISSION_TYPE_MISSION, MissionClient, MissionProgress, TransferResult, WireItem
@@ -45,23 +49,9 @@ log = logging.getLogger(__name__)
 
 INT32_MAX = 2**31 - 1  # COMMAND_INT x/y: no position given (MAVLink's convention)
 ARM_TIMEOUT_S = 30.0  # simulated seconds for every drone to pass its pre-arm checks before it is armed
-# How far the drones may run ahead of the supervisor's last look. Under load the drones sit at this limit, so it is
-# the lag of setpoints and relayed positions in simulated time: 50 ms let an eight-drone swap touch on a busy machine.
-LOCKSTEP_LEAD_S = 0.02
 TICK_S = 0.05  # the period of a waiting loop's ``tick`` (the setpoint stream's 20 Hz)
-LOCKSTEP_STALL_S = 10.0  # wall seconds without progress before the supervisor calls the simulation stalled
-LOCKSTEP_MAX_WAIT_S = 0.005  # wall-clock cap on one wait for traffic in lockstep (simulated time has no wall rate)
-LOCKSTEP_AWAIT_S = 1.0  # wall seconds the supervisor waits for a datagram a drone says it has sent
-# Relayed positions (and copies for another ground station) are held up to this long, in simulated seconds, and
-# leave with the next setpoint tick in one datagram per drone (gcs/mavlink/transport.py). A drone then wakes once per
-# tick instead of once per neighbour report: with 8 neighbours reporting at 10 Hz that is 20 wake-ups a second instead
-# of 100, and a wake-up costs a drone more CPU than the message it brings (docs/benchmarks.md). The receiving drone's
-# neighbour table ages every report by its sender's timestamp in lockstep; paced, by its arrival.
-BATCH_HOLD_S = 0.05
 # DO_SET_MODE for PX4 Hold (AUTO.LOITER), as pymavlink encodes it for PX4
 HOLD_MODE = set_mode_params("LOITER")
-GCS_HEARTBEAT_PERIOD_S = 1.0  # QGroundControl sends its HEARTBEAT at 1 Hz; PX4's datalink-loss failsafe watches it
-EXIT_CHECK_S = 0.5  # wall seconds between looks for ended drones while moving the lockstep clock
 
 
 class Swarm:
@@ -78,119 +68,54 @@ class Swarm:
         self.harness = harness  # the simulation, made for this plan by the composition root (gcs/composition.py)
         self._swarm_frame = NedFrame(plan.origin)
         self._sysids: list[int] = []  # spawn order, once launched
-        self._lockstep_running = False
-        # Lockstep: the common time once every drone stands at the gate. Nothing moves it until the next frame opens
-        # the gate, and the supervisor reads its clock a dozen times between frames (a read scans the world table).
-        self._gate_time_s: float | None = None
-        self._wake_fd: int | None = None
-        self._wall_t0 = time.monotonic()
-        self._gate_progress = (0.0, time.monotonic())  # (common time, wall time it was first seen)
-        self._next_exit_check = 0.0
+        self._clock = SwarmClock(plan, harness)
         key = load_key(plan.signing_key_file) if plan.signing_key_file is not None else None
         self.link = GcsSocket(signing_key=key)  # signs what the supervisor sends when the plan has a key
         self.signing_key_id = key_id(key) if key is not None else None  # what the report names the key by
+        self.router = Router(self.link, relay=NeighbourRelay(radius_m=relay_radius_m) if relay else None,
+                             forward=forward, batch_hold_s=batch_hold_s)  # fmt: skip
         self.fleet = Fleet()
+        self.liveness = Liveness(harness, self.fleet, self._swarm_frame, lockstep=plan.lockstep)
         self.listeners: list[Callable[[Any, float], None]] = []  # e.g. the flight recorder, the relay
-        # Commands and parameter writes the swarm sends, as packed MAVLink frames (the flight log keeps them)
-        self.sent_listeners: list[Callable[[bytes, float], None]] = []
-        self._selector = selectors.DefaultSelector()
-        self._selector.register(self.link.sock, selectors.EVENT_READ)
-        self._gate_selector = selectors.DefaultSelector()  # lockstep: woken by the drones reaching the gate
         # The MAVLink command and parameter protocols (no IO of their own: the swarm feeds them and sends for them)
         self.commands = CommandClient()
         self.params = ParamClient()
         self.missions = MissionClient()  # mission and fence transfers (gcs/mavlink/mission_transfer.py)
         self.mission_progress = MissionProgress()  # each drone's MISSION_CURRENT / MISSION_ITEM_REACHED
-        self.relay: NeighbourRelay | None = NeighbourRelay(radius_m=relay_radius_m) if relay else None
-        # Every drone's traffic also goes to this address (QGroundControl/MAVProxy listen on 14550), and what comes
-        # back from there is routed to the drones by target system, as a MAVLink router does.
-        self.forward = forward
-        self.batch_hold_s = batch_hold_s
-        self._flush_due_s = math.inf  # when the queued traffic must leave (-inf: at the next pump)
-        self.losses: dict[int, DroneLoss] = {}  # sysid -> the loss, recorded once
-        self.regained: list[DroneLoss] = []  # losses that ended: silent drones heard again (``detect_regains``)
-        # Streaming that must go on while a command or a parameter waits for its answer (the setpoint stream: PX4
-        # leaves OFFBOARD after COM_OF_LOSS_T without a setpoint, and on a lossy link an answer can take retries).
-        self.stream_tick: Callable[[float], None] | None = None
-        self._next_gcs_heartbeat_s = 0.0
-        self._heard_wall_s: dict[int, float] = {}
-        self._said_late_traffic = False  # sysid -> wall time of its last HEARTBEAT
+        # The setpoint stream that goes on while a command or a parameter waits for its answer (PX4 leaves OFFBOARD
+        # after COM_OF_LOSS_T without a setpoint, and on a lossy link an answer can take retries): ``keep_streaming``.
+        self._stream_tick: Callable[[float], None] | None = None
 
+    def keep_streaming(self, tick: Callable[[float], None]) -> None:
+        """While a command waits for its answer, call ``tick(now)`` at the stream's rate: the setpoint stream of the
+        flight this swarm flies, given once by whoever assembles it (gcs/supervisor/session.py, the bench)."""
+        self._stream_tick = tick
+
+    # ---- the parts' state, as the swarm's users read it ------------------------------------------------------------
     def clock(self) -> float:
         """Simulated seconds: the drones' common clock in lockstep, else wall time times the speed factor."""
-        if self._lockstep_running:
-            if self._gate_time_s is not None:
-                return self._gate_time_s
-            return self.harness.lockstep_time_s()
-        return (time.monotonic() - self._wall_t0) * self.plan.speed_factor
+        return self._clock.now()
 
-    def _check_members(self, now: float) -> None:
-        """Notice a drone that ended (it leaves the lockstep gate: it must hold nobody back) and a stalled
-        simulation; both on the wall clock, at most every EXIT_CHECK_S."""
-        wall = time.monotonic()
-        if wall < self._next_exit_check:
-            return
-        self._next_exit_check = wall + EXIT_CHECK_S
-        self.harness.ended()
-        if now != self._gate_progress[0]:
-            self._gate_progress = (now, wall)
-        elif wall - self._gate_progress[1] > LOCKSTEP_STALL_S and len(self.harness.ended()) < len(self._sysids):
-            raise SwarmError(f"simulation stalled at t={now:.3f} s: no drone advanced for {LOCKSTEP_STALL_S:g} s")
+    @property
+    def relay(self) -> NeighbourRelay | None:
+        return self.router.relay
 
-    def _lockstep_frame(self) -> None:
-        """One frame of the lockstep clock: let the drones run LOCKSTEP_LEAD_S on and wait until every one of them
-        stands at the gate; then read everything they sent, in sysid order, at that one simulated time.
+    @property
+    def forward(self) -> tuple[str, int] | None:
+        return self.router.forward
 
-        Every message then meets a fixed simulated time on both sides: what a drone sent up to the gate's step is
-        read at the gate's time (it publishes a step only after sending what is due at it), and what the supervisor
-        sends between frames reaches every drone while it waits at the gate, so it is handled there too (and
-        delayed from there by the link model). Nothing depends on when a datagram happened to arrive, so the same
-        mission with the same seeds flies the same, on an idle machine or a loaded one. The price is that the
-        drones wait while the supervisor works, instead of running on into its lead."""
-        now = self.clock()
-        if self.plan.speed_factor > 0:  # paced lockstep: the frame starts when the wall clock has caught up with it
-            ahead_s = (now + LOCKSTEP_LEAD_S) / self.plan.speed_factor - (time.monotonic() - self._wall_t0)
-            if ahead_s > 0:
-                time.sleep(ahead_s)
-        addresses = self.link.addresses
-        self.harness.note_sent_to_drones({s: self.link.sent_to.get(a, 0) for s, a in addresses.items()})
-        self._gate_time_s = None
-        if self.harness.advance_lockstep(LOCKSTEP_LEAD_S) is None:
-            # Not every drone has joined yet (nobody starts before the rest): nothing runs, nothing to wait for.
-            self._gate_selector.select(LOCKSTEP_MAX_WAIT_S)
-            return
-        target = now + LOCKSTEP_LEAD_S - 1e-9
-        while (now := self.clock()) < target and len(self.harness.ended()) < len(self._sysids):
-            self._check_members(now)
-            if self._gate_selector.select(LOCKSTEP_MAX_WAIT_S) and self._wake_fd is not None:
-                _consume(self._wake_fd)  # that wake-up is read: the next one is news
-        if now >= target:
-            self._gate_time_s = now  # every drone stands at the gate: the time holds until the next frame
+    @property
+    def sent_listeners(self) -> list[Callable[[bytes, float], None]]:
+        """Called with every command and parameter write sent, packed (the flight log keeps them)."""
+        return self.router.sent_listeners
 
-    def _read_frame(self) -> list[tuple[Any, tuple[str, int]]]:
-        """Lockstep: everything the drones sent up to the common time, in sysid order (each sender's own order kept).
-        Loopback UDP may hand a datagram over a little after its ``sendto`` returned, so the supervisor reads until
-        it has as many from each drone as the drone says it sent; one that never comes (a full buffer) is given up
-        after LOCKSTEP_AWAIT_S, and said once."""
-        messages: list[tuple[Any, tuple[str, int]]] = []
-        sent = self.harness.sent_by_drones()
-        deadline = time.monotonic() + LOCKSTEP_AWAIT_S
-        while True:
-            while batch := self.link.receive():
-                messages.extend(batch)
-            addresses, received = self.link.addresses, self.link.received_from
-            missing = [s for s, n in sent.items() if n > received.get(addresses.get(s, ("", 0)), 0)]
-            missing = [s for s in missing if s not in self.losses and s in addresses]
-            if not missing:
-                break
-            if time.monotonic() > deadline:
-                if not self._said_late_traffic:
-                    self._said_late_traffic = True
-                    log.warning("lockstep: datagrams from sysid %s never arrived; going on", missing)
-                break
-            self._selector.select(LOCKSTEP_MAX_WAIT_S)
-        messages.sort(key=lambda item: int(item[0].get_srcSystem()))
-        return messages
+    @property
+    def losses(self) -> dict[int, DroneLoss]:
+        return self.liveness.losses
+
+    @property
+    def regained(self) -> list[DroneLoss]:
+        return self.liveness.regained
 
     def drone_time_s(self) -> float | None:
         """The slowest running drone's own simulated time; None before every drone has one."""
@@ -207,69 +132,13 @@ class Swarm:
 
     # ---- losses ----------------------------------------------------------------------------------------------------
     def detect_losses(self, time_s: float) -> list[DroneLoss]:
-        """Record every new loss once and return them: a drone the harness reports ended (any cause), one that reports
-        MAV_STATE_FLIGHT_TERMINATION (crashed, terminated), or one silent for the link-loss time.
-
-        ``time_s`` is the time to record (the caller's mission clock). The harness says which drones ended and how
-        (and their bodies then fall in the simulated world from their last state).
-        """
-        new: list[DroneLoss] = []
-        now = self.clock()
-        for sysid, cause in self.harness.ended().items():
-            if sysid not in self.losses:
-                new.append(self._record_loss(sysid, time_s, cause))
-        for sysid in self._sysids:
-            view = self.fleet.drones.get(sysid)
-            if view is None or sysid in self.losses:
-                continue
-            if view.system_status == MAV_STATE_FLIGHT_TERMINATION:
-                new.append(self._record_loss(sysid, time_s, crash_cause(view.texts, now)))
-            elif view.lost(now) and (self.plan.lockstep or self._silent_on_the_wall_clock(sysid)):
-                cause = f"link lost (nothing heard for {view.link_age_s(now):.1f} s)"
-                new.append(self._record_loss(sysid, time_s, cause, silent=True))
-        self._settle_down_positions()
-        return new
+        """Record every new loss once and return them (gcs/fleet/liveness.py); ``time_s`` is the time to record (the
+        caller's mission clock)."""
+        return self.liveness.detect_losses(self._sysids, time_s, self.clock())
 
     def detect_regains(self, time_s: float) -> list[DroneLoss]:
-        """Take back every drone lost for silence that has been heard again (QGroundControl's "communication
-        regained"), once: it leaves ``losses`` and its ended loss, with ``regained_s``, goes to ``regained``. A drone
-        lost any other way stays lost. What the swarm flies takes it in again (gcs/command/degrade.py
-        ``apply_regain``)."""
-        back: list[DroneLoss] = []
-        now = self.clock()
-        for sysid, loss in list(self.losses.items()):
-            view = self.fleet.drones.get(sysid)
-            if loss.silent and view is not None and not view.lost(now):
-                del self.losses[sysid]
-                ended = dataclasses.replace(loss, regained_s=time_s)
-                self.regained.append(ended)
-                back.append(ended)
-        return back
-
-    def _silent_on_the_wall_clock(self, sysid: int) -> bool:
-        """Paced, a drone is lost when it is silent for the link-loss time on both clocks: a loaded machine that
-        delays a paced drone's heartbeat by a fraction of a wall second (3 s at --speed 4 is 0.75 s) must not lose it
-        for good. In lockstep the simulated clock alone decides: the drones cannot run more than the gate's lead
-        ahead of the supervisor, so a heartbeat sent is read within that lead, however fast or slow the machine;
-        counting wall seconds there kept a silent drone in the swarm when the simulation ran faster than real time."""
-        return time.monotonic() - self._heard_wall_s.get(sysid, -math.inf) > LINK_LOST_S
-
-    def _record_loss(self, sysid: int, time_s: float, cause: str, *, silent: bool = False) -> DroneLoss:
-        loss = DroneLoss(sysid=sysid, time_s=time_s, cause=cause, silent=silent)
-        self.losses[sysid] = loss
-        return loss
-
-    def _settle_down_positions(self) -> None:
-        """Fill in where each lost drone came down, once its body is on the ground (north/east of the origin)."""
-        if not self._sysids:
-            return
-        for sysid, loss in list(self.losses.items()):
-            if loss.down_ne_m is None:
-                geo = self.harness.grounded_body_geo(sysid, self.clock())
-                if geo is not None:
-                    point = GeoPoint(lat_deg=geo[0], lon_deg=geo[1], alt_amsl_m=geo[2])
-                    north, east, _ = self._swarm_frame.ned_from_geo(point)
-                    self.losses[sysid] = dataclasses.replace(loss, down_ne_m=(north, east))
+        """Take back every drone lost for silence that has been heard again, once (gcs/fleet/liveness.py)."""
+        return self.liveness.detect_regains(time_s, self.clock())
 
     def kill(self, sysid: int) -> str:
         """Crash drone ``sysid``'s flight software (the harness kills what runs it); returns what was done, in one
@@ -333,35 +202,33 @@ class Swarm:
     # ---- IO --------------------------------------------------------------------------------------------------------
     def pump(self, wait_s: float = 0.0) -> None:
         """Send what is due, then handle every waiting message, waiting up to ``wait_s`` (simulated) for the first.
-        In lockstep, one frame of the common clock instead (``_lockstep_frame``), whatever ``wait_s``."""
-        self._flush(self.clock())
-        if self._lockstep_running:
-            self._lockstep_frame()
+        In lockstep, one frame of the common clock instead, whatever ``wait_s``: every message then meets a fixed
+        simulated time on both sides (what a drone sent up to the gate's step is read at the gate's time, and what
+        the supervisor sends between frames reaches every drone while it waits at the gate), so nothing depends on
+        when a datagram happened to arrive, and the same mission with the same seeds flies the same on an idle
+        machine or a loaded one."""
+        router = self.router
+        router.flush(self.clock())
+        if self._clock.lockstep_running:
+            try:
+                self._clock.frame(router.sent_to_drones())
+            except ClockStalled as exc:
+                raise SwarmError(str(exc)) from None
             now = self.clock()
-            messages = self._read_frame()
+            messages = router.receive_frame(self.harness.sent_by_drones(), self.losses)
         else:
-            if wait_s > 0:
-                if self.link.queued:
-                    wait_s = min(wait_s, max(0.0, self._flush_due_s - self.clock()))
-                self._selector.select(wait_s / self.plan.speed_factor)
+            router.wait(wait_s, self.plan.speed_factor, self.clock())
             now = self.clock()
-            messages = self.link.receive()
+            messages = router.receive()
         for msg, _sender in messages:
             if msg.get_srcComponent() != 1:
-                self._route_from_ground_station(msg)
+                router.from_ground_station(msg, self.sysids)
                 continue
-            if self.forward is not None:
-                self._hold(bytes(msg.get_msgbuf()), self.forward, now)
             self.fleet.handle(msg, now)
+            router.carry(msg, now, self.fleet)
             kind = msg.get_type()
-            if kind == "GLOBAL_POSITION_INT" and self.relay is not None:
-                data = bytes(msg.get_msgbuf())
-                for target in self.relay.targets(msg.get_srcSystem(), now, self.fleet):
-                    address = self.link.addresses.get(target)
-                    if address is not None:
-                        self._hold(data, address, now)
             if kind != "RADIO_STATUS":  # any other message is a sign of life (gcs/fleet/telemetry.py LINK_LOST_S)
-                self._heard_wall_s[msg.get_srcSystem()] = time.monotonic()
+                self.liveness.heard(msg.get_srcSystem())
             if kind == "COMMAND_ACK":
                 self.commands.handle(msg, now)
             elif kind == "PARAM_VALUE":
@@ -371,44 +238,8 @@ class Swarm:
                 self.mission_progress.handle(msg, now)
             for listener in self.listeners:
                 listener(msg, now)
-        self._send_gcs_heartbeat(now)
-        self._flush(now)
-
-    def _send_gcs_heartbeat(self, now: float) -> None:
-        """The ground station's own HEARTBEAT to every drone at 1 Hz (simulated time), as QGroundControl sends it:
-        PX4's datalink-loss failsafe (COM_DL_LOSS_T) counts from the last one. Lost drones get none."""
-        if now < self._next_gcs_heartbeat_s:
-            return
-        self._next_gcs_heartbeat_s = now + GCS_HEARTBEAT_PERIOD_S
-        msg = mavlink.MAVLink_heartbeat_message(
-            mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3
-        )
-        for sysid in list(self.link.addresses):  # every vehicle heard, as QGroundControl does, except the lost
-            if sysid not in self.losses:
-                self.link.queue(sysid, msg)
-        self._flush_due_s = -math.inf
-
-    def _hold(self, data: bytes, address: tuple[str, int], now: float) -> None:
-        """Queue traffic that may wait for the next batch (at most ``batch_hold_s``)."""
-        if not self.link.queued:
-            self._flush_due_s = now + self.batch_hold_s
-        self.link.queue_raw(data, address)
-
-    def _flush(self, now: float) -> None:
-        if self.link.queued and now >= self._flush_due_s:
-            self.link.flush()
-            self._flush_due_s = math.inf
-
-    def _route_from_ground_station(self, msg: Any) -> None:
-        """A message from another ground station (QGroundControl, MAVProxy on the forward port): to its target."""
-        if self.forward is None:
-            return
-        target = getattr(msg, "target_system", 0)
-        data = bytes(msg.get_msgbuf())
-        for sysid in self.sysids if target == 0 else [target]:
-            address = self.link.addresses.get(sysid)
-            if address is not None:
-                self.link.send_raw(data, address)
+        router.heartbeat(now, self.losses)
+        router.flush(now)
 
     def run_for(self, seconds: float, tick: Callable[[float], None] | None = None, tick_s: float = TICK_S) -> None:
         """Pump telemetry for a while, calling ``tick(now)`` every ``tick_s``."""
@@ -445,11 +276,7 @@ class Swarm:
             self._sysids = self.harness.launch(self.link.port)
         except RuntimeError as exc:  # the harness's one line (gcs/fleet/harness.py)
             raise SpawnError(str(exc)) from None
-        self._wall_t0 = time.monotonic()
-        self._wake_fd = self.harness.wake_fileno()
-        if self._wake_fd is not None:
-            self._gate_selector.register(self._wake_fd, selectors.EVENT_READ)
-        self._lockstep_running = self.plan.lockstep
+        self._clock.start(len(self._sysids))
         expected = set(self.sysids)
         end = time.monotonic() + ready_timeout_s  # start-up is wall-clock work (Python, JSBSim), whatever the mode
         while not expected <= set(self.fleet.drones):
@@ -546,15 +373,11 @@ class Swarm:
                 if still:  # a drone that cannot land in time is disarmed where it is
                     self.force_disarm(still)
         finally:
-            if self._wake_fd is not None:
-                self._gate_selector.unregister(self._wake_fd)
-                self._wake_fd = None
             try:
                 self.harness.close()
             finally:
-                self._selector.close()
-                self._gate_selector.close()
-                self.link.close()
+                self._clock.close()
+                self.router.close()
 
     # ---- commands --------------------------------------------------------------------------------------------------
     def command_all(self, command: int, *params: float, sysids: Iterable[int] | None = None) -> list[Ack]:
@@ -620,8 +443,8 @@ class Swarm:
                 self._send_effects(client.poll(self.clock()), now=now)
                 if collect():
                     break
-                if self.stream_tick is not None and (clock := self.clock()) >= next_tick:
-                    self.stream_tick(clock)
+                if self._stream_tick is not None and (clock := self.clock()) >= next_tick:
+                    self._stream_tick(clock)
                     next_tick = _next_tick_s(next_tick, clock, TICK_S)
                 self.pump(min(0.02, max(0.0, client.next_due_s() - self.clock())))
         finally:
@@ -634,54 +457,21 @@ class Swarm:
             self._send_logged(effect.sysid, effect.message, now=now)
 
     def _send_logged(self, sysid: int, msg: Any, *, now: bool) -> None:
-        """A command or parameter write, at once or with the next batch, also handed to ``sent_listeners``."""
-        data = self.link.pack(msg)
-        address = self.link.addresses.get(sysid)
-        if address is None:
-            return
-        if now:
-            if self.link.queued:
-                self.link.flush()
-            self.link.send_raw(data, address)
-        else:
-            self.link.queue_raw(data, address)
-            self._flush_due_s = -math.inf
-        for listener in self.sent_listeners:
-            listener(data, self.clock())
+        self.router.send_logged(sysid, msg, now=now, clock_s=self.clock())
 
     def send(self, sysid: int, msg: Any) -> None:
         """Streamed traffic (setpoints, parameter writes): leaves at the start of the next pump, batched with
         whatever else is queued for each drone. Commands that wait for an answer go out at once (``command_all``)."""
-        if self.link.queue(sysid, msg):
-            self._flush_due_s = -math.inf
+        self.router.send(sysid, msg)
 
     def send_now(self, sysid: int, msg: Any) -> None:
         """One message to one drone at once, outside any batch (a command whose answer is being timed)."""
-        self.link.send(sysid, msg)
+        self.router.send_now(sysid, msg)
 
 
 # Rounds of a command's retries (each MAVSDK's: the first try and 3 resends) for a drone that answers none: on a link
 # losing 20 % each way one round goes unanswered 1.7 % of the time, three rounds once in 200,000.
 NO_ANSWER_ROUNDS = 3
-CRASH_TEXT_AGE_S = 5.0  # a warning this recent says why a drone crashed; an older one is about something else
-
-
-def _consume(fd: int) -> None:
-    """Read every datagram waiting on a non-blocking descriptor."""
-    with contextlib.suppress(BlockingIOError, InterruptedError):
-        while True:
-            os.read(fd, 64)
-
-
-def crash_cause(texts: list[tuple[float, int, str]], now_s: float) -> str:
-    """``crashed``, with the first of the drone's recent warnings: the cause (``crashed: Collision with drone 2 at
-    0.61 m``, an injected motor failure), not its consequences (``Motors stopped: crashed``) that follow it."""
-    warnings = [
-        text
-        for t, severity, text in texts
-        if severity <= mavlink.MAV_SEVERITY_WARNING and now_s - t <= CRASH_TEXT_AGE_S
-    ]
-    return f"crashed: {warnings[0]}" if warnings else "crashed"
 
 
 def check(acks: list[Ack], what: str) -> None:

@@ -45,6 +45,7 @@ class FlightSession:
         self.recording = recording
         self.loss_policy = loss_policy
         self.streamer = FormationStreamer(swarm, SwarmFrame(swarm.plan.origin))
+        swarm.keep_streaming(self.streamer.tick)  # setpoints go on while a command waits for its answer
         self.pace = PaceWatch(swarm, say)
         recording.requested_speed = self.pace.requested_speed
         recording.loss_policy = loss_policy.value

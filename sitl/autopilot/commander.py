@@ -21,7 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sitl.autopilot.failsafe import FailsafeAction, FailsafeInputs, FailsafeOrder, FailsafeState
+from sitl.autopilot.failsafe import FAILSAFE_TABLE
+from sitl.autopilot.failsafe_framework import FailsafeAction, FailsafeInputs, FailsafeOrder, FailsafeState
 from sitl.autopilot.geofence import Geofence
 from sitl.autopilot.guidance import MotionLimits, StraightLineTrajectory
 from sitl.autopilot.land_detector import LandDetector, LandDetectorConfig
@@ -122,7 +123,7 @@ class Vehicle:
         # intended mode", the one the position-loss row asks "can it run without a position?".
         self._intended: ModeUnit | None = None
         self._fallback_from: ModeUnit | None = None  # the unit Descend replaced, flown again if the position returns
-        self.failsafes = FailsafeState()
+        self.failsafes = FailsafeState(FAILSAFE_TABLE)
         self._gcs_heartbeat_s = math.nan
         self._fence = Geofence()
         self._est: Estimate | None = None

@@ -13,8 +13,8 @@ import pytest
 
 from gcs.cli import main as swarm_main
 from gcs.fleet.faults import FAULT_NAMES, FAULTS, FaultError, fault_request
+from gcs.fleet.liveness import crash_cause
 from gcs.fleet.losses import WRECK_CLEARANCE_M, DroneLoss, LossPolicy, landing_clear_of, loss_line
-from gcs.fleet.swarm import crash_cause
 from gcs.flight.behaviours import FollowSpec, LeaderFollower, SwarmState
 from gcs.flight.formation import CircleSpec, FormationEngine, TransitionLimits, min_pairwise_distance_m
 from gcs.missions.mission_file import FaultStep, MissionFileError, parse_mission

@@ -7,7 +7,8 @@ import math
 
 import pytest
 
-from sitl.autopilot.failsafe import FailsafeAction, FailsafeInputs, FailsafeState
+from sitl.autopilot.failsafe import FAILSAFE_TABLE
+from sitl.autopilot.failsafe_framework import FailsafeAction, FailsafeInputs, FailsafeState
 from sitl.autopilot.px4_modes import FailsafeKind, Px4Mode
 from sitl.drone.closed_loop import build_param_store
 from sitl.params import ParamStore
@@ -35,6 +36,10 @@ def _params(**values: float) -> ParamStore:
     return params
 
 
+def _state() -> FailsafeState:
+    return FailsafeState(FAILSAFE_TABLE)
+
+
 def _actions(
     state: FailsafeState, inputs: FailsafeInputs, params: ParamStore
 ) -> list[tuple[FailsafeKind, FailsafeAction]]:
@@ -42,7 +47,7 @@ def _actions(
 
 
 def test_nothing_fires_in_normal_flight() -> None:
-    assert _actions(FailsafeState(), FLYING, _params()) == []
+    assert _actions(_state(), FLYING, _params()) == []
 
 
 @pytest.mark.parametrize(
@@ -59,7 +64,7 @@ def test_nav_dll_act_selects_the_datalink_action_after_a_hold_of_com_fail_act_t(
     nav_dll_act: int, final: FailsafeAction
 ) -> None:
     params = _params(NAV_DLL_ACT=nav_dll_act)
-    state = FailsafeState()
+    state = _state()
     lost = FLYING._replace(now_s=FLYING.gcs_heartbeat_s + 10.01)
     assert _actions(state, lost, params) == [(FailsafeKind.DATALINK_LOSS, FailsafeAction.HOLD)]
     assert state.in_failsafe and state.active is FailsafeKind.DATALINK_LOSS
@@ -75,15 +80,15 @@ def test_nav_dll_act_selects_the_datalink_action_after_a_hold_of_com_fail_act_t(
 def test_datalink_loss_needs_a_heartbeat_first_a_timeout_and_is_off_by_default_and_while_landing() -> None:
     on = _params(NAV_DLL_ACT=2)
     lost = FLYING._replace(now_s=FLYING.gcs_heartbeat_s + 10.01)
-    assert _actions(FailsafeState(), lost, _params()) == []  # PX4's default NAV_DLL_ACT = 0
-    assert _actions(FailsafeState(), lost._replace(gcs_heartbeat_s=math.nan), on) == []
-    assert _actions(FailsafeState(), lost._replace(now_s=FLYING.gcs_heartbeat_s + 9.99), on) == []
-    assert _actions(FailsafeState(), lost._replace(mode=Px4Mode.AUTO_LAND), on) == []
+    assert _actions(_state(), lost, _params()) == []  # PX4's default NAV_DLL_ACT = 0
+    assert _actions(_state(), lost._replace(gcs_heartbeat_s=math.nan), on) == []
+    assert _actions(_state(), lost._replace(now_s=FLYING.gcs_heartbeat_s + 9.99), on) == []
+    assert _actions(_state(), lost._replace(mode=Px4Mode.AUTO_LAND), on) == []
 
 
 def test_a_link_that_comes_back_is_announced_and_a_second_loss_fires_again() -> None:
     params = _params(NAV_DLL_ACT=1)
-    state = FailsafeState()
+    state = _state()
     lost = FLYING._replace(now_s=FLYING.gcs_heartbeat_s + 11.0)
     assert _actions(state, lost, params) == [(FailsafeKind.DATALINK_LOSS, FailsafeAction.HOLD)]
     assert _actions(state, lost._replace(now_s=lost.now_s + 1.0), params) == []  # fires once
@@ -107,7 +112,7 @@ def test_com_low_bat_act_selects_the_critical_and_emergency_actions(
     com_low_bat_act: int, critical: FailsafeAction, emergency: FailsafeAction
 ) -> None:
     params = _params(COM_LOW_BAT_ACT=com_low_bat_act)
-    state = FailsafeState()
+    state = _state()
     crit = _actions(state, FLYING._replace(battery_remaining=0.06), params)
     assert crit == [(FailsafeKind.BATTERY_LOW, FailsafeAction.WARN), (FailsafeKind.BATTERY_CRITICAL, critical)]
     emerg = _actions(state, FLYING._replace(battery_remaining=0.04), params)
@@ -118,7 +123,7 @@ def test_com_low_bat_act_selects_the_critical_and_emergency_actions(
 
 def test_battery_levels_fire_once_per_flight_and_rearm_on_arming() -> None:
     params = _params(COM_LOW_BAT_ACT=2)
-    state = FailsafeState()
+    state = _state()
     low = FLYING._replace(battery_remaining=0.06)
     assert len(state.evaluate(low, params)) == 2
     state.cleared()
@@ -129,7 +134,7 @@ def test_battery_levels_fire_once_per_flight_and_rearm_on_arming() -> None:
 
 def test_a_more_severe_failsafe_supersedes_a_held_one_and_a_milder_one_does_not() -> None:
     params = _params(COM_LOW_BAT_ACT=1)
-    state = FailsafeState()
+    state = _state()
     offboard_lost = FLYING._replace(mode=Px4Mode.OFFBOARD)
     assert _actions(state, offboard_lost, params) == [(FailsafeKind.OFFBOARD_LOSS, FailsafeAction.HOLD)]
     # a critical battery during the hold: Return beats Hold, and the delayed landing is dropped
@@ -147,7 +152,7 @@ def test_a_more_severe_failsafe_supersedes_a_held_one_and_a_milder_one_does_not(
 
 def test_the_delayed_action_waits_for_hold_and_is_dropped_when_the_operator_takes_over() -> None:
     params = _params()
-    state = FailsafeState()
+    state = _state()
     state.evaluate(FLYING._replace(mode=Px4Mode.OFFBOARD), params)
     assert state.delayed_action(FLYING.now_s + 10.0, Px4Mode.AUTO_RTL, 5.0) is None  # not while in another mode
     state.cleared()
@@ -169,25 +174,25 @@ def test_the_delayed_action_waits_for_hold_and_is_dropped_when_the_operator_take
 def test_gf_action_selects_the_geofence_action_at_once(gf_action: int, action: FailsafeAction | None) -> None:
     breach = FLYING._replace(fence_breach="Maximum altitude exceeded")
     expected = [] if action is None else [(FailsafeKind.GEOFENCE, action)]
-    assert _actions(FailsafeState(), breach, _params(GF_ACTION=gf_action)) == expected
+    assert _actions(_state(), breach, _params(GF_ACTION=gf_action)) == expected
 
 
 def test_position_loss_descends_only_in_a_mode_that_needs_a_position_and_only_in_the_air() -> None:
     params = _params()
     lost = FLYING._replace(position_valid=False)
-    assert _actions(FailsafeState(), lost, params) == [(FailsafeKind.POSITION_LOSS, FailsafeAction.DESCEND)]
-    assert _actions(FailsafeState(), lost._replace(needs_position=False), params) == []
-    assert _actions(FailsafeState(), lost._replace(landed=True), params) == []
+    assert _actions(_state(), lost, params) == [(FailsafeKind.POSITION_LOSS, FailsafeAction.DESCEND)]
+    assert _actions(_state(), lost._replace(needs_position=False), params) == []
+    assert _actions(_state(), lost._replace(landed=True), params) == []
 
 
 def test_a_position_that_returns_resumes_the_operators_mode_only_while_the_fallback_is_in_force() -> None:
     params = _params()
     lost = FLYING._replace(position_valid=False)
-    state = FailsafeState()
+    state = _state()
     state.evaluate(lost, params)
     back = state.evaluate(FLYING, params)
     assert [(o.text, o.resume) for o in back] == [("Global position regained", True)]
-    state = FailsafeState()
+    state = _state()
     state.evaluate(lost, params)
     state.cleared()  # the operator took over meanwhile
     assert [o.resume for o in state.evaluate(FLYING, params)] == [False]
@@ -195,7 +200,7 @@ def test_a_position_that_returns_resumes_the_operators_mode_only_while_the_fallb
 
 def test_a_fallback_that_ends_restores_the_failsafe_it_replaced() -> None:
     params = _params(COM_LOW_BAT_ACT=1)
-    state = FailsafeState()
+    state = _state()
     critical = FLYING._replace(battery_remaining=0.06, mode=Px4Mode.AUTO_RTL)
     state.evaluate(critical, params)
     assert state.active is FailsafeKind.BATTERY_CRITICAL
