@@ -25,6 +25,7 @@ from typing import Protocol, TypeAlias
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.autopilot.px4_modes import Px4Mode
+from sitl.control.cascade import AttitudeSetpoint, TrajectorySetpoint
 from sitl.dynamics.plant import GeoPoint
 
 NAN = math.nan
@@ -128,29 +129,10 @@ class MissionItem:
         return self.frame in RELATIVE_ALT_FRAMES
 
 
-# ---- offboard setpoints ------------------------------------------------------------------------------------
-@dataclass(frozen=True, slots=True, kw_only=True)
-class OffboardSetpoint:
-    """A trajectory setpoint in the local NED frame; NaN components are "not controlled" (type_mask).
-
-    Whatever frame the client used (LOCAL_NED, LOCAL_OFFSET_NED, BODY_NED, BODY_OFFSET_NED, global), the services
-    convert to absolute local NED before handing it over. At least one of position, velocity, acceleration is set.
-    """
-
-    pos_ned_m: Vec3 = NAN3
-    vel_ned_mps: Vec3 = NAN3
-    acc_ned_mps2: Vec3 = NAN3
-    yaw_rad: float = NAN
-    yaw_rate_radps: float = NAN
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class AttitudeSetpoint:
-    """SET_ATTITUDE_TARGET decoded: attitude and/or body rates plus collective thrust; NaN = not set."""
-
-    q_wxyz: QuatWxyz = (NAN, NAN, NAN, NAN)
-    body_rates_frd_radps: Vec3 = NAN3
-    thrust: float = NAN  # normalised collective thrust, 0..1 (upwards)
+# ---- offboard setpoints: the controller's own types (sitl/control/cascade.py), decoded by the services ---------
+# ``TrajectorySetpoint``: absolute local NED, NaN components "not controlled" (type_mask); whatever frame the client
+# used, the services convert it first, and at least one of position, velocity, acceleration is set.
+# ``AttitudeSetpoint``: an attitude or body rates, and a normalised collective thrust.
 
 
 # ---- requests ----------------------------------------------------------------------------------------------
@@ -459,7 +441,7 @@ class VehicleApi(Protocol):
         """The stored mission (type 0), in order, as last accepted by ``command(SetMission(...))``."""
         ...
 
-    def set_offboard_setpoint(self, setpoint: OffboardSetpoint | AttitudeSetpoint, now_s: float) -> None:
+    def set_offboard_setpoint(self, setpoint: TrajectorySetpoint | AttitudeSetpoint, now_s: float) -> None:
         """A valid offboard setpoint arrived at ``now_s`` (the vehicle tracks COM_OF_LOSS_T from these times)."""
         ...
 

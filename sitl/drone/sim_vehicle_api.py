@@ -16,8 +16,7 @@ from sitl.autopilot import vehicle_api as api
 from sitl.autopilot.mission_exec import MissionRun
 from sitl.autopilot.mission_plan import NavItem, to_nav_items
 from sitl.autopilot.px4_modes import Px4Mode
-from sitl.control.cascade import AttitudeSetpoint as CascadeAttitudeSetpoint
-from sitl.control.cascade import TrajectorySetpoint
+from sitl.control.cascade import AttitudeSetpoint, TrajectorySetpoint
 from sitl.drone.closed_loop import ClosedLoop
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.dynamics.plant import GeoPoint
@@ -94,28 +93,8 @@ class SimVehicleApi:
     def mavlink_silent_until_s(self) -> float:
         return self.sim.faults.link_off_until_s
 
-    def set_offboard_setpoint(self, setpoint: api.OffboardSetpoint | api.AttitudeSetpoint, now_s: float) -> None:
-        if isinstance(setpoint, api.OffboardSetpoint):
-            self.vehicle.set_offboard_setpoint(
-                TrajectorySetpoint(
-                    pos_ned_m=setpoint.pos_ned_m,
-                    vel_ned_mps=setpoint.vel_ned_mps,
-                    acc_ned_mps2=setpoint.acc_ned_mps2,
-                    yaw_rad=setpoint.yaw_rad,
-                    yawspeed_radps=setpoint.yaw_rate_radps,
-                ),
-                now_s,
-            )
-            return
-        q = setpoint.q_wxyz
-        rates = setpoint.body_rates_frd_radps
-        thrust = setpoint.thrust if math.isfinite(setpoint.thrust) else 0.0
-        attitude = CascadeAttitudeSetpoint(
-            att_q=q if all(math.isfinite(c) for c in q) else None,
-            thrust_n=thrust * self.vehicle.cascade.collective_max_n,
-            rates_sp_frd_radps=tuple(r if math.isfinite(r) else 0.0 for r in rates),  # type: ignore[arg-type]
-        )
-        self.vehicle.set_offboard_setpoint(attitude, now_s)
+    def set_offboard_setpoint(self, setpoint: TrajectorySetpoint | AttitudeSetpoint, now_s: float) -> None:
+        self.vehicle.set_offboard_setpoint(setpoint, now_s)
 
     def command(self, request: api.VehicleRequest, now_s: float) -> api.CommandOutcome:
         outcome = self._command(request, now_s)

@@ -26,13 +26,12 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.autopilot.vehicle_api import (
     NAN3,
-    AttitudeSetpoint,
     GeoPoint,
-    OffboardSetpoint,
     Vec3,
     VehicleApi,
     VehicleSnapshot,
 )
+from sitl.control.cascade import AttitudeSetpoint, TrajectorySetpoint
 from sitl.dynamics.geodesy import ned_from_geo
 from sitl.protocol.core import (
     Effect,
@@ -179,13 +178,13 @@ def _vel_acc(msg: MAVLinkMessage, mask: int) -> tuple[Vec3, Vec3]:
     return vel, acc
 
 
-def _finish(pos: Vec3, vel: Vec3, acc: Vec3, yaw: float, yaw_rate: float) -> OffboardSetpoint:
+def _finish(pos: Vec3, vel: Vec3, acc: Vec3, yaw: float, yaw_rate: float) -> TrajectorySetpoint:
     if not (_is_set(pos) or _is_set(vel) or _is_set(acc)):
         raise SetpointRejected("setpoint has no position, velocity or acceleration")
-    return OffboardSetpoint(pos_ned_m=pos, vel_ned_mps=vel, acc_ned_mps2=acc, yaw_rad=yaw, yaw_rate_radps=yaw_rate)
+    return TrajectorySetpoint(pos_ned_m=pos, vel_ned_mps=vel, acc_ned_mps2=acc, yaw_rad=yaw, yawspeed_radps=yaw_rate)
 
 
-def decode_local_ned(msg: MAVLinkMessage, pose: VehiclePose) -> OffboardSetpoint:
+def decode_local_ned(msg: MAVLinkMessage, pose: VehiclePose) -> TrajectorySetpoint:
     """SET_POSITION_TARGET_LOCAL_NED -> absolute local NED setpoint (see the module docstring for frames)."""
     frame = read_int(msg, "coordinate_frame", lo=0, hi=255)
     mask = read_int(msg, "type_mask", lo=0, hi=0xFFFF)
@@ -214,7 +213,7 @@ def decode_local_ned(msg: MAVLinkMessage, pose: VehiclePose) -> OffboardSetpoint
     return _finish(pos, vel, acc, yaw, yaw_rate)
 
 
-def decode_global_int(msg: MAVLinkMessage, pose: VehiclePose) -> OffboardSetpoint:
+def decode_global_int(msg: MAVLinkMessage, pose: VehiclePose) -> TrajectorySetpoint:
     """SET_POSITION_TARGET_GLOBAL_INT -> absolute local NED setpoint (projected around the local origin)."""
     frame = read_int(msg, "coordinate_frame", lo=0, hi=255)
     mask = read_int(msg, "type_mask", lo=0, hi=0xFFFF)
@@ -250,7 +249,8 @@ def decode_global_int(msg: MAVLinkMessage, pose: VehiclePose) -> OffboardSetpoin
 
 
 def decode_attitude_target(msg: MAVLinkMessage) -> AttitudeSetpoint:
-    """SET_ATTITUDE_TARGET -> attitude/body-rate/thrust setpoint (NaN for ignored parts)."""
+    """SET_ATTITUDE_TARGET -> attitude (None when ignored) or body rates (0 for an ignored axis), and a normalised
+    thrust (0 when ignored)."""
     mask = read_int(msg, "type_mask", lo=0, hi=255)
     q_raw = read_floats(msg, "q", 4)
     q = (NAN, NAN, NAN, NAN)
@@ -273,7 +273,15 @@ def decode_attitude_target(msg: MAVLinkMessage) -> AttitudeSetpoint:
         thrust = max(0.0, thrust)  # a multicopter cannot push down
     if math.isnan(q[0]) and not _is_set(rates):
         raise SetpointRejected("attitude setpoint has neither attitude nor body rates")
-    return AttitudeSetpoint(q_wxyz=q, body_rates_frd_radps=rates, thrust=thrust)
+    return AttitudeSetpoint(
+        att_q=q if all(math.isfinite(c) for c in q) else None,
+        thrust=thrust if math.isfinite(thrust) else 0.0,
+        rates_sp_frd_radps=(_or_zero(rates[0]), _or_zero(rates[1]), _or_zero(rates[2])),
+    )
+
+
+def _or_zero(value: float) -> float:
+    return value if math.isfinite(value) else 0.0
 
 
 class OffboardService:
@@ -302,7 +310,7 @@ class OffboardService:
         try:
             if not addressed_to(msg, self._identity):
                 return []
-            setpoint: OffboardSetpoint | AttitudeSetpoint
+            setpoint: TrajectorySetpoint | AttitudeSetpoint
             if msg_id == mavlink.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET:
                 setpoint = decode_attitude_target(msg)
             else:

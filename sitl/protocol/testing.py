@@ -18,7 +18,6 @@ from pymavlink.dialects.v20 import common as mavlink
 from sitl.autopilot.px4_modes import Px4Mode
 from sitl.autopilot.vehicle_api import (
     Arm,
-    AttitudeSetpoint,
     BatteryStatus,
     CommandOutcome,
     CommandResult,
@@ -31,7 +30,6 @@ from sitl.autopilot.vehicle_api import (
     MissionItem,
     MissionProgress,
     MissionState,
-    OffboardSetpoint,
     SetFence,
     SetMission,
     SetMissionCurrent,
@@ -39,6 +37,7 @@ from sitl.autopilot.vehicle_api import (
     VehicleRequest,
     VehicleSnapshot,
 )
+from sitl.control.cascade import AttitudeSetpoint, TrajectorySetpoint
 from sitl.dynamics.plant import DEFAULT_HOME
 from sitl.protocol.core import Effect, MAVLinkMessage, Send
 
@@ -82,7 +81,7 @@ class FakeVehicle:
         self.request_times: list[float] = []
         self.outcomes: dict[type, CommandOutcome] = {}
         self.mission: list[MissionItem] = []
-        self.setpoints: list[tuple[OffboardSetpoint | AttitudeSetpoint, float]] = []
+        self.setpoints: list[tuple[TrajectorySetpoint | AttitudeSetpoint, float]] = []
         self.fence: list[MissionItem] = []
         self.gcs_heartbeats: list[float] = []
         self.link_silent_until_s = -math.inf
@@ -102,7 +101,7 @@ class FakeVehicle:
     def mission_items(self) -> Sequence[MissionItem]:
         return tuple(self.mission)
 
-    def set_offboard_setpoint(self, setpoint: OffboardSetpoint | AttitudeSetpoint, now_s: float) -> None:
+    def set_offboard_setpoint(self, setpoint: TrajectorySetpoint | AttitudeSetpoint, now_s: float) -> None:
         self.setpoints.append((setpoint, now_s))
 
     def fence_items(self) -> Sequence[MissionItem]:

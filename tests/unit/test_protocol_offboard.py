@@ -7,7 +7,8 @@ import math
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.autopilot.vehicle_api import NAN3, AttitudeSetpoint, OffboardSetpoint
+from sitl.autopilot.vehicle_api import NAN3
+from sitl.control.cascade import AttitudeSetpoint, TrajectorySetpoint
 from sitl.dynamics.geodesy import geo_from_ned
 from sitl.protocol.core import Identity, MAVLinkMessage
 from sitl.protocol.offboard import (
@@ -57,7 +58,7 @@ def test_mavsdk_position_and_yaw_mask() -> None:
     sp = decode_local_ned(local(mavlink.MAV_FRAME_LOCAL_NED, POSITION_YAW, pos=(1, 2, -3), yaw=0.5), POSE)
     assert sp.pos_ned_m == (1.0, 2.0, -3.0)
     assert isclose_tuple(sp.vel_ned_mps, NAN3) and isclose_tuple(sp.acc_ned_mps2, NAN3)
-    assert sp.yaw_rad == 0.5 and math.isnan(sp.yaw_rate_radps)
+    assert sp.yaw_rad == 0.5 and math.isnan(sp.yawspeed_radps)
 
 
 def test_mavsdk_velocity_and_yaw_mask() -> None:
@@ -164,15 +165,15 @@ def attitude(mask: int, q: tuple[float, ...], rates: Triple = (0.0, 0.0, 0.0), t
 
 def test_attitude_target_with_thrust() -> None:
     sp = decode_attitude_target(attitude(0b0000_0111, (1, 0, 0, 0), thrust=0.6))
-    assert sp.q_wxyz == (1.0, 0.0, 0.0, 0.0)
-    assert isclose_tuple(sp.body_rates_frd_radps, NAN3)
+    assert sp.att_q == (1.0, 0.0, 0.0, 0.0)
+    assert sp.rates_sp_frd_radps == (0.0, 0.0, 0.0)  # ignored: none asked
     assert sp.thrust == pytest.approx(0.6)
 
 
 def test_body_rates_only() -> None:
     sp = decode_attitude_target(attitude(0b1000_0000, (0, 0, 0, 0), rates=(0.1, 0.2, 0.3)))
-    assert math.isnan(sp.q_wxyz[0])
-    assert isclose_tuple(sp.body_rates_frd_radps, (0.1, 0.2, 0.3))
+    assert sp.att_q is None
+    assert isclose_tuple(sp.rates_sp_frd_radps, (0.1, 0.2, 0.3))
 
 
 @pytest.mark.parametrize(
@@ -195,7 +196,7 @@ def test_service_forwards_setpoints_with_their_arrival_time() -> None:
     assert service.handle(local(1, POSITION_YAW, pos=(0, 0, -5)), 3.25) == []
     assert service.handle(attitude(0b0000_0111, (1, 0, 0, 0)), 3.5) == []
     (sp, t), (att, t2) = vehicle.setpoints
-    assert isinstance(sp, OffboardSetpoint) and sp.pos_ned_m == (0.0, 0.0, -5.0) and t == 3.25
+    assert isinstance(sp, TrajectorySetpoint) and sp.pos_ned_m == (0.0, 0.0, -5.0) and t == 3.25
     assert isinstance(att, AttitudeSetpoint) and t2 == 3.5
 
 
