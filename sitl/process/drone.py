@@ -15,6 +15,7 @@ import sys
 import time
 import traceback
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
 
@@ -26,6 +27,7 @@ from sitl.onboard.runner import OnboardRunner
 from sitl.process.mavlink_io import MavlinkEndpoint
 from sitl.process.specs import DroneSpec, ProcessSpec
 from sitl.protocol import Identity
+from sitl.protocol.neighbours import NeighbourTable
 from sitl.protocol.signing import SIGN_ALWAYS, SIGN_CFG_PARAM, key_id
 from sitl.world.linkmodel import drone_channels
 from sitl.world.mesh import MeshMedium, MeshRadio
@@ -82,6 +84,122 @@ class DroneLogRouter(logging.Handler):
             print(text, file=sys.stderr, flush=True)
 
 
+@dataclass(frozen=True, slots=True)
+class DroneParts:
+    """What a drone is made of, built and wired by ``build_drone``."""
+
+    output: DroneOutput
+    sim: ClosedLoop
+    flight: DemoFlight | None
+    world: SharedWorld | None
+    participant: WorldParticipant | None
+    endpoint: MavlinkEndpoint | None
+    mesh: MeshRadio | None
+    awareness: Awareness
+    onboard: OnboardRunner | None
+
+
+def build_drone(spec: DroneSpec, common: ProcessSpec, *, clock_ns: Callable[[], int]) -> Drone:
+    """One drone from its spec, every part built and wired here, in the order each needs the others: the closed
+    loop, its place in the shared world, the neighbour table, the mesh radio, the onboard behaviour, the cameras,
+    and the MAVLink links that serve them all."""
+    output = DroneOutput(spec.instance, spec.log_path)
+
+    def say(text: str) -> None:
+        output.say(f"sitl {spec.instance}: {text}")
+
+    behaviour = common.behaviour
+    sim = ClosedLoop(SimConfig(airframe=common.airframe, seed=spec.seed, home=spec.home, wind=common.wind),
+                     params=build_param_store(behaviour.params) if behaviour is not None else None)  # fmt: skip
+    sim.part_clock_ns = clock_ns
+    airframe = common.airframe
+    pace = common.speed_factor
+    speed = "lockstep" if common.lockstep else "unpaced" if pace == 0 else f"{pace:g}x real time"
+    home = spec.home
+    say(
+        f"airframe {airframe.name} ({airframe.mass_kg:.2f} kg, hover at "
+        f"{airframe.hover_thrust_fraction:.0%} of max thrust), seed {spec.seed}, {speed}, "
+        f"physics {1 / sim.dt_s:.0f} Hz, home {home.lat_deg:.6f}, {home.lon_deg:.6f}, {home.alt_amsl_m:.1f} m"
+    )
+    flight = DemoFlight(sim, say) if common.demo else None
+    # Each drone maps the world itself, so that ending one (which unmaps it) leaves the others' mappings alone.
+    world = SharedWorld.attach(common.world_name) if common.world_name else None
+    # The body rests with its centre where it rests now, at boot on its gear: that is where it comes to lie if it
+    # falls.
+    participant = (
+        WorldParticipant(
+            world,
+            spec.instance,
+            airframe.collision_radius_m,
+            rest_alt_amsl_m=sim.truth.geo.alt_amsl_m,
+            epoch_steps=lockstep_epoch_steps(common.lockstep_quantum) if common.lockstep else None,
+        )
+        if world is not None
+        else None
+    )
+    api = SimVehicleApi(sim)
+    identity = Identity(sysid=spec.instance + 1)
+    if common.signing_required:
+        sim.params.set(SIGN_CFG_PARAM, SIGN_ALWAYS)
+    linked = bool(spec.links)
+    # One neighbour table, fed by whichever link the relayed positions arrive on and by the mesh radio.
+    neighbours = NeighbourTable(identity.sysid) if linked else None
+    # The drone-to-drone mesh: a radio on the shared world's medium (sitl/world/mesh.py), heard after every step.
+    mesh = (
+        MeshRadio(MeshMedium(world, spec.instance), common.mesh, common.links.neighbour, seed=spec.seed,
+                  quantum_steps=common.lockstep_quantum if common.lockstep else None)
+        if common.mesh is not None and world is not None and linked
+        else None
+    )  # fmt: skip
+    # An onboard behaviour, run beside the autopilot as a companion computer runs one (sitl/onboard).
+    onboard = (
+        OnboardRunner(behaviour, sysid=identity.sysid, vehicle=sim.vehicle, params=sim.params,
+                      estimate=lambda: sim.estimate, relayed=sim.vehicle.collision_prevention.relayed,
+                      camera=sim.vehicle.collision_prevention.camera)
+        if behaviour is not None
+        else None
+    )  # fmt: skip
+    awareness = Awareness(
+        sim,
+        spec.instance,
+        api.frame,
+        world=world,
+        neighbours=neighbours,
+        frames_dir=spec.camera_frames,
+        shared_clock=common.lockstep and world is not None,
+        clock_ns=clock_ns,
+    )
+    impaired = linked and not common.links.is_perfect
+    endpoint = (
+        MavlinkEndpoint(
+            identity, api, sim.params, list(spec.links), signing_key=common.signing_key, neighbours=neighbours,
+            camera=awareness.image,  # MAVLink image requests: what the cameras see now
+            on_named_value=onboard.receive if onboard is not None else None, mesh=mesh,
+            channels=drone_channels(common.links, seed=spec.seed) if impaired else None,
+        )
+        if linked
+        else None
+    )  # fmt: skip
+    if impaired:
+        say(f"links: {common.links.describe()}")
+    if mesh is not None and common.mesh is not None:
+        say(f"mesh radio: {common.mesh.describe()}")
+    if behaviour is not None:
+        say(f"onboard behaviour {behaviour.name} ({behaviour.spec}) at {behaviour.rate_hz:g} Hz; BHV_EN = 1 runs it")
+    for link in endpoint.links if endpoint is not None else []:
+        remote = link.config.remote
+        say(
+            f"MAVLink {link.config.name} link on udp {link.config.bind[0]}:{link.port}"
+            + (f", streaming to {remote[0]}:{remote[1]}" if remote else "")
+        )
+    if common.signing_key is not None or common.signing_required:
+        key = f"key {key_id(common.signing_key)}" if common.signing_key is not None else "no key yet"
+        say(f"MAVLink signing: {key}, MAV_SIGN_CFG {sim.params[SIGN_CFG_PARAM]:g}")
+    parts = DroneParts(output=output, sim=sim, flight=flight, world=world, participant=participant,
+                       endpoint=endpoint, mesh=mesh, awareness=awareness, onboard=onboard)  # fmt: skip
+    return Drone(spec, common, parts, clock_ns=clock_ns)
+
+
 class Drone:
     """One drone: built from its spec, then stepped, fed and polled by its process's loop (sitl/process/runtime.py).
 
@@ -89,51 +207,20 @@ class Drone:
     falls silent, as a crashed process does) and its body falls in the shared world; the other drones of its process
     fly on."""
 
-    def __init__(self, spec: DroneSpec, common: ProcessSpec, *, clock_ns: Callable[[], int]) -> None:
+    def __init__(self, spec: DroneSpec, common: ProcessSpec, parts: DroneParts, *, clock_ns: Callable[[], int]) -> None:
+        """A drone of ``parts`` (``build_drone`` makes them and says what it built)."""
         self.instance = spec.instance
-        self.output = DroneOutput(spec.instance, spec.log_path)
+        self.output = parts.output
         self.ended = False
         self.failed = False
-        behaviour = common.behaviour
-        sim = ClosedLoop(SimConfig(airframe=common.airframe, seed=spec.seed, home=spec.home, wind=common.wind),
-                         params=build_param_store(behaviour.params) if behaviour is not None else None)  # fmt: skip
-        self.sim = sim
-        airframe = common.airframe
-        pace = common.speed_factor
-        speed = "lockstep" if common.lockstep else "unpaced" if pace == 0 else f"{pace:g}x real time"
-        home = spec.home
-        self.say(
-            f"airframe {airframe.name} ({airframe.mass_kg:.2f} kg, hover at "
-            f"{airframe.hover_thrust_fraction:.0%} of max thrust), seed {spec.seed}, {speed}, "
-            f"physics {1 / sim.dt_s:.0f} Hz, home {home.lat_deg:.6f}, {home.lon_deg:.6f}, {home.alt_amsl_m:.1f} m"
-        )
-        self.flight = DemoFlight(sim, self.say) if common.demo else None
-        # Each drone maps the world itself, so that ending one (which unmaps it) leaves the others' mappings alone.
-        world = SharedWorld.attach(common.world_name) if common.world_name else None
-        self.world = world
-        # The body rests with its centre where it rests now, at boot on its gear: that is where it comes to lie if it
-        # falls.
-        rest_alt = sim.truth.geo.alt_amsl_m
-        self.participant = (
-            WorldParticipant(
-                world,
-                spec.instance,
-                airframe.collision_radius_m,
-                rest_alt_amsl_m=rest_alt,
-                epoch_steps=lockstep_epoch_steps(common.lockstep_quantum) if common.lockstep else None,
-            )
-            if world is not None
-            else None
-        )
-        api = SimVehicleApi(sim)
-        identity = Identity(sysid=spec.instance + 1)
-        if common.signing_required:
-            sim.params.set(SIGN_CFG_PARAM, SIGN_ALWAYS)
-        self.endpoint = (
-            MavlinkEndpoint(identity, api, sim.params, list(spec.links), signing_key=common.signing_key)
-            if spec.links
-            else None
-        )
+        self.sim = parts.sim
+        self.flight = parts.flight
+        self.world = parts.world
+        self.participant = parts.participant
+        self.endpoint = parts.endpoint
+        self.mesh = parts.mesh
+        self.awareness = parts.awareness
+        self.onboard = parts.onboard
         # The link that talks to the swarm's supervisor (the ground-station link streaming to it), for lockstep delivery
         self._supervisor_link = next(
             (link for link in self.endpoint.links if link.link_class == "gcs" and link.config.remote is not None), None
@@ -141,54 +228,9 @@ class Drone:
         self._said_late_traffic = False
         # The link model: only a drone whose links are impaired looks at delay queues after its steps.
         self._impaired = self.endpoint is not None and not common.links.is_perfect
-        if self.endpoint is not None and self._impaired:
-            self.endpoint.impair(drone_channels(common.links, seed=spec.seed))
-            self.say(f"links: {common.links.describe()}")
-        # The drone-to-drone mesh: a radio on the shared world's medium (sitl/world/mesh.py), heard after every step.
-        self.mesh: MeshRadio | None = None
-        if common.mesh is not None and world is not None and self.endpoint is not None:
-            self.mesh = MeshRadio(
-                MeshMedium(world, spec.instance), common.mesh, common.links.neighbour, seed=spec.seed,
-                quantum_steps=common.lockstep_quantum if common.lockstep else None,
-            )  # fmt: skip
-            self.endpoint.attach_mesh(self.mesh)
-            self.say(f"mesh radio: {common.mesh.describe()}")
-        sim.part_clock_ns = clock_ns
-        self.awareness = Awareness(
-            sim,
-            spec.instance,
-            api.frame,
-            world=world,
-            neighbours=self.endpoint.neighbours if self.endpoint is not None else None,
-            frames_dir=spec.camera_frames,
-            shared_clock=common.lockstep and world is not None,
-            clock_ns=clock_ns,
-        )
-        if self.endpoint is not None:
-            self.endpoint.camera = self.awareness.image  # MAVLink image requests: what the cameras see now
         self._clock_ns = clock_ns
         self.link_ns = 0
         self._steps = 0
-        # An onboard behaviour, run beside the autopilot as a companion computer runs one (sitl/onboard).
-        self.onboard: OnboardRunner | None = None
-        if behaviour is not None:
-            prevention = sim.vehicle.collision_prevention
-            self.onboard = OnboardRunner(behaviour, sysid=identity.sysid, vehicle=sim.vehicle, params=sim.params,
-                                         estimate=lambda: sim.estimate, relayed=prevention.relayed,
-                                         camera=prevention.camera)  # fmt: skip
-            if self.endpoint is not None:
-                self.endpoint.on_named_value = self.onboard.receive
-            self.say(f"onboard behaviour {behaviour.name} ({behaviour.spec}) at {behaviour.rate_hz:g} Hz; "
-                     f"BHV_EN = 1 runs it")  # fmt: skip
-        for link in self.endpoint.links if self.endpoint is not None else []:
-            remote = link.config.remote
-            self.say(
-                f"MAVLink {link.config.name} link on udp {link.config.bind[0]}:{link.port}"
-                + (f", streaming to {remote[0]}:{remote[1]}" if remote else "")
-            )
-        if common.signing_key is not None or common.signing_required:
-            key = f"key {key_id(common.signing_key)}" if common.signing_key is not None else "no key yet"
-            self.say(f"MAVLink signing: {key}, MAV_SIGN_CFG {sim.params[SIGN_CFG_PARAM]:g}")
 
     def say(self, text: str) -> None:
         self.output.say(f"sitl {self.instance}: {text}")

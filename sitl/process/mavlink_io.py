@@ -246,9 +246,14 @@ class MavlinkEndpoint:
 
     def __init__(
         self, identity: Identity, vehicle: VehicleApi, params: ParamStore, links: list[LinkConfig], *,
-        signing_key: bytes | None = None,
+        signing_key: bytes | None = None, neighbours: NeighbourTable | None = None, camera: ImageSource | None = None,
+        on_named_value: Callable[[GroundMessage], None] | None = None, mesh: MeshRadio | None = None,
+        channels: dict[tuple[LinkClass, Direction], LinkChannel] | None = None,
     ) -> None:  # fmt: skip
-        """``signing_key``: sign everything sent with it from boot (SETUP_SIGNING may install one later)."""
+        """``signing_key``: sign everything sent with it from boot (SETUP_SIGNING may install one later);
+        ``neighbours``: the drone's neighbour table (its own, when not given); ``camera``: what the drone's cameras
+        see, for image requests; ``on_named_value``: where a NAMED_VALUE_FLOAT sent to the drone goes (an onboard
+        behaviour); ``mesh``: the drone's mesh radio (``attach_mesh``); ``channels``: the link model's (``impair``)."""
         self.links: list[UdpLink] = []
         self._vehicle = vehicle
         # One key and one set of incoming streams for all links, as PX4 keeps them; MAV_SIGN_CFG says whether
@@ -260,9 +265,9 @@ class MavlinkEndpoint:
         )  # fmt: skip
         self.silenced = False  # while an injected MAVLink failure is in force: nothing is sent or read
         # Where a NAMED_VALUE_FLOAT sent to this drone goes (an onboard behaviour's messages, sitl/onboard)
-        self.on_named_value: Callable[[GroundMessage], None] | None = None
-        # What the drone's camera sees, for MAVLink image requests (sitl/protocol/images.py); set once it has one
-        self.camera: ImageSource | None = None
+        self.on_named_value = on_named_value
+        # What the drone's camera sees, for MAVLink image requests (sitl/protocol/images.py)
+        self.camera = camera
         self._silent_until_s = -math.inf  # simulated time it ends (inf: for good)
         self._sysid = identity.sysid
         # The link model (``impair``): channels by class and direction, and what arrived but is delayed.
@@ -270,7 +275,7 @@ class MavlinkEndpoint:
         self._inbox: DelayLine[tuple[UdpLink, MAVLinkMessage]] = DelayLine()
         self._delaying: list[UdpLink] = []  # the links whose sending goes through a channel
         # One table for the drone, fed by whichever link the relayed positions arrive on, and by the mesh radio.
-        self.neighbours = NeighbourTable(identity.sysid)
+        self.neighbours = neighbours if neighbours is not None else NeighbourTable(identity.sysid)
         self._identity = identity
         self.mesh: MeshRadio | None = None  # the drone-to-drone mesh radio (``attach_mesh``)
         self._mesh_link_id = 0
@@ -288,6 +293,10 @@ class MavlinkEndpoint:
         except LinkError:
             self.close()
             raise
+        if mesh is not None:
+            self.attach_mesh(mesh)
+        if channels is not None:
+            self.impair(channels)
 
     def _camera_image(self, kind: int, quality: int) -> EncodedImage | None:
         return self.camera(kind, quality) if self.camera is not None else None

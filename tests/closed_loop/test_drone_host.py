@@ -18,7 +18,7 @@ from sitl.dynamics.airframe import load_airframe
 from sitl.dynamics.geodesy import geo_from_ned
 from sitl.dynamics.plant import DEFAULT_HOME
 from sitl.dynamics.wind import WindConfig
-from sitl.process.drone import Drone, DroneLogRouter, cpu_clock
+from sitl.process.drone import Drone, DroneLogRouter, build_drone, cpu_clock
 from sitl.process.runtime import RunOptions, StopFlag, run_loop
 from sitl.process.specs import DroneSpec, ProcessSpec
 from sitl.world.shared import END_FAILED, END_STOPPED, SharedWorld
@@ -52,7 +52,7 @@ def host(world: SharedWorld, tmp_path: Path, count: int) -> list[Drone]:
         )
         for i in range(count)
     ]
-    return [Drone(spec, common, clock_ns=cpu_clock(True)) for spec in specs]
+    return [build_drone(spec, common, clock_ns=cpu_clock(True)) for spec in specs]
 
 
 def test_an_exception_in_one_hosted_drone_ends_it_alone(world: SharedWorld, tmp_path: Path) -> None:
@@ -103,7 +103,7 @@ def test_hosted_drones_fly_exactly_as_lone_ones(world: SharedWorld, tmp_path: Pa
 
     def fly(instances: list[int]) -> dict[int, tuple[float, ...]]:
         drones = [
-            Drone(
+            build_drone(
                 DroneSpec(instance=i, seed=i, home=DEFAULT_HOME, links=(), log_path=tmp_path / f"d{i}.log"),
                 common,
                 clock_ns=cpu_clock(False),
