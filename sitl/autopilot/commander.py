@@ -132,7 +132,6 @@ class Vehicle:
         self._armed_since_s = 0.0
         self._home_ned_m = np.zeros(3)
         self._home_yaw_rad = 0.0
-        self.mission = MissionExecutor()
         self.collision_prevention = CollisionPrevention(
             params, cascade.position, airframe.collision_radius_m, self.event
         )
@@ -432,13 +431,15 @@ class Vehicle:
         self._held = None
         return ACCEPTED
 
+    @property
+    def mission(self) -> MissionExecutor:
+        """The uploaded mission and its progress, as the Mission unit keeps it."""
+        return self.units.mission.executor
+
     def set_mission(self, items: tuple[NavItem, ...]) -> CommandOutcome:
         """Replace the mission; flying it continues from the first item if the vehicle is in AUTO.MISSION."""
-        self.mission.load(items)
+        self.units.mission.load(items, flying_it=self.status.mode is Px4Mode.AUTO_MISSION)
         self._held = None
-        self.units.mission.leave_landing()
-        if self.status.mode is Px4Mode.AUTO_MISSION and items:
-            self.mission.start()
         return ACCEPTED
 
     def retarget_mission(self, items: tuple[NavItem, ...]) -> None:

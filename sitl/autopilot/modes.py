@@ -22,7 +22,7 @@ import numpy as np
 
 from sitl.autopilot.guidance import MotionLimits, StraightLineTrajectory
 from sitl.autopilot.mission_exec import MissionAction, MissionExecutor, MissionRun
-from sitl.autopilot.mission_plan import NavKind
+from sitl.autopilot.mission_plan import NavItem, NavKind
 from sitl.autopilot.px4_modes import Px4Mode
 from sitl.autopilot.vehicle_api import CommandOutcome, LandedState
 from sitl.control.cascade import AttitudeSetpoint, TrajectorySetpoint
@@ -47,7 +47,6 @@ class ModeContext(Protocol):
     target_ned_m: Vec3
     target_yaw_rad: float
     speed_override_mps: float
-    mission: MissionExecutor
 
     @property
     def landed(self) -> bool: ...
@@ -234,6 +233,7 @@ class Mission(TrackTarget):
     mode = Px4Mode.AUTO_MISSION
 
     def __init__(self) -> None:
+        self.executor = MissionExecutor()  # the uploaded mission and how far it has been flown
         self.phase = MissionPhase.NAVIGATE
         self.climb_down_m = math.nan  # the automatic takeoff's target while in MissionPhase.CLIMB
 
@@ -242,16 +242,20 @@ class Mission(TrackTarget):
         self.climb_down_m = math.nan
 
     def exit(self, v: ModeContext) -> None:
-        v.mission.pause()
+        self.executor.pause()
         self.reset()
 
-    def leave_landing(self) -> None:
-        """A new mission replaces the one whose LAND item was being flown."""
+    def load(self, items: tuple[NavItem, ...], *, flying_it: bool) -> None:
+        """Replace the mission; ``flying_it`` (the vehicle is in AUTO.MISSION): fly it from its first item. A new
+        mission replaces the one whose LAND item was being flown."""
+        self.executor.load(items)
         if self.phase is MissionPhase.LAND:
             self.phase = MissionPhase.NAVIGATE
+        if flying_it and items:
+            self.executor.start()
 
     def advance(self, v: ModeContext, est: Estimate, now_s: float) -> None:
-        mission = v.mission
+        mission = self.executor
         if v.landed and mission.state is MissionRun.ACTIVE and self.phase is not MissionPhase.CLIMB:
             first = mission.items[mission.index]
             if first.kind is not NavKind.TAKEOFF:
@@ -285,14 +289,14 @@ class Mission(TrackTarget):
             v.start_goto(target, action.yaw_rad)
 
     def wants_air(self, v: ModeContext) -> bool:
-        return not v.landed or (v.mission.state is MissionRun.ACTIVE and self.phase is not MissionPhase.LAND)
+        return not v.landed or (self.executor.state is MissionRun.ACTIVE and self.phase is not MissionPhase.LAND)
 
     def descending_to_land(self) -> bool:
         return self.phase is MissionPhase.LAND
 
     def on_touchdown(self, v: ModeContext, est: Estimate, now_s: float) -> None:
         if self.phase is MissionPhase.LAND:
-            v.mission.step(now_s, est.pos_ned_m, True, v.p("NAV_ACC_RAD"))  # the LAND item is done
+            self.executor.step(now_s, est.pos_ned_m, True, v.p("NAV_ACC_RAD"))  # the LAND item is done
         else:
             super().on_touchdown(v, est, now_s)
 
