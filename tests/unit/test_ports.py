@@ -3,6 +3,8 @@ with nothing, so that no drone hears another's API traffic; the limits both side
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from itertools import combinations
 
 import pytest
@@ -79,3 +81,12 @@ def test_the_ground_station_and_the_simulation_agree_on_the_instances() -> None:
     assert MAX_DRONES == GCS_SYSID - 1 == INSTANCES == MAX_INSTANCES
     assert LAST_INSTANCE == MAX_INSTANCE == 253
     assert MAX_INSTANCES <= WORLD_ROWS  # one shared-world row each
+
+
+def test_the_old_path_still_gives_the_ports_and_says_where_they_moved() -> None:
+    # scripts written against sitl.ports (the examples of earlier releases) keep working, told once where to go
+    code = "from sitl.ports import instance_ports; print(instance_ports(3).api_bind)"
+    result = subprocess.run([sys.executable, "-W", "always::DeprecationWarning", "-c", code], capture_output=True,
+                            text=True, timeout=60)  # fmt: skip
+    assert result.returncode == 0 and result.stdout.strip() == "14583", result
+    assert "sitl.ports moved to sitl.process.ports" in result.stderr
