@@ -5,7 +5,7 @@ them before anything is spawned; a drone checks its ``--link`` and ``--mesh`` op
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Final, Literal
 
 LinkClass = Literal["gcs", "api", "neighbour"]
@@ -30,6 +30,19 @@ def value_problem(key: str, value: object) -> str | None:
     if key == "bandwidth_bps" and value <= 0:
         return f"bandwidth_bps must be > 0 (leave it out for no cap), got {value:g}"
     return None
+
+
+def parse_value(key: str, text: str, problem_of: Callable[[str, float], str | None] = value_problem) -> float:
+    """A number for ``key`` from a command line's text, checked by ``problem_of``; ValueError with the one line that
+    says why it is none."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"{key} must be a number, got {text!r}") from None
+    problem = problem_of(key, value)
+    if problem is not None:
+        raise ValueError(problem)
+    return value
 
 
 def settings_problem(values: Mapping[str, float]) -> str | None:

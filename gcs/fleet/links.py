@@ -12,7 +12,7 @@ range and path loss (``MeshPlan``).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Final
 
@@ -23,6 +23,7 @@ from swarmcommon.links import (
     LINK_KEYS,
     MESH_KEYS,
     mesh_value_problem,
+    parse_value,
     settings_problem,
     value_problem,
 )
@@ -142,19 +143,7 @@ LINK_OPTIONS: Final = {
 
 def parse_link_value(key: str, text: str) -> float:
     """One ``--link-*`` option's value; ValueError with the one line that says why it is no value for ``key``."""
-    return _parse_value(key, text, value_problem)
-
-
-def _parse_value(key: str, text: str, problem_of: Callable[[str, float], str | None]) -> float:
-    """A number for ``key``, checked by ``problem_of``; ValueError with the one line that says why it is none."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise ValueError(f"{key} must be a number, got {text!r}") from None
-    problem = problem_of(key, value)
-    if problem is not None:
-        raise ValueError(problem)
-    return value
+    return parse_value(key, text, value_problem)
 
 
 # ---- how neighbours' positions travel: the ground station's relay, the drone-to-drone mesh, or both -------------
@@ -210,4 +199,4 @@ class NeighbourPlan:
 
 def parse_mesh_value(key: str, text: str) -> float:
     """One mesh option's value (``--mesh-range-m``); ValueError with the one line that says why it is no value."""
-    return _parse_value(key, text, mesh_value_problem)
+    return parse_value(key, text, mesh_value_problem)

@@ -16,7 +16,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Literal
 
-from gcs.command.streamer import FormationStreamer
 from gcs.fleet.harness import Simulation, SpawnPlan
 from gcs.fleet.links import LinkPlan
 from gcs.fleet.losses import LossPolicy
@@ -97,14 +96,6 @@ class MissionRunner:
         self._pending_faults: list[tuple[float, FaultStep]] = []  # (mission time due, step)
         self.view = view  # the live view, if one is served: fed once the drones are up
 
-    @property
-    def streamer(self) -> FormationStreamer:
-        return self.session.streamer
-
-    @property
-    def recording(self) -> FlightRecording:
-        return self.session.recording
-
     # ---- time and telemetry ----------------------------------------------------------------------------------------
     def now(self) -> float:
         """Mission time in simulated seconds (the supervisor's clock: paced wall time or the lockstep clock)."""
@@ -123,7 +114,7 @@ class MissionRunner:
             self._next_status_s = now + STATUS_EVERY_S
             pace = ""
             if rate is not None:  # the report keeps the reading of each status line
-                self.recording.realtime_factors.append(rate)
+                self.session.recording.realtime_factors.append(rate)
                 pace = f"  rtf {rate:.2f}"
             recorder = self.session.recorder
             live = recorder.live.status().line() if recorder is not None else ""
@@ -136,11 +127,11 @@ class MissionRunner:
         self._pending_faults = [(t, step) for t, step in self._pending_faults if t > now]
         for _t, step in due:
             sysid = self.swarm.sysids[step.drone - 1]
-            recorded = len(self.recording.faults)
+            recorded = len(self.session.recording.faults)
             try:
                 VERBS["fault"](self.session, sysid, step.fault)
             except SwarmError as exc:
-                if len(self.recording.faults) == recorded:  # not sent (the drone is lost, or did not answer)
+                if len(self.session.recording.faults) == recorded:  # not sent (the drone is lost, or did not answer)
                     self._note(f"fault {step.fault.describe()} on drone {sysid}: not injected: {exc}")
                     self.session.record_fault(sysid, step.fault.describe(), f"not injected: {exc}")
                 # a refusal is the drone's answer, noted and recorded with it: the mission flies on
@@ -263,7 +254,7 @@ class MissionRunner:
             self._do(VERBS["rtl" if isinstance(step, RtlStep) else "land"](self.session, timeout_s=step.timeout_s))
         if isinstance(step, FaultStep):
             return  # an instant, listed with the faults (a zero-length step would only clutter the steps table)
-        self.recording.steps.append(
+        self.session.recording.steps.append(
             StepRecord(
                 index=index,
                 name=name,
@@ -284,9 +275,9 @@ class MissionRunner:
                 if self.swarm.plan.lockstep else f"speed {self.speed:g}x"  # fmt: skip
             self.say(f"mission {self.mission.name}: spawning {self.mission.swarm.drones} drones ({pace})")
             self.swarm.up()
-            self.recording.obstacles = [obstacle_shape(o) for o in self.mission.obstacles]
+            self.session.recording.obstacles = [obstacle_shape(o) for o in self.mission.obstacles]
             if self.view is not None:
-                self.session.serve(self.view, self.recording.obstacles)
+                self.session.serve(self.view, self.session.recording.obstacles)
             self._place_obstacles()
             self._set_params()
             self.session.restart_clock()
@@ -299,11 +290,11 @@ class MissionRunner:
         except (SwarmError, KeyboardInterrupt) as exc:
             failure = exc
         finally:
-            self.streamer.stop()
+            self.session.streamer.stop()
             self.session.take_stock()
             self.swarm.shutdown()
             recorder.close()
-        out = write_report(self.recording, self.report_dir)
+        out = write_report(self.session.recording, self.report_dir)
         self.say((out / "summary.txt").read_text().rstrip())
         if failure is not None:
             raise failure

@@ -14,7 +14,6 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.command.streamer import FormationStreamer
 from gcs.fleet.faults import fault_request
 from gcs.fleet.losses import MAV_STATE_CRITICAL, LossPolicy
 from gcs.fleet.swarm import Swarm, SwarmError
@@ -23,7 +22,6 @@ from gcs.mavlink.mission_transfer import MISSION_STATE_NAMES
 from gcs.missions.mission_file import build_flock, build_follow, build_formation
 from gcs.missions.plan_flight import PlanUsageError, copy_offsets, parse_drones, parse_offsets, spawn_offsets
 from gcs.missions.qgc_plan import PlanFileError, load_plan, plan_text
-from gcs.record.recording import FlightRecording
 from gcs.supervisor.session import FlightSession
 from gcs.supervisor.verbs import STEP_VERBS, VERBS
 from gcs.view.server import ViewServer
@@ -64,14 +62,6 @@ class Station:
             "plan_download": lambda r: {"ok": True, "plan": plan_text(VERBS["plan_download"](
                 self.session, r.get("sysid")).value)},
         }  # fmt: skip
-
-    @property
-    def streamer(self) -> FormationStreamer:
-        return self.session.streamer
-
-    @property
-    def recording(self) -> FlightRecording:
-        return self.session.recording
 
     def serve(self, server: ViewServer) -> None:
         """Feed the live view served by ``server`` from now on (gcs/view)."""

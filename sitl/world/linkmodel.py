@@ -26,7 +26,7 @@ from typing import Final, Generic, Literal, TypeVar
 
 import numpy as np
 
-from swarmcommon.links import LINK_CLASSES, LINK_KEYS, LinkClass, settings_problem, value_problem
+from swarmcommon.links import LINK_CLASSES, LINK_KEYS, LinkClass, parse_value, settings_problem, value_problem
 
 # A radio modem holds a few kilobytes waiting to go on the air: about a second at telemetry-radio rates. A frame
 # that would wait longer is dropped at the sender, as a full buffer drops it; a longer queue would only deliver
@@ -358,14 +358,7 @@ def parse_link_option(text: str) -> tuple[tuple[LinkClass, ...], dict[str, float
             raise ValueError(f"must be CLASS:key=value[,key=value...], got {text!r}")
         if key not in LINK_KEYS:
             raise ValueError(value_problem(key, 0.0))
-        try:
-            number = float(value)
-        except ValueError:
-            raise ValueError(f"{key} must be a number, got {value!r}") from None
-        problem = value_problem(key, number)
-        if problem is not None:
-            raise ValueError(problem)
-        values[key] = number
+        values[key] = parse_value(key, value)
     return classes, values
 
 
