@@ -8,7 +8,8 @@ from collections.abc import Iterator
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.mavlink.transport import MAX_BATCH_BYTES, GcsSocket
+from gcs.mavlink.transport import GcsSocket
+from swarmcommon.datagrams import MAX_BATCH_BYTES
 
 
 @pytest.fixture
