@@ -116,7 +116,7 @@ class Vehicle:
         self.target_ned_m: Vec3 = np.zeros(3)
         self.target_yaw_rad = math.nan
         self.speed_override_mps = math.inf
-        self.units = build_units(self._hover_thrust_n / cascade.collective_max_n)
+        self.units = build_units(self._hover_thrust_n)
         self._unit_of: dict[Px4Mode, ModeUnit] = self.units.by_mode()
         self._unit: ModeUnit = self._unit_of[self.status.mode]
         # The unit the operator (or the normal flow of modes) chose, while a failsafe flies another one: PX4's "user

@@ -353,8 +353,8 @@ class Descend(TrackTarget):
 
     mode = Px4Mode.AUTO_LAND
 
-    def __init__(self, hover_thrust: float) -> None:
-        self.hover_thrust = hover_thrust  # normalised: the collective that holds the vehicle's weight
+    def __init__(self, hover_thrust_n: float) -> None:
+        self.hover_thrust_n = hover_thrust_n
         self.ratio = 1.0
         self.yaw_rad = 0.0
 
@@ -370,7 +370,7 @@ class Descend(TrackTarget):
         else:
             ratio = DESCEND_BLIND_RATIO
         half = 0.5 * self.yaw_rad
-        return AttitudeSetpoint(att_q=(math.cos(half), 0.0, 0.0, math.sin(half)), thrust=ratio * self.hover_thrust)
+        return AttitudeSetpoint(att_q=(math.cos(half), 0.0, 0.0, math.sin(half)), thrust_n=ratio * self.hover_thrust_n)
 
     def wants_air(self, v: ModeContext) -> bool:
         return False
@@ -399,8 +399,8 @@ class Units:
         return {u.mode: u for u in units}
 
 
-def build_units(hover_thrust: float) -> Units:
-    """Every mode unit; ``hover_thrust``: the normalised collective that holds the vehicle's weight (Descend's)."""
+def build_units(hover_thrust_n: float) -> Units:
+    """Every mode unit; ``hover_thrust_n``: the collective that holds the vehicle's weight (Descend's)."""
     return Units(
         hold=Hold(),
         takeoff=Takeoff(),
@@ -408,5 +408,5 @@ def build_units(hover_thrust: float) -> Units:
         rtl=ReturnToLaunch(),
         mission=Mission(),
         offboard=Offboard(),
-        descend=Descend(hover_thrust),
+        descend=Descend(hover_thrust_n),
     )

@@ -132,7 +132,8 @@ class MissionItem:
 # ---- offboard setpoints: the controller's own types (sitl/control/cascade.py), decoded by the services ---------
 # ``TrajectorySetpoint``: absolute local NED, NaN components "not controlled" (type_mask); whatever frame the client
 # used, the services convert it first, and at least one of position, velocity, acceleration is set.
-# ``AttitudeSetpoint``: an attitude or body rates, and a normalised collective thrust.
+# ``AttitudeSetpoint``: an attitude or body rates, and a collective thrust (MAVLink's normalised one times the
+# snapshot's ``collective_max_n``).
 
 
 # ---- requests ----------------------------------------------------------------------------------------------
@@ -400,6 +401,7 @@ class VehicleSnapshot:
     sensors: SensorHealth = field(default_factory=SensorHealth)
     flight_terminated: bool = False
     throttle: float = NAN  # 0..1 collective, for VFR_HUD
+    collective_max_n: float = NAN  # the collective thrust the motors can give: MAVLink's normalised thrust times this
     time_unix_usec: int = 0  # 0: unknown (SYSTEM_TIME is only sent when known)
     cpu_load: float = NAN  # 0..1, SYS_STATUS load
 

@@ -15,7 +15,7 @@ setpoints). At or above the physics rate the outer loops run at every call, and 
 Two entry points, matching the MAVLink setpoints a PX4 vehicle accepts:
 - ``update`` with a ``TrajectorySetpoint`` (SET_POSITION_TARGET_*: position, velocity, acceleration, yaw, yaw
   rate, any field NaN = not set), used by every autopilot mode;
-- ``update_attitude`` with an ``AttitudeSetpoint`` (attitude or body rates, and a normalised thrust).
+- ``update_attitude`` with an ``AttitudeSetpoint`` (attitude or body rates, and a collective thrust).
 """
 
 from __future__ import annotations
@@ -90,15 +90,13 @@ class TrajectorySetpoint:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class AttitudeSetpoint:
-    """An attitude (or None for body-rate control) and a collective thrust: what SET_ATTITUDE_TARGET asks and what a
-    mode that flies attitudes asks (Descend), one type for both, as PX4's vehicle_attitude_setpoint.
-
-    ``thrust`` is normalised as MAVLink's and PX4's: 0..1 of the collective the motors can give, ``thrust *
-    Cascade.collective_max_n`` newtons.
+    """An attitude (or None for body-rate control) and a collective thrust in newtons: what SET_ATTITUDE_TARGET asks
+    (the MAVLink services scale its normalised thrust by the vehicle's ``collective_max_n``) and what a mode that
+    flies attitudes asks (Descend), one type for both, as PX4's vehicle_attitude_setpoint.
     """
 
     att_q: Quat4f | None
-    thrust: float
+    thrust_n: float
     yawspeed_ff_radps: float = _NAN  # heading-rate feed-forward when att_q is set
     rates_sp_frd_radps: Vec3f = (0.0, 0.0, 0.0)  # the setpoint when att_q is None
 
@@ -290,7 +288,7 @@ class Cascade:
         att_q = _floats(state.att_q_frd_to_ned)
         self._yaw_sp_prev = _NAN
         self._forget_outer()  # back on a trajectory setpoint, the outer loops start from the current state
-        collective = setpoint.thrust * self.collective_max_n
+        collective = setpoint.thrust_n
         if setpoint.att_q is None:
             att_sp_q = (att_q[0], att_q[1], att_q[2], att_q[3])
             rates_sp: Vec3f | None = setpoint.rates_sp_frd_radps

@@ -294,6 +294,7 @@ class SimVehicleApi:
                 reached_seq=mission.reached_seq,
             ),
             throttle=status.thrust_n / max(v.cascade.collective_max_n, 1e-9),
+            collective_max_n=v.cascade.collective_max_n,
             sensors=self._sensor_health(),
             flight_terminated=v.crashed,  # a crash or a flight termination: HEARTBEAT FLIGHT_TERMINATION
         )

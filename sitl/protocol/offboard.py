@@ -248,9 +248,9 @@ def decode_global_int(msg: MAVLinkMessage, pose: VehiclePose) -> TrajectorySetpo
     return _finish((north, east, down), vel, acc, yaw, yaw_rate)
 
 
-def decode_attitude_target(msg: MAVLinkMessage) -> AttitudeSetpoint:
-    """SET_ATTITUDE_TARGET -> attitude (None when ignored) or body rates (0 for an ignored axis), and a normalised
-    thrust (0 when ignored)."""
+def decode_attitude_target(msg: MAVLinkMessage, collective_max_n: float) -> AttitudeSetpoint:
+    """SET_ATTITUDE_TARGET -> attitude (None when ignored) or body rates (0 for an ignored axis), and the collective
+    thrust in newtons: the normalised one (0 when ignored) times the vehicle's ``collective_max_n``."""
     mask = read_int(msg, "type_mask", lo=0, hi=255)
     q_raw = read_floats(msg, "q", 4)
     q = (NAN, NAN, NAN, NAN)
@@ -275,7 +275,7 @@ def decode_attitude_target(msg: MAVLinkMessage) -> AttitudeSetpoint:
         raise SetpointRejected("attitude setpoint has neither attitude nor body rates")
     return AttitudeSetpoint(
         att_q=q if all(math.isfinite(c) for c in q) else None,
-        thrust=thrust if math.isfinite(thrust) else 0.0,
+        thrust_n=(thrust if math.isfinite(thrust) else 0.0) * collective_max_n,
         rates_sp_frd_radps=(_or_zero(rates[0]), _or_zero(rates[1]), _or_zero(rates[2])),
     )
 
@@ -312,7 +312,7 @@ class OffboardService:
                 return []
             setpoint: TrajectorySetpoint | AttitudeSetpoint
             if msg_id == mavlink.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET:
-                setpoint = decode_attitude_target(msg)
+                setpoint = decode_attitude_target(msg, self._vehicle.snapshot().collective_max_n)
             else:
                 # An absolute local NED setpoint (what a ground station streams at 20 Hz) needs no pose, and a
                 # vehicle snapshot is most of what decoding one would cost; every other frame reads the pose.

@@ -58,6 +58,7 @@ def make_snapshot(**overrides: Any) -> VehicleSnapshot:
         global_position=HOME,
         att_q_wxyz=(1.0, 0.0, 0.0, 0.0),
         rates_frd_radps=(0.0, 0.0, 0.0),
+        collective_max_n=40.0,
         gps=GpsStatus(fix_type=GpsFixType.FIX_3D, satellites_visible=12, eph_m=0.8, epv_m=1.2, position=HOME),
         battery=BatteryStatus(voltage_v=12.4, current_a=0.5, remaining=0.95, consumed_mah=120.0, cell_count=3),
         home=HomePosition(position=HOME, pos_ned_m=(0.0, 0.0, 0.0), yaw_rad=0.0),

@@ -103,8 +103,7 @@ def test_outer_loops_restart_at_once_after_attitude_control() -> None:
     cascade, _ = _cascade(50.0)
     setpoint = TrajectorySetpoint(pos_ned_m=(1.0, 0.0, -5.0))
     cascade.update(_State(), setpoint, DT_S)
-    hover = WEIGHT_N / cascade.collective_max_n
-    attitude = cascade.update_attitude(_State(), AttitudeSetpoint(att_q=None, thrust=hover), DT_S)
+    attitude = cascade.update_attitude(_State(), AttitudeSetpoint(att_q=None, thrust_n=WEIGHT_N), DT_S)
     assert all(math.isnan(v) for v in attitude.vel_sp_ned_mps)
     # Back on the same trajectory setpoint object, the outer loops run now rather than at their next period.
     back = cascade.update(_State(pos_ned_m=(0.5, 0.0, -5.0)), setpoint, DT_S)

@@ -356,11 +356,10 @@ def test_landed_freezes_the_integrators() -> None:
 
 def test_attitude_setpoint_entry_flies_rates_or_attitude() -> None:
     cascade = Cascade(AIRFRAME, _store())
-    hover = WEIGHT_N / cascade.collective_max_n
-    rates = AttitudeSetpoint(att_q=None, thrust=hover, rates_sp_frd_radps=(0.2, 0.0, 0.0))
+    rates = AttitudeSetpoint(att_q=None, thrust_n=WEIGHT_N, rates_sp_frd_radps=(0.2, 0.0, 0.0))
     out = cascade.update_attitude(_State(), rates, DT)
     assert out.rates_sp_frd_radps == (0.2, 0.0, 0.0) and out.torque_sp_frd_nm[0] > 0.0
-    out = cascade.update_attitude(_State(), AttitudeSetpoint(att_q=_q(pitch_deg=5.0), thrust=hover), DT)
+    out = cascade.update_attitude(_State(), AttitudeSetpoint(att_q=_q(pitch_deg=5.0), thrust_n=WEIGHT_N), DT)
     assert out.rates_sp_frd_radps[1] > 0.0
     assert out.thrust_sp_ned_n[0] < 0.0  # nose up: thrust leans south
 

@@ -158,20 +158,23 @@ def test_unusable_global_setpoints_are_rejected(msg: MAVLinkMessage, pose: Vehic
         decode_global_int(msg, pose)
 
 
+COLLECTIVE_MAX_N = 40.0  # the vehicle's, as its snapshot reports it
+
+
 # ---- attitude ----------------------------------------------------------------------------------------------
 def attitude(mask: int, q: tuple[float, ...], rates: Triple = (0.0, 0.0, 0.0), thrust: float = 0.5) -> MAVLinkMessage:
     return Wire()(mavlink.MAVLink_set_attitude_target_message(0, SYSID, 1, mask, q, *rates, thrust))
 
 
 def test_attitude_target_with_thrust() -> None:
-    sp = decode_attitude_target(attitude(0b0000_0111, (1, 0, 0, 0), thrust=0.6))
+    sp = decode_attitude_target(attitude(0b0000_0111, (1, 0, 0, 0), thrust=0.6), COLLECTIVE_MAX_N)
     assert sp.att_q == (1.0, 0.0, 0.0, 0.0)
     assert sp.rates_sp_frd_radps == (0.0, 0.0, 0.0)  # ignored: none asked
-    assert sp.thrust == pytest.approx(0.6)
+    assert sp.thrust_n == pytest.approx(0.6 * COLLECTIVE_MAX_N)  # MAVLink's normalised thrust, in newtons
 
 
 def test_body_rates_only() -> None:
-    sp = decode_attitude_target(attitude(0b1000_0000, (0, 0, 0, 0), rates=(0.1, 0.2, 0.3)))
+    sp = decode_attitude_target(attitude(0b1000_0000, (0, 0, 0, 0), rates=(0.1, 0.2, 0.3)), COLLECTIVE_MAX_N)
     assert sp.att_q is None
     assert isclose_tuple(sp.rates_sp_frd_radps, (0.1, 0.2, 0.3))
 
@@ -186,7 +189,7 @@ def test_body_rates_only() -> None:
 )
 def test_bad_attitude_targets_are_rejected(msg: MAVLinkMessage) -> None:
     with pytest.raises(SetpointRejected):
-        decode_attitude_target(msg)
+        decode_attitude_target(msg, COLLECTIVE_MAX_N)
 
 
 # ---- the service -------------------------------------------------------------------------------------------
