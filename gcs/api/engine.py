@@ -41,7 +41,7 @@ from gcs.flight.onboard import absolute_spec
 from gcs.mavlink.statustext import StatusTextAssembler
 from gcs.supervisor.session import FlightSession
 from gcs.supervisor.station import failsafe_text, swarm_note
-from gcs.supervisor.verbs import STEP_VERBS, VERBS, Started, carry_out
+from gcs.supervisor.verbs import VERBS, Started, begin_report_step, carry_out
 from gcs.view.report import METRICS_FILE
 from gcs.view.server import ViewServer, serve_view
 
@@ -387,9 +387,8 @@ class Engine:
         """Start a verb (gcs/supervisor/verbs.py); one that changes what the swarm flies begins a report step."""
         assert self.session is not None
         started = VERBS[name](self.session, *args, **kwargs)
-        if name in STEP_VERBS:
-            shape = _SHAPES.get(type(args[0])) if name == "formation" else None
-            self.session.begin_step(name, shape, args[0] if name == "takeoff" else None)
+        shape = _SHAPES.get(type(args[0])) if name == "formation" else None
+        begin_report_step(self.session, name, started, shape=shape, alt_m=args[0] if name == "takeoff" else None)
         return started
 
     def _wait(self, condition: Callable[[], bool], timeout_s: float) -> bool:

@@ -23,7 +23,7 @@ from gcs.missions.mission_file import build_flock, build_follow, build_formation
 from gcs.missions.plan_flight import PlanUsageError, copy_offsets, parse_drones, parse_offsets, spawn_offsets
 from gcs.missions.qgc_plan import PlanFileError, load_plan, plan_text
 from gcs.supervisor.session import FlightSession
-from gcs.supervisor.verbs import STEP_VERBS, VERBS
+from gcs.supervisor.verbs import VERBS, begin_report_step
 from gcs.view.server import ViewServer
 
 Say = Callable[[str], None]
@@ -113,10 +113,8 @@ class Station:
     def _verb(self, request: dict[str, Any], name: str, *args: Any, **kwargs: Any) -> dict[str, Any]:
         """Start a verb and answer; one that changes what the swarm flies begins the report's next step."""
         started = VERBS[name](self.session, *args, **kwargs)
-        if name in STEP_VERBS:
-            shape = str(request.get("shape", name)) if name == "formation" else name
-            kind = "formation" if name == "goto" else name
-            self.session.begin_step(kind, shape, float(request.get("alt", 3.0)) if name == "takeoff" else None)
+        begin_report_step(self.session, name, started, shape=str(request["shape"]) if "shape" in request else None,
+                          alt_m=float(request.get("alt", 3.0)) if name == "takeoff" else None)  # fmt: skip
         return {"ok": True, "result": started.result} if started.result else {"ok": True}
 
     def _down(self, _request: dict[str, Any]) -> dict[str, Any]:

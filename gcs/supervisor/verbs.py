@@ -53,7 +53,8 @@ class Started:
     A front-end that waits waits for ``done`` up to ``timeout_s`` (simulated seconds) and then raises SwarmError
     with ``late()``, unless ``ends_by_time`` (a hold: its time is its end); ``finish`` runs after a wait that did
     not fail, and may still raise. ``done`` None: the verb is done once started (a formation is then flown until
-    the next verb)."""
+    the next verb). ``new_step``: the verb changes what the swarm flies, so a report that records verbs as they come
+    (``swarm up``, the API; a mission's steps are its own) begins a step with it."""
 
     result: str = ""
     value: Any = None
@@ -62,6 +63,7 @@ class Started:
     late: Callable[[], str] = lambda: "not done in time"
     ends_by_time: bool = False
     finish: Callable[[], None] | None = None
+    new_step: bool = False
 
 
 Wait = Callable[[Callable[[], bool], float], bool]  # (condition, timeout in simulated seconds) -> ended with it
@@ -74,6 +76,15 @@ def carry_out(started: Started, wait: Wait) -> Any:
     if started.finish is not None:
         started.finish()
     return started.value
+
+
+def begin_report_step(session: FlightSession, name: str, started: Started, *, shape: str | None = None,
+                      alt_m: float | None = None) -> None:  # fmt: skip
+    """A verb that changes what the swarm flies begins the next step of a report that records verbs as they come
+    (``swarm up``, the API): a goto is a formation step, a plan's start a plan step; ``shape`` names a formation."""
+    if started.new_step:
+        step = name.removesuffix("_start")
+        session.begin_step("formation" if step == "goto" else step, shape or step, alt_m)
 
 
 def take_over(session: FlightSession) -> None:
@@ -90,7 +101,7 @@ def takeoff(session: FlightSession, alt_m: float, timeout_s: float = TAKEOFF_TIM
     check_takeoff_alt(alt_m)
     target_m, holding = start_takeoff(session.swarm, session.streamer, alt_m, tick=session.waiting_tick,
                                       say=session.say)  # fmt: skip
-    return Started(done=holding, timeout_s=timeout_s,
+    return Started(done=holding, timeout_s=timeout_s, new_step=True,
                    late=lambda: f"takeoff to {target_m:g} m not reached within {timeout_s:g} s")  # fmt: skip
 
 
@@ -101,7 +112,7 @@ def formation(session: FlightSession, spec: Formation) -> Started:
     now = session.mission_time()
     session.streamer.command(spec, now)
     transition = session.streamer.engine.transition
-    return Started(value=transition.arrival_s - now if transition is not None else 0.0)
+    return Started(value=transition.arrival_s - now if transition is not None else 0.0, new_step=True)
 
 
 def goto(session: FlightSession, north_m: float, east_m: float, alt_m: float | None = None) -> Started:
@@ -125,7 +136,7 @@ def flock(session: FlightSession, spec: FlockSpec, *, onboard: bool = False) -> 
         session.onboard = True
     else:
         session.streamer.command_flock(spec, session.mission_time())
-    return Started()
+    return Started(new_step=True)
 
 
 def follow(session: FlightSession, spec: FollowSpec, *, onboard: bool = False) -> Started:
@@ -149,6 +160,7 @@ def follow(session: FlightSession, spec: FollowSpec, *, onboard: bool = False) -
             late=lambda: f"leader sysid {flown.leader} did not reach its last waypoint within {margin:.0f} s of the "
                          "earliest it could",
             finish=said_if_lost,
+            new_step=True,
         )  # fmt: skip
     ground = streamer.command_follow(spec, session.mission_time())
 
@@ -169,7 +181,7 @@ def follow(session: FlightSession, spec: FollowSpec, *, onboard: bool = False) -
         if not session.policy_taken and not current().done(session.mission_time()):
             raise SwarmError(late())
 
-    return Started(done=over, timeout_s=FOLLOW_TIMEOUT_S, late=late, finish=arrived)
+    return Started(done=over, timeout_s=FOLLOW_TIMEOUT_S, late=late, finish=arrived, new_step=True)
 
 
 def swap(session: FlightSession, speed_mps: float, accel_mps2: float, tolerance_m: float, timeout_s: float) -> Started:
@@ -182,7 +194,7 @@ def swap(session: FlightSession, speed_mps: float, accel_mps2: float, tolerance_
         positions = session.streamer.positions()
         return all(s in positions and math.dist(positions[s], goal) <= tolerance_m for s, goal in move.goals.items())
 
-    return Started(done=arrived, timeout_s=timeout_s,
+    return Started(done=arrived, timeout_s=timeout_s, new_step=True,
                    late=lambda: f"not every drone reached the opposite point within {timeout_s:g} s")  # fmt: skip
 
 
@@ -200,7 +212,7 @@ def land(session: FlightSession, *, return_to_launch: bool = False, timeout_s: f
     session.onboard = False  # landing takes the drones out of OFFBOARD: their behaviours stop by themselves
     swarm = session.swarm
     flying = session.streamer.hand_over(lambda: swarm.land_all(return_to_launch=return_to_launch))
-    return Started(done=lambda: not swarm.armed_sysids(flying), timeout_s=timeout_s,
+    return Started(done=lambda: not swarm.armed_sysids(flying), timeout_s=timeout_s, new_step=True,
                    late=lambda: f"not every drone landed and disarmed within {timeout_s:g} s")  # fmt: skip
 
 
@@ -219,7 +231,7 @@ def behaviour(session: FlightSession, *, run: bool) -> Started:
     else:
         sysids = stop_onboard_behaviours(session.swarm)
     session.onboard = run
-    return Started(result=f"sysid {sysids}: behaviour {'start' if run else 'stop'}", value=sysids)
+    return Started(result=f"sysid {sysids}: behaviour {'start' if run else 'stop'}", value=sysids, new_step=run)
 
 
 def fault(session: FlightSession, sysid: int, request: FaultRequest | None) -> Started:
@@ -274,9 +286,10 @@ def plan_start(session: FlightSession, sysids: Sequence[int], uploaded: Uploaded
     session.streamer.hand_over(lambda: start_missions(session.swarm, list(sysids)))
     result = f"AUTO.MISSION on sysid {', '.join(map(str, sysids))}"
     if uploaded is None:
-        return Started(result=result)
+        return Started(result=result, new_step=True)
     return Started(
         result=result,
+        new_step=True,
         done=lambda: not unfinished(session.swarm, uploaded),
         timeout_s=timeout_s,
         late=lambda: f"sysid {unfinished(session.swarm, uploaded)} did not finish within {timeout_s:g} s",
@@ -309,7 +322,7 @@ def control(session: FlightSession, controller: Behaviour) -> Started:
     take_over(session)
     session.controller = controller
     session.streamer.command_behaviour(controller, session.mission_time())
-    return Started()
+    return Started(new_step=True)
 
 
 VERBS: Final[Mapping[str, Callable[..., Started]]] = {
@@ -331,9 +344,3 @@ VERBS: Final[Mapping[str, Callable[..., Started]]] = {
     "param": param,
     "control": control,
 }
-
-# The verbs that change what the swarm flies: each begins a new step of a report that records verbs as they come
-# (``swarm up``, the API; a mission's steps are its own).
-STEP_VERBS: Final = frozenset(
-    {"takeoff", "goto", "formation", "flock", "follow", "swap", "land", "rtl", "behaviour", "plan_start", "control"}
-)
