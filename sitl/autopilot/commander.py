@@ -52,7 +52,7 @@ ACCEPTED = CommandOutcome.accepted()
 
 
 def commander_tick_s(params: ParamStore, dt_s: float) -> float:
-    """The longest time between two commander ticks (``Vehicle.step``) at a physics step of ``dt_s``: MPC_LOOP_HZ's
+    """The longest time between two commander ticks (``Commander.step``) at a physics step of ``dt_s``: MPC_LOOP_HZ's
     period rounded up to whole steps. A time the commander watches (a timeout, a failsafe's delay) is acted on at most
     this late; a command brings a tick at once."""
     return max(1, math.ceil((outer_loop_period_s(params) - 1e-9) / dt_s)) * dt_s
@@ -89,7 +89,7 @@ class VehicleStatus:
     thrust_n: float = 0.0
 
 
-class Vehicle:
+class Commander:
     def __init__(
         self,
         airframe: Airframe,

@@ -41,7 +41,7 @@ MISSION_CLIMB_DONE_M = 0.3
 
 
 class ModeContext(Protocol):
-    """What a mode unit may use of the vehicle (implemented by sitl.autopilot.commander.Vehicle)."""
+    """What a mode unit may use of the vehicle (implemented by sitl.autopilot.commander.Commander)."""
 
     trajectory: StraightLineTrajectory
     target_ned_m: Vec3

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sitl.autopilot.commander import Vehicle
+from sitl.autopilot.commander import Commander
 from sitl.autopilot.params import AUTOPILOT_PARAMS
 from sitl.avoidance.params import AVOIDANCE_PARAMS
 from sitl.control.cascade import Cascade
@@ -70,7 +70,7 @@ class ClosedLoop:
         self.estimator = Estimator(config.estimator, origin_alt_amsl_m=self.plant.state().geo.alt_amsl_m)
         self.estimator.set_mag_reference(np.array(config.sensors.mag_field_ned_gauss))
         self.battery = Battery(config.battery)
-        self.vehicle = Vehicle(
+        self.vehicle = Commander(
             config.airframe,
             self.params,
             Cascade(config.airframe, self.params),
@@ -135,7 +135,7 @@ class ClosedLoop:
 
     def _between_ticks(self) -> tuple[float, ...] | None:
         """The step as one kernel (sitl/kernels/between_ticks.py) when the autopilot only runs its inner loops
-        (``Vehicle.holds_inner_loops``) and the IMU alone is due: the same sample, estimate and motor commands as
+        (``Commander.holds_inner_loops``) and the IMU alone is due: the same sample, estimate and motor commands as
         the shells would give. None, having changed nothing, when it cannot be."""
         vehicle, dt_s = self.vehicle, self.dt_s
         if not (vehicle.holds_inner_loops(dt_s) and self.sensors.imu_only(self.truth.time_s)):

@@ -1,5 +1,5 @@
 """A drone's physics step between two commander ticks, in one call: the IMU sample, the estimator's step and the
-inner loops towards the attitude the commander's last tick asked for (sitl/autopilot/commander.py, ``Vehicle.step``).
+inner loops towards the attitude the commander's last tick asked for (sitl/autopilot/commander.py, ``Commander.step``).
 
 Between ticks nothing in a drone's step is event-driven: no mode, failsafe or land detector runs, and on most steps
 no GPS, barometer or magnetometer sample is due. What is left is numeric, and was three Python shells each building

@@ -19,7 +19,7 @@ import logging
 import math
 from collections.abc import Callable, Sequence
 
-from sitl.autopilot.commander import Vehicle
+from sitl.autopilot.commander import Commander
 from sitl.autopilot.px4_modes import Px4Mode
 from sitl.avoidance.algorithm import Obstacle
 from sitl.avoidance.collision_prevention import RelayedNeighbour
@@ -38,7 +38,7 @@ SEVERITY_INFO = 6
 class OnboardRunner:
     """One behaviour instance on one drone; ``tick`` after every physics step."""
 
-    def __init__(self, loaded: LoadedBehaviour, *, sysid: int, vehicle: Vehicle, params: ParamStore,
+    def __init__(self, loaded: LoadedBehaviour, *, sysid: int, vehicle: Commander, params: ParamStore,
                  estimate: Callable[[], Estimate | None], relayed: Callable[[], Sequence[RelayedNeighbour]],
                  camera: Callable[[], Sequence[Obstacle]]) -> None:  # fmt: skip
         self.loaded = loaded
