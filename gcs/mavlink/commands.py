@@ -113,7 +113,6 @@ class CommandClient:
         own_sysid: int = GCS_SYSID,
         own_compid: int = GCS_COMPID,
     ) -> None:
-        self.timeout_s = timeout_s
         self.own_sysid = own_sysid
         self.own_compid = own_compid
         # (sysid, command) -> the command waiting for its answer, and how it ended
@@ -150,7 +149,7 @@ class CommandClient:
         if work is None or msg.get_srcComponent() != work.compid:
             return []  # not ours: another command's, or a late duplicate of one already ended
         if msg.result == mavlink.MAV_RESULT_IN_PROGRESS:
-            work.due_s = now_s + max(1, work.retries_left) * self.timeout_s
+            work.due_s = now_s + max(1, work.retries_left) * self._core.timeout_s
         elif msg.result in FINAL_RESULTS:
             self._core.finish(key, key, Ack(work.sysid, int(msg.result)))
         return []

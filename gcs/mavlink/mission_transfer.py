@@ -166,7 +166,6 @@ class MissionClient:
         own_sysid: int = GCS_SYSID,
         own_compid: int = GCS_COMPID,
     ) -> None:
-        self.retries = retries
         self.own_sysid = own_sysid
         self.own_compid = own_compid
         # sysid -> its transfer (one at a time with a drone), and (sysid, mission type) -> how it ended
@@ -288,7 +287,7 @@ class MissionClient:
         out: list[Send] = []
         for work, exhausted in self._core.timed_out(now_s):
             if exhausted:
-                self._finish(work, f"no answer after {self.retries + 1} tries", None)
+                self._finish(work, f"no answer after {self._core.retries + 1} tries", None)
                 out.append(self._ack(work, mavlink.MAV_MISSION_OPERATION_CANCELLED))
                 continue
             if work.direction is Direction.UPLOAD:

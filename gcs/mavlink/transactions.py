@@ -56,9 +56,6 @@ class Transactions(Generic[K, W, KO, R]):
     def running(self, key: K) -> W | None:
         return self._work.get(key)
 
-    def in_flight(self) -> list[W]:
-        return list(self._work.values())
-
     def timed_out(self, now_s: float) -> list[tuple[W, bool]]:
         """The work whose try has timed out, in the order it was begun, each with whether it is out of retries (to
         end without an answer) or was given one try more (one retry fewer, its next try timed from now)."""

@@ -40,7 +40,7 @@ from gcs.missions.mission_file import (
 from gcs.missions.plan_flight import copy_offsets, parse_drones, spawn_offsets, unreached
 from gcs.record.recording import FlightRecording, StepRecord
 from gcs.supervisor.session import FlightSession
-from gcs.supervisor.verbs import VERBS, Started, carry_out
+from gcs.supervisor.verbs import VERBS, FaultRefused, Started, carry_out
 from gcs.view.report import write_report
 from gcs.view.scene import obstacle_shape
 from gcs.view.server import ViewServer
@@ -127,14 +127,13 @@ class MissionRunner:
         self._pending_faults = [(t, step) for t, step in self._pending_faults if t > now]
         for _t, step in due:
             sysid = self.swarm.sysids[step.drone - 1]
-            recorded = len(self.session.recording.faults)
             try:
                 VERBS["fault"](self.session, sysid, step.fault)
-            except SwarmError as exc:
-                if len(self.session.recording.faults) == recorded:  # not sent (the drone is lost, or did not answer)
-                    self._note(f"fault {step.fault.describe()} on drone {sysid}: not injected: {exc}")
-                    self.session.record_fault(sysid, step.fault.describe(), f"not injected: {exc}")
-                # a refusal is the drone's answer, noted and recorded with it: the mission flies on
+            except FaultRefused:
+                pass  # the drone's answer, noted and recorded with it: the mission flies on
+            except SwarmError as exc:  # not sent: the drone is lost, or did not answer
+                self._note(f"fault {step.fault.describe()} on drone {sysid}: not injected: {exc}")
+                self.session.record_fault(sysid, step.fault.describe(), f"not injected: {exc}")
 
     def _wait(self, condition: Callable[[], bool], timeout_sim_s: float) -> bool:
         """Wait for ``condition``; True also as soon as a loss policy (hold, land, abort) takes over the flight,

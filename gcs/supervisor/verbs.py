@@ -234,15 +234,18 @@ def behaviour(session: FlightSession, *, run: bool) -> Started:
     return Started(result=f"sysid {sysids}: behaviour {'start' if run else 'stop'}", value=sysids, new_step=run)
 
 
-def fault(session: FlightSession, sysid: int, request: FaultRequest | None) -> Started:
+class FaultRefused(SwarmError):
+    """The drone answered a fault injection with a refusal: noted and recorded as its answer, unlike a fault that
+    was never sent (a drone already lost, or silent)."""
+
+
+def fault(session: FlightSession, sysid: int, request: FaultRequest) -> Started:
     """Inject a fault into one drone: PX4's MAV_CMD_INJECT_FAILURE, or (``crash``) the harness ends its flight
-    software. Noted and recorded for the report, refused or not; SwarmError when the drone refuses it."""
+    software. Noted and recorded for the report, refused or not; ``FaultRefused`` when the drone refuses it."""
     swarm = session.swarm
     if isinstance(sysid, bool) or not isinstance(sysid, int) or sysid not in swarm.sysids:
         known = f"{swarm.sysids[0]}..{swarm.sysids[-1]}" if swarm.sysids else "none"
         raise ValueError(f"no drone with sysid {sysid!r} (sysids {known})")
-    if request is None:
-        raise ValueError("no fault named")
     if sysid in swarm.losses:
         raise SwarmError(f"drone {sysid} is already lost ({swarm.losses[sysid].cause})")
     if request.kind == CRASH:
@@ -253,7 +256,7 @@ def fault(session: FlightSession, sysid: int, request: FaultRequest | None) -> S
     session.note(f"fault {request.describe()} on drone {sysid}: {result}")
     session.record_fault(sysid, request.describe(), result)
     if not accepted:
-        raise SwarmError(f"drone {sysid} refused fault {request.describe()}: {result}")
+        raise FaultRefused(f"drone {sysid} refused fault {request.describe()}: {result}")
     return Started(result=result, value=result)
 
 
