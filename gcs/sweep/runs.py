@@ -57,7 +57,10 @@ class InstanceLocks:
         self.lock_dir = lock_dir
         self._guard = threading.Lock()  # one thread at a time looks for a block (flock is per open file)
 
-    def _try(self, first: int) -> list[IO[bytes]] | None:
+    def try_hold(self, first: int) -> list[IO[bytes]] | None:
+        """The locks of instances ``first`` to ``first + n - 1``, or None (and nothing held) when any is taken.
+        Closing a returned file drops its lock."""
+        self.lock_dir.mkdir(parents=True, exist_ok=True)
         held: list[IO[bytes]] = []
         for instance in range(first, first + self.n):
             handle = (self.lock_dir / f"instance-{instance:03d}.lock").open("ab")
@@ -75,14 +78,13 @@ class InstanceLocks:
     def block(self, stop: threading.Event | None = None) -> Iterator[Block]:
         """A free block of instances, held until the ``with`` ends (and by any process its ``fds`` are passed to);
         waits while every block is taken."""
-        self.lock_dir.mkdir(parents=True, exist_ok=True)
         starts = range(FIRST_SWEEP_INSTANCE, MAX_INSTANCE - self.n + 2, self.n)
         if not starts:
             raise RuntimeError(f"{self.n} drones do not fit in instances {FIRST_SWEEP_INSTANCE}..{MAX_INSTANCE}")
         while True:
             with self._guard:
                 for first in starts:
-                    if (held := self._try(first)) is not None:
+                    if (held := self.try_hold(first)) is not None:
                         break
                 else:
                     held = None

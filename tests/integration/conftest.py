@@ -2,9 +2,10 @@
 
 Policy:
 - Loopback only. Drones this suite starts bind 127.0.0.1 and stream to 127.0.0.1; clients bind 127.0.0.1.
-- Instances come from a block of 10 starting at ``--sitl-instance-base`` (default 20; the next clear block per
-  pytest-xdist worker), never instances 0-9 nor one whose ports a user's drones 0-9 or a ground station on 14550
-  use, and an instance is used only while its UDP ports are free, so a user's own simulator is untouched.
+- Instances are leased (tests/integration/instances.py, the ``instances`` fixture): blocks no other process on
+  the machine holds (pytest-xdist workers, sweeps), at or above ``--sitl-instance-base`` (default 20), never
+  instances 0-9 nor one whose ports a user's drones 0-9 or a ground station on 14550 use, and only while their UDP
+  ports are free, so a user's own simulator is untouched. No test file names an instance number of its own.
 - A drone is ready when its first HEARTBEAT arrived; nothing sleeps and hopes.
 - Every process started here is stopped by PID (SIGTERM, then SIGKILL) and reaped; after each test no child
   process and no extra thread (MAVSDK's native ones included) may remain.
@@ -29,14 +30,8 @@ from pathlib import Path
 
 import pytest
 
-from tests.integration.sitl_process import (
-    InstanceAllocator,
-    SitlDrone,
-    SpawnDrones,
-    instance_is_clear_of_user_ports,
-    start_drones,
-    stop_drone,
-)
+from tests.integration.instances import DEFAULT_LOWEST_INSTANCE, Leases, leases
+from tests.integration.sitl_process import InstanceAllocator, SitlDrone, SpawnDrones, start_drones, stop_drone
 from tests.integration.vehicle_link import VehicleLink, VehicleUrlError, pymavlink_url
 
 DEFAULT_SPEED_FACTOR = 4.0
@@ -70,9 +65,10 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     group.addoption(
         "--sitl-instance-base",
         type=int,
-        default=20,
+        default=DEFAULT_LOWEST_INSTANCE,
         metavar="I",
-        help="first sitl instance number this run may use (default 20; its ports: sitl/process/ports.py)",
+        help=f"lowest sitl instance number this run may lease (default {DEFAULT_LOWEST_INSTANCE}; its ports: "
+        "sitl/process/ports.py)",
     )
 
 
@@ -107,32 +103,27 @@ def pytest_pyfunc_call(pyfuncitem: pytest.Function) -> bool | None:
     return True
 
 
-def _worker_index() -> int:
-    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
-    digits = worker.removeprefix("gw")
-    return int(digits) if digits.isdigit() else 0
-
-
-def _instance_block(base: int, worker: int) -> int:
-    """First instance of a pytest-xdist worker's block: the ``worker``-th block of 10 from ``base`` on whose ports
-    are clear of a user's instances 0-9 and of 14550 (instance 10 streams to 14550, as in PX4)."""
-    blocks = (b for b in range(base, 255 - INSTANCES_PER_WORKER, INSTANCES_PER_WORKER) if _block_is_clear(b))
-    for _ in range(worker):
-        next(blocks, None)
-    block = next(blocks, None)
-    if block is None:
-        raise pytest.UsageError(f"no room for sitl instances of worker {worker} from --sitl-instance-base {base}")
-    return block
-
-
-def _block_is_clear(first: int) -> bool:
-    return all(instance_is_clear_of_user_ports(i) for i in range(first, first + INSTANCES_PER_WORKER))
-
-
 @pytest.fixture(scope="session")
-def instance_allocator(pytestconfig: pytest.Config) -> InstanceAllocator:
-    base = _instance_block(pytestconfig.getoption("--sitl-instance-base"), _worker_index())
-    return InstanceAllocator(base, INSTANCES_PER_WORKER)
+def instance_allocator(pytestconfig: pytest.Config) -> Iterator[InstanceAllocator]:
+    """This process's block of INSTANCES_PER_WORKER instances for drones spawned one or two at a time, leased for
+    the session (tests/integration/instances.py)."""
+    with leases(pytestconfig.getoption("--sitl-instance-base")) as take:
+        yield InstanceAllocator(take(INSTANCES_PER_WORKER), INSTANCES_PER_WORKER)
+
+
+@pytest.fixture
+def instances(pytestconfig: pytest.Config) -> Iterator[Leases]:
+    """``instances(count)``: the first of ``count`` consecutive instances leased to this test alone (a ``swarm``
+    command's ``--first-instance``), given back when the test ends."""
+    with leases(pytestconfig.getoption("--sitl-instance-base")) as take:
+        yield take
+
+
+@pytest.fixture(scope="module")
+def module_instances(pytestconfig: pytest.Config) -> Iterator[Leases]:
+    """``instances`` for a module's shared flights: leased until the module's last test ends."""
+    with leases(pytestconfig.getoption("--sitl-instance-base")) as take:
+        yield take
 
 
 @pytest.fixture

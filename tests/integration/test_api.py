@@ -1,8 +1,9 @@
 """The Python API (gcs/api) flying real ``sitl`` drones in lockstep: asyncio and blocking, a user's controller, events,
 faults, errors, and every process gone at the end, however the session ends.
 
-Policy: loopback only; instances 40-49; a time limit on every test; the drone processes are children of this test
-process (started by the session's supervisor thread) and each test checks that none is left.
+Policy: loopback only; leased instances (tests/integration/instances.py); a time limit on every test; the drone
+processes are children of this test process (started by the session's supervisor thread) and each test checks that
+none is left.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from gcs.api import (
     launch_blocking,
 )
 from tests.integration.conftest import child_pids
+from tests.integration.instances import Leases
 from tests.integration.test_swarm import wait_dead
 
 pytestmark = [pytest.mark.sim_only]
@@ -48,15 +50,19 @@ def on_circle(drones: dict[int, DroneState], radius_m: float, tolerance_m: float
 
 
 @pytest.mark.timeout(180)
-def test_an_async_session_flies_a_formation_and_a_users_controller_then_lands_and_reports(tmp_path: Path) -> None:
+def test_an_async_session_flies_a_formation_and_a_users_controller_then_lands_and_reports(
+    tmp_path: Path, instances: Leases
+) -> None:
+    first = instances(3)
+    sysids = [first + 1, first + 2, first + 3]
     events: list[Event] = []
     spread: dict[str, float] = {}
 
     async def fly() -> dict[str, object]:
-        async with launch(3, lockstep=True, first_instance=40, drones_per_process="auto",
+        async with launch(3, lockstep=True, first_instance=first, drones_per_process="auto",
                           report_dir=tmp_path / "report", view=True, view_port=0) as swarm:  # fmt: skip
             collecting = asyncio.create_task(collect(swarm.events()))
-            assert swarm.sysids == [41, 42, 43]
+            assert swarm.sysids == sysids
             assert swarm.view_url is not None
             view["url"] = swarm.view_url
             # GIVEN three drones up, WHEN they take off THEN the call returns with every drone at the altitude
@@ -70,7 +76,7 @@ def test_an_async_session_flies_a_formation_and_a_users_controller_then_lands_an
             # there too (lockstep: the clock, and the view's frames, stand still between calls)
             fetched, _ = await asyncio.gather(asyncio.to_thread(get_json, f"{swarm.view_url}frame"), swarm.sleep(2.0))
             drawn = {d["sysid"]: d["pos_ned_m"] for d in fetched["drones"]}
-            assert sorted(drawn) == [41, 42, 43], fetched
+            assert sorted(drawn) == sysids, fetched
             assert all(abs(math.hypot(n, e) - 3.0) < 0.3 and abs(-d - ALT_M) < 0.3 for n, e, d in drawn.values()), drawn
             # WHEN the user's own function commands them (a wider circle turning the other way, as bare positions)
             seen: list[float] = []
@@ -110,14 +116,16 @@ def test_an_async_session_flies_a_formation_and_a_users_controller_then_lands_an
     assert [s["name"] for s in metrics["steps"]] == ["takeoff", "circle", "control", "land"], metrics["steps"]  # type: ignore[index]
     assert metrics["collisions"] == 0
     assert (tmp_path / "report" / "flight.tlog").stat().st_size > 100_000
-    assert any(e.kind == "statustext" and e.sysid in (41, 42, 43) for e in events), events[:5]
+    assert any(e.kind == "statustext" and e.sysid in sysids for e in events), events[:5]
     assert wait_dead(sorted(child_pids()), 10) == []
 
 
 @pytest.mark.timeout(180)
 def test_a_controller_that_raises_holds_the_swarm_and_an_exception_in_the_block_still_stops_everything(
-    tmp_path: Path,
+    tmp_path: Path, instances: Leases
 ) -> None:
+    first = instances(2)
+    sysids = [first + 1, first + 2]
     said: list[str] = []
     events: list[Event] = []
 
@@ -128,7 +136,7 @@ def test_a_controller_that_raises_holds_the_swarm_and_an_exception_in_the_block_
                             yaw_rad=math.nan) for s, d in drones.items()}  # fmt: skip
 
     with pytest.raises(RuntimeError, match="the script's own failure"), \
-            launch_blocking(2, lockstep=True, first_instance=44, say=said.append, on_event=events.append,
+            launch_blocking(2, lockstep=True, first_instance=first, say=said.append, on_event=events.append,
                             behaviour=FLOCKING) as swarm:  # fmt: skip
         # GIVEN a takeoff to 2 m, below the drones' MIS_TAKEOFF_ALT (2.5 m): they climb to 2.5 m and say so, as PX4,
         # and the call returns once they hold that
@@ -136,7 +144,7 @@ def test_a_controller_that_raises_holds_the_swarm_and_an_exception_in_the_block_
         assert all(abs(d.alt_m - 2.5) < 0.25 for d in swarm.drones().values()), swarm.drones()
         assert any("takeoff to 2 m: below the drones' MIS_TAKEOFF_ALT (2.5 m)" in line for line in said), said
         minimum = [e.sysid for e in events if e.text == "Using minimum takeoff altitude: 2.50 m"]
-        assert sorted(minimum) == [45, 46], events
+        assert sorted(minimum) == sysids, events
         # GIVEN the two drones flocking by themselves (the shipped onboard behaviour) towards a point 8 m north
         north_before = [d.pos_ned_m[0] for d in swarm.drones().values()]
         swarm.flock(FlockSpec(alt_m=ALT_M, migration_ne_m=((8.0, 0.0),)), onboard=True)
@@ -149,7 +157,7 @@ def test_a_controller_that_raises_holds_the_swarm_and_an_exception_in_the_block_
         swarm.control(broken)
         swarm.sleep(0.5)
         stopped = [e for e in events if e.kind == "statustext" and e.text == "Behaviour Flocking stopped (BHV_EN 0)"]
-        assert sorted(e.sysid for e in stopped) == [45, 46], events
+        assert sorted(e.sysid for e in stopped) == sysids, events
         # WHEN the controller raises THEN the call in progress raises ControllerError (the cause chained) and every
         # drone holds where it is, still flying
         with pytest.raises(ControllerError) as info:

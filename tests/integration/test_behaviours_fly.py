@@ -7,7 +7,7 @@ depend on the machine's load: the whole system, separation rule and onboard avoi
 apart and aligned, whether the ground station computes the flock or every drone flocks by itself (the shipped onboard
 behaviour).
 
-Policy: loopback only (--no-forward); instances 200-239; a time limit on every test.
+Policy: loopback only (--no-forward); leased instances (tests/integration/instances.py); a time limit on every test.
 """
 
 from __future__ import annotations
@@ -17,16 +17,16 @@ from typing import Any
 
 import pytest
 
+from tests.integration.instances import Leases
 from tests.integration.mission_flight import fly_mission
 
 pytestmark = [pytest.mark.sim_only]
 
 
-def fly(mission: str, timing: list[str], first_instance: int, tmp_path: Path, timeout_s: float, *,
+def fly(mission: str, timing: list[str], instances: Leases, tmp_path: Path, timeout_s: float, *,
         avoidance: bool) -> dict[str, Any]:  # fmt: skip
     """Fly a shipped mission (optionally without onboard avoidance); the report's metrics."""
-    args = [*timing, "--first-instance", str(first_instance)]
-    metrics, result = fly_mission(mission, args, tmp_path, timeout_s, avoidance=avoidance)
+    metrics, result = fly_mission(mission, timing, tmp_path, timeout_s, instances, avoidance=avoidance)
     if not avoidance:
         assert "parameters set on every drone: AVOID_ENABLE = 0" in result.stdout
         assert metrics["avoidance_events"] == 0
@@ -34,10 +34,12 @@ def fly(mission: str, timing: list[str], first_instance: int, tmp_path: Path, ti
 
 
 @pytest.mark.timeout(240)
-def test_leader_follower_mission_keeps_the_followers_on_their_slots_round_the_square(tmp_path: Path) -> None:
+def test_leader_follower_mission_keeps_the_followers_on_their_slots_round_the_square(
+    tmp_path: Path, instances: Leases
+) -> None:
     # GIVEN the 5-drone mission: the middle drone of a line leads a 12 m square, four follow in a V
     # WHEN it is flown at 3x real time
-    metrics = fly("leader_follower.toml", ["--speed", "3"], 200, tmp_path, 220, avoidance=False)
+    metrics = fly("leader_follower.toml", ["--speed", "3"], instances, tmp_path, 220, avoidance=False)
     # THEN nobody touched anybody
     assert metrics["n_drones"] == 5 and len(metrics["sysids"]) == 5
     assert metrics["collisions"] == 0
@@ -50,19 +52,21 @@ def test_leader_follower_mission_keeps_the_followers_on_their_slots_round_the_sq
     assert follow["time_to_formation_s"] is not None and follow["time_to_formation_s"] < 10.0
     assert follow["max_error_m"] < 1.0
     assert follow["formation_rms_m"] < 0.4
-    # AND the leader (drone 3: sysid 203) flew the 44 m path
-    assert metrics["distance_flown_m"]["203"] > 40.0
+    # AND the leader (drone 3: the third sysid) flew the 44 m path
+    assert metrics["distance_flown_m"][str(metrics["sysids"][2])] > 40.0
 
 
 @pytest.mark.timeout(420)
 @pytest.mark.parametrize("by", ["ground", "onboard"])
-def test_twelve_drones_flock_out_and_back_aligned_and_without_a_collision(tmp_path: Path, by: str) -> None:
+def test_twelve_drones_flock_out_and_back_aligned_and_without_a_collision(
+    tmp_path: Path, instances: Leases, by: str
+) -> None:
     # GIVEN the 12-drone flocking mission: 60 s towards a migration point 40 m north and back, then land
     # WHEN it is flown as shipped, onboard avoidance on, in lockstep: by the ground station's law, or by every drone
     # itself (the shipped onboard behaviour, from its own estimate and neighbour table)
     where = ["--onboard"] if by == "onboard" else []
     timing = ["--lockstep", "--quantum", "8", "--drones-per-process", "auto"]
-    metrics = fly("flocking.toml", [*timing, *where], 210, tmp_path, 400, avoidance=True)
+    metrics = fly("flocking.toml", [*timing, *where], instances, tmp_path, 400, avoidance=True)
     # THEN no drone collided or came within 1 m of another
     assert metrics["n_drones"] == 12 and len(metrics["sysids"]) == 12
     assert metrics["collisions"] == 0
@@ -78,18 +82,20 @@ def test_twelve_drones_flock_out_and_back_aligned_and_without_a_collision(tmp_pa
 
 
 @pytest.mark.timeout(240)
-def test_onboard_leader_follower_flies_the_square_with_each_follower_keeping_its_own_slot(tmp_path: Path) -> None:
+def test_onboard_leader_follower_flies_the_square_with_each_follower_keeping_its_own_slot(
+    tmp_path: Path, instances: Leases
+) -> None:
     # GIVEN the 5-drone leader-follower mission, flown by the drones themselves: the leader its own path, each
     # follower its slot from the leader's relayed reports (avoidance off: the error is the law's own)
     timing = ["--lockstep", "--drones-per-process", "auto"]
-    metrics = fly("leader_follower.toml", [*timing, "--onboard"], 220, tmp_path, 220, avoidance=False)
+    metrics = fly("leader_follower.toml", [*timing, "--onboard"], instances, tmp_path, 220, avoidance=False)
     # THEN nobody touched anybody
     assert len(metrics["sysids"]) == 5 and metrics["collisions"] == 0
     assert metrics["min_separation_m"] > 1.5
     # AND the step lasted until the leader reported itself back at its last waypoint, having flown the 44 m path
     follow = next(s for s in metrics["steps"] if s["kind"] == "follow")
     assert follow["end_s"] - follow["start_s"] > 30.0
-    assert metrics["distance_flown_m"]["223"] > 40.0
+    assert metrics["distance_flown_m"][str(metrics["sysids"][2])] > 40.0
     # AND the followers kept to their slots as the ground station computes them from the same reports (its own law,
     # as an observer): within 1 m RMS over the whole step, the join from the line included
     assert follow["step_rms_m"] < 1.0

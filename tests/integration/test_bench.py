@@ -1,10 +1,10 @@
-"""``swarm bench`` for real: N = 1 and 2 for a few simulated seconds, paced and in lockstep; and bench/wakeups.py
-(the machine's price of a wake-up), which forks flights of its own and must reap them.
+"""``swarm bench`` for real: N = 1 and 2 for a few simulated seconds, paced and in lockstep; and bench/wakeups.py (the
+machine's price of a wake-up), which forks flights of its own and must reap them.
 
-Policy: loopback only; instances 244-245 (sysids 245-246: clear of the relay probe's 240-241 and of the other
-suites' blocks); the bench runs as its own process (``python -m gcs.cli bench``) and must leave no drone behind. What is
-checked is the shape of the result and that every figure was actually measured (finite, positive, consistent with
-the others); the figures themselves depend on the machine and are not asserted.
+Policy: loopback only; two leased instances (tests/integration/instances.py); the bench runs as its own process
+(``python -m gcs.cli bench``) and must leave no drone behind. What is checked is the shape of the result and that
+every figure was actually measured (finite, positive, consistent with the others); the figures themselves depend on
+the machine and are not asserted.
 """
 
 from __future__ import annotations
@@ -21,10 +21,10 @@ from typing import Any
 import pytest
 
 from gcs.bench.scaling import CPU_KEYS, CPU_PARTS
+from tests.integration.instances import Leases
 
 pytestmark = [pytest.mark.sim_only, pytest.mark.timeout(330)]
 
-FIRST_INSTANCE = 244
 REPO = Path(__file__).resolve().parents[2]
 WAKEUPS = REPO / "bench" / "wakeups.py"
 WAKEUP_ROW = re.compile(r"^(\d+ process(?:es)?, [a-z ,0-9]+?) +([\d.]+) +([\d.]+) +([\d.]+) +([\d.]+)", re.MULTILINE)
@@ -67,18 +67,21 @@ def sitl_processes_of(instances: set[int]) -> list[int]:
 
 
 @pytest.mark.heavy
-def test_bench_measures_every_figure_for_each_swarm_size_and_leaves_nothing_behind(tmp_path: Path) -> None:
+def test_bench_measures_every_figure_for_each_swarm_size_and_leaves_nothing_behind(
+    tmp_path: Path, instances: Leases
+) -> None:
     json_path, plot_path = tmp_path / "bench.json", tmp_path / "bench.png"
+    first = instances(2)
     # GIVEN no drone of ours running WHEN the bench runs N = 2 for a few simulated seconds, each drone in its own
     # process and both hosted by one
-    assert sitl_processes_of({FIRST_INSTANCE, FIRST_INSTANCE + 1}) == []
+    assert sitl_processes_of({first, first + 1}) == []
     cmd = [sys.executable, "-m", "gcs.cli", "bench", "--drones", "2", "--drones-per-process", "1,2",
-           "--sim-seconds", str(SIM_SECONDS), "--first-instance", str(FIRST_INSTANCE), "--json", str(json_path),
+           "--sim-seconds", str(SIM_SECONDS), "--first-instance", str(first), "--json", str(json_path),
            "--plot", str(plot_path)]  # fmt: skip
     result = subprocess.run(cmd, capture_output=True, text=True, timeout=310)
     # THEN it succeeds, prints one table row per setting, and every drone it started is gone
     assert result.returncode == 0, result.stdout + result.stderr
-    assert sitl_processes_of({FIRST_INSTANCE, FIRST_INSTANCE + 1}) == []
+    assert sitl_processes_of({first, first + 1}) == []
     lines = result.stdout.splitlines()
     header = next(i for i, line in enumerate(lines) if line.split()[:4] == ["N", "hosts", "per", "host"])
     assert [line.split()[:3] for line in lines[header + 1 : header + 3]] == [["2", "2", "1"], ["2", "1", "2"]], (

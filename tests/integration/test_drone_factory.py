@@ -1,4 +1,6 @@
-"""The drone factory: forked drones report their exit codes, take signals, and none outlives the factory."""
+"""The drone factory: forked drones report their exit codes, take signals, and none outlives the factory.
+
+Policy: three leased instances (tests/integration/instances.py); the drones run without MAVLink."""
 
 from __future__ import annotations
 
@@ -10,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from sitl.harness.factory import DroneFactory
+from tests.integration.instances import Leases
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -31,7 +34,10 @@ def _await_line(path: Path, text: str, timeout_s: float = 20.0) -> None:
     raise AssertionError(f"{text!r} not in {path} within {timeout_s} s")
 
 
-def test_forked_drones_report_exit_codes_take_signals_and_stop_with_the_factory(tmp_path: Path) -> None:
+def test_forked_drones_report_exit_codes_take_signals_and_stop_with_the_factory(
+    tmp_path: Path, instances: Leases
+) -> None:
+    first = instances(3)
     factory = DroneFactory(tmp_path / "factory.log")
     try:
         # A bad argument: the drone's own one-line error and exit code 2, as from the command line
@@ -39,11 +45,11 @@ def test_forked_drones_report_exit_codes_take_signals_and_stop_with_the_factory(
         assert bad.wait(20) == 2
         assert "--instance must be in 0..253" in (tmp_path / "bad.log").read_text()
         # A short unpaced flight ends by itself with 0
-        short = factory.spawn(["--instance", "61", "--no-mavlink", "--speed", "0", "--duration", "1"], None, 0)
+        short = factory.spawn(["--instance", str(first), "--no-mavlink", "--speed", "0", "--duration", "1"], None, 0)
         assert short.wait(20) == 0
         # A drone running until told: SIGTERM stops it cleanly (sitl exits 0 and says why)
-        running = factory.spawn(["--instance", "62", "--no-mavlink"], tmp_path / "running.log", 5)
-        _await_line(tmp_path / "running.log", "sitl 62: airframe")
+        running = factory.spawn(["--instance", str(first + 1), "--no-mavlink"], tmp_path / "running.log", 5)
+        _await_line(tmp_path / "running.log", f"sitl {first + 1}: airframe")
         assert running.poll() is None and _alive(running.pid)
         assert os.getpriority(os.PRIO_PROCESS, running.pid) == 5
         running.send_signal(signal.SIGTERM)
@@ -51,8 +57,8 @@ def test_forked_drones_report_exit_codes_take_signals_and_stop_with_the_factory(
         assert "stopped by SIGTERM" in (tmp_path / "running.log").read_text()
         running.send_signal(signal.SIGTERM)  # reaped: a no-op, never a signal to a recycled PID
         # One left running when the factory closes is stopped by it
-        left = factory.spawn(["--instance", "63", "--no-mavlink"], tmp_path / "left.log", 0)
-        _await_line(tmp_path / "left.log", "sitl 63: airframe")
+        left = factory.spawn(["--instance", str(first + 2), "--no-mavlink"], tmp_path / "left.log", 0)
+        _await_line(tmp_path / "left.log", f"sitl {first + 2}: airframe")
     finally:
         factory.close()
     assert left.returncode is not None

@@ -1,7 +1,7 @@
 """Losing a drone in flight, as a user does it: real ``swarm`` and ``sitl`` processes in lockstep on loopback.
 
-Policy: instances 200-239 and 56-57; every process found by PID and gone at the end; readiness and progress read from
-the supervisor's output and ``swarm status``, never slept for.
+Policy: leased instances (tests/integration/instances.py); every process found by PID and gone at the end; readiness
+and progress read from the supervisor's output and ``swarm status``, never slept for.
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ from gcs.fleet.swarm import Swarm
 from sitl.dynamics.geodesy import ned_from_geo
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
 from sitl.harness.harness import HOSTED_KILL_CAUSE
+from tests.integration.instances import Leases
 from tests.integration.report_page import check_report_page
 from tests.integration.test_swarm import alive, children_of, wait_dead
 
@@ -150,46 +151,51 @@ def on_circle(rows: dict[int, list[str]], sysids: list[int]) -> bool:
     ids=["process-per-drone", "hosted"],
 )
 def test_kill_9_of_one_drone_of_a_rotating_circle_of_6_leaves_a_circle_of_5_and_one_line(
-    supervisors: Callable[[list[str]], Supervisor], tmp_path: Path, per_process: str, cause: str
+    supervisors: Callable[[list[str]], Supervisor], tmp_path: Path, instances: Leases, per_process: str, cause: str
 ) -> None:
     # GIVEN six drones in lockstep flying a rotating circle (each in its own process, or three to a process), the
     # session recorded for a report
     report = tmp_path / "report"
-    swarm = supervisors(["-n", "6", "--lockstep", "--first-instance", "200", "--no-forward", "--report", str(report),
-                         "--drones-per-process", per_process])  # fmt: skip
-    sysids = list(range(201, 207))
+    first = instances(6)
+    swarm = supervisors(["-n", "6", "--lockstep", "--first-instance", str(first), "--no-forward", "--report",
+                         str(report), "--drones-per-process", per_process])  # fmt: skip
+    sysids = list(range(first + 1, first + 7))
+    victim = first + 3  # the third drone
+    absent = first  # a sysid the swarm does not have: the instance just below its block's
     assert len(swarm.drones) == 6 // int(per_process)  # processes
     swarm.command("takeoff", "--alt", "3")
     swarm.wait_for(lambda: all(float(r[5]) > 2.7 for r in swarm.status().values()), 240, "the takeoff")
     swarm.command("formation", "circle", "--radius", str(RADIUS_M), "--rate", "0.3", "--alt", "3")
     swarm.wait_for(lambda: on_circle(swarm.status(), sysids), 240, "the circle of 6")
-    # WHEN sysid 203 is killed: its process with SIGKILL (by PID, through the supervisor), or inside its host
-    result = swarm.cli("kill", "203")
+    # WHEN the third drone is killed: its process with SIGKILL (by PID, through the supervisor), or inside its host
+    result = swarm.cli("kill", str(victim))
     assert result.returncode == 0 and "killed" in result.stdout, result
-    survivors = [s for s in sysids if s != 203]
+    survivors = [s for s in sysids if s != victim]
     # THEN the five others re-form a circle of five
     swarm.wait_for(lambda: on_circle(swarm.status(), survivors), 240, "the circle of 5")
     # AND the status shows the dead drone LOST with its cause, not armed
-    row = " ".join(swarm.status()[203])
-    assert row.startswith("203 LOST") and cause in row, row
+    row = " ".join(swarm.status()[victim])
+    assert row.startswith(f"{victim} LOST") and cause in row, row
     # AND the supervisor said so once, on one line, and nobody collided
     lost = [ln for ln in swarm.lines if "lost" in ln]
-    assert len(lost) == 1 and re.fullmatch(rf"drone 203 lost at t=\d+\.\d s: {cause}", lost[0]), lost
+    assert len(lost) == 1 and re.fullmatch(rf"drone {victim} lost at t=\d+\.\d s: {cause}", lost[0]), lost
     assert not [ln for ln in swarm.lines if "link back" in ln or "exited" in ln], swarm.lines
     assert not [ln for ln in swarm.lines if "Collision" in ln], swarm.lines
     assert any("formation re-planned over 5 drones" in ln for ln in swarm.lines), swarm.lines
     # AND a fault for a drone the swarm does not have, or for the lost one, is one line (exit 2: bad input)
-    unknown = swarm.cli("fault", "99", "motor")
-    assert unknown.returncode == 2 and unknown.stderr == "swarm: error: no drone with sysid 99 (sysids 201..206)\n"
-    again = swarm.cli("kill", "203")
-    assert again.returncode == 1 and again.stderr.startswith("swarm: error: drone 203 is already lost ("), again
+    unknown = swarm.cli("fault", str(absent), "motor")
+    assert unknown.returncode == 2 and unknown.stderr == (
+        f"swarm: error: no drone with sysid {absent} (sysids {first + 1}..{first + 6})\n"
+    ), unknown
+    again = swarm.cli("kill", str(victim))
+    assert again.returncode == 1 and again.stderr.startswith(f"swarm: error: drone {victim} is already lost ("), again
     assert len(again.stderr.splitlines()) == 1
     # AND once the swarm is down, the report lists the loss and the fault, with no collision
     swarm.command("down")
     assert swarm.proc.wait(timeout=120) == 0, swarm.lines
     metrics = json.loads((report / "metrics.json").read_text())
-    assert [(x["sysid"], x["cause"]) for x in metrics["losses"]] == [(203, cause)]
-    assert [(f["sysid"], f["fault"]) for f in metrics["faults"]] == [(203, "crash")]
+    assert [(x["sysid"], x["cause"]) for x in metrics["losses"]] == [(victim, cause)]
+    assert [(f["sysid"], f["fault"]) for f in metrics["faults"]] == [(victim, "crash")]
     assert [s["name"] for s in metrics["steps"]] == ["takeoff", "circle"]
     # (nobody hit the falling body while the swarm flew, nor its wreck when ``down`` landed the others: a survivor
     # above or beside it side-steps before it descends; and where it came down is reported)
@@ -199,70 +205,82 @@ def test_kill_9_of_one_drone_of_a_rotating_circle_of_6_leaves_a_circle_of_5_and_
 
 
 @pytest.mark.timeout(300)
-def test_loss_policy_hold_puts_the_survivor_in_hold_where_it_is(supervisors: Callable[[list[str]], Supervisor]) -> None:
+def test_loss_policy_hold_puts_the_survivor_in_hold_where_it_is(
+    supervisors: Callable[[list[str]], Supervisor], instances: Leases
+) -> None:
     # GIVEN two drones flying a line under loss policy hold
-    swarm = supervisors(["-n", "2", "--lockstep", "--first-instance", "224", "--no-forward", "--loss-policy", "hold"])
+    first = instances(2)
+    swarm = supervisors(["-n", "2", "--lockstep", "--first-instance", str(first), "--no-forward", "--loss-policy",
+                         "hold"])  # fmt: skip
     swarm.command("takeoff", "--alt", "3")
     swarm.wait_for(lambda: all(float(r[5]) > 2.7 for r in swarm.status().values()), 120, "the takeoff")
     swarm.command("formation", "line", "--spacing", "4", "--alt", "3")
     swarm.wait_for(lambda: all(r[1] == "OFFBOARD" for r in swarm.status().values()), 120, "OFFBOARD")
     # WHEN the second drone's process is killed
-    assert swarm.cli("kill", "226").returncode == 0
+    assert swarm.cli("kill", str(first + 2)).returncode == 0
     # THEN the survivor is switched to PX4 Hold (AUTO.LOITER) and stays up, and the supervisor says why
-    swarm.wait_for(lambda: swarm.status()[225][1] == "AUTO.LOITER", 120, "Hold")
-    row = swarm.status()[225]
+    swarm.wait_for(lambda: swarm.status()[first + 1][1] == "AUTO.LOITER", 120, "Hold")
+    row = swarm.status()[first + 1]
     assert row[2] == "yes" and float(row[5]) > 2.5, row
     assert "swarm: loss policy hold: every drone holds where it is" in swarm.lines, swarm.lines
 
 
 @pytest.mark.timeout(300)
 def test_a_drone_heard_again_under_loss_policy_hold_is_held_too(
-    supervisors: Callable[[list[str]], Supervisor],
+    supervisors: Callable[[list[str]], Supervisor], instances: Leases
 ) -> None:
     # GIVEN two drones flying a line under loss policy hold
-    swarm = supervisors(["-n", "2", "--lockstep", "--first-instance", "56", "--no-forward", "--loss-policy", "hold"])
+    first = instances(2)
+    survivor, silent = first + 1, first + 2  # sysids
+    swarm = supervisors(["-n", "2", "--lockstep", "--first-instance", str(first), "--no-forward", "--loss-policy",
+                         "hold"])  # fmt: skip
     swarm.command("takeoff", "--alt", "3")
     swarm.wait_for(lambda: all(float(r[5]) > 2.7 for r in swarm.status().values()), 120, "the takeoff")
     swarm.command("formation", "line", "--spacing", "4", "--alt", "3")
     swarm.wait_for(lambda: all(r[1] == "OFFBOARD" for r in swarm.status().values()), 120, "OFFBOARD")
     # WHEN the second drone's links go silent for 5 s
-    result = swarm.cli("fault", "58", "link", "--for", "5")
-    assert result.returncode == 0 and result.stdout == "swarm: drone 58: accepted\n", result
+    result = swarm.cli("fault", str(silent), "link", "--for", "5")
+    assert result.returncode == 0 and result.stdout == f"swarm: drone {silent}: accepted\n", result
     # THEN it is lost after 3 s of silence and the survivor holds, as the policy says
-    swarm.wait_for(lambda: any(ln.startswith("drone 58 lost at t=") for ln in swarm.lines), 120, "the loss")
-    swarm.wait_for(lambda: swarm.status()[57][1] == "AUTO.LOITER", 120, "Hold")
+    swarm.wait_for(lambda: any(ln.startswith(f"drone {silent} lost at t=") for ln in swarm.lines), 120, "the loss")
+    swarm.wait_for(lambda: swarm.status()[survivor][1] == "AUTO.LOITER", 120, "Hold")
     # AND once heard again it is told the same: both hold, in the air
-    swarm.wait_for(lambda: any(ln.startswith("drone 58 link regained at t=") for ln in swarm.lines), 120, "the regain")
-    assert "swarm: loss policy hold: sysid 58 holds where it is too" in swarm.lines, swarm.lines
-    swarm.wait_for(lambda: swarm.status()[58][1] == "AUTO.LOITER", 120, "Hold")
+    swarm.wait_for(lambda: any(ln.startswith(f"drone {silent} link regained at t=") for ln in swarm.lines), 120,
+                   "the regain")  # fmt: skip
+    assert f"swarm: loss policy hold: sysid {silent} holds where it is too" in swarm.lines, swarm.lines
+    swarm.wait_for(lambda: swarm.status()[silent][1] == "AUTO.LOITER", 120, "Hold")
     rows = swarm.status()
-    assert all(rows[s][2] == "yes" and float(rows[s][5]) > 2.5 for s in (57, 58)), rows
+    assert all(rows[s][2] == "yes" and float(rows[s][5]) > 2.5 for s in (survivor, silent)), rows
 
 
 @pytest.mark.timeout(300)
 def test_a_host_process_killed_from_outside_loses_its_drones_and_the_other_host_flies_on(
-    supervisors: Callable[[list[str]], Supervisor],
+    supervisors: Callable[[list[str]], Supervisor], instances: Leases
 ) -> None:
     # GIVEN four drones in lockstep, two to a process, holding a line at 3 m
-    swarm = supervisors(["-n", "4", "--lockstep", "--first-instance", "236", "--no-forward", "--layout", "line",
+    first = instances(4)
+    killed = (first + 1, first + 2)  # the sysids of the first host's drones
+    flying = (first + 3, first + 4)  # and of the other host's
+    swarm = supervisors(["-n", "4", "--lockstep", "--first-instance", str(first), "--no-forward", "--layout", "line",
                          "--spacing", "3", "--drones-per-process", "2"])  # fmt: skip
     assert len(swarm.drones) == 2  # two host processes
     swarm.command("takeoff", "--alt", "3")
     swarm.wait_for(lambda: all(float(r[5]) > 2.7 for r in swarm.status().values()), 120, "the takeoff")
-    # WHEN the process hosting sysids 237 and 238 is killed with SIGKILL from outside the swarm (as the OOM killer
+    # WHEN the process hosting the first two drones is killed with SIGKILL from outside the swarm (as the OOM killer
     # would), not through the supervisor
-    host = next(pid for pid in swarm.drones if Path(f"/proc/{pid}/comm").read_text().strip() == "sitl-236-237")
+    name = f"sitl-{first}-{first + 1}"
+    host = next(pid for pid in swarm.drones if Path(f"/proc/{pid}/comm").read_text().strip() == name)
     os.kill(host, signal.SIGKILL)
     # THEN both its drones are lost, each said once with the host's end, and the other host's drones fly on
     swarm.wait_for(lambda: sum("lost" in ln for ln in swarm.lines) == 2, 60, "two losses")
     lost = sorted(ln for ln in swarm.lines if "lost" in ln)
-    for line, sysid in zip(lost, (237, 238), strict=True):
+    for line, sysid in zip(lost, killed, strict=True):
         assert re.fullmatch(rf"drone {sysid} lost at t=\d+\.\d s: its host process killed by SIGKILL", line), lost
     rows = swarm.status()
-    assert rows[237][1] == rows[238][1] == "LOST", rows
-    assert all(rows[s][2] == "yes" and float(rows[s][5]) > 2.5 for s in (239, 240)), rows
+    assert rows[killed[0]][1] == rows[killed[1]][1] == "LOST", rows
+    assert all(rows[s][2] == "yes" and float(rows[s][5]) > 2.5 for s in flying), rows
     swarm.command("land")
-    swarm.wait_for(lambda: all(swarm.status()[s][2] == "no" for s in (239, 240)), 120, "the landing")
+    swarm.wait_for(lambda: all(swarm.status()[s][2] == "no" for s in flying), 120, "the landing")
 
 
 MISSION = """\
@@ -294,24 +312,29 @@ action = "land"
 
 
 @pytest.mark.timeout(300)
-def test_a_mission_crash_fault_is_in_the_report_with_the_loss_and_metrics_over_the_survivors(tmp_path: Path) -> None:
+def test_a_mission_crash_fault_is_in_the_report_with_the_loss_and_metrics_over_the_survivors(
+    tmp_path: Path, instances: Leases
+) -> None:
     # GIVEN a mission that kills drone 2 six seconds into a circle of four
     mission = tmp_path / "lose_one.toml"
     mission.write_text(MISSION)
     report = tmp_path / "report"
+    first = instances(4)
+    victim = first + 2  # drone 2's sysid
     # WHEN flown in lockstep
     result = subprocess.run(
-        [*SWARM, "fly", str(mission), "--report", str(report), "--lockstep", "--first-instance", "210", "--no-forward"],
+        [*SWARM, "fly", str(mission), "--report", str(report), "--lockstep", "--first-instance", str(first),
+         "--no-forward"],
         capture_output=True, text=True, timeout=280,
     )  # fmt: skip
     # THEN the mission completes with the three survivors landing
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
-    assert len(re.findall(r"^drone 212 lost at t=", result.stdout, re.M)) == 1, result.stdout
+    assert len(re.findall(rf"^drone {victim} lost at t=", result.stdout, re.M)) == 1, result.stdout
     # AND the report lists the fault, the loss and where it came down, with no collision
     metrics = json.loads((report / "metrics.json").read_text())
     assert [f["fault"] for f in metrics["faults"]] == ["crash"]
-    assert metrics["faults"][0]["sysid"] == 212 and "killed with SIGKILL" in metrics["faults"][0]["result"]
-    assert [(x["sysid"], x["cause"]) for x in metrics["losses"]] == [(212, "process killed by SIGKILL")]
+    assert metrics["faults"][0]["sysid"] == victim and "killed with SIGKILL" in metrics["faults"][0]["result"]
+    assert [(x["sysid"], x["cause"]) for x in metrics["losses"]] == [(victim, "process killed by SIGKILL")]
     assert metrics["collisions"] == 0, metrics["collision_events"]
     assert metrics["loss_policy"] == "continue"
     assert metrics["losses"][0]["down_ne_m"] is not None, metrics["losses"]  # where the falling body came down
@@ -329,7 +352,7 @@ def test_a_mission_crash_fault_is_in_the_report_with_the_loss_and_metrics_over_t
     assert circle["formation_rms_m"] is not None and circle["formation_rms_m"] < 0.3, circle
     # AND the report page replays the flight to the end with the same minimum separation, the killed drone drawn
     # lost, and the crash and the loss marked on its timeline
-    check_report_page(report, metrics, lost=(212,), marks=("fault", "loss"), screenshot_at_s=circle["start_s"] + 8.0)
+    check_report_page(report, metrics, lost=(victim,), marks=("fault", "loss"), screenshot_at_s=circle["start_s"] + 8.0)
 
 
 ABORT_MISSION = """\
@@ -364,14 +387,18 @@ action = "land"
 
 
 @pytest.mark.timeout(240)
-def test_loss_policy_abort_returns_the_survivor_to_launch_and_drops_the_rest_of_the_mission(tmp_path: Path) -> None:
+def test_loss_policy_abort_returns_the_survivor_to_launch_and_drops_the_rest_of_the_mission(
+    tmp_path: Path, instances: Leases
+) -> None:
     # GIVEN a mission whose first drone crashes two seconds into a minute-long formation, under loss policy abort
     mission = tmp_path / "abort.toml"
     mission.write_text(ABORT_MISSION)
     report = tmp_path / "report"
+    first = instances(2)
     # WHEN flown in lockstep
     result = subprocess.run(
-        [*SWARM, "fly", str(mission), "--report", str(report), "--lockstep", "--first-instance", "220", "--no-forward"],
+        [*SWARM, "fly", str(mission), "--report", str(report), "--lockstep", "--first-instance", str(first),
+         "--no-forward"],
         capture_output=True, text=True, timeout=220,
     )  # fmt: skip
     # THEN the survivor returned to launch and landed, and the mission ended there instead of holding its formation
@@ -380,7 +407,7 @@ def test_loss_policy_abort_returns_the_survivor_to_launch_and_drops_the_rest_of_
     assert "remaining steps dropped" in result.stdout
     metrics = json.loads((report / "metrics.json").read_text())
     assert metrics["loss_policy"] == "abort"
-    assert [x["sysid"] for x in metrics["losses"]] == [221]
+    assert [x["sysid"] for x in metrics["losses"]] == [first + 1]  # the first drone
     assert [e["text"] for e in metrics["loss_policy_actions"]] == [
         "loss policy abort: every drone returns to launch and lands"
     ]

@@ -2,7 +2,7 @@
 (exit code 0). The classic demo through the Python API flies like ``swarm fly missions/grid_to_circle.toml``: the
 same figures within noise. (examples/test_my_swarm.py runs in tests/integration/test_pytest_plugin.py.)
 
-Policy: loopback only; instances 30-38 (the mission), 60-68 (the API demo), 8-11, 58-59, 248; a time limit on each.
+Policy: loopback only; leased instances (tests/integration/instances.py); a time limit on each.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ from typing import Any
 
 import pytest
 
+from tests.integration.instances import Leases
 from tests.integration.mission_flight import MISSIONS, fly_mission
 
 pytestmark = [pytest.mark.sim_only]
@@ -35,16 +36,15 @@ def step(metrics: dict[str, Any], name: str) -> dict[str, Any]:
 
 
 @pytest.mark.timeout(600)
-def test_the_classic_demo_through_the_api_flies_like_the_mission_file(tmp_path: Path) -> None:
+def test_the_classic_demo_through_the_api_flies_like_the_mission_file(tmp_path: Path, instances: Leases) -> None:
     # GIVEN the grid-to-circle mission flown by ``swarm fly`` in lockstep (15 s on the circle instead of 30, as below)
     text = (MISSIONS / "grid_to_circle.toml").read_text()
     assert text.count("hold_s = 30.0") == 1
     short = tmp_path / "grid_to_circle.toml"
     short.write_text(text.replace("hold_s = 30.0", f"hold_s = {CIRCLE_S}"))
-    mission, _ = fly_mission(str(short), ["--lockstep", "--first-instance", "30", "--drones-per-process", "auto"],
-                             tmp_path, 300)  # fmt: skip
-    # WHEN the API example flies the same steps
-    run_example("classic_demo.py", "--first-instance", "60", "--circle-s", str(CIRCLE_S),
+    mission, _ = fly_mission(str(short), ["--lockstep", "--drones-per-process", "auto"], tmp_path, 300, instances)
+    # WHEN the API example flies the same steps (its nine drones by default)
+    run_example("classic_demo.py", "--first-instance", str(instances(9)), "--circle-s", str(CIRCLE_S),
                 "--report", str(tmp_path / "api"))  # fmt: skip
     api = json.loads((tmp_path / "api" / "metrics.json").read_text())
     # THEN both fly without a collision, with the same steps, and their figures agree within noise
@@ -60,26 +60,28 @@ def test_the_classic_demo_through_the_api_flies_like_the_mission_file(tmp_path: 
 
 
 @pytest.mark.timeout(300)
-def test_the_custom_controller_example_brings_four_drones_onto_its_ring(tmp_path: Path) -> None:
-    result = run_example("custom_controller.py", "--drones", "4", "--seconds", "25", "--first-instance", "8",
-                         "--report", str(tmp_path / "report"))  # fmt: skip
+def test_the_custom_controller_example_brings_four_drones_onto_its_ring(tmp_path: Path, instances: Leases) -> None:
+    result = run_example("custom_controller.py", "--drones", "4", "--seconds", "25", "--first-instance",
+                         str(instances(4)), "--report", str(tmp_path / "report"))  # fmt: skip
     assert "collisions 0" in result.stdout, result.stdout[-2000:]
 
 
 @pytest.mark.timeout(200)
-def test_the_pymavlink_example_takes_one_drone_off_and_lands_it() -> None:
-    result = run_example("pymavlink_takeoff_land.py", "--start-drone", "--instance", "248")
+def test_the_pymavlink_example_takes_one_drone_off_and_lands_it(instances: Leases) -> None:
+    result = run_example("pymavlink_takeoff_land.py", "--start-drone", "--instance", str(instances(1)))
     assert "landed and disarmed" in result.stdout, result.stdout
 
 
 @pytest.mark.timeout(200)
-def test_the_mavsdk_example_flies_two_drones_at_once() -> None:
-    result = run_example("mavsdk_several_drones.py", "--drones", "2", "--first-instance", "58")
+def test_the_mavsdk_example_flies_two_drones_at_once(instances: Leases) -> None:
+    result = run_example("mavsdk_several_drones.py", "--drones", "2", "--first-instance", str(instances(2)))
     assert result.stdout.count("landed and disarmed") == 2, result.stdout[-2000:]
 
 
 @pytest.mark.timeout(300)
-def test_the_onboard_behaviour_example_gathers_four_drones_that_decide_for_themselves(tmp_path: Path) -> None:
-    result = run_example("onboard_behaviour.py", "--drones", "4", "--seconds", "20", "--first-instance", "8",
-                         "--report", str(tmp_path / "report"))  # fmt: skip
+def test_the_onboard_behaviour_example_gathers_four_drones_that_decide_for_themselves(
+    tmp_path: Path, instances: Leases
+) -> None:
+    result = run_example("onboard_behaviour.py", "--drones", "4", "--seconds", "20", "--first-instance",
+                         str(instances(4)), "--report", str(tmp_path / "report"))  # fmt: skip
     assert "collisions 0" in result.stdout, result.stdout[-2000:]

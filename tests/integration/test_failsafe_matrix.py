@@ -6,9 +6,10 @@ MAV_CMD_INJECT_FAILURE and checks what a client sees (flight mode in HEARTBEAT c
 STATUSTEXT) and what the drone does. The drone's body in a shared world the test creates is ground truth: where it
 is and when (``sitl --world``), which is also how a drone made silent by a link fault is watched.
 
-Policy: drones of these tests use instances 100-119 (their own block); each is stopped by PID and reaped at the
-end, its shared world unlinked. Timeouts are kept short (COM_DL_LOSS_T at its minimum 5 s, COM_FAIL_ACT_T 1 s,
-RTL_RETURN_ALT 0 so a Return flies home at the altitude it has) so each test flies a few tens of simulated seconds.
+Policy: drones of these tests use leased instances (tests/integration/instances.py, the ``instance_allocator``
+fixture's block); each is stopped by PID and reaped at the end, its shared world unlinked. Timeouts are kept short
+(COM_DL_LOSS_T at its minimum 5 s, COM_FAIL_ACT_T 1 s, RTL_RETURN_ALT 0 so a Return flies home at the altitude it
+has) so each test flies a few tens of simulated seconds.
 """
 
 from __future__ import annotations
@@ -46,7 +47,6 @@ from tests.integration.vehicle_link import VehicleLink
 
 pytestmark = [pytest.mark.sim_only]
 
-FIRST_INSTANCE, INSTANCES = 100, 20
 SPEED_FACTOR: Final = 4.0
 INJECT: Final = mavlink.MAV_CMD_INJECT_FAILURE
 PREARM: Final = mavlink.MAV_SYS_STATUS_PREARM_CHECK
@@ -54,7 +54,6 @@ PX4_AUTO_RTL: Final = 84148224  # main 4 << 16 | sub 5 << 24
 PX4_OFFBOARD: Final = 6 << 16
 EARTH_RADIUS_M: Final = 6_371_000.0
 Geo2 = tuple[float, float]  # latitude, longitude in degrees
-_allocator = InstanceAllocator(FIRST_INSTANCE, INSTANCES)
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -223,10 +222,10 @@ def watch_body(
 
 
 def drone_in_world(
-    tmp_path: Path, speed_factor: float = SPEED_FACTOR
+    tmp_path: Path, allocator: InstanceAllocator, speed_factor: float = SPEED_FACTOR
 ) -> contextlib.AbstractContextManager[tuple[SitlDrone, SharedWorld]]:
-    """A ``sitl`` on an instance of this module's block, publishing its body to a fresh shared world."""
-    return sitl_process.drone_in_world(tmp_path, _allocator, speed_factor, log_lines=80)
+    """A ``sitl`` on an instance of ``allocator``'s leased block, publishing its body to a fresh shared world."""
+    return sitl_process.drone_in_world(tmp_path, allocator, speed_factor, log_lines=80)
 
 
 def home_of(drone: SitlDrone, world: SharedWorld) -> tuple[float, float, float]:
@@ -255,11 +254,13 @@ def periodic(send: Callable[[], None], interval_s: float) -> Iterator[threading.
 
 
 @contextlib.contextmanager
-def ground_station(tmp_path: Path, speed_factor: float = SPEED_FACTOR) -> Iterator[GroundStation]:
+def ground_station(
+    tmp_path: Path, allocator: InstanceAllocator, speed_factor: float = SPEED_FACTOR
+) -> Iterator[GroundStation]:
     """A drone in a fresh shared world, and the test as its ground station (GCS HEARTBEATs at 1 Hz of the drone's
     time, injection enabled with SYS_FAILURE_EN = 1)."""
     with (
-        drone_in_world(tmp_path, speed_factor) as (drone, world),
+        drone_in_world(tmp_path, allocator, speed_factor) as (drone, world),
         mavlink_connection(VehicleLink.of(drone).pymavlink_url) as conn,
     ):
         wait_vehicle_heartbeat(conn, drone.sysid, 10.0)
@@ -288,9 +289,11 @@ def _is_status(m: Message, custom_mode: int, system_status: int) -> bool:
 
 # ---- pre-arm check of the datalink failsafe -----------------------------------------------------------------------
 @pytest.mark.timeout(60)
-def test_with_nav_dll_act_set_arming_needs_gcs_heartbeats(tmp_path: Path) -> None:
+def test_with_nav_dll_act_set_arming_needs_gcs_heartbeats(
+    tmp_path: Path, instance_allocator: InstanceAllocator
+) -> None:
     with (
-        drone_in_world(tmp_path) as (drone, world),
+        drone_in_world(tmp_path, instance_allocator) as (drone, world),
         mavlink_connection(VehicleLink.of(drone).pymavlink_url) as conn,
     ):
         wait_vehicle_heartbeat(conn, drone.sysid, 10.0)
@@ -321,9 +324,11 @@ def test_with_nav_dll_act_set_arming_needs_gcs_heartbeats(tmp_path: Path) -> Non
 
 # ---- datalink loss ------------------------------------------------------------------------------------------------
 @pytest.mark.timeout(60)
-def test_link_off_with_nav_dll_act_return_holds_then_returns_home_after_com_dl_loss_t(tmp_path: Path) -> None:
+def test_link_off_with_nav_dll_act_return_holds_then_returns_home_after_com_dl_loss_t(
+    tmp_path: Path, instance_allocator: InstanceAllocator
+) -> None:
     loss_s, act_s, goto_m = 5, 3.0, 40.0
-    with ground_station(tmp_path) as gcs:
+    with ground_station(tmp_path, instance_allocator) as gcs:
         # GIVEN NAV_DLL_ACT = 2 (Return), short timeouts, a drone starting a 40 m goto north (8 s at cruise speed)
         gcs.set_param("NAV_DLL_ACT", 2, integer=True)
         gcs.set_param("COM_DL_LOSS_T", loss_s, integer=True)
@@ -352,8 +357,10 @@ def test_link_off_with_nav_dll_act_return_holds_then_returns_home_after_com_dl_l
 
 # ---- offboard loss ------------------------------------------------------------------------------------------------
 @pytest.mark.timeout(60)
-def test_offboard_setpoints_stopping_with_com_obl_rc_act_land_holds_then_lands_where_it_is(tmp_path: Path) -> None:
-    with ground_station(tmp_path) as gcs:
+def test_offboard_setpoints_stopping_with_com_obl_rc_act_land_holds_then_lands_where_it_is(
+    tmp_path: Path, instance_allocator: InstanceAllocator
+) -> None:
+    with ground_station(tmp_path, instance_allocator) as gcs:
         # GIVEN COM_OBL_RC_ACT = 4 (Land), a drone in OFFBOARD flying to 4 m north on position setpoints
         gcs.set_param("COM_OBL_RC_ACT", 4, integer=True)
         gcs.set_param("COM_OF_LOSS_T", 0.5)
@@ -411,8 +418,8 @@ def _charge_state_is(state: int) -> Callable[[Message], bool]:
 
 
 @pytest.mark.timeout(60)
-def test_low_battery_only_warns_whatever_com_low_bat_act(tmp_path: Path) -> None:
-    with ground_station(tmp_path) as gcs:
+def test_low_battery_only_warns_whatever_com_low_bat_act(tmp_path: Path, instance_allocator: InstanceAllocator) -> None:
+    with ground_station(tmp_path, instance_allocator) as gcs:
         injected = _fly_out_and_inject_battery(gcs, level=1, action=2)
         assert gcs.wait_text("Low battery: 14% remaining", 3.0) == mavlink.MAV_SEVERITY_WARNING
         gcs.recv(_charge_state_is(mavlink.MAV_BATTERY_CHARGE_STATE_LOW), 5.0, "BATTERY_STATUS LOW")
@@ -437,9 +444,9 @@ def test_low_battery_only_warns_whatever_com_low_bat_act(tmp_path: Path) -> None
     ids=["critical-land", "emergency-return-then-land"],
 )
 def test_a_critical_or_emergency_battery_per_com_low_bat_act_lands_where_it_is(
-    tmp_path: Path, level: int, action: int, text: str, charge_state: int
+    tmp_path: Path, instance_allocator: InstanceAllocator, level: int, action: int, text: str, charge_state: int
 ) -> None:
-    with ground_station(tmp_path) as gcs:
+    with ground_station(tmp_path, instance_allocator) as gcs:
         injected = _fly_out_and_inject_battery(gcs, level=level, action=action)
         gcs.recv(lambda m: _is_status(m, PX4_AUTO_LAND, mavlink.MAV_STATE_CRITICAL), 3.0, "AUTO.LAND, CRITICAL")
         assert gcs.wait_text(text, 2.0) == mavlink.MAV_SEVERITY_CRITICAL
@@ -451,8 +458,10 @@ def test_a_critical_or_emergency_battery_per_com_low_bat_act_lands_where_it_is(
 
 # ---- position loss ------------------------------------------------------------------------------------------------
 @pytest.mark.timeout(60)
-def test_gps_off_descends_after_the_estimator_timeout_and_disarms_on_the_ground(tmp_path: Path) -> None:
-    with ground_station(tmp_path) as gcs:
+def test_gps_off_descends_after_the_estimator_timeout_and_disarms_on_the_ground(
+    tmp_path: Path, instance_allocator: InstanceAllocator
+) -> None:
+    with ground_station(tmp_path, instance_allocator) as gcs:
         arm_and_take_off(gcs.conn, 40.0)
         gcs.inject(4, 1)
         injected = gcs.body()
@@ -493,7 +502,9 @@ def stop_bound_m(samples: list[BodySample], out_m: Callable[[BodySample], float]
 
 
 @pytest.mark.timeout(90)
-async def test_mavsdk_uploads_a_circle_fence_and_a_breach_with_gf_action_return_flies_home(tmp_path: Path) -> None:
+async def test_mavsdk_uploads_a_circle_fence_and_a_breach_with_gf_action_return_flies_home(
+    tmp_path: Path, instance_allocator: InstanceAllocator
+) -> None:
     from mavsdk.asyncio.plugins.geofence import Circle, FenceType, GeofenceAsync, GeofenceData, Point
     from mavsdk.asyncio.plugins.telemetry import FlightMode
 
@@ -508,7 +519,7 @@ async def test_mavsdk_uploads_a_circle_fence_and_a_breach_with_gf_action_return_
     )
 
     radius_m = 5.0
-    with drone_in_world(tmp_path) as (drone, world):
+    with drone_in_world(tmp_path, instance_allocator) as (drone, world):
         home = home_of(drone, world)
         async with connect(VehicleLink.of(drone).mavsdk_url, drone.sysid) as client:
             # GIVEN GF_ACTION = 3 (Return) and an inclusion circle of 5 m around home, uploaded by MAVSDK
@@ -541,9 +552,11 @@ async def test_mavsdk_uploads_a_circle_fence_and_a_breach_with_gf_action_return_
 
 
 @pytest.mark.timeout(60)
-def test_beyond_gf_max_hor_dist_with_gf_action_land_lands_there(tmp_path: Path) -> None:
+def test_beyond_gf_max_hor_dist_with_gf_action_land_lands_there(
+    tmp_path: Path, instance_allocator: InstanceAllocator
+) -> None:
     limit_m = 4.0
-    with ground_station(tmp_path) as gcs:
+    with ground_station(tmp_path, instance_allocator) as gcs:
         # GIVEN GF_ACTION = 5 (Land) and GF_MAX_HOR_DIST = 4 m, no fence uploaded
         gcs.set_param("GF_ACTION", 5, integer=True)
         gcs.set_param("GF_MAX_HOR_DIST", limit_m)
@@ -566,8 +579,10 @@ def test_beyond_gf_max_hor_dist_with_gf_action_land_lands_there(tmp_path: Path) 
 
 # ---- motor off ----------------------------------------------------------------------------------------------------
 @pytest.mark.timeout(60)
-def test_a_rotor_off_in_flight_the_drone_falls_and_stays_down(tmp_path: Path) -> None:
-    with ground_station(tmp_path) as gcs:
+def test_a_rotor_off_in_flight_the_drone_falls_and_stays_down(
+    tmp_path: Path, instance_allocator: InstanceAllocator
+) -> None:
+    with ground_station(tmp_path, instance_allocator) as gcs:
         up_m = arm_and_take_off(gcs.conn, 40.0)
         # WHEN rotor 1 stops
         gcs.inject(101, 1, 1)
@@ -592,8 +607,10 @@ def test_a_rotor_off_in_flight_the_drone_falls_and_stays_down(tmp_path: Path) ->
 
 
 @pytest.mark.timeout(60)
-def test_above_gf_max_ver_dist_with_gf_action_terminate_falls_and_reports_flight_termination(tmp_path: Path) -> None:
-    with ground_station(tmp_path) as gcs:
+def test_above_gf_max_ver_dist_with_gf_action_terminate_falls_and_reports_flight_termination(
+    tmp_path: Path, instance_allocator: InstanceAllocator
+) -> None:
+    with ground_station(tmp_path, instance_allocator) as gcs:
         # GIVEN GF_ACTION = 4 (Terminate) and a 4 m ceiling
         gcs.set_param("GF_ACTION", 4, integer=True)
         gcs.set_param("GF_MAX_VER_DIST", 4.0)
@@ -630,7 +647,7 @@ def _square(
 
 @pytest.mark.timeout(90)
 async def test_mavsdk_polygon_fence_with_gf_action_hold_stops_at_the_fence_and_arming_outside_it_is_refused(
-    tmp_path: Path,
+    tmp_path: Path, instance_allocator: InstanceAllocator
 ) -> None:
     from mavsdk.asyncio.plugins.action import ActionError
     from mavsdk.asyncio.plugins.geofence import FenceType, GeofenceAsync, GeofenceData, Point, Polygon
@@ -646,7 +663,7 @@ async def test_mavsdk_polygon_fence_with_gf_action_hold_stops_at_the_fence_and_a
     )
 
     half_m = 6.0
-    with drone_in_world(tmp_path) as (drone, world):
+    with drone_in_world(tmp_path, instance_allocator) as (drone, world):
         home = home_of(drone, world)
         async with connect(VehicleLink.of(drone).mavsdk_url, drone.sysid) as client:
             geofence = GeofenceAsync(client.system)

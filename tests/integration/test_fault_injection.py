@@ -1,9 +1,9 @@
 """Fault injection and fence uploads against a real ``sitl`` process: pymavlink for INJECT_FAILURE, MAVSDK for the
 fence round trip.
 
-Policy: drones of these tests use instances 120-139 (their own block, clear of the suite's default 20-119); each
-drone is stopped by PID and reaped at the end, its shared world unlinked. A drone's body in the shared world is
-ground truth, read to show that a drone whose links went silent still flies.
+Policy: drones of these tests use leased instances (tests/integration/instances.py, the ``instance_allocator``
+fixture's block); each drone is stopped by PID and reaped at the end, its shared world unlinked. A drone's body in
+the shared world is ground truth, read to show that a drone whose links went silent still flies.
 """
 
 from __future__ import annotations
@@ -33,9 +33,7 @@ from tests.integration.vehicle_link import VehicleLink
 
 pytestmark = [pytest.mark.sim_only]
 
-FIRST_INSTANCE, INSTANCES = 120, 20
 INJECT = mavlink.MAV_CMD_INJECT_FAILURE
-_allocator = InstanceAllocator(FIRST_INSTANCE, INSTANCES)
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -46,17 +44,20 @@ def _shared_memory_tracker() -> None:
 
 
 def drone_in_world(
-    tmp_path: Path, speed_factor: float = 4.0
+    tmp_path: Path, allocator: InstanceAllocator, speed_factor: float = 4.0
 ) -> contextlib.AbstractContextManager[tuple[SitlDrone, SharedWorld]]:
-    """A ``sitl`` on an instance of this module's block, publishing its body to a fresh shared world."""
-    return sitl_process.drone_in_world(tmp_path, _allocator, speed_factor)
+    """A ``sitl`` on an instance of ``allocator``'s leased block, publishing its body to a fresh shared world."""
+    return sitl_process.drone_in_world(tmp_path, allocator, speed_factor)
 
 
 @pytest.mark.timeout(90)
 def test_inject_failure_is_denied_unless_enabled_and_a_link_fault_silences_a_drone_that_flies_on(
-    tmp_path: Path,
+    tmp_path: Path, instance_allocator: InstanceAllocator
 ) -> None:
-    with drone_in_world(tmp_path) as (drone, world), mavlink_connection(VehicleLink.of(drone).pymavlink_url) as conn:
+    with (
+        drone_in_world(tmp_path, instance_allocator) as (drone, world),
+        mavlink_connection(VehicleLink.of(drone).pymavlink_url) as conn,
+    ):
         wait_vehicle_heartbeat(conn, drone.sysid, 10.0)
         # GIVEN the default SYS_FAILURE_EN = 0  WHEN a motor failure is injected  THEN DENIED, with PX4's text
         ack = command_long(conn, INJECT, (101, 1, 1))
@@ -119,7 +120,9 @@ def _upload_fence(conn: mavutil.mavfile, items: list[mavlink.MAVLink_mission_ite
 
 
 @pytest.mark.timeout(60)
-def test_pymavlink_fence_upload_download_refusal_and_clear(tmp_path: Path) -> None:
+def test_pymavlink_fence_upload_download_refusal_and_clear(
+    tmp_path: Path, instance_allocator: InstanceAllocator
+) -> None:
     fence = mavlink.MAV_MISSION_TYPE_FENCE
     lat, lon = 473977420, 85455940
 
@@ -129,7 +132,10 @@ def test_pymavlink_fence_upload_download_refusal_and_clear(tmp_path: Path) -> No
             count, 0, 0, 0, lat + d_lat, lon + d_lon, 0, fence,
         )  # fmt: skip
 
-    with drone_in_world(tmp_path) as (drone, _world), mavlink_connection(VehicleLink.of(drone).pymavlink_url) as conn:
+    with (
+        drone_in_world(tmp_path, instance_allocator) as (drone, _world),
+        mavlink_connection(VehicleLink.of(drone).pymavlink_url) as conn,
+    ):
         wait_vehicle_heartbeat(conn, drone.sysid, 10.0)
         triangle = [vertex(0, 3, -900, -900), vertex(1, 3, -900, 900), vertex(2, 3, 900, 0)]
         for item in triangle:
@@ -149,12 +155,14 @@ def test_pymavlink_fence_upload_download_refusal_and_clear(tmp_path: Path) -> No
 
 
 @pytest.mark.timeout(90)
-async def test_mavsdk_uploads_downloads_and_clears_a_fence_and_injects_a_failure(tmp_path: Path) -> None:
+async def test_mavsdk_uploads_downloads_and_clears_a_fence_and_injects_a_failure(
+    tmp_path: Path, instance_allocator: InstanceAllocator
+) -> None:
     from mavsdk.asyncio.plugins.failure import FailureAsync, FailureType, FailureUnit
     from mavsdk.asyncio.plugins.geofence import Circle, FenceType, GeofenceAsync, GeofenceData, Point, Polygon
     from mavsdk.asyncio.plugins.telemetry import FixType
 
-    with drone_in_world(tmp_path) as (drone, _world):
+    with drone_in_world(tmp_path, instance_allocator) as (drone, _world):
         link = VehicleLink.of(drone)
         async with connect(link.mavsdk_url, drone.sysid) as client:
             geofence = GeofenceAsync(client.system)

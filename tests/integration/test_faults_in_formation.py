@@ -8,7 +8,7 @@ processes in lockstep on loopback, the outcome read from the flight report.
 - A drone whose links go silent for a few seconds in a rotating circle is lost, then heard again: the ground station
   takes it back, the circle re-plans with it and it flies its slot again in OFFBOARD.
 
-Policy: loopback only (--no-forward); instances 180-199 and 50-54; a time limit on every run.
+Policy: loopback only (--no-forward); leased instances (tests/integration/instances.py); a time limit on every run.
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from typing import Any
 import pytest
 from pymavlink import mavutil
 
+from tests.integration.instances import Leases
 from tests.integration.mission_flight import SWARM
 
 pytestmark = [pytest.mark.sim_only]
@@ -136,11 +137,14 @@ def fly(tmp_path: Path, mission_text: str, first_instance: int) -> tuple[dict[st
 
 
 @pytest.mark.timeout(420)
-def test_a_drone_silenced_by_a_link_fault_in_the_path_of_a_rotating_circle_of_8_is_avoided(tmp_path: Path) -> None:
+def test_a_drone_silenced_by_a_link_fault_in_the_path_of_a_rotating_circle_of_8_is_avoided(
+    tmp_path: Path, instances: Leases
+) -> None:
     # GIVEN nine drones up, WHEN drone 9's links fail (it flies on, holding, but says nothing) and the other eight
     # turn a circle through the point where it hovers, with default parameters
-    metrics, out = fly(tmp_path, SILENT_MISSION, 180)
-    silent = 189
+    first = instances(9)
+    metrics, out = fly(tmp_path, SILENT_MISSION, first)
+    silent = first + 9  # drone 9's sysid
     # THEN the ground station lost it by its silence, once, and planned the circle over the eight others
     assert [(f["sysid"], f["fault"]) for f in metrics["faults"]] == [(silent, "link")], metrics["faults"]
     assert [x["sysid"] for x in metrics["losses"]] == [silent], metrics["losses"]
@@ -152,10 +156,13 @@ def test_a_drone_silenced_by_a_link_fault_in_the_path_of_a_rotating_circle_of_8_
 
 
 @pytest.mark.timeout(420)
-def test_a_rotor_failure_in_a_rotating_circle_brings_one_drone_down_and_the_others_fly_on(tmp_path: Path) -> None:
+def test_a_rotor_failure_in_a_rotating_circle_brings_one_drone_down_and_the_others_fly_on(
+    tmp_path: Path, instances: Leases
+) -> None:
     # GIVEN a circle of six turning WHEN drone 3 loses rotor 1
-    metrics, out = fly(tmp_path, MOTOR_MISSION, 190)
-    victim = 193
+    first = instances(6)
+    metrics, out = fly(tmp_path, MOTOR_MISSION, first)
+    victim = first + 3  # drone 3's sysid
     # THEN it falls and breaks on the ground (FLIGHT_TERMINATION): the ground station records one loss, a crash
     assert [(f["sysid"], f["fault"]) for f in metrics["faults"]] == [(victim, "motor 1 off")], metrics["faults"]
     assert [x["sysid"] for x in metrics["losses"]] == [victim], metrics["losses"]
@@ -173,10 +180,13 @@ def test_a_rotor_failure_in_a_rotating_circle_brings_one_drone_down_and_the_othe
 
 
 @pytest.mark.timeout(420)
-def test_a_drone_whose_links_come_back_after_an_outage_is_taken_back_into_the_rotating_circle(tmp_path: Path) -> None:
+def test_a_drone_whose_links_come_back_after_an_outage_is_taken_back_into_the_rotating_circle(
+    tmp_path: Path, instances: Leases
+) -> None:
     # GIVEN a circle of five turning WHEN drone 2's links go silent for 5 s (the drone holds, then its link is back)
-    metrics, out = fly(tmp_path, OUTAGE_MISSION, 50)
-    drone = 52
+    first = instances(5)
+    metrics, out = fly(tmp_path, OUTAGE_MISSION, first)
+    drone = first + 2  # drone 2's sysid
     assert [(f["sysid"], f["fault"]) for f in metrics["faults"]] == [(drone, "link for 5 s")], metrics["faults"]
     # THEN the ground station lost it for its silence, heard it again 2-3 s later (5 s of silence, of which the
     # first 3 make a loss), and the report lists it as regained, not lost

@@ -5,9 +5,10 @@ strings and every target, plus MAVLink 1, signed, glued, truncated, split and co
 the drone's API port while it hovers. With nothing addressed to it that it would act on, it must hold its hover within
 0.5 m; with commands to it as well, it may land or disarm but must not crash, log a traceback or stop answering.
 
-The drones use instances 220-239 (sysid 221-240) on ports 14580+k, 14540+k, 18570+k for k in 320-339 (set
-explicitly: 14860-14919 and 18890-18909, none of them any instance's own, sitl/process/ports.py), so they never meet the
-drones of other suites. bench/fuzz.py starts and stops each drone by PID itself.
+Each drone uses a leased instance (tests/integration/instances.py) on ports 14580+k, 14540+k, 18570+k for the first k
+in 320-339 whose three are free (set explicitly: 14860-14919 and 18890-18909, none of them any instance's own,
+sitl/process/ports.py), so it never meets the drones of other suites. bench/fuzz.py starts and stops each drone by PID
+itself.
 """
 
 from __future__ import annotations
@@ -29,11 +30,12 @@ from bench.fuzz import (
     FuzzReport,
     run,
 )
+from tests.integration.instances import Leases
 from tests.integration.sitl_process import udp_port_is_free
 
 pytestmark = [pytest.mark.sim_only, pytest.mark.heavy]
 
-FIRST_INSTANCE, FIRST_PORT_BASE, SLOTS = 220, 320, 20
+FIRST_PORT_BASE, SLOTS = 320, 20
 FRAMES_HOVERING = 20_000
 FRAMES_COMMANDED = 5_000
 RATE_HZ = 2_000.0  # the bench's default: the drone parses them and still flies in real time on a loaded machine
@@ -49,18 +51,18 @@ def shared_memory_tracker() -> Iterator[None]:
     yield
 
 
-def _free_slot() -> tuple[int, int]:
-    """An instance and port base of this suite's block whose three ports are free."""
+def _free_port_base() -> int:
+    """A port base of this suite's block whose three ports are free."""
     for k in range(SLOTS):
         base = FIRST_PORT_BASE + k
         ports = (API_BIND_BASE_PORT + base, API_REMOTE_BASE_PORT + base, GCS_BIND_BASE_PORT + base)
         if all(udp_port_is_free(p) for p in ports):
-            return FIRST_INSTANCE + k, base
+            return base
     raise AssertionError(f"no free ports for port bases {FIRST_PORT_BASE}..{FIRST_PORT_BASE + SLOTS - 1}")
 
 
-def _fuzz(tmp_path: Path, *, frames: int, commands_to_drone: bool) -> FuzzReport:
-    instance, base = _free_slot()
+def _fuzz(tmp_path: Path, instances: Leases, *, frames: int, commands_to_drone: bool) -> FuzzReport:
+    instance, base = instances(), _free_port_base()
     config = FuzzConfig(
         frames=frames, seed=SEED, commands_to_drone=commands_to_drone, rate_hz=RATE_HZ, instance=instance,
         port_base=base, log_dir=tmp_path,
@@ -80,10 +82,12 @@ def _assert_survived(report: FuzzReport) -> None:
 
 
 @pytest.mark.timeout(180)
-def test_a_hovering_drone_holds_its_position_under_20000_hostile_frames_not_addressed_to_it(tmp_path: Path) -> None:
+def test_a_hovering_drone_holds_its_position_under_20000_hostile_frames_not_addressed_to_it(
+    tmp_path: Path, instances: Leases
+) -> None:
     # GIVEN a drone hovering in Hold WHEN 20,000 seeded hostile frames arrive, none of them something it would act on
     # that is addressed to it
-    report = _fuzz(tmp_path, frames=FRAMES_HOVERING, commands_to_drone=False)
+    report = _fuzz(tmp_path, instances, frames=FRAMES_HOVERING, commands_to_drone=False)
 
     # THEN every kind of frame and every message of the dialect was sent
     assert report.frames_sent == FRAMES_HOVERING
@@ -98,9 +102,9 @@ def test_a_hovering_drone_holds_its_position_under_20000_hostile_frames_not_addr
 
 
 @pytest.mark.timeout(150)
-def test_a_drone_commanded_by_hostile_frames_survives_and_answers(tmp_path: Path) -> None:
+def test_a_drone_commanded_by_hostile_frames_survives_and_answers(tmp_path: Path, instances: Leases) -> None:
     # GIVEN a drone hovering in Hold WHEN 5,000 seeded hostile frames arrive, commands addressed to it among them
-    report = _fuzz(tmp_path, frames=FRAMES_COMMANDED, commands_to_drone=True)
+    report = _fuzz(tmp_path, instances, frames=FRAMES_COMMANDED, commands_to_drone=True)
 
     # THEN it may have done what it was told, but it is alive, answers and logged no traceback
     assert report.frames_sent == FRAMES_COMMANDED

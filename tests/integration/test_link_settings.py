@@ -1,8 +1,9 @@
 """Link settings from a mission's ``[swarm.links]`` and ``swarm fly``'s ``--link-*`` options reach every drone.
 
-Policy: loopback only; instances 246-247 (sysids 247-248); lockstep, so nothing depends on the machine's load; a
-time limit on every test; ``swarm fly`` stops every drone it started (tests/integration/test_swarm.py tests that no
-process outlives it), and a run cut short by its timeout is killed with its drones (they die with their parent).
+Policy: loopback only; two leased instances (tests/integration/instances.py); lockstep, so nothing depends on the
+machine's load; a time limit on every test; ``swarm fly`` stops every drone it started (tests/integration/test_swarm.py
+tests that no process outlives it), and a run cut short by its timeout is killed with its drones (they die with their
+parent).
 """
 
 from __future__ import annotations
@@ -13,10 +14,11 @@ from pathlib import Path
 
 import pytest
 
+from tests.integration.instances import Leases
+
 pytestmark = [pytest.mark.sim_only]
 
 SWARM = [sys.executable, "-m", "gcs.cli"]
-FIRST_INSTANCE = 246
 
 MISSION = """\
 name = "links"
@@ -42,14 +44,17 @@ action = "land"
 
 
 @pytest.mark.timeout(240)
-def test_a_mission_s_links_and_the_options_over_them_reach_every_hosted_drone(tmp_path: Path) -> None:
+def test_a_mission_s_links_and_the_options_over_them_reach_every_hosted_drone(
+    tmp_path: Path, instances: Leases
+) -> None:
     # GIVEN a mission impairing every link class and the neighbour traffic more, and an option over it for all
     mission = tmp_path / "links.toml"
     mission.write_text(MISSION)
     report = tmp_path / "report"
+    first = instances(2)
     # WHEN it is flown in lockstep, both drones hosted by one process
     result = subprocess.run(
-        [*SWARM, "fly", str(mission), "--lockstep", "--first-instance", str(FIRST_INSTANCE), "--report", str(report),
+        [*SWARM, "fly", str(mission), "--lockstep", "--first-instance", str(first), "--report", str(report),
          "--no-forward", "--drones-per-process", "2", "--link-loss", "0.01"],
         capture_output=True, text=True, timeout=220,
     )  # fmt: skip
@@ -59,6 +64,6 @@ def test_a_mission_s_links_and_the_options_over_them_reach_every_hosted_drone(tm
         "links: gcs loss=0.01,latency_ms=20; api loss=0.01,latency_ms=20; "
         "neighbour loss=0.01,latency_ms=200,jitter_ms=50"
     )
-    for instance in (FIRST_INSTANCE, FIRST_INSTANCE + 1):
+    for instance in (first, first + 1):
         log = (report / "logs" / f"drone-{instance}.log").read_text()
         assert f"sitl {instance}: {expected}\n" in log, log[:2000]

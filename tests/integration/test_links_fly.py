@@ -6,8 +6,9 @@
 - Lossy and late links (the link model acting on every drone's traffic, both ways) still fly the shipped missions
   without a collision, and the report counts what the model did.
 
-Policy: loopback only (--no-forward); instances 30-38; lockstep, so no outcome depends on the machine's load; a time
-limit on every test; the CPU burners (low priority) are stopped by PID and reaped.
+Policy: loopback only (--no-forward); leased instances (tests/integration/instances.py); lockstep, so no outcome
+depends on the machine's load; a time limit on every test; the CPU burners (low priority) are stopped by PID and
+reaped.
 """
 
 from __future__ import annotations
@@ -25,11 +26,11 @@ from typing import Any
 import pytest
 from pymavlink import mavutil
 
-from tests.integration.mission_flight import MISSIONS, fly_mission
+from tests.integration.instances import Leases
+from tests.integration.mission_flight import MISSIONS, fly_mission, mission_drones
 
 pytestmark = [pytest.mark.sim_only]
 
-FIRST_INSTANCE = "30"
 # A process that only spins, at the lowest priority: it takes every moment the swarm's processes are not running
 # (and their caches with it) and is preempted at each of their wake-ups, so the order and timing of everything on
 # the machine changes, yet the flight still ends within the test's time. At the same priority each hand-over between
@@ -85,9 +86,9 @@ def busy_cpus() -> Iterator[Load]:
             proc.wait(timeout=10)
 
 
-def fly(mission: str, tmp_path: Path, *extra: str) -> tuple[dict[str, Any], Path]:
-    args = ["--lockstep", "--first-instance", FIRST_INSTANCE, "--drones-per-process", "auto", *extra]
-    metrics, _ = fly_mission(mission, args, tmp_path, 600)
+def fly(mission: str, tmp_path: Path, instances: Leases | int, *extra: str) -> tuple[dict[str, Any], Path]:
+    args = ["--lockstep", "--drones-per-process", "auto", *extra]
+    metrics, _ = fly_mission(mission, args, tmp_path, 600, instances)
     return metrics, tmp_path / "report"
 
 
@@ -109,17 +110,20 @@ jitter_ms = 20
 
 @pytest.mark.timeout(1300)
 @pytest.mark.heavy  # CPU burners on every core
-def test_the_same_lockstep_mission_flies_the_same_on_an_idle_and_a_loaded_machine(tmp_path: Path) -> None:
+def test_the_same_lockstep_mission_flies_the_same_on_an_idle_and_a_loaded_machine(
+    tmp_path: Path, instances: Leases
+) -> None:
     # GIVEN the antipodal swap flown in lockstep with the default seeds, its neighbours relayed and heard over the mesh
     text = (MISSIONS / "antipodal_swap.toml").read_text()
     assert text.count("[swarm]\n") == 1 and "[[steps]]" in text
     mission = tmp_path / "antipodal_swap.toml"
     swarm_end = text.index("[[steps]]")
     mission.write_text(text[:swarm_end] + BOTH_WAYS + "\n" + text[swarm_end:])
-    first, first_report = fly(str(mission), tmp_path / "idle")
-    # WHEN it is flown again with the same seeds while other processes keep every CPU busy
+    same_instances = instances(mission_drones(mission))  # and the same sysids both times
+    first, first_report = fly(str(mission), tmp_path / "idle", same_instances)
+    # WHEN it is flown again with the same seeds (on the same instances) while other processes keep every CPU busy
     with busy_cpus() as load:
-        second, second_report = fly(str(mission), tmp_path / "loaded")
+        second, second_report = fly(str(mission), tmp_path / "loaded", same_instances)
     # (the machine was loaded: the burners took every moment the swarm left free, 44 of the 90 CPU seconds two
     # CPUs offered during one 45 s run)
     assert load.cpu_s > 0.25 * load.wall_s, load
@@ -139,9 +143,9 @@ def test_the_same_lockstep_mission_flies_the_same_on_an_idle_and_a_loaded_machin
 
 
 @pytest.mark.timeout(600)
-def test_nine_drones_fly_grid_to_circle_with_a_fifth_of_every_link_lost(tmp_path: Path) -> None:
+def test_nine_drones_fly_grid_to_circle_with_a_fifth_of_every_link_lost(tmp_path: Path, instances: Leases) -> None:
     # GIVEN every link of every drone losing 20 % of its frames, both ways
-    metrics, _ = fly("grid_to_circle.toml", tmp_path, "--link-loss", "0.2")
+    metrics, _ = fly("grid_to_circle.toml", tmp_path, instances, "--link-loss", "0.2")
     # THEN the mission completes without a collision and the circle still holds to 0.3 m RMS
     assert metrics["collisions"] == 0, metrics["collision_events"]
     # (and no drone was ever lost: they all stream enough to be heard within 3 s through any run of lost frames)
@@ -157,13 +161,13 @@ def test_nine_drones_fly_grid_to_circle_with_a_fifth_of_every_link_lost(tmp_path
 
 
 @pytest.mark.timeout(600)
-def test_the_swap_holds_with_late_and_jittery_neighbour_positions(tmp_path: Path) -> None:
+def test_the_swap_holds_with_late_and_jittery_neighbour_positions(tmp_path: Path, instances: Leases) -> None:
     # GIVEN neighbour positions arriving 200 ms late with 50 ms of jitter (and so out of order)
     mission = (Path(__file__).resolve().parents[2] / "missions" / "antipodal_swap.toml").read_text()
     mission += "\n[swarm.links.neighbour]\nlatency_ms = 200\njitter_ms = 50\n"
     path = tmp_path / "late_neighbours.toml"
     path.write_text(mission)
-    metrics, _ = fly(str(path), tmp_path)
+    metrics, _ = fly(str(path), tmp_path, instances)
     # THEN nobody collided, and the report shows the delay on neighbour traffic alone
     assert metrics["collisions"] == 0, metrics["collision_events"]
     links = metrics["links"]

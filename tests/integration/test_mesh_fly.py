@@ -8,25 +8,24 @@
 - That what a drone hears over the mesh does not depend on the machine's load is judged with the relay's in one pair
   of runs: tests/integration/test_links_fly.py flies the antipodal swap with neighbours by both, idle and loaded.
 
-Policy: loopback only (--no-forward); instances 172-180 and 197-198; lockstep (but for the paced test, whose
-outcome does not depend on timing), so no outcome depends on the machine's load; a
-time limit on every test; the CPU burners are stopped by PID and reaped (tests/integration/test_links_fly.py).
+Policy: loopback only (--no-forward); leased instances (tests/integration/instances.py); lockstep (but for the paced
+test, whose outcome does not depend on timing), so no outcome depends on the machine's load; a time limit on every
+test; the CPU burners are stopped by PID and reaped (tests/integration/test_links_fly.py).
 """
 
 from __future__ import annotations
 
 import re
+import subprocess
 from pathlib import Path
 from typing import Any
 
 import pytest
 
+from tests.integration.instances import Leases
 from tests.integration.mission_flight import MISSIONS, fly_mission
 
 pytestmark = [pytest.mark.sim_only]
-
-FIRST_INSTANCE = "172"
-PACED_FIRST_INSTANCE = "197"
 
 SIGNED_MESH = """
 name = "signed_mesh"
@@ -59,19 +58,28 @@ def mesh_mission(tmp_path: Path, name: str, swarm: str, tables: str) -> str:
     return str(path)
 
 
-def fly(mission: str, tmp_path: Path) -> tuple[dict[str, Any], Path]:
-    args = ["--lockstep", "--first-instance", FIRST_INSTANCE, "--drones-per-process", "auto"]
-    metrics, _ = fly_mission(mission, args, tmp_path, 600)
-    return metrics, tmp_path / "report"
+def first_instance(run: subprocess.CompletedProcess[str]) -> int:
+    """The first instance a ``swarm fly`` run flew (the ``--first-instance`` fly_mission leased for it)."""
+    args = [str(arg) for arg in run.args]
+    return int(args[args.index("--first-instance") + 1])
+
+
+def fly(mission: str, tmp_path: Path, instances: Leases) -> tuple[dict[str, Any], Path, int]:
+    """Fly in lockstep; the report's metrics, the report and the first instance flown."""
+    args = ["--lockstep", "--drones-per-process", "auto"]
+    metrics, run = fly_mission(mission, args, tmp_path, 600, instances)
+    return metrics, tmp_path / "report", first_instance(run)
 
 
 @pytest.mark.timeout(600)
-def test_nine_drones_fly_grid_to_circle_on_the_mesh_alone_with_a_tenth_of_every_link_lost(tmp_path: Path) -> None:
+def test_nine_drones_fly_grid_to_circle_on_the_mesh_alone_with_a_tenth_of_every_link_lost(
+    tmp_path: Path, instances: Leases
+) -> None:
     # GIVEN the grid_to_circle mission with neighbours heard over the mesh only (range 15 m), every link 10 % lossy
     mission = mesh_mission(tmp_path, "grid_to_circle.toml", 'neighbours = "mesh"\n',
                            "[swarm.mesh]\nrange_m = 15\n\n[swarm.links]\nloss = 0.1\n")  # fmt: skip
     # WHEN it is flown in lockstep
-    metrics, report = fly(mission, tmp_path)
+    metrics, report, first = fly(mission, tmp_path, instances)
     # THEN it completes without a collision, the circle held as on the relay
     assert metrics["collisions"] == 0, metrics["collision_events"]
     circle = next(s for s in metrics["steps"] if s["name"] == "circle")
@@ -91,9 +99,9 @@ def test_nine_drones_fly_grid_to_circle_on_the_mesh_alone_with_a_tenth_of_every_
     assert 0.08 < mesh["lost_model"] / (mesh["frames_offered"] - mesh["lost_path"]) < 0.12, mesh
     assert mesh["mesh_updates"] == mesh["frames_delivered"]  # the mesh alone: no copy of a report came another way
     # AND each drone's log says what its radio heard and what its table took from where
-    log = (report / "logs" / "drone-172.log").read_text()
-    assert "sitl 172: mesh radio: range 15 m, path loss (d/range)^4" in log
-    assert "sitl 172: mesh: " in log and " reports by mesh (mean age at use " in log and " by relay" not in log
+    log = (report / "logs" / f"drone-{first}.log").read_text()
+    assert f"sitl {first}: mesh radio: range 15 m, path loss (d/range)^4" in log
+    assert f"sitl {first}: mesh: " in log and " reports by mesh (mean age at use " in log and " by relay" not in log
     summary = (report / "summary.txt").read_text()
     assert "link model, neighbour mesh: " in summary and "0 from the relay" in summary
     assert metrics["neighbours"] == "mesh (range 15 m, path loss (d/range)^4)"
@@ -101,18 +109,21 @@ def test_nine_drones_fly_grid_to_circle_on_the_mesh_alone_with_a_tenth_of_every_
 
 
 @pytest.mark.timeout(240)
-def test_a_paced_signed_swarm_hears_its_neighbours_signed_reports_over_the_mesh(tmp_path: Path) -> None:
+def test_a_paced_signed_swarm_hears_its_neighbours_signed_reports_over_the_mesh(
+    tmp_path: Path, instances: Leases
+) -> None:
     # GIVEN two drones 3 m apart on the mesh alone, every drone signing and requiring signatures
     key_file = tmp_path / "swarm.key"
     key_file.write_text("mesh signing test\n")
     mission = tmp_path / "signed_mesh.toml"
     mission.write_text(SIGNED_MESH)
     # WHEN the mission is flown paced (each drone on its own clock, reading whatever has been posted)
-    args = ["--first-instance", PACED_FIRST_INSTANCE, "--drones-per-process", "auto", "--signing-key", str(key_file)]
-    metrics, _ = fly_mission(str(mission), args, tmp_path, 200)
+    args = ["--drones-per-process", "auto", "--signing-key", str(key_file)]
+    metrics, run = fly_mission(str(mission), args, tmp_path, 200, instances)
+    first = first_instance(run)
     # THEN each drone heard the other's reports over the mesh, signed, and dropped none for its signature
     assert metrics["collisions"] == 0
-    for instance in (197, 198):
+    for instance in (first, first + 1):
         log = (tmp_path / "report" / "logs" / f"drone-{instance}.log").read_text()
         heard = re.search(rf"sitl {instance}: neighbour table: (\d+) reports by mesh", log)
         assert heard is not None and int(heard.group(1)) > 50, log[-2000:]

@@ -2,7 +2,8 @@
 takes off, PARAM_SET turns the behaviour on (BHV_EN = 1) and changes its own parameter, NAMED_VALUE_FLOAT sends it a
 message, and the drone flies where the behaviour says; a broken behaviour file is one line and exit code 2.
 
-Policy: loopback only; instances 59 and 5-7; a time limit; processes are stopped by their PIDs.
+Policy: loopback only; leased instances (tests/integration/instances.py), but for the two tests whose behaviour does
+not load (it is checked before any drone starts); a time limit; processes are stopped by their PIDs.
 """
 
 from __future__ import annotations
@@ -23,10 +24,10 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.process.ports import instance_ports
+from tests.integration.instances import Leases
 
 pytestmark = [pytest.mark.sim_only]
 
-INSTANCE = 59
 BEHAVIOUR = '''
 from sitl.onboard import OnboardSetpoint
 
@@ -58,8 +59,8 @@ def recv(conn: mavutil.mavfile, kind: str, ok: Callable[[Any], bool], timeout_s:
 
 
 @contextmanager
-def drone(behaviour: Path) -> Iterator[subprocess.Popen[str]]:
-    proc = subprocess.Popen([sys.executable, "-m", "sitl.cli", "--instance", str(INSTANCE), "--no-gcs",
+def drone(behaviour: Path, instance: int) -> Iterator[subprocess.Popen[str]]:
+    proc = subprocess.Popen([sys.executable, "-m", "sitl.cli", "--instance", str(instance), "--no-gcs",
                              "--behaviour", f"{behaviour}:Beacon"], stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)  # fmt: skip
     try:
@@ -78,11 +79,12 @@ def set_param(conn: mavutil.mavfile, name: str, value: float, *, integer: bool =
 
 
 @pytest.mark.timeout(180)
-def test_a_ground_station_turns_a_behaviour_on_tunes_it_and_messages_it(tmp_path: Path) -> None:
+def test_a_ground_station_turns_a_behaviour_on_tunes_it_and_messages_it(tmp_path: Path, instances: Leases) -> None:
     path = tmp_path / "beacon.py"
     path.write_text(BEHAVIOUR)
-    with drone(path):
-        conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{instance_ports(INSTANCE).api_remote}", source_system=255)
+    instance = instances(1)
+    with drone(path, instance):
+        conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{instance_ports(instance).api_remote}", source_system=255)
         try:
             conn.wait_heartbeat(timeout=30)
             # GIVEN the drone in the air, its behaviour's parameter listed among the drone's
@@ -114,7 +116,8 @@ def test_a_ground_station_turns_a_behaviour_on_tunes_it_and_messages_it(tmp_path
 def test_a_broken_behaviour_file_is_one_line_and_exit_code_2(tmp_path: Path) -> None:
     path = tmp_path / "beacon.py"
     path.write_text(BEHAVIOUR.replace("def step(self, state):", "def step(self, state)"))
-    result = subprocess.run([sys.executable, "-m", "sitl.cli", "--instance", str(INSTANCE), "--behaviour",
+    # (no drone starts: the behaviour is checked first, so the instance is never leased)
+    result = subprocess.run([sys.executable, "-m", "sitl.cli", "--instance", "59", "--behaviour",
                              f"{path}:Beacon"], capture_output=True, text=True, timeout=60)  # fmt: skip
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
@@ -162,13 +165,15 @@ action = "land"
 
 
 @pytest.mark.timeout(240)
-def test_a_mission_runs_its_onboard_behaviour_on_every_drone_for_a_step(tmp_path: Path) -> None:
+def test_a_mission_runs_its_onboard_behaviour_on_every_drone_for_a_step(tmp_path: Path, instances: Leases) -> None:
     # GIVEN a mission whose drones carry a behaviour (in a file beside it) tuned by a mission parameter
     (tmp_path / "climb.py").write_text(CLIMB)
     (tmp_path / "climb.toml").write_text(CLIMB_MISSION)
     report = tmp_path / "report"
+    first = instances(3)
+    sysids = [first + 1, first + 2, first + 3]
     result = subprocess.run([sys.executable, "-m", "gcs.cli", "fly", str(tmp_path / "climb.toml"), "--lockstep",
-                             "--first-instance", "5", "--drones-per-process", "auto", "--report", str(report),
+                             "--first-instance", str(first), "--drones-per-process", "auto", "--report", str(report),
                              "--no-forward"], capture_output=True, text=True, timeout=220)  # fmt: skip
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     # THEN every drone started it, climbed to the mission's CLB_ALT under it, and was stopped and held at the step's end
@@ -181,8 +186,8 @@ def test_a_mission_runs_its_onboard_behaviour_on_every_drone_for_a_step(tmp_path
             texts.setdefault(sysid, []).append(msg.text)
         else:
             top[sysid] = max(top.get(sysid, 0.0), msg.relative_alt * 1e-3)
-    assert sorted(top) == [6, 7, 8], top
-    for sysid in (6, 7, 8):
+    assert sorted(top) == sysids, top
+    for sysid in sysids:
         assert "Behaviour Climb started" in texts[sysid], texts[sysid]
         assert any(t.startswith("Behaviour Climb stopped") for t in texts[sysid]), texts[sysid]
         assert abs(top[sysid] - 5.5) < 0.3, top
@@ -194,6 +199,7 @@ def test_a_mission_runs_its_onboard_behaviour_on_every_drone_for_a_step(tmp_path
 def test_a_mission_whose_behaviour_does_not_load_is_one_line_and_exit_code_2(tmp_path: Path) -> None:
     (tmp_path / "climb.py").write_text(CLIMB.replace("RATE_HZ = 5", "RATE_HZ = -5"))
     (tmp_path / "climb.toml").write_text(CLIMB_MISSION)
+    # (no drone starts: the mission's behaviour is checked first, so its instances are never leased)
     result = subprocess.run([sys.executable, "-m", "gcs.cli", "fly", str(tmp_path / "climb.toml"), "--lockstep",
                              "--first-instance", "5", "--no-forward"],
                             capture_output=True, text=True, timeout=60)  # fmt: skip

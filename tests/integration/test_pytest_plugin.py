@@ -2,8 +2,8 @@
 subprocess, with the plugin found through its entry point. The example test passes; the same test with the drones
 told to fly 0.3 m apart, avoidance off, fails on ``assert_no_collisions`` with the collision in its message.
 
-Policy: loopback only; instances 45-46 (each test of the file launches one session there); a time
-limit; the subprocess's drones are its own (the plugin closes every session).
+Policy: loopback only; two leased instances (tests/integration/instances.py: each test of the user's file launches
+one session there); a time limit; the subprocess's drones are its own (the plugin closes every session).
 """
 
 from __future__ import annotations
@@ -11,6 +11,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+
+from tests.integration.instances import Leases
 
 pytestmark = [pytest.mark.sim_only]
 pytest_plugins = ["pytester"]
@@ -29,11 +31,13 @@ def test_two_drones_told_to_fly_0_3_m_apart(swarm: BlockingSession) -> None:
 
 
 @pytest.mark.timeout(300)
-def test_a_user_test_passes_when_its_drones_keep_apart_and_fails_when_they_collide(pytester: pytest.Pytester) -> None:
+def test_a_user_test_passes_when_its_drones_keep_apart_and_fails_when_they_collide(
+    pytester: pytest.Pytester, instances: Leases
+) -> None:
     # GIVEN the example user test file, and beside it the same kind of test commanding a collision
     pytester.makepyfile(test_user=EXAMPLE.read_text() + COLLIDING)
     # WHEN pytest runs it (the plugin comes from the installed entry point)
-    result = pytester.runpytest_subprocess("-p", "no:cacheprovider", "--swarm-first-instance", "45", "-q",
+    result = pytester.runpytest_subprocess("-p", "no:cacheprovider", "--swarm-first-instance", str(instances(2)), "-q",
                                            timeout=280)  # fmt: skip
     # THEN the well-behaved test passes and the colliding one fails on the assertion, naming the collision
     result.assert_outcomes(passed=1, failed=1)

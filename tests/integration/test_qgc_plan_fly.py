@@ -1,9 +1,9 @@
 """A QGroundControl plan flown by real drones: ``swarm fly`` with a plan step, and ``swarm plan`` against ``swarm up``.
 
-Policy: loopback only; drone instances 13-19 and 82-84; lockstep with the drones hosted (``--drones-per-process
-auto``) so the flights do not depend on machine load and stay short (15-30 s each on an idle machine); a time limit
-on every test, generous for a loaded one; every process this file starts
-is stopped by PID (``swarm down`` for the supervisor, SIGKILL by PID if it does not end) and must be gone at the end.
+Policy: loopback only; leased instances (tests/integration/instances.py); lockstep with the drones hosted
+(``--drones-per-process auto``) so the flights do not depend on machine load and stay short (15-30 s each on an idle
+machine); a time limit on every test, generous for a loaded one; every process this file starts is stopped by PID
+(``swarm down`` for the supervisor, SIGKILL by PID if it does not end) and must be gone at the end.
 """
 
 from __future__ import annotations
@@ -28,7 +28,9 @@ from gcs.fleet.harness import line_layout
 from gcs.flight.geodesy import GeoPoint, NedFrame
 from gcs.mavlink.mission_transfer import WireItem
 from gcs.missions.qgc_plan import fence_items, load_plan, mission_items, plan_from_items, plan_text, shifted
+from tests.integration.instances import Leases
 from tests.integration.mavsdk_client import call_within, connect
+from tests.integration.mission_flight import mission_drones
 from tests.integration.sitl_process import start_drones, stop_drone
 
 pytestmark = [pytest.mark.sim_only]
@@ -66,28 +68,34 @@ def tracks(tlog: Path) -> tuple[dict[int, list[tuple[float, float, float]]], dic
 
 @pytest.mark.timeout(240)
 def test_a_qgroundcontrol_plan_flies_as_a_copy_per_drone_and_every_drone_reaches_every_item_and_lands(
-    tmp_path: Path,
+    tmp_path: Path, instances: Leases
 ) -> None:
     # GIVEN the committed QGroundControl plan (take off to 3 m, a 6 m box, land where it took off, inside a fence)
     # in a mission of three drones in a line 8 m apart, each to fly its copy moved by its spawn offset
     plan = load_plan(BOX_PLAN)
     report = tmp_path / "report"
+    first = instances(mission_drones(MISSIONS / "qgc_box.toml"))
+    sysids = (first + 1, first + 2, first + 3)
     # WHEN the mission is flown in lockstep
     started = time.monotonic()
     result = subprocess.run(
-        [*SWARM, "fly", str(MISSIONS / "qgc_box.toml"), "--first-instance", "13", "--report", str(report), *FAST],
+        [*SWARM, "fly", str(MISSIONS / "qgc_box.toml"), "--first-instance", str(first), "--report", str(report),
+         *FAST],
         capture_output=True, text=True, timeout=220,
     )  # fmt: skip
     wall_s = time.monotonic() - started
     # THEN it succeeds, and the supervisor saw every drone reach every item
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
-    assert "box.plan: 5 items and 2 fence zone(s) uploaded to sysid 14, 15, 16" in result.stdout
+    assert (
+        f"box.plan: 5 items and 2 fence zone(s) uploaded to sysid {first + 1}, {first + 2}, {first + 3}"
+        in result.stdout
+    )
     assert "box.plan: every drone reached every item" in result.stdout
     metrics = json.loads((report / "metrics.json").read_text())
     assert metrics["collisions"] == 0
     # AND the report lists every drone's items reached, in order
     reported = {sysid: [r["seq"] for r in items] for sysid, items in metrics["mission_items_reached"].items()}
-    assert reported == {"14": [0, 1, 2, 3, 4], "15": [0, 1, 2, 3, 4], "16": [0, 1, 2, 3, 4]}
+    assert reported == {str(sysid): [0, 1, 2, 3, 4] for sysid in sysids}
     # AND the flight log shows each drone reach items 0..4 in order, come within the acceptance radius of each of
     # its own copy's waypoints, land on its copy's landing point and disarm
     positions, reached, armed = tracks(report / "flight.tlog")
@@ -97,7 +105,7 @@ def test_a_qgroundcontrol_plan_flies_as_a_copy_per_drone_and_every_drone_reaches
         north, east, _ = frame.ned_from_geo(GeoPoint(lat_deg=lat, lon_deg=lon, alt_amsl_m=0.0))
         return north, east
 
-    for sysid, (north, east) in zip((14, 15, 16), line_layout(3, 8.0), strict=True):
+    for sysid, (north, east) in zip(sysids, line_layout(3, 8.0), strict=True):
         assert reached.get(sysid) == [0, 1, 2, 3, 4], f"sysid {sysid} reported {reached.get(sysid)}"
         copy = shifted(plan, north, east)
         track = [(*ne(lat, lon), alt) for lat, lon, alt in positions[sysid]]
@@ -131,33 +139,38 @@ action = "land"
 
 
 @pytest.mark.timeout(240)
-def test_a_plan_for_some_drones_after_a_takeoff_leaves_the_others_holding_where_they_are(tmp_path: Path) -> None:
+def test_a_plan_for_some_drones_after_a_takeoff_leaves_the_others_holding_where_they_are(
+    tmp_path: Path, instances: Leases
+) -> None:
     # GIVEN two drones in the air (OFFBOARD, after the takeoff step), and the plan for the second only
     mission = tmp_path / "one.toml"
     mission.write_text(SUBSET_MISSION)
     report = tmp_path / "report"
+    first = instances(2)
+    holding, planned = first + 1, first + 2  # the first drone's sysid and the second's
     # WHEN the mission is flown
     result = subprocess.run(
-        [*SWARM, "fly", str(mission), "--first-instance", "82", "--report", str(report), *FAST],
+        [*SWARM, "fly", str(mission), "--first-instance", str(first), "--report", str(report), *FAST],
         capture_output=True, text=True, timeout=220,
     )  # fmt: skip
     # THEN the second flies the whole plan, and the first hovers in Hold meanwhile: no failsafe, hardly a move
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     metrics = json.loads((report / "metrics.json").read_text())
-    assert {k: [r["seq"] for r in v] for k, v in metrics["mission_items_reached"].items()} == {"84": [0, 1, 2, 3, 4]}
+    reached_items = {k: [r["seq"] for r in v] for k, v in metrics["mission_items_reached"].items()}
+    assert reached_items == {str(planned): [0, 1, 2, 3, 4]}
     assert metrics["failsafes"] == [] and metrics["collisions"] == 0
     log = mavutil.mavlink_connection(str(report / "flight.tlog"))
     modes: set[str] = set()
     while (msg := log.recv_match(type="HEARTBEAT")) is not None:
-        if msg.get_srcSystem() == 83 and msg.get_srcComponent() == 1:
+        if msg.get_srcSystem() == holding and msg.get_srcComponent() == 1:
             modes.add(mavutil.interpret_px4_mode(msg.base_mode, msg.custom_mode))
     assert "LOITER" in modes and "MISSION" not in modes, modes
     positions, _, _ = tracks(report / "flight.tlog")
-    start = positions[83][len(positions[83]) // 2]  # hovering, half way through the flight
+    start = positions[holding][len(positions[holding]) // 2]  # hovering, half way through the flight
     frame = NedFrame(GeoPoint(lat_deg=start[0], lon_deg=start[1], alt_amsl_m=0.0))
     drift = max(
         math.hypot(*frame.ned_from_geo(GeoPoint(lat_deg=lat, lon_deg=lon, alt_amsl_m=0.0))[:2])
-        for lat, lon, alt in positions[83]
+        for lat, lon, alt in positions[holding]
         if alt > 2.5
     )
     assert drift < 0.5, f"drone 1 moved {drift:.2f} m while it should have held"
@@ -168,6 +181,7 @@ class RunningSwarm:
 
     def __init__(self, n: int, first_instance: int, env: dict[str, str]) -> None:
         self.env = env
+        self.first_instance = first_instance
         self.proc = subprocess.Popen(
             [*SWARM, "up", "-n", str(n), "--layout", "line", "--spacing", "8", "--first-instance",
              str(first_instance), *FAST],
@@ -196,8 +210,8 @@ class RunningSwarm:
 
 
 @pytest.fixture
-def running_swarm(tmp_path: Path) -> Iterator[RunningSwarm]:
-    swarm = RunningSwarm(2, 16, {**os.environ, "SWARM_STATE_DIR": str(tmp_path / "state")})
+def running_swarm(tmp_path: Path, instances: Leases) -> Iterator[RunningSwarm]:
+    swarm = RunningSwarm(2, instances(2), {**os.environ, "SWARM_STATE_DIR": str(tmp_path / "state")})
     try:
         yield swarm
     finally:
@@ -209,6 +223,7 @@ def test_swarm_plan_uploads_downloads_the_same_items_starts_and_refuses_a_broken
     running_swarm: RunningSwarm, tmp_path: Path
 ) -> None:
     swarm = running_swarm
+    first = swarm.first_instance
     # GIVEN a plan with a ComplexItem (a survey), which only QGroundControl can expand
     broken = tmp_path / "survey.plan"
     data = json.loads(BOX_PLAN.read_text())
@@ -224,10 +239,10 @@ def test_swarm_plan_uploads_downloads_the_same_items_starts_and_refuses_a_broken
     # WHEN the committed plan is uploaded to both drones
     result = swarm.cli("plan", "upload", str(BOX_PLAN), "--drones", "all")
     assert result.returncode == 0, result.stderr
-    assert "5 items and 2 fence zone(s) uploaded to sysid 17, 18" in result.stdout
+    assert f"5 items and 2 fence zone(s) uploaded to sysid {first + 1}, {first + 2}" in result.stdout
     # THEN a download of the second gives back its copy's items: the plan moved by its spawn offset
     out = tmp_path / "back.plan"
-    result = swarm.cli("plan", "download", "18", str(out))
+    result = swarm.cli("plan", "download", str(first + 2), str(out))
     assert result.returncode == 0, result.stderr
     north, east = line_layout(2, 8.0)[1]
     expected = shifted(load_plan(BOX_PLAN), north, east)
@@ -253,15 +268,17 @@ def test_swarm_plan_uploads_downloads_the_same_items_starts_and_refuses_a_broken
     assert all(float(row[5]) < 0.3 for row in rows), rows
     # AND while they flew, the status table showed their progress through the mission (ending complete)
     assert any(p.endswith(" active") for p in progress) and "item 5/5 complete" in progress, progress
-    # AND a drone that does not exist is a usage error
-    assert swarm.cli("plan", "download", "99", str(out)).returncode == 2
+    # AND a drone that does not exist is a usage error (sysid ``first``: instance first - 1's, outside the swarm)
+    assert swarm.cli("plan", "download", str(first), str(out)).returncode == 2
 
 
 @pytest.mark.timeout(90)
-async def test_mavsdk_reads_the_committed_plan_and_an_exported_one_into_the_items_we_upload(tmp_path: Path) -> None:
+async def test_mavsdk_reads_the_committed_plan_and_an_exported_one_into_the_items_we_upload(
+    tmp_path: Path, instances: Leases
+) -> None:
     # GIVEN one drone, for MAVSDK to have a system, and MAVSDK's own QGroundControl importer (an independent reader
     # of the format)
-    drones = start_drones(instances=[19], speed_factor=4.0, seed=0, log_dir=tmp_path, hosted=False)
+    drones = start_drones(instances=[instances(1)], speed_factor=4.0, seed=0, log_dir=tmp_path, hosted=False)
     try:
         async with connect(f"udpin://127.0.0.1:{drones[0].ports.api_remote}", 20) as drone:
             importer = MissionRawAsync(drone.system)

@@ -2,7 +2,7 @@
 
 A test participant joins the swarm the way any MAVLink vehicle would (HEARTBEATs from component 1 to the ground
 station's port) and keeps the same NeighbourTable the drones keep, fed by what the relay forwards.
-Loopback only; instances 150+.
+Loopback only; leased instances (tests/integration/instances.py).
 """
 
 from __future__ import annotations
@@ -19,21 +19,26 @@ from pathlib import Path
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.bench.probe import PROBE_SYSIDS, RelayProbe
+from gcs.bench.probe import RelayProbe, probe_sysids
 from sitl.dynamics.plant import DEFAULT_HOME
 from sitl.protocol.neighbours import Neighbour, NeighbourTable
+from tests.integration.instances import Leases
 
 pytestmark = [pytest.mark.sim_only, pytest.mark.timeout(120)]
 
-OBSERVER_SYSID = 99
+OBSERVER_SYSIDS = (99, 98, 97)  # the participant's sysid: the first of these no drone of the swarm has
 SPEED = 2.0
-FIRST_INSTANCE = 150
 
 
-def test_relayed_positions_follow_a_drone_and_arrive_promptly(tmp_path: Path) -> None:
+def test_relayed_positions_follow_a_drone_and_arrive_promptly(tmp_path: Path, instances: Leases) -> None:
+    first = instances(2)
+    both = {first + 1, first + 2}  # the drones' sysids
+    observer = next(s for s in OBSERVER_SYSIDS if s not in both)
+    probe_pair = probe_sysids(both)  # the probe's two vehicles: sysids no drone has
+    assert probe_pair is not None
     env = {**os.environ, "SWARM_STATE_DIR": str(tmp_path / "state")}
     cmd = [sys.executable, "-m", "gcs.cli"]
-    args = ["up", "-n", "2", "--speed", str(SPEED), "--first-instance", str(FIRST_INSTANCE), "--no-forward"]
+    args = ["up", "-n", "2", "--speed", str(SPEED), "--first-instance", str(first), "--no-forward"]
     up = subprocess.Popen([*cmd, *args],
                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)  # fmt: skip
     relay_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -48,9 +53,9 @@ def test_relayed_positions_follow_a_drone_and_arrive_promptly(tmp_path: Path) ->
         assert port is not None, "swarm up did not report its MAVLink port"
         relay_sock.bind(("127.0.0.1", 0))
         relay_sock.settimeout(0.05)
-        me = mavlink.MAVLink(None, srcSystem=OBSERVER_SYSID, srcComponent=1)
+        me = mavlink.MAVLink(None, srcSystem=observer, srcComponent=1)
         parser = mavlink.MAVLink(None)
-        table = NeighbourTable(OBSERVER_SYSID)
+        table = NeighbourTable(observer)
         heights: list[float] = []
         t0 = time.monotonic()
         next_heartbeat = 0.0
@@ -76,7 +81,7 @@ def test_relayed_positions_follow_a_drone_and_arrive_promptly(tmp_path: Path) ->
                     if msg.get_type() != "GLOBAL_POSITION_INT":
                         continue
                     table.handle(msg, time.monotonic() - t0)
-                    if msg.get_srcSystem() == FIRST_INSTANCE + 1:
+                    if msg.get_srcSystem() == first + 1:
                         heights.append(msg.relative_alt * 1e-3)
             return condition()
 
@@ -84,11 +89,10 @@ def test_relayed_positions_follow_a_drone_and_arrive_promptly(tmp_path: Path) ->
             return {n.sysid: n for n in table.entries(time.monotonic() - t0)}
 
         # GIVEN a running swarm WHEN the participant has joined THEN both drones appear in its table, fresh
-        both = {FIRST_INSTANCE + 1, FIRST_INSTANCE + 2}
         assert pump_until(lambda: set(neighbours()) == both, 10.0), neighbours()
         now = time.monotonic() - t0
         assert all(n.age_s(now) < 0.5 for n in neighbours().values())
-        ground = neighbours()[FIRST_INSTANCE + 1].alt_amsl_m
+        ground = neighbours()[first + 1].alt_amsl_m
         # WHEN the drones take off to 3 m THEN the table follows: the neighbour's altitude rises by about 3 m
         result = subprocess.run([*cmd, "takeoff", "--alt", "3"], capture_output=True, text=True, env=env, timeout=60)
         assert result.returncode == 0, result.stderr
@@ -96,7 +100,7 @@ def test_relayed_positions_follow_a_drone_and_arrive_promptly(tmp_path: Path) ->
 
         def risen_m() -> float:
             # While `takeoff` ran nobody read the socket, so the entry may have aged out until the next report
-            drone = neighbours().get(FIRST_INSTANCE + 1)
+            drone = neighbours().get(first + 1)
             return float("-inf") if drone is None else drone.alt_amsl_m - ground
 
         assert pump_until(lambda: risen_m() > 2.6, 20.0), risen_m()
@@ -105,14 +109,15 @@ def test_relayed_positions_follow_a_drone_and_arrive_promptly(tmp_path: Path) ->
         assert max(heights) > 2.6 and min(heights) < 0.5
         # WHEN a probe joins as two more vehicles THEN every report of one reaches the other through the relay,
         # and the drones hear the probe too (a router forwards every system's position to every other)
-        probe = RelayProbe(port, (DEFAULT_HOME.lat_deg, DEFAULT_HOME.lon_deg, DEFAULT_HOME.alt_amsl_m))
+        probe = RelayProbe(port, (DEFAULT_HOME.lat_deg, DEFAULT_HOME.lon_deg, DEFAULT_HOME.alt_amsl_m),
+                           sysids=probe_pair)  # fmt: skip
         try:
             stats = probe.run_for(3.0)
         finally:
             probe.close()
         assert stats.sent >= 25 and stats.received >= stats.sent - 1, stats  # the first may precede B joining
         assert 0.0 < stats.median_ms <= stats.p95_ms <= stats.max_ms, stats
-        assert pump_until(lambda: PROBE_SYSIDS[0] in neighbours(), 2.0), neighbours()
+        assert pump_until(lambda: probe_pair[0] in neighbours(), 2.0), neighbours()
     finally:
         relay_sock.close()
         if up.poll() is None:

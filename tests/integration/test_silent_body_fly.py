@@ -4,7 +4,7 @@ The body is a drone-sized sphere declared in the shared world at the circle's al
 speaks for it, nothing relays it, so only the drones' cameras (default parameters: the four-camera rig) can find
 it, and it does not move out of anyone's way. A contact with it crashes the drone and is counted in the report.
 
-Policy: loopback only (--no-forward); instances 160-169; a time limit.
+Policy: loopback only (--no-forward); leased instances (tests/integration/instances.py); a time limit.
 """
 
 from __future__ import annotations
@@ -17,7 +17,8 @@ from typing import Any
 
 import pytest
 
-from tests.integration.mission_flight import SWARM
+from tests.integration.instances import Leases
+from tests.integration.mission_flight import SWARM, mission_drones
 
 pytestmark = [pytest.mark.sim_only]
 
@@ -59,13 +60,14 @@ action = "land"
 """
 
 
-def fly(tmp_path: Path, params: str = "") -> dict[str, Any]:
+def fly(tmp_path: Path, instances: Leases, params: str = "") -> dict[str, Any]:
     """Fly the mission in lockstep (``params``: a TOML inline table of drone parameters); the report's metrics."""
     mission = tmp_path / "silent_body_circle.toml"
     mission.write_text(MISSION.replace("PARAMS", f"params = {params}" if params else ""))
+    first = instances(mission_drones(mission))
     report = tmp_path / "report"
     result = subprocess.run(
-        [*SWARM, "fly", str(mission), "--lockstep", "--quantum", "8", "--first-instance", "160",
+        [*SWARM, "fly", str(mission), "--lockstep", "--quantum", "8", "--first-instance", str(first),
          "--report", str(report), "--no-forward"],
         capture_output=True, text=True, timeout=400,
     )  # fmt: skip
@@ -75,8 +77,8 @@ def fly(tmp_path: Path, params: str = "") -> dict[str, Any]:
 
 
 @pytest.mark.timeout(420)
-def test_a_rotating_circle_of_8_real_drones_avoids_a_silent_body_in_its_path(tmp_path: Path) -> None:
+def test_a_rotating_circle_of_8_real_drones_avoids_a_silent_body_in_its_path(tmp_path: Path, instances: Leases) -> None:
     # GIVEN default parameters WHEN the circle turns past the body for 35 s THEN nobody touched it, and they avoided
-    metrics = fly(tmp_path)
+    metrics = fly(tmp_path, instances)
     assert metrics["collisions"] == 0, metrics["collision_events"]
     assert metrics["avoidance_events"] >= 8

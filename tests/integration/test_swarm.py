@@ -1,8 +1,8 @@
 """The ground station as a user runs it: real ``swarm`` and ``sitl`` processes on loopback.
 
-Policy: loopback only; instances from 60 up (clear of the flight tests and of a user's own drones at 0); every
-process is found by PID (the supervisor's children from /proc) and must be gone at the end; readiness is read from
-the supervisor's own output, never slept for.
+Policy: loopback only; leased instances (tests/integration/instances.py); every process is found by PID (the
+supervisor's children from /proc) and must be gone at the end; readiness is read from the supervisor's own output,
+never slept for.
 """
 
 from __future__ import annotations
@@ -21,6 +21,8 @@ from typing import Any
 
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
+
+from tests.integration.instances import Leases
 
 pytestmark = [pytest.mark.sim_only, pytest.mark.timeout(120)]
 
@@ -118,12 +120,15 @@ def status_rows(swarm: RunningSwarm) -> list[list[str]]:
     return [line.split() for line in result.stdout.strip().splitlines()[1:]]
 
 
-def test_cli_commands_fly_a_running_swarm_and_down_stops_every_process(swarm_factory: type[RunningSwarm]) -> None:
+def test_cli_commands_fly_a_running_swarm_and_down_stops_every_process(
+    swarm_factory: type[RunningSwarm], instances: Leases
+) -> None:
     # GIVEN a running 2-drone swarm
-    swarm = swarm_factory(2, 60)
+    first = instances(2)
+    swarm = swarm_factory(2, first)
     assert len(swarm.drones) == 2
     rows = status_rows(swarm)
-    assert [r[0] for r in rows] == ["61", "62"] and all(r[2] == "no" for r in rows)
+    assert [r[0] for r in rows] == [str(first + 1), str(first + 2)] and all(r[2] == "no" for r in rows)
     # WHEN it takes off to 2 m
     result = swarm.cli("takeoff", "--alt", "2")
     assert result.returncode == 0, result.stderr
@@ -154,8 +159,10 @@ def shm_mappings(pid: int) -> list[str]:
     return sorted({line.split(None, 5)[5] for line in lines if "/dev/shm/psm_" in line})
 
 
-def test_killing_the_supervisor_with_sigkill_leaves_no_drone_process(swarm_factory: type[RunningSwarm]) -> None:
-    swarm = swarm_factory(3, 64)
+def test_killing_the_supervisor_with_sigkill_leaves_no_drone_process(
+    swarm_factory: type[RunningSwarm], instances: Leases
+) -> None:
+    swarm = swarm_factory(3, instances(3))
     assert len(swarm.drones) == 3
     # AND the shared world's name has already left /dev/shm (only the mappings hold the memory), so nothing can
     # outlive the kill there either
@@ -168,26 +175,27 @@ def test_killing_the_supervisor_with_sigkill_leaves_no_drone_process(swarm_facto
     assert wait_dead(swarm.children, 10) == []
 
 
-def test_sigterm_to_the_supervisor_stops_every_drone(swarm_factory: type[RunningSwarm]) -> None:
-    swarm = swarm_factory(2, 68)
+def test_sigterm_to_the_supervisor_stops_every_drone(swarm_factory: type[RunningSwarm], instances: Leases) -> None:
+    swarm = swarm_factory(2, instances(2))
     swarm.proc.send_signal(signal.SIGTERM)
     assert swarm.proc.wait(timeout=30) == 0
     assert wait_dead(swarm.children, 5) == []
 
 
-def test_sigterm_while_the_drones_start_ends_the_start_up_at_once(state_env: dict[str, str]) -> None:
+def test_sigterm_while_the_drones_start_ends_the_start_up_at_once(state_env: dict[str, str], instances: Leases) -> None:
     """A start-up that cannot finish (here: the drone factory is held stopped) must not hold a SIGTERM or Ctrl-C
     back until it times out; the supervisor stops what it started and says so."""
     proc = subprocess.Popen(
-        [*SWARM, "up", "-n", "2", "--first-instance", "76", "--no-forward"],
+        [*SWARM, "up", "-n", "2", "--first-instance", str(instances(2)), "--no-forward"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=state_env,
     )  # fmt: skip
     factory = None
     try:
         end = time.monotonic() + 30
         while factory is None and time.monotonic() < end and proc.poll() is None:
-            found = [p for p in children_of(proc.pid)
-                     if b"sitl.harness.zygote" in Path(f"/proc/{p}/cmdline").read_bytes()]
+            found = [
+                p for p in children_of(proc.pid) if b"sitl.harness.zygote" in Path(f"/proc/{p}/cmdline").read_bytes()
+            ]
             factory = found[0] if found else None
             time.sleep(0.005)
         assert factory is not None, "no drone factory started"
@@ -207,11 +215,13 @@ def test_sigterm_while_the_drones_start_ends_the_start_up_at_once(state_env: dic
             os.kill(factory, signal.SIGKILL)
 
 
-def test_a_swarm_that_cannot_keep_the_requested_speed_is_warned_about_once(state_env: dict[str, str]) -> None:
+def test_a_swarm_that_cannot_keep_the_requested_speed_is_warned_about_once(
+    state_env: dict[str, str], instances: Leases
+) -> None:
     """Paced drones that cannot keep up give the lag up, so the supervisor's wall-clock timing would run ahead of
     them unnoticed; 200x real time is beyond any machine this suite runs on."""
     proc = subprocess.Popen(
-        [*SWARM, "up", "-n", "2", "--speed", "200", "--first-instance", "80", "--no-forward"],
+        [*SWARM, "up", "-n", "2", "--speed", "200", "--first-instance", str(instances(2)), "--no-forward"],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=state_env,
     )  # fmt: skip
     lines: list[str] = []
@@ -236,16 +246,18 @@ def test_a_swarm_that_cannot_keep_the_requested_speed_is_warned_about_once(state
     assert proc.returncode == 0, "".join(lines)
 
 
-def test_a_drone_that_cannot_start_is_named_in_one_line(state_env: dict[str, str]) -> None:
+def test_a_drone_that_cannot_start_is_named_in_one_line(state_env: dict[str, str], instances: Leases) -> None:
+    first = instances(2)
     result = subprocess.run(
-        [*SWARM, "up", "-n", "2", "--first-instance", "72", "--airframe", "no_such_frame"],
+        [*SWARM, "up", "-n", "2", "--first-instance", str(first), "--airframe", "no_such_frame"],
         capture_output=True, text=True, env=state_env, timeout=60,
     )  # fmt: skip
     assert result.returncode == 1
     errors = [ln for ln in result.stdout.splitlines() + result.stderr.splitlines() if "error" in ln]
     assert len(errors) == 1, result
     # Both drones fail the same way; whichever exits first is the one named.
-    assert re.search(r"drone 7[23] \(sysid 7[34]\) exited with code 2", errors[0]), errors[0]
+    drone, sysid = f"({first}|{first + 1})", f"({first + 1}|{first + 2})"
+    assert re.search(rf"drone {drone} \(sysid {sysid}\) exited with code 2", errors[0]), errors[0]
     assert "no_such_frame" in errors[0] and "Traceback" not in result.stderr
 
 
@@ -267,13 +279,16 @@ def test_bad_commands_give_one_line(state_env: dict[str, str], args: tuple[str, 
     assert len(lines) == 1 and fragment in lines[0], result.stderr
 
 
-def test_a_ground_station_on_the_forward_port_sees_every_drone_and_can_command_one(state_env: dict[str, str]) -> None:
+def test_a_ground_station_on_the_forward_port_sees_every_drone_and_can_command_one(
+    state_env: dict[str, str], instances: Leases
+) -> None:
+    first = instances(2)
     # GIVEN a "QGroundControl" socket and a swarm forwarding to it
     gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     gcs.bind(("127.0.0.1", 0))
     gcs.settimeout(0.2)
     port = gcs.getsockname()[1]
-    up = subprocess.Popen([*SWARM, "up", "-n", "2", "--first-instance", "76", "--forward", f"127.0.0.1:{port}"],
+    up = subprocess.Popen([*SWARM, "up", "-n", "2", "--first-instance", str(first), "--forward", f"127.0.0.1:{port}"],
                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=state_env)  # fmt: skip
     try:
         assert up.stdout is not None
@@ -294,12 +309,12 @@ def test_a_ground_station_on_the_forward_port_sees_every_drone_and_can_command_o
 
         # WHEN it listens THEN it hears both drones' heartbeats
         beats = receive("HEARTBEAT", 2.5)
-        assert {m.get_srcSystem() for m, _ in beats} == {77, 78}
-        # WHEN it asks drone 78 for a parameter THEN only drone 78 answers, through the supervisor
-        request = mavlink.MAVLink_param_request_read_message(78, 1, b"MIS_TAKEOFF_ALT", -1)
+        assert {m.get_srcSystem() for m, _ in beats} == {first + 1, first + 2}
+        # WHEN it asks the second drone for a parameter THEN only that drone answers, through the supervisor
+        request = mavlink.MAVLink_param_request_read_message(first + 2, 1, b"MIS_TAKEOFF_ALT", -1)
         gcs.sendto(request.pack(me), beats[0][1])
         answers = receive("PARAM_VALUE", 2.0)
-        assert answers and {m.get_srcSystem() for m, _ in answers} == {78}
+        assert answers and {m.get_srcSystem() for m, _ in answers} == {first + 2}
         assert answers[0][0].param_value == pytest.approx(2.5)
     finally:
         gcs.close()

@@ -1,7 +1,7 @@
 """``swarm fly`` end to end with real processes: a 4-drone mission, its report, and mission-file errors.
 
-Policy: loopback only; instances 90+; a time limit on every test. That no process outlives the supervisor is
-tested in test_swarm.py.
+Policy: loopback only; leased instances (tests/integration/instances.py); a time limit on every test. That no
+process outlives the supervisor is tested in test_swarm.py.
 """
 
 from __future__ import annotations
@@ -14,6 +14,9 @@ from pathlib import Path
 import pytest
 from pymavlink import mavutil
 
+from tests.integration.instances import Leases
+from tests.integration.mission_flight import mission_drones
+
 pytestmark = [pytest.mark.sim_only]
 
 MISSIONS = Path(__file__).resolve().parents[2] / "missions"
@@ -22,12 +25,15 @@ SWARM = [sys.executable, "-m", "gcs.cli"]
 
 @pytest.mark.timeout(240)
 @pytest.mark.parametrize("per_process", ["1", "2"], ids=["process-per-drone", "hosted"])
-def test_four_drone_mission_flies_end_to_end_and_writes_a_report(tmp_path: Path, per_process: str) -> None:
+def test_four_drone_mission_flies_end_to_end_and_writes_a_report(
+    tmp_path: Path, instances: Leases, per_process: str
+) -> None:
     # GIVEN the 4-drone mission (each drone in its own process, or two to a process)
     report = tmp_path / "report"
+    first = instances(mission_drones(MISSIONS / "square_four.toml"))
     # WHEN it is flown at 3x real time
     result = subprocess.run(
-        [*SWARM, "fly", str(MISSIONS / "square_four.toml"), "--speed", "3", "--first-instance", "90",
+        [*SWARM, "fly", str(MISSIONS / "square_four.toml"), "--speed", "3", "--first-instance", str(first),
          "--report", str(report), "--no-forward", "--drones-per-process", per_process],
         capture_output=True, text=True, timeout=220,
     )  # fmt: skip
@@ -48,7 +54,7 @@ def test_four_drone_mission_flies_end_to_end_and_writes_a_report(tmp_path: Path,
     systems = set()
     while (msg := log.recv_match(type="HEARTBEAT")) is not None:
         systems.add(msg.get_srcSystem())
-    assert systems == {91, 92, 93, 94}
+    assert systems == {first + 1, first + 2, first + 3, first + 4}
     assert "Flight report: square_four" in result.stdout
 
 
@@ -87,7 +93,7 @@ def test_a_bad_drone_parameter_is_one_line_before_anything_flies(tmp_path: Path,
 
 
 @pytest.mark.timeout(180)
-def test_drones_commanded_into_each_other_collide_crash_and_are_counted_once(tmp_path: Path) -> None:
+def test_drones_commanded_into_each_other_collide_crash_and_are_counted_once(tmp_path: Path, instances: Leases) -> None:
     # GIVEN two drones without onboard avoidance told to fly a line with 0.3 m spacing: closer than two collision
     # radii (0.7 m)
     mission = tmp_path / "crash.toml"
@@ -98,9 +104,10 @@ def test_drones_commanded_into_each_other_collide_crash_and_are_counted_once(tmp
         '[[steps]]\naction = "land"\n'
     )
     report = tmp_path / "report"
+    first = instances(mission_drones(mission))
     # WHEN the mission is flown
     result = subprocess.run(
-        [*SWARM, "fly", str(mission), "--speed", "3", "--first-instance", "96", "--report", str(report),
+        [*SWARM, "fly", str(mission), "--speed", "3", "--first-instance", str(first), "--report", str(report),
          "--no-forward"],
         capture_output=True, text=True, timeout=160,
     )  # fmt: skip

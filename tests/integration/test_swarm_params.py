@@ -6,7 +6,7 @@ them when an onboard behaviour may declare it; then no drone echoes it (as PX4) 
 with one line naming the parameter and the drones.
 
 Policy: loopback only (--no-forward); lockstep, so the retries' timing does not depend on the machine's load;
-instances 250-253; a time limit on every test.
+leased instances (tests/integration/instances.py); a time limit on every test.
 """
 
 from __future__ import annotations
@@ -16,6 +16,8 @@ import sys
 from pathlib import Path
 
 import pytest
+
+from tests.integration.instances import Leases
 
 pytestmark = [pytest.mark.sim_only]
 
@@ -38,10 +40,12 @@ def fly_with_params(
 
 
 @pytest.mark.timeout(120)
-def test_a_value_the_drones_refuse_ends_the_mission_naming_the_drones_and_the_value_they_kept(tmp_path: Path) -> None:
+def test_a_value_the_drones_refuse_ends_the_mission_naming_the_drones_and_the_value_they_kept(
+    tmp_path: Path, instances: Leases
+) -> None:
     # GIVEN a mission that sets MPC_XY_CRUISE far above its range (the drones keep 5 m/s)
     # WHEN it is flown
-    result = fly_with_params(tmp_path, "MPC_XY_CRUISE = 1000.0", 250)
+    result = fly_with_params(tmp_path, "MPC_XY_CRUISE = 1000.0", instances(2))
     # THEN it is refused before any drone is spawned, in one line naming the parameter and its range
     assert result.returncode == 2, result.stdout[-2000:] + result.stderr[-2000:]
     assert result.stderr.count("\n") == 1 and "swarm.params: MPC_XY_CRUISE: 1000 outside [0.5, 20] m/s" in result.stderr
@@ -49,13 +53,14 @@ def test_a_value_the_drones_refuse_ends_the_mission_naming_the_drones_and_the_va
 
 
 @pytest.mark.timeout(120)
-def test_a_parameter_the_drones_do_not_know_ends_the_mission_with_no_answer(tmp_path: Path) -> None:
+def test_a_parameter_the_drones_do_not_know_ends_the_mission_with_no_answer(tmp_path: Path, instances: Leases) -> None:
     # GIVEN a mission with an onboard behaviour (whose own parameters the drones' table does not list) that sets a
     # parameter no drone has (PX4 sends no PARAM_VALUE for it)
     # WHEN it is flown
     behaviour = 'behaviour = "sitl.onboard.behaviours.flocking:Flocking"\n'
-    result = fly_with_params(tmp_path, "NO_SUCH_PARAM = 1", 252, behaviour)
+    first = instances(2)
+    result = fly_with_params(tmp_path, "NO_SUCH_PARAM = 1", first, behaviour)
     # THEN every retry goes unanswered and the flight ends before arming, naming the drones
     assert result.returncode == 1, result.stdout[-2000:] + result.stderr[-2000:]
-    assert "swarm: error: parameter NO_SUCH_PARAM: no answer from sysid [253, 254]" in result.stderr
+    assert f"swarm: error: parameter NO_SUCH_PARAM: no answer from sysid [{first + 1}, {first + 2}]" in result.stderr
     assert "step 1/2" not in result.stdout

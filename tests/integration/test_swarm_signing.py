@@ -3,7 +3,7 @@ signed messages, the mission flies (it could not: every command and setpoint wou
 forward ground station receives the drones' frames with their signatures intact, and the report says signing was
 on. A bad key file is one line and exit code 2, for ``swarm`` and for ``sitl``.
 
-Policy: loopback only; instances 170-171; a time limit on every test.
+Policy: loopback only; leased instances (tests/integration/instances.py); a time limit on every test.
 """
 
 from __future__ import annotations
@@ -19,13 +19,15 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
+from tests.integration.instances import Leases
+from tests.integration.mission_flight import mission_drones
+
 pytestmark = [pytest.mark.sim_only]
 
 SWARM = [sys.executable, "-m", "gcs.cli"]
 SITL = [sys.executable, "-m", "sitl.cli"]
 PASSPHRASE = "swarm signing mission"
 KEY = hashlib.sha256(PASSPHRASE.encode()).digest()
-FIRST_INSTANCE = 170
 
 MISSION = """
 name = "signed_hop"
@@ -53,12 +55,15 @@ action = "land"
 
 
 @pytest.mark.timeout(240)
-def test_a_signed_lockstep_mission_flies_forwards_signed_frames_and_reports_signing_on(tmp_path: Path) -> None:
+def test_a_signed_lockstep_mission_flies_forwards_signed_frames_and_reports_signing_on(
+    tmp_path: Path, instances: Leases
+) -> None:
     # GIVEN a key file, a short mission and a ground station listening on the forward port
     key_file = tmp_path / "swarm.key"
     key_file.write_text(PASSPHRASE + "\n")
     mission = tmp_path / "signed_hop.toml"
     mission.write_text(MISSION)
+    first = instances(mission_drones(mission))
     report = tmp_path / "report"
     ground_station = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     ground_station.bind(("127.0.0.1", 0))
@@ -66,7 +71,7 @@ def test_a_signed_lockstep_mission_flies_forwards_signed_frames_and_reports_sign
     try:
         # WHEN the mission is flown in lockstep with the key
         result = subprocess.run(
-            [*SWARM, "fly", str(mission), "--lockstep", "--first-instance", str(FIRST_INSTANCE),
+            [*SWARM, "fly", str(mission), "--lockstep", "--first-instance", str(first),
              "--report", str(report), "--forward", f"127.0.0.1:{ground_station.getsockname()[1]}",
              "--signing-key", str(key_file)],
             capture_output=True, text=True, timeout=220,
@@ -128,9 +133,9 @@ def test_a_bad_key_file_is_one_line_and_exit_code_2(tmp_path: Path, content: byt
     key_file = tmp_path / "swarm.key"
     if content is not None:
         key_file.write_bytes(content)
-    for command in (
-        [*SWARM, "up", "-n", "1", "--first-instance", str(FIRST_INSTANCE), "--no-forward", "--signing-key"],
-        [*SITL, "--instance", str(FIRST_INSTANCE), "--signing-key"],
+    for command in (  # the key file is read before anything starts: the instance is only an argument here
+        [*SWARM, "up", "-n", "1", "--first-instance", "170", "--no-forward", "--signing-key"],
+        [*SITL, "--instance", "170", "--signing-key"],
     ):
         result = subprocess.run([*command, str(key_file)], capture_output=True, text=True, timeout=50)
         assert result.returncode == 2, result.stdout + result.stderr

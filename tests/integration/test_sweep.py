@@ -2,8 +2,9 @@
 same runs on a local Ray head, a sweep killed halfway and resumed, and bad input.
 
 Policy: loopback only (Ray too: RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0 keeps a single-machine Ray on 127.0.0.1); a
-mission of two drones; the runs on instances 20 up, from the machine's sweep locks; every process started here is
-stopped by PID (a sweep and the Ray head by their process groups); time limits.
+mission of two drones; the sweeps' runs on instances 20 up, from the machine's sweep locks, and a run flown again
+here on instances leased from the same locks (tests/integration/instances.py); every process started here is stopped
+by PID (a sweep and the Ray head by their process groups); time limits.
 """
 
 from __future__ import annotations
@@ -23,6 +24,8 @@ from typing import Any
 
 import pytest
 
+from tests.integration.instances import Leases
+from tests.integration.mission_flight import mission_drones
 from tests.integration.test_swarm import wait_dead
 
 pytestmark = [pytest.mark.sim_only]
@@ -135,19 +138,23 @@ def test_two_sweeps_at_once_both_complete_with_every_report_and_a_summary(two_sw
 
 @pytest.mark.timeout(600)
 def test_a_run_gives_the_same_metrics_on_other_instances(
-    two_sweeps_at_once: dict[str, Any], sweep_env: dict[str, str], tmp_path: Path
+    two_sweeps_at_once: dict[str, Any], mission: Path, sweep_env: dict[str, str], tmp_path: Path, instances: Leases
 ) -> None:
     """Reproducible from its seed and setting alone: one run of sweep A flown again, alone, on other instances."""
     out = two_sweeps_at_once["a"][0]
-    first = run_files(out)["AVOID_MIN_DIST=1.5/seed-0002"]
-    command = list(first["command"][1:])
-    command[command.index("--first-instance") + 1] = "230"
+    run = run_files(out)["AVOID_MIN_DIST=1.5/seed-0002"]
+    command = list(run["command"][1:])
+    flown_on = int(command[command.index("--first-instance") + 1])
+    first = instances(mission_drones(mission))
+    if first == flown_on:  # the sweep has given its instances back: take the next block (this one stays held)
+        first = instances(mission_drones(mission))
+    command[command.index("--first-instance") + 1] = str(first)
     command[command.index("--report") + 1] = str(tmp_path / "again")
     result = subprocess.run([*SWARM, *command], capture_output=True, text=True, env=sweep_env, timeout=300)
     assert result.returncode == 0, result.stderr[-3000:]
     again = json.loads((tmp_path / "again" / "metrics.json").read_text())
     original = json.loads((out / "runs" / "AVOID_MIN_DIST=1.5" / "seed-0002" / "report" / "metrics.json").read_text())
-    assert again["sysids"] == [231, 232] and again["sysids"] != original["sysids"]
+    assert again["sysids"] == [first + 1, first + 2] and again["sysids"] != original["sysids"]
     assert by_drone_index(again) == by_drone_index(original)  # every figure, each drone named by its place
 
 

@@ -4,8 +4,8 @@ and a killed drone marked lost at once. Screenshots of the page go to docs/image
 The reference is independent of the page: a MAVLink client on the supervisor's forward port (as QGroundControl),
 whose GLOBAL_POSITION_INT reports are converted into the swarm frame here (gcs/flight/geodesy.py).
 
-Policy: loopback only; instances 90-98; the view on a port the system picks; paced lockstep at 1x, so the page
-watches in real time; a time limit; every process stopped by PID.
+Policy: loopback only; leased instances (tests/integration/instances.py); the view on a port the system picks;
+paced lockstep at 1x, so the page watches in real time; a time limit; every process stopped by PID.
 """
 
 from __future__ import annotations
@@ -26,11 +26,11 @@ from pymavlink import mavutil
 from gcs.flight.frames import SwarmFrame
 from gcs.flight.geodesy import DEFAULT_ORIGIN, GeoPoint
 from tests.integration.browser import Browser
+from tests.integration.instances import Leases
 from tests.integration.test_swarm import SWARM, children_of, wait_dead
 
 pytestmark = [pytest.mark.sim_only, pytest.mark.heavy, pytest.mark.timeout(240)]
 
-FIRST_INSTANCE = 90
 DOCS_IMAGES = Path(__file__).resolve().parents[2] / "docs" / "images"
 
 
@@ -66,12 +66,14 @@ def telemetry_track(
 
 
 def test_the_live_view_draws_nine_drones_where_their_telemetry_says_and_a_killed_one_lost_at_once(
-    state_env: dict[str, str],
+    state_env: dict[str, str], instances: Leases
 ) -> None:
+    first = instances(9)
     forward = free_udp_port()
-    link = mavutil.mavlink_connection(f"udpin:127.0.0.1:{forward}", source_system=250)
+    # the reference client's own sysid: one no drone has (the drones' are first + 1 to first + 9)
+    link = mavutil.mavlink_connection(f"udpin:127.0.0.1:{forward}", source_system=first)
     proc = subprocess.Popen([*SWARM, "up", "-n", "9", "--lockstep", "--speed", "1", "--drones-per-process", "auto",
-                             "--first-instance", str(FIRST_INSTANCE), "--forward", f"127.0.0.1:{forward}",
+                             "--first-instance", str(first), "--forward", f"127.0.0.1:{forward}",
                              "--view-port", "0"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             env=state_env)  # fmt: skip
     children: list[int] = []
@@ -109,7 +111,7 @@ def test_the_live_view_draws_nine_drones_where_their_telemetry_says_and_a_killed
             scene = browser.evaluate("swarmView.drones()")
             after = telemetry_track(link, 0.3, drain=False)
             heard = {s: before.get(s, []) + after.get(s, []) for s in {*before, *after}}
-            assert sorted(int(s) for s in scene) == sorted(heard) == list(range(91, 100))
+            assert sorted(int(s) for s in scene) == sorted(heard) == list(range(first + 1, first + 10))
             gaps = {s: min(math.dist(scene[str(s)]["pos_ned_m"], p) for p in track) for s, track in heard.items()}
             assert max(gaps.values()) < 0.5, gaps
             assert browser.evaluate("swarmView.webgl()") is True  # drawn in 3D, not only on the map
@@ -117,15 +119,18 @@ def test_the_live_view_draws_nine_drones_where_their_telemetry_says_and_a_killed
             assert rows == 9
             # WHEN a drone is clicked THEN its details show what its camera sees, fetched over MAVLink image
             # transmission and kept fresh
-            browser.evaluate("document.querySelector('#drones tbody tr[data-sysid=\"92\"]').click()")
-            first = browser.wait_for("swarmView.camera() && swarmView.camera().sysid === 92 && swarmView.camera()", 10)
-            assert (first["width"], first["height"]) == (4 * 160, 120), first  # the default rig's four cameras
-            browser.wait_for(f"swarmView.camera().time_s > {first['time_s']}", 10)
+            clicked = first + 2  # the second drone
+            browser.evaluate(f"document.querySelector('#drones tbody tr[data-sysid=\"{clicked}\"]').click()")
+            shot = browser.wait_for(
+                f"swarmView.camera() && swarmView.camera().sysid === {clicked} && swarmView.camera()", 10
+            )
+            assert (shot["width"], shot["height"]) == (4 * 160, 120), shot  # the default rig's four cameras
+            browser.wait_for(f"swarmView.camera().time_s > {shot['time_s']}", 10)
             if os.environ.get("SWARM_DOCS_SCREENSHOTS"):
                 browser.screenshot(DOCS_IMAGES / "live-view.png")
             # WHEN a drone's process is killed THEN the page marks it lost within 2 s of the kill (the supervisor
             # has done it when `swarm kill` returns; the command's own start-up is not the page's latency)
-            killed = 95
+            killed = first + 5  # the fifth drone's sysid
             cli("kill", str(killed))
             killed_at = time.monotonic()
             browser.wait_for(f"swarmView.drones()['{killed}'].state === 'lost'", 5.0)

@@ -1,0 +1,131 @@
+"""Instances for the integration tests, leased across every process on this machine.
+
+A test that starts drones needs instance numbers whose UDP ports nobody else uses (a drone's ports follow its
+instance: sitl/process/ports.py). Tests that run at once (pytest-xdist workers, two suites on one machine, a
+``swarm sweep`` a test or a user started) must not share them, so every test leases its instances through the
+machine's instance locks, the ones ``swarm sweep`` runs hold (``gcs.sweep.runs.InstanceLocks``: ``fcntl.flock`` on a
+file per instance; the kernel drops a lock with its holder, so a killed run frees its instances). No file of the
+suite names an instance number of its own; which instances a test gets does not change what it flies (a drone's
+randomness comes from its seed).
+
+A lease is a block of consecutive instances at or above ``--sitl-instance-base`` (default 20), clear of a user's
+instances 0-9 and of a ground station's port 14550, whose ports were all found free. Blocks are taken round robin
+from where the process's last lease ended, so a test never receives stray datagrams still in flight to the ports of
+the test before it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import IO, Final
+
+from gcs.sweep.runs import InstanceLocks
+from sitl.process.ports import MAX_INSTANCE
+from tests.integration.sitl_process import DronePorts, instance_is_clear_of_user_ports, udp_port_is_free
+
+DEFAULT_LOWEST_INSTANCE: Final = 20
+LEASE_TIMEOUT_S: Final = 120.0  # wall seconds to wait for a block while other tests hold the rest
+_RETRY_S: Final = 0.2
+
+
+class LeaseError(RuntimeError):
+    """No block of the size asked for came free in time."""
+
+
+@dataclass
+class _Cursor:
+    """Where this process looks first for its next block (round robin over the instances)."""
+
+    next_first: int = -1
+
+
+_cursor = _Cursor()
+
+
+def _worker_offset() -> int:
+    """Workers start their round robin apart, so that they seldom try the same block at once."""
+    digits = os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw")
+    return 64 * int(digits) if digits.isdigit() else 0
+
+
+@dataclass
+class Lease:
+    """Instances ``first`` to ``first + count - 1``, held until ``release``."""
+
+    first: int
+    count: int
+    _held: list[IO[bytes]] = field(repr=False)
+
+    @property
+    def instances(self) -> range:
+        return range(self.first, self.first + self.count)
+
+    def release(self) -> None:
+        for handle in self._held:
+            handle.close()
+        self._held.clear()
+
+
+def _usable(first: int, count: int, containing: int | None) -> bool:
+    block = range(first, first + count)
+    return (containing is None or containing in block) and all(instance_is_clear_of_user_ports(i) for i in block)
+
+
+def lease(count: int, *, lowest: int = DEFAULT_LOWEST_INSTANCE, containing: int | None = None,
+          timeout_s: float = LEASE_TIMEOUT_S) -> Lease:  # fmt: skip
+    """A block of ``count`` consecutive instances nobody else on the machine holds, with their ports free;
+    ``containing``: the block must include this instance (a test of what changes at an instance). Waits while
+    other tests hold every block that fits."""
+    starts = [f for f in range(lowest, MAX_INSTANCE - count + 2) if _usable(f, count, containing)]
+    if not starts:
+        raise LeaseError(f"no block of {count} instances from {lowest} up (containing {containing}) exists")
+    if _cursor.next_first < 0:
+        _cursor.next_first = lowest + _worker_offset()
+    locks = InstanceLocks(count)
+    deadline = time.monotonic() + timeout_s
+    while True:
+        pivot = next((i for i, f in enumerate(starts) if f >= _cursor.next_first), 0)
+        for first in starts[pivot:] + starts[:pivot]:
+            held = locks.try_hold(first)
+            if held is None:
+                continue
+            if all(udp_port_is_free(p) for i in range(first, first + count) for p in DronePorts(instance=i).all()):
+                _cursor.next_first = first + count
+                return Lease(first, count, held)
+            for handle in held:
+                handle.close()
+        if time.monotonic() > deadline:
+            raise LeaseError(f"no {count} consecutive instances from {lowest} up came free in {timeout_s:g} s")
+        time.sleep(_RETRY_S)
+
+
+class Leases:
+    """The leases one test (or one module) takes; all given back at its end."""
+
+    def __init__(self, lowest: int = DEFAULT_LOWEST_INSTANCE) -> None:
+        self._lowest = lowest
+        self._leases: list[Lease] = []
+
+    def __call__(self, count: int = 1, *, containing: int | None = None) -> int:
+        """The first instance of a fresh block of ``count``."""
+        taken = lease(count, lowest=self._lowest, containing=containing)
+        self._leases.append(taken)
+        return taken.first
+
+    def release(self) -> None:
+        for taken in self._leases:
+            taken.release()
+        self._leases.clear()
+
+
+@contextlib.contextmanager
+def leases(lowest: int = DEFAULT_LOWEST_INSTANCE) -> Iterator[Leases]:
+    held = Leases(lowest)
+    try:
+        yield held
+    finally:
+        held.release()

@@ -1,0 +1,66 @@
+"""Instance leases (tests/integration/instances.py): what lets test files run side by side on pytest-xdist workers.
+
+Policy: nothing flies; a child process holds a block of the machine's instance locks as another worker would.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from sitl.process.ports import PX4_INSTANCES
+from tests.integration.instances import lease, leases
+from tests.integration.sitl_process import instance_is_clear_of_user_ports
+
+pytestmark = pytest.mark.timeout(60)
+
+HOLDER = textwrap.dedent(
+    """
+    import sys
+    from gcs.sweep.runs import InstanceLocks
+    held = InstanceLocks(int(sys.argv[2])).try_hold(int(sys.argv[1]))
+    print("held" if held is not None else "taken", flush=True)
+    sys.stdin.read()  # hold the locks until the test closes our stdin
+    """
+)
+
+
+def test_leases_are_disjoint_clear_of_user_ports_and_skip_a_block_another_process_holds() -> None:
+    with leases() as take:
+        # GIVEN a block leased here, and the block just after it held by another process (as another worker would)
+        first = take(4)
+        other = first + 4
+        holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(other), "4"], stdin=subprocess.PIPE,
+                                  stdout=subprocess.PIPE, text=True)  # fmt: skip
+        try:
+            assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+            # WHEN more blocks are leased
+            firsts = [take(4) for _ in range(3)]
+            # THEN none overlaps this process's own blocks or the other process's, none reaches a user's ports
+            blocks = [set(range(f, f + 4)) for f in (first, *firsts)]
+            taken = set(range(other, other + 4))
+            for i, block in enumerate(blocks):
+                assert not block & taken, (block, taken)
+                assert all(not block & b for b in blocks[i + 1 :])
+                assert all(instance_is_clear_of_user_ports(n) for n in block)
+        finally:
+            assert holder.stdin is not None
+            holder.stdin.close()
+            holder.wait(10)
+    # AND once given back, a block can be leased again by anyone (here: held at once by a new process)
+    again = subprocess.run([sys.executable, "-c", HOLDER, str(first), "4"], input="", capture_output=True, text=True,
+                           timeout=30)  # fmt: skip
+    assert again.stdout.strip() == "held", again
+
+
+def test_a_lease_that_must_contain_an_instance_spans_it() -> None:
+    # GIVEN a test of what changes at instance 40 (the port scheme's boundary) WHEN it leases 6 instances round it
+    held = lease(6, containing=PX4_INSTANCES)
+    try:
+        # THEN the block holds the boundary
+        assert PX4_INSTANCES in held.instances
+    finally:
+        held.release()
