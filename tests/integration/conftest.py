@@ -21,22 +21,33 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import inspect
 import os
 import threading
 import time
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from tests.integration.instances import DEFAULT_LOWEST_INSTANCE, Leases, leases
-from tests.integration.sitl_process import InstanceAllocator, SitlDrone, SpawnDrones, start_drones, stop_drone
+from tests.integration.sitl_process import (
+    InstanceAllocator,
+    SitlDrone,
+    SpawnDrones,
+    WorldDrone,
+    drone_in_world,
+    start_drones,
+    stop_drone,
+)
 from tests.integration.vehicle_link import VehicleLink, VehicleUrlError, pymavlink_url
 
 DEFAULT_SPEED_FACTOR = 4.0
 INSTANCES_PER_WORKER = 10
 LEAK_SETTLE_S = 5.0
+SEED_SPAN = 10_000
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -69,6 +80,14 @@ def pytest_addoption(parser: pytest.Parser) -> None:
         metavar="I",
         help=f"lowest sitl instance number this run may lease (default {DEFAULT_LOWEST_INSTANCE}; its ports: "
         "sitl/process/ports.py)",
+    )
+    group.addoption(
+        "--sitl-seed-offset",
+        type=int,
+        default=0,
+        metavar="K",
+        help="added to each test's drone seed (default 0: the test's own, from its node ID), to fly the tests with "
+        "other noise",
     )
 
 
@@ -127,8 +146,24 @@ def module_instances(pytestconfig: pytest.Config) -> Iterator[Leases]:
 
 
 @pytest.fixture
+def drone_seed(request: pytest.FixtureRequest) -> int:
+    """The base seed of the drones a test spawns: from the test's node ID, so that a test flies the same flight
+    whichever instances it is given (their numbers depend on what else runs at the time); ``--sitl-seed-offset``
+    moves every test's seed at once."""
+    offset = int(request.config.getoption("--sitl-seed-offset"))
+    return (zlib.crc32(request.node.nodeid.encode()) + offset) % SEED_SPAN
+
+
+@pytest.fixture
+def world_drone(tmp_path: Path, instance_allocator: InstanceAllocator, drone_seed: int) -> WorldDrone:
+    """``world_drone(speed_factor=..., log_lines=...)``: a drone of this test in a fresh shared world
+    (``sitl_process.drone_in_world``), seeded with ``drone_seed``."""
+    return functools.partial(drone_in_world, tmp_path, instance_allocator, seed=drone_seed)
+
+
+@pytest.fixture
 def spawn_drones(
-    request: pytest.FixtureRequest, instance_allocator: InstanceAllocator, tmp_path: Path
+    request: pytest.FixtureRequest, instance_allocator: InstanceAllocator, tmp_path: Path, drone_seed: int
 ) -> Iterator[SpawnDrones]:
     """Factory: ``spawn_drones(n)`` starts n ready drones on adjacent free instances. At teardown every one is
     stopped and reaped (each independently of the others) and its log is printed, which pytest shows for failed
@@ -151,7 +186,7 @@ def spawn_drones(
             drones: list[SitlDrone] = []
             try:
                 drones = start_drones(
-                    instances=instances, speed_factor=speed_factor, seed=instances[0], log_dir=tmp_path, hosted=hosted
+                    instances=instances, speed_factor=speed_factor, seed=drone_seed, log_dir=tmp_path, hosted=hosted
                 )
                 for drone in drones:
                     stoppers.callback(stop, drone)

@@ -8,8 +8,10 @@ file per instance; the kernel drops a lock with its holder, so a killed run free
 suite names an instance number of its own; which instances a test gets does not change what it flies (a drone's
 randomness comes from its seed).
 
-A lease is a block of consecutive instances at or above ``--sitl-instance-base`` (default 20), clear of a user's
-instances 0-9 and of a ground station's port 14550, whose ports were all found free. Blocks are taken round robin
+A lease is a block of consecutive instances at or above ``--sitl-instance-base`` (default 20) and at most
+HIGHEST_INSTANCE, clear of a user's instances 0-9 and of a ground station's port 14550, whose ports were all found
+free. Sysids from 200 up are left to the tests' own stand-ins (a stranger sending garbage, probes, observers), so no
+drone of the suite ever has one. Blocks are taken round robin
 from where the process's last lease ended, so a test never receives stray datagrams still in flight to the ports of
 the test before it.
 """
@@ -24,10 +26,10 @@ from dataclasses import dataclass, field
 from typing import IO, Final
 
 from gcs.sweep.runs import InstanceLocks
-from sitl.process.ports import MAX_INSTANCE
 from tests.integration.sitl_process import DronePorts, instance_is_clear_of_user_ports, udp_port_is_free
 
 DEFAULT_LOWEST_INSTANCE: Final = 20
+HIGHEST_INSTANCE: Final = 198  # sysid 199: sysids 200-254 are the tests' stand-ins, 255 the ground station's
 LEASE_TIMEOUT_S: Final = 120.0  # wall seconds to wait for a block while other tests hold the rest
 _RETRY_S: Final = 0.2
 
@@ -80,7 +82,7 @@ def lease(count: int, *, lowest: int = DEFAULT_LOWEST_INSTANCE, containing: int 
     """A block of ``count`` consecutive instances nobody else on the machine holds, with their ports free;
     ``containing``: the block must include this instance (a test of what changes at an instance). Waits while
     other tests hold every block that fits."""
-    starts = [f for f in range(lowest, MAX_INSTANCE - count + 2) if _usable(f, count, containing)]
+    starts = [f for f in range(lowest, HIGHEST_INSTANCE - count + 2) if _usable(f, count, containing)]
     if not starts:
         raise LeaseError(f"no block of {count} instances from {lowest} up (containing {containing}) exists")
     if _cursor.next_first < 0:

@@ -358,6 +358,8 @@ def _start_process(
 
 
 SpawnDrones = Callable[..., list[SitlDrone]]  # the ``spawn_drones`` fixture: spawn_drones(count=1, speed_factor=...)
+# The ``world_drone`` fixture: world_drone(speed_factor=..., log_lines=...), a ``drone_in_world`` of the test's own
+WorldDrone = Callable[..., contextlib.AbstractContextManager[tuple[SitlDrone, "SharedWorld"]]]
 
 
 def stop_drone(drone: SitlDrone) -> int:
@@ -370,7 +372,7 @@ def stop_drone(drone: SitlDrone) -> int:
 
 @contextlib.contextmanager
 def drone_in_world(
-    tmp_path: Path, allocator: InstanceAllocator, speed_factor: float, log_lines: int = 30
+    tmp_path: Path, allocator: InstanceAllocator, *, seed: int, speed_factor: float, log_lines: int = 30
 ) -> Iterator[tuple[SitlDrone, SharedWorld]]:
     """A ``sitl`` on an instance of ``allocator``'s block, publishing its body to a fresh shared world, so a test
     can watch where it flies even when its links are silent. Its log's last lines are printed when it stops."""
@@ -378,7 +380,7 @@ def drone_in_world(
     (instance,) = allocator.take()
     try:
         drone = start_drone(
-            instance=instance, speed_factor=speed_factor, seed=instance, log_dir=tmp_path,
+            instance=instance, speed_factor=speed_factor, seed=seed, log_dir=tmp_path,
             extra_args=("--world", world.name),
         )  # fmt: skip
         try:

@@ -6,7 +6,8 @@ moved on by this test at 4x real time: one drone stays on the ground and is the 
 held back by the dead member, runs on: its view of the body (``others_ned_m`` at its own simulated time, the view
 its camera and contact check use) has the body on the ground within 3 s.
 
-Policy: loopback only; instances 160-161; a time limit; every process stopped by PID and reaped.
+Policy: loopback only; two leased instances (tests/integration/instances.py); a time limit; every process stopped
+by PID and reaped.
 """
 
 from __future__ import annotations
@@ -27,13 +28,13 @@ from sitl.dynamics.plant import DEFAULT_HOME
 from sitl.world.lockstep import LockstepGate
 from sitl.world.shared import ALT, REST_ALT, TIME, SharedWorld
 from sitl.world.view import others_ned_m
+from tests.integration.instances import Leases
 from tests.integration.mavlink_client import arm_and_take_off, mavlink_connection, wait_vehicle_heartbeat
 from tests.integration.sitl_process import SitlDrone, start_drone, stop_drone
 from tests.integration.vehicle_link import VehicleLink
 
 pytestmark = [pytest.mark.sim_only, pytest.mark.timeout(120)]
 
-READER, VICTIM = 160, 161
 SPEED = 4.0
 PHYSICS_DT_S = 1.0 / 250.0
 
@@ -53,7 +54,11 @@ def _move_the_gate(gate: LockstepGate, stop: threading.Event) -> None:
         gate.open_until(gate.time_s() + 0.005 * SPEED)
 
 
-def test_a_drone_killed_in_the_air_is_on_the_ground_within_3_s_in_the_other_drones_view(tmp_path: Path) -> None:
+def test_a_drone_killed_in_the_air_is_on_the_ground_within_3_s_in_the_other_drones_view(
+    tmp_path: Path, instances: Leases, drone_seed: int
+) -> None:
+    reader = instances(2)
+    victim_instance = reader + 1
     world = SharedWorld.create()
     with contextlib.ExitStack() as stack:
         stack.callback(world.close)
@@ -65,10 +70,10 @@ def test_a_drone_killed_in_the_air_is_on_the_ground_within_3_s_in_the_other_dron
         stack.callback(mover.join)
         stack.callback(stop.set)
         drones: list[SitlDrone] = []
-        for instance, north_m in ((READER, 0.0), (VICTIM, 5.0)):
+        for k, (instance, north_m) in enumerate(((reader, 0.0), (victim_instance, 5.0))):
             home = LocalFrame(DEFAULT_HOME).geo_from_ned((north_m, 0.0, 0.0))
             home_arg = f"{home.lat_deg:.9f},{home.lon_deg:.9f},{home.alt_amsl_m:.3f}"
-            drone = start_drone(instance=instance, speed_factor=SPEED, seed=instance, log_dir=tmp_path,
+            drone = start_drone(instance=instance, speed_factor=SPEED, seed=drone_seed + k, log_dir=tmp_path,
                                 extra_args=("--world", world.name, "--lockstep", "--home", home_arg))  # fmt: skip
             stack.callback(stop_drone, drone)
             drones.append(drone)
@@ -78,27 +83,27 @@ def test_a_drone_killed_in_the_air_is_on_the_ground_within_3_s_in_the_other_dron
             # GIVEN the victim hovering at its takeoff altitude
             alt_m = arm_and_take_off(conn, victim.wall_s(30))
         table = world.table
-        assert table[VICTIM, ALT] - table[VICTIM, REST_ALT] == pytest.approx(alt_m, abs=0.4)
+        assert table[victim_instance, ALT] - table[victim_instance, REST_ALT] == pytest.approx(alt_m, abs=0.4)
         # WHEN its process is killed and the supervisor's part is done: the row marked ended
         drones[1].process.signal(signal.SIGKILL)
         drones[1].process.wait(10.0)
-        assert not world.ended(VICTIM)
-        world.mark_ended(VICTIM)
-        killed_at_s = float(table[VICTIM, TIME])
-        gate.remove(VICTIM)  # as the supervisor does for an exited member (mark_ended has already freed it)
+        assert not world.ended(victim_instance)
+        world.mark_ended(victim_instance)
+        killed_at_s = float(table[victim_instance, TIME])
+        gate.remove(victim_instance)  # as the supervisor does for an exited member (mark_ended has already freed it)
         # THEN in the reader's view the body falls and lies on the ground by 3 s after its last state
         deadline = time.monotonic() + 10.0
         heights = []
-        while time.monotonic() < deadline and table[READER, TIME] < killed_at_s + 3.0:
-            ids, offsets = others_ned_m(world, READER)
-            (k,) = [i for i, ident in enumerate(ids) if ident == VICTIM]
+        while time.monotonic() < deadline and table[reader, TIME] < killed_at_s + 3.0:
+            ids, offsets = others_ned_m(world, reader)
+            (k,) = [i for i, ident in enumerate(ids) if ident == victim_instance]
             heights.append(-float(offsets[k][2]))
             time.sleep(0.01)
-        assert table[READER, TIME] >= killed_at_s + 3.0, "the reader's clock did not advance"
-        ids, offsets = others_ned_m(world, READER)
-        (k,) = [i for i, ident in enumerate(ids) if ident == VICTIM]
+        assert table[reader, TIME] >= killed_at_s + 3.0, "the reader's clock did not advance"
+        ids, offsets = others_ned_m(world, reader)
+        (k,) = [i for i, ident in enumerate(ids) if ident == victim_instance]
         assert abs(offsets[k][2]) < 0.05, offsets[k]  # both rest on their gear at the same ground level
         assert max(heights) > 1.0 and min(heights) < 0.05, heights  # it was seen up there, and coming down
-        _lat, _lon, alt = world.body_geo(VICTIM, math.inf)  # type: ignore[misc]
-        assert alt == pytest.approx(table[VICTIM, REST_ALT])
+        _lat, _lon, alt = world.body_geo(victim_instance, math.inf)  # type: ignore[misc]
+        assert alt == pytest.approx(table[victim_instance, REST_ALT])
         assert drones[0].process.alive()

@@ -1,9 +1,10 @@
-"""Fault injection and fence uploads against a real ``sitl`` process: pymavlink for INJECT_FAILURE, MAVSDK for the
-fence round trip.
+"""Fault injection and fence uploads against a real ``sitl`` process: pymavlink for INJECT_FAILURE, MAVSDK for the fence
+round trip.
 
-Policy: drones of these tests use leased instances (tests/integration/instances.py, the ``instance_allocator``
-fixture's block); each drone is stopped by PID and reaped at the end, its shared world unlinked. A drone's body in
-the shared world is ground truth, read to show that a drone whose links went silent still flies.
+Policy: drones of these tests use leased instances (tests/integration/instances.py, the ``world_drone`` fixture: the
+block of ``instance_allocator``, the test's seed); each drone is stopped by PID and reaped at the end, its shared
+world unlinked. A drone's body in the shared world is ground truth, read to show that a drone whose links went silent
+still flies.
 """
 
 from __future__ import annotations
@@ -11,14 +12,12 @@ from __future__ import annotations
 import contextlib
 import time
 from multiprocessing import resource_tracker
-from pathlib import Path
 
 import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.world.shared import ALT, TIME, VALID, SharedWorld
-from tests.integration import sitl_process
 from tests.integration.mavlink_client import (
     arm_and_take_off,
     command_long,
@@ -28,7 +27,7 @@ from tests.integration.mavlink_client import (
     wait_vehicle_heartbeat,
 )
 from tests.integration.mavsdk_client import call_within, connect, first_matching
-from tests.integration.sitl_process import InstanceAllocator, SitlDrone
+from tests.integration.sitl_process import SitlDrone, WorldDrone
 from tests.integration.vehicle_link import VehicleLink
 
 pytestmark = [pytest.mark.sim_only]
@@ -44,18 +43,19 @@ def _shared_memory_tracker() -> None:
 
 
 def drone_in_world(
-    tmp_path: Path, allocator: InstanceAllocator, speed_factor: float = 4.0
+    world_drone: WorldDrone, speed_factor: float = 4.0
 ) -> contextlib.AbstractContextManager[tuple[SitlDrone, SharedWorld]]:
-    """A ``sitl`` on an instance of ``allocator``'s leased block, publishing its body to a fresh shared world."""
-    return sitl_process.drone_in_world(tmp_path, allocator, speed_factor)
+    """A drone of the test (``world_drone``: an instance of the leased block, the test's seed), publishing its body
+    to a fresh shared world."""
+    return world_drone(speed_factor=speed_factor)
 
 
 @pytest.mark.timeout(90)
 def test_inject_failure_is_denied_unless_enabled_and_a_link_fault_silences_a_drone_that_flies_on(
-    tmp_path: Path, instance_allocator: InstanceAllocator
+    world_drone: WorldDrone,
 ) -> None:
     with (
-        drone_in_world(tmp_path, instance_allocator) as (drone, world),
+        drone_in_world(world_drone) as (drone, world),
         mavlink_connection(VehicleLink.of(drone).pymavlink_url) as conn,
     ):
         wait_vehicle_heartbeat(conn, drone.sysid, 10.0)
@@ -120,9 +120,7 @@ def _upload_fence(conn: mavutil.mavfile, items: list[mavlink.MAVLink_mission_ite
 
 
 @pytest.mark.timeout(60)
-def test_pymavlink_fence_upload_download_refusal_and_clear(
-    tmp_path: Path, instance_allocator: InstanceAllocator
-) -> None:
+def test_pymavlink_fence_upload_download_refusal_and_clear(world_drone: WorldDrone) -> None:
     fence = mavlink.MAV_MISSION_TYPE_FENCE
     lat, lon = 473977420, 85455940
 
@@ -133,7 +131,7 @@ def test_pymavlink_fence_upload_download_refusal_and_clear(
         )  # fmt: skip
 
     with (
-        drone_in_world(tmp_path, instance_allocator) as (drone, _world),
+        drone_in_world(world_drone) as (drone, _world),
         mavlink_connection(VehicleLink.of(drone).pymavlink_url) as conn,
     ):
         wait_vehicle_heartbeat(conn, drone.sysid, 10.0)
@@ -155,14 +153,12 @@ def test_pymavlink_fence_upload_download_refusal_and_clear(
 
 
 @pytest.mark.timeout(90)
-async def test_mavsdk_uploads_downloads_and_clears_a_fence_and_injects_a_failure(
-    tmp_path: Path, instance_allocator: InstanceAllocator
-) -> None:
+async def test_mavsdk_uploads_downloads_and_clears_a_fence_and_injects_a_failure(world_drone: WorldDrone) -> None:
     from mavsdk.asyncio.plugins.failure import FailureAsync, FailureType, FailureUnit
     from mavsdk.asyncio.plugins.geofence import Circle, FenceType, GeofenceAsync, GeofenceData, Point, Polygon
     from mavsdk.asyncio.plugins.telemetry import FixType
 
-    with drone_in_world(tmp_path, instance_allocator) as (drone, _world):
+    with drone_in_world(world_drone) as (drone, _world):
         link = VehicleLink.of(drone)
         async with connect(link.mavsdk_url, drone.sysid) as client:
             geofence = GeofenceAsync(client.system)

@@ -280,7 +280,7 @@ async def test_mavsdk_reads_the_committed_plan_and_an_exported_one_into_the_item
     # of the format)
     drones = start_drones(instances=[instances(1)], speed_factor=4.0, seed=0, log_dir=tmp_path, hosted=False)
     try:
-        async with connect(f"udpin://127.0.0.1:{drones[0].ports.api_remote}", 20) as drone:
+        async with connect(f"udpin://127.0.0.1:{drones[0].ports.api_remote}", drones[0].sysid) as drone:
             importer = MissionRawAsync(drone.system)
             plan = load_plan(BOX_PLAN)
             # WHEN MAVSDK imports the committed plan

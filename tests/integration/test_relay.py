@@ -19,23 +19,20 @@ from pathlib import Path
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.bench.probe import RelayProbe, probe_sysids
+from gcs.bench.probe import PROBE_SYSIDS, RelayProbe
 from sitl.dynamics.plant import DEFAULT_HOME
 from sitl.protocol.neighbours import Neighbour, NeighbourTable
 from tests.integration.instances import Leases
 
 pytestmark = [pytest.mark.sim_only, pytest.mark.timeout(120)]
 
-OBSERVER_SYSIDS = (99, 98, 97)  # the participant's sysid: the first of these no drone of the swarm has
+OBSERVER_SYSID = 250  # the participant: a sysid no drone of the suite has (tests/integration/instances.py)
 SPEED = 2.0
 
 
 def test_relayed_positions_follow_a_drone_and_arrive_promptly(tmp_path: Path, instances: Leases) -> None:
     first = instances(2)
     both = {first + 1, first + 2}  # the drones' sysids
-    observer = next(s for s in OBSERVER_SYSIDS if s not in both)
-    probe_pair = probe_sysids(both)  # the probe's two vehicles: sysids no drone has
-    assert probe_pair is not None
     env = {**os.environ, "SWARM_STATE_DIR": str(tmp_path / "state")}
     cmd = [sys.executable, "-m", "gcs.cli"]
     args = ["up", "-n", "2", "--speed", str(SPEED), "--first-instance", str(first), "--no-forward"]
@@ -53,9 +50,9 @@ def test_relayed_positions_follow_a_drone_and_arrive_promptly(tmp_path: Path, in
         assert port is not None, "swarm up did not report its MAVLink port"
         relay_sock.bind(("127.0.0.1", 0))
         relay_sock.settimeout(0.05)
-        me = mavlink.MAVLink(None, srcSystem=observer, srcComponent=1)
+        me = mavlink.MAVLink(None, srcSystem=OBSERVER_SYSID, srcComponent=1)
         parser = mavlink.MAVLink(None)
-        table = NeighbourTable(observer)
+        table = NeighbourTable(OBSERVER_SYSID)
         heights: list[float] = []
         t0 = time.monotonic()
         next_heartbeat = 0.0
@@ -109,15 +106,14 @@ def test_relayed_positions_follow_a_drone_and_arrive_promptly(tmp_path: Path, in
         assert max(heights) > 2.6 and min(heights) < 0.5
         # WHEN a probe joins as two more vehicles THEN every report of one reaches the other through the relay,
         # and the drones hear the probe too (a router forwards every system's position to every other)
-        probe = RelayProbe(port, (DEFAULT_HOME.lat_deg, DEFAULT_HOME.lon_deg, DEFAULT_HOME.alt_amsl_m),
-                           sysids=probe_pair)  # fmt: skip
+        probe = RelayProbe(port, (DEFAULT_HOME.lat_deg, DEFAULT_HOME.lon_deg, DEFAULT_HOME.alt_amsl_m))
         try:
             stats = probe.run_for(3.0)
         finally:
             probe.close()
         assert stats.sent >= 25 and stats.received >= stats.sent - 1, stats  # the first may precede B joining
         assert 0.0 < stats.median_ms <= stats.p95_ms <= stats.max_ms, stats
-        assert pump_until(lambda: probe_pair[0] in neighbours(), 2.0), neighbours()
+        assert pump_until(lambda: PROBE_SYSIDS[0] in neighbours(), 2.0), neighbours()
     finally:
         relay_sock.close()
         if up.poll() is None:

@@ -39,7 +39,8 @@ pytestmark = [pytest.mark.sim_only, pytest.mark.timeout(90)]
 ALTITUDE_TOLERANCE_M = 0.5
 MAX_HEARTBEAT_GAP_WALL_S = 2.0  # MAVSDK calls a system lost after 3 s without a heartbeat
 CORPUS_SEED = 20240601
-STRANGER_SYSID = 200
+STRANGER_SYSID = 200  # the sender of the garbage: no drone of the suite has it (tests/integration/instances.py)
+OTHER_SYSID = 201  # a system that is not the drone, for requests addressed elsewhere
 UNKNOWN_COMMAND = 65000  # no MAV_CMD has this number
 NONSENSE_COPIES = 5
 CLIENT_SYSID = 255  # with component 190: how QGroundControl identifies itself
@@ -123,7 +124,7 @@ def _harmless_messages(sysid: int) -> list[mavlink.MAVLink_message]:
         mavlink.MAVLink_param_request_read_message(sysid, 1, b"MPC_XY_CRUISE", -1),
         mavlink.MAVLink_timesync_message(0, 123456789),
         mavlink.MAVLink_system_time_message(1_700_000_000_000_000, 1234),
-        mavlink.MAVLink_param_request_list_message(sysid + 100, 1),
+        mavlink.MAVLink_param_request_list_message(OTHER_SYSID, 1),
     ]
 
 

@@ -48,14 +48,18 @@ def key_file(tmp_path: Path) -> Path:
 
 @pytest.fixture
 def signing_drones(
-    request: pytest.FixtureRequest, instance_allocator: InstanceAllocator, tmp_path: Path, key_file: Path
+    request: pytest.FixtureRequest,
+    instance_allocator: InstanceAllocator,
+    tmp_path: Path,
+    key_file: Path,
+    drone_seed: int,
 ) -> Iterator[list[SitlDrone]]:
     count, hosted, with_key = request.param
     key_args = ("--signing-key", str(key_file)) if with_key else ()
     instances = instance_allocator.take(count)
     drones: list[SitlDrone] = []
     try:
-        drones = start_drones(instances=instances, speed_factor=SPEED, seed=instances[0], log_dir=tmp_path,
+        drones = start_drones(instances=instances, speed_factor=SPEED, seed=drone_seed, log_dir=tmp_path,
                               extra_args=(*key_args, *SIGNING_ARGS), hosted=hosted)  # fmt: skip
         yield drones
     finally:

@@ -70,8 +70,7 @@ def test_the_live_view_draws_nine_drones_where_their_telemetry_says_and_a_killed
 ) -> None:
     first = instances(9)
     forward = free_udp_port()
-    # the reference client's own sysid: one no drone has (the drones' are first + 1 to first + 9)
-    link = mavutil.mavlink_connection(f"udpin:127.0.0.1:{forward}", source_system=first)
+    link = mavutil.mavlink_connection(f"udpin:127.0.0.1:{forward}", source_system=250)
     proc = subprocess.Popen([*SWARM, "up", "-n", "9", "--lockstep", "--speed", "1", "--drones-per-process", "auto",
                              "--first-instance", str(first), "--forward", f"127.0.0.1:{forward}",
                              "--view-port", "0"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
