@@ -7,7 +7,7 @@ what a contributor at work would rather leave to CI (README, "Tests").
 - ``heavy``: a local Ray head (the ``ray_head`` fixture), a browser, CPU burners, benches, floods of frames and swarms
   of more than 40 drones: marked where the module or the test says so (``pytest.mark.heavy``) or from its fixtures.
 
-``pytest -m "unit or flight"`` is the quick tier (about 3.5 minutes on two cores); ``pytest -m "not heavy"`` leaves out
+``pytest -m "unit or flight"`` is the quick tier (about 2 minutes on two cores); ``pytest -m "not heavy"`` leaves out
 only the heavy tests; ``pytest`` runs everything, as CI does. At the end of a run the slowest tests of each tier are
 listed (no test asserts a duration)."""
 
