@@ -22,6 +22,7 @@ from typing import Any, Literal, NoReturn
 
 from gcs.bench.scaling import add_bench_parser, run_bench
 from gcs.composition import SITL
+from gcs.fleet.attach import AttachError, AttachSpec, parse_attach
 from gcs.fleet.faults import CRASH, FAULT_NAMES, FaultError, fault_request
 from gcs.fleet.harness import LAYOUTS, MAX_DRONES, Simulation, SpawnError, SpawnPlan, parse_drones_per_process
 from gcs.fleet.links import LINK_OPTIONS, NEIGHBOUR_MODES, LinkPlan, NeighbourPlan, parse_link_value, parse_mesh_value
@@ -41,6 +42,7 @@ from gcs.missions.mission_file import (
 from gcs.supervisor.control import ControlClient, ControlError, ControlServer
 from gcs.supervisor.mission_runner import MissionRunner
 from gcs.supervisor.plan_cli import add_plan_parser, run_plan
+from gcs.supervisor.session import attach_all
 from gcs.supervisor.station import Station, format_status
 from gcs.sweep.cli import add_sweep_parser, run_sweep_command
 from gcs.sweep.plan import SweepError
@@ -144,6 +146,26 @@ def _add_signing_option(parser: argparse.ArgumentParser) -> None:
                         help="MAVLink 2 signing key file (64 hex digits, or a one-line passphrase as MAVProxy and "
                         "QGroundControl take it): the supervisor signs what it sends, the drones sign theirs and "
                         "drop unsigned messages")  # fmt: skip
+
+
+def _add_attach_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--attach", action="append", default=[], metavar="[ROLE=]URL",
+                        help="attach a MAVLink vehicle the simulation does not run (a real drone, another SITL) "
+                        "heard on URL (udpin:0.0.0.0:14560, tcp:HOST:PORT, /dev/ttyUSB0,57600 or the MAVSDK "
+                        "spellings): it is seen, avoided and counted by the simulated drones (repeatable; role "
+                        "intruder; docs/external.md)")  # fmt: skip
+
+
+def _attach_specs(args: argparse.Namespace, from_mission: tuple[AttachSpec, ...] = ()) -> tuple[AttachSpec, ...]:
+    """``--attach`` (after the mission's [[swarm.attach]]), each checked; a swarm with one runs paced at speed 1."""
+    try:
+        specs = (*from_mission, *(parse_attach(text) for text in args.attach))
+    except AttachError as exc:
+        raise UsageError(str(exc)) from None
+    if specs and (args.lockstep or _speed(args) != 1.0):
+        raise UsageError("--attach: a swarm with an attached vehicle runs paced at speed 1 (the real world keeps "
+                         "wall time), not with --lockstep or another --speed")  # fmt: skip
+    return specs
 
 
 def _add_view_options(parser: argparse.ArgumentParser) -> None:
@@ -358,6 +380,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "hold, land, or abort (every drone returns to launch and lands)")  # fmt: skip
     _add_forward_options(up)
     _add_signing_option(up)
+    _add_attach_option(up)
     _add_view_options(up)
     fly = sub.add_parser("fly", help="run a mission file end to end and write a flight report")
     fly.add_argument(
@@ -382,6 +405,7 @@ def build_parser() -> argparse.ArgumentParser:
                      "(repeatable; docs/parameters.md)")  # fmt: skip
     _add_forward_options(fly)
     _add_signing_option(fly)
+    _add_attach_option(fly)
     _add_view_options(fly)
     add_bench_parser(sub)
     add_sweep_parser(sub)
@@ -493,6 +517,7 @@ def run_up(args: argparse.Namespace, simulation: Simulation) -> int:
         except ValueError as exc:
             raise UsageError(str(exc)) from None
     neighbours = _neighbour_plan(args, NeighbourPlan())
+    attach = _attach_specs(args)
     plan = SpawnPlan(
         n_drones=args.drones,
         spacing_m=args.spacing,
@@ -520,6 +545,12 @@ def run_up(args: argparse.Namespace, simulation: Simulation) -> int:
         signal.signal(sig, _interrupt)
     swarm = Swarm(plan, simulation.harness(plan), forward=None if args.no_forward else args.forward,
                   relay=neighbours.relay)  # fmt: skip
+    try:
+        attach_all(swarm, attach, _say)
+    except AttachError as exc:
+        if view is not None:
+            view.stop()
+        raise UsageError(str(exc)) from None
     station = Station(swarm, _say, LossPolicy(args.loss_policy), report_dir=args.report, contact_distance_m=contact)
     if view is not None:
         station.serve(view)
@@ -627,11 +658,16 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
                            lockstep_quantum=_quantum(args),
                            camera_drones=_camera_drones(args, mission.swarm.drones),
                            drones_per_process=args.drones_per_process, links=links,
-                           signing_key_file=_signing_key_file(args), view=_start_view(args))  # fmt: skip
+                           signing_key_file=_signing_key_file(args), view=_start_view(args),
+                           attach=_attach_specs(args, mission.swarm.attach))  # fmt: skip
     view = runner.view
     signal.signal(signal.SIGTERM, _interrupt)  # a terminated run lands and stops its drones like Ctrl-C
     try:
         out = runner.run()
+    except AttachError as exc:
+        if view is not None:
+            view.stop()
+        raise UsageError(str(exc)) from None
     except (SwarmError, SpawnError) as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
         print(f"swarm: report (partial) in {report}", file=sys.stderr)

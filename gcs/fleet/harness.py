@@ -146,6 +146,17 @@ class SimulationHarness(Protocol):
         """Declare a static obstacle (a vertical cylinder standing on the ground, or a sphere) in the world."""
         ...
 
+    def place_external_body(self, sysid: int, geo: tuple[float, float, float],
+                            vel_ned_mps: tuple[float, float, float], radius_m: float | None) -> None:  # fmt: skip
+        """Put the body of a vehicle the simulation does not run (an attached real drone, gcs/fleet/attach.py) where
+        the ground station last knew it to be, moving at ``vel_ned_mps``: the drones' cameras see it, and a drone
+        that touches it crashes. ``radius_m`` None: the size of the swarm's own drones. Called again to move it."""
+        ...
+
+    def remove_external_body(self, sysid: int) -> None:
+        """Take an external vehicle's body out of the world (it was detached)."""
+        ...
+
     def wake_fileno(self) -> int | None:
         """In lockstep, a descriptor that turns readable when the drones need the clock moved on; else None."""
         ...

@@ -94,12 +94,12 @@ class Router:
         messages.sort(key=lambda item: int(item[0].get_srcSystem()))
         return messages
 
-    def carry(self, msg: Any, now_s: float, fleet: Fleet) -> None:
-        """A drone's message, carried on: a copy to the forward address, and its position to the other drones the
-        relay chooses."""
+    def carry(self, msg: Any, now_s: float, fleet: Fleet, *, relay: bool = True) -> None:
+        """A drone's message, carried on: a copy to the forward address, and (``relay``) its position to the other
+        drones the relay chooses."""
         if self.forward is not None:
             self.hold(bytes(msg.get_msgbuf()), self.forward, now_s)
-        if self.relay is not None and msg.get_type() == "GLOBAL_POSITION_INT":
+        if relay and self.relay is not None and msg.get_type() == "GLOBAL_POSITION_INT":
             data = bytes(msg.get_msgbuf())
             for target in self.relay.targets(msg.get_srcSystem(), now_s, fleet):
                 address = self.link.addresses.get(target)

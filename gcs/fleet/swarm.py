@@ -29,6 +29,16 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from gcs.fleet.attach import (
+    HEARTBEAT_TIMEOUT_S,
+    OTHERS_SETTLE_S,
+    AttachedVehicle,
+    AttachError,
+    AttachSpec,
+    ExternalLink,
+    is_vehicle_heartbeat,
+    sysid_problem,
+)
 from gcs.fleet.clock import ClockStalled, SwarmClock
 from gcs.fleet.faults import BATTERY_LEVEL_PARAM, ENABLE_PARAM, FAULTS, FaultRequest
 from gcs.fleet.harness import SimulationHarness, SpawnError, SpawnPlan
@@ -36,14 +46,14 @@ from gcs.fleet.liveness import Liveness
 from gcs.fleet.losses import DroneLoss, landing_clear_of
 from gcs.fleet.relay import NeighbourRelay
 from gcs.fleet.router import BATCH_HOLD_S, Router
-from gcs.fleet.telemetry import Fleet
+from gcs.fleet.telemetry import LINK_LOST_S, Fleet
 from gcs.flight.geodesy import GeoPoint, NedFrame
 from gcs.mavlink.commands import FORCE_DISARM_MAGIC, Ack, CommandClient, Send
 from gcs.mavlink.mission_transfer import MISSION_TYPE_MISSION, MissionClient, MissionProgress, TransferResult, WireItem
 from gcs.mavlink.params import ParamClient, ParamResult
 from gcs.mavlink.px4_modes import set_mode_params
 from gcs.mavlink.signing import key_id, load_key
-from gcs.mavlink.transport import GcsSocket
+from gcs.mavlink.transport import GCS_SYSID, GcsSocket
 
 log = logging.getLogger(__name__)
 
@@ -85,6 +95,9 @@ class Swarm:
         # The setpoint stream that goes on while a command or a parameter waits for its answer (PX4 leaves OFFBOARD
         # after COM_OF_LOSS_T without a setpoint, and on a lossy link an answer can take retries): ``keep_streaming``.
         self._stream_tick: Callable[[float], None] | None = None
+        # Vehicles the simulation does not run, attached over links of their own (gcs/fleet/attach.py), by sysid
+        self.attached: dict[int, AttachedVehicle] = {}
+        self._external_links: list[ExternalLink] = []
 
     def keep_streaming(self, tick: Callable[[float], None]) -> None:
         """While a command waits for its answer, call ``tick(now)`` at the stream's rate: the setpoint stream of the
@@ -238,6 +251,8 @@ class Swarm:
                 self.mission_progress.handle(msg, now)
             for listener in self.listeners:
                 listener(msg, now)
+        if self._external_links:
+            self._pump_external(now)
         router.heartbeat(now, self.losses)
         router.flush(now)
 
@@ -268,6 +283,139 @@ class Swarm:
                 return True
             self.pump(min(0.05, max(0.0, end - self.clock())))
         return condition()
+
+    # ---- attached vehicles (gcs/fleet/attach.py) -------------------------------------------------------------------
+    def attach(self, spec: AttachSpec, timeout_s: float = HEARTBEAT_TIMEOUT_S) -> tuple[list[int], list[str]]:
+        """Attach the vehicles heard on ``spec``'s link: open it, wait for an autopilot's HEARTBEAT (and
+        OTHERS_SETTLE_S more for others on the same radio), and take every vehicle whose sysid is free. Returns the
+        sysids attached and one line for each vehicle refused. AttachError (one line) when none can be attached; the
+        swarm flies on meanwhile (it is pumped while the attach waits), and a failed attach leaves nothing open.
+        Before ``up``, the sysids the plan will give the simulated drones are the ones a vehicle may not have."""
+        if self.plan.lockstep or self.plan.speed_factor != 1.0:
+            raise AttachError(f"--attach {spec.describe()}: a swarm with an attached vehicle runs paced at speed 1 "
+                              "(the real world keeps wall time), not in lockstep or at another --speed")  # fmt: skip
+        link = ExternalLink(spec=spec, source_system=GCS_SYSID)
+        link.open()
+        try:
+            heard = self._wait_for_vehicles(link, timeout_s)
+        except BaseException:
+            link.close()
+            raise
+        now = self.clock()
+        simulated = self._simulated_sysids()
+        attached: list[int] = []
+        refused: list[str] = []
+        for msg in heard:
+            sysid = msg.get_srcSystem()
+            if not is_vehicle_heartbeat(msg) or sysid in link.sysids:
+                continue
+            problem = sysid_problem(sysid, simulated, self.attached, GCS_SYSID)
+            if problem is not None:
+                refused.append(f"--attach {spec.describe()}: {problem}: not attached")
+                continue
+            self.attached[sysid] = AttachedVehicle(sysid=sysid, spec=spec, link=link, autopilot=msg.autopilot,
+                                                   heard_s=now)  # fmt: skip
+            link.sysids.add(sysid)
+            attached.append(sysid)
+        if not attached:
+            link.close()
+            raise AttachError(refused[0] if refused else f"--attach {spec.describe()}: no vehicle heard")
+        self._external_links.append(link)
+        for msg in heard:
+            self._handle_external(link, msg, now)
+        return attached, refused
+
+    def _simulated_sysids(self) -> dict[int, None]:
+        """The simulated drones' sysids: those launched, or before the launch those the plan will start."""
+        first = self.plan.first_instance + 1
+        return dict.fromkeys(self._sysids or range(first, first + self.plan.n_drones))
+
+    def _wait_for_vehicles(self, link: ExternalLink, timeout_s: float) -> list[Any]:
+        """Read a new link until a vehicle's HEARTBEAT arrives (and OTHERS_SETTLE_S more), pumping the swarm and its
+        setpoint stream meanwhile; AttachError when none comes within ``timeout_s`` wall seconds."""
+        heard: list[Any] = []
+        deadline = time.monotonic() + timeout_s
+        settle_until = math.inf
+        next_tick = self.clock()
+        while time.monotonic() < min(deadline, settle_until):
+            batch = link.receive()
+            heard.extend(batch)
+            if math.isinf(settle_until) and any(is_vehicle_heartbeat(m) for m in batch):
+                settle_until = time.monotonic() + OTHERS_SETTLE_S
+            if self._stream_tick is not None and (clock := self.clock()) >= next_tick:
+                self._stream_tick(clock)
+                next_tick = _next_tick_s(next_tick, clock, TICK_S)
+            self.pump(0.01)
+        if not any(is_vehicle_heartbeat(m) for m in heard):
+            raise AttachError(f"--attach {link.spec.describe()}: no vehicle HEARTBEAT within {timeout_s:g} s")
+        return heard
+
+    def detach(self, sysid: int) -> None:
+        """Let an attached vehicle go: its body leaves the world, nothing more is read from it (its link closes with
+        its last vehicle). SwarmError when no vehicle of that sysid is attached."""
+        vehicle = self.attached.pop(sysid, None)
+        if vehicle is None:
+            raise SwarmError(f"no attached vehicle with sysid {sysid}")
+        self.harness.remove_external_body(sysid)
+        vehicle.link.sysids.discard(sysid)
+        if not vehicle.link.sysids:
+            vehicle.link.close()
+            self._external_links.remove(vehicle.link)
+
+    def detect_external_changes(self, now_s: float) -> list[str]:
+        """One line for each attached vehicle newly silent (its body stays where it was last known) or heard again."""
+        lines = []
+        for sysid, vehicle in self.attached.items():
+            view = self.fleet.drones.get(sysid)
+            silent = view is None or view.lost(now_s)
+            if silent and not vehicle.lost:
+                vehicle.lost = True
+                lines.append(f"attached vehicle {sysid} lost at t={now_s:.1f} s: nothing heard for "
+                             f"{LINK_LOST_S:g} s (its body stays where it was last known)")  # fmt: skip
+            elif not silent and vehicle.lost:
+                vehicle.lost = False
+                lines.append(f"attached vehicle {sysid} heard again at t={now_s:.1f} s")
+        return lines
+
+    def _pump_external(self, now: float) -> None:
+        """What the attached vehicles' links have brought, handled; then every attached body moved in the world."""
+        for link in list(self._external_links):
+            for msg in link.receive():
+                self._handle_external(link, msg, now)
+        for sysid, vehicle in self.attached.items():
+            geo = vehicle.body_at(now)
+            if geo is not None:
+                self.harness.place_external_body(sysid, geo, (0.0, 0.0, 0.0) if vehicle.lost else vehicle.vel_ned_mps,
+                                                 vehicle.spec.radius_m)  # fmt: skip
+
+    def _handle_external(self, link: ExternalLink, msg: Any, now: float) -> None:
+        """A message on an attached vehicle's link: into the fleet view, the relay and the listeners (the flight log,
+        the report), as a simulated drone's. A new vehicle heard on the link later is attached as the first was."""
+        if msg.get_srcComponent() != 1:
+            return
+        sysid = msg.get_srcSystem()
+        vehicle = self.attached.get(sysid)
+        if vehicle is None:
+            if not is_vehicle_heartbeat(msg) or sysid_problem(sysid, self._simulated_sysids(), self.attached,
+                                                              GCS_SYSID) is not None:  # fmt: skip
+                return
+            vehicle = self.attached[sysid] = AttachedVehicle(sysid=sysid, spec=link.spec, link=link,
+                                                             autopilot=msg.autopilot, heard_s=now)  # fmt: skip
+            link.sysids.add(sysid)
+        if vehicle.link is not link:
+            return  # the same sysid on another link: not this vehicle
+        vehicle.heard_s = now
+        if msg.get_type() == "GLOBAL_POSITION_INT":
+            vehicle.position = (msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3)
+            vehicle.vel_ned_mps = (msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
+            vehicle.position_s = now
+        self.fleet.handle(msg, now)
+        # An intruder's reports are not relayed: a relayed position reads as a neighbour that avoids in turn (and
+        # takes half of each manoeuvre), which an intruder does not; the drones see it with their cameras and avoid
+        # it in full.
+        self.router.carry(msg, now, self.fleet, relay=vehicle.spec.role != "intruder")
+        for listener in self.listeners:
+            listener(msg, now)
 
     # ---- lifecycle -------------------------------------------------------------------------------------------------
     def up(self, ready_timeout_s: float = 30.0) -> None:
@@ -376,6 +524,8 @@ class Swarm:
             try:
                 self.harness.close()
             finally:
+                for link in self._external_links:
+                    link.close()  # an attached vehicle is left as it is: nothing is sent to it on the way out
                 self._clock.close()
                 self.router.close()
 

@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any, Final
 
 from gcs.command.procedures import check_takeoff_alt
+from gcs.fleet.attach import DEFAULT_ROLE, AttachError, AttachSpec, parse_attach
 from gcs.fleet.faults import FaultError, FaultRequest, fault_request
 from gcs.fleet.harness import LAYOUTS, MAX_DRONES
 from gcs.fleet.links import NEIGHBOUR_MODES, LinkPlan, MeshPlan, NeighbourPlan, plan_from_tables
@@ -75,6 +76,8 @@ class SwarmSpec:
     # [swarm] behaviour = "file.py:Class": the onboard behaviour every drone carries (path absolute, read relative to
     # the mission file; docs/onboard.md); a ``behaviour`` step runs it
     behaviour: str | None = None
+    # [[swarm.attach]]: vehicles the simulation does not run, attached over MAVLink (docs/external.md)
+    attach: tuple[AttachSpec, ...] = ()
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -634,6 +637,25 @@ def _params(reader: _Reader, table: Any, where: tuple[str | None, int | None]) -
     return tuple(out)
 
 
+def _attach(reader: _Reader, tables: Any) -> tuple[AttachSpec, ...]:
+    """``[[swarm.attach]]``: ``url``, and optionally ``role`` (default member) and ``radius_m`` (the body's size)."""
+    if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
+        raise reader.fail(("swarm", None), "attach", "must be [[swarm.attach]] tables with url and role")
+    specs = []
+    for k, table in enumerate(tables):
+        where: tuple[str | None, int | None] = ("swarm.attach", k)
+        reader.check_keys(table, {"url", "role", "radius_m"}, where)
+        url, role = table.get("url"), table.get("role", DEFAULT_ROLE)
+        if not isinstance(url, str) or not isinstance(role, str):
+            raise reader.fail(where, "url", "url (and role) must be strings, e.g. url = \"udpin:0.0.0.0:14560\"")
+        radius = reader.number(table, "radius_m", where, "pos") if "radius_m" in table else None
+        try:
+            specs.append(parse_attach(f"{role}={url}", radius_m=radius))
+        except AttachError as exc:
+            raise reader.fail(where, "url", str(exc).removeprefix("--attach ")) from None
+    return tuple(specs)
+
+
 def _links(reader: _Reader, table: Any) -> LinkPlan:
     """``[swarm.links]``: keys for every link class, and ``[swarm.links.CLASS]`` tables over them for one class."""
     where: tuple[str | None, int | None] = ("swarm.links", None)
@@ -744,7 +766,7 @@ def parse_mission(text: str, path: Path, *, max_obstacles: int | None = None) ->
         raise reader.fail((None, None), None, "missing [swarm] table with 'drones'")
     where_swarm: tuple[str | None, int | None] = ("swarm", None)
     reader.check_keys(swarm, {"drones", "layout", "spacing_m", "params", "relay", "loss_policy", "links",
-                              "neighbours", "mesh", "behaviour"}, where_swarm)  # fmt: skip
+                              "neighbours", "mesh", "behaviour", "attach"}, where_swarm)  # fmt: skip
     if "drones" not in swarm:
         raise reader.fail(where_swarm, None, "missing field 'drones'")
     drones = int(reader.number(swarm, "drones", where_swarm, "count"))
@@ -790,6 +812,7 @@ def parse_mission(text: str, path: Path, *, max_obstacles: int | None = None) ->
             mesh=neighbours.mesh,
             links=_links(reader, swarm.get("links", {})),
             behaviour=behaviour,
+            attach=_attach(reader, swarm.get("attach", [])),
         ),
         steps=steps,
         loss_policy=LossPolicy(policy),

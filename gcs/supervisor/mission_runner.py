@@ -16,6 +16,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Literal
 
+from gcs.fleet.attach import AttachSpec
 from gcs.fleet.harness import Simulation, SpawnPlan
 from gcs.fleet.links import LinkPlan
 from gcs.fleet.losses import LossPolicy
@@ -39,7 +40,7 @@ from gcs.missions.mission_file import (
 )
 from gcs.missions.plan_flight import copy_offsets, parse_drones, spawn_offsets, unreached
 from gcs.record.recording import FlightRecording, StepRecord
-from gcs.supervisor.session import FlightSession
+from gcs.supervisor.session import FlightSession, attach_all
 from gcs.supervisor.verbs import VERBS, FaultRefused, Started, carry_out
 from gcs.view.report import write_report
 from gcs.view.scene import obstacle_shape
@@ -57,8 +58,12 @@ class MissionRunner:
                  forward: tuple[str, int] | None = None, lockstep: bool = False,
                  lockstep_quantum: int = 1, camera_drones: frozenset[int] = frozenset(),
                  drones_per_process: int | Literal["auto"] = 1, links: LinkPlan | None = None,
-                 signing_key_file: Path | None = None, view: ViewServer | None = None) -> None:  # fmt: skip
+                 signing_key_file: Path | None = None, view: ViewServer | None = None,
+                 attach: tuple[AttachSpec, ...] = ()) -> None:  # fmt: skip
+        """``attach``: vehicles the simulation does not run, attached before the drones start (gcs/fleet/attach.py);
+        ``run`` raises AttachError (one line, nothing flown) when one cannot be."""
         self.mission = mission
+        self.attach = attach
         self.speed = speed_factor
         self.say = say
         self.report_dir = report_dir
@@ -265,7 +270,9 @@ class MissionRunner:
         )
 
     def run(self) -> Path:
-        """Fly the mission; always shuts the swarm down and writes the report, also after a failure."""
+        """Fly the mission; always shuts the swarm down and writes the report, also after a failure (but an attach
+        that fails is an AttachError before anything starts, and leaves no report)."""
+        attach_all(self.swarm, self.attach, self.say)
         self.report_dir.mkdir(parents=True, exist_ok=True)
         recorder = self.session.record(self.report_dir / "flight.tlog", self.say)
         failure: BaseException | None = None

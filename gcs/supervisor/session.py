@@ -16,6 +16,7 @@ from pathlib import Path
 from gcs.command.degrade import apply_loss_policy, apply_regain
 from gcs.command.procedures import PaceWatch
 from gcs.command.streamer import FormationStreamer
+from gcs.fleet.attach import AttachError, AttachSpec
 from gcs.fleet.links import NeighbourPlan
 from gcs.fleet.losses import LossPolicy, loss_line, regain_line
 from gcs.fleet.swarm import Swarm
@@ -29,6 +30,21 @@ from gcs.view.server import ViewServer
 
 Say = Callable[[str], None]
 Tick = Callable[[float], None]
+
+
+def attach_all(swarm: Swarm, specs: Iterable[AttachSpec], say: Say) -> None:
+    """Attach every vehicle of ``specs`` (before the drones start, so a bad one stops nothing that flies), each said
+    in one line with any vehicle refused on its link; on a failure the swarm is shut down (every link opened is
+    closed) and the AttachError goes on with its one line."""
+    try:
+        for spec in specs:
+            sysids, refused = swarm.attach(spec)
+            for line in refused:
+                say(f"swarm: {line}")
+            say(f"swarm: attached {spec.role} sysid {', '.join(map(str, sysids))} on {spec.url.describe()}")
+    except AttachError:
+        swarm.shutdown()
+        raise
 
 
 class FlightSession:
@@ -114,6 +130,8 @@ class FlightSession:
             self.say(regain_line(loss))
             line = apply_regain(self.loss_policy, self.streamer, loss, now_s, policy_taken=self.policy_taken)
             self._policy_line(line, now_s, loss.sysid, indent)
+        for line in self.swarm.detect_external_changes(now_s):
+            self.say(f"swarm: {line}")
 
     def _policy_line(self, line: str | None, now_s: float, sysid: int, indent: str) -> None:
         if line is not None:

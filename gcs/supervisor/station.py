@@ -194,6 +194,15 @@ class Station:
                     "mission": self._mission_progress(sysid, d.mode),
                 }
             )
+        for sysid, vehicle in self.swarm.attached.items():
+            d = self.swarm.fleet.drones.get(sysid)
+            if d is None:
+                continue
+            rows.append({"sysid": sysid, "mode": d.mode, "armed": d.armed, "lat_deg": d.lat_deg, "lon_deg": d.lon_deg,
+                         "alt_m": d.relative_alt_m, "battery": d.battery_remaining, "link_age_s": d.link_age_s(now),
+                         "failsafe": failsafe_text(d.system_status, d.texts),
+                         "external": f"{vehicle.spec.role} on {vehicle.spec.url.describe()}"
+                         + (", lost" if vehicle.lost else "")})  # fmt: skip
         return rows
 
 
@@ -221,6 +230,7 @@ def format_status(rows: list[dict[str, Any]]) -> str:
             f"{r['lon_deg']:>11.7f} {r['alt_m']:>6.2f} {batt:>5} {r['link_age_s']:>6.1f}"
             + (f"  FAILSAFE: {r['failsafe']}" if r.get("failsafe") else "")
             + (f"  mission: {r['mission']}" if r.get("mission") else "")
+            + (f"  external: {r['external']}" if r.get("external") else "")
         )
     return "\n".join(lines)
 

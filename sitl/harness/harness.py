@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from sitl.dynamics.airframe import load_airframe
 from sitl.dynamics.plant import PHYSICS_RATE_HZ
 from sitl.harness.processes import DroneProcess, LaunchPlan, ProcessGroup, process_exit_cause
 from sitl.world.lockstep import LockstepGate
@@ -78,6 +79,7 @@ class SitlHarness:
         self._gate: LockstepGate | None = None
         self._name_released = False  # the world's name leaves /dev/shm once every drone has mapped it
         self._ended: dict[int, str] = {}  # sysid -> cause, for every drone seen ended (marked in the world once)
+        self._radius_m: float | None = None  # the swarm's drones' collision radius (an external body's default size)
         self._final_time_s = 0.0  # the common lockstep time when the gate closed
         self._final_link_counters: dict[str, dict[str, float]] = {}  # the link model's counts when the world closed
 
@@ -244,6 +246,29 @@ class SitlHarness:
         self._world.add_obstacle(cylinder=cylinder, centre=centre_geo, radius_m=radius_m, height_m=height_m)
 
     # ---- lockstep --------------------------------------------------------------------------------------------------
+    def place_external_body(self, sysid: int, geo: tuple[float, float, float],
+                            vel_ned_mps: tuple[float, float, float], radius_m: float | None) -> None:  # fmt: skip
+        """An attached vehicle's body in the world, on the row of its sysid (its instance would be sysid - 1): never a
+        lockstep member, never ended, so it neither falls nor holds anyone back; it rests where the ground is (its
+        launch altitude is not known here, so a body written on the ground stays there)."""
+        world = self._world
+        if world is None:
+            return
+        instance = sysid - 1
+        radius = self._drone_radius_m() if radius_m is None else radius_m
+        world.write(instance, 0.0, geo, vel_ned_mps, radius, False, rest_alt_amsl_m=-math.inf)
+        world.table[instance, STEP] = math.inf
+
+    def remove_external_body(self, sysid: int) -> None:
+        if self._world is not None:
+            self._world.table[sysid - 1, VALID] = 0.0
+
+    def _drone_radius_m(self) -> float:
+        if self._radius_m is None:
+            airframe = load_airframe(self.plan.airframe) if self.plan.airframe else load_airframe()
+            self._radius_m = airframe.collision_radius_m
+        return self._radius_m
+
     def wake_fileno(self) -> int | None:
         """A descriptor that becomes readable when the lockstep drones near or reach the gate (the ground station
         waits on it with its MAVLink socket); None when not in lockstep."""

@@ -1,0 +1,197 @@
+"""Vehicles the ground station did not start, attached to the swarm over MAVLink: a real drone on a telemetry radio or
+Wi-Fi, another autopilot's SITL, a scripted stand-in (docs/external.md).
+
+An attached vehicle is known only by what it says on its link, as any ground station knows a vehicle: its HEARTBEAT
+(sysid, autopilot, mode), its GLOBAL_POSITION_INT. The swarm puts its body into the simulated world where that
+telemetry says it is (``SimulationHarness.place_external_body``), so the simulated drones' cameras see it and a
+drone that touches it crashes; its position reports are relayed to the simulated drones as their neighbours' are.
+
+Roles (``ROLES``): an ``intruder`` is never commanded, only seen, avoided and counted. ``member`` (a slot in the
+swarm's formations, flown in OFFBOARD or GUIDED) and ``leader`` (followed, never commanded) are the roles a
+commanded vehicle will take; they are refused for now with one line, rather than accepted and ignored.
+
+Pure parts (the attach spec, its parser) and one IO shell (``ExternalLink``: a pymavlink connection, so every link
+pymavlink opens works: UDP either way, TCP, serial).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from gcs.flight.geodesy import GeoPoint, geo_from_ned
+from gcs.mavlink.transport import GCS_COMPID
+from gcs.mavlink.urls import UrlError, VehicleUrl, parse_vehicle_url
+
+ROLES: Final = ("member", "leader", "intruder")
+AVAILABLE_ROLES: Final = ("intruder",)
+DEFAULT_ROLE: Final = "member"
+HEARTBEAT_TIMEOUT_S: Final = 10.0  # wall seconds an attach waits for the vehicle's first HEARTBEAT
+OTHERS_SETTLE_S: Final = 1.5  # after the first vehicle's HEARTBEAT, listen this long for others on the same link
+MAX_READ_PER_POLL: Final = 200  # messages one poll of a link reads at most (a flooding link cannot stall the swarm)
+AUTOPILOT_COMPID: Final = 1
+EXTRAPOLATE_MAX_S: Final = 1.0  # a report older than this is not carried on further: the vehicle may have stopped
+
+
+class AttachError(ValueError):
+    """An attach that cannot be done; the message is one line. A swarm already flying is not disturbed by it."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class AttachSpec:
+    """What to attach: a role, and the link the vehicle (or several, on one radio) is heard on."""
+
+    role: str
+    url: VehicleUrl
+    radius_m: float | None = None  # its body's size; None: the simulated drones' own
+
+    def describe(self) -> str:
+        return f"{self.role}={self.url.describe()}"
+
+
+def parse_attach(text: str, *, radius_m: float | None = None) -> AttachSpec:
+    """``[ROLE=]URL`` as ``--attach`` takes it; AttachError (one line) for an unknown role or a bad URL."""
+    role, sep, rest = text.partition("=")
+    if not sep or not role.isalpha():
+        role, rest = DEFAULT_ROLE, text
+    role = role.lower()
+    if role not in ROLES:
+        raise AttachError(f"--attach {text!r}: no role {role!r} (roles: {', '.join(ROLES)})")
+    if role not in AVAILABLE_ROLES:
+        raise AttachError(f"--attach {text!r}: role {role} is not available yet (attach it as intruder=URL)")
+    if radius_m is not None and not (math.isfinite(radius_m) and 0.0 < radius_m <= 10.0):
+        raise AttachError(f"--attach {text!r}: radius_m must be in (0, 10] m, got {radius_m}")
+    try:
+        url = parse_vehicle_url(rest)
+    except UrlError as exc:
+        raise AttachError(f"--attach: {exc}") from None
+    return AttachSpec(role=role, url=url, radius_m=radius_m)
+
+
+def is_vehicle_heartbeat(msg: Any) -> bool:
+    """A HEARTBEAT of an autopilot (not of a ground station, a camera or a companion computer)."""
+    return (
+        msg.get_type() == "HEARTBEAT"
+        and msg.get_srcComponent() == AUTOPILOT_COMPID
+        and msg.autopilot != mavlink.MAV_AUTOPILOT_INVALID
+        and msg.type != mavlink.MAV_TYPE_GCS
+    )
+
+
+@dataclass(slots=True)
+class AttachedVehicle:
+    """One attached vehicle, as the swarm knows it."""
+
+    sysid: int
+    spec: AttachSpec
+    link: ExternalLink
+    autopilot: int  # MAV_AUTOPILOT of its HEARTBEAT
+    heard_s: float  # supervisor clock of the last message from it
+    position: tuple[float, float, float] | None = None  # lat, lon, alt AMSL of its last GLOBAL_POSITION_INT
+    vel_ned_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    position_s: float = math.nan  # supervisor clock when that report arrived
+    lost: bool = False
+
+    def body_at(self, now_s: float) -> tuple[float, float, float] | None:
+        """Where its last report, carried on at its velocity to ``now_s`` (EXTRAPOLATE_MAX_S at most), puts it (lat,
+        lon, alt AMSL); a vehicle gone silent stays where it was last known (a real drone does not vanish)."""
+        if self.position is None:
+            return None
+        lat, lon, alt = self.position
+        age_s = 0.0 if self.lost else min(max(now_s - self.position_s, 0.0), EXTRAPOLATE_MAX_S)
+        if age_s == 0.0:
+            return self.position
+        here = GeoPoint(lat_deg=lat, lon_deg=lon, alt_amsl_m=alt)
+        there = geo_from_ned(tuple(v * age_s for v in self.vel_ned_mps), here)
+        return (there.lat_deg, there.lon_deg, there.alt_amsl_m)
+
+
+@dataclass(slots=True)
+class ExternalLink:
+    """One link to vehicles outside the simulation, opened with pymavlink (its transport for every kind of link),
+    read and written as MAVLink 2 by the ground station's own identity (sysid 255 unless set, component 190)."""
+
+    spec: AttachSpec
+    source_system: int
+    conn: Any = None
+    sysids: set[int] = field(default_factory=set)
+
+    def open(self) -> None:
+        """Open the link; AttachError (one line) when it cannot be (a port taken, a refused TCP connection, a missing
+        serial device, no pyserial)."""
+        from pymavlink import mavutil  # opening links is the only use, and it costs 0.1 s to import
+
+        url = self.spec.url
+        if url.kind == "serial":
+            try:
+                import serial  # noqa: F401  (pymavlink opens serial ports through pyserial)
+            except ImportError:
+                raise AttachError(
+                    f"--attach {self.spec.describe()}: serial links need pyserial (pip install 'swarmsitl[serial]')"
+                ) from None
+        try:
+            conn = mavutil.mavlink_connection(url.device, source_system=self.source_system,
+                                              source_component=GCS_COMPID, autoreconnect=False)  # fmt: skip
+        except Exception as exc:  # pymavlink raises what its transport raises: OSError, serial errors, ValueError
+            raise AttachError(f"--attach {self.spec.describe()}: cannot open the link: {_one_line(exc)}") from None
+        # Read and write MAVLink 2 from the start (pymavlink would switch a process-wide setting on the first MAVLink 2
+        # frame it sees); the common dialect's parser reads MAVLink 1 frames too.
+        conn.first_byte = False
+        conn.WIRE_PROTOCOL_VERSION = "2.0"
+        conn.mav = mavlink.MAVLink(conn, srcSystem=self.source_system, srcComponent=GCS_COMPID)
+        conn.mav.robust_parsing = True
+        self.conn = conn
+
+    def fileno(self) -> int | None:
+        with contextlib.suppress(Exception):
+            return int(self.conn.fileno())
+        return None
+
+    def receive(self) -> list[Any]:
+        """What has arrived, without waiting (at most MAX_READ_PER_POLL messages)."""
+        out: list[Any] = []
+        if self.conn is None:
+            return out
+        for _ in range(MAX_READ_PER_POLL):
+            try:
+                msg = self.conn.recv_msg()
+            except OSError:
+                break
+            if msg is None:
+                break
+            if msg.get_type() != "BAD_DATA":
+                out.append(msg)
+        return out
+
+    def send(self, msg: Any) -> None:
+        if self.conn is not None:
+            with contextlib.suppress(OSError):  # a radio gone or a peer not yet heard: the link's own business
+                self.conn.mav.send(msg)
+
+    def close(self) -> None:
+        if self.conn is not None:
+            with contextlib.suppress(Exception):
+                self.conn.close()
+            self.conn = None
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def sysid_problem(
+    sysid: int, simulated: Mapping[int, object], attached: Mapping[int, object], own_sysid: int
+) -> str | None:
+    """Why a vehicle of this sysid cannot be attached (one phrase), or None."""
+    if sysid == own_sysid:
+        return f"sysid {sysid} is the ground station's own"
+    if sysid in simulated:
+        return f"sysid {sysid} is a simulated drone's (move them with --first-instance)"
+    if sysid in attached:
+        return f"sysid {sysid} is attached already"
+    return None

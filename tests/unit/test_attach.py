@@ -1,0 +1,123 @@
+"""Attaching a vehicle the simulation does not run (gcs/fleet/attach.py, gcs/mavlink/urls.py): its URL in both
+spellings, the attach spec, the mission table, where its body is put, and which sysids it may not have."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+from gcs.fleet.attach import AttachedVehicle, AttachError, ExternalLink, parse_attach, sysid_problem
+from gcs.flight.geodesy import GeoPoint, NedFrame
+from gcs.mavlink.urls import DEFAULT_BAUD, UrlError, parse_vehicle_url
+from gcs.missions.mission_file import MissionFileError, load_mission
+
+
+@pytest.mark.parametrize(
+    ("url", "device", "kind"),
+    [
+        ("udpin:0.0.0.0:14560", "udpin:0.0.0.0:14560", "udpin"),
+        ("udpin://0.0.0.0:14560", "udpin:0.0.0.0:14560", "udpin"),
+        ("udp://0.0.0.0:14560", "udpin:0.0.0.0:14560", "udpin"),
+        ("udp:127.0.0.1:14550", "udpin:127.0.0.1:14550", "udpin"),
+        ("udpout:10.0.0.2:14550", "udpout:10.0.0.2:14550", "udpout"),
+        ("udpout://10.0.0.2:14550", "udpout:10.0.0.2:14550", "udpout"),
+        ("tcp:192.168.4.1:5760", "tcp:192.168.4.1:5760", "tcp"),
+        ("tcp://192.168.4.1:5760", "tcp:192.168.4.1:5760", "tcp"),
+        ("tcpout://192.168.4.1:5760", "tcp:192.168.4.1:5760", "tcp"),
+        ("tcpin://0.0.0.0:5760", "tcpin:0.0.0.0:5760", "tcpin"),
+        ("/dev/ttyUSB0,57600", "/dev/ttyUSB0,57600", "serial"),
+        ("/dev/ttyACM0", f"/dev/ttyACM0,{DEFAULT_BAUD}", "serial"),
+        ("serial:///dev/ttyUSB0:921600", "/dev/ttyUSB0,921600", "serial"),
+        ("serial:///dev/ttyUSB0", f"/dev/ttyUSB0,{DEFAULT_BAUD}", "serial"),
+    ],
+)
+def test_both_spellings_of_a_vehicle_url_become_pymavlinks(url: str, device: str, kind: str) -> None:
+    parsed = parse_vehicle_url(url)
+    assert (parsed.device, parsed.kind) == (device, kind)
+
+
+@pytest.mark.parametrize(
+    "url",
+    [
+        "",
+        "14560",
+        "udpin:14560",
+        "udpin://0.0.0.0",
+        "udpin://0.0.0.0:0",
+        "udpin:h:99999",
+        "http://x:80",
+        "serial://",
+        "/dev/ttyUSB0,fast",
+        "quic://h:1",
+    ],
+)
+def test_anything_else_is_one_line_naming_both_spellings(url: str) -> None:
+    with pytest.raises(UrlError) as caught:
+        parse_vehicle_url(url)
+    text = str(caught.value)
+    assert "\n" not in text and repr(url) in text
+
+
+def test_an_attach_names_its_role_or_takes_the_default_and_refuses_what_it_cannot_do() -> None:
+    spec = parse_attach("intruder=udpin://0.0.0.0:14560")
+    assert (spec.role, spec.url.device, spec.radius_m) == ("intruder", "udpin:0.0.0.0:14560", None)
+    assert parse_attach("INTRUDER=tcp:h:5760", radius_m=0.5).radius_m == 0.5
+    with pytest.raises(AttachError, match="no role 'pilot'"):
+        parse_attach("pilot=udpin:0.0.0.0:14560")
+    # member (the default) and leader are commanded roles, refused with one line rather than accepted and ignored
+    for text in ("udpin:0.0.0.0:14560", "member=udpin:0.0.0.0:14560", "leader=udpin:0.0.0.0:14560"):
+        with pytest.raises(AttachError, match="not available yet"):
+            parse_attach(text)
+    with pytest.raises(AttachError, match="radius_m"):
+        parse_attach("intruder=udpin:0.0.0.0:14560", radius_m=0.0)
+    with pytest.raises(AttachError, match="no vehicle URL"):
+        parse_attach("intruder=nowhere")
+
+
+def test_a_missions_attach_tables_are_read_and_a_bad_one_is_named_by_its_line(tmp_path: Path) -> None:
+    head = '[swarm]\ndrones = 2\n\n[[swarm.attach]]\nrole = "intruder"\nurl = "udpin:0.0.0.0:14560"\nradius_m = 0.4\n'
+    steps = '\n[[steps]]\naction = "takeoff"\nalt_m = 3.0\n'
+    good = tmp_path / "good.toml"
+    good.write_text(head + steps)
+    (spec,) = load_mission(good).swarm.attach
+    assert (spec.role, spec.url.device, spec.radius_m) == ("intruder", "udpin:0.0.0.0:14560", 0.4)
+    bad = tmp_path / "bad.toml"
+    bad.write_text(head.replace("udpin:0.0.0.0:14560", "udpin:0.0.0.0") + steps)
+    with pytest.raises(MissionFileError, match=r"bad.toml:6: swarm.attach\[0\].url"):
+        load_mission(bad)
+    odd = tmp_path / "odd.toml"
+    odd.write_text(head.replace("radius_m = 0.4", "size = 1") + steps)
+    with pytest.raises(MissionFileError, match="unknown field"):
+        load_mission(odd)
+
+
+def test_a_vehicles_body_is_carried_on_briefly_at_its_velocity_and_stays_put_once_lost() -> None:
+    origin = GeoPoint(lat_deg=47.0, lon_deg=8.0, alt_amsl_m=500.0)
+    vehicle = AttachedVehicle(sysid=42, spec=parse_attach("intruder=udpin:0.0.0.0:1"),
+                              link=ExternalLink(spec=parse_attach("intruder=udpin:0.0.0.0:1"), source_system=255),
+                              autopilot=12, heard_s=0.0)  # fmt: skip
+    assert vehicle.body_at(1.0) is None  # no position yet
+    vehicle.position, vehicle.vel_ned_mps, vehicle.position_s = (47.0, 8.0, 500.0), (2.0, -1.0, -0.5), 10.0
+    frame = NedFrame(origin)
+
+    def ned(t_s: float) -> tuple[float, ...]:
+        geo = vehicle.body_at(t_s)
+        assert geo is not None
+        return tuple(frame.ned_from_geo(GeoPoint(lat_deg=geo[0], lon_deg=geo[1], alt_amsl_m=geo[2])))
+
+    assert ned(10.0) == pytest.approx((0.0, 0.0, 0.0), abs=1e-9)
+    assert ned(10.5) == pytest.approx((1.0, -0.5, -0.25), abs=1e-3)
+    assert ned(30.0) == pytest.approx((2.0, -1.0, -0.5), abs=1e-3)  # carried on for a second at most
+    vehicle.lost = True
+    assert ned(30.0) == pytest.approx((0.0, 0.0, 0.0), abs=1e-9)  # where it was last known
+    assert math.isfinite(ned(1e6)[0])
+
+
+def test_a_vehicle_may_not_take_a_simulated_drones_sysid_nor_the_ground_stations_nor_one_attached() -> None:
+    simulated, attached = dict.fromkeys((21, 22)), {30: object()}
+    assert sysid_problem(40, simulated, attached, 255) is None
+    assert "ground station's own" in (sysid_problem(255, simulated, attached, 255) or "")
+    assert "simulated drone's" in (sysid_problem(22, simulated, attached, 255) or "")
+    assert "attached already" in (sysid_problem(30, simulated, attached, 255) or "")
