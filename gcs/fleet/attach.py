@@ -180,6 +180,30 @@ class ExternalLink:
             self.conn = None
 
 
+TRAFFIC_FLAGS: Final = (
+    mavlink.ADSB_FLAGS_VALID_COORDS
+    | mavlink.ADSB_FLAGS_VALID_ALTITUDE
+    | mavlink.ADSB_FLAGS_VALID_HEADING
+    | mavlink.ADSB_FLAGS_VALID_VELOCITY
+    | mavlink.ADSB_FLAGS_VALID_CALLSIGN
+)
+
+
+def traffic_report(position: Any) -> Any:
+    """A vehicle's GLOBAL_POSITION_INT as the ADSB_VEHICLE a ground station relays for traffic that does not avoid
+    in turn: its sysid as the ICAO address, geometric altitude, heading and speeds from its velocity (PX4 takes
+    traffic so, from an ADS-B receiver or a ground station; the simulated drones avoid it in full:
+    sitl/protocol/neighbours.py)."""
+    vn, ve = position.vx * 0.01, position.vy * 0.01
+    heading_cdeg = round(math.degrees(math.atan2(ve, vn)) * 100.0) % 36000
+    sysid = position.get_srcSystem()
+    return mavlink.MAVLink_adsb_vehicle_message(
+        sysid, position.lat, position.lon, mavlink.ADSB_ALTITUDE_TYPE_GEOMETRIC, position.alt, heading_cdeg,
+        min(round(math.hypot(vn, ve) * 100.0), 0xFFFF), max(-32768, min(32767, -position.vz)),
+        f"SYS{sysid}".encode(), mavlink.ADSB_EMITTER_TYPE_UAV, 0, TRAFFIC_FLAGS, 0,
+    )  # fmt: skip
+
+
 def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split()) or type(exc).__name__
 

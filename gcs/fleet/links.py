@@ -149,6 +149,8 @@ def parse_link_value(key: str, text: str) -> float:
 # ---- how neighbours' positions travel: the ground station's relay, the drone-to-drone mesh, or both -------------
 
 NEIGHBOUR_MODES: Final = ("relay", "mesh", "both")
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class MeshPlan:
     """The drones' mesh radio (docs/links.md "Mesh"): heard up to ``range_m``, a report lost with probability

@@ -106,6 +106,20 @@ class Router:
                 if address is not None:
                     self.hold(data, address, now_s)
 
+    def relay_traffic(self, source: int, report: Any, now_s: float, fleet: Fleet) -> None:
+        """A report of traffic (``report``, an ADSB_VEHICLE about ``source``, packed as the ground station's own)
+        to the drones the relay chooses for ``source``'s position, at the relay's rate."""
+        if self.relay is None:
+            return
+        targets = self.relay.targets(source, now_s, fleet)
+        if not targets:
+            return
+        data = self.link.pack(report)
+        for target in targets:
+            address = self.link.addresses.get(target)
+            if address is not None:
+                self.hold(data, address, now_s)
+
     def from_ground_station(self, msg: Any, sysids: list[int]) -> None:
         """A message from another ground station (QGroundControl, MAVProxy on the forward port): to its target."""
         if self.forward is None:

@@ -38,6 +38,7 @@ from gcs.fleet.attach import (
     ExternalLink,
     is_vehicle_heartbeat,
     sysid_problem,
+    traffic_report,
 )
 from gcs.fleet.clock import ClockStalled, SwarmClock
 from gcs.fleet.faults import BATTERY_LEVEL_PARAM, ENABLE_PARAM, FAULTS, FaultRequest
@@ -410,10 +411,13 @@ class Swarm:
             vehicle.vel_ned_mps = (msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
             vehicle.position_s = now
         self.fleet.handle(msg, now)
-        # An intruder's reports are not relayed: a relayed position reads as a neighbour that avoids in turn (and
-        # takes half of each manoeuvre), which an intruder does not; the drones see it with their cameras and avoid
-        # it in full.
-        self.router.carry(msg, now, self.fleet, relay=vehicle.spec.role != "intruder")
+        # An intruder's position goes to the drones as traffic (ADSB_VEHICLE), not as its own GLOBAL_POSITION_INT:
+        # a relayed position reads as a neighbour that avoids in turn and takes half of each manoeuvre, which an
+        # intruder does not; traffic is avoided in full.
+        intruder = vehicle.spec.role == "intruder"
+        self.router.carry(msg, now, self.fleet, relay=not intruder)
+        if intruder and msg.get_type() == "GLOBAL_POSITION_INT":
+            self.router.relay_traffic(sysid, traffic_report(msg), now, self.fleet)
         for listener in self.listeners:
             listener(msg, now)
 

@@ -35,13 +35,15 @@ from sitl.kernels.avoidance import MAX_SPEED_MPS as MAX_SPEED_MPS
 from sitl.mathutil import fast_constructor
 
 Vec3 = tuple[float, float, float]
-ObstacleSource = Literal["camera", "relay", "fused"]
+ObstacleSource = Literal["camera", "relay", "fused", "traffic", "fused traffic"]
 
 _ZERO3: Final[Vec3] = (0.0, 0.0, 0.0)
 _SOURCES: Final[dict[float, ObstacleSource]] = {
     ak.SOURCE_CAMERA: "camera",
     ak.SOURCE_RELAY: "relay",
     ak.SOURCE_FUSED: "fused",
+    ak.SOURCE_TRAFFIC: "traffic",
+    ak.SOURCE_FUSED_TRAFFIC: "fused traffic",
 }
 _SOURCE_CODES: Final[dict[str, float]] = {name: code for code, name in _SOURCES.items()}
 
@@ -194,7 +196,8 @@ def fuse(
 
     Inputs: camera detections as ``Obstacle(source="camera")`` with the relative position measured ``age_s`` ago;
     relay entries as ``Obstacle(source="relay", vel_known=True)`` whose ``rel_pos_ned_m`` is the neighbour's reported
-    position minus this drone's *current* position and ``age_s`` the report's age.
+    position minus this drone's *current* position and ``age_s`` the report's age (``source="traffic"`` for a body
+    that does not avoid in turn: it stays traffic, and fused with a detection "fused traffic", avoided in full).
 
     - Relay entries older than ``relay_max_age_s`` are dropped; the rest are moved forward by velocity x age.
     - A camera detection is moved by (obstacle - own velocity) x age; its obstacle velocity is zero until matched.
@@ -208,16 +211,16 @@ def fuse(
     """
     return fuse_fields(
         [(c.rel_pos_ned_m, c.radius_m, c.age_s) for c in camera],
-        [(r.rel_pos_ned_m, r.vel_ned_mps, r.radius_m, r.age_s) for r in relay],
+        [(r.rel_pos_ned_m, r.vel_ned_mps, r.radius_m, r.age_s, r.source != "traffic") for r in relay],
         own_vel_ned_mps,
         config,
     )
 
 
 # Camera detection for ``fuse_fields``: (relative position, radius, age); relay entry: (relative position, velocity,
-# radius, age), each as ``Obstacle`` holds it.
+# radius, age, whether it avoids in turn: a neighbour, not traffic), each as ``Obstacle`` holds it.
 CameraFields = tuple[Vec3, float, float]
-RelayFields = tuple[Vec3, Vec3, float, float]
+RelayFields = tuple[Vec3, Vec3, float, float, bool]
 
 
 def fuse_rows(
@@ -229,8 +232,8 @@ def fuse_rows(
     """``fuse`` on the obstacles' fields, to obstacle rows (``config`` as ``config_row`` gives it): what collision
     prevention runs at the avoidance rate, with no record built."""
     cams = np.array([(*pos, radius, age) for pos, radius, age in camera], dtype=np.float64).reshape(-1, ak.CAMERA_SIZE)
-    rels = np.array([(*pos, *vel, radius, age) for pos, vel, radius, age in relay],
-                    dtype=np.float64).reshape(-1, ak.RELAY_SIZE)  # fmt: skip
+    rels = np.array([(*pos, *vel, radius, age, 1.0 if cooperative else 0.0) for pos, vel, radius, age, cooperative
+                     in relay], dtype=np.float64).reshape(-1, ak.RELAY_SIZE)  # fmt: skip
     out = np.empty((len(cams) + len(rels), ak.OBSTACLE_SIZE))
     own = np.array(own_vel_ned_mps, dtype=np.float64).reshape(3)
     return out[: ak.fuse(cams, rels, own, config, out)]
@@ -266,9 +269,9 @@ def avoid(
     Inputs beyond physical sense (NaN, or beyond MAX_REL_POS_M / MAX_SPEED_MPS) are corrupt data: such an obstacle is
     ignored, such an own velocity replaced by the desired one.
 
-    Responsibility: an obstacle with a known velocity that is not camera-only is taken to be a neighbour running
-    this same algorithm and gets the reciprocal half of each manoeuvre; anything else (unknown velocity, or a
-    camera track) is avoided in full, as if it would not move out of the way.
+    Responsibility: an obstacle with a known velocity from the relay (alone or fused) is taken to be a neighbour
+    running this same algorithm and gets the reciprocal half of each manoeuvre; anything else (unknown velocity, a
+    camera track, traffic) is avoided in full, as if it would not move out of the way.
     """
     row = config_row(config)
     return avoid_prepared(own_vel_ned_mps, desired_vel_ned_mps, prepare_rows(obstacle_rows(obstacles), row), row)

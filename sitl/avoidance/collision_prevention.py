@@ -56,6 +56,7 @@ class RelayedNeighbour:
     pos_ned_m: tuple[float, float, float]
     vel_ned_mps: tuple[float, float, float]
     received_s: float  # when the position was true: the sender's time in lockstep, else its arrival
+    cooperative: bool = True  # a swarm neighbour, which avoids in turn; False: traffic (ADSB_VEHICLE), which does not
 
 
 MIN_PREFERRED_SPEED_MPS = 1.0
@@ -155,7 +156,7 @@ class CollisionPrevention:
         radius = self._own_radius_m  # the swarm flies one airframe; a relay report carries no size
         relay: list[RelayFields] = [
             ((n.pos_ned_m[0] - x, n.pos_ned_m[1] - y, n.pos_ned_m[2] - z), n.vel_ned_mps, radius,
-             max(0.0, now_s - n.received_s))
+             max(0.0, now_s - n.received_s), n.cooperative)
             for n in neighbours
         ]  # fmt: skip
         return fuse_rows(camera, relay, own_vel, self._config_row)

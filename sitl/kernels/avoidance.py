@@ -36,6 +36,10 @@ OBSTACLE_SIZE = 10
 SOURCE_CAMERA = 0.0
 SOURCE_RELAY = 1.0
 SOURCE_FUSED = 2.0
+# Traffic: a relayed body that does not avoid in turn (an intruder, reported as ADSB_VEHICLE), alone or fused with
+# a camera detection. Avoided in full, as a camera track is, but with its velocity known.
+SOURCE_TRAFFIC = 3.0
+SOURCE_FUSED_TRAFFIC = 4.0
 # A prepared obstacle: its row, then the separation to keep, horizontal distance squared, gap, horizontal speed.
 U_SEPARATION = OBSTACLE_SIZE
 U_DIST_SQ = OBSTACLE_SIZE + 1
@@ -43,9 +47,10 @@ U_GAP = OBSTACLE_SIZE + 2
 U_SPEED = OBSTACLE_SIZE + 3
 USABLE_SIZE = OBSTACLE_SIZE + 4
 # Fusion's inputs: a camera detection (relative position, radius, age) and a relay entry (relative position,
-# velocity, radius, age).
+# velocity, radius, age, and 1 when the body avoids in turn: a swarm neighbour; 0 for traffic).
 CAMERA_SIZE = 5
-RELAY_SIZE = 8
+RELAY_SIZE = 9
+R_COOPERATIVE = 8
 
 # Configuration row (sitl.avoidance.algorithm.AvoidanceConfig).
 K_ENABLED = 0
@@ -113,7 +118,7 @@ def _fuse_pair(
     out[O_VEL], out[O_VEL + 1], out[O_VEL + 2] = vx, vy, vz
     out[O_VEL_KNOWN] = 1.0
     out[O_RADIUS] = pmax(cam[3], rel[O_RADIUS])
-    out[O_SOURCE] = SOURCE_FUSED
+    out[O_SOURCE] = SOURCE_FUSED if rel[O_SOURCE] == SOURCE_RELAY else SOURCE_FUSED_TRAFFIC
     out[O_AGE] = cam_age_s
 
 
@@ -146,7 +151,7 @@ def fuse(
         row[O_VEL], row[O_VEL + 1], row[O_VEL + 2] = vx, vy, vz
         row[O_VEL_KNOWN] = 1.0
         row[O_RADIUS] = relay[i, 6]
-        row[O_SOURCE] = SOURCE_RELAY
+        row[O_SOURCE] = SOURCE_RELAY if relay[i, R_COOPERATIVE] != 0.0 else SOURCE_TRAFFIC
         row[O_AGE] = age
         n_rel += 1
     cams = np.empty(camera.shape[0], np.int64)
@@ -498,7 +503,8 @@ def avoid(
         else:
             bvx, bvy = 0.0, 0.0
         dist = math.sqrt(dist_sq)
-        resp = 0.5 if (known and ob[O_SOURCE] != SOURCE_CAMERA) else 1.0
+        source = ob[O_SOURCE]
+        resp = 0.5 if (known and (source == SOURCE_RELAY or source == SOURCE_FUSED)) else 1.0  # noqa: SIM109
         if dist < 1e-6:
             # Coincident centres: no bearing to go by; take the obstacle as straight ahead of the desired heading
             # (or north when hovering), so the drone backs off deterministically.

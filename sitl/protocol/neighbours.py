@@ -45,6 +45,7 @@ class Neighbour:
     sender_time_s: float  # the neighbour's own time_boot_ms, in seconds
     received_s: float  # our simulation time when it arrived
     source: NeighbourSource = RELAY  # the way the report came
+    cooperative: bool = True  # a swarm neighbour (it avoids in turn); False: traffic from ADSB_VEHICLE
 
     def age_s(self, now_s: float) -> float:
         return now_s - self.received_s
@@ -115,11 +116,43 @@ class SourceCounts:
         return self.sent_age_sum_s / self.age_samples if self.age_samples else 0.0
 
 
+# ADSB_VEHICLE flags a traffic report needs: where it is, and how it moves.
+_TRAFFIC_WHERE: Final = mavlink.ADSB_FLAGS_VALID_COORDS | mavlink.ADSB_FLAGS_VALID_ALTITUDE
+_TRAFFIC_MOTION: Final = mavlink.ADSB_FLAGS_VALID_HEADING | mavlink.ADSB_FLAGS_VALID_VELOCITY
+
+
+def _traffic_fields(msg: MAVLinkMessage) -> tuple[int, int, int, int, float, float, float, int] | None:
+    """An ADSB_VEHICLE as (ICAO address, lat, lon degE7, altitude mm, velocity NED m/s, tslc s), or None when it
+    does not say where the vehicle is; PeerInputError for a field out of its range. Without a valid heading and
+    velocity it is taken to stand still (avoided in full all the same)."""
+    flags = read_int(msg, "flags", lo=0, hi=0xFFFF)
+    if flags & _TRAFFIC_WHERE != _TRAFFIC_WHERE:
+        return None
+    icao = read_int(msg, "ICAO_address", lo=0, hi=2**32 - 1)
+    lat = read_int(msg, "lat", lo=-900_000_000, hi=900_000_000)
+    lon = read_int(msg, "lon", lo=-1_800_000_000, hi=1_800_000_000)
+    alt = read_int(msg, "altitude", lo=-(2**31), hi=2**31 - 1)
+    tslc = read_int(msg, "tslc", lo=0, hi=255)
+    vn = ve = vd = 0.0
+    if flags & _TRAFFIC_MOTION == _TRAFFIC_MOTION:
+        heading = math.radians(read_int(msg, "heading", lo=0, hi=35999) * 0.01)
+        speed = read_int(msg, "hor_velocity", lo=0, hi=0xFFFF) * 0.01
+        vn, ve = speed * math.cos(heading), speed * math.sin(heading)
+        vd = -read_int(msg, "ver_velocity", lo=-32768, hi=32767) * 0.01
+    return icao, lat, lon, alt, vn, ve, vd, tslc
+
+
 class NeighbourTable:
     """One table per drone: GLOBAL_POSITION_INT from other systems updates it, each link through its own
-    ``NeighbourFeed`` (the source it counts as), the mesh radio through ``receive`` with ``source=MESH``."""
+    ``NeighbourFeed`` (the source it counts as), the mesh radio through ``receive`` with ``source=MESH``.
 
-    handles: frozenset[int] = frozenset({mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT})
+    ADSB_VEHICLE updates it too, as traffic: a vehicle the ground station reports that does not avoid in turn (an
+    intruder attached to the swarm, gcs/fleet/attach.py), keyed by its ICAO address (the ground station gives its
+    sysid) and aged from its ``tslc``. PX4 takes traffic the same way, from an ADS-B receiver or a ground station."""
+
+    handles: frozenset[int] = frozenset(
+        {mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, mavlink.MAVLINK_MSG_ID_ADSB_VEHICLE}
+    )
 
     def __init__(self, own_sysid: int) -> None:
         self.own_sysid = own_sysid
@@ -143,6 +176,9 @@ class NeighbourTable:
     def receive(self, msg: MAVLinkMessage, now_s: float, source: NeighbourSource) -> None:
         """A neighbour's report, from ``source``; taken when it is newer than the entry it would replace."""
         now_s = check_now(now_s)
+        if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_ADSB_VEHICLE:
+            self._traffic(msg, now_s, source)
+            return
         try:
             sender = source_of(msg).sysid
             if sender == self.own_sysid:
@@ -166,6 +202,31 @@ class NeighbourTable:
             received_s=now_s,
             source=source,
         )
+        if now_s < self._oldest_received_s:
+            self._oldest_received_s = now_s
+        self.updates += 1
+        self._updates[source] += 1
+
+    def _traffic(self, msg: MAVLinkMessage, now_s: float, source: NeighbourSource) -> None:
+        """An ADSB_VEHICLE: traffic, taken when newer than its entry (its time is its arrival less its ``tslc``)."""
+        try:
+            fields = _traffic_fields(msg)
+        except PeerInputError:
+            return
+        if fields is None:
+            return
+        icao, lat, lon, alt, vn, ve, vd, tslc = fields
+        if icao == self.own_sysid:
+            return
+        sender_time_s = now_s - tslc
+        known = self._entries.get(icao)
+        if known is not None and sender_time_s <= known.sender_time_s and known.age_s(now_s) <= NEIGHBOUR_TIMEOUT_S:
+            self.stale += 1
+            return
+        self._entries[icao] = _new_neighbour(sysid=icao, lat_deg=lat * 1e-7, lon_deg=lon * 1e-7,
+                                             alt_amsl_m=alt * 1e-3, vel_ned_mps=(vn, ve, vd),
+                                             sender_time_s=sender_time_s, received_s=now_s, source=source,
+                                             cooperative=False)  # fmt: skip
         if now_s < self._oldest_received_s:
             self._oldest_received_s = now_s
         self.updates += 1

@@ -7,11 +7,14 @@ import math
 from pathlib import Path
 
 import pytest
+from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.fleet.attach import AttachedVehicle, AttachError, ExternalLink, parse_attach, sysid_problem
+from gcs.fleet.attach import AttachedVehicle, AttachError, ExternalLink, parse_attach, sysid_problem, traffic_report
 from gcs.flight.geodesy import GeoPoint, NedFrame
 from gcs.mavlink.urls import DEFAULT_BAUD, UrlError, parse_vehicle_url
 from gcs.missions.mission_file import MissionFileError, load_mission
+from sitl.avoidance.algorithm import AvoidanceConfig, Obstacle, avoid
+from sitl.protocol.neighbours import NeighbourTable
 
 
 @pytest.mark.parametrize(
@@ -121,3 +124,33 @@ def test_a_vehicle_may_not_take_a_simulated_drones_sysid_nor_the_ground_stations
     assert "ground station's own" in (sysid_problem(255, simulated, attached, 255) or "")
     assert "simulated drone's" in (sysid_problem(22, simulated, attached, 255) or "")
     assert "attached already" in (sysid_problem(30, simulated, attached, 255) or "")
+
+
+def test_an_intruders_position_reaches_the_drones_as_traffic_they_avoid_in_full() -> None:
+    # GIVEN an intruder's GLOBAL_POSITION_INT (sysid 250, 1.5 m/s north-east, climbing 0.3 m/s)
+    position = mavlink.MAVLink_global_position_int_message(1000, 473977420, 85455940, 491_000, 3_000, 106, 106, -30, 0)
+    position.pack(mavlink.MAVLink(None, srcSystem=250, srcComponent=1))
+    report = traffic_report(position)
+    # WHEN the ground station relays it as traffic and a drone's neighbour table reads it
+    frame = report.pack(mavlink.MAVLink(None, srcSystem=255, srcComponent=190))
+    received = mavlink.MAVLink(None).parse_char(frame)
+    table = NeighbourTable(own_sysid=21)
+    table.handle(received, 10.0)
+    # THEN the drone knows it as traffic, where it is and how it moves (to the centimetre per second)
+    (entry,) = table.entries(10.0)
+    assert (entry.sysid, entry.cooperative) == (250, False)
+    assert (entry.lat_deg, entry.lon_deg, entry.alt_amsl_m) == pytest.approx((47.397742, 8.545594, 491.0))
+    assert entry.vel_ned_mps == pytest.approx((1.06, 1.06, -0.30), abs=0.01)
+    # AND a report saying nothing of where the vehicle is, or about the drone itself, is not taken
+    blind = traffic_report(position)
+    blind.flags = 0
+    other = NeighbourTable(own_sysid=250)
+    for table_, msg in ((NeighbourTable(own_sysid=21), blind), (other, report)):
+        table_.handle(mavlink.MAVLink(None).parse_char(msg.pack(mavlink.MAVLink(None, srcSystem=255))), 10.0)
+        assert table_.entries(10.0) == []
+    # AND collision prevention takes the whole manoeuvre for traffic, half of it for a neighbour that avoids too
+    head_on = dict(rel_pos_ned_m=(4.0, 0.0, 0.0), vel_ned_mps=(-1.0, 0.0, 0.0), vel_known=True)
+    neighbour = avoid((1.0, 0.0, 0.0), (1.0, 0.0, 0.0), [Obstacle(**head_on, source="relay")], AvoidanceConfig())
+    traffic = avoid((1.0, 0.0, 0.0), (1.0, 0.0, 0.0), [Obstacle(**head_on, source="traffic")], AvoidanceConfig())
+    sideways = (abs(neighbour.vel_ned_mps[1]), abs(traffic.vel_ned_mps[1]))
+    assert traffic.active and sideways[1] > 1.5 * sideways[0] > 0.0, (neighbour, traffic)

@@ -537,8 +537,9 @@ def test_compiled_fusion_and_avoidance_give_their_python_forms_bits(seed: int) -
     # GIVEN a crowd of detections and relayed neighbours close enough that many pairs fall within each other's gates
     rng = np.random.default_rng(seed)
     cams = np.array([(*o.rel_pos_ned_m, o.radius_m, o.age_s * 0.1) for o in _crowd(rng, int(rng.integers(1, 25)), 6.0)])
-    relays = np.array([(*o.rel_pos_ned_m, *o.vel_ned_mps, o.radius_m, o.age_s)
-                       for o in _crowd(rng, int(rng.integers(1, 25)), 6.0)])  # fmt: skip
+    # (every third relayed body is traffic, which does not avoid in turn)
+    relays = np.array([(*o.rel_pos_ned_m, *o.vel_ned_mps, o.radius_m, o.age_s, 0.0 if k % 3 == 2 else 1.0)
+                       for k, o in enumerate(_crowd(rng, int(rng.integers(1, 25)), 6.0))])  # fmt: skip
     own = rng.uniform(-3.0, 3.0, 3)
     row = config_row(CONFIG)
     # WHEN fused, prepared and avoided by the compiled kernels and by the same code run as Python
@@ -556,4 +557,4 @@ def test_compiled_fusion_and_avoidance_give_their_python_forms_bits(seed: int) -
     assert counts[0][0] == counts[1][0] and closest[0] == closest[1]
     assert np.array_equal(usable[0][: counts[0][0]], usable[1][: counts[1][0]])
     assert ak.avoid(usable[0][: args[0]], *args) == ak.avoid.py_func(usable[1][: args[0]], *args)
-    assert (fused[0][:n_compiled, ak.O_SOURCE] == ak.SOURCE_FUSED).any()
+    assert np.isin(fused[0][:n_compiled, ak.O_SOURCE], (ak.SOURCE_FUSED, ak.SOURCE_FUSED_TRAFFIC)).any()
