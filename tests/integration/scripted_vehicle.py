@@ -3,15 +3,20 @@ to the ground station (a HEARTBEAT at 1 Hz, GLOBAL_POSITION_INT at 10 Hz), and n
 world except through MAVLink.
 
 It flies a scripted path (a function of wall time since ``start``: paced swarms keep wall time), answers nothing, and
-can fall silent on request (a cut link).
+can fall silent on request (a cut link). Its link is one of the kinds ``--attach`` opens: UDP to a port the ground
+station listens on (``UdpLink``), a TCP server the ground station connects to (``TcpServerLink``), or a serial line,
+played by a pseudo-terminal (``PtyLink``: the ground station opens its other end as a serial device).
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
 import socket
 import threading
 import time
+import tty
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -36,19 +41,89 @@ def back_and_forth(start_ne_m: tuple[float, float], end_ne_m: tuple[float, float
     return at
 
 
+class UdpLink:
+    """Datagrams to ``port`` on 127.0.0.1, where ``--attach udpin:127.0.0.1:PORT`` listens."""
+
+    def __init__(self, port: int) -> None:
+        self.port = port
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+
+    def url(self) -> str:
+        return f"udpin:127.0.0.1:{self.port}"
+
+    def write(self, data: bytes) -> None:
+        self._sock.sendto(data, ("127.0.0.1", self.port))
+
+    def close(self) -> None:
+        self._sock.close()
+
+
+class TcpServerLink:
+    """A TCP server on a port of 127.0.0.1 the system picks, as a vehicle's Wi-Fi bridge or another autopilot's SITL
+    offers one; ``--attach tcp:127.0.0.1:PORT`` connects to it. What is written before a client connects is lost."""
+
+    def __init__(self) -> None:
+        self._server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self._server.bind(("127.0.0.1", 0))
+        self._server.listen(1)
+        self._server.setblocking(False)
+        self.port = int(self._server.getsockname()[1])
+        self._client: socket.socket | None = None
+
+    def url(self) -> str:
+        return f"tcp:127.0.0.1:{self.port}"
+
+    def write(self, data: bytes) -> None:
+        if self._client is None:
+            try:
+                self._client, _ = self._server.accept()
+            except BlockingIOError:
+                return
+        with contextlib.suppress(OSError):
+            self._client.sendall(data)
+
+    def close(self) -> None:
+        if self._client is not None:
+            self._client.close()
+        self._server.close()
+
+
+class PtyLink:
+    """A pseudo-terminal: the vehicle writes to its master side, the ground station opens the other side as a serial
+    device (``--attach /dev/pts/N,57600``), as it would a telemetry radio's USB serial port."""
+
+    def __init__(self) -> None:
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)
+        self.device = os.ttyname(self._slave)
+
+    def url(self) -> str:
+        return f"{self.device},57600"
+
+    def write(self, data: bytes) -> None:
+        with contextlib.suppress(OSError):
+            os.write(self._master, data)
+
+    def close(self) -> None:
+        os.close(self._master)
+        os.close(self._slave)
+
+
+Link = UdpLink | TcpServerLink | PtyLink
+
+
 @dataclass
 class ScriptedVehicle:
-    """Sends as sysid ``sysid`` to ``port`` on 127.0.0.1 (where ``swarm --attach udpin:127.0.0.1:PORT`` listens)."""
+    """Sends as sysid ``sysid`` over ``link``."""
 
     sysid: int
-    port: int
+    link: Link
     origin: GeoPoint
     path: Path
     rate_hz: float = 10.0
     autopilot: int = mavlink.MAV_AUTOPILOT_PX4
 
     def __post_init__(self) -> None:
-        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._mav = mavlink.MAVLink(None, srcSystem=self.sysid, srcComponent=1)
         self._frame = NedFrame(self.origin)
         self._stop = threading.Event()
@@ -65,14 +140,14 @@ class ScriptedVehicle:
     def stop(self) -> None:
         self._stop.set()
         self._thread.join(timeout=5)
-        self._sock.close()
+        self.link.close()
 
     def where(self, wall_s: float) -> tuple[float, float, float]:
         """Its NED position from the origin at monotonic time ``wall_s``."""
         return self.path(wall_s - self.t0)
 
     def _send(self, msg: mavlink.MAVLink_message) -> None:
-        self._sock.sendto(msg.pack(self._mav), ("127.0.0.1", self.port))
+        self.link.write(msg.pack(self._mav))
 
     def _run(self) -> None:
         period = 1.0 / self.rate_hz

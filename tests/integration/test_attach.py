@@ -2,11 +2,11 @@
 plain pymavlink script crosses a rotating circle of six simulated drones, then stops on the circle and falls silent.
 Nothing of it reaches the simulated world except through MAVLink.
 
-One flight, many checks: the attach is said; the drones, which hear each other over the relay but are told nothing
-of the intruder (an intruder's reports are not relayed: the drones would take it for a neighbour that avoids in
-turn), keep clear of it with their cameras while it crosses and after it went silent (its body stays where it was last known), and of each other; its
-loss is said once; the flight log holds its messages. Bad attaches are one line and exit code 2, before any drone
-starts.
+One flight, many checks: the attach is said; the drones, told of the intruder as traffic (ADSB_VEHICLE: a body that
+does not avoid in turn) and seeing it with their cameras, keep clear of it while it crosses, and with their cameras
+alone after it went silent (its body stays where it was last known); its loss is said once; the flight log holds its
+messages. Bad attaches are one line and exit code 2, before any drone starts; TCP and a serial line (a
+pseudo-terminal) attach as UDP does, and the status lists the vehicle.
 
 Policy: loopback only (--no-forward); leased instances (tests/integration/instances.py); the intruder on a port the
 system picked; paced at 1x (an attached vehicle keeps wall time); every process stopped by PID; time limits.
@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import socket
 import subprocess
 import sys
@@ -30,7 +31,7 @@ from pymavlink import mavutil
 
 from gcs.flight.geodesy import DEFAULT_ORIGIN, GeoPoint, NedFrame
 from tests.integration.instances import Leases
-from tests.integration.scripted_vehicle import ScriptedVehicle, back_and_forth
+from tests.integration.scripted_vehicle import PtyLink, ScriptedVehicle, TcpServerLink, UdpLink, back_and_forth
 
 pytestmark = [pytest.mark.sim_only]
 
@@ -88,7 +89,9 @@ def flown(tmp_path_factory: pytest.TempPathFactory, module_instances: Leases) ->
     mission = tmp / "circle_with_intruder.toml"
     mission.write_text(MISSION)
     port = free_udp_port()
-    intruder = ScriptedVehicle(sysid=INTRUDER_SYSID, port=port, origin=DEFAULT_ORIGIN, path=crossing_then_parked)
+    intruder = ScriptedVehicle(
+        sysid=INTRUDER_SYSID, link=UdpLink(port), origin=DEFAULT_ORIGIN, path=crossing_then_parked
+    )
     intruder.start()
     silence = _silence_at(intruder, SILENT_S)
     try:
@@ -156,8 +159,10 @@ def test_the_attach_and_the_intruders_silence_are_each_said_once(flown: Flown) -
 
 
 @pytest.mark.timeout(300)
-def test_the_drones_see_the_intruder_with_their_cameras_alone_and_keep_clear_of_it_silent_or_not(flown: Flown) -> None:
-    # GIVEN six drones on a rotating circle, told nothing of the intruder (it is not relayed), and an intruder
+def test_the_drones_keep_clear_of_the_intruder_as_it_crosses_and_with_cameras_alone_once_it_is_silent(
+    flown: Flown,
+) -> None:
+    # GIVEN six drones on a rotating circle, told of the intruder as traffic, and an intruder
     # crossing the circle, then parked on it and silent
     drones, intruder = _positions(flown.tlog)
     assert len(drones) == 6 and len(intruder) > 100
@@ -226,7 +231,7 @@ def test_a_vehicle_with_a_simulated_drones_sysid_is_refused_before_any_drone_sta
 ) -> None:
     first = instances(6)
     port = free_udp_port()
-    twin = ScriptedVehicle(sysid=first + 2, port=port, origin=DEFAULT_ORIGIN, path=CROSSING).start()
+    twin = ScriptedVehicle(sysid=first + 2, link=UdpLink(port), origin=DEFAULT_ORIGIN, path=CROSSING).start()
     try:
         result = _fly_attach(tmp_path, first, f"intruder=udpin:127.0.0.1:{port}")
     finally:
@@ -234,3 +239,52 @@ def test_a_vehicle_with_a_simulated_drones_sysid_is_refused_before_any_drone_sta
     assert result.returncode == 2, result.stderr
     assert f"sysid {first + 2} is a simulated drone's" in result.stderr and result.stderr.count("\n") == 1
     assert "spawning" not in result.stdout
+
+
+def _swarm_up_with(link_url: str, first: int, env: dict[str, str]) -> tuple[subprocess.Popen[str], list[str]]:
+    proc = subprocess.Popen([*SWARM, "up", "-n", "1", "--first-instance", str(first), "--attach",
+                             f"intruder={link_url}", "--no-forward", "--no-view"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)  # fmt: skip
+    lines: list[str] = []
+    assert proc.stdout is not None
+    for line in proc.stdout:
+        lines.append(line)
+        if "drones up" in line:
+            break
+    return proc, lines
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize("kind", ["tcp", "serial"])
+def test_a_vehicle_on_tcp_or_on_a_serial_line_is_attached_and_shown_in_the_status(
+    kind: str, tmp_path: Path, instances: Leases
+) -> None:
+    # GIVEN a vehicle hovering 5 m north-east of the origin, served on a TCP port (a Wi-Fi bridge, another SITL) or
+    # on a serial line (a pseudo-terminal standing in for a telemetry radio's USB port)
+    link = TcpServerLink() if kind == "tcp" else PtyLink()
+    vehicle = ScriptedVehicle(sysid=INTRUDER_SYSID, link=link, origin=DEFAULT_ORIGIN,
+                              path=lambda _t: (5.0, 5.0, -3.0)).start()  # fmt: skip
+    env = {**os.environ, "SWARM_STATE_DIR": str(tmp_path / "state")}
+    proc: subprocess.Popen[str] | None = None
+    try:
+        # WHEN a swarm is brought up with it attached
+        proc, lines = _swarm_up_with(link.url(), instances(1), env)
+        # THEN the attach is said, and the status lists it beside the simulated drone, where it is
+        described = link.url()
+        assert f"swarm: attached intruder sysid {INTRUDER_SYSID} on {described}\n" in lines, lines
+        status = subprocess.run([*SWARM, "status"], capture_output=True, text=True, env=env, timeout=30)
+        rows = {int(r.split()[0]): r for r in status.stdout.splitlines()[1:]}
+        assert len(rows) == 2 and INTRUDER_SYSID in rows, status.stdout
+        row = rows[INTRUDER_SYSID]
+        assert f"external: intruder on {described}" in row, row
+        lat, lon, alt = (float(v) for v in row.split("  external:")[0].split()[-5:-2])  # ... lat lon alt batt link
+        north, east, _ = FRAME.ned_from_geo(GeoPoint(lat_deg=lat, lon_deg=lon, alt_amsl_m=DEFAULT_ORIGIN.alt_amsl_m))
+        assert (north, east) == pytest.approx((5.0, 5.0), abs=0.05) and alt == pytest.approx(3.0, abs=0.01), row
+        # AND 'swarm down' ends it cleanly, the attached vehicle told nothing
+        assert subprocess.run([*SWARM, "down"], capture_output=True, text=True, env=env, timeout=30).returncode == 0
+        assert proc.wait(timeout=60) == 0
+    finally:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        vehicle.stop()
