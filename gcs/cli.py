@@ -22,7 +22,7 @@ from typing import Any, Literal, NoReturn
 
 from gcs.bench.scaling import add_bench_parser, run_bench
 from gcs.composition import SITL
-from gcs.fleet.attach import AttachError, AttachSpec, parse_attach
+from gcs.fleet.attach import DEFAULT_MAX_DISTANCE_M, AttachError, AttachSpec, parse_attach
 from gcs.fleet.faults import CRASH, FAULT_NAMES, FaultError, fault_request
 from gcs.fleet.harness import LAYOUTS, MAX_DRONES, Simulation, SpawnError, SpawnPlan, parse_drones_per_process
 from gcs.fleet.links import LINK_OPTIONS, NEIGHBOUR_MODES, LinkPlan, NeighbourPlan, parse_link_value, parse_mesh_value
@@ -154,12 +154,15 @@ def _add_attach_option(parser: argparse.ArgumentParser) -> None:
                         "heard on URL (udpin:0.0.0.0:14560, tcp:HOST:PORT, /dev/ttyUSB0,57600 or the MAVSDK "
                         "spellings): it is seen, avoided and counted by the simulated drones (repeatable; role "
                         "intruder; docs/external.md)")  # fmt: skip
+    parser.add_argument("--attach-max-distance", type=_positive, default=DEFAULT_MAX_DISTANCE_M, metavar="M",
+                        help="refuse an attached vehicle farther than M metres from the swarm's origin (default "
+                        f"{DEFAULT_MAX_DISTANCE_M:g})")  # fmt: skip
 
 
 def _attach_specs(args: argparse.Namespace, from_mission: tuple[AttachSpec, ...] = ()) -> tuple[AttachSpec, ...]:
     """``--attach`` (after the mission's [[swarm.attach]]), each checked; a swarm with one runs paced at speed 1."""
     try:
-        specs = (*from_mission, *(parse_attach(text) for text in args.attach))
+        specs = (*from_mission, *(parse_attach(text, max_distance_m=args.attach_max_distance) for text in args.attach))
     except AttachError as exc:
         raise UsageError(str(exc)) from None
     if specs and (args.lockstep or _speed(args) != 1.0):

@@ -33,6 +33,9 @@ AVAILABLE_ROLES: Final = ("intruder",)
 DEFAULT_ROLE: Final = "member"
 HEARTBEAT_TIMEOUT_S: Final = 10.0  # wall seconds an attach waits for the vehicle's first HEARTBEAT
 OTHERS_SETTLE_S: Final = 1.5  # after the first vehicle's HEARTBEAT, listen this long for others on the same link
+# A vehicle farther than this from the swarm's origin when it is attached is refused: it is not where the swarm flies
+# (a wrong origin, a vehicle on another field), and its body would be kilometres off
+DEFAULT_MAX_DISTANCE_M: Final = 500.0
 MAX_READ_PER_POLL: Final = 200  # messages one poll of a link reads at most (a flooding link cannot stall the swarm)
 AUTOPILOT_COMPID: Final = 1
 EXTRAPOLATE_MAX_S: Final = 1.0  # a report older than this is not carried on further: the vehicle may have stopped
@@ -49,12 +52,14 @@ class AttachSpec:
     role: str
     url: VehicleUrl
     radius_m: float | None = None  # its body's size; None: the simulated drones' own
+    max_distance_m: float = DEFAULT_MAX_DISTANCE_M  # a vehicle farther from the swarm's origin is refused
 
     def describe(self) -> str:
         return f"{self.role}={self.url.describe()}"
 
 
-def parse_attach(text: str, *, radius_m: float | None = None) -> AttachSpec:
+def parse_attach(text: str, *, radius_m: float | None = None,
+                 max_distance_m: float = DEFAULT_MAX_DISTANCE_M) -> AttachSpec:  # fmt: skip
     """``[ROLE=]URL`` as ``--attach`` takes it; AttachError (one line) for an unknown role or a bad URL."""
     role, sep, rest = text.partition("=")
     if not sep or not role.isalpha():
@@ -66,11 +71,14 @@ def parse_attach(text: str, *, radius_m: float | None = None) -> AttachSpec:
         raise AttachError(f"--attach {text!r}: role {role} is not available yet (attach it as intruder=URL)")
     if radius_m is not None and not (math.isfinite(radius_m) and 0.0 < radius_m <= 10.0):
         raise AttachError(f"--attach {text!r}: radius_m must be in (0, 10] m, got {radius_m}")
+    if not (math.isfinite(max_distance_m) and max_distance_m > 0.0):
+        raise AttachError(f"--attach {text!r}: the largest distance from the origin must be positive, got "
+                          f"{max_distance_m}")  # fmt: skip
     try:
         url = parse_vehicle_url(rest)
     except UrlError as exc:
         raise AttachError(f"--attach: {exc}") from None
-    return AttachSpec(role=role, url=url, radius_m=radius_m)
+    return AttachSpec(role=role, url=url, radius_m=radius_m, max_distance_m=max_distance_m)
 
 
 def is_vehicle_heartbeat(msg: Any) -> bool:

@@ -304,15 +304,18 @@ class Swarm:
             raise
         now = self.clock()
         simulated = self._simulated_sysids()
+        positions = {m.get_srcSystem(): m for m in heard if m.get_type() == "GLOBAL_POSITION_INT"}
         attached: list[int] = []
-        refused: list[str] = []
+        refused: dict[int, str] = {}
         for msg in heard:
             sysid = msg.get_srcSystem()
-            if not is_vehicle_heartbeat(msg) or sysid in link.sysids:
+            if not is_vehicle_heartbeat(msg) or sysid in link.sysids or sysid in refused:
                 continue
-            problem = sysid_problem(sysid, simulated, self.attached, GCS_SYSID)
+            problem = sysid_problem(sysid, simulated, self.attached, GCS_SYSID) or self._too_far(
+                sysid, positions.get(sysid), spec.max_distance_m
+            )
             if problem is not None:
-                refused.append(f"--attach {spec.describe()}: {problem}: not attached")
+                refused[sysid] = f"--attach {spec.describe()}: {problem}: not attached"
                 continue
             self.attached[sysid] = AttachedVehicle(sysid=sysid, spec=spec, link=link, autopilot=msg.autopilot,
                                                    heard_s=now)  # fmt: skip
@@ -320,11 +323,22 @@ class Swarm:
             attached.append(sysid)
         if not attached:
             link.close()
-            raise AttachError(refused[0] if refused else f"--attach {spec.describe()}: no vehicle heard")
+            raise AttachError(next(iter(refused.values()), f"--attach {spec.describe()}: no vehicle heard"))
         self._external_links.append(link)
         for msg in heard:
             self._handle_external(link, msg, now)
-        return attached, refused
+        return attached, list(refused.values())
+
+    def _too_far(self, sysid: int, position: Any, max_distance_m: float) -> str | None:
+        """Why a vehicle's first position keeps it out of the swarm (none yet, or farther from the origin than
+        ``max_distance_m``), or None."""
+        if position is None:
+            return f"sysid {sysid} sent no GLOBAL_POSITION_INT (where is it?)"
+        here = GeoPoint(lat_deg=position.lat * 1e-7, lon_deg=position.lon * 1e-7, alt_amsl_m=position.alt * 1e-3)
+        distance = math.dist((0.0, 0.0, 0.0), self._swarm_frame.ned_from_geo(here))
+        if distance > max_distance_m:
+            return f"sysid {sysid} is {distance:.0f} m from the swarm's origin (at most {max_distance_m:g} m)"
+        return None
 
     def _simulated_sysids(self) -> dict[int, None]:
         """The simulated drones' sysids: those launched, or before the launch those the plan will start."""
@@ -332,16 +346,21 @@ class Swarm:
         return dict.fromkeys(self._sysids or range(first, first + self.plan.n_drones))
 
     def _wait_for_vehicles(self, link: ExternalLink, timeout_s: float) -> list[Any]:
-        """Read a new link until a vehicle's HEARTBEAT arrives (and OTHERS_SETTLE_S more), pumping the swarm and its
-        setpoint stream meanwhile; AttachError when none comes within ``timeout_s`` wall seconds."""
+        """Read a new link until a vehicle's HEARTBEAT arrives, OTHERS_SETTLE_S more (other vehicles on the same
+        radio), and until every vehicle heard has said where it is (or ``timeout_s`` wall seconds have passed),
+        pumping the swarm and its setpoint stream meanwhile; AttachError when no HEARTBEAT comes in time."""
         heard: list[Any] = []
         deadline = time.monotonic() + timeout_s
         settle_until = math.inf
         next_tick = self.clock()
-        while time.monotonic() < min(deadline, settle_until):
+        vehicles: set[int] = set()
+        placed: set[int] = set()
+        while (wall := time.monotonic()) < deadline and (wall < settle_until or not vehicles <= placed):
             batch = link.receive()
             heard.extend(batch)
-            if math.isinf(settle_until) and any(is_vehicle_heartbeat(m) for m in batch):
+            vehicles.update(m.get_srcSystem() for m in batch if is_vehicle_heartbeat(m))
+            placed.update(m.get_srcSystem() for m in batch if m.get_type() == "GLOBAL_POSITION_INT")
+            if math.isinf(settle_until) and vehicles:
                 settle_until = time.monotonic() + OTHERS_SETTLE_S
             if self._stream_tick is not None and (clock := self.clock()) >= next_tick:
                 self._stream_tick(clock)
@@ -391,20 +410,14 @@ class Swarm:
 
     def _handle_external(self, link: ExternalLink, msg: Any, now: float) -> None:
         """A message on an attached vehicle's link: into the fleet view, the relay and the listeners (the flight log,
-        the report), as a simulated drone's. A new vehicle heard on the link later is attached as the first was."""
+        the report), as a simulated drone's. Only the vehicles attached are heard: one that shows up on the link later
+        (or was refused) is not taken without an attach of its own."""
         if msg.get_srcComponent() != 1:
             return
-        sysid = msg.get_srcSystem()
-        vehicle = self.attached.get(sysid)
-        if vehicle is None:
-            if not is_vehicle_heartbeat(msg) or sysid_problem(sysid, self._simulated_sysids(), self.attached,
-                                                              GCS_SYSID) is not None:  # fmt: skip
-                return
-            vehicle = self.attached[sysid] = AttachedVehicle(sysid=sysid, spec=link.spec, link=link,
-                                                             autopilot=msg.autopilot, heard_s=now)  # fmt: skip
-            link.sysids.add(sysid)
-        if vehicle.link is not link:
-            return  # the same sysid on another link: not this vehicle
+        vehicle = self.attached.get(msg.get_srcSystem())
+        if vehicle is None or vehicle.link is not link:
+            return
+        sysid = vehicle.sysid
         vehicle.heard_s = now
         if msg.get_type() == "GLOBAL_POSITION_INT":
             vehicle.position = (msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3)

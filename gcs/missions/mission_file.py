@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any, Final
 
 from gcs.command.procedures import check_takeoff_alt
-from gcs.fleet.attach import DEFAULT_ROLE, AttachError, AttachSpec, parse_attach
+from gcs.fleet.attach import DEFAULT_MAX_DISTANCE_M, DEFAULT_ROLE, AttachError, AttachSpec, parse_attach
 from gcs.fleet.faults import FaultError, FaultRequest, fault_request
 from gcs.fleet.harness import LAYOUTS, MAX_DRONES
 from gcs.fleet.links import NEIGHBOUR_MODES, LinkPlan, MeshPlan, NeighbourPlan, plan_from_tables
@@ -638,19 +638,23 @@ def _params(reader: _Reader, table: Any, where: tuple[str | None, int | None]) -
 
 
 def _attach(reader: _Reader, tables: Any) -> tuple[AttachSpec, ...]:
-    """``[[swarm.attach]]``: ``url``, and optionally ``role`` (default member) and ``radius_m`` (the body's size)."""
+    """``[[swarm.attach]]``: ``url``, and optionally ``role`` (default member), ``radius_m`` (the body's size) and
+    ``max_distance_m`` (refused farther from the origin)."""
     if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
         raise reader.fail(("swarm", None), "attach", "must be [[swarm.attach]] tables with url and role")
     specs = []
     for k, table in enumerate(tables):
         where: tuple[str | None, int | None] = ("swarm.attach", k)
-        reader.check_keys(table, {"url", "role", "radius_m"}, where)
+        reader.check_keys(table, {"url", "role", "radius_m", "max_distance_m"}, where)
         url, role = table.get("url"), table.get("role", DEFAULT_ROLE)
         if not isinstance(url, str) or not isinstance(role, str):
-            raise reader.fail(where, "url", "url (and role) must be strings, e.g. url = \"udpin:0.0.0.0:14560\"")
+            raise reader.fail(where, "url", 'url (and role) must be strings, e.g. url = "udpin:0.0.0.0:14560"')
         radius = reader.number(table, "radius_m", where, "pos") if "radius_m" in table else None
+        farthest = DEFAULT_MAX_DISTANCE_M
+        if "max_distance_m" in table:
+            farthest = reader.number(table, "max_distance_m", where, "pos")
         try:
-            specs.append(parse_attach(f"{role}={url}", radius_m=radius))
+            specs.append(parse_attach(f"{role}={url}", radius_m=radius, max_distance_m=farthest))
         except AttachError as exc:
             raise reader.fail(where, "url", str(exc).removeprefix("--attach ")) from None
     return tuple(specs)

@@ -122,6 +122,7 @@ class ScriptedVehicle:
     path: Path
     rate_hz: float = 10.0
     autopilot: int = mavlink.MAV_AUTOPILOT_PX4
+    reports_position: bool = True  # False: HEARTBEATs only (a vehicle without a position estimate)
 
     def __post_init__(self) -> None:
         self._mav = mavlink.MAVLink(None, srcSystem=self.sysid, srcComponent=1)
@@ -162,6 +163,8 @@ class ScriptedVehicle:
                 self._send(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, self.autopilot,
                                                              mavlink.MAV_MODE_FLAG_SAFETY_ARMED, 0,
                                                              mavlink.MAV_STATE_ACTIVE, 3))  # fmt: skip
+            if not self.reports_position:
+                continue
             north, east, down = self.path(t)
             dt = 0.05
             n2, e2, d2 = self.path(t + dt)

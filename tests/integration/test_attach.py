@@ -225,20 +225,28 @@ def test_bad_attaches_are_one_line_and_exit_2_before_any_drone_starts(tmp_path: 
     assert result.returncode == 2 and "cannot open the link" in result.stderr, result.stderr
 
 
-@pytest.mark.timeout(120)
-def test_a_vehicle_with_a_simulated_drones_sysid_is_refused_before_any_drone_starts(
+@pytest.mark.timeout(180)
+def test_a_vehicle_with_a_simulated_drones_sysid_far_away_or_nowhere_is_refused_before_any_drone_starts(
     tmp_path: Path, instances: Leases
 ) -> None:
     first = instances(6)
-    port = free_udp_port()
-    twin = ScriptedVehicle(sysid=first + 2, link=UdpLink(port), origin=DEFAULT_ORIGIN, path=CROSSING).start()
-    try:
-        result = _fly_attach(tmp_path, first, f"intruder=udpin:127.0.0.1:{port}")
-    finally:
-        twin.stop()
-    assert result.returncode == 2, result.stderr
-    assert f"sysid {first + 2} is a simulated drone's" in result.stderr and result.stderr.count("\n") == 1
-    assert "spawning" not in result.stdout
+    cases = [
+        (dict(sysid=first + 2), f"sysid {first + 2} is a simulated drone's"),
+        (dict(sysid=INTRUDER_SYSID, path=lambda _t: (600.0, 0.0, -3.0)),
+         f"sysid {INTRUDER_SYSID} is 600 m from the swarm's origin (at most 500 m)"),
+        (dict(sysid=INTRUDER_SYSID, reports_position=False), f"sysid {INTRUDER_SYSID} sent no GLOBAL_POSITION_INT"),
+    ]  # fmt: skip
+    for overrides, said in cases:
+        port = free_udp_port()
+        settings: dict[str, Any] = {"link": UdpLink(port), "origin": DEFAULT_ORIGIN, "path": CROSSING, **overrides}
+        vehicle = ScriptedVehicle(**settings).start()
+        try:
+            result = _fly_attach(tmp_path, first, f"intruder=udpin:127.0.0.1:{port}")
+        finally:
+            vehicle.stop()
+        assert result.returncode == 2, (said, result.stderr)
+        assert said in result.stderr and result.stderr.count("\n") == 1, result.stderr
+        assert "spawning" not in result.stdout
 
 
 def _swarm_up_with(link_url: str, first: int, env: dict[str, str]) -> tuple[subprocess.Popen[str], list[str]]:

@@ -75,17 +75,28 @@ def test_an_attach_names_its_role_or_takes_the_default_and_refuses_what_it_canno
             parse_attach(text)
     with pytest.raises(AttachError, match="radius_m"):
         parse_attach("intruder=udpin:0.0.0.0:14560", radius_m=0.0)
+    assert parse_attach("intruder=udpin:0.0.0.0:14560", max_distance_m=50.0).max_distance_m == 50.0
+    with pytest.raises(AttachError, match="must be positive"):
+        parse_attach("intruder=udpin:0.0.0.0:14560", max_distance_m=-1.0)
     with pytest.raises(AttachError, match="no vehicle URL"):
         parse_attach("intruder=nowhere")
 
 
 def test_a_missions_attach_tables_are_read_and_a_bad_one_is_named_by_its_line(tmp_path: Path) -> None:
-    head = '[swarm]\ndrones = 2\n\n[[swarm.attach]]\nrole = "intruder"\nurl = "udpin:0.0.0.0:14560"\nradius_m = 0.4\n'
+    head = (
+        '[swarm]\ndrones = 2\n\n[[swarm.attach]]\nrole = "intruder"\nurl = "udpin:0.0.0.0:14560"\nradius_m = 0.4\n'
+        "max_distance_m = 80\n"
+    )
     steps = '\n[[steps]]\naction = "takeoff"\nalt_m = 3.0\n'
     good = tmp_path / "good.toml"
     good.write_text(head + steps)
     (spec,) = load_mission(good).swarm.attach
-    assert (spec.role, spec.url.device, spec.radius_m) == ("intruder", "udpin:0.0.0.0:14560", 0.4)
+    assert (spec.role, spec.url.device, spec.radius_m, spec.max_distance_m) == (
+        "intruder",
+        "udpin:0.0.0.0:14560",
+        0.4,
+        80,
+    )
     bad = tmp_path / "bad.toml"
     bad.write_text(head.replace("udpin:0.0.0.0:14560", "udpin:0.0.0.0") + steps)
     with pytest.raises(MissionFileError, match=r"bad.toml:6: swarm.attach\[0\].url"):
