@@ -42,8 +42,8 @@ from gcs.missions.mission_file import (
 from gcs.supervisor.control import ControlClient, ControlError, ControlServer
 from gcs.supervisor.mission_runner import MissionRunner
 from gcs.supervisor.plan_cli import add_plan_parser, run_plan
-from gcs.supervisor.session import attach_all
 from gcs.supervisor.station import Station, format_status
+from gcs.supervisor.verbs import attach_all
 from gcs.sweep.cli import add_sweep_parser, run_sweep_command
 from gcs.sweep.plan import SweepError
 from gcs.view.server import DEFAULT_PORT as DEFAULT_VIEW_PORT
@@ -478,6 +478,13 @@ def build_parser() -> argparse.ArgumentParser:
         "behaviour", help="every drone's onboard behaviour (swarm up --behaviour): start or stop"
     )
     behaviour.add_argument("action", choices=("start", "stop"), help="start: BHV_EN = 1; stop: BHV_EN = 0, then Hold")
+    attach = sub.add_parser("attach", help="attach a MAVLink vehicle to the running swarm (docs/external.md)")
+    attach.add_argument("url", metavar="[ROLE=]URL", help="as swarm up --attach takes it")
+    attach.add_argument("--max-distance", type=_positive, default=DEFAULT_MAX_DISTANCE_M, metavar="M",
+                        help=f"refuse it farther than M metres from the swarm's origin (default "
+                        f"{DEFAULT_MAX_DISTANCE_M:g})")  # fmt: skip
+    detach = sub.add_parser("detach", help="let an attached vehicle go (it is told nothing)")
+    detach.add_argument("sysid", type=_sysid, help="the attached vehicle's sysid")
     sub.add_parser("land", help="land every drone where it is")
     sub.add_parser("rtl", help="every drone returns to its launch point and lands")
     sub.add_parser("down", help="land, disarm and stop every drone, then the supervisor")
@@ -548,13 +555,14 @@ def run_up(args: argparse.Namespace, simulation: Simulation) -> int:
         signal.signal(sig, _interrupt)
     swarm = Swarm(plan, simulation.harness(plan), forward=None if args.no_forward else args.forward,
                   relay=neighbours.relay)  # fmt: skip
+    station = Station(swarm, _say, LossPolicy(args.loss_policy), report_dir=args.report, contact_distance_m=contact)
     try:
-        attach_all(swarm, attach, _say)
+        attach_all(station.session, attach)
     except AttachError as exc:
+        station.session.discard()
         if view is not None:
             view.stop()
         raise UsageError(str(exc)) from None
-    station = Station(swarm, _say, LossPolicy(args.loss_policy), report_dir=args.report, contact_distance_m=contact)
     if view is not None:
         station.serve(view)
     server: ControlServer | None = None
@@ -757,6 +765,14 @@ def run_client(args: argparse.Namespace) -> int:
         request.update(north_m=args.north, east_m=args.east, alt_m=args.alt)
     elif args.command == "behaviour":
         request["action"] = args.action
+    elif args.command == "attach":
+        try:
+            parse_attach(args.url, max_distance_m=args.max_distance)
+        except AttachError as exc:
+            raise UsageError(str(exc)) from None
+        request.update(url=args.url, max_distance_m=args.max_distance)
+    elif args.command == "detach":
+        request["sysid"] = args.sysid
     elif args.command in ("fault", "kill"):
         kind = CRASH if args.command == "kill" else args.kind
         try:
@@ -773,7 +789,7 @@ def run_client(args: argparse.Namespace) -> int:
         print(format_status(response["drones"]))
     elif args.command in ("fault", "kill"):
         print(f"swarm: drone {args.sysid}: {response.get('result', 'done')}")
-    elif args.command == "behaviour":
+    elif args.command in ("behaviour", "attach", "detach"):
         print(f"swarm: {response.get('result', 'done')}")
     return 0
 

@@ -40,8 +40,8 @@ from gcs.missions.mission_file import (
 )
 from gcs.missions.plan_flight import copy_offsets, parse_drones, spawn_offsets, unreached
 from gcs.record.recording import FlightRecording, StepRecord
-from gcs.supervisor.session import FlightSession, attach_all
-from gcs.supervisor.verbs import VERBS, FaultRefused, Started, carry_out
+from gcs.supervisor.session import FlightSession
+from gcs.supervisor.verbs import VERBS, FaultRefused, Started, attach_all, carry_out
 from gcs.view.report import write_report
 from gcs.view.scene import obstacle_shape
 from gcs.view.server import ViewServer
@@ -272,7 +272,7 @@ class MissionRunner:
     def run(self) -> Path:
         """Fly the mission; always shuts the swarm down and writes the report, also after a failure (but an attach
         that fails is an AttachError before anything starts, and leaves no report)."""
-        attach_all(self.swarm, self.attach, self.say)
+        attach_all(self.session, self.attach)
         self.report_dir.mkdir(parents=True, exist_ok=True)
         recorder = self.session.record(self.report_dir / "flight.tlog", self.say)
         failure: BaseException | None = None

@@ -16,7 +16,6 @@ from pathlib import Path
 from gcs.command.degrade import apply_loss_policy, apply_regain
 from gcs.command.procedures import PaceWatch
 from gcs.command.streamer import FormationStreamer
-from gcs.fleet.attach import AttachError, AttachSpec
 from gcs.fleet.links import NeighbourPlan
 from gcs.fleet.losses import LossPolicy, loss_line, regain_line
 from gcs.fleet.swarm import Swarm
@@ -30,21 +29,6 @@ from gcs.view.server import ViewServer
 
 Say = Callable[[str], None]
 Tick = Callable[[float], None]
-
-
-def attach_all(swarm: Swarm, specs: Iterable[AttachSpec], say: Say) -> None:
-    """Attach every vehicle of ``specs`` (before the drones start, so a bad one stops nothing that flies), each said
-    in one line with any vehicle refused on its link; on a failure the swarm is shut down (every link opened is
-    closed) and the AttachError goes on with its one line."""
-    try:
-        for spec in specs:
-            sysids, refused = swarm.attach(spec)
-            for line in refused:
-                say(f"swarm: {line}")
-            say(f"swarm: attached {spec.role} sysid {', '.join(map(str, sysids))} on {spec.url.describe()}")
-    except AttachError:
-        swarm.shutdown()
-        raise
 
 
 class FlightSession:
@@ -163,6 +147,12 @@ class FlightSession:
         self.take_stock()
         self.recorder.close()
         return write_report(self.recording, self.report_dir)
+
+    def discard(self) -> None:
+        """A session that never flew (an attach failed before the drones started): its flight log is closed, no
+        report is written."""
+        if self.recorder is not None:
+            self.recorder.close()
 
     def take_stock(self) -> None:
         """What the swarm knows of its drones into the recording, as the flight ends: losses, returns, and the link

@@ -14,6 +14,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from gcs.fleet.attach import DEFAULT_MAX_DISTANCE_M, parse_attach
 from gcs.fleet.faults import fault_request
 from gcs.fleet.losses import MAV_STATE_CRITICAL, LossPolicy
 from gcs.fleet.swarm import Swarm, SwarmError
@@ -61,6 +62,9 @@ class Station:
             "plan_start": self._plan_start,
             "plan_download": lambda r: {"ok": True, "plan": plan_text(VERBS["plan_download"](
                 self.session, r.get("sysid")).value)},
+            "attach": lambda r: self._verb(r, "attach", parse_attach(str(r.get("url")), max_distance_m=float(
+                r.get("max_distance_m", DEFAULT_MAX_DISTANCE_M)))),
+            "detach": lambda r: self._verb(r, "detach", r.get("sysid")),
         }  # fmt: skip
 
     def serve(self, server: ViewServer) -> None:

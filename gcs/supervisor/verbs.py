@@ -29,6 +29,7 @@ from gcs.command.procedures import (
     start_takeoff,
     stop_onboard_behaviours,
 )
+from gcs.fleet.attach import AttachError, AttachSpec
 from gcs.fleet.faults import CRASH, FaultRequest, result_text
 from gcs.fleet.swarm import SwarmError
 from gcs.flight.behaviours import Behaviour, FlockSpec, FollowSpec, LeaderFollower
@@ -320,6 +321,39 @@ def param(session: FlightSession, name: str, value: float, sysids: Sequence[int]
     return Started(result=f"{name} = {value:g}")
 
 
+def attach(session: FlightSession, spec: AttachSpec) -> Started:
+    """Attach the vehicles heard on a link the simulation does not run (gcs/fleet/attach.py): its HEARTBEAT and first
+    position waited for (the swarm flies on meanwhile), its sysid and distance checked; AttachError (a ValueError:
+    the user's to fix) when none can be. Each vehicle refused on the link is said; the value is the sysids."""
+    sysids, refused = session.swarm.attach(spec)
+    for line in refused:
+        session.say(f"swarm: {line}")
+    result = f"attached {spec.role} sysid {', '.join(map(str, sysids))} on {spec.url.describe()}"
+    session.say(f"swarm: {result}")
+    return Started(result=result, value=sysids)
+
+
+def detach(session: FlightSession, sysid: int) -> Started:
+    """Let an attached vehicle go: its body leaves the world and nothing more is read from it; it is told nothing."""
+    if isinstance(sysid, bool) or not isinstance(sysid, int) or sysid not in session.swarm.attached:
+        raise ValueError(f"no attached vehicle with sysid {sysid!r} (attached: {sorted(session.swarm.attached)})")
+    session.swarm.detach(sysid)
+    result = f"detached sysid {sysid}"
+    session.say(f"swarm: {result}")
+    return Started(result=result)
+
+
+def attach_all(session: FlightSession, specs: Sequence[AttachSpec]) -> None:
+    """``attach`` every spec (before the drones start, so that a bad one stops nothing that flies); on a failure the
+    swarm is shut down (every link opened is closed) and the AttachError goes on with its one line."""
+    try:
+        for spec in specs:
+            attach(session, spec)
+    except AttachError:
+        session.swarm.shutdown()
+        raise
+
+
 def control(session: FlightSession, controller: Behaviour) -> Started:
     """A user's controller flies the swarm: the streamer asks it for setpoints every tick."""
     take_over(session)
@@ -346,4 +380,6 @@ VERBS: Final[Mapping[str, Callable[..., Started]]] = {
     "plan_download": plan_download,
     "param": param,
     "control": control,
+    "attach": attach,
+    "detach": detach,
 }

@@ -79,8 +79,11 @@ class TcpServerLink:
                 self._client, _ = self._server.accept()
             except BlockingIOError:
                 return
-        with contextlib.suppress(OSError):
+        try:
             self._client.sendall(data)
+        except OSError:  # the ground station hung up: the next one to connect is served
+            self._client.close()
+            self._client = None
 
     def close(self) -> None:
         if self._client is not None:

@@ -262,9 +262,15 @@ def _swarm_up_with(link_url: str, first: int, env: dict[str, str]) -> tuple[subp
     return proc, lines
 
 
-@pytest.mark.timeout(120)
+def _status_rows(env: dict[str, str]) -> dict[int, str]:
+    status = subprocess.run([*SWARM, "status"], capture_output=True, text=True, env=env, timeout=30)
+    assert status.returncode == 0, status
+    return {int(r.split()[0]): r for r in status.stdout.splitlines()[1:]}
+
+
+@pytest.mark.timeout(180)
 @pytest.mark.parametrize("kind", ["tcp", "serial"])
-def test_a_vehicle_on_tcp_or_on_a_serial_line_is_attached_and_shown_in_the_status(
+def test_a_vehicle_on_tcp_or_a_serial_line_is_attached_shown_in_the_status_detached_and_attached_again(
     kind: str, tmp_path: Path, instances: Leases
 ) -> None:
     # GIVEN a vehicle hovering 5 m north-east of the origin, served on a TCP port (a Wi-Fi bridge, another SITL) or
@@ -280,14 +286,29 @@ def test_a_vehicle_on_tcp_or_on_a_serial_line_is_attached_and_shown_in_the_statu
         # THEN the attach is said, and the status lists it beside the simulated drone, where it is
         described = link.url()
         assert f"swarm: attached intruder sysid {INTRUDER_SYSID} on {described}\n" in lines, lines
-        status = subprocess.run([*SWARM, "status"], capture_output=True, text=True, env=env, timeout=30)
-        rows = {int(r.split()[0]): r for r in status.stdout.splitlines()[1:]}
-        assert len(rows) == 2 and INTRUDER_SYSID in rows, status.stdout
+        rows = _status_rows(env)
+        assert len(rows) == 2 and INTRUDER_SYSID in rows, rows
         row = rows[INTRUDER_SYSID]
         assert f"external: intruder on {described}" in row, row
         lat, lon, alt = (float(v) for v in row.split("  external:")[0].split()[-5:-2])  # ... lat lon alt batt link
         north, east, _ = FRAME.ned_from_geo(GeoPoint(lat_deg=lat, lon_deg=lon, alt_amsl_m=DEFAULT_ORIGIN.alt_amsl_m))
         assert (north, east) == pytest.approx((5.0, 5.0), abs=0.05) and alt == pytest.approx(3.0, abs=0.01), row
+        # AND 'swarm detach' lets it go, 'swarm attach' takes it back while the swarm runs
+        detached = subprocess.run([*SWARM, "detach", str(INTRUDER_SYSID)], capture_output=True, text=True, env=env,
+                                  timeout=30)  # fmt: skip
+        assert detached.stdout == f"swarm: detached sysid {INTRUDER_SYSID}\n", detached
+        assert INTRUDER_SYSID not in _status_rows(env)
+        again = subprocess.run([*SWARM, "attach", f"intruder={link.url()}"], capture_output=True, text=True, env=env,
+                               timeout=60)  # fmt: skip
+        assert again.stdout == f"swarm: attached intruder sysid {INTRUDER_SYSID} on {described}\n", again
+        assert INTRUDER_SYSID in _status_rows(env)
+        # AND an attach the swarm cannot take is one line and exit code 2, the swarm untouched
+        twice = subprocess.run([*SWARM, "attach", f"intruder={link.url()}"], capture_output=True, text=True, env=env,
+                               timeout=60)  # fmt: skip
+        assert twice.returncode == 2 and twice.stderr.count("\n") == 1, twice
+        nobody = subprocess.run([*SWARM, "detach", "77"], capture_output=True, text=True, env=env, timeout=30)
+        assert nobody.returncode == 2 and "no attached vehicle with sysid 77" in nobody.stderr, nobody
+        assert len(_status_rows(env)) == 2
         # AND 'swarm down' ends it cleanly, the attached vehicle told nothing
         assert subprocess.run([*SWARM, "down"], capture_output=True, text=True, env=env, timeout=30).returncode == 0
         assert proc.wait(timeout=60) == 0
