@@ -209,6 +209,8 @@ class Engine:
         if self.view is not None:
             session.serve(self.view)
         swarm.listeners.append(self._on_message)
+        for spec in o.attach_specs():  # before the drones start: a bad one (AttachError, one line) starts nothing
+            VERBS["attach"](session, spec)
         swarm.up(ready_timeout_s=o.ready_timeout_s)
         for name, value in o.params.items():
             VERBS["param"](session, name, value)

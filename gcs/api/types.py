@@ -8,11 +8,12 @@ from the swarm origin), never simulation truth.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+from gcs.fleet.attach import AttachSpec, parse_attach
 from gcs.fleet.harness import MAX_DRONES
 from gcs.fleet.links import LinkPlan, NeighbourPlan
 from gcs.fleet.losses import LossPolicy
@@ -49,6 +50,9 @@ class LaunchOptions:
     ready_timeout_s: float = 60.0  # wall seconds for every drone to come up
     view: bool = False  # serve the live view (docs/view.md); its address is the session's ``view_url``
     view_port: int | None = None  # the live view's port (None: 8765 or the next free one; 0: any free port)
+    # Vehicles the simulation does not run, as ``swarm up --attach`` takes them ("intruder=udpin:0.0.0.0:14560";
+    # docs/external.md): attached before the drones start; a swarm with one runs paced at speed 1 (lockstep=False)
+    attach: Sequence[str] = ()
 
     def __post_init__(self) -> None:
         for name in ("report_dir", "log_dir", "signing_key_file"):  # a path may come as a string (launch's **options)
@@ -65,6 +69,16 @@ class LaunchOptions:
             raise ValueError(f"quantum must be at least 1, got {self.quantum}")
         if self.view_port is not None and not self.view:
             raise ValueError("view_port needs view=True")
+        if isinstance(self.attach, str):
+            raise ValueError("attach takes a list of [ROLE=]URL strings, e.g. attach=['intruder=udpin:0.0.0.0:14560']")
+        specs = tuple(parse_attach(text) for text in self.attach)  # AttachError: a ValueError of one line
+        if specs and (self.lockstep or (self.speed is not None and self.speed != 1.0)):
+            raise ValueError("attach: a swarm with an attached vehicle runs paced at speed 1 (the real world keeps "
+                             "wall time): pass lockstep=False")  # fmt: skip
+
+    def attach_specs(self) -> tuple[AttachSpec, ...]:
+        """``attach``, parsed (checked when the options were made)."""
+        return tuple(parse_attach(text) for text in self.attach)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
+from gcs.api.types import LaunchOptions
 from gcs.fleet.attach import AttachedVehicle, AttachError, ExternalLink, parse_attach, sysid_problem, traffic_report
 from gcs.flight.geodesy import GeoPoint, NedFrame
 from gcs.mavlink.urls import DEFAULT_BAUD, UrlError, parse_vehicle_url
@@ -165,3 +166,17 @@ def test_an_intruders_position_reaches_the_drones_as_traffic_they_avoid_in_full(
     traffic = avoid((1.0, 0.0, 0.0), (1.0, 0.0, 0.0), [Obstacle(**head_on, source="traffic")], AvoidanceConfig())
     sideways = (abs(neighbour.vel_ned_mps[1]), abs(traffic.vel_ned_mps[1]))
     assert traffic.active and sideways[1] > 1.5 * sideways[0] > 0.0, (neighbour, traffic)
+
+
+def test_the_python_api_takes_attaches_as_swarm_up_does_and_checks_them_before_anything_starts() -> None:
+    assert LaunchOptions(drones=2, lockstep=False, attach=["intruder=udpin:0.0.0.0:14560"]).attach_specs()[0].role == (
+        "intruder"
+    )
+    for options, said in (
+        (dict(attach=["intruder=udpin:0.0.0.0:14560"]), "pass lockstep=False"),  # lockstep is the API's default
+        (dict(lockstep=False, speed=2.0, attach=["intruder=udpin:0.0.0.0:14560"]), "runs paced at speed 1"),
+        (dict(lockstep=False, attach="intruder=udpin:0.0.0.0:14560"), "takes a list"),
+        (dict(lockstep=False, attach=["intruder=nowhere"]), "no vehicle URL"),
+    ):
+        with pytest.raises(ValueError, match=said):
+            LaunchOptions(drones=2, **options)  # type: ignore[arg-type]
