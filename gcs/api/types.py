@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from gcs.fleet.attach import AttachSpec, parse_attach
+from gcs.fleet.attach import parse_attach
 from gcs.fleet.harness import MAX_DRONES
 from gcs.fleet.links import LinkPlan, NeighbourPlan
 from gcs.fleet.losses import LossPolicy
@@ -71,14 +71,10 @@ class LaunchOptions:
             raise ValueError("view_port needs view=True")
         if isinstance(self.attach, str):
             raise ValueError("attach takes a list of [ROLE=]URL strings, e.g. attach=['intruder=udpin:0.0.0.0:14560']")
-        specs = tuple(parse_attach(text) for text in self.attach)  # AttachError: a ValueError of one line
+        specs = [parse_attach(text) for text in self.attach]  # AttachError: a ValueError of one line
         if specs and (self.lockstep or (self.speed is not None and self.speed != 1.0)):
             raise ValueError("attach: a swarm with an attached vehicle runs paced at speed 1 (the real world keeps "
                              "wall time): pass lockstep=False")  # fmt: skip
-
-    def attach_specs(self) -> tuple[AttachSpec, ...]:
-        """``attach``, parsed (checked when the options were made)."""
-        return tuple(parse_attach(text) for text in self.attach)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -26,6 +26,12 @@ Airborne
     pair is airborne the pair's relative position is taken as linear, so a close pass between grid instants is not
     missed: it is never above the smallest value of the series. Null when no two drones are ever airborne together.
 
+``attached``
+    Per vehicle the simulation did not run (docs/external.md), by sysid: its ``role`` and ``link``, and its closest
+    approach to an airborne simulated drone (``min_separation_m``, ``min_separation_time_s``, ``closest_drone``),
+    from its own position reports, resampled and searched between grid instants as ``min_separation_m``; it counts
+    as there whenever it reported, flying or not. Its contacts are among ``collisions``.
+
 ``collisions``, ``collision_events``, ``avoidance_events``, ``avoidance_closest_approach_m``
     The number of the recording's events whose text starts with "Collision" (listed in ``collision_events``); the
     number of onboard avoidance episodes (events starting "Avoidance:", one when a drone starts correcting), and the
@@ -191,6 +197,7 @@ class FlightMetrics:
     realtime_factor_min: float | None = None  # the drones' achieved pace, over 5 s windows
     realtime_factor_mean: float | None = None
     items_reached: tuple[ItemReached, ...] = ()
+    attached: dict[int, AttachedMetrics] = field(default_factory=dict)  # vehicles the simulation did not run
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: fixed key order, rounded floats, None for undefined values, drone keys as strings."""
@@ -229,6 +236,7 @@ class FlightMetrics:
             "links": {name: link_summary(c) for name, c in self.link_counters.items()},
             "realtime_factor_min": _r(self.realtime_factor_min),
             "realtime_factor_mean": _r(self.realtime_factor_mean),
+            "attached": {str(sysid): _attached_dict(a) for sysid, a in self.attached.items()},
             "mission_items_reached": {
                 str(sysid): [{"seq": r.seq, "time_s": _r(r.time_s)} for r in self.items_reached if r.sysid == sysid]
                 for sysid in sorted({r.sysid for r in self.items_reached})
@@ -247,6 +255,16 @@ class FlightMetrics:
                 "min_separation_m": [_r(d, _SERIES_DECIMALS) for d in self.separation.min_separation_m.tolist()],
             },
         }
+
+
+def _attached_dict(a: AttachedMetrics) -> dict[str, Any]:
+    return {
+        "role": a.role,
+        "link": a.link,
+        "min_separation_m": _r(a.min_separation_m),
+        "min_separation_time_s": _r(a.min_separation_time_s),
+        "closest_drone": a.closest_drone,
+    }
 
 
 def _loss_dict(loss: DroneLoss) -> dict[str, Any]:
@@ -411,35 +429,77 @@ def _separation(
     grid_s: FloatArray, sysids: Sequence[int], resampled: Sequence[Resampled]
 ) -> tuple[FloatArray, _Closest | None]:
     n_t = grid_s.size
-    pos = np.full((n_t, len(sysids), 3), np.nan)
-    for k, r in enumerate(resampled):
-        pos[r.airborne, k] = r.pos_ned_m[r.airborne]
+    pos = _airborne_positions(grid_s, resampled)
     series = np.full(n_t, np.inf)
     best: _Closest | None = None
     for i in range(len(sysids) - 1):
         rel = pos[:, i : i + 1, :] - pos[:, i + 1 :, :]  # (T, others, 3), NaN unless both airborne
         dist = np.linalg.norm(rel, axis=2)
         series = np.fmin(series, np.where(np.isnan(dist), np.inf, dist).min(axis=1))
-        # candidates: every grid instant, and the closest approach of the linear relative motion between two
-        # consecutive grid instants (NaN unless the pair is airborne at both)
-        r0, dr = rel[:-1], rel[1:] - rel[:-1]
-        dr2 = np.einsum("tpk,tpk->tp", dr, dr)
-        s = np.clip(np.divide(-np.einsum("tpk,tpk->tp", r0, dr), dr2, out=np.zeros_like(dr2), where=dr2 > 0), 0, 1)
-        candidates = np.concatenate([dist, np.linalg.norm(r0 + s[..., None] * dr, axis=2)])
-        times = np.concatenate(
-            [np.broadcast_to(grid_s[:, None], dist.shape), grid_s[:-1, None] + s * np.diff(grid_s)[:, None]]
-        )
-        if np.all(np.isnan(candidates)):
-            continue
-        t_idx, other = np.unravel_index(np.nanargmin(candidates), candidates.shape)
-        if best is None or candidates[t_idx, other] < best.distance_m:
-            best = _Closest(
-                distance_m=float(candidates[t_idx, other]),
-                time_s=float(times[t_idx, other]),
-                pair=(sysids[i], sysids[i + 1 + int(other)]),
-            )
+        found = _closest_approach(grid_s, rel)
+        if found is not None and (best is None or found[0] < best.distance_m):
+            best = _Closest(distance_m=found[0], time_s=found[1], pair=(sysids[i], sysids[i + 1 + found[2]]))
     series[np.isinf(series)] = np.nan
     return series, best
+
+
+def _airborne_positions(grid_s: FloatArray, resampled: Sequence[Resampled]) -> FloatArray:
+    """(T, drones, 3): each drone's position at each grid instant where it is airborne, NaN elsewhere."""
+    pos = np.full((grid_s.size, len(resampled), 3), np.nan)
+    for k, r in enumerate(resampled):
+        pos[r.airborne, k] = r.pos_ned_m[r.airborne]
+    return pos
+
+
+def _closest_approach(grid_s: FloatArray, rel: FloatArray) -> tuple[float, float, int] | None:
+    """The smallest of the relative distances ``rel`` (T, others, 3; NaN where a pair is not both there) over every
+    grid instant and the closest approach of the linear relative motion between two consecutive instants:
+    (distance, time, index of the other), or None when no pair is ever there."""
+    dist = np.linalg.norm(rel, axis=2)
+    r0, dr = rel[:-1], rel[1:] - rel[:-1]
+    dr2 = np.einsum("tpk,tpk->tp", dr, dr)
+    s = np.clip(np.divide(-np.einsum("tpk,tpk->tp", r0, dr), dr2, out=np.zeros_like(dr2), where=dr2 > 0), 0, 1)
+    candidates = np.concatenate([dist, np.linalg.norm(r0 + s[..., None] * dr, axis=2)])
+    times = np.concatenate(
+        [np.broadcast_to(grid_s[:, None], dist.shape), grid_s[:-1, None] + s * np.diff(grid_s)[:, None]]
+    )
+    if np.all(np.isnan(candidates)):
+        return None
+    t_idx, other = np.unravel_index(np.nanargmin(candidates), candidates.shape)
+    return float(candidates[t_idx, other]), float(times[t_idx, other]), int(other)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class AttachedMetrics:
+    """An attached vehicle (docs/external.md) as the flight saw it: its closest approach to an airborne simulated
+    drone (3D, centre to centre; between grid instants as ``min_separation_m``), when and to which drone; None when
+    it was never there while a drone flew."""
+
+    role: str
+    link: str
+    min_separation_m: float | None
+    min_separation_time_s: float | None
+    closest_drone: int | None
+
+
+def _attached_metrics(recording: FlightRecording, grid_s: FloatArray, sysids: Sequence[int],
+                      resampled: Sequence[Resampled]) -> dict[int, AttachedMetrics]:  # fmt: skip
+    """Each attached vehicle's closest approach to the simulated drones (it counts as there whenever it reported,
+    flying or not: a real vehicle standing on the field is an obstacle too)."""
+    out: dict[int, AttachedMetrics] = {}
+    drones = _airborne_positions(grid_s, resampled)
+    for sysid, (role, link) in sorted(recording.attached.items()):
+        samples = [x for x in recording.attached_samples if x.sysid == sysid]
+        found = None
+        if samples and grid_s.size:
+            (track,) = _tracks(samples).values()
+            there = _resample(track, grid_s).pos_ned_m  # (T, 3), NaN where it did not report
+            found = _closest_approach(grid_s, there[:, None, :] - drones)
+        out[sysid] = AttachedMetrics(
+            role=role, link=link, min_separation_m=found[0] if found else None,
+            min_separation_time_s=found[1] if found else None, closest_drone=sysids[found[2]] if found else None,
+        )  # fmt: skip
+    return out
 
 
 # --- alignment --------------------------------------------------------------------------------------------------
@@ -627,6 +687,7 @@ def compute_metrics(recording: FlightRecording) -> FlightMetrics:
     first_takeoff = next((s for s in steps if s.kind == "takeoff" and s.target_alt_m is not None), None)
 
     collision_events = tuple(e for e in recording.events if e.text.startswith(COLLISION_PREFIX))
+    attached = _attached_metrics(recording, grid, sysids, resampled)
     return FlightMetrics(
         mission_name=recording.mission_name,
         n_drones=recording.n_drones,
@@ -662,6 +723,7 @@ def compute_metrics(recording: FlightRecording) -> FlightMetrics:
             sum(recording.realtime_factors) / len(recording.realtime_factors) if recording.realtime_factors else None
         ),
         items_reached=tuple(recording.items_reached),
+        attached=attached,
     )
 
 

@@ -19,6 +19,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.command.streamer import FormationStreamer
 from gcs.fleet.losses import MAV_STATE_CRITICAL
+from gcs.flight.geodesy import GeoPoint
 from gcs.mavlink.statustext import StatusTextAssembler
 from gcs.record.metrics import LiveMetrics
 from gcs.record.recording import DroneSample, EventRecord, FlightRecording, ItemReached
@@ -73,6 +74,17 @@ class FlightRecorder:
         # Stamped in simulated time from the flight's start, so a replay runs at the flight's own pace
         return self._epoch_us + int(self.clock() * 1e6)
 
+    def _attached_sample(self, msg: Any, sysid: int, now: float) -> None:
+        """An attached vehicle's report, where it says it is, in the swarm frame (docs/external.md)."""
+        if sysid not in self.recording.attached:
+            spec = self.swarm.attached[sysid].spec
+            self.recording.attached[sysid] = (spec.role, spec.url.describe())
+        here = GeoPoint(lat_deg=msg.lat * 1e-7, lon_deg=msg.lon * 1e-7, alt_amsl_m=msg.alt * 1e-3)
+        pos = self.streamer.swarm_frame.ned_from_geo(here)
+        vel = (msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
+        self.recording.attached_samples.append(DroneSample(time_s=now, sysid=sysid, pos_ned_m=pos, vel_ned_mps=vel,
+                                                           armed=True, mode="EXTERNAL"))  # fmt: skip
+
     def on_sent(self, data: bytes, _now_s: float) -> None:
         """What the ground station commanded (COMMAND_LONG, PARAM_SET) goes into the tlog beside the answers."""
         if not self._tlog.closed:
@@ -96,6 +108,8 @@ class FlightRecorder:
                                  mode=view.mode, target_ned_m=target)  # fmt: skip
             self.recording.samples.append(sample)
             self.live.observe(sample)
+        elif kind == "GLOBAL_POSITION_INT" and sysid in self.swarm.attached:
+            self._attached_sample(msg, sysid, now)
         elif kind == "HEARTBEAT" and msg.get_srcComponent() == 1:
             before = self._system_status.get(sysid)
             self._system_status[sysid] = msg.system_status

@@ -99,3 +99,7 @@ class FlightRecording:
     policy_events: list[EventRecord] = field(default_factory=list)  # what the swarm did about each loss
     items_reached: list[ItemReached] = field(default_factory=list)  # mission items reached (each arrival once)
     obstacles: list[ObstacleShape] = field(default_factory=list)  # the mission's static obstacles
+    # Vehicles the simulation did not run (docs/external.md): sysid -> (role, link), and where each reported itself
+    # (its GLOBAL_POSITION_INT in the swarm frame; ``armed`` True, no slot)
+    attached: dict[int, tuple[str, str]] = field(default_factory=dict)
+    attached_samples: list[DroneSample] = field(default_factory=list)

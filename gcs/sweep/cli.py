@@ -56,6 +56,9 @@ def add_sweep_parser(sub: Any) -> None:
 
 def _plan(args: argparse.Namespace, simulation: Simulation) -> tuple[SweepPlan, int]:
     mission = load_mission(args.mission, max_obstacles=simulation.max_obstacles)
+    if mission.swarm.attach:
+        raise SweepError(f"{args.mission}: a mission with [[swarm.attach]] flies paced at speed 1 beside a real "
+                         "vehicle; a sweep's runs are lockstep flights of simulated drones alone")  # fmt: skip
     n = mission.swarm.drones
     axes = [parse_param(p) for p in args.param]
     for axis in axes:

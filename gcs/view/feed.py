@@ -16,6 +16,7 @@ import numpy as np
 from gcs.command.streamer import FormationStreamer
 from gcs.flight.behaviours import pairwise_offsets
 from gcs.flight.frames import Vec3
+from gcs.flight.geodesy import GeoPoint
 from gcs.mavlink.images import ImageAssembler, image_request
 from gcs.record.metrics import AIRBORNE_HEIGHT_M, LiveMetrics
 from gcs.record.recording import ObstacleShape
@@ -94,6 +95,11 @@ class ViewFeed:
         positions: dict[int, Vec3] = {}
         homes: dict[int, Vec3] = {}
         for sysid, view in swarm.fleet.drones.items():
+            if sysid in swarm.attached:  # drawn where it says it is: it need not report a home or a local frame
+                if all(math.isfinite(v) for v in (view.lat_deg, view.lon_deg, view.alt_amsl_m)):
+                    here = GeoPoint(lat_deg=view.lat_deg, lon_deg=view.lon_deg, alt_amsl_m=view.alt_amsl_m)
+                    positions[sysid] = self.streamer.swarm_frame.ned_from_geo(here)
+                continue
             drone_frame = self.streamer.drone_frame(sysid)
             if drone_frame is None:
                 continue
@@ -101,17 +107,18 @@ class ViewFeed:
                 positions[sysid] = drone_frame.to_swarm(view.local_ned_m)
             if view.home_local_ned_m is not None:
                 homes[sysid] = drone_frame.to_swarm(view.home_local_ned_m)
-        airborne = [p for s, p in positions.items() if s not in swarm.losses and swarm.fleet.drones[s].armed
-                    and homes.get(s, p)[2] - p[2] > AIRBORNE_HEIGHT_M]  # fmt: skip
+        airborne = [p for s, p in positions.items() if s not in swarm.losses and s not in swarm.attached
+                    and swarm.fleet.drones[s].armed and homes.get(s, p)[2] - p[2] > AIRBORNE_HEIGHT_M]  # fmt: skip
         separation = _separation(airborne)
         if self.live is not None:
             self.min_separation_m = self.live.status().min_separation_m
         elif separation is not None and (self.min_separation_m is None or separation < self.min_separation_m):
             self.min_separation_m = separation
         return frame(time_s=time_s, drones=swarm.fleet.drones, positions_ned_m=positions, homes_ned_m=homes,
-                     slots_ned_m=self.streamer.targets(time_s), lost=swarm.losses, now_s=swarm.clock(),
+                     slots_ned_m=self.streamer.targets(time_s),
+                     lost=[*swarm.losses, *(s for s, v in swarm.attached.items() if v.lost)], now_s=swarm.clock(),
                      separation_m=separation, min_separation_m=self.min_separation_m, realtime_factor=self._rtf,
-                     obstacles=self.obstacles)  # fmt: skip
+                     obstacles=self.obstacles, external=swarm.attached)  # fmt: skip
 
 
 def _separation(points: list[Vec3]) -> float | None:

@@ -376,6 +376,14 @@ def summary_text(metrics: FlightMetrics) -> str:
             f"min separation: {metrics.min_separation_m:.2f} m at {_fmt(metrics.min_separation_time_s, 's', 1)} "
             f"(drones {a} and {b}; contact distance {metrics.collision_radius_m:g} m)"
         )
+    for sysid, attached in metrics.attached.items():
+        where = (
+            f"closest to a drone {attached.min_separation_m:.2f} m at {_fmt(attached.min_separation_time_s, 's', 1)} "
+            f"(drone {attached.closest_drone})"
+            if attached.min_separation_m is not None
+            else "never there while a drone flew"
+        )
+        lines.append(f"attached vehicle {sysid} ({attached.role} on {attached.link}): {where}")
     lines.append(f"collisions: {metrics.collisions}")
     for event in metrics.collision_events:
         who = "swarm" if event.sysid is None else f"drone {event.sysid}"

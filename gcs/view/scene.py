@@ -5,6 +5,8 @@ north-east-down metres from the swarm origin, so the page draws north up, as QGr
 which the page shows as its colour, is the first that applies of:
 
 - ``lost``: the swarm has lost it (process ended, crashed, silent: docs/drone-loss.md);
+- ``external``: a vehicle the simulation does not run, attached to the swarm (docs/external.md), drawn where its
+  GLOBAL_POSITION_INT says;
 - ``failsafe``: its HEARTBEAT says MAV_STATE_CRITICAL (a failsafe in force);
 - ``avoiding``: its latest avoidance text is a start ("Avoidance: ..."), not an end ("Avoidance ended ...");
 - ``armed`` or ``disarmed``.
@@ -57,10 +59,12 @@ def _round(values: Iterable[float]) -> list[float | None]:
 def frame(*, time_s: float, drones: Mapping[int, DroneView], positions_ned_m: Mapping[int, tuple[float, float, float]],
           homes_ned_m: Mapping[int, tuple[float, float, float]], slots_ned_m: Mapping[int, tuple[float, float, float]],
           lost: Iterable[int], now_s: float, separation_m: float | None, min_separation_m: float | None,
-          realtime_factor: float | None, obstacles: Iterable[ObstacleShape] = ()) -> dict[str, Any]:  # fmt: skip
+          realtime_factor: float | None, obstacles: Iterable[ObstacleShape] = (),
+          external: Iterable[int] = ()) -> dict[str, Any]:  # fmt: skip
     """The frame for ``time_s`` (mission time); ``now_s`` is the swarm's clock, for link ages. Drones without a
     position in the swarm frame yet (no home) are listed with a null position."""
     gone = set(lost)
+    outside = set(external)
     out = []
     for sysid in sorted(drones):
         view = drones[sysid]
@@ -78,7 +82,7 @@ def frame(*, time_s: float, drones: Mapping[int, DroneView], positions_ned_m: Ma
                 "slot_ned_m": _round(slot) if slot is not None else None,
                 "mode": view.mode,
                 "armed": view.armed,
-                "state": drone_state(view, sysid in gone),
+                "state": "external" if sysid in outside and sysid not in gone else drone_state(view, sysid in gone),
                 "battery": round(view.battery_remaining, 3) if math.isfinite(view.battery_remaining) else None,
                 "link_age_s": round(max(view.link_age_s(now_s), 0.0), 2),
                 "text": view.texts[-1][2] if view.texts else None,

@@ -184,6 +184,11 @@ def test_the_drones_keep_clear_of_the_intruder_as_it_crosses_and_with_cameras_al
                 closest_silent = min(closest_silent, d)
     assert closest >= MIN_CLEARANCE_M, closest
     assert math.isfinite(closest_silent) and closest_silent >= MIN_CLEARANCE_M, closest_silent
+    # AND the report says the same from its own samples: the intruder's closest approach, to within the resampling
+    attached = flown.metrics["attached"][str(INTRUDER_SYSID)]
+    assert attached["role"] == "intruder" and attached["link"] == f"udpin:127.0.0.1:{flown.port}"
+    assert attached["min_separation_m"] >= MIN_CLEARANCE_M and attached["closest_drone"] in drones
+    assert attached["min_separation_m"] == pytest.approx(closest, abs=0.15)
     # AND they did have to avoid it: the circle passes through where it crossed and where it stopped
     assert flown.metrics["avoidance_events"] >= 1
     assert closest < 2.5, closest

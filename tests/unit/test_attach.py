@@ -10,6 +10,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.api.types import LaunchOptions
+from gcs.cli import main
 from gcs.fleet.attach import AttachedVehicle, AttachError, ExternalLink, parse_attach, sysid_problem, traffic_report
 from gcs.flight.geodesy import GeoPoint, NedFrame
 from gcs.mavlink.urls import DEFAULT_BAUD, UrlError, parse_vehicle_url
@@ -169,9 +170,9 @@ def test_an_intruders_position_reaches_the_drones_as_traffic_they_avoid_in_full(
 
 
 def test_the_python_api_takes_attaches_as_swarm_up_does_and_checks_them_before_anything_starts() -> None:
-    assert LaunchOptions(drones=2, lockstep=False, attach=["intruder=udpin:0.0.0.0:14560"]).attach_specs()[0].role == (
-        "intruder"
-    )
+    assert LaunchOptions(drones=2, lockstep=False, attach=["intruder=udpin:0.0.0.0:14560"]).attach == [
+        "intruder=udpin:0.0.0.0:14560"
+    ]
     for options, said in (
         (dict(attach=["intruder=udpin:0.0.0.0:14560"]), "pass lockstep=False"),  # lockstep is the API's default
         (dict(lockstep=False, speed=2.0, attach=["intruder=udpin:0.0.0.0:14560"]), "runs paced at speed 1"),
@@ -180,3 +181,17 @@ def test_the_python_api_takes_attaches_as_swarm_up_does_and_checks_them_before_a
     ):
         with pytest.raises(ValueError, match=said):
             LaunchOptions(drones=2, **options)  # type: ignore[arg-type]
+
+
+def test_a_sweep_of_a_mission_with_an_attached_vehicle_is_one_line_and_exit_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    mission = tmp_path / "with_intruder.toml"
+    mission.write_text(
+        '[swarm]\ndrones = 2\n\n[[swarm.attach]]\nrole = "intruder"\nurl = "udpin:127.0.0.1:14560"\n\n'
+        '[[steps]]\naction = "takeoff"\nalt_m = 3.0\n'
+    )
+    assert main(["sweep", str(mission), "--seeds", "1-2", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "a sweep's runs are lockstep flights of simulated drones alone" in err, err
+    assert not (tmp_path / "out").exists()

@@ -556,3 +556,26 @@ def test_live_status_shows_alignment_once_the_drones_move() -> None:
     live.observe(sample(1.0, 2, (0.0, 3.0, -3.0), vel=(0.0, 1.0, 0.0)))
     assert live.status().alignment == pytest.approx(math.sqrt(2) / 2)
     assert live.status().line().endswith("  phi 0.71")
+
+
+def test_an_attached_vehicles_closest_approach_is_found_between_grid_instants_and_said_in_the_summary() -> None:
+    # GIVEN two drones hovering 3 m up, 6 m apart, and an attached vehicle (reporting at 10 Hz, flying or not) that
+    # passes drone 2 at 1.25 m, at 4 m/s: the closest instant falls between the metrics' 10 Hz grid instants
+    rec = recording()
+    rec.samples += flight(1, 0.0, 10.0, lambda t: (0.0, 0.0, -3.0)) + flight(2, 0.0, 10.0, lambda t: (6.0, 0.0, -3.0))
+    rec.attached[250] = ("intruder", "udpin:0.0.0.0:14560")
+    rec.attached_samples += [
+        sample(k / 10.0 + 0.013, 250, (6.0 + 1.25, -20.2 + 4.0 * (k / 10.0 + 0.013), -3.0)) for k in range(100)
+    ]
+    metrics = compute_metrics(rec)
+    # THEN its closest approach is 1.25 m when it passes drone 2 (t = 5.05 s), not the grid instants' 1.27 m
+    attached = metrics.attached[250]
+    assert (attached.role, attached.link, attached.closest_drone) == ("intruder", "udpin:0.0.0.0:14560", 2)
+    assert attached.min_separation_m == pytest.approx(1.25, abs=1e-6)
+    assert attached.min_separation_time_s == pytest.approx(5.05, abs=1e-6)
+    # AND the drones' own separation does not count it, metrics.json and the summary carry it
+    assert metrics.min_separation_m == pytest.approx(6.0)
+    assert json.loads(json.dumps(metrics.to_dict()))["attached"]["250"]["min_separation_m"] == pytest.approx(1.25)
+    assert "attached vehicle 250 (intruder on udpin:0.0.0.0:14560): closest to a drone 1.25 m at 5.0 s (drone 2)" in (
+        summary_text(metrics)
+    )

@@ -57,6 +57,17 @@ def test_a_frame_carries_every_drone_in_the_swarm_frame_and_is_plain_json() -> N
     assert out["obstacles"][0]["kind"] == "cylinder" and out["min_separation_m"] == 1.5
 
 
+def test_an_attached_vehicle_is_drawn_as_external_and_as_lost_once_silent() -> None:
+    drones = {30: view_of(30, armed=True), 250: view_of(250, armed=True)}
+    common: dict[str, Any] = dict(time_s=1.0, drones=drones, positions_ned_m={250: (1.0, 2.0, -3.0)}, homes_ned_m={},
+                                  slots_ned_m={}, now_s=10.0, separation_m=None, min_separation_m=None,
+                                  realtime_factor=None, external=[250])  # fmt: skip
+    flying = frame(lost=[], **common)["drones"]
+    assert [(d["sysid"], d["state"]) for d in flying] == [(30, "armed"), (250, "external")]
+    assert flying[1]["pos_ned_m"] == [1.0, 2.0, -3.0]
+    assert [d["state"] for d in frame(lost=[250], **common)["drones"]] == ["armed", "lost"]
+
+
 async def _watch(url: str, count: int) -> list[list[dict[str, Any]]]:
     """``count`` clients at once, each reading two frames."""
     async with aiohttp.ClientSession() as session:

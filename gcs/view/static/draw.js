@@ -4,7 +4,9 @@
 // so it runs the same from the live server and inlined in a report file.
 // window.swarmView exposes what the page shows (its scene's positions, each drone's state) for tests and tools.
 
-export const COLOURS = { disarmed: "#9e9e9e", armed: "#43a047", avoiding: "#fb8c00", failsafe: "#e53935", lost: "#212121" };
+export const COLOURS = {
+  disarmed: "#9e9e9e", armed: "#43a047", avoiding: "#fb8c00", failsafe: "#e53935", lost: "#212121", external: "#8e24aa",
+};
 
 const toThree = (ned) => [ned[1], -ned[2], -ned[0]];  // three.js: x east, y up, z south
 
