@@ -4,7 +4,8 @@ Wi-Fi, another autopilot's SITL, a scripted stand-in (docs/external.md).
 An attached vehicle is known only by what it says on its link, as any ground station knows a vehicle: its HEARTBEAT
 (sysid, autopilot, mode), its GLOBAL_POSITION_INT. The swarm puts its body into the simulated world where that
 telemetry says it is (``SimulationHarness.place_external_body``), so the simulated drones' cameras see it and a
-drone that touches it crashes; its position reports are relayed to the simulated drones as their neighbours' are.
+drone that touches it crashes; an intruder's position reports reach the simulated drones as traffic (ADSB_VEHICLE),
+which their collision prevention avoids in full.
 
 Roles (``ROLES``): an ``intruder`` is never commanded, only seen, avoided and counted. ``member`` (a slot in the
 swarm's formations, flown in OFFBOARD or GUIDED) and ``leader`` (followed, never commanded) are the roles a

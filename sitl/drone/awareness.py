@@ -45,7 +45,7 @@ from sitl.perception.camera import (
 from sitl.perception.detector import detect_rig, to_ned_all
 from sitl.protocol.images import EncodedImage
 from sitl.protocol.neighbours import Neighbour, NeighbourTable
-from sitl.world.shared import SharedWorld
+from sitl.world.shared import RADIUS, SharedWorld
 from sitl.world.view import others_ned_m
 
 RELAY_PERIOD_S = 0.05
@@ -157,15 +157,16 @@ class Awareness:
         """Every body the cameras could see now: the other drones within range and the static obstacles."""
         assert self._world is not None
         rig = self._camera_rig()
-        _ids, offsets = others_ned_m(self._world, self._instance)
+        ids, offsets = others_ned_m(self._world, self._instance)
+        radii = self._world.bodies[ids, RADIUS]  # each body its own size (an attached vehicle may be larger)
         # Drones beyond every camera's range (by more than rounding: the renderer measures the distance in each
         # camera's frame) would be culled by each camera in turn; in a large swarm most are, so they are left out
         # before being built. A NaN row is kept, to be met as the renderer meets it.
-        reach_m = max(camera.config.max_range_m for camera in rig.cameras) + self._radius_m + _RANGE_MARGIN_M
+        reach_m = max(camera.config.max_range_m for camera in rig.cameras) + radii + _RANGE_MARGIN_M
         far = np.einsum("ij,ij->i", offsets, offsets) > reach_m * reach_m
         if far.any():
-            offsets = offsets[~far]
-        bodies: list[Body] = list(spheres(offsets, self._radius_m))
+            offsets, radii = offsets[~far], radii[~far]
+        bodies: list[Body] = list(spheres(offsets, radii))
         for ob in self._world.obstacles_from(self._instance):  # static obstacles the mission declared
             if ob.cylinder:
                 bodies.append(
