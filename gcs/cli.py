@@ -31,6 +31,7 @@ from gcs.fleet.swarm import Swarm, SwarmError
 from gcs.flight.geodesy import DEFAULT_ORIGIN, GeoPoint
 from gcs.flight.onboard import absolute_spec
 from gcs.mavlink.signing import SigningKeyError, load_key
+from gcs.mavlink.transport import GCS_SYSID
 from gcs.missions.mission_file import (
     MissionFileError,
     MissionSpec,
@@ -154,6 +155,9 @@ def _add_attach_option(parser: argparse.ArgumentParser) -> None:
                         "heard on URL (udpin:0.0.0.0:14560, tcp:HOST:PORT, /dev/ttyUSB0,57600 or the MAVSDK "
                         "spellings): it is seen, avoided and counted by the simulated drones (repeatable; role "
                         "intruder; docs/external.md)")  # fmt: skip
+    parser.add_argument("--gcs-sysid", type=_sysid, default=GCS_SYSID, metavar="N",
+                        help=f"the supervisor's own MAVLink system id (default {GCS_SYSID}; another when a "
+                        "QGroundControl beside it uses that one)")  # fmt: skip
     parser.add_argument("--attach-max-distance", type=_positive, default=DEFAULT_MAX_DISTANCE_M, metavar="M",
                         help="refuse an attached vehicle farther than M metres from the swarm's origin (default "
                         f"{DEFAULT_MAX_DISTANCE_M:g})")  # fmt: skip
@@ -508,18 +512,22 @@ def _say(text: str) -> None:
     print(text, flush=True)
 
 
-def _check_first_instance(first_instance: int, drones: int) -> None:
+def _check_first_instance(first_instance: int, drones: int, gcs_sysid: int = GCS_SYSID) -> None:
     if first_instance < 0 or first_instance + drones > MAX_DRONES:
         raise UsageError(
             f"--first-instance {first_instance} with {drones} drones: every sysid (instance + 1) must lie in "
             f"1..{MAX_DRONES} (255 is the ground station's)"
+        )
+    if first_instance < gcs_sysid <= first_instance + drones:
+        raise UsageError(
+            f"--gcs-sysid {gcs_sysid} is a drone's (sysids {first_instance + 1}..{first_instance + drones})"
         )
 
 
 def run_up(args: argparse.Namespace, simulation: Simulation) -> int:
     if not 1 <= args.drones <= MAX_DRONES:
         raise UsageError(f"-n must be in 1..{MAX_DRONES}, got {args.drones}")
-    _check_first_instance(args.first_instance, args.drones)
+    _check_first_instance(args.first_instance, args.drones, args.gcs_sysid)
     contact = 0.0
     if args.report is not None:  # the report's contact distance (a bad airframe is named by the drones otherwise)
         try:
@@ -547,6 +555,7 @@ def run_up(args: argparse.Namespace, simulation: Simulation) -> int:
         links=_link_plan(args, LinkPlan()),
         behaviour=_behaviour(args.behaviour, simulation),
         mesh=neighbours.mesh,
+        gcs_sysid=args.gcs_sysid,
     )
     view = _start_view(args)
     stop = _Stop()
@@ -645,7 +654,7 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
         simulation.contact_distance_m(args.airframe)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    _check_first_instance(args.first_instance, mission.swarm.drones)
+    _check_first_instance(args.first_instance, mission.swarm.drones, args.gcs_sysid)
     links = _link_plan(args, mission.swarm.links)
     params = _checked_params(mission, args.param, simulation, behaviour=args.behaviour or mission.swarm.behaviour)
     neighbours = _neighbour_plan(args, NeighbourPlan(relay=mission.swarm.relay, mesh=mission.swarm.mesh))
@@ -670,7 +679,7 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
                            camera_drones=_camera_drones(args, mission.swarm.drones),
                            drones_per_process=args.drones_per_process, links=links,
                            signing_key_file=_signing_key_file(args), view=_start_view(args),
-                           attach=_attach_specs(args, mission.swarm.attach))  # fmt: skip
+                           attach=_attach_specs(args, mission.swarm.attach), gcs_sysid=args.gcs_sysid)  # fmt: skip
     view = runner.view
     signal.signal(signal.SIGTERM, _interrupt)  # a terminated run lands and stops its drones like Ctrl-C
     try:

@@ -192,7 +192,8 @@ class Engine:
                          speed_factor=speed, lockstep=o.lockstep, lockstep_quantum=o.quantum,
                          first_instance=o.first_instance, airframe=o.airframe, seed=o.seed, log_dir=o.log_dir,
                          drones_per_process=o.drones_per_process, signing_key_file=o.signing_key_file,
-                         links=o.links, mesh=o.neighbours.mesh, behaviour=self._behaviour())  # fmt: skip
+                         links=o.links, mesh=o.neighbours.mesh, behaviour=self._behaviour(),
+                         gcs_sysid=o.gcs_sysid)  # fmt: skip
         contact = self._simulation.contact_distance_m(o.airframe)
         if o.view:  # before anything starts: a port that cannot be had is a ValueError (ViewError) of one line
             self.view = serve_view(o.view_port)

@@ -19,6 +19,7 @@ from gcs.fleet.links import LinkPlan, NeighbourPlan
 from gcs.fleet.losses import LossPolicy
 from gcs.flight.frames import Vec3
 from gcs.flight.geodesy import DEFAULT_ORIGIN, GeoPoint
+from gcs.mavlink.transport import GCS_SYSID
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -53,6 +54,7 @@ class LaunchOptions:
     # Vehicles the simulation does not run, as ``swarm up --attach`` takes them ("intruder=udpin:0.0.0.0:14560";
     # docs/external.md): attached before the drones start; a swarm with one runs paced at speed 1 (lockstep=False)
     attach: Sequence[str] = ()
+    gcs_sysid: int = GCS_SYSID  # the supervisor's own system id (another when a QGroundControl beside it uses 255)
 
     def __post_init__(self) -> None:
         for name in ("report_dir", "log_dir", "signing_key_file"):  # a path may come as a string (launch's **options)
@@ -71,6 +73,9 @@ class LaunchOptions:
             raise ValueError("view_port needs view=True")
         if isinstance(self.attach, str):
             raise ValueError("attach takes a list of [ROLE=]URL strings, e.g. attach=['intruder=udpin:0.0.0.0:14560']")
+        drones_sysids = range(self.first_instance + 1, self.first_instance + self.drones + 1)
+        if not 1 <= self.gcs_sysid <= GCS_SYSID or self.gcs_sysid in drones_sysids:
+            raise ValueError(f"gcs_sysid must be in 1..{GCS_SYSID} and no drone's, got {self.gcs_sysid}")
         specs = [parse_attach(text) for text in self.attach]  # AttachError: a ValueError of one line
         if specs and (self.lockstep or (self.speed is not None and self.speed != 1.0)):
             raise ValueError("attach: a swarm with an attached vehicle runs paced at speed 1 (the real world keeps "

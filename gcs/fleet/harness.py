@@ -27,6 +27,7 @@ import numpy.typing as npt
 
 from gcs.fleet.links import LinkPlan, MeshPlan
 from gcs.flight.geodesy import DEFAULT_ORIGIN, GeoPoint
+from gcs.mavlink.transport import GCS_SYSID
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -85,6 +86,8 @@ class SpawnPlan:
     mesh: MeshPlan | None = None
     # An onboard behaviour every drone runs from BHV_EN = 1 on (path/to/file.py:ClassName, absolute; docs/onboard.md)
     behaviour: str | None = None
+    # The ground station's own system id: 255 (QGroundControl's) unless one beside it uses that (--gcs-sysid)
+    gcs_sysid: int = GCS_SYSID
 
     def offsets_ne_m(self) -> list[tuple[float, float]]:
         """Each drone's spawn position, north/east metres from the origin in the swarm frame (spawn order)."""

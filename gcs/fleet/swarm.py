@@ -54,7 +54,7 @@ from gcs.mavlink.mission_transfer import MISSION_TYPE_MISSION, MissionClient, Mi
 from gcs.mavlink.params import ParamClient, ParamResult
 from gcs.mavlink.px4_modes import set_mode_params
 from gcs.mavlink.signing import key_id, load_key
-from gcs.mavlink.transport import GCS_SYSID, GcsSocket
+from gcs.mavlink.transport import GcsSocket
 
 log = logging.getLogger(__name__)
 
@@ -81,7 +81,7 @@ class Swarm:
         self._sysids: list[int] = []  # spawn order, once launched
         self._clock = SwarmClock(plan, harness)
         key = load_key(plan.signing_key_file) if plan.signing_key_file is not None else None
-        self.link = GcsSocket(signing_key=key)  # signs what the supervisor sends when the plan has a key
+        self.link = GcsSocket(signing_key=key, sysid=plan.gcs_sysid)  # signs what it sends when the plan has a key
         self.signing_key_id = key_id(key) if key is not None else None  # what the report names the key by
         self.router = Router(self.link, relay=NeighbourRelay(radius_m=relay_radius_m) if relay else None,
                              forward=forward, batch_hold_s=batch_hold_s)  # fmt: skip
@@ -89,9 +89,10 @@ class Swarm:
         self.liveness = Liveness(harness, self.fleet, self._swarm_frame, lockstep=plan.lockstep)
         self.listeners: list[Callable[[Any, float], None]] = []  # e.g. the flight recorder, the relay
         # The MAVLink command and parameter protocols (no IO of their own: the swarm feeds them and sends for them)
-        self.commands = CommandClient()
+        self.commands = CommandClient(own_sysid=plan.gcs_sysid)
         self.params = ParamClient()
-        self.missions = MissionClient()  # mission and fence transfers (gcs/mavlink/mission_transfer.py)
+        # mission and fence transfers (gcs/mavlink/mission_transfer.py)
+        self.missions = MissionClient(own_sysid=plan.gcs_sysid)
         self.mission_progress = MissionProgress()  # each drone's MISSION_CURRENT / MISSION_ITEM_REACHED
         # The setpoint stream that goes on while a command or a parameter waits for its answer (PX4 leaves OFFBOARD
         # after COM_OF_LOSS_T without a setpoint, and on a lossy link an answer can take retries): ``keep_streaming``.
@@ -295,7 +296,7 @@ class Swarm:
         if self.plan.lockstep or self.plan.speed_factor != 1.0:
             raise AttachError(f"--attach {spec.describe()}: a swarm with an attached vehicle runs paced at speed 1 "
                               "(the real world keeps wall time), not in lockstep or at another --speed")  # fmt: skip
-        link = ExternalLink(spec=spec, source_system=GCS_SYSID)
+        link = ExternalLink(spec=spec, source_system=self.plan.gcs_sysid)
         link.open()
         try:
             heard = self._wait_for_vehicles(link, timeout_s)
@@ -311,7 +312,7 @@ class Swarm:
             sysid = msg.get_srcSystem()
             if not is_vehicle_heartbeat(msg) or sysid in link.sysids or sysid in refused:
                 continue
-            problem = sysid_problem(sysid, simulated, self.attached, GCS_SYSID) or self._too_far(
+            problem = sysid_problem(sysid, simulated, self.attached, self.plan.gcs_sysid) or self._too_far(
                 sysid, positions.get(sysid), spec.max_distance_m
             )
             if problem is not None:

@@ -35,14 +35,17 @@ MAX_RECEIVE_DATAGRAMS = 256
 
 
 class GcsSocket:
-    def __init__(self, bind: Address = ("127.0.0.1", 0), signing_key: bytes | None = None) -> None:
+    def __init__(self, bind: Address = ("127.0.0.1", 0), signing_key: bytes | None = None,
+                 sysid: int = GCS_SYSID) -> None:  # fmt: skip
         """``signing_key``: sign every frame this socket packs (gcs/mavlink/signing.py); relayed and forwarded frames
-        pass unchanged, with their own signatures."""
+        pass unchanged, with their own signatures. ``sysid``: the ground station's own system id (255 unless a
+        QGroundControl beside it uses that)."""
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
         self.sock.bind(bind)
         self.sock.setblocking(False)
-        self._encoder = mavlink.MAVLink(None, srcSystem=GCS_SYSID, srcComponent=GCS_COMPID)
+        self.sysid = sysid
+        self._encoder = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=GCS_COMPID)
         self.signing_key = signing_key
         if signing_key is not None:
             signing.enable(self._encoder, signing_key, time.time())

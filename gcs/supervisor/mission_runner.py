@@ -24,6 +24,7 @@ from gcs.fleet.swarm import Swarm, SwarmError
 from gcs.flight.formation import SETPOINT_STREAM_HZ
 from gcs.flight.frames import SwarmFrame
 from gcs.flight.geodesy import GeoPoint
+from gcs.mavlink.transport import GCS_SYSID
 from gcs.missions.mission_file import (
     BehaviourStep,
     FaultStep,
@@ -59,7 +60,7 @@ class MissionRunner:
                  lockstep_quantum: int = 1, camera_drones: frozenset[int] = frozenset(),
                  drones_per_process: int | Literal["auto"] = 1, links: LinkPlan | None = None,
                  signing_key_file: Path | None = None, view: ViewServer | None = None,
-                 attach: tuple[AttachSpec, ...] = ()) -> None:  # fmt: skip
+                 attach: tuple[AttachSpec, ...] = (), gcs_sysid: int = GCS_SYSID) -> None:  # fmt: skip
         """``attach``: vehicles the simulation does not run, attached before the drones start (gcs/fleet/attach.py);
         ``run`` raises AttachError (one line, nothing flown) when one cannot be."""
         self.mission = mission
@@ -87,6 +88,7 @@ class MissionRunner:
             links=mission.swarm.links if links is None else links,  # None: the mission's own [swarm.links]
             mesh=mission.swarm.mesh,
             behaviour=mission.swarm.behaviour,
+            gcs_sysid=gcs_sysid,
         )
         self.swarm = Swarm(plan, simulation.harness(plan), forward=forward, relay=mission.swarm.relay)
         # Two bodies touch when their centres are closer than the sum of both collision radii.

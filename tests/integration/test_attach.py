@@ -240,13 +240,14 @@ def test_a_vehicle_with_a_simulated_drones_sysid_far_away_or_nowhere_is_refused_
         (dict(sysid=INTRUDER_SYSID, path=lambda _t: (600.0, 0.0, -3.0)),
          f"sysid {INTRUDER_SYSID} is 600 m from the swarm's origin (at most 500 m)"),
         (dict(sysid=INTRUDER_SYSID, reports_position=False), f"sysid {INTRUDER_SYSID} sent no GLOBAL_POSITION_INT"),
+        (dict(sysid=240), "sysid 240 is the ground station's own"),  # with --gcs-sysid 240 (below)
     ]  # fmt: skip
     for overrides, said in cases:
         port = free_udp_port()
         settings: dict[str, Any] = {"link": UdpLink(port), "origin": DEFAULT_ORIGIN, "path": CROSSING, **overrides}
         vehicle = ScriptedVehicle(**settings).start()
         try:
-            result = _fly_attach(tmp_path, first, f"intruder=udpin:127.0.0.1:{port}")
+            result = _fly_attach(tmp_path, first, f"intruder=udpin:127.0.0.1:{port}", extra=("--gcs-sysid", "240"))
         finally:
             vehicle.stop()
         assert result.returncode == 2, (said, result.stderr)
@@ -254,9 +255,10 @@ def test_a_vehicle_with_a_simulated_drones_sysid_far_away_or_nowhere_is_refused_
         assert "spawning" not in result.stdout
 
 
-def _swarm_up_with(link_url: str, first: int, env: dict[str, str]) -> tuple[subprocess.Popen[str], list[str]]:
+def _swarm_up_with(link_url: str, first: int, env: dict[str, str],
+                   *extra: str) -> tuple[subprocess.Popen[str], list[str]]:  # fmt: skip
     proc = subprocess.Popen([*SWARM, "up", "-n", "1", "--first-instance", str(first), "--attach",
-                             f"intruder={link_url}", "--no-forward", "--no-view"],
+                             f"intruder={link_url}", "--no-forward", "--no-view", *extra],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)  # fmt: skip
     lines: list[str] = []
     assert proc.stdout is not None
@@ -286,8 +288,9 @@ def test_a_vehicle_on_tcp_or_a_serial_line_is_attached_shown_in_the_status_detac
     env = {**os.environ, "SWARM_STATE_DIR": str(tmp_path / "state")}
     proc: subprocess.Popen[str] | None = None
     try:
-        # WHEN a swarm is brought up with it attached
-        proc, lines = _swarm_up_with(link.url(), instances(1), env)
+        # WHEN a swarm is brought up with it attached (over TCP, the supervisor as sysid 240: a QGroundControl beside
+        # it may use 255)
+        proc, lines = _swarm_up_with(link.url(), instances(1), env, *(["--gcs-sysid", "240"] if kind == "tcp" else []))
         # THEN the attach is said, and the status lists it beside the simulated drone, where it is
         described = link.url()
         assert f"swarm: attached intruder sysid {INTRUDER_SYSID} on {described}\n" in lines, lines
@@ -298,6 +301,9 @@ def test_a_vehicle_on_tcp_or_a_serial_line_is_attached_shown_in_the_status_detac
         lat, lon, alt = (float(v) for v in row.split("  external:")[0].split()[-5:-2])  # ... lat lon alt batt link
         north, east, _ = FRAME.ned_from_geo(GeoPoint(lat_deg=lat, lon_deg=lon, alt_amsl_m=DEFAULT_ORIGIN.alt_amsl_m))
         assert (north, east) == pytest.approx((5.0, 5.0), abs=0.05) and alt == pytest.approx(3.0, abs=0.01), row
+        # AND the simulated drone takes its commands from that sysid (and answers it): it takes off
+        takeoff = subprocess.run([*SWARM, "takeoff", "--alt", "2"], capture_output=True, text=True, env=env, timeout=60)
+        assert takeoff.returncode == 0, takeoff
         # AND 'swarm detach' lets it go, 'swarm attach' takes it back while the swarm runs
         detached = subprocess.run([*SWARM, "detach", str(INTRUDER_SYSID)], capture_output=True, text=True, env=env,
                                   timeout=30)  # fmt: skip

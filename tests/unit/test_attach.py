@@ -195,3 +195,13 @@ def test_a_sweep_of_a_mission_with_an_attached_vehicle_is_one_line_and_exit_2(
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "a sweep's runs are lockstep flights of simulated drones alone" in err, err
     assert not (tmp_path / "out").exists()
+
+
+def test_the_supervisors_own_sysid_is_settable_but_never_a_drones(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["up", "-n", "4", "--first-instance", "0", "--gcs-sysid", "3", "--no-view"]) == 2
+    assert capsys.readouterr().err == "swarm: error: --gcs-sysid 3 is a drone's (sysids 1..4)\n"
+    assert main(["up", "-n", "1", "--gcs-sysid", "256", "--no-view"]) == 2
+    assert "must be a sysid in 1..255" in capsys.readouterr().err
+    assert LaunchOptions(drones=2, gcs_sysid=200).gcs_sysid == 200
+    with pytest.raises(ValueError, match=r"gcs_sysid must be in 1\.\.255 and no drone's, got 2"):
+        LaunchOptions(drones=2, gcs_sysid=2)
