@@ -158,6 +158,9 @@ def _add_attach_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--gcs-sysid", type=_sysid, default=GCS_SYSID, metavar="N",
                         help=f"the supervisor's own MAVLink system id (default {GCS_SYSID}; another when a "
                         "QGroundControl beside it uses that one)")  # fmt: skip
+    parser.add_argument("--attach-signing-key", type=Path, default=None, metavar="FILE",
+                        help="the --attach links are MAVLink 2 signed with this key (their vehicles' frames must be "
+                        "signed with it)")  # fmt: skip
     parser.add_argument("--attach-max-distance", type=_positive, default=DEFAULT_MAX_DISTANCE_M, metavar="M",
                         help="refuse an attached vehicle farther than M metres from the swarm's origin (default "
                         f"{DEFAULT_MAX_DISTANCE_M:g})")  # fmt: skip
@@ -166,7 +169,13 @@ def _add_attach_option(parser: argparse.ArgumentParser) -> None:
 def _attach_specs(args: argparse.Namespace, from_mission: tuple[AttachSpec, ...] = ()) -> tuple[AttachSpec, ...]:
     """``--attach`` (after the mission's [[swarm.attach]]), each checked; a swarm with one runs paced at speed 1."""
     try:
-        specs = (*from_mission, *(parse_attach(text, max_distance_m=args.attach_max_distance) for text in args.attach))
+        specs = (
+            *from_mission,
+            *(
+                parse_attach(text, max_distance_m=args.attach_max_distance, signing_key_file=args.attach_signing_key)
+                for text in args.attach
+            ),
+        )
     except AttachError as exc:
         raise UsageError(str(exc)) from None
     if specs and (args.lockstep or _speed(args) != 1.0):

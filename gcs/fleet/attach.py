@@ -19,13 +19,17 @@ from __future__ import annotations
 
 import contextlib
 import math
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Final
 
 from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.flight.geodesy import GeoPoint, geo_from_ned
+from gcs.mavlink import signing
+from gcs.mavlink.signing import SigningKeyError, load_key
 from gcs.mavlink.transport import GCS_COMPID
 from gcs.mavlink.urls import UrlError, VehicleUrl, parse_vehicle_url
 
@@ -54,13 +58,15 @@ class AttachSpec:
     url: VehicleUrl
     radius_m: float | None = None  # its body's size; None: the simulated drones' own
     max_distance_m: float = DEFAULT_MAX_DISTANCE_M  # a vehicle farther from the swarm's origin is refused
+    # MAVLink 2 signing on this link: its frames must be signed with this key (others are dropped), ours are signed
+    signing_key_file: Path | None = None
 
     def describe(self) -> str:
         return f"{self.role}={self.url.describe()}"
 
 
-def parse_attach(text: str, *, radius_m: float | None = None,
-                 max_distance_m: float = DEFAULT_MAX_DISTANCE_M) -> AttachSpec:  # fmt: skip
+def parse_attach(text: str, *, radius_m: float | None = None, max_distance_m: float = DEFAULT_MAX_DISTANCE_M,
+                 signing_key_file: Path | None = None) -> AttachSpec:  # fmt: skip
     """``[ROLE=]URL`` as ``--attach`` takes it; AttachError (one line) for an unknown role or a bad URL."""
     role, sep, rest = text.partition("=")
     if not sep or not role.isalpha():
@@ -79,7 +85,8 @@ def parse_attach(text: str, *, radius_m: float | None = None,
         url = parse_vehicle_url(rest)
     except UrlError as exc:
         raise AttachError(f"--attach: {exc}") from None
-    return AttachSpec(role=role, url=url, radius_m=radius_m, max_distance_m=max_distance_m)
+    return AttachSpec(role=role, url=url, radius_m=radius_m, max_distance_m=max_distance_m,
+                      signing_key_file=signing_key_file)  # fmt: skip
 
 
 def is_vehicle_heartbeat(msg: Any) -> bool:
@@ -136,6 +143,12 @@ class ExternalLink:
         from pymavlink import mavutil  # opening links is the only use, and it costs 0.1 s to import
 
         url = self.spec.url
+        key = None
+        if self.spec.signing_key_file is not None:
+            try:
+                key = load_key(self.spec.signing_key_file)
+            except SigningKeyError as exc:
+                raise AttachError(f"--attach {self.spec.describe()}: {exc}") from None
         if url.kind == "serial":
             try:
                 import serial  # noqa: F401  (pymavlink opens serial ports through pyserial)
@@ -154,6 +167,8 @@ class ExternalLink:
         conn.WIRE_PROTOCOL_VERSION = "2.0"
         conn.mav = mavlink.MAVLink(conn, srcSystem=self.source_system, srcComponent=GCS_COMPID)
         conn.mav.robust_parsing = True
+        if key is not None:  # pymavlink then drops unsigned and badly signed frames as BAD_DATA
+            signing.enable(conn.mav, key, time.time())
         self.conn = conn
 
     def fileno(self) -> int | None:

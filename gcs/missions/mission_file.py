@@ -638,14 +638,14 @@ def _params(reader: _Reader, table: Any, where: tuple[str | None, int | None]) -
 
 
 def _attach(reader: _Reader, tables: Any) -> tuple[AttachSpec, ...]:
-    """``[[swarm.attach]]``: ``url``, and optionally ``role`` (default member), ``radius_m`` (the body's size) and
-    ``max_distance_m`` (refused farther from the origin)."""
+    """``[[swarm.attach]]``: ``url``, and optionally ``role`` (default member), ``radius_m`` (the body's size),
+    ``max_distance_m`` (refused farther from the origin) and ``signing_key`` (a key file, relative to the mission)."""
     if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
         raise reader.fail(("swarm", None), "attach", "must be [[swarm.attach]] tables with url and role")
     specs = []
     for k, table in enumerate(tables):
         where: tuple[str | None, int | None] = ("swarm.attach", k)
-        reader.check_keys(table, {"url", "role", "radius_m", "max_distance_m"}, where)
+        reader.check_keys(table, {"url", "role", "radius_m", "max_distance_m", "signing_key"}, where)
         url, role = table.get("url"), table.get("role", DEFAULT_ROLE)
         if not isinstance(url, str) or not isinstance(role, str):
             raise reader.fail(where, "url", 'url (and role) must be strings, e.g. url = "udpin:0.0.0.0:14560"')
@@ -653,8 +653,13 @@ def _attach(reader: _Reader, tables: Any) -> tuple[AttachSpec, ...]:
         farthest = DEFAULT_MAX_DISTANCE_M
         if "max_distance_m" in table:
             farthest = reader.number(table, "max_distance_m", where, "pos")
+        key = table.get("signing_key")
+        if key is not None and not isinstance(key, str):
+            raise reader.fail(where, "signing_key", "must be a key file's path (relative to the mission file)")
+        key_file = None if key is None else (reader.path.parent / key).resolve()
         try:
-            specs.append(parse_attach(f"{role}={url}", radius_m=radius, max_distance_m=farthest))
+            specs.append(parse_attach(f"{role}={url}", radius_m=radius, max_distance_m=farthest,
+                                      signing_key_file=key_file))  # fmt: skip
         except AttachError as exc:
             raise reader.fail(where, "url", str(exc).removeprefix("--attach ")) from None
     return tuple(specs)

@@ -126,9 +126,15 @@ class ScriptedVehicle:
     rate_hz: float = 10.0
     autopilot: int = mavlink.MAV_AUTOPILOT_PX4
     reports_position: bool = True  # False: HEARTBEATs only (a vehicle without a position estimate)
+    signing_key: bytes | None = None  # MAVLink 2 signing of everything it sends
 
     def __post_init__(self) -> None:
         self._mav = mavlink.MAVLink(None, srcSystem=self.sysid, srcComponent=1)
+        if self.signing_key is not None:  # pymavlink's own signing, as a vehicle's MAVLink library does it
+            self._mav.signing.secret_key = self.signing_key
+            self._mav.signing.link_id = 1
+            self._mav.signing.timestamp = int((time.time() - 1420070400) * 1e5)  # 10 us since 2015-01-01
+            self._mav.signing.sign_outgoing = True
         self._frame = NedFrame(self.origin)
         self._stop = threading.Event()
         self.silent = threading.Event()

@@ -328,3 +328,37 @@ def test_a_vehicle_on_tcp_or_a_serial_line_is_attached_shown_in_the_status_detac
             proc.kill()
             proc.wait()
         vehicle.stop()
+
+
+@pytest.mark.timeout(120)
+def test_a_signed_link_takes_the_vehicle_that_signs_with_its_key_and_nothing_unsigned(
+    tmp_path: Path, instances: Leases
+) -> None:
+    key = bytes(range(32))
+    key_file = tmp_path / "vehicle.key"
+    key_file.write_text(key.hex() + "\n")
+    env = {**os.environ, "SWARM_STATE_DIR": str(tmp_path / "state")}
+    first = instances(1)
+    for signs, attached in ((True, True), (False, False)):
+        link = UdpLink(free_udp_port())
+        vehicle = ScriptedVehicle(sysid=INTRUDER_SYSID, link=link, origin=DEFAULT_ORIGIN, path=CROSSING,
+                                  signing_key=key if signs else None).start()  # fmt: skip
+        proc: subprocess.Popen[str] | None = None
+        try:
+            # GIVEN a link signed with the vehicle's key WHEN the vehicle signs (or does not)
+            proc, lines = _swarm_up_with(link.url(), first, env, "--attach-signing-key", str(key_file))
+            if attached:
+                # THEN it is attached
+                assert f"swarm: attached intruder sysid {INTRUDER_SYSID} on {link.url()}\n" in lines, lines
+                assert subprocess.run([*SWARM, "down"], capture_output=True, text=True, env=env,
+                                      timeout=30).returncode == 0  # fmt: skip
+                assert proc.wait(timeout=60) == 0
+            else:
+                # OR nothing it sends is heard: the attach fails with one line, exit code 2, before any drone starts
+                assert proc.wait(timeout=60) == 2
+                assert lines[-1] == f"swarm: error: --attach intruder={link.url()}: no vehicle HEARTBEAT within 10 s\n"
+        finally:
+            if proc is not None and proc.poll() is None:
+                proc.kill()
+                proc.wait()
+            vehicle.stop()

@@ -205,3 +205,16 @@ def test_the_supervisors_own_sysid_is_settable_but_never_a_drones(capsys: pytest
     assert LaunchOptions(drones=2, gcs_sysid=200).gcs_sysid == 200
     with pytest.raises(ValueError, match=r"gcs_sysid must be in 1\.\.255 and no drone's, got 2"):
         LaunchOptions(drones=2, gcs_sysid=2)
+
+
+def test_a_links_signing_key_comes_from_the_mission_beside_it_and_a_missing_one_is_one_line(tmp_path: Path) -> None:
+    mission = tmp_path / "signed.toml"
+    mission.write_text(
+        '[swarm]\ndrones = 2\n\n[[swarm.attach]]\nrole = "intruder"\nurl = "udpin:127.0.0.1:1"\n'
+        'signing_key = "keys/radio.key"\n\n[[steps]]\naction = "takeoff"\nalt_m = 3.0\n'
+    )
+    (spec,) = load_mission(mission).swarm.attach
+    assert spec.signing_key_file == tmp_path / "keys" / "radio.key"
+    with pytest.raises(AttachError, match="cannot read signing key file") as caught:
+        ExternalLink(spec=spec, source_system=255).open()  # nothing opened: the key is read first
+    assert "\n" not in str(caught.value)
