@@ -7,9 +7,10 @@ telemetry says it is (``SimulationHarness.place_external_body``), so the simulat
 drone that touches it crashes; an intruder's position reports reach the simulated drones as traffic (ADSB_VEHICLE),
 which their collision prevention avoids in full.
 
-Roles (``ROLES``): an ``intruder`` is never commanded, only seen, avoided and counted. ``member`` (a slot in the
-swarm's formations, flown in OFFBOARD or GUIDED) and ``leader`` (followed, never commanded) are the roles a
-commanded vehicle will take; they are refused for now with one line, rather than accepted and ignored.
+Roles (``ROLES``): an ``intruder`` is never commanded, only seen, avoided and counted; a ``leader`` is not commanded
+either, and the simulated drones follow it (the ``follow_attached`` verb). ``member`` (a slot in the swarm's
+formations, flown in OFFBOARD or GUIDED) is the role of a commanded vehicle; it is refused for now with one line,
+rather than accepted and ignored.
 
 Pure parts (the attach spec, its parser) and one IO shell (``ExternalLink``: a pymavlink connection, so every link
 pymavlink opens works: UDP either way, TCP, serial).
@@ -34,7 +35,7 @@ from gcs.mavlink.transport import GCS_COMPID
 from gcs.mavlink.urls import UrlError, VehicleUrl, parse_vehicle_url
 
 ROLES: Final = ("member", "leader", "intruder")
-AVAILABLE_ROLES: Final = ("intruder",)
+AVAILABLE_ROLES: Final = ("intruder", "leader")
 DEFAULT_ROLE: Final = "member"
 HEARTBEAT_TIMEOUT_S: Final = 10.0  # wall seconds an attach waits for the vehicle's first HEARTBEAT
 OTHERS_SETTLE_S: Final = 1.5  # after the first vehicle's HEARTBEAT, listen this long for others on the same link
@@ -75,7 +76,7 @@ def parse_attach(text: str, *, radius_m: float | None = None, max_distance_m: fl
     if role not in ROLES:
         raise AttachError(f"--attach {text!r}: no role {role!r} (roles: {', '.join(ROLES)})")
     if role not in AVAILABLE_ROLES:
-        raise AttachError(f"--attach {text!r}: role {role} is not available yet (attach it as intruder=URL)")
+        raise AttachError(f"--attach {text!r}: role {role} is not available yet (attach it as intruder= or leader=)")
     if radius_m is not None and not (math.isfinite(radius_m) and 0.0 < radius_m <= 10.0):
         raise AttachError(f"--attach {text!r}: radius_m must be in (0, 10] m, got {radius_m}")
     if not (math.isfinite(max_distance_m) and max_distance_m > 0.0):

@@ -425,12 +425,12 @@ class Swarm:
             vehicle.vel_ned_mps = (msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
             vehicle.position_s = now
         self.fleet.handle(msg, now)
-        # An intruder's position goes to the drones as traffic (ADSB_VEHICLE), not as its own GLOBAL_POSITION_INT:
-        # a relayed position reads as a neighbour that avoids in turn and takes half of each manoeuvre, which an
-        # intruder does not; traffic is avoided in full.
-        intruder = vehicle.spec.role == "intruder"
-        self.router.carry(msg, now, self.fleet, relay=not intruder)
-        if intruder and msg.get_type() == "GLOBAL_POSITION_INT":
+        # The position of a vehicle that is not commanded goes to the drones as traffic (ADSB_VEHICLE), not as its
+        # own GLOBAL_POSITION_INT: a relayed position reads as a neighbour that avoids in turn and takes half of each
+        # manoeuvre, which it does not; traffic is avoided in full.
+        traffic = vehicle.spec.role in ("intruder", "leader")  # not commanded, so it does not avoid in turn
+        self.router.carry(msg, now, self.fleet, relay=not traffic)
+        if traffic and msg.get_type() == "GLOBAL_POSITION_INT":
             self.router.relay_traffic(sysid, traffic_report(msg), now, self.fleet)
         for listener in self.listeners:
             listener(msg, now)

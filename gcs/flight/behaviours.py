@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Final, Protocol
 
@@ -42,6 +42,7 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs.flight.arrays import mat_mul
+from gcs.flight.assignment import assign_min_squared_distance
 from gcs.flight.formation import (
     FormationEngine,
     FormationError,
@@ -837,3 +838,96 @@ class LeaderFollower:
         if now_s < self.finish_s:
             return False
         return math.hypot(*(self._leader_pos - self.path.end_ned_m)) <= ARRIVAL_TOLERANCE_M
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LeaderReport:
+    """Where a leader the ground station does not command said it was, carried on to now (swarm frame)."""
+
+    pos_ned_m: Vec3
+    vel_ned_mps: Vec3
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FollowAttachedSpec:
+    """Every simulated drone holds a (forward, right) offset from a leader that flies itself: a vehicle attached to
+    the swarm as ``leader`` (docs/external.md), in the frame of its course, at ``alt_m``, for ``duration_s``.
+    ``leader_sysid`` None: the one attached leader. Offsets as ``FollowSpec``'s (a V behind it without them)."""
+
+    alt_m: float
+    duration_s: float
+    leader_sysid: int | None = None
+    offsets_fr_m: tuple[tuple[float, float], ...] | None = None
+    spacing_m: float = 2.5
+    angle_rad: float = math.pi / 2.0
+    max_turn_rate_radps: float = 0.3
+
+    def __post_init__(self) -> None:
+        values = {"alt_m": self.alt_m, "duration_s": self.duration_s, "spacing_m": self.spacing_m,
+                  "max_turn_rate_radps": self.max_turn_rate_radps}  # fmt: skip
+        check_finite(self, angle_rad=self.angle_rad, **values)
+        check_positive(self, **values)
+        if not 0.0 < self.angle_rad <= math.pi:
+            raise FormationError(f"FollowAttachedSpec.angle_rad must be in (0, pi], got {self.angle_rad}")
+
+    def offsets(self, follower_count: int) -> FloatArray:
+        if self.offsets_fr_m is not None:
+            if len(self.offsets_fr_m) < follower_count:
+                raise FormationError(
+                    f"{len(self.offsets_fr_m)} follower offsets for {follower_count} followers: give one each"
+                )
+            return np.array(self.offsets_fr_m, dtype=np.float64).reshape(-1, 2)
+        return default_offsets(follower_count, self.spacing_m, self.angle_rad)
+
+
+class FollowAttached:
+    """Followers of a leader the ground station does not command, from its reports alone (``leader()``: its
+    latest, or None while it has said nothing or has gone silent). Each follower is given the offset nearest to it
+    once, at the start; the offsets turn with the leader's course (held while it hovers); with no report the
+    followers hold their last slots. Each follower keeps its own distance from the leader by its avoidance, which
+    takes the leader for traffic."""
+
+    def __init__(self, spec: FollowAttachedSpec, leader: Callable[[], LeaderReport | None], now_s: float,
+                 state: SwarmState) -> None:  # fmt: skip
+        report = leader()
+        if report is None:
+            raise FormationError("the attached leader has not said where it is yet")
+        if not state.sysids:
+            raise FormationError("no drones to follow the leader")
+        self.spec = spec
+        self.leader = leader
+        self.followers = state.sysids
+        self.heading_rad = course_of(np.asarray(report.vel_ned_mps)[:2]) or 0.0
+        self.heading_rate_radps = 0.0
+        offsets = spec.offsets(len(self.followers))
+        slots, _ = follower_slots(report.pos_ned_m, report.vel_ned_mps, self.heading_rad, 0.0, offsets, spec.alt_m)
+        chosen = assign_min_squared_distance(state.pos_ned_m, slots)
+        self._offsets = offsets[list(chosen)]
+        self._last_s = now_s
+        self._targets: dict[int, Vec3] = {}
+
+    def setpoints(self, now_s: float, state: SwarmState) -> dict[int, Setpoint]:
+        dt, self._last_s = max(0.0, now_s - self._last_s), now_s
+        report = self.leader()
+        if report is None:  # silent: hold where the slots were
+            return {s: Setpoint(pos_ned_m=p, vel_ned_mps=(0.0, 0.0, 0.0), acc_ned_mps2=NAN3, yaw_rad=math.nan)
+                    for s, p in self._targets.items()}  # fmt: skip
+        course = course_of(np.asarray(report.vel_ned_mps)[:2])
+        if course is not None:
+            self.heading_rad, self.heading_rate_radps = turn_towards(
+                self.heading_rad, course, dt, time_constant_s=HEADING_TIME_CONSTANT_S,
+                max_rate_radps=self.spec.max_turn_rate_radps,
+            )  # fmt: skip
+        else:
+            self.heading_rate_radps = 0.0
+        slots, slot_vel = follower_slots(report.pos_ned_m, report.vel_ned_mps, self.heading_rad,
+                                         self.heading_rate_radps, self._offsets, self.spec.alt_m)  # fmt: skip
+        out = {}
+        for k, sysid in enumerate(self.followers):
+            self._targets[sysid] = target = _vec(slots[k])
+            out[sysid] = Setpoint(pos_ned_m=target, vel_ned_mps=(float(slot_vel[k, 0]), float(slot_vel[k, 1]), 0.0),
+                                  acc_ned_mps2=NAN3, yaw_rad=math.nan)  # fmt: skip
+        return out
+
+    def targets(self) -> dict[int, Vec3]:
+        return dict(self._targets)

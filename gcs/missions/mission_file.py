@@ -42,7 +42,7 @@ from gcs.fleet.faults import FaultError, FaultRequest, fault_request
 from gcs.fleet.harness import LAYOUTS, MAX_DRONES
 from gcs.fleet.links import NEIGHBOUR_MODES, LinkPlan, MeshPlan, NeighbourPlan, plan_from_tables
 from gcs.fleet.losses import LOSS_POLICIES, LossPolicy
-from gcs.flight.behaviours import FlockSpec, FollowSpec
+from gcs.flight.behaviours import FlockSpec, FollowAttachedSpec, FollowSpec
 from gcs.flight.formation import CircleSpec, Formation, FormationError, GridSpec, LineSpec, VSpec
 from gcs.flight.onboard import FLOCKING, LEADER_FOLLOWER, absolute_spec
 from gcs.flight.onboard import MAX_POINTS as ONBOARD_MAX_POINTS
@@ -127,6 +127,14 @@ class FollowStep:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class FollowAttachedStep:
+    """The drones follow a leader attached to the swarm (``[[swarm.attach]] role = "leader"``), for a while."""
+
+    name: str
+    spec: FollowAttachedSpec
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class SwapStep:
     """Every drone straight to the point opposite it through the swarm's centre, paths crossing (avoidance test)."""
 
@@ -188,6 +196,7 @@ Step = (
     | FormationStep
     | FlockStep
     | FollowStep
+    | FollowAttachedStep
     | SwapStep
     | HoldStep
     | LandStep
@@ -257,6 +266,16 @@ _FOLLOW_FIELDS: dict[str, str] = {
     "max_accel_mps2": "pos",
     "max_turn_rate_degps": "pos",
 }
+_FOLLOW_ATTACHED_FIELDS: dict[str, str] = {
+    "alt_m": "pos",
+    "duration_s": "pos",
+    "leader_sysid": "count",
+    "offsets_fr_m": "offsets",
+    "spacing_m": "pos",
+    "angle_deg": "angle",
+    "max_turn_rate_degps": "pos",
+}
+_FOLLOW_ATTACHED_REQUIRED = {"alt_m", "duration_s"}
 _RENAMED = {"angle_deg": "angle_rad", "max_turn_rate_degps": "max_turn_rate_radps"}
 _FLOCK_REQUIRED = {"alt_m"}
 _FOLLOW_REQUIRED = {"waypoints_ne_m", "alt_m"}
@@ -326,6 +345,13 @@ def build_flock(fields: dict[str, Any]) -> FlockSpec:
 def build_follow(fields: dict[str, Any]) -> FollowSpec:
     """A leader-follower spec from plain fields (the CLI's, with ``leader_sysid``); ValueError names the field."""
     spec: FollowSpec = _build_behaviour(FollowSpec, "leader-follower", _FOLLOW_FIELDS, _FOLLOW_REQUIRED, fields)
+    return spec
+
+
+def build_follow_attached(fields: dict[str, Any]) -> FollowAttachedSpec:
+    """Following an attached leader (docs/external.md) from plain fields; ValueError names the field."""
+    spec: FollowAttachedSpec = _build_behaviour(FollowAttachedSpec, "following an attached leader",
+                                                _FOLLOW_ATTACHED_FIELDS, _FOLLOW_ATTACHED_REQUIRED, fields)  # fmt: skip
     return spec
 
 
@@ -527,6 +553,14 @@ def _step(reader: _Reader, step: Any, index: int, drones: int) -> Step:
         return _flock(reader, step, where)
     if action == "follow":
         return _follow(reader, step, where, drones)
+    if action == "follow_attached":
+        fields = {k: v for k, v in step.items() if k not in ("action", "name")}
+        try:
+            spec = build_follow_attached(fields)
+        except ValueError as exc:
+            key = str(exc).split(":")[0]
+            raise reader.fail(where, key if key in _FOLLOW_ATTACHED_FIELDS else None, str(exc)) from None
+        return FollowAttachedStep(name=_step_name(reader, step, where, "follow attached"), spec=spec)
     if action == "swap":
         reader.check_keys(step, {"action", "speed_mps", "accel_mps2", "timeout_s", "tolerance_m"}, where)
         if "speed_mps" not in step:

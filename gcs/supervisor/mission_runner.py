@@ -29,6 +29,7 @@ from gcs.missions.mission_file import (
     BehaviourStep,
     FaultStep,
     FlockStep,
+    FollowAttachedStep,
     FollowStep,
     FormationStep,
     HoldStep,
@@ -233,7 +234,7 @@ class MissionRunner:
     def _run_step(self, index: int, step: Step) -> None:
         start = self.now()
         kind = type(step).__name__.removesuffix("Step").lower()
-        name = step.name if isinstance(step, FormationStep | FlockStep | FollowStep) else kind
+        name = step.name if isinstance(step, FormationStep | FlockStep | FollowStep | FollowAttachedStep) else kind
         self._step_name = name
         self.say(f"[{start:6.1f} s] step {index + 1}/{len(self.mission.steps)}: {name}")
         if isinstance(step, TakeoffStep):
@@ -247,6 +248,9 @@ class MissionRunner:
             self._do(VERBS["swap"](self.session, step.speed_mps, step.accel_mps2, step.tolerance_m, step.timeout_s))
         elif isinstance(step, FollowStep):
             self._follow(step)
+        elif isinstance(step, FollowAttachedStep):
+            VERBS["follow_attached"](self.session, step.spec)
+            self._hold(step.spec.duration_s)
         elif isinstance(step, HoldStep):
             self._hold(step.duration_s)
         elif isinstance(step, BehaviourStep):

@@ -32,8 +32,17 @@ from gcs.command.procedures import (
 from gcs.fleet.attach import AttachError, AttachSpec
 from gcs.fleet.faults import CRASH, FaultRequest, result_text
 from gcs.fleet.swarm import SwarmError
-from gcs.flight.behaviours import Behaviour, FlockSpec, FollowSpec, LeaderFollower
+from gcs.flight.behaviours import (
+    Behaviour,
+    FlockSpec,
+    FollowAttached,
+    FollowAttachedSpec,
+    FollowSpec,
+    LeaderFollower,
+    LeaderReport,
+)
 from gcs.flight.formation import Formation
+from gcs.flight.geodesy import GeoPoint
 from gcs.missions.mission_file import LAND_TIMEOUT_S, RTL_TIMEOUT_S, TAKEOFF_TIMEOUT_S
 from gcs.missions.plan_flight import Offset, Uploaded, download_plan, start_missions, unfinished, upload_plan
 from gcs.missions.qgc_plan import QgcPlan
@@ -183,6 +192,34 @@ def follow(session: FlightSession, spec: FollowSpec, *, onboard: bool = False) -
             raise SwarmError(late())
 
     return Started(done=over, timeout_s=FOLLOW_TIMEOUT_S, late=late, finish=arrived, new_step=True)
+
+
+def follow_attached(session: FlightSession, spec: FollowAttachedSpec) -> Started:
+    """Every drone holds its offset from a leader that flies itself (a vehicle attached as ``leader``,
+    docs/external.md), from the leader's reports; the ground station never commands the leader. A wait holds it for
+    the spec's ``duration_s``."""
+    swarm, streamer = session.swarm, session.streamer
+    leaders = [s for s, v in swarm.attached.items() if v.spec.role == "leader"]
+    sysid = spec.leader_sysid if spec.leader_sysid is not None else (leaders[0] if len(leaders) == 1 else None)
+    if sysid is None or sysid not in leaders:
+        raise ValueError(f"follow an attached leader: no attached leader {spec.leader_sysid or ''} (attached "
+                         f"leaders: {leaders or 'none'}; attach one with --attach leader=URL)")  # fmt: skip
+    vehicle = swarm.attached[sysid]
+
+    def report() -> LeaderReport | None:
+        if vehicle.lost:
+            return None
+        geo = vehicle.body_at(swarm.clock())
+        if geo is None:
+            return None
+        pos = streamer.swarm_frame.ned_from_geo(GeoPoint(lat_deg=geo[0], lon_deg=geo[1], alt_amsl_m=geo[2]))
+        return LeaderReport(pos_ned_m=pos, vel_ned_mps=vehicle.vel_ned_mps)
+
+    take_over(session)
+    law = FollowAttached(spec, report, session.mission_time(), streamer.state())
+    streamer.command_behaviour(law, session.mission_time(), "following an attached leader")
+    return Started(result=f"following attached leader sysid {sysid}", done=_never, timeout_s=spec.duration_s,
+                   ends_by_time=True, new_step=True)  # fmt: skip
 
 
 def swap(session: FlightSession, speed_mps: float, accel_mps2: float, tolerance_m: float, timeout_s: float) -> Started:
@@ -368,6 +405,7 @@ VERBS: Final[Mapping[str, Callable[..., Started]]] = {
     "formation": formation,
     "flock": flock,
     "follow": follow,
+    "follow_attached": follow_attached,
     "swap": swap,
     "hold": hold,
     "land": land,

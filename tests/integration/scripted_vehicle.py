@@ -184,3 +184,16 @@ class ScriptedVehicle:
                 round(geo.alt_amsl_m * 1e3), round(-down * 1e3), round(vel[0] * 100), round(vel[1] * 100),
                 round(vel[2] * 100), 0))  # fmt: skip
             self.sent_positions.append((now, (north, east, down)))
+
+
+def hover_then_circle(centre_ne_m: tuple[float, float], radius_m: float, alt_m: float, speed_mps: float,
+                      wait_s: float) -> Path:  # fmt: skip
+    """Hover at the circle's southernmost point for ``wait_s``, then fly round the circle anticlockwise seen from
+    above (east first) at ``speed_mps``, as a pilot flies a smooth turn."""
+    n0, e0 = centre_ne_m
+
+    def at(t_s: float) -> tuple[float, float, float]:
+        angle = -math.pi + max(0.0, t_s - wait_s) * speed_mps / radius_m
+        return (n0 + radius_m * math.cos(angle), e0 - radius_m * math.sin(angle), -alt_m)
+
+    return at

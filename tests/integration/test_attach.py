@@ -31,7 +31,15 @@ from pymavlink import mavutil
 
 from gcs.flight.geodesy import DEFAULT_ORIGIN, GeoPoint, NedFrame
 from tests.integration.instances import Leases
-from tests.integration.scripted_vehicle import PtyLink, ScriptedVehicle, TcpServerLink, UdpLink, back_and_forth
+from tests.integration.mission_flight import fly_mission
+from tests.integration.scripted_vehicle import (
+    PtyLink,
+    ScriptedVehicle,
+    TcpServerLink,
+    UdpLink,
+    back_and_forth,
+    hover_then_circle,
+)
 
 pytestmark = [pytest.mark.sim_only]
 
@@ -362,3 +370,54 @@ def test_a_signed_link_takes_the_vehicle_that_signs_with_its_key_and_nothing_uns
                 proc.kill()
                 proc.wait()
             vehicle.stop()
+
+
+LEADER_MISSION = """
+name = "follow_a_real_leader"
+[swarm]
+drones = 4
+spacing_m = 2.5
+
+[[swarm.attach]]
+role = "leader"
+url = "udpin:127.0.0.1:{port}"
+
+[[steps]]
+action = "takeoff"
+alt_m = 3.0
+
+[[steps]]
+action = "follow_attached"
+alt_m = 3.0
+duration_s = 55.0
+
+[[steps]]
+action = "land"
+"""
+
+
+@pytest.mark.timeout(240)
+def test_four_drones_follow_a_leader_that_flies_itself_in_a_v_and_keep_clear_of_it(
+    tmp_path: Path, instances: Leases
+) -> None:
+    # GIVEN a leader the ground station never commands (a pymavlink script: 8 m north of the origin, then once the
+    # drones are up a circle of 10 m radius at 1 m/s, a smooth turn as a pilot flies one) attached to a swarm of four
+    port = free_udp_port()
+    leader = ScriptedVehicle(sysid=INTRUDER_SYSID, link=UdpLink(port), origin=DEFAULT_ORIGIN,
+                             path=hover_then_circle((18.0, 0.0), 10.0, 3.0, 1.0, wait_s=12.0)).start()  # fmt: skip
+    mission = tmp_path / "follow_a_real_leader.toml"
+    mission.write_text(LEADER_MISSION.format(port=port))
+    try:
+        metrics, result = fly_mission(mission, [], tmp_path, 200, instances)
+    finally:
+        leader.stop()
+    # THEN the leader is attached, and the drones follow it in a V: in formation within 15 s of the step's start
+    # (they join from the ground grid) and within 0.5 m RMS of their slots from then on, as it flies its circle
+    assert f"swarm: attached leader sysid {INTRUDER_SYSID} on udpin:127.0.0.1:{port}" in result.stdout
+    step = next(s for s in metrics["steps"] if s["name"] == "follow attached")
+    assert step["time_to_formation_s"] is not None and step["time_to_formation_s"] < 15.0, step
+    assert step["formation_rms_m"] < 0.5, step
+    # AND they flew round with it (the leader's 40-odd metres each at least), touching nothing, clear of the leader
+    assert metrics["collisions"] == 0, metrics["collision_events"]
+    assert min(metrics["distance_flown_m"].values()) > 35.0, metrics["distance_flown_m"]
+    assert metrics["attached"][str(INTRUDER_SYSID)]["min_separation_m"] >= MIN_CLEARANCE_M

@@ -12,9 +12,10 @@ from pymavlink.dialects.v20 import common as mavlink
 from gcs.api.types import LaunchOptions
 from gcs.cli import main
 from gcs.fleet.attach import AttachedVehicle, AttachError, ExternalLink, parse_attach, sysid_problem, traffic_report
+from gcs.flight.behaviours import FollowAttached, FollowAttachedSpec, LeaderReport, SwarmState
 from gcs.flight.geodesy import GeoPoint, NedFrame
 from gcs.mavlink.urls import DEFAULT_BAUD, UrlError, parse_vehicle_url
-from gcs.missions.mission_file import MissionFileError, load_mission
+from gcs.missions.mission_file import FollowAttachedStep, MissionFileError, load_mission
 from sitl.avoidance.algorithm import AvoidanceConfig, Obstacle, avoid
 from sitl.protocol.neighbours import NeighbourTable
 
@@ -71,8 +72,8 @@ def test_an_attach_names_its_role_or_takes_the_default_and_refuses_what_it_canno
     assert parse_attach("INTRUDER=tcp:h:5760", radius_m=0.5).radius_m == 0.5
     with pytest.raises(AttachError, match="no role 'pilot'"):
         parse_attach("pilot=udpin:0.0.0.0:14560")
-    # member (the default) and leader are commanded roles, refused with one line rather than accepted and ignored
-    for text in ("udpin:0.0.0.0:14560", "member=udpin:0.0.0.0:14560", "leader=udpin:0.0.0.0:14560"):
+    # member (the default) is the commanded role, refused with one line rather than accepted and ignored
+    for text in ("udpin:0.0.0.0:14560", "member=udpin:0.0.0.0:14560"):
         with pytest.raises(AttachError, match="not available yet"):
             parse_attach(text)
     with pytest.raises(AttachError, match="radius_m"):
@@ -218,3 +219,38 @@ def test_a_links_signing_key_comes_from_the_mission_beside_it_and_a_missing_one_
     with pytest.raises(AttachError, match="cannot read signing key file") as caught:
         ExternalLink(spec=spec, source_system=255).open()  # nothing opened: the key is read first
     assert "\n" not in str(caught.value)
+
+
+def test_followers_of_an_attached_leader_take_the_nearest_offsets_turn_with_its_course_and_hold_when_it_is_silent() -> (
+    None
+):
+    # GIVEN a leader at the origin flying east at 1 m/s, and two followers west of it, one north, one south
+    report: list[LeaderReport | None] = [LeaderReport(pos_ned_m=(0.0, 0.0, -3.0), vel_ned_mps=(0.0, 1.0, 0.0))]
+    state = SwarmState.from_mappings({21: (2.0, -3.0, -3.0), 22: (-2.0, -3.0, -3.0)},
+                                     {21: (0.0, 0.0, 0.0), 22: (0.0, 0.0, 0.0)})  # fmt: skip
+    law = FollowAttached(FollowAttachedSpec(alt_m=3.0, duration_s=10.0, spacing_m=2.0), lambda: report[0], 0.0, state)
+    # WHEN asked for setpoints
+    setpoints = law.setpoints(0.1, state)
+    # THEN each follower is behind the leader in a V facing east, on its own side, moving with the leader
+    north_21, east_21, down_21 = setpoints[21].pos_ned_m
+    north_22, east_22, _ = setpoints[22].pos_ned_m
+    assert east_21 < 0.0 and east_22 < 0.0 and north_21 > 0.0 > north_22 and down_21 == -3.0
+    assert north_21 == pytest.approx(-north_22) and math.hypot(north_21, east_21) == pytest.approx(2.0)
+    assert setpoints[21].vel_ned_mps == pytest.approx((0.0, 1.0, 0.0))
+    # AND with the leader silent they hold their last slots
+    report[0] = None
+    held = law.setpoints(0.2, state)
+    assert held[21].pos_ned_m == setpoints[21].pos_ned_m and held[21].vel_ned_mps == (0.0, 0.0, 0.0)
+
+
+def test_a_mission_names_the_attached_leader_step_and_a_leader_role_is_taken(tmp_path: Path) -> None:
+    assert parse_attach("leader=udpin:0.0.0.0:14560").role == "leader"
+    mission = tmp_path / "follow.toml"
+    text = ('[swarm]\ndrones = 3\n\n[[steps]]\naction = "takeoff"\nalt_m = 3.0\n\n[[steps]]\naction = '
+            '"follow_attached"\nalt_m = 3.0\nduration_s = 30\nspacing_m = 3\n')  # fmt: skip
+    mission.write_text(text)
+    step = load_mission(mission).steps[1]
+    assert isinstance(step, FollowAttachedStep) and (step.spec.duration_s, step.spec.spacing_m) == (30.0, 3.0)
+    mission.write_text(text.replace("duration_s = 30\n", ""))
+    with pytest.raises(MissionFileError, match="missing field 'duration_s'"):
+        load_mission(mission)
