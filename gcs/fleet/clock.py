@@ -24,6 +24,7 @@ LOCKSTEP_LEAD_S: Final = 0.02
 LOCKSTEP_STALL_S: Final = 10.0  # wall seconds without progress before the supervisor calls the simulation stalled
 LOCKSTEP_MAX_WAIT_S: Final = 0.005  # wall-clock cap on one wait in lockstep (simulated time has no wall rate)
 EXIT_CHECK_S: Final = 0.5  # wall seconds between looks for ended drones while moving the lockstep clock
+TICK_S: Final = 0.05  # the period of a waiting loop's ``tick`` (the setpoint stream's 20 Hz)
 
 
 class ClockStalled(RuntimeError):
@@ -112,3 +113,10 @@ def _consume(fd: int) -> None:
     with contextlib.suppress(BlockingIOError, InterruptedError):
         while True:
             os.read(fd, 64)
+
+
+def next_tick_s(due_s: float, now_s: float, period_s: float) -> float:
+    """When the next tick is due after one due at ``due_s`` ran at ``now_s``: a period after the one due, so that
+    ticks keep their rate on average when the clock moves in steps that do not divide the period (lockstep frames
+    of 0.02 s would otherwise tick every 0.06 s); a tick more than a period late starts the cadence afresh."""
+    return due_s + period_s if now_s - due_s < period_s else now_s + period_s

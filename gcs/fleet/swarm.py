@@ -8,6 +8,7 @@ land or disarm over MAVLink, then the harness stops every drone. It is assembled
 - the router (gcs/fleet/router.py): the socket's traffic both ways, batching, forwarding, the relay, the ground
   station's HEARTBEAT;
 - liveness (gcs/fleet/liveness.py): each loss recorded once, silent drones taken back;
+- attachments (gcs/fleet/attachments.py): vehicles the simulation does not run, attached over links of their own;
 - the fleet view (gcs/fleet/telemetry.py) and the MAVLink clients for commands, parameters and missions
   (gcs/mavlink/: protocol objects without IO that the swarm feeds with what it receives and whose effects it sends).
 
@@ -29,25 +30,16 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.fleet.attach import (
-    HEARTBEAT_TIMEOUT_S,
-    OTHERS_SETTLE_S,
-    AttachedVehicle,
-    AttachError,
-    AttachSpec,
-    ExternalLink,
-    is_vehicle_heartbeat,
-    sysid_problem,
-    traffic_report,
-)
-from gcs.fleet.clock import ClockStalled, SwarmClock
+from gcs.fleet.attach import HEARTBEAT_TIMEOUT_S, AttachedVehicle, AttachSpec
+from gcs.fleet.attachments import Attachments
+from gcs.fleet.clock import TICK_S, ClockStalled, SwarmClock, next_tick_s
 from gcs.fleet.faults import BATTERY_LEVEL_PARAM, ENABLE_PARAM, FAULTS, FaultRequest
 from gcs.fleet.harness import SimulationHarness, SpawnError, SpawnPlan
 from gcs.fleet.liveness import Liveness
 from gcs.fleet.losses import DroneLoss, landing_clear_of
 from gcs.fleet.relay import NeighbourRelay
 from gcs.fleet.router import BATCH_HOLD_S, Router
-from gcs.fleet.telemetry import LINK_LOST_S, Fleet
+from gcs.fleet.telemetry import Fleet
 from gcs.flight.geodesy import GeoPoint, NedFrame
 from gcs.mavlink.commands import FORCE_DISARM_MAGIC, Ack, CommandClient, Send
 from gcs.mavlink.mission_transfer import MISSION_TYPE_MISSION, MissionClient, MissionProgress, TransferResult, WireItem
@@ -60,7 +52,6 @@ log = logging.getLogger(__name__)
 
 INT32_MAX = 2**31 - 1  # COMMAND_INT x/y: no position given (MAVLink's convention)
 ARM_TIMEOUT_S = 30.0  # simulated seconds for every drone to pass its pre-arm checks before it is armed
-TICK_S = 0.05  # the period of a waiting loop's ``tick`` (the setpoint stream's 20 Hz)
 # DO_SET_MODE for PX4 Hold (AUTO.LOITER), as pymavlink encodes it for PX4
 HOLD_MODE = set_mode_params("LOITER")
 
@@ -97,9 +88,8 @@ class Swarm:
         # The setpoint stream that goes on while a command or a parameter waits for its answer (PX4 leaves OFFBOARD
         # after COM_OF_LOSS_T without a setpoint, and on a lossy link an answer can take retries): ``keep_streaming``.
         self._stream_tick: Callable[[float], None] | None = None
-        # Vehicles the simulation does not run, attached over links of their own (gcs/fleet/attach.py), by sysid
-        self.attached: dict[int, AttachedVehicle] = {}
-        self._external_links: list[ExternalLink] = []
+        # Vehicles the simulation does not run, attached over links of their own (gcs/fleet/attachments.py)
+        self.attachments = Attachments(self)
 
     def keep_streaming(self, tick: Callable[[float], None]) -> None:
         """While a command waits for its answer, call ``tick(now)`` at the stream's rate: the setpoint stream of the
@@ -253,8 +243,8 @@ class Swarm:
                 self.mission_progress.handle(msg, now)
             for listener in self.listeners:
                 listener(msg, now)
-        if self._external_links:
-            self._pump_external(now)
+        if self.attachments.vehicles:
+            self.attachments.pump(now)
         router.heartbeat(now, self.losses)
         router.flush(now)
 
@@ -265,7 +255,7 @@ class Swarm:
         while (now := self.clock()) < end:
             if tick is not None and now >= next_tick:
                 tick(now)
-                next_tick = _next_tick_s(next_tick, now, tick_s)
+                next_tick = next_tick_s(next_tick, now, tick_s)
             self.pump(max(0.0, min(next_tick, end) - self.clock()))
 
     def wait_until(
@@ -280,160 +270,42 @@ class Swarm:
             now = self.clock()
             if tick is not None and now >= next_tick:
                 tick(now)
-                next_tick = _next_tick_s(next_tick, now, TICK_S)
+                next_tick = next_tick_s(next_tick, now, TICK_S)
             if condition():
                 return True
             self.pump(min(0.05, max(0.0, end - self.clock())))
         return condition()
 
-    # ---- attached vehicles (gcs/fleet/attach.py) -------------------------------------------------------------------
+    # ---- attached vehicles (gcs/fleet/attachments.py) -------------------------------------------------------------
+    @property
+    def attached(self) -> dict[int, AttachedVehicle]:
+        """The vehicles the simulation does not run, attached to the swarm, by sysid."""
+        return self.attachments.vehicles
+
     def attach(self, spec: AttachSpec, timeout_s: float = HEARTBEAT_TIMEOUT_S) -> tuple[list[int], list[str]]:
-        """Attach the vehicles heard on ``spec``'s link: open it, wait for an autopilot's HEARTBEAT (and
-        OTHERS_SETTLE_S more for others on the same radio), and take every vehicle whose sysid is free. Returns the
-        sysids attached and one line for each vehicle refused. AttachError (one line) when none can be attached; the
-        swarm flies on meanwhile (it is pumped while the attach waits), and a failed attach leaves nothing open.
-        Before ``up``, the sysids the plan will give the simulated drones are the ones a vehicle may not have."""
-        if self.plan.lockstep or self.plan.speed_factor != 1.0:
-            raise AttachError(f"--attach {spec.describe()}: a swarm with an attached vehicle runs paced at speed 1 "
-                              "(the real world keeps wall time), not in lockstep or at another --speed")  # fmt: skip
-        link = ExternalLink(spec=spec, source_system=self.plan.gcs_sysid)
-        link.open()
-        try:
-            heard = self._wait_for_vehicles(link, timeout_s)
-        except BaseException:
-            link.close()
-            raise
-        now = self.clock()
-        simulated = self._simulated_sysids()
-        positions = {m.get_srcSystem(): m for m in heard if m.get_type() == "GLOBAL_POSITION_INT"}
-        attached: list[int] = []
-        refused: dict[int, str] = {}
-        for msg in heard:
-            sysid = msg.get_srcSystem()
-            if not is_vehicle_heartbeat(msg) or sysid in link.sysids or sysid in refused:
-                continue
-            problem = sysid_problem(sysid, simulated, self.attached, self.plan.gcs_sysid) or self._too_far(
-                sysid, positions.get(sysid), spec.max_distance_m
-            )
-            if problem is not None:
-                refused[sysid] = f"--attach {spec.describe()}: {problem}: not attached"
-                continue
-            self.attached[sysid] = AttachedVehicle(sysid=sysid, spec=spec, link=link, autopilot=msg.autopilot,
-                                                   heard_s=now)  # fmt: skip
-            link.sysids.add(sysid)
-            attached.append(sysid)
-        if not attached:
-            link.close()
-            raise AttachError(next(iter(refused.values()), f"--attach {spec.describe()}: no vehicle heard"))
-        self._external_links.append(link)
-        for msg in heard:
-            self._handle_external(link, msg, now)
-        return attached, list(refused.values())
-
-    def _too_far(self, sysid: int, position: Any, max_distance_m: float) -> str | None:
-        """Why a vehicle's first position keeps it out of the swarm (none yet, or farther from the origin than
-        ``max_distance_m``), or None."""
-        if position is None:
-            return f"sysid {sysid} sent no GLOBAL_POSITION_INT (where is it?)"
-        here = GeoPoint(lat_deg=position.lat * 1e-7, lon_deg=position.lon * 1e-7, alt_amsl_m=position.alt * 1e-3)
-        distance = math.dist((0.0, 0.0, 0.0), self._swarm_frame.ned_from_geo(here))
-        if distance > max_distance_m:
-            return f"sysid {sysid} is {distance:.0f} m from the swarm's origin (at most {max_distance_m:g} m)"
-        return None
-
-    def _simulated_sysids(self) -> dict[int, None]:
-        """The simulated drones' sysids: those launched, or before the launch those the plan will start."""
-        first = self.plan.first_instance + 1
-        return dict.fromkeys(self._sysids or range(first, first + self.plan.n_drones))
-
-    def _wait_for_vehicles(self, link: ExternalLink, timeout_s: float) -> list[Any]:
-        """Read a new link until a vehicle's HEARTBEAT arrives, OTHERS_SETTLE_S more (other vehicles on the same
-        radio), and until every vehicle heard has said where it is (or ``timeout_s`` wall seconds have passed),
-        pumping the swarm and its setpoint stream meanwhile; AttachError when no HEARTBEAT comes in time."""
-        heard: list[Any] = []
-        deadline = time.monotonic() + timeout_s
-        settle_until = math.inf
-        next_tick = self.clock()
-        vehicles: set[int] = set()
-        placed: set[int] = set()
-        while (wall := time.monotonic()) < deadline and (wall < settle_until or not vehicles <= placed):
-            batch = link.receive()
-            heard.extend(batch)
-            vehicles.update(m.get_srcSystem() for m in batch if is_vehicle_heartbeat(m))
-            placed.update(m.get_srcSystem() for m in batch if m.get_type() == "GLOBAL_POSITION_INT")
-            if math.isinf(settle_until) and vehicles:
-                settle_until = time.monotonic() + OTHERS_SETTLE_S
-            if self._stream_tick is not None and (clock := self.clock()) >= next_tick:
-                self._stream_tick(clock)
-                next_tick = _next_tick_s(next_tick, clock, TICK_S)
-            self.pump(0.01)
-        if not any(is_vehicle_heartbeat(m) for m in heard):
-            raise AttachError(f"--attach {link.spec.describe()}: no vehicle HEARTBEAT within {timeout_s:g} s")
-        return heard
+        """Attach the vehicles heard on ``spec``'s link (``Attachments.attach``): the sysids attached and one line
+        for each vehicle refused; AttachError (one line) when none can be. The swarm flies on meanwhile."""
+        return self.attachments.attach(spec, timeout_s)
 
     def detach(self, sysid: int) -> None:
-        """Let an attached vehicle go: its body leaves the world, nothing more is read from it (its link closes with
-        its last vehicle). SwarmError when no vehicle of that sysid is attached."""
-        vehicle = self.attached.pop(sysid, None)
-        if vehicle is None:
+        """Let an attached vehicle go (``Attachments.detach``); SwarmError when none of that sysid is attached."""
+        if sysid not in self.attachments.vehicles:
             raise SwarmError(f"no attached vehicle with sysid {sysid}")
-        self.harness.remove_external_body(sysid)
-        vehicle.link.sysids.discard(sysid)
-        if not vehicle.link.sysids:
-            vehicle.link.close()
-            self._external_links.remove(vehicle.link)
+        self.attachments.detach(sysid)
 
     def detect_external_changes(self, now_s: float) -> list[str]:
-        """One line for each attached vehicle newly silent (its body stays where it was last known) or heard again."""
-        lines = []
-        for sysid, vehicle in self.attached.items():
-            view = self.fleet.drones.get(sysid)
-            silent = view is None or view.lost(now_s)
-            if silent and not vehicle.lost:
-                vehicle.lost = True
-                lines.append(f"attached vehicle {sysid} lost at t={now_s:.1f} s: nothing heard for "
-                             f"{LINK_LOST_S:g} s (its body stays where it was last known)")  # fmt: skip
-            elif not silent and vehicle.lost:
-                vehicle.lost = False
-                lines.append(f"attached vehicle {sysid} heard again at t={now_s:.1f} s")
-        return lines
+        """One line for each attached vehicle newly silent or heard again (``Attachments.detect_changes``)."""
+        return self.attachments.detect_changes(now_s)
 
-    def _pump_external(self, now: float) -> None:
-        """What the attached vehicles' links have brought, handled; then every attached body moved in the world."""
-        for link in list(self._external_links):
-            for msg in link.receive():
-                self._handle_external(link, msg, now)
-        for sysid, vehicle in self.attached.items():
-            geo = vehicle.body_at(now)
-            if geo is not None:
-                self.harness.place_external_body(sysid, geo, (0.0, 0.0, 0.0) if vehicle.lost else vehicle.vel_ned_mps,
-                                                 vehicle.spec.radius_m)  # fmt: skip
+    @property
+    def stream_tick(self) -> Callable[[float], None] | None:
+        """The setpoint stream kept going while the swarm waits (``keep_streaming``), if any."""
+        return self._stream_tick
 
-    def _handle_external(self, link: ExternalLink, msg: Any, now: float) -> None:
-        """A message on an attached vehicle's link: into the fleet view, the relay and the listeners (the flight log,
-        the report), as a simulated drone's. Only the vehicles attached are heard: one that shows up on the link later
-        (or was refused) is not taken without an attach of its own."""
-        if msg.get_srcComponent() != 1:
-            return
-        vehicle = self.attached.get(msg.get_srcSystem())
-        if vehicle is None or vehicle.link is not link:
-            return
-        sysid = vehicle.sysid
-        vehicle.heard_s = now
-        if msg.get_type() == "GLOBAL_POSITION_INT":
-            vehicle.position = (msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3)
-            vehicle.vel_ned_mps = (msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
-            vehicle.position_s = now
-        self.fleet.handle(msg, now)
-        # The position of a vehicle that is not commanded goes to the drones as traffic (ADSB_VEHICLE), not as its
-        # own GLOBAL_POSITION_INT: a relayed position reads as a neighbour that avoids in turn and takes half of each
-        # manoeuvre, which it does not; traffic is avoided in full.
-        traffic = vehicle.spec.role in ("intruder", "leader")  # not commanded, so it does not avoid in turn
-        self.router.carry(msg, now, self.fleet, relay=not traffic)
-        if traffic and msg.get_type() == "GLOBAL_POSITION_INT":
-            self.router.relay_traffic(sysid, traffic_report(msg), now, self.fleet)
-        for listener in self.listeners:
-            listener(msg, now)
+    def simulated_sysids(self) -> list[int]:
+        """The simulated drones' sysids: those launched, or before the launch those the plan will start."""
+        first = self.plan.first_instance + 1
+        return self._sysids or list(range(first, first + self.plan.n_drones))
 
     # ---- lifecycle -------------------------------------------------------------------------------------------------
     def up(self, ready_timeout_s: float = 30.0) -> None:
@@ -542,8 +414,7 @@ class Swarm:
             try:
                 self.harness.close()
             finally:
-                for link in self._external_links:
-                    link.close()  # an attached vehicle is left as it is: nothing is sent to it on the way out
+                self.attachments.close()  # an attached vehicle is left as it is: nothing is sent to it on the way out
                 self._clock.close()
                 self.router.close()
 
@@ -613,7 +484,7 @@ class Swarm:
                     break
                 if self._stream_tick is not None and (clock := self.clock()) >= next_tick:
                     self._stream_tick(clock)
-                    next_tick = _next_tick_s(next_tick, clock, TICK_S)
+                    next_tick = next_tick_s(next_tick, clock, TICK_S)
                 self.pump(min(0.02, max(0.0, client.next_due_s() - self.clock())))
         finally:
             for sysid in targets:
@@ -648,13 +519,6 @@ def check(acks: list[Ack], what: str) -> None:
     if bad:
         names = ", ".join(f"sysid {a.sysid} ({'no answer' if a.result is None else f'result {a.result}'})" for a in bad)
         raise SwarmError(f"{what} failed for {names}")
-
-
-def _next_tick_s(due_s: float, now_s: float, period_s: float) -> float:
-    """When the next tick is due after one due at ``due_s`` ran at ``now_s``: a period after the one due, so that
-    ticks keep their rate on average when the clock moves in steps that do not divide the period (lockstep frames
-    of 0.02 s would otherwise tick every 0.06 s); a tick more than a period late starts the cadence afresh."""
-    return due_s + period_s if now_s - due_s < period_s else now_s + period_s
 
 
 class SwarmError(RuntimeError):

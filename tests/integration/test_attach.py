@@ -5,8 +5,8 @@ Nothing of it reaches the simulated world except through MAVLink.
 One flight, many checks: the attach is said; the drones, told of the intruder as traffic (ADSB_VEHICLE: a body that
 does not avoid in turn) and seeing it with their cameras, keep clear of it while it crosses, and with their cameras
 alone after it went silent (its body stays where it was last known); its loss is said once; the flight log holds its
-messages. Bad attaches are one line and exit code 2, before any drone starts; TCP and a serial line (a
-pseudo-terminal) attach as UDP does, and the status lists the vehicle.
+messages. Bad attaches are one line and exit code 2, before any drone starts. The other links and roles:
+tests/integration/test_attach_links.py.
 
 Policy: loopback only (--no-forward); leased instances (tests/integration/instances.py); the intruder on a port the
 system picked; paced at 1x (an attached vehicle keeps wall time); every process stopped by PID; time limits.
@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import socket
 import subprocess
 import sys
@@ -31,14 +30,10 @@ from pymavlink import mavutil
 
 from gcs.flight.geodesy import DEFAULT_ORIGIN, GeoPoint, NedFrame
 from tests.integration.instances import Leases
-from tests.integration.mission_flight import fly_mission
 from tests.integration.scripted_vehicle import (
-    PtyLink,
     ScriptedVehicle,
-    TcpServerLink,
     UdpLink,
     back_and_forth,
-    hover_then_circle,
 )
 
 pytestmark = [pytest.mark.sim_only]
@@ -261,163 +256,3 @@ def test_a_vehicle_with_a_simulated_drones_sysid_far_away_or_nowhere_is_refused_
         assert result.returncode == 2, (said, result.stderr)
         assert said in result.stderr and result.stderr.count("\n") == 1, result.stderr
         assert "spawning" not in result.stdout
-
-
-def _swarm_up_with(link_url: str, first: int, env: dict[str, str],
-                   *extra: str) -> tuple[subprocess.Popen[str], list[str]]:  # fmt: skip
-    proc = subprocess.Popen([*SWARM, "up", "-n", "1", "--first-instance", str(first), "--attach",
-                             f"intruder={link_url}", "--no-forward", "--no-view", *extra],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)  # fmt: skip
-    lines: list[str] = []
-    assert proc.stdout is not None
-    for line in proc.stdout:
-        lines.append(line)
-        if "drones up" in line:
-            break
-    return proc, lines
-
-
-def _status_rows(env: dict[str, str]) -> dict[int, str]:
-    status = subprocess.run([*SWARM, "status"], capture_output=True, text=True, env=env, timeout=30)
-    assert status.returncode == 0, status
-    return {int(r.split()[0]): r for r in status.stdout.splitlines()[1:]}
-
-
-@pytest.mark.timeout(180)
-@pytest.mark.parametrize("kind", ["tcp", "serial"])
-def test_a_vehicle_on_tcp_or_a_serial_line_is_attached_shown_in_the_status_detached_and_attached_again(
-    kind: str, tmp_path: Path, instances: Leases
-) -> None:
-    # GIVEN a vehicle hovering 5 m north-east of the origin, served on a TCP port (a Wi-Fi bridge, another SITL) or
-    # on a serial line (a pseudo-terminal standing in for a telemetry radio's USB port)
-    link = TcpServerLink() if kind == "tcp" else PtyLink()
-    vehicle = ScriptedVehicle(sysid=INTRUDER_SYSID, link=link, origin=DEFAULT_ORIGIN,
-                              path=lambda _t: (5.0, 5.0, -3.0)).start()  # fmt: skip
-    env = {**os.environ, "SWARM_STATE_DIR": str(tmp_path / "state")}
-    proc: subprocess.Popen[str] | None = None
-    try:
-        # WHEN a swarm is brought up with it attached (over TCP, the supervisor as sysid 240: a QGroundControl beside
-        # it may use 255)
-        proc, lines = _swarm_up_with(link.url(), instances(1), env, *(["--gcs-sysid", "240"] if kind == "tcp" else []))
-        # THEN the attach is said, and the status lists it beside the simulated drone, where it is
-        described = link.url()
-        assert f"swarm: attached intruder sysid {INTRUDER_SYSID} on {described}\n" in lines, lines
-        rows = _status_rows(env)
-        assert len(rows) == 2 and INTRUDER_SYSID in rows, rows
-        row = rows[INTRUDER_SYSID]
-        assert f"external: intruder on {described}" in row, row
-        lat, lon, alt = (float(v) for v in row.split("  external:")[0].split()[-5:-2])  # ... lat lon alt batt link
-        north, east, _ = FRAME.ned_from_geo(GeoPoint(lat_deg=lat, lon_deg=lon, alt_amsl_m=DEFAULT_ORIGIN.alt_amsl_m))
-        assert (north, east) == pytest.approx((5.0, 5.0), abs=0.05) and alt == pytest.approx(3.0, abs=0.01), row
-        # AND the simulated drone takes its commands from that sysid (and answers it): it takes off
-        takeoff = subprocess.run([*SWARM, "takeoff", "--alt", "2"], capture_output=True, text=True, env=env, timeout=60)
-        assert takeoff.returncode == 0, takeoff
-        # AND 'swarm detach' lets it go, 'swarm attach' takes it back while the swarm runs
-        detached = subprocess.run([*SWARM, "detach", str(INTRUDER_SYSID)], capture_output=True, text=True, env=env,
-                                  timeout=30)  # fmt: skip
-        assert detached.stdout == f"swarm: detached sysid {INTRUDER_SYSID}\n", detached
-        assert INTRUDER_SYSID not in _status_rows(env)
-        again = subprocess.run([*SWARM, "attach", f"intruder={link.url()}"], capture_output=True, text=True, env=env,
-                               timeout=60)  # fmt: skip
-        assert again.stdout == f"swarm: attached intruder sysid {INTRUDER_SYSID} on {described}\n", again
-        assert INTRUDER_SYSID in _status_rows(env)
-        # AND an attach the swarm cannot take is one line and exit code 2, the swarm untouched
-        twice = subprocess.run([*SWARM, "attach", f"intruder={link.url()}"], capture_output=True, text=True, env=env,
-                               timeout=60)  # fmt: skip
-        assert twice.returncode == 2 and twice.stderr.count("\n") == 1, twice
-        nobody = subprocess.run([*SWARM, "detach", "77"], capture_output=True, text=True, env=env, timeout=30)
-        assert nobody.returncode == 2 and "no attached vehicle with sysid 77" in nobody.stderr, nobody
-        assert len(_status_rows(env)) == 2
-        # AND 'swarm down' ends it cleanly, the attached vehicle told nothing
-        assert subprocess.run([*SWARM, "down"], capture_output=True, text=True, env=env, timeout=30).returncode == 0
-        assert proc.wait(timeout=60) == 0
-    finally:
-        if proc is not None and proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        vehicle.stop()
-
-
-@pytest.mark.timeout(120)
-def test_a_signed_link_takes_the_vehicle_that_signs_with_its_key_and_nothing_unsigned(
-    tmp_path: Path, instances: Leases
-) -> None:
-    key = bytes(range(32))
-    key_file = tmp_path / "vehicle.key"
-    key_file.write_text(key.hex() + "\n")
-    env = {**os.environ, "SWARM_STATE_DIR": str(tmp_path / "state")}
-    first = instances(1)
-    for signs, attached in ((True, True), (False, False)):
-        link = UdpLink(free_udp_port())
-        vehicle = ScriptedVehicle(sysid=INTRUDER_SYSID, link=link, origin=DEFAULT_ORIGIN, path=CROSSING,
-                                  signing_key=key if signs else None).start()  # fmt: skip
-        proc: subprocess.Popen[str] | None = None
-        try:
-            # GIVEN a link signed with the vehicle's key WHEN the vehicle signs (or does not)
-            proc, lines = _swarm_up_with(link.url(), first, env, "--attach-signing-key", str(key_file))
-            if attached:
-                # THEN it is attached
-                assert f"swarm: attached intruder sysid {INTRUDER_SYSID} on {link.url()}\n" in lines, lines
-                assert subprocess.run([*SWARM, "down"], capture_output=True, text=True, env=env,
-                                      timeout=30).returncode == 0  # fmt: skip
-                assert proc.wait(timeout=60) == 0
-            else:
-                # OR nothing it sends is heard: the attach fails with one line, exit code 2, before any drone starts
-                assert proc.wait(timeout=60) == 2
-                assert lines[-1] == f"swarm: error: --attach intruder={link.url()}: no vehicle HEARTBEAT within 10 s\n"
-        finally:
-            if proc is not None and proc.poll() is None:
-                proc.kill()
-                proc.wait()
-            vehicle.stop()
-
-
-LEADER_MISSION = """
-name = "follow_a_real_leader"
-[swarm]
-drones = 4
-spacing_m = 2.5
-
-[[swarm.attach]]
-role = "leader"
-url = "udpin:127.0.0.1:{port}"
-
-[[steps]]
-action = "takeoff"
-alt_m = 3.0
-
-[[steps]]
-action = "follow_attached"
-alt_m = 3.0
-duration_s = 55.0
-
-[[steps]]
-action = "land"
-"""
-
-
-@pytest.mark.timeout(240)
-def test_four_drones_follow_a_leader_that_flies_itself_in_a_v_and_keep_clear_of_it(
-    tmp_path: Path, instances: Leases
-) -> None:
-    # GIVEN a leader the ground station never commands (a pymavlink script: 8 m north of the origin, then once the
-    # drones are up a circle of 10 m radius at 1 m/s, a smooth turn as a pilot flies one) attached to a swarm of four
-    port = free_udp_port()
-    leader = ScriptedVehicle(sysid=INTRUDER_SYSID, link=UdpLink(port), origin=DEFAULT_ORIGIN,
-                             path=hover_then_circle((18.0, 0.0), 10.0, 3.0, 1.0, wait_s=12.0)).start()  # fmt: skip
-    mission = tmp_path / "follow_a_real_leader.toml"
-    mission.write_text(LEADER_MISSION.format(port=port))
-    try:
-        metrics, result = fly_mission(mission, [], tmp_path, 200, instances)
-    finally:
-        leader.stop()
-    # THEN the leader is attached, and the drones follow it in a V: in formation within 15 s of the step's start
-    # (they join from the ground grid) and within 0.5 m RMS of their slots from then on, as it flies its circle
-    assert f"swarm: attached leader sysid {INTRUDER_SYSID} on udpin:127.0.0.1:{port}" in result.stdout
-    step = next(s for s in metrics["steps"] if s["name"] == "follow attached")
-    assert step["time_to_formation_s"] is not None and step["time_to_formation_s"] < 15.0, step
-    assert step["formation_rms_m"] < 0.5, step
-    # AND they flew round with it (the leader's 40-odd metres each at least), touching nothing, clear of the leader
-    assert metrics["collisions"] == 0, metrics["collision_events"]
-    assert min(metrics["distance_flown_m"].values()) > 35.0, metrics["distance_flown_m"]
-    assert metrics["attached"][str(INTRUDER_SYSID)]["min_separation_m"] >= MIN_CLEARANCE_M
