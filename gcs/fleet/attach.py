@@ -45,6 +45,9 @@ DEFAULT_MAX_DISTANCE_M: Final = 500.0
 MAX_READ_PER_POLL: Final = 200  # messages one poll of a link reads at most (a flooding link cannot stall the swarm)
 AUTOPILOT_COMPID: Final = 1
 EXTRAPOLATE_MAX_S: Final = 1.0  # a report older than this is not carried on further: the vehicle may have stopped
+# Frames a second the ground station sends on an attached link at most (51-byte ADSB_VEHICLE reports of the simulated
+# drones): about 1 kB/s, a sixth of what a 57.6 kbit/s telemetry radio carries
+LINK_BUDGET_PER_S: Final = 20.0
 
 
 class AttachError(ValueError):
@@ -129,6 +132,26 @@ class AttachedVehicle:
 
 
 @dataclass(slots=True)
+class TokenBucket:
+    """At most ``rate_per_s`` on average, ``burst`` at once: what a link's radio may be given."""
+
+    rate_per_s: float
+    burst: float
+    _tokens: float = 0.0
+    _last_s: float = -math.inf
+
+    def take(self, now_s: float) -> bool:
+        """One token now, if there is one."""
+        elapsed = now_s - self._last_s if math.isfinite(self._last_s) else math.inf
+        self._tokens = min(self.burst, self._tokens + elapsed * self.rate_per_s)
+        self._last_s = now_s
+        if self._tokens < 1.0:
+            return False
+        self._tokens -= 1.0
+        return True
+
+
+@dataclass(slots=True)
 class ExternalLink:
     """One link to vehicles outside the simulation, opened with pymavlink (its transport for every kind of link),
     read and written as MAVLink 2 by the ground station's own identity (sysid 255 unless set, component 190)."""
@@ -137,6 +160,10 @@ class ExternalLink:
     source_system: int
     conn: Any = None
     sysids: set[int] = field(default_factory=set)
+    # what the ground station may send on the link each second (the simulated drones as traffic): a radio's budget
+    budget: TokenBucket = field(
+        default_factory=lambda: TokenBucket(rate_per_s=LINK_BUDGET_PER_S, burst=LINK_BUDGET_PER_S)
+    )
 
     def open(self) -> None:
         """Open the link; AttachError (one line) when it cannot be (a port taken, a refused TCP connection, a missing

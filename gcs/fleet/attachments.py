@@ -31,6 +31,10 @@ if TYPE_CHECKING:
     from gcs.fleet.swarm import Swarm
 
 WAIT_PUMP_S = 0.01  # simulated (= wall) seconds the swarm is pumped between two reads of a link being attached
+# The simulated drones go to each attached vehicle as traffic (ADSB_VEHICLE), within SHARE_RADIUS_M of it, each at
+# most SHARE_RATE_HZ, and within the link's budget (gcs/fleet/attach.py LINK_BUDGET_PER_S) whatever the swarm's size
+SHARE_RADIUS_M = 100.0
+SHARE_RATE_HZ = 2.0
 # Roles whose vehicle is never commanded, so it does not avoid the drones in turn: the drones are told of it as
 # traffic (ADSB_VEHICLE), which collision prevention avoids in full, not as a neighbour that takes half of each
 # manoeuvre
@@ -43,6 +47,7 @@ class Attachments:
         self.vehicles: dict[int, AttachedVehicle] = {}
         self._links: list[ExternalLink] = []
         self._frame = NedFrame(swarm.plan.origin)
+        self._shared_s: dict[int, float] = {}  # each simulated drone's last report sent as traffic
 
     def attach(self, spec: AttachSpec, timeout_s: float) -> tuple[list[int], list[str]]:
         """Open ``spec``'s link, wait for an autopilot's HEARTBEAT (and OTHERS_SETTLE_S more for others on the same
@@ -183,6 +188,29 @@ class Attachments:
             swarm.router.relay_traffic(vehicle.sysid, traffic_report(msg), now, swarm.fleet)
         for listener in swarm.listeners:
             listener(msg, now)
+
+    def share(self, position: Any, now: float) -> None:
+        """A simulated drone's GLOBAL_POSITION_INT, as traffic to every attached vehicle within SHARE_RADIUS_M of it,
+        at most SHARE_RATE_HZ for each drone and within each link's budget (a radio's); what does not fit waits for
+        the drone's next report."""
+        source = position.get_srcSystem()
+        if now - self._shared_s.get(source, -math.inf) < 1.0 / SHARE_RATE_HZ:
+            return
+        here = GeoPoint(lat_deg=position.lat * 1e-7, lon_deg=position.lon * 1e-7, alt_amsl_m=position.alt * 1e-3)
+        drone = self._frame.ned_from_geo(here)
+        report = None
+        for link in self._links:
+            near = any(
+                (geo := v.body_at(now)) is not None
+                and math.dist(drone, self._frame.ned_from_geo(GeoPoint(lat_deg=geo[0], lon_deg=geo[1],
+                                                                       alt_amsl_m=geo[2]))) <= SHARE_RADIUS_M
+                for v in self.vehicles.values() if v.link is link
+            )  # fmt: skip
+            if not near or not link.budget.take(now):
+                continue
+            report = report or traffic_report(position)
+            link.send(report)
+            self._shared_s[source] = now
 
     def close(self) -> None:
         """Close every link (the vehicles are left as they are)."""

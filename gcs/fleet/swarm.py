@@ -232,6 +232,8 @@ class Swarm:
             self.fleet.handle(msg, now)
             router.carry(msg, now, self.fleet)
             kind = msg.get_type()
+            if kind == "GLOBAL_POSITION_INT" and self.attachments.vehicles:
+                self.attachments.share(msg, now)  # the simulated drones, as traffic, to the attached vehicles
             if kind != "RADIO_STATUS":  # any other message is a sign of life (gcs/fleet/telemetry.py LINK_LOST_S)
                 self.liveness.heard(msg.get_srcSystem())
             if kind == "COMMAND_ACK":

@@ -54,6 +54,19 @@ class UdpLink:
     def write(self, data: bytes) -> None:
         self._sock.sendto(data, ("127.0.0.1", self.port))
 
+    def read(self) -> list[mavlink.MAVLink_message]:
+        """What the ground station has sent back so far (it answers the address it hears the vehicle from)."""
+        parser = mavlink.MAVLink(None)
+        parser.robust_parsing = True
+        out: list[mavlink.MAVLink_message] = []
+        self._sock.setblocking(False)
+        while True:
+            try:
+                data = self._sock.recv(65536)
+            except (BlockingIOError, OSError):
+                return out
+            out.extend(m for m in parser.parse_buffer(data) or [] if m.get_type() != "BAD_DATA")
+
     def close(self) -> None:
         self._sock.close()
 

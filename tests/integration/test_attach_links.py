@@ -12,10 +12,13 @@ from __future__ import annotations
 
 import os
 import subprocess
+import time
 from pathlib import Path
 
 import pytest
+from pymavlink.dialects.v20 import common as mavlink
 
+from gcs.fleet.attachments import SHARE_RADIUS_M, SHARE_RATE_HZ
 from gcs.flight.geodesy import DEFAULT_ORIGIN, GeoPoint
 from tests.integration.instances import Leases
 from tests.integration.mission_flight import fly_mission
@@ -191,3 +194,52 @@ def test_four_drones_follow_a_leader_that_flies_itself_in_a_v_and_keep_clear_of_
     assert metrics["collisions"] == 0, metrics["collision_events"]
     assert min(metrics["distance_flown_m"].values()) > 35.0, metrics["distance_flown_m"]
     assert metrics["attached"][str(INTRUDER_SYSID)]["min_separation_m"] >= MIN_CLEARANCE_M
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize("north_m", [5.0, 150.0], ids=["near", "far"])
+def test_the_simulated_drones_reach_an_attached_vehicle_as_traffic_within_its_radius_and_budget(
+    north_m: float, tmp_path: Path, instances: Leases
+) -> None:
+    # GIVEN a vehicle hovering near the swarm (5 m) or beyond the radius the ground station shares it (150 m)
+    link = UdpLink(free_udp_port())
+    vehicle = ScriptedVehicle(sysid=INTRUDER_SYSID, link=link, origin=DEFAULT_ORIGIN,
+                              path=lambda _t: (north_m, 0.0, -3.0)).start()  # fmt: skip
+    env = {**os.environ, "SWARM_STATE_DIR": str(tmp_path / "state")}
+    first = instances(3)
+    proc: subprocess.Popen[str] | None = None
+    try:
+        proc = subprocess.Popen([*SWARM, "up", "-n", "3", "--first-instance", str(first), "--attach",
+                                 f"intruder={link.url()}", "--no-forward", "--no-view"],
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)  # fmt: skip
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            if "drones up" in line:
+                break
+        link.read()  # what came before the drones were up
+        # WHEN the swarm runs for 3 s
+        time.sleep(3.0)
+        traffic = [m for m in link.read() if m.get_type() == "ADSB_VEHICLE"]
+        status = subprocess.run([*SWARM, "status"], capture_output=True, text=True, env=env, timeout=30).stdout
+        assert subprocess.run([*SWARM, "down"], capture_output=True, text=True, env=env, timeout=30).returncode == 0
+        assert proc.wait(timeout=60) == 0
+    finally:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        vehicle.stop()
+    if north_m > SHARE_RADIUS_M:
+        # THEN a vehicle beyond the radius is told nothing
+        assert traffic == []
+        return
+    # THEN the nearby vehicle hears each simulated drone as traffic, at most SHARE_RATE_HZ, where its status says it is
+    drones = {first + 1, first + 2, first + 3}
+    assert {m.ICAO_address for m in traffic} == drones, traffic
+    for sysid in drones:
+        reports = [m for m in traffic if m.ICAO_address == sysid]
+        assert 2 <= len(reports) <= 3.0 * SHARE_RATE_HZ + 1, (sysid, len(reports))
+        row = next(r for r in status.splitlines()[1:] if int(r.split()[0]) == sysid).split()
+        lat, lon = float(row[3]), float(row[4])
+        last = reports[-1]
+        assert last.callsign == f"SYS{sysid}" and last.emitter_type == mavlink.ADSB_EMITTER_TYPE_UAV
+        assert (last.lat * 1e-7, last.lon * 1e-7) == pytest.approx((lat, lon), abs=1e-5)  # about a metre
