@@ -11,7 +11,15 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.api.types import LaunchOptions
 from gcs.cli import main
-from gcs.fleet.attach import AttachedVehicle, AttachError, ExternalLink, parse_attach, sysid_problem, traffic_report
+from gcs.fleet.attach import (
+    AttachedVehicle,
+    AttachError,
+    ExternalLink,
+    TokenBucket,
+    parse_attach,
+    sysid_problem,
+    traffic_report,
+)
 from gcs.flight.behaviours import FollowAttached, FollowAttachedSpec, LeaderReport, SwarmState
 from gcs.flight.geodesy import GeoPoint, NedFrame
 from gcs.mavlink.urls import DEFAULT_BAUD, UrlError, parse_vehicle_url
@@ -254,3 +262,11 @@ def test_a_mission_names_the_attached_leader_step_and_a_leader_role_is_taken(tmp
     mission.write_text(text.replace("duration_s = 30\n", ""))
     with pytest.raises(MissionFileError, match="missing field 'duration_s'"):
         load_mission(mission)
+
+
+def test_a_links_budget_gives_its_rate_on_average_and_its_burst_at_once() -> None:
+    bucket = TokenBucket(rate_per_s=20.0, burst=20.0)
+    assert sum(bucket.take(0.0) for _ in range(50)) == 20  # a full burst at the start, then nothing
+    assert not bucket.take(0.01)
+    taken = sum(bucket.take(1.0 + k * 0.001) for k in range(10_000))  # asked 1,000 times a second for 10 s
+    assert 200 <= taken <= 221  # 20 a second, plus what had built up since the burst
