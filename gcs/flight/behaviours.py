@@ -602,13 +602,18 @@ class FollowSpec:
 
     def offsets(self, follower_count: int) -> FloatArray:
         """(forward, right) offsets (m, 2), m >= follower_count; FormationError if too few are given."""
-        if self.offsets_fr_m is not None:
-            if len(self.offsets_fr_m) < follower_count:
-                raise FormationError(
-                    f"{len(self.offsets_fr_m)} follower offsets for {follower_count} followers: give one each"
-                )
-            return np.array(self.offsets_fr_m, dtype=np.float64).reshape(-1, 2)
-        return default_offsets(follower_count, self.spacing_m, self.angle_rad)
+        return follower_offsets(self.offsets_fr_m, follower_count, self.spacing_m, self.angle_rad)
+
+
+def follower_offsets(given_fr_m: Sequence[tuple[float, float]] | None, follower_count: int, spacing_m: float,
+                     angle_rad: float) -> FloatArray:  # fmt: skip
+    """The (forward, right) offsets given, one per follower at least (FormationError if too few), or without them a
+    V behind the leader (``default_offsets``)."""
+    if given_fr_m is None:
+        return default_offsets(follower_count, spacing_m, angle_rad)
+    if len(given_fr_m) < follower_count:
+        raise FormationError(f"{len(given_fr_m)} follower offsets for {follower_count} followers: give one each")
+    return np.array(given_fr_m, dtype=np.float64).reshape(-1, 2)
 
 
 def default_offsets(follower_count: int, spacing_m: float, angle_rad: float = math.pi / 2.0) -> FloatArray:
@@ -871,13 +876,8 @@ class FollowAttachedSpec:
             raise FormationError(f"FollowAttachedSpec.angle_rad must be in (0, pi], got {self.angle_rad}")
 
     def offsets(self, follower_count: int) -> FloatArray:
-        if self.offsets_fr_m is not None:
-            if len(self.offsets_fr_m) < follower_count:
-                raise FormationError(
-                    f"{len(self.offsets_fr_m)} follower offsets for {follower_count} followers: give one each"
-                )
-            return np.array(self.offsets_fr_m, dtype=np.float64).reshape(-1, 2)
-        return default_offsets(follower_count, self.spacing_m, self.angle_rad)
+        """(forward, right) offsets (m, 2), m >= follower_count; FormationError if too few are given."""
+        return follower_offsets(self.offsets_fr_m, follower_count, self.spacing_m, self.angle_rad)
 
 
 class FollowAttached:
