@@ -153,8 +153,8 @@ def _add_attach_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--attach", action="append", default=[], metavar="[ROLE=]URL",
                         help="attach a MAVLink vehicle the simulation does not run (a real drone, another SITL) "
                         "heard on URL (udpin:0.0.0.0:14560, tcp:HOST:PORT, /dev/ttyUSB0,57600 or the MAVSDK "
-                        "spellings): it is seen, avoided and counted by the simulated drones (repeatable; role "
-                        "intruder; docs/external.md)")  # fmt: skip
+                        "spellings): it is seen, avoided and counted by the simulated drones, or followed as a "
+                        "leader (repeatable; roles intruder, leader; docs/external.md)")  # fmt: skip
     parser.add_argument("--gcs-sysid", type=_sysid, default=GCS_SYSID, metavar="N",
                         help=f"the supervisor's own MAVLink system id (default {GCS_SYSID}; another when a "
                         "QGroundControl beside it uses that one)")  # fmt: skip
@@ -167,7 +167,8 @@ def _add_attach_option(parser: argparse.ArgumentParser) -> None:
 
 
 def _attach_specs(args: argparse.Namespace, from_mission: tuple[AttachSpec, ...] = ()) -> tuple[AttachSpec, ...]:
-    """``--attach`` (after the mission's [[swarm.attach]]), each checked; a swarm with one runs paced at speed 1."""
+    """``--attach`` (after the mission's [[swarm.attach]]), each checked (that a swarm with one runs paced at speed 1
+    is the attach's own check, before any drone starts: gcs/fleet/attachments.py)."""
     try:
         specs = (
             *from_mission,
@@ -178,9 +179,6 @@ def _attach_specs(args: argparse.Namespace, from_mission: tuple[AttachSpec, ...]
         )
     except AttachError as exc:
         raise UsageError(str(exc)) from None
-    if specs and (args.lockstep or _speed(args) != 1.0):
-        raise UsageError("--attach: a swarm with an attached vehicle runs paced at speed 1 (the real world keeps "
-                         "wall time), not with --lockstep or another --speed")  # fmt: skip
     return specs
 
 

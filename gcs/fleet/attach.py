@@ -30,6 +30,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.flight.geodesy import GeoPoint, geo_from_ned
 from gcs.mavlink import signing
+from gcs.mavlink.commands import AUTOPILOT_COMPID
 from gcs.mavlink.signing import SigningKeyError, load_key
 from gcs.mavlink.transport import GCS_COMPID
 from gcs.mavlink.urls import UrlError, VehicleUrl, parse_vehicle_url
@@ -43,7 +44,6 @@ OTHERS_SETTLE_S: Final = 1.5  # after the first vehicle's HEARTBEAT, listen this
 # (a wrong origin, a vehicle on another field), and its body would be kilometres off
 DEFAULT_MAX_DISTANCE_M: Final = 500.0
 MAX_READ_PER_POLL: Final = 200  # messages one poll of a link reads at most (a flooding link cannot stall the swarm)
-AUTOPILOT_COMPID: Final = 1
 EXTRAPOLATE_MAX_S: Final = 1.0  # a report older than this is not carried on further: the vehicle may have stopped
 # Frames a second the ground station sends on an attached link at most (51-byte ADSB_VEHICLE reports of the simulated
 # drones): about 1 kB/s, a sixth of what a 57.6 kbit/s telemetry radio carries
@@ -110,25 +110,25 @@ class AttachedVehicle:
     sysid: int
     spec: AttachSpec
     link: ExternalLink
-    autopilot: int  # MAV_AUTOPILOT of its HEARTBEAT
-    heard_s: float  # supervisor clock of the last message from it
-    position: tuple[float, float, float] | None = None  # lat, lon, alt AMSL of its last GLOBAL_POSITION_INT
+    position: GeoPoint | None = None  # where its last GLOBAL_POSITION_INT put it
     vel_ned_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
     position_s: float = math.nan  # supervisor clock when that report arrived
     lost: bool = False
 
-    def body_at(self, now_s: float) -> tuple[float, float, float] | None:
-        """Where its last report, carried on at its velocity to ``now_s`` (EXTRAPOLATE_MAX_S at most), puts it (lat,
-        lon, alt AMSL); a vehicle gone silent stays where it was last known (a real drone does not vanish)."""
+    def body_at(self, now_s: float) -> GeoPoint | None:
+        """Where its last report, carried on at its velocity to ``now_s`` (EXTRAPOLATE_MAX_S at most), puts it; a
+        vehicle gone silent stays where it was last known (a real drone does not vanish)."""
         if self.position is None:
             return None
-        lat, lon, alt = self.position
         age_s = 0.0 if self.lost else min(max(now_s - self.position_s, 0.0), EXTRAPOLATE_MAX_S)
         if age_s == 0.0:
             return self.position
-        here = GeoPoint(lat_deg=lat, lon_deg=lon, alt_amsl_m=alt)
-        there = geo_from_ned(tuple(v * age_s for v in self.vel_ned_mps), here)
-        return (there.lat_deg, there.lon_deg, there.alt_amsl_m)
+        return geo_from_ned(tuple(v * age_s for v in self.vel_ned_mps), self.position)
+
+
+def reported_geo(position: Any) -> GeoPoint:
+    """Where a GLOBAL_POSITION_INT puts its sender."""
+    return GeoPoint(lat_deg=position.lat * 1e-7, lon_deg=position.lon * 1e-7, alt_amsl_m=position.alt * 1e-3)
 
 
 @dataclass(slots=True)
@@ -198,11 +198,6 @@ class ExternalLink:
         if key is not None:  # pymavlink then drops unsigned and badly signed frames as BAD_DATA
             signing.enable(conn.mav, key, time.time())
         self.conn = conn
-
-    def fileno(self) -> int | None:
-        with contextlib.suppress(Exception):
-            return int(self.conn.fileno())
-        return None
 
     def receive(self) -> list[Any]:
         """What has arrived, without waiting (at most MAX_READ_PER_POLL messages)."""

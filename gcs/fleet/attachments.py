@@ -20,12 +20,15 @@ from gcs.fleet.attach import (
     AttachSpec,
     ExternalLink,
     is_vehicle_heartbeat,
+    reported_geo,
     sysid_problem,
     traffic_report,
 )
 from gcs.fleet.clock import TICK_S, next_tick_s
 from gcs.fleet.telemetry import LINK_LOST_S
-from gcs.flight.geodesy import GeoPoint, NedFrame
+from gcs.flight.frames import Vec3
+from gcs.flight.geodesy import NedFrame
+from gcs.mavlink.commands import AUTOPILOT_COMPID
 
 if TYPE_CHECKING:
     from gcs.fleet.swarm import Swarm
@@ -80,8 +83,7 @@ class Attachments:
             if problem is not None:
                 refused[sysid] = f"--attach {spec.describe()}: {problem}: not attached"
                 continue
-            self.vehicles[sysid] = AttachedVehicle(sysid=sysid, spec=spec, link=link, autopilot=msg.autopilot,
-                                                   heard_s=now)  # fmt: skip
+            self.vehicles[sysid] = AttachedVehicle(sysid=sysid, spec=spec, link=link)
             link.sysids.add(sysid)
             attached.append(sysid)
         if not attached:
@@ -97,8 +99,7 @@ class Attachments:
         ``max_distance_m``), or None."""
         if position is None:
             return f"sysid {sysid} sent no GLOBAL_POSITION_INT (where is it?)"
-        here = GeoPoint(lat_deg=position.lat * 1e-7, lon_deg=position.lon * 1e-7, alt_amsl_m=position.alt * 1e-3)
-        distance = math.dist((0.0, 0.0, 0.0), self._frame.ned_from_geo(here))
+        distance = math.dist((0.0, 0.0, 0.0), self._frame.ned_from_geo(reported_geo(position)))
         if distance > max_distance_m:
             return f"sysid {sysid} is {distance:.0f} m from the swarm's origin (at most {max_distance_m:g} m)"
         return None
@@ -163,22 +164,22 @@ class Attachments:
             geo = vehicle.body_at(now)
             if geo is not None:
                 velocity = (0.0, 0.0, 0.0) if vehicle.lost else vehicle.vel_ned_mps
-                self.swarm.harness.place_external_body(sysid, geo, velocity, vehicle.spec.radius_m)
+                self.swarm.harness.place_external_body(sysid, (geo.lat_deg, geo.lon_deg, geo.alt_amsl_m), velocity,
+                                                       vehicle.spec.radius_m)  # fmt: skip
 
     def _handle(self, link: ExternalLink, msg: Any, now: float) -> None:
         """A message on an attached vehicle's link: into the fleet view, the relay and the listeners (the flight log,
         the report), as a simulated drone's. Only the vehicles attached are heard: one that shows up on the link later
         (or was refused) is not taken without an attach of its own."""
-        if msg.get_srcComponent() != 1:
+        if msg.get_srcComponent() != AUTOPILOT_COMPID:
             return
         vehicle = self.vehicles.get(msg.get_srcSystem())
         if vehicle is None or vehicle.link is not link:
             return
         swarm = self.swarm
-        vehicle.heard_s = now
         position = msg.get_type() == "GLOBAL_POSITION_INT"
         if position:
-            vehicle.position = (msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3)
+            vehicle.position = reported_geo(msg)
             vehicle.vel_ned_mps = (msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
             vehicle.position_s = now
         swarm.fleet.handle(msg, now)
@@ -196,21 +197,20 @@ class Attachments:
         source = position.get_srcSystem()
         if now - self._shared_s.get(source, -math.inf) < 1.0 / SHARE_RATE_HZ:
             return
-        here = GeoPoint(lat_deg=position.lat * 1e-7, lon_deg=position.lon * 1e-7, alt_amsl_m=position.alt * 1e-3)
-        drone = self._frame.ned_from_geo(here)
+        drone = self._frame.ned_from_geo(reported_geo(position))
         report = None
         for link in self._links:
-            near = any(
-                (geo := v.body_at(now)) is not None
-                and math.dist(drone, self._frame.ned_from_geo(GeoPoint(lat_deg=geo[0], lon_deg=geo[1],
-                                                                       alt_amsl_m=geo[2]))) <= SHARE_RADIUS_M
-                for v in self.vehicles.values() if v.link is link
-            )  # fmt: skip
+            near = any(self._within(drone, v, now) for v in self.vehicles.values() if v.link is link)
             if not near or not link.budget.take(now):
                 continue
             report = report or traffic_report(position)
             link.send(report)
             self._shared_s[source] = now
+
+    def _within(self, drone_ned_m: Vec3, vehicle: AttachedVehicle, now: float) -> bool:
+        """Whether the vehicle's body is within SHARE_RADIUS_M of a point (swarm frame)."""
+        geo = vehicle.body_at(now)
+        return geo is not None and math.dist(drone_ned_m, self._frame.ned_from_geo(geo)) <= SHARE_RADIUS_M
 
     def close(self) -> None:
         """Close every link (the vehicles are left as they are)."""

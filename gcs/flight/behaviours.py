@@ -597,12 +597,17 @@ class FollowSpec:
         }
         check_finite(self, angle_rad=self.angle_rad, **values)
         check_positive(self, **values)
-        if not 0.0 < self.angle_rad <= math.pi:
-            raise FormationError(f"FollowSpec.angle_rad must be in (0, pi], got {self.angle_rad}")
+        _check_v_angle(self)
 
     def offsets(self, follower_count: int) -> FloatArray:
         """(forward, right) offsets (m, 2), m >= follower_count; FormationError if too few are given."""
         return follower_offsets(self.offsets_fr_m, follower_count, self.spacing_m, self.angle_rad)
+
+
+def _check_v_angle(spec: FollowSpec | FollowAttachedSpec) -> None:
+    """The opening of the followers' V, (0, pi]."""
+    if not 0.0 < spec.angle_rad <= math.pi:
+        raise FormationError(f"{type(spec).__name__}.angle_rad must be in (0, pi], got {spec.angle_rad}")
 
 
 def follower_offsets(given_fr_m: Sequence[tuple[float, float]] | None, follower_count: int, spacing_m: float,
@@ -872,8 +877,7 @@ class FollowAttachedSpec:
                   "max_turn_rate_radps": self.max_turn_rate_radps}  # fmt: skip
         check_finite(self, angle_rad=self.angle_rad, **values)
         check_positive(self, **values)
-        if not 0.0 < self.angle_rad <= math.pi:
-            raise FormationError(f"FollowAttachedSpec.angle_rad must be in (0, pi], got {self.angle_rad}")
+        _check_v_angle(self)
 
     def offsets(self, follower_count: int) -> FloatArray:
         """(forward, right) offsets (m, 2), m >= follower_count; FormationError if too few are given."""

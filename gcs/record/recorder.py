@@ -18,8 +18,8 @@ from typing import Any
 from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.command.streamer import FormationStreamer
+from gcs.fleet.attach import reported_geo
 from gcs.fleet.losses import MAV_STATE_CRITICAL
-from gcs.flight.geodesy import GeoPoint
 from gcs.mavlink.statustext import StatusTextAssembler
 from gcs.record.metrics import LiveMetrics
 from gcs.record.recording import DroneSample, EventRecord, FlightRecording, ItemReached
@@ -79,8 +79,7 @@ class FlightRecorder:
         if sysid not in self.recording.attached:
             spec = self.swarm.attached[sysid].spec
             self.recording.attached[sysid] = (spec.role, spec.url.describe())
-        here = GeoPoint(lat_deg=msg.lat * 1e-7, lon_deg=msg.lon * 1e-7, alt_amsl_m=msg.alt * 1e-3)
-        pos = self.streamer.swarm_frame.ned_from_geo(here)
+        pos = self.streamer.swarm_frame.ned_from_geo(reported_geo(msg))
         vel = (msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
         self.recording.attached_samples.append(DroneSample(time_s=now, sysid=sysid, pos_ned_m=pos, vel_ned_mps=vel,
                                                            armed=True, mode="EXTERNAL"))  # fmt: skip

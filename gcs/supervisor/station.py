@@ -18,6 +18,7 @@ from gcs.fleet.attach import DEFAULT_MAX_DISTANCE_M, parse_attach
 from gcs.fleet.faults import fault_request
 from gcs.fleet.losses import MAV_STATE_CRITICAL, LossPolicy
 from gcs.fleet.swarm import Swarm, SwarmError
+from gcs.fleet.telemetry import DroneView
 from gcs.flight.formation import Formation
 from gcs.mavlink.mission_transfer import MISSION_STATE_NAMES
 from gcs.missions.mission_file import build_flock, build_follow, build_formation
@@ -184,30 +185,21 @@ class Station:
             if d is None:
                 rows.append({"sysid": sysid, "mode": "NO LINK"})
                 continue
-            rows.append(
-                {
-                    "sysid": sysid,
-                    "mode": d.mode,
-                    "armed": d.armed,
-                    "lat_deg": d.lat_deg,
-                    "lon_deg": d.lon_deg,
-                    "alt_m": d.relative_alt_m,
-                    "battery": d.battery_remaining,
-                    "link_age_s": d.link_age_s(now),
-                    "failsafe": failsafe_text(d.system_status, d.texts),
-                    "mission": self._mission_progress(sysid, d.mode),
-                }
-            )
+            rows.append({**_telemetry_row(d, now), "mission": self._mission_progress(sysid, d.mode)})
         for sysid, vehicle in self.swarm.attached.items():
             d = self.swarm.fleet.drones.get(sysid)
-            if d is None:
-                continue
-            rows.append({"sysid": sysid, "mode": d.mode, "armed": d.armed, "lat_deg": d.lat_deg, "lon_deg": d.lon_deg,
-                         "alt_m": d.relative_alt_m, "battery": d.battery_remaining, "link_age_s": d.link_age_s(now),
-                         "failsafe": failsafe_text(d.system_status, d.texts),
-                         "external": f"{vehicle.spec.role} on {vehicle.spec.url.describe()}"
-                         + (", lost" if vehicle.lost else "")})  # fmt: skip
+            if d is not None:
+                lost = ", lost" if vehicle.lost else ""
+                rows.append({**_telemetry_row(d, now),
+                             "external": f"{vehicle.spec.role} on {vehicle.spec.url.describe()}{lost}"})  # fmt: skip
         return rows
+
+
+def _telemetry_row(d: DroneView, now_s: float) -> dict[str, Any]:
+    """A vehicle's status row from its telemetry (a simulated drone's or an attached one's)."""
+    return {"sysid": d.sysid, "mode": d.mode, "armed": d.armed, "lat_deg": d.lat_deg, "lon_deg": d.lon_deg,
+            "alt_m": d.relative_alt_m, "battery": d.battery_remaining, "link_age_s": d.link_age_s(now_s),
+            "failsafe": failsafe_text(d.system_status, d.texts)}  # fmt: skip
 
 
 def swarm_note(say: Say) -> Say:

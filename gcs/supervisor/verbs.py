@@ -42,7 +42,6 @@ from gcs.flight.behaviours import (
     LeaderReport,
 )
 from gcs.flight.formation import Formation
-from gcs.flight.geodesy import GeoPoint
 from gcs.missions.mission_file import LAND_TIMEOUT_S, RTL_TIMEOUT_S, TAKEOFF_TIMEOUT_S
 from gcs.missions.plan_flight import Offset, Uploaded, download_plan, start_missions, unfinished, upload_plan
 from gcs.missions.qgc_plan import QgcPlan
@@ -202,8 +201,9 @@ def follow_attached(session: FlightSession, spec: FollowAttachedSpec) -> Started
     leaders = [s for s, v in swarm.attached.items() if v.spec.role == "leader"]
     sysid = spec.leader_sysid if spec.leader_sysid is not None else (leaders[0] if len(leaders) == 1 else None)
     if sysid is None or sysid not in leaders:
-        raise ValueError(f"follow an attached leader: no attached leader {spec.leader_sysid or ''} (attached "
-                         f"leaders: {leaders or 'none'}; attach one with --attach leader=URL)")  # fmt: skip
+        which = "" if spec.leader_sysid is None else f" with sysid {spec.leader_sysid}"
+        raise ValueError(f"follow an attached leader: no attached leader{which} to follow (attached leaders: "
+                         f"{leaders or 'none'}; attach one with --attach leader=URL)")  # fmt: skip
     vehicle = swarm.attached[sysid]
 
     def report() -> LeaderReport | None:
@@ -212,8 +212,7 @@ def follow_attached(session: FlightSession, spec: FollowAttachedSpec) -> Started
         geo = vehicle.body_at(swarm.clock())
         if geo is None:
             return None
-        pos = streamer.swarm_frame.ned_from_geo(GeoPoint(lat_deg=geo[0], lon_deg=geo[1], alt_amsl_m=geo[2]))
-        return LeaderReport(pos_ned_m=pos, vel_ned_mps=vehicle.vel_ned_mps)
+        return LeaderReport(pos_ned_m=streamer.swarm_frame.ned_from_geo(geo), vel_ned_mps=vehicle.vel_ned_mps)
 
     take_over(session)
     law = FollowAttached(spec, report, session.mission_time(), streamer.state())

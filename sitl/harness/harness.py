@@ -29,9 +29,9 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from sitl.dynamics.airframe import load_airframe
 from sitl.dynamics.plant import PHYSICS_RATE_HZ
 from sitl.harness.processes import DroneProcess, LaunchPlan, ProcessGroup, process_exit_cause
+from sitl.harness.simulation import contact_distance_m
 from sitl.world.lockstep import LockstepGate
 from sitl.world.shared import (
     ALT,
@@ -249,24 +249,22 @@ class SitlHarness:
     def place_external_body(self, sysid: int, geo: tuple[float, float, float],
                             vel_ned_mps: tuple[float, float, float], radius_m: float | None) -> None:  # fmt: skip
         """An attached vehicle's body in the world, on the row of its sysid (its instance would be sysid - 1): never a
-        lockstep member, never ended, so it neither falls nor holds anyone back; it rests where the ground is (its
-        launch altitude is not known here, so a body written on the ground stays there)."""
+        lockstep member (its step count stays infinite, as a row that is none), never ended, so it neither falls nor
+        holds anyone back."""
         world = self._world
         if world is None:
             return
         instance = sysid - 1
         radius = self._drone_radius_m() if radius_m is None else radius_m
         world.write(instance, 0.0, geo, vel_ned_mps, radius, False, rest_alt_amsl_m=-math.inf)
-        world.table[instance, STEP] = math.inf
 
     def remove_external_body(self, sysid: int) -> None:
         if self._world is not None:
             self._world.table[sysid - 1, VALID] = 0.0
 
     def _drone_radius_m(self) -> float:
-        if self._radius_m is None:
-            airframe = load_airframe(self.plan.airframe) if self.plan.airframe else load_airframe()
-            self._radius_m = airframe.collision_radius_m
+        if self._radius_m is None:  # read once: bodies are moved at every pump
+            self._radius_m = contact_distance_m(self.plan.airframe) / 2.0
         return self._radius_m
 
     def wake_fileno(self) -> int | None:

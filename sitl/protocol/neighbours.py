@@ -187,25 +187,8 @@ class NeighbourTable:
             lat, lon, alt, vx, vy, vz, boot_ms = _plain_fields(msg) or _checked_fields(msg)
         except PeerInputError:
             return
-        sender_time_s = boot_ms * 1e-3
-        known = self._entries.get(sender)
-        if known is not None and sender_time_s <= known.sender_time_s and known.age_s(now_s) <= NEIGHBOUR_TIMEOUT_S:
-            self.stale += 1
-            return
-        self._entries[sender] = _new_neighbour(
-            sysid=sender,
-            lat_deg=lat * 1e-7,
-            lon_deg=lon * 1e-7,
-            alt_amsl_m=alt * 1e-3,
-            vel_ned_mps=(vx * 0.01, vy * 0.01, vz * 0.01),
-            sender_time_s=sender_time_s,
-            received_s=now_s,
-            source=source,
-        )
-        if now_s < self._oldest_received_s:
-            self._oldest_received_s = now_s
-        self.updates += 1
-        self._updates[source] += 1
+        self._take(sender, boot_ms * 1e-3, now_s, source, lat * 1e-7, lon * 1e-7, alt * 1e-3,
+                   (vx * 0.01, vy * 0.01, vz * 0.01), cooperative=True)  # fmt: skip
 
     def _traffic(self, msg: MAVLinkMessage, now_s: float, source: NeighbourSource) -> None:
         """An ADSB_VEHICLE: traffic, taken when newer than its entry (its time is its arrival less its ``tslc``)."""
@@ -216,17 +199,21 @@ class NeighbourTable:
         if fields is None:
             return
         icao, lat, lon, alt, vn, ve, vd, tslc = fields
-        if icao == self.own_sysid:
-            return
-        sender_time_s = now_s - tslc
-        known = self._entries.get(icao)
+        if icao != self.own_sysid:
+            self._take(icao, now_s - tslc, now_s, source, lat * 1e-7, lon * 1e-7, alt * 1e-3, (vn, ve, vd),
+                       cooperative=False)  # fmt: skip
+
+    def _take(self, sysid: int, sender_time_s: float, now_s: float, source: NeighbourSource, lat_deg: float,
+              lon_deg: float, alt_amsl_m: float, vel_ned_mps: tuple[float, float, float], *,
+              cooperative: bool) -> None:  # fmt: skip
+        """A report into the table, unless its entry holds one sent as late or later (a copy, or overtaken)."""
+        known = self._entries.get(sysid)
         if known is not None and sender_time_s <= known.sender_time_s and known.age_s(now_s) <= NEIGHBOUR_TIMEOUT_S:
             self.stale += 1
             return
-        self._entries[icao] = _new_neighbour(sysid=icao, lat_deg=lat * 1e-7, lon_deg=lon * 1e-7,
-                                             alt_amsl_m=alt * 1e-3, vel_ned_mps=(vn, ve, vd),
-                                             sender_time_s=sender_time_s, received_s=now_s, source=source,
-                                             cooperative=False)  # fmt: skip
+        self._entries[sysid] = _new_neighbour(sysid=sysid, lat_deg=lat_deg, lon_deg=lon_deg, alt_amsl_m=alt_amsl_m,
+                                              vel_ned_mps=vel_ned_mps, sender_time_s=sender_time_s,
+                                              received_s=now_s, source=source, cooperative=cooperative)  # fmt: skip
         if now_s < self._oldest_received_s:
             self._oldest_received_s = now_s
         self.updates += 1

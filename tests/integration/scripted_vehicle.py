@@ -153,7 +153,6 @@ class ScriptedVehicle:
         self.silent = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"scripted-{self.sysid}", daemon=True)
         self.t0 = time.monotonic()
-        self.sent_positions: list[tuple[float, tuple[float, float, float]]] = []  # (wall time, NED) of each report
 
     def start(self) -> ScriptedVehicle:
         self.t0 = time.monotonic()
@@ -164,10 +163,6 @@ class ScriptedVehicle:
         self._stop.set()
         self._thread.join(timeout=5)
         self.link.close()
-
-    def where(self, wall_s: float) -> tuple[float, float, float]:
-        """Its NED position from the origin at monotonic time ``wall_s``."""
-        return self.path(wall_s - self.t0)
 
     def _send(self, msg: mavlink.MAVLink_message) -> None:
         self.link.write(msg.pack(self._mav))
@@ -196,7 +191,6 @@ class ScriptedVehicle:
                 int(t * 1000) & 0xFFFFFFFF, round(geo.lat_deg * 1e7), round(geo.lon_deg * 1e7),
                 round(geo.alt_amsl_m * 1e3), round(-down * 1e3), round(vel[0] * 100), round(vel[1] * 100),
                 round(vel[2] * 100), 0))  # fmt: skip
-            self.sent_positions.append((now, (north, east, down)))
 
 
 def hover_then_circle(centre_ne_m: tuple[float, float], radius_m: float, alt_m: float, speed_mps: float,

@@ -10,9 +10,11 @@ the system; paced at 1x (an attached vehicle keeps wall time); every process sto
 
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -34,18 +36,29 @@ from tests.integration.test_attach import CROSSING, FRAME, INTRUDER_SYSID, MIN_C
 pytestmark = [pytest.mark.sim_only]
 
 
-def _swarm_up_with(link_url: str, first: int, env: dict[str, str],
-                   *extra: str) -> tuple[subprocess.Popen[str], list[str]]:  # fmt: skip
-    proc = subprocess.Popen([*SWARM, "up", "-n", "1", "--first-instance", str(first), "--attach",
-                             f"intruder={link_url}", "--no-forward", "--no-view", *extra],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)  # fmt: skip
-    lines: list[str] = []
-    assert proc.stdout is not None
-    for line in proc.stdout:
-        lines.append(line)
-        if "drones up" in line:
-            break
-    return proc, lines
+@contextlib.contextmanager
+def swarm_up_beside(vehicle: ScriptedVehicle, first: int, env: dict[str, str], *extra: str,
+                    drones: int = 1) -> Iterator[tuple[subprocess.Popen[str], list[str]]]:  # fmt: skip
+    """``swarm up`` with ``vehicle`` attached as an intruder: the supervisor and what it said until its drones were up
+    (or until it ended); at the end it is killed if the test left it running, and the vehicle stops."""
+    try:
+        proc = subprocess.Popen([*SWARM, "up", "-n", str(drones), "--first-instance", str(first), "--attach",
+                                 f"intruder={vehicle.link.url()}", "--no-forward", "--no-view", *extra],
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)  # fmt: skip
+        try:
+            lines: list[str] = []
+            assert proc.stdout is not None
+            for line in proc.stdout:
+                lines.append(line)
+                if "drones up" in line:
+                    break
+            yield proc, lines
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    finally:
+        vehicle.stop()
 
 
 def _status_rows(env: dict[str, str]) -> dict[int, str]:
@@ -65,11 +78,10 @@ def test_a_vehicle_on_tcp_or_a_serial_line_is_attached_shown_in_the_status_detac
     vehicle = ScriptedVehicle(sysid=INTRUDER_SYSID, link=link, origin=DEFAULT_ORIGIN,
                               path=lambda _t: (5.0, 5.0, -3.0)).start()  # fmt: skip
     env = {**os.environ, "SWARM_STATE_DIR": str(tmp_path / "state")}
-    proc: subprocess.Popen[str] | None = None
-    try:
-        # WHEN a swarm is brought up with it attached (over TCP, the supervisor as sysid 240: a QGroundControl beside
-        # it may use 255)
-        proc, lines = _swarm_up_with(link.url(), instances(1), env, *(["--gcs-sysid", "240"] if kind == "tcp" else []))
+    # WHEN a swarm is brought up with it attached (over TCP, the supervisor as sysid 240: a QGroundControl beside it
+    # may use 255)
+    sysid_args = ["--gcs-sysid", "240"] if kind == "tcp" else []
+    with swarm_up_beside(vehicle, instances(1), env, *sysid_args) as (proc, lines):
         # THEN the attach is said, and the status lists it beside the simulated drone, where it is
         described = link.url()
         assert f"swarm: attached intruder sysid {INTRUDER_SYSID} on {described}\n" in lines, lines
@@ -102,11 +114,6 @@ def test_a_vehicle_on_tcp_or_a_serial_line_is_attached_shown_in_the_status_detac
         # AND 'swarm down' ends it cleanly, the attached vehicle told nothing
         assert subprocess.run([*SWARM, "down"], capture_output=True, text=True, env=env, timeout=30).returncode == 0
         assert proc.wait(timeout=60) == 0
-    finally:
-        if proc is not None and proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        vehicle.stop()
 
 
 @pytest.mark.timeout(120)
@@ -122,10 +129,8 @@ def test_a_signed_link_takes_the_vehicle_that_signs_with_its_key_and_nothing_uns
         link = UdpLink(free_udp_port())
         vehicle = ScriptedVehicle(sysid=INTRUDER_SYSID, link=link, origin=DEFAULT_ORIGIN, path=CROSSING,
                                   signing_key=key if signs else None).start()  # fmt: skip
-        proc: subprocess.Popen[str] | None = None
-        try:
-            # GIVEN a link signed with the vehicle's key WHEN the vehicle signs (or does not)
-            proc, lines = _swarm_up_with(link.url(), first, env, "--attach-signing-key", str(key_file))
+        # GIVEN a link signed with the vehicle's key WHEN the vehicle signs (or does not)
+        with swarm_up_beside(vehicle, first, env, "--attach-signing-key", str(key_file)) as (proc, lines):
             if attached:
                 # THEN it is attached
                 assert f"swarm: attached intruder sysid {INTRUDER_SYSID} on {link.url()}\n" in lines, lines
@@ -136,11 +141,6 @@ def test_a_signed_link_takes_the_vehicle_that_signs_with_its_key_and_nothing_uns
                 # OR nothing it sends is heard: the attach fails with one line, exit code 2, before any drone starts
                 assert proc.wait(timeout=60) == 2
                 assert lines[-1] == f"swarm: error: --attach intruder={link.url()}: no vehicle HEARTBEAT within 10 s\n"
-        finally:
-            if proc is not None and proc.poll() is None:
-                proc.kill()
-                proc.wait()
-            vehicle.stop()
 
 
 LEADER_MISSION = """
@@ -182,13 +182,15 @@ def test_four_drones_follow_a_leader_that_flies_itself_in_a_v_and_keep_clear_of_
         metrics, result = fly_mission(mission, [], tmp_path, 200, instances)
     finally:
         leader.stop()
-    # THEN the leader is attached, and the drones follow it in a V: in formation within the step's first half (they
+    # THEN the leader is attached, and the drones follow it in a V: in formation within 15 s of the step's start (they
     # join from the ground grid while it hovers; 11.7 s on an idle machine) and within 0.5 m RMS of their slots from
-    # then on, as it flies its circle. The leader keeps wall time and the drones the simulated one: on a loaded machine
-    # (the suite's two workers, the drones at 0.74x real time) it flies faster than they, and the join took 18.8 s.
+    # then on, as it flies its circle. The leader keeps wall time and the drones the simulated one: on a machine that
+    # holds the drones below real time it outruns them, so the 15 s are of its time (18.8 s of theirs under the
+    # suite's load, the drones at 0.74x)
     assert f"swarm: attached leader sysid {INTRUDER_SYSID} on udpin:127.0.0.1:{port}" in result.stdout
     step = next(s for s in metrics["steps"] if s["name"] == "follow attached")
-    assert step["time_to_formation_s"] is not None and step["time_to_formation_s"] < 27.5, step
+    slowest = min(1.0, metrics["realtime_factor_min"])
+    assert step["time_to_formation_s"] is not None and step["time_to_formation_s"] * slowest < 15.0, (step, slowest)
     assert step["formation_rms_m"] < 0.5, step
     # AND they flew round with it (the leader's 40-odd metres each at least), touching nothing, clear of the leader
     assert metrics["collisions"] == 0, metrics["collision_events"]
@@ -207,15 +209,7 @@ def test_the_simulated_drones_reach_an_attached_vehicle_as_traffic_within_its_ra
                               path=lambda _t: (north_m, 0.0, -3.0)).start()  # fmt: skip
     env = {**os.environ, "SWARM_STATE_DIR": str(tmp_path / "state")}
     first = instances(3)
-    proc: subprocess.Popen[str] | None = None
-    try:
-        proc = subprocess.Popen([*SWARM, "up", "-n", "3", "--first-instance", str(first), "--attach",
-                                 f"intruder={link.url()}", "--no-forward", "--no-view"],
-                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)  # fmt: skip
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            if "drones up" in line:
-                break
+    with swarm_up_beside(vehicle, first, env, drones=3) as (proc, _lines):
         link.read()  # what came before the drones were up
         # WHEN the swarm runs for 3 s
         time.sleep(3.0)
@@ -223,11 +217,6 @@ def test_the_simulated_drones_reach_an_attached_vehicle_as_traffic_within_its_ra
         status = subprocess.run([*SWARM, "status"], capture_output=True, text=True, env=env, timeout=30).stdout
         assert subprocess.run([*SWARM, "down"], capture_output=True, text=True, env=env, timeout=30).returncode == 0
         assert proc.wait(timeout=60) == 0
-    finally:
-        if proc is not None and proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        vehicle.stop()
     if north_m > SHARE_RADIUS_M:
         # THEN a vehicle beyond the radius is told nothing
         assert traffic == []

@@ -120,17 +120,16 @@ def test_a_missions_attach_tables_are_read_and_a_bad_one_is_named_by_its_line(tm
 
 def test_a_vehicles_body_is_carried_on_briefly_at_its_velocity_and_stays_put_once_lost() -> None:
     origin = GeoPoint(lat_deg=47.0, lon_deg=8.0, alt_amsl_m=500.0)
-    vehicle = AttachedVehicle(sysid=42, spec=parse_attach("intruder=udpin:0.0.0.0:1"),
-                              link=ExternalLink(spec=parse_attach("intruder=udpin:0.0.0.0:1"), source_system=255),
-                              autopilot=12, heard_s=0.0)  # fmt: skip
+    spec = parse_attach("intruder=udpin:0.0.0.0:1")
+    vehicle = AttachedVehicle(sysid=42, spec=spec, link=ExternalLink(spec=spec, source_system=255))
     assert vehicle.body_at(1.0) is None  # no position yet
-    vehicle.position, vehicle.vel_ned_mps, vehicle.position_s = (47.0, 8.0, 500.0), (2.0, -1.0, -0.5), 10.0
+    vehicle.position, vehicle.vel_ned_mps, vehicle.position_s = origin, (2.0, -1.0, -0.5), 10.0
     frame = NedFrame(origin)
 
     def ned(t_s: float) -> tuple[float, ...]:
         geo = vehicle.body_at(t_s)
         assert geo is not None
-        return tuple(frame.ned_from_geo(GeoPoint(lat_deg=geo[0], lon_deg=geo[1], alt_amsl_m=geo[2])))
+        return tuple(frame.ned_from_geo(geo))
 
     assert ned(10.0) == pytest.approx((0.0, 0.0, 0.0), abs=1e-9)
     assert ned(10.5) == pytest.approx((1.0, -0.5, -0.25), abs=1e-3)
