@@ -44,7 +44,7 @@ from gcs.flight.geodesy import GeoPoint, NedFrame
 from gcs.mavlink.commands import FORCE_DISARM_MAGIC, Ack, CommandClient, Send
 from gcs.mavlink.mission_transfer import MISSION_TYPE_MISSION, MissionClient, MissionProgress, TransferResult, WireItem
 from gcs.mavlink.params import ParamClient, ParamResult
-from gcs.mavlink.px4_modes import set_mode_params
+from gcs.mavlink.modes import set_mode_params
 from gcs.mavlink.signing import key_id, load_key
 from gcs.mavlink.transport import GcsSocket
 

@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from gcs.mavlink.px4_modes import mode_name
+from gcs.mavlink.modes import mode_name
 from gcs.mavlink.statustext import StatusTextAssembler
 
 # A drone is lost when nothing has been heard from it for this long. QGroundControl counts any message but RADIO_STATUS

@@ -26,7 +26,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.fleet.swarm import ARM_TIMEOUT_S, HOLD_MODE, Swarm, SwarmError, check
 from gcs.mavlink.mission_transfer import MISSION_TYPE_FENCE, MISSION_TYPE_MISSION, TransferResult
-from gcs.mavlink.px4_modes import set_mode_params
+from gcs.mavlink.modes import set_mode_params
 from gcs.missions.qgc_plan import (
     FenceItemsError,
     QgcPlan,

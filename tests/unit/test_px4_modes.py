@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pymavlink import mavutil
 
-from gcs.mavlink.px4_modes import mode_name, set_mode_params
+from gcs.mavlink.modes import mode_name, set_mode_params
 from sitl.autopilot.px4_modes import Px4Mode
 from sitl.protocol.modes import decode_do_set_mode
 
