@@ -22,7 +22,14 @@ from typing import Any, Literal, NoReturn
 
 from gcs.bench.scaling import add_bench_parser, run_bench
 from gcs.composition import SITL
-from gcs.fleet.attach import DEFAULT_MAX_DISTANCE_M, AttachError, AttachSpec, parse_attach
+from gcs.fleet.attach import (
+    DEFAULT_KEEP_IN_M,
+    DEFAULT_MAX_DISTANCE_M,
+    AttachError,
+    AttachSpec,
+    parse_attach,
+    role_of,
+)
 from gcs.fleet.faults import CRASH, FAULT_NAMES, FaultError, fault_request
 from gcs.fleet.harness import LAYOUTS, MAX_DRONES, Simulation, SpawnError, SpawnPlan, parse_drones_per_process
 from gcs.fleet.links import LINK_OPTIONS, NEIGHBOUR_MODES, LinkPlan, NeighbourPlan, parse_link_value, parse_mesh_value
@@ -153,8 +160,9 @@ def _add_attach_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--attach", action="append", default=[], metavar="[ROLE=]URL",
                         help="attach a MAVLink vehicle the simulation does not run (a real drone, another SITL) "
                         "heard on URL (udpin:0.0.0.0:14560, tcp:HOST:PORT, /dev/ttyUSB0,57600 or the MAVSDK "
-                        "spellings): it is seen, avoided and counted by the simulated drones, or followed as a "
-                        "leader (repeatable; roles intruder, leader; docs/external.md)")  # fmt: skip
+                        "spellings): a member flies in the swarm's formations, a leader is followed, an intruder "
+                        "is only seen, avoided and counted (repeatable; roles member (default), leader, intruder; "
+                        "docs/external.md)")  # fmt: skip
     parser.add_argument("--gcs-sysid", type=_sysid, default=GCS_SYSID, metavar="N",
                         help=f"the supervisor's own MAVLink system id (default {GCS_SYSID}; another when a "
                         "QGroundControl beside it uses that one)")  # fmt: skip
@@ -164,6 +172,12 @@ def _add_attach_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--attach-max-distance", type=_positive, default=DEFAULT_MAX_DISTANCE_M, metavar="M",
                         help="refuse an attached vehicle farther than M metres from the swarm's origin (default "
                         f"{DEFAULT_MAX_DISTANCE_M:g})")  # fmt: skip
+    parser.add_argument("--arm-external", action="store_true",
+                        help="the swarm arms and takes off the --attach members with its drones (else their pilot "
+                        "flies them up and they join once in the air)")  # fmt: skip
+    parser.add_argument("--attach-keep-in", type=_positive, default=DEFAULT_KEEP_IN_M, metavar="M",
+                        help="no setpoint is sent to an --attach member farther than M metres from the origin or "
+                        f"higher above it (default {DEFAULT_KEEP_IN_M:g}): it is put in Hold instead")  # fmt: skip
 
 
 def _attach_specs(args: argparse.Namespace, from_mission: tuple[AttachSpec, ...] = ()) -> tuple[AttachSpec, ...]:
@@ -173,7 +187,13 @@ def _attach_specs(args: argparse.Namespace, from_mission: tuple[AttachSpec, ...]
         specs = (
             *from_mission,
             *(
-                parse_attach(text, max_distance_m=args.attach_max_distance, signing_key_file=args.attach_signing_key)
+                parse_attach(
+                    text,
+                    max_distance_m=args.attach_max_distance,
+                    signing_key_file=args.attach_signing_key,
+                    arm=args.arm_external and role_of(text) == "member",
+                    keep_in_m=args.attach_keep_in,
+                )
                 for text in args.attach
             ),
         )
@@ -494,6 +514,9 @@ def build_parser() -> argparse.ArgumentParser:
     attach.add_argument("--max-distance", type=_positive, default=DEFAULT_MAX_DISTANCE_M, metavar="M",
                         help=f"refuse it farther than M metres from the swarm's origin (default "
                         f"{DEFAULT_MAX_DISTANCE_M:g})")  # fmt: skip
+    attach.add_argument("--keep-in", type=_positive, default=DEFAULT_KEEP_IN_M, metavar="M",
+                        help=f"a member: no setpoint farther than M metres from the origin or higher above it "
+                        f"(default {DEFAULT_KEEP_IN_M:g})")  # fmt: skip
     detach = sub.add_parser("detach", help="let an attached vehicle go (it is told nothing)")
     detach.add_argument("sysid", type=_sysid, help="the attached vehicle's sysid")
     sub.add_parser("land", help="land every drone where it is")
@@ -783,10 +806,10 @@ def run_client(args: argparse.Namespace) -> int:
         request["action"] = args.action
     elif args.command == "attach":
         try:
-            parse_attach(args.url, max_distance_m=args.max_distance)
+            parse_attach(args.url, max_distance_m=args.max_distance, keep_in_m=args.keep_in)
         except AttachError as exc:
             raise UsageError(str(exc)) from None
-        request.update(url=args.url, max_distance_m=args.max_distance)
+        request.update(url=args.url, max_distance_m=args.max_distance, keep_in_m=args.keep_in)
     elif args.command == "detach":
         request["sysid"] = args.sysid
     elif args.command in ("fault", "kill"):

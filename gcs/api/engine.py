@@ -30,7 +30,6 @@ from typing import Any, TypeVar
 from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.api.types import ControllerError, DroneState, Event, FlightResult, LaunchOptions
-from gcs.fleet.attach import parse_attach
 from gcs.fleet.faults import fault_request
 from gcs.fleet.harness import Simulation, SpawnPlan
 from gcs.fleet.losses import MAV_STATE_CRITICAL
@@ -211,8 +210,8 @@ class Engine:
         if self.view is not None:
             session.serve(self.view)
         swarm.listeners.append(self._on_message)
-        for text in o.attach:  # before the drones start: a bad one (AttachError, one line) starts nothing
-            VERBS["attach"](session, parse_attach(text))
+        for spec in o.attach_specs():  # before the drones start: a bad one (AttachError, one line) starts nothing
+            VERBS["attach"](session, spec)
         swarm.up(ready_timeout_s=o.ready_timeout_s)
         for name, value in o.params.items():
             VERBS["param"](session, name, value)

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from gcs.fleet.attach import parse_attach
+from gcs.fleet.attach import AttachSpec, parse_attach, role_of
 from gcs.fleet.harness import MAX_DRONES
 from gcs.fleet.links import LinkPlan, NeighbourPlan
 from gcs.fleet.losses import LossPolicy
@@ -54,6 +54,7 @@ class LaunchOptions:
     # Vehicles the simulation does not run, as ``swarm up --attach`` takes them ("intruder=udpin:0.0.0.0:14560";
     # docs/external.md): attached before the drones start; a swarm with one runs paced at speed 1 (lockstep=False)
     attach: Sequence[str] = ()
+    arm_external: bool = False  # the attached members are armed and taken off with the drones (--arm-external)
     gcs_sysid: int = GCS_SYSID  # the supervisor's own system id (another when a QGroundControl beside it uses 255)
 
     def __post_init__(self) -> None:
@@ -76,10 +77,14 @@ class LaunchOptions:
         drones_sysids = range(self.first_instance + 1, self.first_instance + self.drones + 1)
         if not 1 <= self.gcs_sysid <= GCS_SYSID or self.gcs_sysid in drones_sysids:
             raise ValueError(f"gcs_sysid must be in 1..{GCS_SYSID} and no drone's, got {self.gcs_sysid}")
-        specs = [parse_attach(text) for text in self.attach]  # AttachError: a ValueError of one line
+        specs = self.attach_specs()  # AttachError: a ValueError of one line
         if specs and (self.lockstep or (self.speed is not None and self.speed != 1.0)):
             raise ValueError("attach: a swarm with an attached vehicle runs paced at speed 1 (the real world keeps "
                              "wall time): pass lockstep=False")  # fmt: skip
+
+    def attach_specs(self) -> list[AttachSpec]:
+        """``attach`` as the swarm takes it (AttachError, a ValueError of one line, for a bad one)."""
+        return [parse_attach(text, arm=self.arm_external and role_of(text) == "member") for text in self.attach]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -75,11 +75,13 @@ def start_takeoff(
     say: Say | None = None,
 ) -> tuple[float, Callable[[], bool]]:  # fmt: skip
     """Arm every surviving drone unless all are armed (after their pre-arm checks) and take them off to ``alt_m``
-    above their own homes; the altitude they will hold, and the test that they hold it (``SteadyAltitude``).
+    above their own homes; the altitude they will hold, and the test that they hold it (``SteadyAltitude``). The
+    attached members the swarm may arm (``--arm-external``) are armed and taken off with them, to ``alt_m`` above
+    the swarm's origin.
 
     Below the drones' minimum takeoff altitude (MIS_TAKEOFF_ALT) they climb to that instead, as PX4 does, and that is
     the altitude to wait for (``say`` is told)."""
-    if not all(swarm.fleet.drones[s].armed for s in swarm.active_sysids):
+    if not all(swarm.fleet.drones[s].armed for s in swarm.active_sysids) or swarm.attachments.to_arm():
         swarm.arm_all(tick=tick)
     floor = takeoff_floor_m(swarm)
     swarm.takeoff_all(alt_m)  # what was asked: the drones apply their own minimum, as PX4
@@ -89,9 +91,12 @@ def start_takeoff(
                 f"{floor:g} m (as PX4); a later step sets the altitude")  # fmt: skip
         alt_m = floor
     steady = SteadyAltitude(alt_m)
+    members = swarm.attachments.taken_off()  # the attached members taken off with the drones climb with them
 
     def holding() -> bool:
-        return steady.update(streamer.positions(), len(swarm.active_sysids), swarm.clock())
+        climbing = [*swarm.active_sysids, *members]
+        positions = streamer.positions()
+        return steady.update({s: positions[s] for s in climbing if s in positions}, len(climbing), swarm.clock())
 
     return alt_m, holding
 

@@ -6,6 +6,10 @@ acceleration feed-forward) in its own local frame, whose origin is recovered fro
 out before the mode switch, and then at SETPOINT_STREAM_HZ. Used by ``swarm fly`` and by ``swarm up``'s
 ``formation`` command alike.
 
+An attached member (gcs/fleet/attachments.py) flies with the drones: its position comes from its GLOBAL_POSITION_INT
+(it has no local frame the ground station knows), and its setpoints go through ``Attachments.setpoint``, which sends
+them as SET_POSITION_TARGET_GLOBAL_INT under its safety rules; OFFBOARD is its autopilot's (GUIDED for ArduPilot).
+
 Instead of the formation engine, a behaviour (gcs/flight/behaviours.py: leader-follower, flocking) can be streamed: it
 is handed the drones' reported state (``state``) every tick. Its setpoints may leave components out (NaN): the
 ``type_mask`` then ignores them, e.g. flocking sends a horizontal velocity with acceleration feed-forward and an
@@ -22,7 +26,7 @@ from typing import TypeVar
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.fleet.swarm import HOLD_MODE, Swarm, SwarmError, check
+from gcs.fleet.swarm import Swarm, SwarmError, check
 from gcs.flight.behaviours import Behaviour, Flock, FlockSpec, FollowSpec, LeaderFollower, SwarmState
 from gcs.flight.crossing import CrossingMove, antipodal_goals
 from gcs.flight.formation import (
@@ -35,6 +39,7 @@ from gcs.flight.formation import (
 )
 from gcs.flight.frames import DroneFrame, SwarmFrame, Vec3, origin_from_home
 from gcs.flight.geodesy import GeoPoint
+from gcs.mavlink.modes import HOLD, OFFBOARD
 
 log = logging.getLogger(__name__)
 
@@ -58,7 +63,6 @@ _ACC_BITS = (
 # Horizontal velocity with acceleration feed-forward, altitude by position (flocking): x, y, vz, az, yaw ignored.
 TYPE_MASK_VEL_XY_POS_Z = TYPE_MASK_POS_VEL_ACC | _POS_BITS[0] | _POS_BITS[1] | _VEL_BITS[2] | _ACC_BITS[2]
 T = TypeVar("T")
-OFFBOARD_MODE = (1.0, 6.0, 0.0)  # DO_SET_MODE: custom mode enabled, main mode OFFBOARD
 OFFBOARD_ATTEMPTS = 3  # switches asked of a drone that refuses OFFBOARD for want of a setpoint...
 OFFBOARD_RETRY_S = 0.5  # ...with this long of setpoints streamed in between (10 at SETPOINT_STREAM_HZ)
 DEFAULT_LIMITS = TransitionLimits(max_speed_mps=1.5, max_accel_mps2=1.0)
@@ -125,32 +129,44 @@ class FormationStreamer:
         return frame
 
     def positions(self) -> dict[int, Vec3]:
-        """Every drone's reported position in the swarm frame (drones without a home yet are left out)."""
+        """Every flown vehicle's reported position in the swarm frame (drones without a home yet are left out)."""
         out = {}
-        for sysid in self.swarm.active_sysids:
-            frame = self.drone_frame(sysid)
-            view = self.swarm.fleet.drones.get(sysid)
-            if frame is not None and view is not None and all(math.isfinite(v) for v in view.local_ned_m):
-                out[sysid] = frame.to_swarm(view.local_ned_m)
+        for sysid in self.swarm.flown_sysids:
+            reported = self._reported(sysid)
+            if reported is not None:
+                out[sysid] = reported[0]
         return out
 
     def state(self) -> SwarmState:
-        """Reported position and velocity (swarm frame) of every armed drone with a home and a finite report."""
+        """Reported position and velocity (swarm frame) of every armed flown vehicle with a finite report."""
         positions: dict[int, Vec3] = {}
         velocities: dict[int, Vec3] = {}
-        for sysid in self.swarm.active_sysids:
-            frame = self.drone_frame(sysid)
+        for sysid in self.swarm.flown_sysids:
             view = self.swarm.fleet.drones.get(sysid)
-            if frame is None or view is None or not view.armed:
-                continue
-            if all(math.isfinite(v) for v in (*view.local_ned_m, *view.vel_ned_mps)):
-                positions[sysid] = frame.to_swarm(view.local_ned_m)
-                velocities[sysid] = frame.vector_to_swarm(view.vel_ned_mps)
+            reported = self._reported(sysid)
+            if reported is not None and view is not None and view.armed and all(map(math.isfinite, reported[1])):
+                positions[sysid], velocities[sysid] = reported
         return SwarmState.from_mappings(positions, velocities)
+
+    def _reported(self, sysid: int) -> tuple[Vec3, Vec3] | None:
+        """A vehicle's reported position and velocity in the swarm frame: a drone's LOCAL_POSITION_NED through its
+        local frame; an attached member's GLOBAL_POSITION_INT (None until there is a finite position)."""
+        view = self.swarm.fleet.drones.get(sysid)
+        if view is None:
+            return None
+        if sysid in self.swarm.attached:
+            here = GeoPoint(lat_deg=view.lat_deg, lon_deg=view.lon_deg, alt_amsl_m=view.alt_amsl_m)
+            if not all(map(math.isfinite, (here.lat_deg, here.lon_deg, here.alt_amsl_m))):
+                return None
+            return self.swarm_frame.ned_from_geo(here), view.vel_ned_mps
+        frame = self.drone_frame(sysid)
+        if frame is None or not all(map(math.isfinite, view.local_ned_m)):
+            return None
+        return frame.to_swarm(view.local_ned_m), frame.vector_to_swarm(view.vel_ned_mps)
 
     def _check_ready(self, what: str) -> dict[int, Vec3]:
         positions = self.positions()
-        active = self.swarm.active_sysids
+        active = self.swarm.flown_sysids
         if not active:
             raise SwarmError(f"every drone is lost: cannot plan {what}")
         missing = sorted(set(active) - set(positions))
@@ -209,17 +225,29 @@ class FormationStreamer:
         OFFBOARD_RETRY_S and the drones that refused are asked again, up to OFFBOARD_ATTEMPTS times. On a perfect
         link the first answer is yes and nothing waits."""
         self._rejoining.clear()  # every drone is asked below
+        flown = self.swarm.flown_sysids
+        attachments = self.swarm.attachments
+        if attachments.vehicles:
+            attachments.grounded_notice(flown)
+        members = [s for s in flown if s in self.swarm.attached]
         if not self.active:
             self.active = True
-            self.tick(now_s)
-            pending = self.swarm.active_sysids
-            for attempt in range(OFFBOARD_ATTEMPTS):
-                acks = self.swarm.command_all(_SET_MODE, *OFFBOARD_MODE, sysids=pending)
-                pending = [ack.sysid for ack in acks if not ack.ok]
-                if not pending or attempt == OFFBOARD_ATTEMPTS - 1:
-                    break
-                self.swarm.run_for(OFFBOARD_RETRY_S, tick=self.tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
-            check(acks, "offboard")
+            self.tick(now_s)  # (a member whose first setpoint leaves its keep-in is released here: not asked below)
+            pending = [s for s in flown if s not in members or attachments.vehicles[s].released is None]
+        else:  # the drones fly OFFBOARD already; a member that has joined since is asked
+            pending = [s for s in members if s not in attachments.commanded()]
+        acks = []
+        for attempt in range(OFFBOARD_ATTEMPTS):
+            acks = self.swarm.set_mode(OFFBOARD, pending) if pending else []
+            pending = [ack.sysid for ack in acks if not ack.ok]
+            if not pending or attempt == OFFBOARD_ATTEMPTS - 1:
+                break
+            self.swarm.run_for(OFFBOARD_RETRY_S, tick=self.tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
+        for ack in acks:  # a member that will not fly OFFBOARD (GUIDED) is its pilot's: the drones fly on
+            if not ack.ok and ack.sysid in self.swarm.attached:
+                answer = "no answer" if ack.result is None else f"result {ack.result}"
+                attachments.release(ack.sysid, f"it did not take the mode to fly setpoints ({answer})", hold=False)
+        check([ack for ack in acks if ack.sysid not in self.swarm.attached], "offboard")
 
     def handle_loss(self, sysid: int, now_s: float) -> str | None:
         """Carry on without drone ``sysid`` (already in ``swarm.losses``): a formation re-plans over the survivors
@@ -264,7 +292,7 @@ class FormationStreamer:
             try:
                 transition = self.engine.command(self.formation, now_s, positions)
             except FormationError as exc:
-                self.swarm.command_start(sysid, _SET_MODE, *HOLD_MODE)
+                self.swarm.set_mode_start(sysid, HOLD)
                 return f"formation not re-planned with sysid {sysid} ({exc}): it holds where it is"
             self._rejoining[sysid] = _Rejoin(due_s=now_s + OFFBOARD_RETRY_S)
             return (
@@ -274,7 +302,7 @@ class FormationStreamer:
         if isinstance(self.behaviour, Flock):
             self._rejoining[sysid] = _Rejoin(due_s=now_s + OFFBOARD_RETRY_S)
             return f"sysid {sysid} flocks again"
-        self.swarm.command_start(sysid, _SET_MODE, *HOLD_MODE)
+        self.swarm.set_mode_start(sysid, HOLD)
         return f"sysid {sysid} holds where it is until the next formation or behaviour command"
 
     def _rejoin_due(self, now_s: float) -> None:
@@ -299,7 +327,7 @@ class FormationStreamer:
                     continue
                 rejoin.due_s = now_s + OFFBOARD_RETRY_S
             if now_s >= rejoin.due_s:
-                self.swarm.command_start(sysid, _SET_MODE, *OFFBOARD_MODE)
+                self.swarm.set_mode_start(sysid, OFFBOARD)
                 rejoin.attempts += 1
                 rejoin.asked = True
 
@@ -337,9 +365,10 @@ class FormationStreamer:
         else:
             state = None
             setpoints = self.engine.setpoints(now_s)
+        attached = self.swarm.attached
         for sysid, sp in setpoints.items():
-            frame = self.drone_frame(sysid)
-            if frame is None or sysid in self.swarm.losses:
+            frame = self.drone_frame(sysid) if sysid not in attached else None
+            if (frame is None and sysid not in attached) or sysid in self.swarm.losses:
                 continue
             mask = type_mask(sp)
             pos = sp.pos_ned_m
@@ -349,6 +378,11 @@ class FormationStreamer:
                 row = state.row(sysid) if state is not None else None
                 here = state.pos_ned_m[row] if state is not None and row is not None else (0.0, 0.0)
                 pos = (float(here[0]), float(here[1]), pos[2])
+            if frame is None:  # an attached member: global setpoints, under its safety rules
+                yaw = sp.yaw_rad if math.isfinite(sp.yaw_rad) else 0.0
+                self.swarm.attachments.setpoint(sysid, _finite_or_zero(pos), _finite_or_zero(sp.vel_ned_mps),
+                                                _finite_or_zero(sp.acc_ned_mps2), yaw, mask, now_s)  # fmt: skip
+                continue
             x, y, z = frame.to_local(_finite_or_zero(pos))
             vx, vy, vz = frame.vector_to_local(_finite_or_zero(sp.vel_ned_mps))
             ax, ay, az = frame.vector_to_local(_finite_or_zero(sp.acc_ned_mps2))

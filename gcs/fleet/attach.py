@@ -8,9 +8,11 @@ drone that touches it crashes; an intruder's position reports reach the simulate
 which their collision prevention avoids in full.
 
 Roles (``ROLES``): an ``intruder`` is never commanded, only seen, avoided and counted; a ``leader`` is not commanded
-either, and the simulated drones follow it (the ``follow_attached`` verb). ``member`` (a slot in the swarm's
-formations, flown in OFFBOARD or GUIDED) is the role of a commanded vehicle; it is refused for now with one line,
-rather than accepted and ignored.
+either, and the simulated drones follow it (the ``follow_attached`` verb); a ``member`` takes a slot in the swarm's
+formations and behaviours and is flown as a ground station flies a vehicle (PX4 in OFFBOARD, ArduPilot Copter in
+GUIDED, position setpoints in SET_POSITION_TARGET_GLOBAL_INT), under the safety rules of hardware
+(gcs/fleet/attachments.py): armed and taken off only when the user says so (``arm``), no setpoint outside its
+keep-in (``keep_in_m``), a radio's budget, and Hold when the swarm stops.
 
 Pure parts (the attach spec, its parser) and one IO shell (``ExternalLink``: a pymavlink connection, so every link
 pymavlink opens works: UDP either way, TCP, serial).
@@ -36,8 +38,11 @@ from gcs.mavlink.transport import GCS_COMPID
 from gcs.mavlink.urls import UrlError, VehicleUrl, parse_vehicle_url
 
 ROLES: Final = ("member", "leader", "intruder")
-AVAILABLE_ROLES: Final = ("intruder", "leader")
 DEFAULT_ROLE: Final = "member"
+# A member is sent no setpoint farther than this from the swarm's origin horizontally, nor higher above it, nor lower
+# than KEEP_IN_FLOOR_M above it: a cylinder around where the swarm flies, as PX4's GF_MAX_HOR_DIST and GF_MAX_VER_DIST
+DEFAULT_KEEP_IN_M: Final = 100.0
+KEEP_IN_FLOOR_M: Final = 0.5
 HEARTBEAT_TIMEOUT_S: Final = 10.0  # wall seconds an attach waits for the vehicle's first HEARTBEAT
 OTHERS_SETTLE_S: Final = 1.5  # after the first vehicle's HEARTBEAT, listen this long for others on the same link
 # A vehicle farther than this from the swarm's origin when it is attached is refused: it is not where the swarm flies
@@ -64,22 +69,25 @@ class AttachSpec:
     max_distance_m: float = DEFAULT_MAX_DISTANCE_M  # a vehicle farther from the swarm's origin is refused
     # MAVLink 2 signing on this link: its frames must be signed with this key (others are dropped), ours are signed
     signing_key_file: Path | None = None
+    arm: bool = False  # a member: armed and taken off with the swarm (else the user flies it up, and it joins)
+    keep_in_m: float = DEFAULT_KEEP_IN_M  # a member: no setpoint outside this cylinder around the origin
 
     def describe(self) -> str:
         return f"{self.role}={self.url.describe()}"
 
 
 def parse_attach(text: str, *, radius_m: float | None = None, max_distance_m: float = DEFAULT_MAX_DISTANCE_M,
-                 signing_key_file: Path | None = None) -> AttachSpec:  # fmt: skip
-    """``[ROLE=]URL`` as ``--attach`` takes it; AttachError (one line) for an unknown role or a bad URL."""
-    role, sep, rest = text.partition("=")
-    if not sep or not role.isalpha():
-        role, rest = DEFAULT_ROLE, text
-    role = role.lower()
+                 signing_key_file: Path | None = None, arm: bool = False,
+                 keep_in_m: float = DEFAULT_KEEP_IN_M) -> AttachSpec:  # fmt: skip
+    """``[ROLE=]URL`` as ``--attach`` takes it; AttachError (one line) for an unknown role, a bad URL or a bad
+    number."""
+    role, rest = _split_role(text)
     if role not in ROLES:
         raise AttachError(f"--attach {text!r}: no role {role!r} (roles: {', '.join(ROLES)})")
-    if role not in AVAILABLE_ROLES:
-        raise AttachError(f"--attach {text!r}: role {role} is not available yet (attach it as intruder= or leader=)")
+    if arm and role != "member":
+        raise AttachError(f"--attach {text!r}: only a member is armed by the swarm, not a {role}")
+    if not (math.isfinite(keep_in_m) and keep_in_m > KEEP_IN_FLOOR_M):
+        raise AttachError(f"--attach {text!r}: the keep-in must be more than {KEEP_IN_FLOOR_M:g} m, got {keep_in_m}")
     if radius_m is not None and not (math.isfinite(radius_m) and 0.0 < radius_m <= 10.0):
         raise AttachError(f"--attach {text!r}: radius_m must be in (0, 10] m, got {radius_m}")
     if not (math.isfinite(max_distance_m) and max_distance_m > 0.0):
@@ -90,7 +98,20 @@ def parse_attach(text: str, *, radius_m: float | None = None, max_distance_m: fl
     except UrlError as exc:
         raise AttachError(f"--attach: {exc}") from None
     return AttachSpec(role=role, url=url, radius_m=radius_m, max_distance_m=max_distance_m,
-                      signing_key_file=signing_key_file)  # fmt: skip
+                      signing_key_file=signing_key_file, arm=arm, keep_in_m=keep_in_m)  # fmt: skip
+
+
+def _split_role(text: str) -> tuple[str, str]:
+    """``[ROLE=]URL`` -> role (lower case, DEFAULT_ROLE when none is given), URL."""
+    role, sep, rest = text.partition("=")
+    if not sep or not role.isalpha():
+        return DEFAULT_ROLE, text
+    return role.lower(), rest
+
+
+def role_of(text: str) -> str:
+    """The role an ``[ROLE=]URL`` names (DEFAULT_ROLE when it names none)."""
+    return _split_role(text)[0]
 
 
 def is_vehicle_heartbeat(msg: Any) -> bool:
@@ -114,6 +135,12 @@ class AttachedVehicle:
     vel_ned_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
     position_s: float = math.nan  # supervisor clock when that report arrived
     lost: bool = False
+    # A member's commanding (gcs/fleet/attachments.py): the purpose of the last mode the swarm asked of it
+    # (gcs/mavlink/modes.py OFFBOARD, HOLD; None: never asked) and when, and why the swarm no longer commands it
+    asked: str | None = None
+    asked_s: float = math.nan
+    released: str | None = None
+    setpoint_s: float = -math.inf  # when its last setpoint went out
 
     def body_at(self, now_s: float) -> GeoPoint | None:
         """Where its last report, carried on at its velocity to ``now_s`` (EXTRAPOLATE_MAX_S at most), puts it; a

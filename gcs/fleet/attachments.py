@@ -1,6 +1,18 @@
 """The swarm's attached vehicles (gcs/fleet/attach.py, docs/external.md), a part of the swarm as the router and
-liveness are: attaching the vehicles a link carries, hearing them, moving their bodies in the world, and saying when
-one goes quiet or is heard again.
+liveness are: attaching the vehicles a link carries, hearing them, moving their bodies in the world, saying when
+one goes quiet or is heard again, and commanding the members under the safety rules of hardware.
+
+A member is commanded as any ground station commands a vehicle, and only so:
+
+- it joins what the swarm flies only while it flies (armed, in the air): the swarm arms it and takes it off only
+  when its attach says ``arm`` (``--arm-external``); otherwise its pilot flies it up and it joins at the next
+  formation or behaviour;
+- its setpoints go as SET_POSITION_TARGET_GLOBAL_INT (AMSL: no local frame of its own to know), at most
+  MEMBER_SETPOINT_HZ, and none outside its keep-in (a cylinder around the origin, ``keep_in_m``): the first that
+  would be is not sent, the member is put in Hold and released (the swarm no longer commands it);
+- a member that leaves the mode it was asked for (a pilot's switch, its own failsafe) is released, never asked back;
+- when the swarm lands, holds or stops, a member it commanded is put in its Hold mode (never landed, disarmed or
+  terminated by the swarm).
 
 It works through the swarm it belongs to: the plan (paced at speed 1, the ground station's sysid, the origin), the
 pump (a wait keeps the swarm flying and its setpoints streamed), the fleet view and the listeners (a vehicle's
@@ -13,7 +25,10 @@ import math
 import time
 from typing import TYPE_CHECKING, Any
 
+from pymavlink.dialects.v20 import common as mavlink
+
 from gcs.fleet.attach import (
+    KEEP_IN_FLOOR_M,
     OTHERS_SETTLE_S,
     AttachedVehicle,
     AttachError,
@@ -25,10 +40,12 @@ from gcs.fleet.attach import (
     traffic_report,
 )
 from gcs.fleet.clock import TICK_S, next_tick_s
-from gcs.fleet.telemetry import LINK_LOST_S
+from gcs.fleet.router import GCS_HEARTBEAT_PERIOD_S
+from gcs.fleet.telemetry import LINK_LOST_S, DroneView
 from gcs.flight.frames import Vec3
 from gcs.flight.geodesy import NedFrame
 from gcs.mavlink.commands import AUTOPILOT_COMPID
+from gcs.mavlink.modes import HOLD, OFFBOARD, purpose_mode_name
 
 if TYPE_CHECKING:
     from gcs.fleet.swarm import Swarm
@@ -42,6 +59,17 @@ SHARE_RATE_HZ = 2.0
 # traffic (ADSB_VEHICLE), which collision prevention avoids in full, not as a neighbour that takes half of each
 # manoeuvre
 NOT_COMMANDED = ("intruder", "leader")
+# A member's setpoints go out at most this often: PX4 keeps OFFBOARD above 2 Hz (COM_OF_LOSS_T 1 s), and 10 frames of
+# 53 bytes a second are about 650 B/s of a 57.6 kbit/s radio's 5.8 kB/s
+MEMBER_SETPOINT_HZ = 10.0
+# After asking a member for a mode, its HEARTBEATs (1 Hz) may show the old one this long before a different mode
+# means that someone else (its pilot, its failsafe) has it
+MODE_SETTLE_S = 2.5
+# Where a velocity setpoint (flocking) would take a member, for its keep-in: where it is, carried this long at the
+# setpoint's velocity
+KEEP_IN_LOOKAHEAD_S = 1.0
+_IN_AIR = (mavlink.MAV_LANDED_STATE_IN_AIR, mavlink.MAV_LANDED_STATE_TAKEOFF, mavlink.MAV_LANDED_STATE_LANDING)
+_IN_AIR_ALT_M = 1.0  # a vehicle that does not say whether it flies: flying above this (GLOBAL_POSITION_INT)
 
 
 class Attachments:
@@ -51,6 +79,10 @@ class Attachments:
         self._links: list[ExternalLink] = []
         self._frame = NedFrame(swarm.plan.origin)
         self._shared_s: dict[int, float] = {}  # each simulated drone's last report sent as traffic
+        self._notices: list[str] = []  # lines for the next ``detect_changes``
+        self._released: list[int] = []  # members released since the last ``take_released``
+        self._said_grounded: set[int] = set()  # members said once to be left out for not flying
+        self._next_heartbeat_s = 0.0
 
     def attach(self, spec: AttachSpec, timeout_s: float) -> tuple[list[int], list[str]]:
         """Open ``spec``'s link, wait for an autopilot's HEARTBEAT (and OTHERS_SETTLE_S more for others on the same
@@ -153,13 +185,139 @@ class Attachments:
             elif not silent and vehicle.lost:
                 vehicle.lost = False
                 lines.append(f"attached vehicle {sysid} heard again at t={now_s:.1f} s")
+            if view is not None and not silent:
+                self._watch_mode(vehicle, view, now_s)
+        lines.extend(self._notices)
+        self._notices.clear()
         return lines
+
+    # ---- members ---------------------------------------------------------------------------------------------------
+    def members(self, now_s: float) -> list[int]:
+        """The members the swarm flies now: attached as member, not released, heard, armed and in the air."""
+        out = []
+        for sysid, vehicle in self.vehicles.items():
+            view = self.swarm.fleet.drones.get(sysid)
+            if (vehicle.spec.role == "member" and vehicle.released is None and view is not None
+                    and not view.lost(now_s) and view.armed and _in_air(view)):  # fmt: skip
+                out.append(sysid)
+        return out
+
+    def grounded_notice(self, flown: list[int]) -> None:
+        """Say once of each member left out of what the swarm starts to fly because it does not fly."""
+        for sysid, vehicle in self.vehicles.items():
+            if vehicle.spec.role != "member" or vehicle.released is not None or sysid in flown:
+                continue
+            if sysid not in self._said_grounded:
+                self._said_grounded.add(sysid)
+                how = "" if vehicle.spec.arm else " (fly it up yourself, or attach it with --arm-external)"
+                self._notices.append(f"member {sysid} is not flying: it joins the next formation or behaviour once it "
+                                     f"is armed and in the air{how}")  # fmt: skip
+
+    def to_arm(self) -> list[int]:
+        """The members the swarm is allowed to arm (``arm``), heard and not armed yet."""
+        now = self.swarm.clock()
+        drones = self.swarm.fleet.drones
+        return [
+            s for s, v in self.vehicles.items()
+            if v.spec.role == "member" and v.spec.arm and v.released is None and s in drones
+            and not drones[s].lost(now) and not drones[s].armed
+        ]  # fmt: skip
+
+    def taken_off(self) -> list[int]:
+        """The members the swarm takes off with its drones (``arm``), heard, not released and not flying already
+        (armed just before: their HEARTBEAT may not say so yet)."""
+        drones = self.swarm.fleet.drones
+        return [s for s, v in self.vehicles.items() if v.spec.role == "member" and v.spec.arm
+                and v.released is None and s in drones and not _in_air(drones[s])]  # fmt: skip
+
+    def commanded(self) -> list[int]:
+        """The members last asked for OFFBOARD (GUIDED) and not released: those to put in Hold when the swarm stops."""
+        return [s for s, v in self.vehicles.items() if v.asked == OFFBOARD and v.released is None]
+
+    def asked(self, sysid: int, purpose: str, now_s: float) -> None:
+        """The swarm has asked a member for a mode (``Swarm.set_mode``)."""
+        vehicle = self.vehicles[sysid]
+        vehicle.asked, vehicle.asked_s = purpose, now_s
+
+    def release(self, sysid: int, why: str, *, hold: bool) -> None:
+        """The swarm stops commanding a member, for good (one line, said at the next ``detect_changes``); ``hold``:
+        it is asked for its Hold mode first, without waiting for the answer."""
+        vehicle = self.vehicles[sysid]
+        if vehicle.released is not None:
+            return
+        vehicle.released = why
+        if hold:
+            self.swarm.set_mode_start(sysid, HOLD)
+        self._notices.append(f"member {sysid} released: {why}{'; asked to hold where it is' if hold else ''}")
+        self._released.append(sysid)
+
+    def take_released(self) -> list[int]:
+        """The members released since the last call, once (what the swarm flies re-plans without them)."""
+        out, self._released = self._released, []
+        return out
+
+    def _watch_mode(self, vehicle: AttachedVehicle, view: DroneView, now_s: float) -> None:
+        """A member asked for OFFBOARD (GUIDED) that shows another mode, after MODE_SETTLE_S, has been taken by
+        someone else: released, never asked back."""
+        if vehicle.asked != OFFBOARD or vehicle.released is not None or now_s - vehicle.asked_s < MODE_SETTLE_S:
+            return
+        wanted = purpose_mode_name(OFFBOARD, view.autopilot)
+        if view.mode != wanted:
+            self.release(vehicle.sysid, f"it is in {view.mode}, not {wanted} as asked (its pilot or its own "
+                                        "failsafe has it)", hold=False)  # fmt: skip
+
+    def setpoint(self, sysid: int, pos_ned_m: Vec3, vel_ned_mps: Vec3, acc_ned_mps2: Vec3, yaw_rad: float,
+                 mask: int, now_s: float) -> None:  # fmt: skip
+        """A member's setpoint (swarm frame; ``mask`` the SET_POSITION_TARGET type_mask) as
+        SET_POSITION_TARGET_GLOBAL_INT, at most MEMBER_SETPOINT_HZ; one outside its keep-in is not sent, and the
+        member is put in Hold and released."""
+        vehicle = self.vehicles.get(sysid)
+        if vehicle is None or vehicle.released is not None or now_s - vehicle.setpoint_s < 1.0 / MEMBER_SETPOINT_HZ:
+            return
+        horizontal = not mask & mavlink.POSITION_TARGET_TYPEMASK_X_IGNORE
+        vertical = not mask & mavlink.POSITION_TARGET_TYPEMASK_Z_IGNORE
+        goes_to = pos_ned_m
+        if not (horizontal and vertical):  # a velocity: where it takes the member
+            here = self._reported_ned(sysid)
+            if here is None:
+                return
+            ahead = tuple(h + v * KEEP_IN_LOOKAHEAD_S for h, v in zip(here, vel_ned_mps, strict=True))
+            goes_to = (pos_ned_m[0] if horizontal else ahead[0], pos_ned_m[1] if horizontal else ahead[1],
+                       pos_ned_m[2] if vertical else ahead[2])  # fmt: skip
+        outside = keep_in_problem(goes_to, vehicle.spec.keep_in_m)
+        if outside is not None:
+            self.release(sysid, f"its setpoint {_ned_text(goes_to)} is {outside}", hold=True)
+            return
+        geo = self._frame.geo_from_ned(pos_ned_m)
+        msg = mavlink.MAVLink_set_position_target_global_int_message(
+            int(now_s * 1000) & 0xFFFFFFFF, sysid, AUTOPILOT_COMPID, mavlink.MAV_FRAME_GLOBAL_INT, mask,
+            round(geo.lat_deg * 1e7), round(geo.lon_deg * 1e7), geo.alt_amsl_m, *vel_ned_mps, *acc_ned_mps2,
+            yaw_rad, 0.0,
+        )  # fmt: skip
+        vehicle.setpoint_s = now_s
+        vehicle.link.send(msg)
+
+    def _reported_ned(self, sysid: int) -> Vec3 | None:
+        vehicle = self.vehicles[sysid]
+        return None if vehicle.position is None else self._frame.ned_from_geo(vehicle.position)
+
+    def send(self, sysid: int, msg: Any) -> bytes:
+        """A command or parameter write for an attached vehicle, on its link; the frame as sent (for the tlog)."""
+        vehicle = self.vehicles[sysid]
+        vehicle.link.send(msg)
+        return bytes(msg.get_msgbuf() or b"")
 
     def pump(self, now: float) -> None:
         """What the attached vehicles' links have brought, handled; then every attached body moved in the world."""
         for link in list(self._links):
             for msg in link.receive():
                 self._handle(link, msg, now)
+        if now >= self._next_heartbeat_s:  # as to the simulated drones: PX4's datalink-loss failsafe watches it
+            self._next_heartbeat_s = now + GCS_HEARTBEAT_PERIOD_S
+            beat = mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
+                                                     mavlink.MAV_STATE_ACTIVE, 3)  # fmt: skip
+            for link in self._links:
+                link.send(beat)
         for sysid, vehicle in self.vehicles.items():
             geo = vehicle.body_at(now)
             if geo is not None:
@@ -183,6 +341,8 @@ class Attachments:
             vehicle.vel_ned_mps = (msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
             vehicle.position_s = now
         swarm.fleet.handle(msg, now)
+        if msg.get_type() == "COMMAND_ACK":
+            swarm.commands.handle(msg, now)
         traffic = vehicle.spec.role in NOT_COMMANDED
         swarm.router.carry(msg, now, swarm.fleet, relay=not traffic)
         if traffic and position:
@@ -217,3 +377,30 @@ class Attachments:
         for link in self._links:
             link.close()
         self._links.clear()
+
+
+def _in_air(view: DroneView) -> bool:
+    """Whether a vehicle flies: its EXTENDED_SYS_STATE says so, or (a vehicle that does not send one) it reports
+    itself above _IN_AIR_ALT_M over its home."""
+    if view.landed_state != mavlink.MAV_LANDED_STATE_UNDEFINED:
+        return view.landed_state in _IN_AIR
+    return math.isfinite(view.relative_alt_m) and view.relative_alt_m > _IN_AIR_ALT_M
+
+
+def keep_in_problem(pos_ned_m: Vec3, keep_in_m: float) -> str | None:
+    """Why a point (swarm frame) is outside a member's keep-in, a cylinder ``keep_in_m`` wide and high around the
+    origin above KEEP_IN_FLOOR_M (one phrase), or None."""
+    north, east, down = pos_ned_m
+    if not all(math.isfinite(v) for v in pos_ned_m):
+        return "not a finite point"
+    if math.hypot(north, east) > keep_in_m:
+        return f"{math.hypot(north, east):.1f} m from the origin, outside the keep-in of {keep_in_m:g} m"
+    if -down > keep_in_m:
+        return f"{-down:.1f} m above the origin, above the keep-in's {keep_in_m:g} m"
+    if -down < KEEP_IN_FLOOR_M:
+        return f"{-down:.1f} m above the origin, below the keep-in's floor of {KEEP_IN_FLOOR_M:g} m"
+    return None
+
+
+def _ned_text(pos_ned_m: Vec3) -> str:
+    return "(" + ", ".join(f"{v:.1f}" for v in pos_ned_m) + ") m NED"

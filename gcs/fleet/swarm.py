@@ -43,8 +43,8 @@ from gcs.fleet.telemetry import Fleet
 from gcs.flight.geodesy import GeoPoint, NedFrame
 from gcs.mavlink.commands import FORCE_DISARM_MAGIC, Ack, CommandClient, Send
 from gcs.mavlink.mission_transfer import MISSION_TYPE_MISSION, MissionClient, MissionProgress, TransferResult, WireItem
+from gcs.mavlink.modes import ARDUPILOT, HOLD, OFFBOARD, purpose_params
 from gcs.mavlink.params import ParamClient, ParamResult
-from gcs.mavlink.modes import set_mode_params
 from gcs.mavlink.signing import key_id, load_key
 from gcs.mavlink.transport import GcsSocket
 
@@ -53,7 +53,7 @@ log = logging.getLogger(__name__)
 INT32_MAX = 2**31 - 1  # COMMAND_INT x/y: no position given (MAVLink's convention)
 ARM_TIMEOUT_S = 30.0  # simulated seconds for every drone to pass its pre-arm checks before it is armed
 # DO_SET_MODE for PX4 Hold (AUTO.LOITER), as pymavlink encodes it for PX4
-HOLD_MODE = set_mode_params("LOITER")
+HOLD_MODE = purpose_params(HOLD)
 
 
 class Swarm:
@@ -134,6 +134,13 @@ class Swarm:
     def active_sysids(self) -> list[int]:
         """The drones the swarm still has: every one not in ``losses``."""
         return [s for s in self._sysids if s not in self.losses]
+
+    @property
+    def flown_sysids(self) -> list[int]:
+        """What the swarm's formations and behaviours fly: the drones it still has, then the attached members that
+        fly now (``Attachments.members``)."""
+        members = self.attachments.members(self.clock()) if self.attachments.vehicles else []
+        return self.active_sysids + members
 
     # ---- losses ----------------------------------------------------------------------------------------------------
     def detect_losses(self, time_s: float) -> list[DroneLoss]:
@@ -338,26 +345,35 @@ class Swarm:
         ]
 
     def wait_prearm(
-        self, timeout_s: float = ARM_TIMEOUT_S, tick: Callable[[float], None] | None = None, *, every: bool = False
-    ) -> None:
-        """Wait until the drones (the surviving ones; ``every``: all of them) pass their pre-arm checks;
-        SwarmError names those that did not within ``timeout_s``."""
+        self, timeout_s: float = ARM_TIMEOUT_S, tick: Callable[[float], None] | None = None, *, every: bool = False,
+        also: Iterable[int] = (),
+    ) -> None:  # fmt: skip
+        """Wait until the drones (the surviving ones; ``every``: all of them; and the attached vehicles ``also``)
+        pass their pre-arm checks; SwarmError names those that did not within ``timeout_s``."""
         drones = self.fleet.drones
+        extra = list(also)
 
         def waiting() -> list[int]:
-            return [s for s in (self.sysids if every else self.active_sysids) if not drones[s].prearm_ok]
+            return [s for s in [*(self.sysids if every else self.active_sysids), *extra] if not drones[s].prearm_ok]
 
         if not self.wait_until(lambda: not waiting(), timeout_s, tick=tick):
             raise SwarmError(f"sysid {waiting()} did not pass pre-arm checks within {timeout_s:g} s")
 
     def arm_all(self, timeout_s: float = ARM_TIMEOUT_S, tick: Callable[[float], None] | None = None) -> None:
-        """Wait until every drone passes its pre-arm checks, then arm them all; SwarmError names the laggards."""
-        self.wait_prearm(timeout_s, tick)
-        check(self.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1, sysids=self.active_sysids), "arm")
+        """Wait until every drone passes its pre-arm checks, then arm them all; SwarmError names the laggards. The
+        attached members the swarm may arm (``Attachments.to_arm``) are armed with them, an ArduPilot one in GUIDED
+        first (where ArduCopter takes off on command)."""
+        members = self.attachments.to_arm() if self.attachments.vehicles else []
+        self.wait_prearm(timeout_s, tick, also=members)
+        ardupilot = [s for s in members if self.fleet.drones[s].autopilot == ARDUPILOT]
+        if ardupilot:
+            check(self.set_mode(OFFBOARD, ardupilot), "GUIDED")
+        check(self.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1, sysids=self.active_sysids + members), "arm")
 
     def land_all(self, *, return_to_launch: bool = False) -> list[int]:
         """Land (or return to launch) every armed drone; returns those sysids (crashed or landed ones are left)."""
         flying = self.armed_sysids()
+        self.hold_members()
         if return_to_launch:
             check(self.command_all(mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, sysids=flying), "return to launch")
         else:
@@ -385,10 +401,42 @@ class Swarm:
         return self.command_each(mavlink.MAV_CMD_NAV_LAND, params, frame=mavlink.MAV_FRAME_GLOBAL)
 
     def hold_all(self) -> list[int]:
-        """Every armed surviving drone into PX4 Hold (AUTO.LOITER), where it is; returns those sysids."""
+        """Every armed surviving drone into PX4 Hold (AUTO.LOITER), where it is, and every member the swarm commands
+        into its Hold mode; returns the drones' sysids."""
         flying = self.armed_sysids()
+        self.hold_members()
         check(self.command_all(mavlink.MAV_CMD_DO_SET_MODE, *HOLD_MODE, sysids=flying), "hold")
         return flying
+
+    def hold_members(self) -> list[Ack]:
+        """Every attached member the swarm commands (asked for OFFBOARD or GUIDED) into its Hold mode: what the swarm
+        does with a member when it lands, holds or stops (never land, disarm or terminate a vehicle it did not start).
+        Not checked: a member that refuses or does not answer is its pilot's."""
+        members = self.attachments.commanded() if self.attachments.vehicles else []
+        return self.set_mode(HOLD, members) if members else []
+
+    def mode_params(self, sysid: int, purpose: str) -> tuple[float, float, float]:
+        """DO_SET_MODE params 1-3 of a purpose (gcs/mavlink/modes.py OFFBOARD, HOLD) for a vehicle's autopilot, as
+        its HEARTBEAT says it is (the simulated drones are PX4)."""
+        view = self.fleet.drones.get(sysid)
+        return purpose_params(purpose) if view is None else purpose_params(purpose, view.autopilot, view.vehicle_type)
+
+    def set_mode(self, purpose: str, sysids: Iterable[int]) -> list[Ack]:
+        """Each vehicle into its autopilot's mode for ``purpose``, all at once, each retried until answered."""
+        params: dict[int, tuple[float, ...]] = {s: self.mode_params(s, purpose) for s in sysids}
+        self._asked(purpose, params)
+        return self.command_each(mavlink.MAV_CMD_DO_SET_MODE, params)
+
+    def set_mode_start(self, sysid: int, purpose: str) -> None:
+        """``set_mode`` of one vehicle, without waiting for its answer (``command_start``)."""
+        self._asked(purpose, [sysid])
+        self.command_start(sysid, mavlink.MAV_CMD_DO_SET_MODE, *self.mode_params(sysid, purpose))
+
+    def _asked(self, purpose: str, sysids: Iterable[int]) -> None:
+        now = self.clock()
+        for sysid in sysids:
+            if sysid in self.attachments.vehicles:
+                self.attachments.asked(sysid, purpose, now)
 
     def takeoff_all(self, alt_m: float) -> None:
         """NAV_TAKEOFF for every drone to ``alt_m`` above its own home (PX4 takes an AMSL altitude), all at once."""
@@ -399,12 +447,30 @@ class Swarm:
             if home is None:
                 raise SwarmError(f"sysid {sysid} has no home position yet")
             params[sysid] = (0, 0, 0, nan, nan, nan, home[2] + alt_m)
+        for sysid in self.attachments.taken_off() if self.attachments.vehicles else []:
+            params[sysid] = (0, 0, 0, nan, nan, nan, self._member_takeoff_alt(sysid, alt_m))
         check(self.command_each(mavlink.MAV_CMD_NAV_TAKEOFF, params), "takeoff")
+
+    def _member_takeoff_alt(self, sysid: int, alt_m: float) -> float:
+        """NAV_TAKEOFF's altitude for an attached member to climb ``alt_m`` above the swarm's origin (heights are
+        compared above the origin, not above each vehicle's home): AMSL for PX4, above its home for ArduPilot."""
+        target_amsl = self.plan.origin.alt_amsl_m + alt_m
+        view = self.fleet.drones[sysid]
+        if view.autopilot != ARDUPILOT:
+            return target_amsl
+        home_amsl = view.home[2] if view.home is not None else view.alt_amsl_m - view.relative_alt_m
+        if not math.isfinite(home_amsl):
+            raise SwarmError(f"member {sysid} has no home position yet")
+        return target_amsl - home_amsl
 
     def shutdown(self, land_timeout_s: float = 30.0) -> None:
         """Land what flies, disarm, then have the harness stop every drone and leave nothing behind (also after
         errors)."""
         try:
+            try:
+                self.hold_members()
+            except SwarmError:  # the swarm's own drones land all the same
+                log.warning("attached members not put in Hold on the way out", exc_info=True)
             flying = [s for s in self.armed_sysids() if not self.fleet.drones[s].lost(self.clock())]
             if flying:
                 self._land_clear_of_wrecks(flying)
@@ -442,7 +508,8 @@ class Swarm:
             acks.update((a.sysid, a) for a in self._serve(self.commands, command, waiting, now=True))
             # A drone that never answered, on a lossy link, is asked again (commands are idempotent, as PX4's); one
             # that is lost or gone is not
-            waiting = [a.sysid for a in acks.values() if a.result is None and a.sysid in self.active_sysids
+            waiting = [a.sysid for a in acks.values() if a.result is None
+                       and (a.sysid in self.active_sysids or a.sysid in self.attachments.vehicles)
                        and not self.fleet.drones[a.sysid].lost(self.clock())]  # fmt: skip
             if not waiting:
                 break
@@ -498,11 +565,17 @@ class Swarm:
             self._send_logged(effect.sysid, effect.message, now=now)
 
     def _send_logged(self, sysid: int, msg: Any, *, now: bool) -> None:
+        if sysid in self.attachments.vehicles:  # on the attached vehicle's own link, at once
+            data = self.attachments.send(sysid, msg)
+            for listener in self.router.sent_listeners:
+                listener(data, self.clock())
+            return
         self.router.send_logged(sysid, msg, now=now, clock_s=self.clock())
 
     def send(self, sysid: int, msg: Any) -> None:
         """Streamed traffic (setpoints, parameter writes): leaves at the start of the next pump, batched with
-        whatever else is queued for each drone. Commands that wait for an answer go out at once (``command_all``)."""
+        whatever else is queued for each drone. Commands that wait for an answer go out at once (``command_all``).
+        An attached member's setpoints go through ``Attachments.setpoint`` (its safety rules), not here."""
         self.router.send(sysid, msg)
 
     def send_now(self, sysid: int, msg: Any) -> None:

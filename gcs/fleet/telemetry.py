@@ -11,6 +11,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from pymavlink.dialects.v20 import common as mavlink
+
 from gcs.mavlink.modes import mode_name
 from gcs.mavlink.statustext import StatusTextAssembler
 
@@ -29,6 +31,8 @@ class DroneView:
     last_heard_s: float  # any message from its autopilot but RADIO_STATUS
     armed: bool = False
     mode: str = "UNKNOWN"
+    autopilot: int = mavlink.MAV_AUTOPILOT_PX4  # HEARTBEAT.autopilot: whose modes ``mode`` is read with
+    vehicle_type: int = mavlink.MAV_TYPE_QUADROTOR  # HEARTBEAT.type
     system_status: int = 0
     lat_deg: float = math.nan
     lon_deg: float = math.nan
@@ -73,7 +77,8 @@ class Fleet:
                 view = self.drones[sysid] = DroneView(sysid=sysid, first_heartbeat_s=now_s, last_heard_s=now_s)
             view.last_heard_s = now_s
             view.armed = bool(msg.base_mode & 128)
-            view.mode = mode_name(msg.custom_mode)
+            view.autopilot, view.vehicle_type = msg.autopilot, msg.type
+            view.mode = mode_name(msg.custom_mode, msg.autopilot, msg.type)
             view.system_status = msg.system_status
             return
         if view is None or kind == "RADIO_STATUS":

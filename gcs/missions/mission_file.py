@@ -37,7 +37,14 @@ from pathlib import Path
 from typing import Any, Final
 
 from gcs.command.procedures import check_takeoff_alt
-from gcs.fleet.attach import DEFAULT_MAX_DISTANCE_M, DEFAULT_ROLE, AttachError, AttachSpec, parse_attach
+from gcs.fleet.attach import (
+    DEFAULT_KEEP_IN_M,
+    DEFAULT_MAX_DISTANCE_M,
+    DEFAULT_ROLE,
+    AttachError,
+    AttachSpec,
+    parse_attach,
+)
 from gcs.fleet.faults import FaultError, FaultRequest, fault_request
 from gcs.fleet.harness import LAYOUTS, MAX_DRONES
 from gcs.fleet.links import NEIGHBOUR_MODES, LinkPlan, MeshPlan, NeighbourPlan, plan_from_tables
@@ -673,13 +680,15 @@ def _params(reader: _Reader, table: Any, where: tuple[str | None, int | None]) -
 
 def _attach(reader: _Reader, tables: Any) -> tuple[AttachSpec, ...]:
     """``[[swarm.attach]]``: ``url``, and optionally ``role`` (default member), ``radius_m`` (the body's size),
-    ``max_distance_m`` (refused farther from the origin) and ``signing_key`` (a key file, relative to the mission)."""
+    ``max_distance_m`` (refused farther from the origin), ``signing_key`` (a key file, relative to the mission), and
+    for a member ``arm`` (the swarm arms and takes it off) and ``keep_in_m`` (no setpoint outside)."""
     if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
         raise reader.fail(("swarm", None), "attach", "must be [[swarm.attach]] tables with url and role")
     specs = []
     for k, table in enumerate(tables):
         where: tuple[str | None, int | None] = ("swarm.attach", k)
-        reader.check_keys(table, {"url", "role", "radius_m", "max_distance_m", "signing_key"}, where)
+        reader.check_keys(table, {"url", "role", "radius_m", "max_distance_m", "signing_key", "arm", "keep_in_m"},
+                          where)  # fmt: skip
         url, role = table.get("url"), table.get("role", DEFAULT_ROLE)
         if not isinstance(url, str) or not isinstance(role, str):
             raise reader.fail(where, "url", 'url (and role) must be strings, e.g. url = "udpin:0.0.0.0:14560"')
@@ -691,9 +700,13 @@ def _attach(reader: _Reader, tables: Any) -> tuple[AttachSpec, ...]:
         if key is not None and not isinstance(key, str):
             raise reader.fail(where, "signing_key", "must be a key file's path (relative to the mission file)")
         key_file = None if key is None else (reader.path.parent / key).resolve()
+        arm = table.get("arm", False)
+        if not isinstance(arm, bool):
+            raise reader.fail(where, "arm", f"must be true or false, got {arm!r}")
+        keep_in = reader.number(table, "keep_in_m", where, "pos") if "keep_in_m" in table else DEFAULT_KEEP_IN_M
         try:
             specs.append(parse_attach(f"{role}={url}", radius_m=radius, max_distance_m=farthest,
-                                      signing_key_file=key_file))  # fmt: skip
+                                      signing_key_file=key_file, arm=arm, keep_in_m=keep_in))  # fmt: skip
         except AttachError as exc:
             raise reader.fail(where, "url", str(exc).removeprefix("--attach ")) from None
     return tuple(specs)

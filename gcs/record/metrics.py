@@ -30,7 +30,9 @@ Airborne
     Per vehicle the simulation did not run (docs/external.md), by sysid: its ``role`` and ``link``, and its closest
     approach to an airborne simulated drone (``min_separation_m``, ``min_separation_time_s``, ``closest_drone``),
     from its own position reports, resampled and searched between grid instants as ``min_separation_m``; it counts
-    as there whenever it reported, flying or not. Its contacts are among ``collisions``.
+    as there whenever it reported, flying or not. Its contacts are among ``collisions``. A member's distance to its
+    slots over the settled part of every formation step (from the instant the drones settled, ``time_to_formation_s``,
+    to the step's end): ``slot_rms_m`` and ``max_slot_error_m``; null when it held no slot in a settled formation.
 
 ``collisions``, ``collision_events``, ``avoidance_events``, ``avoidance_closest_approach_m``
     The number of the recording's events whose text starts with "Collision" (listed in ``collision_events``); the
@@ -264,6 +266,8 @@ def _attached_dict(a: AttachedMetrics) -> dict[str, Any]:
         "min_separation_m": _r(a.min_separation_m),
         "min_separation_time_s": _r(a.min_separation_time_s),
         "closest_drone": a.closest_drone,
+        "slot_rms_m": _r(a.slot_rms_m),
+        "max_slot_error_m": _r(a.max_slot_error_m),
     }
 
 
@@ -480,26 +484,54 @@ class AttachedMetrics:
     min_separation_m: float | None
     min_separation_time_s: float | None
     closest_drone: int | None
+    # a member: its distance to its slot over the settled part of every formation step (as ``formation_rms_m``, the
+    # settled instant the drones'), RMS and largest; None when it held no slot in a settled formation
+    slot_rms_m: float | None = None
+    max_slot_error_m: float | None = None
 
 
-def _attached_metrics(recording: FlightRecording, grid_s: FloatArray, sysids: Sequence[int],
-                      resampled: Sequence[Resampled]) -> dict[int, AttachedMetrics]:  # fmt: skip
+def _attached_metrics(
+    recording: FlightRecording,
+    grid_s: FloatArray,
+    sysids: Sequence[int],
+    resampled: Sequence[Resampled],
+    steps: Sequence[StepMetrics],
+) -> dict[int, AttachedMetrics]:
     """Each attached vehicle's closest approach to the simulated drones (it counts as there whenever it reported,
-    flying or not: a real vehicle standing on the field is an obstacle too)."""
+    flying or not: a real vehicle standing on the field is an obstacle too), and a member's slot error."""
     out: dict[int, AttachedMetrics] = {}
     drones = _airborne_positions(grid_s, resampled)
     for sysid, (role, link) in sorted(recording.attached.items()):
         samples = [x for x in recording.attached_samples if x.sysid == sysid]
         found = None
+        slot_errors = np.empty(0)
         if samples and grid_s.size:
             (track,) = _tracks(samples).values()
-            there = _resample(track, grid_s).pos_ned_m  # (T, 3), NaN where it did not report
+            resampled_track = _resample(track, grid_s)
+            there = resampled_track.pos_ned_m  # (T, 3), NaN where it did not report
             found = _closest_approach(grid_s, there[:, None, :] - drones)
+            slot_errors = _settled_slot_errors(resampled_track, grid_s, steps)
         out[sysid] = AttachedMetrics(
             role=role, link=link, min_separation_m=found[0] if found else None,
             min_separation_time_s=found[1] if found else None, closest_drone=sysids[found[2]] if found else None,
+            slot_rms_m=float(np.sqrt(np.mean(slot_errors**2))) if slot_errors.size else None,
+            max_slot_error_m=float(slot_errors.max()) if slot_errors.size else None,
         )  # fmt: skip
     return out
+
+
+def _settled_slot_errors(track: Resampled, grid_s: FloatArray, steps: Sequence[StepMetrics]) -> FloatArray:
+    """A vehicle's distances to its slots at the grid instants of every formation step's settled part (from the
+    instant the drones settled to the step's end, slots commanded in the step), NaN-free."""
+    out = []
+    for step in steps:
+        if step.time_to_formation_s is None:
+            continue
+        settled = (grid_s >= step.start_s + step.time_to_formation_s - 1e-9) & (grid_s < step.end_s - 1e-9)
+        settled &= track.target_since_s >= step.start_s - 1e-9
+        error = np.linalg.norm(track.pos_ned_m[settled] - track.target_ned_m[settled], axis=1)
+        out.append(error[np.isfinite(error)])
+    return np.concatenate(out) if out else np.empty(0)
 
 
 # --- alignment --------------------------------------------------------------------------------------------------
@@ -687,7 +719,7 @@ def compute_metrics(recording: FlightRecording) -> FlightMetrics:
     first_takeoff = next((s for s in steps if s.kind == "takeoff" and s.target_alt_m is not None), None)
 
     collision_events = tuple(e for e in recording.events if e.text.startswith(COLLISION_PREFIX))
-    attached = _attached_metrics(recording, grid, sysids, resampled)
+    attached = _attached_metrics(recording, grid, sysids, resampled, steps)
     return FlightMetrics(
         mission_name=recording.mission_name,
         n_drones=recording.n_drones,

@@ -81,8 +81,12 @@ class FlightRecorder:
             self.recording.attached[sysid] = (spec.role, spec.url.describe())
         pos = self.streamer.swarm_frame.ned_from_geo(reported_geo(msg))
         vel = (msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
-        self.recording.attached_samples.append(DroneSample(time_s=now, sysid=sysid, pos_ned_m=pos, vel_ned_mps=vel,
-                                                           armed=True, mode="EXTERNAL"))  # fmt: skip
+        view = self.swarm.fleet.drones.get(sysid)
+        target = self.streamer.targets(now).get(sysid)  # a member's slot, while it has one
+        self.recording.attached_samples.append(DroneSample(
+            time_s=now, sysid=sysid, pos_ned_m=pos, vel_ned_mps=vel, armed=view.armed if view else True,
+            mode=view.mode if view else "EXTERNAL", target_ned_m=target,
+        ))  # fmt: skip
 
     def on_sent(self, data: bytes, _now_s: float) -> None:
         """What the ground station commanded (COMMAND_LONG, PARAM_SET) goes into the tlog beside the answers."""
@@ -95,7 +99,7 @@ class FlightRecorder:
         kind = msg.get_type()
         sysid = msg.get_srcSystem()
         now = self.clock()
-        if kind == "LOCAL_POSITION_NED":
+        if kind == "LOCAL_POSITION_NED" and sysid not in self.swarm.attached:  # an attached one: from where it says
             frame = self.streamer.drone_frame(sysid)
             view = self.swarm.fleet.drones.get(sysid)
             if frame is None or view is None:

@@ -116,6 +116,8 @@ class FlightSession:
             self._policy_line(line, now_s, loss.sysid, indent)
         for line in self.swarm.detect_external_changes(now_s):
             self.say(f"swarm: {line}")
+        for sysid in self.swarm.attachments.take_released():  # a member no longer commanded: flown on without it
+            self._policy_line(self.streamer.handle_loss(sysid, now_s), now_s, sysid, indent)
 
     def _policy_line(self, line: str | None, now_s: float, sysid: int, indent: str) -> None:
         if line is not None:

@@ -14,7 +14,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.fleet.attach import DEFAULT_MAX_DISTANCE_M, parse_attach
+from gcs.fleet.attach import DEFAULT_KEEP_IN_M, DEFAULT_MAX_DISTANCE_M, parse_attach
 from gcs.fleet.faults import fault_request
 from gcs.fleet.losses import MAV_STATE_CRITICAL, LossPolicy
 from gcs.fleet.swarm import Swarm, SwarmError
@@ -64,7 +64,8 @@ class Station:
             "plan_download": lambda r: {"ok": True, "plan": plan_text(VERBS["plan_download"](
                 self.session, r.get("sysid")).value)},
             "attach": lambda r: self._verb(r, "attach", parse_attach(str(r.get("url")), max_distance_m=float(
-                r.get("max_distance_m", DEFAULT_MAX_DISTANCE_M)))),
+                r.get("max_distance_m", DEFAULT_MAX_DISTANCE_M)), keep_in_m=float(r.get("keep_in_m",
+                                                                                        DEFAULT_KEEP_IN_M)))),
             "detach": lambda r: self._verb(r, "detach", r.get("sysid")),
         }  # fmt: skip
 

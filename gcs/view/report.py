@@ -383,7 +383,10 @@ def summary_text(metrics: FlightMetrics) -> str:
             if attached.min_separation_m is not None
             else "never there while a drone flew"
         )
-        lines.append(f"attached vehicle {sysid} ({attached.role} on {attached.link}): {where}")
+        slot = (f"; its slot {attached.slot_rms_m:.2f} m RMS (at most {attached.max_slot_error_m:.2f} m) once the "
+                "formations settled" if attached.slot_rms_m is not None and attached.max_slot_error_m is not None
+                else "")  # fmt: skip
+        lines.append(f"attached vehicle {sysid} ({attached.role} on {attached.link}): {where}{slot}")
     lines.append(f"collisions: {metrics.collisions}")
     for event in metrics.collision_events:
         who = "swarm" if event.sysid is None else f"drone {event.sysid}"

@@ -204,3 +204,159 @@ def hover_then_circle(centre_ne_m: tuple[float, float], radius_m: float, alt_m: 
         return (n0 + radius_m * math.cos(angle), e0 - radius_m * math.sin(angle), -alt_m)
 
     return at
+
+
+ARDUCOPTER_GUIDED = 4  # ArduCopter's custom modes (pymavlink's mode_mapping_acm)
+ARDUCOPTER_LOITER = 5
+ARDUCOPTER_STABILIZE = 0
+_CLIMB_MPS = 1.0
+_MAX_SPEED_MPS = 3.0
+_POSITION_GAIN = 1.5  # 1/s: velocity asked per metre from the target, as a position loop's P
+_VELOCITY_LAG_S = 0.3  # the vehicle reaches a commanded velocity with this time constant
+
+
+@dataclass
+class Received:
+    """What a scripted copter was sent, by wall seconds since its start."""
+
+    time_s: float
+    msg: mavlink.MAVLink_message
+
+
+class ScriptedCopter:
+    """An ArduPilot Copter as a ground station knows one, played by a script over UDP: HEARTBEAT with ArduCopter's
+    custom modes, SYS_STATUS (pre-arm checks passed), EXTENDED_SYS_STATE, GLOBAL_POSITION_INT; it answers DO_SET_MODE
+    (GUIDED, LOITER), arming and NAV_TAKEOFF (in GUIDED, altitude above home) with COMMAND_ACK, and in GUIDED flies
+    to SET_POSITION_TARGET_GLOBAL_INT setpoints (a position loop with velocity feed-forward, a lag on velocity, a
+    speed limit); in LOITER it brakes and holds. Everything it is sent is kept (``received``), so a test can check
+    what the ground station asked of it. It stands on the ground at ``start_ne_m`` until told otherwise."""
+
+    def __init__(self, sysid: int, link: UdpLink, origin: GeoPoint, start_ne_m: tuple[float, float],
+                 rate_hz: float = 20.0) -> None:  # fmt: skip
+        self.sysid = sysid
+        self.link = link
+        self.rate_hz = rate_hz
+        self._frame = NedFrame(origin)
+        self._home_alt_m = origin.alt_amsl_m
+        self.pos = [start_ne_m[0], start_ne_m[1], 0.0]
+        self.vel = [0.0, 0.0, 0.0]
+        self.armed = False
+        self.mode = ARDUCOPTER_STABILIZE
+        self._target: tuple[float, float, float] | None = None  # NED of the last position setpoint
+        self._target_vel = (0.0, 0.0, 0.0)
+        self._takeoff_down: float | None = None
+        self.received: list[Received] = []
+        self._mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=1)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=f"copter-{sysid}", daemon=True)
+        self.t0 = time.monotonic()
+
+    def start(self) -> ScriptedCopter:
+        self.t0 = time.monotonic()
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+        self.link.close()
+
+    def commands(self, command: int | None = None) -> list[Received]:
+        """The COMMAND_LONGs (or COMMAND_INTs) it was sent, of one command or all."""
+        return [r for r in self.received if r.msg.get_type() in ("COMMAND_LONG", "COMMAND_INT")
+                and (command is None or r.msg.command == command)]  # fmt: skip
+
+    def setpoints(self) -> list[Received]:
+        return [r for r in self.received if r.msg.get_type() == "SET_POSITION_TARGET_GLOBAL_INT"]
+
+    def _send(self, msg: mavlink.MAVLink_message) -> None:
+        self.link.write(msg.pack(self._mav))
+
+    def _ack(self, command: int, ok: bool) -> None:
+        result = mavlink.MAV_RESULT_ACCEPTED if ok else mavlink.MAV_RESULT_FAILED
+        self._send(mavlink.MAVLink_command_ack_message(command, result, 0, 0, 255, 190))
+
+    def _handle(self, msg: mavlink.MAVLink_message, t_s: float) -> None:
+        kind = msg.get_type()
+        if getattr(msg, "target_system", self.sysid) not in (0, self.sysid):
+            return
+        if kind in ("COMMAND_LONG", "COMMAND_INT", "SET_POSITION_TARGET_GLOBAL_INT", "SET_MODE"):
+            self.received.append(Received(t_s, msg))
+        if kind == "COMMAND_LONG":
+            self._command(msg)
+        elif kind == "SET_POSITION_TARGET_GLOBAL_INT" and self.mode == ARDUCOPTER_GUIDED and self.armed:
+            geo = GeoPoint(lat_deg=msg.lat_int * 1e-7, lon_deg=msg.lon_int * 1e-7, alt_amsl_m=msg.alt)
+            self._target = self._frame.ned_from_geo(geo)
+            self._target_vel = (msg.vx, msg.vy, msg.vz)
+            self._takeoff_down = None
+
+    def _command(self, msg: mavlink.MAVLink_message) -> None:
+        command = msg.command
+        if command == mavlink.MAV_CMD_DO_SET_MODE:
+            ok = int(msg.param2) in (ARDUCOPTER_GUIDED, ARDUCOPTER_LOITER)
+            if ok:
+                self.mode = int(msg.param2)
+                self._target = None
+            self._ack(command, ok)
+        elif command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
+            self.armed = msg.param1 == 1.0 or (self.armed and self.pos[2] < -0.1)  # no disarm in the air
+            self._ack(command, self.armed == (msg.param1 == 1.0))
+        elif command == mavlink.MAV_CMD_NAV_TAKEOFF:
+            ok = self.armed and self.mode == ARDUCOPTER_GUIDED
+            if ok:
+                self._takeoff_down = -msg.param7
+            self._ack(command, ok)
+        else:
+            self._ack(command, False)
+
+    def _step(self, dt: float) -> None:
+        """Kinematics: where the mode and the last command take it, the velocity lagging the one asked."""
+        want = [0.0, 0.0, 0.0]
+        if self.armed and self._takeoff_down is not None:  # climbs at _CLIMB_MPS, slowing into the altitude
+            want[2] = max(-_CLIMB_MPS, min(_CLIMB_MPS, _POSITION_GAIN * (self._takeoff_down - self.pos[2])))
+        elif self.armed and self.mode == ARDUCOPTER_GUIDED and self._target is not None:
+            aims = zip(self._target_vel, self._target, self.pos, strict=True)
+            want = [v + _POSITION_GAIN * (t - p) for v, t, p in aims]
+            speed = math.hypot(*want)
+            if speed > _MAX_SPEED_MPS:
+                want = [w * _MAX_SPEED_MPS / speed for w in want]
+        blend = dt / (_VELOCITY_LAG_S + dt)
+        self.vel = [v + blend * (w - v) for v, w in zip(self.vel, want, strict=True)]
+        if not self.armed:
+            self.vel = [0.0, 0.0, 0.0]
+        self.pos = [p + v * dt for p, v in zip(self.pos, self.vel, strict=True)]
+        if self.pos[2] > 0.0:  # the ground
+            self.pos[2], self.vel[2] = 0.0, min(self.vel[2], 0.0)
+
+    def _run(self) -> None:
+        period = 1.0 / self.rate_hz
+        next_slow = 0.0
+        next_position = 0.0
+        last = time.monotonic()
+        while not self._stop.wait(period):
+            now = time.monotonic()
+            t = now - self.t0
+            for msg in self.link.read():
+                self._handle(msg, t)
+            self._step(now - last)
+            last = now
+            if now >= next_slow:
+                next_slow = now + 1.0
+                armed = mavlink.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0
+                base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | armed
+                self._send(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR,
+                                                             mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, base, self.mode,
+                                                             mavlink.MAV_STATE_ACTIVE, 3))  # fmt: skip
+                prearm = mavlink.MAV_SYS_STATUS_PREARM_CHECK
+                self._send(mavlink.MAVLink_sys_status_message(prearm, prearm, prearm, 100, 16000, -1, 90, 0, 0, 0, 0,
+                                                              0, 0))  # fmt: skip
+                flying = self.armed and self.pos[2] < -0.1
+                landed = mavlink.MAV_LANDED_STATE_IN_AIR if flying else mavlink.MAV_LANDED_STATE_ON_GROUND
+                self._send(mavlink.MAVLink_extended_sys_state_message(0, landed))
+            if now >= next_position:
+                next_position = now + 0.1
+                geo = self._frame.geo_from_ned(tuple(self.pos))
+                self._send(mavlink.MAVLink_global_position_int_message(
+                    int(t * 1000) & 0xFFFFFFFF, round(geo.lat_deg * 1e7), round(geo.lon_deg * 1e7),
+                    round(geo.alt_amsl_m * 1e3), round((geo.alt_amsl_m - self._home_alt_m) * 1e3),
+                    round(self.vel[0] * 100), round(self.vel[1] * 100), round(self.vel[2] * 100), 0))  # fmt: skip

@@ -214,7 +214,7 @@ def test_bad_attaches_are_one_line_and_exit_2_before_any_drone_starts(tmp_path: 
     port = free_udp_port()
     cases = [
         (("pilot=udpin:127.0.0.1:1",), (), "no role 'pilot'"),
-        (("member=udpin:127.0.0.1:1",), (), "role member is not available yet"),
+        (("member=udpin:127.0.0.1:1",), ("--attach-keep-in", "0.2"), "the keep-in must be more than 0.5 m"),
         (("intruder=udpin:127.0.0.1",), (), "is no vehicle URL"),
         ((f"intruder=udpin:127.0.0.1:{port}",), ("--lockstep",), "runs paced at speed 1"),
         ((f"intruder=udpin:127.0.0.1:{port}",), ("--speed", "2"), "runs paced at speed 1"),

@@ -17,11 +17,14 @@ from gcs.fleet.attach import (
     ExternalLink,
     TokenBucket,
     parse_attach,
+    role_of,
     sysid_problem,
     traffic_report,
 )
+from gcs.fleet.attachments import keep_in_problem
 from gcs.flight.behaviours import FollowAttached, FollowAttachedSpec, LeaderReport, SwarmState
 from gcs.flight.geodesy import GeoPoint, NedFrame
+from gcs.mavlink.modes import HOLD, OFFBOARD, mode_name, purpose_mode_name, purpose_params
 from gcs.mavlink.urls import DEFAULT_BAUD, UrlError, parse_vehicle_url
 from gcs.missions.mission_file import FollowAttachedStep, MissionFileError, load_mission
 from sitl.avoidance.algorithm import AvoidanceConfig, Obstacle, avoid
@@ -80,10 +83,16 @@ def test_an_attach_names_its_role_or_takes_the_default_and_refuses_what_it_canno
     assert parse_attach("INTRUDER=tcp:h:5760", radius_m=0.5).radius_m == 0.5
     with pytest.raises(AttachError, match="no role 'pilot'"):
         parse_attach("pilot=udpin:0.0.0.0:14560")
-    # member (the default) is the commanded role, refused with one line rather than accepted and ignored
+    # member is the default; only a member is armed by the swarm, and its keep-in is above the floor
     for text in ("udpin:0.0.0.0:14560", "member=udpin:0.0.0.0:14560"):
-        with pytest.raises(AttachError, match="not available yet"):
-            parse_attach(text)
+        assert parse_attach(text).role == "member" and role_of(text) == "member"
+        assert not parse_attach(text).arm and parse_attach(text, arm=True).arm
+    with pytest.raises(AttachError, match="only a member is armed by the swarm, not a leader"):
+        parse_attach("leader=udpin:0.0.0.0:14560", arm=True)
+    assert parse_attach("udpin:0.0.0.0:14560", keep_in_m=30.0).keep_in_m == 30.0
+    for bad in (0.5, math.nan, math.inf):
+        with pytest.raises(AttachError, match="keep-in"):
+            parse_attach("udpin:0.0.0.0:14560", keep_in_m=bad)
     with pytest.raises(AttachError, match="radius_m"):
         parse_attach("intruder=udpin:0.0.0.0:14560", radius_m=0.0)
     assert parse_attach("intruder=udpin:0.0.0.0:14560", max_distance_m=50.0).max_distance_m == 50.0
@@ -116,6 +125,17 @@ def test_a_missions_attach_tables_are_read_and_a_bad_one_is_named_by_its_line(tm
     odd.write_text(head.replace("radius_m = 0.4", "size = 1") + steps)
     with pytest.raises(MissionFileError, match="unknown field"):
         load_mission(odd)
+    member = tmp_path / "member.toml"
+    member.write_text(head.replace('role = "intruder"', "arm = true\nkeep_in_m = 30") + steps)
+    (spec,) = load_mission(member).swarm.attach
+    assert (spec.role, spec.arm, spec.keep_in_m) == ("member", True, 30.0)
+    for wrong, said in (("arm = 1", "arm: must be true or false"), ("keep_in_m = -3", "keep_in_m")):
+        bad.write_text(head.replace('role = "intruder"', wrong) + steps)
+        with pytest.raises(MissionFileError, match=said):
+            load_mission(bad)
+    bad.write_text(head.replace("radius_m = 0.4", "arm = true") + steps)  # an intruder is never armed
+    with pytest.raises(MissionFileError, match="only a member is armed by the swarm"):
+        load_mission(bad)
 
 
 def test_a_vehicles_body_is_carried_on_briefly_at_its_velocity_and_stays_put_once_lost() -> None:
@@ -269,3 +289,31 @@ def test_a_links_budget_gives_its_rate_on_average_and_its_burst_at_once() -> Non
     assert not bucket.take(0.01)
     taken = sum(bucket.take(1.0 + k * 0.001) for k in range(10_000))  # asked 1,000 times a second for 10 s
     assert 200 <= taken <= 221  # 20 a second, plus what had built up since the burst
+
+
+def test_a_members_keep_in_is_a_cylinder_around_the_origin_above_its_floor() -> None:
+    assert keep_in_problem((30.0, 40.0, -10.0), 100.0) is None
+    assert "50.0 m from the origin, outside the keep-in of 40 m" in str(keep_in_problem((30.0, 40.0, -10.0), 40.0))
+    assert "above the keep-in's 20 m" in str(keep_in_problem((0.0, 0.0, -25.0), 20.0))
+    assert "below the keep-in's floor" in str(keep_in_problem((0.0, 0.0, -0.2), 20.0))
+    assert keep_in_problem((math.nan, 0.0, -3.0), 20.0) == "not a finite point"
+
+
+@pytest.mark.parametrize(
+    ("autopilot", "purpose", "params", "name"),
+    [
+        (mavlink.MAV_AUTOPILOT_PX4, OFFBOARD, (1.0, 6.0, 0.0), "OFFBOARD"),
+        (mavlink.MAV_AUTOPILOT_PX4, HOLD, (29.0, 4.0, 3.0), "AUTO.LOITER"),
+        (mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, OFFBOARD, (1.0, 4.0, 0.0), "GUIDED"),
+        (mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, HOLD, (1.0, 5.0, 0.0), "LOITER"),
+    ],
+)
+def test_each_autopilot_is_asked_for_its_own_mode_and_read_back_under_its_name(
+    autopilot: int, purpose: str, params: tuple[float, float, float], name: str
+) -> None:
+    """PX4 and ArduPilot Copter through pymavlink's mappings: what DO_SET_MODE asks, and how HEARTBEAT reads back."""
+    assert purpose_params(purpose, autopilot) == params
+    assert purpose_mode_name(purpose, autopilot) == name
+    custom = int(params[1]) << 16 | int(params[2]) << 24 if autopilot == mavlink.MAV_AUTOPILOT_PX4 else int(params[1])
+    assert mode_name(custom, autopilot, mavlink.MAV_TYPE_QUADROTOR) == name
+    assert mode_name(99, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA) == "custom 99"

@@ -1,0 +1,208 @@
+"""Members: vehicles the simulation does not run, flown in the swarm's formations as a ground station flies them
+(docs/external.md). One flight of six simulated drones with three members, each on a link of its own:
+
+- a ``sitl`` started on its own (no shared world: nothing of it reaches the simulated world except through MAVLink),
+  a PX4 as far as the ground station can tell, armed and taken off by the swarm (``arm = true``), flown in OFFBOARD;
+- a scripted ArduPilot Copter (tests/integration/scripted_vehicle.py ``ScriptedCopter``), armed and taken off in
+  GUIDED, flown with SET_POSITION_TARGET_GLOBAL_INT, with a keep-in of 8 m that the second formation's slots leave;
+- a second scripted copter that the swarm may not arm, standing on the field: it is never commanded.
+
+They take off with the drones, fly a rotating circle of eight, then a wider circle (which the copter's keep-in does
+not hold: it is put in Hold and released, the others re-plan without it), and when the drones land the members
+are put in Hold, never landed or disarmed.
+
+Policy: loopback only (--no-forward); leased instances (tests/integration/instances.py); the members' links on ports
+the system picked; paced at 1x (an attached vehicle keeps wall time); every process stopped by PID; time limits.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mavlink
+
+from gcs.flight.geodesy import DEFAULT_ORIGIN, GeoPoint, NedFrame
+from tests.integration.instances import Leases
+from tests.integration.scripted_vehicle import ARDUCOPTER_GUIDED, ARDUCOPTER_LOITER, ScriptedCopter, UdpLink
+from tests.integration.sitl_process import SitlDrone, start_drone, stop_drone
+from tests.integration.test_attach import free_udp_port
+
+pytestmark = [pytest.mark.sim_only]
+
+SWARM = [sys.executable, "-m", "gcs.cli"]
+COPTER_SYSID = 251  # sysids no drone of the suite has (tests/integration/instances.py)
+GROUNDED_SYSID = 252
+COPTER_KEEP_IN_M = 8.0
+SLOT_RMS_M = 0.3  # the issue's bound on a member's distance to its slot once the circle has settled
+FRAME = NedFrame(DEFAULT_ORIGIN)
+SITL_HOME_NE_M = (-7.0, -7.0)  # where the members stand before takeoff: clear of the drones' grid
+COPTER_HOME_NE_M = (5.0, 5.0)  # inside its keep-in
+GROUNDED_NE_M = (14.0, -14.0)
+MISSION = """
+name = "circle_with_members"
+[swarm]
+drones = 6
+spacing_m = 2.5
+
+[[swarm.attach]]
+url = "udpin:127.0.0.1:{sitl_port}"
+arm = true
+
+[[swarm.attach]]
+url = "udpin:127.0.0.1:{copter_port}"
+arm = true
+keep_in_m = {keep_in}
+
+[[swarm.attach]]
+url = "udpin:127.0.0.1:{grounded_port}"
+
+[[steps]]
+action = "takeoff"
+alt_m = 3.0
+
+[[steps]]
+action = "formation"
+shape = "circle"
+radius_m = 4.5
+alt_m = 3.0
+angular_rate_radps = 0.3
+hold_s = 25.0
+
+[[steps]]
+action = "formation"
+shape = "circle"
+radius_m = 10.0
+alt_m = 3.0
+hold_s = 12.0
+
+[[steps]]
+action = "land"
+"""
+
+
+@dataclass
+class Flown:
+    result: subprocess.CompletedProcess[str]
+    metrics: dict[str, Any]
+    tlog: Path
+    sitl_sysid: int
+    copter: ScriptedCopter
+    grounded: ScriptedCopter
+
+
+def _home(north_east: tuple[float, float]) -> str:
+    geo = FRAME.geo_from_ned((north_east[0], north_east[1], 0.0))
+    return f"{geo.lat_deg:.9f},{geo.lon_deg:.9f},{geo.alt_amsl_m:.3f}"
+
+
+@pytest.fixture(scope="module")
+def flown(tmp_path_factory: pytest.TempPathFactory, module_instances: Leases) -> Iterator[Flown]:
+    tmp = tmp_path_factory.mktemp("members")
+    first = module_instances(6)
+    member_instance = module_instances(1)
+    sitl_port, copter_port, grounded_port = free_udp_port(), free_udp_port(), free_udp_port()
+    mission = tmp / "circle_with_members.toml"
+    mission.write_text(MISSION.format(sitl_port=sitl_port, copter_port=copter_port, grounded_port=grounded_port,
+                                      keep_in=COPTER_KEEP_IN_M))  # fmt: skip
+    member: SitlDrone = start_drone(
+        instance=member_instance, speed_factor=1.0, seed=7, log_dir=tmp,
+        extra_args=("--gcs-remote", f"127.0.0.1:{sitl_port}", "--home", _home(SITL_HOME_NE_M)),
+    )  # fmt: skip
+    copter = ScriptedCopter(COPTER_SYSID, UdpLink(copter_port), DEFAULT_ORIGIN, COPTER_HOME_NE_M).start()
+    grounded = ScriptedCopter(GROUNDED_SYSID, UdpLink(grounded_port), DEFAULT_ORIGIN, GROUNDED_NE_M).start()
+    try:
+        result = subprocess.run(
+            [*SWARM, "fly", str(mission), "--first-instance", str(first), "--report", str(tmp / "report"),
+             "--no-view", "--no-forward"],
+            capture_output=True, text=True, timeout=280,
+        )  # fmt: skip
+    finally:
+        copter.stop()
+        grounded.stop()
+        stop_drone(member)
+    (tmp / "stdout.txt").write_text(result.stdout + result.stderr)  # the whole flight's lines, for a failure's reader
+    assert result.returncode == 0, result.stdout[-4000:] + result.stderr[-3000:]
+    metrics = json.loads((tmp / "report" / "metrics.json").read_text())
+    yield Flown(result, metrics, tmp / "report" / "flight.tlog", member.sysid, copter, grounded)
+
+
+def _setpoint_ned(msg: Any) -> tuple[float, float, float]:
+    return FRAME.ned_from_geo(GeoPoint(lat_deg=msg.lat_int * 1e-7, lon_deg=msg.lon_int * 1e-7, alt_amsl_m=msg.alt))
+
+
+def _heartbeats(tlog: Path, sysid: int) -> list[Any]:
+    log = mavutil.mavlink_connection(str(tlog))
+    out = []
+    try:
+        while (msg := log.recv_match(type="HEARTBEAT")) is not None:
+            if msg.get_srcSystem() == sysid and msg.get_srcComponent() == 1:
+                out.append(msg)
+    finally:
+        log.close()
+    return out
+
+
+@pytest.mark.timeout(300)
+def test_the_px4_member_flies_its_slot_and_is_left_holding_armed(flown: Flown) -> None:
+    out = flown.result.stdout
+    assert f"attached member sysid {flown.sitl_sysid} on udpin:127.0.0.1:" in out
+    # it held its slot of the rotating circle, and nobody touched anything
+    assert flown.metrics["collisions"] == 0, flown.metrics["collision_events"]
+    member = flown.metrics["attached"][str(flown.sitl_sysid)]
+    assert member["role"] == "member"
+    assert member["slot_rms_m"] is not None and member["slot_rms_m"] <= SLOT_RMS_M, member
+    assert member["min_separation_m"] >= 1.0, member
+    # it flew OFFBOARD, and the swarm left it in Hold (AUTO.LOITER), armed: never landed or disarmed by the swarm
+    beats = _heartbeats(flown.tlog, flown.sitl_sysid)
+    modes = [mavutil.interpret_px4_mode(b.base_mode, b.custom_mode) for b in beats]
+    assert "OFFBOARD" in modes, modes
+    assert modes[-1] == "LOITER" and beats[-1].base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED, modes[-5:]
+
+
+@pytest.mark.timeout(300)
+def test_the_ardupilot_member_is_armed_in_guided_flown_by_global_setpoints_and_released_at_its_keep_in(
+    flown: Flown,
+) -> None:
+    copter = flown.copter
+    out = flown.result.stdout
+    # armed and taken off as ArduCopter takes off: GUIDED, arm, NAV_TAKEOFF to 3 m above its home (= the origin's
+    # altitude)
+    modes = [int(r.msg.param2) for r in copter.commands(mavlink.MAV_CMD_DO_SET_MODE)]
+    assert modes[0] == ARDUCOPTER_GUIDED and modes[-1] == ARDUCOPTER_LOITER, modes
+    arms = copter.commands(mavlink.MAV_CMD_COMPONENT_ARM_DISARM)
+    assert arms and all(r.msg.param1 == 1.0 for r in arms), "the swarm never disarms a member"
+    (takeoff,) = copter.commands(mavlink.MAV_CMD_NAV_TAKEOFF)
+    assert takeoff.msg.param7 == pytest.approx(3.0)
+    # flown with setpoints at most 10 a second, never outside its keep-in
+    setpoints = copter.setpoints()
+    assert len(setpoints) > 100
+    span_s = setpoints[-1].time_s - setpoints[0].time_s
+    assert len(setpoints) <= 10.5 * span_s + 1, (len(setpoints), span_s)
+    farthest = max(math.hypot(*_setpoint_ned(r.msg)[:2]) for r in setpoints)
+    assert farthest <= COPTER_KEEP_IN_M, farthest
+    # the wide circle's slot left the keep-in: not sent; the copter was put in LOITER and released, once
+    released = [line for line in out.splitlines() if f"member {COPTER_SYSID} released:" in line]
+    assert len(released) == 1 and f"outside the keep-in of {COPTER_KEEP_IN_M:g} m" in released[0], out[-3000:]
+    assert "asked to hold where it is" in released[0]
+    assert copter.mode == ARDUCOPTER_LOITER and copter.armed
+    after = [r for r in setpoints if r.time_s > copter.commands(mavlink.MAV_CMD_DO_SET_MODE)[-1].time_s]
+    assert not after, "no setpoint after the member was released"
+    # while it flew the circle it held its slot as well
+    member = flown.metrics["attached"][str(COPTER_SYSID)]
+    assert member["slot_rms_m"] is not None and member["slot_rms_m"] <= SLOT_RMS_M, member
+
+
+@pytest.mark.timeout(300)
+def test_a_member_the_swarm_may_not_arm_is_never_commanded_and_said_to_be_left_out(flown: Flown) -> None:
+    assert not flown.grounded.received, [r.msg.get_type() for r in flown.grounded.received]
+    assert not flown.grounded.armed
+    assert f"member {GROUNDED_SYSID} is not flying" in flown.result.stdout
