@@ -268,13 +268,24 @@ def traffic_report(position: Any) -> Any:
     in turn: its sysid as the ICAO address, geometric altitude, heading and speeds from its velocity (PX4 takes
     traffic so, from an ADS-B receiver or a ground station; the simulated drones avoid it in full:
     sitl/protocol/neighbours.py)."""
-    vn, ve = position.vx * 0.01, position.vy * 0.01
+    return _adsb(position.get_srcSystem(), position.lat, position.lon, position.alt, position.vx, position.vy,
+                 position.vz, 0)  # fmt: skip
+
+
+def last_known_traffic(sysid: int, where: GeoPoint, age_s: float) -> Any:
+    """A vehicle no longer heard, as traffic where it was last known, standing still, with ``tslc`` the whole seconds
+    since (at most 255): the simulated drones widen their keep-out around it with that age (AVOID_STALE_RATE)."""
+    return _adsb(sysid, round(where.lat_deg * 1e7), round(where.lon_deg * 1e7), round(where.alt_amsl_m * 1e3), 0, 0,
+                 0, min(255, max(0, math.floor(age_s))))  # fmt: skip
+
+
+def _adsb(sysid: int, lat_e7: int, lon_e7: int, alt_mm: int, vx_cms: int, vy_cms: int, vz_cms: int, tslc_s: int) -> Any:
+    vn, ve = vx_cms * 0.01, vy_cms * 0.01
     heading_cdeg = round(math.degrees(math.atan2(ve, vn)) * 100.0) % 36000
-    sysid = position.get_srcSystem()
     return mavlink.MAVLink_adsb_vehicle_message(
-        sysid, position.lat, position.lon, mavlink.ADSB_ALTITUDE_TYPE_GEOMETRIC, position.alt, heading_cdeg,
-        min(round(math.hypot(vn, ve) * 100.0), 0xFFFF), max(-32768, min(32767, -position.vz)),
-        f"SYS{sysid}".encode(), mavlink.ADSB_EMITTER_TYPE_UAV, 0, TRAFFIC_FLAGS, 0,
+        sysid, lat_e7, lon_e7, mavlink.ADSB_ALTITUDE_TYPE_GEOMETRIC, alt_mm, heading_cdeg,
+        min(round(math.hypot(vn, ve) * 100.0), 0xFFFF), max(-32768, min(32767, -vz_cms)), f"SYS{sysid}".encode(),
+        mavlink.ADSB_EMITTER_TYPE_UAV, tslc_s, TRAFFIC_FLAGS, 0,
     )  # fmt: skip
 
 

@@ -35,6 +35,7 @@ from gcs.fleet.attach import (
     AttachSpec,
     ExternalLink,
     is_vehicle_heartbeat,
+    last_known_traffic,
     reported_geo,
     sysid_problem,
     traffic_report,
@@ -70,6 +71,8 @@ MODE_SETTLE_S = 2.5
 KEEP_IN_LOOKAHEAD_S = 1.0
 _IN_AIR = (mavlink.MAV_LANDED_STATE_IN_AIR, mavlink.MAV_LANDED_STATE_TAKEOFF, mavlink.MAV_LANDED_STATE_LANDING)
 _IN_AIR_ALT_M = 1.0  # a vehicle that does not say whether it flies: flying above this (GLOBAL_POSITION_INT)
+# A vehicle gone silent is reported to the drones where it was last known this often, its age growing (``tslc``)
+LAST_KNOWN_PERIOD_S = 1.0
 
 
 class Attachments:
@@ -83,6 +86,7 @@ class Attachments:
         self._released: list[int] = []  # members released since the last ``take_released``
         self._said_grounded: set[int] = set()  # members said once to be left out for not flying
         self._next_heartbeat_s = 0.0
+        self._next_last_known_s = 0.0
 
     def attach(self, spec: AttachSpec, timeout_s: float) -> tuple[list[int], list[str]]:
         """Open ``spec``'s link, wait for an autopilot's HEARTBEAT (and OTHERS_SETTLE_S more for others on the same
@@ -318,12 +322,18 @@ class Attachments:
                                                      mavlink.MAV_STATE_ACTIVE, 3)  # fmt: skip
             for link in self._links:
                 link.send(beat)
+        last_known_due = now >= self._next_last_known_s
+        if last_known_due:
+            self._next_last_known_s = now + LAST_KNOWN_PERIOD_S
         for sysid, vehicle in self.vehicles.items():
             geo = vehicle.body_at(now)
             if geo is not None:
                 velocity = (0.0, 0.0, 0.0) if vehicle.lost else vehicle.vel_ned_mps
                 self.swarm.harness.place_external_body(sysid, (geo.lat_deg, geo.lon_deg, geo.alt_amsl_m), velocity,
                                                        vehicle.spec.radius_m)  # fmt: skip
+                if vehicle.lost and last_known_due:  # the drones keep a keep-out growing with its age around it
+                    report = last_known_traffic(sysid, geo, now - vehicle.position_s)
+                    self.swarm.router.relay_traffic(sysid, report, now, self.swarm.fleet)
 
     def _handle(self, link: ExternalLink, msg: Any, now: float) -> None:
         """A message on an attached vehicle's link: into the fleet view, the relay and the listeners (the flight log,

@@ -57,6 +57,7 @@ class RelayedNeighbour:
     vel_ned_mps: tuple[float, float, float]
     received_s: float  # when the position was true: the sender's time in lockstep, else its arrival
     cooperative: bool = True  # a swarm neighbour, which avoids in turn; False: traffic (ADSB_VEHICLE), which does not
+    stale_s: float = 0.0  # how old the sender's knowledge of it was when reported (traffic's tslc)
 
 
 MIN_PREFERRED_SPEED_MPS = 1.0
@@ -136,6 +137,12 @@ class CollisionPrevention:
             self._config_row = config_row(self._config)
         return self._config
 
+    def stale_margin_m(self, stale_s: float) -> float:
+        """How much wider the keep-out around a vehicle last known ``stale_s`` seconds ago is: it may have moved
+        since (AVOID_STALE_RATE a second, at most AVOID_STALE_MAX). Its body, seen by the camera, does not grow."""
+        p = self._params
+        return min(p["AVOID_STALE_RATE"] * stale_s, p["AVOID_STALE_MAX"])
+
     def _obstacles(self, pos_ned_m: Vec3f, own_vel: Vec3f, now_s: float) -> npt.NDArray[np.float64]:
         # Fusion's inputs as fields (``fuse_fields``), not as records: built for every neighbour at the avoidance
         # rate, records cost more than fusing them in a crowd.
@@ -155,7 +162,8 @@ class CollisionPrevention:
             )
         radius = self._own_radius_m  # the swarm flies one airframe; a relay report carries no size
         relay: list[RelayFields] = [
-            ((n.pos_ned_m[0] - x, n.pos_ned_m[1] - y, n.pos_ned_m[2] - z), n.vel_ned_mps, radius,
+            ((n.pos_ned_m[0] - x, n.pos_ned_m[1] - y, n.pos_ned_m[2] - z), n.vel_ned_mps,
+             radius if n.stale_s <= 0.0 else radius + self.stale_margin_m(n.stale_s + max(0.0, now_s - n.received_s)),
              max(0.0, now_s - n.received_s), n.cooperative)
             for n in neighbours
         ]  # fmt: skip

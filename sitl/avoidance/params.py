@@ -43,6 +43,23 @@ AVOIDANCE_PARAMS: tuple[ParamDef, ...] = (
         description="Largest horizontal velocity correction avoidance may apply (keep it above the cruise speed)",
     ),
     ParamDef(
+        name="AVOID_STALE_RATE",
+        default=0.25,
+        min=0.0,
+        max=5.0,
+        unit="m/s",
+        description="Keep-out growth around traffic the ground station reports from old knowledge (its tslc: a "
+        "vehicle it no longer hears), per second of age",
+    ),
+    ParamDef(
+        name="AVOID_STALE_MAX",
+        default=3.0,
+        min=0.0,
+        max=20.0,
+        unit="m",
+        description="Largest keep-out growth around traffic reported from old knowledge",
+    ),
+    ParamDef(
         name="CAM_ENABLE",
         default=1,
         min=0,

@@ -147,7 +147,7 @@ class Awareness:
                 pos = frame.ned_from_geodetic_rad(math.radians(n.lat_deg), math.radians(n.lon_deg), n.alt_amsl_m)
                 stamp = n.sender_time_s if self._shared_clock else n.received_s
                 relayed = _new_relayed(sysid=n.sysid, pos_ned_m=pos, vel_ned_mps=n.vel_ned_mps, received_s=stamp,
-                                       cooperative=n.cooperative)  # fmt: skip
+                                       cooperative=n.cooperative, stale_s=n.stale_s)  # fmt: skip
             converted[n.sysid] = (n, relayed)
             out.append(relayed)
         self._relayed = converted

@@ -46,6 +46,9 @@ class Neighbour:
     received_s: float  # our simulation time when it arrived
     source: NeighbourSource = RELAY  # the way the report came
     cooperative: bool = True  # a swarm neighbour (it avoids in turn); False: traffic from ADSB_VEHICLE
+    # how old the sender's own knowledge was when it sent the report (traffic's ``tslc``: a vehicle the ground station
+    # no longer hears, reported where it was last known); collision prevention widens its keep-out with it
+    stale_s: float = 0.0
 
     def age_s(self, now_s: float) -> float:
         return now_s - self.received_s
@@ -201,19 +204,24 @@ class NeighbourTable:
         icao, lat, lon, alt, vn, ve, vd, tslc = fields
         if icao != self.own_sysid:
             self._take(icao, now_s - tslc, now_s, source, lat * 1e-7, lon * 1e-7, alt * 1e-3, (vn, ve, vd),
-                       cooperative=False)  # fmt: skip
+                       cooperative=False, stale_s=float(tslc))  # fmt: skip
 
     def _take(self, sysid: int, sender_time_s: float, now_s: float, source: NeighbourSource, lat_deg: float,
               lon_deg: float, alt_amsl_m: float, vel_ned_mps: tuple[float, float, float], *,
-              cooperative: bool) -> None:  # fmt: skip
-        """A report into the table, unless its entry holds one sent as late or later (a copy, or overtaken)."""
+              cooperative: bool, stale_s: float = 0.0) -> None:  # fmt: skip
+        """A report into the table, unless its entry holds one sent as late or later (a copy, or overtaken). Traffic
+        comes only from the ground station, one report per vehicle at a time and never a copy: each replaces its
+        entry (a vehicle it no longer hears is reported again where it was last known, its ``tslc`` whole seconds
+        growing, so its time may step back by a fraction of a second)."""
         known = self._entries.get(sysid)
-        if known is not None and sender_time_s <= known.sender_time_s and known.age_s(now_s) <= NEIGHBOUR_TIMEOUT_S:
+        if (known is not None and cooperative and sender_time_s <= known.sender_time_s
+                and known.age_s(now_s) <= NEIGHBOUR_TIMEOUT_S):  # fmt: skip
             self.stale += 1
             return
         self._entries[sysid] = _new_neighbour(sysid=sysid, lat_deg=lat_deg, lon_deg=lon_deg, alt_amsl_m=alt_amsl_m,
                                               vel_ned_mps=vel_ned_mps, sender_time_s=sender_time_s,
-                                              received_s=now_s, source=source, cooperative=cooperative)  # fmt: skip
+                                              received_s=now_s, source=source, cooperative=cooperative,
+                                              stale_s=stale_s)  # fmt: skip
         if now_s < self._oldest_received_s:
             self._oldest_received_s = now_s
         self.updates += 1

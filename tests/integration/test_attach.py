@@ -3,10 +3,10 @@ plain pymavlink script crosses a rotating circle of six simulated drones, then s
 Nothing of it reaches the simulated world except through MAVLink.
 
 One flight, many checks: the attach is said; the drones, told of the intruder as traffic (ADSB_VEHICLE: a body that
-does not avoid in turn) and seeing it with their cameras, keep clear of it while it crosses, and with their cameras
-alone after it went silent (its body stays where it was last known); its loss is said once; the flight log holds its
-messages. Bad attaches are one line and exit code 2, before any drone starts. The other links and roles:
-tests/integration/test_attach_links.py.
+does not avoid in turn) and seeing it with their cameras, keep clear of it while it crosses, and after it went silent
+(its body stays where it was last known, they are told of it there, and their keep-out grows with its age); its
+loss is said once; the flight log holds its messages. Bad attaches are one line and exit code 2, before any drone
+starts. The other links and roles: tests/integration/test_attach_links.py and test_attach_member.py.
 
 Policy: loopback only (--no-forward); leased instances (tests/integration/instances.py); the intruder on a port the
 system picked; paced at 1x (an attached vehicle keeps wall time); every process stopped by PID; time limits.
@@ -45,6 +45,8 @@ CROSSING = back_and_forth((-9.0, 0.5), (9.0, 0.5), 3.0, 1.0)  # across the circl
 ENTER_S = 14.0  # it waits outside until the circle has formed (the drones do not avoid while they take off)...
 PARK_S = ENTER_S + 23.0  # ...crosses, and on its way back stops on the circle (north 4 m)...
 SILENT_S = PARK_S + 3.0  # ...and falls silent there, the circle still turning through it
+AGED_S = 12.0  # its last report this old, the drones' keep-out around it is 3 m wider (AVOID_STALE_MAX)...
+AGED_CLEARANCE_M = 3.5  # ...and they keep at least this far from it (4.3 m measured)
 MISSION = """
 name = "circle_with_intruder"
 [swarm]
@@ -162,7 +164,7 @@ def test_the_attach_and_the_intruders_silence_are_each_said_once(flown: Flown) -
 
 
 @pytest.mark.timeout(300)
-def test_the_drones_keep_clear_of_the_intruder_as_it_crosses_and_with_cameras_alone_once_it_is_silent(
+def test_the_drones_keep_clear_of_the_intruder_as_it_crosses_and_farther_as_what_they_know_of_it_ages(
     flown: Flown,
 ) -> None:
     # GIVEN six drones on a rotating circle, told of the intruder as traffic, and an intruder
@@ -176,6 +178,7 @@ def test_the_drones_keep_clear_of_the_intruder_as_it_crosses_and_with_cameras_al
     last_report_s = intruder[-1][0]
     closest = math.inf
     closest_silent = math.inf
+    closest_aged = math.inf  # AGED_S and more after its last report
     for track in drones.values():
         for t, here in track:
             there = _intruder_at(intruder, t)
@@ -185,8 +188,14 @@ def test_the_drones_keep_clear_of_the_intruder_as_it_crosses_and_with_cameras_al
             closest = min(closest, d)
             if t > last_report_s:
                 closest_silent = min(closest_silent, d)
+            if t > last_report_s + AGED_S:
+                closest_aged = min(closest_aged, d)
     assert closest >= MIN_CLEARANCE_M, closest
     assert math.isfinite(closest_silent) and closest_silent >= MIN_CLEARANCE_M, closest_silent
+    # AND once silent it is reported where it was last known, its age growing, and the drones' keep-out around it
+    # grows with that age (AVOID_STALE_RATE 0.25 m/s, at most AVOID_STALE_MAX 3 m more): 12 s on, they stay beyond
+    # AGED_CLEARANCE_M (with the cameras alone they came within 1.45 m)
+    assert math.isfinite(closest_aged) and closest_aged >= AGED_CLEARANCE_M, closest_aged
     # AND the report says the same from its own samples: the intruder's closest approach, to within the resampling
     attached = flown.metrics["attached"][str(INTRUDER_SYSID)]
     assert attached["role"] == "intruder" and attached["link"] == f"udpin:127.0.0.1:{flown.port}"

@@ -16,6 +16,7 @@ from gcs.fleet.attach import (
     AttachError,
     ExternalLink,
     TokenBucket,
+    last_known_traffic,
     parse_attach,
     role_of,
     sysid_problem,
@@ -195,6 +196,19 @@ def test_an_intruders_position_reaches_the_drones_as_traffic_they_avoid_in_full(
     traffic = avoid((1.0, 0.0, 0.0), (1.0, 0.0, 0.0), [Obstacle(**head_on, source="traffic")], AvoidanceConfig())
     sideways = (abs(neighbour.vel_ned_mps[1]), abs(traffic.vel_ned_mps[1]))
     assert traffic.active and sideways[1] > 1.5 * sideways[0] > 0.0, (neighbour, traffic)
+
+
+def test_a_silent_vehicle_reaches_the_drones_where_it_was_last_known_with_the_age_of_that_knowledge() -> None:
+    where = GeoPoint(lat_deg=47.397742, lon_deg=8.545594, alt_amsl_m=491.0)
+    table = NeighbourTable(own_sysid=21)
+    for now_s, age_s in ((20.0, 5.4), (21.0, 6.5), (22.0, 400.0)):  # its tslc whole seconds, 255 at most
+        report = last_known_traffic(250, where, age_s)
+        table.handle(mavlink.MAVLink(None).parse_char(report.pack(mavlink.MAVLink(None, srcSystem=255))), now_s)
+        (entry,) = table.entries(now_s)
+        # each report replaces the last (its time, now less whole seconds, may step back by a fraction)
+        assert (entry.cooperative, entry.stale_s, entry.received_s) == (False, min(255, math.floor(age_s)), now_s)
+        assert entry.vel_ned_mps == (0.0, 0.0, 0.0)
+        assert (entry.lat_deg, entry.lon_deg, entry.alt_amsl_m) == pytest.approx((47.397742, 8.545594, 491.0))
 
 
 def test_the_python_api_takes_attaches_as_swarm_up_does_and_checks_them_before_anything_starts() -> None:

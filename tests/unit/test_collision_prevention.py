@@ -85,3 +85,26 @@ def test_the_obstacles_fused_from_fields_are_those_fused_from_records() -> None:
     # THEN both give the same obstacles, every figure equal
     assert got == fuse(camera, relay, vel, config)
     assert any(o.source == "fused" for o in got)
+
+
+def test_the_keep_out_around_traffic_known_from_old_reports_grows_with_their_age_up_to_its_bound() -> None:
+    # GIVEN traffic 5 m north, reported now from knowledge 0 s, 4 s and 60 s old (a vehicle the ground station no
+    # longer hears, where it was last known)
+    cp, _events = prevention()
+    radii = []
+    for stale_s in (0.0, 4.0, 60.0):
+        cp.set_relay([RelayedNeighbour(sysid=250, pos_ned_m=(5.0, 0.0, -3.0), vel_ned_mps=(0.0, 0.0, 0.0),
+                                       received_s=10.0, cooperative=False, stale_s=stale_s)])  # fmt: skip
+        (row,) = obstacles_from_rows(cp._obstacles((0.0, 0.0, -3.0), (0.0, 0.0, 0.0), 10.0))
+        radii.append(row.radius_m)
+    # THEN its radius is the drone's own, then grows at AVOID_STALE_RATE (0.25 m/s), up to AVOID_STALE_MAX (3 m)
+    assert radii == pytest.approx([0.35, 0.35 + 1.0, 0.35 + 3.0])
+    # AND the avoidance keeps the wider berth: a drone cruising at it at 1.5 m/s from 7 m acts only on the wider one
+    setpoint = TrajectorySetpoint(pos_ned_m=(0.0, 0.0, -3.0), vel_ned_mps=(1.5, 0.0, 0.0), acc_ned_mps2=(0.0, 0.0, 0.0))
+    acted = []
+    for stale_s in (0.0, 60.0):
+        cp, _events = prevention()
+        cp.set_relay([RelayedNeighbour(sysid=250, pos_ned_m=(7.0, 0.3, -3.0), vel_ned_mps=(0.0, 0.0, 0.0),
+                                       received_s=10.0, cooperative=False, stale_s=stale_s)])  # fmt: skip
+        acted.append(cp.apply(setpoint, vec3(0.0, 0.0, -3.0), vec3(1.5, 0.0, 0.0), 10.0) != setpoint)
+    assert acted == [False, True]
