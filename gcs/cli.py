@@ -27,6 +27,7 @@ from gcs.fleet.attach import (
     DEFAULT_MAX_DISTANCE_M,
     AttachError,
     AttachSpec,
+    find_home,
     parse_attach,
     role_of,
 )
@@ -125,14 +126,39 @@ def _v_angle(text: str) -> float:
     return value
 
 
-def _origin(text: str) -> GeoPoint:
+ORIGIN_ATTACHED = "attached"  # --origin attached: the first attached vehicle's home
+ORIGIN_HELP = (
+    "swarm origin LAT,LON,ALT_AMSL, or 'attached': the home of the first vehicle on the first --attach link "
+    "(docs/external.md)"
+)
+
+
+def _origin(text: str) -> GeoPoint | str:
+    if text == ORIGIN_ATTACHED:
+        return text
     try:
         lat, lon, alt = (float(p) for p in text.split(","))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"must be LAT,LON,ALT, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"must be LAT,LON,ALT or {ORIGIN_ATTACHED}, got {text!r}") from None
     if not (-90 < lat < 90 and -180 <= lon <= 180 and math.isfinite(alt)):
         raise argparse.ArgumentTypeError(f"out of range: {text!r}")
     return GeoPoint(lat_deg=lat, lon_deg=lon, alt_amsl_m=alt)
+
+
+def _resolve_origin(origin: GeoPoint | str, attach: tuple[AttachSpec, ...], gcs_sysid: int) -> GeoPoint:
+    """``--origin``: a point, or (``attached``) the home of the first vehicle heard on the first --attach link,
+    said in one line; UsageError (one line) when there is no link or nothing comes."""
+    if isinstance(origin, GeoPoint):
+        return origin
+    if not attach:
+        raise UsageError("--origin attached needs an attached vehicle (--attach or [[swarm.attach]])")
+    try:
+        sysid, home = find_home(attach[0], gcs_sysid)
+    except AttachError as exc:
+        raise UsageError(str(exc)) from None
+    _say(f"swarm: origin at attached vehicle {sysid}'s home ({home.lat_deg:.7f}, {home.lon_deg:.7f}, "
+         f"{home.alt_amsl_m:.2f} m)")  # fmt: skip
+    return home
 
 
 def _address(text: str) -> tuple[str, int]:
@@ -399,7 +425,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="an onboard behaviour every drone carries; 'swarm behaviour start' (or BHV_EN = 1 by "
                     "PARAM_SET) runs it (docs/onboard.md)")  # fmt: skip
     up.add_argument("--first-instance", type=int, default=0, help="instance of the first drone (sysid = instance+1)")
-    up.add_argument("--origin", type=_origin, default=DEFAULT_ORIGIN, help="swarm origin LAT,LON,ALT_AMSL")
+    up.add_argument("--origin", type=_origin, default=DEFAULT_ORIGIN, help=ORIGIN_HELP)
     up.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
     up.add_argument("--seed", type=int, default=0, help="base random seed (the k-th drone, from 0, uses seed+k)")
     up.add_argument("--logs", type=Path, default=None, help="directory for each drone's log (default: none)")
@@ -431,7 +457,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="every flock and follow step flown by the drones themselves (the shipped onboard "
                      "behaviours, docs/onboard.md) instead of the ground station")  # fmt: skip
     fly.add_argument("--first-instance", type=int, default=0, help="instance of the first drone")
-    fly.add_argument("--origin", type=_origin, default=DEFAULT_ORIGIN, help="swarm origin LAT,LON,ALT_AMSL")
+    fly.add_argument("--origin", type=_origin, default=DEFAULT_ORIGIN, help=ORIGIN_HELP)
     fly.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
     fly.add_argument("--seed", type=int, default=0, help="base random seed (the k-th drone, from 0, uses seed+k)")
     fly.add_argument("--param", action="append", default=[], type=_param_setting, metavar="NAME=VALUE",
@@ -570,7 +596,7 @@ def run_up(args: argparse.Namespace, simulation: Simulation) -> int:
         n_drones=args.drones,
         spacing_m=args.spacing,
         layout=args.layout,
-        origin=args.origin,
+        origin=_resolve_origin(args.origin, attach, args.gcs_sysid),
         speed_factor=_speed(args),
         lockstep=args.lockstep,
         lockstep_quantum=_quantum(args),
@@ -701,7 +727,9 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
         ),
     )
     report = args.report or Path("reports") / f"{mission.name}-{time.strftime('%Y%m%d-%H%M%S')}"
-    runner = MissionRunner(mission, simulation, speed_factor=_speed(args), origin=args.origin,
+    attach = _attach_specs(args, mission.swarm.attach)
+    origin = _resolve_origin(args.origin, attach, args.gcs_sysid)
+    runner = MissionRunner(mission, simulation, speed_factor=_speed(args), origin=origin,
                            first_instance=args.first_instance, report_dir=report, say=_say, airframe=args.airframe,
                            seed=args.seed,
                            forward=None if args.no_forward else args.forward, lockstep=args.lockstep,
@@ -709,7 +737,7 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
                            camera_drones=_camera_drones(args, mission.swarm.drones),
                            drones_per_process=args.drones_per_process, links=links,
                            signing_key_file=_signing_key_file(args), view=_start_view(args),
-                           attach=_attach_specs(args, mission.swarm.attach), gcs_sysid=args.gcs_sysid)  # fmt: skip
+                           attach=attach, gcs_sysid=args.gcs_sysid)  # fmt: skip
     view = runner.view
     signal.signal(signal.SIGTERM, _interrupt)  # a terminated run lands and stops its drones like Ctrl-C
     try:

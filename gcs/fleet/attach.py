@@ -289,6 +289,51 @@ def _adsb(sysid: int, lat_e7: int, lon_e7: int, alt_mm: int, vx_cms: int, vy_cms
     )  # fmt: skip
 
 
+HOME_WAIT_S: Final = 10.0  # wall seconds to wait for a vehicle's home before the swarm's origin is put there
+HOME_ASK_PERIOD_S: Final = 1.0  # HOME_POSITION asked for this often meanwhile (as MAVSDK asks until home exists)
+HOME_FALLBACK_S: Final = 3.0  # with no HOME_POSITION by then, a vehicle standing still gives its ground point
+_PROBE_POLL_S: Final = 0.02
+
+
+def find_home(spec: AttachSpec, own_sysid: int, timeout_s: float = HOME_WAIT_S) -> tuple[int, GeoPoint]:
+    """The first vehicle heard on ``spec``'s link and its home, for the swarm's origin (``--origin attached``),
+    before the swarm exists: its HOME_POSITION (asked for with MAV_CMD_REQUEST_MESSAGE, which PX4 and ArduPilot
+    answer), or, when none comes within HOME_FALLBACK_S, where it stands (its GLOBAL_POSITION_INT less its height
+    above home). The link is closed again (the attach opens it anew); AttachError (one line) when nothing comes."""
+    link = ExternalLink(spec=spec, source_system=own_sysid)
+    link.open()
+    try:
+        sysid: int | None = None
+        standing: GeoPoint | None = None
+        start = time.monotonic()
+        asked_s = -math.inf
+        while (now := time.monotonic()) - start < timeout_s:
+            for msg in link.receive():
+                if sysid is None and is_vehicle_heartbeat(msg):
+                    sysid = msg.get_srcSystem()
+                if sysid is None or msg.get_srcSystem() != sysid or msg.get_srcComponent() != AUTOPILOT_COMPID:
+                    continue
+                if msg.get_type() == "HOME_POSITION":
+                    return sysid, GeoPoint(lat_deg=msg.latitude * 1e-7, lon_deg=msg.longitude * 1e-7,
+                                           alt_amsl_m=msg.altitude * 1e-3)  # fmt: skip
+                if msg.get_type() == "GLOBAL_POSITION_INT":
+                    here = reported_geo(msg)
+                    standing = GeoPoint(lat_deg=here.lat_deg, lon_deg=here.lon_deg,
+                                        alt_amsl_m=here.alt_amsl_m - msg.relative_alt * 1e-3)  # fmt: skip
+            if sysid is not None and now - asked_s >= HOME_ASK_PERIOD_S:
+                asked_s = now
+                link.send(mavlink.MAVLink_command_long_message(
+                    sysid, AUTOPILOT_COMPID, mavlink.MAV_CMD_REQUEST_MESSAGE, 0,
+                    mavlink.MAVLINK_MSG_ID_HOME_POSITION, 0, 0, 0, 0, 0, 0))  # fmt: skip
+            if standing is not None and now - start >= HOME_FALLBACK_S:
+                return sysid or 0, standing
+            time.sleep(_PROBE_POLL_S)
+        what = "no vehicle HEARTBEAT" if sysid is None else f"no home or position from sysid {sysid}"
+        raise AttachError(f"--origin attached: {what} on {spec.url.describe()} within {timeout_s:g} s")
+    finally:
+        link.close()
+
+
 def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split()) or type(exc).__name__
 

@@ -226,7 +226,8 @@ class Received:
 class ScriptedCopter:
     """An ArduPilot Copter as a ground station knows one, played by a script over UDP: HEARTBEAT with ArduCopter's
     custom modes, SYS_STATUS (pre-arm checks passed), EXTENDED_SYS_STATE, GLOBAL_POSITION_INT; it answers DO_SET_MODE
-    (GUIDED, LOITER), arming and NAV_TAKEOFF (in GUIDED, altitude above home) with COMMAND_ACK, and in GUIDED flies
+    (GUIDED, LOITER), arming, NAV_TAKEOFF (in GUIDED, altitude above home) and a request for its HOME_POSITION with
+    COMMAND_ACK, and in GUIDED flies
     to SET_POSITION_TARGET_GLOBAL_INT setpoints (a position loop with velocity feed-forward, a lag on velocity, a
     speed limit); in LOITER it brakes and holds. Everything it is sent is kept (``received``), so a test can check
     what the ground station asked of it. It stands on the ground at ``start_ne_m`` until told otherwise."""
@@ -239,6 +240,7 @@ class ScriptedCopter:
         self._frame = NedFrame(origin)
         self._home_alt_m = origin.alt_amsl_m
         self.pos = [start_ne_m[0], start_ne_m[1], 0.0]
+        self._home_ne_m = start_ne_m
         self.vel = [0.0, 0.0, 0.0]
         self.armed = False
         self.mode = ARDUCOPTER_STABILIZE
@@ -301,6 +303,12 @@ class ScriptedCopter:
         elif command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
             self.armed = msg.param1 == 1.0 or (self.armed and self.pos[2] < -0.1)  # no disarm in the air
             self._ack(command, self.armed == (msg.param1 == 1.0))
+        elif command == mavlink.MAV_CMD_REQUEST_MESSAGE and int(msg.param1) == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
+            self._ack(command, True)
+            home = self._frame.geo_from_ned((self._home_ne_m[0], self._home_ne_m[1], 0.0))
+            self._send(mavlink.MAVLink_home_position_message(
+                round(home.lat_deg * 1e7), round(home.lon_deg * 1e7), round(home.alt_amsl_m * 1e3), 0.0, 0.0, 0.0,
+                [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0))  # fmt: skip
         elif command == mavlink.MAV_CMD_NAV_TAKEOFF:
             ok = self.armed and self.mode == ARDUCOPTER_GUIDED
             if ok:

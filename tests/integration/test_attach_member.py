@@ -206,3 +206,59 @@ def test_a_member_the_swarm_may_not_arm_is_never_commanded_and_said_to_be_left_o
     assert not flown.grounded.received, [r.msg.get_type() for r in flown.grounded.received]
     assert not flown.grounded.armed
     assert f"member {GROUNDED_SYSID} is not flying" in flown.result.stdout
+
+
+FIELD = GeoPoint(lat_deg=DEFAULT_ORIGIN.lat_deg + 0.027, lon_deg=DEFAULT_ORIGIN.lon_deg,
+                 alt_amsl_m=DEFAULT_ORIGIN.alt_amsl_m + 25.0)  # fmt: skip  # 3 km north, on a hill 25 m higher
+SHORT_FLIGHT = """
+name = "hop"
+[swarm]
+drones = 2
+spacing_m = 3.0
+
+[[steps]]
+action = "takeoff"
+alt_m = 3.0
+
+[[steps]]
+action = "land"
+"""
+
+
+@pytest.mark.timeout(180)
+def test_the_swarms_origin_is_put_at_an_attached_vehicles_home(tmp_path: Path, instances: Leases) -> None:
+    # GIVEN a copter standing on a field 3 km from the default origin, 25 m higher (too far for an attach there)
+    port = free_udp_port()
+    mission = tmp_path / "hop.toml"
+    mission.write_text(SHORT_FLIGHT)
+    copter = ScriptedCopter(COPTER_SYSID, UdpLink(port), FIELD, (6.0, 0.0)).start()
+    try:
+        # WHEN a swarm flies with its origin at that copter's home
+        result = subprocess.run(
+            [*SWARM, "fly", str(mission), "--first-instance", str(instances(2)), "--origin", "attached", "--attach",
+             f"intruder=udpin:127.0.0.1:{port}", "--report", str(tmp_path / "report"), "--no-view", "--no-forward"],
+            capture_output=True, text=True, timeout=150,
+        )  # fmt: skip
+    finally:
+        copter.stop()
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-2000:]
+    # THEN the origin is the home it gave when asked (its HOME_POSITION, 6 m north of the field's centre)
+    home = NedFrame(FIELD).geo_from_ned((6.0, 0.0, 0.0))
+    said = f"swarm: origin at attached vehicle {COPTER_SYSID}'s home ({home.lat_deg:.7f}, {home.lon_deg:.7f}, "
+    assert said in result.stdout, result.stdout[:2000]
+    assert copter.commands(mavlink.MAV_CMD_REQUEST_MESSAGE), "its home was asked for"
+    # AND the drones flew there, heights above that home: within metres of it, 3 m above it at the top
+    log = mavutil.mavlink_connection(str(tmp_path / "report" / "flight.tlog"))
+    frame = NedFrame(home)
+    heights = []
+    try:
+        while (msg := log.recv_match(type="GLOBAL_POSITION_INT")) is not None:
+            if msg.get_srcSystem() != COPTER_SYSID:
+                north, east, down = frame.ned_from_geo(
+                    GeoPoint(lat_deg=msg.lat * 1e-7, lon_deg=msg.lon * 1e-7, alt_amsl_m=msg.alt * 1e-3)
+                )
+                assert math.hypot(north, east) < 10.0
+                heights.append(-down)
+    finally:
+        log.close()
+    assert heights and max(heights) == pytest.approx(3.0, abs=0.4)
