@@ -45,6 +45,7 @@ from gcs.missions.mission_file import (
     MissionSpec,
     build_flock,
     build_follow,
+    build_follow_attached,
     flown_onboard,
     load_mission,
 )
@@ -502,9 +503,19 @@ def build_parser() -> argparse.ArgumentParser:
     flock.add_argument("--w-alignment", type=_nonneg, default=None, help="alignment weight in 1/s (default 1)")
     flock.add_argument("--w-cohesion", type=_nonneg, default=None, help="cohesion weight in 1/s^2 (default 0.05)")
     flock.add_argument("--w-migration", type=_nonneg, default=None, help="migration weight in 1/s (default 0.8)")
-    follow = sub.add_parser("follow", help="leader-follower (OFFBOARD): the leader flies waypoints, the others follow")
-    follow.add_argument("--waypoints", type=_pairs, required=True, metavar="'N,E N,E'",
-                        help="the leader's waypoints, north,east metres in the swarm frame")  # fmt: skip
+    follow = sub.add_parser("follow", help="leader-follower (OFFBOARD): the leader flies waypoints, the others follow; "
+                            "or (--attached) the drones follow an attached leader that flies itself")  # fmt: skip
+    led = follow.add_mutually_exclusive_group(required=True)
+    led.add_argument("--waypoints", type=_pairs, metavar="'N,E N,E'",
+                     help="the leader's waypoints, north,east metres in the swarm frame")  # fmt: skip
+    led.add_argument(
+        "--attached",
+        action="store_true",
+        help="follow the vehicle attached as leader (docs/external.md) until the next command",
+    )
+    follow.add_argument("--max-turn-rate", type=_positive, default=None, metavar="DEG_S",
+                        help="--attached: how fast the followers' offsets may turn with the leader's course "
+                        "(default 17 deg/s)")  # fmt: skip
     follow.add_argument("--leader", type=int, default=None, help="sysid of the leader (default: the lowest)")
     follow.add_argument("--alt", type=_positive, default=3.0, help="altitude in metres (default 3)")
     follow.add_argument("--speed", type=_positive, default=None, help="leader's cruise speed in m/s (default 1.5)")
@@ -540,6 +551,8 @@ def build_parser() -> argparse.ArgumentParser:
     attach.add_argument("--max-distance", type=_positive, default=DEFAULT_MAX_DISTANCE_M, metavar="M",
                         help=f"refuse it farther than M metres from the swarm's origin (default "
                         f"{DEFAULT_MAX_DISTANCE_M:g})")  # fmt: skip
+    attach.add_argument("--signing-key", type=Path, default=None, metavar="FILE",
+                        help="the link is MAVLink 2 signed with this key (as swarm up --attach-signing-key)")
     attach.add_argument("--keep-in", type=_positive, default=DEFAULT_KEEP_IN_M, metavar="M",
                         help=f"a member: no setpoint farther than M metres from the origin or higher above it "
                         f"(default {DEFAULT_KEEP_IN_M:g})")  # fmt: skip
@@ -803,19 +816,41 @@ _FOLLOW_OPTIONS = {
 }
 
 
+_FOLLOW_ATTACHED_OPTIONS = {
+    "leader": "leader_sysid",
+    "alt": "alt_m",
+    "spacing": "spacing_m",
+    "angle": "angle_deg",
+    "offsets": "offsets_fr_m",
+    "max_turn_rate": "max_turn_rate_degps",
+}
+UNTIL_NEXT_COMMAND_S = 86400.0  # swarm follow --attached: flown until the next command (a day at most)
+
+
 def _behaviour_fields(args: argparse.Namespace) -> dict[str, Any]:
     """The request's fields, checked here so that a mistake is one line before anything is sent."""
     if args.command == "follow" and args.leader is not None and not 1 <= args.leader <= 255:
         raise UsageError(f"--leader must be a sysid in 1..255, got {args.leader}")
-    flock = args.command == "flock"
-    fields = _given(args, _FLOCK_OPTIONS if flock else _FOLLOW_OPTIONS)
+    attached = args.command == "follow" and args.attached
+    options, build = {
+        "flock": (_FLOCK_OPTIONS, build_flock),
+        "follow": (_FOLLOW_OPTIONS, build_follow),
+        "attached": (_FOLLOW_ATTACHED_OPTIONS, build_follow_attached),
+    }["attached" if attached else args.command]
+    if not attached and args.command == "follow" and args.max_turn_rate is not None:
+        raise UsageError("argument --max-turn-rate: only with --attached")
+    if attached and (args.speed is not None or args.turn_radius is not None):
+        raise UsageError("argument --speed, --turn-radius: not with --attached (the leader flies itself)")
+    fields = _given(args, options)
+    if attached:
+        fields["duration_s"] = UNTIL_NEXT_COMMAND_S
     try:
-        build_flock(fields) if flock else build_follow(fields)
+        build(fields)
     except ValueError as exc:
         message = str(exc)
-        for option, field in (_FLOCK_OPTIONS if flock else _FOLLOW_OPTIONS).items():
+        for option, field in options.items():
             flag = "--" + option.replace("_", "-")
-            message = re.sub(rf"\b(FlockSpec\.|FollowSpec\.)?{field}\b", flag, message)
+            message = re.sub(rf"\b(FlockSpec\.|FollowSpec\.|FollowAttachedSpec\.)?{field}\b", flag, message)
         raise UsageError(f"argument {message}") from None
     return fields
 
@@ -828,6 +863,8 @@ def run_client(args: argparse.Namespace) -> int:
         request.update(shape=args.shape, fields=_formation_fields(args))
     elif args.command in ("flock", "follow"):
         request["fields"] = _behaviour_fields(args)
+        if args.command == "follow" and args.attached:
+            request["cmd"] = "follow_attached"
     elif args.command == "goto":
         request.update(north_m=args.north, east_m=args.east, alt_m=args.alt)
     elif args.command == "behaviour":
@@ -837,7 +874,8 @@ def run_client(args: argparse.Namespace) -> int:
             parse_attach(args.url, max_distance_m=args.max_distance, keep_in_m=args.keep_in)
         except AttachError as exc:
             raise UsageError(str(exc)) from None
-        request.update(url=args.url, max_distance_m=args.max_distance, keep_in_m=args.keep_in)
+        key = None if args.signing_key is None else str(args.signing_key.resolve())  # the supervisor's cwd may differ
+        request.update(url=args.url, max_distance_m=args.max_distance, keep_in_m=args.keep_in, signing_key=key)
     elif args.command == "detach":
         request["sysid"] = args.sysid
     elif args.command in ("fault", "kill"):
@@ -856,7 +894,7 @@ def run_client(args: argparse.Namespace) -> int:
         print(format_status(response["drones"]))
     elif args.command in ("fault", "kill"):
         print(f"swarm: drone {args.sysid}: {response.get('result', 'done')}")
-    elif args.command in ("behaviour", "attach", "detach"):
+    elif args.command in ("behaviour", "attach", "detach") or request["cmd"] == "follow_attached":
         print(f"swarm: {response.get('result', 'done')}")
     return 0
 

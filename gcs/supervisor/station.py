@@ -14,14 +14,14 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.fleet.attach import DEFAULT_KEEP_IN_M, DEFAULT_MAX_DISTANCE_M, parse_attach
+from gcs.fleet.attach import DEFAULT_KEEP_IN_M, DEFAULT_MAX_DISTANCE_M, AttachSpec, parse_attach
 from gcs.fleet.faults import fault_request
 from gcs.fleet.losses import MAV_STATE_CRITICAL, LossPolicy
 from gcs.fleet.swarm import Swarm, SwarmError
 from gcs.fleet.telemetry import DroneView
 from gcs.flight.formation import Formation
 from gcs.mavlink.mission_transfer import MISSION_STATE_NAMES
-from gcs.missions.mission_file import build_flock, build_follow, build_formation
+from gcs.missions.mission_file import build_flock, build_follow, build_follow_attached, build_formation
 from gcs.missions.plan_flight import PlanUsageError, copy_offsets, parse_drones, parse_offsets, spawn_offsets
 from gcs.missions.qgc_plan import PlanFileError, load_plan, plan_text
 from gcs.supervisor.session import FlightSession
@@ -53,6 +53,8 @@ class Station:
             "formation": lambda r: self._verb(r, "formation", self._formation(r)),
             "flock": lambda r: self._verb(r, "flock", build_flock(dict(r.get("fields", {})))),
             "follow": lambda r: self._verb(r, "follow", build_follow(dict(r.get("fields", {})))),
+            "follow_attached": lambda r: self._verb(r, "follow_attached",
+                                                    build_follow_attached(dict(r.get("fields", {})))),
             "goto": lambda r: self._verb(r, "goto", float(r["north_m"]), float(r["east_m"]),
                                          None if r.get("alt_m") is None else float(r["alt_m"])),
             "land": lambda r: self._verb(r, "land"),
@@ -63,9 +65,7 @@ class Station:
             "plan_start": self._plan_start,
             "plan_download": lambda r: {"ok": True, "plan": plan_text(VERBS["plan_download"](
                 self.session, r.get("sysid")).value)},
-            "attach": lambda r: self._verb(r, "attach", parse_attach(str(r.get("url")), max_distance_m=float(
-                r.get("max_distance_m", DEFAULT_MAX_DISTANCE_M)), keep_in_m=float(r.get("keep_in_m",
-                                                                                        DEFAULT_KEEP_IN_M)))),
+            "attach": lambda r: self._verb(r, "attach", _attach_spec(r)),
             "detach": lambda r: self._verb(r, "detach", r.get("sysid")),
         }  # fmt: skip
 
@@ -206,6 +206,14 @@ def _telemetry_row(d: DroneView, now_s: float) -> dict[str, Any]:
 def swarm_note(say: Say) -> Say:
     """What a verb did, as the supervisor says it: ``swarm: ...``."""
     return lambda text: say(f"swarm: {text}")
+
+
+def _attach_spec(request: dict[str, Any]) -> AttachSpec:
+    """``swarm attach``'s request as the attach verb takes it (AttachError, a ValueError of one line)."""
+    key = request.get("signing_key")
+    return parse_attach(str(request.get("url")), max_distance_m=float(request.get("max_distance_m",
+                        DEFAULT_MAX_DISTANCE_M)), keep_in_m=float(request.get("keep_in_m", DEFAULT_KEEP_IN_M)),
+                        signing_key_file=None if key is None else Path(str(key)))  # fmt: skip
 
 
 def _start_or_stop(action: object) -> bool:

@@ -111,6 +111,21 @@ def test_a_vehicle_on_tcp_or_a_serial_line_is_attached_shown_in_the_status_detac
         nobody = subprocess.run([*SWARM, "detach", "77"], capture_output=True, text=True, env=env, timeout=30)
         assert nobody.returncode == 2 and "no attached vehicle with sysid 77" in nobody.stderr, nobody
         assert len(_status_rows(env)) == 2
+
+        # AND 'swarm follow --attached' follows an attached leader: refused with one line while it is an intruder,
+        # flown once it is attached again as the leader
+        def follow() -> subprocess.CompletedProcess[str]:
+            return subprocess.run([*SWARM, "follow", "--attached", "--alt", "2", "--spacing", "3"],
+                                  capture_output=True, text=True, env=env, timeout=60)  # fmt: skip
+
+        refused = follow()
+        assert refused.returncode == 2 and "no attached leader" in refused.stderr, refused
+        subprocess.run([*SWARM, "detach", str(INTRUDER_SYSID)], capture_output=True, text=True, env=env, timeout=30)
+        led = subprocess.run([*SWARM, "attach", f"leader={link.url()}"], capture_output=True, text=True, env=env,
+                             timeout=60)  # fmt: skip
+        assert led.returncode == 0, led
+        following = follow()
+        assert following.stdout == f"swarm: following attached leader sysid {INTRUDER_SYSID}\n", following
         # AND 'swarm down' ends it cleanly, the attached vehicle told nothing
         assert subprocess.run([*SWARM, "down"], capture_output=True, text=True, env=env, timeout=30).returncode == 0
         assert proc.wait(timeout=60) == 0
@@ -134,6 +149,15 @@ def test_a_signed_link_takes_the_vehicle_that_signs_with_its_key_and_nothing_uns
             if attached:
                 # THEN it is attached
                 assert f"swarm: attached intruder sysid {INTRUDER_SYSID} on {link.url()}\n" in lines, lines
+                # AND while the swarm runs, 'swarm attach --signing-key' takes it again after a detach with its key, and
+                # not with another
+                other_key = tmp_path / "other.key"
+                other_key.write_text(bytes(range(1, 33)).hex() + "\n")
+                again = ["attach", f"intruder={link.url()}", "--signing-key"]
+                for command, code in ((["detach", str(INTRUDER_SYSID)], 0), ([*again, str(other_key)], 2),
+                                      ([*again, str(key_file)], 0)):  # fmt: skip
+                    done = subprocess.run([*SWARM, *command], capture_output=True, text=True, env=env, timeout=60)
+                    assert done.returncode == code, done
                 assert subprocess.run([*SWARM, "down"], capture_output=True, text=True, env=env,
                                       timeout=30).returncode == 0  # fmt: skip
                 assert proc.wait(timeout=60) == 0
