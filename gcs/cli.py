@@ -551,8 +551,13 @@ def build_parser() -> argparse.ArgumentParser:
     attach.add_argument("--max-distance", type=_positive, default=DEFAULT_MAX_DISTANCE_M, metavar="M",
                         help=f"refuse it farther than M metres from the swarm's origin (default "
                         f"{DEFAULT_MAX_DISTANCE_M:g})")  # fmt: skip
-    attach.add_argument("--signing-key", type=Path, default=None, metavar="FILE",
-                        help="the link is MAVLink 2 signed with this key (as swarm up --attach-signing-key)")
+    attach.add_argument(
+        "--signing-key",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="the link is MAVLink 2 signed with this key (as swarm up --attach-signing-key)",
+    )
     attach.add_argument("--keep-in", type=_positive, default=DEFAULT_KEEP_IN_M, metavar="M",
                         help=f"a member: no setpoint farther than M metres from the origin or higher above it "
                         f"(default {DEFAULT_KEEP_IN_M:g})")  # fmt: skip

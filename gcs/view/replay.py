@@ -14,6 +14,11 @@ definition, lost drones excluded), armed, its mode and its formation slot. Colou
 - ``avoiding`` from an "Avoidance: ..." text until "Avoidance ended ...";
 - ``armed`` or ``disarmed``.
 
+Vehicles the simulation did not run, attached to the swarm (docs/external.md), come apart under ``external``, in the
+same form: where they said they were on the same grid (null where they were silent: the page keeps them where they
+were last known), their slots (a member's), their role and link, and the state ``external``, or ``lost`` while
+silent. They are drawn, not counted in the page's separation (the metrics count them apart: ``attached``).
+
 Timeline marks are the flight's events: avoidance starts, collisions, failsafes, losses, drones heard again, injected
 faults and what the swarm did about each loss; the mission's steps are bands.
 """
@@ -130,6 +135,16 @@ def _drone(recording: FlightRecording, sysid: int, samples: list[DroneSample], g
     }
 
 
+def _external(recording: FlightRecording, sysid: int, samples: list[DroneSample], grid_s: FloatArray,
+              drawn: Resampled, modes: list[str]) -> dict[str, Any]:  # fmt: skip
+    """An attached vehicle as the page draws it (module docstring)."""
+    out = _drone(recording, sysid, samples, grid_s, drawn, None, modes)
+    heard = np.all(np.isfinite(drawn.pos_ned_m), axis=1)
+    role, link = recording.attached[sysid]
+    out.update(role=role, link=link, states=_changes(grid_s, ["external" if h else "lost" for h in heard]), texts=[])
+    return out
+
+
 def _mark(time_s: float, sysid: int | None, kind: str, text: str) -> dict[str, Any]:
     return {"time_s": round(time_s, 3), "sysid": sysid, "kind": kind, "text": text}
 
@@ -159,9 +174,15 @@ def replay_document(recording: FlightRecording) -> dict[str, Any]:
     grid = time_grid(min(times), max(times)) if times else np.empty(0)
     drawn = resample_samples(recording.samples, grid)
     flying = resample_samples(flying_samples(recording), grid)
-    modes = sorted({s.mode for s in recording.samples})
+    modes = sorted({s.mode for s in (*recording.samples, *recording.attached_samples)})
     drones = [_drone(recording, sysid, by_drone[sysid], grid, drawn[sysid], flying.get(sysid), modes)
               for sysid in sorted(drawn)]  # fmt: skip
+    by_vehicle: dict[int, list[DroneSample]] = {}
+    for sample in sorted(recording.attached_samples, key=lambda s: s.time_s):
+        by_vehicle.setdefault(sample.sysid, []).append(sample)
+    there = resample_samples(recording.attached_samples, grid) if grid.size else {}
+    external = [_external(recording, sysid, by_vehicle[sysid], grid, there[sysid], modes) for sysid in sorted(there)
+                if sysid in recording.attached]  # fmt: skip
     return {
         "version": REPLAY_VERSION,
         "mission": recording.mission_name,
@@ -169,6 +190,7 @@ def replay_document(recording: FlightRecording) -> dict[str, Any]:
         "time_s": _column(grid, 3),
         "modes": modes,
         "drones": drones,
+        "external": external,
         "obstacles": [dataclasses.asdict(o) for o in recording.obstacles],
         "steps": [
             {"name": s.name, "kind": s.kind, "start_s": round(s.start_s, 3), "end_s": round(s.end_s, 3)}

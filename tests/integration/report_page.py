@@ -17,10 +17,12 @@ REPLAY_TIMEOUT_S = 60.0
 
 
 def check_report_page(report: Path, metrics: dict[str, Any], *, lost: tuple[int, ...] = (),
-                      marks: tuple[str, ...] = (), screenshot_at_s: float | None = None) -> None:  # fmt: skip
+                      marks: tuple[str, ...] = (), screenshot_at_s: float | None = None,
+                      external: tuple[int, ...] = ()) -> None:  # fmt: skip
     """The page loads from the file alone, replays to the end at 32x and then shows metrics.json's minimum
-    separation; at the metrics' closest instant the closest pair is drawn that far apart; drones in ``lost`` end
-    drawn lost; the timeline carries a mark of every kind in ``marks``."""
+    separation (the simulated drones'); at the metrics' closest instant the closest pair is drawn that far apart;
+    drones in ``lost`` end drawn lost; the attached vehicles ``external`` are drawn beside them, as external (or lost
+    where they fell silent); the timeline carries a mark of every kind in ``marks``."""
     page = report / "report.html"
     with Browser() as browser:
         browser.open(page.as_uri())
@@ -42,7 +44,9 @@ def check_report_page(report: Path, metrics: dict[str, Any], *, lost: tuple[int,
         shown = float(browser.evaluate("document.getElementById('min-separation').textContent"))
         assert abs(shown - expected) <= 0.005 + 2e-3, (shown, expected)
         drones = browser.evaluate("swarmView.drones()")
-        assert sorted(int(s) for s in drones) == metrics["sysids"]
+        assert sorted(int(s) for s in drones) == sorted([*metrics["sysids"], *external])
+        for sysid in external:
+            assert drones[str(sysid)]["state"] in ("external", "lost"), drones[str(sysid)]
         for sysid in lost:
             assert drones[str(sysid)]["state"] == "lost", drones
         kinds = set(browser.evaluate("[...document.querySelectorAll('#events tr')].map((r) => r.cells[1].textContent)"))

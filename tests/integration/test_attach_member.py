@@ -32,6 +32,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.flight.geodesy import DEFAULT_ORIGIN, GeoPoint, NedFrame
 from tests.integration.instances import Leases
+from tests.integration.report_page import check_report_page
 from tests.integration.scripted_vehicle import ARDUCOPTER_GUIDED, ARDUCOPTER_LOITER, ScriptedCopter, UdpLink
 from tests.integration.sitl_process import SitlDrone, start_drone, stop_drone
 from tests.integration.test_attach import free_udp_port
@@ -199,6 +200,11 @@ def test_the_ardupilot_member_is_armed_in_guided_flown_by_global_setpoints_and_r
     # while it flew the circle it held its slot as well
     member = flown.metrics["attached"][str(COPTER_SYSID)]
     assert member["slot_rms_m"] is not None and member["slot_rms_m"] <= SLOT_RMS_M, member
+
+
+@pytest.mark.timeout(300)
+def test_the_report_page_replays_the_members_beside_the_drones(flown: Flown) -> None:
+    check_report_page(flown.tlog.parent, flown.metrics, external=(flown.sitl_sysid, COPTER_SYSID, GROUNDED_SYSID))
 
 
 @pytest.mark.timeout(300)

@@ -13,7 +13,7 @@ import numpy as np
 
 from gcs.fleet.losses import DroneLoss
 from gcs.record.metrics import compute_metrics
-from gcs.record.recording import EventRecord, FaultRecord, FlightRecording, ObstacleShape
+from gcs.record.recording import DroneSample, EventRecord, FaultRecord, FlightRecording, ObstacleShape
 from gcs.view.replay import replay_document
 from gcs.view.report import write_report
 from gcs.view.report_page import PAYLOADS, REPORT_PAGE_FILE
@@ -126,3 +126,32 @@ def test_an_empty_flight_still_gets_a_page(tmp_path: Path) -> None:
     page = (out / REPORT_PAGE_FILE).read_text()
     document = json.loads(unpack(page, "flight"))
     assert document["drones"] == [] and document["time_s"] == []
+
+
+def test_an_attached_vehicle_is_drawn_apart_where_it_said_it_was_and_lost_while_silent() -> None:
+    # GIVEN the synthetic flight with an attached member reporting from 2 s to 10 s, then from 16 s (silent between)
+    rec = flight_with_everything()
+    rec.attached = {250: ("member", "udpin:0.0.0.0:14560")}
+    for k in range(20, 250):
+        t = k * 0.1
+        if 10.0 < t < 16.0:
+            continue
+        rec.attached_samples.append(DroneSample(time_s=t, sysid=250, pos_ned_m=(3.0, 1.0 + 0.1 * t, -3.0),
+                                                vel_ned_mps=(0.0, 1.0, 0.0), armed=True, mode="GUIDED",
+                                                target_ned_m=(3.0, 1.0 + 0.1 * t, -3.0)))  # fmt: skip
+    document = replay_document(rec)
+    json.dumps(document, allow_nan=False)
+    (vehicle,) = document["external"]
+    # THEN it comes apart from the drones, with its role, link, positions on the grid and its slot
+    assert (vehicle["sysid"], vehicle["role"], vehicle["link"]) == (250, "member", "udpin:0.0.0.0:14560")
+    assert [d["sysid"] for d in document["drones"]] == [1, 2, 3]
+    grid = document["time_s"]
+    at5 = grid.index(5.0)
+    assert (vehicle["north_m"][at5], vehicle["east_m"][at5], vehicle["slot_east_m"][at5]) == (3.0, 1.5, 1.5)
+    assert "GUIDED" in document["modes"] and not any(vehicle["airborne"])  # not in the page's drone separation
+    # AND it is external while heard, lost while silent (null positions: the page keeps it where it was last known)
+    states = [s for _t, s in vehicle["states"]]
+    assert states[:4] == ["lost", "external", "lost", "external"] and states[4:] in ([], ["lost"])  # (after 24.9 s)
+    assert vehicle["north_m"][grid.index(13.0)] is None
+    # AND the page's separation is still the metrics' drone separation
+    assert abs(page_min_separation(document) - compute_metrics(rec).min_separation_m) < 1e-3

@@ -16,6 +16,7 @@ export function startReplay(view, data) {
   const T = times.length;
   const t0 = T ? times[0] : 0, t1 = T ? times[T - 1] : 0, hz = data.grid_hz;
   const drones = data.drones.map((d) => prepare(d));
+  const external = (data.external || []).map((d) => prepare(d));  // attached vehicles: drawn, not in the separation
   const best = prefixMinimum();  // best[i]: the smallest separation over [t0, times[i]]
   const replay = { time: t0, playing: false, speed: 4, ended: false, separation: null, minSeparation: null };
 
@@ -94,12 +95,12 @@ export function startReplay(view, data) {
     const k = f >= 0.5 && i + 1 < T ? i + 1 : i;  // the nearest instant, for what does not interpolate
     const out = [];
     const positions = [];
-    for (const d of drones) {
+    for (const d of [...drones, ...external]) {
       const p = position(d, i, f);
       if (!p) continue;
       const state = lastBefore(d.states, t);
       const text = lastBefore(d.texts, t);
-      positions.push([d, p]);
+      if (!d.role) positions.push([d, p]);
       out.push({
         sysid: d.sysid, pos_ned_m: p, heading_deg: d.course_deg[k], alt_m: -p[2], home_ned_m: d.home_ned_m,
         slot_ned_m: d.slot(k), mode: d.mode[k] === null ? "-" : data.modes[d.mode[k]], armed: d.armed[k] === 1,
@@ -129,7 +130,7 @@ export function startReplay(view, data) {
     const [i, f] = at(t);
     const trails = new Map();
     const from = Math.max(0, i - Math.round(TRAIL_S * hz));
-    for (const d of drones) {
+    for (const d of [...drones, ...external]) {
       const trail = [];
       for (let k = from; k <= i; k++) if (d.pos[k]) trail.push(d.pos[k]);
       const p = position(d, i, f);
