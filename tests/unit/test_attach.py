@@ -215,6 +215,11 @@ def test_the_python_api_takes_attaches_as_swarm_up_does_and_checks_them_before_a
     assert LaunchOptions(drones=2, lockstep=False, attach=["intruder=udpin:0.0.0.0:14560"]).attach == [
         "intruder=udpin:0.0.0.0:14560"
     ]
+    # arm_external arms the members, and only them (as --arm-external)
+    both = ["udpin:0.0.0.0:14560", "leader=udpin:0.0.0.0:14561"]
+    specs = LaunchOptions(drones=2, lockstep=False, attach=both, arm_external=True).attach_specs()
+    assert [(s.role, s.arm) for s in specs] == [("member", True), ("leader", False)]
+    assert not any(s.arm for s in LaunchOptions(drones=2, lockstep=False, attach=both).attach_specs())
     for options, said in (
         (dict(attach=["intruder=udpin:0.0.0.0:14560"]), "pass lockstep=False"),  # lockstep is the API's default
         (dict(lockstep=False, speed=2.0, attach=["intruder=udpin:0.0.0.0:14560"]), "runs paced at speed 1"),
