@@ -58,7 +58,7 @@ SHARE_RADIUS_M = 100.0
 SHARE_RATE_HZ = 2.0
 # Roles whose vehicle is never commanded, so it does not avoid the drones in turn: the drones are told of it as
 # traffic (ADSB_VEHICLE), which collision prevention avoids in full, not as a neighbour that takes half of each
-# manoeuvre
+# manoeuvre (a member the swarm released is told of so too)
 NOT_COMMANDED = ("intruder", "leader")
 # A member's setpoints go out at most this often: PX4 keeps OFFBOARD above 2 Hz (COM_OF_LOSS_T 1 s), and 10 frames of
 # 53 bytes a second are about 650 B/s of a 57.6 kbit/s radio's 5.8 kB/s
@@ -353,7 +353,7 @@ class Attachments:
         swarm.fleet.handle(msg, now)
         if msg.get_type() == "COMMAND_ACK":
             swarm.commands.handle(msg, now)
-        traffic = vehicle.spec.role in NOT_COMMANDED
+        traffic = vehicle.spec.role in NOT_COMMANDED or vehicle.released is not None  # nobody says it avoids
         swarm.router.carry(msg, now, swarm.fleet, relay=not traffic)
         if traffic and position:
             swarm.router.relay_traffic(vehicle.sysid, traffic_report(msg), now, swarm.fleet)

@@ -209,6 +209,7 @@ def hover_then_circle(centre_ne_m: tuple[float, float], radius_m: float, alt_m: 
 ARDUCOPTER_GUIDED = 4  # ArduCopter's custom modes (pymavlink's mode_mapping_acm)
 ARDUCOPTER_LOITER = 5
 ARDUCOPTER_STABILIZE = 0
+TAKEOVER_ALT_M = 8.0  # a copter its pilot takes over climbs to this height, where it is
 _CLIMB_MPS = 1.0
 _MAX_SPEED_MPS = 3.0
 _POSITION_GAIN = 1.5  # 1/s: velocity asked per metre from the target, as a position loop's P
@@ -227,13 +228,14 @@ class ScriptedCopter:
     """An ArduPilot Copter as a ground station knows one, played by a script over UDP: HEARTBEAT with ArduCopter's
     custom modes, SYS_STATUS (pre-arm checks passed), EXTENDED_SYS_STATE, GLOBAL_POSITION_INT; it answers DO_SET_MODE
     (GUIDED, LOITER), arming, NAV_TAKEOFF (in GUIDED, altitude above home) and a request for its HOME_POSITION with
-    COMMAND_ACK, and in GUIDED flies
-    to SET_POSITION_TARGET_GLOBAL_INT setpoints (a position loop with velocity feed-forward, a lag on velocity, a
-    speed limit); in LOITER it brakes and holds. Everything it is sent is kept (``received``), so a test can check
-    what the ground station asked of it. It stands on the ground at ``start_ne_m`` until told otherwise."""
+    COMMAND_ACK, and in GUIDED flies to SET_POSITION_TARGET_GLOBAL_INT setpoints (a position loop with velocity
+    feed-forward, a lag on velocity, a speed limit); in LOITER it brakes and holds. With ``takeover_after_setpoints``
+    its pilot switches it to LOITER once it has flown that many setpoints, and climbs it to TAKEOVER_ALT_M where it
+    is. Everything it is sent is kept (``received``), so a test can check what the ground station asked of it. It
+    stands on the ground at ``start_ne_m`` until told otherwise."""
 
     def __init__(self, sysid: int, link: UdpLink, origin: GeoPoint, start_ne_m: tuple[float, float],
-                 rate_hz: float = 20.0) -> None:  # fmt: skip
+                 rate_hz: float = 20.0, takeover_after_setpoints: int | None = None) -> None:  # fmt: skip
         self.sysid = sysid
         self.link = link
         self.rate_hz = rate_hz
@@ -248,6 +250,9 @@ class ScriptedCopter:
         self._target_vel = (0.0, 0.0, 0.0)
         self._takeoff_down: float | None = None
         self.received: list[Received] = []
+        # its pilot takes it over (LOITER, by its own switch) once it has flown this many setpoints; when, if so
+        self._takeover_after = takeover_after_setpoints
+        self.taken_over_s: float | None = None
         self._mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=1)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"copter-{sysid}", daemon=True)
@@ -291,6 +296,11 @@ class ScriptedCopter:
             self._target = self._frame.ned_from_geo(geo)
             self._target_vel = (msg.vx, msg.vy, msg.vz)
             self._takeoff_down = None
+            if self._takeover_after is not None and len(self.setpoints()) >= self._takeover_after:
+                self._takeover_after = None
+                self.taken_over_s = t_s
+                self.mode, self._target = ARDUCOPTER_LOITER, None
+                self._takeoff_down = -TAKEOVER_ALT_M  # its pilot climbs it out of the swarm's way
 
     def _command(self, msg: mavlink.MAVLink_message) -> None:
         command = msg.command
@@ -320,7 +330,8 @@ class ScriptedCopter:
     def _step(self, dt: float) -> None:
         """Kinematics: where the mode and the last command take it, the velocity lagging the one asked."""
         want = [0.0, 0.0, 0.0]
-        if self.armed and self._takeoff_down is not None:  # climbs at _CLIMB_MPS, slowing into the altitude
+        if self.armed and self._takeoff_down is not None:  # climbs at _CLIMB_MPS, slowing into the altitude (a
+            # takeoff, or its pilot's climb)
             want[2] = max(-_CLIMB_MPS, min(_CLIMB_MPS, _POSITION_GAIN * (self._takeoff_down - self.pos[2])))
         elif self.armed and self.mode == ARDUCOPTER_GUIDED and self._target is not None:
             aims = zip(self._target_vel, self._target, self.pos, strict=True)

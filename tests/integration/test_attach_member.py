@@ -1,11 +1,13 @@
 """Members: vehicles the simulation does not run, flown in the swarm's formations as a ground station flies them
-(docs/external.md). One flight of six simulated drones with three members, each on a link of its own:
+(docs/external.md). One flight of six simulated drones with four members, each on a link of its own:
 
 - a ``sitl`` started on its own (no shared world: nothing of it reaches the simulated world except through MAVLink),
   a PX4 as far as the ground station can tell, armed and taken off by the swarm (``arm = true``), flown in OFFBOARD;
 - a scripted ArduPilot Copter (tests/integration/scripted_vehicle.py ``ScriptedCopter``), armed and taken off in
   GUIDED, flown with SET_POSITION_TARGET_GLOBAL_INT, with a keep-in of 8 m that the second formation's slots leave;
-- a second scripted copter that the swarm may not arm, standing on the field: it is never commanded.
+- a second scripted copter that the swarm may not arm, standing on the field: it is never commanded;
+- a third, armed and flown by the swarm until its pilot takes it over (LOITER) and climbs it out of the way: it is
+  released, never asked back, and the others re-plan without it.
 
 They take off with the drones, fly a rotating circle of eight, then a wider circle (which the copter's keep-in does
 not hold: it is put in Hold and released, the others re-plan without it), and when the drones land the members
@@ -30,6 +32,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
+from gcs.fleet.attachments import MODE_SETTLE_S
 from gcs.flight.geodesy import DEFAULT_ORIGIN, GeoPoint, NedFrame
 from tests.integration.instances import Leases
 from tests.integration.report_page import check_report_page
@@ -42,12 +45,15 @@ pytestmark = [pytest.mark.sim_only]
 SWARM = [sys.executable, "-m", "gcs.cli"]
 COPTER_SYSID = 251  # sysids no drone of the suite has (tests/integration/instances.py)
 GROUNDED_SYSID = 252
+PILOTED_SYSID = 253
+TAKEOVER_AFTER_SETPOINTS = 60  # the piloted copter's pilot takes it over 6 s into its formation flight
 COPTER_KEEP_IN_M = 8.0
 SLOT_RMS_M = 0.3  # the issue's bound on a member's distance to its slot once the circle has settled
 FRAME = NedFrame(DEFAULT_ORIGIN)
 SITL_HOME_NE_M = (-7.0, -7.0)  # where the members stand before takeoff: clear of the drones' grid
 COPTER_HOME_NE_M = (5.0, 5.0)  # inside its keep-in
 GROUNDED_NE_M = (14.0, -14.0)
+PILOTED_HOME_NE_M = (-5.0, 5.0)
 MISSION = """
 name = "circle_with_members"
 [swarm]
@@ -65,6 +71,10 @@ keep_in_m = {keep_in}
 
 [[swarm.attach]]
 url = "udpin:127.0.0.1:{grounded_port}"
+
+[[swarm.attach]]
+url = "udpin:127.0.0.1:{piloted_port}"
+arm = true
 
 [[steps]]
 action = "takeoff"
@@ -98,6 +108,7 @@ class Flown:
     sitl_sysid: int
     copter: ScriptedCopter
     grounded: ScriptedCopter
+    piloted: ScriptedCopter
 
 
 def _home(north_east: tuple[float, float]) -> str:
@@ -110,16 +121,18 @@ def flown(tmp_path_factory: pytest.TempPathFactory, module_instances: Leases) ->
     tmp = tmp_path_factory.mktemp("members")
     first = module_instances(6)
     member_instance = module_instances(1)
-    sitl_port, copter_port, grounded_port = free_udp_port(), free_udp_port(), free_udp_port()
+    sitl_port, copter_port, grounded_port, piloted_port = (free_udp_port() for _ in range(4))
     mission = tmp / "circle_with_members.toml"
     mission.write_text(MISSION.format(sitl_port=sitl_port, copter_port=copter_port, grounded_port=grounded_port,
-                                      keep_in=COPTER_KEEP_IN_M))  # fmt: skip
+                                      piloted_port=piloted_port, keep_in=COPTER_KEEP_IN_M))  # fmt: skip
     member: SitlDrone = start_drone(
         instance=member_instance, speed_factor=1.0, seed=7, log_dir=tmp,
         extra_args=("--gcs-remote", f"127.0.0.1:{sitl_port}", "--home", _home(SITL_HOME_NE_M)),
     )  # fmt: skip
     copter = ScriptedCopter(COPTER_SYSID, UdpLink(copter_port), DEFAULT_ORIGIN, COPTER_HOME_NE_M).start()
     grounded = ScriptedCopter(GROUNDED_SYSID, UdpLink(grounded_port), DEFAULT_ORIGIN, GROUNDED_NE_M).start()
+    piloted = ScriptedCopter(PILOTED_SYSID, UdpLink(piloted_port), DEFAULT_ORIGIN, PILOTED_HOME_NE_M,
+                             takeover_after_setpoints=TAKEOVER_AFTER_SETPOINTS).start()  # fmt: skip
     try:
         result = subprocess.run(
             [*SWARM, "fly", str(mission), "--first-instance", str(first), "--report", str(tmp / "report"),
@@ -129,11 +142,12 @@ def flown(tmp_path_factory: pytest.TempPathFactory, module_instances: Leases) ->
     finally:
         copter.stop()
         grounded.stop()
+        piloted.stop()
         stop_drone(member)
     (tmp / "stdout.txt").write_text(result.stdout + result.stderr)  # the whole flight's lines, for a failure's reader
     assert result.returncode == 0, result.stdout[-4000:] + result.stderr[-3000:]
     metrics = json.loads((tmp / "report" / "metrics.json").read_text())
-    yield Flown(result, metrics, tmp / "report" / "flight.tlog", member.sysid, copter, grounded)
+    yield Flown(result, metrics, tmp / "report" / "flight.tlog", member.sysid, copter, grounded, piloted)
 
 
 def _setpoint_ned(msg: Any) -> tuple[float, float, float]:
@@ -204,7 +218,9 @@ def test_the_ardupilot_member_is_armed_in_guided_flown_by_global_setpoints_and_r
 
 @pytest.mark.timeout(300)
 def test_the_report_page_replays_the_members_beside_the_drones(flown: Flown) -> None:
-    check_report_page(flown.tlog.parent, flown.metrics, external=(flown.sitl_sysid, COPTER_SYSID, GROUNDED_SYSID))
+    check_report_page(
+        flown.tlog.parent, flown.metrics, external=(flown.sitl_sysid, COPTER_SYSID, GROUNDED_SYSID, PILOTED_SYSID)
+    )
 
 
 @pytest.mark.timeout(300)
@@ -268,3 +284,18 @@ def test_the_swarms_origin_is_put_at_an_attached_vehicles_home(tmp_path: Path, i
     finally:
         log.close()
     assert heights and max(heights) == pytest.approx(3.0, abs=0.4)
+
+
+@pytest.mark.timeout(300)
+def test_a_member_its_pilot_takes_over_is_released_and_never_asked_back(flown: Flown) -> None:
+    piloted = flown.piloted
+    assert piloted.taken_over_s is not None, "it flew its setpoints long enough for its pilot to take it over"
+    released = [line for line in flown.result.stdout.splitlines() if f"member {PILOTED_SYSID} released:" in line]
+    assert len(released) == 1 and "it is in LOITER, not GUIDED as asked" in released[0], released
+    assert "asked to hold" not in released[0]  # its pilot has it: nothing is asked of it
+    # nothing asked of it after the takeover, and its setpoints stopped once the swarm saw the new mode (its next
+    # HEARTBEAT, within a second, and MODE_SETTLE_S after the last request)
+    after = [r for r in piloted.received if r.time_s > piloted.taken_over_s]
+    assert not [r for r in after if r.msg.get_type() != "SET_POSITION_TARGET_GLOBAL_INT"], after
+    assert not after or after[-1].time_s - piloted.taken_over_s < 1.0 + MODE_SETTLE_S + 0.5
+    assert piloted.mode == ARDUCOPTER_LOITER and piloted.armed
