@@ -15,6 +15,7 @@ import re
 import signal
 import sys
 import time
+import tomllib
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import FrameType
@@ -448,6 +449,9 @@ def build_parser() -> argparse.ArgumentParser:
         "mission", type=Path, nargs="?", default=DEFAULT_MISSION, help=f"mission file (default {DEFAULT_MISSION})"
     )
     fly.add_argument("--report", type=Path, default=None, help="report directory (default reports/<mission>-<time>)")
+    fly.add_argument("--stop-on-violation", action="store_true",
+                     help="end the flight at the first violation of one of the mission's invariants "
+                     "(docs/invariants.md; the drones land, the report is written, exit code 1)")  # fmt: skip
     _add_timing_options(fly)
     _add_link_options(fly)
     _add_neighbour_options(fly)
@@ -561,6 +565,12 @@ def build_parser() -> argparse.ArgumentParser:
     attach.add_argument("--keep-in", type=_positive, default=DEFAULT_KEEP_IN_M, metavar="M",
                         help=f"a member: no setpoint farther than M metres from the origin or higher above it "
                         f"(default {DEFAULT_KEEP_IN_M:g})")  # fmt: skip
+    require = sub.add_parser("require", help="check an invariant at every tick from now on (docs/invariants.md)")
+    require.add_argument("kind", help="separation, contact, altitude, fence, connected, formation, answered, "
+                         "no_failsafe or predicate")  # fmt: skip
+    require.add_argument("fields", nargs="*", metavar="FIELD=VALUE",
+                         help="its fields as a mission's [[invariants]] table gives them (min_m=1.0 "
+                         "form=eventually after=loss within_s=10 drones=[1,2] name=sep)")  # fmt: skip
     detach = sub.add_parser("detach", help="let an attached vehicle go (it is told nothing)")
     detach.add_argument("sysid", type=_sysid, help="the attached vehicle's sysid")
     sub.add_parser("land", help="land every drone where it is")
@@ -755,7 +765,8 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
                            camera_drones=_camera_drones(args, mission.swarm.drones),
                            drones_per_process=args.drones_per_process, links=links,
                            signing_key_file=_signing_key_file(args), view=_start_view(args),
-                           attach=attach, gcs_sysid=args.gcs_sysid)  # fmt: skip
+                           attach=attach, gcs_sysid=args.gcs_sysid,
+                           stop_on_violation=args.stop_on_violation)  # fmt: skip
     view = runner.view
     signal.signal(signal.SIGTERM, _interrupt)  # a terminated run lands and stops its drones like Ctrl-C
     try:
@@ -775,6 +786,10 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
         if view is not None:
             view.stop()
     _say(f"swarm: report in {out}")
+    violated = runner.session.recording.violations
+    if violated:  # the flight flew, and broke what it was to hold: a failed run (summary.txt names each)
+        print(f"swarm: error: {len(violated)} invariant(s) violated, first {violated[0].line()}", file=sys.stderr)
+        return EXIT_FAILED
     return 0
 
 
@@ -860,6 +875,20 @@ def _behaviour_fields(args: argparse.Namespace) -> dict[str, Any]:
     return fields
 
 
+def _toml_fields(pairs: Sequence[str]) -> dict[str, Any]:
+    """``FIELD=VALUE`` words as a TOML table reads them (numbers, lists, booleans; anything else a string)."""
+    out: dict[str, Any] = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key.isidentifier():
+            raise UsageError(f"argument FIELD=VALUE: expected field=value, got {pair!r}")
+        try:
+            out[key] = tomllib.loads(f"v = {value}")["v"]
+        except tomllib.TOMLDecodeError:
+            out[key] = value
+    return out
+
+
 def run_client(args: argparse.Namespace) -> int:
     request: dict[str, Any] = {"cmd": args.command}
     if args.command == "takeoff":
@@ -883,6 +912,8 @@ def run_client(args: argparse.Namespace) -> int:
         request.update(url=args.url, max_distance_m=args.max_distance, keep_in_m=args.keep_in, signing_key=key)
     elif args.command == "detach":
         request["sysid"] = args.sysid
+    elif args.command == "require":
+        request.update(fields={"kind": args.kind, **_toml_fields(args.fields)}, cwd=os.getcwd())
     elif args.command in ("fault", "kill"):
         kind = CRASH if args.command == "kill" else args.kind
         try:
@@ -899,7 +930,7 @@ def run_client(args: argparse.Namespace) -> int:
         print(format_status(response["drones"]))
     elif args.command in ("fault", "kill"):
         print(f"swarm: drone {args.sysid}: {response.get('result', 'done')}")
-    elif args.command in ("behaviour", "attach", "detach") or request["cmd"] == "follow_attached":
+    elif args.command in ("behaviour", "attach", "detach", "require") or request["cmd"] == "follow_attached":
         print(f"swarm: {response.get('result', 'done')}")
     return 0
 

@@ -3,6 +3,8 @@ project makes its fixtures available to every pytest run, with no import.
 
 - ``swarm``: a swarm launched in lockstep for the test (``@pytest.mark.swarm(4, layout="line", params={...})`` sets
   its ``LaunchOptions``; default 3 drones) and closed after it, whatever happened: every drone lands and stops.
+  ``@pytest.mark.swarm(4, invariants=[{"kind": "separation", "min_m": 1.0}])`` checks invariants at every tick
+  (docs/invariants.md): a violation fails the test, naming the report.
 - ``swarm_factory``: ``swarm_factory(6, **options)`` launches more (each with its own instances and report).
 - The assertions of gcs/api/checks.py on a closed session's ``FlightResult``: ``assert_no_collisions``,
   ``assert_min_separation``, ``assert_no_failsafe``, ``assert_reached``.
@@ -59,8 +61,16 @@ def swarm_factory(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Ca
     try:
         yield launch
     finally:
+        broken = []
         for session in sessions:
-            session.close(interrupt=True)
+            result = session.close(interrupt=True)
+            violations = result.metrics.get("violations", []) if result is not None else []
+            if violations:
+                first = violations[0]
+                broken.append(f"invariant {first['name']} violated at t={first['time_s']} s: {first['detail']} "
+                              f"(report: {result.report_dir})")  # fmt: skip
+        if broken:  # the test fails, naming the report (pytest shows it as an error at teardown)
+            pytest.fail("; ".join(broken), pytrace=False)
 
 
 @pytest.fixture

@@ -69,6 +69,9 @@ class BlockingSession(Readings):
     def stop_behaviours(self) -> list[int]:
         return self._run(lambda: self._engine.do_behaviour(run=False))
 
+    def require(self, **fields: Any) -> None:
+        self._run(lambda: self._engine.do_require(fields))
+
     def sleep(self, seconds: float) -> None:
         self._run(lambda: self._engine.do_sleep(seconds))
 

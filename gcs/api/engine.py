@@ -215,6 +215,7 @@ class Engine:
         swarm.up(ready_timeout_s=o.ready_timeout_s)
         for name, value in o.params.items():
             VERBS["param"](session, name, value)
+        VERBS["require"](session, o.invariants, base=Path.cwd(), stop=o.stop_on_violation)
         # ready means every drone has a home and a position, so states and formations can use them at once
         if not swarm.wait_until(lambda: all(math.isfinite(s.pos_ned_m[0]) for s in self._snapshot().values()),
                                 o.ready_timeout_s, tick=self._tick):  # fmt: skip
@@ -439,6 +440,9 @@ class Engine:
 
     def do_kill(self, sysid: int) -> str:
         return str(self._start("kill", sysid).value)
+
+    def do_require(self, fields: Mapping[str, Any]) -> None:
+        self._start("require", [fields], base=Path.cwd())
 
 
 class Readings:

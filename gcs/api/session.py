@@ -113,6 +113,13 @@ class Session(Readings):
         """BHV_EN = 0 on every drone, then Hold where they are; returns the sysids put in Hold."""
         return await self._run(lambda: self._engine.do_behaviour(run=False))
 
+    async def require(self, **fields: Any) -> None:
+        """Check an invariant at every tick from now on, given as a mission's ``[[invariants]]`` table
+        (``await swarm.require(kind="separation", min_m=1.0)``; docs/invariants.md). Its first violation is said,
+        marked on the report's timeline and listed in ``FlightResult.metrics["violations"]``; ValueError (one line)
+        for a bad one."""
+        await self._run(lambda: self._engine.do_require(fields))
+
     async def sleep(self, seconds: float) -> None:
         """Let the swarm fly for ``seconds`` of simulated time."""
         await self._run(lambda: self._engine.do_sleep(seconds))

@@ -19,6 +19,7 @@ from gcs.fleet.links import LinkPlan, NeighbourPlan
 from gcs.fleet.losses import LossPolicy
 from gcs.flight.frames import Vec3
 from gcs.flight.geodesy import DEFAULT_ORIGIN, GeoPoint
+from gcs.invariants.spec import build_invariant, unique_names
 from gcs.mavlink.transport import GCS_SYSID
 
 
@@ -56,6 +57,10 @@ class LaunchOptions:
     attach: Sequence[str] = ()
     arm_external: bool = False  # the attached members are armed and taken off with the drones (--arm-external)
     gcs_sysid: int = GCS_SYSID  # the supervisor's own system id (another when a QGroundControl beside it uses 255)
+    # Invariants checked at every tick once the drones are up, each as a mission's [[invariants]] table gives it
+    # ({"kind": "separation", "min_m": 1.0}; docs/invariants.md); a predicate's file is read from the working folder
+    invariants: Sequence[Mapping[str, Any]] = ()
+    stop_on_violation: bool = False  # the first violation ends the flight (the call in progress raises SwarmError)
 
     def __post_init__(self) -> None:
         for name in ("report_dir", "log_dir", "signing_key_file"):  # a path may come as a string (launch's **options)
@@ -77,6 +82,9 @@ class LaunchOptions:
         drones_sysids = range(self.first_instance + 1, self.first_instance + self.drones + 1)
         if not 1 <= self.gcs_sysid <= GCS_SYSID or self.gcs_sysid in drones_sysids:
             raise ValueError(f"gcs_sysid must be in 1..{GCS_SYSID} and no drone's, got {self.gcs_sysid}")
+        if isinstance(self.invariants, Mapping) or not all(isinstance(i, Mapping) for i in self.invariants):
+            raise ValueError("invariants takes a list of tables, e.g. invariants=[{'kind': 'separation', 'min_m': 1}]")
+        unique_names([build_invariant(i, base=Path.cwd(), drone_count=self.drones) for i in self.invariants])
         specs = self.attach_specs()  # AttachError: a ValueError of one line
         if specs and (self.lockstep or (self.speed is not None and self.speed != 1.0)):
             raise ValueError("attach: a swarm with an attached vehicle runs paced at speed 1 (the real world keeps "

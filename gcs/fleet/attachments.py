@@ -69,8 +69,6 @@ MODE_SETTLE_S = 2.5
 # Where a velocity setpoint (flocking) would take a member, for its keep-in: where it is, carried this long at the
 # setpoint's velocity
 KEEP_IN_LOOKAHEAD_S = 1.0
-_IN_AIR = (mavlink.MAV_LANDED_STATE_IN_AIR, mavlink.MAV_LANDED_STATE_TAKEOFF, mavlink.MAV_LANDED_STATE_LANDING)
-_IN_AIR_ALT_M = 1.0  # a vehicle that does not say whether it flies: flying above this (GLOBAL_POSITION_INT)
 # A vehicle gone silent is reported to the drones where it was last known this often, its age growing (``tslc``)
 LAST_KNOWN_PERIOD_S = 1.0
 
@@ -202,7 +200,7 @@ class Attachments:
         for sysid, vehicle in self.vehicles.items():
             view = self.swarm.fleet.drones.get(sysid)
             if (vehicle.spec.role == "member" and vehicle.released is None and view is not None
-                    and not view.lost(now_s) and view.armed and _in_air(view)):  # fmt: skip
+                    and not view.lost(now_s) and view.armed and view.in_air()):  # fmt: skip
                 out.append(sysid)
         return out
 
@@ -232,7 +230,7 @@ class Attachments:
         (armed just before: their HEARTBEAT may not say so yet)."""
         drones = self.swarm.fleet.drones
         return [s for s, v in self.vehicles.items() if v.spec.role == "member" and v.spec.arm
-                and v.released is None and s in drones and not _in_air(drones[s])]  # fmt: skip
+                and v.released is None and s in drones and not drones[s].in_air()]  # fmt: skip
 
     def commanded(self) -> list[int]:
         """The members last asked for OFFBOARD (GUIDED) and not released: those to put in Hold when the swarm stops."""
@@ -387,14 +385,6 @@ class Attachments:
         for link in self._links:
             link.close()
         self._links.clear()
-
-
-def _in_air(view: DroneView) -> bool:
-    """Whether a vehicle flies: its EXTENDED_SYS_STATE says so, or (a vehicle that does not send one) it reports
-    itself above _IN_AIR_ALT_M over its home."""
-    if view.landed_state != mavlink.MAV_LANDED_STATE_UNDEFINED:
-        return view.landed_state in _IN_AIR
-    return math.isfinite(view.relative_alt_m) and view.relative_alt_m > _IN_AIR_ALT_M
 
 
 def keep_in_problem(pos_ned_m: Vec3, keep_in_m: float) -> str | None:

@@ -55,7 +55,16 @@ class DroneView:
     def lost(self, now_s: float) -> bool:
         return self.link_age_s(now_s) > LINK_LOST_S
 
+    def in_air(self) -> bool:
+        """Whether it flies: its EXTENDED_SYS_STATE says so, or (a vehicle that sends none) it reports itself more
+        than IN_AIR_ALT_M above its home."""
+        if self.landed_state != mavlink.MAV_LANDED_STATE_UNDEFINED:
+            return self.landed_state in _IN_AIR
+        return math.isfinite(self.relative_alt_m) and self.relative_alt_m > IN_AIR_ALT_M
 
+
+_IN_AIR = (mavlink.MAV_LANDED_STATE_IN_AIR, mavlink.MAV_LANDED_STATE_TAKEOFF, mavlink.MAV_LANDED_STATE_LANDING)
+IN_AIR_ALT_M = 1.0  # a vehicle that does not say whether it flies: flying above this (GLOBAL_POSITION_INT)
 PREARM_BIT = 0x10000000
 HEADING_UNKNOWN = 0xFFFF  # GLOBAL_POSITION_INT.hdg: UINT16_MAX when not known  # MAV_SYS_STATUS_PREARM_CHECK
 

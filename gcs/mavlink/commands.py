@@ -89,6 +89,7 @@ class _Work:
     due_s: float = 0.0  # when this try times out
     confirmation: int = 0
     frame: int | None = None  # COMMAND_INT in this MAV_FRAME (params 5/6 are x/y); None: COMMAND_LONG
+    started_s: float = 0.0  # when it was first sent
 
     def message(self) -> Any:
         if self.frame is not None:  # COMMAND_INT has no confirmation field: its retries are sent as they are
@@ -131,7 +132,7 @@ class CommandClient:
             raise ValueError(f"COMMAND_LONG has 7 params, got {len(params)}")
         padded = (*params, *([0.0] * (7 - len(params))))
         work = self._core.begin(key, key, _Work(sysid=sysid, compid=compid, command=command, params=padded,
-                                                frame=frame), now_s)  # fmt: skip
+                                                frame=frame, started_s=now_s), now_s)  # fmt: skip
         return [Send(sysid, work.message())]
 
     def handle(self, msg: Any, now_s: float) -> list[Send]:
@@ -170,6 +171,13 @@ class CommandClient:
     def next_due_s(self) -> float:
         """When ``poll`` next has something to do (inf: nothing in flight)."""
         return self._core.next_due_s()
+
+    def waiting_since(self) -> dict[int, float]:
+        """For each system with a command waiting for its answer, when the oldest of them was first sent."""
+        out: dict[int, float] = {}
+        for work in self._core.works():
+            out[work.sysid] = min(out.get(work.sysid, work.started_s), work.started_s)
+        return out
 
     def in_flight(self, sysid: int, command: int) -> bool:
         return self._core.running((sysid, command)) is not None

@@ -53,6 +53,10 @@ class Transactions(Generic[K, W, KO, R]):
         work.retries_left = self.retries
         work.due_s = now_s + self.timeout_s
 
+    def works(self) -> list[W]:
+        """Everything in flight."""
+        return list(self._work.values())
+
     def running(self, key: K) -> W | None:
         return self._work.get(key)
 

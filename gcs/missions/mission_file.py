@@ -53,6 +53,7 @@ from gcs.flight.behaviours import FlockSpec, FollowAttachedSpec, FollowSpec
 from gcs.flight.formation import CircleSpec, Formation, FormationError, GridSpec, LineSpec, VSpec
 from gcs.flight.onboard import FLOCKING, LEADER_FOLLOWER, absolute_spec
 from gcs.flight.onboard import MAX_POINTS as ONBOARD_MAX_POINTS
+from gcs.invariants.spec import Invariant, InvariantError, build_invariant, unique_names
 from gcs.missions.plan_flight import OFFSET_MODES, PlanUsageError, parse_drones
 from gcs.missions.qgc_plan import PlanFileError, QgcPlan, load_plan
 from swarmcommon.links import LINK_CLASSES, LINK_KEYS, MESH_KEYS, mesh_value_problem, value_problem
@@ -222,6 +223,8 @@ class MissionSpec:
     loss_policy: LossPolicy = LossPolicy.CONTINUE
     path: Path | None = None
     obstacles: tuple[ObstacleSpec, ...] = ()
+    # [[invariants]]: properties checked at every tick of the flight (docs/invariants.md)
+    invariants: tuple[Invariant, ...] = ()
 
 
 # Per shape: the spec class and its fields (name -> kind); angles are given in degrees in files.
@@ -809,6 +812,25 @@ def _obstacles(reader: _Reader, data: Any, max_obstacles: int | None) -> tuple[O
     return tuple(out)
 
 
+def _invariants(reader: _Reader, tables: Any, drones: int) -> tuple[Invariant, ...]:
+    """``[[invariants]]``: each table one invariant (gcs/invariants/spec.py), named by its line when it is wrong."""
+    if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
+        raise reader.fail((None, None), "invariants", "must be [[invariants]] tables, each with a kind")
+    out = []
+    for k, table in enumerate(tables):
+        try:
+            out.append(build_invariant(table, base=reader.path.parent, drone_count=drones))
+        except InvariantError as exc:
+            field, sep, problem = str(exc).partition(": ")
+            named = sep and field in table
+            raise reader.fail(("invariants", k), field if named else None, problem if named else str(exc)) from None
+    try:
+        unique_names(out)
+    except InvariantError as exc:
+        raise reader.fail((None, None), "invariants", str(exc)) from None
+    return tuple(out)
+
+
 def parse_mission(text: str, path: Path, *, max_obstacles: int | None = None) -> MissionSpec:
     """The mission in ``text`` (read from ``path``); ``max_obstacles``: what the simulation's world holds."""
     reader = _Reader(path, _Locator(text))
@@ -816,7 +838,7 @@ def parse_mission(text: str, path: Path, *, max_obstacles: int | None = None) ->
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise MissionFileError(f"{path}: not valid TOML: {exc}") from None
-    reader.check_keys(data, {"name", "description", "swarm", "steps", "obstacles"}, (None, None))
+    reader.check_keys(data, {"name", "description", "swarm", "steps", "obstacles", "invariants"}, (None, None))
     swarm = data.get("swarm")
     if not isinstance(swarm, dict):
         raise reader.fail((None, None), None, "missing [swarm] table with 'drones'")
@@ -874,6 +896,7 @@ def parse_mission(text: str, path: Path, *, max_obstacles: int | None = None) ->
         loss_policy=LossPolicy(policy),
         path=path,
         obstacles=_obstacles(reader, data.get("obstacles", []), max_obstacles),
+        invariants=_invariants(reader, data.get("invariants", []), drones),
     )
 
 

@@ -34,6 +34,11 @@ Airborne
     slots over the settled part of every formation step (from the instant the drones settled, ``time_to_formation_s``,
     to the step's end): ``slot_rms_m`` and ``max_slot_error_m``; null when it held no slot in a settled formation.
 
+``invariants``, ``violations``
+    The flight's invariants (docs/invariants.md), each as it describes itself, and the first violation of each one
+    violated, in time order: its ``name``, ``kind``, ``time_s`` (mission time), the ``sysids`` involved and a
+    ``detail`` saying what was seen.
+
 ``collisions``, ``collision_events``, ``avoidance_events``, ``avoidance_closest_approach_m``
     The number of the recording's events whose text starts with "Collision" (listed in ``collision_events``); the
     number of onboard avoidance episodes (events starting "Avoidance:", one when a drone starts correcting), and the
@@ -110,6 +115,7 @@ import numpy as np
 import numpy.typing as npt
 
 from gcs.fleet.losses import DroneLoss
+from gcs.invariants.monitor import Violation
 from gcs.record.recording import DroneSample, EventRecord, FaultRecord, FlightRecording, ItemReached, StepRecord
 
 FloatArray = npt.NDArray[np.float64]
@@ -200,6 +206,8 @@ class FlightMetrics:
     realtime_factor_mean: float | None = None
     items_reached: tuple[ItemReached, ...] = ()
     attached: dict[int, AttachedMetrics] = field(default_factory=dict)  # vehicles the simulation did not run
+    invariants: tuple[str, ...] = ()  # the flight's invariants, as each describes itself
+    violations: tuple[Violation, ...] = ()  # the first violation of each violated invariant, in time order
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: fixed key order, rounded floats, None for undefined values, drone keys as strings."""
@@ -239,6 +247,11 @@ class FlightMetrics:
             "realtime_factor_min": _r(self.realtime_factor_min),
             "realtime_factor_mean": _r(self.realtime_factor_mean),
             "attached": {str(sysid): _attached_dict(a) for sysid, a in self.attached.items()},
+            "invariants": list(self.invariants),
+            "violations": [
+                {"name": v.name, "kind": v.kind, "time_s": _r(v.time_s), "sysids": list(v.sysids), "detail": v.detail}
+                for v in self.violations
+            ],
             "mission_items_reached": {
                 str(sysid): [{"seq": r.seq, "time_s": _r(r.time_s)} for r in self.items_reached if r.sysid == sysid]
                 for sysid in sorted({r.sysid for r in self.items_reached})
@@ -756,6 +769,8 @@ def compute_metrics(recording: FlightRecording) -> FlightMetrics:
         ),
         items_reached=tuple(recording.items_reached),
         attached=attached,
+        invariants=tuple(recording.invariants),
+        violations=tuple(sorted(recording.violations, key=lambda v: v.time_s)),
     )
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from gcs.fleet.losses import DroneLoss
+from gcs.invariants.monitor import Violation
 
 Vec3 = tuple[float, float, float]
 
@@ -100,6 +101,9 @@ class FlightRecording:
     items_reached: list[ItemReached] = field(default_factory=list)  # mission items reached (each arrival once)
     obstacles: list[ObstacleShape] = field(default_factory=list)  # the mission's static obstacles
     # Vehicles the simulation did not run (docs/external.md): sysid -> (role, link), and where each reported itself
-    # (its GLOBAL_POSITION_INT in the swarm frame; ``armed`` True, no slot)
+    # (its GLOBAL_POSITION_INT in the swarm frame, its slot when it is a member)
     attached: dict[int, tuple[str, str]] = field(default_factory=dict)
     attached_samples: list[DroneSample] = field(default_factory=list)
+    # The flight's invariants (docs/invariants.md), as each describes itself, and the first violation of each
+    invariants: list[str] = field(default_factory=list)
+    violations: list[Violation] = field(default_factory=list)

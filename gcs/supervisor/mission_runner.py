@@ -61,10 +61,13 @@ class MissionRunner:
                  lockstep_quantum: int = 1, camera_drones: frozenset[int] = frozenset(),
                  drones_per_process: int | Literal["auto"] = 1, links: LinkPlan | None = None,
                  signing_key_file: Path | None = None, view: ViewServer | None = None,
-                 attach: tuple[AttachSpec, ...] = (), gcs_sysid: int = GCS_SYSID) -> None:  # fmt: skip
+                 attach: tuple[AttachSpec, ...] = (), gcs_sysid: int = GCS_SYSID,
+                 stop_on_violation: bool = False) -> None:  # fmt: skip
         """``attach``: vehicles the simulation does not run, attached before the drones start (gcs/fleet/attach.py);
-        ``run`` raises AttachError (one line, nothing flown) when one cannot be."""
+        ``run`` raises AttachError (one line, nothing flown) when one cannot be. ``stop_on_violation``: the first
+        violation of one of the mission's invariants ends the flight there (a SwarmError)."""
         self.mission = mission
+        self.stop_on_violation = stop_on_violation
         self.attach = attach
         self.speed = speed_factor
         self.say = say
@@ -236,6 +239,7 @@ class MissionRunner:
         kind = type(step).__name__.removesuffix("Step").lower()
         name = step.name if isinstance(step, FormationStep | FlockStep | FollowStep | FollowAttachedStep) else kind
         self._step_name = name
+        self.session.step_began()
         self.say(f"[{start:6.1f} s] step {index + 1}/{len(self.mission.steps)}: {name}")
         if isinstance(step, TakeoffStep):
             self._do(VERBS["takeoff"](self.session, step.alt_m, step.timeout_s))
@@ -287,6 +291,7 @@ class MissionRunner:
                 if self.swarm.plan.lockstep else f"speed {self.speed:g}x"  # fmt: skip
             self.say(f"mission {self.mission.name}: spawning {self.mission.swarm.drones} drones ({pace})")
             self.swarm.up()
+            self.session.require(self.mission.invariants, stop=self.stop_on_violation)
             self.session.recording.obstacles = [obstacle_shape(o) for o in self.mission.obstacles]
             if self.view is not None:
                 self.session.serve(self.view, self.session.recording.obstacles)

@@ -10,7 +10,7 @@ control channel and never waits, the runner walks a mission's steps, the engine 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
 from gcs.command.degrade import apply_loss_policy, apply_regain
@@ -18,11 +18,13 @@ from gcs.command.procedures import PaceWatch
 from gcs.command.streamer import FormationStreamer
 from gcs.fleet.links import NeighbourPlan
 from gcs.fleet.losses import LossPolicy, loss_line, regain_line
-from gcs.fleet.swarm import Swarm
+from gcs.fleet.swarm import Swarm, SwarmError
 from gcs.flight.behaviours import Behaviour
 from gcs.flight.frames import SwarmFrame
+from gcs.invariants.spec import Invariant
 from gcs.record.recorder import FlightRecorder
 from gcs.record.recording import EventRecord, FaultRecord, FlightRecording, ObstacleShape, StepRecord
+from gcs.supervisor.invariant_watch import InvariantWatch
 from gcs.view.feed import ViewFeed
 from gcs.view.report import write_report
 from gcs.view.server import ViewServer
@@ -60,6 +62,8 @@ class FlightSession:
         self._t0_s = swarm.clock() if t0_s is None else t0_s
         self._step: StepRecord | None = None  # the report's step under way (begin_step)
         self.report_dir: Path | None = None  # where a session flown verb by verb writes its report
+        self.steps_begun = 0  # verbs and mission steps that changed what the swarm flies (an invariant's ``step``)
+        self.watch: InvariantWatch | None = None  # the flight's invariants (``require``)
 
     @classmethod
     def verb_by_verb(cls, swarm: Swarm, say: Say, loss_policy: LossPolicy, *, report_dir: Path | None,
@@ -97,10 +101,28 @@ class FlightSession:
         self.view = ViewFeed(server, self.streamer, obstacles, live=live)
 
     def tick(self, now_s: float) -> None:
-        """The setpoints of whatever the ground station flies, and the live view's frame."""
+        """The setpoints of whatever the ground station flies, the live view's frame, and the invariants' check;
+        InvariantViolated when one is first violated and the flight stops on a violation."""
         self.streamer.tick(now_s)
         if self.view is not None:
             self.view.tick(now_s)
+        if self.watch is not None:
+            violations = self.watch.check(now_s)
+            if violations and self.watch.stop:
+                raise InvariantViolated(f"stopped on a violation: {violations[0].line()}")
+
+    def require(self, invariants: Sequence[Invariant], *, stop: bool = False) -> None:
+        """Check these invariants at every tick from now on (with those already required); ``stop``: the first
+        violation ends the flight. Needs the drones up (their numbers name them)."""
+        if not invariants:
+            return
+        if self.watch is None:
+            self.watch = InvariantWatch(self, stop=stop)
+        self.watch.add(invariants, stop=stop)
+
+    def step_began(self) -> None:
+        """A mission step, or a verb that changes what the swarm flies, begins (an invariant's ``step`` event)."""
+        self.steps_begun += 1
 
     def watch_losses(self, now_s: float, indent: str = "") -> None:
         """Each new loss: one line, and the loss policy applied (with its line and record); each drone heard again:
@@ -132,6 +154,7 @@ class FlightSession:
         """The report's current step ends now and the next begins (``name``: the kind, when not given)."""
         now = self.mission_time()
         self.end_step(now)
+        self.step_began()
         index = len(self.recording.steps)
         self._step = StepRecord(index=index, name=name or kind, kind=kind, start_s=now, end_s=now, target_alt_m=alt_m)
 
@@ -163,3 +186,7 @@ class FlightSession:
         self.recording.losses = list(self.swarm.losses.values())
         self.recording.regained = list(self.swarm.regained)
         self.recording.link_counters = self.swarm.harness.link_counters()
+
+
+class InvariantViolated(SwarmError):
+    """A flight that stops on a violation (``--stop-on-violation``) stops here; the message is one line."""

@@ -67,6 +67,8 @@ class Station:
                 self.session, r.get("sysid")).value)},
             "attach": lambda r: self._verb(r, "attach", _attach_spec(r)),
             "detach": lambda r: self._verb(r, "detach", r.get("sysid")),
+            "require": lambda r: self._verb(r, "require", [dict(r.get("fields", {}))], base=Path(str(r.get("cwd",
+                                                                                                          ".")))),
         }  # fmt: skip
 
     def serve(self, server: ViewServer) -> None:

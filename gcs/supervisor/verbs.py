@@ -20,6 +20,7 @@ import dataclasses
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Final
 
 from gcs.command.onboard_flight import FollowObserver, leader_arrived, start_onboard_flock, start_onboard_follow
@@ -42,6 +43,7 @@ from gcs.flight.behaviours import (
     LeaderReport,
 )
 from gcs.flight.formation import Formation
+from gcs.invariants.spec import build_invariant, unique_names
 from gcs.missions.mission_file import LAND_TIMEOUT_S, RTL_TIMEOUT_S, TAKEOFF_TIMEOUT_S
 from gcs.missions.plan_flight import Offset, Uploaded, download_plan, start_missions, unfinished, upload_plan
 from gcs.missions.qgc_plan import QgcPlan
@@ -379,6 +381,16 @@ def detach(session: FlightSession, sysid: int) -> Started:
     return Started(result=result)
 
 
+def require(session: FlightSession, fields: Sequence[Mapping[str, Any]], *, base: Path, stop: bool = False) -> Started:
+    """Check invariants (each as plain fields, as a mission's ``[[invariants]]`` table: gcs/invariants/spec.py) at
+    every tick from now on; ``base``: where a predicate's file is read from; ``stop``: the first violation ends the
+    flight. A bad one is a ValueError of one line, and none of them is taken."""
+    invariants = [build_invariant(f, base=base, drone_count=len(session.swarm.sysids)) for f in fields]
+    unique_names(invariants)
+    session.require(invariants, stop=stop)
+    return Started(result=f"checking {'; '.join(i.describe() for i in invariants)}", value=[i.name for i in invariants])
+
+
 def attach_all(session: FlightSession, specs: Sequence[AttachSpec]) -> None:
     """``attach`` every spec (before the drones start, so that a bad one stops nothing that flies); on a failure the
     swarm is shut down (every link opened is closed) and the AttachError goes on with its one line."""
@@ -418,5 +430,6 @@ VERBS: Final[Mapping[str, Callable[..., Started]]] = {
     "param": param,
     "control": control,
     "attach": attach,
+    "require": require,
     "detach": detach,
 }

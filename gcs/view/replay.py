@@ -20,7 +20,8 @@ were last known), their slots (a member's), their role and link, and the state `
 silent. They are drawn, not counted in the page's separation (the metrics count them apart: ``attached``).
 
 Timeline marks are the flight's events: avoidance starts, collisions, failsafes, losses, drones heard again, injected
-faults and what the swarm did about each loss; the mission's steps are bands.
+faults, what the swarm did about each loss, and the first violation of each invariant; the mission's steps are
+bands.
 """
 
 from __future__ import annotations
@@ -162,6 +163,8 @@ def _marks(recording: FlightRecording) -> list[dict[str, Any]]:
               for loss in recording.regained if loss.regained_s is not None]  # fmt: skip
     marks += [_mark(f.time_s, f.sysid, "fault", f"{f.fault}: {f.result}") for f in recording.faults]
     marks += [_mark(e.time_s, e.sysid, "policy", e.text) for e in recording.policy_events]
+    marks += [_mark(v.time_s, v.sysids[0] if v.sysids else None, "violation", f"{v.name}: {v.detail}")
+              for v in recording.violations]  # fmt: skip
     return sorted(marks, key=lambda m: (m["time_s"], m["sysid"] or 0))
 
 

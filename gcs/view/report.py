@@ -387,6 +387,9 @@ def summary_text(metrics: FlightMetrics) -> str:
                 "formations settled" if attached.slot_rms_m is not None and attached.max_slot_error_m is not None
                 else "")  # fmt: skip
         lines.append(f"attached vehicle {sysid} ({attached.role} on {attached.link}): {where}{slot}")
+    if metrics.invariants:
+        lines.append(f"invariants: {len(metrics.invariants)} checked, {len(metrics.violations)} violated")
+        lines.extend(f"  {v.line()}" for v in metrics.violations)
     lines.append(f"collisions: {metrics.collisions}")
     for event in metrics.collision_events:
         who = "swarm" if event.sysid is None else f"drone {event.sysid}"

@@ -126,6 +126,17 @@ def test_a_vehicle_on_tcp_or_a_serial_line_is_attached_shown_in_the_status_detac
         assert led.returncode == 0, led
         following = follow()
         assert following.stdout == f"swarm: following attached leader sysid {INTRUDER_SYSID}\n", following
+
+        # AND 'swarm require' checks an invariant from now on (docs/invariants.md); a bad one is one line, exit code 2
+        def require(*words: str) -> subprocess.CompletedProcess[str]:
+            return subprocess.run([*SWARM, "require", *words], capture_output=True, text=True, env=env, timeout=30)
+
+        taken = require("separation", "min_m=0.5", "name=apart", "drones=[1]")
+        assert taken.stdout == "swarm: checking apart always\n", taken
+        for words, said in ((("fence",), "missing field 'radius_m'"), (("separation", "min_m=1", "name=apart"),
+                                                                        "'apart' is checked already")):  # fmt: skip
+            refused = require(*words)
+            assert refused.returncode == 2 and said in refused.stderr and refused.stderr.count("\n") == 1, refused
         # AND 'swarm down' ends it cleanly, the attached vehicle told nothing
         assert subprocess.run([*SWARM, "down"], capture_output=True, text=True, env=env, timeout=30).returncode == 0
         assert proc.wait(timeout=60) == 0

@@ -449,7 +449,7 @@ def test_leader_follower_refuses_an_unknown_leader_and_too_few_offsets() -> None
         (["flock", "--goals", "10;0"], "argument --goals: must be pairs like"),
         (["flock", "--separation", "8", "--radius", "5"], "--separation (8) must not exceed --radius (5)"),
         (["flock", "--w-cohesion", "-0.1"], "argument --w-cohesion: must be a number >= 0"),
-        (["follow", "--alt", "3"], "the following arguments are required: --waypoints"),
+        (["follow", "--alt", "3"], "one of the arguments --waypoints --attached is required"),
         (["follow", "--waypoints", "10,0", "--offsets=0.1,0"], "argument --offsets: (0.1, 0.0) puts a follower on"),
         (["follow", "--waypoints", "10,0", "--angle", "270"], "argument --angle: must be in (0, 180] degrees"),
         (["follow", "--waypoints", "10,0", "--leader", "0"], "--leader must be a sysid in 1..255"),

@@ -8,7 +8,7 @@ import { COLOURS, escape, fmt } from "./draw.js";
 
 const TRAIL_S = 10;
 const MARK_COLOURS = { avoidance: "#fb8c00", collision: "#ff1744", failsafe: "#e53935", loss: "#ffffff",
-  regained: "#43a047", fault: "#ab47bc", policy: "#29b6f6" };
+  regained: "#43a047", fault: "#ab47bc", policy: "#29b6f6", violation: "#ffeb3b" };
 const SPEEDS = [0.25, 0.5, 1, 2, 4, 8, 16, 32];
 
 export function startReplay(view, data) {
