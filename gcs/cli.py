@@ -33,7 +33,15 @@ from gcs.fleet.attach import (
     role_of,
 )
 from gcs.fleet.faults import CRASH, FAULT_NAMES, FaultError, fault_request
-from gcs.fleet.harness import LAYOUTS, MAX_DRONES, Simulation, SpawnError, SpawnPlan, parse_drones_per_process
+from gcs.fleet.harness import (
+    LAYOUTS,
+    MAX_DRONES,
+    MAX_QUANTUM,
+    Simulation,
+    SpawnError,
+    SpawnPlan,
+    parse_drones_per_process,
+)
 from gcs.fleet.links import LINK_OPTIONS, NEIGHBOUR_MODES, LinkPlan, NeighbourPlan, parse_link_value, parse_mesh_value
 from gcs.fleet.losses import LOSS_POLICIES, LossPolicy
 from gcs.fleet.swarm import Swarm, SwarmError
@@ -282,8 +290,9 @@ def _add_timing_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--quantum",
         type=int,
-        default=1,
-        help="lockstep: physics steps every drone runs between waits, i.e. the clock skew bound (default 1)",
+        default=None,
+        help="lockstep: physics steps every drone runs between waits, i.e. the clock skew bound (default: a "
+        "mission's [swarm] quantum, else 1)",
     )
     parser.add_argument(
         "--drones-per-process",
@@ -407,9 +416,12 @@ def _speed(args: argparse.Namespace) -> float:
     return 0.0 if args.lockstep else 1.0
 
 
-def _quantum(args: argparse.Namespace) -> int:
-    if not 1 <= args.quantum <= 400:
-        raise UsageError(f"--quantum must be in 1..400 physics steps, got {args.quantum}")
+def _quantum(args: argparse.Namespace, default: int | None = None) -> int:
+    """``--quantum``, else ``default`` (a mission's), else 1."""
+    if args.quantum is None:
+        return default or 1
+    if not 1 <= args.quantum <= MAX_QUANTUM:
+        raise UsageError(f"--quantum must be in 1..{MAX_QUANTUM} physics steps, got {args.quantum}")
     return int(args.quantum)
 
 
@@ -464,7 +476,9 @@ def build_parser() -> argparse.ArgumentParser:
     fly.add_argument("--first-instance", type=int, default=0, help="instance of the first drone")
     fly.add_argument("--origin", type=_origin, default=DEFAULT_ORIGIN, help=ORIGIN_HELP)
     fly.add_argument("--airframe", default=None, help="airframe name or .toml path for every drone")
-    fly.add_argument("--seed", type=int, default=0, help="base random seed (the k-th drone, from 0, uses seed+k)")
+    fly.add_argument("--seed", type=int, default=None,
+                     help="base random seed (the k-th drone, from 0, uses seed+k; default: the mission's [swarm] "
+                     "seed, else 0)")  # fmt: skip
     fly.add_argument("--param", action="append", default=[], type=_param_setting, metavar="NAME=VALUE",
                      help="set a drone parameter on every drone before arming, over the mission's [swarm] params "
                      "(repeatable; docs/parameters.md)")  # fmt: skip
@@ -759,9 +773,9 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
     origin = _resolve_origin(args.origin, attach, args.gcs_sysid)
     runner = MissionRunner(mission, simulation, speed_factor=_speed(args), origin=origin,
                            first_instance=args.first_instance, report_dir=report, say=_say, airframe=args.airframe,
-                           seed=args.seed,
+                           seed=args.seed if args.seed is not None else mission.swarm.seed or 0,
                            forward=None if args.no_forward else args.forward, lockstep=args.lockstep,
-                           lockstep_quantum=_quantum(args),
+                           lockstep_quantum=_quantum(args, mission.swarm.quantum),
                            camera_drones=_camera_drones(args, mission.swarm.drones),
                            drones_per_process=args.drones_per_process, links=links,
                            signing_key_file=_signing_key_file(args), view=_start_view(args),

@@ -37,6 +37,8 @@ def launch_plan(plan: SpawnPlan) -> LaunchPlan:
         links=link_profile(plan.links),
         mesh=MeshSettings(range_m=plan.mesh.range_m, exponent=plan.mesh.exponent) if plan.mesh is not None else None,
         behaviour=plan.behaviour,
+        wind_ned_mps=plan.wind_ned_mps,
+        gust_mps=plan.gust_mps,
     )
 
 

@@ -56,6 +56,11 @@ def line_layout(n: int, spacing_m: float) -> list[tuple[float, float]]:
 LAYOUTS: dict[str, Callable[[int, float], list[tuple[float, float]]]] = {"grid": grid_layout, "line": line_layout}
 
 
+MAX_QUANTUM = 400  # lockstep: physics steps every drone may run between waits (2 s of simulated time)
+MAX_WIND_MPS = 20.0  # steady wind or gust intensity a plan may ask for (beyond what a small quadrotor flies in)
+MAX_SPAWN_JITTER_M = 10.0  # how far a spawn point may be moved from its layout's
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SpawnPlan:
     """The swarm to start: how many drones, where they stand, how they run."""
@@ -88,10 +93,21 @@ class SpawnPlan:
     behaviour: str | None = None
     # The ground station's own system id: 255 (QGroundControl's) unless one beside it uses that (--gcs-sysid)
     gcs_sysid: int = GCS_SYSID
+    # The weather every drone flies in: a steady wind (NED m/s, the way it blows) and gusts (RMS m/s, each drone's own
+    # seeded draw)
+    wind_ned_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    gust_mps: float = 0.0
+    # Each drone's spawn point moved by up to this far north and east from its layout's, seeded by ``seed`` (design
+    # principle 9: no two seeds line the drones up the same)
+    spawn_jitter_m: float = 0.0
 
     def offsets_ne_m(self) -> list[tuple[float, float]]:
         """Each drone's spawn position, north/east metres from the origin in the swarm frame (spawn order)."""
-        return LAYOUTS[self.layout](self.n_drones, self.spacing_m)
+        layout = LAYOUTS[self.layout](self.n_drones, self.spacing_m)
+        if self.spawn_jitter_m <= 0.0:
+            return layout
+        shifts = np.random.default_rng(self.seed).uniform(-self.spawn_jitter_m, self.spawn_jitter_m, (len(layout), 2))
+        return [(n + float(dn), e + float(de)) for (n, e), (dn, de) in zip(layout, shifts, strict=True)]
 
 
 def parse_drones_per_process(text: str) -> int | Literal["auto"]:

@@ -46,7 +46,7 @@ from gcs.fleet.attach import (
     parse_attach,
 )
 from gcs.fleet.faults import FaultError, FaultRequest, fault_request
-from gcs.fleet.harness import LAYOUTS, MAX_DRONES
+from gcs.fleet.harness import LAYOUTS, MAX_DRONES, MAX_QUANTUM, MAX_SPAWN_JITTER_M, MAX_WIND_MPS
 from gcs.fleet.links import NEIGHBOUR_MODES, LinkPlan, MeshPlan, NeighbourPlan, plan_from_tables
 from gcs.fleet.losses import LOSS_POLICIES, LossPolicy
 from gcs.flight.behaviours import FlockSpec, FollowAttachedSpec, FollowSpec
@@ -86,6 +86,14 @@ class SwarmSpec:
     behaviour: str | None = None
     # [[swarm.attach]]: vehicles the simulation does not run, attached over MAVLink (docs/external.md)
     attach: tuple[AttachSpec, ...] = ()
+    # What else makes the flight what it is, so that a mission file replays with nothing on the command line:
+    seed: int | None = None  # the drones' base seed (swarm fly --seed wins; default 0)
+    wind_ned_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)  # steady wind, NED m/s (the way it blows)
+    gust_mps: float = 0.0  # gust RMS intensity, m/s
+    spawn_jitter_m: float = 0.0  # each spawn point moved by up to this far north and east, seeded
+    quantum: int | None = None  # lockstep: physics steps between waits (swarm fly --quantum wins; default 1)
+    # [swarm.drone.N] params = {...}: drone N's own parameters, over the swarm's (drone number, its settings)
+    drone_params: tuple[tuple[int, tuple[tuple[str, int | float], ...]], ...] = ()
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -225,6 +233,8 @@ class MissionSpec:
     obstacles: tuple[ObstacleSpec, ...] = ()
     # [[invariants]]: properties checked at every tick of the flight (docs/invariants.md)
     invariants: tuple[Invariant, ...] = ()
+    # [[faults]]: faults injected at a mission time (``after_s``: seconds from mission time zero), whatever step flies
+    faults: tuple[FaultStep, ...] = ()
 
 
 # Per shape: the spec class and its fields (name -> kind); angles are given in degrees in files.
@@ -644,8 +654,11 @@ def _plan(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int | 
     return PlanStep(file=path, plan=plan, drones=chosen, offsets=offsets, start=start, timeout_s=timeout)
 
 
-def _fault(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int | None], drones: int) -> FaultStep:
-    reader.check_keys(step, {"action", "drone", "fault", "motor", "after_s", "for_s"}, where)
+def _fault(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int | None], drones: int, *,
+           time_key: str = "after_s") -> FaultStep:  # fmt: skip
+    """A fault step (or a [[faults]] table, whose time field is ``time_key``, read into the step's ``after_s``)."""
+    reader.check_keys({(time_key if k == "after_s" else k): v for k, v in step.items()},
+                      {"action", "drone", "fault", "motor", time_key, "for_s"}, where)  # fmt: skip
     for key in ("drone", "fault"):
         if key not in step:
             raise reader.fail(where, None, f"missing field '{key}' for a fault step")
@@ -660,7 +673,12 @@ def _fault(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int |
         fault = fault_request(step["fault"], step.get("motor"), step.get("for_s"))
     except FaultError as exc:
         raise reader.fail(where, "for_s" if "for_s" in step else "motor", str(exc)) from None
-    after = reader.number(step, "after_s", where, "nonneg") if "after_s" in step else 0.0
+    after = 0.0
+    if "after_s" in step:
+        problem = number_problem(step["after_s"], "nonneg")
+        if problem is not None:
+            raise reader.fail(where, time_key, problem)
+        after = float(step["after_s"])
     return FaultStep(drone=drone, fault=fault, after_s=after)
 
 
@@ -812,6 +830,65 @@ def _obstacles(reader: _Reader, data: Any, max_obstacles: int | None) -> tuple[O
     return tuple(out)
 
 
+def _conditions(reader: _Reader, swarm: dict[str, Any], where: tuple[str | None, int | None],
+                drones: int) -> dict[str, Any]:  # fmt: skip
+    """``[swarm]``'s seed, weather, spawn jitter, lockstep quantum and ``[swarm.drone.N]`` parameters."""
+    out: dict[str, Any] = {}
+    if "seed" in swarm:
+        seed = swarm["seed"]
+        if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**31:
+            raise reader.fail(where, "seed", f"must be a whole number in 0..2^31-1, got {seed!r}")
+        out["seed"] = seed
+    if "wind_ned_mps" in swarm:
+        wind = swarm["wind_ned_mps"]
+        if not isinstance(wind, list) or len(wind) != 3 or any(number_problem(v, "num") for v in wind):
+            raise reader.fail(where, "wind_ned_mps", f"must be [north, east, down] in m/s, got {wind!r}")
+        if math.hypot(*wind) > MAX_WIND_MPS:
+            raise reader.fail(where, "wind_ned_mps", f"at most {MAX_WIND_MPS:g} m/s, got {math.hypot(*wind):.1f}")
+        out["wind_ned_mps"] = tuple(float(v) for v in wind)
+    for key, largest in (("gust_mps", MAX_WIND_MPS), ("spawn_jitter_m", MAX_SPAWN_JITTER_M)):
+        if key in swarm:
+            value = reader.number(swarm, key, where, "nonneg")
+            if value > largest:
+                raise reader.fail(where, key, f"at most {largest:g}, got {value:g}")
+            out[key] = value
+    if "quantum" in swarm:
+        quantum = int(reader.number(swarm, "quantum", where, "count"))
+        if quantum > MAX_QUANTUM:
+            raise reader.fail(where, "quantum", f"must be in 1..{MAX_QUANTUM} physics steps, got {quantum}")
+        out["quantum"] = quantum
+    table = swarm.get("drone", {})
+    if not isinstance(table, dict):
+        raise reader.fail(where, "drone", "must be [swarm.drone.N] tables with params, e.g. [swarm.drone.2]")
+    per_drone = []
+    for key, settings in sorted(table.items(), key=lambda kv: str(kv[0])):
+        where_drone: tuple[str | None, int | None] = (f"swarm.drone.{key}", None)
+        if not str(key).isdigit() or not 1 <= int(key) <= drones:
+            raise reader.fail(where, "drone", f"[swarm.drone.{key}]: must name a drone 1..{drones}")
+        if not isinstance(settings, dict):
+            raise reader.fail(where_drone, None, "must be a table with params")
+        reader.check_keys(settings, {"params"}, where_drone)
+        per_drone.append((int(key), _params(reader, settings.get("params", {}), where_drone)))
+    out["drone_params"] = tuple(sorted(per_drone))
+    return out
+
+
+def _timed_faults(reader: _Reader, tables: Any, drones: int) -> tuple[FaultStep, ...]:
+    """``[[faults]]``: a fault step's fields, ``at_s`` (mission time) for its ``after_s``."""
+    if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
+        raise reader.fail((None, None), "faults", "must be [[faults]] tables with drone, fault and at_s")
+    out = []
+    for k, table in enumerate(tables):
+        where: tuple[str | None, int | None] = ("faults", k)
+        if "at_s" not in table:
+            raise reader.fail(where, None, "missing field 'at_s' (the mission time it happens at)")
+        fields = {("after_s" if key == "at_s" else key): value for key, value in table.items()}
+        if "after_s" in table:
+            raise reader.fail(where, "after_s", "a [[faults]] table takes at_s (mission time), not after_s")
+        out.append(_fault(reader, fields, where, drones, time_key="at_s"))
+    return tuple(sorted(out, key=lambda f: f.after_s))
+
+
 def _invariants(reader: _Reader, tables: Any, drones: int) -> tuple[Invariant, ...]:
     """``[[invariants]]``: each table one invariant (gcs/invariants/spec.py), named by its line when it is wrong."""
     if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
@@ -838,13 +915,15 @@ def parse_mission(text: str, path: Path, *, max_obstacles: int | None = None) ->
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise MissionFileError(f"{path}: not valid TOML: {exc}") from None
-    reader.check_keys(data, {"name", "description", "swarm", "steps", "obstacles", "invariants"}, (None, None))
+    reader.check_keys(data, {"name", "description", "swarm", "steps", "obstacles", "invariants", "faults"},
+                      (None, None))  # fmt: skip
     swarm = data.get("swarm")
     if not isinstance(swarm, dict):
         raise reader.fail((None, None), None, "missing [swarm] table with 'drones'")
     where_swarm: tuple[str | None, int | None] = ("swarm", None)
     reader.check_keys(swarm, {"drones", "layout", "spacing_m", "params", "relay", "loss_policy", "links",
-                              "neighbours", "mesh", "behaviour", "attach"}, where_swarm)  # fmt: skip
+                              "neighbours", "mesh", "behaviour", "attach", "seed", "wind_ned_mps", "gust_mps",
+                              "spawn_jitter_m", "quantum", "drone"}, where_swarm)  # fmt: skip
     if "drones" not in swarm:
         raise reader.fail(where_swarm, None, "missing field 'drones'")
     drones = int(reader.number(swarm, "drones", where_swarm, "count"))
@@ -891,12 +970,14 @@ def parse_mission(text: str, path: Path, *, max_obstacles: int | None = None) ->
             links=_links(reader, swarm.get("links", {})),
             behaviour=behaviour,
             attach=_attach(reader, swarm.get("attach", [])),
+            **_conditions(reader, swarm, where_swarm, drones),
         ),
         steps=steps,
         loss_policy=LossPolicy(policy),
         path=path,
         obstacles=_obstacles(reader, data.get("obstacles", []), max_obstacles),
         invariants=_invariants(reader, data.get("invariants", []), drones),
+        faults=_timed_faults(reader, data.get("faults", []), drones),
     )
 
 

@@ -93,6 +93,9 @@ class MissionRunner:
             mesh=mission.swarm.mesh,
             behaviour=mission.swarm.behaviour,
             gcs_sysid=gcs_sysid,
+            wind_ned_mps=mission.swarm.wind_ned_mps,
+            gust_mps=mission.swarm.gust_mps,
+            spawn_jitter_m=mission.swarm.spawn_jitter_m,
         )
         self.swarm = Swarm(plan, simulation.harness(plan), forward=forward, relay=mission.swarm.relay)
         # Two bodies touch when their centres are closer than the sum of both collision radii.
@@ -166,6 +169,12 @@ class MissionRunner:
         if self.mission.swarm.params:
             listed = ", ".join(f"{n} = {v:g}" for n, v in self.mission.swarm.params)
             self.say(f"parameters set on every drone: {listed}")
+        for drone, params in self.mission.swarm.drone_params:  # [swarm.drone.N]: over the swarm's own
+            sysid = self.swarm.sysids[drone - 1]
+            for name, value in params:
+                VERBS["param"](self.session, name, value, [sysid])
+            self.say(f"parameters set on drone {drone} (sysid {sysid}): "
+                     + ", ".join(f"{n} = {v:g}" for n, v in params))  # fmt: skip
 
     # ---- steps -----------------------------------------------------------------------------------------------------
     def _flock(self, step: FlockStep) -> None:
@@ -298,6 +307,7 @@ class MissionRunner:
             self._place_obstacles()
             self._set_params()
             self.session.restart_clock()
+            self._pending_faults += [(f.after_s, f) for f in self.mission.faults]  # [[faults]]: at mission times
             self.swarm.arm_all(tick=self._tick)  # before the takeoff step's clock starts
             for index, step in enumerate(self.mission.steps):
                 if self.session.policy_taken:

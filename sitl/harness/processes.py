@@ -71,6 +71,8 @@ class LaunchPlan:
     links: LinkProfile = field(default_factory=LinkProfile)  # every drone's link model settings (--link)
     mesh: MeshSettings | None = None  # the drone-to-drone mesh radio of every drone (--mesh-range-m); None: off
     behaviour: str | None = None  # the onboard behaviour every drone runs (path/file.py:Class, absolute); None: none
+    wind_ned_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)  # steady wind every drone flies in (--wind)
+    gust_mps: float = 0.0  # gust RMS intensity (--gust), each drone's own seeded draw
 
     @property
     def n_drones(self) -> int:
@@ -182,6 +184,8 @@ def _common_args(plan: LaunchPlan, gcs_port: int, world: str | None) -> list[str
         cmd += ["--signing-key", str(plan.signing_key_file), "--signing-required"]
     if plan.behaviour is not None:
         cmd += ["--behaviour", plan.behaviour]
+    if any(plan.wind_ned_mps) or plan.gust_mps > 0.0:
+        cmd += ["--wind", ",".join(repr(float(v)) for v in plan.wind_ned_mps), "--gust", repr(float(plan.gust_mps))]
     return cmd
 
 

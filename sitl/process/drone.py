@@ -121,6 +121,10 @@ def build_drone(spec: DroneSpec, common: ProcessSpec, *, clock_ns: Callable[[], 
         f"{airframe.hover_thrust_fraction:.0%} of max thrust), seed {spec.seed}, {speed}, "
         f"physics {1 / sim.dt_s:.0f} Hz, home {home.lat_deg:.6f}, {home.lon_deg:.6f}, {home.alt_amsl_m:.1f} m"
     )
+    wind = common.wind
+    if any(wind.steady_ned_mps) or wind.gust_rms_mps > 0.0:
+        north, east, down = wind.steady_ned_mps
+        say(f"wind {north:g}, {east:g}, {down:g} m/s NED, gusts {wind.gust_rms_mps:g} m/s RMS")
     flight = DemoFlight(sim, say) if common.demo else None
     # Each drone maps the world itself, so that ending one (which unmaps it) leaves the others' mappings alone.
     world = SharedWorld.attach(common.world_name) if common.world_name else None

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
+from gcs.fleet.harness import SpawnPlan
 from gcs.flight.formation import CircleSpec, GridSpec
 from gcs.mavlink.params import param_set_message, param_value
 from gcs.missions.mission_file import (
@@ -298,3 +299,80 @@ def test_a_mission_names_its_onboard_behaviour_beside_it_and_runs_it_in_a_behavi
         parse_mission(text.replace(":Climb", ""), tmp_path / "m.toml")
     with pytest.raises(MissionFileError, match=r"steps\[1\].action: a behaviour step needs \[swarm\] behaviour"):
         parse_mission(text.replace('behaviour = "behaviours/climb.py:Climb"\n', ""), tmp_path / "m.toml")
+
+
+CONDITIONS = """
+[swarm]
+drones = 3
+seed = 41
+wind_ned_mps = [1.5, -0.5, 0.0]
+gust_mps = 0.8
+spawn_jitter_m = 0.6
+quantum = 4
+
+[swarm.drone.2]
+params = { AVOID_ENABLE = 0, MPC_XY_VEL_MAX = 3.0 }
+
+[[faults]]
+drone = 3
+fault = "link"
+at_s = 12.5
+for_s = 4.0
+
+[[faults]]
+drone = 1
+fault = "gps"
+at_s = 3.0
+
+[[steps]]
+action = "takeoff"
+alt_m = 3.0
+"""
+
+
+def test_a_mission_says_its_seed_weather_jitter_quantum_per_drone_parameters_and_timed_faults(tmp_path: Path) -> None:
+    """Everything a search varies is a key of the mission file, so a found failure replays from the file alone."""
+    path = tmp_path / "conditions.toml"
+    path.write_text(CONDITIONS)
+    mission = load_mission(path)
+    swarm = mission.swarm
+    assert (swarm.seed, swarm.wind_ned_mps, swarm.gust_mps, swarm.spawn_jitter_m, swarm.quantum) == (
+        41, (1.5, -0.5, 0.0), 0.8, 0.6, 4)  # fmt: skip
+    assert swarm.drone_params == ((2, (("AVOID_ENABLE", 0), ("MPC_XY_VEL_MAX", 3.0))),)
+    # the faults in time order, at mission times
+    assert [(f.drone, f.fault.kind, f.after_s, f.fault.for_s) for f in mission.faults] == [
+        (1, "gps", 3.0, None), (3, "link", 12.5, 4.0)]  # fmt: skip
+    # a spawn plan's jitter is the seed's: the same seed the same spawn, another seed another, never over the bound
+    plan = SpawnPlan(n_drones=3, spacing_m=2.0, seed=41, spawn_jitter_m=0.6)
+    assert plan.offsets_ne_m() == SpawnPlan(n_drones=3, spacing_m=2.0, seed=41, spawn_jitter_m=0.6).offsets_ne_m()
+    assert plan.offsets_ne_m() != SpawnPlan(n_drones=3, spacing_m=2.0, seed=42, spawn_jitter_m=0.6).offsets_ne_m()
+    still = SpawnPlan(n_drones=3, spacing_m=2.0).offsets_ne_m()
+    moved = [max(abs(a - b) for a, b in zip(p, q, strict=True)) for p, q in zip(plan.offsets_ne_m(), still,
+                                                                                strict=True)]  # fmt: skip
+    assert 0.0 < max(moved) <= 0.6
+
+
+@pytest.mark.parametrize(
+    ("change", "said"),
+    [
+        (("seed = 41", "seed = -1"), r"conditions.toml:4: swarm.seed: must be a whole number"),
+        (("wind_ned_mps = [1.5, -0.5, 0.0]", "wind_ned_mps = [1.5, 0.0]"), "swarm.wind_ned_mps: must be"),
+        (("wind_ned_mps = [1.5, -0.5, 0.0]", "wind_ned_mps = [30, 0, 0]"), "swarm.wind_ned_mps: at most 20"),
+        (("gust_mps = 0.8", "gust_mps = -1"), "swarm.gust_mps"),
+        (("spawn_jitter_m = 0.6", "spawn_jitter_m = 50"), "swarm.spawn_jitter_m: at most 10"),
+        (("quantum = 4", "quantum = 0"), "swarm.quantum"),
+        (("[swarm.drone.2]", "[swarm.drone.7]"), r"swarm.drone: \[swarm.drone.7\]: must name a drone 1..3"),
+        (("params = { AVOID_ENABLE = 0, MPC_XY_VEL_MAX = 3.0 }", "speed = 2"), "unknown field"),
+        (("at_s = 12.5", "at_s = -2"), r"faults\[0\].at_s"),
+        (("at_s = 12.5", "after_s = 12.5"), r"faults\[0\]: missing field 'at_s'"),
+        (("drone = 3", "drone = 9"), r"faults\[0\].drone: must be one of the swarm's drones 1..3"),
+    ],
+)
+def test_a_bad_condition_is_one_line_naming_its_field(tmp_path: Path, change: tuple[str, str], said: str) -> None:
+    path = tmp_path / "conditions.toml"
+    old, new = change
+    assert old in CONDITIONS
+    path.write_text(CONDITIONS.replace(old, new, 1))
+    with pytest.raises(MissionFileError, match=said) as caught:
+        load_mission(path)
+    assert "\n" not in str(caught.value)
