@@ -47,6 +47,7 @@ from gcs.fleet.losses import LOSS_POLICIES, LossPolicy
 from gcs.fleet.swarm import Swarm, SwarmError
 from gcs.flight.geodesy import DEFAULT_ORIGIN, GeoPoint
 from gcs.flight.onboard import absolute_spec
+from gcs.invariants.monitor import EXIT_VIOLATED
 from gcs.mavlink.signing import SigningKeyError, load_key
 from gcs.mavlink.transport import GCS_SYSID
 from gcs.missions.mission_file import (
@@ -61,6 +62,7 @@ from gcs.missions.mission_file import (
 from gcs.supervisor.control import ControlClient, ControlError, ControlServer
 from gcs.supervisor.mission_runner import MissionRunner
 from gcs.supervisor.plan_cli import add_plan_parser, run_plan
+from gcs.supervisor.session import InvariantViolated
 from gcs.supervisor.station import Station, format_status
 from gcs.supervisor.verbs import attach_all
 from gcs.sweep.cli import add_sweep_parser, run_sweep_command
@@ -463,7 +465,7 @@ def build_parser() -> argparse.ArgumentParser:
     fly.add_argument("--report", type=Path, default=None, help="report directory (default reports/<mission>-<time>)")
     fly.add_argument("--stop-on-violation", action="store_true",
                      help="end the flight at the first violation of one of the mission's invariants "
-                     "(docs/invariants.md; the drones land, the report is written, exit code 1)")  # fmt: skip
+                     "(docs/invariants.md; the drones land, the report is written, exit code 3)")  # fmt: skip
     _add_timing_options(fly)
     _add_link_options(fly)
     _add_neighbour_options(fly)
@@ -792,7 +794,7 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
     except (SwarmError, SpawnError) as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
         print(f"swarm: report (partial) in {report}", file=sys.stderr)
-        return EXIT_FAILED
+        return EXIT_VIOLATED if isinstance(exc, InvariantViolated) else EXIT_FAILED
     except KeyboardInterrupt:
         print(f"swarm: interrupted; drones landed and stopped; partial report in {report}", file=sys.stderr)
         return 130
@@ -801,9 +803,9 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
             view.stop()
     _say(f"swarm: report in {out}")
     violated = runner.session.recording.violations
-    if violated:  # the flight flew, and broke what it was to hold: a failed run (summary.txt names each)
+    if violated:  # the flight flew, and broke what it was to hold (summary.txt names each)
         print(f"swarm: error: {len(violated)} invariant(s) violated, first {violated[0].line()}", file=sys.stderr)
-        return EXIT_FAILED
+        return EXIT_VIOLATED
     return 0
 
 

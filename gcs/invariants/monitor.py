@@ -15,6 +15,10 @@ from dataclasses import dataclass
 from gcs.invariants.spec import Invariant
 from gcs.invariants.state import TickState
 
+# ``swarm fly``'s exit code for a flight that flew (its report written) and broke one of its invariants: apart from a
+# failure (1), so that a sweep counts the run as flown and its violations as an outcome
+EXIT_VIOLATED = 3
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Violation:

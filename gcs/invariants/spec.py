@@ -61,6 +61,15 @@ def _chosen(ids: Iterable[int], drones: frozenset[int] | None) -> list[int]:
     return sorted(s for s in ids if drones is None or s in drones)
 
 
+def _out_of_bounds(values: Iterable[tuple[int, float]], bad: Callable[[float], bool], each: str,
+                   bound: str) -> Breach | None:  # fmt: skip
+    """The drones whose value is ``bad``, each said as ``each`` (a format of ``s`` and ``v``), then the ``bound``."""
+    out = [(s, v) for s, v in values if bad(v)]
+    if not out:
+        return None
+    return Breach(tuple(s for s, _ in out), ", ".join(each.format(s=s, v=v) for s, v in out) + f" {bound}")
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Separation:
     min_m: float
@@ -99,12 +108,10 @@ class Altitude:
     max_m: float
 
     def breach(self, state: TickState, drones: frozenset[int] | None) -> Breach | None:
-        out = [(s, -state.positions_ned_m[s][2]) for s in _chosen(state.airborne & set(state.positions_ned_m), drones)]
-        out = [(s, h) for s, h in out if not self.min_m <= h <= self.max_m]
-        if not out:
-            return None
-        return Breach(tuple(s for s, _ in out), ", ".join(f"{s} at {h:.2f} m" for s, h in out)
-                      + f" (band {self.min_m:g}..{self.max_m:g} m above the origin)")  # fmt: skip
+        flying = _chosen(state.airborne & set(state.positions_ned_m), drones)
+        return _out_of_bounds(((s, -state.positions_ned_m[s][2]) for s in flying),
+                              lambda h: not self.min_m <= h <= self.max_m, "{s} at {v:.2f} m",
+                              f"(band {self.min_m:g}..{self.max_m:g} m above the origin)")  # fmt: skip
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -112,12 +119,9 @@ class Fence:
     radius_m: float
 
     def breach(self, state: TickState, drones: frozenset[int] | None) -> Breach | None:
-        out = [(s, math.hypot(*state.positions_ned_m[s][:2])) for s in _chosen(state.positions_ned_m, drones)]
-        out = [(s, r) for s, r in out if r > self.radius_m]
-        if not out:
-            return None
-        return Breach(tuple(s for s, _ in out), ", ".join(f"{s} {r:.2f} m" for s, r in out)
-                      + f" from the origin (at most {self.radius_m:g} m)")  # fmt: skip
+        ranges = ((s, math.hypot(*state.positions_ned_m[s][:2])) for s in _chosen(state.positions_ned_m, drones))
+        return _out_of_bounds(ranges, lambda r: r > self.radius_m, "{s} {v:.2f} m",
+                              f"from the origin (at most {self.radius_m:g} m)")  # fmt: skip
 
 
 def components(points: Mapping[int, Vec3], range_m: float) -> list[list[int]]:
@@ -158,13 +162,10 @@ class FormationError:
     max_m: float
 
     def breach(self, state: TickState, drones: frozenset[int] | None) -> Breach | None:
-        errors = [(s, math.dist(state.positions_ned_m[s], state.slots_ned_m[s]))
-                  for s in _chosen(set(state.slots_ned_m) & set(state.positions_ned_m), drones)]  # fmt: skip
-        out = [(s, e) for s, e in errors if e > self.max_m]
-        if not out:
-            return None
-        return Breach(tuple(s for s, _ in out), ", ".join(f"{s} {e:.2f} m" for s, e in out)
-                      + f" from its slot (at most {self.max_m:g} m)")  # fmt: skip
+        errors = ((s, math.dist(state.positions_ned_m[s], state.slots_ned_m[s]))
+                  for s in _chosen(set(state.slots_ned_m) & set(state.positions_ned_m), drones))  # fmt: skip
+        return _out_of_bounds(errors, lambda e: e > self.max_m, "{s} {v:.2f} m",
+                              f"from its slot (at most {self.max_m:g} m)")  # fmt: skip
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -172,12 +173,9 @@ class Answered:
     within_s: float
 
     def breach(self, state: TickState, drones: frozenset[int] | None) -> Breach | None:
-        ages = sorted(state.unanswered_s.items())
-        late = [(s, a) for s, a in ages if a > self.within_s and (drones is None or s in drones)]
-        if not late:
-            return None
-        return Breach(tuple(s for s, _ in late), ", ".join(f"{s} unanswered for {a:.1f} s" for s, a in late)
-                      + f" (at most {self.within_s:g} s)")  # fmt: skip
+        ages = ((s, state.unanswered_s[s]) for s in _chosen(state.unanswered_s, drones))
+        return _out_of_bounds(ages, lambda a: a > self.within_s, "{s} unanswered for {v:.1f} s",
+                              f"(at most {self.within_s:g} s)")  # fmt: skip
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import IO, Any, Final
 
 from gcs.fleet.harness import LAST_INSTANCE
+from gcs.invariants.monitor import EXIT_VIOLATED
 from gcs.sweep.plan import Run, SweepPlan, fly_command
 from gcs.sweep.stats import run_metrics
 
@@ -188,7 +189,7 @@ def fly(
                     proc.wait()
     wall = time.monotonic() - started
     metrics_file = run_dir / "report" / "metrics.json"
-    ok = code == 0 and metrics_file.exists()
+    ok = code in (0, EXIT_VIOLATED) and metrics_file.exists()  # a broken invariant is an outcome, counted
     result = RunResult(
         index=run.index, name=run.name, setting=run.setting, seed=run.seed, ok=ok, wall_s=wall,
         metrics=run_metrics(json.loads(metrics_file.read_text())) if ok else {},

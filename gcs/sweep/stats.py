@@ -26,8 +26,9 @@ import numpy as np
 BOOTSTRAP_RESAMPLES: Final = 2000
 BOOTSTRAP_SEED: Final = 20_261_125
 Z95: Final = 1.959963984540054  # the standard normal's 97.5 % quantile
-EVENT_METRICS: Final = ("collisions", "failsafes", "losses")
-FLIGHT_METRICS: Final = ("collisions", "min_separation_m", "failsafes", "losses", "avoidance_events", "duration_s")
+EVENT_METRICS: Final = ("collisions", "failsafes", "losses", "violations")
+FLIGHT_METRICS: Final = ("collisions", "min_separation_m", "failsafes", "losses", "violations", "avoidance_events",
+                         "duration_s")  # fmt: skip
 # Per formation step: the step's name, then one of these (``circle:time_to_formation_s``)
 STEP_METRICS: Final = ("time_to_formation_s", "formation_rms_m")
 STEP_KINDS: Final = ("formation", "swap", "flock", "follow")
@@ -40,6 +41,7 @@ def run_metrics(metrics: Mapping[str, Any]) -> dict[str, float | None]:
         "min_separation_m": metrics.get("min_separation_m"),
         "failsafes": float(len(metrics.get("failsafes", []))),
         "losses": float(len(metrics.get("losses", []))),
+        "violations": float(len(metrics.get("violations", []))),  # invariants broken (docs/invariants.md)
         "avoidance_events": float(metrics.get("avoidance_events", 0)),
         "duration_s": metrics.get("duration_s"),
     }

@@ -19,6 +19,7 @@ import time
 import tty
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Self
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -128,8 +129,36 @@ class PtyLink:
 Link = UdpLink | TcpServerLink | PtyLink
 
 
+class _Script:
+    """What both scripts share: a thread that runs ``_run`` from ``start`` until ``stop``, and their MAVLink out."""
+
+    link: Link
+    _mav: mavlink.MAVLink
+
+    def _begin(self, name: str) -> None:
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self.t0 = time.monotonic()
+
+    def _run(self) -> None:
+        raise NotImplementedError
+
+    def start(self) -> Self:
+        self.t0 = time.monotonic()
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+        self.link.close()
+
+    def _send(self, msg: mavlink.MAVLink_message) -> None:
+        self.link.write(msg.pack(self._mav))
+
+
 @dataclass
-class ScriptedVehicle:
+class ScriptedVehicle(_Script):
     """Sends as sysid ``sysid`` over ``link``."""
 
     sysid: int
@@ -149,23 +178,8 @@ class ScriptedVehicle:
             self._mav.signing.timestamp = int((time.time() - 1420070400) * 1e5)  # 10 us since 2015-01-01
             self._mav.signing.sign_outgoing = True
         self._frame = NedFrame(self.origin)
-        self._stop = threading.Event()
         self.silent = threading.Event()
-        self._thread = threading.Thread(target=self._run, name=f"scripted-{self.sysid}", daemon=True)
-        self.t0 = time.monotonic()
-
-    def start(self) -> ScriptedVehicle:
-        self.t0 = time.monotonic()
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5)
-        self.link.close()
-
-    def _send(self, msg: mavlink.MAVLink_message) -> None:
-        self.link.write(msg.pack(self._mav))
+        self._begin(f"scripted-{self.sysid}")
 
     def _run(self) -> None:
         period = 1.0 / self.rate_hz
@@ -224,7 +238,7 @@ class Received:
     msg: mavlink.MAVLink_message
 
 
-class ScriptedCopter:
+class ScriptedCopter(_Script):
     """An ArduPilot Copter as a ground station knows one, played by a script over UDP: HEARTBEAT with ArduCopter's
     custom modes, SYS_STATUS (pre-arm checks passed), EXTENDED_SYS_STATE, GLOBAL_POSITION_INT; it answers DO_SET_MODE
     (GUIDED, LOITER), arming, NAV_TAKEOFF (in GUIDED, altitude above home) and a request for its HOME_POSITION with
@@ -233,6 +247,8 @@ class ScriptedCopter:
     its pilot switches it to LOITER once it has flown that many setpoints, and climbs it to TAKEOVER_ALT_M where it
     is. Everything it is sent is kept (``received``), so a test can check what the ground station asked of it. It
     stands on the ground at ``start_ne_m`` until told otherwise."""
+
+    link: UdpLink  # it reads what the ground station sends back
 
     def __init__(self, sysid: int, link: UdpLink, origin: GeoPoint, start_ne_m: tuple[float, float],
                  rate_hz: float = 20.0, takeover_after_setpoints: int | None = None) -> None:  # fmt: skip
@@ -254,19 +270,7 @@ class ScriptedCopter:
         self._takeover_after = takeover_after_setpoints
         self.taken_over_s: float | None = None
         self._mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=1)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name=f"copter-{sysid}", daemon=True)
-        self.t0 = time.monotonic()
-
-    def start(self) -> ScriptedCopter:
-        self.t0 = time.monotonic()
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5)
-        self.link.close()
+        self._begin(f"copter-{sysid}")
 
     def commands(self, command: int | None = None) -> list[Received]:
         """The COMMAND_LONGs (or COMMAND_INTs) it was sent, of one command or all."""
@@ -275,9 +279,6 @@ class ScriptedCopter:
 
     def setpoints(self) -> list[Received]:
         return [r for r in self.received if r.msg.get_type() == "SET_POSITION_TARGET_GLOBAL_INT"]
-
-    def _send(self, msg: mavlink.MAVLink_message) -> None:
-        self.link.write(msg.pack(self._mav))
 
     def _ack(self, command: int, ok: bool) -> None:
         result = mavlink.MAV_RESULT_ACCEPTED if ok else mavlink.MAV_RESULT_FAILED

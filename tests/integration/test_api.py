@@ -68,6 +68,10 @@ def test_an_async_session_flies_a_formation_and_a_users_controller_then_lands_an
             # GIVEN three drones up, WHEN they take off THEN the call returns with every drone at the altitude
             await swarm.takeoff(ALT_M)
             assert all(abs(d.alt_m - ALT_M) < 0.25 and d.armed and d.in_air for d in swarm.drones().values())
+            # AND an invariant required from here on (docs/invariants.md) holds through the rest of the flight
+            await swarm.require(kind="separation", min_m=1.0, name="apart")
+            with pytest.raises(ValueError, match="'apart' is checked already"):
+                await swarm.require(kind="contact", name="apart")
             # WHEN they fly a rotating circle THEN they are on it by the time the call said
             arrival_s = await swarm.formation(CircleSpec(radius_m=3.0, alt_m=ALT_M, angular_rate_radps=0.3))
             await swarm.sleep(arrival_s + 2.0)
@@ -115,6 +119,7 @@ def test_an_async_session_flies_a_formation_and_a_users_controller_then_lands_an
     # AND the report has every step, no collision, and the session's processes are all gone
     assert [s["name"] for s in metrics["steps"]] == ["takeoff", "circle", "control", "land"], metrics["steps"]  # type: ignore[index]
     assert metrics["collisions"] == 0
+    assert (metrics["invariants"], metrics["violations"]) == (["apart always"], [])
     assert (tmp_path / "report" / "flight.tlog").stat().st_size > 100_000
     assert any(e.kind == "statustext" and e.sysid in sysids for e in events), events[:5]
     assert wait_dead(sorted(child_pids()), 10) == []
@@ -178,7 +183,9 @@ def test_bad_launch_options_are_one_line_before_anything_starts() -> None:
                           ({"drones": 255}, "drones must be in 1..254, got 255"),
                           ({"drones": 3, "first_instance": 253}, "first_instance must leave room"),
                           ({"drones": 3, "speed": -1.0}, "speed must be a positive number"),
-                          ({"drones": 3, "view_port": 8765}, "view_port needs view=True")):  # fmt: skip
+                          ({"drones": 3, "view_port": 8765}, "view_port needs view=True"),
+                          ({"drones": 3, "invariants": [{"kind": "fence"}]}, "missing field 'radius_m'"),
+                          ({"drones": 3, "invariants": {"kind": "contact"}}, "invariants takes a list")):  # fmt: skip
         with pytest.raises(ValueError, match=fragment):
             LaunchOptions(**bad)  # type: ignore[arg-type]
     assert child_pids() == set()

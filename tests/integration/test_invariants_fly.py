@@ -1,7 +1,7 @@
 """Invariants checked at every tick of a real flight (docs/invariants.md): three drones in lockstep take off to 3 m
 and fly a circle of radius 3 m, under invariants that hold and two that do not (an altitude band capped at 2.5 m,
 a fence of 2 m). Flown to its end, each violation is said once, with its time and drones, and lands in
-summary.txt, metrics.json and the report's timeline; the command exits 1. With --stop-on-violation the flight ends
+summary.txt, metrics.json and the report's timeline; the command exits 3. With --stop-on-violation the flight ends
 at the first one, the drones brought down and the report written.
 
 Policy: loopback only (--no-forward); leased instances; lockstep, so what is checked does not depend on the load."""
@@ -88,8 +88,9 @@ def test_violations_are_said_reported_and_fail_the_run_and_can_stop_the_flight(
     first = instances(3)
     # GIVEN a flight flown to its end
     metrics, run = fly_mission(mission, ["--lockstep", "--no-view"], tmp_path / "whole", 150, first, expect_ok=False)
-    # THEN it fails (exit 1) naming the first violation, and each violated invariant is said once, when it broke
-    assert run.returncode == 1, run.stdout[-3000:] + run.stderr[-2000:]
+    # THEN it fails (exit 3: flown, an invariant broken) naming the first violation, and each violated invariant is
+    # said once, when it broke
+    assert run.returncode == 3, run.stdout[-3000:] + run.stderr[-2000:]
     assert "invariant(s) violated, first invariant" in run.stderr
     said = [line for line in run.stdout.splitlines() if re.search(r"swarm: invariant \w+ violated", line)]
     assert sorted(line.split()[2] for line in said) == ["low", "small_fence"], said
@@ -110,8 +111,8 @@ def test_violations_are_said_reported_and_fail_the_run_and_can_stop_the_flight(
     stopped, run = fly_mission(mission, ["--lockstep", "--no-view", "--stop-on-violation"], tmp_path / "stop", 150,
                                first, expect_ok=False)  # fmt: skip
     # THEN it ends at the first one (drones 1 and 2 stand 2.1 m from the origin: outside the fence before they even
-    # take off), exit 1, the report written
-    assert run.returncode == 1 and "stopped on a violation: invariant" in run.stderr, run.stderr[-2000:]
+    # take off), exit 3, the report written
+    assert run.returncode == 3 and "stopped on a violation: invariant" in run.stderr, run.stderr[-2000:]
     assert [v["name"] for v in stopped["violations"]][:1] == [metrics["violations"][0]["name"]]
     assert stopped["violations"][0]["time_s"] == pytest.approx(metrics["violations"][0]["time_s"], abs=0.2)
     assert stopped["duration_s"] < metrics["duration_s"] - 5.0

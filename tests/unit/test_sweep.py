@@ -114,6 +114,11 @@ def test_a_runs_figures_come_from_its_metrics_json(tmp_path: Path) -> None:
     assert "takeoff:formation_rms_m" not in row  # a takeoff is no formation
     figures = summarise([row, row])
     assert figures["runs"] == 2 and figures["events"]["collisions"]["runs_with"] == 2
+    # a run that broke an invariant counts it: the share of runs with a violation is a figure of its own
+    assert row["violations"] == 0.0
+    broken = run_metrics({**metrics, "violations": [{"name": "apart", "kind": "separation", "time_s": 3.0,
+                                                     "sysids": [1, 2], "detail": "1 and 2 0.80 m apart"}]})  # fmt: skip
+    assert summarise([row, broken])["events"]["violations"]["runs_with"] == 1
 
 
 # ---- instances ---------------------------------------------------------------------------------------------------
