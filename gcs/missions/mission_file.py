@@ -915,7 +915,8 @@ def parse_mission(text: str, path: Path, *, max_obstacles: int | None = None) ->
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise MissionFileError(f"{path}: not valid TOML: {exc}") from None
-    reader.check_keys(data, {"name", "description", "swarm", "steps", "obstacles", "invariants", "faults"},
+    # ([falsify] is swarm falsify's: the space it searches, docs/falsify.md; a flight leaves it alone)
+    reader.check_keys(data, {"name", "description", "swarm", "steps", "obstacles", "invariants", "faults", "falsify"},
                       (None, None))  # fmt: skip
     swarm = data.get("swarm")
     if not isinstance(swarm, dict):
