@@ -23,6 +23,7 @@ from typing import Any, Literal, NoReturn
 
 from gcs.bench.scaling import add_bench_parser, run_bench
 from gcs.composition import SITL
+from gcs.falsify.cli import add_falsify_parser, run_falsify
 from gcs.fleet.attach import (
     DEFAULT_KEEP_IN_M,
     DEFAULT_MAX_DISTANCE_M,
@@ -490,6 +491,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_view_options(fly)
     add_bench_parser(sub)
     add_sweep_parser(sub)
+    add_falsify_parser(sub)
     sub.add_parser("status", help="table of every drone")
     takeoff = sub.add_parser("takeoff", help="arm and take off every drone")
     takeoff.add_argument("--alt", type=_positive, default=3.0, help="altitude above home in metres (default 3)")
@@ -963,6 +965,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return run_bench(args, SITL)
         if args.command == "plan":
             return run_plan(args)
+        if args.command == "falsify":
+            return run_falsify(args)
         if args.command == "sweep":
             return run_sweep_command(args, SITL, len(os.sched_getaffinity(0)))
         return run_client(args)

@@ -141,3 +141,27 @@ def test_a_bad_space_is_one_line_naming_its_field(change: tuple[str, str], said:
     assert "\n" not in str(caught.value)
     with pytest.raises(FalsifyError, match="nothing to vary"):
         parse_space({}, drones=4)
+
+
+def test_bad_falsify_commands_are_one_line_and_exit_2_before_anything_flies(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from gcs.cli import main
+
+    good = tmp_path / "swap.toml"
+    good.write_text(MISSION)
+    no_invariants = tmp_path / "plain.toml"
+    no_invariants.write_text(MISSION.replace('[[invariants]]\nkind = "contact"\n', ""))
+    no_space = tmp_path / "nospace.toml"
+    no_space.write_text(MISSION[: MISSION.index("[falsify]")])
+    for argv, said in (
+        (["falsify", str(good), "--budget", "0"], "--budget must be in 1..10000"),
+        (["falsify", str(good), "--time", "-1"], "--time must be a positive number"),
+        (["falsify", str(tmp_path / "none.toml")], "no such mission file"),
+        (["falsify", str(no_invariants)], "no [[invariants]]: nothing a flight could break"),
+        (["falsify", str(no_space)], "nothing to vary"),
+    ):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and said in err, (argv, err)
+    assert not (tmp_path / "falsify").exists()

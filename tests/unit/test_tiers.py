@@ -55,6 +55,7 @@ def test_every_test_has_one_tier_from_its_folder_and_heavy_is_where_it_is_meant(
     assert all(nodeid.startswith("tests/integration/") for nodeid in heavy)
     assert {nodeid.split("::")[0] for nodeid in heavy} == {
         "tests/integration/test_bench.py",
+        "tests/integration/test_falsify.py",
         "tests/integration/test_fuzz.py",
         "tests/integration/test_links_fly.py",
         "tests/integration/test_many_drones_ports.py",
