@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import importlib.util
 import math
+import re
 import sys
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -93,13 +94,17 @@ class Separation:
         return Breach((a, b), f"{a} and {b} {d:.2f} m apart (at least {self.min_m:g} m)")
 
 
+_CONTACT_WITH = re.compile(r"with drone (\d+)")  # a simulated drone's STATUSTEXT names the other body it touched
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Contact:
     def breach(self, state: TickState, drones: frozenset[int] | None) -> Breach | None:
         hits = [(s, text) for s, text in state.contacts if drones is None or s in drones]
         if not hits:
             return None
-        return Breach(tuple(sorted({s for s, _ in hits})), "; ".join(f"{s}: {text}" for s, text in hits))
+        involved = {s for s, _ in hits} | {int(m) for _, text in hits for m in _CONTACT_WITH.findall(text)}
+        return Breach(tuple(sorted(involved)), "; ".join(f"{s}: {text}" for s, text in hits))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -49,7 +49,8 @@ def test_separation_between_airborne_drones_and_to_attached_vehicles() -> None:
 def test_contact_and_failsafe_come_from_what_the_drones_report() -> None:
     assert first({"kind": "contact"}, tick(0.0)) is None
     violation = first({"kind": "contact"}, tick(0.0), tick(4.2, contacts=((22, "Collision with drone 23"),)))
-    assert (violation.time_s, violation.sysids) == (4.2, (22,)) and "Collision with drone 23" in violation.detail
+    # both bodies are involved: the drone that reported it and the one its report names
+    assert (violation.time_s, violation.sysids) == (4.2, (22, 23)) and "Collision with drone 23" in violation.detail
     failsafe = ((23, "Failsafe: battery critical"),)
     assert first({"kind": "no_failsafe"}, tick(3.0, failsafes=failsafe)).sysids == (23,)
     # unless a fault was injected into that drone
