@@ -24,6 +24,7 @@ from typing import Any, Literal, NoReturn
 from gcs.bench.scaling import add_bench_parser, run_bench
 from gcs.composition import SITL
 from gcs.falsify.cli import add_falsify_parser, run_falsify
+from gcs.falsify.space import FalsifyError
 from gcs.fleet.attach import (
     DEFAULT_KEEP_IN_M,
     DEFAULT_MAX_DISTANCE_M,
@@ -970,7 +971,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == "sweep":
             return run_sweep_command(args, SITL, len(os.sched_getaffinity(0)))
         return run_client(args)
-    except (UsageError, MissionFileError, SweepError) as exc:
+    except (UsageError, MissionFileError, SweepError, FalsifyError) as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except ControlError as exc:

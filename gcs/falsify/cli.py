@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 from typing import Any, Final
@@ -11,7 +10,6 @@ from typing import Any, Final
 from gcs.falsify.space import FalsifyError
 from gcs.invariants.monitor import EXIT_VIOLATED
 
-EXIT_USAGE: Final = 2
 MAX_BUDGET: Final = 10_000
 
 
@@ -36,31 +34,25 @@ def add_falsify_parser(sub: Any) -> None:
 
 
 def run_falsify(args: argparse.Namespace) -> int:
-    """``swarm falsify``; 0 when nothing broke, EXIT_VIOLATED (3) when a failure was found, 2 for bad input."""
+    """``swarm falsify``; 0 when nothing broke, EXIT_VIOLATED (3) when a failure was found. Bad input raises
+    FalsifyError or MissionFileError (one line: the swarm command's exit code 2) before anything flies."""
     problem = _problem(args)
     if problem is not None:
-        print(f"swarm: error: {problem}", file=sys.stderr)
-        return EXIT_USAGE
+        raise FalsifyError(problem)
     try:
         import hypothesis  # noqa: F401
         import tomli_w  # noqa: F401
     except ImportError:
-        print("swarm: error: swarm falsify needs hypothesis and tomli-w: pip install 'swarmsitl[falsify]'",
-              file=sys.stderr)  # fmt: skip
-        return EXIT_USAGE
+        raise FalsifyError("swarm falsify needs hypothesis and tomli-w: pip install 'swarmsitl[falsify]'") from None
     from gcs.falsify.campaign import Campaign
-    from gcs.missions.mission_file import MissionFileError, load_mission
+    from gcs.missions.mission_file import load_mission
 
-    try:
-        mission = load_mission(args.mission)
-        if not mission.invariants:
-            raise FalsifyError(f"{args.mission}: no [[invariants]]: nothing a flight could break")
-        out = args.out or Path("falsify") / f"{args.mission.stem}-{args.seed}"
-        campaign = Campaign(args.mission, out, budget=args.budget, shrink_budget=args.shrink_budget, seed=args.seed,
-                            time_s=args.time, say=print)  # fmt: skip
-    except (MissionFileError, FalsifyError) as exc:
-        print(f"swarm: error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+    mission = load_mission(args.mission)
+    if not mission.invariants:
+        raise FalsifyError(f"{args.mission}: no [[invariants]]: nothing a flight could break")
+    out = args.out or Path("falsify") / f"{args.mission.stem}-{args.seed}"
+    campaign = Campaign(args.mission, out, budget=args.budget, shrink_budget=args.shrink_budget, seed=args.seed,
+                        time_s=args.time, say=print)  # fmt: skip
     started = time.monotonic()
     result = campaign.run()
     print((out / "summary.txt").read_text().rstrip())

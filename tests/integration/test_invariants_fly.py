@@ -16,6 +16,7 @@ import pytest
 
 from tests.integration.instances import Leases
 from tests.integration.mission_flight import fly_mission
+from tests.unit.test_replay import unpack
 
 pytestmark = [pytest.mark.sim_only]
 
@@ -79,6 +80,12 @@ action = "land"
 """
 
 
+def replay_document_marks(report: Path) -> list[dict[str, object]]:
+    """The timeline marks of a report page's replay document, as the page has them."""
+    marks: list[dict[str, object]] = json.loads(unpack((report / "report.html").read_text(), "flight"))["marks"]
+    return marks
+
+
 @pytest.mark.timeout(240)
 def test_violations_are_said_reported_and_fail_the_run_and_can_stop_the_flight(
     tmp_path: Path, instances: Leases
@@ -105,8 +112,8 @@ def test_violations_are_said_reported_and_fail_the_run_and_can_stop_the_flight(
     assert [v["time_s"] for v in metrics["violations"]] == sorted(v["time_s"] for v in metrics["violations"])
     summary = (tmp_path / "whole" / "report" / "summary.txt").read_text()
     assert "invariants: 8 checked, 2 violated" in summary
-    page = (tmp_path / "whole" / "report" / "report.html").read_text()
-    assert "report.html" and page  # the page is written; its marks are checked in tests/unit/test_replay.py
+    marks = [m for m in replay_document_marks(tmp_path / "whole" / "report") if m["kind"] == "violation"]
+    assert sorted(str(m["text"]).split(":")[0] for m in marks) == ["low", "small_fence"], marks
     # WHEN the same flight stops on a violation
     stopped, run = fly_mission(mission, ["--lockstep", "--no-view", "--stop-on-violation"], tmp_path / "stop", 150,
                                first, expect_ok=False)  # fmt: skip

@@ -10,7 +10,7 @@ import pytest
 
 from gcs.invariants.monitor import Monitor
 from gcs.invariants.spec import InvariantError, build_invariant, components, unique_names
-from gcs.invariants.state import FAULT, LOSS, START, STEP, TickState
+from gcs.invariants.state import LOSS, STEP, TickState
 
 pytestmark = [pytest.mark.unit, pytest.mark.timeout(10)]
 
@@ -165,10 +165,6 @@ def test_a_predicate_that_cannot_be_imported_or_found_is_one_line(tmp_path: Path
     twice = [build_invariant({"kind": "contact"}, base=tmp_path, drone_count=1)] * 2
     with pytest.raises(InvariantError, match="two invariants named 'contact'"):
         unique_names(twice)
-
-
-def test_events_are_start_loss_fault_and_step() -> None:
-    assert (START, LOSS, FAULT, STEP) == ("start", "loss", "fault", "step")
 
 
 def test_a_missions_invariants_are_read_and_a_bad_one_is_named_by_its_file_line_and_field(tmp_path: Path) -> None:
