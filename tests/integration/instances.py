@@ -32,6 +32,8 @@ DEFAULT_LOWEST_INSTANCE: Final = 20
 HIGHEST_INSTANCE: Final = 198  # sysid 199: sysids 200-254 are the tests' stand-ins, 255 the ground station's
 LEASE_TIMEOUT_S: Final = 120.0  # wall seconds to wait for a block while other tests hold the rest
 _RETRY_S: Final = 0.2
+_RESERVE_AFTER_S: Final = 2.0  # wall seconds of finding no whole block free before reserving one (``_reserve``)
+_RESERVE_STALL_S: Final = 30.0  # a reservation that gains no instance for this long lets go of what it holds
 
 
 class LeaseError(RuntimeError):
@@ -81,7 +83,8 @@ def lease(count: int, *, lowest: int = DEFAULT_LOWEST_INSTANCE, containing: int 
           timeout_s: float = LEASE_TIMEOUT_S) -> Lease:  # fmt: skip
     """A block of ``count`` consecutive instances nobody else on the machine holds, with their ports free;
     ``containing``: the block must include this instance (a test of what changes at an instance). Waits while
-    other tests hold every block that fits."""
+    other tests hold every block that fits; after ``_RESERVE_AFTER_S`` of that it reserves one (``_reserve``), so
+    that a large block is not starved by the small ones other workers keep taking inside it."""
     starts = [f for f in range(lowest, HIGHEST_INSTANCE - count + 2) if _usable(f, count, containing)]
     if not starts:
         raise LeaseError(f"no block of {count} instances from {lowest} up (containing {containing}) exists")
@@ -89,20 +92,63 @@ def lease(count: int, *, lowest: int = DEFAULT_LOWEST_INSTANCE, containing: int 
         _cursor.next_first = lowest + _worker_offset()
     locks = InstanceLocks(count)
     deadline = time.monotonic() + timeout_s
+    reserve_at = time.monotonic() + _RESERVE_AFTER_S
     while True:
         pivot = next((i for i, f in enumerate(starts) if f >= _cursor.next_first), 0)
         for first in starts[pivot:] + starts[:pivot]:
             held = locks.try_hold(first)
             if held is None:
                 continue
-            if all(udp_port_is_free(p) for i in range(first, first + count) for p in DronePorts(instance=i).all()):
+            if _ports_free(first, count):
                 _cursor.next_first = first + count
                 return Lease(first, count, held)
             for handle in held:
                 handle.close()
         if time.monotonic() > deadline:
             raise LeaseError(f"no {count} consecutive instances from {lowest} up came free in {timeout_s:g} s")
+        if time.monotonic() > reserve_at:
+            if (reserved := _reserve(starts, count, deadline)) is not None:
+                _cursor.next_first = reserved.first + count
+                return reserved
+            reserve_at = time.monotonic() + _RESERVE_AFTER_S
         time.sleep(_RETRY_S)
+
+
+def _ports_free(first: int, count: int) -> bool:
+    return all(udp_port_is_free(p) for i in range(first, first + count) for p in DronePorts(instance=i).all())
+
+
+def _reserve(starts: list[int], count: int, deadline: float) -> Lease | None:
+    """Hold the instances of the block with the most of them free, one by one as their holders let them go, in
+    ascending order (two reservations then never hold what the other waits for). A reservation that gains nothing
+    for ``_RESERVE_STALL_S`` lets everything go and returns None: a test holding one lease while it asks for a
+    second can wait on it, and must not wait forever."""
+    one = InstanceLocks(1)
+    free: set[int] = set()
+    for instance in range(starts[0], starts[-1] + count):
+        if (probe := one.try_hold(instance)) is not None:
+            free.add(instance)
+            probe[0].close()
+    first = max(starts, key=lambda f: sum(i in free for i in range(f, f + count)))
+    held: list[IO[bytes]] = []
+    gained_at = time.monotonic()
+    try:
+        for instance in range(first, first + count):
+            while (handle := one.try_hold(instance)) is None:
+                if time.monotonic() > min(deadline, gained_at + _RESERVE_STALL_S):
+                    return None
+                time.sleep(_RETRY_S)
+            held.extend(handle)
+            gained_at = time.monotonic()
+        while not _ports_free(first, count):
+            if time.monotonic() > deadline:
+                return None
+            time.sleep(_RETRY_S)
+        taken, held = Lease(first, count, held), []
+        return taken
+    finally:
+        for h in held:
+            h.close()
 
 
 class Leases:

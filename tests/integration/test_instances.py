@@ -8,6 +8,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import textwrap
+import time
 
 import pytest
 
@@ -24,6 +25,25 @@ HOLDER = textwrap.dedent(
     held = InstanceLocks(int(sys.argv[2])).try_hold(int(sys.argv[1]))
     print("held" if held is not None else "taken", flush=True)
     sys.stdin.read()  # hold the locks until the test closes our stdin
+    """
+)
+
+CHURNER = textwrap.dedent(
+    """
+    import sys, time
+    from gcs.sweep.runs import InstanceLocks
+    one, first, stop_at = InstanceLocks(1), int(sys.argv[1]), time.monotonic() + float(sys.argv[2])
+    held = one.try_hold(first)
+    print("held" if held is not None else "taken", flush=True)
+    turn = 1
+    while time.monotonic() < stop_at:  # take the other instance before letting go of this one, as tests overlap
+        taken = one.try_hold(first + turn % 2)
+        turn += 1
+        time.sleep(0.3)
+        for handle in held or ():
+            handle.close()
+        held = taken
+        time.sleep(0.3)
     """
 )
 
@@ -65,3 +85,25 @@ def test_a_lease_that_must_contain_an_instance_spans_it() -> None:
         assert PX4_INSTANCES in held.instances
     finally:
         held.release()
+
+
+def test_a_block_is_reserved_while_other_processes_keep_taking_small_blocks_inside_it() -> None:
+    # GIVEN two instances another process keeps holding by turns, always one at least (as workers do that lease small
+    # blocks one after another)
+    with leases() as take:
+        first = take(2)
+    churner = subprocess.Popen([sys.executable, "-c", CHURNER, str(first), "40"], stdout=subprocess.PIPE, text=True)
+    try:
+        assert churner.stdout is not None and churner.stdout.readline().strip() == "held"
+        # WHEN a test needs both at once
+        started = time.monotonic()
+        held = lease(2, lowest=first, containing=first, timeout_s=20)
+        try:
+            # THEN it gets them, by holding each as it comes free, long before its time runs out
+            assert held.instances == range(first, first + 2)
+            assert time.monotonic() - started < 10
+        finally:
+            held.release()
+    finally:
+        churner.kill()
+        churner.wait(10)
