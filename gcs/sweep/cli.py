@@ -13,7 +13,7 @@ from gcs.fleet.harness import Simulation
 from gcs.missions.mission_file import load_mission
 from gcs.sweep.plan import SweepError, SweepPlan, file_sha256, link_loss_axis, parse_param, parse_seeds
 from gcs.sweep.summary import write_summary
-from gcs.sweep.sweep import SweepInterrupted, default_jobs, local_flyer, run_sweep
+from gcs.sweep.sweep import Flyer, LocalFlyer, SweepInterrupted, default_jobs, run_sweep
 
 DRONES_PER_CPU: Final = 10  # drones one run's process hosts (a hosted drone takes about a tenth of a CPU)
 EXIT_RUNS_FAILED: Final = 1
@@ -105,20 +105,23 @@ def run_sweep_command(args: argparse.Namespace, simulation: Simulation, usable_c
     def say(text: str) -> None:
         print(text, flush=True)
 
+    flyer: Flyer
     if args.ray is not None:
-        from gcs.sweep.cluster import ray_flyer
+        from gcs.sweep.cluster import RayFlyer
 
-        flyer = ray_flyer(plan, out, args.ray, per_process, say)
+        flyer = RayFlyer(args.ray, per_process, say)
     else:
         jobs = args.jobs or default_jobs(usable_cpus, plan.n_drones, per_process)
         say(f"sweep: {jobs} run(s) at a time on this machine")
-        flyer = local_flyer(plan, out, jobs)
+        flyer = LocalFlyer(jobs)
     try:
         outcome = run_sweep(plan, out, flyer, say)
     except SweepInterrupted as exc:
         print(f"swarm: sweep interrupted: {exc.complete} of {exc.total} runs complete in {out}; the same command "
               f"with --out {out} flies the rest", file=sys.stderr)  # fmt: skip
         return EXIT_INTERRUPTED
+    finally:
+        flyer.close()
     for line in write_summary(plan, outcome.results, out):
         say(line)
     failed = [r for r in outcome.results if not r.ok]

@@ -22,8 +22,8 @@ from pathlib import Path
 from typing import Any, Final
 
 from gcs.sweep.plan import Axis, Run, SweepError, SweepPlan
-from gcs.sweep.runs import InstanceLocks, RunResult, fly
-from gcs.sweep.sweep import Flyer, cpus_per_run, run_dir
+from gcs.sweep.runs import Flight, InstanceLocks, RunResult, fly
+from gcs.sweep.sweep import cpus_per_run
 
 MAX_RETRIES: Final = 3
 WAIT_S: Final = 0.5
@@ -35,13 +35,16 @@ def _plan_from(data: dict[str, Any], mission: Path) -> SweepPlan:
                      axes=tuple(Axis(a["name"], tuple(a["values"])) for a in data["axes"]))  # fmt: skip
 
 
-def fly_on_node(plan_data: dict[str, Any], mission_text: bytes, index: int) -> tuple[dict[str, Any], bytes]:
-    """The Ray task: fly run ``index`` of the plan on this node; its result and its folder as a .tar.gz."""
+def fly_on_node(
+    plan_data: dict[str, Any], mission_text: bytes, run_data: dict[str, Any]
+) -> tuple[dict[str, Any], bytes]:
+    """The Ray task: fly one run of the plan on this node; its result and its folder as a .tar.gz."""
     with tempfile.TemporaryDirectory(prefix="swarm-sweep-run-") as tmp:
         mission = Path(tmp) / "mission.toml"
         mission.write_bytes(mission_text)
         plan = _plan_from(plan_data, mission)
-        run = plan.runs()[index]
+        run = Run(index=int(run_data["index"]), seed=int(run_data["seed"]),
+                  setting=tuple((str(n), float(v)) for n, v in run_data["setting"]))  # fmt: skip
         folder = Path(tmp) / "run"
         with InstanceLocks(plan.n_drones).block() as block:
             result = fly(plan, run, folder, block.first, lock_fds=block.fds)
@@ -58,50 +61,73 @@ def _unpack(archive: bytes, into: Path) -> None:
         tar.extractall(into, filter="data")
 
 
-def ray_flyer(plan: SweepPlan, out: Path, address: str, drones_per_process: int,
-              say: Callable[[str], None]) -> Flyer:  # fmt: skip
-    """Runs as Ray tasks on the cluster at ``address`` (``auto``: the one this machine belongs to)."""
-    try:
-        import ray
-    except ImportError:
-        raise SweepError("--ray needs Ray, an optional extra: pip install 'swarmsitl[cluster]' (or ray)") from None
+class RayFlyer:
+    """Flights as Ray tasks on the cluster at ``address`` (``auto``: the one this machine belongs to), joined at the
+    first call and left at ``close``: a falsification calls it again and again."""
 
-    def flyer(pending: list[Run], finished: Callable[[RunResult], None], stop: threading.Event) -> None:
+    def __init__(self, address: str, drones_per_process: int, say: Callable[[str], None]) -> None:
         try:
-            ray.init(address=address, log_to_driver=False, logging_level=logging.ERROR)
+            import ray
+        except ImportError:
+            raise SweepError("--ray needs Ray, an optional extra: pip install 'swarmsitl[cluster]' (or ray)") from None
+        self._ray = ray
+        self.address = address
+        self.drones_per_process = drones_per_process
+        self.say = say
+        self._task: Any = None
+        self._cpus = 0.0
+
+    def _join(self) -> None:
+        ray = self._ray
+        try:
+            ray.init(address=self.address, log_to_driver=False, logging_level=logging.ERROR)
         except (ConnectionError, RuntimeError, ValueError) as exc:
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise SweepError(f"--ray {address}: no Ray cluster to join ({first}); start one with ray start --head") \
-                from None  # fmt: skip
-        refs: dict[Any, Run] = {}
+            raise SweepError(f"--ray {self.address}: no Ray cluster to join ({first}); start one with ray start "
+                             "--head") from None  # fmt: skip
+        self._cpus = ray.cluster_resources().get("CPU", 0)
+        self._task = ray.remote(max_retries=MAX_RETRIES, retry_exceptions=False)(fly_on_node)
+
+    def __call__(self, flights: list[Flight], finished: Callable[[RunResult], None], stop: threading.Event) -> None:
+        ray = self._ray
+        if self._task is None:
+            self._join()
+            if flights:
+                cpus = cpus_per_run(flights[0].plan.n_drones, self.drones_per_process)
+                self.say(f"sweep: Ray cluster at {self.address}: {self._cpus:g} CPUs, {cpus} per run, up to "
+                         f"{int(self._cpus // cpus)} runs at once")  # fmt: skip
+        refs: dict[Any, Flight] = {}
         try:
-            cpus = cpus_per_run(plan.n_drones, drones_per_process)
-            total = ray.cluster_resources().get("CPU", 0)
-            say(f"sweep: Ray cluster at {address}: {total:g} CPUs, {cpus} per run, up to {int(total // cpus)} runs "
-                f"at once")  # fmt: skip
-            if total < cpus:
-                raise SweepError(f"--ray {address}: a run needs {cpus} CPUs, the cluster has {total:g}")
-            task = ray.remote(num_cpus=cpus, max_retries=MAX_RETRIES, retry_exceptions=False)(fly_on_node)
-            mission_text = plan.mission.read_bytes()
-            plan_data = plan.to_json()
-            refs = {task.remote(plan_data, mission_text, run.index): run for run in pending}
+            for flight in flights:
+                cpus = cpus_per_run(flight.plan.n_drones, self.drones_per_process)
+                if self._cpus < cpus:
+                    raise SweepError(f"--ray {self.address}: a run needs {cpus} CPUs, the cluster has {self._cpus:g}")
+                run = {
+                    "index": flight.run.index,
+                    "seed": flight.run.seed,
+                    "setting": [list(s) for s in flight.run.setting],
+                }
+                ref = self._task.options(num_cpus=cpus).remote(
+                    flight.plan.to_json(), flight.plan.mission.read_bytes(), run
+                )
+                refs[ref] = flight
             while refs:
                 if stop.is_set():
                     raise KeyboardInterrupt
                 ready, _ = ray.wait(list(refs), num_returns=1, timeout=WAIT_S)
                 for ref in ready:
-                    run = refs.pop(ref)
+                    flight = refs.pop(ref)
                     data, archive = ray.get(ref)
-                    folder = run_dir(out, run)
-                    _unpack(archive, folder)
+                    _unpack(archive, flight.folder)
                     command = list(data["command"])  # the report's path on this machine, not the node's
-                    command[command.index("--report") + 1] = str(folder / "report")
+                    command[command.index("--report") + 1] = str(flight.folder / "report")
                     finished(RunResult.from_json({**data, "command": command}))
         except BaseException:
             for ref in refs:
                 ray.cancel(ref)  # the task's run stops its swarm (its flight ends as on Ctrl-C)
             raise
-        finally:
-            ray.shutdown()
 
-    return flyer
+    def close(self) -> None:
+        if self._task is not None:
+            self._ray.shutdown()
+            self._task = None

@@ -103,6 +103,16 @@ class InstanceLocks:
 
 
 @dataclass(frozen=True, slots=True)
+class Flight:
+    """One run to fly: the plan it belongs to (its mission file and options), the run, and the folder it flies into.
+    A sweep's flights share one plan; a falsification's each have their own mission file."""
+
+    plan: SweepPlan
+    run: Run
+    folder: Path
+
+
+@dataclass(frozen=True, slots=True)
 class RunResult:
     """What one run gave: its figures from metrics.json, or why it failed."""
 

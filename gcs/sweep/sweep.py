@@ -18,10 +18,10 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Final, TextIO
+from typing import Final, Protocol, TextIO
 
 from gcs.sweep.plan import Run, SweepError, SweepPlan, describe, saved_plan
-from gcs.sweep.runs import InstanceLocks, RunResult, Stopped, completed, fly
+from gcs.sweep.runs import Flight, InstanceLocks, RunResult, Stopped, completed, fly
 
 PLAN_FILE: Final = "sweep.json"
 RUNS_DIR: Final = "runs"
@@ -90,7 +90,15 @@ def prepare(plan: SweepPlan, out: Path) -> None:
         path.write_text(json.dumps(plan.to_json(), indent=1) + "\n")
 
 
-Flyer = Callable[[list[Run], Callable[[RunResult], None], threading.Event], None]
+class Flyer(Protocol):
+    """Flies flights (side by side on this machine, or on a cluster)."""
+
+    def __call__(self, flights: list[Flight], finished: Callable[[RunResult], None], stop: threading.Event) -> None:
+        """Fly ``flights``, calling ``finished`` with each result as it comes, until all are flown or ``stop`` is
+        set."""
+
+    def close(self) -> None:
+        """Let go of what the flyer holds (a cluster it joined)."""
 
 
 def run_sweep(plan: SweepPlan, out: Path, flyer: Flyer, say: Callable[[str], None]) -> SweepOutcome:
@@ -115,7 +123,7 @@ def run_sweep(plan: SweepPlan, out: Path, flyer: Flyer, say: Callable[[str], Non
 
     stop = threading.Event()
     try:
-        flyer(pending, finished, stop)
+        flyer([Flight(plan, run, run_dir(out, run)) for run in pending], finished, stop)
     except KeyboardInterrupt:
         stop.set()
         raise SweepInterrupted(len(done) + sum(r.ok for r in flown.values()), len(runs)) from None
@@ -123,17 +131,23 @@ def run_sweep(plan: SweepPlan, out: Path, flyer: Flyer, say: Callable[[str], Non
     return SweepOutcome(results=[results[k] for k in sorted(results)], flown=len(flown), skipped=len(done))
 
 
-def local_flyer(plan: SweepPlan, out: Path, jobs: int) -> Flyer:
-    """Runs side by side on this machine, ``jobs`` at a time, each on instances no other run holds."""
-    locks = InstanceLocks(plan.n_drones)
+class LocalFlyer:
+    """Flights side by side on this machine, ``jobs`` at a time, each on instances no other flight holds."""
 
-    def one(run: Run, stop: threading.Event) -> RunResult:
-        with locks.block(stop) as block:
-            return fly(plan, run, run_dir(out, run), block.first, stop, lock_fds=block.fds)
+    def __init__(self, jobs: int) -> None:
+        self.jobs = jobs
+        self._locks: dict[int, InstanceLocks] = {}
+        self._guard = threading.Lock()
 
-    def flyer(pending: list[Run], finished: Callable[[RunResult], None], stop: threading.Event) -> None:
-        pool = concurrent.futures.ThreadPoolExecutor(max_workers=jobs, thread_name_prefix="sweep")
-        futures = [pool.submit(one, run, stop) for run in pending]
+    def _one(self, flight: Flight, stop: threading.Event) -> RunResult:
+        with self._guard:
+            sized = self._locks.setdefault(flight.plan.n_drones, InstanceLocks(flight.plan.n_drones))
+        with sized.block(stop) as block:
+            return fly(flight.plan, flight.run, flight.folder, block.first, stop, lock_fds=block.fds)
+
+    def __call__(self, flights: list[Flight], finished: Callable[[RunResult], None], stop: threading.Event) -> None:
+        pool = concurrent.futures.ThreadPoolExecutor(max_workers=self.jobs, thread_name_prefix="sweep")
+        futures = [pool.submit(self._one, flight, stop) for flight in flights]
         try:
             for future in concurrent.futures.as_completed(futures):
                 try:
@@ -146,7 +160,8 @@ def local_flyer(plan: SweepPlan, out: Path, jobs: int) -> Flyer:
         finally:
             pool.shutdown(wait=True, cancel_futures=True)
 
-    return flyer
+    def close(self) -> None:
+        pass
 
 
 def cpus_per_run(n_drones: int, drones_per_process: int) -> int:
