@@ -967,7 +967,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == "plan":
             return run_plan(args)
         if args.command == "falsify":
-            return run_falsify(args)
+            return run_falsify(args, len(os.sched_getaffinity(0)))
         if args.command == "sweep":
             return run_sweep_command(args, SITL, len(os.sched_getaffinity(0)))
         return run_client(args)

@@ -2,23 +2,34 @@
 shrunk to a minimal mission file (docs/falsify.md).
 
 hypothesis generates and shrinks; every example it asks for is one lockstep flight of a plain mission file (the
-scenario written into the mission: gcs/falsify/space.py), flown as a sweep flies its runs (gcs/sweep/runs.py: a
-``swarm fly`` of its own, on instances nobody else holds). A flight that breaks an invariant raises an exception whose
-type is its failure's identity (the invariant and the drones involved, by their numbers in the mission), so that
-hypothesis tells distinct failures apart and shrinks each. The campaign seed fixes what hypothesis draws, and its
-example database (in the campaign's folder) replays the failures found before first: a campaign run again resumes.
+scenario written into the mission: gcs/falsify/space.py), flown by a sweep's flyer (gcs/sweep: side by side on this
+machine, on instances nobody else holds, or on a Ray cluster). A campaign goes in three passes:
 
-Budgets: ``budget`` flights to search (hypothesis's ``max_examples``: what it generates), and ``shrink_budget``
-flights more for shrinking (and hypothesis's final replay of each failure): at most ``budget + shrink_budget``
-flights in all. When they are spent, each failure keeps the smallest failing flight hypothesis had reached: the last
-one of its identity, since hypothesis only tries a candidate smaller than the best so far.
+1. **Draw.** hypothesis, seeded with the campaign seed, generates the search's ``budget`` scenarios and flies none:
+   its generation does not depend on outcomes until a first failure, so every pass below that uses the same seed
+   and budget draws the same scenarios in the same order.
+2. **Search.** The drawn scenarios are flown side by side, each in runs/NNNN/ (its mission file, scenario.json, the
+   sweep's run.json and the report). Every flight is kept and never flown twice: a campaign run again flies only
+   what it has not flown (it resumes), and the passes below take what was flown from there.
+3. **Shrink.** Each distinct failure (its invariant and the drones involved) is shrunk by a hypothesis run of its
+   own, with the same seed and budget: its generation replays the drawn scenarios, flown already, up to that
+   failure's first flight, and stops there (``report_multiple_bugs=False``); its shrinking flies what it asks for,
+   and only a flight that breaks that invariant with those drones counts as failing. Each failure has a shrink
+   budget of its own, and failures are shrunk side by side, ``jobs`` at a time (hypothesis is thread-safe from
+   6.136). hypothesis stops shrinking after 5 minutes of its own; a campaign's budgets and time limit bound it
+   instead (``MAX_SHRINKING_SECONDS``, which hypothesis documents as the one to change).
+
+A failure keeps the smallest failing flight hypothesis reached: the last one of its identity, since hypothesis only
+tries a candidate smaller than its best so far, and replays the best once more at the end.
 """
 
 from __future__ import annotations
 
+import concurrent.futures
+import contextlib
 import hashlib
 import json
-import time
+import threading
 import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -27,15 +38,20 @@ from typing import Any, Final
 
 from gcs.falsify.space import FalsifySpace, Scenario, mission_text, parse_space, scenario_mission, strategy
 from gcs.sweep.plan import Run, SweepPlan
-from gcs.sweep.runs import InstanceLocks, fly
+from gcs.sweep.runs import Flight, RunResult, completed
+from gcs.sweep.sweep import Flyer
 
 SUMMARY_FILE: Final = "summary.json"
+SCENARIO_FILE: Final = "scenario.json"
 DEFAULT_SHRINK_BUDGET: Final = 40
+NO_SHRINK_TIME_LIMIT_S: Final = 10**9  # hypothesis's own 5-minute limit on shrinking, lifted while a campaign runs
+
+Key = tuple[str, tuple[int, ...]]  # a failure's identity: the invariant's name and the drones involved (1-based)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Outcome:
-    """One flight of the search."""
+    """One flight of the campaign."""
 
     index: int
     scenario: Scenario
@@ -43,7 +59,7 @@ class Outcome:
     report: Path
     # False: the flight failed before it broke any invariant (its error says why): no outcome about the invariants
     flown: bool
-    failures: tuple[tuple[str, tuple[int, ...]], ...] = ()  # each broken invariant and its drones (1-based)
+    failures: tuple[Key, ...] = ()  # each broken invariant and its drones
     details: tuple[str, ...] = ()  # what was seen, one line each
     error: str | None = None
 
@@ -52,44 +68,54 @@ class Outcome:
 class Failure:
     """One distinct failure: its first flight, and the smallest flight of it reached."""
 
-    key: tuple[str, tuple[int, ...]]
+    key: Key
     first: Outcome
     smallest: Outcome
+    shrink_flights: int = 0  # flights its shrinking flew (its own budget)
+    searched: bool = True  # False: met while another failure was shrunk (its search pass never draws it: not shrunk)
 
     def name(self) -> str:
         invariant, drones = self.key
         return f"{invariant}-drones-{'-'.join(map(str, drones))}" if drones else invariant
 
+    def detail(self, outcome: Outcome) -> str:
+        return outcome.details[outcome.failures.index(self.key)]
+
 
 @dataclass(slots=True)
 class CampaignResult:
-    flights: int = 0  # flights flown: the search's (at most ``budget``) and the shrinking's
+    search_flights: int = 0  # flights of the drawn scenarios flown by this run of the campaign
+    reused: int = 0  # drawn scenarios flown by an earlier run of the campaign (resumed)
     errors: int = 0  # flights that failed before breaking anything
-    failures: dict[tuple[str, tuple[int, ...]], Failure] = field(default_factory=dict)
+    failures: dict[Key, Failure] = field(default_factory=dict)
     stopped: str | None = None  # why it ended early (a time limit), if it did
 
+    @property
+    def flights(self) -> int:
+        """Flights flown by this run of the campaign: the search's and every failure's shrinking."""
+        return self.search_flights + sum(f.shrink_flights for f in self.failures.values())
 
-class _ShrinkBudgetSpent(BaseException):
-    """Ends hypothesis's shrinking (a BaseException: hypothesis does not take it for a failure of the flight)."""
+
+class _Spent(BaseException):
+    """Ends a hypothesis run: a failure's shrink budget is spent, or the campaign was stopped (a BaseException:
+    hypothesis does not take it for a failure of the flight)."""
 
 
 class Broken(AssertionError):
-    """A flight broke an invariant; each failure's identity is a subclass of its own (``_failure_type``)."""
+    """A flight broke the invariant a shrinking pass is about."""
 
 
-_TYPES: dict[tuple[str, tuple[int, ...]], type[Broken]] = {}
-
-
-def _failure_type(key: tuple[str, tuple[int, ...]]) -> type[Broken]:
-    if key not in _TYPES:
-        _TYPES[key] = type(f"Broken_{key[0]}_{'_'.join(map(str, key[1]))}", (Broken,), {})
-    return _TYPES[key]
+def _identity(scenario: Scenario) -> str:
+    return json.dumps(scenario.to_json(), sort_keys=True)
 
 
 class Campaign:
-    def __init__(self, mission: Path, out: Path, *, budget: int, shrink_budget: int = DEFAULT_SHRINK_BUDGET,
-                 seed: int = 0, time_s: float | None = None, say: Callable[[str], None] = print) -> None:  # fmt: skip
-        """Search ``mission``'s ``[falsify]`` space into folder ``out`` (FalsifyError, one line, for a bad space)."""
+    def __init__(self, mission: Path, out: Path, *, budget: int, flyer: Flyer, jobs: int = 1,
+                 shrink_budget: int = DEFAULT_SHRINK_BUDGET, seed: int = 0, time_s: float | None = None,
+                 fly_args: tuple[str, ...] = (), say: Callable[[str], None] = print) -> None:  # fmt: skip
+        """Search ``mission``'s ``[falsify]`` space into folder ``out`` (FalsifyError, one line, for a bad space),
+        flying with ``flyer``; ``jobs``: failures shrunk side by side; ``fly_args``: swarm fly's options for every
+        flight, none that changes what it flies (a minimal file replays with ``swarm fly FILE --lockstep``)."""
         self.mission_path = mission
         self.raw: dict[str, Any] = tomllib.loads(mission.read_text())
         self.n_drones = int(self.raw["swarm"]["drones"])
@@ -98,103 +124,210 @@ class Campaign:
         self.budget = budget
         self.shrink_budget = shrink_budget
         self.seed = seed
-        self.deadline = None if time_s is None else time.monotonic() + time_s
+        self.time_s = time_s
+        self.flyer = flyer
+        self.fly_args = fly_args
+        self.jobs = max(1, jobs)
         self.say = say
         self.result = CampaignResult()
-        self._locks = InstanceLocks(self.n_drones)
-        self._index = 0
+        self.stop = threading.Event()  # set: flights under way stop, and nothing more is flown
+        self._lock = threading.Lock()  # the flights kept, the next index, the result
+        self._flown: dict[str, Outcome] = {}
+        self._flying: dict[str, threading.Event] = {}  # scenarios a shrinking pass is flying now
+        self._next_index = 0
 
-    # ---- one flight ----------------------------------------------------------------------------------------------
-    def fly(self, scenario: Scenario) -> Outcome:
-        """Fly one scenario as a plain mission file in a folder of its own."""
-        index = self._index
-        self._index += 1
-        run_dir = self.out / "runs" / f"{index:04d}"
-        run_dir.mkdir(parents=True, exist_ok=True)
-        path = run_dir / "mission.toml"
+    # ---- flights -------------------------------------------------------------------------------------------------
+    def _load(self) -> None:
+        """The flights an earlier run of this campaign completed (runs/NNNN/ with scenario.json and run.json)."""
+        for folder in sorted((self.out / "runs").glob("[0-9]" * 4)):
+            self._next_index = max(self._next_index, int(folder.name) + 1)
+            result = completed(folder)
+            try:
+                scenario = Scenario.from_json(json.loads((folder / SCENARIO_FILE).read_text()))
+            except (OSError, ValueError, KeyError, TypeError, IndexError):
+                continue
+            if result is not None:
+                self._flown[_identity(scenario)] = self._outcome(scenario, folder, result)
+
+    def _flight(self, scenario: Scenario) -> Flight:
+        """The scenario as a plain mission file in a folder of its own, ready to fly."""
+        with self._lock:
+            index = self._next_index
+            self._next_index += 1
+        folder = self.out / "runs" / f"{index:04d}"
+        folder.mkdir(parents=True, exist_ok=True)
+        path = folder / "mission.toml"
         path.write_text(mission_text(scenario_mission(self.raw, scenario), header=[
             f"{self.mission_path.name}, {scenario.describe()}",
             f"swarm fly {path.name} --lockstep",
         ]))  # fmt: skip
+        (folder / SCENARIO_FILE).write_text(json.dumps(scenario.to_json(), indent=1) + "\n")
         seed = scenario.seed if scenario.seed is not None else int(self.raw["swarm"].get("seed", 0))
         plan = SweepPlan(mission=path, mission_sha256=hashlib.sha256(path.read_bytes()).hexdigest(),
-                         n_drones=self.n_drones, seeds=(seed,), axes=())  # fmt: skip
-        with self._locks.block() as block:
-            result = fly(plan, Run(index=index, setting=(), seed=seed), run_dir, block.first, lock_fds=block.fds)
-        report = run_dir / "report"
+                         n_drones=self.n_drones, seeds=(seed,), axes=(), fly_args=self.fly_args)  # fmt: skip
+        return Flight(plan, Run(index=index, setting=(), seed=seed), folder)
+
+    def _outcome(self, scenario: Scenario, folder: Path, result: RunResult) -> Outcome:
+        mission, report = folder / "mission.toml", folder / "report"
         try:  # a flight that broke an invariant and then failed a step (drones in contact never reach their goal)
             metrics = json.loads((report / "metrics.json").read_text())  # still wrote what broke first
         except (OSError, ValueError):
             metrics = None
         if metrics is None or not (result.ok or metrics.get("violations")):
-            return Outcome(index=index, scenario=scenario, mission=path, report=report, flown=False, error=result.error)
-        first_sysid = block.first + 1
+            return Outcome(index=result.index, scenario=scenario, mission=mission, report=report, flown=False,
+                           error=result.error)  # fmt: skip
+        sysids = list(metrics["sysids"])  # the drones' in the mission's order: drone k is sysids[k - 1]
         failures, details = [], []
         for v in metrics.get("violations", []):
-            drones = tuple(sorted(s - first_sysid + 1 for s in v["sysids"] if first_sysid <= s < first_sysid
-                                  + self.n_drones))  # fmt: skip
-            failures.append((str(v["name"]), drones))
+            failures.append((str(v["name"]), tuple(sorted(sysids.index(s) + 1 for s in v["sysids"] if s in sysids))))
             details.append(f"{v['name']} at t={v['time_s']} s: {v['detail']}")
-        return Outcome(index=index, scenario=scenario, mission=path, report=report, flown=True,
+        return Outcome(index=result.index, scenario=scenario, mission=mission, report=report, flown=True,
                        failures=tuple(failures), details=tuple(details))  # fmt: skip
 
-    # ---- the search ----------------------------------------------------------------------------------------------
-    def run(self) -> CampaignResult:
-        """The search and the shrinking, in one run of hypothesis (module docstring); the summary written."""
-        from hypothesis import Phase
+    def _fly(self, scenarios: list[Scenario]) -> list[Outcome]:
+        """Fly scenarios side by side; their outcomes, kept (those stopped before they finished are not)."""
+        flights = {f.run.index: (f, s) for f, s in ((self._flight(s), s) for s in scenarios)}
+        outcomes: list[Outcome] = []
 
-        self._hypothesis((Phase.reuse, Phase.generate, Phase.shrink))
-        self._write_summary()
+        def finished(result: RunResult) -> None:
+            flight, scenario = flights[result.index]
+            outcome = self._outcome(scenario, flight.folder, result)
+            with self._lock:
+                self._flown[_identity(scenario)] = outcome
+                outcomes.append(outcome)
+                self.result.errors += not outcome.flown
+            if not outcome.flown:
+                self.say(f"falsify: flight {outcome.index} did not fly: {outcome.error}")
+
+        self.flyer([f for f, _ in flights.values()], finished, self.stop)
+        return outcomes
+
+    def _kept(self, scenario: Scenario) -> Outcome | None:
+        with self._lock:
+            return self._flown.get(_identity(scenario))
+
+    # ---- the passes ----------------------------------------------------------------------------------------------
+    def run(self) -> CampaignResult:
+        """Draw, search, shrink (module docstring); the summary written. Ctrl-C stops the flights under way, writes
+        the summary of what was flown, and raises KeyboardInterrupt: the same command resumes."""
+        from hypothesis.internal.conjecture import engine
+
+        self._load()
+        timer = None
+        if self.time_s is not None:
+            timer = threading.Timer(self.time_s, self._time_up)
+            timer.daemon = True
+            timer.start()
+        lifted, engine.MAX_SHRINKING_SECONDS = engine.MAX_SHRINKING_SECONDS, NO_SHRINK_TIME_LIMIT_S
+        try:
+            self._search(self._draw())
+            self._shrink_all()
+        except KeyboardInterrupt:
+            self.stop.set()
+            self.result.stopped = "interrupted"
+            raise
+        finally:
+            engine.MAX_SHRINKING_SECONDS = lifted
+            if timer is not None:
+                timer.cancel()
+            self._write_summary()
         return self.result
 
-    def _check(self, scenario: Scenario) -> None:
-        """One example of hypothesis's: a flight; a failure raises its identity's exception."""
-        result = self.result
-        if result.flights >= self.budget + self.shrink_budget:
-            raise _ShrinkBudgetSpent()
-        if self.deadline is not None and time.monotonic() > self.deadline:
-            result.stopped = "its time was up"
-            raise _ShrinkBudgetSpent()
-        outcome = self.fly(scenario)
-        result.flights += 1
-        if not outcome.flown:
-            result.errors += 1
-            self.say(f"falsify: flight {outcome.index} did not fly: {outcome.error}")
-            return
-        if not outcome.failures:
-            return
-        key = outcome.failures[0]  # the first broken invariant names the failure
-        known = result.failures.get(key)
-        if known is None:
-            result.failures[key] = Failure(key=key, first=outcome, smallest=outcome)
-            self.say(f"falsify: flight {outcome.index} broke {outcome.details[0]} ({scenario.describe()})")
-        elif len(outcome.scenario.perturbations) <= len(known.smallest.scenario.perturbations):
-            # shrinking only tries what hypothesis takes for smaller than its best so far (the search, which may go on
-            # after a first failure, can draw a larger one of the same identity: not kept)
-            known.smallest = outcome
-        raise _failure_type(key)(outcome.details[0])
+    def _time_up(self) -> None:
+        self.result.stopped = "its time was up"
+        self.stop.set()
 
-    def _hypothesis(self, phases: tuple[Any, ...]) -> None:
-        """Run hypothesis over the space with these phases, its database the campaign's (what it saves as it finds
-        failures is what the shrinking replays, and what a campaign run again resumes from)."""
-        from hypothesis import HealthCheck, given, settings
+    def _hypothesis(self, test: Callable[[Scenario], None], *, shrink: bool) -> Callable[[], None]:
+        """``test`` as a hypothesis test over the space: seeded with the campaign seed, ``budget`` examples, no
+        database (the flights kept are the campaign's memory); generation only, or generation and shrinking of the
+        first failure."""
+        from hypothesis import HealthCheck, Phase, given, settings
         from hypothesis import seed as seeded
-        from hypothesis.database import DirectoryBasedExampleDatabase
 
-        test = seeded(self.seed)(settings(
-            max_examples=self.budget, deadline=None, database=DirectoryBasedExampleDatabase(self.out / "hypothesis"),
-            phases=phases, suppress_health_check=list(HealthCheck), report_multiple_bugs=True, print_blob=False,
-        )(given(strategy(self.space))(self._check)))  # fmt: skip
+        phases = (Phase.generate, Phase.shrink) if shrink else (Phase.generate,)
+        return seeded(self.seed)(settings(
+            max_examples=self.budget, deadline=None, database=None, phases=phases, report_multiple_bugs=False,
+            suppress_health_check=list(HealthCheck), print_blob=False,
+        )(given(strategy(self.space))(test)))  # fmt: skip
+
+    def _draw(self) -> list[Scenario]:
+        """The search's scenarios, in hypothesis's order, each once."""
+        drawn: dict[str, Scenario] = {}
+
+        def record(scenario: Scenario) -> None:
+            drawn.setdefault(_identity(scenario), scenario)
+
+        self._hypothesis(record, shrink=False)()
+        return list(drawn.values())
+
+    def _search(self, drawn: list[Scenario]) -> None:
+        todo = [s for s in drawn if self._kept(s) is None]
+        self.result.reused = len(drawn) - len(todo)
+        if self.result.reused:
+            self.say(f"falsify: {self.result.reused} of {len(drawn)} flights of the search flown before")
+        self.result.search_flights = len(self._fly(todo))
+        for scenario in drawn:  # each failure's first flight, in the order drawn
+            if (outcome := self._kept(scenario)) is None:
+                continue
+            for key in outcome.failures:
+                if key not in self.result.failures:
+                    self.result.failures[key] = Failure(key=key, first=outcome, smallest=outcome)
+                    self.say(f"falsify: flight {outcome.index} broke {outcome.details[outcome.failures.index(key)]} "
+                             f"({scenario.describe()})")  # fmt: skip
+
+    def _shrink_all(self) -> None:
+        failures = [f for f in self.result.failures.values() if f.searched]
+        if not failures or self.shrink_budget == 0 or self.stop.is_set():
+            return
+        with concurrent.futures.ThreadPoolExecutor(max_workers=self.jobs, thread_name_prefix="shrink") as pool:
+            futures = [pool.submit(self._shrink, failure) for failure in failures]
+            try:
+                for future in concurrent.futures.as_completed(futures):
+                    future.result()
+            except BaseException:
+                self.stop.set()
+                raise
+
+    def _shrink(self, failure: Failure) -> None:
+        """One failure's shrinking pass (module docstring, 3.)."""
+
+        def check(scenario: Scenario) -> None:
+            outcome = self._outcome_for(scenario, failure)
+            if outcome is None:
+                raise _Spent()
+            with self._lock:  # another failure met on the way: kept, not shrunk (its own pass never draws it)
+                for key in outcome.failures:
+                    if key not in self.result.failures:
+                        self.result.failures[key] = Failure(key=key, first=outcome, smallest=outcome, searched=False)
+            if failure.key in outcome.failures:
+                failure.smallest = outcome
+                raise Broken(failure.detail(outcome))
+
+        with contextlib.suppress(_Spent, Broken):
+            self._hypothesis(check, shrink=True)()
+
+    def _outcome_for(self, scenario: Scenario, failure: Failure) -> Outcome | None:
+        """The scenario's outcome: kept, or being flown by another failure's pass (waited for), or flown now on
+        ``failure``'s shrink budget; None when that budget is spent or the campaign stopped."""
+        identity = _identity(scenario)
+        with self._lock:
+            if identity in self._flown:
+                return self._flown[identity]
+            flying = self._flying.get(identity)
+            if flying is None:
+                if failure.shrink_flights >= self.shrink_budget or self.stop.is_set():
+                    return None
+                failure.shrink_flights += 1
+                self._flying[identity] = threading.Event()
+        if flying is not None:
+            flying.wait()
+            return self._kept(scenario)
         try:
-            test()
-        except _ShrinkBudgetSpent:
-            pass
-        except Broken:  # hypothesis re-raises the failure it found (they are the result)
-            pass
-        except ExceptionGroup as group:  # ...or every distinct one; anything else is a fault of the search itself
-            rest = group.split(Broken)[1]
-            if rest is not None:
-                raise rest from None
+            flown = self._fly([scenario])
+            return flown[0] if flown else None  # none: stopped while it flew
+        finally:
+            with self._lock:
+                self._flying.pop(identity).set()
 
     # ---- what it found -------------------------------------------------------------------------------------------
     def minimal_file(self, failure: Failure) -> Path:
@@ -210,20 +343,27 @@ class Campaign:
             self.minimal_file(failure).write_text(smallest.mission.read_text())
             rows.append({"invariant": failure.key[0], "drones": list(failure.key[1]),
                          "first_flight": failure.first.index, "smallest_flight": smallest.index,
+                         "searched": failure.searched, "shrink_flights": failure.shrink_flights,
                          "perturbations": len(smallest.scenario.perturbations),
-                         "scenario": smallest.scenario.describe(), "detail": smallest.details[0],
+                         "scenario": smallest.scenario.describe(), "detail": failure.detail(smallest),
                          "mission": str(self.minimal_file(failure)), "report": str(smallest.report)})  # fmt: skip
         summary = {"mission": str(self.mission_path), "seed": self.seed, "budget": self.budget,
-                   "shrink_budget": self.shrink_budget, "flights": result.flights, "errors": result.errors,
+                   "shrink_budget": self.shrink_budget, "flights": result.flights,
+                   "search_flights": result.search_flights, "reused": result.reused, "errors": result.errors,
                    "stopped": result.stopped, "failures": rows}  # fmt: skip
         (self.out / SUMMARY_FILE).write_text(json.dumps(summary, indent=1) + "\n")
-        lines = [f"falsify {self.mission_path.name} (campaign seed {self.seed}): {result.flights} flights (search "
-                 f"budget {self.budget}, shrink budget {self.shrink_budget}), {result.errors} that failed before "
-                 "breaking anything" + (f"; stopped: {result.stopped}" if result.stopped else "")]  # fmt: skip
+        reused = f", {result.reused} flown before" if result.reused else ""
+        lines = [f"falsify {self.mission_path.name} (campaign seed {self.seed}): {result.flights} flights: "
+                 f"{result.search_flights} to search (budget {self.budget}{reused}), "
+                 f"{result.flights - result.search_flights} to shrink (budget {self.shrink_budget} per failure); "
+                 f"{result.errors} that failed before breaking anything"
+                 + (f"; stopped: {result.stopped}" if result.stopped else "")]  # fmt: skip
         lines.append(f"{len(rows)} distinct failure(s)" if rows else "no invariant broken")
         for row in rows:
             lines.append(f"  {row['invariant']} (drones {row['drones']}): {row['detail']}")
-            lines.append(f"    smallest: {row['scenario']} ({row['perturbations']} perturbation(s))")
+            how = (f"{row['shrink_flights']} flights to shrink" if row["searched"]
+                   else "met while another failure was shrunk, not shrunk itself")  # fmt: skip
+            lines.append(f"    smallest: {row['scenario']} ({row['perturbations']} perturbation(s); {how})")
             lines.append(f"    replay: swarm fly {row['mission']} --lockstep   report: {row['report']}")
         (self.out / "summary.txt").write_text("\n".join(lines) + "\n")
 

@@ -104,6 +104,23 @@ class Scenario:
                 parts.append(f"{p.kind} fault on drone {p.drone} at {p.at_s:g} s{extra}")
         return "; ".join(parts) or "the mission as it is"
 
+    def to_json(self) -> dict[str, Any]:
+        """JSON-ready, and the scenario's identity: two scenarios are the same flight when their JSON is equal."""
+        return {"seed": self.seed, "wind_ned_mps": None if self.wind_ned_mps is None else list(self.wind_ned_mps),
+                "gust_mps": self.gust_mps, "spawn_jitter_m": self.spawn_jitter_m,
+                "perturbations": [{"drone": p.drone, "param": p.name, "value": p.value} if isinstance(p, ParamChange)
+                                  else {"drone": p.drone, "fault": p.kind, "at_s": p.at_s, "for_s": p.for_s}
+                                  for p in self.perturbations]}  # fmt: skip
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> Scenario:
+        wind = data["wind_ned_mps"]
+        return cls(seed=data["seed"], wind_ned_mps=None if wind is None else (wind[0], wind[1], wind[2]),
+                   gust_mps=data["gust_mps"], spawn_jitter_m=data["spawn_jitter_m"],
+                   perturbations=tuple(ParamChange(p["drone"], p["param"], p["value"]) if "param" in p
+                                       else FaultAt(p["drone"], p["fault"], p["at_s"], p["for_s"])
+                                       for p in data["perturbations"]))  # fmt: skip
+
 
 # ---- reading ------------------------------------------------------------------------------------------------------
 def _finite(value: Any) -> bool:

@@ -111,9 +111,7 @@ class RayFlyer:
                     flight.plan.to_json(), flight.plan.mission.read_bytes(), run
                 )
                 refs[ref] = flight
-            while refs:
-                if stop.is_set():
-                    raise KeyboardInterrupt
+            while refs and not stop.is_set():  # stopped: the runs under way are cancelled below, as the local flyer's
                 ready, _ = ray.wait(list(refs), num_returns=1, timeout=WAIT_S)
                 for ref in ready:
                     flight = refs.pop(ref)
@@ -122,10 +120,9 @@ class RayFlyer:
                     command = list(data["command"])  # the report's path on this machine, not the node's
                     command[command.index("--report") + 1] = str(flight.folder / "report")
                     finished(RunResult.from_json({**data, "command": command}))
-        except BaseException:
+        finally:
             for ref in refs:
                 ray.cancel(ref)  # the task's run stops its swarm (its flight ends as on Ctrl-C)
-            raise
 
     def close(self) -> None:
         if self._task is not None:

@@ -157,6 +157,8 @@ def test_bad_falsify_commands_are_one_line_and_exit_2_before_anything_flies(
     for argv, said in (
         (["falsify", str(good), "--budget", "0"], "--budget must be in 1..10000"),
         (["falsify", str(good), "--time", "-1"], "--time must be a positive number"),
+        (["falsify", str(good), "--jobs", "0"], "--jobs must be at least 1"),
+        (["falsify", str(good), "--jobs", "2", "--ray", "auto"], "--jobs is for this machine"),
         (["falsify", str(tmp_path / "none.toml")], "no such mission file"),
         (["falsify", str(no_invariants)], "no [[invariants]]: nothing a flight could break"),
         (["falsify", str(no_space)], "nothing to vary"),
