@@ -222,6 +222,7 @@ class Campaign:
         try:
             self._search(self._draw())
             self._shrink_all()
+            self._settle_met()
         except KeyboardInterrupt:
             self.stop.set()
             self.result.stopped = "interrupted"
@@ -287,6 +288,18 @@ class Campaign:
             except BaseException:
                 self.stop.set()
                 raise
+
+    def _settle_met(self) -> None:
+        """A failure met while another was shrunk keeps the simplest flight of it: fewest perturbations, then by the
+        scenario (not the first met: with passes side by side, which came first is a matter of timing)."""
+        with self._lock:
+            kept = list(self._flown.items())
+        for failure in self.result.failures.values():
+            if not failure.searched:
+                failing = [
+                    (len(o.scenario.perturbations), identity, o) for identity, o in kept if failure.key in o.failures
+                ]
+                failure.smallest = min(failing, key=lambda t: t[:2])[2]
 
     def _shrink(self, failure: Failure) -> None:
         """One failure's shrinking pass (module docstring, 3.)."""
