@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import contextlib
+import dataclasses
 import hashlib
 import json
 import threading
@@ -61,6 +62,8 @@ class Outcome:
     flown: bool
     failures: tuple[Key, ...] = ()  # each broken invariant and its drones
     details: tuple[str, ...] = ()  # what was seen, one line each
+    times_s: tuple[float, ...] = ()  # when each broke, mission time
+    steps_s: tuple[tuple[int, float, float], ...] = ()  # each mission step flown: its index, start and end
     error: str | None = None
 
 
@@ -177,12 +180,16 @@ class Campaign:
             return Outcome(index=result.index, scenario=scenario, mission=mission, report=report, flown=False,
                            error=result.error)  # fmt: skip
         sysids = list(metrics["sysids"])  # the drones' in the mission's order: drone k is sysids[k - 1]
-        failures, details = [], []
-        for v in metrics.get("violations", []):
-            failures.append((str(v["name"]), tuple(sorted(sysids.index(s) + 1 for s in v["sysids"] if s in sysids))))
-            details.append(f"{v['name']} at t={v['time_s']} s: {v['detail']}")
-        return Outcome(index=result.index, scenario=scenario, mission=mission, report=report, flown=True,
-                       failures=tuple(failures), details=tuple(details))  # fmt: skip
+        violations = metrics.get("violations", [])
+        return Outcome(
+            index=result.index, scenario=scenario, mission=mission, report=report, flown=True,
+            failures=tuple((str(v["name"]), tuple(sorted(sysids.index(s) + 1 for s in v["sysids"] if s in sysids)))
+                           for v in violations),
+            details=tuple(f"{v['name']} at t={v['time_s']} s: {v['detail']}" for v in violations),
+            times_s=tuple(float(v["time_s"]) for v in violations),
+            steps_s=tuple((int(st["index"]), float(st["start_s"]), float(st["end_s"]))
+                          for st in metrics.get("steps", []) if None not in (st.get("start_s"), st.get("end_s"))),
+        )  # fmt: skip
 
     def _fly(self, scenarios: list[Scenario]) -> list[Outcome]:
         """Fly scenarios side by side; their outcomes, kept (those stopped before they finished are not)."""
@@ -318,6 +325,33 @@ class Campaign:
 
         with contextlib.suppress(_Spent, Broken):
             self._hypothesis(check, shrink=True)()
+        self._cut(failure)
+
+    def _cut(self, failure: Failure) -> None:
+        """What hypothesis cannot shrink, since its space does not vary it, tried on what is left of the failure's
+        budget, each kept if the failure still breaks: the mission cut after the step it broke in, then the swarm
+        cut to its first drones (those it involves and those perturbed at least; tried at that, half way to the
+        mission's count, and one less)."""
+        smallest = failure.smallest
+        if failure.key not in smallest.failures:
+            return
+        broke_at_s = smallest.times_s[smallest.failures.index(failure.key)]
+        step = next((i for i, start, end in smallest.steps_s if start <= broke_at_s < end), None)
+        if step is not None and step + 1 < len(self.raw["steps"]):
+            self._try_cut(failure, dataclasses.replace(smallest.scenario, steps=step + 1))
+        scenario = failure.smallest.scenario
+        involved = max((*failure.key[1], *(p.drone for p in scenario.perturbations)), default=1)
+        for n in sorted({n for n in (involved, (involved + self.n_drones) // 2, self.n_drones - 1)
+                         if involved <= n < self.n_drones}):  # fmt: skip
+            if self._try_cut(failure, dataclasses.replace(scenario, drones=n)):
+                break
+
+    def _try_cut(self, failure: Failure, scenario: Scenario) -> bool:
+        outcome = self._outcome_for(scenario, failure)
+        if outcome is None or failure.key not in outcome.failures:
+            return False
+        failure.smallest = outcome
+        return True
 
     def _outcome_for(self, scenario: Scenario, failure: Failure) -> Outcome | None:
         """The scenario's outcome: kept, or being flown by another failure's pass (waited for), or flown now on

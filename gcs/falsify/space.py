@@ -87,9 +87,16 @@ class Scenario:
     gust_mps: float | None = None
     spawn_jitter_m: float | None = None
     perturbations: tuple[Perturbation, ...] = ()
+    # cuts a shrinking makes after hypothesis's (gcs/falsify/campaign.py): the mission's first drones and steps only
+    drones: int | None = None  # None: every drone of the mission
+    steps: int | None = None  # None: every step of the mission
 
     def describe(self) -> str:
-        parts = [] if self.seed is None else [f"seed {self.seed}"]
+        parts = [] if self.drones is None else [f"{self.drones} drones"]
+        if self.steps is not None:
+            parts.append(f"its first {self.steps} step(s)")
+        if self.seed is not None:
+            parts.append(f"seed {self.seed}")
         if self.wind_ned_mps is not None:
             parts.append("wind " + ", ".join(f"{v:g}" for v in self.wind_ned_mps) + " m/s")
         if self.gust_mps is not None:
@@ -106,7 +113,8 @@ class Scenario:
 
     def to_json(self) -> dict[str, Any]:
         """JSON-ready, and the scenario's identity: two scenarios are the same flight when their JSON is equal."""
-        return {"seed": self.seed, "wind_ned_mps": None if self.wind_ned_mps is None else list(self.wind_ned_mps),
+        return {"drones": self.drones, "steps": self.steps, "seed": self.seed,
+                "wind_ned_mps": None if self.wind_ned_mps is None else list(self.wind_ned_mps),
                 "gust_mps": self.gust_mps, "spawn_jitter_m": self.spawn_jitter_m,
                 "perturbations": [{"drone": p.drone, "param": p.name, "value": p.value} if isinstance(p, ParamChange)
                                   else {"drone": p.drone, "fault": p.kind, "at_s": p.at_s, "for_s": p.for_s}
@@ -115,7 +123,8 @@ class Scenario:
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> Scenario:
         wind = data["wind_ned_mps"]
-        return cls(seed=data["seed"], wind_ned_mps=None if wind is None else (wind[0], wind[1], wind[2]),
+        return cls(drones=data.get("drones"), steps=data.get("steps"), seed=data["seed"],
+                   wind_ned_mps=None if wind is None else (wind[0], wind[1], wind[2]),
                    gust_mps=data["gust_mps"], spawn_jitter_m=data["spawn_jitter_m"],
                    perturbations=tuple(ParamChange(p["drone"], p["param"], p["value"]) if "param" in p
                                        else FaultAt(p["drone"], p["fault"], p["at_s"], p["for_s"])
@@ -234,11 +243,21 @@ def scenario_mission(mission: Mapping[str, Any], scenario: Scenario) -> dict[str
             if p.for_s is not None and p.kind == "link":
                 fault["for_s"] = p.for_s
             faults.append(fault)
+    if scenario.drones is not None:  # the first drones only: what names the others goes with them
+        swarm["drones"] = scenario.drones
+        per_drone = {k: v for k, v in per_drone.items() if int(k) <= scenario.drones}
+        faults = [f for f in faults if int(f.get("drone", 1)) <= scenario.drones]
+    if scenario.steps is not None:
+        out["steps"] = list(out["steps"])[: scenario.steps]
     if per_drone:
         swarm["drone"] = per_drone
+    else:
+        swarm.pop("drone", None)
     out["swarm"] = swarm
     if faults:
         out["faults"] = faults
+    else:
+        out.pop("faults", None)
     return out
 
 

@@ -3,14 +3,16 @@ own budget, resume. The flights here are a stand-in's: a rule over the scenario 
 (run.json, metrics.json), so that the search's own logic is checked in milliseconds on every point it has; the real
 flights are tests/integration/test_falsify.py's.
 
-The rule: two drones touch when both fly with their avoidance off (AVOID_ENABLE = 0), unless the gusts exceed 0.8 m/s
-(then nothing breaks); a link fault before 5 s on drone 3 makes the flight fail before it breaks anything."""
+The rule: two drones touch at 9 s, in the swap, when both fly with their avoidance off (AVOID_ENABLE = 0), unless the
+gusts exceed 0.8 m/s (then nothing breaks); a link fault before 5 s on drone 3 makes the flight fail before it breaks
+anything."""
 
 from __future__ import annotations
 
 import json
 import threading
 import time
+import tomllib
 from collections.abc import Callable
 from itertools import combinations
 from pathlib import Path
@@ -35,6 +37,12 @@ kind = "contact"
 action = "takeoff"
 alt_m = 3.0
 
+[[steps]]
+action = "swap"
+
+[[steps]]
+action = "land"
+
 [falsify]
 params = { AVOID_ENABLE = [0], MPC_XY_VEL_MAX = [3.0] }
 gust_mps = [0.0, 1.0]
@@ -46,6 +54,7 @@ at_s = [2.0, 12.0]
 for_s = [1.0, 5.0]
 """
 FIRST_SYSID = 31
+STEPS_S = ((0.0, 5.0), (5.0, 20.0), (20.0, 30.0))  # takeoff, swap, land
 
 
 class StandIn:
@@ -81,8 +90,10 @@ class StandIn:
             violations, ok = rule(scenario)
             report = flight.folder / "report"
             report.mkdir(parents=True, exist_ok=True)
-            sysids = list(range(FIRST_SYSID, FIRST_SYSID + 4))
-            (report / "metrics.json").write_text(json.dumps({"sysids": sysids, "violations": violations}))
+            sysids = list(range(FIRST_SYSID, FIRST_SYSID + (scenario.drones or 4)))
+            steps = [{"index": i, "start_s": start, "end_s": end} for i, (start, end) in enumerate(STEPS_S)]
+            metrics = {"sysids": sysids, "violations": violations, "steps": steps[: scenario.steps]}
+            (report / "metrics.json").write_text(json.dumps(metrics))
             result = RunResult(index=flight.run.index, name="standin", setting=(), seed=flight.run.seed, ok=ok,
                                wall_s=0.0, metrics={}, error=None if ok else "swarm fly exited with 1: link",
                                command=())  # fmt: skip
@@ -134,6 +145,10 @@ def test_every_pair_found_is_shrunk_to_its_two_perturbations_and_flown_once_per_
         assert sorted(p.drone for p in smallest.perturbations) == list(drones), smallest
         assert all(isinstance(p, ParamChange) and p.name == "AVOID_ENABLE" for p in smallest.perturbations), smallest
         assert smallest.gust_mps == 0.0, smallest
+        # AND cut to the steps up to the one it broke in, and to the first drones it needs
+        assert smallest.steps == 2 and smallest.drones == (drones[1] if drones[1] < 4 else None), smallest
+        minimal = tomllib.loads(failure.smallest.mission.read_text())
+        assert minimal["swarm"]["drones"] == (smallest.drones or 4) and len(minimal["steps"]) == 2, minimal
     # AND no scenario was flown twice, the search at most its budget, and the totals add up
     identities = [json.dumps(s.to_json(), sort_keys=True) for s in stand_in.flown]
     assert len(identities) == len(set(identities)) == result.flights

@@ -93,6 +93,21 @@ def test_a_space_is_read_from_the_missions_falsify_table_and_the_mission_flies_i
     )
 
 
+def test_a_scenario_cut_to_the_first_drones_and_steps_is_a_mission_that_loads_and_says_what_was_cut(
+    tmp_path: Path,
+) -> None:
+    # GIVEN a scenario cut to 2 of the 4 drones and the first 2 steps, drone 1 with its own parameters
+    scenario = Scenario(drones=2, steps=2, perturbations=(ParamChange(2, "AVOID_ENABLE", 0),))
+    written = tmp_path / "cut.toml"
+    written.write_text(mission_text(scenario_mission(tomllib.loads(MISSION), scenario)))
+    # THEN the mission loader takes it: 2 drones, takeoff and swap, drone 1's and 2's parameters kept
+    mission = load_mission(written)
+    assert mission.swarm.drones == 2 and [type(s).__name__ for s in mission.steps] == ["TakeoffStep", "SwapStep"]
+    assert dict(mission.swarm.drone_params) == {1: (("MPC_XY_VEL_MAX", 3.0),), 2: (("AVOID_ENABLE", 0),)}
+    assert scenario.describe() == "2 drones; its first 2 step(s); drone 2 AVOID_ENABLE = 0"
+    assert Scenario.from_json(scenario.to_json()) == scenario
+
+
 def test_every_drawn_point_is_in_the_space() -> None:
     space = space_of()
 
