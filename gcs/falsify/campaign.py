@@ -336,7 +336,11 @@ class Campaign:
         if failure.key not in smallest.failures:
             return
         broke_at_s = smallest.times_s[smallest.failures.index(failure.key)]
+        # the step under way then: one that spans it, or the one after the last that ended (a step that failed,
+        # as drones in contact fail theirs, is not in the report's steps)
         step = next((i for i, start, end in smallest.steps_s if start <= broke_at_s < end), None)
+        if step is None and smallest.steps_s and broke_at_s >= smallest.steps_s[-1][2]:
+            step = smallest.steps_s[-1][0] + 1
         if step is not None and step + 1 < len(self.raw["steps"]):
             self._try_cut(failure, dataclasses.replace(smallest.scenario, steps=step + 1))
         scenario = failure.smallest.scenario
