@@ -204,7 +204,7 @@ class Campaign:
                 outcomes.append(outcome)
                 self.result.errors += not outcome.flown
             if not outcome.flown:
-                self.say(f"falsify: flight {outcome.index} did not fly: {outcome.error}")
+                self.say(f"falsify: flight {outcome.index} failed before it broke an invariant: {outcome.error}")
 
         self.flyer([f for f, _ in flights.values()], finished, self.stop)
         return outcomes

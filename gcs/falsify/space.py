@@ -20,7 +20,16 @@ from typing import Any, Final
 
 from gcs.fleet.faults import FAULT_NAMES
 
-FALSIFY_KEYS: Final = ("seed", "wind_ned_mps", "gust_mps", "spawn_jitter_m", "params", "faults", "max_perturbations")
+FALSIFY_KEYS: Final = (
+    "seed",
+    "wind_ned_mps",
+    "gust_mps",
+    "spawn_jitter_m",
+    "params",
+    "param_drones",
+    "faults",
+    "max_perturbations",
+)
 FAULT_KEYS: Final = ("kinds", "drones", "at_s", "for_s")
 MAX_PERTURBATIONS: Final = 8
 DECIMALS: Final = 2  # a drawn time or speed is written to the centimetre (second): a file a person reads
@@ -51,6 +60,7 @@ class FalsifySpace:
     gust_mps: Range | None = None
     spawn_jitter_m: Range | None = None
     params: tuple[tuple[str, tuple[float, ...]], ...] = ()  # a parameter and the values one drone may be given
+    param_drones: tuple[int, ...] = ()  # the drones ``params`` may be given to (empty: every drone)
     faults: FaultSpace | None = None
     max_perturbations: int = 2
     drones: int = 1
@@ -176,6 +186,8 @@ def parse_space(table: Mapping[str, Any], *, drones: int) -> FalsifySpace:
             raise FalsifyError(f"params.{name}: must be a list of the values a drone may be given, got {values!r}")
         choices.append((str(name), tuple(values)))
     fields["params"] = tuple(choices)
+    if "param_drones" in table:
+        fields["param_drones"] = _drones(table["param_drones"], "param_drones", drones)
     if "faults" in table:
         fields["faults"] = _faults(table["faults"], drones)
     if "max_perturbations" in table:
@@ -193,6 +205,16 @@ def _conditions(space: FalsifySpace) -> bool:
     return any(v is not None for v in (space.seeds, space.wind_ned_mps, space.gust_mps, space.spawn_jitter_m))
 
 
+def _drones(chosen: Any, key: str, drones: int) -> tuple[int, ...]:
+    if (
+        not isinstance(chosen, list)
+        or not chosen
+        or any(isinstance(d, bool) or not isinstance(d, int) or not 1 <= d <= drones for d in chosen)
+    ):
+        raise FalsifyError(f"{key}: must be drones of the swarm, 1..{drones}, got {chosen!r}")
+    return tuple(sorted(set(chosen)))
+
+
 def _faults(table: Any, drones: int) -> FaultSpace:
     if not isinstance(table, Mapping):
         raise FalsifyError("faults: must be a table with kinds and at_s")
@@ -202,19 +224,13 @@ def _faults(table: Any, drones: int) -> FaultSpace:
     kinds = table.get("kinds")
     if not isinstance(kinds, list) or not kinds or any(k not in FAULT_NAMES for k in kinds):
         raise FalsifyError(f"faults.kinds: must be a list of faults ({', '.join(FAULT_NAMES)}), got {kinds!r}")
-    chosen = table.get("drones", list(range(1, drones + 1)))
-    if (
-        not isinstance(chosen, list)
-        or not chosen
-        or any(isinstance(d, bool) or not isinstance(d, int) or not 1 <= d <= drones for d in chosen)
-    ):
-        raise FalsifyError(f"faults.drones: must be drones of the swarm, 1..{drones}, got {chosen!r}")
+    chosen = _drones(table.get("drones", list(range(1, drones + 1))), "faults.drones", drones)
     if "at_s" not in table:
         raise FalsifyError("faults: missing field 'at_s' ([earliest, latest] mission time)")
     for_s = _range(table["for_s"], "faults.for_s") if "for_s" in table else None
     if for_s is not None and for_s.low <= 0.0:
         raise FalsifyError(f"faults.for_s: a link fault lasts more than 0 s, got {table['for_s']!r}")
-    return FaultSpace(kinds=tuple(kinds), drones=tuple(sorted(set(chosen))), at_s=_range(table["at_s"], "faults.at_s"),
+    return FaultSpace(kinds=tuple(kinds), drones=chosen, at_s=_range(table["at_s"], "faults.at_s"),
                       for_s=for_s)  # fmt: skip
 
 
@@ -288,7 +304,7 @@ def strategy(space: FalsifySpace) -> Any:
     if space.params:
         kinds.append(st.builds(
             lambda drone, choice: ParamChange(drone, choice[0], choice[1]),
-            st.integers(1, space.drones),
+            st.sampled_from(space.param_drones or range(1, space.drones + 1)),
             st.sampled_from([(name, value) for name, values in space.params for value in values]),
         ))  # fmt: skip
     faults = space.faults

@@ -1,8 +1,8 @@
-"""``swarm falsify`` finds a planted weakness and shrinks it (docs/falsify.md): two drones swap places; the space may
-turn either drone's avoidance off, add gusts, and cut a drone's links for a while. A contact needs both drones'
-avoidance off (one avoiding alone keeps 1.1 m). Within a budget of 40 flights the search finds a contact and shrinks
-it to at most two perturbations; the minimal mission file replays the same contact twice with swarm fly alone; the
-regression test it writes is a pytest file.
+"""``swarm falsify`` finds a planted weakness and shrinks it (docs/falsify.md): two drones swap places, avoiding each
+other with the relay alone (no cameras); the space may turn drone 1's avoidance off, add gusts, and cut drone 2's links
+for a while. Within a budget of 40 flights the search finds a contact and shrinks it to at most two perturbations; the
+minimal mission file replays the same contact twice with swarm fly alone; the regression test it writes is a pytest
+file.
 
 Policy: loopback only; lockstep flights on instances held through the sweep's instance locks; a time limit."""
 
@@ -25,6 +25,7 @@ name = "planted_swap"
 drones = 2
 layout = "line"
 spacing_m = 6.0
+params = { CAM_ENABLE = 0 }
 
 [[invariants]]
 kind = "contact"
@@ -36,17 +37,20 @@ alt_m = 3.0
 [[steps]]
 action = "swap"
 speed_mps = 1.5
+timeout_s = 15.0
 
 [[steps]]
 action = "land"
 
 [falsify]
 params = { AVOID_ENABLE = [0] }
+param_drones = [1]
 gust_mps = [0.0, 1.0]
 max_perturbations = 3
 
 [falsify.faults]
 kinds = ["link"]
+drones = [2]
 at_s = [2.0, 12.0]
 for_s = [1.0, 5.0]
 """
@@ -68,7 +72,7 @@ def test_a_planted_weakness_is_found_shrunk_and_replays_from_its_minimal_file(tm
     (failure,) = summary["failures"]
     assert failure["invariant"] == "contact" and failure["perturbations"] <= 2, failure
     assert failure["first_flight"] < 40
-    assert "AVOID_ENABLE = 0" in failure["scenario"], failure
+    assert "link fault on drone 2" in failure["scenario"], failure
     # AND the mission was cut after the swap it broke in: the landing is not needed to break it
     assert "its first 2 step(s)" in failure["scenario"], failure
     # AND its minimal file replays the same contact, twice, with swarm fly alone

@@ -108,8 +108,11 @@ def test_a_scenario_cut_to_the_first_drones_and_steps_is_a_mission_that_loads_an
     assert Scenario.from_json(scenario.to_json()) == scenario
 
 
-def test_every_drawn_point_is_in_the_space() -> None:
-    space = space_of()
+@pytest.mark.parametrize(
+    ("param_drones", "allowed"), [("", (1, 2, 3, 4)), ("param_drones = [4, 1]\n", (1, 4))], ids=["any", "chosen"]
+)
+def test_every_drawn_point_is_in_the_space(param_drones: str, allowed: tuple[int, ...]) -> None:
+    space = space_of(MISSION.replace("max_perturbations", param_drones + "max_perturbations"))
 
     @settings(max_examples=200, deadline=None)
     def check(scenario: Scenario) -> None:
@@ -120,7 +123,7 @@ def test_every_drawn_point_is_in_the_space() -> None:
             if isinstance(p, FaultAt):
                 assert p.drone in (2, 3) and 5.0 <= p.at_s <= 20.0 and p.for_s is not None and 1.0 <= p.for_s <= 6.0
             else:
-                assert 1 <= p.drone <= 4 and (p.name, p.value) == ("AVOID_ENABLE", 0)
+                assert p.drone in allowed and (p.name, p.value) == ("AVOID_ENABLE", 0)
 
     given(strategy(space))(check)()
 
@@ -146,6 +149,7 @@ def test_shrinking_goes_to_fewer_perturbations_a_later_and_shorter_fault_and_the
         (("at_s = [5.0, 20.0]", "at = [5.0, 20.0]"), "faults.at: not a field"),
         (("for_s = [1.0, 6.0]", "for_s = [0.0, 6.0]"), "faults.for_s: a link fault lasts more than 0 s"),
         (("max_perturbations = 3", "max_perturbations = 40"), "max_perturbations: must be in 0..8"),
+        (("max_perturbations = 3", "param_drones = [0]"), r"param_drones: must be drones of the swarm, 1..4"),
     ],
 )
 def test_a_bad_space_is_one_line_naming_its_field(change: tuple[str, str], said: str) -> None:
