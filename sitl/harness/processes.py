@@ -135,7 +135,9 @@ class DroneProcess:
 
 
 def _home_arg(home: GeoPoint) -> str:
-    return f"{home.lat_deg:.9f},{home.lon_deg:.9f},{home.alt_amsl_m:.3f}"
+    """``--home=LAT,LON,ALT`` in one word: a value that starts with a minus sign (south of the equator, west of
+    Greenwich) would be taken for an option of its own."""
+    return f"--home={home.lat_deg:.9f},{home.lon_deg:.9f},{home.alt_amsl_m:.3f}"
 
 
 def sitl_args(plan: LaunchPlan, instance: int, home: GeoPoint, gcs_port: int, world: str | None) -> list[str]:
@@ -143,7 +145,7 @@ def sitl_args(plan: LaunchPlan, instance: int, home: GeoPoint, gcs_port: int, wo
     cmd = [
         "--instance", str(instance),
         "--seed", str(plan.seed + instance - plan.first_instance),
-        "--home", _home_arg(home),
+        _home_arg(home),
     ]  # fmt: skip
     if plan.camera_dir is not None and instance - plan.first_instance + 1 in plan.camera_drones:
         cmd += ["--camera-frames", str(plan.camera_dir / f"drone-{instance}")]
@@ -160,7 +162,7 @@ def host_args(
     selection = f"{instances[0]}-{instances[-1]}" if contiguous else ",".join(map(str, instances))
     cmd = ["--instances", selection, "--seed", str(plan.seed + instances[0] - plan.first_instance)]
     for home in homes:
-        cmd += ["--home", _home_arg(home)]
+        cmd.append(_home_arg(home))
     if plan.log_dir is not None:
         cmd += ["--log-dir", str(plan.log_dir)]
     cameras = [i for i in instances if i - plan.first_instance + 1 in plan.camera_drones]
@@ -185,7 +187,8 @@ def _common_args(plan: LaunchPlan, gcs_port: int, world: str | None) -> list[str
     if plan.behaviour is not None:
         cmd += ["--behaviour", plan.behaviour]
     if any(plan.wind_ned_mps) or plan.gust_mps > 0.0:
-        cmd += ["--wind", ",".join(repr(float(v)) for v in plan.wind_ned_mps), "--gust", repr(float(plan.gust_mps))]
+        # one word each, as _home_arg: a wind blowing south or west starts with a minus sign
+        cmd += ["--wind=" + ",".join(repr(float(v)) for v in plan.wind_ned_mps), f"--gust={float(plan.gust_mps)!r}"]
     return cmd
 
 

@@ -9,7 +9,7 @@ import pytest
 from gcs.composition import launch_plan
 from gcs.fleet.harness import SpawnPlan
 from sitl.cli import build_parser, parse_instances
-from sitl.dynamics.plant import DEFAULT_HOME
+from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
 from sitl.harness.processes import LaunchPlan, host_args, host_groups, sitl_args
 
 
@@ -58,3 +58,17 @@ def test_a_plan_with_a_signing_key_starts_every_drone_signing_and_requiring_sign
         assert parsed.signing_key == str(key_file) and parsed.signing_required
     unsigned = build_parser().parse_args(sitl_args(launch_plan(SpawnPlan(n_drones=1)), 0, homes[0], 14550, None))
     assert unsigned.signing_key is None and not unsigned.signing_required
+
+
+def test_an_origin_south_and_west_and_a_wind_to_the_south_west_reach_every_drone_as_given() -> None:
+    """Values with a minus sign in front: argparse takes ``-33.9,151.2,10`` after ``--home`` for an option of its own
+    unless the value is joined to its option."""
+    origin = GeoPoint(lat_deg=-33.856784, lon_deg=-70.658333, alt_amsl_m=520.0)
+    plan = LaunchPlan(origin=origin, offsets_ne_m=((0.0, 0.0), (0.0, 2.0)), first_instance=40,
+                      wind_ned_mps=(-1.5, -0.25, 0.0), gust_mps=0.5)  # fmt: skip
+    homes = plan.homes()
+    for args in (host_args(plan, [40, 41], homes, 14550, None), sitl_args(plan, 40, homes[0], 14550, None)):
+        parsed = build_parser().parse_args(args)
+        assert (parsed.wind, parsed.gust) == ("-1.5,-0.25,0.0", 0.5)
+        lat, lon, alt = (float(v) for v in parsed.home[0].split(","))
+        assert (round(lat, 6), round(lon, 6), alt) == (-33.856784, -70.658333, 520.0)
