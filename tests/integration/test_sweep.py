@@ -341,3 +341,40 @@ def test_ray_missing_is_one_line_and_exit_code_2(mission: Path, sweep_env: dict[
                             timeout=60)  # fmt: skip
     assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
     assert "--ray needs Ray" in result.stderr and "pip install" in result.stderr
+
+
+SPACE = """
+[[invariants]]
+kind = "contact"
+
+[falsify]
+params = { AVOID_ENABLE = [0] }
+max_perturbations = 2
+"""
+
+
+@pytest.mark.timeout(600)
+def test_a_falsification_on_a_local_ray_head_finds_and_shrinks_what_it_does_here(
+    sweep_env: dict[str, str], ray_head: str, tmp_path: Path
+) -> None:
+    # GIVEN the swap with a space where both drones' avoidance off makes them touch
+    path = tmp_path / "swap_space.toml"
+    path.write_text(MISSION + SPACE)
+    summaries = {}
+    for where, args in (("here", ["--jobs", "2"]), ("ray", ["--ray", ray_head])):
+        # WHEN the same campaign runs on this machine and on the Ray head
+        run = subprocess.run([*SWARM, "falsify", str(path), "--budget", "6", "--shrink-budget", "6", "--seed", "2",
+                              "--out", str(tmp_path / where), *args], capture_output=True, text=True, env=sweep_env,
+                             timeout=500)  # fmt: skip
+        assert run.returncode == 3, run.stdout[-3000:] + run.stderr[-3000:]
+        summaries[where] = json.loads((tmp_path / where / "summary.json").read_text())
+    # THEN both found the same contact and shrank it to the same two perturbations, in as many flights to search
+    assert "Ray cluster at" in run.stdout
+    keep = ("invariant", "drones", "first_flight", "scenario", "perturbations", "detail")
+    found = {where: [{k: f[k] for k in keep} for f in s["failures"]] for where, s in summaries.items()}
+    assert found["ray"] == found["here"] and found["here"], found
+    assert found["here"][0]["perturbations"] == 2 and found["here"][0]["drones"] == [1, 2], found
+    assert summaries["ray"]["search_flights"] == summaries["here"]["search_flights"]
+    # AND the Ray flights' folders came back whole: each shrunk failure's report is here
+    for failure in summaries["ray"]["failures"]:
+        assert (Path(failure["report"]) / "report.html").is_file()
