@@ -37,13 +37,22 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
 
-from gcs.falsify.space import FalsifySpace, Scenario, mission_text, parse_space, scenario_mission, strategy
+from gcs.falsify.space import (
+    FalsifyError,
+    FalsifySpace,
+    Scenario,
+    mission_text,
+    parse_space,
+    scenario_mission,
+    strategy,
+)
 from gcs.sweep.plan import Run, SweepPlan
 from gcs.sweep.runs import Flight, RunResult, completed
 from gcs.sweep.sweep import Flyer
 
 SUMMARY_FILE: Final = "summary.json"
 SCENARIO_FILE: Final = "scenario.json"
+CAMPAIGN_FILE: Final = "campaign.json"  # the mission a campaign folder's flights are of
 DEFAULT_SHRINK_BUDGET: Final = 40
 NO_SHRINK_TIME_LIMIT_S: Final = 10**9  # hypothesis's own 5-minute limit on shrinking, lifted while a campaign runs
 
@@ -141,7 +150,19 @@ class Campaign:
 
     # ---- flights -------------------------------------------------------------------------------------------------
     def _load(self) -> None:
-        """The flights an earlier run of this campaign completed (runs/NNNN/ with scenario.json and run.json)."""
+        """The flights an earlier run of this campaign completed (runs/NNNN/ with scenario.json and run.json);
+        FalsifyError for a folder that holds a campaign over another mission (its flights would be another's)."""
+        sha256 = hashlib.sha256(self.mission_path.read_bytes()).hexdigest()
+        path = self.out / CAMPAIGN_FILE
+        try:
+            held = json.loads(path.read_text()).get("mission_sha256")
+        except (OSError, ValueError, AttributeError):
+            held = None
+        if path.exists() and held != sha256:
+            raise FalsifyError(f"{self.out} holds a campaign over another mission ({path}): give another --out, or "
+                               "remove it")  # fmt: skip
+        self.out.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps({"mission": str(self.mission_path), "mission_sha256": sha256}, indent=1) + "\n")
         for folder in sorted((self.out / "runs").glob("[0-9]" * 4)):
             self._next_index = max(self._next_index, int(folder.name) + 1)
             result = completed(folder)
@@ -167,7 +188,8 @@ class Campaign:
         (folder / SCENARIO_FILE).write_text(json.dumps(scenario.to_json(), indent=1) + "\n")
         seed = scenario.seed if scenario.seed is not None else int(self.raw["swarm"].get("seed", 0))
         plan = SweepPlan(mission=path, mission_sha256=hashlib.sha256(path.read_bytes()).hexdigest(),
-                         n_drones=self.n_drones, seeds=(seed,), axes=(), fly_args=self.fly_args)  # fmt: skip
+                         n_drones=scenario.drones or self.n_drones, seeds=(seed,), axes=(),
+                         fly_args=self.fly_args)  # fmt: skip
         return Flight(plan, Run(index=index, setting=(), seed=seed), folder)
 
     def _outcome(self, scenario: Scenario, folder: Path, result: RunResult) -> Outcome:

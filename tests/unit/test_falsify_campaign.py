@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 
 from gcs.falsify.campaign import Campaign, CampaignResult
-from gcs.falsify.space import FaultAt, ParamChange, Scenario
+from gcs.falsify.space import FalsifyError, FaultAt, ParamChange, Scenario
 from gcs.sweep.runs import RUN_FILE, Flight, RunResult
 
 pytestmark = [pytest.mark.unit, pytest.mark.timeout(120)]
@@ -194,3 +194,13 @@ def test_a_time_limit_stops_it_and_the_summary_says_so(tmp_path: Path) -> None:
     assert time.monotonic() - started < 10
     assert result.stopped == "its time was up"
     assert "stopped: its time was up" in (tmp_path / "out" / "summary.txt").read_text()
+
+
+def test_a_folder_holding_a_campaign_over_another_mission_is_refused_before_anything_flies(tmp_path: Path) -> None:
+    first, _ = campaign(tmp_path, budget=3, shrink_budget=0)
+    first.run()
+    (tmp_path / "crossing.toml").write_text(MISSION.replace('action = "land"', 'action = "hold"\nduration_s = 1.0'))
+    other = Campaign(tmp_path / "crossing.toml", tmp_path / "out", budget=3, flyer=StandIn(), say=lambda _: None)
+    with pytest.raises(FalsifyError, match="holds a campaign over another mission") as caught:
+        other.run()
+    assert "\n" not in str(caught.value)
