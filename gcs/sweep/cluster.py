@@ -76,6 +76,7 @@ class RayFlyer:
         self.say = say
         self._task: Any = None
         self._cpus = 0.0
+        self._joining = threading.Lock()  # a falsification's shrinking passes may make their first calls at once
 
     def _join(self) -> None:
         ray = self._ray
@@ -90,12 +91,13 @@ class RayFlyer:
 
     def __call__(self, flights: list[Flight], finished: Callable[[RunResult], None], stop: threading.Event) -> None:
         ray = self._ray
-        if self._task is None:
-            self._join()
-            if flights:
-                cpus = cpus_per_run(flights[0].plan.n_drones, self.drones_per_process)
-                self.say(f"sweep: Ray cluster at {self.address}: {self._cpus:g} CPUs, {cpus} per run, up to "
-                         f"{int(self._cpus // cpus)} runs at once")  # fmt: skip
+        with self._joining:
+            if self._task is None:
+                self._join()
+                if flights:
+                    cpus = cpus_per_run(flights[0].plan.n_drones, self.drones_per_process)
+                    self.say(f"sweep: Ray cluster at {self.address}: {self._cpus:g} CPUs, {cpus} per run, up to "
+                             f"{int(self._cpus // cpus)} runs at once")  # fmt: skip
         refs: dict[Any, Flight] = {}
         try:
             for flight in flights:
