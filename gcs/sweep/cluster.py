@@ -55,8 +55,10 @@ def fly_on_node(
 
 
 def _unpack(archive: bytes, into: Path) -> None:
-    shutil.rmtree(into, ignore_errors=True)
-    into.mkdir(parents=True)
+    """The run's folder as the node left it, over the driver's: what the driver put there before (a falsification's
+    mission file and scenario) stays, a report from an earlier attempt goes."""
+    shutil.rmtree(into / "report", ignore_errors=True)
+    into.mkdir(parents=True, exist_ok=True)
     with tarfile.open(fileobj=io.BytesIO(archive), mode="r:gz") as tar:
         tar.extractall(into, filter="data")
 
