@@ -143,7 +143,7 @@ def _v_angle(text: str) -> float:
 ORIGIN_ATTACHED = "attached"  # --origin attached: the first attached vehicle's home
 ORIGIN_HELP = (
     "swarm origin LAT,LON,ALT_AMSL, or 'attached': the home of the first vehicle on the first --attach link "
-    "(docs/external.md)"
+    "(docs/external.md); south or west, join it with '=': --origin=-33.86,151.21,10"
 )
 
 
