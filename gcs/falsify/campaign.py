@@ -52,6 +52,7 @@ from gcs.sweep.sweep import Flyer
 
 SUMMARY_FILE: Final = "summary.json"
 SCENARIO_FILE: Final = "scenario.json"
+MISSION_FILE: Final = "mission.toml"  # a flight's plain mission file, in its folder
 CAMPAIGN_FILE: Final = "campaign.json"  # the mission a campaign folder's flights are of
 DEFAULT_SHRINK_BUDGET: Final = 40
 NO_SHRINK_TIME_LIMIT_S: Final = 10**9  # hypothesis's own 5-minute limit on shrinking, lifted while a campaign runs
@@ -170,8 +171,16 @@ class Campaign:
                 scenario = Scenario.from_json(json.loads((folder / SCENARIO_FILE).read_text()))
             except (OSError, ValueError, KeyError, TypeError, IndexError):
                 continue
-            if result is not None:
-                self._flown[_identity(scenario)] = self._outcome(scenario, folder, result)
+            # kept only if it flew the file this campaign would write now (not one written by another version)
+            with contextlib.suppress(OSError):
+                if result is not None and (folder / MISSION_FILE).read_text() == self._text(scenario):
+                    self._flown[_identity(scenario)] = self._outcome(scenario, folder, result)
+
+    def _text(self, scenario: Scenario) -> str:
+        """The plain mission file of a scenario."""
+        mission = scenario_mission(self.raw, scenario, self.mission_path.parent.resolve())
+        return mission_text(mission, header=[f"{self.mission_path.name}, {scenario.describe()}",
+                                             f"swarm fly {MISSION_FILE} --lockstep"])  # fmt: skip
 
     def _flight(self, scenario: Scenario) -> Flight:
         """The scenario as a plain mission file in a folder of its own, ready to fly."""
@@ -180,11 +189,8 @@ class Campaign:
             self._next_index += 1
         folder = self.out / "runs" / f"{index:04d}"
         folder.mkdir(parents=True, exist_ok=True)
-        path = folder / "mission.toml"
-        path.write_text(mission_text(scenario_mission(self.raw, scenario), header=[
-            f"{self.mission_path.name}, {scenario.describe()}",
-            f"swarm fly {path.name} --lockstep",
-        ]))  # fmt: skip
+        path = folder / MISSION_FILE
+        path.write_text(self._text(scenario))
         (folder / SCENARIO_FILE).write_text(json.dumps(scenario.to_json(), indent=1) + "\n")
         seed = scenario.seed if scenario.seed is not None else int(self.raw["swarm"].get("seed", 0))
         plan = SweepPlan(mission=path, mission_sha256=hashlib.sha256(path.read_bytes()).hexdigest(),
@@ -193,7 +199,7 @@ class Campaign:
         return Flight(plan, Run(index=index, setting=(), seed=seed), folder)
 
     def _outcome(self, scenario: Scenario, folder: Path, result: RunResult) -> Outcome:
-        mission, report = folder / "mission.toml", folder / "report"
+        mission, report = folder / MISSION_FILE, folder / "report"
         try:  # a flight that broke an invariant and then failed a step (drones in contact never reach their goal)
             metrics = json.loads((report / "metrics.json").read_text())  # still wrote what broke first
         except (OSError, ValueError):

@@ -16,9 +16,11 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Final
 
 from gcs.fleet.faults import FAULT_NAMES
+from gcs.flight.onboard import absolute_spec
 
 FALSIFY_KEYS: Final = (
     "seed",
@@ -235,10 +237,13 @@ def _faults(table: Any, drones: int) -> FaultSpace:
 
 
 # ---- writing ------------------------------------------------------------------------------------------------------
-def scenario_mission(mission: Mapping[str, Any], scenario: Scenario) -> dict[str, Any]:
+def scenario_mission(mission: Mapping[str, Any], scenario: Scenario, base: Path | None = None) -> dict[str, Any]:
     """The mission (as its TOML file reads) with the scenario written into its own keys, without ``[falsify]``: a
-    plain mission file."""
+    plain mission file. ``base``: the folder of the mission file (absolute), against which the files it names (a
+    plan, a behaviour, a predicate, a key) are made absolute: the mission written is read from another folder."""
     out = {k: v for k, v in mission.items() if k != "falsify"}
+    if base is not None:
+        out = _anchored(out, base)
     swarm = dict(out["swarm"])
     if scenario.seed is not None:
         swarm["seed"] = scenario.seed
@@ -274,6 +279,32 @@ def scenario_mission(mission: Mapping[str, Any], scenario: Scenario) -> dict[str
         out["faults"] = faults
     else:
         out.pop("faults", None)
+    return out
+
+
+def _anchored(mission: dict[str, Any], base: Path) -> dict[str, Any]:
+    """The mission with the files it names relative to its folder made absolute (docs/missions.md says which)."""
+
+    def spec(text: Any) -> Any:  # path/file.py:Name (a module's package.module:Name stays as it is)
+        return absolute_spec(text, base) if isinstance(text, str) and ":" in text else text
+
+    def path(text: Any) -> Any:
+        return str(base / text) if isinstance(text, str) and not Path(text).is_absolute() else text
+
+    out = dict(mission)
+    swarm = dict(out["swarm"])
+    if "behaviour" in swarm:
+        swarm["behaviour"] = spec(swarm["behaviour"])
+    if isinstance(swarm.get("attach"), list):
+        swarm["attach"] = [{**a, "signing_key": path(a["signing_key"])} if isinstance(a, dict) and "signing_key" in a
+                           else a for a in swarm["attach"]]  # fmt: skip
+    out["swarm"] = swarm
+    if isinstance(out.get("steps"), list):
+        out["steps"] = [{**st, "file": path(st["file"])} if isinstance(st, dict) and "file" in st else st
+                        for st in out["steps"]]  # fmt: skip
+    if isinstance(out.get("invariants"), list):
+        out["invariants"] = [{**inv, "function": spec(inv["function"])} if isinstance(inv, dict) and "function" in inv
+                             else inv for inv in out["invariants"]]  # fmt: skip
     return out
 
 

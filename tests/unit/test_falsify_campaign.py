@@ -185,6 +185,12 @@ def test_run_again_it_flies_nothing_it_flew_before_and_finds_the_same(tmp_path: 
     result = again.run()
     assert stand_in.flown == [] and result.flights == 0 and result.reused > 0
     assert summary(result) == [(*rest, 0) for *rest, _ in found]
+    # AND a flight whose file is not the one this campaign writes now (another version wrote it) is flown again
+    kept = tmp_path / "out" / "runs" / "0000" / "mission.toml"
+    kept.write_text(kept.read_text().replace("[swarm]", "[swarm]\nspacing_m = 2.0"))
+    third, stand_in = campaign(tmp_path)
+    third.run()
+    assert len(stand_in.flown) == 1
 
 
 def test_a_time_limit_stops_it_and_the_summary_says_so(tmp_path: Path) -> None:

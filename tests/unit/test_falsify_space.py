@@ -186,3 +186,24 @@ def test_bad_falsify_commands_are_one_line_and_exit_2_before_anything_flies(
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and said in err, (argv, err)
     assert not (tmp_path / "falsify").exists()
+
+
+def test_the_files_a_mission_names_are_found_from_the_folder_its_scenarios_are_written_in(tmp_path: Path) -> None:
+    # GIVEN the shipped plan mission, with a predicate of its own beside it
+    home, elsewhere = tmp_path / "mine", tmp_path / "campaign" / "runs" / "0000"
+    home.mkdir()
+    elsewhere.mkdir(parents=True)
+    shipped = Path(__file__).parents[2] / "missions"
+    (home / "box.plan").write_text((shipped / "box.plan").read_text())
+    (home / "checks.py").write_text("def fine(state):\n    return True\n")
+    text = (
+        shipped / "qgc_box.toml"
+    ).read_text() + '\n[[invariants]]\nkind = "predicate"\nfunction = "checks.py:fine"\n'
+    (home / "qgc_box.toml").write_text(text)
+    # WHEN a scenario of it is written in another folder, as a campaign writes its flights
+    written = elsewhere / "mission.toml"
+    written.write_text(mission_text(scenario_mission(tomllib.loads(text), Scenario(seed=3), home.resolve())))
+    # THEN it loads there, and names the plan and the predicate where they are
+    mission = load_mission(written)
+    assert mission.steps[0].file == home.resolve() / "box.plan"  # type: ignore[union-attr]
+    assert str(home.resolve() / "checks.py") in written.read_text()
