@@ -120,7 +120,7 @@ def campaign(tmp_path: Path, out: str = "out", **options: object) -> tuple[Campa
     mission = tmp_path / "crossing.toml"
     mission.write_text(MISSION)
     stand_in = StandIn(delay_s=float(options.pop("delay_s", 0.0)))  # type: ignore[arg-type]
-    settings: dict[str, object] = {"budget": 40, "shrink_budget": 40, "seed": 10, "say": lambda _: None, **options}
+    settings: dict[str, object] = {"budget": 40, "shrink_budget": 40, "seed": 7, "say": lambda _: None, **options}
     return Campaign(mission, tmp_path / out, flyer=stand_in, **settings), stand_in  # type: ignore[arg-type]
 
 
@@ -154,7 +154,7 @@ def test_every_pair_found_is_shrunk_to_its_two_perturbations_and_flown_once_per_
     # AND no scenario was flown twice, the search at most its budget, and the totals add up
     identities = [json.dumps(s.to_json(), sort_keys=True) for s in stand_in.flown]
     assert len(identities) == len(set(identities)) == result.flights
-    assert result.search_flights <= 40 and result.errors > 0
+    assert result.search_flights <= 40 and result.errors == sum(not rule(s)[1] for s in stand_in.flown)
     # AND the summary names each failure, its minimal file and how it was shrunk
     text = (tmp_path / "out" / "summary.txt").read_text()
     for failure in result.failures.values():
