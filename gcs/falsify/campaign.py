@@ -147,6 +147,7 @@ class Campaign:
         self._lock = threading.Lock()  # the flights kept, the next index, the result
         self._flown: dict[str, Outcome] = {}
         self._flying: dict[str, threading.Event] = {}  # scenarios a shrinking pass is flying now
+        self._said: set[Key] = set()  # failures said as their first flight came
         self._next_index = 0
 
     # ---- flights -------------------------------------------------------------------------------------------------
@@ -231,8 +232,13 @@ class Campaign:
                 self._flown[_identity(scenario)] = outcome
                 outcomes.append(outcome)
                 self.result.errors += not outcome.flown
+                new = [k for k in outcome.failures if k not in self._said]
+                self._said.update(new)
             if not outcome.flown:
                 self.say(f"falsify: flight {outcome.index} failed before it broke an invariant: {outcome.error}")
+            for key in new:  # said as it comes: a search takes a while
+                self.say(f"falsify: flight {outcome.index} broke {outcome.details[outcome.failures.index(key)]} "
+                         f"({scenario.describe()})")  # fmt: skip
 
         self.flyer([f for f, _ in flights.values()], finished, self.stop)
         return outcomes
@@ -308,8 +314,6 @@ class Campaign:
             for key in outcome.failures:
                 if key not in self.result.failures:
                     self.result.failures[key] = Failure(key=key, first=outcome, smallest=outcome)
-                    self.say(f"falsify: flight {outcome.index} broke {outcome.details[outcome.failures.index(key)]} "
-                             f"({scenario.describe()})")  # fmt: skip
 
     def _shrink_all(self) -> None:
         failures = [f for f in self.result.failures.values() if f.searched]
