@@ -61,8 +61,9 @@ def test_a_planted_weakness_is_found_shrunk_and_replays_from_its_minimal_file(tm
     mission = tmp_path / "planted_swap.toml"
     mission.write_text(PLANTED)
     out = tmp_path / "campaign"
+    # (one flight at a time: the suite runs a test file per CPU, and flights on every CPU starve the other's paced ones)
     run = subprocess.run([*SWARM, "falsify", str(mission), "--budget", "40", "--shrink-budget", "40", "--seed", "1",
-                          "--out", str(out), "--emit-tests", str(tmp_path / "regressions")],
+                          "--jobs", "1", "--out", str(out), "--emit-tests", str(tmp_path / "regressions")],
                          capture_output=True, text=True, timeout=850)  # fmt: skip
     # THEN it found a contact (exit 3) within the budget, and shrank it to at most two perturbations
     assert run.returncode == 3, run.stdout[-3000:] + run.stderr[-2000:]

@@ -361,7 +361,7 @@ def test_a_falsification_on_a_local_ray_head_finds_and_shrinks_what_it_does_here
     path = tmp_path / "swap_space.toml"
     path.write_text(MISSION + SPACE)
     summaries = {}
-    for where, args in (("here", ["--jobs", "2"]), ("ray", ["--ray", ray_head])):
+    for where, args in (("here", ["--jobs", "1"]), ("ray", ["--ray", ray_head])):
         # WHEN the same campaign runs on this machine and on the Ray head
         run = subprocess.run([*SWARM, "falsify", str(path), "--budget", "6", "--shrink-budget", "6", "--seed", "2",
                               "--out", str(tmp_path / where), *args], capture_output=True, text=True, env=sweep_env,
