@@ -33,7 +33,7 @@ HIGHEST_INSTANCE: Final = 198  # sysid 199: sysids 200-254 are the tests' stand-
 LEASE_TIMEOUT_S: Final = 120.0  # wall seconds to wait for a block while other tests hold the rest
 _RETRY_S: Final = 0.2
 _RESERVE_AFTER_S: Final = 2.0  # wall seconds of finding no whole block free before reserving one (``_reserve``)
-_RESERVE_STALL_S: Final = 30.0  # a reservation that gains no instance for this long lets go of what it holds
+_RESERVE_STALL_S: Final = 150.0  # a reservation that gains no instance for this long lets go (longer than a test)
 
 
 class LeaseError(RuntimeError):
@@ -158,9 +158,9 @@ class Leases:
         self._lowest = lowest
         self._leases: list[Lease] = []
 
-    def __call__(self, count: int = 1, *, containing: int | None = None) -> int:
+    def __call__(self, count: int = 1, *, containing: int | None = None, timeout_s: float = LEASE_TIMEOUT_S) -> int:
         """The first instance of a fresh block of ``count``."""
-        taken = lease(count, lowest=self._lowest, containing=containing)
+        taken = lease(count, lowest=self._lowest, containing=containing, timeout_s=timeout_s)
         self._leases.append(taken)
         return taken.first
 

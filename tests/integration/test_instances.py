@@ -17,13 +17,20 @@ from tests.integration.instances import HIGHEST_INSTANCE, lease, leases
 from tests.integration.sitl_process import instance_is_clear_of_user_ports
 
 pytestmark = pytest.mark.timeout(60)
+HIGH = 150
 
 HOLDER = textwrap.dedent(
     """
     import sys
     from gcs.sweep.runs import InstanceLocks
-    held = InstanceLocks(int(sys.argv[2])).try_hold(int(sys.argv[1]))
-    print("held" if held is not None else "taken", flush=True)
+    locks, first = InstanceLocks(int(sys.argv[2])), int(sys.argv[1])
+    for start in range(first, first + 100):  # the first block from ``first`` up nobody holds (others may run)
+        held = locks.try_hold(start)  # kept: the locks go with their files
+        if held is not None:
+            print(start, flush=True)
+            break
+    else:
+        print("taken", flush=True)
     sys.stdin.read()  # hold the locks until the test closes our stdin
     """
 )
@@ -49,14 +56,16 @@ CHURNER = textwrap.dedent(
 
 
 def test_leases_are_disjoint_clear_of_user_ports_and_skip_a_block_another_process_holds() -> None:
-    with leases() as take:
-        # GIVEN a block leased here, and the block just after it held by another process (as another worker would)
+    # (high up: clear of where sweeps, campaigns and the 42-drone test's reservation take their blocks)
+    with leases(lowest=HIGH) as take:
+        # GIVEN a block leased here, and the next free block after it held by another process (as another worker
+        # would)
         first = take(4)
-        other = first + 4
-        holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(other), "4"], stdin=subprocess.PIPE,
+        holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(first + 4), "4"], stdin=subprocess.PIPE,
                                   stdout=subprocess.PIPE, text=True)  # fmt: skip
         try:
-            assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+            assert holder.stdout is not None
+            other = int(holder.stdout.readline())
             # WHEN more blocks are leased
             firsts = [take(4) for _ in range(3)]
             # THEN none overlaps this process's own blocks or the other process's, none reaches a user's ports
@@ -74,7 +83,7 @@ def test_leases_are_disjoint_clear_of_user_ports_and_skip_a_block_another_proces
     # AND once given back, a block can be leased again by anyone (here: held at once by a new process)
     again = subprocess.run([sys.executable, "-c", HOLDER, str(first), "4"], input="", capture_output=True, text=True,
                            timeout=30)  # fmt: skip
-    assert again.stdout.strip() == "held", again
+    assert again.stdout.strip() == str(first), again
 
 
 def test_a_lease_that_must_contain_an_instance_spans_it() -> None:

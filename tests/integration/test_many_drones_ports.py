@@ -31,7 +31,8 @@ from sitl.process.ports import PX4_INSTANCES, instance_ports
 from tests.integration.instances import Leases
 from tests.integration.test_swarm import SWARM, alive, children_of, wait_dead
 
-pytestmark = [pytest.mark.sim_only, pytest.mark.heavy, pytest.mark.timeout(240)]
+pytestmark = [pytest.mark.sim_only, pytest.mark.heavy, pytest.mark.timeout(900)]
+LEASE_TIMEOUT_S = 600.0  # its block lies where sweeps and falsification campaigns take theirs: it may wait for them
 
 LOOPBACK = "127.0.0.1"
 DRONES = 42
@@ -93,7 +94,7 @@ def wait_for_line(log: Path, text: str, proc: subprocess.Popen[bytes], timeout_s
 def test_more_than_40_drones_each_talk_only_to_their_own_api_clients(tmp_path: Path, instances: Leases) -> None:
     # a block holding the last instance but one under PX4's numbers: its first two drones keep PX4's ports, and its
     # last two are 40 above them
-    first = instances(DRONES, containing=PX4_INSTANCES - 2)
+    first = instances(DRONES, containing=PX4_INSTANCES - 2, timeout_s=LEASE_TIMEOUT_S)
     block = range(first, first + DRONES)
     # PX4's numbers: the second of each pair would stream its API link onto the first's API port
     pairs = [(first, first + 40), (first + 1, first + 41)]
