@@ -21,8 +21,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Final
 
+from gcs.sweep.instance_locks import InstanceLocks
 from gcs.sweep.plan import Axis, Run, SweepError, SweepPlan
-from gcs.sweep.runs import Flight, InstanceLocks, RunResult, fly
+from gcs.sweep.runs import Flight, RunResult, fly
 from gcs.sweep.sweep import cpus_per_run
 
 MAX_RETRIES: Final = 3

@@ -2,10 +2,9 @@
 
 Runs that share a machine must not share UDP ports, and a drone's ports follow its instance (PX4's convention:
 18570+instance, 14580+instance, and a block of their own from instance 40 on: docs/mavlink.md), so every run holds a
-lock on each instance it flies (``InstanceLocks``: ``fcntl.flock`` on one small file per instance in a directory
-every sweep on the machine uses). The kernel drops a lock with its holder, so a sweep killed with SIGKILL frees its
-instances. The rest is already per run: each swarm's shared world has a name of its own, its lockstep sockets are
-named after it, its report goes to the run's folder, and its supervisor's ports are chosen by the system. Which
+lock on each instance it flies (gcs/sweep/instance_locks.py). The rest is already per run: each swarm's shared
+world has a name of its own, its lockstep sockets are named after it, its report goes to the run's folder, and its
+supervisor's ports are chosen by the system. Which
 instances a run gets does not change what it does: a drone's randomness comes from its seed alone (drone k of the
 swarm: seed + k).
 
@@ -16,90 +15,25 @@ lost node leaves no ``run.json`` and is flown again when the sweep resumes.
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import json
 import os
 import signal
 import subprocess
 import sys
-import tempfile
 import threading
 import time
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any, Final
+from typing import Any, Final
 
-from gcs.fleet.harness import LAST_INSTANCE
 from gcs.invariants.monitor import EXIT_VIOLATED
+from gcs.sweep.instance_locks import POLL_S
 from gcs.sweep.plan import Run, SweepPlan, fly_command
 from gcs.sweep.stats import run_metrics
 
 RUN_FILE: Final = "run.json"
 LOG_FILE: Final = "fly.log"
-FIRST_SWEEP_INSTANCE: Final = 20  # below it: the instances `swarm up` and `swarm fly` take by default
-MAX_INSTANCE: Final = LAST_INSTANCE  # sysid = instance + 1 <= 254
-LOCK_DIR: Final = Path(tempfile.gettempdir()) / "swarm-sweep-instances"
 RUN_TIMEOUT_S: Final = 3600.0
-POLL_S: Final = 0.5
-
-
-@dataclass(frozen=True, slots=True)
-class Block:
-    first: int  # the block's first instance
-    fds: tuple[int, ...]  # the open lock files: a process given them holds the locks too
-
-
-class InstanceLocks:
-    """Blocks of consecutive instances, each held by one run at a time across every process on the machine."""
-
-    def __init__(self, n_drones: int, lock_dir: Path = LOCK_DIR) -> None:
-        self.n = n_drones
-        self.lock_dir = lock_dir
-        self._guard = threading.Lock()  # one thread at a time looks for a block (flock is per open file)
-
-    def try_hold(self, first: int) -> list[IO[bytes]] | None:
-        """The locks of instances ``first`` to ``first + n - 1``, or None (and nothing held) when any is taken.
-        Closing a returned file drops its lock."""
-        self.lock_dir.mkdir(parents=True, exist_ok=True)
-        held: list[IO[bytes]] = []
-        for instance in range(first, first + self.n):
-            handle = (self.lock_dir / f"instance-{instance:03d}.lock").open("ab")
-            try:
-                fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError:
-                handle.close()
-                for h in held:
-                    h.close()
-                return None
-            held.append(handle)
-        return held
-
-    @contextlib.contextmanager
-    def block(self, stop: threading.Event | None = None) -> Iterator[Block]:
-        """A free block of instances, held until the ``with`` ends (and by any process its ``fds`` are passed to);
-        waits while every block is taken."""
-        starts = range(FIRST_SWEEP_INSTANCE, MAX_INSTANCE - self.n + 2, self.n)
-        if not starts:
-            raise RuntimeError(f"{self.n} drones do not fit in instances {FIRST_SWEEP_INSTANCE}..{MAX_INSTANCE}")
-        while True:
-            with self._guard:
-                for first in starts:
-                    if (held := self.try_hold(first)) is not None:
-                        break
-                else:
-                    held = None
-            if held is not None:
-                break
-            if stop is not None and stop.wait(POLL_S):
-                raise InterruptedError("stopped while waiting for instances")
-            if stop is None:
-                time.sleep(POLL_S)
-        try:
-            yield Block(first, tuple(h.fileno() for h in held))
-        finally:
-            for handle in held:
-                handle.close()
 
 
 @dataclass(frozen=True, slots=True)

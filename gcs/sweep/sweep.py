@@ -20,8 +20,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Final, Protocol, TextIO
 
+from gcs.sweep.instance_locks import InstanceLocks
 from gcs.sweep.plan import Run, SweepError, SweepPlan, describe, saved_plan
-from gcs.sweep.runs import Flight, InstanceLocks, RunResult, Stopped, completed, fly
+from gcs.sweep.runs import Flight, RunResult, Stopped, completed, fly
 
 PLAN_FILE: Final = "sweep.json"
 RUNS_DIR: Final = "runs"

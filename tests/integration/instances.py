@@ -3,7 +3,7 @@
 A test that starts drones needs instance numbers whose UDP ports nobody else uses (a drone's ports follow its
 instance: sitl/process/ports.py). Tests that run at once (pytest-xdist workers, two suites on one machine, a
 ``swarm sweep`` a test or a user started) must not share them, so every test leases its instances through the
-machine's instance locks, the ones ``swarm sweep`` runs hold (``gcs.sweep.runs.InstanceLocks``: ``fcntl.flock`` on a
+machine's instance locks, the ones ``swarm sweep`` runs hold (gcs/sweep/instance_locks.py: ``fcntl.flock`` on a
 file per instance; the kernel drops a lock with its holder, so a killed run frees its instances). No file of the
 suite names an instance number of its own; which instances a test gets does not change what it flies (a drone's
 randomness comes from its seed).
@@ -25,7 +25,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import IO, Final
 
-from gcs.sweep.runs import InstanceLocks
+from gcs.sweep.instance_locks import InstanceLocks
 from tests.integration.sitl_process import DronePorts, instance_is_clear_of_user_ports, udp_port_is_free
 
 DEFAULT_LOWEST_INSTANCE: Final = 20
@@ -84,7 +84,7 @@ def lease(count: int, *, lowest: int = DEFAULT_LOWEST_INSTANCE, containing: int 
     """A block of ``count`` consecutive instances nobody else on the machine holds, with their ports free;
     ``containing``: the block must include this instance (a test of what changes at an instance). Waits while
     other tests hold every block that fits; after ``_RESERVE_AFTER_S`` of that it reserves one (``_reserve``), so
-    that a large block is not starved by the small ones other workers keep taking inside it."""
+    that a large block is not starved by the small ones other workers and sweeps keep taking inside it."""
     starts = [f for f in range(lowest, HIGHEST_INSTANCE - count + 2) if _usable(f, count, containing)]
     if not starts:
         raise LeaseError(f"no block of {count} instances from {lowest} up (containing {containing}) exists")
@@ -119,35 +119,41 @@ def _ports_free(first: int, count: int) -> bool:
 
 
 def _reserve(starts: list[int], count: int, deadline: float) -> Lease | None:
-    """Hold the instances of the block with the most of them free, one by one as their holders let them go, in
-    ascending order (two reservations then never hold what the other waits for). A reservation that gains nothing
-    for ``_RESERVE_STALL_S`` lets everything go and returns None: a test holding one lease while it asks for a
-    second can wait on it, and must not wait forever."""
+    """Reserve the block with the most instances free (gcs/sweep/instance_locks.py: nobody else then starts to hold an
+    instance inside it, a sweep's runs or another worker's tests) and hold each of its instances as its holder lets
+    it go. A reservation that gains nothing for ``_RESERVE_STALL_S`` lets everything go and returns None: a test
+    holding one lease while it asks for a second can wait on it, and must not wait forever."""
     one = InstanceLocks(1)
     free: set[int] = set()
     for instance in range(starts[0], starts[-1] + count):
         if (probe := one.try_hold(instance)) is not None:
             free.add(instance)
             probe[0].close()
-    first = max(starts, key=lambda f: sum(i in free for i in range(f, f + count)))
-    held: list[IO[bytes]] = []
+    reservation = InstanceLocks(count).reserve(starts, free)
+    if reservation is None:
+        return None  # every block that fits meets another's reservation: wait for it like any holder
+    held: dict[int, IO[bytes]] = {}
     gained_at = time.monotonic()
     try:
-        for instance in range(first, first + count):
-            while (handle := one.try_hold(instance)) is None:
+        while len(held) < count:
+            for instance in reservation.instances:
+                if instance not in held and (handle := one.try_hold(instance, own=reservation)) is not None:
+                    held[instance] = handle[0]
+                    gained_at = time.monotonic()
+            if len(held) < count:
                 if time.monotonic() > min(deadline, gained_at + _RESERVE_STALL_S):
                     return None
                 time.sleep(_RETRY_S)
-            held.extend(handle)
-            gained_at = time.monotonic()
-        while not _ports_free(first, count):
+        while not _ports_free(reservation.first, count):
             if time.monotonic() > deadline:
                 return None
             time.sleep(_RETRY_S)
-        taken, held = Lease(first, count, held), []
+        taken = Lease(reservation.first, count, [held[i] for i in reservation.instances])
+        held = {}
         return taken
     finally:
-        for h in held:
+        reservation.release()
+        for h in held.values():
             h.close()
 
 

@@ -18,11 +18,12 @@ from tests.integration.sitl_process import instance_is_clear_of_user_ports
 
 pytestmark = pytest.mark.timeout(60)
 HIGH = 150
+SWEPT = 100  # the sweeper's range: high up, as HIGH, and clear of it
 
 HOLDER = textwrap.dedent(
     """
     import sys
-    from gcs.sweep.runs import InstanceLocks
+    from gcs.sweep.instance_locks import InstanceLocks
     locks, first = InstanceLocks(int(sys.argv[2])), int(sys.argv[1])
     for start in range(first, first + 100):  # the first block from ``first`` up nobody holds (others may run)
         held = locks.try_hold(start)  # kept: the locks go with their files
@@ -38,7 +39,7 @@ HOLDER = textwrap.dedent(
 CHURNER = textwrap.dedent(
     """
     import sys, time
-    from gcs.sweep.runs import InstanceLocks
+    from gcs.sweep.instance_locks import InstanceLocks
     one, first, stop_at = InstanceLocks(1), int(sys.argv[1]), time.monotonic() + float(sys.argv[2])
     held = one.try_hold(first)
     print("held" if held is not None else "taken", flush=True)
@@ -51,6 +52,27 @@ CHURNER = textwrap.dedent(
             handle.close()
         held = taken
         time.sleep(0.3)
+    """
+)
+
+SWEEPER = textwrap.dedent(
+    """
+    import sys, time
+    from gcs.sweep.instance_locks import InstanceLocks
+    locks, first, stop_at = InstanceLocks(2), int(sys.argv[1]), time.monotonic() + float(sys.argv[2])
+    held = []
+    print("sweeping", flush=True)
+    while time.monotonic() < stop_at:  # a sweep's runs, two side by side: each takes the lowest block free
+        for start in range(first, first + 40, 2):
+            if (taken := locks.try_hold(start)) is not None:
+                held.append(taken)
+                break
+        if len(held) == 2:
+            time.sleep(0.5)
+            for handle in held.pop(0):
+                handle.close()
+        else:
+            time.sleep(0.05)
     """
 )
 
@@ -116,3 +138,24 @@ def test_a_block_is_reserved_while_other_processes_keep_taking_small_blocks_insi
     finally:
         churner.kill()
         churner.wait(10)
+
+
+def test_a_reserved_block_is_not_starved_by_runs_that_keep_taking_the_lowest_blocks_inside_it() -> None:
+    # GIVEN a sweep-like process whose runs, two at a time, always take the lowest free blocks of a range (as a sweep's
+    # or a campaign's flights do from instance 20 up, where the 42-drone test's block lies)
+    sweeper = subprocess.Popen([sys.executable, "-c", SWEEPER, str(SWEPT), "40"], stdout=subprocess.PIPE, text=True)
+    try:
+        assert sweeper.stdout is not None and sweeper.stdout.readline().strip() == "sweeping"
+        time.sleep(1.0)
+        # WHEN a test needs a block of 12 at the bottom of that range
+        started = time.monotonic()
+        held = lease(12, lowest=SWEPT, containing=SWEPT, timeout_s=30)
+        try:
+            # THEN it reserves it, the runs go around it, and it has it within a few of the runs' lifetimes
+            assert held.instances == range(SWEPT, SWEPT + 12)
+            assert time.monotonic() - started < 10
+        finally:
+            held.release()
+    finally:
+        sweeper.kill()
+        sweeper.wait(10)

@@ -1,15 +1,18 @@
 """Scenario sweeps without flying: what runs (gcs/sweep/plan.py), the statistics (stats.py), the instance locks that
-keep runs apart (runs.py), resuming (sweep.py) and the summary's files (summary.py)."""
+keep runs apart (instance_locks.py), resuming (sweep.py) and the summary's files (summary.py)."""
 
 from __future__ import annotations
 
 import csv
 import json
+import subprocess
+import sys
 import threading
 from pathlib import Path
 
 import pytest
 
+from gcs.sweep.instance_locks import FIRST_SWEEP_INSTANCE, InstanceLocks
 from gcs.sweep.plan import (
     LINK_LOSS,
     Axis,
@@ -21,7 +24,7 @@ from gcs.sweep.plan import (
     parse_seeds,
     parse_values,
 )
-from gcs.sweep.runs import FIRST_SWEEP_INSTANCE, InstanceLocks, RunResult
+from gcs.sweep.runs import RunResult
 from gcs.sweep.stats import bootstrap_mean_ci, distribution, event_rate, run_metrics, summarise, wilson_ci
 from gcs.sweep.summary import RUNS_CSV, SUMMARY_JSON, write_summary
 from gcs.sweep.sweep import PLAN_FILE, prepare
@@ -135,6 +138,53 @@ def test_runs_side_by_side_get_disjoint_instances_and_free_them_when_done(tmp_pa
             pass  # every block of 100 taken: a third waits (here: is stopped while waiting)
     with second.block() as again:
         assert again.first == FIRST_SWEEP_INSTANCE  # freed
+
+
+def test_a_reservation_keeps_new_holders_out_of_its_range_until_it_is_let_go(tmp_path: Path) -> None:
+    # GIVEN a range of 10 reserved from the lowest instances (where a sweep's runs take their blocks first)
+    small, wide = InstanceLocks(2, tmp_path), InstanceLocks(10, tmp_path)
+    reservation = wide.reserve([FIRST_SWEEP_INSTANCE], set())
+    assert reservation is not None and reservation.instances == range(FIRST_SWEEP_INSTANCE, FIRST_SWEEP_INSTANCE + 10)
+    try:
+        # THEN a sweep's next block lies above it, nobody else holds an instance inside it, but its reserver does
+        with small.block() as run:
+            assert run.first == FIRST_SWEEP_INSTANCE + 10
+        assert small.try_hold(FIRST_SWEEP_INSTANCE + 4) is None
+        mine = small.try_hold(FIRST_SWEEP_INSTANCE + 4, own=reservation)
+        assert mine is not None and len(mine) == 2
+        for handle in mine:
+            handle.close()
+        # AND a second reservation is made clear of it, or not at all
+        assert wide.reserve([FIRST_SWEEP_INSTANCE, FIRST_SWEEP_INSTANCE + 5], set()) is None
+        second = wide.reserve([FIRST_SWEEP_INSTANCE + 5, FIRST_SWEEP_INSTANCE + 10], set())
+        assert second is not None and second.first == FIRST_SWEEP_INSTANCE + 10
+        second.release()
+    finally:
+        reservation.release()
+    # AND once let go, the range is anyone's again
+    with small.block() as run:
+        assert run.first == FIRST_SWEEP_INSTANCE
+
+
+def test_the_reservation_of_a_process_that_died_holds_nothing_back(tmp_path: Path) -> None:
+    # GIVEN a process that reserved a range and was killed (SIGKILL: it let nothing go)
+    script = (f"from pathlib import Path; from gcs.sweep.instance_locks import InstanceLocks; "
+              f"r = InstanceLocks(10, Path({str(tmp_path)!r})).reserve([{FIRST_SWEEP_INSTANCE}], set()); "
+              f"print(r.first, flush=True); import time; time.sleep(60)")  # fmt: skip
+    child = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout is not None and int(child.stdout.readline()) == FIRST_SWEEP_INSTANCE
+        locks = InstanceLocks(2, tmp_path)
+        assert locks.try_hold(FIRST_SWEEP_INSTANCE) is None  # alive: respected
+    finally:
+        child.kill()
+        child.wait(10)
+    # THEN its range is free at once, and its file is cleared away by the look that found it dead
+    held = locks.try_hold(FIRST_SWEEP_INSTANCE)
+    assert held is not None
+    for handle in held:
+        handle.close()
+    assert locks.reserved() == [] and not list(tmp_path.glob("reserved-*"))
 
 
 # ---- the summary ---------------------------------------------------------------------------------------------
