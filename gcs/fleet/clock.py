@@ -77,7 +77,10 @@ class SwarmClock:
         self.harness.note_sent_to_drones(sent_to_drones)
         self._gate_time_s = None
         if self.harness.advance_lockstep(LOCKSTEP_LEAD_S) is None:
-            # Not every drone has joined yet (nobody starts before the rest): nothing runs, nothing to wait for.
+            # Not every drone has joined yet (nobody starts before the rest): nothing runs, nothing to wait for, and
+            # nothing stalls: the time has not started (the first run on a machine compiles the drones' kernels
+            # before any drone exists, some 25 s).
+            self._gate_progress = (now, time.monotonic())
             self._gate_selector.select(LOCKSTEP_MAX_WAIT_S)
             return
         target = now + LOCKSTEP_LEAD_S - 1e-9

@@ -7,15 +7,20 @@ process outlives the supervisor is tested in test_swarm.py.
 from __future__ import annotations
 
 import json
+import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
 from pymavlink import mavutil
 
+from gcs.fleet.clock import LOCKSTEP_STALL_S
 from tests.integration.instances import Leases
 from tests.integration.mission_flight import mission_drones
+from tests.integration.test_swarm import children_of
 
 pytestmark = [pytest.mark.sim_only]
 
@@ -116,3 +121,42 @@ def test_drones_commanded_into_each_other_collide_crash_and_are_counted_once(tmp
     metrics = json.loads((report / "metrics.json").read_text())
     assert metrics["collisions"] == 1, metrics["collision_events"]
     assert "Collision with drone" in result.stdout
+
+
+@pytest.mark.timeout(120)
+def test_a_lockstep_flight_whose_drones_join_late_waits_for_them_instead_of_calling_the_simulation_stalled(
+    tmp_path: Path, instances: Leases
+) -> None:
+    # GIVEN a lockstep mission whose drone factory is held back, before it has started any drone, for longer than the
+    # supervisor waits on a simulation that does not advance (as on a machine's first run, where the factory compiles
+    # the drones' kernels for some 25 s before any drone exists)
+    mission = tmp_path / "hop.toml"
+    mission.write_text('name = "hop"\n[swarm]\ndrones = 2\n[[steps]]\naction = "takeoff"\nalt_m = 3.0\n'
+                       '[[steps]]\naction = "hold"\nduration_s = 3.0\n[[steps]]\naction = "land"\n')  # fmt: skip
+    proc = subprocess.Popen([*SWARM, "fly", str(mission), "--lockstep", "--first-instance", str(instances(2)),
+                             "--report", str(tmp_path / "report"), "--no-forward", "--no-view"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    factory = None
+    try:
+        deadline = time.monotonic() + 30
+        while factory is None and time.monotonic() < deadline and proc.poll() is None:
+            factory = next((p for p in children_of(proc.pid)
+                            if b"sitl.harness.zygote" in Path(f"/proc/{p}/cmdline").read_bytes()), None)  # fmt: skip
+            time.sleep(0.005)
+        assert factory is not None, "no drone factory started"
+        os.kill(factory, signal.SIGSTOP)
+        assert children_of(factory) == [], "the factory had started drones already"
+        time.sleep(LOCKSTEP_STALL_S + 3)
+        os.kill(factory, signal.SIGCONT)
+        # WHEN the drones then start and join
+        out, err = proc.communicate(timeout=90)
+    finally:
+        if factory is not None and proc.poll() is None:
+            os.kill(factory, signal.SIGCONT)
+        if proc.poll() is None:
+            proc.terminate()
+            proc.wait(30)
+    # THEN the flight flies from the time they joined, whole
+    assert proc.returncode == 0, out[-3000:] + err[-3000:]
+    metrics = json.loads((tmp_path / "report" / "metrics.json").read_text())
+    assert metrics["takeoff_time_s"] is not None and metrics["n_drones"] == 2
