@@ -392,7 +392,7 @@ class Engine:
         assert self.session is not None
         started = VERBS[name](self.session, *args, **kwargs)
         shape = _SHAPES.get(type(args[0])) if name == "formation" else None
-        begin_report_step(self.session, name, started, shape=shape, alt_m=args[0] if name == "takeoff" else None)
+        begin_report_step(self.session, name, started, shape=shape)
         return started
 
     def _wait(self, condition: Callable[[], bool], timeout_s: float) -> bool:

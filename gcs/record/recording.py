@@ -36,7 +36,7 @@ class StepRecord:
     kind: str  # "takeoff", "formation", "land", "hold", ...
     start_s: float
     end_s: float
-    target_alt_m: float | None = None  # for takeoff: the commanded altitude above the swarm origin
+    target_alt_m: float | None = None  # for takeoff: the altitude climbed to above home (MIS_TAKEOFF_ALT at least)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

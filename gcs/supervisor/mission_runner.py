@@ -250,8 +250,11 @@ class MissionRunner:
         self._step_name = name
         self.session.step_began()
         self.say(f"[{start:6.1f} s] step {index + 1}/{len(self.mission.steps)}: {name}")
+        target_alt_m = None
         if isinstance(step, TakeoffStep):
-            self._do(VERBS["takeoff"](self.session, step.alt_m, step.timeout_s))
+            takeoff = VERBS["takeoff"](self.session, step.alt_m, step.timeout_s)
+            target_alt_m = takeoff.target_alt_m  # what the drones climb to: MIS_TAKEOFF_ALT at least
+            self._do(takeoff)
         elif isinstance(step, FormationStep):
             VERBS["formation"](self.session, step.formation)
             self._hold(step.hold_s)
@@ -284,7 +287,7 @@ class MissionRunner:
                 kind=kind,
                 start_s=start,
                 end_s=self.now(),
-                target_alt_m=step.alt_m if isinstance(step, TakeoffStep) else None,
+                target_alt_m=target_alt_m,
             )
         )
 

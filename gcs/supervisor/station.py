@@ -121,8 +121,7 @@ class Station:
     def _verb(self, request: dict[str, Any], name: str, *args: Any, **kwargs: Any) -> dict[str, Any]:
         """Start a verb and answer; one that changes what the swarm flies begins the report's next step."""
         started = VERBS[name](self.session, *args, **kwargs)
-        begin_report_step(self.session, name, started, shape=str(request["shape"]) if "shape" in request else None,
-                          alt_m=float(request.get("alt", 3.0)) if name == "takeoff" else None)  # fmt: skip
+        begin_report_step(self.session, name, started, shape=str(request["shape"]) if "shape" in request else None)
         return {"ok": True, "result": started.result} if started.result else {"ok": True}
 
     def _down(self, _request: dict[str, Any]) -> dict[str, Any]:

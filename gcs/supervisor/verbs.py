@@ -75,6 +75,7 @@ class Started:
     ends_by_time: bool = False
     finish: Callable[[], None] | None = None
     new_step: bool = False
+    target_alt_m: float | None = None  # a takeoff: the altitude the drones climb to (MIS_TAKEOFF_ALT at least)
 
 
 Wait = Callable[[Callable[[], bool], float], bool]  # (condition, timeout in simulated seconds) -> ended with it
@@ -89,13 +90,12 @@ def carry_out(started: Started, wait: Wait) -> Any:
     return started.value
 
 
-def begin_report_step(session: FlightSession, name: str, started: Started, *, shape: str | None = None,
-                      alt_m: float | None = None) -> None:  # fmt: skip
+def begin_report_step(session: FlightSession, name: str, started: Started, *, shape: str | None = None) -> None:
     """A verb that changes what the swarm flies begins the next step of a report that records verbs as they come
     (``swarm up``, the API): a goto is a formation step, a plan's start a plan step; ``shape`` names a formation."""
     if started.new_step:
         step = name.removesuffix("_start")
-        session.begin_step("formation" if step == "goto" else step, shape or step, alt_m)
+        session.begin_step("formation" if step == "goto" else step, shape or step, started.target_alt_m)
 
 
 def take_over(session: FlightSession) -> None:
@@ -112,7 +112,7 @@ def takeoff(session: FlightSession, alt_m: float, timeout_s: float = TAKEOFF_TIM
     check_takeoff_alt(alt_m)
     target_m, holding = start_takeoff(session.swarm, session.streamer, alt_m, tick=session.waiting_tick,
                                       say=session.say)  # fmt: skip
-    return Started(done=holding, timeout_s=timeout_s, new_step=True,
+    return Started(done=holding, timeout_s=timeout_s, new_step=True, target_alt_m=target_m,
                    late=lambda: f"takeoff to {target_m:g} m not reached within {timeout_s:g} s")  # fmt: skip
 
 

@@ -126,14 +126,15 @@ def test_drones_commanded_into_each_other_collide_crash_and_are_counted_once(tmp
 
 
 @pytest.mark.timeout(120)
-def test_a_lockstep_flight_whose_drones_join_late_waits_for_them_instead_of_calling_the_simulation_stalled(
+def test_a_lockstep_flight_whose_drones_join_late_flies_whole_and_its_low_takeoff_is_timed_to_the_altitude_flown(
     tmp_path: Path, instances: Leases
 ) -> None:
     # GIVEN a lockstep mission whose drone factory is held back, before it has started any drone, for longer than the
     # supervisor waits on a simulation that does not advance (as on a machine's first run, where the factory compiles
-    # the drones' kernels for some 25 s before any drone exists)
+    # the drones' kernels for some 25 s before any drone exists), and whose takeoff asks for less than the drones'
+    # MIS_TAKEOFF_ALT (2.5 m)
     mission = tmp_path / "hop.toml"
-    mission.write_text('name = "hop"\n[swarm]\ndrones = 2\n[[steps]]\naction = "takeoff"\nalt_m = 3.0\n'
+    mission.write_text('name = "hop"\n[swarm]\ndrones = 2\n[[steps]]\naction = "takeoff"\nalt_m = 2.0\n'
                        '[[steps]]\naction = "hold"\nduration_s = 3.0\n[[steps]]\naction = "land"\n')  # fmt: skip
     proc = subprocess.Popen([*SWARM, "fly", str(mission), "--lockstep", "--first-instance", str(instances(2)),
                              "--report", str(tmp_path / "report"), "--no-forward", "--no-view"],
@@ -158,7 +159,11 @@ def test_a_lockstep_flight_whose_drones_join_late_waits_for_them_instead_of_call
         if proc.poll() is None:
             proc.terminate()
             proc.wait(30)
-    # THEN the flight flies from the time they joined, whole
+    # THEN the flight flies from the time they joined, whole, instead of being called stalled
     assert proc.returncode == 0, out[-3000:] + err[-3000:]
+    assert "below the drones' MIS_TAKEOFF_ALT (2.5 m), they climb to 2.5 m" in out
+    # AND the report times the takeoff to the altitude the drones climbed to, as the takeoff step waited for it
     metrics = json.loads((tmp_path / "report" / "metrics.json").read_text())
-    assert metrics["takeoff_time_s"] is not None and metrics["n_drones"] == 2
+    assert metrics["n_drones"] == 2
+    assert metrics["steps"][0]["target_alt_m"] == 2.5
+    assert metrics["takeoff_time_s"] is not None
