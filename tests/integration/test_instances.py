@@ -118,44 +118,33 @@ def test_a_lease_that_must_contain_an_instance_spans_it() -> None:
         held.release()
 
 
+def _lease_beside(script: str, first: int, ready: str, count: int, timeout_s: float) -> range:
+    """Lease ``count`` instances from ``first`` while another process runs ``script`` over them (it prints ``ready``
+    once under way); the instances leased. A lease that does not come within ``timeout_s`` is a LeaseError."""
+    other = subprocess.Popen([sys.executable, "-c", script, str(first), "40"], stdout=subprocess.PIPE, text=True)
+    try:
+        assert other.stdout is not None and other.stdout.readline().strip() == ready
+        time.sleep(1.0)
+        held = lease(count, lowest=first, containing=first, timeout_s=timeout_s)
+        held.release()
+        return held.instances
+    finally:
+        other.kill()
+        other.wait(10)
+
+
 def test_a_block_is_reserved_while_other_processes_keep_taking_small_blocks_inside_it() -> None:
     # GIVEN two instances another process keeps holding by turns, always one at least (as workers do that lease small
     # blocks one after another)
     with leases() as take:
         first = take(2)
-    churner = subprocess.Popen([sys.executable, "-c", CHURNER, str(first), "40"], stdout=subprocess.PIPE, text=True)
-    try:
-        assert churner.stdout is not None and churner.stdout.readline().strip() == "held"
-        # WHEN a test needs both at once
-        started = time.monotonic()
-        held = lease(2, lowest=first, containing=first, timeout_s=20)
-        try:
-            # THEN it gets them, by holding each as it comes free, long before its time runs out
-            assert held.instances == range(first, first + 2)
-            assert time.monotonic() - started < 10
-        finally:
-            held.release()
-    finally:
-        churner.kill()
-        churner.wait(10)
+    # WHEN a test needs both at once THEN it gets them, by holding each as it comes free, long before 20 s
+    assert _lease_beside(CHURNER, first, "held", 2, timeout_s=20) == range(first, first + 2)
 
 
 def test_a_reserved_block_is_not_starved_by_runs_that_keep_taking_the_lowest_blocks_inside_it() -> None:
     # GIVEN a sweep-like process whose runs, two at a time, always take the lowest free blocks of a range (as a sweep's
     # or a campaign's flights do from instance 20 up, where the 42-drone test's block lies)
-    sweeper = subprocess.Popen([sys.executable, "-c", SWEEPER, str(SWEPT), "40"], stdout=subprocess.PIPE, text=True)
-    try:
-        assert sweeper.stdout is not None and sweeper.stdout.readline().strip() == "sweeping"
-        time.sleep(1.0)
-        # WHEN a test needs a block of 12 at the bottom of that range
-        started = time.monotonic()
-        held = lease(12, lowest=SWEPT, containing=SWEPT, timeout_s=30)
-        try:
-            # THEN it reserves it, the runs go around it, and it has it within a few of the runs' lifetimes
-            assert held.instances == range(SWEPT, SWEPT + 12)
-            assert time.monotonic() - started < 10
-        finally:
-            held.release()
-    finally:
-        sweeper.kill()
-        sweeper.wait(10)
+    # WHEN a test needs a block of 12 at the bottom of that range THEN it reserves it, the runs go around it, and it
+    # has it long before 30 s (without the reservation, it chased the runs' blocks up the range until it timed out)
+    assert _lease_beside(SWEEPER, SWEPT, "sweeping", 12, timeout_s=30) == range(SWEPT, SWEPT + 12)
