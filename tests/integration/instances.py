@@ -48,6 +48,7 @@ class _Cursor:
 
 
 _cursor = _Cursor()
+_HELD_HERE: set[int] = set()  # the instances this process's leases hold: a reservation must not wait for them
 
 
 def _worker_offset() -> int:
@@ -68,9 +69,14 @@ class Lease:
     def instances(self) -> range:
         return range(self.first, self.first + self.count)
 
+    def __post_init__(self) -> None:
+        _HELD_HERE.update(self.instances)
+
     def release(self) -> None:
         for handle in self._held:
             handle.close()
+        if self._held:
+            _HELD_HERE.difference_update(self.instances)
         self._held.clear()
 
 
@@ -107,7 +113,8 @@ def lease(count: int, *, lowest: int = DEFAULT_LOWEST_INSTANCE, containing: int 
         if time.monotonic() > deadline:
             raise LeaseError(f"no {count} consecutive instances from {lowest} up came free in {timeout_s:g} s")
         if time.monotonic() > reserve_at:
-            if (reserved := _reserve(starts, count, deadline)) is not None:
+            mine = [f for f in starts if _HELD_HERE.isdisjoint(range(f, f + count))]  # never wait for itself
+            if mine and (reserved := _reserve(mine, count, deadline)) is not None:
                 _cursor.next_first = reserved.first + count
                 return reserved
             reserve_at = time.monotonic() + _RESERVE_AFTER_S
@@ -121,8 +128,9 @@ def _ports_free(first: int, count: int) -> bool:
 def _reserve(starts: list[int], count: int, deadline: float) -> Lease | None:
     """Reserve the block with the most instances free (gcs/sweep/instance_locks.py: nobody else then starts to hold an
     instance inside it, a sweep's runs or another worker's tests) and hold each of its instances as its holder lets
-    it go. A reservation that gains nothing for ``_RESERVE_STALL_S`` lets everything go and returns None: a test
-    holding one lease while it asks for a second can wait on it, and must not wait forever."""
+    it go. A reservation that gains nothing for ``_RESERVE_STALL_S`` lets everything go and returns None: a test in
+    another process that holds one lease inside it while it waits for a second must not be waited for forever (this
+    process's own leases are never in it: ``_HELD_HERE``)."""
     one = InstanceLocks(1)
     free: set[int] = set()
     for instance in range(starts[0], starts[-1] + count):
