@@ -99,7 +99,8 @@ class InstanceLocks:
                 first, count = (int(part) for part in path.stem.removeprefix(_RESERVED_PREFIX).split("-"))
                 with path.open("rb") as probe:
                     fcntl.flock(probe, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                    path.unlink()  # nobody holds it: its holder died without letting it go
+                    if os.stat(path).st_ino == os.fstat(probe.fileno()).st_ino:  # not a new one renamed onto it
+                        path.unlink()  # nobody holds it: its holder died without letting it go
             except BlockingIOError:
                 live.append(range(first, first + count))
             except (OSError, ValueError):
