@@ -3,8 +3,9 @@
 Two real ``sitl`` processes in lockstep on a shared world created here, as the supervisor creates it, with the gate
 moved on by this test at 4x real time: one drone stays on the ground and is the reader; the other takes off
 (pymavlink) and is SIGKILLed at its takeoff altitude. After ``mark_ended`` its body falls and the reader, no longer
-held back by the dead member, runs on: its view of the body (``others_ned_m`` at its own simulated time, the view
-its camera and contact check use) has the body on the ground within 3 s.
+held back by the dead member, runs on a frame at a time, the test looking at every frame: its view of the body
+(``others_ned_m`` at its own simulated time, the view its camera and contact check use) has the body on the ground
+within 3 s.
 
 Policy: loopback only; two leased instances (tests/integration/instances.py); a time limit; every process stopped
 by PID and reaped.
@@ -37,6 +38,8 @@ pytestmark = [pytest.mark.sim_only, pytest.mark.timeout(120)]
 
 SPEED = 4.0
 PHYSICS_DT_S = 1.0 / 250.0
+FRAME_S = 0.02  # the gate's step while the body falls (5 physics steps): a fall from 3 m takes some 40 of them
+IN_STEP_S = 0.1  # the victim is killed once its published time is this close to the reader's
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -83,6 +86,12 @@ def test_a_drone_killed_in_the_air_is_on_the_ground_within_3_s_in_the_other_dron
             # GIVEN the victim hovering at its takeoff altitude
             alt_m = arm_and_take_off(conn, victim.wall_s(30))
         table = world.table
+        # ... and in step with the reader: a drone that joined the swarm late runs behind it until it catches up, and
+        # the reader, looking from its own later time, would see a body killed meanwhile fall before it looked
+        in_step_by = time.monotonic() + 30.0
+        while table[reader, TIME] - table[victim_instance, TIME] > IN_STEP_S and time.monotonic() < in_step_by:
+            time.sleep(0.01)
+        assert table[reader, TIME] - table[victim_instance, TIME] <= IN_STEP_S, "the victim never caught up"
         assert table[victim_instance, ALT] - table[victim_instance, REST_ALT] == pytest.approx(alt_m, abs=0.4)
         # WHEN its process is killed and the supervisor's part is done: the row marked ended
         drones[1].process.signal(signal.SIGKILL)
@@ -90,15 +99,20 @@ def test_a_drone_killed_in_the_air_is_on_the_ground_within_3_s_in_the_other_dron
         assert not world.ended(victim_instance)
         world.mark_ended(victim_instance)
         killed_at_s = float(table[victim_instance, TIME])
+        stop.set()  # from here the test moves the gate itself, a frame at a time, and looks at every frame: what it
+        mover.join()  # sees then does not depend on when the machine lets it run
         gate.remove(victim_instance)  # as the supervisor does for an exited member (mark_ended has already freed it)
         # THEN in the reader's view the body falls and lies on the ground by 3 s after its last state
-        deadline = time.monotonic() + 10.0
+        deadline = time.monotonic() + 30.0
         heights = []
         while time.monotonic() < deadline and table[reader, TIME] < killed_at_s + 3.0:
+            frame_end_s = gate.time_s() + FRAME_S  # the reader's completed steps (its published time lags them)
+            gate.open_until(frame_end_s)
+            while gate.time_s() < frame_end_s - PHYSICS_DT_S / 2 and time.monotonic() < deadline:
+                time.sleep(0.001)
             ids, offsets = others_ned_m(world, reader)
             (k,) = [i for i, ident in enumerate(ids) if ident == victim_instance]
             heights.append(-float(offsets[k][2]))
-            time.sleep(0.01)
         assert table[reader, TIME] >= killed_at_s + 3.0, "the reader's clock did not advance"
         ids, offsets = others_ned_m(world, reader)
         (k,) = [i for i, ident in enumerate(ids) if ident == victim_instance]
