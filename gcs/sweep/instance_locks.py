@@ -68,13 +68,15 @@ class InstanceLocks:
         self.lock_dir = lock_dir
         self._guard = threading.Lock()  # one thread at a time looks for a block (flock is per open file)
 
-    def try_hold(self, first: int, *, own: Reservation | None = None) -> list[IO[bytes]] | None:
+    def try_hold(self, first: int, *, own: Reservation | None = None,
+                 reserved: list[range] | None = None) -> list[IO[bytes]] | None:  # fmt: skip
         """The locks of instances ``first`` to ``first + n - 1``, or None (and nothing held) when any is taken or
-        inside another's live reservation (``own``: the caller's, which does not count). Closing a returned file
-        drops its lock."""
+        inside another's live reservation (``own``: the caller's, which does not count; ``reserved``: the live ones,
+        as ``reserved`` gave them, for a caller trying many blocks in one pass). Closing a returned file drops its
+        lock."""
         self.lock_dir.mkdir(parents=True, exist_ok=True)
         block = range(first, first + self.n)
-        if any(_overlap(block, taken) for taken in self.reserved(but=own)):
+        if any(_overlap(block, taken) for taken in (self.reserved(but=own) if reserved is None else reserved)):
             return None
         held: list[IO[bytes]] = []
         for instance in block:
@@ -135,8 +137,9 @@ class InstanceLocks:
             raise RuntimeError(f"{self.n} drones do not fit in instances {FIRST_SWEEP_INSTANCE}..{MAX_INSTANCE}")
         while True:
             with self._guard:
+                others = self.reserved()
                 for first in starts:
-                    if (held := self.try_hold(first)) is not None:
+                    if (held := self.try_hold(first, reserved=others)) is not None:
                         break
                 else:
                     held = None

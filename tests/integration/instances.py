@@ -101,8 +101,9 @@ def lease(count: int, *, lowest: int = DEFAULT_LOWEST_INSTANCE, containing: int 
     reserve_at = time.monotonic() + _RESERVE_AFTER_S
     while True:
         pivot = next((i for i, f in enumerate(starts) if f >= _cursor.next_first), 0)
+        others = locks.reserved()
         for first in starts[pivot:] + starts[:pivot]:
-            held = locks.try_hold(first)
+            held = locks.try_hold(first, reserved=others)
             if held is None:
                 continue
             if _ports_free(first, count):

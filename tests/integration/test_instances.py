@@ -8,7 +8,6 @@ from __future__ import annotations
 import subprocess
 import sys
 import textwrap
-import time
 
 import pytest
 
@@ -60,14 +59,16 @@ SWEEPER = textwrap.dedent(
     import sys, time
     from gcs.sweep.instance_locks import InstanceLocks
     locks, first, stop_at = InstanceLocks(2), int(sys.argv[1]), time.monotonic() + float(sys.argv[2])
-    held = []
-    print("sweeping", flush=True)
+    held, said = [], False
     while time.monotonic() < stop_at:  # a sweep's runs, two side by side: each takes the lowest block free
         for start in range(first, first + 40, 2):
             if (taken := locks.try_hold(start)) is not None:
                 held.append(taken)
                 break
         if len(held) == 2:
+            if not said:
+                print("sweeping", flush=True)  # both runs under way: a lease from now on meets them
+                said = True
             time.sleep(0.5)
             for handle in held.pop(0):
                 handle.close()
@@ -120,11 +121,10 @@ def test_a_lease_that_must_contain_an_instance_spans_it() -> None:
 
 def _lease_beside(script: str, first: int, ready: str, count: int, timeout_s: float) -> range:
     """Lease ``count`` instances from ``first`` while another process runs ``script`` over them (it prints ``ready``
-    once under way); the instances leased. A lease that does not come within ``timeout_s`` is a LeaseError."""
+    once it holds some); the instances leased. A lease that does not come within ``timeout_s`` is a LeaseError."""
     other = subprocess.Popen([sys.executable, "-c", script, str(first), "40"], stdout=subprocess.PIPE, text=True)
     try:
         assert other.stdout is not None and other.stdout.readline().strip() == ready
-        time.sleep(1.0)
         held = lease(count, lowest=first, containing=first, timeout_s=timeout_s)
         held.release()
         return held.instances
