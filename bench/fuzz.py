@@ -61,7 +61,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 import sitl.protocol
 from sitl.autopilot.vehicle_api import Arm, LandedState
-from sitl.drone.closed_loop import build_param_store
+from sitl.drone.param_table import build_param_store
 from sitl.drone.sim_vehicle_api import SimVehicleApi
 from sitl.process.ports import MAX_INSTANCE, InstancePorts, instance_ports
 from sitl.protocol import Identity, LinkServices

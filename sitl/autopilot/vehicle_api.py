@@ -20,13 +20,16 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import Enum, IntEnum
-from typing import Protocol, TypeAlias
+from typing import TYPE_CHECKING, Protocol, TypeAlias
 
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.autopilot.px4_modes import Px4Mode
-from sitl.control.cascade import AttitudeSetpoint, TrajectorySetpoint
 from sitl.dynamics.plant import GeoPoint
+
+if TYPE_CHECKING:  # the setpoint types only: the cascade's module loads the compiled kernels, which a parameter check
+    # (sitl/drone/param_table.py) or a ground station must not pay for
+    from sitl.control.cascade import AttitudeSetpoint, TrajectorySetpoint
 
 NAN = math.nan
 NAN3: tuple[float, float, float] = (NAN, NAN, NAN)

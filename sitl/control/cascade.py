@@ -31,15 +31,9 @@ import numpy.typing as npt
 from sitl.control import Vec3f
 from sitl.control.allocation import AllocationResult, ControlAllocator, result_from
 from sitl.control.attitude import AttitudeController, Quat4f, thrust_to_attitude
+from sitl.control.configs import attitude_config, heading_config, position_config, rate_config, velocity_config
 from sitl.control.heading import follow_travel
-from sitl.control.params import (
-    attitude_config,
-    heading_config,
-    outer_loop_period_s,
-    position_config,
-    rate_config,
-    velocity_config,
-)
+from sitl.control.params import outer_loop_period_s
 from sitl.control.position import PositionController
 from sitl.control.rate import RateController
 from sitl.control.velocity import VelocityController

@@ -8,16 +8,14 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from sitl.autopilot.commander import Commander
-from sitl.autopilot.params import AUTOPILOT_PARAMS
-from sitl.avoidance.params import AVOIDANCE_PARAMS
 from sitl.control.cascade import Cascade
-from sitl.control.params import CONTROL_PARAMS
+from sitl.drone.param_table import build_param_store
 from sitl.dynamics.airframe import Airframe
 from sitl.dynamics.battery import Battery, BatteryConfig
 from sitl.dynamics.jsbsim_plant import JsbsimPlant
@@ -25,22 +23,14 @@ from sitl.dynamics.plant import DEFAULT_HOME, PHYSICS_RATE_HZ, GeoPoint, PlantSt
 from sitl.dynamics.wind import WindConfig, WindModel
 from sitl.estimation.estimator import Estimate, Estimator, EstimatorConfig
 from sitl.faults.failures import FaultState
-from sitl.faults.params import FAULT_PARAMS
 from sitl.kernels import between_ticks as bt
-from sitl.params import ParamDef, ParamStore
-from sitl.protocol.signing_params import SIGNING_PARAMS
+from sitl.params import ParamStore
 from sitl.sensors.models import GpsSample, SensorConfig, SensorSuite
 
 # A touchdown faster than this breaks the airframe (gear, arms, props): the vehicle is crashed, as after a collision.
 # A normal landing touches down at MPC_LAND_SPEED (0.7 m/s) or slower; 3 m/s is the speed of a drop from 0.46 m, which
 # a hobby quadrotor's gear does not survive without damage. A quad that loses a rotor in a 3 m hover lands at ~6 m/s.
 GROUND_IMPACT_SPEED_MPS = 3.0
-
-
-def build_param_store(extra: Iterable[ParamDef] = ()) -> ParamStore:
-    """Every parameter of one drone, in the order the MAVLink parameter protocol indexes them; ``extra`` (an onboard
-    behaviour's, sitl/onboard) come last."""
-    return ParamStore((*CONTROL_PARAMS, *AUTOPILOT_PARAMS, *AVOIDANCE_PARAMS, *FAULT_PARAMS, *SIGNING_PARAMS, *extra))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

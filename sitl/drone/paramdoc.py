@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import sys
 
-from sitl.drone.closed_loop import build_param_store
+from sitl.drone.param_table import build_param_store
 from sitl.params import ParamStore, ParamType
 
 

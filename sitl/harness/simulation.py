@@ -51,7 +51,7 @@ def check_behaviour(spec: str) -> None:
 def parameter_value(name: str, value: float) -> int | float:
     """``value`` as a drone takes parameter ``name`` (an int for an integer parameter, which goes out as INT32, a
     float for a REAL32 one); ValueError (one line) unless a PARAM_SET of it would be accepted."""
-    from sitl.drone.closed_loop import build_param_store
+    from sitl.drone.param_table import build_param_store
     from sitl.params import ParamError, ParamType
 
     store = build_param_store()

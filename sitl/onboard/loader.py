@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from sitl.drone.closed_loop import build_param_store
+from sitl.drone.param_table import build_param_store
 from sitl.params import ParamDef, ParamType
 
 ENABLE_PARAM = "BHV_EN"

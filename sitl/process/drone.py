@@ -20,8 +20,9 @@ from pathlib import Path
 from typing import TextIO
 
 from sitl.drone.awareness import Awareness
-from sitl.drone.closed_loop import ClosedLoop, SimConfig, build_param_store
+from sitl.drone.closed_loop import ClosedLoop, SimConfig
 from sitl.drone.demo import DemoFlight
+from sitl.drone.param_table import build_param_store
 from sitl.drone.sim_vehicle_api import SimVehicleApi
 from sitl.onboard.runner import OnboardRunner
 from sitl.process.mavlink_io import MavlinkEndpoint

@@ -13,19 +13,37 @@ the only object an IO shell has to drive:
     send_all(link.statustext(event.severity, event.text))                  # autopilot events, on every link
 
 where ``send_all`` packs each ``Send(msg)`` effect with ``mav`` and writes it to the link's remote address.
+
+The names below are loaded when first used (PEP 562), not when the package is: importing one module of it (the signing
+parameters' declarations, say) must not load every service and, through the offboard service, the controller's
+compiled kernels.
 """
 
-from sitl.autopilot.px4_modes import Px4Mode
-from sitl.autopilot.vehicle_api import CommandOutcome, CommandResult, VehicleApi, VehicleSnapshot
-from sitl.protocol.core import (
-    Effect,
-    Identity,
-    PeerInputError,
-    ProtocolError,
-    ProtocolUsageError,
-    Send,
-)
-from sitl.protocol.link import LinkServices
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from sitl.autopilot.px4_modes import Px4Mode
+    from sitl.autopilot.vehicle_api import CommandOutcome, CommandResult, VehicleApi, VehicleSnapshot
+    from sitl.protocol.core import Effect, Identity, PeerInputError, ProtocolError, ProtocolUsageError, Send
+    from sitl.protocol.link import LinkServices
+
+_HOMES = {
+    "Px4Mode": "sitl.autopilot.px4_modes",
+    "CommandOutcome": "sitl.autopilot.vehicle_api",
+    "CommandResult": "sitl.autopilot.vehicle_api",
+    "VehicleApi": "sitl.autopilot.vehicle_api",
+    "VehicleSnapshot": "sitl.autopilot.vehicle_api",
+    "Effect": "sitl.protocol.core",
+    "Identity": "sitl.protocol.core",
+    "PeerInputError": "sitl.protocol.core",
+    "ProtocolError": "sitl.protocol.core",
+    "ProtocolUsageError": "sitl.protocol.core",
+    "Send": "sitl.protocol.core",
+    "LinkServices": "sitl.protocol.link",
+}
 
 __all__ = [
     "CommandOutcome",
@@ -41,3 +59,12 @@ __all__ = [
     "VehicleApi",
     "VehicleSnapshot",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    home = _HOMES.get(name)
+    if home is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(home), name)
+    globals()[name] = value
+    return value

@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 
 from sitl.autopilot.px4_modes import Px4Mode
-from sitl.drone.closed_loop import ClosedLoop, SimConfig, build_param_store
+from sitl.drone.closed_loop import ClosedLoop, SimConfig
+from sitl.drone.param_table import build_param_store
 from sitl.onboard.loader import ENABLE_PARAM, BehaviourError, load_behaviour
 from sitl.onboard.runner import OnboardRunner
 from tests.closed_loop.flight import load_airframe, take_off

@@ -11,9 +11,9 @@ import pytest
 from sitl.avoidance.algorithm import Obstacle, fuse, obstacles_from_rows
 from sitl.avoidance.collision_prevention import CollisionPrevention, RelayedNeighbour
 from sitl.control.cascade import TrajectorySetpoint
-from sitl.control.params import position_config
+from sitl.control.configs import position_config
 from sitl.control.position import PositionController
-from sitl.drone.closed_loop import build_param_store
+from sitl.drone.param_table import build_param_store
 from sitl.mathutil import vec3
 
 pytestmark = pytest.mark.timeout(10)

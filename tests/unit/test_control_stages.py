@@ -10,13 +10,8 @@ import pytest
 
 from sitl.control.attitude import AttitudeController, thrust_to_attitude
 from sitl.control.cascade import AttitudeSetpoint, Cascade, TrajectorySetpoint
-from sitl.control.params import (
-    CONTROL_PARAMS,
-    attitude_config,
-    position_config,
-    rate_config,
-    velocity_config,
-)
+from sitl.control.configs import attitude_config, position_config, rate_config, velocity_config
+from sitl.control.params import CONTROL_PARAMS
 from sitl.control.position import PositionController
 from sitl.control.rate import RateController
 from sitl.control.velocity import VelocityController

@@ -5,7 +5,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from sitl.drone.closed_loop import build_param_store
+from sitl.drone.param_table import build_param_store
 from sitl.drone.paramdoc import render
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"

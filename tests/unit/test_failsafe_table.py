@@ -10,7 +10,7 @@ import pytest
 from sitl.autopilot.failsafe import FAILSAFE_TABLE
 from sitl.autopilot.failsafe_framework import FailsafeAction, FailsafeInputs, FailsafeState
 from sitl.autopilot.px4_modes import FailsafeKind, Px4Mode
-from sitl.drone.closed_loop import build_param_store
+from sitl.drone.param_table import build_param_store
 from sitl.params import ParamStore
 
 pytestmark = pytest.mark.timeout(10)

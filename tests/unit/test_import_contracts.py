@@ -68,3 +68,13 @@ def test_a_swarm_command_that_does_not_fly_starts_without_numba() -> None:
     result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == "[]", result.stdout
+
+
+def test_checking_a_mission_s_parameters_loads_no_numba_either() -> None:
+    # swarm fly checks every parameter a mission sets against the drones' table before it spawns them: the check alone
+    # once loaded the whole flight code and its kernels, about two seconds of every flight with parameters
+    code = ("import sys; from gcs.composition import SITL; assert SITL.parameter_value('AVOID_ENABLE', 0) == 0; "
+            "print(sorted(m for m in sys.modules if m.startswith(('numba', 'llvmlite', 'sitl.kernels'))))")  # fmt: skip
+    result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "[]", result.stdout

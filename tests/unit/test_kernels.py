@@ -164,7 +164,7 @@ def test_no_numpy_transcendental_in_flight_code() -> None:
 @pytest.mark.skipif(not sitl.kernels.compiled(), reason="kernels switched off in this process")
 def test_the_compiled_cascade_gives_its_python_forms_bits_saturated_or_not() -> None:
     from sitl.control.cascade import Cascade
-    from sitl.drone.closed_loop import build_param_store
+    from sitl.drone.param_table import build_param_store
     from sitl.dynamics.airframe import load_airframe
     from sitl.kernels import cascade as ck
 

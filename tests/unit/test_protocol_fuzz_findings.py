@@ -10,7 +10,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.drone.closed_loop import build_param_store
+from sitl.drone.param_table import build_param_store
 from sitl.protocol import Identity, LinkServices
 from sitl.protocol.core import Effect
 from sitl.protocol.testing import FakeVehicle
