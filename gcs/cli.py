@@ -69,6 +69,7 @@ from gcs.supervisor.station import Station, format_status
 from gcs.supervisor.verbs import attach_all
 from gcs.sweep.cli import add_sweep_parser, run_sweep_command
 from gcs.sweep.plan import SweepError
+from gcs.view.report import PLOT_POLICIES
 from gcs.view.server import DEFAULT_PORT as DEFAULT_VIEW_PORT
 from gcs.view.server import ViewError, ViewServer, serve_view
 from swarmcommon.datagrams import parse_host_port
@@ -465,6 +466,10 @@ def build_parser() -> argparse.ArgumentParser:
         "mission", type=Path, nargs="?", default=DEFAULT_MISSION, help=f"mission file (default {DEFAULT_MISSION})"
     )
     fly.add_argument("--report", type=Path, default=None, help="report directory (default reports/<mission>-<time>)")
+    fly.add_argument("--plots", choices=PLOT_POLICIES, default="always",
+                     help="when the report draws its three plots: always (default), failed (only for a flight that "
+                     "broke something: a contact, a violated invariant, a mission that did not finish; what sweeps "
+                     "and falsification campaigns ask for, it saves each flight about 3 s), or never")  # fmt: skip
     fly.add_argument("--stop-on-violation", action="store_true",
                      help="end the flight at the first violation of one of the mission's invariants "
                      "(docs/invariants.md; the drones land, the report is written, exit code 3)")  # fmt: skip
@@ -785,7 +790,7 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
                            drones_per_process=args.drones_per_process, links=links,
                            signing_key_file=_signing_key_file(args), view=_start_view(args),
                            attach=attach, gcs_sysid=args.gcs_sysid,
-                           stop_on_violation=args.stop_on_violation)  # fmt: skip
+                           stop_on_violation=args.stop_on_violation, plots=args.plots)  # fmt: skip
     view = runner.view
     signal.signal(signal.SIGTERM, _interrupt)  # a terminated run lands and stops its drones like Ctrl-C
     try:

@@ -44,7 +44,7 @@ from gcs.missions.plan_flight import copy_offsets, parse_drones, spawn_offsets, 
 from gcs.record.recording import FlightRecording, StepRecord
 from gcs.supervisor.session import FlightSession
 from gcs.supervisor.verbs import VERBS, FaultRefused, Started, attach_all, carry_out
-from gcs.view.report import write_report
+from gcs.view.report import PlotPolicy, write_report
 from gcs.view.scene import obstacle_shape
 from gcs.view.server import ViewServer
 
@@ -62,11 +62,13 @@ class MissionRunner:
                  drones_per_process: int | Literal["auto"] = 1, links: LinkPlan | None = None,
                  signing_key_file: Path | None = None, view: ViewServer | None = None,
                  attach: tuple[AttachSpec, ...] = (), gcs_sysid: int = GCS_SYSID,
-                 stop_on_violation: bool = False) -> None:  # fmt: skip
+                 stop_on_violation: bool = False, plots: PlotPolicy = "always") -> None:  # fmt: skip
         """``attach``: vehicles the simulation does not run, attached before the drones start (gcs/fleet/attach.py);
         ``run`` raises AttachError (one line, nothing flown) when one cannot be. ``stop_on_violation``: the first
-        violation of one of the mission's invariants ends the flight there (a SwarmError)."""
+        violation of one of the mission's invariants ends the flight there (a SwarmError). ``plots``: when the report
+        draws its plots (gcs/view/report.py)."""
         self.mission = mission
+        self.plots = plots
         self.stop_on_violation = stop_on_violation
         self.attach = attach
         self.speed = speed_factor
@@ -324,7 +326,7 @@ class MissionRunner:
             self.session.take_stock()
             self.swarm.shutdown()
             recorder.close()
-        out = write_report(self.session.recording, self.report_dir)
+        out = write_report(self.session.recording, self.report_dir, plots=self.plots, failed=failure is not None)
         self.say((out / "summary.txt").read_text().rstrip())
         if failure is not None:
             raise failure

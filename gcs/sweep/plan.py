@@ -181,8 +181,9 @@ def file_sha256(path: Path) -> str:
 
 def fly_command(plan: SweepPlan, run: Run, *, first_instance: int, report: Path) -> list[str]:
     """The ``swarm fly`` arguments (after ``swarm``) that fly ``run``: a user can paste them to fly it again."""
-    args = ["fly", str(plan.mission), "--lockstep", "--seed", str(run.seed), "--report", str(report),
-            "--first-instance", str(first_instance), "--no-forward", "--no-view", *plan.fly_args]  # fmt: skip
+    # the plots only where something broke: they cost a short flight as much as its flying (gcs/view/report.py)
+    args = ["fly", str(plan.mission), "--lockstep", "--seed", str(run.seed), "--report", str(report), "--plots",
+            "failed", "--first-instance", str(first_instance), "--no-forward", "--no-view", *plan.fly_args]  # fmt: skip
     for name, value in run.setting:
         args += ["--link-loss", _number(value)] if name == LINK_LOSS else ["--param", f"{name}={_number(value)}"]
     return args

@@ -14,7 +14,7 @@ import json
 import logging
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
@@ -49,25 +49,39 @@ _DPI = 110
 
 Colour = tuple[float, float, float, float]
 
+# When the three plots are drawn: ``failed`` draws them for a flight that broke something (it did not finish, an
+# invariant was violated, a drone touched another) and leaves them out of one that did not. Drawing them costs a
+# flight about three seconds (matplotlib's import and rendering), as much as a short lockstep flight itself: sweeps and
+# falsification campaigns, which fly hundreds, ask for ``failed``; a person flying one mission gets them always.
+PlotPolicy = Literal["always", "failed", "never"]
+PLOT_POLICIES: tuple[PlotPolicy, ...] = ("always", "failed", "never")
+PLOT_FILES = (TRAJECTORIES_FILE, ALTITUDE_FILE, SEPARATION_FILE)
 
-def write_report(recording: FlightRecording, out_dir: str | Path) -> Path:
-    """Write every report file into ``out_dir`` (created if missing) and return that directory."""
+
+def write_report(recording: FlightRecording, out_dir: str | Path, *, plots: PlotPolicy = "always",
+                 failed: bool = False) -> Path:  # fmt: skip
+    """Write every report file into ``out_dir`` (created if missing) and return that directory. ``failed``: the
+    flight did not finish (for ``plots="failed"``; a violation or a contact counts as well, from the metrics)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     metrics = compute_metrics(recording)
-    tracks = _by_drone(recording.samples)
-    colours = drone_colours(list(tracks))
-
     with (out / METRICS_FILE).open("w", encoding="utf-8") as f:
         json.dump(metrics.to_dict(), f, indent=2, allow_nan=False)
         f.write("\n")
-    _save(_trajectories_figure(recording, tracks, colours), out / TRAJECTORIES_FILE)
-    _save(_altitude_figure(recording, tracks, colours), out / ALTITUDE_FILE)
-    _save(_separation_figure(recording, metrics), out / SEPARATION_FILE)
+    broke = failed or metrics.collisions > 0 or bool(metrics.violations)
+    drawn = [out / name for name in PLOT_FILES] if plots == "always" or (plots == "failed" and broke) else []
+    if drawn:
+        tracks = _by_drone(recording.samples)
+        colours = drone_colours(list(tracks))
+        _save(_trajectories_figure(recording, tracks, colours), out / TRAJECTORIES_FILE)
+        _save(_altitude_figure(recording, tracks, colours), out / ALTITUDE_FILE)
+        _save(_separation_figure(recording, metrics), out / SEPARATION_FILE)
+    else:  # none left from an earlier flight into the same folder (a sweep's run flown again)
+        for name in PLOT_FILES:
+            (out / name).unlink(missing_ok=True)
     summary = summary_text(metrics)
     (out / SUMMARY_FILE).write_text(summary, encoding="utf-8")
-    write_report_page(replay_document(recording), out, title=recording.mission_name, summary=summary,
-                      plots=[out / TRAJECTORIES_FILE, out / ALTITUDE_FILE, out / SEPARATION_FILE])  # fmt: skip
+    write_report_page(replay_document(recording), out, title=recording.mission_name, summary=summary, plots=drawn)
     log.info("flight report written to %s", out)
     return out
 

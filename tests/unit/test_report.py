@@ -119,6 +119,31 @@ def test_report_writes_every_file_with_the_metrics_and_plots(tmp_path: Path) -> 
         assert text in summary
 
 
+def test_plots_on_failure_are_drawn_for_a_flight_that_broke_something_and_left_out_of_one_that_did_not(
+    tmp_path: Path,
+) -> None:
+    plots = (TRAJECTORIES_FILE, ALTITUDE_FILE, SEPARATION_FILE)
+    # GIVEN the same flight with a contact, and without it
+    touched = synthetic_flight()
+    clean = synthetic_flight()
+    clean.events = [e for e in clean.events if not e.text.startswith("Collision")]
+    # WHEN the reports are written with plots="failed" THEN the flight with a contact has its plots
+    out = write_report(touched, tmp_path / "touched", plots="failed")
+    assert all((out / name).read_bytes().startswith(PNG_SIGNATURE) for name in plots)
+    # AND the clean one has every other file, the same metrics as with plots, and none left from an earlier report
+    full = write_report(clean, tmp_path / "clean")
+    metrics = (full / METRICS_FILE).read_bytes()
+    out = write_report(clean, tmp_path / "clean", plots="failed")
+    assert not any((out / name).exists() for name in plots)
+    assert (out / METRICS_FILE).read_bytes() == metrics
+    assert (out / SUMMARY_FILE).exists() and "<img" not in (out / "report.html").read_text()
+    # AND a flight that did not finish has them, and "never" never draws them
+    out = write_report(clean, tmp_path / "unfinished", plots="failed", failed=True)
+    assert all((out / name).exists() for name in plots)
+    out = write_report(touched, tmp_path / "never", plots="never", failed=True)
+    assert not any((out / name).exists() for name in plots)
+
+
 def test_metrics_json_is_identical_for_the_same_recording(tmp_path: Path) -> None:
     first = write_report(synthetic_flight(), tmp_path / "a") / METRICS_FILE
     second = write_report(synthetic_flight(), tmp_path / "b") / METRICS_FILE
