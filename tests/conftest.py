@@ -7,6 +7,9 @@ what a contributor at work would rather leave to CI (README, "Tests").
 - ``heavy``: a local Ray head (the ``ray_head`` fixture), a browser, CPU burners, benches, floods of frames and swarms
   of more than 40 drones: marked where the module or the test says so (``pytest.mark.heavy``) or from its fixtures.
 
+Besides its tier, a test that flies in wall time (an attached vehicle keeps it) is marked ``wall_clock`` and runs with
+the machine to itself (tests/wall_clock.py).
+
 ``pytest -m "unit or flight"`` is the quick tier (about 2 minutes on two cores); ``pytest -m "not heavy"`` leaves out
 only the heavy tests; ``pytest`` runs everything, as CI does. At the end of a run the slowest tests of each tier are
 listed (no test asserts a duration)."""
@@ -14,10 +17,13 @@ listed (no test asserts a duration)."""
 from __future__ import annotations
 
 from collections import defaultdict
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from _pytest.terminal import TerminalReporter
+
+from tests.wall_clock import MachineShare, hold_for, release_after
 
 TIER_OF_FOLDER = {"unit": "unit", "closed_loop": "flight", "integration": "integration"}
 HEAVY_FIXTURES = frozenset({"ray_head"})
@@ -32,6 +38,28 @@ def tier_of(path: Path) -> str | None:
     except (ValueError, IndexError):
         return None
     return TIER_OF_FOLDER.get(folder)
+
+
+_SHARE = pytest.StashKey[MachineShare]()
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.stash[_SHARE] = MachineShare()
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    if _SHARE in config.stash:
+        config.stash[_SHARE].close()
+
+
+@pytest.hookimpl(hookwrapper=True, tryfirst=True)  # outside pytest-timeout's: waiting for the machine is not the test's
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Iterator[None]:
+    share = item.config.stash[_SHARE]
+    hold_for(share, item)
+    try:
+        yield
+    finally:
+        release_after(share, item, nextitem)
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

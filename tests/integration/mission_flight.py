@@ -27,7 +27,8 @@ def fly_mission(mission: str | Path, args: list[str], tmp_path: Path, timeout_s:
     of a block the caller leased (``instances`` an int: two flights that must carry the same sysids); with
     AVOID_ENABLE = 0 on every drone unless ``avoidance``; metrics and the run.
 
-    Always loopback only (--no-forward); the report goes to tmp_path/report."""
+    Always loopback only (--no-forward); the report goes to tmp_path/report, its plots drawn only if the flight broke
+    something (--plots failed: they cost a flight about 3 s; test_swarm_fly.py checks a report's plots)."""
     path = MISSIONS / mission
     first = instances if isinstance(instances, int) else instances(mission_drones(path))
     args = [*args, "--first-instance", str(first)]
@@ -37,8 +38,8 @@ def fly_mission(mission: str | Path, args: list[str], tmp_path: Path, timeout_s:
         path = tmp_path / path.name
         path.write_text(text.replace("[swarm]\n", "[swarm]\nparams = { AVOID_ENABLE = 0 }\n"))
     report = tmp_path / "report"
-    result = subprocess.run([*SWARM, "fly", str(path), *args, "--report", str(report), "--no-forward"],
-                            capture_output=True, text=True, timeout=timeout_s)  # fmt: skip
+    result = subprocess.run([*SWARM, "fly", str(path), *args, "--report", str(report), "--plots", "failed",
+                             "--no-forward"], capture_output=True, text=True, timeout=timeout_s)  # fmt: skip
     if expect_ok:
         assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     metrics: dict[str, Any] = json.loads((report / "metrics.json").read_text())

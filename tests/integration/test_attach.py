@@ -36,7 +36,7 @@ from tests.integration.scripted_vehicle import (
     back_and_forth,
 )
 
-pytestmark = [pytest.mark.sim_only]
+pytestmark = [pytest.mark.sim_only, pytest.mark.wall_clock]  # an attached vehicle keeps wall time (tests/wall_clock.py)
 
 SWARM = [sys.executable, "-m", "gcs.cli"]
 INTRUDER_SYSID = 250  # a sysid no drone of the suite has (tests/integration/instances.py)

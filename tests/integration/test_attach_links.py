@@ -33,7 +33,7 @@ from tests.integration.scripted_vehicle import (
 )
 from tests.integration.test_attach import CROSSING, FRAME, INTRUDER_SYSID, MIN_CLEARANCE_M, SWARM, free_udp_port
 
-pytestmark = [pytest.mark.sim_only]
+pytestmark = [pytest.mark.sim_only, pytest.mark.wall_clock]  # an attached vehicle keeps wall time (tests/wall_clock.py)
 
 
 @contextlib.contextmanager

@@ -40,7 +40,7 @@ from tests.integration.scripted_vehicle import ARDUCOPTER_GUIDED, ARDUCOPTER_LOI
 from tests.integration.sitl_process import SitlDrone, start_drone, stop_drone
 from tests.integration.test_attach import free_udp_port
 
-pytestmark = [pytest.mark.sim_only]
+pytestmark = [pytest.mark.sim_only, pytest.mark.wall_clock]  # an attached vehicle keeps wall time (tests/wall_clock.py)
 
 SWARM = [sys.executable, "-m", "gcs.cli"]
 COPTER_SYSID = 251  # sysids no drone of the suite has (tests/integration/instances.py)

@@ -26,7 +26,7 @@ import pytest
 
 from tests.integration.instances import Leases
 from tests.integration.mission_flight import mission_drones
-from tests.integration.test_swarm import wait_dead
+from tests.integration.test_swarm import alive, wait_dead
 
 pytestmark = [pytest.mark.sim_only]
 
@@ -94,6 +94,18 @@ def finish(proc: subprocess.Popen[str], timeout_s: float) -> tuple[int, str, str
         out, err = proc.communicate(timeout=60)
         pytest.fail(f"sweep did not finish within {timeout_s:g} s: {out[-2000:]} {err[-2000:]}")
     return proc.returncode, out, err
+
+
+def stopped(proc: subprocess.Popen[str]) -> None:
+    """A sweep the test is done with, also after a failed assertion: stopped (its process group) if it still runs,
+    and reaped."""
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            proc.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+    proc.communicate()
 
 
 def run_files(out: Path) -> dict[str, dict[str, Any]]:
@@ -242,12 +254,15 @@ def test_the_same_sweep_on_a_local_ray_head_gives_the_same_runs_and_summary(
 ) -> None:
     local = two_sweeps_at_once["a"][0]
     proc = sweep(mission, tmp_path / "ray", sweep_env, "--seeds", "1-2", *SETTINGS, "--ray", ray_head)
-    # WHEN the Ray worker flying a run dies (SIGKILL, as with its node) THEN its run's swarm ends with it, and Ray
-    # flies the run again
-    worker, flight = busy_worker(ray_head_session(ray_head), 120)
-    os.kill(worker, signal.SIGKILL)
-    assert wait_dead([flight], 30) == [], "the killed worker's run outlived it"
-    code, stdout, stderr = finish(proc, 500)
+    try:
+        # WHEN the Ray worker flying a run dies (SIGKILL, as with its node) THEN its run's swarm ends with it, and
+        # Ray flies the run again
+        worker, flight = busy_worker(ray_head_session(ray_head), 120)
+        os.kill(worker, signal.SIGKILL)
+        assert wait_dead([flight], 30) == [], "the killed worker's run outlived it"
+        code, stdout, stderr = finish(proc, 500)
+    finally:
+        stopped(proc)
     assert code == 0, stdout[-3000:] + stderr[-3000:]
     assert "Ray cluster at" in stdout
     on_ray, here = run_files(tmp_path / "ray"), run_files(local)
@@ -258,6 +273,42 @@ def test_the_same_sweep_on_a_local_ray_head_gives_the_same_runs_and_summary(
     summary_ray = json.loads((tmp_path / "ray" / "summary.json").read_text())
     summary_here = json.loads((local / "summary.json").read_text())
     assert summary_ray["settings"] == summary_here["settings"]
+
+
+# Starts a run as gcs/sweep/runs.py does, naming itself its parent (gcs/sweep/child.py), and dies at once; the run's
+# process waits until the starter is gone and only then becomes the run (exec: the same process, parent and
+# environment): a Ray worker killed the moment its run's process exists, before the run could ask the kernel to end
+# it with its parent, made certain.
+STARTER = """\
+import os, subprocess, sys
+from gcs.sweep.child import parent_named
+wait = ("import os, sys, time\\nwhile os.getppid() == int(sys.argv[1]):\\n    time.sleep(0.01)\\n"
+        "os.execv(sys.executable, [sys.executable, '-m', 'gcs.sweep.child', *sys.argv[2:]])")
+with open(sys.argv[1], "w") as log:
+    run = subprocess.Popen([sys.executable, "-c", wait, str(os.getpid()), *sys.argv[2:]], stdout=log,
+                           stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True,
+                           env={**os.environ, **parent_named()})
+print(run.pid)
+"""
+
+
+@pytest.mark.timeout(120)
+def test_a_run_whose_parent_died_before_it_could_ask_to_end_with_it_ends_at_once_starting_nothing(
+    mission: Path, sweep_env: dict[str, str], tmp_path: Path, instances: Leases
+) -> None:
+    log, report = tmp_path / "fly.log", tmp_path / "report"
+    args = ["fly", str(mission), "--lockstep", "--report", str(report), "--no-forward", "--no-view",
+            "--first-instance", str(instances(mission_drones(mission)))]  # fmt: skip
+    starter = subprocess.run([sys.executable, "-c", STARTER, str(log), *args], capture_output=True, text=True,
+                             env=sweep_env, timeout=60)  # fmt: skip
+    assert starter.returncode == 0, starter.stderr
+    run = int(starter.stdout)
+    try:
+        assert wait_dead([run], 10) == [], "the run flew on without its parent"
+    finally:
+        if alive(run):  # its drone factory and drones end with it
+            os.killpg(run, signal.SIGKILL)
+    assert "spawning" not in log.read_text() and not report.exists(), log.read_text()[-2000:]
 
 
 # Paced runs: a run's lockstep clock goes no faster than PACE x the wall clock, so a run cannot end sooner than its
