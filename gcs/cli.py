@@ -8,12 +8,14 @@ stderr and a non-zero exit code.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import math
 import os
 import re
 import signal
 import sys
+import threading
 import time
 import tomllib
 from collections.abc import Callable, Sequence
@@ -612,8 +614,60 @@ class _Stop:
         self.stopped = True
 
 
-def _interrupt(_signum: int, _frame: FrameType | None) -> NoReturn:
-    raise KeyboardInterrupt
+class _Interrupted(KeyboardInterrupt):
+    """Ctrl-C for a signal (SIGTERM, SIGHUP), raised by ``_interrupt``: it names the signal, to be raised again."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def _interrupt(signum: int, _frame: FrameType | None) -> NoReturn:
+    raise _Interrupted(signum)
+
+
+class _RaiseLostInterrupts:
+    """``sys.unraisablehook`` while ``_interrupt`` handles signals: an interrupt the interpreter could only print is
+    sent to the main thread again; anything else goes to the hook this one replaced.
+
+    Python runs a handler in the main thread between two bytecodes of whatever runs there, and what a handler raises
+    inside a callback the interpreter calls from C is printed and dropped: an ``os.register_at_fork`` hook (logging's
+    runs around the fork of the drone factory, which has a ``preexec_fn``), a ``__del__``, a weakref callback. A
+    sweep's run that got its SIGTERM (its parent died) while the factory was forked printed "Exception ignored in:
+    <function _releaseLock>" and flew on to its end. Sent again from a thread of its own, the signal is handled once
+    the main thread is out of that callback, and raised where it can end the flight."""
+
+    def __init__(self, previous: Callable[[sys.UnraisableHookArgs], object]) -> None:
+        self.previous = previous
+
+    def __call__(self, unraisable: sys.UnraisableHookArgs) -> None:
+        lost = unraisable.exc_value
+        if not isinstance(lost, _Interrupted):
+            self.previous(unraisable)
+            return
+        main = threading.main_thread().ident
+        assert main is not None
+        threading.Thread(target=_send_again, args=(main, lost.signum), daemon=True).start()
+
+
+RESEND_AFTER_S = 0.05
+
+
+def _send_again(thread_id: int, signum: int) -> None:
+    """A lost interrupt's signal to the main thread, a moment later: sent at once, it could come while the main thread
+    is still in the callback, or in the hook itself (starting this thread), and be lost there too."""
+    time.sleep(RESEND_AFTER_S)
+    with contextlib.suppress(ProcessLookupError):  # the main thread has ended meanwhile
+        signal.pthread_kill(thread_id, signum)
+
+
+def _interrupt_on(signals: Sequence[int]) -> None:
+    """``signals`` interrupt the main thread as Ctrl-C does (``_Interrupted``), and none is lost
+    (``_RaiseLostInterrupts``)."""
+    for sig in signals:
+        signal.signal(sig, _interrupt)
+    if not isinstance(sys.unraisablehook, _RaiseLostInterrupts):
+        sys.unraisablehook = _RaiseLostInterrupts(sys.unraisablehook)
 
 
 def _say(text: str) -> None:
@@ -668,8 +722,7 @@ def run_up(args: argparse.Namespace, simulation: Simulation) -> int:
     view = _start_view(args)
     stop = _Stop()
     signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-    for sig in signals:  # while the drones start, a signal ends the start-up at once (and stops what started)
-        signal.signal(sig, _interrupt)
+    _interrupt_on(signals)  # while the drones start, a signal ends the start-up at once (and stops what started)
     swarm = Swarm(plan, simulation.harness(plan), forward=None if args.no_forward else args.forward,
                   relay=neighbours.relay)  # fmt: skip
     station = Station(swarm, _say, LossPolicy(args.loss_policy), report_dir=args.report, contact_distance_m=contact)
@@ -792,7 +845,7 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
                            attach=attach, gcs_sysid=args.gcs_sysid,
                            stop_on_violation=args.stop_on_violation, plots=args.plots)  # fmt: skip
     view = runner.view
-    signal.signal(signal.SIGTERM, _interrupt)  # a terminated run lands and stops its drones like Ctrl-C
+    _interrupt_on([signal.SIGTERM])  # a terminated run lands and stops its drones like Ctrl-C
     try:
         out = runner.run()
     except AttachError as exc:
