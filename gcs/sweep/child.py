@@ -8,8 +8,9 @@ where a multi-threaded parent must not run Python code.
 A parent may die before the request is made: the interpreter takes some 70 ms to get here after exec, far longer on a
 loaded machine, and a Ray worker killed as soon as its run's process showed up went unnoticed: the run took the dead
 parent's successor (init, or a subreaper) for its parent and flew to its end, over 30 s on a loaded CI machine. So the
-parent names itself in ``PARENT_ENV`` (gcs/sweep/cluster.py does), and a run whose parent is not that process once
-the request is in place ends at once, having started nothing. Without ``PARENT_ENV`` the parent is the one found here.
+parent names itself in ``PARENT_ENV`` (gcs/sweep/runs.py ``fly`` does, for a sweep and a Ray task alike), and a run
+whose parent is not that process once the request is in place ends at once, having started nothing. Without
+``PARENT_ENV`` the parent is the one found here.
 
 The kernel's signal comes when the parent *thread* that forked the run ends, not the process: the thread that starts
 a run waits for it to end (gcs/sweep/runs.py ``fly``, in a Ray task's main thread or a sweep's pool thread), so the

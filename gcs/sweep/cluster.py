@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import io
 import logging
-import os
 import shutil
 import tarfile
 import tempfile
@@ -22,7 +21,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Final
 
-from gcs.sweep.child import parent_named
 from gcs.sweep.instance_locks import InstanceLocks
 from gcs.sweep.plan import Axis, Run, SweepError, SweepPlan
 from gcs.sweep.runs import Flight, RunResult, fly
@@ -42,8 +40,6 @@ def fly_on_node(
     plan_data: dict[str, Any], mission_text: bytes, run_data: dict[str, Any]
 ) -> tuple[dict[str, Any], bytes]:
     """The Ray task: fly one run of the plan on this node; its result and its folder as a .tar.gz."""
-    # The run ends with this worker, also when it is killed the moment the run's process exists (gcs/sweep/child.py)
-    os.environ.update(parent_named())
     with tempfile.TemporaryDirectory(prefix="swarm-sweep-run-") as tmp:
         mission = Path(tmp) / "mission.toml"
         mission.write_bytes(mission_text)
