@@ -125,9 +125,9 @@ def pytest_pyfunc_call(pyfuncitem: pytest.Function) -> bool | None:
 @pytest.fixture(scope="session")
 def instance_allocator(pytestconfig: pytest.Config) -> Iterator[InstanceAllocator]:
     """This process's block of INSTANCES_PER_WORKER instances for drones spawned one or two at a time, leased for
-    the session (tests/integration/instances.py)."""
+    the session from the top of the range (tests/integration/instances.py says why)."""
     with leases(pytestconfig.getoption("--sitl-instance-base")) as take:
-        yield InstanceAllocator(take(INSTANCES_PER_WORKER), INSTANCES_PER_WORKER)
+        yield InstanceAllocator(take(INSTANCES_PER_WORKER, from_top=True), INSTANCES_PER_WORKER)
 
 
 @pytest.fixture

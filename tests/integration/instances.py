@@ -13,7 +13,10 @@ HIGHEST_INSTANCE, clear of a user's instances 0-9 and of a ground station's port
 free. Sysids from 200 up are left to the tests' own stand-ins (a stranger sending garbage, probes, observers), so no
 drone of the suite ever has one. Blocks are taken round robin
 from where the process's last lease ended, so a test never receives stray datagrams still in flight to the ports of
-the test before it.
+the test before it. A block held for a whole session (``from_top``) is taken from the top of the range instead: one
+held low for an hour would sit where a test needing a large block containing a low instance must take it
+(tests/integration/test_many_drones_ports.py: 42 instances containing instance 38 must fit in 20-79), and no
+reservation can wait out a holder that never lets go.
 """
 
 from __future__ import annotations
@@ -86,9 +89,10 @@ def _usable(first: int, count: int, containing: int | None) -> bool:
 
 
 def lease(count: int, *, lowest: int = DEFAULT_LOWEST_INSTANCE, containing: int | None = None,
-          timeout_s: float = LEASE_TIMEOUT_S) -> Lease:  # fmt: skip
+          timeout_s: float = LEASE_TIMEOUT_S, from_top: bool = False) -> Lease:  # fmt: skip
     """A block of ``count`` consecutive instances nobody else on the machine holds, with their ports free;
-    ``containing``: the block must include this instance (a test of what changes at an instance). Waits while
+    ``containing``: the block must include this instance (a test of what changes at an instance); ``from_top``: the
+    highest free block, for a lease held for the whole session (the module's docstring says why). Waits while
     other tests hold every block that fits; after ``_RESERVE_AFTER_S`` of that it reserves one (``_reserve``), so
     that a large block is not starved by the small ones other workers and sweeps keep taking inside it."""
     starts = [f for f in range(lowest, HIGHEST_INSTANCE - count + 2) if _usable(f, count, containing)]
@@ -102,12 +106,13 @@ def lease(count: int, *, lowest: int = DEFAULT_LOWEST_INSTANCE, containing: int 
     while True:
         pivot = next((i for i, f in enumerate(starts) if f >= _cursor.next_first), 0)
         others = locks.reserved()
-        for first in starts[pivot:] + starts[:pivot]:
+        for first in starts[::-1] if from_top else starts[pivot:] + starts[:pivot]:
             held = locks.try_hold(first, reserved=others)
             if held is None:
                 continue
             if _ports_free(first, count):
-                _cursor.next_first = first + count
+                if not from_top:
+                    _cursor.next_first = first + count
                 return Lease(first, count, held)
             for handle in held:
                 handle.close()
@@ -116,7 +121,8 @@ def lease(count: int, *, lowest: int = DEFAULT_LOWEST_INSTANCE, containing: int 
         if time.monotonic() > reserve_at:
             mine = [f for f in starts if _HELD_HERE.isdisjoint(range(f, f + count))]  # never wait for itself
             if mine and (reserved := _reserve(mine, count, deadline)) is not None:
-                _cursor.next_first = reserved.first + count
+                if not from_top:
+                    _cursor.next_first = reserved.first + count
                 return reserved
             reserve_at = time.monotonic() + _RESERVE_AFTER_S
         time.sleep(_RETRY_S)
@@ -173,9 +179,10 @@ class Leases:
         self._lowest = lowest
         self._leases: list[Lease] = []
 
-    def __call__(self, count: int = 1, *, containing: int | None = None, timeout_s: float = LEASE_TIMEOUT_S) -> int:
-        """The first instance of a fresh block of ``count``."""
-        taken = lease(count, lowest=self._lowest, containing=containing, timeout_s=timeout_s)
+    def __call__(self, count: int = 1, *, containing: int | None = None, timeout_s: float = LEASE_TIMEOUT_S,
+                 from_top: bool = False) -> int:  # fmt: skip
+        """The first instance of a fresh block of ``count`` (``lease`` says what the keywords do)."""
+        taken = lease(count, lowest=self._lowest, containing=containing, timeout_s=timeout_s, from_top=from_top)
         self._leases.append(taken)
         return taken.first
 

@@ -247,7 +247,9 @@ def test_a_drone_heard_again_under_loss_policy_hold_is_held_too(
     # AND once heard again it is told the same: both hold, in the air
     swarm.wait_for(lambda: any(ln.startswith(f"drone {silent} link regained at t=") for ln in swarm.lines), 120,
                    "the regain")  # fmt: skip
-    assert f"swarm: loss policy hold: sysid {silent} holds where it is too" in swarm.lines, swarm.lines
+    said = f"swarm: loss policy hold: sysid {silent} "  # said once the drone acknowledged, after the regain line
+    swarm.wait_for(lambda: any(ln.startswith(said) for ln in swarm.lines), 30, "what the policy does")
+    assert f"{said}holds where it is too" in swarm.lines, swarm.lines
     swarm.wait_for(lambda: swarm.status()[silent][1] == "AUTO.LOITER", 120, "Hold")
     rows = swarm.status()
     assert all(rows[s][2] == "yes" and float(rows[s][5]) > 2.5 for s in (survivor, silent)), rows

@@ -12,8 +12,10 @@ import textwrap
 import pytest
 
 from sitl.process.ports import PX4_INSTANCES
-from tests.integration.instances import HIGHEST_INSTANCE, lease, leases
+from tests.integration.conftest import INSTANCES_PER_WORKER
+from tests.integration.instances import HIGHEST_INSTANCE, _cursor, lease, leases
 from tests.integration.sitl_process import instance_is_clear_of_user_ports
+from tests.integration.test_many_drones_ports import DRONES as MANY_DRONES
 
 pytestmark = pytest.mark.timeout(60)
 HIGH = 150
@@ -115,6 +117,20 @@ def test_a_lease_that_must_contain_an_instance_spans_it() -> None:
     try:
         # THEN the block holds the boundary
         assert PX4_INSTANCES in held.instances
+    finally:
+        held.release()
+
+
+def test_a_lease_for_the_whole_session_is_taken_from_the_top_clear_of_the_large_blocks_low_down() -> None:
+    # GIVEN the round robin's place in this process
+    before = _cursor.next_first
+    # WHEN a block is leased for a whole session (as each worker's allocator is)
+    held = lease(INSTANCES_PER_WORKER, from_top=True)
+    try:
+        # THEN it lies above every block of 42 that holds instance 38 (the 42-drone test's, which no reservation could
+        # get while a session-long lease sat inside it), and the round robin of the other leases is where it was
+        assert held.first > PX4_INSTANCES - 2 + MANY_DRONES - 1, held
+        assert _cursor.next_first == before
     finally:
         held.release()
 
