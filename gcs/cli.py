@@ -75,6 +75,7 @@ from gcs.view.report import PLOT_POLICIES
 from gcs.view.server import DEFAULT_PORT as DEFAULT_VIEW_PORT
 from gcs.view.server import ViewError, ViewServer, serve_view
 from swarmcommon.datagrams import parse_host_port
+from swarmcommon.process_end import ending
 
 EXIT_USAGE = 2
 DEFAULT_MISSION = Path(__file__).resolve().parent.parent / "missions" / "grid_to_circle.toml"
@@ -1037,5 +1038,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_FAILED
 
 
+def entry() -> int:
+    """The ``swarm`` command (pyproject.toml's script, ``python -m gcs.cli``): ``main`` on the command
+    line, ended without the interpreter's last garbage collection (swarmcommon/process_end.py)."""
+    return ending(main)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(entry())

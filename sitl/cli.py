@@ -28,6 +28,7 @@ from sitl.world.mesh import MeshSettings, mesh_problem
 from sitl.world.shared import WorldError
 from swarmcommon.datagrams import parse_host_port
 from swarmcommon.links import DEFAULT_MESH_EXPONENT, LINK_KEYS
+from swarmcommon.process_end import ending
 
 EXIT_USAGE = 2
 SPEED_ENV = "PX4_SIM_SPEED_FACTOR"
@@ -390,5 +391,11 @@ def _camera_dir(root: Path | None, instance: int, count: int) -> Path | None:
     return root if count == 1 else root / f"drone-{instance}"
 
 
+def entry() -> int:
+    """The ``sitl`` command (pyproject.toml's script, ``python -m sitl.cli``): ``main`` on the command
+    line, ended without the interpreter's last garbage collection (swarmcommon/process_end.py)."""
+    return ending(main)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(entry())

@@ -32,6 +32,8 @@ import time
 import traceback
 from typing import Any
 
+from swarmcommon.process_end import ending
+
 PR_SET_PDEATHSIG = 1
 PR_SET_NAME = 15
 REAP_INTERVAL_S = 0.05
@@ -212,4 +214,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(ending(main))  # without the last collection over the drones' code (swarmcommon/process_end.py)
