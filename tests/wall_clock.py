@@ -25,13 +25,13 @@ from pathlib import Path
 import pytest
 
 MARK = "wall_clock"
-LOCK_DIR = Path(tempfile.gettempdir()) / "swarmsitl-tests"
+SUITE_DIR = Path(tempfile.gettempdir()) / "swarmsitl-tests"  # what the suite keeps on the machine: locks, bytecode
 
 
 class MachineShare:
     """This process's place in the machine-wide reader-writer lock: nothing held, a share, or the whole machine."""
 
-    def __init__(self, folder: Path = LOCK_DIR) -> None:
+    def __init__(self, folder: Path = SUITE_DIR) -> None:
         folder.mkdir(parents=True, exist_ok=True)
         self._gate = os.open(folder / "gate.lock", os.O_RDWR | os.O_CREAT, 0o666)
         self._machine = os.open(folder / "machine.lock", os.O_RDWR | os.O_CREAT, 0o666)
