@@ -10,7 +10,7 @@ what a contributor at work would rather leave to CI (README, "Tests").
 Besides its tier, a test that flies in wall time (an attached vehicle keeps it) is marked ``wall_clock`` and runs with
 the machine to itself (tests/wall_clock.py).
 
-``pytest -m "unit or flight"`` is the quick tier (about 2 minutes on two cores); ``pytest -m "not heavy"`` leaves out
+``pytest -m "unit or flight"`` is the quick tier (about 5 minutes on two cores); ``pytest -m "not heavy"`` leaves out
 only the heavy tests; ``pytest`` runs everything, as CI does. At the end of a run the slowest tests of each tier are
 listed (no test asserts a duration)."""
 
