@@ -90,10 +90,6 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(getattr(pytest.mark, tier))
         if HEAVY_FIXTURES.intersection(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.heavy)
-    # The files with heavy tests first, each file's tests in their order: pytest-xdist deals files out to its workers in
-    # this order, and a long file dealt last (the falsification campaign, 10 min) left one worker flying it alone.
-    heavy_files = {item.path for item in items if item.get_closest_marker("heavy") is not None}
-    items.sort(key=lambda item: item.path not in heavy_files)
 
 
 def pytest_terminal_summary(terminalreporter: TerminalReporter, exitstatus: int, config: pytest.Config) -> None:
