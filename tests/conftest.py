@@ -25,6 +25,7 @@ from pathlib import Path
 import pytest
 from _pytest.terminal import TerminalReporter
 
+from tests.timing import LOCK, add_options, attach_waits, summarize, waiting
 from tests.wall_clock import SUITE_DIR, MachineShare, hold_for, release_after
 
 TIER_OF_FOLDER = {"unit": "unit", "closed_loop": "flight", "integration": "integration"}
@@ -64,6 +65,10 @@ def keep_bytecode() -> None:
 keep_bytecode()
 
 
+def pytest_addoption(parser: pytest.Parser) -> None:
+    add_options(parser)
+
+
 def pytest_configure(config: pytest.Config) -> None:
     config.stash[_SHARE] = MachineShare()
 
@@ -76,11 +81,18 @@ def pytest_unconfigure(config: pytest.Config) -> None:
 @pytest.hookimpl(hookwrapper=True, tryfirst=True)  # outside pytest-timeout's: waiting for the machine is not the test's
 def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Iterator[None]:
     share = item.config.stash[_SHARE]
-    hold_for(share, item)
+    with waiting(LOCK):
+        hold_for(share, item)
     try:
         yield
     finally:
         release_after(share, item, nextitem)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Iterator[None]:
+    outcome = yield
+    attach_waits(outcome.get_result())  # type: ignore[attr-defined]
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
@@ -93,7 +105,9 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 
 def pytest_terminal_summary(terminalreporter: TerminalReporter, exitstatus: int, config: pytest.Config) -> None:
-    """The slowest tests of each tier (call phase), so a run shows where each tier's time goes."""
+    """The slowest tests of each tier (call phase), then each file's whole cost (tests/timing.py), so a run shows
+    where each tier's time goes."""
+    summarize(terminalreporter, config.getoption("--durations-table"))
     by_tier: dict[str, list[tuple[float, str]]] = defaultdict(list)
     for reports in terminalreporter.stats.values():
         for report in reports:

@@ -30,6 +30,7 @@ from typing import IO, Final
 
 from gcs.sweep.instance_locks import InstanceLocks
 from tests.integration.sitl_process import DronePorts, instance_is_clear_of_user_ports, udp_port_is_free
+from tests.timing import LEASE, waiting
 
 DEFAULT_LOWEST_INSTANCE: Final = 20
 HIGHEST_INSTANCE: Final = 198  # sysid 199: sysids 200-254 are the tests' stand-ins, 255 the ground station's
@@ -182,7 +183,8 @@ class Leases:
     def __call__(self, count: int = 1, *, containing: int | None = None, timeout_s: float = LEASE_TIMEOUT_S,
                  from_top: bool = False) -> int:  # fmt: skip
         """The first instance of a fresh block of ``count`` (``lease`` says what the keywords do)."""
-        taken = lease(count, lowest=self._lowest, containing=containing, timeout_s=timeout_s, from_top=from_top)
+        with waiting(LEASE):
+            taken = lease(count, lowest=self._lowest, containing=containing, timeout_s=timeout_s, from_top=from_top)
         self._leases.append(taken)
         return taken.first
 
