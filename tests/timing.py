@@ -88,8 +88,8 @@ def file_costs(reporter: TerminalReporter) -> dict[str, FileCost]:
             cost.phases_s[when] += report.duration
             cost.tests += when == "setup"
             for name, value in report.user_properties:
-                if isinstance(name, str) and name.startswith(_PROPERTY_PREFIX):
-                    cost.waited_s[name.removeprefix(_PROPERTY_PREFIX)] += float(value)
+                if isinstance(name, str) and name.startswith(_PROPERTY_PREFIX) and isinstance(value, float):
+                    cost.waited_s[name.removeprefix(_PROPERTY_PREFIX)] += value
     return dict(costs)
 
 
