@@ -1,49 +1,34 @@
-"""The suite's tiers: every test is marked with one from the folder it lives in, and ``heavy`` besides when it needs
-what a contributor at work would rather leave to CI (README, "Tests").
+"""The suite's plumbing: tiers and kinds (tests/tiers.py), the order files are dealt to workers in
+(tests/scheduling.py), what each file cost (tests/timing.py), the machine-wide lock for wall-clock tests
+(tests/wall_clock.py), a bytecode cache, and the kernels compiled once before the workers start.
 
-- ``unit`` (tests/unit): one part on its own, in this process; a closed loop at most as long as a takeoff.
-- ``flight`` (tests/closed_loop): closed-loop flights through JSBSim, every drone in this process.
-- ``integration`` (tests/integration): real ``sitl`` and ``swarm`` processes on 127.0.0.1 driven by real clients.
-- ``heavy``: a local Ray head (the ``ray_head`` fixture), a browser, CPU burners, benches, floods of frames and swarms
-  of more than 40 drones: marked where the module or the test says so (``pytest.mark.heavy``) or from its fixtures.
-
-Besides its tier, a test that flies in wall time (an attached vehicle keeps it) is marked ``wall_clock`` and runs with
-the machine to itself (tests/wall_clock.py).
-
-``pytest -m "unit or flight"`` is the quick tier (about 5 minutes on two cores); ``pytest -m "not heavy"`` leaves out
-only the heavy tests; ``pytest`` runs everything, as CI does. At the end of a run the slowest tests of each tier are
-listed (no test asserts a duration)."""
+``pytest`` runs the suite (the README's test command), ``pytest --tier quick`` the quick tier, ``pytest --tier
+acceptance`` the acceptance tier (docs/testing.md). At the end of a run the slowest tests of each kind and the cost of
+each file are listed (no test asserts a duration)."""
 
 from __future__ import annotations
 
 import os
+import pkgutil
+import subprocess
 import sys
+import time
 from collections import defaultdict
 from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 from _pytest.terminal import TerminalReporter
 
-from tests.timing import LOCK, add_options, attach_waits, summarize, waiting
+from tests import tiers, timing
+from tests.scheduling import load_table, longest_first
+from tests.timing import LOCK, attach_waits, waiting
 from tests.wall_clock import SUITE_DIR, MachineShare, hold_for, release_after
 
-TIER_OF_FOLDER = {"unit": "unit", "closed_loop": "flight", "integration": "integration"}
-HEAVY_FIXTURES = frozenset({"ray_head"})
-SLOWEST_PER_TIER = 8
-_TESTS = Path(__file__).resolve().parent
-
-
-def tier_of(path: Path) -> str | None:
-    """The tier of a test module from its folder under tests/ (None outside the three)."""
-    try:
-        folder = path.resolve().relative_to(_TESTS).parts[0]
-    except (ValueError, IndexError):
-        return None
-    return TIER_OF_FOLDER.get(folder)
+SLOWEST_PER_KIND = 8
 
 
 _SHARE = pytest.StashKey[MachineShare]()
+_COMPILE_S = pytest.StashKey[float]()
 
 
 def keep_bytecode() -> None:
@@ -66,11 +51,27 @@ keep_bytecode()
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
-    add_options(parser)
+    tiers.add_options(parser)
+    timing.add_options(parser)
+
+
+def compile_kernels_once() -> float:
+    """Compile the drones' kernels into their on-disk cache (sitl/kernels) in a child, before any worker starts,
+    and return how long it took. Otherwise, on a cold cache, every worker and every drone or factory the first tests
+    start compiles them at once (25-36 s of CPU each on two cores); once cached, this costs a load (about 1.5 s)."""
+    import sitl.kernels  # the package alone: numba stays out of this process
+
+    modules = sorted(m.name for m in pkgutil.iter_modules(sitl.kernels.__path__, "sitl.kernels."))
+    start = time.monotonic()
+    subprocess.run([sys.executable, "-c", "; ".join(f"import {m}" for m in modules)], check=True, timeout=600)
+    return time.monotonic() - start
 
 
 def pytest_configure(config: pytest.Config) -> None:
     config.stash[_SHARE] = MachineShare()
+    is_worker = hasattr(config, "workerinput")
+    if not is_worker and not config.option.collectonly and not config.option.help:
+        config.stash[_COMPILE_S] = compile_kernels_once()
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
@@ -96,35 +97,34 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    for item in items:
-        tier = tier_of(item.path)
-        if tier is not None:
-            item.add_marker(getattr(pytest.mark, tier))
-        if HEAVY_FIXTURES.intersection(getattr(item, "fixturenames", ())):
-            item.add_marker(pytest.mark.heavy)
+    tiers.mark_and_select(config, items)
+    longest_first(items, load_table())
 
 
 def pytest_terminal_summary(terminalreporter: TerminalReporter, exitstatus: int, config: pytest.Config) -> None:
-    """The slowest tests of each tier (call phase), then each file's whole cost (tests/timing.py), so a run shows
-    where each tier's time goes."""
-    summarize(terminalreporter, config.getoption("--durations-table"))
-    by_tier: dict[str, list[tuple[float, str]]] = defaultdict(list)
+    """The slowest tests of each kind (call phase), then each file's whole cost (tests/timing.py), so a run shows
+    where its time goes."""
+    if _COMPILE_S in config.stash:
+        terminalreporter.write_line(
+            f"kernels compiled or loaded before the workers started: {config.stash[_COMPILE_S]:.1f} s"
+        )
+    timing.summarize(terminalreporter, config.getoption("--durations-table"))
+    by_kind: dict[str, list[tuple[float, str]]] = defaultdict(list)
     for reports in terminalreporter.stats.values():
         for report in reports:
             if getattr(report, "when", None) != "call":
                 continue
             keywords = getattr(report, "keywords", {})
-            tier = next((t for t in ("unit", "flight", "integration") if t in keywords), None)
-            if tier is None:
+            kind = next((k for k in tiers.KIND_OF_FOLDER.values() if k in keywords), None)
+            if kind is None:
                 continue
-            name = f"{tier} (heavy)" if "heavy" in keywords else tier
-            by_tier[name].append((report.duration, report.nodeid))
-    if not by_tier:
+            by_kind[kind].append((report.duration, report.nodeid))
+    if not by_kind:
         return
-    terminalreporter.write_sep("=", "slowest tests of each tier")
-    for name in sorted(by_tier):
-        runs = sorted(by_tier[name], reverse=True)
+    terminalreporter.write_sep("=", "slowest tests of each kind")
+    for name in sorted(by_kind):
+        runs = sorted(by_kind[name], reverse=True)
         total = sum(d for d, _ in runs)
         terminalreporter.write_line(f"{name}: {len(runs)} test{'s' if len(runs) != 1 else ''}, {total:.1f} s of calls")
-        for duration, nodeid in runs[:SLOWEST_PER_TIER]:
+        for duration, nodeid in runs[:SLOWEST_PER_KIND]:
             terminalreporter.write_line(f"  {duration:7.2f}s {nodeid}")

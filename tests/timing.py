@@ -1,14 +1,14 @@
 """Where the suite's time goes, per file: setup + call + teardown of its tests, and how long they waited.
 
 A module-scoped flight runs in the setup of the module's first test and ends in the teardown of its last, so the call
-phases alone (pytest's ``--durations``) leave the costliest flights out. A test may also wait before it flies: for
-the machine-wide lock (tests/wall_clock.py) while a wall-clock test holds the machine, and for instance leases
-(tests/integration/instances.py) while other tests hold every block that fits. Those waits are counted here, in the
-process that waited, and reach the controller with the test's reports (``user_properties``, which pytest-xdist
-carries), so the end summary can say what each file cost and what it spent waiting.
+phases alone (pytest's ``--durations``) leave the costliest flights out. A test may also wait: before its setup for
+the machine-wide lock (tests/wall_clock.py) while a wall-clock test holds the machine, outside its phases; and inside
+a phase for instance leases (tests/integration/instances.py) while other tests hold every block that fits. The waits
+are counted in the process that waited and reach the controller with the test's reports (``user_properties``, which
+pytest-xdist carries), so the end summary can say what each file cost and what it spent waiting.
 
-``--durations-table PATH`` writes each file's own cost (its phases less its waits) as JSON: the table the scheduler
-deals files from (tests/scheduling.py)."""
+``--durations-table PATH`` writes each file's own cost (its phases less its lease waits) as JSON: the table the
+scheduler deals files from (tests/scheduling.py)."""
 
 from __future__ import annotations
 
@@ -73,8 +73,8 @@ class FileCost:
 
     @property
     def own_s(self) -> float:
-        """What the file costs when nothing makes it wait."""
-        return max(0.0, self.total_s - sum(self.waited_s.values()))
+        """What the file costs when nothing makes it wait (the lock is waited for outside the phases)."""
+        return max(0.0, self.total_s - self.waited_s[LEASE])
 
 
 def file_costs(reporter: TerminalReporter) -> dict[str, FileCost]:
@@ -99,7 +99,7 @@ def summarize(reporter: TerminalReporter, table: Path | None) -> None:
     if not costs:
         return
     ranked = sorted(costs.items(), key=lambda kv: -kv[1].total_s)
-    reporter.write_sep("=", "cost per file: setup + call + teardown, and the waits inside them (wall seconds)")
+    reporter.write_sep("=", "cost per file (wall s): setup + call + teardown, the lock waited for, the leases inside")
     columns = ("total", "setup", "call", "teardown", "lock", "lease", "tests")
     reporter.write_line(" ".join(f"{c:>8}" for c in columns) + "  file")
     for path, cost in ranked[:FILES_SHOWN]:
@@ -125,5 +125,5 @@ def add_options(parser: pytest.Parser) -> None:
         type=Path,
         default=None,
         metavar="PATH",
-        help="write each file's cost in this run (setup + call + teardown less its waits) to PATH as JSON",
+        help="write each file's cost in this run (setup + call + teardown less its lease waits) to PATH as JSON",
     )

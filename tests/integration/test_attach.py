@@ -36,7 +36,7 @@ from tests.integration.scripted_vehicle import (
     back_and_forth,
 )
 
-pytestmark = [pytest.mark.sim_only, pytest.mark.wall_clock]  # an attached vehicle keeps wall time (tests/wall_clock.py)
+pytestmark = [pytest.mark.sim_only]  # the long flights: acceptance, with the machine to themselves (wall_clock)
 
 SWARM = [sys.executable, "-m", "gcs.cli"]
 INTRUDER_SYSID = 250  # a sysid no drone of the suite has (tests/integration/instances.py)
@@ -155,6 +155,8 @@ def _intruder_at(intruder: list[tuple[float, Any]], t: float) -> tuple[float, fl
     return n + m.vx * 0.01 * dt, e + m.vy * 0.01 * dt, d + m.vz * 0.01 * dt
 
 
+@pytest.mark.acceptance  # a long flight paced at 1x beside a vehicle that keeps wall time...
+@pytest.mark.wall_clock  # ...so with the machine to itself (tests/wall_clock.py)
 @pytest.mark.timeout(300)
 def test_the_attach_and_the_intruders_silence_are_each_said_once(flown: Flown) -> None:
     out = flown.result.stdout
@@ -163,6 +165,8 @@ def test_the_attach_and_the_intruders_silence_are_each_said_once(flown: Flown) -
     assert len(lost) == 1 and "its body stays where it was last known" in lost[0], out[-3000:]
 
 
+@pytest.mark.acceptance  # a long flight paced at 1x beside a vehicle that keeps wall time...
+@pytest.mark.wall_clock  # ...so with the machine to itself (tests/wall_clock.py)
 @pytest.mark.timeout(300)
 def test_the_drones_keep_clear_of_the_intruder_as_it_crosses_and_farther_as_what_they_know_of_it_ages(
     flown: Flown,

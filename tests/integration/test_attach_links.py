@@ -33,7 +33,7 @@ from tests.integration.scripted_vehicle import (
 )
 from tests.integration.test_attach import CROSSING, FRAME, INTRUDER_SYSID, MIN_CLEARANCE_M, SWARM, free_udp_port
 
-pytestmark = [pytest.mark.sim_only, pytest.mark.wall_clock]  # an attached vehicle keeps wall time (tests/wall_clock.py)
+pytestmark = [pytest.mark.sim_only]  # lines, status and counts run beside the rest; the long flight: acceptance
 
 
 @contextlib.contextmanager
@@ -202,6 +202,8 @@ action = "land"
 """
 
 
+@pytest.mark.acceptance  # a long flight paced at 1x beside a vehicle that keeps wall time...
+@pytest.mark.wall_clock  # ...so with the machine to itself (tests/wall_clock.py)
 @pytest.mark.timeout(240)
 def test_four_drones_follow_a_leader_that_flies_itself_in_a_v_and_keep_clear_of_it(
     tmp_path: Path, instances: Leases

@@ -40,7 +40,7 @@ from tests.integration.scripted_vehicle import ARDUCOPTER_GUIDED, ARDUCOPTER_LOI
 from tests.integration.sitl_process import SitlDrone, start_drone, stop_drone
 from tests.integration.test_attach import free_udp_port
 
-pytestmark = [pytest.mark.sim_only, pytest.mark.wall_clock]  # an attached vehicle keeps wall time (tests/wall_clock.py)
+pytestmark = [pytest.mark.sim_only]  # the long flights: acceptance, with the machine to themselves (wall_clock)
 
 SWARM = [sys.executable, "-m", "gcs.cli"]
 COPTER_SYSID = 251  # sysids no drone of the suite has (tests/integration/instances.py)
@@ -166,6 +166,8 @@ def _heartbeats(tlog: Path, sysid: int) -> list[Any]:
     return out
 
 
+@pytest.mark.acceptance  # a long flight paced at 1x beside a vehicle that keeps wall time...
+@pytest.mark.wall_clock  # ...so with the machine to itself (tests/wall_clock.py)
 @pytest.mark.timeout(300)
 def test_the_px4_member_flies_its_slot_and_is_left_holding_armed(flown: Flown) -> None:
     out = flown.result.stdout
@@ -183,6 +185,8 @@ def test_the_px4_member_flies_its_slot_and_is_left_holding_armed(flown: Flown) -
     assert modes[-1] == "LOITER" and beats[-1].base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED, modes[-5:]
 
 
+@pytest.mark.acceptance  # a long flight paced at 1x beside a vehicle that keeps wall time...
+@pytest.mark.wall_clock  # ...so with the machine to itself (tests/wall_clock.py)
 @pytest.mark.timeout(300)
 def test_the_ardupilot_member_is_armed_in_guided_flown_by_global_setpoints_and_released_at_its_keep_in(
     flown: Flown,
@@ -216,6 +220,8 @@ def test_the_ardupilot_member_is_armed_in_guided_flown_by_global_setpoints_and_r
     assert member["slot_rms_m"] is not None and member["slot_rms_m"] <= SLOT_RMS_M, member
 
 
+@pytest.mark.acceptance  # a long flight paced at 1x beside a vehicle that keeps wall time...
+@pytest.mark.wall_clock  # ...so with the machine to itself (tests/wall_clock.py)
 @pytest.mark.timeout(300)
 def test_the_report_page_replays_the_members_beside_the_drones(flown: Flown) -> None:
     check_report_page(
@@ -223,6 +229,8 @@ def test_the_report_page_replays_the_members_beside_the_drones(flown: Flown) -> 
     )
 
 
+@pytest.mark.acceptance  # a long flight paced at 1x beside a vehicle that keeps wall time...
+@pytest.mark.wall_clock  # ...so with the machine to itself (tests/wall_clock.py)
 @pytest.mark.timeout(300)
 def test_a_member_the_swarm_may_not_arm_is_never_commanded_and_said_to_be_left_out(flown: Flown) -> None:
     assert not flown.grounded.received, [r.msg.get_type() for r in flown.grounded.received]
@@ -286,6 +294,8 @@ def test_the_swarms_origin_is_put_at_an_attached_vehicles_home(tmp_path: Path, i
     assert heights and max(heights) == pytest.approx(3.0, abs=0.4)
 
 
+@pytest.mark.acceptance  # a long flight paced at 1x beside a vehicle that keeps wall time...
+@pytest.mark.wall_clock  # ...so with the machine to itself (tests/wall_clock.py)
 @pytest.mark.timeout(300)
 def test_a_member_its_pilot_takes_over_is_released_and_never_asked_back(flown: Flown) -> None:
     piloted = flown.piloted

@@ -76,6 +76,7 @@ def test_a_head_on_pair_with_the_relay_cut_avoids_with_cameras_alone(tmp_path: P
 
 
 @pytest.mark.timeout(420)
+@pytest.mark.acceptance  # a scale flight; the suite flies 9 drones from grid to circle (test_links_fly.py)
 def test_sixteen_drones_change_from_grid_to_circle_without_a_collision(tmp_path: Path, instances: Leases) -> None:
     metrics = fly("grid_to_circle_16.toml", instances, tmp_path, 400, extra=("--drones-per-process", "auto"))
     assert metrics["n_drones"] == 16 and len(metrics["sysids"]) == 16

@@ -18,12 +18,12 @@ from typing import Any
 import pytest
 
 from tests.integration.instances import Leases
-from tests.integration.mission_flight import fly_mission
+from tests.integration.mission_flight import MISSIONS, fly_mission, mission_drones
 
 pytestmark = [pytest.mark.sim_only]
 
 
-def fly(mission: str, timing: list[str], instances: Leases, tmp_path: Path, timeout_s: float, *,
+def fly(mission: str | Path, timing: list[str], instances: Leases, tmp_path: Path, timeout_s: float, *,
         avoidance: bool) -> dict[str, Any]:  # fmt: skip
     """Fly a shipped mission (optionally without onboard avoidance); the report's metrics."""
     metrics, result = fly_mission(mission, timing, tmp_path, timeout_s, instances, avoidance=avoidance)
@@ -57,19 +57,21 @@ def test_leader_follower_mission_keeps_the_followers_on_their_slots_round_the_sq
     assert metrics["distance_flown_m"][str(metrics["sysids"][2])] > 40.0
 
 
-@pytest.mark.timeout(420)
-@pytest.mark.parametrize("by", ["ground", "onboard"])
-def test_twelve_drones_flock_out_and_back_aligned_and_without_a_collision(
-    tmp_path: Path, instances: Leases, by: str
-) -> None:
-    # GIVEN the 12-drone flocking mission: 60 s towards a migration point 40 m north and back, then land
-    # WHEN it is flown as shipped, onboard avoidance on, in lockstep: by the ground station's law, or by every drone
-    # itself (the shipped onboard behaviour, from its own estimate and neighbour table)
+def fly_flock(drones: int, by: str, instances: Leases, tmp_path: Path) -> dict[str, Any]:
+    """The shipped flocking mission, with ``drones`` drones (12 as shipped), flown as shipped, onboard avoidance on,
+    in lockstep: by the ground station's law, or by every drone itself (the shipped onboard behaviour, from its own
+    estimate and neighbour table); judged as the mission promises."""
+    mission = MISSIONS / "flocking.toml"
+    if drones != mission_drones(mission):
+        text = mission.read_text()
+        assert text.count("drones = 12\n") == 1
+        mission = tmp_path / mission.name
+        mission.write_text(text.replace("drones = 12\n", f"drones = {drones}\n"))
     where = ["--onboard"] if by == "onboard" else []
     timing = ["--lockstep", "--quantum", "8", "--drones-per-process", "auto"]
-    metrics = fly("flocking.toml", [*timing, *where], instances, tmp_path, 400, avoidance=True)
+    metrics = fly(mission, [*timing, *where], instances, tmp_path, 400, avoidance=True)
     # THEN no drone collided or came within 1 m of another
-    assert metrics["n_drones"] == 12 and len(metrics["sysids"]) == 12
+    assert metrics["n_drones"] == drones and len(metrics["sysids"]) == drones
     assert metrics["collisions"] == 0
     assert metrics["min_separation_m"] > 1.0
     # AND the flock aligned within 10 s and stayed aligned: mean order parameter above 0.9 from then on
@@ -80,6 +82,26 @@ def test_twelve_drones_flock_out_and_back_aligned_and_without_a_collision(
     assert alignment["mean"] > 0.9
     # AND it migrated: every drone flew out and most of the way back
     assert min(metrics["distance_flown_m"].values()) > 60.0
+    return metrics
+
+
+@pytest.mark.timeout(420)
+@pytest.mark.acceptance  # a scale flight: the suite flies the same with six drones (below)
+@pytest.mark.parametrize("by", ["ground", "onboard"])
+def test_twelve_drones_flock_out_and_back_aligned_and_without_a_collision(
+    tmp_path: Path, instances: Leases, by: str
+) -> None:
+    # GIVEN the 12-drone flocking mission: 60 s towards a migration point 40 m north and back, then land
+    fly_flock(12, by, instances, tmp_path)
+
+
+@pytest.mark.timeout(300)
+@pytest.mark.parametrize("by", ["ground", "onboard"])
+def test_six_drones_flock_out_and_back_aligned_and_without_a_collision(
+    tmp_path: Path, instances: Leases, by: str
+) -> None:
+    # GIVEN the flocking mission with six drones instead of twelve: the same laws and the same promises
+    fly_flock(6, by, instances, tmp_path)
 
 
 @pytest.mark.timeout(240)

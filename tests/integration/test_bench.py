@@ -66,7 +66,6 @@ def sitl_processes_of(instances: set[int]) -> list[int]:
     return found
 
 
-@pytest.mark.heavy
 def test_bench_measures_every_figure_for_each_swarm_size_and_leaves_nothing_behind(
     tmp_path: Path, instances: Leases
 ) -> None:
@@ -150,7 +149,6 @@ def _wakeup_processes() -> list[int]:
     return found
 
 
-@pytest.mark.heavy
 def test_the_wakeup_bench_measures_every_run_and_reaps_its_flights() -> None:
     result = subprocess.run([sys.executable, str(WAKEUPS), "--sim-seconds", "0.5", "--crowd", "2"],
                             capture_output=True, text=True, timeout=120, cwd=REPO)  # fmt: skip

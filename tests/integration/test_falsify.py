@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = [pytest.mark.sim_only, pytest.mark.heavy]
+pytestmark = [pytest.mark.sim_only, pytest.mark.acceptance]  # a budget-40 campaign; its budget-6 version: test_sweep.py
 
 SWARM = [sys.executable, "-m", "gcs.cli"]
 PLANTED = """

@@ -33,7 +33,7 @@ from bench.fuzz import (
 from tests.integration.instances import Leases
 from tests.integration.sitl_process import udp_port_is_free
 
-pytestmark = [pytest.mark.sim_only, pytest.mark.heavy]
+pytestmark = [pytest.mark.sim_only]
 
 FIRST_PORT_BASE, SLOTS = 320, 20
 FRAMES_HOVERING = 20_000
@@ -82,6 +82,7 @@ def _assert_survived(report: FuzzReport) -> None:
 
 
 @pytest.mark.timeout(180)
+@pytest.mark.acceptance  # the long flood; the suite keeps the commanded one below
 def test_a_hovering_drone_holds_its_position_under_20000_hostile_frames_not_addressed_to_it(
     tmp_path: Path, instances: Leases
 ) -> None:

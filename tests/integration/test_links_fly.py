@@ -109,7 +109,7 @@ jitter_ms = 20
 
 
 @pytest.mark.timeout(1300)
-@pytest.mark.heavy  # CPU burners on every core
+@pytest.mark.acceptance  # CPU burners on every core, and two flights of the swap
 def test_the_same_lockstep_mission_flies_the_same_on_an_idle_and_a_loaded_machine(
     tmp_path: Path, instances: Leases
 ) -> None:

@@ -31,7 +31,7 @@ from sitl.process.ports import PX4_INSTANCES, instance_ports
 from tests.integration.instances import Leases
 from tests.integration.test_swarm import SWARM, alive, children_of, wait_dead
 
-pytestmark = [pytest.mark.sim_only, pytest.mark.heavy, pytest.mark.timeout(900)]
+pytestmark = [pytest.mark.sim_only, pytest.mark.timeout(900)]
 LEASE_TIMEOUT_S = 600.0  # its block lies where sweeps and falsification campaigns take theirs: it may wait for them
 
 LOOPBACK = "127.0.0.1"

@@ -28,7 +28,9 @@ from tests.integration.mavsdk_client import (
 )
 from tests.integration.vehicle_link import VehicleLink
 
-pytestmark = pytest.mark.timeout(120)
+# Against a drone in its own process only: a hosted drone answers clients alike, which the takeoff and landing of
+# test_mavsdk_takeoff_land.py and test_pymavlink_flight.py hold against both kinds of vehicle.
+pytestmark = [pytest.mark.timeout(120), pytest.mark.parametrize("vehicle", ["process"], indirect=True)]
 
 EARTH_RADIUS_M = 6_378_137.0
 MISSION_ALT_M = 5.0

@@ -13,7 +13,9 @@ from mavsdk.asyncio.plugins.param import ParamError
 from tests.integration.mavsdk_client import Drone, call_within, connect
 from tests.integration.vehicle_link import VehicleLink
 
-pytestmark = pytest.mark.timeout(60)
+# Against a drone in its own process only: a hosted drone answers clients alike, which the takeoff and landing of
+# test_mavsdk_takeoff_land.py and test_pymavlink_flight.py hold against both kinds of vehicle.
+pytestmark = [pytest.mark.timeout(60), pytest.mark.parametrize("vehicle", ["process"], indirect=True)]
 
 FLOAT_PARAM = "MPC_XY_CRUISE"
 INT_PARAM = "COM_ARM_WO_GPS"

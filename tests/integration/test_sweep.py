@@ -404,25 +404,48 @@ max_perturbations = 2
 """
 
 
+def falsify_swap(sweep_env: dict[str, str], tmp_path: Path, where: str, *args: str) -> dict[str, Any]:
+    """The budget-6 campaign on the swap with a space where both drones' avoidance off makes them touch: found, exit 3;
+    its summary."""
+    path = tmp_path / "swap_space.toml"
+    path.write_text(MISSION + SPACE)
+    run = subprocess.run([*SWARM, "falsify", str(path), "--budget", "6", "--shrink-budget", "6", "--seed", "2",
+                          "--out", str(tmp_path / where), *args], capture_output=True, text=True, env=sweep_env,
+                         timeout=500)  # fmt: skip
+    assert run.returncode == 3, run.stdout[-3000:] + run.stderr[-3000:]
+    if "--ray" in args:
+        assert "Ray cluster at" in run.stdout
+    return dict(json.loads((tmp_path / where / "summary.json").read_text()))
+
+
+FOUND_KEYS = ("invariant", "drones", "first_flight", "scenario", "perturbations", "detail")
+
+
+@pytest.mark.timeout(300)
+def test_a_small_falsification_finds_the_contact_and_shrinks_it_to_both_drones_avoidance_off(
+    sweep_env: dict[str, str], tmp_path: Path
+) -> None:
+    # GIVEN the swap WHEN a budget-6 campaign searches it on this machine (its Ray twin: the acceptance tier, below)
+    summary = falsify_swap(sweep_env, tmp_path, "here", "--jobs", "1")
+    # THEN it found the contact and shrank it to the two perturbations that make it: both drones' avoidance off
+    found = [{k: f[k] for k in FOUND_KEYS} for f in summary["failures"]]
+    assert found and found[0]["invariant"] == "contact", found
+    assert found[0]["perturbations"] == 2 and found[0]["drones"] == [1, 2], found
+    assert summary["search_flights"] <= 6
+    for failure in summary["failures"]:
+        assert (Path(failure["report"]) / "report.html").is_file()
+
+
 @pytest.mark.timeout(600)
 def test_a_falsification_on_a_local_ray_head_finds_and_shrinks_what_it_does_here(
     sweep_env: dict[str, str], ray_head: str, tmp_path: Path
 ) -> None:
     # GIVEN the swap with a space where both drones' avoidance off makes them touch
-    path = tmp_path / "swap_space.toml"
-    path.write_text(MISSION + SPACE)
-    summaries = {}
-    for where, args in (("here", ["--jobs", "1"]), ("ray", ["--ray", ray_head])):
-        # WHEN the same campaign runs on this machine and on the Ray head
-        run = subprocess.run([*SWARM, "falsify", str(path), "--budget", "6", "--shrink-budget", "6", "--seed", "2",
-                              "--out", str(tmp_path / where), *args], capture_output=True, text=True, env=sweep_env,
-                             timeout=500)  # fmt: skip
-        assert run.returncode == 3, run.stdout[-3000:] + run.stderr[-3000:]
-        summaries[where] = json.loads((tmp_path / where / "summary.json").read_text())
+    # WHEN the same campaign runs on this machine and on the Ray head
+    summaries = {where: falsify_swap(sweep_env, tmp_path, where, *args)
+                 for where, args in (("here", ("--jobs", "1")), ("ray", ("--ray", ray_head)))}  # fmt: skip
     # THEN both found the same contact and shrank it to the same two perturbations, in as many flights to search
-    assert "Ray cluster at" in run.stdout
-    keep = ("invariant", "drones", "first_flight", "scenario", "perturbations", "detail")
-    found = {where: [{k: f[k] for k in keep} for f in s["failures"]] for where, s in summaries.items()}
+    found = {where: [{k: f[k] for k in FOUND_KEYS} for f in s["failures"]] for where, s in summaries.items()}
     assert found["ray"] == found["here"] and found["here"], found
     assert found["here"][0]["perturbations"] == 2 and found["here"][0]["drones"] == [1, 2], found
     assert summaries["ray"]["search_flights"] == summaries["here"]["search_flights"]

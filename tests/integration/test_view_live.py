@@ -29,7 +29,7 @@ from tests.integration.browser import Browser
 from tests.integration.instances import Leases
 from tests.integration.test_swarm import SWARM, children_of, wait_dead
 
-pytestmark = [pytest.mark.sim_only, pytest.mark.heavy, pytest.mark.timeout(240)]
+pytestmark = [pytest.mark.sim_only, pytest.mark.timeout(240)]
 
 DOCS_IMAGES = Path(__file__).resolve().parents[2] / "docs" / "images"
 
