@@ -7,8 +7,8 @@ a phase for instance leases (tests/integration/instances.py) while other tests h
 are counted in the process that waited and reach the controller with the test's reports (``user_properties``, which
 pytest-xdist carries), so the end summary can say what each file cost and what it spent waiting.
 
-``--durations-table PATH`` writes each file's own cost (its phases less its lease waits) as JSON: the table the
-scheduler deals files from (tests/scheduling.py)."""
+``--durations-table PATH`` writes each file's own cost (its phases less its lease waits), by the tier of its tests, as
+JSON: the table the scheduler deals files from (tests/scheduling.py)."""
 
 from __future__ import annotations
 
@@ -24,6 +24,8 @@ from typing import Final
 import pytest
 from _pytest.reports import TestReport
 from _pytest.terminal import TerminalReporter
+
+from tests.tiers import TIERS
 
 LOCK: Final = "machine lock"
 LEASE: Final = "instance lease"
@@ -66,15 +68,11 @@ class FileCost:
     tests: int = 0
     phases_s: dict[str, float] = field(default_factory=lambda: dict.fromkeys(("setup", "call", "teardown"), 0.0))
     waited_s: dict[str, float] = field(default_factory=lambda: dict.fromkeys(WAITS, 0.0))
+    own_by_tier_s: dict[str, float] = field(default_factory=dict)  # phases less lease waits, by the tests' tier
 
     @property
     def total_s(self) -> float:
         return sum(self.phases_s.values())
-
-    @property
-    def own_s(self) -> float:
-        """What the file costs when nothing makes it wait (the lock is waited for outside the phases)."""
-        return max(0.0, self.total_s - self.waited_s[LEASE])
 
 
 def file_costs(reporter: TerminalReporter) -> dict[str, FileCost]:
@@ -87,9 +85,14 @@ def file_costs(reporter: TerminalReporter) -> dict[str, FileCost]:
             cost = costs[report.nodeid.split("::")[0]]
             cost.phases_s[when] += report.duration
             cost.tests += when == "setup"
+            own_s = report.duration
             for name, value in report.user_properties:
                 if isinstance(name, str) and name.startswith(_PROPERTY_PREFIX) and isinstance(value, float):
-                    cost.waited_s[name.removeprefix(_PROPERTY_PREFIX)] += value
+                    kind = name.removeprefix(_PROPERTY_PREFIX)
+                    cost.waited_s[kind] += value
+                    own_s -= value if kind == LEASE else 0.0  # the lock is waited for outside the phases
+            tier = next((t for t in TIERS if t in report.keywords), "")
+            cost.own_by_tier_s[tier] = cost.own_by_tier_s.get(tier, 0.0) + max(0.0, own_s)
     return dict(costs)
 
 
@@ -115,7 +118,8 @@ def summarize(reporter: TerminalReporter, table: Path | None) -> None:
         f"and {waited[LEASE]:.0f} s for instance leases"
     )
     if table is not None:
-        table.write_text(json.dumps({path: round(c.own_s, 1) for path, c in sorted(costs.items())}, indent=1) + "\n")
+        own = {path: {t: round(s, 1) for t, s in sorted(c.own_by_tier_s.items())} for path, c in sorted(costs.items())}
+        table.write_text(json.dumps(own, indent=1) + "\n")
         reporter.write_line(f"each file's own cost written to {table}")
 
 
@@ -125,5 +129,5 @@ def add_options(parser: pytest.Parser) -> None:
         type=Path,
         default=None,
         metavar="PATH",
-        help="write each file's cost in this run (setup + call + teardown less its lease waits) to PATH as JSON",
+        help="write each file's cost in this run (setup + call + teardown less lease waits), by tier, to PATH as JSON",
     )

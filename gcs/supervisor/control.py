@@ -13,7 +13,7 @@ import json
 import os
 import selectors
 import socket
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -23,9 +23,10 @@ CLIENT_TIMEOUT_S = 30.0
 Handler = Callable[[dict[str, Any]], dict[str, Any]]
 
 
-def state_file() -> Path:
-    """Where a running supervisor publishes its control port (one supervisor per user)."""
-    base = os.environ.get("SWARM_STATE_DIR") or os.environ.get("XDG_RUNTIME_DIR") or str(Path.home() / ".cache")
+def state_file(environ: Mapping[str, str] = os.environ) -> Path:
+    """Where a running supervisor publishes its control port (one supervisor per user), in ``environ`` (a client
+    in the same process as several supervisors, as the tests are, passes each one's own)."""
+    base = environ.get("SWARM_STATE_DIR") or environ.get("XDG_RUNTIME_DIR") or str(Path.home() / ".cache")
     return Path(base) / "swarmsitl" / "supervisor.json"
 
 

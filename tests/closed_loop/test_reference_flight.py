@@ -65,6 +65,7 @@ def test_the_reference_flight_is_bit_identical_to_the_recorded_one() -> None:
 
 
 @pytest.mark.timeout(240)
+@pytest.mark.suite  # a cold compile for a generic CPU into a cache of its own: not for the quick tier
 @pytest.mark.skipif(platform.machine() != "x86_64", reason="OpenBLAS kernel names are x86-64's")
 def test_the_reference_flight_is_the_same_with_other_blas_kernels_and_kernels_compiled_for_any_cpu(
     tmp_path: Path,

@@ -60,6 +60,12 @@ ACCEPTANCE_TESTS = {  # and these tests of files whose other tests stay in the s
     "tests/integration/test_sweep.py::test_the_same_sweep_on_a_local_ray_head_gives_the_same_runs_and_summary",
     "tests/integration/test_sweep.py::test_a_falsification_on_a_local_ray_head_finds_and_shrinks_what_it_does_here",
 }
+# The tests that compile the kernels cold, into a cache of their own: in the suite, not the quick tier
+COLD_COMPILES = {
+    "tests/unit/test_kernels.py::test_processes_compiling_at_once_into_an_empty_cache_fly_alike_and_the_next_only_loads",
+    "tests/closed_loop/test_reference_flight.py::"
+    "test_the_reference_flight_is_the_same_with_other_blas_kernels_and_kernels_compiled_for_any_cpu",
+}
 # The smaller versions that stay in the suite, proving the same as what moved
 SMALLER_IN_THE_SUITE = {
     "tests/integration/test_sweep.py::test_a_small_falsification_finds_the_contact_and_shrinks_it_to_both_drones_avoidance_off",
@@ -97,6 +103,7 @@ def test_the_quick_tier_starts_no_process_and_the_acceptance_tier_is_what_it_is_
 ) -> None:
     tier = {nodeid: (names & set(TIERS)).pop() for nodeid, names in everything}
     assert all(not nodeid.startswith(KINDS["integration"]) for nodeid, t in tier.items() if t == "quick")
+    assert all(tier[nodeid] == "suite" for nodeid in COLD_COMPILES)
     acceptance = {nodeid for nodeid, t in tier.items() if t == "acceptance"}
     whole_files = {nodeid.split("::")[0] for nodeid in acceptance} - {t.split("::")[0] for t in ACCEPTANCE_TESTS}
     assert whole_files == ACCEPTANCE_FILES
@@ -122,13 +129,42 @@ def test_each_selection_collects_its_tiers_and_nothing_else(
 @dataclass
 class _Item:
     nodeid: str
+    whole_machine: bool = False
+    tier: str = "suite"
+
+    def get_closest_marker(self, name: str) -> object | None:
+        return object() if name == "wall_clock" and self.whole_machine else None
+
+
+def _tier(item: Any) -> str:
+    return str(item.tier)
+
+
+def test_a_file_is_dealt_by_what_this_run_flies_of_it() -> None:
+    # GIVEN a file whose long flight is an acceptance test, and a shorter file all in the suite
+    items: list[Any] = [_Item("split.py::short", tier="suite"), _Item("whole.py::1", tier="suite")]
+    table = {"split.py": {"suite": 10.0, "acceptance": 300.0}, "whole.py": {"suite": 50.0}}
+    # WHEN the suite is dealt THEN the split file counts its suite tests only
+    longest_first(items, table, _tier)
+    assert [i.nodeid for i in items] == ["whole.py::1", "split.py::short"]
 
 
 def test_files_are_dealt_longest_first_each_keeping_its_tests_order_and_a_new_file_as_if_it_took_a_minute() -> None:
     items: list[Any] = [_Item(n) for n in ("a.py::1", "b.py::1", "a.py::2", "c.py::1", "new.py::1", "b.py::2")]
-    longest_first(items, {"a.py": 5.0, "b.py": 300.0, "c.py": 5.0})
+    for item in items:
+        item.tier = "suite" if item.nodeid.startswith("b.py") else "quick"
+    longest_first(items, {"a.py": {"quick": 5.0}, "b.py": {"suite": 300.0}, "c.py": {"quick": 5.0}}, _tier)
     assert [i.nodeid for i in items] == ["b.py::1", "b.py::2", "new.py::1", "a.py::1", "a.py::2", "c.py::1"]
     assert 5.0 < UNKNOWN_FILE_S < 300.0
+
+
+def test_files_that_take_the_whole_machine_are_dealt_before_the_others_however_short() -> None:
+    items: list[Any] = [_Item("long.py::1"), _Item("attach.py::1"), _Item("attach.py::2", whole_machine=True),
+                        _Item("paced.py::1", whole_machine=True)]  # fmt: skip
+    longest_first(
+        items, {"long.py": {"suite": 600.0}, "attach.py": {"suite": 60.0}, "paced.py": {"suite": 90.0}}, _tier
+    )
+    assert [i.nodeid for i in items] == ["paced.py::1", "attach.py::1", "attach.py::2", "long.py::1"]
 
 
 def test_the_committed_table_names_only_files_that_exist() -> None:
