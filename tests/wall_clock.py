@@ -8,8 +8,8 @@ flight (a leader outran its followers, a member never settled in its slot). A lo
 regression; so these tests run alone instead.
 
 A reader-writer lock over the machine, two ``flock`` files in the temporary directory: every test holds the ``machine``
-lock shared while it runs, and a wall-clock test holds it exclusively, from the first test of its module to the last
-(a module's flight is often a module-scoped fixture that the first test sets up). The ``gate`` keeps the writer from
+lock shared while it runs, and a wall-clock test holds it exclusively, through every wall-clock test its process runs
+next (a module's flight is often a module-scoped fixture that the first test sets up; ``release_after``). The ``gate`` keeps the writer from
 starving: a writer takes it before it waits for the readers to drain, and a reader passes through it before it
 takes its share, so no new reader starts while a writer waits. A killed worker's locks go with its process. Every
 pytest session on the machine takes part, so two suites run side by side leave each other's wall-clock tests alone.
@@ -83,9 +83,11 @@ def hold_for(share: MachineShare, item: pytest.Item) -> None:
 
 
 def release_after(share: MachineShare, item: pytest.Item, nextitem: pytest.Item | None) -> None:
-    """After ``item`` ran: a wall-clock module keeps the machine until its last test (its module-scoped fixtures are
-    torn down with that one); anything else lets go, so that a writer waiting at the gate gets its turn."""
-    if (needs_the_machine(item) and nextitem is not None and nextitem.module is item.module
-            and needs_the_machine(nextitem)):  # fmt: skip
+    """After ``item`` ran: a wall-clock test keeps the machine while the next test this process runs needs it too (a
+    module's later tests, whose module-scoped flight is torn down with its last; or the next wall-clock file, which
+    the scheduler deals right after: let go in between, a test waiting for a share would take it first, and the next
+    wall-clock test would then wait its whole length, 218 s of a 522 s acceptance run for a falsification campaign);
+    anything else lets go, so that a writer waiting at the gate gets its turn."""
+    if needs_the_machine(item) and nextitem is not None and needs_the_machine(nextitem):
         return
     share.release()
