@@ -9,10 +9,11 @@ regression; so these tests run alone instead.
 
 A reader-writer lock over the machine, two ``flock`` files in the temporary directory: every test holds the ``machine``
 lock shared while it runs, and a wall-clock test holds it exclusively, through every wall-clock test its process runs
-next (a module's flight is often a module-scoped fixture that the first test sets up; ``release_after``). The ``gate`` keeps the writer from
-starving: a writer takes it before it waits for the readers to drain, and a reader passes through it before it
-takes its share, so no new reader starts while a writer waits. A killed worker's locks go with its process. Every
-pytest session on the machine takes part, so two suites run side by side leave each other's wall-clock tests alone.
+next (a module's flight is often a module-scoped fixture that the first test sets up; ``release_after``). The
+``gate`` keeps the writer from starving: a writer takes it before it waits for the readers to drain, and a reader
+passes through it before it takes its share, so no new reader starts while a writer waits. A killed worker's locks go
+with its process. Every pytest session on the machine takes part, so two suites run side by side leave each other's
+wall-clock tests alone.
 """
 
 from __future__ import annotations
