@@ -57,16 +57,25 @@ def test_leader_follower_mission_keeps_the_followers_on_their_slots_round_the_sq
     assert metrics["distance_flown_m"][str(metrics["sysids"][2])] > 40.0
 
 
-def fly_flock(drones: int, by: str, instances: Leases, tmp_path: Path) -> dict[str, Any]:
-    """The shipped flocking mission, with ``drones`` drones (12 as shipped), flown as shipped, onboard avoidance on,
-    in lockstep: by the ground station's law, or by every drone itself (the shipped onboard behaviour, from its own
-    estimate and neighbour table); judged as the mission promises."""
+@pytest.mark.timeout(420)
+@pytest.mark.parametrize("by", ["ground", "onboard"])
+@pytest.mark.parametrize(
+    "drones",
+    [pytest.param(12, marks=pytest.mark.acceptance, id="12"), pytest.param(6, id="6")],  # 12: a scale flight
+)
+def test_the_drones_flock_out_and_back_aligned_and_without_a_collision(
+    tmp_path: Path, instances: Leases, drones: int, by: str
+) -> None:
+    # GIVEN the flocking mission: 60 s towards a migration point 40 m north and back, then land; with its 12 drones as
+    # shipped (the acceptance tier) or 6 (the suite: the same laws and the same promises)
     mission = MISSIONS / "flocking.toml"
     if drones != mission_drones(mission):
         text = mission.read_text()
         assert text.count("drones = 12\n") == 1
         mission = tmp_path / mission.name
         mission.write_text(text.replace("drones = 12\n", f"drones = {drones}\n"))
+    # WHEN it is flown as shipped, onboard avoidance on, in lockstep: by the ground station's law, or by every drone
+    # itself (the shipped onboard behaviour, from its own estimate and neighbour table)
     where = ["--onboard"] if by == "onboard" else []
     timing = ["--lockstep", "--quantum", "8", "--drones-per-process", "auto"]
     metrics = fly(mission, [*timing, *where], instances, tmp_path, 400, avoidance=True)
@@ -82,26 +91,6 @@ def fly_flock(drones: int, by: str, instances: Leases, tmp_path: Path) -> dict[s
     assert alignment["mean"] > 0.9
     # AND it migrated: every drone flew out and most of the way back
     assert min(metrics["distance_flown_m"].values()) > 60.0
-    return metrics
-
-
-@pytest.mark.timeout(420)
-@pytest.mark.acceptance  # a scale flight: the suite flies the same with six drones (below)
-@pytest.mark.parametrize("by", ["ground", "onboard"])
-def test_twelve_drones_flock_out_and_back_aligned_and_without_a_collision(
-    tmp_path: Path, instances: Leases, by: str
-) -> None:
-    # GIVEN the 12-drone flocking mission: 60 s towards a migration point 40 m north and back, then land
-    fly_flock(12, by, instances, tmp_path)
-
-
-@pytest.mark.timeout(300)
-@pytest.mark.parametrize("by", ["ground", "onboard"])
-def test_six_drones_flock_out_and_back_aligned_and_without_a_collision(
-    tmp_path: Path, instances: Leases, by: str
-) -> None:
-    # GIVEN the flocking mission with six drones instead of twelve: the same laws and the same promises
-    fly_flock(6, by, instances, tmp_path)
 
 
 @pytest.mark.timeout(240)
