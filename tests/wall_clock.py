@@ -11,7 +11,11 @@ A reader-writer lock over the machine, two ``flock`` files in the temporary dire
 lock shared while it runs, and a wall-clock test holds it exclusively, through every wall-clock test its process runs
 next (a module's flight is often a module-scoped fixture that the first test sets up; ``release_after``). The
 ``gate`` keeps the writer from starving: a writer takes it before it waits for the readers to drain, and a reader
-passes through it before it takes its share, so no new reader starts while a writer waits. A killed worker's locks go
+passes through it before it takes its share, so no new reader starts while a writer waits. ``flock`` does not queue
+its waiters, so a worker that has just let the gate go and asks again at once (a wall-clock test ends, the next test
+of that worker wants a share) would take it before the writer blocked on it: so a writer also holds ``want`` shared
+from the moment it asks, and a reader waits while anyone holds it (in a run, a campaign's share slipped in so and
+held the next attach flight for 249 s). A killed worker's locks go
 with its process. Every pytest session on the machine takes part, so two suites run side by side leave each other's
 wall-clock tests alone.
 """
@@ -21,11 +25,13 @@ from __future__ import annotations
 import fcntl
 import os
 import tempfile
+import time
 from pathlib import Path
 
 import pytest
 
 MARK = "wall_clock"
+_READER_YIELD_S = 0.05  # how often a reader looks again while a writer waits
 SUITE_DIR = Path(tempfile.gettempdir()) / "swarmsitl-tests"  # what the suite keeps on the machine: locks, bytecode
 
 
@@ -36,12 +42,15 @@ class MachineShare:
         folder.mkdir(parents=True, exist_ok=True)
         self._gate = os.open(folder / "gate.lock", os.O_RDWR | os.O_CREAT, 0o666)
         self._machine = os.open(folder / "machine.lock", os.O_RDWR | os.O_CREAT, 0o666)
+        self._want = os.open(folder / "want.lock", os.O_RDWR | os.O_CREAT, 0o666)
         self.held: str | None = None  # "shared", "exclusive" or None
 
     def share(self) -> None:
         if self.held == "shared":
             return
         self.release()
+        while self._a_writer_waits():
+            time.sleep(_READER_YIELD_S)
         fcntl.flock(self._gate, fcntl.LOCK_EX)  # waits while a writer holds the gate
         try:
             fcntl.flock(self._machine, fcntl.LOCK_SH)
@@ -53,9 +62,21 @@ class MachineShare:
         if self.held == "exclusive":
             return
         self.release()
-        fcntl.flock(self._gate, fcntl.LOCK_EX)  # no new reader from now on
-        fcntl.flock(self._machine, fcntl.LOCK_EX)  # the readers under way finish
+        fcntl.flock(self._want, fcntl.LOCK_SH)  # readers yield from now on...
+        try:
+            fcntl.flock(self._gate, fcntl.LOCK_EX)  # ...and none passes the gate
+            fcntl.flock(self._machine, fcntl.LOCK_EX)  # the readers under way finish
+        finally:
+            fcntl.flock(self._want, fcntl.LOCK_UN)
         self.held = "exclusive"
+
+    def _a_writer_waits(self) -> bool:
+        try:
+            fcntl.flock(self._want, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return True
+        fcntl.flock(self._want, fcntl.LOCK_UN)
+        return False
 
     def release(self) -> None:
         if self.held is None:
@@ -69,6 +90,7 @@ class MachineShare:
         self.release()
         os.close(self._gate)
         os.close(self._machine)
+        os.close(self._want)
 
 
 def needs_the_machine(item: pytest.Item) -> bool:

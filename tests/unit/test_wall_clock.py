@@ -60,6 +60,35 @@ def test_a_writer_waits_for_the_readers_under_way_and_no_new_reader_overtakes_it
             share.close()
 
 
+def test_a_worker_that_lets_the_machine_go_and_asks_for_a_share_at_once_does_not_overtake_a_waiting_writer(
+    tmp_path: Path,
+) -> None:
+    holder, writer = MachineShare(tmp_path), MachineShare(tmp_path)
+    got: list[str] = []
+    try:
+        # GIVEN a wall-clock test under way, and another worker's wall-clock test waiting for the machine
+        holder.whole()
+        waiting = _in_thread(writer.whole, got, "writer")
+        time.sleep(SETTLE_S)
+        assert got == []
+        # WHEN the first ends and its worker's next test asks for a share at once (in the same thread, as a worker does)
+        def next_test() -> None:
+            holder.release()
+            holder.share()
+
+        reader = _in_thread(next_test, got, "reader")
+        # THEN the waiting writer has the machine first, and the share comes once it let go
+        waiting.join(5)
+        time.sleep(SETTLE_S)
+        assert got == ["writer"] and writer.held == "exclusive", got
+        writer.release()
+        reader.join(5)
+        assert got == ["writer", "reader"] and holder.held == "shared"
+    finally:
+        holder.close()
+        writer.close()
+
+
 def test_readers_share_the_machine(tmp_path: Path) -> None:
     one, other = MachineShare(tmp_path), MachineShare(tmp_path)
     got: list[str] = []
