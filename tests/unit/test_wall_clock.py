@@ -71,6 +71,7 @@ def test_a_worker_that_lets_the_machine_go_and_asks_for_a_share_at_once_does_not
         waiting = _in_thread(writer.whole, got, "writer")
         time.sleep(SETTLE_S)
         assert got == []
+
         # WHEN the first ends and its worker's next test asks for a share at once (in the same thread, as a worker does)
         def next_test() -> None:
             holder.release()
