@@ -71,6 +71,7 @@ def test_the_live_view_draws_nine_drones_where_their_telemetry_says_and_a_killed
     first = instances(9)
     forward = free_udp_port()
     link = mavutil.mavlink_connection(f"udpin:127.0.0.1:{forward}", source_system=250)
+    # paced at 1x: the page is judged against telemetry heard in wall-time windows, and a kill against a wall-clock 2 s
     proc = subprocess.Popen([*SWARM, "up", "-n", "9", "--lockstep", "--speed", "1", "--drones-per-process", "auto",
                              "--first-instance", str(first), "--forward", f"127.0.0.1:{forward}",
                              "--view-port", "0"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
