@@ -29,6 +29,7 @@ from typing import Final
 
 import pytest
 
+from tests.tiers import file_of
 from tests.wall_clock import needs_the_machine
 
 TABLE: Final = Path(__file__).resolve().parent / "durations.json"
@@ -55,7 +56,7 @@ def longest_first(items: list[pytest.Item], table: Table, tier_of: Callable[[pyt
     exclusive: set[str] = set()
     tiers_run: dict[str, set[str]] = {}
     for item in items:
-        path = item.nodeid.split("::")[0]
+        path = file_of(item.nodeid)
         first_seen.setdefault(path, len(first_seen))
         tiers_run.setdefault(path, set()).add(tier_of(item))
         if needs_the_machine(item):
@@ -64,7 +65,7 @@ def longest_first(items: list[pytest.Item], table: Table, tier_of: Callable[[pyt
             for path, run in tiers_run.items()}  # fmt: skip
 
     def key(item: pytest.Item) -> tuple[bool, float, int]:
-        path = item.nodeid.split("::")[0]
+        path = file_of(item.nodeid)
         return (path not in exclusive, -cost[path], first_seen[path])
 
     items.sort(key=key)

@@ -36,6 +36,11 @@ ACCEPTANCE_FIXTURES: Final = frozenset({"ray_head"})  # a local Ray head: sweeps
 _TESTS: Final = Path(__file__).resolve().parent
 
 
+def file_of(nodeid: str) -> str:
+    """The test file a node id belongs to (the unit the workers are dealt, and the summary's row)."""
+    return nodeid.split("::")[0]
+
+
 def kind_of(path: Path) -> str | None:
     """The kind of a test module from its folder under tests/ (None outside the three)."""
     try:

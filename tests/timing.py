@@ -25,7 +25,7 @@ import pytest
 from _pytest.reports import TestReport
 from _pytest.terminal import TerminalReporter
 
-from tests.tiers import TIERS
+from tests.tiers import TIERS, file_of
 
 LOCK: Final = "machine lock"
 LEASE: Final = "instance lease"
@@ -82,7 +82,7 @@ def file_costs(reporter: TerminalReporter) -> dict[str, FileCost]:
             when = getattr(report, "when", None)
             if not isinstance(report, TestReport) or when not in ("setup", "call", "teardown"):
                 continue
-            cost = costs[report.nodeid.split("::")[0]]
+            cost = costs[file_of(report.nodeid)]
             cost.phases_s[when] += report.duration
             cost.tests += when == "setup"
             own_s = report.duration
@@ -114,8 +114,8 @@ def summarize(reporter: TerminalReporter, table: Path | None) -> None:
     everything = sum(c.total_s for c in costs.values())
     waited = {k: sum(c.waited_s[k] for c in costs.values()) for k in WAITS}
     reporter.write_line(
-        f"{len(costs)} files, {everything:.0f} s of tests, of which {waited[LOCK]:.0f} s waiting for the machine lock "
-        f"and {waited[LEASE]:.0f} s for instance leases"
+        f"{len(costs)} files, {everything:.0f} s of tests; before they started they waited {waited[LOCK]:.0f} s for "
+        f"the machine lock, and inside them {waited[LEASE]:.0f} s for instance leases"
     )
     if table is not None:
         own = {path: {t: round(s, 1) for t, s in sorted(c.own_by_tier_s.items())} for path, c in sorted(costs.items())}

@@ -15,6 +15,7 @@ from typing import Any
 import pytest
 
 from tests.scheduling import UNKNOWN_FILE_S, load_table, longest_first
+from tests.tiers import file_of
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -114,13 +115,11 @@ def test_the_quick_tier_starts_no_process_and_the_acceptance_tier_is_what_it_is_
     assert all(not nodeid.startswith(KINDS["integration"]) for nodeid, t in tier.items() if t == "quick")
     assert all(tier[nodeid] == "suite" for nodeid in COLD_COMPILES)
     acceptance = {nodeid for nodeid, t in tier.items() if t == "acceptance"}
-    whole_files = {nodeid.split("::")[0] for nodeid in acceptance} - {t.split("::")[0] for t in ACCEPTANCE_TESTS}
+    whole_files = {file_of(nodeid) for nodeid in acceptance} - {file_of(t) for t in ACCEPTANCE_TESTS}
     assert whole_files == ACCEPTANCE_FILES
     for path in ACCEPTANCE_FILES:  # every test of those files, none left in the suite
-        assert all(t == "acceptance" for nodeid, t in tier.items() if nodeid.split("::")[0] == path), path
-    assert {_named(nodeid) for nodeid in acceptance if nodeid.split("::")[0] not in ACCEPTANCE_FILES} == (
-        ACCEPTANCE_TESTS
-    )
+        assert all(t == "acceptance" for nodeid, t in tier.items() if file_of(nodeid) == path), path
+    assert {_named(nodeid) for nodeid in acceptance if file_of(nodeid) not in ACCEPTANCE_FILES} == (ACCEPTANCE_TESTS)
     # AND the smaller versions that prove the same are in the suite
     suite = {_named(nodeid) for nodeid, t in tier.items() if t == "suite"}
     assert suite >= SMALLER_IN_THE_SUITE, SMALLER_IN_THE_SUITE - suite
