@@ -51,7 +51,7 @@ from gcs.fleet.losses import LOSS_POLICIES, LossPolicy
 from gcs.fleet.swarm import Swarm, SwarmError
 from gcs.flight.geodesy import DEFAULT_ORIGIN, GeoPoint
 from gcs.flight.onboard import absolute_spec
-from gcs.invariants.monitor import EXIT_VIOLATED
+from gcs.invariants.monitor import EXIT_VIOLATED, Violation
 from gcs.mavlink.signing import SigningKeyError, load_key
 from gcs.mavlink.transport import GCS_SYSID
 from gcs.missions.mission_file import (
@@ -856,7 +856,10 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
     except (SwarmError, SpawnError) as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
         print(f"swarm: report (partial) in {report}", file=sys.stderr)
-        return EXIT_VIOLATED if isinstance(exc, InvariantViolated) else EXIT_FAILED
+        violated = runner.session.recording.violations
+        if violated and not isinstance(exc, InvariantViolated):  # broken before the step failed: that comes first
+            print(f"swarm: error: {_violated_line(violated)}", file=sys.stderr)
+        return EXIT_VIOLATED if violated or isinstance(exc, InvariantViolated) else EXIT_FAILED
     except KeyboardInterrupt:
         print(f"swarm: interrupted; drones landed and stopped; partial report in {report}", file=sys.stderr)
         return 130
@@ -866,9 +869,14 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
     _say(f"swarm: report in {out}")
     violated = runner.session.recording.violations
     if violated:  # the flight flew, and broke what it was to hold (summary.txt names each)
-        print(f"swarm: error: {len(violated)} invariant(s) violated, first {violated[0].line()}", file=sys.stderr)
+        print(f"swarm: error: {_violated_line(violated)}", file=sys.stderr)
         return EXIT_VIOLATED
     return 0
+
+
+def _violated_line(violated: Sequence[Violation]) -> str:
+    first = min(violated, key=lambda v: v.time_s)
+    return f"{len(violated)} invariant(s) violated, first {first.line()}"
 
 
 def _formation_fields(args: argparse.Namespace) -> dict[str, Any]:

@@ -177,11 +177,11 @@ class Campaign:
                 if result is not None and (folder / MISSION_FILE).read_text() == self._text(scenario):
                     self._flown[_identity(scenario)] = self._outcome(scenario, folder, result)
 
-    def _text(self, scenario: Scenario) -> str:
-        """The plain mission file of a scenario."""
+    def _text(self, scenario: Scenario, path: Path | str = MISSION_FILE) -> str:
+        """The plain mission file of a scenario, its comment saying how to replay it as the file ``path``."""
         mission = scenario_mission(self.raw, scenario, self.mission_path.parent.resolve())
         return mission_text(mission, header=[f"{self.mission_path.name}, {scenario.describe()}",
-                                             f"swarm fly {MISSION_FILE} --lockstep"])  # fmt: skip
+                                             f"swarm fly {path} --lockstep"])  # fmt: skip
 
     def _flight(self, scenario: Scenario) -> Flight:
         """The scenario as a plain mission file in a folder of its own, ready to fly."""
@@ -423,7 +423,7 @@ class Campaign:
         rows = []
         for failure in result.failures.values():
             smallest = failure.smallest
-            self.minimal_file(failure).write_text(smallest.mission.read_text())
+            self.minimal_file(failure).write_text(self._text(smallest.scenario, self.minimal_file(failure)))
             rows.append({"invariant": failure.key[0], "drones": list(failure.key[1]),
                          "first_flight": failure.first.index, "smallest_flight": smallest.index,
                          "searched": failure.searched, "shrink_flights": failure.shrink_flights,
@@ -458,7 +458,7 @@ class Campaign:
         for failure in self.result.failures.values():
             name = failure.name().replace("-", "_")
             mission = folder / f"{name}.toml"
-            mission.write_text(failure.smallest.mission.read_text())
+            mission.write_text(self._text(failure.smallest.scenario, mission))
             test = folder / f"test_{name}.py"
             test.write_text(REGRESSION_TEST.format(name=name, mission=mission.name, invariant=failure.key[0],
                                                    scenario=failure.smallest.scenario.describe()))  # fmt: skip

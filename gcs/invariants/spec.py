@@ -4,7 +4,7 @@ Properties (``KINDS``), each a frozen dataclass whose ``breach`` says, for one `
 and by how much (None: it holds):
 
 - ``separation``: no two airborne drones nearer than ``min_m`` (centre to centre), nor a drone and an attached
-  vehicle;
+  vehicle; a contact a drone reports is a separation of the distance it gives (as the flight report counts it);
 - ``contact``: no drone reports a contact (the simulation's truth);
 - ``altitude``: every airborne drone between ``min_m`` and ``max_m`` above the origin;
 - ``fence``: every drone within ``radius_m`` of the origin, horizontally;
@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import importlib.util
 import math
-import re
 import sys
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -35,6 +34,7 @@ from pathlib import Path
 from typing import Any, Final, Protocol
 
 from gcs.invariants.state import FAULT, LOSS, START, STEP, TickState, Vec3
+from gcs.mavlink.statustext import parse_contact
 
 KINDS: Final = ("separation", "contact", "altitude", "fence", "connected", "formation", "answered", "no_failsafe",
                 "predicate")  # fmt: skip
@@ -88,13 +88,24 @@ class Separation:
                 d = math.dist(pa, pb)
                 if closest is None or d < closest[0]:
                     closest = (d, a, b)
+        for a, b, d in _touched(state, drones):  # the moment two touched: positions at ticks come before or after it
+            if closest is None or d < closest[0]:
+                closest = (d, a, b)
         if closest is None or closest[0] >= self.min_m:
             return None
         d, a, b = closest
         return Breach((a, b), f"{a} and {b} {d:.2f} m apart (at least {self.min_m:g} m)")
 
 
-_CONTACT_WITH = re.compile(r"with drone (\d+)")  # a simulated drone's STATUSTEXT names the other body it touched
+def _touched(state: TickState, drones: frozenset[int] | None) -> list[tuple[int, int, float]]:
+    """The contacts between two drones reported at this tick by the drones chosen: (reporter, other, distance), the
+    distance 0 when the text gives none (the bodies touched; how far apart is not known)."""
+    out = []
+    for sysid, text in state.contacts:
+        contact = parse_contact(text)
+        if contact is not None and contact.drone is not None and (drones is None or sysid in drones):
+            out.append((sysid, contact.drone, contact.distance_m if contact.distance_m is not None else 0.0))
+    return out
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -103,7 +114,7 @@ class Contact:
         hits = [(s, text) for s, text in state.contacts if drones is None or s in drones]
         if not hits:
             return None
-        involved = {s for s, _ in hits} | {int(m) for _, text in hits for m in _CONTACT_WITH.findall(text)}
+        involved = {s for s, _ in hits} | {b for _, b, _ in _touched(state, drones)}
         return Breach(tuple(sorted(involved)), "; ".join(f"{s}: {text}" for s, text in hits))
 
 

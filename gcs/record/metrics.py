@@ -20,19 +20,30 @@ Airborne
     ``AIRBORNE_HEIGHT_M`` above its ground level.
 
 ``min_separation_m``, ``min_separation_time_s``, ``min_separation_pair``
-    For every pair of drones airborne at a grid instant, the 3D distance between their interpolated positions. The
-    ``separation`` series is, per grid instant, the minimum over those pairs (null when fewer than two drones are
-    airborne). ``min_separation_m`` is the minimum over time, where between two consecutive grid instants at which a
-    pair is airborne the pair's relative position is taken as linear, so a close pass between grid instants is not
-    missed: it is never above the smallest value of the series. Null when no two drones are ever airborne together.
+    The closest two drones came, from two sources, whichever is smaller:
+    - the telemetry: for every pair of drones airborne at a grid instant, the 3D distance between their interpolated
+      positions. The ``separation`` series is, per grid instant, the minimum over those pairs (null when fewer than
+      two drones are airborne). Between two consecutive grid instants at which a pair is airborne the pair's relative
+      position is taken as linear, so a pass between grid instants is found, not only its nearest grid instant. What
+      this can miss: the drones' curvature within one grid interval (the relative path is a chord), their estimate's
+      error (it is what the drones reported), and anything after a drone left the pairs (it touched down, was lost,
+      or fell silent for more than ``MAX_GAP_S``). At a relative speed v a pass is found within about v / GRID_HZ of
+      its true distance, plus the estimates' error (docs/metrics.md, "The minimum separation").
+    - the contacts: every "Collision with drone N at D m" a simulated drone reported (its world's check, at physics
+      rate, of the true positions) is a separation of D between the two (the contact distance,
+      ``collision_radius_m``, when the text gives none) at the instant the report arrived. A drone that touched
+      another crashes and leaves the pairs within a sample or two, so telemetry alone would miss the contact; with
+      it, a flight with a contact never reports a minimum above the contact distance.
+    Null when no two drones are ever airborne together and none touched. The series holds the telemetry alone.
 
 ``attached``
     Per vehicle the simulation did not run (docs/external.md), by sysid: its ``role`` and ``link``, and its closest
     approach to an airborne simulated drone (``min_separation_m``, ``min_separation_time_s``, ``closest_drone``),
-    from its own position reports, resampled and searched between grid instants as ``min_separation_m``; it counts
-    as there whenever it reported, flying or not. Its contacts are among ``collisions``. A member's distance to its
-    slots over the settled part of every formation step (from the instant the drones settled, ``time_to_formation_s``,
-    to the step's end): ``slot_rms_m`` and ``max_slot_error_m``; null when it held no slot in a settled formation.
+    from its own position reports, resampled and searched between grid instants as ``min_separation_m``, and from a
+    drone's contact with it, as the drones' contacts count; it counts as there whenever it reported, flying or not.
+    Its contacts are among ``collisions``. A member's distance to its slots over the settled part of every formation
+    step (from the instant the drones settled, ``time_to_formation_s``, to the step's end): ``slot_rms_m`` and
+    ``max_slot_error_m``; null when it held no slot in a settled formation.
 
 ``invariants``, ``violations``
     The flight's invariants (docs/invariants.md), each as it describes itself, and the first violation of each one
@@ -116,6 +127,7 @@ import numpy.typing as npt
 
 from gcs.fleet.losses import DroneLoss
 from gcs.invariants.monitor import Violation
+from gcs.mavlink.statustext import COLLISION_PREFIX, parse_contact
 from gcs.record.recording import DroneSample, EventRecord, FaultRecord, FlightRecording, ItemReached, StepRecord
 
 FloatArray = npt.NDArray[np.float64]
@@ -129,7 +141,6 @@ FORMATION_SETTLED_RMS_M = 0.5  # swarm RMS error at or below which the formation
 ALIGNMENT_CONVERGED = 0.8  # phi from which a flock counts as aligned
 ALIGNMENT_MIN_SPEED_MPS = 0.2  # mean horizontal speed below which phi is undefined
 ALIGNMENT_STEP_KINDS = frozenset({"flock"})
-COLLISION_PREFIX = "Collision"
 AVOIDANCE_PREFIX = "Avoidance:"
 AVOIDANCE_CLOSEST = re.compile(r"^Avoidance ended: closest approach ([0-9.]+) m")
 
@@ -460,6 +471,29 @@ def _separation(
     return series, best
 
 
+def drone_contacts(events: Iterable[EventRecord], contact_distance_m: float) -> list[_Closest]:
+    """Every contact between two drones the recording's events report, as a separation (module docstring): the
+    distance the text gives, else the contact distance, at the instant the report arrived, each pair once."""
+    out: dict[tuple[int, int], _Closest] = {}
+    for event in events:
+        contact = parse_contact(event.text)
+        if contact is None or contact.drone is None or event.sysid is None or contact.drone == event.sysid:
+            continue
+        pair = (min(event.sysid, contact.drone), max(event.sysid, contact.drone))
+        distance = contact.distance_m if contact.distance_m is not None else contact_distance_m
+        if pair not in out or distance < out[pair].distance_m:
+            out[pair] = _Closest(distance_m=distance, time_s=event.time_s, pair=pair)
+    return sorted(out.values(), key=lambda c: c.time_s)
+
+
+def _closer(found: _Closest | None, contacts: Iterable[_Closest]) -> _Closest | None:
+    """The smallest of a telemetry minimum and the contacts (the earlier on a tie)."""
+    for contact in contacts:
+        if found is None or contact.distance_m < found.distance_m:
+            found = contact
+    return found
+
+
 def _airborne_positions(grid_s: FloatArray, resampled: Sequence[Resampled]) -> FloatArray:
     """(T, drones, 3): each drone's position at each grid instant where it is airborne, NaN elsewhere."""
     pos = np.full((grid_s.size, len(resampled), 3), np.nan)
@@ -509,9 +543,11 @@ def _attached_metrics(
     sysids: Sequence[int],
     resampled: Sequence[Resampled],
     steps: Sequence[StepMetrics],
+    contacts: Sequence[_Closest],
 ) -> dict[int, AttachedMetrics]:
     """Each attached vehicle's closest approach to the simulated drones (it counts as there whenever it reported,
-    flying or not: a real vehicle standing on the field is an obstacle too), and a member's slot error."""
+    flying or not: a real vehicle standing on the field is an obstacle too; a drone's contact with it counts as the
+    drones' do), and a member's slot error."""
     out: dict[int, AttachedMetrics] = {}
     drones = _airborne_positions(grid_s, resampled)
     for sysid, (role, link) in sorted(recording.attached.items()):
@@ -522,11 +558,19 @@ def _attached_metrics(
             (track,) = _tracks(samples).values()
             resampled_track = _resample(track, grid_s)
             there = resampled_track.pos_ned_m  # (T, 3), NaN where it did not report
-            found = _closest_approach(grid_s, there[:, None, :] - drones)
+            approach = _closest_approach(grid_s, there[:, None, :] - drones)
+            if approach is not None:
+                found = _Closest(distance_m=approach[0], time_s=approach[1], pair=(sysid, sysids[approach[2]]))
             slot_errors = _settled_slot_errors(resampled_track, grid_s, steps)
+        touched = [
+            _Closest(distance_m=c.distance_m, time_s=c.time_s, pair=(sysid, c.pair[1 - c.pair.index(sysid)]))
+            for c in contacts
+            if sysid in c.pair and not set(c.pair) & (set(recording.attached) - {sysid})
+        ]
+        found = _closer(found, touched)
         out[sysid] = AttachedMetrics(
-            role=role, link=link, min_separation_m=found[0] if found else None,
-            min_separation_time_s=found[1] if found else None, closest_drone=sysids[found[2]] if found else None,
+            role=role, link=link, min_separation_m=found.distance_m if found else None,
+            min_separation_time_s=found.time_s if found else None, closest_drone=found.pair[1] if found else None,
             slot_rms_m=float(np.sqrt(np.mean(slot_errors**2))) if slot_errors.size else None,
             max_slot_error_m=float(slot_errors.max()) if slot_errors.size else None,
         )  # fmt: skip
@@ -727,12 +771,14 @@ def compute_metrics(recording: FlightRecording) -> FlightMetrics:
     grid = time_grid(min(sample_times), max(sample_times)) if sample_times else np.empty(0)
     resampled = [_resample(track, grid) for track in tracks.values()]
     series, closest = _separation(grid, sysids, resampled)
+    contacts = drone_contacts(recording.events, recording.collision_radius_m)
+    closest = _closer(closest, (c for c in contacts if not set(c.pair) & set(recording.attached)))
 
     steps = tuple(_step_metrics(step, grid, resampled, tracks) for step in recording.steps)
     first_takeoff = next((s for s in steps if s.kind == "takeoff" and s.target_alt_m is not None), None)
 
     collision_events = tuple(e for e in recording.events if e.text.startswith(COLLISION_PREFIX))
-    attached = _attached_metrics(recording, grid, sysids, resampled, steps)
+    attached = _attached_metrics(recording, grid, sysids, resampled, steps, contacts)
     return FlightMetrics(
         mission_name=recording.mission_name,
         n_drones=recording.n_drones,
@@ -821,9 +867,16 @@ class LiveMetrics:
         here = np.array(sample.pos_ned_m)
         for sysid, other in self._fresh_airborne(sample.time_s).items():
             if sysid != sample.sysid:
-                distance = math.hypot(*(here - other))
-                if self._min_separation_m is None or distance < self._min_separation_m:
-                    self._min_separation_m = distance
+                self._closest(math.hypot(*(here - other)))
+
+    def observe_event(self, event: EventRecord, contact_distance_m: float) -> None:
+        """A drone's event: a contact with another drone is a separation, as in the report (``drone_contacts``)."""
+        for contact in drone_contacts((event,), contact_distance_m):
+            self._closest(contact.distance_m)
+
+    def _closest(self, distance_m: float) -> None:
+        if self._min_separation_m is None or distance_m < self._min_separation_m:
+            self._min_separation_m = distance_m
 
     def status(self) -> LiveStatus:
         if self._now_s is None:

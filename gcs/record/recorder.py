@@ -9,7 +9,6 @@ by
 
 from __future__ import annotations
 
-import re
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -20,13 +19,12 @@ from pymavlink.dialects.v20 import common as mavlink
 from gcs.command.streamer import FormationStreamer
 from gcs.fleet.attach import reported_geo
 from gcs.fleet.losses import MAV_STATE_CRITICAL
-from gcs.mavlink.statustext import StatusTextAssembler
+from gcs.mavlink.statustext import StatusTextAssembler, parse_contact
 from gcs.record.metrics import LiveMetrics
 from gcs.record.recording import DroneSample, EventRecord, FlightRecording, ItemReached
 from gcs.record.tlog import TlogWriter
 
 Say = Callable[[str], None]
-COLLISION_TEXT = re.compile(r"Collision with drone (\d+)")
 
 
 class CollisionPairs:
@@ -37,10 +35,10 @@ class CollisionPairs:
 
     def observe(self, sysid: int, text: str) -> bool | None:
         """One STATUSTEXT from ``sysid``: None when it reports no collision, else whether the pair is new."""
-        match = COLLISION_TEXT.match(text)
-        if match is None:
+        contact = parse_contact(text)
+        if contact is None or contact.drone is None:
             return None
-        pair = frozenset((sysid, int(match.group(1))))
+        pair = frozenset((sysid, contact.drone))
         if pair in self.pairs:
             return False
         self.pairs.add(pair)
@@ -132,7 +130,9 @@ class FlightRecorder:
                 return  # a chunk of a long text: it is recorded once whole
             if self.collisions.observe(sysid, whole) is False:
                 return  # the other drone's report of a collision already recorded
-            self.recording.events.append(EventRecord(time_s=now, sysid=sysid, text=whole))
+            event = EventRecord(time_s=now, sysid=sysid, text=whole)
+            self.recording.events.append(event)
+            self.live.observe_event(event, self.recording.collision_radius_m)
             if self.say is not None and msg.severity <= mavlink.MAV_SEVERITY_WARNING:
                 self.say(f"  sysid {sysid}: {whole}")
 

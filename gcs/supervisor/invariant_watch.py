@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 from gcs.invariants.monitor import Monitor, Violation
 from gcs.invariants.spec import Invariant
 from gcs.invariants.state import FAULT, LOSS, START, STEP, TickState
-from gcs.record.metrics import COLLISION_PREFIX
+from gcs.mavlink.statustext import COLLISION_PREFIX
 
 if TYPE_CHECKING:
     from gcs.supervisor.session import FlightSession

@@ -124,3 +124,63 @@ def test_violations_are_said_reported_and_fail_the_run_and_can_stop_the_flight(
     assert stopped["violations"][0]["time_s"] == pytest.approx(metrics["violations"][0]["time_s"], abs=0.2)
     assert stopped["duration_s"] < metrics["duration_s"] - 5.0
     assert json.loads((tmp_path / "stop" / "report" / "metrics.json").read_text())["collisions"] == 0
+
+
+BLIND_PAIR = """
+name = "blind_pair"
+[swarm]
+drones = 2
+layout = "line"
+spacing_m = 12.0
+relay = false
+seed = 7
+wind_ned_mps = [0.8, -0.6, 0.0]
+gust_mps = 0.4
+[swarm.drone.1]
+params = { CAM_RANGE = 2.0 }
+[swarm.drone.2]
+params = { CAM_RANGE = 2.0 }
+[[steps]]
+action = "takeoff"
+alt_m = 3.0
+[[steps]]
+action = "swap"
+speed_mps = 2.0
+timeout_s = 30.0
+[[steps]]
+action = "land"
+[[invariants]]
+kind = "contact"
+[[invariants]]
+kind = "separation"
+min_m = 1.0
+"""
+
+
+@pytest.mark.timeout(240)
+def test_two_drones_that_touch_report_the_contact_as_their_minimum_and_exit_3(tmp_path: Path,
+                                                                           instances: Leases) -> None:  # fmt: skip
+    """Two drones head-on, the relay cut and both cameras shortened to 2 m, in a light wind (seed pinned): they touch,
+    both crash and the swap cannot finish. Costs one 2-drone lockstep flight (about 6 s)."""
+    mission = tmp_path / "blind_pair.toml"
+    mission.write_text(BLIND_PAIR)
+    first = instances(2)
+    metrics, run = fly_mission(mission, ["--lockstep", "--no-view"], tmp_path, 150, first, expect_ok=False)
+    pair = [first + 1, first + 2]
+    # THEN the flight broke its invariants and a step failed: exit 3, both said
+    assert run.returncode == 3, run.stdout[-3000:] + run.stderr[-2000:]
+    assert "not every drone reached the opposite point" in run.stderr, run.stderr[-2000:]
+    assert "2 invariant(s) violated, first invariant separation" in run.stderr, run.stderr[-2000:]
+    assert metrics["collisions"] == 1 and {v["name"] for v in metrics["violations"]} == {"contact", "separation"}
+    # AND the minimum separation is the contact's: at most the contact distance, between the two, when it was said
+    contact = metrics["collision_events"][0]
+    assert metrics["min_separation_m"] <= metrics["collision_radius_m"], metrics["min_separation_m"]
+    assert f"at {metrics['min_separation_m']:.2f} m" in contact["text"], contact
+    assert sorted(metrics["min_separation_pair"]) == pair
+    assert metrics["min_separation_time_s"] == pytest.approx(contact["time_s"], abs=0.2)
+    # AND the separation invariant broke no later than the contact
+    separation = next(v for v in metrics["violations"] if v["name"] == "separation")
+    assert separation["time_s"] <= contact["time_s"] and sorted(separation["sysids"]) == pair, separation
+    # AND summary.txt says the same minimum
+    summary = (tmp_path / "report" / "summary.txt").read_text()
+    assert f"min separation: {metrics['min_separation_m']:.2f} m" in summary, summary

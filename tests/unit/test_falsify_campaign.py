@@ -177,6 +177,12 @@ def test_every_pair_found_is_shrunk_to_its_two_perturbations_and_flown_once_per_
     text = (tmp_path / "out" / "summary.txt").read_text()
     for failure in result.failures.values():
         assert run.minimal_file(failure).is_file() and str(run.minimal_file(failure)) in text
+        # AND each minimal file says how to replay it, naming itself, and is otherwise the file that was flown
+        minimal_text = run.minimal_file(failure).read_text()
+        comments = [line for line in minimal_text.splitlines() if line.startswith("#")]
+        assert comments[1] == f"# swarm fly {run.minimal_file(failure)} --lockstep", comments
+        flown = failure.smallest.mission.read_text()
+        assert minimal_text.split("\n", 2)[2] == flown.split("\n", 2)[2]
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["flights"] == result.flights
 
 

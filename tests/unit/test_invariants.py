@@ -44,6 +44,14 @@ def test_separation_between_airborne_drones_and_to_attached_vehicles() -> None:
     assert first(spec, beside).sysids == (23, 250)
     # only the drones named: drone 1 (sysid 21) and drone 3 (sysid 23)
     assert first({**spec, "drones": [1, 3]}, near) is None
+    # a contact is a separation of the distance it reports, though the positions at the ticks are far apart
+    touched = tick(5.2, contacts=((22, "Collision with drone 23 at 0.64 m"),))
+    violation = first(spec, tick(5.1), touched)
+    assert (violation.time_s, violation.sysids) == (5.2, (22, 23)) and "0.64 m apart" in violation.detail
+    assert first({**spec, "min_m": 0.6}, touched) is None
+    # (with no distance given, the bodies touched: any separation is broken)
+    assert first({**spec, "min_m": 0.1}, tick(5.2, contacts=((22, "Collision with drone 23"),))) is not None
+    assert first(spec, tick(5.2, contacts=((22, "Collision with obstacle 1 at 0.30 m"),))) is None
 
 
 def test_contact_and_failsafe_come_from_what_the_drones_report() -> None:

@@ -84,6 +84,52 @@ def test_two_drones_approaching_to_0_8_m_give_min_separation_0_8_at_the_closest_
     assert np.nanmin(metrics.separation.min_separation_m) == pytest.approx(0.8, abs=0.02)
 
 
+def test_a_contact_the_telemetry_never_sampled_is_the_minimum_separation_everywhere_it_shows() -> None:
+    # GIVEN two drones head-on at 2 m/s each whose telemetry ends 1.08 m apart (both crash on touching, so no sample
+    # of the contact itself arrives), and both drones' reports of the contact 0.15 s later, at 0.61 m
+    rec = recording()
+    rec.samples += flight(1, 0.0, 11.0, lambda t: (2.0 * (t - 11.0) - 0.54, 0.0, -3.0))
+    rec.samples += flight(2, 0.0, 11.0, lambda t: (0.54 - 2.0 * (t - 11.0), 0.0, -3.0))
+    rec.events += [
+        EventRecord(time_s=11.15, sysid=2, text="Collision with drone 1 at 0.61 m"),
+        EventRecord(time_s=11.15, sysid=1, text="Collision with drone 2 at 0.61 m"),
+    ]
+
+    # WHEN the metrics are computed
+    metrics = compute_metrics(rec)
+
+    # THEN the minimum is the contact, not the last sampled distance
+    assert np.nanmin(metrics.separation.min_separation_m) == pytest.approx(1.08, abs=1e-6)  # the telemetry alone
+    assert (metrics.min_separation_m, metrics.min_separation_time_s) == (0.61, 11.15)
+    assert metrics.min_separation_pair == (1, 2)
+    # AND so it is in metrics.json and in the summary
+    data = metrics.to_dict()
+    assert (data["min_separation_m"], data["min_separation_pair"]) == (0.61, [1, 2])
+    assert "min separation: 0.61 m at 11.2 s (drones 1 and 2" in summary_text(metrics)
+    # AND in the live status line
+    live = LiveMetrics()
+    for s in rec.samples:
+        live.observe(s)
+    assert live.status().min_separation_m == pytest.approx(1.08, abs=0.05)
+    for event in rec.events:
+        live.observe_event(event, rec.collision_radius_m)
+    assert live.status().min_separation_m == 0.61
+
+
+def test_a_contact_whose_text_gives_no_distance_counts_at_the_contact_distance() -> None:
+    rec = recording(events=[EventRecord(time_s=3.0, sysid=2, text="Collision with drone 3")])
+    rec.samples += flight(2, 0.0, 2.0, lambda t: (0.0, 0.0, -3.0))
+    rec.samples += flight(3, 0.0, 2.0, lambda t: (5.0, 0.0, -3.0))
+
+    metrics = compute_metrics(rec)
+
+    assert (metrics.min_separation_m, metrics.min_separation_time_s) == (rec.collision_radius_m, 3.0)
+    assert metrics.min_separation_pair == (2, 3)
+    # a contact with an obstacle is no separation between drones
+    rec.events[:] = [EventRecord(time_s=3.0, sysid=2, text="Collision with obstacle 1 at 0.40 m")]
+    assert compute_metrics(rec).min_separation_m == pytest.approx(5.0)
+
+
 def test_the_closest_pair_of_three_drones_is_reported() -> None:
     rec = recording(n_drones=3)
     rec.samples += flight(1, 0.0, 4.0, lambda t: (0.0, 0.0, -3.0))
