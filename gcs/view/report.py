@@ -86,6 +86,11 @@ def write_report(recording: FlightRecording, out_dir: str | Path, *, plots: Plot
     return out
 
 
+def counted(n: int, noun: str, plural: str | None = None) -> str:
+    """``n`` and the noun agreeing with it: "1 drone", "2 drones", "0 drones" (``plural`` when not noun + "s")."""
+    return f"{n} {noun if n == 1 else plural or noun + 's'}"
+
+
 def drone_colours(sysids: Sequence[int]) -> dict[int, Colour]:
     """Distinct colours per drone: qualitative palettes while they last, then an evenly sampled colour map."""
     from matplotlib import colormaps
@@ -136,7 +141,7 @@ def _legend_outside(ax: Axes, n_drones: int) -> None:
         ax.text(
             1.01,
             1.0,
-            f"{n_drones} drones,\none colour each\n(no legend)",
+            f"{counted(n_drones, 'drone')},\none colour each\n(no legend)",
             transform=ax.transAxes,
             va="top",
             fontsize="small",
@@ -330,13 +335,13 @@ def summary_text(metrics: FlightMetrics) -> str:
     for name, counts in metrics.link_counters.items():
         link = link_summary(counts)
         lines.append(
-            f"link model, {name}: {link['frames_lost']} of {link['frames_offered']} frames lost "
+            f"link model, {name}: {link['frames_lost']} of {counted(link['frames_offered'], 'frame')} lost "
             f"({100.0 * (link['loss_rate'] or 0.0):.1f} %), {link['frames_delayed']} delayed"
             + (f" (mean {link['mean_delay_ms']:.1f} ms)" if link["mean_delay_ms"] is not None else "")
             + (
                 f"; lost {link['lost_range']} beyond range, {link['lost_path']} to path loss, {link['lost_model']} "
-                f"to the link model; the neighbour tables took {link['mesh_updates']} reports from the mesh, "
-                f"{link['relay_updates']} from the relay"
+                f"to the link model; the neighbour tables took {counted(link['mesh_updates'], 'report')} "
+                f"from the mesh, {link['relay_updates']} from the relay"
                 + (f", {link['link_updates']} from other MAVLink links" if link.get("link_updates") else "")
                 if "lost_range" in link
                 else ""

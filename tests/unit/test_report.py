@@ -13,6 +13,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
+from gcs.record.metrics import compute_metrics
 from gcs.record.recording import DroneSample, EventRecord, FlightRecording, StepRecord
 from gcs.record.tlog import TlogWriter
 from gcs.view.report import (
@@ -21,6 +22,8 @@ from gcs.view.report import (
     SEPARATION_FILE,
     SUMMARY_FILE,
     TRAJECTORIES_FILE,
+    counted,
+    summary_text,
     write_report,
 )
 
@@ -162,6 +165,18 @@ def test_report_of_an_empty_recording_still_has_every_file(tmp_path: Path) -> No
     for name in (TRAJECTORIES_FILE, ALTITUDE_FILE, SEPARATION_FILE):
         assert (out / name).read_bytes().startswith(PNG_SIGNATURE)
     assert "aborted" in (out / SUMMARY_FILE).read_text()
+
+
+def test_counts_in_the_summary_agree_with_their_nouns() -> None:
+    assert [counted(n, "drone") for n in (0, 1, 2)] == ["0 drones", "1 drone", "2 drones"]
+    assert counted(1, "body", "bodies") == "1 body" and counted(3, "body", "bodies") == "3 bodies"
+    # GIVEN a flight whose mesh carried one frame, one report to the neighbour tables
+    rec = synthetic_flight()
+    rec.link_counters = {"mesh": {"frames_offered": 1.0, "frames_delivered": 1.0, "lost_range": 0.0, "lost_path": 0.0,
+                                  "lost_model": 0.0, "relay_updates": 0.0, "mesh_updates": 1.0}}  # fmt: skip
+    # THEN its summary says so in the singular
+    line = next(x for x in summary_text(compute_metrics(rec)).splitlines() if x.startswith("link model, mesh"))
+    assert "0 of 1 frame lost" in line and "took 1 report from the mesh, 0 from the relay" in line, line
 
 
 def test_report_of_a_large_swarm_is_written_without_a_legend_per_drone(tmp_path: Path) -> None:

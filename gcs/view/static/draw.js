@@ -12,6 +12,9 @@ const toThree = (ned) => [ned[1], -ned[2], -ned[0]];  // three.js: x east, y up,
 
 export function fmt(v, digits = 1) { return v === null || v === undefined ? "-" : typeof v === "number" ? v.toFixed(digits) : String(v); }
 
+// The noun for a count of ``n``, agreeing with it: "1 drone", "2 drones", "0 drones".
+export function nounFor(n, noun, plural = `${noun}s`) { return n === 1 ? noun : plural; }
+
 export function escape(text) { return text.replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]); }
 
 // A view of the page's elements (#view3d, #map, #drones, #details and the header's #time, #separation, ...):
@@ -248,7 +251,8 @@ export function createView(THREE, OrbitControls) {
     setText("rtf", fmt(frame.realtime_factor, 2));
     setText("separation", fmt(frame.separation_m, 2));
     setText("min-separation", fmt(frame.min_separation_m, 2));
-    setText("count", frame.drones.length);
+    const count = document.getElementById("count"), n = frame.drones.length;
+    if (count) count.innerHTML = `<b>${n}</b> ${nounFor(n, "drone")}`;
     update3d(frame);
     drawMap(frame);
     drawTable(frame);
