@@ -19,6 +19,18 @@ same form: where they said they were on the same grid (null where they were sile
 were last known), their slots (a member's), their role and link, and the state ``external``, or ``lost`` while
 silent. They are drawn, not counted in the page's separation (the metrics count them apart: ``attached``).
 
+Where the page opens, ``open_s``: the first grid instant at which every drone of the flight has a position (each
+is drawn from its first, then kept where it was last seen). The timeline starts at the flight's first sample, but the
+recorder hears the drones one by one as their telemetry starts, so at that instant it may know one drone of nine:
+opening there shows "1 drone", frames the 3D camera on it and lists one row, while the whole swarm flew. Drawing each
+drone, before it was first heard, where it was first heard would open on the whole swarm too, but at positions
+nobody reported at that time, and a reader who finds a drone drawn must be able to trust it was there; so the page
+opens on the first instant the whole swarm is known, and the timeline still reaches back to the first sample (scrub
+or press play from it) with the drones not yet heard not drawn there. Attached vehicles do not count towards it:
+they may join the swarm at any time (docs/external.md). Where it opens moves nothing: every drawn position is a
+reported one, and the minimum separation above is over the whole timeline, from its first instant, which is the
+metrics' (a drone not yet heard is no separation for them either).
+
 Timeline marks are the flight's events: avoidance starts, collisions, failsafes, losses, drones heard again, injected
 faults, what the swarm did about each loss, and the first violation of each invariant; the mission's steps are
 bands.
@@ -48,7 +60,7 @@ from gcs.view.scene import AVOIDANCE_END
 
 DECIMALS: Final = 4  # 0.1 mm: rounding must not move the page's minimum separation off the metrics' (to 1e-3 m)
 COURSE_MIN_SPEED_MPS: Final = 0.3  # slower than this, a drone's course over ground is noise: no heading is drawn
-REPLAY_VERSION: Final = 1
+REPLAY_VERSION: Final = 2  # 2: ``open_s``
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -168,6 +180,15 @@ def _marks(recording: FlightRecording) -> list[dict[str, Any]]:
     return sorted(marks, key=lambda m: (m["time_s"], m["sysid"] or 0))
 
 
+def opening_time(grid_s: FloatArray, drawn: Sequence[Resampled]) -> float | None:
+    """The first grid instant at which every drone in ``drawn`` has had a position (module docstring: where the
+    page opens); a drone never placed on the grid does not hold it back. None on an empty grid."""
+    if not grid_s.size:
+        return None
+    firsts = [int(np.argmax(known)) for d in drawn if (known := np.all(np.isfinite(d.pos_ned_m), axis=1)).any()]
+    return float(grid_s[max(firsts, default=0)])
+
+
 def replay_document(recording: FlightRecording) -> dict[str, Any]:
     """The page's whole replay (module docstring). The page computes the separations itself, from the positions."""
     by_drone: dict[int, list[DroneSample]] = {}
@@ -186,11 +207,13 @@ def replay_document(recording: FlightRecording) -> dict[str, Any]:
     there = resample_samples(recording.attached_samples, grid) if grid.size else {}
     external = [_external(recording, sysid, by_vehicle[sysid], grid, there[sysid], modes) for sysid in sorted(there)
                 if sysid in recording.attached]  # fmt: skip
+    opens = opening_time(grid, [drawn[sysid] for sysid in sorted(drawn)])
     return {
         "version": REPLAY_VERSION,
         "mission": recording.mission_name,
         "grid_hz": GRID_HZ,
         "time_s": _column(grid, 3),
+        "open_s": None if opens is None else round(opens, 3),
         "modes": modes,
         "drones": drones,
         "external": external,

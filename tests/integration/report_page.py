@@ -5,6 +5,7 @@ separations itself from the positions it draws."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from pathlib import Path
@@ -16,21 +17,50 @@ DOCS_IMAGES = Path(__file__).resolve().parents[2] / "docs" / "images"
 REPLAY_TIMEOUT_S = 60.0
 
 
+@dataclasses.dataclass(frozen=True, slots=True)
+class Opening:
+    """What the page showed as it opened, and at the timeline's first instant (the first sample)."""
+
+    start_s: float
+    opening_s: float
+    drawn_at_start: int
+    drawn_at_opening: int
+
+
+def counted(n: int, noun: str) -> str:
+    """What a person writes: "1 drone", "2 drones" (written out here, not the page's own code)."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+
+
+def count_text(browser: Browser) -> str:
+    """The header's count with its noun, as read on the page."""
+    return str(browser.evaluate("document.getElementById('count').closest('span').textContent")).strip()
+
+
 def check_report_page(report: Path, metrics: dict[str, Any], *, lost: tuple[int, ...] = (),
                       marks: tuple[str, ...] = (), screenshot_at_s: float | None = None,
-                      external: tuple[int, ...] = ()) -> None:  # fmt: skip
-    """The page loads from the file alone, replays to the end at 32x and then shows metrics.json's minimum
-    separation (the simulated drones'); at the metrics' closest instant the closest pair is drawn that far apart;
-    drones in ``lost`` end drawn lost; the attached vehicles ``external`` are drawn beside them, as external (or lost
-    where they fell silent); the timeline carries a mark of every kind in ``marks``."""
+                      external: tuple[int, ...] = ()) -> Opening:  # fmt: skip
+    """The page loads from the file alone and opens where every drone of metrics.json's ``sysids`` is drawn (the
+    timeline reaching back to the first sample), its header counting the drones it draws in good English ("1 drone",
+    "9 drones"); it replays to the end at 32x and then shows metrics.json's minimum separation (the simulated
+    drones'); at the metrics' closest instant the closest pair is drawn that far apart; drones in ``lost`` end drawn
+    lost; the attached vehicles ``external`` are drawn beside them, as external (or lost where they fell silent); the
+    timeline carries a mark of every kind in ``marks``. Returns what it saw as the page opened."""
     page = report / "report.html"
     with Browser() as browser:
         browser.open(page.as_uri())
         browser.wait_for("window.swarmReplay || window.swarmReplayError", 30)
         assert browser.evaluate("window.swarmReplayError || null") is None
-        start, end = browser.evaluate("[swarmReplay.start(), swarmReplay.end()]")
-        assert start < end and browser.evaluate("swarmReplay.time()") == start
+        start, opening, end = browser.evaluate("[swarmReplay.start(), swarmReplay.opening(), swarmReplay.end()]")
+        assert start <= opening < end and browser.evaluate("swarmReplay.time()") == opening
         assert browser.evaluate("swarmView.webgl()"), "the page's 3D scene did not start"
+        # it opens on the whole swarm, and says how many it draws
+        opened_on = {int(s) for s in browser.evaluate("swarmView.drones()")}
+        assert set(metrics["sysids"]) <= opened_on <= {*metrics["sysids"], *external}, (opening, opened_on)
+        assert count_text(browser) == counted(len(opened_on), "drone")
+        # and so at the first sample, when perhaps one drone was known
+        at_start = len(browser.evaluate(f"swarmReplay.seek({start}); swarmView.drones()"))
+        assert at_start >= 1 and count_text(browser) == counted(at_start, "drone")
         # the closest pair, drawn at the closest instant
         expected = metrics["min_separation_m"]
         a, b = metrics["min_separation_pair"]
@@ -54,3 +84,4 @@ def check_report_page(report: Path, metrics: dict[str, Any], *, lost: tuple[int,
         if screenshot_at_s is not None and os.environ.get("SWARM_DOCS_SCREENSHOTS"):
             browser.evaluate(f"swarmReplay.seek({screenshot_at_s})")
             browser.screenshot(DOCS_IMAGES / "report-page.png")
+    return Opening(start_s=start, opening_s=opening, drawn_at_start=at_start, drawn_at_opening=len(opened_on))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import base64
+import dataclasses
 import gzip
 import json
 import math
@@ -62,6 +63,19 @@ def flight_with_everything() -> FlightRecording:
     return rec
 
 
+def staggered_flight() -> FlightRecording:
+    """The synthetic three-drone flight as the recorder hears a swarm come up: drone 1 from the start, drone 2 from
+    0.7 s, drone 3 from 2.33 s (its samples off the grid, 0.03 s after each tenth)."""
+    rec = synthetic_flight()
+    first_s = {1: 0.0, 2: 0.7, 3: 2.33}
+    rec.samples = [
+        dataclasses.replace(s, time_s=s.time_s + 0.03) if s.sysid == 3 else s
+        for s in rec.samples
+        if s.time_s + (0.03 if s.sysid == 3 else 0.0) >= first_s[s.sysid] - 1e-9
+    ]
+    return rec
+
+
 def test_the_pages_minimum_separation_from_the_drawn_positions_is_the_metrics_one() -> None:
     rec = flight_with_everything()
     document = replay_document(rec)
@@ -71,6 +85,30 @@ def test_the_pages_minimum_separation_from_the_drawn_positions_is_the_metrics_on
     # and the document is plain JSON (no NaN), on the metrics' grid
     json.dumps(document, allow_nan=False)
     assert np.allclose(document["time_s"][:3], [0.0, 0.1, 0.2])
+
+
+def test_the_replay_opens_where_every_drone_is_known_its_timeline_from_the_first_sample() -> None:
+    # GIVEN a flight whose drones were first heard at 0, 0.7 and 2.33 s
+    rec = staggered_flight()
+    document = replay_document(rec)
+    grid = document["time_s"]
+    # THEN the timeline starts at the first sample, when one drone was known
+    assert grid[0] == 0.0
+    known = [[d["north_m"][k] is not None for d in document["drones"]] for k in range(len(grid))]
+    assert known[0] == [True, False, False]
+    # AND the page opens at the first grid instant with every drone drawn (drone 3's first: between 2.33 and 2.43 s)
+    assert document["open_s"] == 2.4
+    assert all(known[grid.index(2.4)]) and not all(known[grid.index(2.3)])
+    # AND the page's minimum separation over the whole timeline is still the metrics'
+    metrics = compute_metrics(rec)
+    assert metrics.min_separation_m is not None
+    assert abs(page_min_separation(document) - metrics.min_separation_m) < 1e-3
+
+
+def test_a_swarm_heard_at_once_opens_at_its_first_sample_and_an_empty_one_nowhere() -> None:
+    assert replay_document(flight_with_everything())["open_s"] == 0.0
+    empty = FlightRecording(mission_name="aborted", n_drones=2, collision_radius_m=0.7)
+    assert replay_document(empty)["open_s"] is None
 
 
 def test_states_follow_losses_failsafes_and_avoidance_as_the_live_view_colours_them() -> None:

@@ -1,7 +1,9 @@
 // The flight report's replay (report.html): the recorded flight (gcs/view/replay.py's document) played back through
 // draw.js, with a timeline (play, pause, scrub, speed), the flight's events as marks, and the separation computed
 // here from the positions drawn. Positions are on the metrics' time grid and linear between its instants, as the
-// metrics take them, so the minimum separation this page finds over the whole flight is metrics.json's.
+// metrics take them, so the minimum separation this page finds over the whole flight is metrics.json's. It opens
+// where the whole swarm is known (the document's open_s: gcs/view/replay.py says why), the timeline reaching back to
+// the first sample.
 // window.swarmReplay exposes the replay's state and controls for tests and tools.
 
 import { COLOURS, escape, fmt } from "./draw.js";
@@ -15,6 +17,7 @@ export function startReplay(view, data) {
   const times = data.time_s;
   const T = times.length;
   const t0 = T ? times[0] : 0, t1 = T ? times[T - 1] : 0, hz = data.grid_hz;
+  const opens = Math.min(Math.max(data.open_s ?? t0, t0), t1);  // every drone known from here on
   const drones = data.drones.map((d) => prepare(d));
   const external = (data.external || []).map((d) => prepare(d));  // attached vehicles: drawn, not in the separation
   const best = prefixMinimum();  // best[i]: the smallest separation over [t0, times[i]]
@@ -190,7 +193,7 @@ export function startReplay(view, data) {
     render();
   }
   function play() {
-    if (replay.time >= t1) replay.time = t0;
+    if (replay.time >= t1) replay.time = opens;  // again from where it opened, on the whole swarm
     replay.playing = true; replay.ended = false; last = null;
     render();
   }
@@ -227,10 +230,11 @@ export function startReplay(view, data) {
   new ResizeObserver(drawMarks).observe(marksCanvas);
 
   window.swarmReplay = {
-    start: () => t0, end: () => t1, time: () => replay.time, playing: () => replay.playing, ended: () => replay.ended,
-    speed: () => replay.speed, separation: () => replay.separation, minSeparation: () => replay.minSeparation,
+    start: () => t0, opening: () => opens, end: () => t1, time: () => replay.time, playing: () => replay.playing,
+    ended: () => replay.ended, speed: () => replay.speed, separation: () => replay.separation,
+    minSeparation: () => replay.minSeparation,
     play, pause, seek, setSpeed, colours: () => COLOURS,
   };
-  seek(t0);
+  seek(opens);
   requestAnimationFrame(tick);
 }
