@@ -1,13 +1,16 @@
 """The flight report page's replay: a recorded flight as one JSON-ready document (pure: a recording in, a dict out).
 
-Every drone is put on the metrics' common time grid (``GRID_HZ``, gcs/record/metrics.py) exactly as the metrics resample
-it, so the page, interpolating linearly between grid instants, draws what the metrics assume between them: the distance
-it computes between two drawn drones at any instant is the metrics' distance there, and the minimum over the whole
-replay is ``min_separation_m`` of metrics.json. Per drone and grid instant the document holds the position (null
-where the drone was not heard: the page keeps it where it was last seen), its course over ground (the page's
-heading arrow: the recording holds no attitude), whether it counts as airborne for separation (the metrics'
-definition, lost drones excluded), armed, its mode and its formation slot. Colours follow the live view's states
-(gcs/view/scene.py), given as changes in time:
+Every drone is put on the metrics' common time grid (``GRID_HZ``, gcs/record/metrics.py) exactly as the metrics
+resample it, so the page, interpolating linearly between grid instants, draws what the metrics assume between them:
+the distance it computes between two drawn drones at any instant is the metrics' distance there, and the minimum over
+the whole replay is ``min_separation_m`` of metrics.json. That minimum also holds the contacts the drones reported
+("Collision with drone N at D m": a separation of D, the moment telemetry misses, docs/metrics.md), so the document
+lists them, ``contacts``, as the metrics take them (between two simulated drones, the contact distance when the text
+gives none), and the page folds each into its smallest separation so far from the instant it arrived. Per drone and
+grid instant the document holds the position (null where the drone was not heard: the page keeps it where it was last
+seen), its course over ground (the page's heading arrow: the recording holds no attitude), whether it counts as
+airborne for separation (the metrics' definition, lost drones excluded), armed, its mode and its formation slot.
+Colours follow the live view's states (gcs/view/scene.py), given as changes in time:
 
 - ``lost`` from its loss until it was heard again (docs/drone-loss.md);
 - ``failsafe`` from the failsafe the recorder saw it enter until it disarmed (PX4 ends a failsafe on the ground);
@@ -51,6 +54,7 @@ from gcs.record.metrics import (
     COLLISION_PREFIX,
     GRID_HZ,
     Resampled,
+    drone_contacts,
     flying_samples,
     resample_samples,
     time_grid,
@@ -60,7 +64,7 @@ from gcs.view.scene import AVOIDANCE_END
 
 DECIMALS: Final = 4  # 0.1 mm: rounding must not move the page's minimum separation off the metrics' (to 1e-3 m)
 COURSE_MIN_SPEED_MPS: Final = 0.3  # slower than this, a drone's course over ground is noise: no heading is drawn
-REPLAY_VERSION: Final = 2  # 2: ``open_s``
+REPLAY_VERSION: Final = 2  # 2: ``open_s`` and ``contacts``
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -180,6 +184,15 @@ def _marks(recording: FlightRecording) -> list[dict[str, Any]]:
     return sorted(marks, key=lambda m: (m["time_s"], m["sysid"] or 0))
 
 
+def _contacts(recording: FlightRecording) -> list[dict[str, Any]]:
+    """The drones' contacts as separations, those the metrics count in ``min_separation_m`` (module docstring)."""
+    return [
+        {"time_s": round(c.time_s, DECIMALS), "pair": list(c.pair), "distance_m": round(c.distance_m, DECIMALS)}
+        for c in drone_contacts(recording.events, recording.collision_radius_m)
+        if not set(c.pair) & set(recording.attached)
+    ]
+
+
 def opening_time(grid_s: FloatArray, drawn: Sequence[Resampled]) -> float | None:
     """The first grid instant at which every drone in ``drawn`` has had a position (module docstring: where the
     page opens); a drone never placed on the grid does not hold it back. None on an empty grid."""
@@ -223,4 +236,5 @@ def replay_document(recording: FlightRecording) -> dict[str, Any]:
             for s in recording.steps
         ],
         "marks": _marks(recording),
+        "contacts": _contacts(recording),
     }

@@ -11,6 +11,7 @@ import os
 from pathlib import Path
 from typing import Any
 
+from gcs.mavlink.statustext import parse_contact
 from tests.integration.browser import Browser
 
 DOCS_IMAGES = Path(__file__).resolve().parents[2] / "docs" / "images"
@@ -37,15 +38,30 @@ def count_text(browser: Browser) -> str:
     return str(browser.evaluate("document.getElementById('count').closest('span').textContent")).strip()
 
 
+def is_contact(metrics: dict[str, Any]) -> bool:
+    """Whether metrics.json's minimum separation is a contact a drone reported (docs/metrics.md), not positions."""
+    pair = sorted(metrics["min_separation_pair"])
+    for event in metrics["collision_events"]:
+        contact = parse_contact(event["text"])
+        if contact is None or contact.drone is None or sorted((event["sysid"], contact.drone)) != pair:
+            continue
+        distance = contact.distance_m if contact.distance_m is not None else metrics["collision_radius_m"]
+        then = abs(event["time_s"] - metrics["min_separation_time_s"]) < 1e-3
+        if then and abs(distance - metrics["min_separation_m"]) < 1e-3:
+            return True
+    return False
+
+
 def check_report_page(report: Path, metrics: dict[str, Any], *, lost: tuple[int, ...] = (),
                       marks: tuple[str, ...] = (), screenshot_at_s: float | None = None,
                       external: tuple[int, ...] = ()) -> Opening:  # fmt: skip
     """The page loads from the file alone and opens where every drone of metrics.json's ``sysids`` is drawn (the
     timeline reaching back to the first sample), its header counting the drones it draws in good English ("1 drone",
     "9 drones"); it replays to the end at 32x and then shows metrics.json's minimum separation (the simulated
-    drones'); at the metrics' closest instant the closest pair is drawn that far apart; drones in ``lost`` end drawn
-    lost; the attached vehicles ``external`` are drawn beside them, as external (or lost where they fell silent); the
-    timeline carries a mark of every kind in ``marks``. Returns what it saw as the page opened."""
+    drones'); at the metrics' closest instant the closest pair is drawn that far apart (or, when that minimum is a
+    contact a drone reported, the page's smallest separation so far is it from there); drones in ``lost`` end drawn
+    lost; the attached vehicles ``external`` are drawn beside them, as external (or lost where they fell silent);
+    the timeline carries a mark of every kind in ``marks``. Returns what it saw as the page opened."""
     page = report / "report.html"
     with Browser() as browser:
         browser.open(page.as_uri())
@@ -61,11 +77,15 @@ def check_report_page(report: Path, metrics: dict[str, Any], *, lost: tuple[int,
         # and so at the first sample, when perhaps one drone was known
         at_start = len(browser.evaluate(f"swarmReplay.seek({start}); swarmView.drones()"))
         assert at_start >= 1 and count_text(browser) == counted(at_start, "drone")
-        # the closest pair, drawn at the closest instant
+        # the closest pair, drawn at the closest instant (or, when the minimum is a contact a drone reported, the
+        # page's smallest separation so far from that instant)
         expected = metrics["min_separation_m"]
         a, b = metrics["min_separation_pair"]
         drawn = browser.evaluate(f"swarmReplay.seek({metrics['min_separation_time_s']}); swarmView.drones()")
-        assert abs(math.dist(drawn[str(a)]["pos_ned_m"], drawn[str(b)]["pos_ned_m"]) - expected) < 2e-3, drawn
+        if is_contact(metrics):
+            assert abs(browser.evaluate("swarmReplay.minSeparation()") - expected) < 2e-3
+        else:
+            assert abs(math.dist(drawn[str(a)]["pos_ned_m"], drawn[str(b)]["pos_ned_m"]) - expected) < 2e-3, drawn
         # replayed from the start to the end
         browser.evaluate(f"swarmReplay.seek({start}); swarmReplay.setSpeed(32); swarmReplay.play()")
         browser.wait_for("swarmReplay.ended()", REPLAY_TIMEOUT_S)

@@ -27,9 +27,10 @@ def positions(document: dict, k: int) -> np.ndarray:
     return np.array([d["north_m"], d["east_m"], d["down_m"]], dtype=float).T  # None -> NaN
 
 
-def page_min_separation(document: dict) -> float:
+def page_min_separation(document: dict, *, contacts: bool = True) -> float:
     """What the page computes (static/replay.js), in numpy: every grid instant's distance between pairs airborne
-    then, and the closest approach of their linear relative motion between consecutive instants both airborne."""
+    then, and the closest approach of their linear relative motion between consecutive instants both airborne; and
+    (``contacts``) the contacts the document lists."""
     pos = [positions(document, k) for k in range(len(document["drones"]))]
     air = [
         np.array(d["airborne"], dtype=bool) & ~np.isnan(p[:, 0]) for d, p in zip(document["drones"], pos, strict=True)
@@ -48,7 +49,7 @@ def page_min_separation(document: dict) -> float:
             s = np.clip(np.divide(-np.einsum("ij,ij->i", r0, dr), dr2, out=np.zeros_like(dr2), where=dr2 > 0), 0, 1)
             if ok.any():
                 best = min(best, float(np.linalg.norm(r0 + s[:, None] * dr, axis=1).min()))
-    return best
+    return min([best, *(c["distance_m"] for c in document["contacts"])]) if contacts else best
 
 
 def flight_with_everything() -> FlightRecording:
@@ -85,6 +86,22 @@ def test_the_pages_minimum_separation_from_the_drawn_positions_is_the_metrics_on
     # and the document is plain JSON (no NaN), on the metrics' grid
     json.dumps(document, allow_nan=False)
     assert np.allclose(document["time_s"][:3], [0.0, 0.1, 0.2])
+
+
+def test_a_reported_contact_is_in_the_pages_minimum_separation_as_in_the_metrics() -> None:
+    # GIVEN two drones whose positions never came within 1.9 m, one of which reported touching the other at 0.31 m,
+    # and a contact with an attached vehicle (the metrics count it apart)
+    rec = synthetic_flight(n_drones=2)
+    rec.attached = {250: ("member", "udpin:0.0.0.0:14560")}
+    rec.events = [EventRecord(time_s=9.5, sysid=1, text="Collision with drone 2 at 0.31 m"),
+                  EventRecord(time_s=9.7, sysid=2, text="Collision with drone 250 at 0.2 m")]  # fmt: skip
+    document = replay_document(rec)
+    # THEN the document lists the drones' contact, and the page's minimum is the metrics' minimum, the contact
+    assert document["contacts"] == [{"time_s": 9.5, "pair": [1, 2], "distance_m": 0.31}]
+    metrics = compute_metrics(rec)
+    assert (metrics.min_separation_m, metrics.min_separation_pair) == (0.31, (1, 2))
+    assert page_min_separation(document, contacts=False) > 1.9
+    assert page_min_separation(document) == 0.31
 
 
 def test_the_replay_opens_where_every_drone_is_known_its_timeline_from_the_first_sample() -> None:

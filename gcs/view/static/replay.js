@@ -1,7 +1,8 @@
 // The flight report's replay (report.html): the recorded flight (gcs/view/replay.py's document) played back through
 // draw.js, with a timeline (play, pause, scrub, speed), the flight's events as marks, and the separation computed
 // here from the positions drawn. Positions are on the metrics' time grid and linear between its instants, as the
-// metrics take them, so the minimum separation this page finds over the whole flight is metrics.json's. It opens
+// metrics take them, and the contacts the drones reported count from the instant each arrived, as the metrics count
+// them, so the minimum separation this page finds over the whole flight is metrics.json's. It opens
 // where the whole swarm is known (the document's open_s: gcs/view/replay.py says why), the timeline reaching back to
 // the first sample.
 // window.swarmReplay exposes the replay's state and controls for tests and tools.
@@ -21,6 +22,8 @@ export function startReplay(view, data) {
   const drones = data.drones.map((d) => prepare(d));
   const external = (data.external || []).map((d) => prepare(d));  // attached vehicles: drawn, not in the separation
   const best = prefixMinimum();  // best[i]: the smallest separation over [t0, times[i]]
+  // reported contacts, separations the positions drawn cannot show (one after the last sample counts at the end)
+  const contacts = (data.contacts || []).map((c) => ({ ...c, time_s: Math.min(c.time_s, t1) }));
   const replay = { time: t0, playing: false, speed: 4, ended: false, separation: null, minSeparation: null };
 
   function prepare(d) {
@@ -66,6 +69,12 @@ export function startReplay(view, data) {
       }
       out[i] = running;
     }
+    return out;
+  }
+
+  function contactsBy(t) {  // the closest contact reported at or before t
+    let out = Infinity;
+    for (const c of contacts) if (c.time_s <= t + 1e-9) out = Math.min(out, c.distance_m);
     return out;
   }
 
@@ -122,7 +131,7 @@ export function startReplay(view, data) {
         }
       }
     }
-    const sofar = Math.min(T ? best[i] : Infinity, partial);
+    const sofar = Math.min(T ? best[i] : Infinity, partial, contactsBy(t));
     replay.separation = Number.isFinite(now) ? now : null;
     replay.minSeparation = Number.isFinite(sofar) ? sofar : null;
     return { time_s: t, drones: out, separation_m: replay.separation, min_separation_m: replay.minSeparation,
