@@ -54,7 +54,8 @@ class Obstacle:
 
     ``rel_pos_ned_m`` is the obstacle centre minus this drone's position. ``vel_ned_mps`` is the obstacle's absolute
     velocity, meaningful only when ``vel_known`` (camera detections carry none). ``age_s`` is how old the position is:
-    ``fuse`` uses it to bring a report up to now, ``avoid`` only reports it.
+    ``fuse`` uses it to bring a report up to now, ``avoid`` only reports it. ``sysid`` names a relayed body (0 for one
+    only the camera knows): an avoidance event says whom it corrected for.
     """
 
     rel_pos_ned_m: Vec3
@@ -63,6 +64,7 @@ class Obstacle:
     radius_m: float = 0.35
     source: ObstacleSource = "camera"
     age_s: float = 0.0
+    sysid: int = 0
 
 
 # Obstacles are built for every neighbour at the avoidance rate, several times over (relay, fusion): the fast
@@ -164,6 +166,7 @@ def obstacle_rows(obstacles: Sequence[Obstacle]) -> npt.NDArray[np.float64]:
         row[ak.O_RADIUS] = ob.radius_m
         row[ak.O_SOURCE] = _SOURCE_CODES[ob.source]
         row[ak.O_AGE] = ob.age_s
+        row[ak.O_SYSID] = ob.sysid
     return rows
 
 
@@ -177,8 +180,9 @@ def obstacles_from_rows(rows: npt.NDArray[np.float64]) -> list[Obstacle]:
             radius_m=radius,
             source=_SOURCES[source],
             age_s=age,
+            sysid=int(sysid),
         )
-        for px, py, pz, vx, vy, vz, known, radius, source, age in rows.tolist()
+        for px, py, pz, vx, vy, vz, known, radius, source, age, sysid in rows.tolist()
     ]
 
 
@@ -211,16 +215,16 @@ def fuse(
     """
     return fuse_fields(
         [(c.rel_pos_ned_m, c.radius_m, c.age_s) for c in camera],
-        [(r.rel_pos_ned_m, r.vel_ned_mps, r.radius_m, r.age_s, r.source != "traffic") for r in relay],
+        [(r.rel_pos_ned_m, r.vel_ned_mps, r.radius_m, r.age_s, r.source != "traffic", r.sysid) for r in relay],
         own_vel_ned_mps,
         config,
     )
 
 
 # Camera detection for ``fuse_fields``: (relative position, radius, age); relay entry: (relative position, velocity,
-# radius, age, whether it avoids in turn: a neighbour, not traffic), each as ``Obstacle`` holds it.
+# radius, age, whether it avoids in turn: a neighbour, not traffic; its sysid), each as ``Obstacle`` holds it.
 CameraFields = tuple[Vec3, float, float]
-RelayFields = tuple[Vec3, Vec3, float, float, bool]
+RelayFields = tuple[Vec3, Vec3, float, float, bool, int]
 
 
 def fuse_rows(
@@ -232,8 +236,9 @@ def fuse_rows(
     """``fuse`` on the obstacles' fields, to obstacle rows (``config`` as ``config_row`` gives it): what collision
     prevention runs at the avoidance rate, with no record built."""
     cams = np.array([(*pos, radius, age) for pos, radius, age in camera], dtype=np.float64).reshape(-1, ak.CAMERA_SIZE)
-    rels = np.array([(*pos, *vel, radius, age, 1.0 if cooperative else 0.0) for pos, vel, radius, age, cooperative
-                     in relay], dtype=np.float64).reshape(-1, ak.RELAY_SIZE)  # fmt: skip
+    rels = np.array([(*pos, *vel, radius, age, 1.0 if cooperative else 0.0, sysid)
+                     for pos, vel, radius, age, cooperative, sysid in relay],
+                    dtype=np.float64).reshape(-1, ak.RELAY_SIZE)  # fmt: skip
     out = np.empty((len(cams) + len(rels), ak.OBSTACLE_SIZE))
     own = np.array(own_vel_ned_mps, dtype=np.float64).reshape(3)
     return out[: ak.fuse(cams, rels, own, config, out)]
@@ -313,3 +318,51 @@ def avoid_prepared(
     vx, vy, active, constraining = ak.avoid(prepared.usable, len(prepared.usable), float(ovx), float(ovy),
                                             float(ovz), float(dvx), float(dvy), float(dvz), config)  # fmt: skip
     return AvoidanceResult(vel_ned_mps=(vx, vy, dvz), active=active, closest_m=closest, constraining=constraining)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Conflict:
+    """Why a correction starts: the body predicted to come closer than its separation, and how close and when.
+
+    ``sysid`` is the neighbour's (or traffic's) as the relay named it, 0 for a body only the camera knows;
+    ``predicted_m`` the horizontal centre distance of the closest approach within the horizon, ``in_s`` the time until
+    it (0: already inside), both for the velocity (current or desired) that brings it closer."""
+
+    sysid: int
+    source: ObstacleSource
+    predicted_m: float
+    in_s: float
+    separation_m: float  # what is to be kept from it
+
+    def describe(self) -> str:
+        """The body as an avoidance event names it: "drone 3", "traffic 200", "a body seen by the camera"."""
+        if self.source in ("relay", "fused"):
+            return f"drone {self.sysid}"
+        if self.source in ("traffic", "fused traffic"):
+            return f"traffic {self.sysid}"
+        return "a body seen by the camera"
+
+
+def conflict_prepared(
+    own_vel_ned_mps: Vec3, desired_vel_ned_mps: Vec3, prepared: Prepared, config: npt.NDArray[np.float64]
+) -> Conflict | None:
+    """The prepared obstacle most in conflict (``sitl.kernels.avoidance.conflict``): closer than its separation now,
+    or predicted to come closer within the horizon at the current or the desired velocity, the obstacle keeping its
+    own; None when no obstacle is. Inputs beyond physical sense are treated as ``avoid`` treats them."""
+    ovx, ovy, ovz = own_vel_ned_mps
+    dvx, dvy, _ = desired_vel_ned_mps
+    if not (math.isfinite(dvx) and math.isfinite(dvy)):
+        return None
+    if not (-ak.MAX_SPEED_MPS <= ovx <= ak.MAX_SPEED_MPS and -ak.MAX_SPEED_MPS <= ovy <= ak.MAX_SPEED_MPS):
+        ovx, ovy = dvx, dvy
+    if not -ak.MAX_SPEED_MPS <= ovz <= ak.MAX_SPEED_MPS:
+        ovz = 0.0
+    found = np.zeros(2)
+    usable = prepared.usable
+    index = ak.conflict(usable, len(usable), float(ovx), float(ovy), float(ovz), float(dvx), float(dvy), config, found)
+    if index < 0:
+        return None
+    row = usable[index]
+    return Conflict(sysid=int(row[ak.O_SYSID]), source=_SOURCES[float(row[ak.O_SOURCE])],
+                    predicted_m=float(found[0]), in_s=float(found[1]),
+                    separation_m=float(row[ak.U_SEPARATION]))  # fmt: skip

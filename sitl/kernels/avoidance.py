@@ -2,10 +2,11 @@
 linear programs with the safety layer (sitl/avoidance/algorithm.py is the shell: configuration, records, the documented
 functions; docs/avoidance.md has the algorithm).
 
-An obstacle is a row of ``OBSTACLE_SIZE`` float64 (relative position, velocity, whether the velocity is known,
-radius, source, age); a prepared obstacle adds the figures ``avoid`` needs whatever the velocities. Python's
-``min``/``max`` are spelled out (``pymath.pmin``/``pmax``: the first argument unless the second is strictly beyond it),
-and every sum is in the Python's order, so the kernels give the bits the Python form gave.
+An obstacle is a row of ``OBSTACLE_SIZE`` float64 (relative position, velocity, whether the velocity is known, radius,
+source, age, and the sysid the relay named it by: 0 for a body only the camera knows); a prepared obstacle adds the
+figures ``avoid`` needs whatever the velocities. Python's ``min``/``max`` are spelled out (``pymath.pmin``/``pmax``: the
+first argument unless the second is strictly beyond it), and every sum is in the Python's order, so the kernels give the
+bits the Python form gave.
 """
 
 from __future__ import annotations
@@ -32,7 +33,8 @@ O_VEL_KNOWN = 6
 O_RADIUS = 7
 O_SOURCE = 8
 O_AGE = 9
-OBSTACLE_SIZE = 10
+O_SYSID = 10  # read by no arithmetic: it names the body a correction was for
+OBSTACLE_SIZE = 11
 SOURCE_CAMERA = 0.0
 SOURCE_RELAY = 1.0
 SOURCE_FUSED = 2.0
@@ -47,10 +49,11 @@ U_GAP = OBSTACLE_SIZE + 2
 U_SPEED = OBSTACLE_SIZE + 3
 USABLE_SIZE = OBSTACLE_SIZE + 4
 # Fusion's inputs: a camera detection (relative position, radius, age) and a relay entry (relative position,
-# velocity, radius, age, and 1 when the body avoids in turn: a swarm neighbour; 0 for traffic).
+# velocity, radius, age, 1 when the body avoids in turn: a swarm neighbour, 0 for traffic; and its sysid).
 CAMERA_SIZE = 5
-RELAY_SIZE = 9
+RELAY_SIZE = 10
 R_COOPERATIVE = 8
+R_SYSID = 9
 
 # Configuration row (sitl.avoidance.algorithm.AvoidanceConfig).
 K_ENABLED = 0
@@ -120,6 +123,7 @@ def _fuse_pair(
     out[O_RADIUS] = pmax(cam[3], rel[O_RADIUS])
     out[O_SOURCE] = SOURCE_FUSED if rel[O_SOURCE] == SOURCE_RELAY else SOURCE_FUSED_TRAFFIC
     out[O_AGE] = cam_age_s
+    out[O_SYSID] = rel[O_SYSID]
 
 
 @kernel("int64(float64[:, ::1], float64[:, ::1], float64[::1], float64[::1], float64[:, ::1])")
@@ -153,6 +157,7 @@ def fuse(
         row[O_RADIUS] = relay[i, 6]
         row[O_SOURCE] = SOURCE_RELAY if relay[i, R_COOPERATIVE] != 0.0 else SOURCE_TRAFFIC
         row[O_AGE] = age
+        row[O_SYSID] = relay[i, R_SYSID]
         n_rel += 1
     cams = np.empty(camera.shape[0], np.int64)
     n_cam = 0
@@ -211,6 +216,7 @@ def fuse(
             row[O_RADIUS] = c[3]
             row[O_SOURCE] = SOURCE_CAMERA
             row[O_AGE] = age
+            row[O_SYSID] = 0.0
         else:
             _fuse_pair(c, relays[ri], age, own_vx, own_vy, own_vz, cfg, row)
         n_out += 1
@@ -263,6 +269,60 @@ def prepare(
         n += 1
     count[0] = n
     return closest
+
+
+@kernel("int64(float64[:, ::1], int64, float64, float64, float64, float64, float64, float64[::1], float64[::1])")
+def conflict(
+    usable: npt.NDArray[np.float64],
+    count: int,
+    own_vx: float,
+    own_vy: float,
+    own_vz: float,
+    dvx: float,
+    dvy: float,
+    cfg: npt.NDArray[np.float64],
+    found: npt.NDArray[np.float64],
+) -> int:
+    """The usable obstacle most in conflict, or -1 with none: an obstacle (within the vertical band, or converging into
+    it) in conflict is closer than its separation now, or comes closer within the horizon if it keeps its velocity
+    (none when unknown) and this drone flies its current or its desired horizontal velocity. The one whose predicted
+    closest approach is smallest (the first on a tie); ``found`` gets that distance (horizontal, centre to centre) and
+    the time until it (0: now)."""
+    tau = pmax(cfg[K_HORIZON], 1e-3)
+    band = cfg[K_BAND]
+    best = -1
+    best_d_sq = math.inf
+    best_t = 0.0
+    for i in range(count):
+        u = usable[i]
+        px, py, pz = u[O_POS], u[O_POS + 1], u[O_POS + 2]
+        known = u[O_VEL_KNOWN] != 0.0
+        bvx = u[O_VEL] if known else 0.0
+        bvy = u[O_VEL + 1] if known else 0.0
+        bvz = u[O_VEL + 2] if known else 0.0
+        if abs(pz) > band:
+            pz_end = pz + (bvz - own_vz) * tau
+            if pz * pz_end > 0.0 and abs(pz_end) > band:
+                continue
+        r_sq = u[U_SEPARATION] * u[U_SEPARATION]
+        if u[U_DIST_SQ] <= r_sq and u[U_DIST_SQ] < best_d_sq:
+            best, best_d_sq, best_t = i, u[U_DIST_SQ], 0.0
+        for k in range(2):
+            vx = own_vx if k == 0 else dvx
+            vy = own_vy if k == 0 else dvy
+            wx, wy = vx - bvx, vy - bvy
+            ww = wx * wx + wy * wy
+            if ww > 0.0:
+                t = (px * wx + py * wy) / ww
+                t = 0.0 if t < 0.0 else (tau if t > tau else t)
+                ex, ey = px - wx * t, py - wy * t
+                e_sq = ex * ex + ey * ey
+                if e_sq < r_sq and e_sq < best_d_sq:
+                    best, best_d_sq, best_t = i, e_sq, t
+    if best >= 0:
+        found[0] = math.sqrt(best_d_sq)
+        found[1] = best_t
+    return best
 
 
 # ORCA linear programs (after RVO2's Agent.cpp). A line is a row (point x, point y, direction x, direction y); the

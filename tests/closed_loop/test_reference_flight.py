@@ -52,8 +52,8 @@ ROOT = Path(__file__).resolve().parents[2]
 # circle with a silent drone, and the dense circle of 24 and the silent one, where every drone has 20-odd others in
 # camera range and relayed, so perception, association, ORCA and the safety layer all shape the flight.
 RECORDED_SWARM_DIGESTS = {
-    "circle": "de4febb7be602088c4cca144479e43b359391572cf182d970d04716eaa5bc24f",
-    "dense": "78cf6e8ae3431c7cdb41ec8d0c09e6854b2bf7b18506acda614dceb3f669e9f5",
+    "circle": "d57c116417bf1cde30885b42c8c8c9f70b2e621c1d4cedb0d79e16797fcff84a",
+    "dense": "9133998df30cd76a1b0578d4a15c2b60cc966391c6863a3b492305c98cc4cb36",
 }
 
 

@@ -538,7 +538,7 @@ def test_compiled_fusion_and_avoidance_give_their_python_forms_bits(seed: int) -
     rng = np.random.default_rng(seed)
     cams = np.array([(*o.rel_pos_ned_m, o.radius_m, o.age_s * 0.1) for o in _crowd(rng, int(rng.integers(1, 25)), 6.0)])
     # (every third relayed body is traffic, which does not avoid in turn)
-    relays = np.array([(*o.rel_pos_ned_m, *o.vel_ned_mps, o.radius_m, o.age_s, 0.0 if k % 3 == 2 else 1.0)
+    relays = np.array([(*o.rel_pos_ned_m, *o.vel_ned_mps, o.radius_m, o.age_s, 0.0 if k % 3 == 2 else 1.0, k + 2)
                        for k, o in enumerate(_crowd(rng, int(rng.integers(1, 25)), 6.0))])  # fmt: skip
     own = rng.uniform(-3.0, 3.0, 3)
     row = config_row(CONFIG)
@@ -557,4 +557,12 @@ def test_compiled_fusion_and_avoidance_give_their_python_forms_bits(seed: int) -
     assert counts[0][0] == counts[1][0] and closest[0] == closest[1]
     assert np.array_equal(usable[0][: counts[0][0]], usable[1][: counts[1][0]])
     assert ak.avoid(usable[0][: args[0]], *args) == ak.avoid.py_func(usable[1][: args[0]], *args)
+    found = [np.zeros(2) for _ in range(2)]
+    picked = (ak.conflict(usable[0][: args[0]], *args[:6], row, found[0]),
+              ak.conflict.py_func(usable[1][: args[0]], *args[:6], row, found[1]))  # fmt: skip
+    assert picked[0] == picked[1] and np.array_equal(found[0], found[1])
+    # AND every relayed body keeps the sysid it was reported with, fused or not; a detection alone has none
+    relayed = np.isin(fused[0][:n_compiled, ak.O_SOURCE], (ak.SOURCE_CAMERA,), invert=True)
+    assert set(fused[0][:n_compiled][relayed, ak.O_SYSID]) <= set(relays[:, ak.R_SYSID])
+    assert not fused[0][:n_compiled][~relayed, ak.O_SYSID].any()
     assert np.isin(fused[0][:n_compiled, ak.O_SOURCE], (ak.SOURCE_FUSED, ak.SOURCE_FUSED_TRAFFIC)).any()
