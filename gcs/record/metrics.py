@@ -68,15 +68,18 @@ Airborne
     ``seq`` and ``time_s`` (a repeated report of the same arrival counted once).
 
 ``steps``
-    One entry per step: ``index, name, kind, start_s, end_s``, and, when drones had a commanded slot during the step:
+    One entry per step: ``index, name, kind, start_s, end_s`` (and ``arrival_s`` for a formation flown through a
+    planned transition), and, when drones had a commanded slot during the step:
     - swarm error e(t) at a grid instant in [start_s, end_s) (at end_s the next step's command is in force): the
       root mean square, over the present drones with a commanded slot, of the 3D distance between position and slot;
       a slot counts only if held from a sample inside the step (not the previous step's command, still held for
       a few milliseconds after the boundary);
     - ``time_to_formation_s``: from the step's start to the earliest instant from which e(t) stays at or below
       ``FORMATION_SETTLED_RMS_M`` until the step's end (crossing interpolated between grid instants; resolution
-      ``1 / GRID_HZ``, counted from the step's first grid instant with a slot); null if e(t) is above it at the
-      step's last grid instant;
+      ``1 / GRID_HZ``, counted from the step's first grid instant with a slot), and not before the step's planned
+      arrival (``arrival_s``: a formation's synchronised transition puts every drone's setpoint on its slot then;
+      before it a drone on its way counts as off its slot though e(t) may already be below the bound); null if e(t)
+      is above it at the step's last grid instant;
     - ``formation_rms_m``: sqrt of the mean of e(t)^2 over the grid instants of the settled part (from the settled
       instant to the step's end), i.e. the RMS over time and drones once in formation; null if never settled;
     - ``max_error_m``: the largest single drone's distance to its slot over the settled part; null if never settled;
@@ -171,6 +174,7 @@ class StepMetrics:
     max_error_m: float | None
     step_rms_m: float | None
     target_alt_m: float | None = None
+    arrival_s: float | None = None  # formation steps: the planned transition's arrival
     takeoff_time_s: float | None = None  # takeoff steps only
     takeoff_time_per_drone_s: dict[int, float | None] = field(default_factory=dict)
     alignment: AlignmentMetrics | None = None  # flock steps only
@@ -340,6 +344,8 @@ def _step_dict(step: StepMetrics) -> dict[str, Any]:
         "max_error_m": _r(step.max_error_m),
         "step_rms_m": _r(step.step_rms_m),
     }
+    if step.arrival_s is not None:
+        out["arrival_s"] = _r(step.arrival_s)
     if step.kind == "takeoff":
         out["target_alt_m"] = _r(step.target_alt_m)
         out["takeoff_time_s"] = _r(step.takeoff_time_s)
@@ -709,9 +715,13 @@ def _step_metrics(
     if times.size:
         step_rms = float(np.sqrt(mean_sq.mean()))
         settled_at = settle_time(times, rms, FORMATION_SETTLED_RMS_M)
-        if settled_at is not None:
+        if settled_at is not None and step.arrival_s is not None:
+            # not before the plan's arrival: until then a drone's setpoint is still on its way to its slot, and one
+            # drone 1.5 m short of it among nine meets the swarm RMS bound
+            settled_at = max(settled_at, step.arrival_s)
+        settled = times >= (settled_at if settled_at is not None else math.inf) - 1e-9
+        if settled_at is not None and settled.any():  # (a step that ended before its plan arrived never settled)
             time_to_formation = max(0.0, settled_at - step.start_s)
-            settled = times >= settled_at - 1e-9
             formation_rms = float(np.sqrt(mean_sq[settled].mean()))
             max_error = float(np.nanmax(errors[:, settled]))
 
@@ -729,6 +739,7 @@ def _step_metrics(
         max_error_m=max_error,
         step_rms_m=step_rms,
         target_alt_m=step.target_alt_m,
+        arrival_s=step.arrival_s,
         takeoff_time_s=_slowest(takeoff_per_drone),
         takeoff_time_per_drone_s=takeoff_per_drone,
         alignment=_alignment(step, grid_s, resampled) if step.kind in ALIGNMENT_STEP_KINDS else None,

@@ -37,6 +37,7 @@ class StepRecord:
     start_s: float
     end_s: float
     target_alt_m: float | None = None  # for takeoff: the altitude climbed to above home (MIS_TAKEOFF_ALT at least)
+    arrival_s: float | None = None  # for a formation: when its planned transition puts every setpoint on its slot
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

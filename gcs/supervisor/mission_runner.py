@@ -252,13 +252,13 @@ class MissionRunner:
         self._step_name = name
         self.session.step_began()
         self.say(f"[{start:6.1f} s] step {index + 1}/{len(self.mission.steps)}: {name}")
-        target_alt_m = None
+        target_alt_m = arrival_s = None
         if isinstance(step, TakeoffStep):
             takeoff = VERBS["takeoff"](self.session, step.alt_m, step.timeout_s)
             target_alt_m = takeoff.target_alt_m  # what the drones climb to: MIS_TAKEOFF_ALT at least
             self._do(takeoff)
         elif isinstance(step, FormationStep):
-            VERBS["formation"](self.session, step.formation)
+            arrival_s = VERBS["formation"](self.session, step.formation).arrival_s
             self._hold(step.hold_s)
         elif isinstance(step, FlockStep):
             self._flock(step)
@@ -290,6 +290,7 @@ class MissionRunner:
                 start_s=start,
                 end_s=self.now(),
                 target_alt_m=target_alt_m,
+                arrival_s=arrival_s,
             )
         )
 

@@ -150,13 +150,16 @@ class FlightSession:
         self.recording.faults.append(FaultRecord(time_s=self.mission_time(), sysid=sysid, fault=what, result=result))
 
     # ---- the report's steps (``swarm up`` and the API: a verb that changes what the swarm flies starts one) ------
-    def begin_step(self, kind: str, name: str | None = None, alt_m: float | None = None) -> None:
-        """The report's current step ends now and the next begins (``name``: the kind, when not given)."""
+    def begin_step(self, kind: str, name: str | None = None, alt_m: float | None = None,
+                   arrival_s: float | None = None) -> None:  # fmt: skip
+        """The report's current step ends now and the next begins (``name``: the kind, when not given; ``alt_m`` a
+        takeoff's target, ``arrival_s`` a formation's planned arrival)."""
         now = self.mission_time()
         self.end_step(now)
         self.step_began()
         index = len(self.recording.steps)
-        self._step = StepRecord(index=index, name=name or kind, kind=kind, start_s=now, end_s=now, target_alt_m=alt_m)
+        self._step = StepRecord(index=index, name=name or kind, kind=kind, start_s=now, end_s=now, target_alt_m=alt_m,
+                                arrival_s=arrival_s)  # fmt: skip
 
     def end_step(self, now_s: float) -> None:
         if self._step is not None:

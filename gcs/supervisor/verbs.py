@@ -76,6 +76,7 @@ class Started:
     finish: Callable[[], None] | None = None
     new_step: bool = False
     target_alt_m: float | None = None  # a takeoff: the altitude the drones climb to (MIS_TAKEOFF_ALT at least)
+    arrival_s: float | None = None  # a formation: when its planned transition puts every setpoint on its slot
 
 
 Wait = Callable[[Callable[[], bool], float], bool]  # (condition, timeout in simulated seconds) -> ended with it
@@ -95,7 +96,9 @@ def begin_report_step(session: FlightSession, name: str, started: Started, *, sh
     (``swarm up``, the API): a goto is a formation step, a plan's start a plan step; ``shape`` names a formation."""
     if started.new_step:
         step = name.removesuffix("_start")
-        session.begin_step("formation" if step == "goto" else step, shape or step, started.target_alt_m)
+        session.begin_step(
+            "formation" if step == "goto" else step, shape or step, started.target_alt_m, started.arrival_s
+        )
 
 
 def take_over(session: FlightSession) -> None:
@@ -123,7 +126,8 @@ def formation(session: FlightSession, spec: Formation) -> Started:
     now = session.mission_time()
     session.streamer.command(spec, now)
     transition = session.streamer.engine.transition
-    return Started(value=transition.arrival_s - now if transition is not None else 0.0, new_step=True)
+    arrival_s = transition.arrival_s if transition is not None else now
+    return Started(value=arrival_s - now, new_step=True, arrival_s=arrival_s)
 
 
 def goto(session: FlightSession, north_m: float, east_m: float, alt_m: float | None = None) -> Started:

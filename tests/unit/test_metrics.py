@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from collections.abc import Callable
@@ -241,6 +242,36 @@ def test_formation_that_drifts_out_again_before_the_step_ends_is_not_settled_unt
 
     assert step.time_to_formation_s == pytest.approx(14.0, abs=0.1)
     assert step.formation_rms_m == pytest.approx(0.1, abs=0.01)
+
+
+def test_a_formation_is_not_settled_before_its_planned_transition_arrives() -> None:
+    # GIVEN nine drones, eight on their slots from the start and one whose setpoint travels 3 m to its slot in a
+    # transition planned to arrive at 6 s (it follows 0.3 m behind): the swarm RMS error is below 0.5 m from 2.4 s on
+    arrival_s = 6.0
+    rec = recording(n_drones=9, steps=[StepRecord(index=0, name="circle", kind="formation", start_s=0.0, end_s=12.0,
+                                                  arrival_s=arrival_s)])  # fmt: skip
+    for sysid in range(1, 9):
+        rec.samples += flight(sysid, 0.0, 12.0, lambda t, k=sysid: (3.0 * k, 0.0, -3.0),
+                              target_at=lambda t, k=sysid: (3.0 * k, 0.0, -3.0))  # fmt: skip
+
+    def late(t: float) -> Vec3:
+        return (max(0.0, 3.0 * (1.0 - t / arrival_s) - 0.3 * (t < arrival_s)) + 0.0, 40.0, -3.0)
+
+    rec.samples += flight(9, 0.0, 12.0, late, target_at=lambda t: (0.0, 40.0, -3.0))
+    # WHEN the metrics are computed
+    step = compute_metrics(rec).steps[0]
+    # THEN the formation settles when the plan arrives, and its largest error once settled is the drone's on its slot
+    assert step.time_to_formation_s == pytest.approx(arrival_s, abs=0.01)
+    assert step.max_error_m == pytest.approx(0.0, abs=1e-9)
+    assert compute_metrics(rec).to_dict()["steps"][0]["arrival_s"] == arrival_s
+    # AND without the plan's arrival the RMS bound alone would have called it settled while the drone was 1.5 m away
+    rec.steps[0] = dataclasses.replace(rec.steps[0], arrival_s=None)
+    early = compute_metrics(rec).steps[0]
+    assert early.time_to_formation_s is not None and early.time_to_formation_s < 2.5
+    assert early.max_error_m is not None and early.max_error_m > 1.0
+    # AND a step that ends before its plan arrives never settled
+    rec.steps[0] = dataclasses.replace(rec.steps[0], arrival_s=13.0)
+    assert compute_metrics(rec).steps[0].time_to_formation_s is None
 
 
 def test_a_formation_never_reached_has_null_settled_metrics() -> None:
