@@ -50,9 +50,10 @@ Airborne
     violated, in time order: its ``name``, ``kind``, ``time_s`` (mission time), the ``sysids`` involved and a
     ``detail`` saying what was seen.
 
-``collisions``, ``collision_events``, ``avoidance_events``, ``avoidance_closest_approach_m``
+``collisions``, ``collision_events``, ``avoidance_events``, ``avoidance_starts``, ``avoidance_closest_approach_m``
     The number of the recording's events whose text starts with "Collision" (listed in ``collision_events``); the
-    number of onboard avoidance episodes (events starting "Avoidance:", one when a drone starts correcting), and the
+    number of onboard avoidance episodes (events starting "Avoidance:", one when a drone starts correcting, each
+    saying why: the body, its predicted closest approach and when; listed in ``avoidance_starts``), and the
     smallest "closest approach" any drone reported at the end of an episode ("Avoidance ended: closest approach
     1.34 m"; the drone's own perception, centre to centre; null when no episode ended).
 
@@ -214,6 +215,7 @@ class FlightMetrics:
     failsafes: tuple[EventRecord, ...] = ()
     policy_events: tuple[EventRecord, ...] = ()
     requested_speed: float | None = None  # paced flights only
+    avoidance_starts: tuple[EventRecord, ...] = ()  # each episode's first text, in time order
     signing_key_id: str | None = None  # MAVLink signing: the key's id (not the key) when on, None when off
     neighbours: str = "relay"  # how neighbours' positions travelled: relay, mesh (with its range), both, none
     link_counters: dict[str, dict[str, float]] = field(default_factory=dict)  # the link model's counts by channel
@@ -240,6 +242,9 @@ class FlightMetrics:
                 {"time_s": _r(e.time_s), "sysid": e.sysid, "text": e.text} for e in self.collision_events
             ],
             "avoidance_events": self.avoidance_events,
+            "avoidance_starts": [
+                {"time_s": _r(e.time_s), "sysid": e.sysid, "text": e.text} for e in self.avoidance_starts
+            ],
             "avoidance_closest_approach_m": _r(self.avoidance_closest_approach_m),
             "takeoff_time_s": _r(self.takeoff_time_s),
             "takeoff_time_per_drone_s": {str(k): _r(v) for k, v in self.takeoff_time_per_drone_s.items()},
@@ -789,6 +794,7 @@ def compute_metrics(recording: FlightRecording) -> FlightMetrics:
     first_takeoff = next((s for s in steps if s.kind == "takeoff" and s.target_alt_m is not None), None)
 
     collision_events = tuple(e for e in recording.events if e.text.startswith(COLLISION_PREFIX))
+    avoidance_starts = tuple(e for e in recording.events if e.text.startswith(AVOIDANCE_PREFIX))
     attached = _attached_metrics(recording, grid, sysids, resampled, steps, contacts)
     return FlightMetrics(
         mission_name=recording.mission_name,
@@ -801,7 +807,8 @@ def compute_metrics(recording: FlightRecording) -> FlightMetrics:
         min_separation_pair=closest.pair if closest else None,
         collisions=len(collision_events),
         collision_events=collision_events,
-        avoidance_events=sum(e.text.startswith(AVOIDANCE_PREFIX) for e in recording.events),
+        avoidance_events=len(avoidance_starts),
+        avoidance_starts=avoidance_starts,
         avoidance_closest_approach_m=min(
             (float(m.group(1)) for e in recording.events if (m := AVOIDANCE_CLOSEST.match(e.text))), default=None
         ),

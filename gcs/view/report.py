@@ -45,6 +45,7 @@ SUMMARY_FILE = "summary.txt"
 
 SEPARATION_GOAL_M = 1.0  # drawn on the separation plot: the swarm's minimum-separation requirement
 MAX_LEGEND_DRONES = 12
+SUMMARY_AVOIDANCE_STARTS = 20  # avoidance episodes listed in summary.txt; metrics.json lists all
 _DPI = 110
 
 Colour = tuple[float, float, float, float]
@@ -369,8 +370,8 @@ def summary_text(metrics: FlightMetrics) -> str:
         lines += [f"  per drone: {per_drone}", ""]
 
     lines.append(
-        f"steps (in formation: swarm RMS error <= {FORMATION_SETTLED_RMS_M:g} m until the step ends; "
-        "rms/max error over that settled part):"
+        f"steps (in formation: swarm RMS error <= {FORMATION_SETTLED_RMS_M:g} m until the step ends, from the plan's "
+        "arrival on; rms/max error over that settled part):"
     )
     header = (
         f"  {'#':>2}  {'name':<14} {'kind':<10} {'start':>8} {'end':>8} "
@@ -418,6 +419,11 @@ def summary_text(metrics: FlightMetrics) -> str:
         f"avoidance events: {metrics.avoidance_events}"
         + (f" (closest approach seen by a drone: {closest:.2f} m)" if closest is not None else "")
     )
+    for event in metrics.avoidance_starts[:SUMMARY_AVOIDANCE_STARTS]:  # each says why: whom, how close, when
+        lines.append(f"  {event.time_s:7.1f} s  drone {event.sysid}: {event.text}")
+    if len(metrics.avoidance_starts) > SUMMARY_AVOIDANCE_STARTS:
+        lines.append(f"  ... and {len(metrics.avoidance_starts) - SUMMARY_AVOIDANCE_STARTS} more (metrics.json: "
+                     "avoidance_starts)")  # fmt: skip
     flown = "  ".join(f"{k}: {v:.1f} m" for k, v in metrics.distance_flown_m.items()) or "-"
     lines += [f"distance flown: {flown}", ""]
     if metrics.items_reached:

@@ -413,6 +413,9 @@ def test_avoidance_episodes_are_counted_once_and_the_closest_reported_approach_k
     assert metrics.avoidance_events == 2
     assert metrics.avoidance_closest_approach_m == 1.38
     assert metrics.to_dict()["avoidance_closest_approach_m"] == 1.38
+    # AND each episode's first text, which says why it started, is listed in metrics.json and in the summary
+    assert [e["sysid"] for e in metrics.to_dict()["avoidance_starts"]] == [1, 2]
+    assert "      4.1 s  drone 2: Avoidance: correcting for 2 neighbour(s)" in summary_text(metrics)
 
 
 def test_distance_flown_is_the_path_while_armed_without_jitter_on_the_ground() -> None:
