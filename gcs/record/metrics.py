@@ -458,7 +458,9 @@ def time_grid(start_s: float, end_s: float, rate_hz: float = GRID_HZ) -> FloatAr
 
 
 @dataclass(frozen=True, slots=True)
-class _Closest:
+class ClosestPair:
+    """Two drones at their closest: from the telemetry, or a contact one of them reported (``pair`` in order)."""
+
     distance_m: float
     time_s: float
     pair: tuple[int, int]
@@ -466,26 +468,26 @@ class _Closest:
 
 def _separation(
     grid_s: FloatArray, sysids: Sequence[int], resampled: Sequence[Resampled]
-) -> tuple[FloatArray, _Closest | None]:
+) -> tuple[FloatArray, ClosestPair | None]:
     n_t = grid_s.size
     pos = _airborne_positions(grid_s, resampled)
     series = np.full(n_t, np.inf)
-    best: _Closest | None = None
+    best: ClosestPair | None = None
     for i in range(len(sysids) - 1):
         rel = pos[:, i : i + 1, :] - pos[:, i + 1 :, :]  # (T, others, 3), NaN unless both airborne
         dist = np.linalg.norm(rel, axis=2)
         series = np.fmin(series, np.where(np.isnan(dist), np.inf, dist).min(axis=1))
         found = _closest_approach(grid_s, rel)
         if found is not None and (best is None or found[0] < best.distance_m):
-            best = _Closest(distance_m=found[0], time_s=found[1], pair=(sysids[i], sysids[i + 1 + found[2]]))
+            best = ClosestPair(distance_m=found[0], time_s=found[1], pair=(sysids[i], sysids[i + 1 + found[2]]))
     series[np.isinf(series)] = np.nan
     return series, best
 
 
-def drone_contacts(events: Iterable[EventRecord], contact_distance_m: float) -> list[_Closest]:
+def drone_contacts(events: Iterable[EventRecord], contact_distance_m: float) -> list[ClosestPair]:
     """Every contact between two drones the recording's events report, as a separation (module docstring): the
     distance the text gives, else the contact distance, at the instant the report arrived, each pair once."""
-    out: dict[tuple[int, int], _Closest] = {}
+    out: dict[tuple[int, int], ClosestPair] = {}
     for event in events:
         contact = parse_contact(event.text)
         if contact is None or contact.drone is None or event.sysid is None or contact.drone == event.sysid:
@@ -493,11 +495,18 @@ def drone_contacts(events: Iterable[EventRecord], contact_distance_m: float) -> 
         pair = (min(event.sysid, contact.drone), max(event.sysid, contact.drone))
         distance = contact.distance_m if contact.distance_m is not None else contact_distance_m
         if pair not in out or distance < out[pair].distance_m:
-            out[pair] = _Closest(distance_m=distance, time_s=event.time_s, pair=pair)
+            out[pair] = ClosestPair(distance_m=distance, time_s=event.time_s, pair=pair)
     return sorted(out.values(), key=lambda c: c.time_s)
 
 
-def _closer(found: _Closest | None, contacts: Iterable[_Closest]) -> _Closest | None:
+def swarm_contacts(recording: FlightRecording) -> list[ClosestPair]:
+    """``drone_contacts`` between two simulated drones (those in ``min_separation_m``; a contact with an attached
+    vehicle counts in its own ``attached`` entry)."""
+    contacts = drone_contacts(recording.events, recording.collision_radius_m)
+    return [c for c in contacts if not set(c.pair) & set(recording.attached)]
+
+
+def _closer(found: ClosestPair | None, contacts: Iterable[ClosestPair]) -> ClosestPair | None:
     """The smallest of a telemetry minimum and the contacts (the earlier on a tie)."""
     for contact in contacts:
         if found is None or contact.distance_m < found.distance_m:
@@ -554,7 +563,7 @@ def _attached_metrics(
     sysids: Sequence[int],
     resampled: Sequence[Resampled],
     steps: Sequence[StepMetrics],
-    contacts: Sequence[_Closest],
+    contacts: Sequence[ClosestPair],
 ) -> dict[int, AttachedMetrics]:
     """Each attached vehicle's closest approach to the simulated drones (it counts as there whenever it reported,
     flying or not: a real vehicle standing on the field is an obstacle too; a drone's contact with it counts as the
@@ -571,10 +580,10 @@ def _attached_metrics(
             there = resampled_track.pos_ned_m  # (T, 3), NaN where it did not report
             approach = _closest_approach(grid_s, there[:, None, :] - drones)
             if approach is not None:
-                found = _Closest(distance_m=approach[0], time_s=approach[1], pair=(sysid, sysids[approach[2]]))
+                found = ClosestPair(distance_m=approach[0], time_s=approach[1], pair=(sysid, sysids[approach[2]]))
             slot_errors = _settled_slot_errors(resampled_track, grid_s, steps)
         touched = [
-            _Closest(distance_m=c.distance_m, time_s=c.time_s, pair=(sysid, c.pair[1 - c.pair.index(sysid)]))
+            ClosestPair(distance_m=c.distance_m, time_s=c.time_s, pair=(sysid, c.pair[1 - c.pair.index(sysid)]))
             for c in contacts
             if sysid in c.pair and not set(c.pair) & (set(recording.attached) - {sysid})
         ]
@@ -788,7 +797,7 @@ def compute_metrics(recording: FlightRecording) -> FlightMetrics:
     resampled = [_resample(track, grid) for track in tracks.values()]
     series, closest = _separation(grid, sysids, resampled)
     contacts = drone_contacts(recording.events, recording.collision_radius_m)
-    closest = _closer(closest, (c for c in contacts if not set(c.pair) & set(recording.attached)))
+    closest = _closer(closest, swarm_contacts(recording))
 
     steps = tuple(_step_metrics(step, grid, resampled, tracks) for step in recording.steps)
     first_takeoff = next((s for s in steps if s.kind == "takeoff" and s.target_alt_m is not None), None)

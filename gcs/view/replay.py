@@ -54,9 +54,9 @@ from gcs.record.metrics import (
     COLLISION_PREFIX,
     GRID_HZ,
     Resampled,
-    drone_contacts,
     flying_samples,
     resample_samples,
+    swarm_contacts,
     time_grid,
 )
 from gcs.record.recording import DroneSample, FlightRecording
@@ -188,8 +188,7 @@ def _contacts(recording: FlightRecording) -> list[dict[str, Any]]:
     """The drones' contacts as separations, those the metrics count in ``min_separation_m`` (module docstring)."""
     return [
         {"time_s": round(c.time_s, DECIMALS), "pair": list(c.pair), "distance_m": round(c.distance_m, DECIMALS)}
-        for c in drone_contacts(recording.events, recording.collision_radius_m)
-        if not set(c.pair) & set(recording.attached)
+        for c in swarm_contacts(recording)
     ]
 
 

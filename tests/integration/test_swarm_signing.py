@@ -47,7 +47,7 @@ action = "formation"
 shape = "line"
 spacing_m = 3.0
 alt_m = 3.0
-hold_s = 3.0
+hold_s = 5.0
 
 [[steps]]
 action = "land"

@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -171,8 +172,12 @@ def test_a_run_gives_the_same_metrics_on_other_instances(
 
 
 def by_drone_index(metrics: dict[str, Any]) -> Any:
-    """metrics.json with each sysid replaced by the drone's place in the swarm (0, 1, ...)."""
+    """metrics.json with each sysid replaced by the drone's place in the swarm (0, 1, ...), in the drones' texts too
+    ("Avoidance: drone 26 predicted ...")."""
     place = {sysid: k for k, sysid in enumerate(metrics["sysids"])}
+
+    def named(text: str) -> str:
+        return re.sub(r"drone (\d+)", lambda m: f"drone #{place.get(int(m.group(1)), m.group(1))}", text)
 
     def walk(value: Any, key: str = "") -> Any:
         if isinstance(value, dict):
@@ -182,6 +187,8 @@ def by_drone_index(metrics: dict[str, Any]) -> Any:
             return [walk(v, key) for v in value]
         if key in ("sysids", "min_separation_pair", "sysid") and isinstance(value, int):
             return place.get(value, value)
+        if key == "text" and isinstance(value, str):
+            return named(value)
         return value
 
     return walk(metrics)
