@@ -55,6 +55,7 @@ from gcs.invariants.monitor import EXIT_VIOLATED, Violation
 from gcs.mavlink.signing import SigningKeyError, load_key
 from gcs.mavlink.transport import GCS_SYSID
 from gcs.missions.mission_file import (
+    TAKEOFF_ALT_M,
     MissionFileError,
     MissionSpec,
     build_flock,
@@ -503,7 +504,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_falsify_parser(sub)
     sub.add_parser("status", help="table of every drone")
     takeoff = sub.add_parser("takeoff", help="arm and take off every drone")
-    takeoff.add_argument("--alt", type=_positive, default=3.0, help="altitude above home in metres (default 3)")
+    takeoff.add_argument("--alt", type=_positive, default=TAKEOFF_ALT_M,
+                         help=f"altitude above home in metres (default {TAKEOFF_ALT_M:g})")  # fmt: skip
     formation = sub.add_parser("formation", help="fly a formation (OFFBOARD): grid, circle, line or v")
     formation.add_argument("shape", choices=("grid", "circle", "line", "v"))
     formation.add_argument("--alt", type=_positive, default=3.0, help="altitude in metres (default 3)")

@@ -13,12 +13,13 @@ from contextlib import contextmanager
 from types import TracebackType
 from typing import Any, TypeVar
 
-from gcs.api.engine import LAND_TIMEOUT_S, Controller, Engine, Readings
-from gcs.api.session import TAKEOFF_TIMEOUT_S, _default_simulation
+from gcs.api.engine import Controller, Engine, Readings
+from gcs.api.session import _default_simulation
 from gcs.api.types import DroneState, Event, FlightResult, LaunchOptions
 from gcs.fleet.harness import Simulation
 from gcs.flight.behaviours import FlockSpec, FollowSpec
 from gcs.flight.formation import Formation
+from gcs.missions.mission_file import LAND_TIMEOUT_S, RTL_TIMEOUT_S, TAKEOFF_ALT_M, TAKEOFF_TIMEOUT_S
 
 T = TypeVar("T")
 
@@ -48,7 +49,7 @@ class BlockingSession(Readings):
     def _run(self, work: Callable[[], T]) -> T:
         return self._engine.submit(work).result()
 
-    def takeoff(self, alt_m: float = 3.0, timeout_s: float = TAKEOFF_TIMEOUT_S) -> None:
+    def takeoff(self, alt_m: float = TAKEOFF_ALT_M, timeout_s: float = TAKEOFF_TIMEOUT_S) -> None:
         self._run(lambda: self._engine.do_takeoff(alt_m, timeout_s))
 
     def formation(self, formation: Formation) -> float:
@@ -81,7 +82,7 @@ class BlockingSession(Readings):
     def land(self, timeout_s: float = LAND_TIMEOUT_S) -> None:
         self._run(lambda: self._engine.do_land(return_to_launch=False, timeout_s=timeout_s))
 
-    def return_to_launch(self, timeout_s: float = LAND_TIMEOUT_S) -> None:
+    def return_to_launch(self, timeout_s: float = RTL_TIMEOUT_S) -> None:
         self._run(lambda: self._engine.do_land(return_to_launch=True, timeout_s=timeout_s))
 
     def set_param(self, name: str, value: float, sysids: Iterable[int] | None = None) -> None:

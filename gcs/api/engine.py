@@ -50,7 +50,6 @@ log = logging.getLogger(__name__)
 T = TypeVar("T")
 Controller = Callable[[float, Mapping[int, DroneState]], Mapping[int, "Setpoint | Vec3"]]
 _IDLE_PUMP_S = 0.02  # paced: the idle loop's wait for traffic, and so the longest a posted call waits to start
-LAND_TIMEOUT_S = 120.0  # the default wait for every drone to land and disarm
 _NOT_IN_AIR = (mavlink.MAV_LANDED_STATE_UNDEFINED, mavlink.MAV_LANDED_STATE_ON_GROUND)
 _SHAPES: dict[type, str] = {GridSpec: "grid", CircleSpec: "circle", LineSpec: "line", VSpec: "v"}
 

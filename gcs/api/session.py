@@ -16,14 +16,14 @@ from contextlib import asynccontextmanager
 from types import TracebackType
 from typing import Any, TypeVar
 
-from gcs.api.engine import LAND_TIMEOUT_S, Controller, Engine, Readings
+from gcs.api.engine import Controller, Engine, Readings
 from gcs.api.types import DroneState, Event, FlightResult, LaunchOptions
 from gcs.fleet.harness import Simulation
 from gcs.flight.behaviours import FlockSpec, FollowSpec
 from gcs.flight.formation import Formation
+from gcs.missions.mission_file import LAND_TIMEOUT_S, RTL_TIMEOUT_S, TAKEOFF_ALT_M, TAKEOFF_TIMEOUT_S
 
 T = TypeVar("T")
-TAKEOFF_TIMEOUT_S = 60.0  # simulated seconds for every drone to hold its takeoff altitude
 
 
 class Session(Readings):
@@ -74,7 +74,7 @@ class Session(Readings):
             self._loop.call_soon_threadsafe(queue.put_nowait, event)
 
     # ---- flying --------------------------------------------------------------------------------------------------
-    async def takeoff(self, alt_m: float = 3.0, timeout_s: float = TAKEOFF_TIMEOUT_S) -> None:
+    async def takeoff(self, alt_m: float = TAKEOFF_ALT_M, timeout_s: float = TAKEOFF_TIMEOUT_S) -> None:
         """Arm every drone (after its pre-arm checks) and take it off to ``alt_m`` above its home; returns once every
         drone has held that altitude for a second (SwarmError if not within ``timeout_s`` simulated seconds)."""
         await self._run(lambda: self._engine.do_takeoff(alt_m, timeout_s))
@@ -133,7 +133,7 @@ class Session(Readings):
         """Land every flying drone where it is (clear of any wreck) and wait until all have disarmed."""
         await self._run(lambda: self._engine.do_land(return_to_launch=False, timeout_s=timeout_s))
 
-    async def return_to_launch(self, timeout_s: float = LAND_TIMEOUT_S) -> None:
+    async def return_to_launch(self, timeout_s: float = RTL_TIMEOUT_S) -> None:
         """Every flying drone returns to its launch point and lands (PX4 Return); waits until all have disarmed."""
         await self._run(lambda: self._engine.do_land(return_to_launch=True, timeout_s=timeout_s))
 

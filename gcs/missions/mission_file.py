@@ -63,10 +63,12 @@ class MissionFileError(ValueError):
     """One line: file, line, field and the problem."""
 
 
-# What a step waits for by default, in simulated seconds; the swarm's verbs wait as long (gcs/supervisor/verbs.py).
+# What a step waits for by default, in simulated seconds; the swarm's verbs wait as long (gcs/supervisor/verbs.py),
+# whichever front-end asks (the control channel, the Python API): one set of defaults, the documented ones.
 TAKEOFF_TIMEOUT_S: Final = 30.0  # every drone holds its takeoff altitude
 LAND_TIMEOUT_S: Final = 60.0  # every drone landed and disarmed
 RTL_TIMEOUT_S: Final = 120.0  # every drone back, landed and disarmed
+TAKEOFF_ALT_M: Final = 3.0  # what a takeoff climbs to when it is not told (a mission's takeoff step must say)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -21,7 +21,13 @@ from gcs.fleet.swarm import Swarm, SwarmError
 from gcs.fleet.telemetry import DroneView
 from gcs.flight.formation import Formation
 from gcs.mavlink.mission_transfer import MISSION_STATE_NAMES
-from gcs.missions.mission_file import build_flock, build_follow, build_follow_attached, build_formation
+from gcs.missions.mission_file import (
+    TAKEOFF_ALT_M,
+    build_flock,
+    build_follow,
+    build_follow_attached,
+    build_formation,
+)
 from gcs.missions.plan_flight import PlanUsageError, copy_offsets, parse_drones, parse_offsets, spawn_offsets
 from gcs.missions.qgc_plan import PlanFileError, load_plan, plan_text
 from gcs.supervisor.session import FlightSession
@@ -49,7 +55,7 @@ class Station:
             "ping": lambda _r: {"ok": True},
             "status": lambda _r: {"ok": True, "drones": self.status_rows()},
             "down": self._down,
-            "takeoff": lambda r: self._verb(r, "takeoff", float(r.get("alt", 3.0))),
+            "takeoff": lambda r: self._verb(r, "takeoff", float(r.get("alt", TAKEOFF_ALT_M))),
             "formation": lambda r: self._verb(r, "formation", self._formation(r)),
             "flock": lambda r: self._verb(r, "flock", build_flock(dict(r.get("fields", {})))),
             "follow": lambda r: self._verb(r, "follow", build_follow(dict(r.get("fields", {})))),

@@ -8,6 +8,7 @@ that flies is carried out through a verb. A new front-end command written beside
 from __future__ import annotations
 
 import ast
+import inspect
 import typing
 from pathlib import Path
 
@@ -99,3 +100,28 @@ def test_the_control_channel_answers_only_with_verbs_and_the_session_s_own_comma
     assert commands - set(VERBS) == {"ping", "status", "down"}
     flown = {"takeoff", "formation", "flock", "follow", "goto", "land", "rtl", "behaviour", "fault", "plan_start"}
     assert flown <= commands
+
+
+def test_every_front_end_takes_off_and_lands_with_the_mission_file_s_defaults() -> None:
+    """One set of defaults (gcs/missions/mission_file.py): a takeoff climbs 3 m and waits 30 s, a landing 60 s, a
+    return to launch 120 s, whether a mission file, ``swarm takeoff``, the control channel or the API asks."""
+    from gcs.api.blocking import BlockingSession
+    from gcs.api.session import Session
+    from gcs.cli import build_parser
+
+    defaults = {"takeoff": {"alt_m": mission_file.TAKEOFF_ALT_M, "timeout_s": mission_file.TAKEOFF_TIMEOUT_S},
+                "land": {"timeout_s": mission_file.LAND_TIMEOUT_S},
+                "return_to_launch": {"timeout_s": mission_file.RTL_TIMEOUT_S}}  # fmt: skip
+    documented = (mission_file.TAKEOFF_ALT_M, mission_file.TAKEOFF_TIMEOUT_S, mission_file.LAND_TIMEOUT_S)
+    assert documented == (3.0, 30.0, 60.0)
+    for api in (Session, BlockingSession):
+        for method, expected in defaults.items():
+            signature = inspect.signature(getattr(api, method))
+            got = {name: signature.parameters[name].default for name in expected}
+            assert got == expected, (api.__name__, method, got)
+    verbs = {name: inspect.signature(VERBS[name]).parameters for name in ("takeoff", "land", "rtl")}
+    assert verbs["takeoff"]["timeout_s"].default == mission_file.TAKEOFF_TIMEOUT_S
+    assert verbs["land"]["timeout_s"].default == mission_file.LAND_TIMEOUT_S
+    assert verbs["rtl"]["timeout_s"].default == mission_file.RTL_TIMEOUT_S
+    assert build_parser().parse_args(["takeoff"]).alt == mission_file.TAKEOFF_ALT_M
+    assert "TAKEOFF_ALT_M" in ast.unparse(_functions("gcs/supervisor/station.py")["__init__"])
