@@ -348,15 +348,12 @@ def conflict_prepared(
 ) -> Conflict | None:
     """The prepared obstacle most in conflict (``sitl.kernels.avoidance.conflict``): closer than its separation now,
     or predicted to come closer within the horizon at the current or the desired velocity, the obstacle keeping its
-    own; None when no obstacle is. Inputs beyond physical sense are treated as ``avoid`` treats them."""
+    own; None when no obstacle is, or with a desired velocity that is not finite (nothing to predict along). Inputs
+    beyond physical sense are treated as ``avoid`` treats them."""
     ovx, ovy, ovz = own_vel_ned_mps
     dvx, dvy, _ = desired_vel_ned_mps
     if not (math.isfinite(dvx) and math.isfinite(dvy)):
         return None
-    if not (-ak.MAX_SPEED_MPS <= ovx <= ak.MAX_SPEED_MPS and -ak.MAX_SPEED_MPS <= ovy <= ak.MAX_SPEED_MPS):
-        ovx, ovy = dvx, dvy
-    if not -ak.MAX_SPEED_MPS <= ovz <= ak.MAX_SPEED_MPS:
-        ovz = 0.0
     found = np.zeros(2)
     usable = prepared.usable
     index = ak.conflict(usable, len(usable), float(ovx), float(ovy), float(ovz), float(dvx), float(dvy), config, found)

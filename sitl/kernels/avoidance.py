@@ -271,6 +271,31 @@ def prepare(
     return closest
 
 
+@kernel("boolean(float64[::1], float64, float64, float64)")
+def _apart_vertically(u: npt.NDArray[np.float64], own_vz: float, tau: float, band: float) -> bool:
+    """A usable obstacle outside the vertical band that does not converge into it within the horizon."""
+    pz = u[O_POS + 2]
+    if abs(pz) <= band:
+        return False
+    bvz = u[O_VEL + 2] if u[O_VEL_KNOWN] != 0.0 else 0.0
+    pz_end = pz + (bvz - own_vz) * tau
+    return pz * pz_end > 0.0 and abs(pz_end) > band
+
+
+@kernel("UniTuple(float64, 3)(float64, float64, float64, float64, float64, float64)")
+def _own_velocity(
+    own_vx: float, own_vy: float, own_vz: float, dvx: float, dvy: float, dvz: float
+) -> tuple[float, float, float]:
+    """This drone's velocity as avoidance takes it: beyond physical sense, the desired one horizontally, and
+    vertically the desired one (or 0 if that too is beyond sense)."""
+    ovx, ovy, ovz = own_vx, own_vy, own_vz
+    if not (-MAX_SPEED_MPS <= ovx <= MAX_SPEED_MPS and -MAX_SPEED_MPS <= ovy <= MAX_SPEED_MPS):
+        ovx, ovy = dvx, dvy
+    if not -MAX_SPEED_MPS <= ovz <= MAX_SPEED_MPS:
+        ovz = dvz if -MAX_SPEED_MPS <= dvz <= MAX_SPEED_MPS else 0.0
+    return ovx, ovy, ovz
+
+
 @kernel("int64(float64[:, ::1], int64, float64, float64, float64, float64, float64, float64[::1], float64[::1])")
 def conflict(
     usable: npt.NDArray[np.float64],
@@ -287,7 +312,8 @@ def conflict(
     it) in conflict is closer than its separation now, or comes closer within the horizon if it keeps its velocity
     (none when unknown) and this drone flies its current or its desired horizontal velocity. The one whose predicted
     closest approach is smallest (the first on a tie); ``found`` gets that distance (horizontal, centre to centre) and
-    the time until it (0: now)."""
+    the time until it (0: now). The own velocity is taken as ``avoid`` takes it (the desired one beyond sense)."""
+    own_vx, own_vy, own_vz = _own_velocity(own_vx, own_vy, own_vz, dvx, dvy, 0.0)
     tau = pmax(cfg[K_HORIZON], 1e-3)
     band = cfg[K_BAND]
     best = -1
@@ -295,15 +321,12 @@ def conflict(
     best_t = 0.0
     for i in range(count):
         u = usable[i]
-        px, py, pz = u[O_POS], u[O_POS + 1], u[O_POS + 2]
+        if _apart_vertically(u, own_vz, tau, band):
+            continue
+        px, py = u[O_POS], u[O_POS + 1]
         known = u[O_VEL_KNOWN] != 0.0
         bvx = u[O_VEL] if known else 0.0
         bvy = u[O_VEL + 1] if known else 0.0
-        bvz = u[O_VEL + 2] if known else 0.0
-        if abs(pz) > band:
-            pz_end = pz + (bvz - own_vz) * tau
-            if pz * pz_end > 0.0 and abs(pz_end) > band:
-                continue
         r_sq = u[U_SEPARATION] * u[U_SEPARATION]
         if u[U_DIST_SQ] <= r_sq and u[U_DIST_SQ] < best_d_sq:
             best, best_d_sq, best_t = i, u[U_DIST_SQ], 0.0
@@ -441,12 +464,8 @@ def _in_reach(
     n = 0
     for i in range(count):
         u = usable[i]
-        pz = u[O_POS + 2]
-        bvz = u[O_VEL + 2] if u[O_VEL_KNOWN] != 0.0 else 0.0
-        if abs(pz) > band:
-            pz_end = pz + (bvz - own_vz) * tau
-            if pz * pz_end > 0.0 and abs(pz_end) > band:
-                continue
+        if _apart_vertically(u, own_vz, tau, band):
+            continue
         if u[U_GAP] > tau * (reach_speed + u[U_SPEED]):
             continue  # out of reach within the horizon whatever either does
         chosen[n] = i
@@ -534,11 +553,7 @@ def avoid(
     if des_speed > vmax:
         dvx, dvy = dvx / des_speed * vmax, dvy / des_speed * vmax
         des_speed = vmax
-    ovx, ovy, ovz = own_vx, own_vy, own_vz
-    if not (-MAX_SPEED_MPS <= ovx <= MAX_SPEED_MPS and -MAX_SPEED_MPS <= ovy <= MAX_SPEED_MPS):
-        ovx, ovy = dvx, dvy
-    if not -MAX_SPEED_MPS <= ovz <= MAX_SPEED_MPS:
-        ovz = dvz if -MAX_SPEED_MPS <= dvz <= MAX_SPEED_MPS else 0.0
+    ovx, ovy, ovz = _own_velocity(own_vx, own_vy, own_vz, dvx, dvy, dvz)
 
     tau = pmax(cfg[K_HORIZON], 1e-3)
     inv_tau = 1.0 / tau
