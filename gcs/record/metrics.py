@@ -122,7 +122,7 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Iterable, Sequence
+from collections.abc import Collection, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -896,10 +896,12 @@ class LiveMetrics:
             if sysid != sample.sysid:
                 self._closest(math.hypot(*(here - other)))
 
-    def observe_event(self, event: EventRecord, contact_distance_m: float) -> None:
-        """A drone's event: a contact with another drone is a separation, as in the report (``drone_contacts``)."""
+    def observe_event(self, event: EventRecord, contact_distance_m: float, attached: Collection[int] = ()) -> None:
+        """A drone's event: a contact between two simulated drones is a separation, as in the report
+        (``swarm_contacts``; one with an ``attached`` vehicle is that vehicle's, as its samples are not fed here)."""
         for contact in drone_contacts((event,), contact_distance_m):
-            self._closest(contact.distance_m)
+            if not set(contact.pair) & set(attached):
+                self._closest(contact.distance_m)
 
     def _closest(self, distance_m: float) -> None:
         if self._min_separation_m is None or distance_m < self._min_separation_m:

@@ -132,7 +132,7 @@ class FlightRecorder:
                 return  # the other drone's report of a collision already recorded
             event = EventRecord(time_s=now, sysid=sysid, text=whole)
             self.recording.events.append(event)
-            self.live.observe_event(event, self.recording.collision_radius_m)
+            self.live.observe_event(event, self.recording.collision_radius_m, self.swarm.attached)
             if self.say is not None and msg.severity <= mavlink.MAV_SEVERITY_WARNING:
                 self.say(f"  sysid {sysid}: {whole}")
 

@@ -113,6 +113,9 @@ def test_a_contact_the_telemetry_never_sampled_is_the_minimum_separation_everywh
         live.observe(s)
     assert live.status().min_separation_m == pytest.approx(1.08, abs=0.05)
     for event in rec.events:
+        live.observe_event(event, rec.collision_radius_m, attached=(2,))  # drone 2 attached: not the swarm's figure
+    assert live.status().min_separation_m == pytest.approx(1.08, abs=0.05)
+    for event in rec.events:
         live.observe_event(event, rec.collision_radius_m)
     assert live.status().min_separation_m == 0.61
 
