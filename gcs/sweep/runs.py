@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any, Final
 
 from gcs.invariants.monitor import EXIT_VIOLATED
-from gcs.sweep.child import parent_named
+from gcs.sweep.child import RUN_MODULE, parent_named
 from gcs.sweep.instance_locks import POLL_S
 from gcs.sweep.plan import Run, SweepPlan, fly_command
 from gcs.sweep.stats import run_metrics
@@ -110,7 +110,7 @@ def fly(
     with (run_dir / LOG_FILE).open("w") as log:
         # The run holds its instances' locks itself (pass_fds), so they stay taken while it flies even if whoever
         # started it is gone; and it ends with its parent (gcs/sweep/child.py), which names itself to it.
-        proc = subprocess.Popen([sys.executable, "-m", "gcs.sweep.child", *args], stdout=log, stderr=subprocess.STDOUT,
+        proc = subprocess.Popen([sys.executable, "-m", RUN_MODULE, *args], stdout=log, stderr=subprocess.STDOUT,
                                 stdin=subprocess.DEVNULL, start_new_session=True, pass_fds=lock_fds,
                                 env={**os.environ, **parent_named()})  # fmt: skip
         try:

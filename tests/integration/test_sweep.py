@@ -25,6 +25,7 @@ from typing import Any
 
 import pytest
 
+from gcs.sweep.child import RUN_MODULE
 from tests.integration.instances import Leases
 from tests.integration.mission_flight import mission_drones
 from tests.integration.test_swarm import alive, wait_dead
@@ -221,7 +222,7 @@ def busy_worker(session: int, timeout_s: float) -> tuple[int, int]:
                     continue
                 if not (stat.parent / "cmdline").read_bytes().startswith(b"ray::fly_on_node"):
                     continue
-                runs = [c for c in all_children(pid) if b"gcs.sweep.child" in Path(f"/proc/{c}/cmdline").read_bytes()]
+                runs = [c for c in all_children(pid) if RUN_MODULE.encode() in Path(f"/proc/{c}/cmdline").read_bytes()]
                 if runs:
                     return pid, runs[0]
         time.sleep(0.1)
@@ -288,9 +289,9 @@ def test_the_same_sweep_on_a_local_ray_head_gives_the_same_runs_and_summary(
 # it with its parent, made certain.
 STARTER = """\
 import os, subprocess, sys
-from gcs.sweep.child import parent_named
+from gcs.sweep.child import RUN_MODULE, parent_named
 wait = ("import os, sys, time\\nwhile os.getppid() == int(sys.argv[1]):\\n    time.sleep(0.01)\\n"
-        "os.execv(sys.executable, [sys.executable, '-m', 'gcs.sweep.child', *sys.argv[2:]])")
+        f"os.execv(sys.executable, [sys.executable, '-m', {RUN_MODULE!r}, *sys.argv[2:]])")
 with open(sys.argv[1], "w") as log:
     run = subprocess.Popen([sys.executable, "-c", wait, str(os.getpid()), *sys.argv[2:]], stdout=log,
                            stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True,
