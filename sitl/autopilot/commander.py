@@ -28,6 +28,7 @@ from sitl.autopilot.guidance import MotionLimits, StraightLineTrajectory
 from sitl.autopilot.land_detector import LandDetector, LandDetectorConfig
 from sitl.autopilot.mission_exec import MissionExecutor, MissionRun
 from sitl.autopilot.mission_plan import NavItem
+from sitl.autopilot.mode_io import NO_CHANGE, ModeDecision, ModeInputs, ModeParams, Track, new_mode_inputs
 from sitl.autopilot.modes import ModeUnit, build_units
 from sitl.autopilot.px4_modes import FailsafeKind, Px4Mode
 from sitl.autopilot.vehicle_api import CommandOutcome, CommandResult, LandedState
@@ -103,8 +104,8 @@ class Commander:
         self.cascade = cascade
         self.status = VehicleStatus()
         self.crashed = False
-        self._limits_version = -1
-        self._limits_cache: MotionLimits | None = None
+        self._mode_params_version = -1
+        self._mode_params_cache: ModeParams | None = None
         self.events: list[VehicleEvent] = []
         self._battery_remaining = battery_remaining
         self._hover_thrust_n = airframe.mass_kg * 9.80665
@@ -141,25 +142,53 @@ class Commander:
         self._tick_version = -1  # the parameter store's version at the last tick (a change forces a tick)
         self._tick_period_s = outer_loop_period_s(params)
 
-    # ---- helpers (also the ModeContext the mode units use) ---------------------------------------------------------
+    # ---- helpers ---------------------------------------------------------------------------------------------------
     def event(self, severity: int, text: str) -> None:
         self.events.append(VehicleEvent(severity=severity, text=text))
 
     def p(self, name: str) -> float:
         return self.params[name]
 
-    def limits(self) -> MotionLimits:
-        """Auto-mode motion limits, rebuilt only when a parameter changed (this runs every control step)."""
-        if self._limits_cache is None or self._limits_version != self.params.version:
-            self._limits_version = self.params.version
-            self._limits_cache = MotionLimits(
-                speed_xy_mps=self.p("MPC_XY_CRUISE"),
-                speed_up_mps=self.p("MPC_Z_V_AUTO_UP"),
-                speed_down_mps=self.p("MPC_Z_V_AUTO_DN"),
-                accel_xy_mps2=self.p("MPC_ACC_HOR"),
-                accel_z_mps2=self.p("MPC_ACC_UP_MAX"),
-            )
-        return self._limits_cache
+    def _mode_params(self) -> ModeParams:
+        """The parameters the mode units read, taken again only when one changed (this runs every tick)."""
+        if self._mode_params_cache is None or self._mode_params_version != self.params.version:
+            self._mode_params_version = self.params.version
+            self._mode_params_cache = ModeParams.from_store(self.params)
+        return self._mode_params_cache
+
+    def _mode_inputs(self, est: Estimate, now_s: float) -> ModeInputs:
+        """What the active unit reads, as it is now."""
+        return new_mode_inputs(
+            est=est,
+            now_s=now_s,
+            landed=self.landed,
+            home_ned_m=self._home_ned_m,
+            home_yaw_rad=self._home_yaw_rad,
+            reference_ned_m=self.trajectory.position,
+            target_ned_m=self.target_ned_m,
+            target_yaw_rad=self.target_yaw_rad,
+            speed_override_mps=self.speed_override_mps,
+            params=self._mode_params(),
+        )
+
+    def _carry_out(self, decision: ModeDecision) -> None:
+        """Do what a unit decided, in the order ``ModeDecision`` gives; a mode it asks for is entered as the
+        operator's request would enter it (a return to launch is planned, and refused on the ground)."""
+        if decision is NO_CHANGE:
+            return
+        if decision.text is not None:
+            self.event(6, decision.text)
+        if decision.speed_limit_mps is not None:
+            self.set_speed(decision.speed_limit_mps)
+        goto = decision.goto
+        if goto is not None:
+            if goto.from_rest:
+                self.trajectory.reset(self.current_pos())
+            self.start_goto(goto.target_ned_m, goto.yaw_rad)
+        if decision.request is Px4Mode.AUTO_RTL:
+            self.return_to_launch()
+        elif decision.request is not None:
+            self.enter(decision.request)
 
     @property
     def estimate(self) -> Estimate | None:
@@ -202,7 +231,7 @@ class Commander:
         if unit is self._unit:
             return
         self._held = None
-        self._unit.exit(self)
+        self._unit.exit()
         self._unit = unit
         mode = unit.mode
         if mode is not self.status.mode:
@@ -409,8 +438,15 @@ class Commander:
         if not self.status.armed or self.landed:
             return CommandOutcome(CommandResult.DENIED, "RTL denied: not flying")
         if self.status.mode is not Px4Mode.AUTO_RTL:
-            self.units.rtl.start(self)
+            self._start_return()
         return ACCEPTED
+
+    def _start_return(self) -> None:
+        """Enter RTL with its plan made from here (the caller has checked the vehicle is flying)."""
+        climb = self.units.rtl.start(self.current_pos(), self._home_ned_m, self.p("RTL_RETURN_ALT"))
+        self.hold_here()
+        self.start_goto(climb.target_ned_m, climb.yaw_rad)
+        self.enter(Px4Mode.AUTO_RTL)
 
     def goto(self, target_ned_m: Vec3, yaw_rad: float = math.nan) -> CommandOutcome:
         """Reposition: fly to a local point on a smooth trajectory and hold there (PX4 DO_REPOSITION)."""
@@ -570,7 +606,7 @@ class Commander:
             self.enter(Px4Mode.AUTO_MISSION)
             self.mission.start()
         elif before is units.rtl:
-            units.rtl.start(self)
+            self._start_return()
         elif before is units.land:
             self.hold_here()
             self.enter(Px4Mode.AUTO_LAND)
@@ -652,10 +688,10 @@ class Commander:
             self.status.thrust_n = 0.0
             self._held = _Held(motors=(0.0,) * n)
             return (0.0,) * n
-        self._unit.advance(self, est, now_s)
+        self._carry_out(self._unit.advance(self._mode_inputs(est, now_s)))
         self._run_failsafes(est, now_s)
         unit = self._unit
-        if self.landed and not unit.wants_air(self):
+        if self.landed and not unit.wants_air(True):
             # Armed on the ground: motors idle, controllers held at rest so nothing winds up.
             self.cascade.reset()
             self.trajectory.reset(est.pos_ned_m)
@@ -679,7 +715,7 @@ class Commander:
         elif landed and not was_landed:
             self.event(6, "Landing detected")
             self._landed_since_s = now_s
-            unit.on_touchdown(self, est, now_s)
+            self._carry_out(unit.on_touchdown(self._mode_inputs(est, now_s)))
             self.cascade.reset()
             self._held = None
             return self._idle
@@ -687,18 +723,29 @@ class Commander:
         return out.motor_cmds
 
     def _control(self, unit: ModeUnit, est: Estimate, now_s: float, dt_s: float, tick_dt_s: float) -> CascadeOutput:
-        setpoint = unit.setpoint(self, est, tick_dt_s)
+        decided = unit.setpoint(self._mode_inputs(est, now_s), tick_dt_s)
         # Held only while armed: a failsafe that disarmed in this tick (lockdown, termination) leaves the next step a
         # tick, which stops the motors.
         armed = self.status.armed
-        if isinstance(setpoint, AttitudeSetpoint):
+        if isinstance(decided, Track):
+            setpoint = self._fly_reference(decided, tick_dt_s)
+        else:
+            # A setpoint of the unit's own: the auto-mode reference follows the vehicle, so a switch back to an auto
+            # mode starts where the vehicle is.
             self.trajectory.reset(est.pos_ned_m)
-            self._held = _Held(attitude=setpoint) if armed else None
-            return self.cascade.update_attitude(est, setpoint, dt_s, landed=self.landed)
+            if isinstance(decided, AttitudeSetpoint):
+                self._held = _Held(attitude=decided) if armed else None
+                return self.cascade.update_attitude(est, decided, dt_s, landed=self.landed)
+            setpoint = decided
         if not self.landed:
             setpoint = self.collision_prevention.apply(setpoint, est.pos_ned_m, est.vel_ned_mps, now_s)
         self._held = _Held(trajectory=setpoint) if armed else None
         return self.cascade.update(est, setpoint, dt_s, landed=self.landed)
+
+    def _fly_reference(self, track: Track, dt_s: float) -> TrajectorySetpoint:
+        if track.descend_to_land:
+            return self.land_descent_setpoint(track.limits, track.max_speed_mps, dt_s)
+        return self.track_setpoint(track.limits, track.max_speed_mps, dt_s)
 
     def _check_auto_disarm(self, now_s: float) -> None:
         since = self._landed_since_s if self._landed_since_s is not None else now_s

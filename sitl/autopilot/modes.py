@@ -1,15 +1,17 @@
 """One unit per flight mode, all behind one interface (``ModeUnit``).
 
-A unit owns its mode's state (the RTL plan, the mission's phase, the offboard stream) and answers, each control
-step: what changes now (``advance``: transitions such as "takeoff complete"), what to fly (``setpoint``), does the
+A unit owns its mode's state (the RTL plan, the mission's phase, the offboard stream) and answers, each commander
+tick: what changes now (``advance``: transitions such as "takeoff complete"), what to fly (``setpoint``), does the
 vehicle want to be in the air (``wants_air``: on the ground and not wanting air the motors idle), is it landing
 (``descending_to_land``, ``landed_state``), can it fly without a position (``needs_position``, for the GPS-loss
 failsafe) and what happens at touchdown (``on_touchdown``). Adding a mode means one class here and its field in
 ``Units``.
 
-The units reach the vehicle through ``ModeContext``, the narrow surface sitl/autopilot/commander.py offers them: the
-shared smooth trajectory, the target it tracks, home, the land detector's verdict and the mode switch. They never read a
-clock or a socket either: the estimate and the simulation time come in as arguments.
+A unit is given what it reads and gives back what it decides (sitl/autopilot/mode_io.py): ``ModeInputs`` in (the
+estimate, the time, home, the shared smooth reference and its target, the parameters), a setpoint or a ``Track`` of
+the reference, and a ``ModeDecision`` (a text, a new target, the mode it asks for) out. It holds nothing of the
+commander and calls nothing of it: the commander carries the decisions out, and enters the modes asked for as it
+would for the operator. It never reads a clock or a socket either.
 """
 
 from __future__ import annotations
@@ -20,11 +22,12 @@ from typing import ClassVar, Protocol
 
 import numpy as np
 
-from sitl.autopilot.guidance import MotionLimits, StraightLineTrajectory
+from sitl.autopilot.guidance import MotionLimits
 from sitl.autopilot.mission_exec import MissionAction, MissionExecutor, MissionRun
 from sitl.autopilot.mission_plan import NavItem, NavKind
+from sitl.autopilot.mode_io import NO_CHANGE, Goto, ModeDecision, ModeInputs, Track
 from sitl.autopilot.px4_modes import Px4Mode
-from sitl.autopilot.vehicle_api import CommandOutcome, LandedState
+from sitl.autopilot.vehicle_api import LandedState
 from sitl.control.cascade import AttitudeSetpoint, TrajectorySetpoint
 from sitl.estimation.estimator import Estimate
 from sitl.mathutil import Vec3, vec3
@@ -39,32 +42,15 @@ TAKEOFF_DONE_M = 0.15
 # A mission's automatic takeoff hands over to the first item within this of MIS_TAKEOFF_ALT.
 MISSION_CLIMB_DONE_M = 0.3
 
+# What a unit flies: a setpoint of its own, or the shared reference (``Track``).
+UnitSetpoint = Track | TrajectorySetpoint | AttitudeSetpoint
+# Every touchdown is a landing, whatever mode brought the vehicle down (PX4).
+_LAND = ModeDecision(request=Px4Mode.AUTO_LAND)
 
-class ModeContext(Protocol):
-    """What a mode unit may use of the vehicle (implemented by sitl.autopilot.commander.Commander)."""
 
-    trajectory: StraightLineTrajectory
-    target_ned_m: Vec3
-    target_yaw_rad: float
-    speed_override_mps: float
-
-    @property
-    def landed(self) -> bool: ...
-    @property
-    def home_ned_m(self) -> Vec3: ...
-    @property
-    def home_yaw_rad(self) -> float: ...
-    def p(self, name: str) -> float: ...
-    def limits(self) -> MotionLimits: ...
-    def current_pos(self) -> Vec3: ...
-    def start_goto(self, target_ned_m: Vec3, yaw_rad: float = math.nan) -> None: ...
-    def hold_here(self) -> None: ...
-    def enter(self, mode: Px4Mode) -> None: ...
-    def event(self, severity: int, text: str) -> None: ...
-    def return_to_launch(self) -> CommandOutcome: ...
-    def set_speed(self, ground_speed_mps: float) -> CommandOutcome: ...
-    def track_setpoint(self, limits: MotionLimits, max_speed_mps: float, dt_s: float) -> TrajectorySetpoint: ...
-    def land_descent_setpoint(self, limits: MotionLimits, max_speed_mps: float, dt_s: float) -> TrajectorySetpoint: ...
+def _arrived(inp: ModeInputs) -> bool:
+    """Has the shared reference reached its target?"""
+    return math.hypot(*(inp.reference_ned_m - inp.target_ned_m)) < ARRIVED_M
 
 
 class ModeUnit(Protocol):
@@ -72,15 +58,15 @@ class ModeUnit(Protocol):
 
     mode: ClassVar[Px4Mode]  # what HEARTBEAT shows while the unit flies
 
-    def exit(self, v: ModeContext) -> None:
+    def exit(self) -> None:
         """Leaving the mode: drop what must not survive it."""
 
-    def advance(self, v: ModeContext, est: Estimate, now_s: float) -> None:
-        """The mode's own transitions, before the setpoint of this step is computed."""
+    def advance(self, inp: ModeInputs) -> ModeDecision:
+        """The mode's own transitions, before the setpoint of this tick is computed."""
 
-    def setpoint(self, v: ModeContext, est: Estimate, dt_s: float) -> TrajectorySetpoint | AttitudeSetpoint: ...
+    def setpoint(self, inp: ModeInputs, dt_s: float) -> UnitSetpoint: ...
 
-    def wants_air(self, v: ModeContext) -> bool: ...
+    def wants_air(self, landed: bool) -> bool: ...
 
     def descending_to_land(self) -> bool: ...
 
@@ -88,7 +74,7 @@ class ModeUnit(Protocol):
         """Does flying this mode need a horizontal position (the GPS-loss failsafe watches this)?"""
         ...
 
-    def on_touchdown(self, v: ModeContext, est: Estimate, now_s: float) -> None: ...
+    def on_touchdown(self, inp: ModeInputs) -> ModeDecision: ...
 
     def landed_state(self, landed: bool) -> LandedState: ...
 
@@ -98,20 +84,19 @@ class TrackTarget:
 
     mode: ClassVar[Px4Mode] = Px4Mode.AUTO_LOITER
 
-    def exit(self, v: ModeContext) -> None:
+    def exit(self) -> None:
         return None
 
-    def advance(self, v: ModeContext, est: Estimate, now_s: float) -> None:
-        return None
+    def advance(self, inp: ModeInputs) -> ModeDecision:
+        return NO_CHANGE
 
-    def setpoint(self, v: ModeContext, est: Estimate, dt_s: float) -> TrajectorySetpoint | AttitudeSetpoint:
-        limits = v.limits()
-        if self.descending_to_land():
-            return v.land_descent_setpoint(limits, v.speed_override_mps, dt_s)
-        return v.track_setpoint(limits, v.speed_override_mps, dt_s)
+    def setpoint(self, inp: ModeInputs, dt_s: float) -> UnitSetpoint:
+        return Track(
+            limits=inp.params.limits, max_speed_mps=inp.speed_override_mps, descend_to_land=self.descending_to_land()
+        )
 
-    def wants_air(self, v: ModeContext) -> bool:
-        return not v.landed
+    def wants_air(self, landed: bool) -> bool:
+        return not landed
 
     def descending_to_land(self) -> bool:
         return False
@@ -119,8 +104,8 @@ class TrackTarget:
     def needs_position(self) -> bool:
         return True
 
-    def on_touchdown(self, v: ModeContext, est: Estimate, now_s: float) -> None:
-        v.enter(Px4Mode.AUTO_LAND)  # PX4 treats any touchdown as a landing, whatever mode brought it down
+    def on_touchdown(self, inp: ModeInputs) -> ModeDecision:
+        return _LAND
 
     def landed_state(self, landed: bool) -> LandedState:
         if landed:
@@ -139,17 +124,14 @@ class Takeoff(TrackTarget):
 
     mode = Px4Mode.AUTO_TAKEOFF
 
-    def advance(self, v: ModeContext, est: Estimate, now_s: float) -> None:
-        if (
-            abs(est.pos_ned_m[2] - v.target_ned_m[2]) < TAKEOFF_DONE_M
-            and math.hypot(*(v.trajectory.position - v.target_ned_m)) < ARRIVED_M
-        ):
-            v.event(6, "Takeoff complete")
-            v.enter(Px4Mode.AUTO_LOITER)
+    def advance(self, inp: ModeInputs) -> ModeDecision:
+        if abs(inp.est.pos_ned_m[2] - inp.target_ned_m[2]) < TAKEOFF_DONE_M and _arrived(inp):
+            return ModeDecision(text="Takeoff complete", request=Px4Mode.AUTO_LOITER)
+        return NO_CHANGE
 
-    def setpoint(self, v: ModeContext, est: Estimate, dt_s: float) -> TrajectorySetpoint | AttitudeSetpoint:
-        limits = v.limits()
-        tko_speed = v.p("MPC_TKO_SPEED")
+    def setpoint(self, inp: ModeInputs, dt_s: float) -> UnitSetpoint:
+        limits = inp.params.limits
+        tko_speed = inp.params.takeoff_speed_mps
         climb = MotionLimits(
             speed_xy_mps=limits.speed_xy_mps,
             speed_up_mps=tko_speed,
@@ -157,9 +139,9 @@ class Takeoff(TrackTarget):
             accel_xy_mps2=limits.accel_xy_mps2,
             accel_z_mps2=limits.accel_z_mps2,
         )
-        return v.track_setpoint(climb, min(v.speed_override_mps, tko_speed), dt_s)
+        return Track(limits=climb, max_speed_mps=min(inp.speed_override_mps, tko_speed))
 
-    def wants_air(self, v: ModeContext) -> bool:
+    def wants_air(self, landed: bool) -> bool:
         return True
 
     def landed_state(self, landed: bool) -> LandedState:
@@ -171,7 +153,7 @@ class Land(TrackTarget):
 
     mode = Px4Mode.AUTO_LAND
 
-    def wants_air(self, v: ModeContext) -> bool:
+    def wants_air(self, landed: bool) -> bool:
         return False
 
     def descending_to_land(self) -> bool:
@@ -192,39 +174,37 @@ class ReturnToLaunch(TrackTarget):
     def __init__(self) -> None:
         self.plan: RtlPlan | None = None
 
-    def start(self, v: ModeContext) -> None:
-        """Plan the return from here (the caller has checked the vehicle is flying and not already returning)."""
-        cruise = min(v.current_pos()[2], v.home_ned_m[2] - v.p("RTL_RETURN_ALT"))
+    def start(self, pos_ned_m: Vec3, home_ned_m: Vec3, return_alt_m: float) -> Goto:
+        """Plan the return from ``pos_ned_m`` (the caller has checked the vehicle is flying and not already
+        returning, and enters the mode): the climb, straight up to the return altitude, is the first leg."""
+        cruise = min(pos_ned_m[2], home_ned_m[2] - return_alt_m)
         self.plan = RtlPlan(phase=RtlPhase.CLIMB, cruise_down_m=cruise)
-        v.hold_here()
-        pos = v.current_pos()
-        v.start_goto(vec3(pos[0], pos[1], cruise))
-        v.enter(Px4Mode.AUTO_RTL)
+        return Goto(target_ned_m=vec3(pos_ned_m[0], pos_ned_m[1], cruise))
 
-    def advance(self, v: ModeContext, est: Estimate, now_s: float) -> None:
+    def advance(self, inp: ModeInputs) -> ModeDecision:
         plan = self.plan
-        if plan is None:
-            return
-        arrived = math.hypot(*(v.trajectory.position - v.target_ned_m)) < ARRIVED_M
-        if not arrived:
-            return
-        home = v.home_ned_m
+        if plan is None or not _arrived(inp):
+            return NO_CHANGE
+        home = inp.home_ned_m
         if plan.phase is RtlPhase.CLIMB:
             plan.phase = RtlPhase.RETURN
-            v.start_goto(vec3(home[0], home[1], plan.cruise_down_m), v.home_yaw_rad)
-        elif plan.phase is RtlPhase.RETURN:
+            return_leg = vec3(home[0], home[1], plan.cruise_down_m)
+            return ModeDecision(goto=Goto(target_ned_m=return_leg, yaw_rad=inp.home_yaw_rad))
+        if plan.phase is RtlPhase.RETURN:
             plan.phase = RtlPhase.DESCEND
-            descend_down = max(plan.cruise_down_m, home[2] - v.p("RTL_DESCEND_ALT"))
-            v.start_goto(vec3(home[0], home[1], descend_down), v.home_yaw_rad)
-        elif plan.phase is RtlPhase.DESCEND:
+            descend_down = max(plan.cruise_down_m, home[2] - inp.params.rtl_descend_alt_m)
+            descent = vec3(home[0], home[1], descend_down)
+            return ModeDecision(goto=Goto(target_ned_m=descent, yaw_rad=inp.home_yaw_rad))
+        if plan.phase is RtlPhase.DESCEND:
             plan.phase = RtlPhase.LAND
+        return NO_CHANGE
 
     def descending_to_land(self) -> bool:
         return self.plan is not None and self.plan.phase is RtlPhase.LAND
 
-    def on_touchdown(self, v: ModeContext, est: Estimate, now_s: float) -> None:
+    def on_touchdown(self, inp: ModeInputs) -> ModeDecision:
         self.plan = None
-        super().on_touchdown(v, est, now_s)
+        return super().on_touchdown(inp)
 
 
 class Mission(TrackTarget):
@@ -241,7 +221,7 @@ class Mission(TrackTarget):
         self.phase = MissionPhase.NAVIGATE
         self.climb_down_m = math.nan
 
-    def exit(self, v: ModeContext) -> None:
+    def exit(self) -> None:
         self.executor.pause()
         self.reset()
 
@@ -254,51 +234,48 @@ class Mission(TrackTarget):
         if flying_it and items:
             self.executor.start()
 
-    def advance(self, v: ModeContext, est: Estimate, now_s: float) -> None:
+    def advance(self, inp: ModeInputs) -> ModeDecision:
         mission = self.executor
-        if v.landed and mission.state is MissionRun.ACTIVE and self.phase is not MissionPhase.CLIMB:
+        est = inp.est
+        if inp.landed and mission.state is MissionRun.ACTIVE and self.phase is not MissionPhase.CLIMB:
             first = mission.items[mission.index]
             if first.kind is not NavKind.TAKEOFF:
                 # PX4 takes off to MIS_TAKEOFF_ALT before flying a mission started on the ground.
-                pos = v.current_pos()
+                pos = est.pos_ned_m
                 self.phase = MissionPhase.CLIMB
-                self.climb_down_m = float(v.home_ned_m[2] - v.p("MIS_TAKEOFF_ALT"))
-                v.trajectory.reset(pos)
-                v.start_goto(vec3(pos[0], pos[1], self.climb_down_m), v.target_yaw_rad)
-                return
+                self.climb_down_m = float(inp.home_ned_m[2] - inp.params.mission_takeoff_alt_m)
+                climb = vec3(pos[0], pos[1], self.climb_down_m)
+                return ModeDecision(goto=Goto(target_ned_m=climb, yaw_rad=inp.target_yaw_rad, from_rest=True))
         if self.phase is MissionPhase.CLIMB:
-            if v.landed or abs(est.pos_ned_m[2] - self.climb_down_m) > MISSION_CLIMB_DONE_M:
-                return
+            if inp.landed or abs(est.pos_ned_m[2] - self.climb_down_m) > MISSION_CLIMB_DONE_M:
+                return NO_CHANGE
             self.phase = MissionPhase.NAVIGATE
-        action = mission.step(now_s, est.pos_ned_m, v.landed, v.p("NAV_ACC_RAD"))
-        if action is not None:
-            self._apply(v, action)
+        action = mission.step(inp.now_s, est.pos_ned_m, inp.landed, inp.params.acceptance_radius_m)
+        return NO_CHANGE if action is None else self._decide(inp, action)
 
-    def _apply(self, v: ModeContext, action: MissionAction) -> None:
-        target = np.array(action.target_ned_m, dtype=np.float64)
+    def _decide(self, inp: ModeInputs, action: MissionAction) -> ModeDecision:
         if action.kind is NavKind.SPEED:
-            v.set_speed(action.speed_mps if math.isfinite(action.speed_mps) else -1.0)
-        elif action.kind is NavKind.RTL:
-            v.return_to_launch()
-        elif action.kind is NavKind.LAND:
+            return ModeDecision(speed_limit_mps=action.speed_mps if math.isfinite(action.speed_mps) else -1.0)
+        if action.kind is NavKind.RTL:
+            return ModeDecision(request=Px4Mode.AUTO_RTL)
+        target = np.array(action.target_ned_m, dtype=np.float64)
+        if action.kind is NavKind.LAND:
             self.phase = MissionPhase.LAND
-            v.start_goto(target, action.yaw_rad)
-        else:
-            if v.landed:
-                v.trajectory.reset(v.current_pos())
-            v.start_goto(target, action.yaw_rad)
+            return ModeDecision(goto=Goto(target_ned_m=target, yaw_rad=action.yaw_rad))
+        return ModeDecision(goto=Goto(target_ned_m=target, yaw_rad=action.yaw_rad, from_rest=inp.landed))
 
-    def wants_air(self, v: ModeContext) -> bool:
-        return not v.landed or (self.executor.state is MissionRun.ACTIVE and self.phase is not MissionPhase.LAND)
+    def wants_air(self, landed: bool) -> bool:
+        return not landed or (self.executor.state is MissionRun.ACTIVE and self.phase is not MissionPhase.LAND)
 
     def descending_to_land(self) -> bool:
         return self.phase is MissionPhase.LAND
 
-    def on_touchdown(self, v: ModeContext, est: Estimate, now_s: float) -> None:
+    def on_touchdown(self, inp: ModeInputs) -> ModeDecision:
         if self.phase is MissionPhase.LAND:
-            self.executor.step(now_s, est.pos_ned_m, True, v.p("NAV_ACC_RAD"))  # the LAND item is done
-        else:
-            super().on_touchdown(v, est, now_s)
+            # The LAND item is done.
+            self.executor.step(inp.now_s, inp.est.pos_ned_m, True, inp.params.acceptance_radius_m)
+            return NO_CHANGE
+        return super().on_touchdown(inp)
 
 
 class Offboard(TrackTarget):
@@ -318,17 +295,13 @@ class Offboard(TrackTarget):
     def alive(self, now_s: float, timeout_s: float) -> bool:
         return self.setpoint_in is not None and now_s - self.received_s <= timeout_s
 
-    def setpoint(self, v: ModeContext, est: Estimate, dt_s: float) -> TrajectorySetpoint | AttitudeSetpoint:
+    def setpoint(self, inp: ModeInputs, dt_s: float) -> UnitSetpoint:
         sp = self.setpoint_in
-        if isinstance(sp, TrajectorySetpoint):
-            # The auto-mode reference follows the vehicle, so a switch back to Hold starts where it is.
-            v.trajectory.reset(est.pos_ned_m)
-            return sp
-        if isinstance(sp, AttitudeSetpoint):
-            return sp
-        return super().setpoint(v, est, dt_s)
+        if sp is None:
+            return super().setpoint(inp, dt_s)
+        return sp
 
-    def wants_air(self, v: ModeContext) -> bool:
+    def wants_air(self, landed: bool) -> bool:
         return True
 
     def needs_position(self) -> bool:
@@ -362,9 +335,10 @@ class Descend(TrackTarget):
         self.ratio = 1.0
         self.yaw_rad = est.yaw_rad if est is not None else 0.0
 
-    def setpoint(self, v: ModeContext, est: Estimate, dt_s: float) -> TrajectorySetpoint | AttitudeSetpoint:
+    def setpoint(self, inp: ModeInputs, dt_s: float) -> UnitSetpoint:
+        est = inp.est
         if est.altitude_valid:
-            error = v.p("MPC_LAND_SPEED") - float(est.vel_ned_mps[2])  # > 0: sinking too slowly
+            error = inp.params.land_speed_mps - float(est.vel_ned_mps[2])  # > 0: sinking too slowly
             self.ratio = min(DESCEND_RATIO_MAX, max(DESCEND_RATIO_MIN, self.ratio - DESCEND_KI * error * dt_s))
             ratio = min(DESCEND_RATIO_MAX, max(DESCEND_RATIO_MIN, self.ratio - DESCEND_KP * error))
         else:
@@ -372,7 +346,7 @@ class Descend(TrackTarget):
         half = 0.5 * self.yaw_rad
         return AttitudeSetpoint(att_q=(math.cos(half), 0.0, 0.0, math.sin(half)), thrust_n=ratio * self.hover_thrust_n)
 
-    def wants_air(self, v: ModeContext) -> bool:
+    def wants_air(self, landed: bool) -> bool:
         return False
 
     def descending_to_land(self) -> bool:
