@@ -12,7 +12,6 @@ import contextlib
 import dataclasses
 import math
 import os
-import re
 import signal
 import sys
 import threading
@@ -36,7 +35,7 @@ from gcs.fleet.attach import (
     parse_attach,
     role_of,
 )
-from gcs.fleet.faults import CRASH, FAULT_NAMES, FaultError, fault_request
+from gcs.fleet.faults import CRASH, FAULT_NAMES
 from gcs.fleet.harness import (
     LAYOUTS,
     MAX_DRONES,
@@ -49,6 +48,7 @@ from gcs.fleet.harness import (
 from gcs.fleet.links import LINK_OPTIONS, NEIGHBOUR_MODES, LinkPlan, NeighbourPlan, parse_link_value, parse_mesh_value
 from gcs.fleet.losses import LOSS_POLICIES, LossPolicy
 from gcs.fleet.swarm import Swarm, SwarmError
+from gcs.flight.formation import FieldError
 from gcs.flight.geodesy import DEFAULT_ORIGIN, GeoPoint
 from gcs.flight.onboard import absolute_spec
 from gcs.invariants.monitor import EXIT_VIOLATED, Violation
@@ -58,12 +58,10 @@ from gcs.missions.mission_file import (
     TAKEOFF_ALT_M,
     MissionFileError,
     MissionSpec,
-    build_flock,
-    build_follow,
-    build_follow_attached,
     flown_onboard,
     load_mission,
 )
+from gcs.supervisor.commands import DECODERS, decode
 from gcs.supervisor.control import ControlClient, ControlError, ControlServer
 from gcs.supervisor.mission_runner import MissionRunner
 from gcs.supervisor.plan_cli import add_plan_parser, run_plan
@@ -745,7 +743,7 @@ def run_up(args: argparse.Namespace, simulation: Simulation) -> int:
             signal.signal(sig, stop)
         server = ControlServer(station.handle)
         _say(
-            f"swarm: {plan.n_drones} drones up (sysid {swarm.sysids[0]}..{swarm.sysids[-1]}); "
+            f"swarm: {plan.n_drones} drones up (sysid {swarm.liveness.sysids[0]}..{swarm.liveness.sysids[-1]}); "
             f"MAVLink on udp 127.0.0.1:{swarm.link.port}; "
             f"control channel on 127.0.0.1:{server.port}; Ctrl-C or 'swarm down' to stop"
         )
@@ -775,7 +773,7 @@ def run_up(args: argparse.Namespace, simulation: Simulation) -> int:
 
 def _loop(swarm: Swarm, station: Station, server: ControlServer, stop: _Stop) -> None:
     while not (stop.stopped or station.stop_requested):
-        swarm.pump(0.02)
+        swarm.pump.once(0.02)
         station.tick()
         server.poll()
         station.watch()
@@ -936,31 +934,53 @@ UNTIL_NEXT_COMMAND_S = 86400.0  # swarm follow --attached: flown until the next 
 
 
 def _behaviour_fields(args: argparse.Namespace) -> dict[str, Any]:
-    """The request's fields, checked here so that a mistake is one line before anything is sent."""
+    """A flock's or a follow's fields, as a mission file names them, for the options the user gave."""
     if args.command == "follow" and args.leader is not None and not 1 <= args.leader <= 255:
         raise UsageError(f"--leader must be a sysid in 1..255, got {args.leader}")
     attached = args.command == "follow" and args.attached
-    options, build = {
-        "flock": (_FLOCK_OPTIONS, build_flock),
-        "follow": (_FOLLOW_OPTIONS, build_follow),
-        "attached": (_FOLLOW_ATTACHED_OPTIONS, build_follow_attached),
-    }["attached" if attached else args.command]
     if not attached and args.command == "follow" and args.max_turn_rate is not None:
         raise UsageError("argument --max-turn-rate: only with --attached")
     if attached and (args.speed is not None or args.turn_radius is not None):
         raise UsageError("argument --speed, --turn-radius: not with --attached (the leader flies itself)")
-    fields = _given(args, options)
+    fields = _given(args, _OPTIONS[_command_name(args)])
     if attached:
         fields["duration_s"] = UNTIL_NEXT_COMMAND_S
-    try:
-        build(fields)
-    except ValueError as exc:
-        message = str(exc)
-        for option, field in options.items():
-            flag = "--" + option.replace("_", "-")
-            message = re.sub(rf"\b(FlockSpec\.|FollowSpec\.|FollowAttachedSpec\.)?{field}\b", flag, message)
-        raise UsageError(f"argument {message}") from None
     return fields
+
+
+_OPTIONS: dict[str, dict[str, str]] = {
+    "flock": _FLOCK_OPTIONS,
+    "follow": _FOLLOW_OPTIONS,
+    "follow_attached": _FOLLOW_ATTACHED_OPTIONS,
+    "formation": {"alt": "alt_m", "spacing": "spacing_m", "rows": "rows", "cols": "cols", "radius": "radius_m",
+                  "rate": "angular_rate_radps", "osc": "alt_osc_amp_m", "angle": "angle_deg",
+                  "heading": "heading_deg"},
+    "takeoff": {"alt": "alt_m"},
+    "goto": {"north": "north_m", "east": "east_m", "alt": "alt_m"},
+    "attach": {"max_distance": "max_distance_m", "keep_in": "keep_in_m", "signing_key": "signing_key"},
+}  # fmt: skip
+"""Per command, each option's field: what the control channel's JSON and a mission file call it."""
+
+
+def _command_name(args: argparse.Namespace) -> str:
+    """The control channel's command for the CLI's: ``swarm follow --attached`` is ``follow_attached``, ``swarm kill``
+    a fault of kind crash."""
+    if args.command == "follow" and args.attached:
+        return "follow_attached"
+    return "fault" if args.command == "kill" else str(args.command)
+
+
+def _checked(command: dict[str, Any]) -> dict[str, Any]:
+    """A command decoded as the supervisor will decode it, so that a mistake is one line before anything is sent; a
+    field's mistake names the option that gave it."""
+    try:
+        decode(command, None)
+    except FieldError as exc:
+        flags = {field: "--" + option.replace("_", "-") for option, field in _OPTIONS.get(command["cmd"], {}).items()}
+        raise UsageError(f"argument {flags.get(exc.field, exc.field)}: {exc.problem}") from None
+    except ValueError as exc:  # AttachError, FaultError: already in the user's terms
+        raise UsageError(str(exc)) from None
+    return command
 
 
 def _toml_fields(pairs: Sequence[str]) -> dict[str, Any]:
@@ -977,39 +997,36 @@ def _toml_fields(pairs: Sequence[str]) -> dict[str, Any]:
     return out
 
 
-def run_client(args: argparse.Namespace) -> int:
-    request: dict[str, Any] = {"cmd": args.command}
-    if args.command == "takeoff":
-        request["alt"] = args.alt
-    elif args.command == "formation":
-        request.update(shape=args.shape, fields=_formation_fields(args))
-    elif args.command in ("flock", "follow"):
-        request["fields"] = _behaviour_fields(args)
-        if args.command == "follow" and args.attached:
-            request["cmd"] = "follow_attached"
-    elif args.command == "goto":
-        request.update(north_m=args.north, east_m=args.east, alt_m=args.alt)
-    elif args.command == "behaviour":
-        request["action"] = args.action
-    elif args.command == "attach":
-        try:
-            parse_attach(args.url, max_distance_m=args.max_distance, keep_in_m=args.keep_in)
-        except AttachError as exc:
-            raise UsageError(str(exc)) from None
+def client_command(args: argparse.Namespace) -> dict[str, Any]:
+    """The control channel's JSON command for ``swarm COMMAND ...`` (gcs/supervisor/commands.py decodes it),
+    checked as the supervisor will check it."""
+    name = _command_name(args)
+    command: dict[str, Any] = {"cmd": name}
+    if name not in DECODERS:  # the session's own: status, down
+        return command
+    if name in ("takeoff", "goto"):
+        command.update(_given(args, _OPTIONS[name]))
+    elif name == "formation":
+        command.update(shape=args.shape, fields=_formation_fields(args))
+    elif name in ("flock", "follow", "follow_attached"):
+        command["fields"] = _behaviour_fields(args)
+    elif name == "behaviour":
+        command["action"] = args.action
+    elif name == "attach":
         key = None if args.signing_key is None else str(args.signing_key.resolve())  # the supervisor's cwd may differ
-        request.update(url=args.url, max_distance_m=args.max_distance, keep_in_m=args.keep_in, signing_key=key)
-    elif args.command == "detach":
-        request["sysid"] = args.sysid
-    elif args.command == "require":
-        request.update(fields={"kind": args.kind, **_toml_fields(args.fields)}, cwd=os.getcwd())
-    elif args.command in ("fault", "kill"):
-        kind = CRASH if args.command == "kill" else args.kind
-        try:
-            fault_request(kind, getattr(args, "motor", None), getattr(args, "for_s", None))
-        except FaultError as exc:
-            raise UsageError(str(exc)) from None
-        request = {"cmd": "fault", "sysid": args.sysid, "kind": kind, "motor": getattr(args, "motor", None),
-                   "for_s": getattr(args, "for_s", None)}  # fmt: skip
+        command.update(url=args.url, max_distance_m=args.max_distance, keep_in_m=args.keep_in, signing_key=key)
+    elif name == "detach":
+        command["sysid"] = args.sysid
+    elif name == "require":
+        command.update(fields={"kind": args.kind, **_toml_fields(args.fields)}, cwd=os.getcwd())
+    elif name == "fault":
+        command.update(sysid=args.sysid, kind=CRASH if args.command == "kill" else args.kind,
+                       motor=getattr(args, "motor", None), for_s=getattr(args, "for_s", None))  # fmt: skip
+    return _checked(command)
+
+
+def run_client(args: argparse.Namespace) -> int:
+    request = client_command(args)
     response = ControlClient().request(request)
     if not response.get("ok"):
         print(f"swarm: error: {response.get('error', 'failed')}", file=sys.stderr)
@@ -1018,7 +1035,7 @@ def run_client(args: argparse.Namespace) -> int:
         print(format_status(response["drones"]))
     elif args.command in ("fault", "kill"):
         print(f"swarm: drone {args.sysid}: {response.get('result', 'done')}")
-    elif args.command in ("behaviour", "attach", "detach", "require") or request["cmd"] == "follow_attached":
+    elif request["cmd"] in ("behaviour", "attach", "detach", "require", "follow_attached"):
         print(f"swarm: {response.get('result', 'done')}")
     return 0
 

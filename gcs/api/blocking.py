@@ -16,10 +16,12 @@ from typing import Any, TypeVar
 from gcs.api.engine import Controller, Engine, Readings
 from gcs.api.session import _default_simulation
 from gcs.api.types import DroneState, Event, FlightResult, LaunchOptions
+from gcs.fleet.faults import fault_request
 from gcs.fleet.harness import Simulation
 from gcs.flight.behaviours import FlockSpec, FollowSpec
 from gcs.flight.formation import Formation
 from gcs.missions.mission_file import LAND_TIMEOUT_S, RTL_TIMEOUT_S, TAKEOFF_ALT_M, TAKEOFF_TIMEOUT_S
+from gcs.supervisor import requests as rq
 
 T = TypeVar("T")
 
@@ -50,50 +52,60 @@ class BlockingSession(Readings):
         return self._engine.submit(work).result()
 
     def takeoff(self, alt_m: float = TAKEOFF_ALT_M, timeout_s: float = TAKEOFF_TIMEOUT_S) -> None:
-        self._run(lambda: self._engine.do_takeoff(alt_m, timeout_s))
+        takeoff = rq.Takeoff(alt_m=alt_m, timeout_s=timeout_s)
+        self._run(lambda: self._engine.do(takeoff))
 
     def formation(self, formation: Formation) -> float:
-        return self._run(lambda: self._engine.do_formation(formation))
+        request = rq.FlyFormation(formation=formation)
+        return self._run(lambda: self._engine.do(request))
 
     def flock(self, spec: FlockSpec, *, onboard: bool = False) -> None:
-        self._run(lambda: self._engine.do_flock(spec, onboard=onboard))
+        request = rq.Flock(spec=spec, onboard=onboard)
+        self._run(lambda: self._engine.do(request))
 
     def follow(self, spec: FollowSpec, *, onboard: bool = False) -> None:
-        self._run(lambda: self._engine.do_follow(spec, onboard=onboard))
+        request = rq.Follow(spec=spec, onboard=onboard)
+        self._run(lambda: self._engine.do(request, wait=False))
 
     def control(self, controller: Controller) -> None:
-        self._run(lambda: self._engine.do_control(controller))
+        self._run(lambda: self._engine.do(self._engine.control(controller)))
 
     def start_behaviours(self) -> list[int]:
-        return self._run(lambda: self._engine.do_behaviour(run=True))
+        return self._run(lambda: self._engine.do(rq.Behaviours(run=True)))
 
     def stop_behaviours(self) -> list[int]:
-        return self._run(lambda: self._engine.do_behaviour(run=False))
+        return self._run(lambda: self._engine.do(rq.Behaviours(run=False)))
 
     def require(self, **fields: Any) -> None:
-        self._run(lambda: self._engine.do_require(fields))
+        request = rq.Require(invariants=(fields,))
+        self._run(lambda: self._engine.do(request))
 
     def sleep(self, seconds: float) -> None:
-        self._run(lambda: self._engine.do_sleep(seconds))
+        hold = rq.Hold(duration_s=seconds)
+        self._run(lambda: self._engine.sleep(hold))
 
     def wait_until(self, predicate: Callable[[dict[int, DroneState]], bool], timeout_s: float) -> bool:
-        return self._run(lambda: self._engine.do_wait_until(predicate, timeout_s))
+        return self._run(lambda: self._engine.wait_until(predicate, timeout_s))
 
     def land(self, timeout_s: float = LAND_TIMEOUT_S) -> None:
-        self._run(lambda: self._engine.do_land(return_to_launch=False, timeout_s=timeout_s))
+        land = rq.Land(timeout_s=timeout_s)
+        self._run(lambda: self._engine.do(land))
 
     def return_to_launch(self, timeout_s: float = RTL_TIMEOUT_S) -> None:
-        self._run(lambda: self._engine.do_land(return_to_launch=True, timeout_s=timeout_s))
+        rtl = rq.ReturnToLaunch(timeout_s=timeout_s)
+        self._run(lambda: self._engine.do(rtl))
 
     def set_param(self, name: str, value: float, sysids: Iterable[int] | None = None) -> None:
-        targets = None if sysids is None else list(sysids)
-        self._run(lambda: self._engine.do_set_param(name, value, targets))
+        request = rq.SetParam(name=name, value=value, sysids=None if sysids is None else tuple(sysids))
+        self._run(lambda: self._engine.do(request))
 
     def inject_fault(self, sysid: int, kind: str, *, motor: int | None = None, for_s: float | None = None) -> str:
-        return self._run(lambda: self._engine.do_fault(sysid, kind, motor, for_s))
+        request = rq.InjectFault(sysid=sysid, fault=fault_request(kind, motor, for_s))
+        return self._run(lambda: self._engine.do(request))
 
     def kill(self, sysid: int) -> str:
-        return self._run(lambda: self._engine.do_kill(sysid))
+        request = rq.Kill(sysid=sysid)
+        return self._run(lambda: self._engine.do(request))
 
     def close(self, *, interrupt: bool = False) -> FlightResult:
         """Land what flies, stop every drone process and write the report (once; later calls return the same)."""

@@ -30,18 +30,18 @@ from typing import Any, TypeVar
 from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.api.types import ControllerError, DroneState, Event, FlightResult, LaunchOptions
-from gcs.fleet.faults import fault_request
 from gcs.fleet.harness import Simulation, SpawnPlan
 from gcs.fleet.losses import MAV_STATE_CRITICAL
 from gcs.fleet.swarm import Swarm, SwarmError
-from gcs.flight.behaviours import NAN3, FlockSpec, FollowSpec, SwarmState
-from gcs.flight.formation import SETPOINT_STREAM_HZ, CircleSpec, Formation, GridSpec, LineSpec, Setpoint, VSpec
+from gcs.flight.behaviours import NAN3, SwarmState
+from gcs.flight.formation import SETPOINT_STREAM_HZ, Setpoint
 from gcs.flight.frames import Vec3
 from gcs.flight.onboard import absolute_spec
 from gcs.mavlink.statustext import StatusTextAssembler
+from gcs.supervisor import requests as rq
 from gcs.supervisor.session import FlightSession
 from gcs.supervisor.station import failsafe_text, swarm_note
-from gcs.supervisor.verbs import VERBS, Started, begin_report_step, carry_out
+from gcs.supervisor.verbs import carry_out, start
 from gcs.view.report import METRICS_FILE
 from gcs.view.server import ViewServer, serve_view
 
@@ -51,7 +51,6 @@ T = TypeVar("T")
 Controller = Callable[[float, Mapping[int, DroneState]], Mapping[int, "Setpoint | Vec3"]]
 _IDLE_PUMP_S = 0.02  # paced: the idle loop's wait for traffic, and so the longest a posted call waits to start
 _NOT_IN_AIR = (mavlink.MAV_LANDED_STATE_UNDEFINED, mavlink.MAV_LANDED_STATE_ON_GROUND)
-_SHAPES: dict[type, str] = {GridSpec: "grid", CircleSpec: "circle", LineSpec: "line", VSpec: "v"}
 
 
 class SessionClosed(RuntimeError):
@@ -208,16 +207,16 @@ class Engine:
         session.waiting_tick = self._tick
         if self.view is not None:
             session.serve(self.view)
-        swarm.listeners.append(self._on_message)
+        swarm.router.listeners.append(self._on_message)
         for spec in o.attach_specs():  # before the drones start: a bad one (AttachError, one line) starts nothing
-            VERBS["attach"](session, spec)
+            start(session, rq.Attach(spec=spec))
         swarm.up(ready_timeout_s=o.ready_timeout_s)
         for name, value in o.params.items():
-            VERBS["param"](session, name, value)
-        VERBS["require"](session, o.invariants, base=Path.cwd(), stop=o.stop_on_violation)
+            start(session, rq.SetParam(name=name, value=value))
+        start(session, rq.Require(invariants=tuple(o.invariants), base=Path.cwd(), stop=o.stop_on_violation))
         # ready means every drone has a home and a position, so states and formations can use them at once
-        if not swarm.wait_until(lambda: all(math.isfinite(s.pos_ned_m[0]) for s in self._snapshot().values()),
-                                o.ready_timeout_s, tick=self._tick):  # fmt: skip
+        if not swarm.pump.wait_until(lambda: all(math.isfinite(s.pos_ned_m[0]) for s in self._snapshot().values()),
+                                     o.ready_timeout_s, tick=self._tick):  # fmt: skip
             raise SwarmError(f"not every drone reported its home and position within {o.ready_timeout_s:g} s")
         self._publish()
 
@@ -237,9 +236,9 @@ class Engine:
             try:
                 call = self._calls.get(block=swarm.plan.lockstep)  # lockstep: the clock stands still between calls
             except queue.Empty:  # paced: keep the swarm going
-                swarm.pump(_IDLE_PUMP_S)
+                swarm.pump.once(_IDLE_PUMP_S)
                 try:
-                    self._tick(swarm.clock())
+                    self._tick(swarm.clock.now())
                 except ControllerError as exc:
                     self._pending = exc
                 except _Cancelled:
@@ -279,13 +278,14 @@ class Engine:
         session, swarm = self.session, self.swarm
         assert session is not None and swarm is not None
         session.tick(session.mission_time())
-        losses, regained, policy = set(swarm.losses), len(swarm.regained), len(session.recording.policy_events)
+        liveness = swarm.liveness
+        losses, regained, policy = set(liveness.losses), len(liveness.regained), len(session.recording.policy_events)
         session.pace.tick()
         session.watch_losses(session.mission_time())
         t = session.mission_time()
-        for sysid in sorted(set(swarm.losses) - losses):
-            self._emit(Event(kind="lost", time_s=t, sysid=sysid, text=swarm.losses[sysid].cause))
-        for loss in swarm.regained[regained:]:
+        for sysid in sorted(set(liveness.losses) - losses):
+            self._emit(Event(kind="lost", time_s=t, sysid=sysid, text=liveness.losses[sysid].cause))
+        for loss in liveness.regained[regained:]:
             self._emit(Event(kind="regained", time_s=t, sysid=loss.sysid, text=f"link regained ({loss.cause})"))
         for record in session.recording.policy_events[policy:]:
             self._emit(Event(kind="policy", time_s=record.time_s, sysid=record.sysid, text=record.text))
@@ -294,7 +294,7 @@ class Engine:
         if isinstance(controller, ControllerBehaviour) and controller.error is not None:
             session.controller = None
             session.streamer.stop()
-            held = swarm.hold_all()
+            held = swarm.commands.hold_all()
             self._say(f"swarm: the controller raised {type(controller.error).__name__}: {controller.error}; "
                       f"sysid {held} hold where they are")  # fmt: skip
             raise ControllerError(f"the controller raised {controller.error!r}") from controller.error
@@ -309,10 +309,10 @@ class Engine:
     def _snapshot(self) -> dict[int, DroneState]:
         swarm, session = self.swarm, self.session
         assert swarm is not None and session is not None
-        now = swarm.clock()
+        now = swarm.clock.now()
         t = session.mission_time()
         out: dict[int, DroneState] = {}
-        for sysid in swarm.sysids:
+        for sysid in swarm.liveness.sysids:
             view = swarm.fleet.drones.get(sysid)
             if view is None:
                 continue
@@ -325,7 +325,7 @@ class Engine:
                 sysid=sysid, time_s=t, pos_ned_m=pos, vel_ned_mps=vel, armed=view.armed, mode=view.mode,
                 in_air=view.landed_state not in _NOT_IN_AIR,
                 battery_remaining=view.battery_remaining, link_age_s=view.link_age_s(now),
-                lost=sysid in swarm.losses, failsafe=failsafe_text(view.system_status, view.texts),
+                lost=sysid in swarm.liveness.losses, failsafe=failsafe_text(view.system_status, view.texts),
             )  # fmt: skip
         return out
 
@@ -386,62 +386,29 @@ class Engine:
             self.view = None
 
     # ---- the work the faces post (each runs in the supervisor's thread): the swarm's verbs ----------------------
-    def _start(self, name: str, *args: Any, **kwargs: Any) -> Started:
-        """Start a verb (gcs/supervisor/verbs.py); one that changes what the swarm flies begins a report step."""
+    def do(self, request: rq.Request, *, wait: bool = True) -> Any:
+        """Start a request (gcs/supervisor/verbs.py ``start``: a verb that changes what the swarm flies begins a report
+        step) and, with ``wait``, fly until it is done; its value."""
         assert self.session is not None
-        started = VERBS[name](self.session, *args, **kwargs)
-        shape = _SHAPES.get(type(args[0])) if name == "formation" else None
-        begin_report_step(self.session, name, started, shape=shape)
-        return started
+        started = start(self.session, request)
+        return carry_out(started, self._wait) if wait else started.value
 
     def _wait(self, condition: Callable[[], bool], timeout_s: float) -> bool:
         assert self.swarm is not None
-        return self.swarm.wait_until(condition, timeout_s, tick=self._tick)
+        return self.swarm.pump.wait_until(condition, timeout_s, tick=self._tick)
 
-    def do_takeoff(self, alt_m: float, timeout_s: float) -> None:
-        carry_out(self._start("takeoff", alt_m, timeout_s), self._wait)
+    def control(self, controller: Controller) -> rq.Control:
+        """A user's controller as the request that flies it: called every tick with this session's snapshot."""
+        return rq.Control(controller=ControllerBehaviour(controller, self._snapshot))
 
-    def do_formation(self, formation: Formation) -> float:
-        if type(formation) not in _SHAPES:
-            raise TypeError(f"not a formation: {formation!r} (GridSpec, CircleSpec, LineSpec or VSpec)")
-        return float(self._start("formation", formation).value)
-
-    def do_flock(self, spec: FlockSpec, *, onboard: bool) -> None:
-        self._start("flock", spec, onboard=onboard)
-
-    def do_follow(self, spec: FollowSpec, *, onboard: bool) -> None:
-        self._start("follow", spec, onboard=onboard)
-
-    def do_control(self, controller: Controller) -> None:
-        self._start("control", ControllerBehaviour(controller, self._snapshot))
-
-    def do_behaviour(self, *, run: bool) -> list[int]:
-        """Every drone's onboard behaviour on (BHV_EN = 1) or off (BHV_EN = 0, then Hold)."""
-        sysids: list[int] = self._start("behaviour", run=run).value
-        return sysids
-
-    def do_sleep(self, seconds: float) -> None:
+    def sleep(self, hold: rq.Hold) -> None:
+        """Fly on for the hold's time, with a tick at the setpoint stream's rate."""
         assert self.swarm is not None
-        self._start("hold", seconds)  # the verb checks the time; the API flies on with a tick at the stream's rate
-        self.swarm.run_for(seconds, tick=self._tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
+        self.do(hold, wait=False)
+        self.swarm.pump.run_for(hold.duration_s, tick=self._tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
 
-    def do_wait_until(self, predicate: Callable[[dict[int, DroneState]], bool], timeout_s: float) -> bool:
+    def wait_until(self, predicate: Callable[[dict[int, DroneState]], bool], timeout_s: float) -> bool:
         return self._wait(lambda: bool(predicate(self._states)), timeout_s)
-
-    def do_land(self, *, return_to_launch: bool, timeout_s: float) -> None:
-        carry_out(self._start("rtl" if return_to_launch else "land", timeout_s=timeout_s), self._wait)
-
-    def do_set_param(self, name: str, value: float, sysids: list[int] | None) -> None:
-        self._start("param", name, value, sysids)
-
-    def do_fault(self, sysid: int, kind: str, motor: int | None, for_s: float | None) -> str:
-        return str(self._start("fault", sysid, fault_request(kind, motor, for_s)).value)
-
-    def do_kill(self, sysid: int) -> str:
-        return str(self._start("kill", sysid).value)
-
-    def do_require(self, fields: Mapping[str, Any]) -> None:
-        self._start("require", [fields], base=Path.cwd())
 
 
 class Readings:

@@ -18,10 +18,12 @@ from typing import Any, TypeVar
 
 from gcs.api.engine import Controller, Engine, Readings
 from gcs.api.types import DroneState, Event, FlightResult, LaunchOptions
+from gcs.fleet.faults import fault_request
 from gcs.fleet.harness import Simulation
 from gcs.flight.behaviours import FlockSpec, FollowSpec
 from gcs.flight.formation import Formation
 from gcs.missions.mission_file import LAND_TIMEOUT_S, RTL_TIMEOUT_S, TAKEOFF_ALT_M, TAKEOFF_TIMEOUT_S
+from gcs.supervisor import requests as rq
 
 T = TypeVar("T")
 
@@ -77,24 +79,28 @@ class Session(Readings):
     async def takeoff(self, alt_m: float = TAKEOFF_ALT_M, timeout_s: float = TAKEOFF_TIMEOUT_S) -> None:
         """Arm every drone (after its pre-arm checks) and take it off to ``alt_m`` above its home; returns once every
         drone has held that altitude for a second (SwarmError if not within ``timeout_s`` simulated seconds)."""
-        await self._run(lambda: self._engine.do_takeoff(alt_m, timeout_s))
+        takeoff = rq.Takeoff(alt_m=alt_m, timeout_s=timeout_s)
+        await self._run(lambda: self._engine.do(takeoff))
 
     async def formation(self, formation: Formation) -> float:
         """Fly a formation (``GridSpec``, ``CircleSpec``, ``LineSpec``, ``VSpec``) from where the drones are, with a
         synchronised, collision-aware transition; returns the seconds until every drone is due in its slot. The
         drones keep flying it (a rotating circle keeps turning) until the next command."""
-        return await self._run(lambda: self._engine.do_formation(formation))
+        request = rq.FlyFormation(formation=formation)
+        return await self._run(lambda: self._engine.do(request))
 
     async def flock(self, spec: FlockSpec, *, onboard: bool = False) -> None:
         """Reynolds flocking of every drone, computed by the ground station; ``onboard=True``: by every drone itself,
         from its own estimate and neighbour table (``launch(behaviour=FLOCKING)``; docs/onboard.md). Stop an
         onboard flock with ``stop_behaviours`` (or any other command)."""
-        await self._run(lambda: self._engine.do_flock(spec, onboard=onboard))
+        request = rq.Flock(spec=spec, onboard=onboard)
+        await self._run(lambda: self._engine.do(request))
 
     async def follow(self, spec: FollowSpec, *, onboard: bool = False) -> None:
         """Leader-follower: the leader flies the waypoints, the others hold their slots around it; ``onboard=True``:
         each drone flies its part itself (``launch(behaviour=LEADER_FOLLOWER)``; docs/onboard.md)."""
-        await self._run(lambda: self._engine.do_follow(spec, onboard=onboard))
+        request = rq.Follow(spec=spec, onboard=onboard)
+        await self._run(lambda: self._engine.do(request, wait=False))
 
     async def control(self, controller: Controller) -> None:
         """Stream your own setpoints: ``controller(t_s, drones)`` is called every tick (20 Hz of simulated time)
@@ -102,55 +108,61 @@ class Session(Readings):
         swarm frame for the drones it commands. It runs in the supervisor's thread and must return quickly (in
         lockstep the simulation waits for it). If it raises, every drone holds where it is and the call in
         progress (or the next one) raises ``ControllerError``."""
-        await self._run(lambda: self._engine.do_control(controller))
+        await self._run(lambda: self._engine.do(self._engine.control(controller)))
 
     async def start_behaviours(self) -> list[int]:
         """Every drone runs its onboard behaviour (``launch(behaviour="file.py:Class")``, docs/onboard.md): the
         ground station stops its own setpoints and sets BHV_EN = 1; returns the sysids."""
-        return await self._run(lambda: self._engine.do_behaviour(run=True))
+        return await self._run(lambda: self._engine.do(rq.Behaviours(run=True)))
 
     async def stop_behaviours(self) -> list[int]:
         """BHV_EN = 0 on every drone, then Hold where they are; returns the sysids put in Hold."""
-        return await self._run(lambda: self._engine.do_behaviour(run=False))
+        return await self._run(lambda: self._engine.do(rq.Behaviours(run=False)))
 
     async def require(self, **fields: Any) -> None:
         """Check an invariant at every tick from now on, given as a mission's ``[[invariants]]`` table
         (``await swarm.require(kind="separation", min_m=1.0)``; docs/invariants.md). Its first violation is said,
         marked on the report's timeline and listed in ``FlightResult.metrics["violations"]``; ValueError (one line)
         for a bad one."""
-        await self._run(lambda: self._engine.do_require(fields))
+        request = rq.Require(invariants=(fields,))
+        await self._run(lambda: self._engine.do(request))
 
     async def sleep(self, seconds: float) -> None:
         """Let the swarm fly for ``seconds`` of simulated time."""
-        await self._run(lambda: self._engine.do_sleep(seconds))
+        hold = rq.Hold(duration_s=seconds)
+        await self._run(lambda: self._engine.sleep(hold))
 
     async def wait_until(self, predicate: Callable[[dict[int, DroneState]], bool], timeout_s: float) -> bool:
         """Fly until ``predicate(drones)`` is true (checked every tick) or ``timeout_s`` simulated seconds pass;
         whether it came true."""
-        return await self._run(lambda: self._engine.do_wait_until(predicate, timeout_s))
+        return await self._run(lambda: self._engine.wait_until(predicate, timeout_s))
 
     async def land(self, timeout_s: float = LAND_TIMEOUT_S) -> None:
         """Land every flying drone where it is (clear of any wreck) and wait until all have disarmed."""
-        await self._run(lambda: self._engine.do_land(return_to_launch=False, timeout_s=timeout_s))
+        land = rq.Land(timeout_s=timeout_s)
+        await self._run(lambda: self._engine.do(land))
 
     async def return_to_launch(self, timeout_s: float = RTL_TIMEOUT_S) -> None:
         """Every flying drone returns to its launch point and lands (PX4 Return); waits until all have disarmed."""
-        await self._run(lambda: self._engine.do_land(return_to_launch=True, timeout_s=timeout_s))
+        rtl = rq.ReturnToLaunch(timeout_s=timeout_s)
+        await self._run(lambda: self._engine.do(rtl))
 
     async def set_param(self, name: str, value: float, sysids: Iterable[int] | None = None) -> None:
         """Set a drone parameter (PARAM_SET, confirmed by the drone's echo) on every drone or on ``sysids``."""
-        targets = None if sysids is None else list(sysids)
-        await self._run(lambda: self._engine.do_set_param(name, value, targets))
+        request = rq.SetParam(name=name, value=value, sysids=None if sysids is None else tuple(sysids))
+        await self._run(lambda: self._engine.do(request))
 
     # ---- breaking things on purpose ------------------------------------------------------------------------------
     async def inject_fault(self, sysid: int, kind: str, *, motor: int | None = None, for_s: float | None = None) -> str:
         """MAV_CMD_INJECT_FAILURE (``motor``, ``gps``, ``gps-glitch``, ``battery-low``, ..., ``link``; docs/faults.md);
         ``for_s`` cuts a link for that long. Returns the drone's answer (``accepted``)."""
-        return await self._run(lambda: self._engine.do_fault(sysid, kind, motor, for_s))
+        request = rq.InjectFault(sysid=sysid, fault=fault_request(kind, motor, for_s))
+        return await self._run(lambda: self._engine.do(request))
 
     async def kill(self, sysid: int) -> str:
         """Kill the drone's flight software (SIGKILL of its process, or its end inside a host process)."""
-        return await self._run(lambda: self._engine.do_kill(sysid))
+        request = rq.Kill(sysid=sysid)
+        return await self._run(lambda: self._engine.do(request))
 
     # ---- the end -------------------------------------------------------------------------------------------------
     async def close(self) -> FlightResult:

@@ -47,6 +47,7 @@ from gcs.flight.formation import (
     FormationEngine,
     FormationError,
     Setpoint,
+    SpecFieldError,
     TransitionLimits,
     VSpec,
     check_finite,
@@ -114,7 +115,7 @@ class SwarmState:
 def _check_points(owner: object, name: str, points: Sequence[tuple[float, float]]) -> None:
     for point in points:
         if len(point) != 2 or not all(math.isfinite(v) for v in point):
-            raise FormationError(f"{type(owner).__name__}.{name} must hold (north, east) pairs, got {point}")
+            raise SpecFieldError(owner, name, f"must hold (north, east) pairs, got {point}")
 
 
 def limit_norm(vectors: FloatArray, max_norm: float) -> FloatArray:
@@ -200,11 +201,13 @@ class FlockSpec:
             "migration_weight_per_s",
         ):
             if getattr(self, name) < 0.0:
-                raise FormationError(f"FlockSpec.{name} must not be negative, got {getattr(self, name)}")
+                raise SpecFieldError(self, name, f"must not be negative, got {getattr(self, name)}")
         if self.separation_radius_m > self.neighbour_radius_m:
-            raise FormationError(
-                f"FlockSpec.separation_radius_m ({self.separation_radius_m:g}) must not exceed "
-                f"neighbour_radius_m ({self.neighbour_radius_m:g}): a drone only sees its neighbours"
+            raise SpecFieldError(
+                self,
+                "separation_radius_m",
+                f"({self.separation_radius_m:g}) must not exceed the "
+                f"neighbour radius ({self.neighbour_radius_m:g}): a drone only sees its neighbours",
             )
         _check_points(self, "migration_ne_m", self.migration_ne_m)
 
@@ -579,14 +582,14 @@ class FollowSpec:
 
     def __post_init__(self) -> None:
         if not self.waypoints_ne_m:
-            raise FormationError("FollowSpec.waypoints_ne_m needs at least one waypoint")
+            raise SpecFieldError(self, "waypoints_ne_m", "needs at least one waypoint")
         _check_points(self, "waypoints_ne_m", self.waypoints_ne_m)
         if self.offsets_fr_m is not None:
             for offset in self.offsets_fr_m:
                 if len(offset) != 2 or not all(math.isfinite(v) for v in offset):
-                    raise FormationError(f"FollowSpec.offsets_fr_m must hold (forward, right) pairs, got {offset}")
+                    raise SpecFieldError(self, "offsets_fr_m", f"must hold (forward, right) pairs, got {offset}")
                 if math.hypot(*offset) < 0.5:
-                    raise FormationError(f"FollowSpec.offsets_fr_m: {offset} puts a follower on the leader")
+                    raise SpecFieldError(self, "offsets_fr_m", f"{offset} puts a follower on the leader", joint=": ")
         values = {
             "alt_m": self.alt_m,
             "speed_mps": self.speed_mps,
@@ -607,7 +610,7 @@ class FollowSpec:
 def _check_v_angle(spec: FollowSpec | FollowAttachedSpec) -> None:
     """The opening of the followers' V, (0, pi]."""
     if not 0.0 < spec.angle_rad <= math.pi:
-        raise FormationError(f"{type(spec).__name__}.angle_rad must be in (0, pi], got {spec.angle_rad}")
+        raise SpecFieldError(spec, "angle_rad", f"must be in (0, pi], got {spec.angle_rad}")
 
 
 def follower_offsets(given_fr_m: Sequence[tuple[float, float]] | None, follower_count: int, spacing_m: float,

@@ -81,6 +81,24 @@ class FormationError(ValueError):
     """A formation that cannot be flown as commanded (too many drones, limits it violates by itself, bad input)."""
 
 
+class FieldError(ValueError):
+    """One field of a spec or a request that cannot be: ``field`` names it and ``problem`` says why, so that each
+    front-end can word it in its own terms (a CLI flag, a mission file's ``steps[2].alt_m``); str() is ``text``, or
+    ``field: problem``."""
+
+    def __init__(self, field: str, problem: str, text: str | None = None) -> None:
+        super().__init__(text if text is not None else f"{field}: {problem}")
+        self.field = field
+        self.problem = problem
+
+
+class SpecFieldError(FieldError, FormationError):
+    """A spec's field that cannot be flown: ``Spec.field problem``."""
+
+    def __init__(self, owner: object, field: str, problem: str, *, joint: str = " ") -> None:
+        super().__init__(field, problem, f"{type(owner).__name__}.{field}{joint}{problem}")
+
+
 # --------------------------------------------------------------------------------------------------- geometry
 
 
@@ -109,19 +127,19 @@ def check_finite(owner: object, **values: float) -> None:
     """Refuse a spec field that is not a finite number (one line naming spec and field)."""
     for name, value in values.items():
         if not math.isfinite(value):
-            raise FormationError(f"{type(owner).__name__}.{name} must be finite, got {value}")
+            raise SpecFieldError(owner, name, f"must be finite, got {value}")
 
 
 def check_positive(owner: object, **values: float) -> None:
     """Refuse a spec field that is not strictly positive (one line naming spec and field)."""
     for name, value in values.items():
         if not value > 0.0:
-            raise FormationError(f"{type(owner).__name__}.{name} must be positive, got {value}")
+            raise SpecFieldError(owner, name, f"must be positive, got {value}")
 
 
 def _check_centre(owner: object, centre: tuple[float, float]) -> None:
     if len(centre) != 2 or not all(math.isfinite(v) for v in centre):
-        raise FormationError(f"{type(owner).__name__}.centre_ne_m must be (north, east), got {centre}")
+        raise SpecFieldError(owner, "centre_ne_m", f"must be (north, east), got {centre}")
 
 
 def _place(body_frd_m: FloatArray, times_s: FloatArray, centre: FloatArray, yaw: FloatArray) -> FloatArray:

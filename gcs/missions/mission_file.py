@@ -50,7 +50,7 @@ from gcs.fleet.harness import LAYOUTS, MAX_DRONES, MAX_QUANTUM, MAX_SPAWN_JITTER
 from gcs.fleet.links import NEIGHBOUR_MODES, LinkPlan, MeshPlan, NeighbourPlan, plan_from_tables
 from gcs.fleet.losses import LOSS_POLICIES, LossPolicy
 from gcs.flight.behaviours import FlockSpec, FollowAttachedSpec, FollowSpec
-from gcs.flight.formation import CircleSpec, Formation, FormationError, GridSpec, LineSpec, VSpec
+from gcs.flight.formation import CircleSpec, FieldError, Formation, FormationError, GridSpec, LineSpec, VSpec
 from gcs.flight.onboard import FLOCKING, LEADER_FOLLOWER, absolute_spec
 from gcs.flight.onboard import MAX_POINTS as ONBOARD_MAX_POINTS
 from gcs.invariants.spec import Invariant, InvariantError, build_invariant, unique_names
@@ -69,6 +69,9 @@ TAKEOFF_TIMEOUT_S: Final = 30.0  # every drone holds its takeoff altitude
 LAND_TIMEOUT_S: Final = 60.0  # every drone landed and disarmed
 RTL_TIMEOUT_S: Final = 120.0  # every drone back, landed and disarmed
 TAKEOFF_ALT_M: Final = 3.0  # what a takeoff climbs to when it is not told (a mission's takeoff step must say)
+SWAP_ACCEL_MPS2: Final = 1.0  # a swap's acceleration and braking
+SWAP_TIMEOUT_S: Final = 30.0  # every drone within tolerance of its goal within this time of the swap's start
+SWAP_TOLERANCE_M: Final = 0.5
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -157,9 +160,9 @@ class SwapStep:
     """Every drone straight to the point opposite it through the swarm's centre, paths crossing (avoidance test)."""
 
     speed_mps: float
-    accel_mps2: float = 1.0
-    timeout_s: float = 30.0  # every drone within tolerance_m of its goal within this time of the step's start
-    tolerance_m: float = 0.5
+    accel_mps2: float = SWAP_ACCEL_MPS2
+    timeout_s: float = SWAP_TIMEOUT_S
+    tolerance_m: float = SWAP_TOLERANCE_M
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -299,6 +302,11 @@ _FOLLOW_ATTACHED_FIELDS: dict[str, str] = {
 }
 _FOLLOW_ATTACHED_REQUIRED = {"alt_m", "duration_s"}
 _RENAMED = {"angle_deg": "angle_rad", "max_turn_rate_degps": "max_turn_rate_radps"}
+_FILE_NAMES = {
+    **{spec: file for file, spec in _RENAMED.items()},
+    "heading_rad": "heading_deg",
+    "phase_rad": "phase_deg",
+}
 _FLOCK_REQUIRED = {"alt_m"}
 _FOLLOW_REQUIRED = {"waypoints_ne_m", "alt_m"}
 _PAIR_LABELS = {"points": "[north, east]", "offsets": "[forward, right]"}
@@ -338,10 +346,20 @@ def _convert(key: str, value: Any, kind: str) -> tuple[str, Any]:
     return key, int(value) if kind == "count" else float(value)
 
 
+def _spec(cls: type, kwargs: dict[str, Any]) -> Any:
+    """A spec from converted fields; a field it refuses is a FieldError named as the file names it (degrees)."""
+    try:
+        return cls(**kwargs)
+    except FieldError as exc:
+        raise FieldError(_FILE_NAMES.get(exc.field, exc.field), exc.problem, str(exc)) from None
+    except (FormationError, TypeError) as exc:
+        raise ValueError(str(exc)) from None
+
+
 def _build_behaviour(cls: type, what: str, kinds: dict[str, str], required: set[str], fields: dict[str, Any]) -> Any:
     for key in fields:
         if key not in kinds:
-            raise ValueError(f"{key}: not a field of {what} (fields: {', '.join(kinds)})")
+            raise FieldError(key, f"not a field of {what} (fields: {', '.join(kinds)})")
     missing = sorted(required - set(fields))
     if missing:
         raise ValueError(f"missing field '{missing[0]}' for {what}")
@@ -349,13 +367,10 @@ def _build_behaviour(cls: type, what: str, kinds: dict[str, str], required: set[
     for key, value in fields.items():
         problem = field_problem(value, kinds[key])
         if problem is not None:
-            raise ValueError(f"{key}: {problem}")
+            raise FieldError(key, problem)
         name, converted = _convert(key, value, kinds[key])
         kwargs[name] = converted
-    try:
-        return cls(**kwargs)
-    except (FormationError, TypeError) as exc:
-        raise ValueError(str(exc)) from None
+    return _spec(cls, kwargs)
 
 
 def build_flock(fields: dict[str, Any]) -> FlockSpec:
@@ -384,7 +399,7 @@ def build_formation(shape: str, fields: dict[str, Any]) -> Formation:
     spec_cls, kinds = _SHAPES[shape]
     for key in fields:
         if key not in kinds:
-            raise ValueError(f"{key}: not a field of a {shape} formation (fields: {', '.join(kinds)})")
+            raise FieldError(key, f"not a field of a {shape} formation (fields: {', '.join(kinds)})")
     missing = sorted(_REQUIRED[shape] - set(fields))
     if missing:
         raise ValueError(f"missing field '{missing[0]}' for a {shape} formation")
@@ -392,15 +407,12 @@ def build_formation(shape: str, fields: dict[str, Any]) -> Formation:
     for key, value in fields.items():
         problem = number_problem(value, kinds[key])
         if problem is not None:
-            raise ValueError(f"{key}: {problem}")
+            raise FieldError(key, problem)
         if kinds[key] == "angle":
             kwargs[key.replace("_deg", "_rad")] = math.radians(value)
         else:
             kwargs[key] = int(value) if kinds[key] == "count" else float(value)
-    try:
-        formation: Formation = spec_cls(**kwargs)
-    except (FormationError, TypeError) as exc:
-        raise ValueError(str(exc)) from None
+    formation: Formation = _spec(spec_cls, kwargs)
     return formation
 
 
@@ -482,6 +494,8 @@ def _formation(reader: _Reader, step: dict[str, Any], where: tuple[str | None, i
             reader.number(step, key, where, fields[key])
     try:
         formation = build_formation(shape, {k: step[k] for k in fields if k in step})
+    except FieldError as exc:
+        raise reader.fail(where, exc.field, exc.problem) from None
     except ValueError as exc:
         raise reader.fail(where, None, str(exc)) from None
     name = step.get("name", shape)
@@ -508,6 +522,8 @@ def _flock(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int |
     duration = reader.number(step, "duration_s", where, "pos")
     try:
         spec = build_flock({k: step[k] for k in _FLOCK_FIELDS if k in step})
+    except FieldError as exc:
+        raise reader.fail(where, exc.field, exc.problem) from None
     except ValueError as exc:
         raise reader.fail(where, None, str(exc)) from None
     onboard = _onboard(reader, step, where, "migration_ne_m", spec.migration_ne_m)
@@ -546,6 +562,8 @@ def _follow(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int 
     duration = reader.number(step, "duration_s", where, "pos") if "duration_s" in step else None
     try:
         spec = build_follow({k: step[k] for k in fields if k in step})
+    except FieldError as exc:
+        raise reader.fail(where, exc.field, exc.problem) from None
     except ValueError as exc:
         raise reader.fail(where, None, str(exc)) from None
     name = _step_name(reader, step, where, "follow")
@@ -579,9 +597,10 @@ def _step(reader: _Reader, step: Any, index: int, drones: int) -> Step:
         fields = {k: v for k, v in step.items() if k not in ("action", "name")}
         try:
             spec = build_follow_attached(fields)
+        except FieldError as exc:
+            raise reader.fail(where, exc.field, exc.problem) from None
         except ValueError as exc:
-            key = str(exc).split(":")[0]
-            raise reader.fail(where, key if key in _FOLLOW_ATTACHED_FIELDS else None, str(exc)) from None
+            raise reader.fail(where, None, str(exc)) from None
         return FollowAttachedStep(name=_step_name(reader, step, where, "follow attached"), spec=spec)
     if action == "swap":
         reader.check_keys(step, {"action", "speed_mps", "accel_mps2", "timeout_s", "tolerance_m"}, where)

@@ -12,7 +12,8 @@ Everything received is written to ``flight.tlog`` and recorded for the flight re
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
@@ -33,6 +34,7 @@ from gcs.missions.mission_file import (
     FollowStep,
     FormationStep,
     HoldStep,
+    LandStep,
     MissionSpec,
     PlanStep,
     RtlStep,
@@ -42,8 +44,9 @@ from gcs.missions.mission_file import (
 )
 from gcs.missions.plan_flight import copy_offsets, parse_drones, spawn_offsets, unreached
 from gcs.record.recording import FlightRecording, StepRecord
+from gcs.supervisor import requests as rq
 from gcs.supervisor.session import FlightSession
-from gcs.supervisor.verbs import VERBS, FaultRefused, Started, attach_all, carry_out
+from gcs.supervisor.verbs import FaultRefused, Started, attach_all, carry_out, start
 from gcs.view.report import PlotPolicy, write_report
 from gcs.view.scene import obstacle_shape
 from gcs.view.server import ViewServer
@@ -52,6 +55,51 @@ Say = Callable[[str], None]
 STATUS_EVERY_S = 2.0
 HOLD_POLICY_S = 10.0  # a mission under loss policy hold hovers this long before it lands the survivors
 POLICY_LANDING_S = 120.0  # survivors landed (land, hold) or back and landed (abort) within this time
+
+
+@dataclass(frozen=True, slots=True)
+class Planned:
+    """One request of a step: started, then (``wait``) flown until it is done, its failure the step's."""
+
+    request: rq.Request
+    wait: bool = True
+
+
+def step_requests(step: Step, sysids: Sequence[int]) -> tuple[Planned, ...]:
+    """A mission step as the requests it makes, in order (``sysids``: the swarm's, for a step that names a drone by
+    its number). A plan step and a fault step are decoded as they are reached: they depend on the swarm then (where
+    each drone spawned, which are lost, the mission time)."""
+    if isinstance(step, TakeoffStep):
+        return (Planned(rq.Takeoff(alt_m=step.alt_m, timeout_s=step.timeout_s)),)
+    if isinstance(step, FormationStep):  # the hold runs from the transition's start
+        return Planned(rq.FlyFormation(formation=step.formation)), Planned(rq.Hold(duration_s=step.hold_s))
+    if isinstance(step, FlockStep):
+        stop = (Planned(rq.Behaviours(run=False)),) if step.onboard else ()
+        return Planned(rq.Flock(spec=step.spec, onboard=step.onboard)), Planned(rq.Hold(duration_s=step.duration_s)), \
+            *stop  # fmt: skip
+    if isinstance(step, FollowStep):
+        spec = step.spec
+        if step.leader_drone is not None:
+            spec = dataclasses.replace(spec, leader_sysid=sysids[step.leader_drone - 1])
+        # without a time of its own, the step lasts until the leader has flown its path
+        follow = (Planned(rq.Follow(spec=spec, onboard=step.onboard), wait=step.duration_s is None),)
+        held = () if step.duration_s is None else (Planned(rq.Hold(duration_s=step.duration_s)),)
+        return follow + held + ((Planned(rq.Behaviours(run=False)),) if step.onboard else ())
+    if isinstance(step, FollowAttachedStep):
+        return Planned(rq.FollowAttached(spec=step.spec)), Planned(rq.Hold(duration_s=step.spec.duration_s))
+    if isinstance(step, SwapStep):
+        return (Planned(rq.Swap(speed_mps=step.speed_mps, accel_mps2=step.accel_mps2, tolerance_m=step.tolerance_m,
+                                timeout_s=step.timeout_s)),)  # fmt: skip
+    if isinstance(step, HoldStep):
+        return (Planned(rq.Hold(duration_s=step.duration_s)),)
+    if isinstance(step, BehaviourStep):  # the drones' own behaviour for the step's time, then Hold
+        return tuple(Planned(r) for r in (rq.Behaviours(run=True), rq.Hold(duration_s=step.duration_s),
+                                          rq.Behaviours(run=False)))  # fmt: skip
+    if isinstance(step, LandStep):
+        return (Planned(rq.Land(timeout_s=step.timeout_s)),)
+    if isinstance(step, RtlStep):
+        return (Planned(rq.ReturnToLaunch(timeout_s=step.timeout_s)),)
+    raise TypeError(f"{type(step).__name__} is decoded when it is reached")
 
 
 class MissionRunner:
@@ -142,9 +190,9 @@ class MissionRunner:
             return
         self._pending_faults = [(t, step) for t, step in self._pending_faults if t > now]
         for _t, step in due:
-            sysid = self.swarm.sysids[step.drone - 1]
+            sysid = self.swarm.liveness.sysids[step.drone - 1]
             try:
-                VERBS["fault"](self.session, sysid, step.fault)
+                start(self.session, rq.InjectFault(sysid=sysid, fault=step.fault))
             except FaultRefused:
                 pass  # the drone's answer, noted and recorded with it: the mission flies on
             except SwarmError as exc:  # not sent: the drone is lost, or did not answer
@@ -154,54 +202,41 @@ class MissionRunner:
     def _wait(self, condition: Callable[[], bool], timeout_sim_s: float) -> bool:
         """Wait for ``condition``; True also as soon as a loss policy (hold, land, abort) takes over the flight,
         which ends the step."""
-        return self.swarm.wait_until(lambda: self.session.policy_taken or condition(), timeout_sim_s, tick=self._tick)
-
-    def _do(self, started: Started) -> None:
-        """A verb carried out as a step: waited for, its failure the step's."""
-        carry_out(started, self._wait)
-
-    def _hold(self, duration_sim_s: float) -> None:
-        """Fly on for ``duration_sim_s`` (the step's time), or until a loss policy takes over."""
-        self._do(VERBS["hold"](self.session, duration_sim_s))
+        return self.swarm.pump.wait_until(
+            lambda: self.session.policy_taken or condition(), timeout_sim_s, tick=self._tick
+        )
 
     def _set_params(self) -> None:
         """The mission's drone parameters on every drone, each confirmed by its PARAM_VALUE echo (as MAVSDK does)."""
         for name, value in self.mission.swarm.params:
-            VERBS["param"](self.session, name, value)
+            start(self.session, rq.SetParam(name=name, value=value))
         if self.mission.swarm.params:
             listed = ", ".join(f"{n} = {v:g}" for n, v in self.mission.swarm.params)
             self.say(f"parameters set on every drone: {listed}")
         for drone, params in self.mission.swarm.drone_params:  # [swarm.drone.N]: over the swarm's own
-            sysid = self.swarm.sysids[drone - 1]
+            sysid = self.swarm.liveness.sysids[drone - 1]
             for name, value in params:
-                VERBS["param"](self.session, name, value, [sysid])
+                start(self.session, rq.SetParam(name=name, value=value, sysids=(sysid,)))
             self.say(f"parameters set on drone {drone} (sysid {sysid}): "
                      + ", ".join(f"{n} = {v:g}" for n, v in params))  # fmt: skip
 
     # ---- steps -----------------------------------------------------------------------------------------------------
-    def _flock(self, step: FlockStep) -> None:
-        VERBS["flock"](self.session, step.spec, onboard=step.onboard)
-        self._hold(step.duration_s)
-        if step.onboard:
-            VERBS["behaviour"](self.session, run=False)
+    def _carry(self, planned: Sequence[Planned]) -> Started:
+        """A step's requests, each started and (unless it only starts) waited for; the first one's ``Started`` (it
+        sets what the step flies: a takeoff's target altitude, a formation's planned arrival)."""
+        first: Started | None = None
+        for p in planned:
+            started = start(self.session, p.request)
+            first = first or started
+            if p.wait:
+                carry_out(started, self._wait)
+        assert first is not None
+        return first
 
-    def _follow(self, step: FollowStep) -> None:
-        spec = step.spec
-        if step.leader_drone is not None:
-            spec = dataclasses.replace(spec, leader_sysid=self.swarm.sysids[step.leader_drone - 1])
-        started = VERBS["follow"](self.session, spec, onboard=step.onboard)
-        if step.duration_s is not None:
-            self._hold(step.duration_s)
-        else:
-            self._do(started)
-        if step.onboard:
-            VERBS["behaviour"](self.session, run=False)
-
-    def _behaviour(self, step: BehaviourStep) -> None:
-        """Every drone runs its onboard behaviour (docs/onboard.md) for the step's time, then holds."""
-        VERBS["behaviour"](self.session, run=True)
-        self._hold(step.duration_s)
-        VERBS["behaviour"](self.session, run=False)
+    def _fault(self, step: FaultStep) -> None:
+        """Due ``after_s`` from now, injected at the first tick it is due (this one, when it is due at once)."""
+        self._pending_faults.append((self.now() + step.after_s, step))
+        self._inject_due_faults(self.now())
 
     def _place_obstacles(self) -> None:
         """Declare the mission's static obstacles in the shared world (cameras see them, contact crashes)."""
@@ -214,18 +249,19 @@ class MissionRunner:
 
     def _plan(self, step: PlanStep) -> None:
         """Upload the plan's copies to the step's drones and, with ``start``, fly it in AUTO.MISSION to its end."""
-        numbers = parse_drones(step.drones, range(1, len(self.swarm.sysids) + 1))
-        chosen = [self.swarm.sysids[n - 1] for n in numbers]
+        sysids = self.swarm.liveness.sysids
+        numbers = parse_drones(step.drones, range(1, len(sysids) + 1))
+        chosen = [sysids[n - 1] for n in numbers]
         offsets = {
             s: o
             for s, o in copy_offsets(spawn_offsets(self.swarm), chosen, step.offsets).items()
-            if s not in self.swarm.losses
+            if s not in self.swarm.liveness.losses
         }
-        upload = VERBS["plan_upload"](self.session, step.plan, offsets, hold_first=step.start)
+        upload = start(self.session, rq.PlanUpload(plan=step.plan, offsets=offsets, hold_first=step.start))
         self._note(f"{step.file.name}: {upload.result}")
         if not step.start:
             return
-        self._do(VERBS["plan_start"](self.session, list(offsets), upload.value, step.timeout_s))
+        self._carry([Planned(rq.PlanStart(sysids=tuple(offsets), uploaded=upload.value, timeout_s=step.timeout_s))])
         missing = unreached(self.swarm, upload.value)
         if missing:
             listed = "; ".join(f"sysid {s}: items {m}" for s, m in missing.items())
@@ -238,48 +274,28 @@ class MissionRunner:
         survivors are down (hold: they hold for HOLD_POLICY_S, then land where they are)."""
         self._note(f"loss policy {self.mission.loss_policy.value}: remaining steps dropped")
         if self.mission.loss_policy is LossPolicy.HOLD:
-            self.swarm.run_for(HOLD_POLICY_S, tick=self._tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
-            self.swarm.land_all()
-        flying = self.swarm.armed_sysids()
-        landed = self.swarm.wait_until(lambda: not self.swarm.armed_sysids(flying), POLICY_LANDING_S, tick=self._tick)
+            self.swarm.pump.run_for(HOLD_POLICY_S, tick=self._tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
+            self.swarm.commands.land_all()
+        armed_sysids = self.swarm.liveness.armed_sysids
+        flying = armed_sysids()
+        landed = self.swarm.pump.wait_until(lambda: not armed_sysids(flying), POLICY_LANDING_S, tick=self._tick)
         if not landed:
             raise SwarmError(f"not every drone landed and disarmed within {POLICY_LANDING_S:g} s of the loss policy")
 
     def _run_step(self, index: int, step: Step) -> None:
-        start = self.now()
+        began = self.now()
         kind = type(step).__name__.removesuffix("Step").lower()
         name = step.name if isinstance(step, FormationStep | FlockStep | FollowStep | FollowAttachedStep) else kind
         self._step_name = name
         self.session.step_began()
-        self.say(f"[{start:6.1f} s] step {index + 1}/{len(self.mission.steps)}: {name}")
-        target_alt_m = arrival_s = None
-        if isinstance(step, TakeoffStep):
-            takeoff = VERBS["takeoff"](self.session, step.alt_m, step.timeout_s)
-            target_alt_m = takeoff.target_alt_m  # what the drones climb to: MIS_TAKEOFF_ALT at least
-            self._do(takeoff)
-        elif isinstance(step, FormationStep):
-            arrival_s = VERBS["formation"](self.session, step.formation).arrival_s
-            self._hold(step.hold_s)
-        elif isinstance(step, FlockStep):
-            self._flock(step)
-        elif isinstance(step, SwapStep):
-            self._do(VERBS["swap"](self.session, step.speed_mps, step.accel_mps2, step.tolerance_m, step.timeout_s))
-        elif isinstance(step, FollowStep):
-            self._follow(step)
-        elif isinstance(step, FollowAttachedStep):
-            VERBS["follow_attached"](self.session, step.spec)
-            self._hold(step.spec.duration_s)
-        elif isinstance(step, HoldStep):
-            self._hold(step.duration_s)
-        elif isinstance(step, BehaviourStep):
-            self._behaviour(step)
-        elif isinstance(step, PlanStep):
+        self.say(f"[{began:6.1f} s] step {index + 1}/{len(self.mission.steps)}: {name}")
+        flown: Started | None = None
+        if isinstance(step, PlanStep):
             self._plan(step)
         elif isinstance(step, FaultStep):
-            self._pending_faults.append((start + step.after_s, step))
-            self._inject_due_faults(self.now())
+            self._fault(step)
         else:
-            self._do(VERBS["rtl" if isinstance(step, RtlStep) else "land"](self.session, timeout_s=step.timeout_s))
+            flown = self._carry(step_requests(step, self.swarm.liveness.sysids))
         if isinstance(step, FaultStep):
             return  # an instant, listed with the faults (a zero-length step would only clutter the steps table)
         self.session.recording.steps.append(
@@ -287,10 +303,10 @@ class MissionRunner:
                 index=index,
                 name=name,
                 kind=kind,
-                start_s=start,
+                start_s=began,
                 end_s=self.now(),
-                target_alt_m=target_alt_m,
-                arrival_s=arrival_s,
+                target_alt_m=flown.target_alt_m if flown is not None else None,  # a takeoff's: MIS_TAKEOFF_ALT at least
+                arrival_s=flown.arrival_s if flown is not None else None,
             )
         )
 
@@ -314,7 +330,7 @@ class MissionRunner:
             self._set_params()
             self.session.restart_clock()
             self._pending_faults += [(f.after_s, f) for f in self.mission.faults]  # [[faults]]: at mission times
-            self.swarm.arm_all(tick=self._tick)  # before the takeoff step's clock starts
+            start(self.session, rq.Arm())  # before the takeoff step's clock starts
             for index, step in enumerate(self.mission.steps):
                 if self.session.policy_taken:
                     self._finish_after_policy()

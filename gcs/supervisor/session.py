@@ -47,22 +47,22 @@ class FlightSession:
         self.recording = recording
         self.loss_policy = loss_policy
         self.streamer = FormationStreamer(swarm, SwarmFrame(swarm.plan.origin))
-        swarm.keep_streaming(self.streamer.tick)  # setpoints go on while a command waits for its answer
+        swarm.pump.keep_streaming(self.streamer.tick)  # setpoints go on while a command waits for its answer
         self.pace = PaceWatch(swarm, say)
         recording.requested_speed = self.pace.requested_speed
         recording.loss_policy = loss_policy.value
         recording.signing_key_id = swarm.signing_key_id
-        recording.neighbours = NeighbourPlan(relay=swarm.relay is not None, mesh=swarm.plan.mesh).describe()
+        recording.neighbours = NeighbourPlan(relay=swarm.router.relay is not None, mesh=swarm.plan.mesh).describe()
         self.recorder: FlightRecorder | None = None
         self.view: ViewFeed | None = None
         self.policy_taken = False  # a loss policy other than continue has taken the survivors out of the flight
         self.onboard = False  # the drones' onboard behaviours fly them (BHV_EN = 1)
         self.controller: Behaviour | None = None  # a user's controller the streamer runs (the Python API)
         self.waiting_tick: Tick | None = None  # the front-end's tick, run while a verb waits on the drones (arming)
-        self._t0_s = swarm.clock() if t0_s is None else t0_s
+        self._t0_s = swarm.clock.now() if t0_s is None else t0_s
         self._step: StepRecord | None = None  # the report's step under way (begin_step)
         self.report_dir: Path | None = None  # where a session flown verb by verb writes its report
-        self.steps_begun = 0  # verbs and mission steps that changed what the swarm flies (an invariant's ``step``)
+        self.records_verbs = False  # flown verb by verb: a verb that changes what the swarm flies begins a step
         self.watch: InvariantWatch | None = None  # the flight's invariants (``require``)
 
     @classmethod
@@ -74,6 +74,7 @@ class FlightSession:
                                     collision_radius_m=contact_distance_m)  # fmt: skip
         session = cls(swarm, say, recording, loss_policy, note=note)
         session.report_dir = report_dir
+        session.records_verbs = True
         if report_dir is not None:
             report_dir.mkdir(parents=True, exist_ok=True)
             session.record(report_dir / "flight.tlog", say=None)
@@ -82,11 +83,11 @@ class FlightSession:
     # ---- time ------------------------------------------------------------------------------------------------------
     def mission_time(self) -> float:
         """Simulated seconds since mission time zero (formations run on the drones' clock)."""
-        return self.swarm.clock() - self._t0_s
+        return self.swarm.clock.now() - self._t0_s
 
     def restart_clock(self) -> None:
         """Mission time zero is now (``swarm fly``: once the drones are up, armed and set)."""
-        self._t0_s = self.swarm.clock()
+        self._t0_s = self.swarm.clock.now()
 
     # ---- parts -----------------------------------------------------------------------------------------------------
     def record(self, tlog: Path, say: Say | None) -> FlightRecorder:
@@ -117,26 +118,27 @@ class FlightSession:
         if not invariants:
             return
         if self.watch is None:
-            self.watch = InvariantWatch(self, stop=stop)
+            self.watch = InvariantWatch(self.swarm, self.streamer, self.recording, self.say, stop=stop)
         self.watch.add(invariants, stop=stop)
 
     def step_began(self) -> None:
         """A mission step, or a verb that changes what the swarm flies, begins (an invariant's ``step`` event)."""
-        self.steps_begun += 1
+        if self.watch is not None:
+            self.watch.step_began()
 
     def watch_losses(self, now_s: float, indent: str = "") -> None:
         """Each new loss: one line, and the loss policy applied (with its line and record); each drone heard again:
         one line, and it is taken back as the policy says."""
-        for loss in self.swarm.detect_losses(now_s):
+        for loss in self.swarm.liveness.detect_losses(now_s):
             self.say(loss_line(loss))
             line = apply_loss_policy(self.loss_policy, self.streamer, loss, now_s)
             self.policy_taken = self.policy_taken or self.loss_policy is not LossPolicy.CONTINUE
             self._policy_line(line, now_s, loss.sysid, indent)
-        for loss in self.swarm.detect_regains(now_s):
+        for loss in self.swarm.liveness.detect_regains(now_s):
             self.say(regain_line(loss))
             line = apply_regain(self.loss_policy, self.streamer, loss, now_s, policy_taken=self.policy_taken)
             self._policy_line(line, now_s, loss.sysid, indent)
-        for line in self.swarm.detect_external_changes(now_s):
+        for line in self.swarm.attachments.detect_changes(now_s):
             self.say(f"swarm: {line}")
         for sysid in self.swarm.attachments.take_released():  # a member no longer commanded: flown on without it
             self._policy_line(self.streamer.handle_loss(sysid, now_s), now_s, sysid, indent)
@@ -186,8 +188,8 @@ class FlightSession:
         """What the swarm knows of its drones into the recording, as the flight ends: losses, returns, and the link
         model's counts (``swarm fly`` takes them before the shutdown: what reaches a stopped drone depends on the
         machine's timing and is not the flight's)."""
-        self.recording.losses = list(self.swarm.losses.values())
-        self.recording.regained = list(self.swarm.regained)
+        self.recording.losses = list(self.swarm.liveness.losses.values())
+        self.recording.regained = list(self.swarm.liveness.regained)
         self.recording.link_counters = self.swarm.harness.link_counters()
 
 

@@ -1,37 +1,29 @@
 """The supervisor behind ``swarm up``: telemetry, liveness, control requests, and the swarm's verbs.
 
-Commands arrive from the control channel (gcs/supervisor/control.py) as JSON requests; each is one of the swarm's verbs
-(gcs/supervisor/verbs.py), started over MAVLink with the messages a PX4 ground station would send and answered at
-once with one JSON response (the channel must not block: a takeoff is started here, not waited for).
+Commands arrive from the control channel (gcs/supervisor/control.py) as JSON; each is decoded into a request
+(gcs/supervisor/commands.py) and started as the swarm's verb (gcs/supervisor/verbs.py), over MAVLink with the messages
+a PX4 ground station would send, and answered at once with one JSON response (the channel must not block: a takeoff
+is started here, not waited for).
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.fleet.attach import DEFAULT_KEEP_IN_M, DEFAULT_MAX_DISTANCE_M, AttachSpec, parse_attach
-from gcs.fleet.faults import fault_request
 from gcs.fleet.losses import MAV_STATE_CRITICAL, LossPolicy
 from gcs.fleet.swarm import Swarm, SwarmError
 from gcs.fleet.telemetry import DroneView
-from gcs.flight.formation import Formation
 from gcs.mavlink.mission_transfer import MISSION_STATE_NAMES
-from gcs.missions.mission_file import (
-    TAKEOFF_ALT_M,
-    build_flock,
-    build_follow,
-    build_follow_attached,
-    build_formation,
-)
-from gcs.missions.plan_flight import PlanUsageError, copy_offsets, parse_drones, parse_offsets, spawn_offsets
-from gcs.missions.qgc_plan import PlanFileError, load_plan, plan_text
+from gcs.missions.plan_flight import PlanUsageError
+from gcs.missions.qgc_plan import PlanFileError, plan_text
+from gcs.supervisor import requests as rq
+from gcs.supervisor.commands import DECODERS, decode
 from gcs.supervisor.session import FlightSession
-from gcs.supervisor.verbs import VERBS, begin_report_step
+from gcs.supervisor.verbs import start
 from gcs.view.server import ViewServer
 
 Say = Callable[[str], None]
@@ -50,32 +42,13 @@ class Station:
             swarm, say, loss_policy, report_dir=report_dir, contact_distance_m=contact_distance_m, note=swarm_note(say)
         )
         self.stop_requested = False
-        swarm.listeners.append(self._on_message)
+        swarm.router.listeners.append(self._on_message)
+        # the session's own commands; every other ``cmd`` is a verb's (gcs/supervisor/commands.py DECODERS)
         self.commands: dict[str, Callable[[dict[str, Any]], dict[str, Any]]] = {
             "ping": lambda _r: {"ok": True},
             "status": lambda _r: {"ok": True, "drones": self.status_rows()},
             "down": self._down,
-            "takeoff": lambda r: self._verb(r, "takeoff", float(r.get("alt", TAKEOFF_ALT_M))),
-            "formation": lambda r: self._verb(r, "formation", self._formation(r)),
-            "flock": lambda r: self._verb(r, "flock", build_flock(dict(r.get("fields", {})))),
-            "follow": lambda r: self._verb(r, "follow", build_follow(dict(r.get("fields", {})))),
-            "follow_attached": lambda r: self._verb(r, "follow_attached",
-                                                    build_follow_attached(dict(r.get("fields", {})))),
-            "goto": lambda r: self._verb(r, "goto", float(r["north_m"]), float(r["east_m"]),
-                                         None if r.get("alt_m") is None else float(r["alt_m"])),
-            "land": lambda r: self._verb(r, "land"),
-            "rtl": lambda r: self._verb(r, "rtl"),
-            "behaviour": lambda r: self._verb(r, "behaviour", run=_start_or_stop(r.get("action"))),
-            "fault": self._fault,
-            "plan_upload": self._plan_upload,
-            "plan_start": self._plan_start,
-            "plan_download": lambda r: {"ok": True, "plan": plan_text(VERBS["plan_download"](
-                self.session, r.get("sysid")).value)},
-            "attach": lambda r: self._verb(r, "attach", _attach_spec(r)),
-            "detach": lambda r: self._verb(r, "detach", r.get("sysid")),
-            "require": lambda r: self._verb(r, "require", [dict(r.get("fields", {}))], base=Path(str(r.get("cwd",
-                                                                                                          ".")))),
-        }  # fmt: skip
+        }
 
     def serve(self, server: ViewServer) -> None:
         """Feed the live view served by ``server`` from now on (gcs/view)."""
@@ -113,10 +86,10 @@ class Station:
     # ---- requests --------------------------------------------------------------------------------------------------
     def handle(self, request: dict[str, Any]) -> dict[str, Any]:
         handler = self.commands.get(request["cmd"])
-        if handler is None:
+        if handler is None and request["cmd"] not in DECODERS:
             return {"ok": False, "error": f"unknown command {request['cmd']!r}"}
         try:
-            return handler(request)
+            return handler(request) if handler is not None else self._verb(request)
         except (PlanUsageError, PlanFileError) as exc:
             return {"ok": False, "usage": True, "error": str(exc)}
         except SwarmError as exc:
@@ -124,54 +97,24 @@ class Station:
         except ValueError as exc:  # a verb's check: the user's mistake
             return {"ok": False, "usage": True, "error": str(exc)}
 
-    def _verb(self, request: dict[str, Any], name: str, *args: Any, **kwargs: Any) -> dict[str, Any]:
-        """Start a verb and answer; one that changes what the swarm flies begins the report's next step."""
-        started = VERBS[name](self.session, *args, **kwargs)
-        begin_report_step(self.session, name, started, shape=str(request["shape"]) if "shape" in request else None)
+    def _verb(self, command: dict[str, Any]) -> dict[str, Any]:
+        """Decode a command, start its verb and answer; one that changes what the swarm flies begins the report's
+        next step."""
+        request = decode(command, self.swarm)
+        started = start(self.session, request)
+        if isinstance(request, rq.PlanDownload):
+            return {"ok": True, "plan": plan_text(started.value)}
+        if isinstance(request, rq.PlanUpload):
+            self.session.note(f"plan {Path(str(command.get('path'))).name}: {started.result}")
         return {"ok": True, "result": started.result} if started.result else {"ok": True}
 
     def _down(self, _request: dict[str, Any]) -> dict[str, Any]:
         self.stop_requested = True
         return {"ok": True}
 
-    def _formation(self, request: dict[str, Any]) -> Formation:
-        """The formation a request names; a grid without rows is made as square as the surviving drones allow."""
-        fields = dict(request.get("fields", {}))
-        if request.get("shape") == "grid" and not fields.get("rows"):
-            n = len(self.swarm.active_sysids)
-            fields["cols"] = max(1, math.ceil(math.sqrt(n)))
-            fields["rows"] = math.ceil(n / fields["cols"])
-        return build_formation(str(request.get("shape")), fields)
-
-    def _fault(self, request: dict[str, Any]) -> dict[str, Any]:
-        """``swarm fault``, ``swarm kill``: a MAVLink fault or a killed process."""
-        fault = fault_request(request.get("kind"), request.get("motor"), request.get("for_s"))
-        return self._verb(request, "fault", request.get("sysid"), fault)
-
-    def _chosen(self, request: dict[str, Any]) -> list[int]:
-        chosen = parse_drones(str(request.get("drones", "all")), self.swarm.sysids)
-        chosen = [s for s in chosen if s not in self.swarm.losses]
-        if not chosen:
-            raise SwarmError("every chosen drone is lost")
-        return chosen
-
-    def _plan_upload(self, request: dict[str, Any]) -> dict[str, Any]:
-        """``swarm plan upload``: each chosen drone its copy of a QGroundControl plan, moved by an offset
-        (gcs/missions/plan_flight.py)."""
-        chosen = self._chosen(request)
-        path = Path(str(request.get("path")))
-        plan = load_plan(path)
-        offsets = copy_offsets(spawn_offsets(self.swarm), chosen, parse_offsets(str(request.get("offsets", "spawn"))))
-        started = VERBS["plan_upload"](self.session, plan, offsets)
-        self.session.note(f"plan {path.name}: {started.result}")
-        return {"ok": True, "result": started.result}
-
-    def _plan_start(self, request: dict[str, Any]) -> dict[str, Any]:
-        return self._verb(request, "plan_start", self._chosen(request))
-
     def _mission_progress(self, sysid: int, mode: str) -> str | None:
         """``item 3/5 active`` while a drone flies a mission or has finished one (its MISSION_CURRENT), else None."""
-        progress = self.swarm.mission_progress.drones.get(sysid)
+        progress = self.swarm.missions.progress.drones.get(sysid)
         if progress is None or progress.total == 0:
             return None
         state = MISSION_STATE_NAMES.get(progress.state, "")
@@ -180,11 +123,11 @@ class Station:
         return f"item {progress.current_seq + 1}/{progress.total} {state}".rstrip()
 
     def status_rows(self) -> list[dict[str, Any]]:
-        now = self.swarm.clock()
+        now = self.swarm.clock.now()
         rows = []
-        for sysid in self.swarm.sysids:
+        for sysid in self.swarm.liveness.sysids:
             d = self.swarm.fleet.drones.get(sysid)
-            loss = self.swarm.losses.get(sysid)
+            loss = self.swarm.liveness.losses.get(sysid)
             if loss is not None:
                 down = loss.down_ne_m
                 where = "" if down is None else f", down at {down[0]:.1f} m N {down[1]:.1f} m E"
@@ -194,7 +137,7 @@ class Station:
                 rows.append({"sysid": sysid, "mode": "NO LINK"})
                 continue
             rows.append({**_telemetry_row(d, now), "mission": self._mission_progress(sysid, d.mode)})
-        for sysid, vehicle in self.swarm.attached.items():
+        for sysid, vehicle in self.swarm.attachments.vehicles.items():
             d = self.swarm.fleet.drones.get(sysid)
             if d is not None:
                 lost = ", lost" if vehicle.lost else ""
@@ -213,20 +156,6 @@ def _telemetry_row(d: DroneView, now_s: float) -> dict[str, Any]:
 def swarm_note(say: Say) -> Say:
     """What a verb did, as the supervisor says it: ``swarm: ...``."""
     return lambda text: say(f"swarm: {text}")
-
-
-def _attach_spec(request: dict[str, Any]) -> AttachSpec:
-    """``swarm attach``'s request as the attach verb takes it (AttachError, a ValueError of one line)."""
-    key = request.get("signing_key")
-    return parse_attach(str(request.get("url")), max_distance_m=float(request.get("max_distance_m",
-                        DEFAULT_MAX_DISTANCE_M)), keep_in_m=float(request.get("keep_in_m", DEFAULT_KEEP_IN_M)),
-                        signing_key_file=None if key is None else Path(str(key)))  # fmt: skip
-
-
-def _start_or_stop(action: object) -> bool:
-    if action not in ("start", "stop"):
-        raise ValueError(f"behaviour must be start or stop, got {action!r}")
-    return action == "start"
 
 
 def format_status(rows: list[dict[str, Any]]) -> str:

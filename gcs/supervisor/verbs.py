@@ -1,17 +1,21 @@
 """The swarm's verbs, each written once: what it checks, how it starts, and how to know it is done.
 
-Three front-ends fly a swarm, all on a ``FlightSession`` (gcs/supervisor/session.py): the control channel of
-``swarm up`` (gcs/supervisor/station.py), which must not block and so only starts a verb and answers; a mission
-file's steps (gcs/supervisor/mission_runner.py) and the Python API (gcs/api/engine.py), which start a verb and wait
-until it is done (``carry_out``). A verb returns a ``Started``: what to answer at once, and the condition, time
-limit and complaint a front-end that waits uses. Each front-end waits in its own way (a mission's wait also ends
-when a loss policy takes the flight over; the API's ends on Ctrl-C), which is why waiting is not a verb's.
+Every front-end decodes what its user said into a request (gcs/supervisor/requests.py) and hands it to ``start``, on
+a ``FlightSession`` (gcs/supervisor/session.py): the control channel of ``swarm up`` (gcs/supervisor/station.py, with
+the CLI's commands decoded by gcs/supervisor/commands.py), which must not block and so only starts a verb and
+answers; a mission file's steps (gcs/supervisor/mission_runner.py) and the Python API (gcs/api/engine.py), which start
+a verb and wait until it is done (``carry_out``). A verb returns a ``Started``: what to answer at once, and the
+condition, time limit and complaint a front-end that waits uses. Each front-end waits in its own way (a mission's
+wait also ends when a loss policy takes the flight over; the API's ends on Ctrl-C), which is why waiting is not a
+verb's.
 
-``VERBS`` is the table; tests/unit/test_verbs.py holds every front-end to it. A verb need not exist in every
-front-end (a swap is a mission step, a controller an API call), but where it exists it is this code.
+``VERBS`` is the table from request type to verb; tests/unit/test_requests.py drives every front-end's decoder to its
+requests. A verb need not exist in every front-end (a swap is a mission step, a controller an API call), but where it
+exists it is this code.
 
-Checks: a verb raises ``ValueError`` for a mistake in what it was asked (one line, the user's to fix: the control
-channel answers it as a usage error, exit code 2) and ``SwarmError`` when the swarm cannot do it.
+Checks: a request checks its own fields when it is made (``FieldError``); a verb raises ``ValueError`` for a mistake
+only the swarm reveals (no such sysid: one line, the user's to fix, which the control channel answers as a usage
+error, exit code 2) and ``SwarmError`` when the swarm cannot do it.
 """
 
 from __future__ import annotations
@@ -20,33 +24,22 @@ import dataclasses
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Final
 
 from gcs.command.onboard_flight import FollowObserver, leader_arrived, start_onboard_flock, start_onboard_follow
 from gcs.command.procedures import (
-    check_takeoff_alt,
     start_onboard_behaviours,
     start_takeoff,
     stop_onboard_behaviours,
 )
 from gcs.fleet.attach import AttachError, AttachSpec
-from gcs.fleet.faults import CRASH, FaultRequest, result_text
+from gcs.fleet.faults import CRASH, result_text
 from gcs.fleet.swarm import SwarmError
-from gcs.flight.behaviours import (
-    Behaviour,
-    FlockSpec,
-    FollowAttached,
-    FollowAttachedSpec,
-    FollowSpec,
-    LeaderFollower,
-    LeaderReport,
-)
-from gcs.flight.formation import Formation
+from gcs.flight.behaviours import FollowAttached, LeaderFollower, LeaderReport
 from gcs.invariants.spec import build_invariant, unique_names
-from gcs.missions.mission_file import LAND_TIMEOUT_S, RTL_TIMEOUT_S, TAKEOFF_TIMEOUT_S
-from gcs.missions.plan_flight import Offset, Uploaded, download_plan, start_missions, unfinished, upload_plan
-from gcs.missions.qgc_plan import QgcPlan
+from gcs.missions.mission_file import build_formation
+from gcs.missions.plan_flight import download_plan, start_missions, unfinished, upload_plan
+from gcs.supervisor import requests as rq
 from gcs.supervisor.session import FlightSession
 
 FOLLOW_ARRIVAL_MARGIN_S: Final = 30.0  # the leader must report itself at its last waypoint this long after its path
@@ -91,14 +84,16 @@ def carry_out(started: Started, wait: Wait) -> Any:
     return started.value
 
 
-def begin_report_step(session: FlightSession, name: str, started: Started, *, shape: str | None = None) -> None:
-    """A verb that changes what the swarm flies begins the next step of a report that records verbs as they come
-    (``swarm up``, the API): a goto is a formation step, a plan's start a plan step; ``shape`` names a formation."""
-    if started.new_step:
-        step = name.removesuffix("_start")
-        session.begin_step(
-            "formation" if step == "goto" else step, shape or step, started.target_alt_m, started.arrival_s
-        )
+def start(session: FlightSession, request: rq.Request) -> Started:
+    """Start what a request asks, whichever front-end decoded it. In a session flown verb by verb (``swarm up``, the
+    API) a verb that changes what the swarm flies begins the report's next step: a goto is a formation step, a plan's
+    start a plan step (a mission's steps are its own)."""
+    started = VERBS[type(request)](session, request)
+    if started.new_step and session.records_verbs:
+        step = request.verb.removesuffix("_start")
+        shape = request.shape if isinstance(request, rq.FlyFormation) else step
+        session.begin_step("formation" if step == "goto" else step, shape, started.target_alt_m, started.arrival_s)
+    return started
 
 
 def take_over(session: FlightSession) -> None:
@@ -106,22 +101,31 @@ def take_over(session: FlightSession) -> None:
     behaviour stop it and hold (BHV_EN = 0), so that only one source feeds their offboard input."""
     session.controller = None
     if session.onboard:
-        behaviour(session, run=False)
+        behaviour(session, rq.Behaviours(run=False))
 
 
 # ---- the verbs ------------------------------------------------------------------------------------------------------
-def takeoff(session: FlightSession, alt_m: float, timeout_s: float = TAKEOFF_TIMEOUT_S) -> Started:
+def arm(session: FlightSession, request: rq.Arm) -> Started:
+    """Arm every surviving drone on the ground, after its pre-arm checks (the swarm flies on meanwhile)."""
+    session.swarm.commands.arm_all(request.timeout_s, tick=session.waiting_tick)
+    return Started()
+
+
+def takeoff(session: FlightSession, request: rq.Takeoff) -> Started:
     """Arm (unless armed) and take every surviving drone off to ``alt_m`` above its home; done when they hold it."""
-    check_takeoff_alt(alt_m)
-    target_m, holding = start_takeoff(session.swarm, session.streamer, alt_m, tick=session.waiting_tick,
+    timeout_s = request.timeout_s
+    target_m, holding = start_takeoff(session.swarm, session.streamer, request.alt_m, tick=session.waiting_tick,
                                       say=session.say)  # fmt: skip
     return Started(done=holding, timeout_s=timeout_s, new_step=True, target_alt_m=target_m,
                    late=lambda: f"takeoff to {target_m:g} m not reached within {timeout_s:g} s")  # fmt: skip
 
 
-def formation(session: FlightSession, spec: Formation) -> Started:
+def formation(session: FlightSession, request: rq.FlyFormation) -> Started:
     """Fly a formation, from wherever the drones are (a synchronised, collision-aware transition); its value is the
-    time the transition needs, in seconds."""
+    time the transition needs, in seconds. A square grid is counted over the surviving drones."""
+    spec = request.formation
+    if isinstance(spec, rq.SquareGrid):
+        spec = build_formation("grid", spec.fields(len(session.swarm.liveness.active_sysids)))
     take_over(session)
     now = session.mission_time()
     session.streamer.command(spec, now)
@@ -130,23 +134,23 @@ def formation(session: FlightSession, spec: Formation) -> Started:
     return Started(value=arrival_s - now, new_step=True, arrival_s=arrival_s)
 
 
-def goto(session: FlightSession, north_m: float, east_m: float, alt_m: float | None = None) -> Started:
+def goto(session: FlightSession, request: rq.Goto) -> Started:
     """Move the formation being flown so that its centre is at north/east (and altitude), keeping its shape."""
     flown = session.streamer.formation
     if flown is None or not session.streamer.active:
         raise SwarmError("no formation is being flown: use 'swarm formation' first")
-    if not (math.isfinite(north_m) and math.isfinite(east_m)):
-        raise ValueError("north and east must be finite numbers")
-    changes: dict[str, Any] = {"centre_ne_m": (north_m, east_m)}
-    if alt_m is not None:
-        changes["alt_m"] = alt_m
-    return formation(session, dataclasses.replace(flown, **changes))  # type: ignore[type-var]
+    changes: dict[str, Any] = {"centre_ne_m": (request.north_m, request.east_m)}
+    if request.alt_m is not None:
+        changes["alt_m"] = request.alt_m
+    moved = dataclasses.replace(flown, **changes)  # type: ignore[type-var]
+    return formation(session, rq.FlyFormation(formation=moved))
 
 
-def flock(session: FlightSession, spec: FlockSpec, *, onboard: bool = False) -> Started:
+def flock(session: FlightSession, request: rq.Flock) -> Started:
     """Reynolds flocking, computed by the ground station or (``onboard``) by every drone itself."""
+    spec = request.spec
     take_over(session)
-    if onboard:  # every drone flocks by itself (gcs/command/onboard_flight.py)
+    if request.onboard:  # every drone flocks by itself (gcs/command/onboard_flight.py)
         start_onboard_flock(session.swarm, session.streamer, spec)
         session.onboard = True
     else:
@@ -154,11 +158,12 @@ def flock(session: FlightSession, spec: FlockSpec, *, onboard: bool = False) -> 
     return Started(new_step=True)
 
 
-def follow(session: FlightSession, spec: FollowSpec, *, onboard: bool = False) -> Started:
+def follow(session: FlightSession, request: rq.Follow) -> Started:
     """Leader-follower along the leader's path; done when the leader has flown it (reported at its last waypoint)."""
+    spec = request.spec
     take_over(session)
     swarm, streamer = session.swarm, session.streamer
-    if onboard:
+    if request.onboard:
         flown = start_onboard_follow(swarm, streamer, spec, session.mission_time())
         session.onboard = True
         # the followers' slots for the report, from the ground law's observer (the drones fly themselves)
@@ -166,11 +171,12 @@ def follow(session: FlightSession, spec: FollowSpec, *, onboard: bool = False) -
         margin = flown.latest_end_s - flown.earliest_end_s
 
         def said_if_lost() -> None:
-            if flown.leader in swarm.losses:  # no hand-over onboard: the followers hold where they are
+            if flown.leader in swarm.liveness.losses:  # no hand-over onboard: the followers hold where they are
                 session.note(f"follow: leader sysid {flown.leader} lost, the step ends")
 
         return Started(
-            done=lambda: flown.leader in swarm.losses or leader_arrived(flown, streamer, session.mission_time()),
+            done=lambda: flown.leader in swarm.liveness.losses
+            or leader_arrived(flown, streamer, session.mission_time()),
             timeout_s=flown.latest_end_s - session.mission_time(),
             late=lambda: f"leader sysid {flown.leader} did not reach its last waypoint within {margin:.0f} s of the "
                          "earliest it could",
@@ -199,23 +205,23 @@ def follow(session: FlightSession, spec: FollowSpec, *, onboard: bool = False) -
     return Started(done=over, timeout_s=FOLLOW_TIMEOUT_S, late=late, finish=arrived, new_step=True)
 
 
-def follow_attached(session: FlightSession, spec: FollowAttachedSpec) -> Started:
+def follow_attached(session: FlightSession, request: rq.FollowAttached) -> Started:
     """Every drone holds its offset from a leader that flies itself (a vehicle attached as ``leader``,
     docs/external.md), from the leader's reports; the ground station never commands the leader. A wait holds it for
     the spec's ``duration_s``."""
-    swarm, streamer = session.swarm, session.streamer
-    leaders = [s for s, v in swarm.attached.items() if v.spec.role == "leader"]
+    swarm, streamer, spec = session.swarm, session.streamer, request.spec
+    leaders = [s for s, v in swarm.attachments.vehicles.items() if v.spec.role == "leader"]
     sysid = spec.leader_sysid if spec.leader_sysid is not None else (leaders[0] if len(leaders) == 1 else None)
     if sysid is None or sysid not in leaders:
         which = "" if spec.leader_sysid is None else f" with sysid {spec.leader_sysid}"
         raise ValueError(f"follow an attached leader: no attached leader{which} to follow (attached leaders: "
                          f"{leaders or 'none'}; attach one with --attach leader=URL)")  # fmt: skip
-    vehicle = swarm.attached[sysid]
+    vehicle = swarm.attachments.vehicles[sysid]
 
     def report() -> LeaderReport | None:
         if vehicle.lost:
             return None
-        geo = vehicle.body_at(swarm.clock())
+        geo = vehicle.body_at(swarm.clock.now())
         if geo is None:
             return None
         return LeaderReport(pos_ned_m=streamer.swarm_frame.ned_from_geo(geo), vel_ned_mps=vehicle.vel_ned_mps)
@@ -227,11 +233,12 @@ def follow_attached(session: FlightSession, spec: FollowAttachedSpec) -> Started
                    ends_by_time=True, new_step=True)  # fmt: skip
 
 
-def swap(session: FlightSession, speed_mps: float, accel_mps2: float, tolerance_m: float, timeout_s: float) -> Started:
+def swap(session: FlightSession, request: rq.Swap) -> Started:
     """Every drone straight through the centre to the opposite point (the avoidance stress test); done when each is
     within ``tolerance_m`` of its goal."""
     take_over(session)
-    move = session.streamer.command_swap(speed_mps, accel_mps2, session.mission_time())
+    move = session.streamer.command_swap(request.speed_mps, request.accel_mps2, session.mission_time())
+    tolerance_m, timeout_s = request.tolerance_m, request.timeout_s
 
     def arrived() -> bool:
         positions = session.streamer.positions()
@@ -241,32 +248,27 @@ def swap(session: FlightSession, speed_mps: float, accel_mps2: float, tolerance_
                    late=lambda: f"not every drone reached the opposite point within {timeout_s:g} s")  # fmt: skip
 
 
-def hold(session: FlightSession, duration_s: float) -> Started:
+def hold(session: FlightSession, request: rq.Hold) -> Started:
     """Fly on as now for ``duration_s`` simulated seconds."""
-    if not (math.isfinite(duration_s) and duration_s >= 0):
-        raise ValueError(f"a hold's time must be a finite number of seconds >= 0, got {duration_s!r}")
-    return Started(done=_never, timeout_s=duration_s, ends_by_time=True)
+    return Started(done=_never, timeout_s=request.duration_s, ends_by_time=True)
 
 
-def land(session: FlightSession, *, return_to_launch: bool = False, timeout_s: float = LAND_TIMEOUT_S) -> Started:
+def land(session: FlightSession, request: rq.Land | rq.ReturnToLaunch) -> Started:
     """Land (or return and land) every drone still armed; done when they have landed and disarmed. A crashed or
     landed drone has nothing to do."""
+    return_to_launch, timeout_s = isinstance(request, rq.ReturnToLaunch), request.timeout_s
     session.controller = None
     session.onboard = False  # landing takes the drones out of OFFBOARD: their behaviours stop by themselves
     swarm = session.swarm
-    flying = session.streamer.hand_over(lambda: swarm.land_all(return_to_launch=return_to_launch))
-    return Started(done=lambda: not swarm.armed_sysids(flying), timeout_s=timeout_s, new_step=True,
+    flying = session.streamer.hand_over(lambda: swarm.commands.land_all(return_to_launch=return_to_launch))
+    return Started(done=lambda: not swarm.liveness.armed_sysids(flying), timeout_s=timeout_s, new_step=True,
                    late=lambda: f"not every drone landed and disarmed within {timeout_s:g} s")  # fmt: skip
 
 
-def rtl(session: FlightSession, *, timeout_s: float = RTL_TIMEOUT_S) -> Started:
-    """Return to launch and land, every drone still armed."""
-    return land(session, return_to_launch=True, timeout_s=timeout_s)
-
-
-def behaviour(session: FlightSession, *, run: bool) -> Started:
+def behaviour(session: FlightSession, request: rq.Behaviours) -> Started:
     """Every drone's onboard behaviour on (BHV_EN = 1; the ground station's stream stops) or off (BHV_EN = 0, then
     Hold where they are); its value is the sysids."""
+    run = request.run
     session.controller = None
     session.streamer.observer = None
     if run:
@@ -282,17 +284,18 @@ class FaultRefused(SwarmError):
     was never sent (a drone already lost, or silent)."""
 
 
-def fault(session: FlightSession, sysid: int, request: FaultRequest) -> Started:
-    """Inject a fault into one drone: PX4's MAV_CMD_INJECT_FAILURE, or (``crash``) the harness ends its flight
+def fault(session: FlightSession, asked: rq.InjectFault | rq.Kill) -> Started:
+    """Inject a fault into one drone: PX4's MAV_CMD_INJECT_FAILURE, or (``crash``, a kill) the harness ends its flight
     software. Noted and recorded for the report, refused or not; ``FaultRefused`` when the drone refuses it."""
-    swarm = session.swarm
-    if isinstance(sysid, bool) or not isinstance(sysid, int) or sysid not in swarm.sysids:
-        known = f"{swarm.sysids[0]}..{swarm.sysids[-1]}" if swarm.sysids else "none"
+    swarm, sysid, request = session.swarm, asked.sysid, asked.fault
+    sysids, losses = swarm.liveness.sysids, swarm.liveness.losses
+    if isinstance(sysid, bool) or not isinstance(sysid, int) or sysid not in sysids:
+        known = f"{sysids[0]}..{sysids[-1]}" if sysids else "none"
         raise ValueError(f"no drone with sysid {sysid!r} (sysids {known})")
-    if sysid in swarm.losses:
-        raise SwarmError(f"drone {sysid} is already lost ({swarm.losses[sysid].cause})")
+    if sysid in losses:
+        raise SwarmError(f"drone {sysid} is already lost ({losses[sysid].cause})")
     if request.kind == CRASH:
-        result, accepted = swarm.kill(sysid), True
+        result, accepted = swarm.liveness.kill(sysid), True
     else:
         ack = swarm.inject_fault(sysid, request)
         result, accepted = result_text(ack.result), ack.ok
@@ -303,20 +306,15 @@ def fault(session: FlightSession, sysid: int, request: FaultRequest) -> Started:
     return Started(result=result, value=result)
 
 
-def kill(session: FlightSession, sysid: int) -> Started:
-    """End one drone's flight software, as a crash would (the harness's SIGKILL, or its host's stop request)."""
-    return fault(session, sysid, FaultRequest(kind=CRASH))
-
-
-def plan_upload(session: FlightSession, plan: QgcPlan, offsets: Mapping[int, Offset], *,
-                hold_first: bool = False) -> Started:  # fmt: skip
+def plan_upload(session: FlightSession, request: rq.PlanUpload) -> Started:
     """Upload a QGroundControl plan's copy to each drone named (moved by its offset); its value says what was
     uploaded, for ``plan_start`` to watch. ``hold_first``: every drone in the air first waits in Hold, the stream
     stopped (it cannot run while the transfer is served, and a lossy link can stretch that over seconds: Hold is
     better than the offboard-loss failsafe)."""
-    if hold_first:
+    plan, offsets = request.plan, request.offsets
+    if request.hold_first:
         session.controller = None
-        session.streamer.hand_over(session.swarm.hold_all)
+        session.streamer.hand_over(session.swarm.commands.hold_all)
     uploaded = upload_plan(session.swarm, plan, dict(offsets))
     fence = f" and {len(plan.polygons) + len(plan.circles)} fence zone(s)" if plan.has_fence else ""
     rally = f"; {len(plan.rally_points)} rally point(s) not uploaded (not stored)" if plan.rally_points else ""
@@ -324,10 +322,10 @@ def plan_upload(session: FlightSession, plan: QgcPlan, offsets: Mapping[int, Off
     return Started(result=result, value=uploaded)
 
 
-def plan_start(session: FlightSession, sysids: Sequence[int], uploaded: Uploaded | None = None,
-               timeout_s: float = math.inf) -> Started:  # fmt: skip
+def plan_start(session: FlightSession, request: rq.PlanStart) -> Started:
     """AUTO.MISSION on the drones named (out of OFFBOARD: the stream stops); with what was ``uploaded``, done when
     every one has finished its mission."""
+    sysids, uploaded, timeout_s = request.sysids, request.uploaded, request.timeout_s
     session.controller = None
     session.streamer.hand_over(lambda: start_missions(session.swarm, list(sysids)))
     result = f"AUTO.MISSION on sysid {', '.join(map(str, sysids))}"
@@ -342,17 +340,18 @@ def plan_start(session: FlightSession, sysids: Sequence[int], uploaded: Uploaded
     )
 
 
-def plan_download(session: FlightSession, sysid: int) -> Started:
+def plan_download(session: FlightSession, request: rq.PlanDownload) -> Started:
     """One drone's mission and fence, as a QGroundControl plan (its value)."""
-    if isinstance(sysid, bool) or not isinstance(sysid, int) or sysid not in session.swarm.sysids:
-        raise ValueError(f"no drone with sysid {sysid!r} (sysids {session.swarm.sysids})")
+    sysid = request.sysid
+    if isinstance(sysid, bool) or not isinstance(sysid, int) or sysid not in session.swarm.liveness.sysids:
+        raise ValueError(f"no drone with sysid {sysid!r} (sysids {session.swarm.liveness.sysids})")
     return Started(value=download_plan(session.swarm, sysid))
 
 
-def param(session: FlightSession, name: str, value: float, sysids: Sequence[int] | None = None) -> Started:
+def param(session: FlightSession, request: rq.SetParam) -> Started:
     """Set a parameter on the drones named (all, when None), each confirmed by its PARAM_VALUE echo (as MAVSDK)."""
-    swarm = session.swarm
-    results = swarm.set_params(name, value, list(swarm.sysids if sysids is None else sysids))
+    swarm, name, value, sysids = session.swarm, request.name, request.value, request.sysids
+    results = swarm.params.set_all(name, value, list(swarm.liveness.sysids if sysids is None else sysids))
     silent = [r.sysid for r in results if r.kept is None]
     if silent:
         raise SwarmError(f"parameter {name}: no answer from sysid {silent} (unknown parameter?)")
@@ -363,10 +362,11 @@ def param(session: FlightSession, name: str, value: float, sysids: Sequence[int]
     return Started(result=f"{name} = {value:g}")
 
 
-def attach(session: FlightSession, spec: AttachSpec) -> Started:
+def attach(session: FlightSession, request: rq.Attach) -> Started:
     """Attach the vehicles heard on a link the simulation does not run (gcs/fleet/attach.py): its HEARTBEAT and first
     position waited for (the swarm flies on meanwhile), its sysid and distance checked; AttachError (a ValueError:
     the user's to fix) when none can be. Each vehicle refused on the link is said; the value is the sysids."""
+    spec = request.spec
     sysids, refused = session.swarm.attach(spec)
     for line in refused:
         session.say(f"swarm: {line}")
@@ -375,23 +375,26 @@ def attach(session: FlightSession, spec: AttachSpec) -> Started:
     return Started(result=result, value=sysids)
 
 
-def detach(session: FlightSession, sysid: int) -> Started:
+def detach(session: FlightSession, request: rq.Detach) -> Started:
     """Let an attached vehicle go: its body leaves the world and nothing more is read from it; it is told nothing."""
-    if isinstance(sysid, bool) or not isinstance(sysid, int) or sysid not in session.swarm.attached:
-        raise ValueError(f"no attached vehicle with sysid {sysid!r} (attached: {sorted(session.swarm.attached)})")
-    session.swarm.detach(sysid)
+    sysid = request.sysid
+    attached = session.swarm.attachments.vehicles
+    if isinstance(sysid, bool) or not isinstance(sysid, int) or sysid not in attached:
+        raise ValueError(f"no attached vehicle with sysid {sysid!r} (attached: {sorted(attached)})")
+    session.swarm.attachments.detach(sysid)
     result = f"detached sysid {sysid}"
     session.say(f"swarm: {result}")
     return Started(result=result)
 
 
-def require(session: FlightSession, fields: Sequence[Mapping[str, Any]], *, base: Path, stop: bool = False) -> Started:
+def require(session: FlightSession, request: rq.Require) -> Started:
     """Check invariants (each as plain fields, as a mission's ``[[invariants]]`` table: gcs/invariants/spec.py) at
     every tick from now on; ``base``: where a predicate's file is read from; ``stop``: the first violation ends the
     flight. A bad one is a ValueError of one line, and none of them is taken."""
-    invariants = [build_invariant(f, base=base, drone_count=len(session.swarm.sysids)) for f in fields]
+    count = len(session.swarm.liveness.sysids)
+    invariants = [build_invariant(f, base=request.base, drone_count=count) for f in request.invariants]
     unique_names(invariants)
-    session.require(invariants, stop=stop)
+    session.require(invariants, stop=request.stop)
     return Started(result=f"checking {'; '.join(i.describe() for i in invariants)}", value=[i.name for i in invariants])
 
 
@@ -400,40 +403,41 @@ def attach_all(session: FlightSession, specs: Sequence[AttachSpec]) -> None:
     swarm is shut down (every link opened is closed) and the AttachError goes on with its one line."""
     try:
         for spec in specs:
-            attach(session, spec)
+            start(session, rq.Attach(spec=spec))
     except AttachError:
         session.swarm.shutdown()
         raise
 
 
-def control(session: FlightSession, controller: Behaviour) -> Started:
+def control(session: FlightSession, request: rq.Control) -> Started:
     """A user's controller flies the swarm: the streamer asks it for setpoints every tick."""
     take_over(session)
-    session.controller = controller
-    session.streamer.command_behaviour(controller, session.mission_time())
+    session.controller = request.controller
+    session.streamer.command_behaviour(request.controller, session.mission_time())
     return Started(new_step=True)
 
 
-VERBS: Final[Mapping[str, Callable[..., Started]]] = {
-    "takeoff": takeoff,
-    "goto": goto,
-    "formation": formation,
-    "flock": flock,
-    "follow": follow,
-    "follow_attached": follow_attached,
-    "swap": swap,
-    "hold": hold,
-    "land": land,
-    "rtl": rtl,
-    "behaviour": behaviour,
-    "fault": fault,
-    "kill": kill,
-    "plan_upload": plan_upload,
-    "plan_start": plan_start,
-    "plan_download": plan_download,
-    "param": param,
-    "control": control,
-    "attach": attach,
-    "require": require,
-    "detach": detach,
+VERBS: Final[Mapping[type, Callable[[FlightSession, Any], Started]]] = {
+    rq.Arm: arm,
+    rq.Takeoff: takeoff,
+    rq.Goto: goto,
+    rq.FlyFormation: formation,
+    rq.Flock: flock,
+    rq.Follow: follow,
+    rq.FollowAttached: follow_attached,
+    rq.Swap: swap,
+    rq.Hold: hold,
+    rq.Land: land,
+    rq.ReturnToLaunch: land,
+    rq.Behaviours: behaviour,
+    rq.InjectFault: fault,
+    rq.Kill: fault,
+    rq.PlanUpload: plan_upload,
+    rq.PlanStart: plan_start,
+    rq.PlanDownload: plan_download,
+    rq.SetParam: param,
+    rq.Control: control,
+    rq.Attach: attach,
+    rq.Require: require,
+    rq.Detach: detach,
 }

@@ -256,7 +256,7 @@ def test_the_flock_moves_on_to_the_next_migration_point_once_its_centroid_arrive
     ("changes", "fragment"),
     [
         ({"max_speed_mps": 0.0}, "max_speed_mps must be positive"),
-        ({"separation_radius_m": 8.0}, "must not exceed neighbour_radius_m"),
+        ({"separation_radius_m": 8.0}, "must not exceed the neighbour radius"),
         ({"cohesion_weight_per_s2": -1.0}, "cohesion_weight_per_s2 must not be negative"),
         ({"migration_ne_m": ((1.0, math.nan),)}, "migration_ne_m"),
     ],
@@ -447,7 +447,10 @@ def test_leader_follower_refuses_an_unknown_leader_and_too_few_offsets() -> None
     [
         (["flock", "--speed", "-1"], "argument --speed: must be a positive number"),
         (["flock", "--goals", "10;0"], "argument --goals: must be pairs like"),
-        (["flock", "--separation", "8", "--radius", "5"], "--separation (8) must not exceed --radius (5)"),
+        (
+            ["flock", "--separation", "8", "--radius", "5"],
+            "argument --separation: (8) must not exceed the neighbour radius (5)",
+        ),
         (["flock", "--w-cohesion", "-0.1"], "argument --w-cohesion: must be a number >= 0"),
         (["follow", "--alt", "3"], "one of the arguments --waypoints --attached is required"),
         (["follow", "--waypoints", "10,0", "--offsets=0.1,0"], "argument --offsets: (0.1, 0.0) puts a follower on"),
