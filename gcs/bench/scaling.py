@@ -513,7 +513,7 @@ def take_snapshot(swarm: Swarm) -> Snapshot:
     parts_s = harness.cpu_parts_s()
     times_s, _ = harness.clock_columns()
     drones = []
-    for k in range(len(swarm.sysids)):
+    for k in range(len(swarm.liveness.sysids)):
         parts = (float(parts_s[k, 0]), float(parts_s[k, 1]), float(parts_s[k, 2]), float(parts_s[k, 3]))
         drones.append(DroneCounters(parts_s=parts, sim_time_s=float(times_s[k])))
     ticks = []
@@ -528,14 +528,14 @@ def take_snapshot(swarm: Swarm) -> Snapshot:
 
 def process_ids(swarm: Swarm) -> list[int]:
     """The processes that run the swarm's drones, each once (a host runs several), in spawn order."""
-    return list(dict.fromkeys(swarm.harness.process_ids()[s] for s in swarm.sysids))
+    return list(dict.fromkeys(swarm.harness.process_ids()[s] for s in swarm.liveness.sysids))
 
 
 def drone_memory(swarm: Swarm) -> tuple[list[float], str]:
     """Each drone's proportional set size in MB (resident size where smaps_rollup is not available); a host's is
     shared out equally between its drones."""
     pids = swarm.harness.process_ids()
-    per_process = {pid: sum(1 for s in swarm.sysids if pids[s] == pid) for pid in process_ids(swarm)}
+    per_process = {pid: sum(1 for s in swarm.liveness.sysids if pids[s] == pid) for pid in process_ids(swarm)}
     sizes, kinds = [], set()
     for pid, drones in per_process.items():
         kb, kind = memory_kb(_read(f"/proc/{pid}/smaps_rollup"), _read(f"/proc/{pid}/status"))
@@ -616,11 +616,11 @@ class ScenarioFlight:
         self.streamer = FormationStreamer(
             self.swarm, SwarmFrame(plan.origin), circle_limits(self.radius_m, CIRCLE_RATE_RADPS)
         )
-        self.swarm.keep_streaming(self.streamer.tick)
+        self.swarm.pump.keep_streaming(self.streamer.tick)
         self.sampling = False
         self.samples = _ClockSamples()
         self._collisions = CollisionPairs()
-        self.swarm.listeners.append(self._on_message)
+        self.swarm.router.listeners.append(self._on_message)
 
     @property
     def collisions(self) -> int:
@@ -647,7 +647,7 @@ class ScenarioFlight:
         """Spawn and wait for every drone's first HEARTBEAT and passed pre-arm checks; wall seconds from spawn."""
         start = time.monotonic()
         self.swarm.up(ready_timeout_s=30.0 + 2.0 * self.n)  # start-up is CPU-bound: N Python processes importing
-        self.swarm.wait_prearm(ARM_TIMEOUT_S + 1.0 * self.n, every=True)
+        self.swarm.commands.wait_prearm(ARM_TIMEOUT_S + 1.0 * self.n, every=True)
         return time.monotonic() - start
 
     def take_off(self) -> None:
@@ -656,15 +656,15 @@ class ScenarioFlight:
     def circle_window(self, sim_seconds: float) -> tuple[Snapshot, Snapshot]:
         """Command the rotating circle and fly it for ``sim_seconds`` (supervisor clock), snapshots at both ends."""
         spec = CircleSpec(radius_m=self.radius_m, alt_m=TAKEOFF_ALT_M, angular_rate_radps=CIRCLE_RATE_RADPS)
-        self.streamer.command(spec, self.swarm.clock())
+        self.streamer.command(spec, self.swarm.clock.now())
         before = take_snapshot(self.swarm)
         self.sampling = True
-        self.swarm.run_for(sim_seconds, tick=self.tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
+        self.swarm.pump.run_for(sim_seconds, tick=self.tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
         self.sampling = False
         return before, take_snapshot(self.swarm)
 
     def keep_flying(self, seconds: float) -> None:
-        self.swarm.run_for(seconds, tick=self.tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
+        self.swarm.pump.run_for(seconds, tick=self.tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
 
     def command_round_trips(self) -> LatencyFigures:
         """COMMAND_LONG (REQUEST_MESSAGE for HOME_POSITION: harmless) to each drone in turn, timed to its ACK.
@@ -679,29 +679,29 @@ class ScenarioFlight:
             if msg.get_type() == "COMMAND_ACK" and msg.command == command:
                 acked.setdefault(msg.get_srcSystem(), time.monotonic())
 
-        swarm.listeners.append(on_ack)
+        swarm.router.listeners.append(on_ack)
         rtts: list[float] = []
         sent = 0
-        next_tick = swarm.clock()
+        next_tick = swarm.clock.now()
         try:
             for _ in range(math.ceil(RTT_MIN_SAMPLES / self.n)):
-                for sysid in swarm.sysids:
+                for sysid in swarm.liveness.sysids:
                     acked.pop(sysid, None)
                     message = mavlink.MAVLink_command_long_message(
                         sysid, 1, command, 0, float(mavlink.MAVLINK_MSG_ID_HOME_POSITION), 0, 0, 0, 0, 0, 0
                     )
                     start = time.monotonic()
-                    swarm.send_now(sysid, message)
+                    swarm.router.send_now(sysid, message)
                     sent += 1
                     while sysid not in acked and time.monotonic() - start < RTT_TIMEOUT_S:
-                        if (now := swarm.clock()) >= next_tick:
+                        if (now := swarm.clock.now()) >= next_tick:
                             self.tick(now)
                             next_tick = now + 1.0 / SETPOINT_STREAM_HZ
-                        swarm.pump(0.002)
+                        swarm.pump.once(0.002)
                     if sysid in acked:
                         rtts.append(acked[sysid] - start)
         finally:
-            swarm.listeners.remove(on_ack)
+            swarm.router.listeners.remove(on_ack)
         return latency_figures(rtts, sent)
 
     def relay_latency(self) -> LatencyFigures:
@@ -740,11 +740,11 @@ class ScenarioFlight:
         swarm = self.swarm
         try:
             self.streamer.stop()
-            if swarm.sysids:
-                armed = swarm.armed_sysids()
+            if swarm.liveness.sysids:
+                armed = swarm.liveness.armed_sysids()
                 if armed:
-                    swarm.force_disarm(armed)
-                    swarm.wait_until(lambda: not swarm.armed_sysids(armed), 3.0)
+                    swarm.commands.force_disarm(armed)
+                    swarm.pump.wait_until(lambda: not swarm.liveness.armed_sysids(armed), 3.0)
         except (SwarmError, OSError):
             pass  # shutdown below still terminates and reaps every process
         finally:

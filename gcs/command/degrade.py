@@ -15,8 +15,9 @@ from __future__ import annotations
 from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.command.streamer import FormationStreamer
+from gcs.fleet.commanding import HOLD_MODE, check
+from gcs.fleet.errors import SwarmError
 from gcs.fleet.losses import DroneLoss, LossPolicy
-from gcs.fleet.swarm import HOLD_MODE, SwarmError, check
 
 
 def apply_loss_policy(policy: LossPolicy, streamer: FormationStreamer, loss: DroneLoss, now_s: float) -> str | None:
@@ -27,12 +28,12 @@ def apply_loss_policy(policy: LossPolicy, streamer: FormationStreamer, loss: Dro
         if policy is LossPolicy.CONTINUE:
             return streamer.handle_loss(loss.sysid, now_s)
         if policy is LossPolicy.HOLD:
-            streamer.hand_over(swarm.hold_all)
+            streamer.hand_over(swarm.commands.hold_all)
             return "loss policy hold: every drone holds where it is"
         if policy is LossPolicy.LAND:
-            streamer.hand_over(swarm.land_all)
+            streamer.hand_over(swarm.commands.land_all)
             return "loss policy land: every drone lands where it is"
-        streamer.hand_over(lambda: swarm.land_all(return_to_launch=True))
+        streamer.hand_over(lambda: swarm.commands.land_all(return_to_launch=True))
         return "loss policy abort: every drone returns to launch and lands"
     except SwarmError as exc:
         return f"loss policy {policy.value}: {exc}"
@@ -48,15 +49,15 @@ def apply_regain(policy: LossPolicy, streamer: FormationStreamer, loss: DroneLos
     try:
         if policy is LossPolicy.CONTINUE or not policy_taken:
             return streamer.handle_regain(loss.sysid, now_s)
-        if loss.sysid not in swarm.armed_sysids([loss.sysid]):
+        if loss.sysid not in swarm.liveness.armed_sysids([loss.sysid]):
             return f"sysid {loss.sysid} is on the ground: it stays there"
         if policy is LossPolicy.HOLD:
-            check(swarm.command_all(mavlink.MAV_CMD_DO_SET_MODE, *HOLD_MODE, sysids=[loss.sysid]), "hold")
+            check(swarm.commands.command_all(mavlink.MAV_CMD_DO_SET_MODE, *HOLD_MODE, sysids=[loss.sysid]), "hold")
             return f"loss policy hold: sysid {loss.sysid} holds where it is too"
         if policy is LossPolicy.LAND:
-            swarm.land_all()
+            swarm.commands.land_all()
             return f"loss policy land: sysid {loss.sysid} lands too"
-        swarm.land_all(return_to_launch=True)
+        swarm.commands.land_all(return_to_launch=True)
         return f"loss policy abort: sysid {loss.sysid} returns to launch too"
     except SwarmError as exc:
         return f"loss policy {policy.value}: {exc}"

@@ -22,7 +22,8 @@ import numpy as np
 
 from gcs.command.procedures import start_onboard_behaviours
 from gcs.command.streamer import FormationStreamer
-from gcs.fleet.swarm import Swarm, SwarmError
+from gcs.fleet.errors import SwarmError
+from gcs.fleet.swarm import Swarm
 from gcs.flight.assignment import assign_min_squared_distance
 from gcs.flight.behaviours import (
     ARRIVAL_TOLERANCE_M,
@@ -57,7 +58,7 @@ def set_each(swarm: Swarm, values: Mapping[int, Mapping[str, float]]) -> None:
     names = sorted({name for own in values.values() for name in own})
     for name in names:
         wanted = {sysid: own[name] for sysid, own in values.items() if name in own}
-        bad = [r.sysid for r in swarm.set_param_each(name, wanted) if not r.ok]
+        bad = [r.sysid for r in swarm.params.set_each(name, wanted) if not r.ok]
         if bad:
             raise SwarmError(f"{name} not set on sysid {bad} (does the drone carry the onboard behaviour?)")
 
@@ -66,7 +67,7 @@ def start_onboard_flock(swarm: Swarm, streamer: FormationStreamer, spec: FlockSp
     """Every drone's flocking parameters (migration points in its frame), then the behaviour on; the sysids."""
     shared = flock_params(spec)
     values: dict[int, dict[str, float]] = {}
-    for sysid in swarm.active_sysids:
+    for sysid in swarm.liveness.active_sysids:
         points, height = _local_points(streamer, sysid, spec.migration_ne_m, spec.alt_m)
         values[sysid] = {**shared, "FLK_ALT": height, **point_values("FLK_MIG", points)}
     set_each(swarm, values)
@@ -89,7 +90,7 @@ def start_onboard_follow(swarm: Swarm, streamer: FormationStreamer, spec: Follow
     """Assign each follower an offset (minimum total squared distance to the slots around the hovering leader, as
     the ground law's join), set everyone's parameters and turn the behaviour on."""
     here = streamer.positions()
-    sysids = [s for s in swarm.active_sysids if s in here]
+    sysids = [s for s in swarm.liveness.active_sysids if s in here]
     leader = spec.leader_sysid if spec.leader_sysid is not None else min(sysids)
     if leader not in here:
         raise SwarmError(f"leader sysid {leader} has no position report")

@@ -10,8 +10,9 @@
 - ``start_onboard_behaviours`` / ``stop_onboard_behaviours``: every drone's onboard behaviour on (BHV_EN = 1, the
   ground station's own setpoint stream stopped) or off (BHV_EN = 0, then Hold); docs/onboard.md.
 
-Arming, pre-arm waiting and the forced disarm are the swarm's own commands (``Swarm.arm_all``, ``wait_prearm``,
-``force_disarm``); collisions are counted by ``CollisionPairs`` (gcs/record/recorder.py).
+Arming, pre-arm waiting and the forced disarm are the swarm's own commands (gcs/fleet/commanding.py
+``Commands.arm_all``, ``wait_prearm``, ``force_disarm``); collisions are counted by ``CollisionPairs``
+(gcs/record/recorder.py).
 """
 
 from __future__ import annotations
@@ -22,8 +23,9 @@ from collections.abc import Callable, Mapping
 from typing import Final
 
 from gcs.command.streamer import FormationStreamer
+from gcs.fleet.errors import SwarmError
 from gcs.fleet.pace_monitor import PaceMonitor
-from gcs.fleet.swarm import Swarm, SwarmError
+from gcs.fleet.swarm import Swarm
 
 ALT_TOLERANCE_M: Final = 0.2  # takeoff is done when every drone holds the target altitude within this...
 ALT_HOLD_S: Final = 1.0  # ...for this long (simulated seconds)
@@ -59,7 +61,7 @@ class SteadyAltitude:
 def takeoff_floor_m(swarm: Swarm) -> float:
     """The highest MIS_TAKEOFF_ALT among the drones (read from each): PX4 climbs at least that high on NAV_TAKEOFF
     ("Using minimum takeoff altitude"), whatever altitude the command asks for."""
-    answers = [r.kept for r in swarm.read_params(TAKEOFF_MIN_PARAM, swarm.active_sysids) if r.kept is not None]
+    answers = [r.kept for r in swarm.params.read(TAKEOFF_MIN_PARAM, swarm.liveness.active_sysids) if r.kept is not None]
     return max(answers, default=0.0)
 
 
@@ -81,10 +83,10 @@ def start_takeoff(
 
     Below the drones' minimum takeoff altitude (MIS_TAKEOFF_ALT) they climb to that instead, as PX4 does, and that is
     the altitude to wait for (``say`` is told)."""
-    if not all(swarm.fleet.drones[s].armed for s in swarm.active_sysids) or swarm.attachments.to_arm():
-        swarm.arm_all(tick=tick)
+    if not all(swarm.fleet.drones[s].armed for s in swarm.liveness.active_sysids) or swarm.attachments.to_arm():
+        swarm.commands.arm_all(tick=tick)
     floor = takeoff_floor_m(swarm)
-    swarm.takeoff_all(alt_m)  # what was asked: the drones apply their own minimum, as PX4
+    swarm.commands.takeoff_all(alt_m)  # what was asked: the drones apply their own minimum, as PX4
     if alt_m < floor:
         if say is not None:
             say(f"takeoff to {alt_m:g} m: below the drones' {TAKEOFF_MIN_PARAM} ({floor:g} m), they climb to "
@@ -94,9 +96,9 @@ def start_takeoff(
     members = swarm.attachments.taken_off()  # the attached members taken off with the drones climb with them
 
     def holding() -> bool:
-        climbing = [*swarm.active_sysids, *members]
+        climbing = [*swarm.liveness.active_sysids, *members]
         positions = streamer.positions()
-        return steady.update({s: positions[s] for s in climbing if s in positions}, len(climbing), swarm.clock())
+        return steady.update({s: positions[s] for s in climbing if s in positions}, len(climbing), swarm.clock.now())
 
     return alt_m, holding
 
@@ -108,7 +110,7 @@ def take_off_and_hold(
     """``start_takeoff``, then wait until the drones hold the altitude; the altitude they hold (SwarmError when they
     do not hold it within ``timeout_s``). ``swarm bench`` takes off so; the front-ends through the takeoff verb."""
     target_m, holding = start_takeoff(swarm, streamer, alt_m, tick=tick, say=say)
-    if not swarm.wait_until(holding, timeout_s, tick=tick):
+    if not swarm.pump.wait_until(holding, timeout_s, tick=tick):
         raise SwarmError(f"takeoff to {target_m:g} m not reached within {timeout_s:g} s")
     return target_m
 
@@ -131,7 +133,7 @@ class PaceWatch:
         """Sample the slowest drone's clock; returns the real-time factor over the last window (None: unknown)."""
         if self.monitor is None:
             return None
-        warning = self.monitor.update(time.monotonic(), self.swarm.drone_time_s())
+        warning = self.monitor.update(time.monotonic(), self.swarm.harness.drone_time_s())
         if warning is not None:
             self.say(warning)
         return self.monitor.rate()
@@ -144,7 +146,7 @@ def start_onboard_behaviours(swarm: Swarm, streamer: FormationStreamer) -> list[
     """Every drone still in the swarm runs its onboard behaviour: the ground station stops its own setpoint stream
     (the behaviour feeds the offboard input now) and sets BHV_EN = 1; returns those sysids."""
     streamer.stop()
-    sysids = swarm.active_sysids
+    sysids = swarm.liveness.active_sysids
     _set_enable(swarm, sysids, 1)
     return sysids
 
@@ -152,11 +154,11 @@ def start_onboard_behaviours(swarm: Swarm, streamer: FormationStreamer) -> list[
 def stop_onboard_behaviours(swarm: Swarm) -> list[int]:
     """BHV_EN = 0 on every drone, then Hold where they are (from where the next command takes them); returns the
     sysids put in Hold."""
-    _set_enable(swarm, swarm.active_sysids, 0)
-    return swarm.hold_all()
+    _set_enable(swarm, swarm.liveness.active_sysids, 0)
+    return swarm.commands.hold_all()
 
 
 def _set_enable(swarm: Swarm, sysids: list[int], value: int) -> None:
-    bad = [r.sysid for r in swarm.set_params(BEHAVIOUR_ENABLE_PARAM, value, sysids) if not r.ok]
+    bad = [r.sysid for r in swarm.params.set_all(BEHAVIOUR_ENABLE_PARAM, value, sysids) if not r.ok]
     if bad:
         raise SwarmError(f"{BEHAVIOUR_ENABLE_PARAM} = {value} not set on sysid {bad} (no onboard behaviour loaded?)")

@@ -26,7 +26,9 @@ from typing import TypeVar
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.fleet.swarm import Swarm, SwarmError, check
+from gcs.fleet.commanding import check
+from gcs.fleet.errors import SwarmError
+from gcs.fleet.swarm import Swarm
 from gcs.flight.behaviours import Behaviour, Flock, FlockSpec, FollowSpec, LeaderFollower, SwarmState
 from gcs.flight.crossing import CrossingMove, antipodal_goals
 from gcs.flight.formation import (
@@ -154,7 +156,7 @@ class FormationStreamer:
         view = self.swarm.fleet.drones.get(sysid)
         if view is None:
             return None
-        if sysid in self.swarm.attached:
+        if sysid in self.swarm.attachments.vehicles:
             here = GeoPoint(lat_deg=view.lat_deg, lon_deg=view.lon_deg, alt_amsl_m=view.alt_amsl_m)
             if not all(map(math.isfinite, (here.lat_deg, here.lon_deg, here.alt_amsl_m))):
                 return None
@@ -229,7 +231,7 @@ class FormationStreamer:
         attachments = self.swarm.attachments
         if attachments.vehicles:
             attachments.grounded_notice(flown)
-        members = [s for s in flown if s in self.swarm.attached]
+        members = [s for s in flown if s in self.swarm.attachments.vehicles]
         if not self.active:
             self.active = True
             self.tick(now_s)  # (a member whose first setpoint leaves its keep-in is released here: not asked below)
@@ -238,21 +240,22 @@ class FormationStreamer:
             pending = [s for s in members if s not in attachments.commanded()]
         acks = []
         for attempt in range(OFFBOARD_ATTEMPTS):
-            acks = self.swarm.set_mode(OFFBOARD, pending) if pending else []
+            acks = self.swarm.commands.set_mode(OFFBOARD, pending) if pending else []
             pending = [ack.sysid for ack in acks if not ack.ok]
             if not pending or attempt == OFFBOARD_ATTEMPTS - 1:
                 break
-            self.swarm.run_for(OFFBOARD_RETRY_S, tick=self.tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
+            self.swarm.pump.run_for(OFFBOARD_RETRY_S, tick=self.tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
         for ack in acks:  # a member that will not fly OFFBOARD (GUIDED) is its pilot's: the drones fly on
-            if not ack.ok and ack.sysid in self.swarm.attached:
+            if not ack.ok and ack.sysid in self.swarm.attachments.vehicles:
                 answer = "no answer" if ack.result is None else f"result {ack.result}"
                 attachments.release(ack.sysid, f"it did not take the mode to fly setpoints ({answer})", hold=False)
-        check([ack for ack in acks if ack.sysid not in self.swarm.attached], "offboard")
+        check([ack for ack in acks if ack.sysid not in self.swarm.attachments.vehicles], "offboard")
 
     def handle_loss(self, sysid: int, now_s: float) -> str | None:
-        """Carry on without drone ``sysid`` (already in ``swarm.losses``): a formation re-plans over the survivors
-        with the same synchronised, collision-aware transition as a formation change; a lost leader hands over to
-        the next follower; flocking simply goes on without it. Returns one line saying what changed, or None."""
+        """Carry on without drone ``sysid`` (already in ``swarm.liveness.losses``): a formation re-plans over the
+        survivors with the same synchronised, collision-aware transition as a formation change; a lost leader hands
+        over to the next follower; flocking simply goes on without it. Returns one line saying what changed, or
+        None."""
         if not self.active:
             return None
         survivors = self.positions()
@@ -276,12 +279,12 @@ class FormationStreamer:
 
     def handle_regain(self, sysid: int, now_s: float) -> str | None:
         """Take drone ``sysid`` back into what is being flown (heard again after a link loss, already out of
-        ``swarm.losses``), if it still flies. A formation re-plans over every drone with it (the same synchronised,
-        collision-aware transition as a change); flocking counts it again. Its setpoints stream at once, and after
-        OFFBOARD_RETRY_S of them it is switched back to OFFBOARD (``tick``): meanwhile its offboard-loss failsafe
-        has it holding or landing. Leader-follower and a swap were planned without it and cannot take it in
-        mid-flight: it holds where it is (PX4 Hold) until the next formation or behaviour command. A drone that
-        came down meanwhile stays on the ground. Returns one line saying what happened, or None."""
+        ``swarm.liveness.losses``), if it still flies. A formation re-plans over every drone with it (the same
+        synchronised, collision-aware transition as a change); flocking counts it again. Its setpoints stream at
+        once, and after OFFBOARD_RETRY_S of them it is switched back to OFFBOARD (``tick``): meanwhile its
+        offboard-loss failsafe has it holding or landing. Leader-follower and a swap were planned without it and
+        cannot take it in mid-flight: it holds where it is (PX4 Hold) until the next formation or behaviour command.
+        A drone that came down meanwhile stays on the ground. Returns one line saying what happened, or None."""
         if not self.active:
             return None
         view = self.swarm.fleet.drones.get(sysid)
@@ -292,7 +295,7 @@ class FormationStreamer:
             try:
                 transition = self.engine.command(self.formation, now_s, positions)
             except FormationError as exc:
-                self.swarm.set_mode_start(sysid, HOLD)
+                self.swarm.commands.set_mode_start(sysid, HOLD)
                 return f"formation not re-planned with sysid {sysid} ({exc}): it holds where it is"
             self._rejoining[sysid] = _Rejoin(due_s=now_s + OFFBOARD_RETRY_S)
             return (
@@ -302,7 +305,7 @@ class FormationStreamer:
         if isinstance(self.behaviour, Flock):
             self._rejoining[sysid] = _Rejoin(due_s=now_s + OFFBOARD_RETRY_S)
             return f"sysid {sysid} flocks again"
-        self.swarm.set_mode_start(sysid, HOLD)
+        self.swarm.commands.set_mode_start(sysid, HOLD)
         return f"sysid {sysid} holds where it is until the next formation or behaviour command"
 
     def _rejoin_due(self, now_s: float) -> None:
@@ -310,12 +313,12 @@ class FormationStreamer:
         setpoint lost on the way) is asked again after OFFBOARD_RETRY_S more, up to OFFBOARD_ATTEMPTS times, as
         ``_offboard`` does. Never waits: the answers are picked up at later ticks."""
         for sysid, rejoin in list(self._rejoining.items()):
-            if sysid in self.swarm.losses:  # lost again on its way back
+            if sysid in self.swarm.liveness.losses:  # lost again on its way back
                 del self._rejoining[sysid]
                 continue
             if rejoin.asked:
-                ack = self.swarm.command_outcome(sysid, _SET_MODE)
-                if ack is None and self.swarm.commands.in_flight(sysid, _SET_MODE):
+                ack = self.swarm.commands.command_outcome(sysid, _SET_MODE)
+                if ack is None and self.swarm.commands.client.in_flight(sysid, _SET_MODE):
                     continue
                 rejoin.asked = False
                 if ack is None or ack.ok:  # superseded by a later command, or back in OFFBOARD
@@ -327,7 +330,7 @@ class FormationStreamer:
                     continue
                 rejoin.due_s = now_s + OFFBOARD_RETRY_S
             if now_s >= rejoin.due_s:
-                self.swarm.set_mode_start(sysid, OFFBOARD)
+                self.swarm.commands.set_mode_start(sysid, OFFBOARD)
                 rejoin.attempts += 1
                 rejoin.asked = True
 
@@ -365,10 +368,10 @@ class FormationStreamer:
         else:
             state = None
             setpoints = self.engine.setpoints(now_s)
-        attached = self.swarm.attached
+        attached = self.swarm.attachments.vehicles
         for sysid, sp in setpoints.items():
             frame = self.drone_frame(sysid) if sysid not in attached else None
-            if (frame is None and sysid not in attached) or sysid in self.swarm.losses:
+            if (frame is None and sysid not in attached) or sysid in self.swarm.liveness.losses:
                 continue
             mask = type_mask(sp)
             pos = sp.pos_ned_m
@@ -390,4 +393,4 @@ class FormationStreamer:
                 boot_ms, sysid, 1, mavlink.MAV_FRAME_LOCAL_NED, mask,
                 x, y, z, vx, vy, vz, ax, ay, az, sp.yaw_rad if math.isfinite(sp.yaw_rad) else 0.0, 0.0,
             )  # fmt: skip
-            self.swarm.send(sysid, msg)
+            self.swarm.router.send(sysid, msg)

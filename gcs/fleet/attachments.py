@@ -14,16 +14,20 @@ A member is commanded as any ground station commands a vehicle, and only so:
 - when the swarm lands, holds or stops, a member it commanded is put in its Hold mode (never landed, disarmed or
   terminated by the swarm).
 
-It works through the swarm it belongs to: the plan (paced at speed 1, the ground station's sysid, the origin), the
-pump (a wait keeps the swarm flying and its setpoints streamed), the fleet view and the listeners (a vehicle's
-messages go where a drone's go), the router (its position reaches the drones as traffic) and the harness (its body).
+It is handed what it works with, and never the swarm it belongs to: the plan (paced at speed 1, the ground station's
+sysid, the origin), the clock, the fleet view (a vehicle's messages go where a drone's go), the command client (the
+answers to what the swarm asks a member), the router (the listeners, and its position reaching the drones as
+traffic) and the harness (its body). An attach waits while the swarm flies on: the swarm hands ``attach`` the wait
+(gcs/fleet/pump.py ``Pump.keep_flying``); and a member released for a setpoint outside its keep-in is put in Hold
+through ``start_hold``, which the swarm wires to its commands (gcs/fleet/commanding.py).
 """
 
 from __future__ import annotations
 
 import math
 import time
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Collection
+from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -40,16 +44,18 @@ from gcs.fleet.attach import (
     sysid_problem,
     traffic_report,
 )
-from gcs.fleet.clock import TICK_S, next_tick_s
-from gcs.fleet.router import GCS_HEARTBEAT_PERIOD_S
-from gcs.fleet.telemetry import LINK_LOST_S, DroneView
+from gcs.fleet.clock import SwarmClock
+from gcs.fleet.errors import SwarmError
+from gcs.fleet.harness import SimulationHarness, SpawnPlan
+from gcs.fleet.router import GCS_HEARTBEAT_PERIOD_S, Router
+from gcs.fleet.telemetry import LINK_LOST_S, DroneView, Fleet
 from gcs.flight.frames import Vec3
 from gcs.flight.geodesy import NedFrame
-from gcs.mavlink.commands import AUTOPILOT_COMPID
-from gcs.mavlink.modes import HOLD, OFFBOARD, purpose_mode_name
+from gcs.mavlink.commands import AUTOPILOT_COMPID, CommandClient
+from gcs.mavlink.modes import OFFBOARD, purpose_mode_name
 
-if TYPE_CHECKING:
-    from gcs.fleet.swarm import Swarm
+# Pump the swarm, its setpoints streamed, while ``going()``, each pump waiting up to the given simulated seconds
+FlyOn = Callable[[Callable[[], bool], float], None]
 
 WAIT_PUMP_S = 0.01  # simulated (= wall) seconds the swarm is pumped between two reads of a link being attached
 # The simulated drones go to each attached vehicle as traffic (ADSB_VEHICLE), within SHARE_RADIUS_M of it, each at
@@ -74,11 +80,21 @@ LAST_KNOWN_PERIOD_S = 1.0
 
 
 class Attachments:
-    def __init__(self, swarm: Swarm) -> None:
-        self.swarm = swarm
+    def __init__(self, plan: SpawnPlan, clock: SwarmClock, harness: SimulationHarness, fleet: Fleet, router: Router,
+                 acks: CommandClient) -> None:  # fmt: skip
+        """``acks``: the swarm's command client, fed the answers a member's link brings."""
+        self.plan = plan
+        self.clock = clock
+        self.harness = harness  # the members' bodies in the simulated world
+        self.fleet = fleet
+        self.router = router
+        self.acks = acks
+        # Ask a member for its Hold mode without waiting for the answer: the swarm's commands, wired by the swarm
+        # (gcs/fleet/commanding.py ``Commands.set_mode_start``), which are made after this part and use it
+        self.start_hold: Callable[[int], None] = _no_commands
         self.vehicles: dict[int, AttachedVehicle] = {}
         self._links: list[ExternalLink] = []
-        self._frame = NedFrame(swarm.plan.origin)
+        self._frame = NedFrame(plan.origin)
         self._shared_s: dict[int, float] = {}  # each simulated drone's last report sent as traffic
         self._notices: list[str] = []  # lines for the next ``detect_changes``
         self._released: list[int] = []  # members released since the last ``take_released``
@@ -86,24 +102,26 @@ class Attachments:
         self._next_heartbeat_s = 0.0
         self._next_last_known_s = 0.0
 
-    def attach(self, spec: AttachSpec, timeout_s: float) -> tuple[list[int], list[str]]:
+    def attach(self, spec: AttachSpec, timeout_s: float, simulated: Collection[int],
+               fly_on: FlyOn) -> tuple[list[int], list[str]]:  # fmt: skip
         """Open ``spec``'s link, wait for an autopilot's HEARTBEAT (and OTHERS_SETTLE_S more for others on the same
-        radio, and each one's first position), and take every vehicle that passes the checks. Returns the sysids
-        attached and one line for each vehicle refused; AttachError (one line) when none can be attached, with the
-        link closed again. Before the drones are up, the sysids the plan will give them are the ones refused."""
-        plan = self.swarm.plan
+        radio, and each one's first position) while ``fly_on`` keeps the swarm flying, and take every vehicle that
+        passes the checks. Returns the sysids attached and one line for each vehicle refused; AttachError (one line)
+        when none can be attached, with the link closed again. ``simulated``: the simulated drones' sysids (before
+        the drones are up, those the plan will give them), which are refused."""
+        plan = self.plan
         if plan.lockstep or plan.speed_factor != 1.0:
             raise AttachError(f"--attach {spec.describe()}: a swarm with an attached vehicle runs paced at speed 1 "
                               "(the real world keeps wall time), not in lockstep or at another --speed")  # fmt: skip
         link = ExternalLink(spec=spec, source_system=plan.gcs_sysid)
         link.open()
         try:
-            heard = self._wait_for_vehicles(link, timeout_s)
+            heard = self._wait_for_vehicles(link, timeout_s, fly_on)
         except BaseException:
             link.close()
             raise
-        now = self.swarm.clock()
-        simulated = dict.fromkeys(self.swarm.simulated_sysids())
+        now = self.clock.now()
+        simulated_ids = dict.fromkeys(simulated)
         positions = {m.get_srcSystem(): m for m in heard if m.get_type() == "GLOBAL_POSITION_INT"}
         attached: list[int] = []
         refused: dict[int, str] = {}
@@ -111,7 +129,7 @@ class Attachments:
             sysid = msg.get_srcSystem()
             if not is_vehicle_heartbeat(msg) or sysid in link.sysids or sysid in refused:
                 continue
-            problem = sysid_problem(sysid, simulated, self.vehicles, plan.gcs_sysid) or self._too_far(
+            problem = sysid_problem(sysid, simulated_ids, self.vehicles, plan.gcs_sysid) or self._too_far(
                 sysid, positions.get(sysid), spec.max_distance_m
             )
             if problem is not None:
@@ -138,37 +156,43 @@ class Attachments:
             return f"sysid {sysid} is {distance:.0f} m from the swarm's origin (at most {max_distance_m:g} m)"
         return None
 
-    def _wait_for_vehicles(self, link: ExternalLink, timeout_s: float) -> list[Any]:
+    def _wait_for_vehicles(self, link: ExternalLink, timeout_s: float, fly_on: FlyOn) -> list[Any]:
         """Read a new link until a vehicle's HEARTBEAT arrives, OTHERS_SETTLE_S more (other vehicles on the same
         radio), and until every vehicle heard has said where it is (or ``timeout_s`` wall seconds have passed),
-        pumping the swarm and its setpoint stream meanwhile; AttachError when no HEARTBEAT comes in time."""
-        swarm = self.swarm
+        the swarm pumped and its setpoints streamed meanwhile (``fly_on``); AttachError when no HEARTBEAT comes in
+        time."""
         heard: list[Any] = []
         deadline = time.monotonic() + timeout_s
         settle_until = math.inf
         vehicles: set[int] = set()
         placed: set[int] = set()
-        next_tick = swarm.clock()
-        while (wall := time.monotonic()) < deadline and (wall < settle_until or not vehicles <= placed):
+
+        def listening() -> bool:
+            """Whether to go on listening; if so, what the link has brought since the last look, read."""
+            nonlocal settle_until
+            wall = time.monotonic()
+            if not (wall < deadline and (wall < settle_until or not vehicles <= placed)):
+                return False
             batch = link.receive()
             heard.extend(batch)
             vehicles.update(m.get_srcSystem() for m in batch if is_vehicle_heartbeat(m))
             placed.update(m.get_srcSystem() for m in batch if m.get_type() == "GLOBAL_POSITION_INT")
             if math.isinf(settle_until) and vehicles:
                 settle_until = time.monotonic() + OTHERS_SETTLE_S
-            if swarm.stream_tick is not None and (clock := swarm.clock()) >= next_tick:
-                swarm.stream_tick(clock)
-                next_tick = next_tick_s(next_tick, clock, TICK_S)
-            swarm.pump(WAIT_PUMP_S)
+            return True
+
+        fly_on(listening, WAIT_PUMP_S)
         if not vehicles:
             raise AttachError(f"--attach {link.spec.describe()}: no vehicle HEARTBEAT within {timeout_s:g} s")
         return heard
 
     def detach(self, sysid: int) -> None:
         """Let an attached vehicle go: its body leaves the world, nothing more is read from it (its link closes with
-        its last vehicle); it is told nothing."""
-        vehicle = self.vehicles.pop(sysid)
-        self.swarm.harness.remove_external_body(sysid)
+        its last vehicle); it is told nothing. SwarmError when none of that sysid is attached."""
+        vehicle = self.vehicles.pop(sysid, None)
+        if vehicle is None:
+            raise SwarmError(f"no attached vehicle with sysid {sysid}")
+        self.harness.remove_external_body(sysid)
         vehicle.link.sysids.discard(sysid)
         if not vehicle.link.sysids:
             vehicle.link.close()
@@ -178,7 +202,7 @@ class Attachments:
         """One line for each attached vehicle newly silent (its body stays where it was last known) or heard again."""
         lines = []
         for sysid, vehicle in self.vehicles.items():
-            view = self.swarm.fleet.drones.get(sysid)
+            view = self.fleet.drones.get(sysid)
             silent = view is None or view.lost(now_s)
             if silent and not vehicle.lost:
                 vehicle.lost = True
@@ -198,7 +222,7 @@ class Attachments:
         """The members the swarm flies now: attached as member, not released, heard, armed and in the air."""
         out = []
         for sysid, vehicle in self.vehicles.items():
-            view = self.swarm.fleet.drones.get(sysid)
+            view = self.fleet.drones.get(sysid)
             if (vehicle.spec.role == "member" and vehicle.released is None and view is not None
                     and not view.lost(now_s) and view.armed and view.in_air()):  # fmt: skip
                 out.append(sysid)
@@ -217,8 +241,8 @@ class Attachments:
 
     def to_arm(self) -> list[int]:
         """The members the swarm is allowed to arm (``arm``), heard and not armed yet."""
-        now = self.swarm.clock()
-        drones = self.swarm.fleet.drones
+        now = self.clock.now()
+        drones = self.fleet.drones
         return [
             s for s, v in self.vehicles.items()
             if v.spec.role == "member" and v.spec.arm and v.released is None and s in drones
@@ -228,7 +252,7 @@ class Attachments:
     def taken_off(self) -> list[int]:
         """The members the swarm takes off with its drones (``arm``), heard, not released and not flying already
         (armed just before: their HEARTBEAT may not say so yet)."""
-        drones = self.swarm.fleet.drones
+        drones = self.fleet.drones
         return [s for s, v in self.vehicles.items() if v.spec.role == "member" and v.spec.arm
                 and v.released is None and s in drones and not drones[s].in_air()]  # fmt: skip
 
@@ -237,7 +261,7 @@ class Attachments:
         return [s for s, v in self.vehicles.items() if v.asked == OFFBOARD and v.released is None]
 
     def asked(self, sysid: int, purpose: str, now_s: float) -> None:
-        """The swarm has asked a member for a mode (``Swarm.set_mode``)."""
+        """The swarm has asked a member for a mode (gcs/fleet/commanding.py ``Commands.set_mode``)."""
         vehicle = self.vehicles[sysid]
         vehicle.asked, vehicle.asked_s = purpose, now_s
 
@@ -249,7 +273,7 @@ class Attachments:
             return
         vehicle.released = why
         if hold:
-            self.swarm.set_mode_start(sysid, HOLD)
+            self.start_hold(sysid)
         self._notices.append(f"member {sysid} released: {why}{'; asked to hold where it is' if hold else ''}")
         self._released.append(sysid)
 
@@ -327,11 +351,11 @@ class Attachments:
             geo = vehicle.body_at(now)
             if geo is not None:
                 velocity = (0.0, 0.0, 0.0) if vehicle.lost else vehicle.vel_ned_mps
-                self.swarm.harness.place_external_body(sysid, (geo.lat_deg, geo.lon_deg, geo.alt_amsl_m), velocity,
-                                                       vehicle.spec.radius_m)  # fmt: skip
+                self.harness.place_external_body(sysid, (geo.lat_deg, geo.lon_deg, geo.alt_amsl_m), velocity,
+                                                 vehicle.spec.radius_m)  # fmt: skip
                 if vehicle.lost and last_known_due:  # the drones keep a keep-out growing with its age around it
                     report = last_known_traffic(sysid, geo, now - vehicle.position_s)
-                    self.swarm.router.relay_traffic(sysid, report, now, self.swarm.fleet)
+                    self.router.relay_traffic(sysid, report, now, self.fleet)
 
     def _handle(self, link: ExternalLink, msg: Any, now: float) -> None:
         """A message on an attached vehicle's link: into the fleet view, the relay and the listeners (the flight log,
@@ -342,21 +366,19 @@ class Attachments:
         vehicle = self.vehicles.get(msg.get_srcSystem())
         if vehicle is None or vehicle.link is not link:
             return
-        swarm = self.swarm
         position = msg.get_type() == "GLOBAL_POSITION_INT"
         if position:
             vehicle.position = reported_geo(msg)
             vehicle.vel_ned_mps = (msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
             vehicle.position_s = now
-        swarm.fleet.handle(msg, now)
+        self.fleet.handle(msg, now)
         if msg.get_type() == "COMMAND_ACK":
-            swarm.commands.handle(msg, now)
+            self.acks.handle(msg, now)
         traffic = vehicle.spec.role in NOT_COMMANDED or vehicle.released is not None  # nobody says it avoids
-        swarm.router.carry(msg, now, swarm.fleet, relay=not traffic)
+        self.router.carry(msg, now, self.fleet, relay=not traffic)
         if traffic and position:
-            swarm.router.relay_traffic(vehicle.sysid, traffic_report(msg), now, swarm.fleet)
-        for listener in swarm.listeners:
-            listener(msg, now)
+            self.router.relay_traffic(vehicle.sysid, traffic_report(msg), now, self.fleet)
+        self.router.delivered(msg, now)
 
     def share(self, position: Any, now: float) -> None:
         """A simulated drone's GLOBAL_POSITION_INT, as traffic to every attached vehicle within SHARE_RADIUS_M of it,
@@ -385,6 +407,10 @@ class Attachments:
         for link in self._links:
             link.close()
         self._links.clear()
+
+
+def _no_commands(sysid: int) -> None:
+    raise SwarmError(f"member {sysid}: no commands to put it in Hold with (Attachments.start_hold is not wired)")
 
 
 def keep_in_problem(pos_ned_m: Vec3, keep_in_m: float) -> str | None:

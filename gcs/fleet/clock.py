@@ -3,7 +3,7 @@
 Paced, simulated time is the wall clock times the speed factor. In lockstep it is the drones' common time, which
 the supervisor itself moves on through the harness, one frame at a time (``frame``): the drones run
 ``LOCKSTEP_LEAD_S`` on and wait at the gate, and the time then holds until the next frame, so everything read and
-sent between two frames meets one simulated time on both sides (gcs/fleet/swarm.py says why that makes lockstep
+sent between two frames meets one simulated time on both sides (gcs/fleet/pump.py says why that makes lockstep
 flights replay exactly).
 """
 

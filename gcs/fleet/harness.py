@@ -199,7 +199,7 @@ class SimulationHarness(Protocol):
 
     def note_sent_to_drones(self, datagrams: Mapping[int, int]) -> None:
         """Lockstep delivery: the datagrams the ground station has sent so far to each drone (by sysid), said before
-        it lets them run on; a drone reads them all before its next step (gcs/fleet/swarm.py ``_lockstep_frame``)."""
+        it lets them run on; a drone reads them all before its next step (gcs/fleet/clock.py ``SwarmClock.frame``)."""
         ...
 
     def sent_by_drones(self) -> dict[int, int]:

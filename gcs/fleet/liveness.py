@@ -1,5 +1,5 @@
-"""Which drones the swarm still has: each loss recorded once, with why and where the drone came down, and the
-silent drones that are heard again taken back.
+"""Which drones the swarm has: those launched, each loss recorded once, with why and where the drone came down, and
+the silent drones that are heard again taken back.
 
 A drone is lost when the harness reports its flight software ended (any cause), when it reports
 MAV_STATE_FLIGHT_TERMINATION (crashed, terminated), or when it stays silent for the link-loss time
@@ -11,10 +11,13 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections.abc import Iterable
 from typing import Final
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from gcs.fleet.clock import SwarmClock
+from gcs.fleet.errors import SwarmError
 from gcs.fleet.harness import SimulationHarness
 from gcs.fleet.losses import MAV_STATE_FLIGHT_TERMINATION, DroneLoss
 from gcs.fleet.telemetry import LINK_LOST_S, Fleet
@@ -24,25 +27,61 @@ CRASH_TEXT_AGE_S: Final = 5.0  # a warning this recent says why a drone crashed;
 
 
 class Liveness:
-    """The swarm's losses and returns, from the harness's word and the fleet view."""
+    """The swarm's drones, their losses and returns, from the harness's word and the fleet view."""
 
-    def __init__(self, harness: SimulationHarness, fleet: Fleet, swarm_frame: NedFrame, *, lockstep: bool) -> None:
+    def __init__(self, harness: SimulationHarness, fleet: Fleet, clock: SwarmClock, swarm_frame: NedFrame, *,
+                 lockstep: bool) -> None:  # fmt: skip
         self.harness = harness
         self.fleet = fleet
+        self.clock = clock
         self.swarm_frame = swarm_frame
         self.lockstep = lockstep
         self.losses: dict[int, DroneLoss] = {}  # sysid -> the loss, recorded once
         self.regained: list[DroneLoss] = []  # losses that ended: silent drones heard again (``detect_regains``)
+        self._sysids: tuple[int, ...] = ()  # the simulated drones, in spawn order, once launched
         self._heard_wall_s: dict[int, float] = {}  # sysid -> wall time of its last sign of life
+
+    def launched(self, sysids: list[int]) -> None:
+        """The harness has launched these drones (spawn order): the swarm's drones from now on."""
+        self._sysids = tuple(sysids)
+
+    @property
+    def sysids(self) -> list[int]:
+        """Every simulated drone launched, lost or not (spawn order)."""
+        return list(self._sysids)
+
+    @property
+    def active_sysids(self) -> list[int]:
+        """The drones the swarm still has: every one not in ``losses``."""
+        return [s for s in self._sysids if s not in self.losses]
+
+    def armed_sysids(self, sysids: Iterable[int] | None = None) -> list[int]:
+        """Of ``sysids`` (default: every drone), those not lost whose last HEARTBEAT said armed (a lost drone's last
+        report may say armed for ever)."""
+        drones = self.fleet.drones
+        return [
+            s
+            for s in (self._sysids if sysids is None else sysids)
+            if s not in self.losses and s in drones and drones[s].armed
+        ]
 
     def heard(self, sysid: int) -> None:
         """A sign of life from ``sysid`` now (any message but RADIO_STATUS)."""
         self._heard_wall_s[sysid] = time.monotonic()
 
-    def detect_losses(self, sysids: list[int], time_s: float, now_s: float) -> list[DroneLoss]:
-        """Record every new loss once and return them (``time_s``: the time to record, the caller's mission clock;
-        ``now_s``: the swarm's clock). The harness says which drones ended and how (their bodies then fall in the
-        simulated world from their last state)."""
+    def kill(self, sysid: int) -> str:
+        """Crash drone ``sysid``'s flight software (the harness kills what runs it); returns what was done, in one
+        line. The loss is recorded by ``detect_losses`` when the harness reports the end, as for any other end."""
+        done = self.harness.kill(sysid)
+        if done is None:
+            raise SwarmError(f"drone {sysid}: its flight software has already ended")
+        return done
+
+    def detect_losses(self, time_s: float) -> list[DroneLoss]:
+        """Record every new loss once and return them (``time_s``: the time to record, the caller's mission clock).
+        The harness says which drones ended and how (their bodies then fall in the simulated world from their last
+        state)."""
+        sysids, now_s = self._sysids, self.clock.now()
         new: list[DroneLoss] = []
         for sysid, cause in self.harness.ended().items():
             if sysid not in self.losses:
@@ -59,11 +98,12 @@ class Liveness:
         self._settle_down_positions(sysids, now_s)
         return new
 
-    def detect_regains(self, time_s: float, now_s: float) -> list[DroneLoss]:
+    def detect_regains(self, time_s: float) -> list[DroneLoss]:
         """Take back every drone lost for silence that has been heard again (QGroundControl's "communication
         regained"), once: it leaves ``losses`` and its ended loss, with ``regained_s``, goes to ``regained``. A drone
         lost any other way stays lost. What the swarm flies takes it in again (gcs/command/degrade.py
         ``apply_regain``)."""
+        now_s = self.clock.now()
         back: list[DroneLoss] = []
         for sysid, loss in list(self.losses.items()):
             view = self.fleet.drones.get(sysid)
@@ -87,7 +127,7 @@ class Liveness:
         self.losses[sysid] = loss
         return loss
 
-    def _settle_down_positions(self, sysids: list[int], now_s: float) -> None:
+    def _settle_down_positions(self, sysids: tuple[int, ...], now_s: float) -> None:
         """Fill in where each lost drone came down, once its body is on the ground (north/east of the origin)."""
         if not sysids:
             return

@@ -50,7 +50,10 @@ class Router:
         # target system, as a MAVLink router does.
         self.forward = forward
         self.batch_hold_s = batch_hold_s
-        # Commands and parameter writes sent at once, as packed MAVLink frames (the flight log keeps them)
+        # Every message received (from the drones' socket or an attached vehicle's link), once the swarm has taken it
+        # in (``delivered``): the flight log, the live view, a front-end's status; and every command and parameter
+        # write sent (to a drone or an attached vehicle), as a packed MAVLink frame: the flight log keeps both ways
+        self.listeners: list[Callable[[Any, float], None]] = []
         self.sent_listeners: list[Callable[[bytes, float], None]] = []
         self._flush_due_s = math.inf  # when the queued traffic must leave (-inf: at the next pump)
         self._next_heartbeat_s = 0.0
@@ -119,6 +122,11 @@ class Router:
             address = self.link.addresses.get(target)
             if address is not None:
                 self.hold(data, address, now_s)
+
+    def delivered(self, msg: Any, now_s: float) -> None:
+        """A message the swarm has taken in (fleet view, liveness, the protocol clients), handed to ``listeners``."""
+        for listener in self.listeners:
+            listener(msg, now_s)
 
     def from_ground_station(self, msg: Any, sysids: list[int]) -> None:
         """A message from another ground station (QGroundControl, MAVProxy on the forward port): to its target."""

@@ -1,9 +1,8 @@
 """A QGroundControl plan flown by a swarm: one copy per drone, uploaded, started in AUTO.MISSION, watched to its end.
 
 What ``swarm plan upload/start/download`` (gcs/supervisor/station.py) and a mission file's ``plan`` step
-(gcs/supervisor/mission_runner.py) share, written once. The swarm carries out the protocol (``Swarm.upload_mission``,
-``download_mission``, its
-``mission_progress``); this module decides what each drone gets and when a plan is over.
+(gcs/supervisor/mission_runner.py) share, written once. The swarm carries out the protocol (gcs/fleet/transfers.py
+``Missions.upload``, ``download``, its ``progress``); this module decides what each drone gets and when a plan is over.
 
 Copies and their offsets: a plan drawn for one vehicle, uploaded unchanged to several, would send them all to the
 same points. So each drone gets the plan moved by an offset (gcs/missions/qgc_plan.py ``shifted``):
@@ -92,7 +91,7 @@ def parse_offsets(text: str) -> str | list[Offset]:
 
 def spawn_offsets(swarm: Swarm) -> dict[int, Offset]:
     """Every drone's spawn offset from the swarm origin, north/east metres, by sysid."""
-    return dict(zip(swarm.sysids, swarm.plan.offsets_ne_m(), strict=True))
+    return dict(zip(swarm.liveness.sysids, swarm.plan.offsets_ne_m(), strict=True))
 
 
 def copy_offsets(spawn: dict[int, Offset], sysids: Sequence[int], offsets: str | Sequence[Offset]) -> dict[int, Offset]:
@@ -129,9 +128,9 @@ def upload_plan(swarm: Swarm, plan: QgcPlan, offsets: dict[int, Offset]) -> Uplo
     QGroundControl's upload does), all drones at once; SwarmError names each drone that refused or did not answer."""
     copies = {sysid: shifted(plan, north, east) for sysid, (north, east) in offsets.items()}
     missions = {sysid: mission_items(copy) for sysid, copy in copies.items()}
-    _check(swarm.upload_mission(missions, MISSION_TYPE_MISSION))
+    _check(swarm.missions.upload(missions, MISSION_TYPE_MISSION))
     fences = {sysid: fence_items(copy) for sysid, copy in copies.items()}
-    _check(swarm.upload_mission(fences, MISSION_TYPE_FENCE))
+    _check(swarm.missions.upload(fences, MISSION_TYPE_FENCE))
     return Uploaded(copies=copies)
 
 
@@ -147,30 +146,31 @@ def start_missions(swarm: Swarm, sysids: Sequence[int]) -> None:
 
     The caller has stopped the setpoint stream (the chosen drones leave OFFBOARD); every other drone in the air is
     put in Hold where it is, so that it hovers instead of meeting the offboard-loss failsafe."""
-    others = [s for s in swarm.armed_sysids() if s not in sysids]
+    commands = swarm.commands
+    others = [s for s in swarm.liveness.armed_sysids() if s not in sysids]
     if others:
-        check(swarm.command_all(mavlink.MAV_CMD_DO_SET_MODE, *HOLD_MODE, sysids=others), "hold")
+        check(commands.command_all(mavlink.MAV_CMD_DO_SET_MODE, *HOLD_MODE, sysids=others), "hold")
     for sysid in sysids:
-        swarm.mission_progress.reset(sysid)
-    disarmed = [s for s in sysids if s not in swarm.armed_sysids(sysids)]
+        swarm.missions.progress.reset(sysid)
+    disarmed = [s for s in sysids if s not in swarm.liveness.armed_sysids(sysids)]
     if disarmed:
         drones = swarm.fleet.drones
-        ready = swarm.wait_until(lambda: all(drones[s].prearm_ok for s in disarmed), ARM_TIMEOUT_S)
+        ready = swarm.pump.wait_until(lambda: all(drones[s].prearm_ok for s in disarmed), ARM_TIMEOUT_S)
         if not ready:
             raise SwarmError(f"sysid {[s for s in disarmed if not drones[s].prearm_ok]} did not pass pre-arm checks")
-        check(swarm.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1, sysids=disarmed), "arm")
-    check(swarm.command_all(mavlink.MAV_CMD_DO_SET_MODE, *MISSION_MODE, sysids=list(sysids)), "start mission")
+        check(commands.command_all(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1, sysids=disarmed), "arm")
+    check(commands.command_all(mavlink.MAV_CMD_DO_SET_MODE, *MISSION_MODE, sysids=list(sysids)), "start mission")
 
 
 def unfinished(swarm: Swarm, uploaded: Uploaded) -> list[int]:
     """The drones still in the swarm that have not finished their mission (MISSION_CURRENT complete, or the last
     item reported reached) or, when the plan ends with a land or a return, are not yet down and disarmed."""
-    armed = set(swarm.armed_sysids())
+    armed = set(swarm.liveness.armed_sysids())
     return [
         sysid
         for sysid in uploaded.copies
-        if sysid not in swarm.losses
-        and (not swarm.mission_progress.finished(sysid, uploaded.last_seq) or (uploaded.lands and sysid in armed))
+        if sysid not in swarm.liveness.losses
+        and (not swarm.missions.progress.finished(sysid, uploaded.last_seq) or (uploaded.lands and sysid in armed))
     ]
 
 
@@ -178,19 +178,19 @@ def unreached(swarm: Swarm, uploaded: Uploaded) -> dict[int, list[int]]:
     """Per drone still in the swarm, the navigation items it never reported reached (empty lists omitted)."""
     out: dict[int, list[int]] = {}
     for sysid, copy in uploaded.copies.items():
-        progress = swarm.mission_progress.drones.get(sysid)
+        progress = swarm.missions.progress.drones.get(sysid)
         reached = set(progress.reached) if progress is not None else set()
         missing = [seq for seq, item in enumerate(copy.items) if item.command in _REPORTED and seq not in reached]
-        if missing and sysid not in swarm.losses:
+        if missing and sysid not in swarm.liveness.losses:
             out[sysid] = missing
     return out
 
 
 def download_plan(swarm: Swarm, sysid: int) -> QgcPlan:
     """Drone ``sysid``'s mission and fence as a plan, its home as the planned home (``swarm plan download``)."""
-    mission = swarm.download_mission([sysid], MISSION_TYPE_MISSION)[0]
+    mission = swarm.missions.download([sysid], MISSION_TYPE_MISSION)[0]
     _check([mission])
-    fence = swarm.download_mission([sysid], MISSION_TYPE_FENCE)[0]
+    fence = swarm.missions.download([sysid], MISSION_TYPE_FENCE)[0]
     _check([fence])
     view = swarm.fleet.drones.get(sysid)
     home = view.home if view is not None and view.home is not None else (0.0, 0.0, 0.0)

@@ -65,8 +65,8 @@ class FlightRecorder:
         self._last_reached: dict[int, int] = {}  # sysid -> the seq of its last MISSION_ITEM_REACHED
         self._epoch_us = int(time.time() * 1e6)
         self._tlog = TlogWriter(tlog_path)
-        self.swarm.listeners.append(self.on_message)
-        self.swarm.sent_listeners.append(self.on_sent)
+        self.swarm.router.listeners.append(self.on_message)
+        self.swarm.router.sent_listeners.append(self.on_sent)
 
     def _stamp_us(self) -> int:
         # Stamped in simulated time from the flight's start, so a replay runs at the flight's own pace
@@ -75,7 +75,7 @@ class FlightRecorder:
     def _attached_sample(self, msg: Any, sysid: int, now: float) -> None:
         """An attached vehicle's report, where it says it is, in the swarm frame (docs/external.md)."""
         if sysid not in self.recording.attached:
-            spec = self.swarm.attached[sysid].spec
+            spec = self.swarm.attachments.vehicles[sysid].spec
             self.recording.attached[sysid] = (spec.role, spec.url.describe())
         pos = self.streamer.swarm_frame.ned_from_geo(reported_geo(msg))
         vel = (msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
@@ -97,7 +97,8 @@ class FlightRecorder:
         kind = msg.get_type()
         sysid = msg.get_srcSystem()
         now = self.clock()
-        if kind == "LOCAL_POSITION_NED" and sysid not in self.swarm.attached:  # an attached one: from where it says
+        attached = self.swarm.attachments.vehicles
+        if kind == "LOCAL_POSITION_NED" and sysid not in attached:  # an attached one: from where it says
             frame = self.streamer.drone_frame(sysid)
             view = self.swarm.fleet.drones.get(sysid)
             if frame is None or view is None:
@@ -109,7 +110,7 @@ class FlightRecorder:
                                  mode=view.mode, target_ned_m=target)  # fmt: skip
             self.recording.samples.append(sample)
             self.live.observe(sample)
-        elif kind == "GLOBAL_POSITION_INT" and sysid in self.swarm.attached:
+        elif kind == "GLOBAL_POSITION_INT" and sysid in attached:
             self._attached_sample(msg, sysid, now)
         elif kind == "HEARTBEAT" and msg.get_srcComponent() == 1:
             before = self._system_status.get(sysid)
@@ -132,7 +133,7 @@ class FlightRecorder:
                 return  # the other drone's report of a collision already recorded
             event = EventRecord(time_s=now, sysid=sysid, text=whole)
             self.recording.events.append(event)
-            self.live.observe_event(event, self.recording.collision_radius_m, self.swarm.attached)
+            self.live.observe_event(event, self.recording.collision_radius_m, attached)
             if self.say is not None and msg.severity <= mavlink.MAV_SEVERITY_WARNING:
                 self.say(f"  sysid {sysid}: {whole}")
 

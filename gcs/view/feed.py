@@ -64,7 +64,7 @@ class ViewFeed:
         self._rtf: float | None = None
         self._images = ImageAssembler()
         self._next_request_s: dict[int, float] = {}  # sysid -> wall time its camera may be asked again
-        streamer.swarm.listeners.append(self._on_message)
+        streamer.swarm.router.listeners.append(self._on_message)
 
     def _on_message(self, msg: Any, now_s: float) -> None:
         if msg.get_type() in CAMERA_MESSAGES and (image := self._images.feed(msg, now_s)) is not None:
@@ -75,7 +75,7 @@ class ViewFeed:
         for sysid in self.server.cameras_wanted(wall_s):
             if wall_s >= self._next_request_s.get(sysid, -math.inf) and sysid in self.streamer.swarm.fleet.drones:
                 self._next_request_s[sysid] = wall_s + 1.0 / CAMERA_RATE_HZ
-                self.streamer.swarm.send(sysid, image_request())
+                self.streamer.swarm.router.send(sysid, image_request())
 
     def tick(self, time_s: float) -> None:
         """The mission time now; a frame goes out if the last is a frame period old (wall clock) and a page is
@@ -92,10 +92,11 @@ class ViewFeed:
 
     def build(self, time_s: float) -> dict[str, object]:
         swarm = self.streamer.swarm
+        attached, losses = swarm.attachments.vehicles, swarm.liveness.losses
         positions: dict[int, Vec3] = {}
         homes: dict[int, Vec3] = {}
         for sysid, view in swarm.fleet.drones.items():
-            if sysid in swarm.attached:  # drawn where it says it is: it need not report a home or a local frame
+            if sysid in attached:  # drawn where it says it is: it need not report a home or a local frame
                 if all(math.isfinite(v) for v in (view.lat_deg, view.lon_deg, view.alt_amsl_m)):
                     here = GeoPoint(lat_deg=view.lat_deg, lon_deg=view.lon_deg, alt_amsl_m=view.alt_amsl_m)
                     positions[sysid] = self.streamer.swarm_frame.ned_from_geo(here)
@@ -107,7 +108,7 @@ class ViewFeed:
                 positions[sysid] = drone_frame.to_swarm(view.local_ned_m)
             if view.home_local_ned_m is not None:
                 homes[sysid] = drone_frame.to_swarm(view.home_local_ned_m)
-        airborne = [p for s, p in positions.items() if s not in swarm.losses and s not in swarm.attached
+        airborne = [p for s, p in positions.items() if s not in losses and s not in attached
                     and swarm.fleet.drones[s].armed and homes.get(s, p)[2] - p[2] > AIRBORNE_HEIGHT_M]  # fmt: skip
         separation = _separation(airborne)
         if self.live is not None:
@@ -116,9 +117,9 @@ class ViewFeed:
             self.min_separation_m = separation
         return frame(time_s=time_s, drones=swarm.fleet.drones, positions_ned_m=positions, homes_ned_m=homes,
                      slots_ned_m=self.streamer.targets(time_s),
-                     lost=[*swarm.losses, *(s for s, v in swarm.attached.items() if v.lost)], now_s=swarm.clock(),
+                     lost=[*losses, *(s for s, v in attached.items() if v.lost)], now_s=swarm.clock.now(),
                      separation_m=separation, min_separation_m=self.min_separation_m, realtime_factor=self._rtf,
-                     obstacles=self.obstacles, external=swarm.attached)  # fmt: skip
+                     obstacles=self.obstacles, external=attached)  # fmt: skip
 
 
 def _separation(points: list[Vec3]) -> float | None:

@@ -446,7 +446,7 @@ def test_the_supervisor_sends_every_drone_a_gcs_heartbeat_once_a_second() -> Non
         beat = mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, 0, 0, 3, 3)
         drone.sendto(beat.pack(encoder), ("127.0.0.1", swarm.link.port))
         # WHEN it runs for 3.5 s
-        swarm.run_for(3.5)
+        swarm.pump.run_for(3.5)
         # THEN the drone got a HEARTBEAT from a ground station each second (at 0, 1, 2 and 3 s)
         parser = mavlink.MAVLink(None)
         received: list[Any] = []
