@@ -70,7 +70,7 @@ class PaceMonitor:
             return None
         self._warned = True
         # Each drone process pays for its own wake-ups and cache refills; hosting several drones per process
-        # removes most of that cost (docs/benchmarks.md), so it is the first remedy while each drone has its own.
+        # removes most of that cost (docs/benchmark-history.md), so it is the first remedy while each drone has its own.
         remedies = "" if self.hosted else "--drones-per-process auto (several drones share each process), "
         return (
             f"swarm: warning: the drones run at {rate:.2f}x real time, slower than the requested "

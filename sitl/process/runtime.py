@@ -115,7 +115,7 @@ class WallClockSteps:
         # Sleep until a few steps are due, not one: a wake-up costs far more than its select, socket reads and
         # telemetry poll (the process comes back to cold caches), and waking at every step was the largest part of a
         # paced drone's time. At 400 Hz physics, every 4 steps cost a 9-drone swarm 85-96 ms of CPU per drone per
-        # simulated second, every 8 steps 72-92 (docs/benchmarks.md). Arriving MAVLink still wakes the loop at
+        # simulated second, every 8 steps 72-92 (docs/benchmark-history.md). Arriving MAVLink still wakes the loop at
         # once, so commands are not delayed.
         wait_s = self.pacer.wall_time_of(sim_time_s + PACED_WAKE_STEPS * self.dt_s) - time.monotonic()
         if wait_s > 0:

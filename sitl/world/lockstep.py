@@ -13,7 +13,8 @@ gate allows k + 1. Hence
 Waiting costs nothing: a member that may not step sets its WAITING flag and sleeps on a datagram socket of its own
 (abstract Unix address derived from the world's name); the member whose step moves the common time on - the last
 laggard - and the supervisor when it moves the gate wake exactly the members that wait. Polling instead (sleeping
-0.2 ms and looking again) cost more than the simulation itself with nine drones on two cores (docs/benchmarks.md).
+0.2 ms and looking again) cost more than the simulation itself with nine drones on two cores
+(docs/benchmark-history.md).
 The supervisor sleeps the same way: the last member to come within GATE_WAKE_AHEAD_STEPS of the gate, or to reach
 it, wakes it. Before, it looked again only when MAVLink traffic arrived or its 5 ms wait ran out, which capped a
 single drone at 4x real time once its telemetry left in fewer datagrams.

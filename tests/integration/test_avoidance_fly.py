@@ -4,7 +4,7 @@ Each test flies a shipped mission with ``swarm fly --lockstep`` (all drones on o
 two cores allow, with a quantum of 8 physics steps = 20 ms), so the outcome does not depend on how loaded the machine
 is. Collisions are real: the shared world crashes both drones of any pair closer than two collision radii (0.7 m).
 The 8-drone swap flies both ways (a process per drone, and hosted); the other large swarms fly hosted, which costs
-this 2-CPU machine less (docs/benchmarks.md).
+this 2-CPU machine less (docs/benchmark-history.md).
 
 Policy: loopback only (--no-forward); leased instances (tests/integration/instances.py); a time limit on every test.
 """
