@@ -600,6 +600,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "form=eventually after=loss within_s=10 drones=[1,2] name=sep)")  # fmt: skip
     detach = sub.add_parser("detach", help="let an attached vehicle go (it is told nothing)")
     detach.add_argument("sysid", type=_sysid, help="the attached vehicle's sysid")
+    sub.add_parser("pause", help="every drone holds where it is (PX4 Hold) until the next command")
     sub.add_parser("land", help="land every drone where it is")
     sub.add_parser("rtl", help="every drone returns to its launch point and lands")
     sub.add_parser("down", help="land, disarm and stop every drone, then the supervisor")
@@ -1035,7 +1036,7 @@ def run_client(args: argparse.Namespace) -> int:
         print(format_status(response["drones"]))
     elif args.command in ("fault", "kill"):
         print(f"swarm: drone {args.sysid}: {response.get('result', 'done')}")
-    elif request["cmd"] in ("behaviour", "attach", "detach", "require", "follow_attached"):
+    elif request["cmd"] in ("behaviour", "attach", "detach", "require", "follow_attached", "pause"):
         print(f"swarm: {response.get('result', 'done')}")
     return 0
 

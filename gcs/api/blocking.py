@@ -87,6 +87,11 @@ class BlockingSession(Readings):
     def wait_until(self, predicate: Callable[[dict[int, DroneState]], bool], timeout_s: float) -> bool:
         return self._run(lambda: self._engine.wait_until(predicate, timeout_s))
 
+    def pause(self) -> list[int]:
+        """Every drone holds where it is in PX4 Hold (QGroundControl's Pause, MAVSDK's ``action.hold()``): your
+        controller, the drones' behaviours and the stream stop until the next command; returns the sysids held."""
+        return self._run(lambda: self._engine.do(rq.Pause()))
+
     def land(self, timeout_s: float = LAND_TIMEOUT_S) -> None:
         land = rq.Land(timeout_s=timeout_s)
         self._run(lambda: self._engine.do(land))

@@ -137,6 +137,11 @@ class Session(Readings):
         whether it came true."""
         return await self._run(lambda: self._engine.wait_until(predicate, timeout_s))
 
+    async def pause(self) -> list[int]:
+        """Every drone holds where it is in PX4 Hold (QGroundControl's Pause, MAVSDK's ``action.hold()``): your
+        controller, the drones' behaviours and the stream stop until the next command; returns the sysids held."""
+        return await self._run(lambda: self._engine.do(rq.Pause()))
+
     async def land(self, timeout_s: float = LAND_TIMEOUT_S) -> None:
         """Land every flying drone where it is (clear of any wreck) and wait until all have disarmed."""
         land = rq.Land(timeout_s=timeout_s)

@@ -178,6 +178,13 @@ class BehaviourStep:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class PauseStep:
+    """Every drone holds where it is in PX4 Hold for ``duration_s``, the ground station's setpoints stopped."""
+
+    duration_s: float
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class LandStep:
     timeout_s: float = LAND_TIMEOUT_S
 
@@ -220,6 +227,7 @@ Step = (
     | FollowAttachedStep
     | SwapStep
     | HoldStep
+    | PauseStep
     | LandStep
     | RtlStep
     | FaultStep
@@ -614,11 +622,12 @@ def _step(reader: _Reader, step: Any, index: int, drones: int) -> Step:
         if "duration_s" not in step:
             raise reader.fail(where, None, "missing field 'duration_s'")
         return HoldStep(duration_s=reader.number(step, "duration_s", where, "pos"))
-    if action == "behaviour":
+    if action in ("behaviour", "pause"):
         reader.check_keys(step, {"action", "duration_s"}, where)
         if "duration_s" not in step:
             raise reader.fail(where, None, "missing field 'duration_s'")
-        return BehaviourStep(duration_s=reader.number(step, "duration_s", where, "pos"))
+        timed = BehaviourStep if action == "behaviour" else PauseStep
+        return timed(duration_s=reader.number(step, "duration_s", where, "pos"))
     if action == "fault":
         return _fault(reader, step, where, drones)
     if action == "plan":
@@ -630,7 +639,8 @@ def _step(reader: _Reader, step: Any, index: int, drones: int) -> Step:
     raise reader.fail(
         where,
         "action",
-        f"must be takeoff, plan, formation, flock, follow, swap, hold, behaviour, fault, land or rtl, got {action!r}",
+        f"must be takeoff, plan, formation, flock, follow, swap, hold, pause, behaviour, fault, land or rtl, "
+        f"got {action!r}",
     )
 
 

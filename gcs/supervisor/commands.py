@@ -149,6 +149,7 @@ DECODERS: Final[Mapping[str, Decoder]] = {
     "follow": lambda c, _s: rq.Follow(spec=build_follow(_fields(c)), onboard=_flag(c, "onboard")),
     "follow_attached": lambda c, _s: rq.FollowAttached(spec=build_follow_attached(_fields(c))),
     "goto": _goto,
+    "pause": lambda _c, _s: rq.Pause(),
     "land": _land,
     "rtl": _rtl,
     "behaviour": _behaviour,

@@ -36,6 +36,7 @@ from gcs.missions.mission_file import (
     HoldStep,
     LandStep,
     MissionSpec,
+    PauseStep,
     PlanStep,
     RtlStep,
     Step,
@@ -95,6 +96,8 @@ def step_requests(step: Step, sysids: Sequence[int]) -> tuple[Planned, ...]:
     if isinstance(step, BehaviourStep):  # the drones' own behaviour for the step's time, then Hold
         return tuple(Planned(r) for r in (rq.Behaviours(run=True), rq.Hold(duration_s=step.duration_s),
                                           rq.Behaviours(run=False)))  # fmt: skip
+    if isinstance(step, PauseStep):  # PX4 Hold for the step's time
+        return Planned(rq.Pause()), Planned(rq.Hold(duration_s=step.duration_s))
     if isinstance(step, LandStep):
         return (Planned(rq.Land(timeout_s=step.timeout_s)),)
     if isinstance(step, RtlStep):

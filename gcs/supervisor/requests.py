@@ -195,6 +195,14 @@ class Hold:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class Pause:
+    """Every drone holds where it is in PX4 Hold (AUTO.LOITER), the ground station's setpoints stopped, until the
+    next verb: QGroundControl's Pause, MAVSDK's ``action.hold()``."""
+
+    verb: ClassVar[str] = "pause"
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class Land:
     """Land every drone still armed where it is (clear of wrecks); done when all have landed and disarmed."""
 
@@ -331,7 +339,7 @@ class Require:
 
 
 Request = (
-    Arm | Takeoff | FlyFormation | Goto | Flock | Follow | FollowAttached | Swap | Hold | Land | ReturnToLaunch
-    | Behaviours | InjectFault | Kill | PlanUpload | PlanStart | PlanDownload | SetParam | Control | Attach | Detach
-    | Require
+    Arm | Takeoff | FlyFormation | Goto | Flock | Follow | FollowAttached | Swap | Hold | Pause | Land
+    | ReturnToLaunch | Behaviours | InjectFault | Kill | PlanUpload | PlanStart | PlanDownload | SetParam | Control
+    | Attach | Detach | Require
 )  # fmt: skip

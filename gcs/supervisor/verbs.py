@@ -253,6 +253,14 @@ def hold(session: FlightSession, request: rq.Hold) -> Started:
     return Started(done=_never, timeout_s=request.duration_s, ends_by_time=True)
 
 
+def pause(session: FlightSession, _request: rq.Pause) -> Started:
+    """Every drone into PX4 Hold where it is (members into their Hold mode); the controller, the drones' own
+    behaviours and the stream stop. Its value is the sysids put in Hold."""
+    take_over(session)
+    held = session.streamer.hand_over(session.swarm.commands.hold_all)
+    return Started(result=f"sysid {held}: Hold", value=held, new_step=True)
+
+
 def land(session: FlightSession, request: rq.Land | rq.ReturnToLaunch) -> Started:
     """Land (or return and land) every drone still armed; done when they have landed and disarmed. A crashed or
     landed drone has nothing to do."""
@@ -427,6 +435,7 @@ VERBS: Final[Mapping[type, Callable[[FlightSession, Any], Started]]] = {
     rq.FollowAttached: follow_attached,
     rq.Swap: swap,
     rq.Hold: hold,
+    rq.Pause: pause,
     rq.Land: land,
     rq.ReturnToLaunch: land,
     rq.Behaviours: behaviour,

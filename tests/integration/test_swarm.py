@@ -120,6 +120,16 @@ def status_rows(swarm: RunningSwarm) -> list[list[str]]:
     return [line.split() for line in result.stdout.strip().splitlines()[1:]]
 
 
+def wait_for_modes(swarm: RunningSwarm, mode: str, timeout_s: float) -> bool:
+    """Whether every drone reports ``mode`` within ``timeout_s`` of wall time (the supervisor runs at 4x)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if all(r[1] == mode for r in status_rows(swarm)):
+            return True
+        time.sleep(0.3)
+    return False
+
+
 def test_cli_commands_fly_a_running_swarm_and_down_stops_every_process(
     swarm_factory: type[RunningSwarm], instances: Leases
 ) -> None:
@@ -140,6 +150,13 @@ def test_cli_commands_fly_a_running_swarm_and_down_stops_every_process(
         time.sleep(0.3)
     # THEN both are armed and up
     assert all(r[2] == "yes" and float(r[5]) > 1.8 for r in rows), rows
+    # WHEN they fly a line, then pause (a verb added by following docs/architecture.md's recipe)
+    assert swarm.cli("formation", "line", "--alt", "2").returncode == 0
+    assert wait_for_modes(swarm, "OFFBOARD", 10), status_rows(swarm)
+    result = swarm.cli("pause")
+    assert result.returncode == 0 and "Hold" in result.stdout, result
+    # THEN both hold where they are in PX4 Hold
+    assert wait_for_modes(swarm, "AUTO.LOITER", 10), status_rows(swarm)
     # WHEN they land
     assert swarm.cli("land").returncode == 0
     deadline = time.monotonic() + 30

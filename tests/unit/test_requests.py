@@ -97,6 +97,7 @@ CLI_CASES: list[tuple[list[str], rq.Request]] = [
     (["follow", "--attached"], rq.FollowAttached(spec=FollowAttachedSpec(alt_m=3.0, duration_s=86400.0))),
     (["goto", "4", "-2"], rq.Goto(north_m=4.0, east_m=-2.0)),
     (["goto", "4", "-2", "--alt", "6"], rq.Goto(north_m=4.0, east_m=-2.0, alt_m=6.0)),
+    (["pause"], rq.Pause()),
     (["land"], rq.Land()),
     (["rtl"], rq.ReturnToLaunch()),
     (["behaviour", "start"], rq.Behaviours(run=True)),
@@ -145,6 +146,7 @@ JSON_CASES: list[tuple[dict[str, Any], rq.Request]] = [
     ({"cmd": "follow_attached", "fields": {"alt_m": 3, "duration_s": 10}},
      rq.FollowAttached(spec=FollowAttachedSpec(alt_m=3.0, duration_s=10.0))),
     ({"cmd": "goto", "north_m": 1, "east_m": 2, "alt_m": None}, rq.Goto(north_m=1.0, east_m=2.0)),
+    ({"cmd": "pause"}, rq.Pause()),
     ({"cmd": "land"}, rq.Land()),
     ({"cmd": "land", "timeout_s": 90}, rq.Land(timeout_s=90.0)),
     ({"cmd": "rtl"}, rq.ReturnToLaunch()),
@@ -224,6 +226,7 @@ def test_each_kind_of_step_decodes_to_its_verbs() -> None:
         mission_file.HoldStep: (mission_file.HoldStep(duration_s=1.0), [("hold", True)]),
         mission_file.BehaviourStep: (mission_file.BehaviourStep(duration_s=1.0),
                                      [("behaviour", True), ("hold", True), ("behaviour", True)]),
+        mission_file.PauseStep: (mission_file.PauseStep(duration_s=2.0), [("pause", True), ("hold", True)]),
         mission_file.LandStep: (mission_file.LandStep(), [("land", True)]),
         mission_file.RtlStep: (mission_file.RtlStep(), [("rtl", True)]),
     }  # fmt: skip
@@ -277,6 +280,7 @@ API_CASES: list[tuple[str, tuple[Any, ...], dict[str, Any], rq.Request, bool]] =
     ("stop_behaviours", (), {}, rq.Behaviours(run=False), True),
     ("require", (), {"kind": "contact"}, rq.Require(invariants=({"kind": "contact"},)), True),
     ("sleep", (2.0,), {}, rq.Hold(duration_s=2.0), True),
+    ("pause", (), {}, rq.Pause(), True),
     ("land", (), {}, rq.Land(), True),
     ("return_to_launch", (), {}, rq.ReturnToLaunch(), True),
     ("set_param", ("MPC_XY_VEL_MAX", 2.0), {"sysids": [1, 2]},
@@ -308,7 +312,7 @@ def test_the_api_decodes_each_call_to_its_request(
 
 def test_every_api_call_that_flies_is_a_request() -> None:
     flying = {name for name in ("takeoff", "formation", "flock", "follow", "control", "start_behaviours",
-                                "stop_behaviours", "require", "sleep", "land", "return_to_launch", "set_param",
+                                "stop_behaviours", "require", "sleep", "pause", "land", "return_to_launch", "set_param",
                                 "inject_fault", "kill")}  # fmt: skip
     for face in (Session, BlockingSession):
         public = {n for n, f in inspect.getmembers(face, inspect.isfunction) if not n.startswith("_")}
