@@ -9,7 +9,7 @@ has passed, so an operator can take over; any mode the operator commands clears 
 or disarm"). A row clears when its condition does, or only on arming; a mode-fallback row gives the operator's mode
 back when its cause clears.
 
-Pure: inputs and parameters in, orders out. sitl/autopilot/commander.py applies the orders (switches mode, emits
+Pure: inputs and parameters in, orders out. sitl/autopilot/mode_authority.py applies the orders (switches mode, emits
 the STATUSTEXT) and reports the row in force as ``VehicleStatus.active_failsafe``.
 """
 

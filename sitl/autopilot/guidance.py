@@ -71,7 +71,8 @@ Floats3 = tuple[float, float, float]
 _ZERO3: Floats3 = (0.0, 0.0, 0.0)
 
 
-def _floats3(v: Vec3 | Sequence[float]) -> Floats3:
+def floats3(v: Vec3 | Sequence[float]) -> Floats3:
+    """A 3-vector as three Python floats (an array's own values: ``tolist`` converts without rounding)."""
     if isinstance(v, np.ndarray):
         x, y, z = v.tolist()  # already Python floats
         return (x, y, z)
@@ -86,7 +87,7 @@ class StraightLineTrajectory:
     """
 
     def __init__(self, start_ned_m: Vec3 | Sequence[float]) -> None:
-        self._pos = _floats3(start_ned_m)
+        self._pos = floats3(start_ned_m)
         self._speed = 0.0
         self._dir = (0.0, 0.0, 0.0)
 
@@ -94,16 +95,21 @@ class StraightLineTrajectory:
     def position(self) -> Vec3:
         return np.array(self._pos)
 
+    @property
+    def position_floats(self) -> Floats3:
+        """``position`` as the floats it is kept in, without building an array (read on every commander tick)."""
+        return self._pos
+
     def reset(self, pos_ned_m: Vec3 | Sequence[float]) -> None:
-        self._pos = _floats3(pos_ned_m)
+        self._pos = floats3(pos_ned_m)
         self._speed = 0.0
 
     def reset_moving(self, pos_ned_m: Vec3 | Sequence[float], vel_ned_mps: Vec3 | Sequence[float]) -> None:
         """Restart the reference at ``pos_ned_m`` already moving at ``vel_ned_mps`` (the vehicle's own state): a
         target ahead along that velocity is then reached by braking from it, not by stopping dead and starting
         again from rest."""
-        self._pos = _floats3(pos_ned_m)
-        vx, vy, vz = _floats3(vel_ned_mps)
+        self._pos = floats3(pos_ned_m)
+        vx, vy, vz = floats3(vel_ned_mps)
         speed = math.sqrt(vx * vx + vy * vy + vz * vz)
         if speed < 1e-9:
             self._speed = 0.0
@@ -123,7 +129,7 @@ class StraightLineTrajectory:
     ) -> tuple[Floats3, Floats3, Floats3]:
         """``update`` with the reference as (position, velocity, acceleration) float tuples, for a caller that
         works in floats anyway (three arrays and a record less per control step)."""
-        tx, ty, tz = _floats3(target_ned_m)
+        tx, ty, tz = floats3(target_ned_m)
         px, py, pz = self._pos
         dx = tx - px
         dy = ty - py

@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from sitl.autopilot.guidance import MotionLimits
+from sitl.autopilot.guidance import Floats3, MotionLimits
 from sitl.autopilot.px4_modes import Px4Mode
 from sitl.estimation.estimator import Estimate
 from sitl.mathutil import Vec3, fast_constructor
@@ -62,7 +62,7 @@ class ModeInputs:
     landed: bool  # the land detector's verdict
     home_ned_m: Vec3
     home_yaw_rad: float
-    reference_ned_m: Vec3  # where the shared smooth reference is now
+    reference_ned_m: Floats3  # where the shared smooth reference is now
     target_ned_m: Vec3  # the point the reference is heading for
     target_yaw_rad: float  # NaN: keep the heading
     speed_override_mps: float  # DO_CHANGE_SPEED's limit on the auto modes' speed; inf: none

@@ -50,7 +50,7 @@ _LAND = ModeDecision(request=Px4Mode.AUTO_LAND)
 
 def _arrived(inp: ModeInputs) -> bool:
     """Has the shared reference reached its target?"""
-    return math.hypot(*(inp.reference_ned_m - inp.target_ned_m)) < ARRIVED_M
+    return math.hypot(*np.subtract(inp.reference_ned_m, inp.target_ned_m)) < ARRIVED_M
 
 
 class ModeUnit(Protocol):

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sitl.autopilot.commander import commander_tick_s
+from sitl.autopilot.flight_tick import commander_tick_s
 from sitl.autopilot.px4_modes import Px4Mode
 from sitl.drone.closed_loop import ClosedLoop, SimConfig
 from sitl.dynamics.airframe import load_airframe
