@@ -48,8 +48,11 @@ def test_the_ground_station_and_the_simulation_keep_to_their_import_contracts() 
         ("swarmcommon/links.py", "import gcs.fleet.links", "swarmcommon.links -> gcs.fleet.links"),
         ("gcs/sweep/child.py", "import gcs.cli", "gcs.sweep.child -> gcs.cli"),
         ("gcs/fleet/attachments.py", "import gcs.fleet.swarm", "gcs.fleet.attachments -> gcs.fleet.swarm"),
-        ("gcs/supervisor/invariant_watch.py", "import gcs.supervisor.session",
-         "gcs.supervisor.invariant_watch -> gcs.supervisor.session"),
+        (
+            "gcs/supervisor/invariant_watch.py",
+            "import gcs.supervisor.session",
+            "gcs.supervisor.invariant_watch -> gcs.supervisor.session",
+        ),
     ],
 )
 def test_a_crossing_import_breaks_the_build(tmp_path: Path, module: str, line: str, complaint: str) -> None:
