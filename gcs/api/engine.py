@@ -316,11 +316,8 @@ class Engine:
             view = swarm.fleet.drones.get(sysid)
             if view is None:
                 continue
-            frame = session.streamer.drone_frame(sysid)
-            known = frame is not None and all(math.isfinite(v) for v in view.local_ned_m)
-            pos = frame.to_swarm(view.local_ned_m) if known and frame is not None else NAN3
-            moving = frame is not None and all(math.isfinite(v) for v in view.vel_ned_mps)
-            vel = frame.vector_to_swarm(view.vel_ned_mps) if moving and frame is not None else NAN3
+            placed = swarm.picture.placed(sysid)  # gcs/fleet/picture.py: the swarm frame
+            pos, vel = (placed.pos_ned_m, placed.vel_ned_mps) if placed is not None else (NAN3, NAN3)
             out[sysid] = DroneState(
                 sysid=sysid, time_s=t, pos_ned_m=pos, vel_ned_mps=vel, armed=view.armed, mode=view.mode,
                 in_air=view.landed_state not in _NOT_IN_AIR,

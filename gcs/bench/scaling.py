@@ -48,15 +48,19 @@ import numpy.typing as npt
 from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.bench.probe import percentile, probe_sysids
-from gcs.command.procedures import take_off_and_hold
-from gcs.command.streamer import DEFAULT_LIMITS, FormationStreamer
+from gcs.command.streamer import DEFAULT_LIMITS
 from gcs.fleet.harness import MAX_DRONES, Simulation, SpawnError, SpawnPlan, parse_drones_per_process
+from gcs.fleet.losses import LossPolicy
 from gcs.fleet.swarm import ARM_TIMEOUT_S, Swarm, SwarmError
 from gcs.flight.formation import SETPOINT_STREAM_HZ, CircleSpec, FormationError, TransitionLimits
-from gcs.flight.frames import SwarmFrame
 from gcs.flight.geodesy import DEFAULT_ORIGIN
 from gcs.mavlink.commands import COMMAND_TIMEOUT_S
+from gcs.missions.mission_file import TAKEOFF_ALT_M
 from gcs.record.recorder import CollisionPairs
+from gcs.record.recording import FlightRecording
+from gcs.supervisor import requests as rq
+from gcs.supervisor.session import FlightSession
+from gcs.supervisor.verbs import carry_out, start
 
 PerProcess = int | Literal["auto"]
 DEFAULT_DRONE_COUNTS = (1, 3, 9, 20, 50, 100)
@@ -65,7 +69,6 @@ DEFAULT_SIM_SECONDS = 20.0
 DEFAULT_FIRST_INSTANCE = 100  # well clear of a user's drones at 0 and of the test suites' blocks
 MAX_BENCH_DRONES = MAX_DRONES  # as ``swarm up -n``
 SPAWN_SPACING_M = 2.0
-TAKEOFF_ALT_M = 3.0
 CIRCLE_RATE_RADPS = 0.2
 CIRCLE_MIN_RADIUS_M = 3.0
 CIRCLE_MIN_GAP_M = 2.0  # neighbours on the circle at least this far apart (chord)
@@ -77,7 +80,8 @@ PROBE_SECONDS = 3.0
 PROBE_EXTRA_WALL_S = 30.0  # the probe's own start-up (imports) on a loaded machine
 RTT_MIN_SAMPLES = 20  # command round trips: every drone in turn, as many rounds as give at least this many
 RTT_TIMEOUT_S = COMMAND_TIMEOUT_S  # wall seconds per command before it counts as lost (MAVSDK's per-try timeout)
-TAKEOFF_TIMEOUT_S = 40.0
+TAKEOFF_BASE_S = 40.0  # the bench's takeoff wait, and TAKEOFF_PER_DRONE_S more per drone: a crowded start is slow
+TAKEOFF_PER_DRONE_S = 0.2
 CONSISTENT_READ_TRIES = 5
 TIME_PUBLISH_STEPS = 4  # each drone publishes its simulated time every 4 physics steps (sitl/world/shared.py)
 CPU_PARTS = ("physics", "control", "perception", "mavlink")
@@ -86,6 +90,10 @@ EXIT_FAILED = 1
 
 Say = Callable[[str], None]
 FloatArray = npt.NDArray[np.float64]
+
+
+def _quiet(_text: str) -> None:
+    """What a verb says during a bench flight: the bench prints its own lines."""
 
 
 class BenchUsageError(ValueError):
@@ -613,10 +621,12 @@ class ScenarioFlight:
         )
         self.swarm = Swarm(plan, config.simulation.harness(plan), relay_radius_m=relay_radius_for(n))
         self.radius_m = circle_radius_m(n)
-        self.streamer = FormationStreamer(
-            self.swarm, SwarmFrame(plan.origin), circle_limits(self.radius_m, CIRCLE_RATE_RADPS)
-        )
-        self.swarm.pump.keep_streaming(self.streamer.tick)
+        # a front-end like the others: a flight session, flown with requests (gcs/supervisor/requests.py); its clock
+        # is the swarm's own (mission time zero at the swarm's zero), and nothing is recorded
+        recording = FlightRecording(mission_name="bench", n_drones=n, collision_radius_m=0.0)
+        self.session = FlightSession(self.swarm, _quiet, recording, LossPolicy.CONTINUE, t0_s=0.0,
+                                     limits=circle_limits(self.radius_m, CIRCLE_RATE_RADPS))  # fmt: skip
+        self.session.waiting_tick = self.tick
         self.sampling = False
         self.samples = _ClockSamples()
         self._collisions = CollisionPairs()
@@ -632,7 +642,7 @@ class ScenarioFlight:
 
     def tick(self, now: float) -> None:
         """Stream setpoints; while measuring, sample every drone's clock (TIME) and lockstep step count (STEP)."""
-        self.streamer.tick(now)
+        self.session.tick(now)
         if self.sampling:
             columns = self.swarm.harness.clock_columns
             times = consistent_read(lambda: columns()[0])
@@ -651,12 +661,16 @@ class ScenarioFlight:
         return time.monotonic() - start
 
     def take_off(self) -> None:
-        take_off_and_hold(self.swarm, self.streamer, TAKEOFF_ALT_M, TAKEOFF_TIMEOUT_S + 0.2 * self.n, tick=self.tick)
+        takeoff = rq.Takeoff(timeout_s=TAKEOFF_BASE_S + TAKEOFF_PER_DRONE_S * self.n)  # to the usual altitude
+        carry_out(start(self.session, takeoff), self._wait)
+
+    def _wait(self, condition: Callable[[], bool], timeout_s: float) -> bool:
+        return self.swarm.pump.wait_until(condition, timeout_s, tick=self.tick)
 
     def circle_window(self, sim_seconds: float) -> tuple[Snapshot, Snapshot]:
         """Command the rotating circle and fly it for ``sim_seconds`` (supervisor clock), snapshots at both ends."""
         spec = CircleSpec(radius_m=self.radius_m, alt_m=TAKEOFF_ALT_M, angular_rate_radps=CIRCLE_RATE_RADPS)
-        self.streamer.command(spec, self.swarm.clock.now())
+        start(self.session, rq.FlyFormation(formation=spec))
         before = take_snapshot(self.swarm)
         self.sampling = True
         self.swarm.pump.run_for(sim_seconds, tick=self.tick, tick_s=1.0 / SETPOINT_STREAM_HZ)
@@ -739,7 +753,7 @@ class ScenarioFlight:
         """Stop streaming, disarm forcibly (no landing: nothing is measured any more), then shut everything down."""
         swarm = self.swarm
         try:
-            self.streamer.stop()
+            self.session.streamer.stop()
             if swarm.liveness.sysids:
                 armed = swarm.liveness.armed_sysids()
                 if armed:

@@ -45,7 +45,7 @@ FOLLOW_MARGIN_S: Final = 30.0  # the leader must report itself at its last waypo
 def _local_points(streamer: FormationStreamer, sysid: int, points_ne_m: tuple[tuple[float, float], ...],
                   alt_m: float) -> tuple[tuple[tuple[float, float], ...], float]:  # fmt: skip
     """Swarm-frame points (north, east) and an altitude, in the drone's own local frame (height above its home)."""
-    frame = streamer.drone_frame(sysid)
+    frame = streamer.picture.drone_frame(sysid)
     if frame is None:
         raise SwarmError(f"drone {sysid}: no home position yet")
     local = [frame.to_local((north, east, -alt_m)) for north, east in points_ne_m]
@@ -89,7 +89,7 @@ class OnboardFollow:
 def start_onboard_follow(swarm: Swarm, streamer: FormationStreamer, spec: FollowSpec, now_s: float) -> OnboardFollow:
     """Assign each follower an offset (minimum total squared distance to the slots around the hovering leader, as
     the ground law's join), set everyone's parameters and turn the behaviour on."""
-    here = streamer.positions()
+    here = swarm.picture.positions(swarm.flown_sysids)
     sysids = [s for s in swarm.liveness.active_sysids if s in here]
     leader = spec.leader_sysid if spec.leader_sysid is not None else min(sysids)
     if leader not in here:
@@ -130,7 +130,8 @@ def start_onboard_follow(swarm: Swarm, streamer: FormationStreamer, spec: Follow
 
 def leader_arrived(follow: OnboardFollow, streamer: FormationStreamer, now_s: float) -> bool:
     """The leader reports itself at its last waypoint (not before it could have flown there)."""
-    where = streamer.positions().get(follow.leader)
+    placed = streamer.picture.placed(follow.leader)
+    where = placed.pos_ned_m if placed is not None else None
     return (now_s >= follow.earliest_end_s and where is not None
             and math.dist(where[:2], follow.last_waypoint_ne_m) <= ARRIVAL_TOLERANCE_M)  # fmt: skip
 
@@ -153,7 +154,7 @@ class FollowObserver:
         if now_s <= self.last_s and self._targets:
             return self._targets
         dt, self.last_s = max(now_s - self.last_s, 0.0), now_s
-        state = self.streamer.state()
+        state = self.streamer.picture.state(self.streamer.swarm.flown_sysids)
         row = state.row(self.follow.leader)
         if row is None or not self.followers:
             return self._targets

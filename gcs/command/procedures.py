@@ -5,7 +5,7 @@
 - ``check_takeoff_alt``: the altitudes a takeoff may ask for (0.5-100 m), checked once for every front-end.
 - ``start_takeoff``: arm (after the pre-arm checks) unless armed, NAV_TAKEOFF for every drone, and the test that
   they hold the altitude (``SteadyAltitude``; at the drones' MIS_TAKEOFF_ALT when asked for less: they climb that
-  high, as PX4); ``take_off_and_hold`` also waits for it.
+  high, as PX4); the takeoff verb (gcs/supervisor/verbs.py) starts it and every front-end, the bench too, waits.
 - ``PaceWatch``: the pace monitor (gcs/fleet/pace_monitor.py) fed from a running swarm, its warning said once.
 - ``start_onboard_behaviours`` / ``stop_onboard_behaviours``: every drone's onboard behaviour on (BHV_EN = 1, the
   ground station's own setpoint stream stopped) or off (BHV_EN = 0, then Hold); docs/onboard.md.
@@ -97,22 +97,10 @@ def start_takeoff(
 
     def holding() -> bool:
         climbing = [*swarm.liveness.active_sysids, *members]
-        positions = streamer.positions()
+        positions = swarm.picture.positions(climbing)
         return steady.update({s: positions[s] for s in climbing if s in positions}, len(climbing), swarm.clock.now())
 
     return alt_m, holding
-
-
-def take_off_and_hold(
-    swarm: Swarm, streamer: FormationStreamer, alt_m: float, timeout_s: float, *,
-    tick: Callable[[float], None] | None = None, say: Say | None = None,
-) -> float:  # fmt: skip
-    """``start_takeoff``, then wait until the drones hold the altitude; the altitude they hold (SwarmError when they
-    do not hold it within ``timeout_s``). ``swarm bench`` takes off so; the front-ends through the takeoff verb."""
-    target_m, holding = start_takeoff(swarm, streamer, alt_m, tick=tick, say=say)
-    if not swarm.pump.wait_until(holding, timeout_s, tick=tick):
-        raise SwarmError(f"takeoff to {target_m:g} m not reached within {timeout_s:g} s")
-    return target_m
 
 
 class PaceWatch:

@@ -39,8 +39,7 @@ from gcs.flight.formation import (
     Setpoint,
     TransitionLimits,
 )
-from gcs.flight.frames import DroneFrame, SwarmFrame, Vec3, origin_from_home
-from gcs.flight.geodesy import GeoPoint
+from gcs.flight.frames import Vec3
 from gcs.mavlink.modes import HOLD, OFFBOARD
 
 log = logging.getLogger(__name__)
@@ -107,67 +106,28 @@ def _finite_or_zero(values: Vec3) -> Vec3:
 
 
 class FormationStreamer:
-    def __init__(self, swarm: Swarm, frame: SwarmFrame, limits: TransitionLimits = DEFAULT_LIMITS) -> None:
+    def __init__(self, swarm: Swarm, limits: TransitionLimits = DEFAULT_LIMITS) -> None:
         self.swarm = swarm
-        self.swarm_frame = frame
+        self.picture = swarm.picture  # where every vehicle is, in the swarm frame: what the streamer plans from
         self.limits = limits
         self.engine = FormationEngine(limits)
         self.active = False
         self.formation: Formation | None = None
         self.behaviour: Behaviour | None = None
-        self._frames: dict[int, DroneFrame] = {}
         self._rejoining: dict[int, _Rejoin] = {}  # sysid -> its way back into OFFBOARD
         self.observer: Callable[[float], dict[int, Vec3]] | None = None  # slots of drones flying themselves
 
-    def drone_frame(self, sysid: int) -> DroneFrame | None:
-        """The drone's local frame, once its HOME_POSITION has arrived."""
-        frame = self._frames.get(sysid)
-        if frame is None:
-            view = self.swarm.fleet.drones.get(sysid)
-            if view is None or view.home is None or view.home_local_ned_m is None:
-                return None
-            home = GeoPoint(lat_deg=view.home[0], lon_deg=view.home[1], alt_amsl_m=view.home[2])
-            frame = self._frames[sysid] = self.swarm_frame.drone_frame(origin_from_home(home, view.home_local_ned_m))
-        return frame
+    def _positions(self) -> dict[int, Vec3]:
+        """Every flown vehicle's reported position in the swarm frame (gcs/fleet/picture.py)."""
+        return self.picture.positions(self.swarm.flown_sysids)
 
-    def positions(self) -> dict[int, Vec3]:
-        """Every flown vehicle's reported position in the swarm frame (drones without a home yet are left out)."""
-        out = {}
-        for sysid in self.swarm.flown_sysids:
-            reported = self._reported(sysid)
-            if reported is not None:
-                out[sysid] = reported[0]
-        return out
-
-    def state(self) -> SwarmState:
-        """Reported position and velocity (swarm frame) of every armed flown vehicle with a finite report."""
-        positions: dict[int, Vec3] = {}
-        velocities: dict[int, Vec3] = {}
-        for sysid in self.swarm.flown_sysids:
-            view = self.swarm.fleet.drones.get(sysid)
-            reported = self._reported(sysid)
-            if reported is not None and view is not None and view.armed and all(map(math.isfinite, reported[1])):
-                positions[sysid], velocities[sysid] = reported
-        return SwarmState.from_mappings(positions, velocities)
-
-    def _reported(self, sysid: int) -> tuple[Vec3, Vec3] | None:
-        """A vehicle's reported position and velocity in the swarm frame: a drone's LOCAL_POSITION_NED through its
-        local frame; an attached member's GLOBAL_POSITION_INT (None until there is a finite position)."""
-        view = self.swarm.fleet.drones.get(sysid)
-        if view is None:
-            return None
-        if sysid in self.swarm.attachments.vehicles:
-            here = GeoPoint(lat_deg=view.lat_deg, lon_deg=view.lon_deg, alt_amsl_m=view.alt_amsl_m)
-            if not all(map(math.isfinite, (here.lat_deg, here.lon_deg, here.alt_amsl_m))):
-                return None
-            return self.swarm_frame.ned_from_geo(here), view.vel_ned_mps
-        frame = self.drone_frame(sysid)
-        if frame is None or not all(map(math.isfinite, view.local_ned_m)):
-            return None
-        return frame.to_swarm(view.local_ned_m), frame.vector_to_swarm(view.vel_ned_mps)
+    def _state(self) -> SwarmState:
+        """What a flight law starts from: the flown vehicles that are armed and have said where they are and how
+        they move."""
+        return self.picture.state(self.swarm.flown_sysids)
 
     def _check_ready(self, what: str) -> dict[int, Vec3]:
-        positions = self.positions()
+        positions = self._positions()
         active = self.swarm.flown_sysids
         if not active:
             raise SwarmError(f"every drone is lost: cannot plan {what}")
@@ -189,14 +149,14 @@ class FormationStreamer:
     def command_follow(self, spec: FollowSpec, now_s: float) -> LeaderFollower:
         """Leader-follower flight of every drone (gcs/flight/behaviours.py), in OFFBOARD."""
         self._check_ready("leader-follower")
-        behaviour = LeaderFollower(spec, now_s, self.state(), self.limits)
+        behaviour = LeaderFollower(spec, now_s, self._state(), self.limits)
         self._start_behaviour(behaviour, now_s)
         return behaviour
 
     def command_flock(self, spec: FlockSpec, now_s: float) -> Flock:
         """Reynolds flocking of every drone (gcs/flight/behaviours.py), in OFFBOARD."""
         self._check_ready("flocking")
-        behaviour = Flock(spec, now_s, self.state())
+        behaviour = Flock(spec, now_s, self._state())
         self._start_behaviour(behaviour, now_s)
         return behaviour
 
@@ -258,7 +218,7 @@ class FormationStreamer:
         None."""
         if not self.active:
             return None
-        survivors = self.positions()
+        survivors = self._positions()
         if not survivors:
             self.stop()
             return "no drone left to fly"
@@ -269,7 +229,7 @@ class FormationStreamer:
                 return f"formation not re-planned: {exc}"
             return f"formation re-planned over {len(survivors)} drones (arrival in {transition.duration_s:.1f} s)"
         if isinstance(self.behaviour, LeaderFollower):
-            behaviour = self.behaviour.without(sysid, now_s, self.state(), self.limits)
+            behaviour = self.behaviour.without(sysid, now_s, self._state(), self.limits)
             handed_over = behaviour.leader != self.behaviour.leader
             self.behaviour = behaviour
             return f"leader sysid {sysid} lost: sysid {behaviour.leader} leads" if handed_over else None
@@ -291,7 +251,7 @@ class FormationStreamer:
         if view is None or not view.armed or view.landed_state == mavlink.MAV_LANDED_STATE_ON_GROUND:
             return f"sysid {sysid} is on the ground: it stays out of the flight"
         if self.behaviour is None and self.formation is not None:
-            positions = self.positions()
+            positions = self._positions()
             try:
                 transition = self.engine.command(self.formation, now_s, positions)
             except FormationError as exc:
@@ -363,14 +323,14 @@ class FormationStreamer:
             self._rejoin_due(now_s)
         boot_ms = int(now_s * 1000) & 0xFFFFFFFF
         if self.behaviour is not None:
-            state = self.state()
+            state = self._state()
             setpoints = self.behaviour.setpoints(now_s, state)
         else:
             state = None
             setpoints = self.engine.setpoints(now_s)
         attached = self.swarm.attachments.vehicles
         for sysid, sp in setpoints.items():
-            frame = self.drone_frame(sysid) if sysid not in attached else None
+            frame = self.picture.drone_frame(sysid) if sysid not in attached else None
             if (frame is None and sysid not in attached) or sysid in self.swarm.liveness.losses:
                 continue
             mask = type_mask(sp)

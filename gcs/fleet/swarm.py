@@ -9,7 +9,9 @@ parts it works with (never the swarm), which its users reach directly (``swarm.l
 - ``clock`` (gcs/fleet/clock.py): simulated seconds, paced on the wall clock or moved on in lockstep frames;
 - ``router`` (gcs/fleet/router.py): the socket's traffic both ways, batching, forwarding, the relay, the ground
   station's HEARTBEAT, and the listeners to what is received and sent;
-- ``fleet`` (gcs/fleet/telemetry.py): every vehicle's view from its telemetry;
+- ``fleet`` (gcs/fleet/telemetry.py): every vehicle's view from its telemetry, in its own terms;
+- ``picture`` (gcs/fleet/picture.py): every vehicle's place in the swarm frame, the one conversion, kept current as
+  each report arrives: what every reader of positions reads;
 - ``liveness`` (gcs/fleet/liveness.py): the drones launched, each loss recorded once, silent drones taken back;
 - ``attachments`` (gcs/fleet/attachments.py): vehicles the simulation does not run, attached over links of their own;
 - ``pump`` (gcs/fleet/pump.py): every message taken where it belongs, and the one loop every wait runs;
@@ -42,11 +44,13 @@ from gcs.fleet.errors import SwarmError
 from gcs.fleet.faults import BATTERY_LEVEL_PARAM, ENABLE_PARAM, FAULTS, FaultRequest
 from gcs.fleet.harness import SimulationHarness, SpawnError, SpawnPlan
 from gcs.fleet.liveness import Liveness
+from gcs.fleet.picture import SwarmPicture
 from gcs.fleet.pump import Protocols, Pump
 from gcs.fleet.relay import NeighbourRelay
 from gcs.fleet.router import BATCH_HOLD_S, Router
 from gcs.fleet.telemetry import Fleet
 from gcs.fleet.transfers import Missions, Params
+from gcs.flight.frames import SwarmFrame
 from gcs.flight.geodesy import NedFrame
 from gcs.mavlink.commands import Ack, CommandClient
 from gcs.mavlink.mission_transfer import MissionClient, MissionProgress
@@ -85,6 +89,9 @@ class Swarm:
         protocols = Protocols(commands=CommandClient(own_sysid=plan.gcs_sysid), params=ParamClient(),
                               missions=MissionClient(own_sysid=plan.gcs_sysid), progress=MissionProgress())  # fmt: skip
         self.attachments = Attachments(plan, self.clock, harness, self.fleet, self.router, protocols.commands)
+        # the swarm-frame picture, kept current before any other listener reads the message that moved a vehicle
+        self.picture = SwarmPicture(SwarmFrame(plan.origin), self.fleet, self.attachments.vehicles)
+        self.router.listeners.append(self.picture.observe)
         self.pump = Pump(self.clock, harness, self.router, self.fleet, self.liveness, self.attachments, protocols,
                          speed_factor=plan.speed_factor)  # fmt: skip
         self.commands = Commands(protocols.commands, self.pump, self.clock, self.fleet, self.liveness,

@@ -17,7 +17,6 @@ from typing import Any
 from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.command.streamer import FormationStreamer
-from gcs.fleet.attach import reported_geo
 from gcs.fleet.losses import MAV_STATE_CRITICAL
 from gcs.mavlink.statustext import StatusTextAssembler, parse_contact
 from gcs.record.metrics import LiveMetrics
@@ -77,8 +76,10 @@ class FlightRecorder:
         if sysid not in self.recording.attached:
             spec = self.swarm.attachments.vehicles[sysid].spec
             self.recording.attached[sysid] = (spec.role, spec.url.describe())
-        pos = self.streamer.swarm_frame.ned_from_geo(reported_geo(msg))
-        vel = (msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
+        placed = self.swarm.picture.placed(sysid)  # where it says it is (its report just placed it)
+        if placed is None:
+            return
+        pos, vel = placed.pos_ned_m, placed.vel_ned_mps
         view = self.swarm.fleet.drones.get(sysid)
         target = self.streamer.targets(now).get(sysid)  # a member's slot, while it has one
         self.recording.attached_samples.append(DroneSample(
@@ -99,12 +100,11 @@ class FlightRecorder:
         now = self.clock()
         attached = self.swarm.attachments.vehicles
         if kind == "LOCAL_POSITION_NED" and sysid not in attached:  # an attached one: from where it says
-            frame = self.streamer.drone_frame(sysid)
+            placed = self.swarm.picture.placed(sysid)  # the report just placed it (gcs/fleet/picture.py)
             view = self.swarm.fleet.drones.get(sysid)
-            if frame is None or view is None:
+            if placed is None or view is None:
                 return
-            pos = frame.to_swarm((msg.x, msg.y, msg.z))
-            vel = frame.vector_to_swarm((msg.vx, msg.vy, msg.vz))
+            pos, vel = placed.pos_ned_m, placed.vel_ned_mps
             target = self.streamer.targets(now).get(sysid)
             sample = DroneSample(time_s=now, sysid=sysid, pos_ned_m=pos, vel_ned_mps=vel, armed=view.armed,
                                  mode=view.mode, target_ned_m=target)  # fmt: skip

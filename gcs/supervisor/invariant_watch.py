@@ -58,7 +58,7 @@ class InvariantWatch:
 
     def _state(self, now_s: float) -> TickState:
         swarm, streamer, recording = self.swarm, self.streamer, self.recording
-        positions = streamer.positions()
+        positions = swarm.picture.positions(swarm.flown_sysids)
         drones = swarm.fleet.drones
         airborne = frozenset(s for s in positions if s in drones and drones[s].armed and drones[s].in_air())
         clock = swarm.clock.now()
@@ -66,7 +66,7 @@ class InvariantWatch:
         for sysid, vehicle in swarm.attachments.vehicles.items():
             body = vehicle.body_at(clock)
             if body is not None and sysid not in positions:
-                attached[sysid] = streamer.swarm_frame.ned_from_geo(body)
+                attached[sysid] = swarm.picture.ned_from_geo(body)
         slots = {s: p for s, p in streamer.targets(now_s).items() if s in positions}
         new_events = recording.events[self._events_seen :]
         contacts = tuple((e.sysid, e.text) for e in new_events if e.sysid is not None

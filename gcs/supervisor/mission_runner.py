@@ -23,7 +23,6 @@ from gcs.fleet.links import LinkPlan
 from gcs.fleet.losses import LossPolicy
 from gcs.fleet.swarm import Swarm, SwarmError
 from gcs.flight.formation import SETPOINT_STREAM_HZ
-from gcs.flight.frames import SwarmFrame
 from gcs.flight.geodesy import GeoPoint
 from gcs.mavlink.transport import GCS_SYSID
 from gcs.missions.mission_file import (
@@ -125,7 +124,6 @@ class MissionRunner:
         self.speed = speed_factor
         self.say = say
         self.report_dir = report_dir
-        self.swarm_frame = SwarmFrame(origin)
         plan = SpawnPlan(
             n_drones=mission.swarm.drones,
             spacing_m=mission.swarm.spacing_m,
@@ -244,7 +242,7 @@ class MissionRunner:
     def _place_obstacles(self) -> None:
         """Declare the mission's static obstacles in the shared world (cameras see them, contact crashes)."""
         for ob in self.mission.obstacles:
-            geo = self.swarm_frame.geo_from_ned((ob.north_m, ob.east_m, -ob.centre_alt_m))
+            geo = self.swarm.picture.frame.geo_from_ned((ob.north_m, ob.east_m, -ob.centre_alt_m))
             self.swarm.harness.add_obstacle(cylinder=ob.cylinder, centre_geo=(geo.lat_deg, geo.lon_deg, geo.alt_amsl_m),
                                             radius_m=ob.radius_m, height_m=ob.height_m)  # fmt: skip
         if self.mission.obstacles:

@@ -15,12 +15,12 @@ from pathlib import Path
 
 from gcs.command.degrade import apply_loss_policy, apply_regain
 from gcs.command.procedures import PaceWatch
-from gcs.command.streamer import FormationStreamer
+from gcs.command.streamer import DEFAULT_LIMITS, FormationStreamer
 from gcs.fleet.links import NeighbourPlan
 from gcs.fleet.losses import LossPolicy, loss_line, regain_line
 from gcs.fleet.swarm import Swarm, SwarmError
 from gcs.flight.behaviours import Behaviour
-from gcs.flight.frames import SwarmFrame
+from gcs.flight.formation import TransitionLimits
 from gcs.invariants.spec import Invariant
 from gcs.record.recorder import FlightRecorder
 from gcs.record.recording import EventRecord, FaultRecord, FlightRecording, ObstacleShape, StepRecord
@@ -38,15 +38,17 @@ class FlightSession:
     stream, their onboard behaviours, a user's controller) and whether a loss policy has taken the flight over."""
 
     def __init__(self, swarm: Swarm, say: Say, recording: FlightRecording, loss_policy: LossPolicy, *,
-                 note: Say | None = None, t0_s: float | None = None) -> None:  # fmt: skip
+                 note: Say | None = None, t0_s: float | None = None,
+                 limits: TransitionLimits = DEFAULT_LIMITS) -> None:  # fmt: skip
         """``say``: the supervisor's output; ``note``: a line about what a verb did, as the front-end shows it (a
-        mission prefixes its time); ``t0_s``: the swarm clock's reading at mission time zero (now, when not given)."""
+        mission prefixes its time); ``t0_s``: the swarm clock's reading at mission time zero (now, when not given);
+        ``limits``: the formations' transition limits (``swarm bench`` raises them for its rotating circle)."""
         self.swarm = swarm
         self.say = say
         self.note = note or say
         self.recording = recording
         self.loss_policy = loss_policy
-        self.streamer = FormationStreamer(swarm, SwarmFrame(swarm.plan.origin))
+        self.streamer = FormationStreamer(swarm, limits)
         swarm.pump.keep_streaming(self.streamer.tick)  # setpoints go on while a command waits for its answer
         self.pace = PaceWatch(swarm, say)
         recording.requested_speed = self.pace.requested_speed

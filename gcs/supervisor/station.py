@@ -15,6 +15,7 @@ from typing import Any
 from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.fleet.losses import MAV_STATE_CRITICAL, LossPolicy
+from gcs.fleet.picture import Placed
 from gcs.fleet.swarm import Swarm, SwarmError
 from gcs.fleet.telemetry import DroneView
 from gcs.mavlink.mission_transfer import MISSION_STATE_NAMES
@@ -136,21 +137,28 @@ class Station:
             if d is None:
                 rows.append({"sysid": sysid, "mode": "NO LINK"})
                 continue
-            rows.append({**_telemetry_row(d, now), "mission": self._mission_progress(sysid, d.mode)})
+            rows.append(
+                {
+                    **_telemetry_row(d, self.swarm.picture.placed(d.sysid), now),
+                    "mission": self._mission_progress(sysid, d.mode),
+                }
+            )
         for sysid, vehicle in self.swarm.attachments.vehicles.items():
             d = self.swarm.fleet.drones.get(sysid)
             if d is not None:
                 lost = ", lost" if vehicle.lost else ""
-                rows.append({**_telemetry_row(d, now),
+                rows.append({**_telemetry_row(d, self.swarm.picture.placed(d.sysid), now),
                              "external": f"{vehicle.spec.role} on {vehicle.spec.url.describe()}{lost}"})  # fmt: skip
         return rows
 
 
-def _telemetry_row(d: DroneView, now_s: float) -> dict[str, Any]:
-    """A vehicle's status row from its telemetry (a simulated drone's or an attached one's)."""
+def _telemetry_row(d: DroneView, placed: Placed | None, now_s: float) -> dict[str, Any]:
+    """A vehicle's status row from its telemetry (a simulated drone's or an attached one's) and its place in the
+    swarm frame (``pos_ned_m``, metres from the swarm's origin; None before it has said)."""
     return {"sysid": d.sysid, "mode": d.mode, "armed": d.armed, "lat_deg": d.lat_deg, "lon_deg": d.lon_deg,
             "alt_m": d.relative_alt_m, "battery": d.battery_remaining, "link_age_s": d.link_age_s(now_s),
-            "failsafe": failsafe_text(d.system_status, d.texts)}  # fmt: skip
+            "failsafe": failsafe_text(d.system_status, d.texts),
+            "pos_ned_m": list(placed.pos_ned_m) if placed is not None else None}  # fmt: skip
 
 
 def swarm_note(say: Say) -> Say:

@@ -224,10 +224,10 @@ def follow_attached(session: FlightSession, request: rq.FollowAttached) -> Start
         geo = vehicle.body_at(swarm.clock.now())
         if geo is None:
             return None
-        return LeaderReport(pos_ned_m=streamer.swarm_frame.ned_from_geo(geo), vel_ned_mps=vehicle.vel_ned_mps)
+        return LeaderReport(pos_ned_m=swarm.picture.ned_from_geo(geo), vel_ned_mps=vehicle.vel_ned_mps)
 
     take_over(session)
-    law = FollowAttached(spec, report, session.mission_time(), streamer.state())
+    law = FollowAttached(spec, report, session.mission_time(), swarm.picture.state(swarm.flown_sysids))
     streamer.command_behaviour(law, session.mission_time(), "following an attached leader")
     return Started(result=f"following attached leader sysid {sysid}", done=_never, timeout_s=spec.duration_s,
                    ends_by_time=True, new_step=True)  # fmt: skip
@@ -241,7 +241,7 @@ def swap(session: FlightSession, request: rq.Swap) -> Started:
     tolerance_m, timeout_s = request.tolerance_m, request.timeout_s
 
     def arrived() -> bool:
-        positions = session.streamer.positions()
+        positions = session.swarm.picture.positions(move.goals)
         return all(s in positions and math.dist(positions[s], goal) <= tolerance_m for s, goal in move.goals.items())
 
     return Started(done=arrived, timeout_s=timeout_s, new_step=True,

@@ -16,7 +16,6 @@ import numpy as np
 from gcs.command.streamer import FormationStreamer
 from gcs.flight.behaviours import pairwise_offsets
 from gcs.flight.frames import Vec3
-from gcs.flight.geodesy import GeoPoint
 from gcs.mavlink.images import ImageAssembler, image_request
 from gcs.record.metrics import AIRBORNE_HEIGHT_M, LiveMetrics
 from gcs.record.recording import ObstacleShape
@@ -95,19 +94,14 @@ class ViewFeed:
         attached, losses = swarm.attachments.vehicles, swarm.liveness.losses
         positions: dict[int, Vec3] = {}
         homes: dict[int, Vec3] = {}
-        for sysid, view in swarm.fleet.drones.items():
-            if sysid in attached:  # drawn where it says it is: it need not report a home or a local frame
-                if all(math.isfinite(v) for v in (view.lat_deg, view.lon_deg, view.alt_amsl_m)):
-                    here = GeoPoint(lat_deg=view.lat_deg, lon_deg=view.lon_deg, alt_amsl_m=view.alt_amsl_m)
-                    positions[sysid] = self.streamer.swarm_frame.ned_from_geo(here)
-                continue
-            drone_frame = self.streamer.drone_frame(sysid)
-            if drone_frame is None:
-                continue
-            if all(math.isfinite(v) for v in view.local_ned_m):
-                positions[sysid] = drone_frame.to_swarm(view.local_ned_m)
-            if view.home_local_ned_m is not None:
-                homes[sysid] = drone_frame.to_swarm(view.home_local_ned_m)
+        picture = swarm.picture  # an attached vehicle where it says it is; a drone through its local frame
+        for sysid in swarm.fleet.drones:
+            placed = picture.placed(sysid)
+            if placed is not None:
+                positions[sysid] = placed.pos_ned_m
+            home = picture.home(sysid) if sysid not in attached else None
+            if home is not None:
+                homes[sysid] = home
         airborne = [p for s, p in positions.items() if s not in losses and s not in attached
                     and swarm.fleet.drones[s].armed and homes.get(s, p)[2] - p[2] > AIRBORNE_HEIGHT_M]  # fmt: skip
         separation = _separation(airborne)
