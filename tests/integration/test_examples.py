@@ -85,3 +85,12 @@ def test_the_onboard_behaviour_example_gathers_four_drones_that_decide_for_thems
     result = run_example("onboard_behaviour.py", "--drones", "4", "--seconds", "20", "--first-instance",
                          str(instances(4)), "--report", str(tmp_path / "report"))  # fmt: skip
     assert "collisions 0" in result.stdout, result.stdout[-2000:]
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize("name", sorted(p.name for p in EXAMPLES.glob("*.py") if p.name != "test_my_swarm.py"))
+def test_every_example_parses_its_arguments_as_written(name: str) -> None:
+    """What each example accepts, as its ``--help`` says it (about 1 s each: the imports): a front-end's names that
+    an example uses keep working."""
+    result = run_example(name, "--help", timeout_s=60)
+    assert result.stdout.startswith("usage:"), result.stdout[:300]

@@ -6,6 +6,7 @@ kernels, on each side a folder imports only the folders below it, and what both 
 
 from __future__ import annotations
 
+import ast
 import os
 import shutil
 import subprocess
@@ -85,3 +86,20 @@ def test_checking_a_mission_s_parameters_loads_no_numba_either() -> None:
     result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == "[]", result.stdout
+
+
+MAX_CLASS_LINES = 350  # docs/architecture.md: a class that grows past this is doing more than one part's job
+
+
+def test_no_class_of_the_drone_or_the_ground_station_outgrows_one_part() -> None:
+    """A signal, not a proof: a facade that takes on its parts' work grows; its parts are classes of their own (never
+    mixins, nor helpers handed the facade), which the import contracts keep from importing it."""
+    grown = []
+    for root in ("gcs", "sitl"):
+        for path in sorted((ROOT / root).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.ClassDef) and node.end_lineno is not None:
+                    lines = node.end_lineno - node.lineno + 1
+                    if lines > MAX_CLASS_LINES:
+                        grown.append(f"{path.relative_to(ROOT)}: {node.name} ({lines} lines)")
+    assert not grown, grown
