@@ -95,6 +95,14 @@ AUTOPILOT_PARAMS: tuple[ParamDef, ...] = (
         description="Default mission waypoint acceptance radius",
     ),
     ParamDef(
+        name="MC_ORBIT_RAD_MAX",
+        default=1000.0,
+        min=1.0,
+        max=10000.0,
+        unit="m",
+        description="Orbit: largest radius MAV_CMD_DO_ORBIT may ask for (a larger one is refused)",
+    ),
+    ParamDef(
         name="COM_DISARM_LAND",
         default=2.0,
         min=-1.0,
