@@ -37,6 +37,8 @@ from sitl.autopilot.mission_exec import MissionExecutor
 from sitl.autopilot.mission_plan import NavItem
 from sitl.autopilot.mode_authority import ModeAuthority
 from sitl.autopilot.modes import build_units
+from sitl.autopilot.orbit import OrbitCommand, OrbitPlan
+from sitl.autopilot.px4_modes import Px4Mode
 from sitl.autopilot.requests import RequestHandler
 from sitl.autopilot.tracking import TargetTracker
 from sitl.autopilot.vehicle_api import CommandOutcome
@@ -71,6 +73,7 @@ class Commander:
         self.collision_prevention = CollisionPrevention(
             params, cascade.position, airframe.collision_radius_m, state.event
         )
+        self._orbit = authority.units.orbit
         self._requests = RequestHandler(state, tracker, authority, params, cascade, battery_remaining)
         tick = FlightTick(
             state,
@@ -125,6 +128,11 @@ class Commander:
         """The uploaded mission and its progress, as the Mission unit keeps it."""
         return self._requests.mission
 
+    @property
+    def orbit_plan(self) -> OrbitPlan | None:
+        """The circle flown while in Orbit (ORBIT_EXECUTION_STATUS reports it); None in any other mode."""
+        return self._orbit.plan if self._state.status.mode is Px4Mode.ORBIT else None
+
     # ---- requests (the MAVLink side, onboard behaviours, tests) ----------------------------------------------------
     def preflight_problem(self) -> str | None:
         return self._requests.preflight_problem()
@@ -158,6 +166,9 @@ class Commander:
 
     def goto(self, target_ned_m: Vec3, yaw_rad: float = math.nan) -> CommandOutcome:
         return self._requests.goto(target_ned_m, yaw_rad)
+
+    def orbit(self, command: OrbitCommand) -> CommandOutcome:
+        return self._requests.orbit(command)
 
     def set_speed(self, ground_speed_mps: float) -> CommandOutcome:
         return self._requests.set_speed(ground_speed_mps)

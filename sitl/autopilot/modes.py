@@ -26,13 +26,21 @@ from sitl.autopilot.guidance import MotionLimits
 from sitl.autopilot.mission_exec import MissionAction, MissionExecutor, MissionRun
 from sitl.autopilot.mission_plan import NavItem, NavKind
 from sitl.autopilot.mode_io import NO_CHANGE, Goto, ModeDecision, ModeInputs, Track
+from sitl.autopilot.orbit import (
+    OrbitPlan,
+    bearing_to_centre_rad,
+    circle_point,
+    entry_phase_rad,
+    heading_on_circle,
+    on_circle,
+)
 from sitl.autopilot.px4_modes import Px4Mode
 from sitl.autopilot.vehicle_api import LandedState
 from sitl.control.cascade import AttitudeSetpoint, TrajectorySetpoint
 from sitl.estimation.estimator import Estimate
 from sitl.mathutil import Vec3, vec3
 
-from .phases import MissionPhase, RtlPhase
+from .phases import MissionPhase, OrbitPhase, RtlPhase
 
 # The reference has arrived at its target when it is this close (the trajectory converges exactly; this only absorbs
 # float rounding).
@@ -308,6 +316,81 @@ class Offboard(TrackTarget):
         return not isinstance(self.setpoint_in, AttitudeSetpoint)
 
 
+class Orbit(TrackTarget):
+    """PX4's Orbit (nav state ORBIT, POSCTL sub mode ORBIT on the wire): circle a centre at a radius, speed and
+    altitude (sitl/autopilot/orbit.py), entered from where the vehicle is without a jump.
+
+    As PX4's FlightTaskOrbit it first approaches the circle: the shared reference flies from the vehicle's own motion
+    to the circle's nearest point, facing the centre. There it circles with a setpoint of its own: the position on
+    the circle at a phase advanced by speed / radius each tick, the velocity and the centripetal acceleration as
+    feed-forward, the heading of the yaw behaviour. The tangential speed starts from rest and changes at most at
+    MPC_ACC_HOR, so entering the circle or a new speed is smooth too. Any other mode request ends it; the failsafes
+    apply as in any auto mode.
+    """
+
+    mode = Px4Mode.ORBIT
+
+    def __init__(self) -> None:
+        self.plan: OrbitPlan | None = None
+        self.phase = OrbitPhase.APPROACH
+        self.phase_rad = 0.0  # on the circle: 0 north of the centre, growing clockwise seen from above
+        self.speed_mps = 0.0  # the signed tangential speed flown now (> 0 clockwise)
+
+    def start(self, plan: OrbitPlan, pos_ned_m: tuple[float, float, float], *, orbiting: bool) -> Goto | None:
+        """Fly ``plan`` from ``pos_ned_m``: the approach to the circle (the caller sends the shared reference there
+        and enters the mode), or None when an orbit already flown goes on from where it is, on the new circle."""
+        self.plan = plan
+        if orbiting and self.phase is OrbitPhase.CIRCLE and on_circle(plan, pos_ned_m):
+            self.phase_rad = entry_phase_rad(plan, pos_ned_m)
+            return None
+        self.phase = OrbitPhase.APPROACH
+        entry = circle_point(plan, entry_phase_rad(plan, pos_ned_m))
+        return Goto(target_ned_m=vec3(*entry), yaw_rad=bearing_to_centre_rad(plan, entry))
+
+    def exit(self) -> None:
+        self.plan = None
+        self.phase = OrbitPhase.APPROACH
+        self.speed_mps = 0.0
+
+    def advance(self, inp: ModeInputs) -> ModeDecision:
+        plan = self.plan
+        if plan is not None and self.phase is OrbitPhase.APPROACH and _arrived(inp):
+            # The reference stands at the entry point: the circle starts there, from rest.
+            target = inp.target_ned_m
+            self.phase = OrbitPhase.CIRCLE
+            self.phase_rad = entry_phase_rad(plan, (float(target[0]), float(target[1]), float(target[2])))
+            self.speed_mps = 0.0
+        return NO_CHANGE
+
+    def setpoint(self, inp: ModeInputs, dt_s: float) -> UnitSetpoint:
+        plan = self.plan
+        if plan is None or self.phase is OrbitPhase.APPROACH:
+            return super().setpoint(inp, dt_s)
+        before = self.speed_mps
+        wanted = plan.signed_speed_mps
+        step = inp.params.limits.accel_xy_mps2 * dt_s
+        speed = min(wanted, before + step) if wanted > before else max(wanted, before - step)
+        self.speed_mps = speed
+        tangential_acc = (speed - before) / dt_s if dt_s > 0.0 else 0.0
+        radius = plan.radius_m
+        self.phase_rad = (self.phase_rad + speed / radius * dt_s) % math.tau
+        cos_p, sin_p = math.cos(self.phase_rad), math.sin(self.phase_rad)
+        centripetal = speed * speed / radius
+        pos = inp.est.pos_ned_m
+        yaw, yaw_rate = heading_on_circle(plan, (float(pos[0]), float(pos[1]), float(pos[2])), speed)
+        return TrajectorySetpoint(
+            pos_ned_m=circle_point(plan, self.phase_rad),
+            vel_ned_mps=(-speed * sin_p, speed * cos_p, 0.0),
+            acc_ned_mps2=(
+                -centripetal * cos_p - tangential_acc * sin_p,
+                -centripetal * sin_p + tangential_acc * cos_p,
+                0.0,
+            ),
+            yaw_rad=yaw,
+            yawspeed_radps=yaw_rate,
+        )
+
+
 # Descend without a position: the sink-rate loop on the altitude estimate. Thrust is a fraction of hover thrust:
 # proportional on the sink-rate error (fraction per m/s) plus an integrator that finds the thrust that sinks at the
 # landing speed and, on the ground where sinking stops, winds the thrust down until the land detector sees it.
@@ -366,10 +449,19 @@ class Units:
     rtl: ReturnToLaunch
     mission: Mission
     offboard: Offboard
+    orbit: Orbit
     descend: Descend  # entered only by the failsafe; AUTO.LAND on the wire, so not in ``by_mode``
 
     def by_mode(self) -> dict[Px4Mode, ModeUnit]:
-        units: tuple[ModeUnit, ...] = (self.hold, self.takeoff, self.land, self.rtl, self.mission, self.offboard)
+        units: tuple[ModeUnit, ...] = (
+            self.hold,
+            self.takeoff,
+            self.land,
+            self.rtl,
+            self.mission,
+            self.offboard,
+            self.orbit,
+        )
         return {u.mode: u for u in units}
 
 
@@ -382,5 +474,6 @@ def build_units(hover_thrust_n: float) -> Units:
         rtl=ReturnToLaunch(),
         mission=Mission(),
         offboard=Offboard(),
+        orbit=Orbit(),
         descend=Descend(hover_thrust_n),
     )

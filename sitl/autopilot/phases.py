@@ -20,3 +20,10 @@ class MissionPhase(Enum):
     NAVIGATE = "navigate"  # flying the items
     CLIMB = "climb"  # started on the ground with no takeoff item: climbing to MIS_TAKEOFF_ALT first, as PX4
     LAND = "land"  # descending onto a LAND item's point
+
+
+class OrbitPhase(Enum):
+    """Where an orbit stands (PX4's FlightTaskOrbit: ``_in_circle_approach`` or circling)."""
+
+    APPROACH = "approach"  # the shared reference flies to the nearest point of the circle, at the circle's altitude
+    CIRCLE = "circle"  # on the circle: the unit's own setpoint, the phase advancing at speed / radius

@@ -16,6 +16,7 @@ MAIN_AUTO = 4
 MAIN_ACRO = 5
 MAIN_OFFBOARD = 6
 MAIN_STABILIZED = 7
+SUB_POSCTL_ORBIT = 1  # PX4_CUSTOM_SUB_MODE_POSCTL_ORBIT: Orbit is a sub mode of POSCTL on the wire
 
 
 class Px4Mode(Enum):
@@ -24,6 +25,7 @@ class Px4Mode(Enum):
     MANUAL = (MAIN_MANUAL, 0)
     ALTCTL = (MAIN_ALTCTL, 0)
     POSCTL = (MAIN_POSCTL, 0)
+    ORBIT = (MAIN_POSCTL, SUB_POSCTL_ORBIT)  # PX4's nav state ORBIT (MAV_CMD_DO_ORBIT)
     AUTO_READY = (MAIN_AUTO, 1)
     AUTO_TAKEOFF = (MAIN_AUTO, 2)
     AUTO_LOITER = (MAIN_AUTO, 3)  # "Hold"
@@ -58,12 +60,15 @@ class Px4Mode(Enum):
     def from_main_sub(cls, main_mode: int, sub_mode: int) -> Px4Mode | None:
         """Decode PX4's (main, sub) pair; None if PX4 would not know it.
 
-        As in PX4's commander, the sub mode only matters for AUTO, and AUTO with sub mode 0 means MISSION.
+        As in PX4's commander, the sub mode only matters for AUTO and POSCTL: AUTO with sub mode 0 means MISSION,
+        POSCTL with a sub mode other than ORBIT is POSCTL.
         """
         if main_mode == MAIN_AUTO:
             if sub_mode == 0:
                 return cls.AUTO_MISSION
             return _BY_MAIN_SUB.get((main_mode, sub_mode))
+        if main_mode == MAIN_POSCTL and sub_mode == SUB_POSCTL_ORBIT:
+            return cls.ORBIT
         return _BY_MAIN_SUB.get((main_mode, 0))
 
     @classmethod

@@ -1,5 +1,5 @@
 """The requests the MAVLink services (through sitl/drone/sim_vehicle_api.py), onboard behaviours and tests make of the
-autopilot: arming and the pre-arm checks, the mode requests (takeoff, land, hold, RTL, reposition, mission,
+autopilot: arming and the pre-arm checks, the mode requests (takeoff, land, hold, RTL, reposition, orbit, mission,
 offboard), home, speed, the mission and the fence. Each is checked here and answered with a ``CommandOutcome``; what
 it changes in flight goes through the mode authority (mode switches) and the target tracker (targets), and the next
 physics step becomes a tick (``CommanderState.tick_due``) wherever the last tick's decision no longer holds.
@@ -18,6 +18,7 @@ from sitl.autopilot.guidance import floats3
 from sitl.autopilot.mission_exec import MissionExecutor, MissionRun
 from sitl.autopilot.mission_plan import NavItem
 from sitl.autopilot.mode_authority import ACCEPTED, ModeAuthority
+from sitl.autopilot.orbit import OrbitCommand, plan_orbit
 from sitl.autopilot.px4_modes import Px4Mode
 from sitl.autopilot.tracking import TargetTracker
 from sitl.autopilot.vehicle_api import CommandOutcome, CommandResult
@@ -173,6 +174,41 @@ class RequestHandler:
         self._authority.enter(Px4Mode.AUTO_LOITER)
         self._authority.operator_takes_over()
         self._tracker.goto(np.asarray(target_ned_m, dtype=np.float64), yaw_rad)
+        return ACCEPTED
+
+    def orbit(self, command: OrbitCommand) -> CommandOutcome:
+        """MAV_CMD_DO_ORBIT: enter PX4's Orbit, or change the orbit flown (sitl/autopilot/orbit.py reads the command).
+
+        Refused with TEMPORARILY_REJECTED, PX4's commander's answer to a mode it will not enter ("Orbit command
+        rejected"), when the vehicle is not flying or has no position; a radius outside 1 m .. MC_ORBIT_RAD_MAX is
+        DENIED with PX4's text, "Orbit radius limit exceeded" (PX4 accepts the mode first, then fails its task)."""
+        state = self._state
+        est = state.est
+        if not state.status.armed or state.landed:
+            return CommandOutcome(CommandResult.TEMPORARILY_REJECTED, "Orbit command rejected: not flying")
+        if est is None or not est.position_valid:
+            return CommandOutcome(CommandResult.TEMPORARILY_REJECTED, "Orbit command rejected: no position")
+        unit = self._authority.units.orbit
+        orbiting = state.status.mode is Px4Mode.ORBIT
+        pos = floats3(est.pos_ned_m)
+        plan = plan_orbit(
+            command,
+            unit.plan if orbiting else None,
+            pos,
+            est.yaw_rad,
+            radius_max_m=self._params["MC_ORBIT_RAD_MAX"],
+            speed_max_mps=self._params["MPC_XY_VEL_MAX"],
+        )
+        if plan is None:
+            return CommandOutcome(CommandResult.DENIED, "Orbit radius limit exceeded")
+        approach = unit.start(plan, pos, orbiting=orbiting)
+        if approach is not None:
+            # From the vehicle's own motion, as a hold starts, so the approach continues what the vehicle was doing.
+            self._tracker.hold()
+            self._tracker.goto(approach.target_ned_m, approach.yaw_rad)
+        self._authority.enter(Px4Mode.ORBIT)
+        self._authority.operator_takes_over()
+        state.tick_due = True
         return ACCEPTED
 
     def set_speed(self, ground_speed_mps: float) -> CommandOutcome:

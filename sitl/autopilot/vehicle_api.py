@@ -195,6 +195,30 @@ class Reposition:
     change_mode: bool = True  # MAV_DO_REPOSITION_FLAGS_CHANGE_MODE: switch to Hold if not in it
 
 
+class OrbitYaw(IntEnum):
+    """MAVLink's ORBIT_YAW_BEHAVIOUR: where the vehicle faces while it orbits (MAV_CMD_DO_ORBIT param3)."""
+
+    FRONT_TO_CENTRE = mavlink.ORBIT_YAW_BEHAVIOUR_HOLD_FRONT_TO_CIRCLE_CENTER  # PX4's default
+    INITIAL_HEADING = mavlink.ORBIT_YAW_BEHAVIOUR_HOLD_INITIAL_HEADING  # the heading when the command came
+    UNCONTROLLED = mavlink.ORBIT_YAW_BEHAVIOUR_UNCONTROLLED  # no heading control: the yaw rate is held at zero
+    TANGENT = mavlink.ORBIT_YAW_BEHAVIOUR_HOLD_FRONT_TANGENT_TO_CIRCLE  # nose along the direction of flight
+    RC_CONTROLLED = mavlink.ORBIT_YAW_BEHAVIOUR_RC_CONTROLLED  # the yaw stick's; without RC the heading is held
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Orbit:
+    """MAV_CMD_DO_ORBIT (MAVSDK ``action.do_orbit``): circle a centre at a radius and tangential speed, in PX4's
+    Orbit mode. NaN means "not given": the orbit flown now keeps its value, a new orbit takes PX4's default (radius
+    1 m, 1 m/s clockwise, centre and altitude where the vehicle is)."""
+
+    radius_m: float = NAN  # its sign is the direction: > 0 clockwise seen from above, < 0 counter-clockwise
+    velocity_mps: float = NAN  # tangential speed; negative reverses the direction the radius gives
+    yaw: OrbitYaw | None = None  # None: unchanged (ORBIT_YAW_BEHAVIOUR_UNCHANGED, or param3 not given)
+    lat_deg: float = NAN  # the centre; NaN: the current centre, or where the vehicle is
+    lon_deg: float = NAN
+    alt_amsl_m: float = NAN  # the circle's altitude; NaN: the current one
+
+
 class SpeedKind(Enum):
     HORIZONTAL = "horizontal"  # DO_CHANGE_SPEED types 0 (airspeed) and 1 (ground speed) on a multicopter
     CLIMB = "climb"
@@ -273,6 +297,7 @@ VehicleRequest: TypeAlias = (
     | SetMission
     | SetFence
     | InjectFailure
+    | Orbit
 )
 
 
@@ -379,6 +404,15 @@ class MissionProgress:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class OrbitStatus:
+    """The orbit being flown, as ORBIT_EXECUTION_STATUS reports it."""
+
+    radius_m: float  # signed as MAV_CMD_DO_ORBIT's: > 0 clockwise seen from above
+    centre: GeoPoint  # its altitude is the circle's (AMSL)
+    yaw: OrbitYaw
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class VehicleSnapshot:
     """Everything telemetry needs at one simulation instant. Cheap to build; the vehicle may cache it per step."""
 
@@ -407,6 +441,7 @@ class VehicleSnapshot:
     collective_max_n: float = NAN  # the collective thrust the motors can give: MAVLink's normalised thrust times this
     time_unix_usec: int = 0  # 0: unknown (SYSTEM_TIME is only sent when known)
     cpu_load: float = NAN  # 0..1, SYS_STATUS load
+    orbit: OrbitStatus | None = None  # set while the vehicle flies PX4's Orbit mode
 
     @property
     def time_boot_ms(self) -> int:

@@ -15,6 +15,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from sitl.autopilot import vehicle_api as api
 from sitl.autopilot.mission_exec import MissionRun
 from sitl.autopilot.mission_plan import NavItem, to_nav_items
+from sitl.autopilot.orbit import OrbitCommand
 from sitl.autopilot.px4_modes import Px4Mode
 from sitl.control.cascade import AttitudeSetpoint, TrajectorySetpoint
 from sitl.drone.closed_loop import ClosedLoop
@@ -134,6 +135,8 @@ class SimVehicleApi:
                     v.set_speed(request.ground_speed_mps)
                 target = self._local_of(request.lat_deg, request.lon_deg, request.alt_amsl_m)
                 return v.goto(vec3(*target), request.yaw_rad)
+            case api.Orbit():
+                return v.orbit(self._orbit_command(request))
             case api.ChangeSpeed(kind=kind, speed_mps=speed):
                 if kind is not api.SpeedKind.HORIZONTAL:
                     return api.CommandOutcome(api.CommandResult.UNSUPPORTED, "Only horizontal speed can change")
@@ -162,6 +165,21 @@ class SimVehicleApi:
             case api.InjectFailure():
                 return self._inject_failure(request)
         return api.CommandOutcome(api.CommandResult.UNSUPPORTED, "Not supported")
+
+    def _orbit_command(self, request: api.Orbit) -> OrbitCommand:
+        """DO_ORBIT's geodetic centre in the local frame; what it leaves out stays NaN for the autopilot to fill."""
+        north = east = math.nan
+        if math.isfinite(request.lat_deg) and math.isfinite(request.lon_deg):
+            north, east = self._ne_of(request.lat_deg, request.lon_deg)
+        alt = request.alt_amsl_m
+        return OrbitCommand(
+            radius_m=request.radius_m,
+            velocity_mps=request.velocity_mps,
+            yaw=request.yaw,
+            centre_north_m=north,
+            centre_east_m=east,
+            centre_down_m=self.origin.alt_amsl_m - alt if math.isfinite(alt) else math.nan,
+        )
 
     def _ne_of(self, lat_deg: float, lon_deg: float) -> tuple[float, float]:
         north, east, _ = self.frame.ned_from_geo(
@@ -212,6 +230,8 @@ class SimVehicleApi:
             outcome = v.start_mission()
         elif mode is Px4Mode.OFFBOARD:
             outcome = v.start_offboard(now_s)
+        elif mode is Px4Mode.ORBIT:  # PX4's mode switch to Orbit: the orbit flown now, or a new one with PX4's defaults
+            outcome = v.orbit(OrbitCommand())
         else:
             return api.CommandOutcome.temporarily_rejected(f"{mode.px4_name} is not supported")
         # PX4 answers a refused mode change with TEMPORARILY_REJECTED.
@@ -297,9 +317,18 @@ class SimVehicleApi:
             collective_max_n=v.cascade.collective_max_n,
             sensors=self._sensor_health(),
             flight_terminated=v.crashed,  # a crash or a flight termination: HEARTBEAT FLIGHT_TERMINATION
+            orbit=self._orbit_status(),
         )
         self._snapshot_time_s = sim.time_s
         return self._snapshot
+
+    def _orbit_status(self) -> api.OrbitStatus | None:
+        plan = self.vehicle.orbit_plan
+        if plan is None:
+            return None
+        return api.OrbitStatus(
+            radius_m=plan.signed_radius_m, centre=self.frame.geo_from_ned(plan.centre_ned_m), yaw=plan.yaw
+        )
 
     def _charge_state(self, remaining: float) -> int:
         """BATTERY_STATUS charge_state as PX4's battery library grades the charge against the BAT_*_THR levels."""

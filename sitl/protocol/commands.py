@@ -33,6 +33,8 @@ from sitl.autopilot.vehicle_api import (
     Kill,
     Land,
     MissionStart,
+    Orbit,
+    OrbitYaw,
     Reposition,
     ReturnToLaunch,
     SetHome,
@@ -83,6 +85,8 @@ _INFO_COMMANDS: Final = frozenset(
 _AMSL_FRAMES: Final = frozenset({mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_GLOBAL_INT})
 _RELATIVE_FRAMES: Final = frozenset({mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT})
 
+_ORBIT_YAWS: Final = frozenset(int(y) for y in OrbitYaw)
+
 _LABELS: Final[dict[int, str]] = {
     mavlink.MAV_CMD_COMPONENT_ARM_DISARM: "Arm/disarm",
     mavlink.MAV_CMD_NAV_TAKEOFF: "Takeoff",
@@ -90,6 +94,7 @@ _LABELS: Final[dict[int, str]] = {
     mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH: "Return to launch",
     mavlink.MAV_CMD_DO_SET_MODE: "Mode change",
     mavlink.MAV_CMD_DO_REPOSITION: "Reposition",
+    mavlink.MAV_CMD_DO_ORBIT: "Orbit",
     mavlink.MAV_CMD_DO_CHANGE_SPEED: "Speed change",
     mavlink.MAV_CMD_DO_SET_HOME: "Set home",
     mavlink.MAV_CMD_MISSION_START: "Mission start",
@@ -192,6 +197,7 @@ class CommandService:
             mavlink.MAV_CMD_NAV_LOITER_UNLIM: self._hold,
             mavlink.MAV_CMD_DO_SET_MODE: self._set_mode,
             mavlink.MAV_CMD_DO_REPOSITION: self._reposition,
+            mavlink.MAV_CMD_DO_ORBIT: self._orbit,
             mavlink.MAV_CMD_DO_CHANGE_SPEED: self._change_speed,
             mavlink.MAV_CMD_DO_SET_HOME: self._set_home,
             mavlink.MAV_CMD_MISSION_START: self._mission_start,
@@ -381,6 +387,30 @@ class CommandService:
             yaw_rad=yaw if math.isfinite(yaw) else NAN,
             ground_speed_mps=speed if math.isfinite(speed) and speed > 0 else NAN,
             change_mode=bool(flags & mavlink.MAV_DO_REPOSITION_FLAGS_CHANGE_MODE),
+        )
+        return self._ask(request, now_s)
+
+    def _orbit(self, cmd: DecodedCommand, now_s: float) -> _Reply:
+        """MAV_CMD_DO_ORBIT as PX4 reads it: p1 radius (its sign the direction), p2 tangential speed, p3
+        ORBIT_YAW_BEHAVIOUR, p5/p6 (x/y) the centre, p7 (z) the circle's altitude, AMSL whatever the COMMAND_INT
+        frame (PX4 ignores it; MAVSDK's do_orbit sends an AMSL altitude in GLOBAL_RELATIVE_ALT). NaN is "not given";
+        so is an altitude of exactly 0 m, pymavlink's fill, as 0/0 is for the centre."""
+        p1, p2, p3 = cmd.params[:3]
+        yaw: OrbitYaw | None = None
+        if math.isfinite(p3):
+            code = param_to_int(p3)
+            if code != mavlink.ORBIT_YAW_BEHAVIOUR_UNCHANGED:
+                # PX4 flies a value it does not know as its default, facing the centre.
+                yaw = OrbitYaw(code) if code is not None and code in _ORBIT_YAWS else OrbitYaw.FRONT_TO_CENTRE
+        lat, lon = self._lat_lon(cmd)
+        alt = cmd.params[6]
+        request = Orbit(
+            radius_m=p1,
+            velocity_mps=p2,
+            yaw=yaw,
+            lat_deg=lat,
+            lon_deg=lon,
+            alt_amsl_m=alt if math.isfinite(alt) and alt != 0.0 else NAN,
         )
         return self._ask(request, now_s)
 

@@ -268,6 +268,23 @@ def home_position(snap: VehicleSnapshot, ident: Identity) -> MAVLinkMessage | No
     )
 
 
+def orbit_execution_status(snap: VehicleSnapshot, ident: Identity) -> MAVLinkMessage | None:
+    """ORBIT_EXECUTION_STATUS while in Orbit, as PX4 streams it from its orbit_status topic: the signed radius (> 0
+    clockwise), the centre in MAV_FRAME_GLOBAL (lat/lon degE7) and the circle's altitude AMSL. None otherwise."""
+    orbit = snap.orbit
+    if orbit is None:
+        return None
+    centre = orbit.centre
+    return mavlink.MAVLink_orbit_execution_status_message(
+        max(0, snap.time_boot_us),
+        f32(orbit.radius_m),
+        mavlink.MAV_FRAME_GLOBAL,
+        _deg_e7(centre.lat_deg),
+        _deg_e7(centre.lon_deg),
+        f32(centre.alt_amsl_m),
+    )
+
+
 def mission_current(snap: VehicleSnapshot, ident: Identity, *, seq: int | None = None) -> MAVLinkMessage:
     """MISSION_CURRENT; ``seq`` overrides the snapshot's (the mission server answers MISSION_SET_CURRENT with it)."""
     progress = snap.mission
@@ -334,6 +351,7 @@ BUILDERS: Final[dict[int, Builder]] = {
     mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION: autopilot_version,
     mavlink.MAVLINK_MSG_ID_HOME_POSITION: home_position,
     mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: extended_sys_state,
+    mavlink.MAVLINK_MSG_ID_ORBIT_EXECUTION_STATUS: orbit_execution_status,
 }
 
 

@@ -14,7 +14,7 @@ import math
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.autopilot.px4_modes import MAIN_AUTO, MAIN_OFFBOARD, Px4Mode
+from sitl.autopilot.px4_modes import MAIN_AUTO, MAIN_OFFBOARD, MAIN_POSCTL, Px4Mode
 from sitl.protocol.core import PeerInputError, param_to_int
 
 _AUTO_FLAGS = (
@@ -31,7 +31,7 @@ def base_mode(mode: Px4Mode, armed: bool) -> int:
     stabilize = mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
     if mode.main_mode in (MAIN_AUTO, MAIN_OFFBOARD):
         flags |= _AUTO_FLAGS
-    elif mode is Px4Mode.POSCTL:
+    elif mode.main_mode == MAIN_POSCTL:  # POSCTL and its sub mode ORBIT alike, as PX4's get_mavlink_mode_state
         flags |= manual | stabilize | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
     elif mode in (Px4Mode.MANUAL, Px4Mode.ALTCTL, Px4Mode.STABILIZED):
         flags |= manual | stabilize  # PX4 marks MANUAL stabilised on rotary wings

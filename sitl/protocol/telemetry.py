@@ -43,6 +43,7 @@ DEFAULT_RATES_HZ: Final[Mapping[int, float]] = {
     mavlink.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
     mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
     mavlink.MAVLINK_MSG_ID_SYSTEM_TIME: 1.0,
+    mavlink.MAVLINK_MSG_ID_ORBIT_EXECUTION_STATUS: 2.0,  # PX4's rate; sent only while in Orbit
 }
 MAX_RATE_HZ: Final = 250.0  # SET_MESSAGE_INTERVAL faster than this is clamped
 MIN_EXTRA_HEARTBEAT_INTERVAL_S: Final = 0.05  # extra heartbeats on state changes at most this often (flapping)

@@ -17,6 +17,8 @@ from sitl.autopilot.vehicle_api import (
     Kill,
     Land,
     MissionStart,
+    Orbit,
+    OrbitYaw,
     Reposition,
     ReturnToLaunch,
     SetHome,
@@ -115,7 +117,7 @@ def test_broadcast_system_id_zero_is_for_us() -> None:
     assert rig.ack(long(mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, target=(0, 0))).result == ACCEPTED
 
 
-@pytest.mark.parametrize("command", [mavlink.MAV_CMD_DO_ORBIT, 31000, mavlink.MAV_CMD_DO_SET_SERVO])
+@pytest.mark.parametrize("command", [mavlink.MAV_CMD_DO_FOLLOW, 31000, mavlink.MAV_CMD_DO_SET_SERVO])
 def test_unknown_commands_are_unsupported_not_silent(command: int) -> None:
     rig = Rig()
     out = rig.send(long(command, 1, 2, 3))
@@ -501,3 +503,68 @@ def test_our_own_misuse_is_a_usage_error() -> None:
         rig.link.handle("not a message", 1.0)
     with pytest.raises(ProtocolUsageError):
         rig.link.poll(math.nan)
+
+
+# ---- MAV_CMD_DO_ORBIT ------------------------------------------------------------------------------------------
+INT32_MAX = 2**31 - 1
+
+
+@pytest.mark.parametrize(
+    ("msg", "expected"),
+    [
+        # MAVSDK's do_orbit: COMMAND_INT in GLOBAL_RELATIVE_ALT, an AMSL altitude all the same (PX4 reads z as AMSL)
+        (
+            cmd_int(mavlink.MAV_CMD_DO_ORBIT, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT, 473977420, 85455940, 500.0,
+                    15.0, 2.0, mavlink.ORBIT_YAW_BEHAVIOUR_HOLD_FRONT_TANGENT_TO_CIRCLE),
+            Orbit(radius_m=15.0, velocity_mps=2.0, yaw=OrbitYaw.TANGENT, lat_deg=47.397742, lon_deg=8.545594,
+                  alt_amsl_m=500.0),
+        ),
+        # ... with the centre left out (INT32_MAX) and the yaw behaviour unchanged
+        (
+            cmd_int(mavlink.MAV_CMD_DO_ORBIT, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT, INT32_MAX, INT32_MAX, NAN,
+                    -5.0, NAN, mavlink.ORBIT_YAW_BEHAVIOUR_UNCHANGED),
+            Orbit(radius_m=-5.0),
+        ),
+        # COMMAND_LONG the MAVSDK way: NaN for what is not given
+        (long(mavlink.MAV_CMD_DO_ORBIT, 8.0), Orbit(radius_m=8.0)),
+        # pymavlink's zeros: yaw 0 is facing the centre, and 0/0 and an altitude of 0 m are not given
+        (
+            zeros(mavlink.MAV_CMD_DO_ORBIT, 8.0, 1.5),
+            Orbit(radius_m=8.0, velocity_mps=1.5, yaw=OrbitYaw.FRONT_TO_CENTRE),
+        ),
+        # a yaw behaviour PX4 does not know is flown as its default
+        (long(mavlink.MAV_CMD_DO_ORBIT, 8.0, NAN, 9.0), Orbit(radius_m=8.0, yaw=OrbitYaw.FRONT_TO_CENTRE)),
+    ],
+)  # fmt: skip
+def test_do_orbit_reaches_the_vehicle_as_px4_reads_it(msg: MAVLinkMessage, expected: Orbit) -> None:
+    rig = Rig()
+    assert rig.ack(msg).result == ACCEPTED
+    (request,) = rig.vehicle.requests
+    assert isinstance(request, Orbit)
+    got = (request.radius_m, request.velocity_mps, request.yaw, request.lat_deg, request.lon_deg, request.alt_amsl_m)
+    want = (expected.radius_m, expected.velocity_mps, expected.yaw, expected.lat_deg, expected.lon_deg,
+            expected.alt_amsl_m)  # fmt: skip
+    assert got[2] is want[2]
+    assert all((math.isnan(a) and math.isnan(b)) or a == pytest.approx(b, abs=1e-7) for a, b in
+               zip(got[:2] + got[3:], want[:2] + want[3:], strict=True)), (got, want)  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("result", "reason"),
+    [
+        (CommandResult.TEMPORARILY_REJECTED, "Orbit command rejected: not flying"),
+        (CommandResult.DENIED, "Orbit radius limit exceeded"),
+    ],
+)
+def test_a_refused_orbit_is_answered_with_the_vehicles_result_and_reason(result: CommandResult, reason: str) -> None:
+    rig = Rig()
+    rig.vehicle.refuse(Orbit, result, reason)
+    out = rig.send(long(mavlink.MAV_CMD_DO_ORBIT, 5000.0))
+    assert [a.result for a in of_type(out, "COMMAND_ACK")] == [int(result)]
+    assert [t.text for t in of_type(out, "STATUSTEXT")] == [reason]
+
+
+def test_a_centre_in_a_local_frame_is_denied() -> None:
+    rig = Rig()
+    ack = rig.ack(cmd_int(mavlink.MAV_CMD_DO_ORBIT, mavlink.MAV_FRAME_LOCAL_NED, 10, 10, NAN, 5.0))
+    assert ack.result == DENIED and rig.vehicle.requests == []

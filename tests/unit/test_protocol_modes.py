@@ -59,8 +59,11 @@ def test_auto_with_sub_mode_zero_means_mission_as_in_px4() -> None:
     assert decode_do_set_mode(float(CUSTOM), 4.0, 0.0) is Px4Mode.AUTO_MISSION
 
 
-def test_non_auto_main_mode_ignores_the_sub_mode() -> None:
-    assert decode_do_set_mode(float(CUSTOM), 3.0, 1.0) is Px4Mode.POSCTL
+def test_a_main_mode_without_sub_modes_ignores_the_sub_mode() -> None:
+    # PX4's commander reads a sub mode only for AUTO and for POSCTL, where sub mode 1 is ORBIT and any other POSCTL
+    assert decode_do_set_mode(float(CUSTOM), 2.0, 1.0) is Px4Mode.ALTCTL
+    assert decode_do_set_mode(float(CUSTOM), 3.0, 1.0) is Px4Mode.ORBIT
+    assert decode_do_set_mode(float(CUSTOM), 3.0, 2.0) is Px4Mode.POSCTL
 
 
 @pytest.mark.parametrize(("p2", "p3"), [(99.0, 0.0), (4.0, 7.0), (NAN, 0.0), (4.0, 300.0), (-1.0, 0.0)])

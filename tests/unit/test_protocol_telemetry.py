@@ -20,6 +20,8 @@ from sitl.autopilot.vehicle_api import (
     LandedState,
     MissionProgress,
     MissionState,
+    OrbitStatus,
+    OrbitYaw,
     SensorHealth,
     VehicleSnapshot,
 )
@@ -69,7 +71,24 @@ def test_default_streams_come_at_their_rates_in_simulation_time() -> None:
         if name == "SYSTEM_TIME":
             assert counts[name] == 0  # unix time unknown in simulation unless the vehicle provides it
             continue
+        if name == "ORBIT_EXECUTION_STATUS":
+            assert counts[name] == 0  # only while in Orbit (below)
+            continue
         assert abs(counts[name] - hz * 10) <= 1, (name, counts[name])
+
+
+def test_orbit_execution_status_reports_the_circle_at_px4s_two_hertz_while_in_orbit() -> None:
+    # GIVEN a vehicle orbiting 25 m counter-clockwise around a centre at 510 m AMSL
+    centre = GeoPoint(lat_deg=47.3979, lon_deg=8.5461, alt_amsl_m=510.0)
+    orbiting = dataclasses.replace(
+        flying(), mode=Px4Mode.ORBIT, orbit=OrbitStatus(radius_m=-25.0, centre=centre, yaw=OrbitYaw.TANGENT)
+    )
+    statuses = of_type(run(TelemetryScheduler(IDENT, FakeVehicle(orbiting)), 10.0), "ORBIT_EXECUTION_STATUS")
+    # THEN 20 in 10 s, each with the signed radius, the centre in MAV_FRAME_GLOBAL and the altitude
+    assert abs(len(statuses) - 20) <= 1
+    status = statuses[-1]
+    assert (status.radius, status.frame, status.x, status.y) == (-25.0, mavlink.MAV_FRAME_GLOBAL, 473979000, 85461000)
+    assert status.z == 510.0 and status.time_usec == orbiting.time_boot_us
 
 
 def test_heartbeat_is_a_px4_quadrotor() -> None:

@@ -14,11 +14,15 @@ from sitl.protocol.modes import decode_do_set_mode
 
 # Modes the drone can report that pymavlink's PX4 map does not name (it lists no READY or PRECLAND sub mode)
 NOT_IN_PYMAVLINK = {Px4Mode.AUTO_READY, Px4Mode.AUTO_PRECLAND}
+# pymavlink's interpret_px4_mode reads no POSCTL sub mode: Orbit (POSCTL, sub mode ORBIT) reads back as POSCTL
+READ_AS_ITS_MAIN_MODE = {Px4Mode.ORBIT: "POSCTL"}
 
 
 def test_every_mode_the_drone_reports_reads_back_under_px4s_name() -> None:
     for mode in Px4Mode:
-        if mode in NOT_IN_PYMAVLINK:
+        if mode in READ_AS_ITS_MAIN_MODE:
+            assert mode_name(mode.custom_mode) == READ_AS_ITS_MAIN_MODE[mode]
+        elif mode in NOT_IN_PYMAVLINK:
             assert mode_name(mode.custom_mode) == f"custom {mode.custom_mode}"
         else:
             assert mode_name(mode.custom_mode) == mode.px4_name, mode
@@ -32,3 +36,11 @@ def test_set_mode_params_from_pymavlink_name_the_mode_the_drone_decodes() -> Non
         decoded = decode_do_set_mode(*set_mode_params(name))
         assert decoded is not None and decoded.px4_name == mode_name((main_mode << 16) | (sub_mode << 24)), name
     assert decode_do_set_mode(*set_mode_params("LOITER")) is Px4Mode.AUTO_LOITER
+
+
+def test_orbit_is_posctl_with_sub_mode_orbit_and_any_other_posctl_sub_mode_is_posctl() -> None:
+    # PX4's px4_custom_mode.h: PX4_CUSTOM_SUB_MODE_POSCTL_ORBIT = 1; its commander reads other sub modes as POSCTL
+    assert Px4Mode.ORBIT.custom_mode == 3 << 16 | 1 << 24
+    assert Px4Mode.from_custom_mode(Px4Mode.ORBIT.custom_mode) is Px4Mode.ORBIT
+    assert decode_do_set_mode(1.0, 3.0, 1.0) is Px4Mode.ORBIT
+    assert decode_do_set_mode(1.0, 3.0, 2.0) is Px4Mode.POSCTL
