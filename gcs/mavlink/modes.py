@@ -38,6 +38,7 @@ HOLD: Final = "hold"
 _PX4_MODES: Final = {OFFBOARD: "OFFBOARD", HOLD: "LOITER"}  # pymavlink's px4_map names
 _ARDUPILOT_MODES: Final = {OFFBOARD: "GUIDED", HOLD: "LOITER"}  # ArduCopter's names
 _CUSTOM: Final = float(mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED)
+_PX4_ORBIT: Final = (3 << 16) | (1 << 24)  # custom_mode of PX4's Orbit: main mode POSCTL (3), sub mode ORBIT (1)
 
 
 def mode_name(custom_mode: int, autopilot: int = PX4, vehicle_type: int = mavlink.MAV_TYPE_QUADROTOR) -> str:
@@ -45,6 +46,8 @@ def mode_name(custom_mode: int, autopilot: int = PX4, vehicle_type: int = mavlin
     if autopilot == ARDUPILOT:
         name = (mavutil.mode_mapping_bynumber(vehicle_type) or {}).get(custom_mode)
         return str(name) if name is not None else f"custom {custom_mode}"
+    if custom_mode == _PX4_ORBIT:  # pymavlink reads no POSCTL sub mode: Orbit would read back as POSCTL
+        return "ORBIT"
     name = str(mavutil.interpret_px4_mode(0, custom_mode))
     if name == "UNKNOWN":
         return f"custom {custom_mode}"

@@ -14,15 +14,11 @@ from sitl.protocol.modes import decode_do_set_mode
 
 # Modes the drone can report that pymavlink's PX4 map does not name (it lists no READY or PRECLAND sub mode)
 NOT_IN_PYMAVLINK = {Px4Mode.AUTO_READY, Px4Mode.AUTO_PRECLAND}
-# pymavlink's interpret_px4_mode reads no POSCTL sub mode: Orbit (POSCTL, sub mode ORBIT) reads back as POSCTL
-READ_AS_ITS_MAIN_MODE = {Px4Mode.ORBIT: "POSCTL"}
 
 
 def test_every_mode_the_drone_reports_reads_back_under_px4s_name() -> None:
     for mode in Px4Mode:
-        if mode in READ_AS_ITS_MAIN_MODE:
-            assert mode_name(mode.custom_mode) == READ_AS_ITS_MAIN_MODE[mode]
-        elif mode in NOT_IN_PYMAVLINK:
+        if mode in NOT_IN_PYMAVLINK:
             assert mode_name(mode.custom_mode) == f"custom {mode.custom_mode}"
         else:
             assert mode_name(mode.custom_mode) == mode.px4_name, mode
