@@ -268,6 +268,7 @@ _SHAPES: dict[str, tuple[type, dict[str, str]]] = {
     "line": (LineSpec, {"spacing_m": "pos", "alt_m": "pos", "heading_deg": "angle"}),
     "v": (VSpec, {"spacing_m": "pos", "alt_m": "pos", "angle_deg": "angle", "heading_deg": "angle"}),
 }
+SHAPE_NAMES: Final[dict[type, str]] = {spec: name for name, (spec, _fields) in _SHAPES.items()}  # GridSpec -> "grid"
 _REQUIRED = {"grid": {"rows", "cols", "spacing_m", "alt_m"}, "circle": {"radius_m", "alt_m"},
              "line": {"spacing_m", "alt_m"}, "v": {"spacing_m", "alt_m"}}  # fmt: skip
 

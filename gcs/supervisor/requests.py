@@ -22,17 +22,18 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar, Final
+from typing import Any, ClassVar
 
 from gcs.command.procedures import check_takeoff_alt
 from gcs.fleet.attach import AttachSpec
 from gcs.fleet.faults import CRASH, FaultRequest
 from gcs.fleet.swarm import ARM_TIMEOUT_S
 from gcs.flight.behaviours import Behaviour, FlockSpec, FollowAttachedSpec, FollowSpec
-from gcs.flight.formation import CircleSpec, FieldError, Formation, GridSpec, LineSpec, VSpec
+from gcs.flight.formation import FieldError, Formation
 from gcs.missions.mission_file import (
     LAND_TIMEOUT_S,
     RTL_TIMEOUT_S,
+    SHAPE_NAMES,
     SWAP_ACCEL_MPS2,
     SWAP_TIMEOUT_S,
     SWAP_TOLERANCE_M,
@@ -41,8 +42,6 @@ from gcs.missions.mission_file import (
 )
 from gcs.missions.plan_flight import Offset, Uploaded
 from gcs.missions.qgc_plan import QgcPlan
-
-SHAPES: Final[Mapping[type, str]] = {GridSpec: "grid", CircleSpec: "circle", LineSpec: "line", VSpec: "v"}
 
 
 def _finite(name: str, value: float) -> None:
@@ -112,12 +111,12 @@ class FlyFormation:
     formation: Formation | SquareGrid
 
     def __post_init__(self) -> None:
-        if type(self.formation) not in SHAPES and not isinstance(self.formation, SquareGrid):
+        if type(self.formation) not in SHAPE_NAMES and not isinstance(self.formation, SquareGrid):
             raise TypeError(f"not a formation: {self.formation!r} (GridSpec, CircleSpec, LineSpec or VSpec)")
 
     @property
     def shape(self) -> str:
-        return "grid" if isinstance(self.formation, SquareGrid) else SHAPES[type(self.formation)]
+        return "grid" if isinstance(self.formation, SquareGrid) else SHAPE_NAMES[type(self.formation)]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
