@@ -22,6 +22,7 @@ sampled at a random offset each frame (one add instead of drawing 19,200 normal 
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -124,11 +125,58 @@ def _mount_rotation(yaw_rad: float, pitch_rad: float) -> npt.NDArray[np.float64]
     return mat_mul(rz, ry)
 
 
+@functools.cache
+def _pixel_rays(width_px: int, height_px: int, focal_px: float, cx_px: float, cy_px: float) -> npt.NDArray[np.float32]:
+    """The unit ray of every pixel in the camera frame, (x, y, z) per pixel: its dot product with a body's direction
+    is the cosine of the angle between the pixel's ray and the body's centre (sitl/kernels/render.py).
+
+    One table per intrinsics in a process, shared by every camera that has them (a host's drones carry the same
+    cameras: 230 kB each at 160x120, four per drone); no one writes it."""
+    u = (np.arange(width_px, dtype=np.float64) - cx_px) / focal_px
+    v = (np.arange(height_px, dtype=np.float64) - cy_px) / focal_px
+    x_n, y_n = np.meshgrid(u, v)
+    inv_norm = 1.0 / np.sqrt(1.0 + x_n * x_n + y_n * y_n)
+    return np.ascontiguousarray(np.dstack((inv_norm, x_n * inv_norm, y_n * inv_norm)), dtype=np.float32)
+
+
+@functools.cache
+def _noise_tile(seed: int, width_px: int, height_px: int, background_level: int,
+                sigma: float) -> npt.NDArray[np.uint8]:  # fmt: skip
+    """A camera's sensor noise, twice its size each way; each frame's noise is a window of it. Made from the
+    camera's seed alone, so cameras with one seed share one tile, and a host has many: its drones' seeds run on
+    from the swarm's (seed + k) and a drone's cameras from its own (seed + i), so the k-th drone's second camera
+    and the next drone's first have the same. No one writes it."""
+    tile = np.random.default_rng(seed).normal(background_level, sigma, (2 * height_px, 2 * width_px))
+    return np.clip(np.rint(tile), 0, 255).astype(np.uint8)
+
+
+@dataclass(frozen=True, slots=True)
+class _Scratch:
+    """The image-sized buffers a frame is drawn, exposed and detected in, each rewritten whole by every use: the
+    transmittance and the canvas by each render, the binary image and the mask by each detection. A process renders
+    and detects one frame at a time, so its cameras of one size share one set (four cameras of 160x120 kept 0.5 MB
+    of them per drone)."""
+
+    transmittance: npt.NDArray[np.float32]
+    canvas: GrayImage
+    binary: GrayImage
+    mask: GrayImage
+
+
+@functools.cache
+def _scratch(width_px: int, height_px: int) -> _Scratch:
+    shape = (height_px, width_px)
+    return _Scratch(transmittance=np.ones(shape, np.float32), canvas=np.zeros(shape, np.uint8),
+                    binary=np.zeros(shape, np.uint8), mask=np.zeros(shape, np.uint8))  # fmt: skip
+
+
 class Camera:
     """One camera: its configuration, intrinsics, mount rotation and the buffers every frame reuses.
 
     ``frame`` is overwritten by each ``render``; copy it to keep it. ``binary_scratch`` and ``mask_scratch`` belong
-    to the detector, so detecting in a frame allocates no image-sized arrays either.
+    to the detector, so detecting in a frame allocates no image-sized arrays either; they, the transmittance and the
+    canvas are shared by every camera of the same size in the process (``_scratch``), the pixel rays by every camera
+    of the same intrinsics and the noise tile by every camera of the same seed.
     """
 
     def __init__(self, config: CameraConfig) -> None:
@@ -142,13 +190,7 @@ class Camera:
         self._rot_rows: list[list[float]] = self.rot_body_cam.tolist()
         # Angle off axis of the image corner, plus half a pixel: beyond it a silhouette cannot touch the image.
         self.corner_angle_rad = math.atan(math.hypot(w / 2.0 + 1.0, h / 2.0 + 1.0) / self.focal_px)
-        u = (np.arange(w, dtype=np.float64) - self.cx_px) / self.focal_px
-        v = (np.arange(h, dtype=np.float64) - self.cy_px) / self.focal_px
-        x_n, y_n = np.meshgrid(u, v)
-        inv_norm = 1.0 / np.sqrt(1.0 + x_n * x_n + y_n * y_n)
-        # Unit ray of every pixel in the camera frame, (x, y, z) per pixel: its dot product with a body's direction
-        # is the cosine of the angle between the pixel's ray and the body's centre (sitl/kernels/render.py).
-        self._rays = np.ascontiguousarray(np.dstack((inv_norm, x_n * inv_norm, y_n * inv_norm)), dtype=np.float32)
+        self._rays = _pixel_rays(w, h, self.focal_px, self.cx_px, self.cy_px)  # shared: never written
         # The camera as the compiled kernels take it (sitl/kernels/render.py, detector.py): one float64 row.
         self.kernel_row = np.zeros(rk.PARAMS_SIZE)
         self.kernel_row[rk.P_FOCAL] = self.focal_px
@@ -156,19 +198,18 @@ class Camera:
         self.kernel_row[rk.P_CY] = self.cy_px
         self.kernel_row[rk.P_CORNER_ANGLE] = self.corner_angle_rad
         self.kernel_row[rk.P_MAX_RANGE] = config.max_range_m
+        scratch = _scratch(w, h)  # rewritten whole by each use: one set per image size in a process
         # Fraction of each pixel's light that passes every body drawn so far (1 = background shows through).
-        self._transmittance = np.ones((h, w), np.float32)
-        self._canvas = np.zeros((h, w), np.uint8)
-        noise_rng = np.random.default_rng(config.noise_seed)
-        tile = noise_rng.normal(config.background_level, config.pixel_noise_sigma, (2 * h, 2 * w))
-        self._noise_tile = np.clip(np.rint(tile), 0, 255).astype(np.uint8)
+        self._transmittance = scratch.transmittance
+        self._canvas = scratch.canvas
+        self._noise_tile = _noise_tile(config.noise_seed, w, h, config.background_level, config.pixel_noise_sigma)
         # A frame with no body drawn is a window of this tile; the detector counts pixels at or above the threshold,
         # so when the whole tile stays below it such a frame holds nothing to detect (with the default noise, 4
         # grey levels around 30 against a threshold of 115, by twenty standard deviations).
         self.noise_cannot_detect = int(self._noise_tile.max()) < config.threshold_level
-        self.frame = np.zeros((h, w), np.uint8)
-        self.binary_scratch = np.zeros((h, w), np.uint8)
-        self.mask_scratch = np.zeros((h, w), np.uint8)
+        self.frame = np.zeros((h, w), np.uint8)  # the camera's own: it is kept (and saved) after the next render
+        self.binary_scratch = scratch.binary
+        self.mask_scratch = scratch.mask
 
     def camera_to_body(self, vec_cam: tuple[float, float, float]) -> tuple[float, float, float]:
         """A camera-frame vector in body FRD."""
