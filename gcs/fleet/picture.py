@@ -1,5 +1,5 @@
 """The swarm-frame picture of every vehicle: where each one is and how it moves, in the one frame the ground station
-plans in, updated as each telemetry message arrives.
+plans in, as of each vehicle's latest telemetry message.
 
 The fleet view (gcs/fleet/telemetry.py) keeps what each vehicle says in its own terms: a simulated drone its
 LOCAL_POSITION_NED in the local frame anchored where it booted, an attached vehicle its GLOBAL_POSITION_INT. Every
@@ -42,8 +42,9 @@ class Placed:
 
 
 class SwarmPicture:
-    """Every vehicle's place in the swarm frame, kept current by ``observe`` (after the fleet view has taken the same
-    message in). ``attached``: the sysids of attached vehicles (they report where they are, not a local frame)."""
+    """Every vehicle's place in the swarm frame as of its latest report: ``observe`` (after the fleet view has taken
+    the same message in) marks it, the first reader after places it. ``attached``: the sysids of attached vehicles
+    (they report where they are, not a local frame)."""
 
     def __init__(self, frame: SwarmFrame, fleet: Fleet, attached: Container[int]) -> None:
         self.frame = frame
@@ -51,22 +52,15 @@ class SwarmPicture:
         self._attached = attached
         self._frames: dict[int, DroneFrame] = {}
         self._placed: dict[int, Placed] = {}
+        self._stale: set[int] = set()  # vehicles that have reported since they were last placed
 
     # ---- as messages arrive ----------------------------------------------------------------------------------------
     def observe(self, msg: Any, _now_s: float = 0.0) -> None:
-        """A message the swarm has taken in: a report of where a vehicle is, or of how it moves, places it anew (a
-        drone's frame is made at its first report after its home has come)."""
-        if msg.get_type() not in _MOVES or msg.get_srcComponent() != 1:
-            return
-        sysid = msg.get_srcSystem()
-        view = self._fleet.drones.get(sysid)
-        if view is None:
-            return
-        placed = self._place(sysid, view)
-        if placed is None:
-            self._placed.pop(sysid, None)
-        else:
-            self._placed[sysid] = placed
+        """A message the swarm has taken in: a report of where a vehicle is, or of how it moves, makes its place
+        stale; the next reader places it anew from the fleet view (a report nobody reads before the next is never
+        converted: the supervisor pays per reading, not per report)."""
+        if msg.get_type() in _MOVES and msg.get_srcComponent() == 1:
+            self._stale.add(msg.get_srcSystem())
 
     def _place(self, sysid: int, view: DroneView) -> Placed | None:
         if sysid in self._attached:
@@ -94,13 +88,25 @@ class SwarmPicture:
         return frame
 
     def placed(self, sysid: int) -> Placed | None:
-        """Where the vehicle is (None before it has said)."""
+        """Where the vehicle is as of its latest report (None before it has said)."""
+        if sysid in self._stale:
+            self._stale.discard(sysid)
+            view = self._fleet.drones.get(sysid)
+            placed = self._place(sysid, view) if view is not None else None
+            if placed is None:
+                self._placed.pop(sysid, None)
+            else:
+                self._placed[sysid] = placed
         return self._placed.get(sysid)
 
     def positions(self, sysids: Iterable[int]) -> dict[int, Vec3]:
         """The positions of those of ``sysids`` in the picture."""
-        placed = self._placed
-        return {s: placed[s].pos_ned_m for s in sysids if s in placed}
+        out = {}
+        for sysid in sysids:
+            placed = self.placed(sysid)
+            if placed is not None:
+                out[sysid] = placed.pos_ned_m
+        return out
 
     def state(self, sysids: Iterable[int]) -> SwarmState:
         """Position and velocity of those of ``sysids`` that are armed and have said both: what a flight law (a
@@ -108,7 +114,7 @@ class SwarmPicture:
         positions: dict[int, Vec3] = {}
         velocities: dict[int, Vec3] = {}
         for sysid in sysids:
-            view, placed = self._fleet.drones.get(sysid), self._placed.get(sysid)
+            view, placed = self._fleet.drones.get(sysid), self.placed(sysid)
             if placed is not None and view is not None and view.armed and placed.moving_known:
                 positions[sysid], velocities[sysid] = placed.pos_ned_m, placed.vel_ned_mps
         return SwarmState.from_mappings(positions, velocities)
