@@ -961,6 +961,7 @@ _OPTIONS: dict[str, dict[str, str]] = {
     "attach": {"max_distance": "max_distance_m", "keep_in": "keep_in_m", "signing_key": "signing_key"},
 }  # fmt: skip
 """Per command, each option's field: what the control channel's JSON and a mission file call it."""
+_POSITIONALS = frozenset({"north", "east"})  # ``swarm goto NORTH EAST``: named without dashes, as argparse names them
 
 
 def _command_name(args: argparse.Namespace) -> str:
@@ -977,7 +978,8 @@ def _checked(command: dict[str, Any]) -> dict[str, Any]:
     try:
         decode(command, None)
     except FieldError as exc:
-        flags = {field: "--" + option.replace("_", "-") for option, field in _OPTIONS.get(command["cmd"], {}).items()}
+        flags = {field: option if option in _POSITIONALS else "--" + option.replace("_", "-")
+                 for option, field in _OPTIONS.get(command["cmd"], {}).items()}  # fmt: skip
         raise UsageError(f"argument {flags.get(exc.field, exc.field)}: {exc.problem}") from None
     except ValueError as exc:  # AttachError, FaultError: already in the user's terms
         raise UsageError(str(exc)) from None

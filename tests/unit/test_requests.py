@@ -20,7 +20,7 @@ import pytest
 
 from gcs.api.blocking import BlockingSession
 from gcs.api.session import Session
-from gcs.cli import build_parser, client_command
+from gcs.cli import UsageError, build_parser, client_command
 from gcs.fleet.attach import parse_attach
 from gcs.fleet.faults import FaultRequest
 from gcs.flight.behaviours import FlockSpec, FollowAttachedSpec, FollowSpec
@@ -123,6 +123,18 @@ def _subcommands() -> set[str]:
 def test_the_cli_decodes_each_command_to_its_request(argv: list[str], expected: rq.Request) -> None:
     command = client_command(build_parser().parse_args(argv))
     assert decode(command, None) == expected
+
+
+@pytest.mark.parametrize(
+    ("argv", "line"),
+    [(["goto", "nan", "0"], "argument north: must be a finite number, got nan"),
+     (["takeoff", "--alt", "500"], "argument --alt: takeoff altitude must be between 0.5 and 100 m, got 500"),
+     (["formation", "circle", "--rate", "inf"], "argument --rate: must be a number, got inf")],
+)  # fmt: skip
+def test_a_cli_mistake_names_the_argument_that_gave_it(argv: list[str], line: str) -> None:
+    with pytest.raises(UsageError) as info:
+        client_command(build_parser().parse_args(argv))
+    assert str(info.value) == line
 
 
 def test_every_cli_command_that_flies_is_a_request() -> None:
