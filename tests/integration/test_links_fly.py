@@ -61,6 +61,13 @@ def tlog_messages(path: Path) -> list[tuple[int, str, bytes]]:
 class Load:
     cpu_s: float = 0.0  # CPU time the burners got, once the block has ended
     wall_s: float = 0.0
+    busy: float = 0.0  # the machine's CPUs, busy for this fraction of the block (all of them, whoever ran)
+
+
+def cpu_jiffies() -> tuple[int, int]:
+    """The machine's CPU time so far, in clock ticks: (idle and waiting for IO, total), from /proc/stat."""
+    fields = [int(v) for v in Path("/proc/stat").read_text().splitlines()[0].split()[1:]]
+    return fields[3] + fields[4], sum(fields)
 
 
 def cpu_time_s(pid: int) -> float:
@@ -73,6 +80,7 @@ def busy_cpus() -> Iterator[Load]:
     """Every CPU kept busy by a process that only spins (BURN), for as long as the block runs."""
     load = Load()
     start = time.monotonic()
+    idle_before, total_before = cpu_jiffies()
     burners = [subprocess.Popen([sys.executable, "-c", BURN], start_new_session=True)
                for _ in range(os.cpu_count() or 2)]  # fmt: skip
     try:
@@ -80,6 +88,8 @@ def busy_cpus() -> Iterator[Load]:
     finally:
         load.wall_s = time.monotonic() - start
         load.cpu_s = sum(cpu_time_s(proc.pid) for proc in burners)
+        idle_after, total_after = cpu_jiffies()
+        load.busy = 1.0 - (idle_after - idle_before) / max(total_after - total_before, 1)
         for proc in burners:
             proc.kill()
         for proc in burners:
@@ -124,9 +134,10 @@ def test_the_same_lockstep_mission_flies_the_same_on_an_idle_and_a_loaded_machin
     # WHEN it is flown again with the same seeds (on the same instances) while other processes keep every CPU busy
     with busy_cpus() as load:
         second, second_report = fly(str(mission), tmp_path / "loaded", same_instances)
-    # (the machine was loaded: the burners took every moment the swarm left free, 44 of the 90 CPU seconds two
-    # CPUs offered during one 45 s run)
-    assert load.cpu_s > 0.25 * load.wall_s, load
+    # (the machine was loaded: no CPU idled while the swarm flew. The burners take every moment the swarm leaves
+    # free, but what they get depends on what else runs: alone with the swarm they had 44 of the 90 CPU seconds of a
+    # 45 s run; beside another test's flight on the second CPU, 4 of 32)
+    assert load.busy > 0.95, load
     # THEN the mesh delivered, and lost reports for every reason the mission allows
     mesh = first["links"]["neighbour mesh"]
     assert mesh["frames_delivered"] > 1000 and mesh["lost_range"] > 0 and mesh["lost_path"] > 0, mesh
