@@ -72,12 +72,18 @@ class Station:
         return (self.sim.truth.pos_ned_m - home)[:2]
 
 
-def test_do_orbit_circles_the_centre_at_the_radius_reports_orbit_and_leaves_it_for_hold() -> None:
-    station = Station(seed=34)
-    sim = station.sim
-    home = boot_position(sim)
-    take_off(sim, 3.0)
+def hovering(*, seed: int, alt_m: float) -> tuple[Station, np.ndarray]:
+    """A drone taken off to ``alt_m`` and settled for a second; its boot position (NED) beside it."""
+    station = Station(seed=seed)
+    home = boot_position(station.sim)
+    take_off(station.sim, alt_m)
     station.fly(1.0)
+    return station, home
+
+
+def test_do_orbit_circles_the_centre_at_the_radius_reports_orbit_and_leaves_it_for_hold() -> None:
+    station, home = hovering(seed=34, alt_m=3.0)
+    sim = station.sim
 
     # WHEN a pymavlink script sends DO_ORBIT: radius 8 m clockwise, 3 m/s, facing the centre, at a centre given in
     # lat/lon and an AMSL altitude
@@ -143,11 +149,8 @@ def test_do_orbit_circles_the_centre_at_the_radius_reports_orbit_and_leaves_it_f
 
 
 def test_do_orbit_as_mavsdk_sends_it_counter_clockwise_around_where_the_drone_is() -> None:
-    station = Station(seed=35)
+    station, home = hovering(seed=35, alt_m=4.0)
     sim = station.sim
-    home = boot_position(sim)
-    take_off(sim, 4.0)
-    station.fly(1.0)
     start_ne = station.true_ne_m(home)
 
     # WHEN MAVSDK's do_orbit(-5 m, 2 m/s, yaw unchanged, centre not given) arrives: COMMAND_INT, frame
