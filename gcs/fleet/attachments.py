@@ -50,7 +50,7 @@ from gcs.fleet.harness import SimulationHarness, SpawnPlan
 from gcs.fleet.router import GCS_HEARTBEAT_PERIOD_S, Router
 from gcs.fleet.telemetry import LINK_LOST_S, DroneView, Fleet
 from gcs.flight.frames import Vec3
-from gcs.flight.geodesy import NedFrame
+from gcs.flight.geodesy import GeoPoint, NedFrame
 from gcs.mavlink.commands import AUTOPILOT_COMPID, CommandClient
 from gcs.mavlink.modes import OFFBOARD, purpose_mode_name
 
@@ -302,22 +302,24 @@ class Attachments:
             return
         horizontal = not mask & mavlink.POSITION_TARGET_TYPEMASK_X_IGNORE
         vertical = not mask & mavlink.POSITION_TARGET_TYPEMASK_Z_IGNORE
-        goes_to = pos_ned_m
+        if not all(map(math.isfinite, pos_ned_m)):
+            self.release(sysid, f"its setpoint {_ned_text(pos_ned_m)} is not a finite point", hold=True)
+            return
+        (lat_e7, lon_e7, alt_amsl_m), goes_to = on_the_wire(self._frame, pos_ned_m)
         if not (horizontal and vertical):  # a velocity: where it takes the member
             here = self._reported_ned(sysid)
             if here is None:
                 return
             ahead = tuple(h + v * KEEP_IN_LOOKAHEAD_S for h, v in zip(here, vel_ned_mps, strict=True))
-            goes_to = (pos_ned_m[0] if horizontal else ahead[0], pos_ned_m[1] if horizontal else ahead[1],
-                       pos_ned_m[2] if vertical else ahead[2])  # fmt: skip
+            goes_to = (goes_to[0] if horizontal else ahead[0], goes_to[1] if horizontal else ahead[1],
+                       goes_to[2] if vertical else ahead[2])  # fmt: skip
         outside = keep_in_problem(goes_to, vehicle.spec.keep_in_m)
         if outside is not None:
             self.release(sysid, f"its setpoint {_ned_text(goes_to)} is {outside}", hold=True)
             return
-        geo = self._frame.geo_from_ned(pos_ned_m)
         msg = mavlink.MAVLink_set_position_target_global_int_message(
             int(now_s * 1000) & 0xFFFFFFFF, sysid, AUTOPILOT_COMPID, mavlink.MAV_FRAME_GLOBAL_INT, mask,
-            round(geo.lat_deg * 1e7), round(geo.lon_deg * 1e7), geo.alt_amsl_m, *vel_ned_mps, *acc_ned_mps2,
+            lat_e7, lon_e7, alt_amsl_m, *vel_ned_mps, *acc_ned_mps2,
             yaw_rad, 0.0,
         )  # fmt: skip
         vehicle.setpoint_s = now_s
@@ -411,6 +413,16 @@ class Attachments:
 
 def _no_commands(sysid: int) -> None:
     raise SwarmError(f"member {sysid}: no commands to put it in Hold with (Attachments.start_hold is not wired)")
+
+
+def on_the_wire(frame: NedFrame, pos_ned_m: Vec3) -> tuple[tuple[int, int, float], Vec3]:
+    """A swarm-frame point as SET_POSITION_TARGET_GLOBAL_INT carries it (lat and lon in 1e-7 degrees, altitude AMSL)
+    and the point a member reads back from that. The keep-in judges the second: a 1e-7 degree step is up to 11 mm,
+    so a slot just inside the keep-in may reach the member just outside it."""
+    geo = frame.geo_from_ned(pos_ned_m)
+    lat_e7, lon_e7 = round(geo.lat_deg * 1e7), round(geo.lon_deg * 1e7)
+    read = frame.ned_from_geo(GeoPoint(lat_deg=lat_e7 * 1e-7, lon_deg=lon_e7 * 1e-7, alt_amsl_m=geo.alt_amsl_m))
+    return (lat_e7, lon_e7, geo.alt_amsl_m), read
 
 
 def keep_in_problem(pos_ned_m: Vec3, keep_in_m: float) -> str | None:

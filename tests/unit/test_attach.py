@@ -22,7 +22,7 @@ from gcs.fleet.attach import (
     sysid_problem,
     traffic_report,
 )
-from gcs.fleet.attachments import keep_in_problem
+from gcs.fleet.attachments import keep_in_problem, on_the_wire
 from gcs.flight.behaviours import FollowAttached, FollowAttachedSpec, LeaderReport, SwarmState
 from gcs.flight.geodesy import GeoPoint, NedFrame
 from gcs.mavlink.modes import HOLD, OFFBOARD, mode_name, purpose_mode_name, purpose_params
@@ -316,6 +316,20 @@ def test_a_members_keep_in_is_a_cylinder_around_the_origin_above_its_floor() -> 
     assert "above the keep-in's 20 m" in str(keep_in_problem((0.0, 0.0, -25.0), 20.0))
     assert "below the keep-in's floor" in str(keep_in_problem((0.0, 0.0, -0.2), 20.0))
     assert keep_in_problem((math.nan, 0.0, -3.0), 20.0) == "not a finite point"
+
+
+def test_the_keep_in_judges_a_setpoint_as_the_member_reads_it_in_1e7_degree_steps() -> None:
+    frame = NedFrame(GeoPoint(lat_deg=47.397742, lon_deg=8.545594, alt_amsl_m=488.0))
+    slots = [(7.9995 * math.cos(k * 0.01), 7.9995 * math.sin(k * 0.01), -3.0) for k in range(629)]
+    read = [on_the_wire(frame, slot) for slot in slots]
+    # every slot is inside an 8 m keep-in, but some reach the member outside it: those are the ones refused
+    assert all(keep_in_problem(slot, 8.0) is None for slot in slots)
+    outside = [ned for _, ned in read if keep_in_problem(ned, 8.0) is not None]
+    assert outside and all(math.hypot(n, e) > 8.0 for n, e, _ in outside)
+    for (lat_e7, lon_e7, alt_amsl_m), ned in read:  # and the point read back is the one on the wire
+        back = frame.geo_from_ned(ned)
+        assert (round(back.lat_deg * 1e7), round(back.lon_deg * 1e7)) == (lat_e7, lon_e7)
+        assert alt_amsl_m == pytest.approx(491.0)
 
 
 @pytest.mark.parametrize(
