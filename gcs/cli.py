@@ -47,6 +47,7 @@ from gcs.fleet.harness import (
 )
 from gcs.fleet.links import LINK_OPTIONS, NEIGHBOUR_MODES, LinkPlan, NeighbourPlan, parse_link_value, parse_mesh_value
 from gcs.fleet.losses import LOSS_POLICIES, LossPolicy
+from gcs.fleet.relay import RELAY_SCOPE_HELP, scope_argument
 from gcs.fleet.swarm import Swarm, SwarmError
 from gcs.flight.formation import FieldError
 from gcs.flight.geodesy import DEFAULT_ORIGIN, GeoPoint
@@ -333,6 +334,7 @@ def _add_neighbour_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--neighbours", choices=NEIGHBOUR_MODES, default=None,
                        help="relay: the supervisor forwards each drone's position to the others (default); mesh: the "
                        "drones hear each other directly over a simulated radio, no relay; both")  # fmt: skip
+    group.add_argument("--relay-scope", type=scope_argument, default=None, metavar="SCOPE", help=RELAY_SCOPE_HELP)
     group.add_argument("--mesh-range-m", type=_mesh_value("range_m"), default=None, metavar="M",
                        help="mesh radio range in metres (default 15): nothing heard beyond it, a report lost with "
                        "probability (distance / range)^4 within it")  # fmt: skip
@@ -370,10 +372,14 @@ def _behaviour(spec: str | None, simulation: Simulation) -> str | None:
 def _neighbour_plan(args: argparse.Namespace, base: NeighbourPlan) -> NeighbourPlan:
     """``base`` (a mission's, or the relay alone) with ``--neighbours`` and ``--mesh-range-m`` over it."""
     plan = base.with_mode(args.neighbours) if args.neighbours is not None else base
+    if args.relay_scope is not None:
+        if not plan.relay:
+            raise UsageError("--relay-scope needs the relay: --neighbours relay or both (or a mission that has it)")
+        plan = dataclasses.replace(plan, relay_scope=args.relay_scope)
     if args.mesh_range_m is not None:
         if plan.mesh is None:
             raise UsageError("--mesh-range-m needs the mesh: --neighbours mesh or both (or a mission that has it)")
-        plan = NeighbourPlan(relay=plan.relay, mesh=dataclasses.replace(plan.mesh, range_m=args.mesh_range_m))
+        plan = dataclasses.replace(plan, mesh=dataclasses.replace(plan.mesh, range_m=args.mesh_range_m))
     return plan
 
 
@@ -726,7 +732,7 @@ def run_up(args: argparse.Namespace, simulation: Simulation) -> int:
     signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     _interrupt_on(signals)  # while the drones start, a signal ends the start-up at once (and stops what started)
     swarm = Swarm(plan, simulation.harness(plan), forward=None if args.no_forward else args.forward,
-                  relay=neighbours.relay)  # fmt: skip
+                  relay=neighbours.relayed)  # fmt: skip
     station = Station(swarm, _say, LossPolicy(args.loss_policy), report_dir=args.report, contact_distance_m=contact)
     try:
         attach_all(station.session, attach)
@@ -820,7 +826,8 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
     _check_first_instance(args.first_instance, mission.swarm.drones, args.gcs_sysid)
     links = _link_plan(args, mission.swarm.links)
     params = _checked_params(mission, args.param, simulation, behaviour=args.behaviour or mission.swarm.behaviour)
-    neighbours = _neighbour_plan(args, NeighbourPlan(relay=mission.swarm.relay, mesh=mission.swarm.mesh))
+    neighbours = _neighbour_plan(args, NeighbourPlan(relay=mission.swarm.relay, mesh=mission.swarm.mesh,
+                                                     relay_scope=mission.swarm.relay_scope))  # fmt: skip
     behaviour = _behaviour(args.behaviour, simulation) if args.behaviour is not None else mission.swarm.behaviour
     if behaviour is not None and args.behaviour is None:
         try:  # the mission's own: checked as the drones will load it, and named by the mission file
@@ -830,7 +837,12 @@ def run_fly(args: argparse.Namespace, simulation: Simulation) -> int:
     mission = dataclasses.replace(
         mission,
         swarm=dataclasses.replace(
-            mission.swarm, relay=neighbours.relay, mesh=neighbours.mesh, behaviour=behaviour, params=params
+            mission.swarm,
+            relay=neighbours.relay,
+            relay_scope=neighbours.relay_scope,
+            mesh=neighbours.mesh,
+            behaviour=behaviour,
+            params=params,
         ),
     )
     report = args.report or Path("reports") / f"{mission.name}-{time.strftime('%Y%m%d-%H%M%S')}"

@@ -26,6 +26,7 @@ from gcs.api.session import Session, launch
 from gcs.api.types import ControllerError, DroneState, Event, FlightResult, LaunchOptions
 from gcs.fleet.links import LinkPlan, MeshPlan, NeighbourPlan
 from gcs.fleet.losses import LossPolicy
+from gcs.fleet.relay import RelayScope
 from gcs.fleet.swarm import SwarmError
 from gcs.flight.behaviours import FlockSpec, FollowSpec
 from gcs.flight.formation import CircleSpec, GridSpec, LineSpec, Setpoint, VSpec
@@ -49,6 +50,7 @@ __all__ = [
     "LossPolicy",
     "MeshPlan",
     "NeighbourPlan",
+    "RelayScope",
     "Session",
     "SessionClosed",
     "Setpoint",

@@ -195,7 +195,7 @@ class Engine:
         if o.view:  # before anything starts: a port that cannot be had is a ValueError (ViewError) of one line
             self.view = serve_view(o.view_port)
             self._say(f"swarm: live view on {self.view.url}")
-        self.swarm = swarm = Swarm(plan, self._simulation.harness(plan), forward=o.forward, relay=o.neighbours.relay)
+        self.swarm = swarm = Swarm(plan, self._simulation.harness(plan), forward=o.forward, relay=o.neighbours.relayed)
         self.session = session = FlightSession.verb_by_verb(
             swarm,
             self._say,

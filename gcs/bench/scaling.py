@@ -51,6 +51,7 @@ from gcs.bench.probe import percentile, probe_sysids
 from gcs.command.streamer import DEFAULT_LIMITS
 from gcs.fleet.harness import MAX_DRONES, Simulation, SpawnError, SpawnPlan, parse_drones_per_process
 from gcs.fleet.losses import LossPolicy
+from gcs.fleet.relay import DEFAULT_RELAY_SCOPE, RELAY_SCOPE_HELP, RelayScope, scope_argument
 from gcs.fleet.swarm import ARM_TIMEOUT_S, Swarm, SwarmError
 from gcs.flight.formation import SETPOINT_STREAM_HZ, CircleSpec, FormationError, TransitionLimits
 from gcs.flight.geodesy import DEFAULT_ORIGIN
@@ -74,8 +75,6 @@ CIRCLE_MIN_RADIUS_M = 3.0
 CIRCLE_MIN_GAP_M = 2.0  # neighbours on the circle at least this far apart (chord)
 LIMIT_HEADROOM = 1.25  # transition limits above the circle's own rim speed and acceleration
 REAL_TIME_HELD = 0.98  # rtf_paced at or above this counts as holding real time
-LARGE_SWARM = 20  # above this many drones the relay forwards only to neighbours within RELAY_RADIUS_M
-RELAY_RADIUS_M = 15.0
 PROBE_SECONDS = 3.0
 PROBE_EXTRA_WALL_S = 30.0  # the probe's own start-up (imports) on a loaded machine
 RTT_MIN_SAMPLES = 20  # command round trips: every drone in turn, as many rounds as give at least this many
@@ -181,11 +180,6 @@ def circle_limits(radius_m: float, rate_radps: float) -> TransitionLimits:
         max_speed_mps=max(DEFAULT_LIMITS.max_speed_mps, LIMIT_HEADROOM * rim_speed),
         max_accel_mps2=max(DEFAULT_LIMITS.max_accel_mps2, LIMIT_HEADROOM * rim_accel),
     )
-
-
-def relay_radius_for(n: int) -> float | None:
-    """All-to-all relaying is O(N^2) datagrams; above LARGE_SWARM drones only neighbours within 15 m get them."""
-    return RELAY_RADIUS_M if n > LARGE_SWARM else None
 
 
 def proc_stat_cpu_ticks(stat_text: str) -> int:
@@ -329,7 +323,7 @@ class LockstepFigures:
 class BenchRow:
     n_drones: int
     circle_radius_m: float
-    relay_radius_m: float | None
+    relay_scope: str  # as --relay-scope takes it
     bare_jsbsim_cpu_ms_per_sim_s: float
     paced: PacedFigures | None = None
     lockstep: LockstepFigures | None = None
@@ -412,7 +406,7 @@ def row_json(row: BenchRow, physics_rate_hz: float) -> dict[str, Any]:
         "collisions_lockstep": lock.collisions if lock else 0,
         "circle_radius_m": row.circle_radius_m,
         "circle_rate_radps": CIRCLE_RATE_RADPS,
-        "relay_radius_m": row.relay_radius_m,
+        "relay_scope": row.relay_scope,
         "errors": list(row.errors),
     }
     bare = row.bare_jsbsim_cpu_ms_per_sim_s
@@ -595,6 +589,7 @@ class BenchConfig:
     seed: int = 0
     json_path: Path | None = None
     plot_path: Path | None = None
+    relay_scope: RelayScope = DEFAULT_RELAY_SCOPE  # as swarm up and swarm fly relay by default
 
 
 @dataclass(kw_only=True)
@@ -619,7 +614,7 @@ class ScenarioFlight:
             seed=config.seed,
             drones_per_process=mode,
         )
-        self.swarm = Swarm(plan, config.simulation.harness(plan), relay_radius_m=relay_radius_for(n))
+        self.swarm = Swarm(plan, config.simulation.harness(plan), relay=config.relay_scope)
         self.radius_m = circle_radius_m(n)
         # a front-end like the others: a flight session, flown with requests (gcs/supervisor/requests.py); its clock
         # is the swarm's own (mission time zero at the swarm's zero), and nothing is recorded
@@ -846,7 +841,7 @@ def bench_one(n: int, config: BenchConfig, say: Say, mode: PerProcess, bare: flo
     except RUN_ERRORS as exc:
         errors.append(f"lockstep: {exc}")
         say(f"  lockstep: failed: {exc}")
-    return BenchRow(n_drones=n, circle_radius_m=circle_radius_m(n), relay_radius_m=relay_radius_for(n),
+    return BenchRow(n_drones=n, circle_radius_m=circle_radius_m(n), relay_scope=config.relay_scope.text(),
                     bare_jsbsim_cpu_ms_per_sim_s=bare, paced=paced, lockstep=lock, errors=tuple(errors),
                     drones_per_process=mode, hosts=len(hosts), drones_per_host=max(hosts))  # fmt: skip
 
@@ -990,6 +985,8 @@ def _configure(parser: argparse.ArgumentParser) -> None:
         "largest swarm would not fit above it)",
     )
     parser.add_argument("--seed", type=int, default=0, help="base random seed (the k-th drone, from 0, uses seed+k)")
+    parser.add_argument("--relay-scope", type=scope_argument, default=DEFAULT_RELAY_SCOPE, metavar="SCOPE",
+                        help=RELAY_SCOPE_HELP)  # fmt: skip
     parser.add_argument(
         "--drones-per-process",
         type=_modes_arg,
@@ -1037,7 +1034,8 @@ def run_bench(args: argparse.Namespace, simulation: Simulation) -> int:
         return EXIT_USAGE
     config = BenchConfig(simulation=simulation, drone_counts=tuple(args.drones), sim_seconds=args.sim_seconds,
                          first_instance=args.first_instance, seed=args.seed, json_path=args.json,
-                         plot_path=args.plot, modes=tuple(args.drones_per_process))  # fmt: skip
+                         plot_path=args.plot, modes=tuple(args.drones_per_process),
+                         relay_scope=args.relay_scope)  # fmt: skip
     previous = signal.signal(signal.SIGTERM, _interrupt)  # a terminated bench stops its drones like Ctrl-C
     try:
         _, ok = run(config, _say)

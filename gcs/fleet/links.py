@@ -16,6 +16,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Final
 
+from gcs.fleet.relay import DEFAULT_RELAY_SCOPE, RelayScope
 from swarmcommon.links import (
     DEFAULT_MESH_EXPONENT,
     DEFAULT_MESH_RANGE_M,
@@ -173,6 +174,12 @@ class NeighbourPlan:
 
     relay: bool = True
     mesh: MeshPlan | None = None
+    relay_scope: RelayScope = DEFAULT_RELAY_SCOPE  # which drones a position is relayed to (gcs/fleet/relay.py)
+
+    @property
+    def relayed(self) -> RelayScope | None:
+        """The relay's scope, or None without a relay (what ``Swarm`` takes)."""
+        return self.relay_scope if self.relay else None
 
     @property
     def mode(self) -> str:
@@ -188,7 +195,8 @@ class NeighbourPlan:
             if self.mesh is not None
             else ""
         )
-        return {"relay": "relay", "mesh": mesh, "both": f"relay and {mesh}", "none": "none (cameras only)"}[self.mode]
+        relay = f"relay ({self.relay_scope.describe()})"
+        return {"relay": relay, "mesh": mesh, "both": f"{relay} and {mesh}", "none": "none (cameras only)"}[self.mode]
 
     def with_mode(self, mode: str) -> NeighbourPlan:
         """This plan with the mode ``mode`` (one of NEIGHBOUR_MODES); a mesh keeps its settings, or takes the
@@ -196,7 +204,7 @@ class NeighbourPlan:
         if mode not in NEIGHBOUR_MODES:
             raise ValueError(f"must be one of {', '.join(NEIGHBOUR_MODES)}, got {mode!r}")
         mesh = (self.mesh or MeshPlan()) if mode in ("mesh", "both") else None
-        return NeighbourPlan(relay=mode in ("relay", "both"), mesh=mesh)
+        return NeighbourPlan(relay=mode in ("relay", "both"), mesh=mesh, relay_scope=self.relay_scope)
 
 
 def parse_mesh_value(key: str, text: str) -> float:

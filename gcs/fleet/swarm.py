@@ -46,7 +46,7 @@ from gcs.fleet.harness import SimulationHarness, SpawnError, SpawnPlan
 from gcs.fleet.liveness import Liveness
 from gcs.fleet.picture import SwarmPicture
 from gcs.fleet.pump import Protocols, Pump
-from gcs.fleet.relay import NeighbourRelay
+from gcs.fleet.relay import DEFAULT_RELAY_SCOPE, NeighbourRelay, RelayScope
 from gcs.fleet.router import BATCH_HOLD_S, Router
 from gcs.fleet.telemetry import Fleet
 from gcs.fleet.transfers import Missions, Params
@@ -70,8 +70,7 @@ class Swarm:
         self,
         plan: SpawnPlan,
         harness: SimulationHarness,
-        relay_radius_m: float | None = None,
-        relay: bool = True,
+        relay: RelayScope | None = DEFAULT_RELAY_SCOPE,  # None: no relay
         forward: tuple[str, int] | None = None,
         batch_hold_s: float = BATCH_HOLD_S,
     ) -> None:
@@ -82,7 +81,7 @@ class Swarm:
         key = load_key(plan.signing_key_file) if plan.signing_key_file is not None else None
         self.link = GcsSocket(signing_key=key, sysid=plan.gcs_sysid)  # signs what it sends when the plan has a key
         self.signing_key_id = key_id(key) if key is not None else None  # what the report names the key by
-        self.router = Router(self.link, relay=NeighbourRelay(radius_m=relay_radius_m) if relay else None,
+        self.router = Router(self.link, relay=NeighbourRelay(scope=relay) if relay is not None else None,
                              forward=forward, batch_hold_s=batch_hold_s)  # fmt: skip
         self.fleet = Fleet()
         self.liveness = Liveness(harness, self.fleet, self.clock, swarm_frame, lockstep=plan.lockstep)

@@ -49,6 +49,7 @@ from gcs.fleet.faults import FaultError, FaultRequest, fault_request
 from gcs.fleet.harness import LAYOUTS, MAX_DRONES, MAX_QUANTUM, MAX_SPAWN_JITTER_M, MAX_WIND_MPS
 from gcs.fleet.links import NEIGHBOUR_MODES, LinkPlan, MeshPlan, NeighbourPlan, plan_from_tables
 from gcs.fleet.losses import LOSS_POLICIES, LossPolicy
+from gcs.fleet.relay import DEFAULT_RELAY_SCOPE, SCOPE_SPELLINGS, RelayScope
 from gcs.flight.behaviours import FlockSpec, FollowAttachedSpec, FollowSpec
 from gcs.flight.formation import CircleSpec, FieldError, Formation, FormationError, GridSpec, LineSpec, VSpec
 from gcs.flight.onboard import FLOCKING, LEADER_FOLLOWER, absolute_spec
@@ -82,6 +83,7 @@ class SwarmSpec:
     # Drone parameters set over MAVLink (PARAM_SET) before arming; an int travels as INT32, a float as REAL32.
     params: tuple[tuple[str, int | float], ...] = ()
     relay: bool = True  # false: no neighbour relay (the mesh, if any, or the cameras alone)
+    relay_scope: RelayScope = DEFAULT_RELAY_SCOPE  # [swarm] relay_scope: which drones a position is relayed to
     # [swarm] neighbours = "mesh" | "both" and [swarm.mesh]: the drone-to-drone mesh radio; None: no mesh
     mesh: MeshPlan | None = None
     # [swarm.links]: the link model's settings per link class (docs/links.md)
@@ -99,6 +101,11 @@ class SwarmSpec:
     quantum: int | None = None  # lockstep: physics steps between waits (swarm fly --quantum wins; default 1)
     # [swarm.drone.N] params = {...}: drone N's own parameters, over the swarm's (drone number, its settings)
     drone_params: tuple[tuple[int, tuple[tuple[str, int | float], ...]], ...] = ()
+
+    @property
+    def relayed(self) -> RelayScope | None:
+        """The relay's scope, or None without a relay (what ``Swarm`` takes)."""
+        return self.relay_scope if self.relay else None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -796,6 +803,29 @@ def _neighbours(reader: _Reader, swarm: dict[str, Any]) -> NeighbourPlan:
     relay = swarm.get("relay", True)
     if not isinstance(relay, bool):
         raise reader.fail(where, "relay", f"must be true or false, got {relay!r}")
+    plan = _relay_scoped(reader, swarm, where, _neighbour_modes(reader, swarm, where, relay))
+    if "relay_scope" in swarm and not plan.relay:
+        raise reader.fail(where, "relay_scope", f"is set but there is no relay (neighbours = {plan.mode!r})")
+    return plan
+
+
+def _relay_scoped(reader: _Reader, swarm: dict[str, Any], where: tuple[str | None, int | None],
+                  plan: NeighbourPlan) -> NeighbourPlan:  # fmt: skip
+    """``plan`` with ``relay_scope = "reach"|"all"|"within:M"|"nearest:K"`` from [swarm], if given."""
+    if "relay_scope" not in swarm:
+        return plan
+    text = swarm["relay_scope"]
+    try:
+        if not isinstance(text, str):
+            raise ValueError(f"must be a string ({SCOPE_SPELLINGS}), got {text!r}")
+        return dataclasses.replace(plan, relay_scope=RelayScope.parse(text))
+    except ValueError as exc:
+        raise reader.fail(where, "relay_scope", str(exc)) from None
+
+
+def _neighbour_modes(reader: _Reader, swarm: dict[str, Any], where: tuple[str | None, int | None],
+                     relay: bool) -> NeighbourPlan:  # fmt: skip
+    """The relay and the mesh as ``relay`` and ``neighbours`` say."""
     mesh = _mesh(reader, swarm["mesh"]) if "mesh" in swarm else None
     if "neighbours" not in swarm:
         if mesh is not None:
@@ -954,7 +984,7 @@ def parse_mission(text: str, path: Path, *, max_obstacles: int | None = None) ->
     if not isinstance(swarm, dict):
         raise reader.fail((None, None), None, "missing [swarm] table with 'drones'")
     where_swarm: tuple[str | None, int | None] = ("swarm", None)
-    reader.check_keys(swarm, {"drones", "layout", "spacing_m", "params", "relay", "loss_policy", "links",
+    reader.check_keys(swarm, {"drones", "layout", "spacing_m", "params", "relay", "relay_scope", "loss_policy", "links",
                               "neighbours", "mesh", "behaviour", "attach", "seed", "wind_ned_mps", "gust_mps",
                               "spawn_jitter_m", "quantum", "drone"}, where_swarm)  # fmt: skip
     if "drones" not in swarm:
@@ -999,6 +1029,7 @@ def parse_mission(text: str, path: Path, *, max_obstacles: int | None = None) ->
             spacing_m=spacing,
             params=params,
             relay=neighbours.relay,
+            relay_scope=neighbours.relay_scope,
             mesh=neighbours.mesh,
             links=_links(reader, swarm.get("links", {})),
             behaviour=behaviour,

@@ -148,7 +148,7 @@ class MissionRunner:
             gust_mps=mission.swarm.gust_mps,
             spawn_jitter_m=mission.swarm.spawn_jitter_m,
         )
-        self.swarm = Swarm(plan, simulation.harness(plan), forward=forward, relay=mission.swarm.relay)
+        self.swarm = Swarm(plan, simulation.harness(plan), forward=forward, relay=mission.swarm.relayed)
         # Two bodies touch when their centres are closer than the sum of both collision radii.
         contact_distance = simulation.contact_distance_m(airframe)
         recording = FlightRecording(

@@ -18,6 +18,7 @@ from gcs.command.procedures import PaceWatch
 from gcs.command.streamer import DEFAULT_LIMITS, FormationStreamer
 from gcs.fleet.links import NeighbourPlan
 from gcs.fleet.losses import LossPolicy, loss_line, regain_line
+from gcs.fleet.relay import DEFAULT_RELAY_SCOPE
 from gcs.fleet.swarm import Swarm, SwarmError
 from gcs.flight.behaviours import Behaviour
 from gcs.flight.formation import TransitionLimits
@@ -54,7 +55,10 @@ class FlightSession:
         recording.requested_speed = self.pace.requested_speed
         recording.loss_policy = loss_policy.value
         recording.signing_key_id = swarm.signing_key_id
-        recording.neighbours = NeighbourPlan(relay=swarm.router.relay is not None, mesh=swarm.plan.mesh).describe()
+        relay = swarm.router.relay
+        scope = relay.scope if relay else DEFAULT_RELAY_SCOPE
+        plan = NeighbourPlan(relay=relay is not None, mesh=swarm.plan.mesh, relay_scope=scope)
+        recording.neighbours = plan.describe()
         self.recorder: FlightRecorder | None = None
         self.view: ViewFeed | None = None
         self.policy_taken = False  # a loss policy other than continue has taken the survivors out of the flight

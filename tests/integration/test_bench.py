@@ -123,7 +123,7 @@ def test_bench_measures_every_figure_for_each_swarm_size_and_leaves_nothing_behi
         assert row["lockstep_skew_samples"] > 0
         assert row["lockstep_skew_max_steps"] <= 1 and row["lockstep_skew_over_one"] == 0
         assert row["collisions_paced"] == 0 and row["collisions_lockstep"] == 0
-        assert row["relay_radius_m"] is None and row["circle_radius_m"] == 3.0
+        assert row["relay_scope"] == "reach" and row["circle_radius_m"] == 3.0
     assert doc["largest_n_real_time"].keys() == {"1", "2"}
     assert all(n in (None, 2) for n in doc["largest_n_real_time"].values())
 

@@ -38,7 +38,6 @@ from gcs.bench.scaling import (
     parse_drone_counts,
     percentile,
     proc_stat_cpu_ticks,
-    relay_radius_for,
     row_json,
     run_bench,
     spread,
@@ -217,10 +216,6 @@ def test_the_rotating_circle_fits_the_limits_the_bench_streams_it_with(n: int) -
         assert circle_limits(radius, 0.2) == DEFAULT_LIMITS
 
 
-def test_the_relay_radius_applies_only_above_20_drones() -> None:
-    assert relay_radius_for(20) is None and relay_radius_for(21) == 15.0
-
-
 # ------------------------------------------------------------------------------------------------ /proc parsing
 
 
@@ -310,7 +305,7 @@ def _row(n: int, rtf_paced: float, *, lockstep: bool = True, mode: int | str = 1
     lock = LockstepFigures(ready_s=1.0, window=_window(4.0, 35.0), skew_max_steps=1.0,
                            skew_over_one=0, skew_samples=80, collisions=0)  # fmt: skip
     hosts = n if mode == 1 else 2
-    return BenchRow(n_drones=n, circle_radius_m=3.0, relay_radius_m=None, bare_jsbsim_cpu_ms_per_sim_s=3.0,
+    return BenchRow(n_drones=n, circle_radius_m=3.0, relay_scope="reach", bare_jsbsim_cpu_ms_per_sim_s=3.0,
                     paced=paced, lockstep=lock if lockstep else None, drones_per_process=mode,  # type: ignore[arg-type]
                     hosts=hosts, drones_per_host=-(-n // hosts))  # fmt: skip
 
@@ -327,7 +322,7 @@ def test_a_row_holds_every_figure_and_each_cpu_figure_as_a_multiple_of_bare_jsbs
 
 def test_a_missing_run_is_null_in_json_and_a_dash_in_the_table() -> None:
     # GIVEN a row whose lockstep run failed
-    row = BenchRow(n_drones=3, circle_radius_m=3.0, relay_radius_m=None, bare_jsbsim_cpu_ms_per_sim_s=3.0,
+    row = BenchRow(n_drones=3, circle_radius_m=3.0, relay_scope="reach", bare_jsbsim_cpu_ms_per_sim_s=3.0,
                    paced=_row(3, 0.9).paced, errors=("lockstep: stalled",))  # fmt: skip
     out = row_json(row, RATE_HZ)
     # THEN its figures are null (valid JSON), the error is kept, and the table shows '-'

@@ -16,6 +16,7 @@ from gcs.cli import main as swarm_main
 from gcs.composition import launch_plan
 from gcs.fleet.harness import SpawnPlan
 from gcs.fleet.links import MeshPlan, NeighbourPlan
+from gcs.fleet.relay import RelayScope
 from gcs.missions.mission_file import MissionFileError, parse_mission
 from sitl.cli import build_parser as sitl_parser
 from sitl.cli import main as sitl_main
@@ -38,7 +39,7 @@ alt_m = 2.0
 
 def mission(swarm: str = "", tables: str = "") -> NeighbourPlan:
     parsed = parse_mission(MISSION.format(swarm=swarm, tables=tables), Path("m.toml")).swarm
-    return NeighbourPlan(relay=parsed.relay, mesh=parsed.mesh)
+    return NeighbourPlan(relay=parsed.relay, mesh=parsed.mesh, relay_scope=parsed.relay_scope)
 
 
 # ---- one set of rules, both sides ---------------------------------------------------------------------------------
@@ -99,6 +100,12 @@ def test_a_mission_chooses_the_relay_the_mesh_both_or_neither() -> None:
         ('neighbours = "mesh"', "[swarm.mesh]\nrange_m = -15\n", "m.toml:9: swarm.mesh.range_m: must be > 0, got -15"),
         ('neighbours = "mesh"', "[swarm.mesh]\nexponent = 0\n",
          "m.toml:9: swarm.mesh.exponent: must be in (0, 20], got 0"),
+        ('relay_scope = "nearest:0"', "",
+         "m.toml:4: swarm.relay_scope: nearest: the count must be a whole number of drones >= 1, got 0"),
+        ("relay_scope = 15", "", "m.toml:4: swarm.relay_scope: must be a string (reach, all, within:METRES or "
+         "nearest:COUNT), got 15"),
+        ('neighbours = "mesh"\nrelay_scope = "all"', "",
+         "m.toml:5: swarm.relay_scope: is set but there is no relay (neighbours = 'mesh')"),
         ('neighbours = "mesh"', "[swarm.mesh]\nrange = 15\n",
          "m.toml:9: swarm.mesh.range: unknown field (allowed: exponent, range_m)"),
     ],
@@ -109,6 +116,14 @@ def test_a_bad_or_contradictory_neighbours_setting_is_one_line_with_file_line_an
     with pytest.raises(MissionFileError) as caught:
         mission(swarm, tables)
     assert str(caught.value) == expected
+
+
+def test_a_mission_chooses_whom_the_relay_forwards_to() -> None:
+    assert mission().relay_scope == RelayScope()  # reach
+    assert mission('relay_scope = "within:12"').relay_scope == RelayScope(kind="within", radius_m=12.0)
+    both = mission('neighbours = "both"\nrelay_scope = "nearest:6"')
+    assert both.relay_scope == RelayScope(kind="nearest", count=6) and both.mesh == MeshPlan()
+    assert both.describe().startswith("relay (to the 6 nearest drones) and mesh")
 
 
 # ---- the options ---------------------------------------------------------------------------------------------------
@@ -130,9 +145,23 @@ def test_the_options_choose_the_mode_and_range_over_a_mission() -> None:
     assert _neighbour_plan(args, mesh_mission) == NeighbourPlan(relay=True, mesh=MeshPlan(range_m=30.0, exponent=2.0))
 
 
+def test_the_relay_scope_option_is_taken_over_a_missions() -> None:
+    assert options("--relay-scope", "all").relay_scope == RelayScope(kind="all")
+    args = build_parser().parse_args(["fly", "x.toml", "--relay-scope", "within:20"])
+    scoped = _neighbour_plan(args, NeighbourPlan(relay_scope=RelayScope(kind="nearest", count=3)))
+    assert scoped == NeighbourPlan(relay_scope=RelayScope(kind="within", radius_m=20.0))
+    args = build_parser().parse_args(["bench", "--relay-scope", "nearest:5"])
+    assert args.relay_scope == RelayScope(kind="nearest", count=5)
+    assert build_parser().parse_args(["bench"]).relay_scope == RelayScope()
+
+
 @pytest.mark.parametrize(
     ("argv", "line"),
     [
+        (["--relay-scope", "everyone"],
+         "swarm: error: argument --relay-scope: must be reach, all, within:METRES or nearest:COUNT, got 'everyone'"),
+        (["--neighbours", "mesh", "--relay-scope", "all"],
+         "swarm: error: --relay-scope needs the relay: --neighbours relay or both (or a mission that has it)"),
         (["--mesh-range-m", "-1"], "swarm: error: argument --mesh-range-m: range_m must be > 0, got -1"),
         (["--mesh-range-m", "far"], "swarm: error: argument --mesh-range-m: range_m must be a number, got 'far'"),
         (["--neighbours", "mesh", "--mesh-range-m", "inf"],
@@ -196,9 +225,10 @@ def test_a_bad_mesh_option_of_the_drone_is_one_line_and_exit_code_2(
 
 
 def test_the_report_names_the_way_neighbours_travelled() -> None:
-    assert NeighbourPlan().describe() == "relay"
+    assert NeighbourPlan().describe() == "relay (to drones within 15 m or closing to it within 5 s)"
     assert NeighbourPlan(relay=False, mesh=MeshPlan()).describe() == "mesh (range 15 m, path loss (d/range)^4)"
     assert NeighbourPlan(relay=True, mesh=MeshPlan(range_m=30.0, exponent=2.0)).describe() == (
-        "relay and mesh (range 30 m, path loss (d/range)^2)"
+        "relay (to drones within 15 m or closing to it within 5 s) and mesh (range 30 m, path loss (d/range)^2)"
     )
+    assert NeighbourPlan(relay_scope=RelayScope(kind="all")).describe() == "relay (to every drone)"
     assert NeighbourPlan(relay=False).describe() == "none (cameras only)"

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
+import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.fleet.relay import NeighbourRelay
+from gcs.fleet.relay import RELAY_REACH_HORIZON_S, RELAY_REACH_M, NeighbourRelay, RelayScope, relay_matrix
 from gcs.fleet.telemetry import Fleet
 from sitl.protocol.neighbours import NEIGHBOUR_TIMEOUT_S, NeighbourTable
 
@@ -45,13 +47,79 @@ def test_the_relay_forwards_to_every_other_live_system_rate_limited_and_within_r
     fleet = Fleet()
     for sysid, lat in ((1, 473977420), (2, 473977520), (3, 473987420)):  # 3 is about 111 m north
         heartbeat(fleet, sysid, 0.0, lat)
-    relay = NeighbourRelay(rate_hz=10.0)
+    relay = NeighbourRelay(rate_hz=10.0, scope=RelayScope(kind="all"))
     assert relay.targets(1, 0.0, fleet) == [2, 3]
     assert relay.targets(1, 0.05, fleet) == []  # a second report within 0.1 s is not forwarded
     assert relay.targets(1, 0.1, fleet) == [2, 3]
-    near = NeighbourRelay(rate_hz=10.0, radius_m=50.0)
+    near = NeighbourRelay(rate_hz=10.0, scope=RelayScope(kind="within", radius_m=50.0))
     assert near.targets(1, 0.0, fleet) == [2]
     assert relay.targets(2, 5.0, fleet) == []  # everyone else went silent: nobody to forward to
+
+
+def test_a_relay_scope_is_spelled_as_on_the_command_line_and_a_bad_one_is_one_line() -> None:
+    assert RelayScope.parse("reach") == RelayScope()
+    assert RelayScope.parse("all").kind == "all"
+    assert RelayScope.parse("within:12.5") == RelayScope(kind="within", radius_m=12.5)
+    assert RelayScope.parse("nearest:8") == RelayScope(kind="nearest", count=8)
+    for scope in ("reach", "all", "within:12.5", "nearest:8"):
+        assert RelayScope.parse(scope).text() == scope
+    for bad, says in (("near", "must be reach, all, within:METRES or nearest:COUNT, got 'near'"),
+                      ("within", "must be reach"), ("within:-3", "positive number of metres"),
+                      ("within:nan", "positive number"), ("nearest:0", "whole number of drones >= 1"),
+                      ("nearest:2.5", "'2.5' is not a number"), ("all:3", "must be reach")):  # fmt: skip
+        with pytest.raises(ValueError, match=says):
+            RelayScope.parse(bad)
+
+
+def _matrix(
+    scope: str, pos: list[tuple[float, float, float]], vel: list[tuple[float, float, float]]
+) -> list[list[int]]:
+    matrix = relay_matrix(RelayScope.parse(scope), np.array(pos, dtype=float), np.array(vel, dtype=float))
+    return [np.flatnonzero(row).tolist() for row in matrix]
+
+
+def test_reach_relays_to_drones_near_or_closing_in_and_not_to_far_ones_moving_alongside() -> None:
+    far = RELAY_REACH_M + 20.0
+    pos = [(0.0, 0.0, -5.0), (RELAY_REACH_M - 0.1, 0.0, -5.0), (far, 0.0, -5.0), (0.0, far, -5.0),
+           (math.nan, math.nan, math.nan)]  # fmt: skip
+    # 2 comes straight at 0 fast enough to be within reach inside the horizon; 3 flies alongside at the same speed
+    closing = 20.0 / RELAY_REACH_HORIZON_S + 0.5
+    vel = [(0.0, 5.0, 0.0), (0.0, 0.0, 0.0), (-closing, 5.0, 0.0), (0.0, 5.0, 0.0), (0.0, 0.0, 0.0)]
+    rows = _matrix("reach", pos, vel)
+    assert rows[0] == [1, 2, 4]  # near, closing, and one whose position is not known yet
+    assert rows[3] == [4]  # nobody near, nobody closing in (0 and 2 are 35 m away and not closing)
+    assert rows[4] == [0, 1, 2, 3]  # not known: sent everyone's
+    # the same drone flying away is not closing in
+    vel[2] = (closing, 5.0, 0.0)
+    assert _matrix("reach", pos, vel)[0] == [1, 4]
+
+
+def test_a_rotating_circle_relays_within_reach_only_and_all_relays_everything() -> None:
+    n, radius, rate = 60, 40.0, 0.2
+    angles = [2 * math.pi * k / n for k in range(n)]
+    pos = [(radius * math.cos(a), radius * math.sin(a), -5.0) for a in angles]
+    vel = [(-radius * rate * math.sin(a), radius * rate * math.cos(a), 0.0) for a in angles]
+    rows = _matrix("reach", pos, vel)
+    chord = [2 * radius * math.sin(abs(k) * math.pi / n) for k in range(1, n)]
+    within = sum(c <= RELAY_REACH_M for c in chord)
+    assert all(len(row) == within for row in rows)  # a rigid rotation closes in on nobody
+    assert within < n - 1
+    assert all(len(row) == n - 1 for row in _matrix("all", pos, vel))
+    assert all(len(row) == 4 for row in _matrix("nearest:4", pos, vel))
+    assert _matrix("nearest:2", pos, vel)[0] == [1, n - 1]
+    assert _matrix("within:5", pos, vel)[0] == [1, n - 1]  # neighbours on the circle are 4.2 m apart
+
+
+def test_the_relay_works_out_its_targets_once_a_period_and_reports_look_them_up() -> None:
+    fleet = Fleet()
+    for sysid, lat in ((1, 473977420), (2, 473977520), (3, 473987420)):  # 3 is about 111 m north
+        heartbeat(fleet, sysid, 0.0, lat)
+    relay = NeighbourRelay(rate_hz=10.0)  # reach
+    assert relay.targets(1, 0.0, fleet) == [2] and relay.targets(3, 0.0, fleet) == []
+    heartbeat(fleet, 3, 0.05, 473977620)  # 3 comes near; the plan of 0.0 still holds until 0.1 s
+    assert relay.targets(2, 0.05, fleet) == [1]
+    assert relay.targets(2, 0.15, fleet) == [1, 3]
+    assert relay.targets(99, 0.15, fleet) == [1, 2, 3]  # a system the plan has not placed: to everyone
 
 
 def test_the_relay_forwards_reports_a_late_pump_reads_together_but_holds_a_fast_source_to_its_rate() -> None:
