@@ -24,6 +24,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.avoidance.algorithm import new_obstacle as _new_obstacle
@@ -36,13 +37,11 @@ from sitl.perception.camera import (
     Body,
     CameraConfig,
     CameraRig,
-    Sphere,
     VerticalCylinder,
     render_rig,
-    render_rig_if_drawn,
     spheres,
 )
-from sitl.perception.detector import detect_rig, to_ned_all
+from sitl.perception.detector import rig_ned, sense_rig
 from sitl.protocol.images import EncodedImage
 from sitl.protocol.neighbours import Neighbour, NeighbourTable
 from sitl.world.shared import RADIUS, SharedWorld
@@ -154,27 +153,38 @@ class Awareness:
         self._prevention.set_relay(out)
 
     def _bodies(self) -> list[Body]:
-        """Every body the cameras could see now: the other drones within range and the static obstacles."""
+        """Every body the cameras could see now, as records (the images a reader asks for)."""
+        rows, cylinders = self._body_rows()
+        bodies: list[Body] = list(spheres(rows[:, :3], rows[:, 3]))
+        return bodies + list(cylinders)
+
+    def _body_rows(self) -> tuple[npt.NDArray[np.float64], list[VerticalCylinder]]:
+        """Every body the cameras could see now: the spheres as rows (NED offset, radius: the other drones within
+        range, then the mission's round obstacles) and the static cylinders."""
         assert self._world is not None
         rig = self._camera_rig()
         ids, offsets = others_ned_m(self._world, self._instance)
         radii = self._world.bodies[ids, RADIUS]  # each body its own size (an attached vehicle may be larger)
         # Drones beyond every camera's range (by more than rounding: the renderer measures the distance in each
         # camera's frame) would be culled by each camera in turn; in a large swarm most are, so they are left out
-        # before being built. A NaN row is kept, to be met as the renderer meets it.
+        # here. A NaN row is kept, to be met as the renderer meets it.
         reach_m = max(camera.config.max_range_m for camera in rig.cameras) + radii + _RANGE_MARGIN_M
-        far = np.einsum("ij,ij->i", offsets, offsets) > reach_m * reach_m
-        if far.any():
-            offsets, radii = offsets[~far], radii[~far]
-        bodies: list[Body] = list(spheres(offsets, radii))
+        near = ~(np.einsum("ij,ij->i", offsets, offsets) > reach_m * reach_m)
+        rows = np.empty((int(near.sum()), 4))
+        rows[:, :3] = offsets[near]
+        rows[:, 3] = radii[near]
+        cylinders: list[VerticalCylinder] = []
+        round_obstacles = []
         for ob in self._world.obstacles_from(self._instance):  # static obstacles the mission declared
             if ob.cylinder:
-                bodies.append(
+                cylinders.append(
                     VerticalCylinder(offset_ned_m=ob.offset_ned_m, radius_m=ob.radius_m, height_m=ob.height_m)
                 )
             else:
-                bodies.append(Sphere(offset_ned_m=ob.offset_ned_m, radius_m=ob.radius_m))
-        return bodies
+                round_obstacles.append((*ob.offset_ned_m, ob.radius_m))
+        if round_obstacles:
+            rows = np.concatenate((rows, np.array(round_obstacles, dtype=np.float64).reshape(-1, 4)))
+        return rows, cylinders
 
     def image(self, kind: int, quality: int) -> EncodedImage | None:
         """What the cameras see now, side by side, encoded for a MAVLink image request (sitl/protocol/images.py):
@@ -202,24 +212,24 @@ class Awareness:
         if est is None or not est.attitude_valid:
             return
         rig = self._camera_rig()
-        bodies = self._bodies()
+        rows, cylinders = self._body_rows()
         q_true = self._sim.truth.att_q_frd_to_ned
         self.frames += 1
+        # One pass per camera from the bodies to detection rows (sitl/perception/detector.py, ``sense_rig``): a
+        # camera that nothing reaches is neither formed nor searched, and one that something does only where it was
+        # drawn, with the detections of the whole frame (docs/perception.md, "Empty frames" and "One pass per
+        # camera"); frames being saved are formed whole.
+        saving = self._frames_dir is not None
+        n = sense_rig(rig, q_true, rows, cylinders, self._rng, self._radius_m, whole_frames=saving)
         if self._frames_dir is not None:
-            images = render_rig(rig, q_true, bodies, self._rng)
-            for image, camera in zip(images, rig.cameras, strict=True):
+            for camera in rig.cameras:
                 name = f"drone{self._instance}-{camera.config.name}-{now_s:09.3f}.png"
-                cv2.imwrite(str(self._frames_dir / name), image)
-            detections = detect_rig(images, rig, self._radius_m)
-        else:
-            # A camera that nothing reaches is neither composed nor searched: the detections are the same (none
-            # from it), and so is the noise of every later frame (docs/perception.md, "Empty frames").
-            detections = detect_rig(render_rig_if_drawn(rig, q_true, bodies, self._rng), rig, self._radius_m)
+                cv2.imwrite(str(self._frames_dir / name), camera.frame)
         radius = self._radius_m
         self._prevention.set_camera(
             [
                 _new_obstacle(rel_pos_ned_m=pos, radius_m=radius, source="camera")
-                for pos in to_ned_all(detections, est.att_q_frd_to_ned)
+                for pos in rig_ned(n, est.att_q_frd_to_ned)
             ],
             now_s,
         )

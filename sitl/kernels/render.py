@@ -27,7 +27,16 @@ P_CX = 1
 P_CY = 2
 P_CORNER_ANGLE = 3
 P_MAX_RANGE = 4
-PARAMS_SIZE = 5
+P_LEVEL = 5  # body level less background level: a fully covered pixel's grey above the noise
+P_THRESHOLD = 6  # grey level at or above which a pixel counts as covered (the detector's)
+PARAMS_SIZE = 7
+
+# A box a sphere was drawn in: columns u0, u1 (exclusive), v0, v1 (exclusive), pixels.
+B_U0 = 0
+B_U1 = 1
+B_V0 = 2
+B_V1 = 3
+BOX_SIZE = 4
 
 
 @kernel("UniTuple(float64, 3)(float64, float64)")
@@ -44,20 +53,24 @@ def sphere_silhouette(theta_rad: float, sin_alpha: float) -> tuple[float, float,
     )
 
 
-@kernel("boolean(float64[:, :], float64[::1], float64[:, ::1], float32[:, :, ::1], float32[:, ::1])")
+@kernel("int64(float64[:, :], float64[::1], float64[:, ::1], float32[:, :, ::1], float32[:, ::1], int64[:, ::1])")
 def draw_spheres(
     r_cam_ned: npt.NDArray[np.float64],
     params: npt.NDArray[np.float64],
     spheres: npt.NDArray[np.float64],
     rays: npt.NDArray[np.float32],
     transmittance: npt.NDArray[np.float32],
-) -> bool:
+    boxes: npt.NDArray[np.int64],
+) -> int:
     """Draw every sphere (rows: NED offset from the camera centre, radius) into ``transmittance`` (which the caller
     has filled with ones), with the camera frame's rotation from NED and the pixels' unit rays in the camera frame.
-    Whether any sphere may have covered a pixel (False only when each was culled before drawing)."""
+
+    Returns how many spheres were drawn (0 only when each was culled before drawing), and writes the box each was
+    drawn in to ``boxes`` (one row per drawn sphere, ``B_U0``.. ``B_V1``, at least as many rows as spheres): outside
+    them the transmittance is still one, which is what lets the frame be exposed and searched in them alone."""
     h, w = transmittance.shape
     f = params[P_FOCAL]
-    drawn = False
+    drawn = 0
     for i in range(spheres.shape[0]):
         n = spheres[i, 0]
         e = spheres[i, 1]
@@ -75,7 +88,11 @@ def draw_spheres(
             # Inside the body: it is all the camera sees. (A NaN offset lands here too and covers the frame, as
             # every pixel's clear fraction is NaN, and NaN is clipped to zero.)
             transmittance[:, :] = 0.0
-            drawn = True
+            boxes[drawn, B_U0] = 0
+            boxes[drawn, B_U1] = w
+            boxes[drawn, B_V0] = 0
+            boxes[drawn, B_V1] = h
+            drawn += 1
             continue
         if dist - radius > params[P_MAX_RANGE]:
             continue
@@ -121,5 +138,44 @@ def draw_spheres(
                 elif not clear > zero:
                     clear = zero
                 transmittance[v, u] *= clear
-        drawn = True
+        boxes[drawn, B_U0] = u0
+        boxes[drawn, B_U1] = u1
+        boxes[drawn, B_V0] = v0
+        boxes[drawn, B_V1] = v1
+        drawn += 1
     return drawn
+
+
+@kernel("int64(float32, int64, float64)")
+def exposed(clear: float, noise: int, level: float) -> int:
+    """One pixel's grey level: ``level`` times its covered fraction, rounded, plus its noise, saturated at 255.
+
+    As OpenCV composed it (``convertScaleAbs(transmittance, alpha=-level, beta=level)``, then a saturating ``add``)
+    on a CPU with fused multiply-adds: ``clear * -level + level`` rounded once to float32 (the product of a float32
+    and a grey level is exact in float64, and so is the sum for every clear fraction above 2^-23; below it the
+    result rounds to ``level`` whichever way), then to the nearest integer, halves to even. OpenCV itself rounds
+    twice on a CPU without them, so its frames depended on the CPU; this one does not."""
+    grey = np.float32(float(clear) * -level + level)
+    value = float(abs(grey))
+    whole = float(math.floor(value))
+    rest = value - whole
+    if rest > 0.5 or (rest == 0.5 and whole % 2.0 == 1.0):
+        whole += 1.0
+    grey_level = min(int(whole), 255) + noise
+    return grey_level if grey_level < 255 else 255
+
+
+@kernel("void(float32[:, ::1], uint8[:, ::1], int64, int64, float64, uint8[:, ::1])")
+def expose(
+    transmittance: npt.NDArray[np.float32],
+    noise_tile: npt.NDArray[np.uint8],
+    oy: int,
+    ox: int,
+    level: float,
+    frame: npt.NDArray[np.uint8],
+) -> None:
+    """The whole frame from the drawn transmittance and the window of the noise tile at (``oy``, ``ox``)."""
+    h, w = frame.shape
+    for v in range(h):
+        for u in range(w):
+            frame[v, u] = exposed(transmittance[v, u], noise_tile[oy + v, ox + u], level)

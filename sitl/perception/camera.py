@@ -31,6 +31,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from sitl.kernels import blobs as bk
+from sitl.kernels import frame as fk
 from sitl.kernels import render as rk
 from sitl.kernels.render import sphere_silhouette as sphere_silhouette  # one definition, here and in kernels
 from sitl.mathutil import fast_constructor, mat_mul, quat_to_dcm
@@ -152,31 +154,59 @@ def _noise_tile(seed: int, width_px: int, height_px: int, background_level: int,
 
 @dataclass(frozen=True, slots=True)
 class _Scratch:
-    """The image-sized buffers a frame is drawn, exposed and detected in, each rewritten whole by every use: the
-    transmittance and the canvas by each render, the binary image and the mask by each detection. A process renders
+    """The image-sized buffers a frame is drawn, exposed and searched in (sitl/kernels/frame.py). A process renders
     and detects one frame at a time, so its cameras of one size share one set (four cameras of 160x120 kept 0.5 MB
-    of them per drone)."""
+    of them per drone). Each frame undoes what the last one wrote in them (``dirty``: the boxes it wrote), so a
+    frame costs what it drew, not the image.
+
+    ``transmittance``: the fraction of each pixel's light that passes every body drawn (one where nothing was);
+    ``labels``: each pixel's blob (0: background); ``stack`` and ``blobs`` (a cell and a row per pixel, the most
+    there can be): the labelling's; ``points``: one blob's outer border (four points a pixel at most); ``boxes``:
+    where the spheres were drawn, a row per sphere (grown for a larger crowd, ``boxes_for``)."""
 
     transmittance: npt.NDArray[np.float32]
-    canvas: GrayImage
-    binary: GrayImage
-    mask: GrayImage
+    labels: npt.NDArray[np.int32]
+    stack: npt.NDArray[np.int32]
+    blobs: npt.NDArray[np.int64]
+    points: npt.NDArray[np.int32]
+    dirty: npt.NDArray[np.int64]
+    dirty_count: npt.NDArray[np.int64]
+    boxes: list[npt.NDArray[np.int64]]
+
+    def boxes_for(self, n_spheres: int) -> npt.NDArray[np.int64]:
+        """A box array with a row for each of ``n_spheres`` spheres (and one for the whole frame)."""
+        if self.boxes[0].shape[0] <= n_spheres:
+            self.boxes[0] = np.zeros((2 * n_spheres + 1, rk.BOX_SIZE), np.int64)
+        return self.boxes[0]
+
+
+# Boxes the scratch remembers to undo; a frame that drew in more is undone whole.
+_DIRTY_BOXES = 256
 
 
 @functools.cache
 def _scratch(width_px: int, height_px: int) -> _Scratch:
     shape = (height_px, width_px)
-    return _Scratch(transmittance=np.ones(shape, np.float32), canvas=np.zeros(shape, np.uint8),
-                    binary=np.zeros(shape, np.uint8), mask=np.zeros(shape, np.uint8))  # fmt: skip
+    pixels = width_px * height_px
+    return _Scratch(
+        transmittance=np.ones(shape, np.float32),
+        labels=np.zeros(shape, np.int32),
+        stack=np.zeros(pixels, np.int32),
+        blobs=np.zeros((pixels, bk.BLOB_SIZE), np.int64),
+        points=np.zeros((4 * pixels, 2), np.int32),
+        dirty=np.zeros((_DIRTY_BOXES, rk.BOX_SIZE), np.int64),
+        dirty_count=np.zeros(1, np.int64),
+        boxes=[np.zeros((64, rk.BOX_SIZE), np.int64)],
+    )
 
 
 class Camera:
     """One camera: its configuration, intrinsics, mount rotation and the buffers every frame reuses.
 
-    ``frame`` is overwritten by each ``render``; copy it to keep it. ``binary_scratch`` and ``mask_scratch`` belong
-    to the detector, so detecting in a frame allocates no image-sized arrays either; they, the transmittance and the
-    canvas are shared by every camera of the same size in the process (``_scratch``), the pixel rays by every camera
-    of the same intrinsics and the noise tile by every camera of the same seed.
+    ``frame`` is overwritten by each ``render`` (and by a detection pass that forms the whole frame); copy it to keep
+    it. The buffers a frame is drawn and searched in are shared by every camera of the same size in the process
+    (``scratch``), the pixel rays by every camera of the same intrinsics and the noise tile by every camera of the
+    same seed, so a frame allocates no image-sized array.
     """
 
     def __init__(self, config: CameraConfig) -> None:
@@ -198,18 +228,15 @@ class Camera:
         self.kernel_row[rk.P_CY] = self.cy_px
         self.kernel_row[rk.P_CORNER_ANGLE] = self.corner_angle_rad
         self.kernel_row[rk.P_MAX_RANGE] = config.max_range_m
-        scratch = _scratch(w, h)  # rewritten whole by each use: one set per image size in a process
-        # Fraction of each pixel's light that passes every body drawn so far (1 = background shows through).
-        self._transmittance = scratch.transmittance
-        self._canvas = scratch.canvas
+        self.kernel_row[rk.P_LEVEL] = config.body_level - config.background_level
+        self.kernel_row[rk.P_THRESHOLD] = config.threshold_level
+        self.scratch = _scratch(w, h)  # one set per image size in a process
         self._noise_tile = _noise_tile(config.noise_seed, w, h, config.background_level, config.pixel_noise_sigma)
         # A frame with no body drawn is a window of this tile; the detector counts pixels at or above the threshold,
         # so when the whole tile stays below it such a frame holds nothing to detect (with the default noise, 4
         # grey levels around 30 against a threshold of 115, by twenty standard deviations).
         self.noise_cannot_detect = int(self._noise_tile.max()) < config.threshold_level
         self.frame = np.zeros((h, w), np.uint8)  # the camera's own: it is kept (and saved) after the next render
-        self.binary_scratch = scratch.binary
-        self.mask_scratch = scratch.mask
 
     def camera_to_body(self, vec_cam: tuple[float, float, float]) -> tuple[float, float, float]:
         """A camera-frame vector in body FRD."""
@@ -267,8 +294,10 @@ def render(
     the fraction of it that no body covers (the product of each body's transmittance), which is what a near body
     in front of a far one looks like. Bodies of different brightness would have to be drawn far to near instead.
     """
-    _draw_bodies(camera, own_att_q_frd_to_ned, bodies)
-    return _expose(camera, rng)
+    dcm = quat_to_dcm(np.asarray(own_att_q_frd_to_ned, dtype=np.float64))
+    rows, cylinders = sphere_rows(bodies)
+    draw_bodies(camera, dcm, rows, cylinders)
+    return _expose(camera, dcm, rows, rng)
 
 
 def render_if_drawn(
@@ -278,32 +307,77 @@ def render_if_drawn(
     reach the detector's threshold (``Camera.noise_cannot_detect``): that frame is background noise in which the
     detector finds nothing, so it is neither composed nor looked at. The random offset of the noise is drawn all
     the same, so every later frame gets the noise it would have had."""
-    if not (bodies and _draw_bodies(camera, own_att_q_frd_to_ned, bodies)):
-        if camera.noise_cannot_detect:
-            _noise_offset(camera, rng)
-            return None
-        camera._transmittance.fill(1.0)  # nothing drawn (and with no body, not even cleared)
-    return _expose(camera, rng)
+    dcm = quat_to_dcm(np.asarray(own_att_q_frd_to_ned, dtype=np.float64))
+    rows, cylinders = sphere_rows(bodies)
+    if not draw_bodies(camera, dcm, rows, cylinders) and camera.noise_cannot_detect:
+        noise_offset(camera, rng)
+        return None
+    return _expose(camera, dcm, rows, rng)
 
 
-def _draw_bodies(camera: Camera, own_att_q_frd_to_ned: npt.ArrayLike, bodies: Sequence[Body]) -> bool:
-    """Draw every body into the camera's transmittance; whether any body may have covered a pixel (False only when
-    each was culled before drawing: beyond range, outside the field of view, or an empty bounding box)."""
-    camera._transmittance.fill(1.0)
-    if not bodies:
-        return False
-    r_cam_ned = mat_mul(camera.rot_body_cam.T, quat_to_dcm(np.asarray(own_att_q_frd_to_ned, dtype=np.float64)).T)
+def sphere_rows(bodies: Sequence[Body]) -> tuple[npt.NDArray[np.float64], list[VerticalCylinder]]:
+    """The spheres as the kernels take them (rows: NED offset, radius; in the order given) and the cylinders."""
     rows = [(*b.offset_ned_m, b.radius_m) for b in bodies if isinstance(b, Sphere)]
-    drawn = bool(rows) and rk.draw_spheres(
-        r_cam_ned, camera.kernel_row, np.array(rows, dtype=np.float64), camera._rays, camera._transmittance
+    cylinders = [b for b in bodies if isinstance(b, VerticalCylinder)]
+    return np.array(rows, dtype=np.float64).reshape(-1, 4), cylinders
+
+
+def draw_bodies(
+    camera: Camera,
+    dcm: npt.NDArray[np.float64],
+    spheres_ned: npt.NDArray[np.float64],
+    cylinders: Sequence[VerticalCylinder],
+) -> bool:
+    """Draw every body into the camera's transmittance, from the whole frame up (a frame with a cylinder, which
+    OpenCV fills as a polygon, and the images a reader asks for); whether any body may have covered a pixel (False
+    only when each was culled before drawing: beyond range, outside the field of view, or an empty bounding box).
+    A detection pass without cylinders draws inside its one call instead (``frame_pass``)."""
+    scratch = camera.scratch
+    scratch.transmittance.fill(1.0)
+    r_cam_ned = mat_mul(camera.rot_body_cam.T, dcm.T)
+    boxes = scratch.boxes_for(len(spheres_ned))
+    drawn = (
+        len(spheres_ned) > 0
+        and rk.draw_spheres(r_cam_ned, camera.kernel_row, spheres_ned, camera._rays, scratch.transmittance, boxes) > 0
     )
-    for body in bodies:
-        if isinstance(body, VerticalCylinder):
-            drawn = _draw_cylinder(camera, r_cam_ned, body) or drawn
+    for body in cylinders:
+        drawn = _draw_cylinder(camera, r_cam_ned, body) or drawn
     return drawn
 
 
-def _noise_offset(camera: Camera, rng: np.random.Generator) -> tuple[int, int]:
+_NO_ROWS = np.zeros((0, 0))
+
+
+def frame_pass(
+    camera: Camera,
+    mode: int,
+    dcm: npt.NDArray[np.float64],
+    spheres_ned: npt.NDArray[np.float64],
+    noise_at: tuple[int, int],
+    *,
+    detect: bool = False,
+    radius_m: float = 0.0,
+    min_area_px: int = 0,
+    camera_index: int = 0,
+    rows: npt.NDArray[np.float64] = _NO_ROWS,
+    n_rows: int = 0,
+    frame: GrayImage | None = None,
+) -> int:
+    """One call of sitl/kernels/frame.py's ``camera_pass`` with this camera's buffers (its docstring says what the
+    modes and the result are); ``frame`` is the image to search in ``MODE_IMAGE`` (else the camera's own)."""
+    scratch = camera.scratch
+    return int(
+        fk.camera_pass(
+            mode, detect, dcm, camera.rot_body_cam, camera.kernel_row, spheres_ned, camera._rays,
+            scratch.transmittance, camera._noise_tile, noise_at[0], noise_at[1],
+            camera.frame if frame is None else frame, scratch.labels,
+            scratch.stack, scratch.blobs, scratch.points, scratch.boxes_for(len(spheres_ned)), scratch.dirty,
+            scratch.dirty_count, radius_m, min_area_px, camera_index, rows, n_rows,
+        )
+    )  # fmt: skip
+
+
+def noise_offset(camera: Camera, rng: np.random.Generator) -> tuple[int, int]:
     """Where this frame's noise is cut from the camera's tile. Two scalar draws give the same numbers and leave
     ``rng`` in the same state as one draw with the bounds as an array (numpy draws each element on its own;
     tests/unit/test_camera.py holds it to that), at a third of the cost: 6 against 16 us, four cameras at 15 Hz."""
@@ -312,14 +386,11 @@ def _noise_offset(camera: Camera, rng: np.random.Generator) -> tuple[int, int]:
     return oy, ox
 
 
-def _expose(camera: Camera, rng: np.random.Generator) -> GrayImage:
+def _expose(
+    camera: Camera, dcm: npt.NDArray[np.float64], spheres_ned: npt.NDArray[np.float64], rng: np.random.Generator
+) -> GrayImage:
     """The frame from the drawn transmittance: body level where covered, background plus noise elsewhere."""
-    cfg = camera.config
-    level = float(cfg.body_level - cfg.background_level)
-    cv2.convertScaleAbs(camera._transmittance, dst=camera._canvas, alpha=-level, beta=level)
-    h, w = cfg.height_px, cfg.width_px
-    oy, ox = _noise_offset(camera, rng)
-    cv2.add(camera._canvas, camera._noise_tile[oy : oy + h, ox : ox + w], dst=camera.frame)
+    frame_pass(camera, fk.MODE_DRAWN, dcm, spheres_ned, noise_offset(camera, rng))
     return camera.frame
 
 
@@ -365,7 +436,7 @@ def _draw_cylinder(camera: Camera, r_cam_ned: npt.NDArray[np.float64], body: Ver
     if math.hypot(out_h, out_v) > camera.config.max_range_m:
         return False
     if out_h == 0.0 and out_v == 0.0:
-        camera._transmittance.fill(0.0)
+        camera.scratch.transmittance.fill(0.0)
         return True
     ring = np.column_stack((n + body.radius_m * _RING[:, 0], e + body.radius_m * _RING[:, 1]))
     top = np.column_stack((ring, np.full(_CYLINDER_SIDES, d - half_h)))
@@ -383,5 +454,5 @@ def _draw_cylinder(camera: Camera, r_cam_ned: npt.NDArray[np.float64], body: Ver
     scale = float(1 << _SHIFT_BITS)
     uv = np.column_stack((camera.cx_px + f * kept[:, 1] / kept[:, 0], camera.cy_px + f * kept[:, 2] / kept[:, 0]))
     hull = cv2.convexHull(np.rint(uv * scale).astype(np.int32))
-    cv2.fillConvexPoly(camera._transmittance, hull, 0.0, cv2.LINE_8, _SHIFT_BITS)
+    cv2.fillConvexPoly(camera.scratch.transmittance, hull, 0.0, cv2.LINE_8, _SHIFT_BITS)
     return True

@@ -43,24 +43,27 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from sitl.kernels import blobs as bk
 from sitl.kernels import detector as dk
+from sitl.kernels import frame as fk
 from sitl.mathutil import fast_constructor, quat_to_dcm
-from sitl.perception.camera import Camera, CameraRig, GrayImage, sphere_silhouette
+from sitl.perception.camera import (
+    Camera,
+    CameraRig,
+    GrayImage,
+    VerticalCylinder,
+    draw_bodies,
+    frame_pass,
+    noise_offset,
+    sphere_silhouette,
+)
 
-# A blob of this many pixels or more is checked for being two bodies; below it pixelation alone makes shapes vary.
-_MERGE_CHECK_MIN_AREA_PX = 30
-# Measured elongation beyond this multiple of one sphere's elongation means several bodies.
-_MERGE_ELONGATION_RATIO = 1.25
 # The nearest body of a merged blob covers at least this share of it (half, less pixelation and fit error).
 _NEAREST_MIN_SHARE = 0.45
 # The remainder of a merged blob is a body when at least this fraction of the near body's area.
 _REMAINDER_MIN_FRACTION = 0.05
-# A blob cut by the top or bottom border and at least this many times taller than wide is an upright structure.
-_UPRIGHT_ASPECT = 2.0
-# Detections from two cameras of a rig closer than this (or than the larger angular radius) are one body.
-_DUPLICATE_ANGLE_RAD = math.radians(3.0)
-# A pair whose cosine is this far below a threshold's cosine is apart whatever the last bits of either.
-_COSINE_MARGIN = 1e-9
+# A frame's detections are found in OpenCV's order of blobs, then sorted; rows a rig pass starts with (it grows).
+_ROWS_START = 64
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -127,16 +130,6 @@ def _make(
 
 def _normalised(camera: Camera, u: float, v: float) -> float:
     return dk.normalised(camera.kernel_row, u, v)
-
-
-def _elongation(m: dict[str, float]) -> float:
-    """Major over minor axis of a pixel set from its central moments (less the 1/12 px^2 each pixel adds)."""
-    area = m["m00"]
-    mu20, mu02, mu11 = m["mu20"] / area, m["mu02"] / area, m["mu11"] / area
-    mean = (mu20 + mu02) / 2.0
-    half_diff = math.hypot((mu20 - mu02) / 2.0, mu11)
-    major, minor = mean + half_diff - 1.0 / 12.0, mean - half_diff - 1.0 / 12.0
-    return math.sqrt(major / minor) if minor > 0.0 else math.inf
 
 
 def _fit_cone(
@@ -239,37 +232,98 @@ def _split_merged(
     return found
 
 
-def _truncated(
-    camera: Camera, contour: npt.NDArray[Any], centroid_px: tuple[float, float], area_px: int, radius_m: float
-) -> Detection:
-    """A blob cut by the image border: fit the sphere's cone to the part of its outline inside the frame; when
-    that arc is too short, fall back to the visible centroid and the larger of the area-equivalent radius and half
-    the extent along the cut border (both only bound the body from one side)."""
-    cfg = camera.config
-    w, h = cfg.width_px, cfg.height_px
-    u, v = centroid_px
-    x, y, bw, bh = cv2.boundingRect(contour)
-    if (y == 0 or y + bh == h) and x > 0 and x + bw < w and bh >= _UPRIGHT_ASPECT * bw:
-        # Cut by the top or bottom only, and much taller than wide: something upright that leaves the frame (a
-        # pole), not a sphere cut by the border (whose visible cap is wider than tall). Its outline is two straight
-        # edges with no arc to fit, and its area says only how much of it the frame holds: the width is the one
-        # size cue, read with the body-size prior. A pole thinner than a drone
-        # reads a little far (0.25 m at 6 m reads 8.4 m); the area or a cone fitted to the straight edges read it
-        # at 1-2 m wherever it was, so a camera that kept it in view (the side cameras of the omni rig) steered away
-        # from it for as long as it saw it.
-        vec = _ray(camera, u, v, math.atan(_normalised(camera, u, v)))  # the centroid's own direction
-        return _make(camera, centroid_px, vec, math.atan((bw / 2.0) / camera.focal_px), area_px, radius_m,
-                     truncated=True, merged=False)  # fmt: skip
-    half_extent = max(bh if x == 0 or x + bw == w else 0, bw if y == 0 or y + bh == h else 0) / 2.0
-    b_px = max(math.sqrt(area_px / math.pi), half_extent)
-    theta, alpha, _, _ = _solve_sphere(_normalised(camera, u, v), b_px / camera.focal_px, by_area=False)
-    vec = _ray(camera, u, v, theta)
-    pts = contour[:, 0, :]
-    inner = pts[(pts[:, 0] > 0) & (pts[:, 0] < w - 1) & (pts[:, 1] > 0) & (pts[:, 1] < h - 1)].astype(np.float64)
-    fitted = _fit_cone(camera, inner, vec, alpha, select=False) if len(inner) >= 8 else None
-    if fitted is not None:
-        vec, alpha = fitted
-    return _make(camera, centroid_px, vec, alpha, area_px, radius_m, truncated=True, merged=False)
+def _detection(row: list[float], camera_name: str) -> Detection:
+    """The record of a detection row (sitl/kernels/detector.py, ``R_*``), built only for a reader that wants one."""
+    return _new_detection(
+        camera_name=camera_name,
+        centroid_px=(row[dk.R_U], row[dk.R_V]),
+        area_px=int(row[dk.R_AREA]),
+        azimuth_rad=row[dk.R_AZIMUTH],
+        elevation_rad=row[dk.R_ELEVATION],
+        unit_frd=(row[dk.R_FRD_X], row[dk.R_FRD_Y], row[dk.R_FRD_Z]),
+        range_m=row[dk.R_RANGE],
+        angular_radius_rad=row[dk.R_ALPHA],
+        truncated=row[dk.R_TRUNCATED] != 0.0,
+        merged=row[dk.R_MERGED] != 0.0,
+    )
+
+
+def _row(detection: Detection, camera_index: int) -> list[float]:
+    """A detection's row, as the kernels take it."""
+    row = [0.0] * dk.ROW_SIZE
+    row[dk.R_CAMERA] = camera_index
+    row[dk.R_U], row[dk.R_V] = detection.centroid_px
+    row[dk.R_AREA] = detection.area_px
+    row[dk.R_AZIMUTH], row[dk.R_ELEVATION] = detection.azimuth_rad, detection.elevation_rad
+    row[dk.R_FRD_X], row[dk.R_FRD_Y], row[dk.R_FRD_Z] = detection.unit_frd
+    row[dk.R_RANGE], row[dk.R_ALPHA] = detection.range_m, detection.angular_radius_rad
+    row[dk.R_TRUNCATED], row[dk.R_MERGED] = float(detection.truncated), float(detection.merged)
+    row[dk.R_BLOB] = -1.0
+    return row
+
+
+class _Rows:
+    """The detection rows of the frame being searched, for the whole process (it searches one frame at a time, as
+    it shares the image buffers: camera.py, ``_scratch``): grown when a frame holds more blobs than ever before."""
+
+    table = np.zeros((_ROWS_START, dk.ROW_SIZE))
+    kept = np.zeros(_ROWS_START, np.int64)
+    ned = np.zeros((_ROWS_START, 3))
+
+    @classmethod
+    def grow(cls, keep: int) -> None:
+        """Twice the room, the first ``keep`` rows kept."""
+        size = 2 * cls.table.shape[0]
+        table = np.zeros((size, dk.ROW_SIZE))
+        table[:keep] = cls.table[:keep]
+        cls.table, cls.kept, cls.ned = table, np.zeros(size, np.int64), np.zeros((size, 3))
+
+
+_IDENTITY = np.eye(3)
+_NO_SPHERES = np.zeros((0, 4))
+
+
+def _camera_rows(
+    camera: Camera,
+    camera_index: int,
+    mode: int,
+    dcm: npt.NDArray[np.float64],
+    spheres_ned: npt.NDArray[np.float64],
+    noise_at: tuple[int, int],
+    n_rows: int,
+    radius_m: float,
+    min_area_px: int,
+    image: GrayImage | None = None,
+) -> int:
+    """One camera's frame formed and searched (sitl/kernels/frame.py), its rows appended to ``_Rows.table`` after
+    ``n_rows``; returns the new count (``n_rows`` when ``MODE_BOX`` drew nothing). A blob found merged is split
+    here (the one part of the detector still in Python and OpenCV, for the few blobs that need it)."""
+    while True:
+        got = frame_pass(camera, mode, dcm, spheres_ned, noise_at, detect=True, radius_m=radius_m,
+                         min_area_px=min_area_px, camera_index=camera_index, rows=_Rows.table, n_rows=n_rows,
+                         frame=image)  # fmt: skip
+        if got != dk.ROWS_FULL:
+            break
+        _Rows.grow(n_rows)  # the pass undoes its own writes first, so it is run again from the top
+    if got < 0:
+        return n_rows
+    if not _Rows.table[n_rows:got, dk.R_SPLIT].any():
+        return got
+    found: list[list[float]] = []
+    for row in _Rows.table[n_rows:got].tolist():
+        if row[dk.R_SPLIT] == 0.0:
+            found.append(row)
+            continue
+        blob = camera.scratch.blobs[int(row[dk.R_BLOB])]
+        x0, y0, x1, y1 = int(blob[bk.K_U0]), int(blob[bk.K_V0]), int(blob[bk.K_U1]), int(blob[bk.K_V1])
+        mask = np.where(camera.scratch.labels[y0:y1, x0:x1] == blob[bk.K_LABEL], 255, 0).astype(np.uint8)
+        whole = _detection(row, camera.config.name)
+        parts = _split_merged(camera, mask, x0, y0, radius_m, min_area_px, whole)
+        found.extend(_row(part, camera_index) for part in parts)
+    while _Rows.table.shape[0] < n_rows + len(found):
+        _Rows.grow(n_rows)
+    _Rows.table[n_rows : n_rows + len(found)] = found
+    return n_rows + len(found)
 
 
 def detect(image: GrayImage, camera: Camera, known_body_radius_m: float, *, min_area_px: int = 3) -> list[Detection]:
@@ -278,54 +332,16 @@ def detect(image: GrayImage, camera: Camera, known_body_radius_m: float, *, min_
     ``known_body_radius_m`` is the prior on a body's size (a drone's collision radius); ``min_area_px`` rejects
     specks smaller than a drone at the camera's maximum range would be.
     """
-    cfg = camera.config
-    h, w = cfg.height_px, cfg.width_px
-    binary = camera.binary_scratch
-    cv2.threshold(image, cfg.threshold_level - 1, 255, cv2.THRESH_BINARY, dst=binary)
-    contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    boxes = [cv2.boundingRect(c) for c in contours]
-    f = camera.focal_px
-    found: list[Detection] = []
-    for i, (contour, (x, y, bw, bh)) in enumerate(zip(contours, boxes, strict=True)):
-        roi: GrayImage = binary[y : y + bh, x : x + bw]
-        if any(
-            j != i and x < ox + ow and ox < x + bw and y < oy + oh and oy < y + bh
-            for j, (ox, oy, ow, oh) in enumerate(boxes)
-        ):
-            # Another blob reaches into this one's box: count only this blob's pixels.
-            mask = camera.mask_scratch[y : y + bh, x : x + bw]
-            mask.fill(0)
-            cv2.drawContours(mask, [contour], -1, 255, -1, offset=(-x, -y))
-            cv2.bitwise_and(mask, roi, dst=mask)
-            roi = mask
-        m = cv2.moments(roi, True)
-        area = m["m00"]
-        if area < min_area_px:
-            continue
-        u, v = x + m["m10"] / area, y + m["m01"] / area
-        truncated = x == 0 or y == 0 or x + bw == w or y + bh == h
-        c_n = _normalised(camera, u, v)
-        if truncated:
-            found.append(_truncated(camera, contour, (u, v), int(area), known_body_radius_m))
-            continue
-        theta, alpha, a_n, b_n = _solve_sphere(c_n, area / (f * f), by_area=True)
-        merged = area >= _MERGE_CHECK_MIN_AREA_PX and _elongation(m) > _MERGE_ELONGATION_RATIO * a_n / b_n
-        single = _make(
-            camera,
-            (u, v),
-            _ray(camera, u, v, theta),
-            alpha,
-            int(area),
-            known_body_radius_m,
-            truncated=False,
-            merged=merged,
-        )
-        if merged:
-            found.extend(_split_merged(camera, roi, x, y, known_body_radius_m, min_area_px, single))
-        else:
-            found.append(single)
+    n = _image_rows(image, camera, 0, 0, known_body_radius_m, min_area_px)
+    found = [_detection(row, camera.config.name) for row in _Rows.table[:n].tolist()]
     found.sort(key=lambda det: det.area_px, reverse=True)
     return found
+
+
+def _image_rows(image: GrayImage, camera: Camera, index: int, n_rows: int, radius_m: float, min_area_px: int) -> int:
+    """``_camera_rows`` of an image given to the detector (thresholded and searched whole, left untouched)."""
+    return _camera_rows(camera, index, fk.MODE_IMAGE, _IDENTITY, _NO_SPHERES, (0, 0), n_rows, radius_m, min_area_px,
+                        np.ascontiguousarray(image, dtype=np.uint8))  # fmt: skip
 
 
 def detect_rig(
@@ -334,43 +350,60 @@ def detect_rig(
     """Detections of every camera of a rig; a body seen by two overlapping cameras is kept once, preferring the
     view where it is whole (not truncated), then the larger one. None stands for a frame known to hold nothing
     (``render_rig_if_drawn``)."""
-    found = [
-        det
-        for image, camera in zip(images, rig.cameras, strict=True)
-        if image is not None
-        for det in detect(image, camera, known_body_radius_m, min_area_px=min_area_px)
-    ]
-    found.sort(key=lambda det: (det.truncated, -det.area_px))
-    kept: list[Detection] = []
-    # Per kept detection: its camera, direction, and the cosine of the largest angle it alone would call the same
-    # body. Two are one body when the angle between them is below the larger of both thresholds: when the cosine of
-    # that angle is clearly below the smaller of both cosines (by far more than rounding), the arc cosine is not
-    # needed to say no, and most pairs in a crowd are far apart.
-    seen: list[tuple[str, float, float, float, float]] = []
-    for det in found:
-        ax, ay, az = det.unit_frd
-        own_cos = math.cos(max(_DUPLICATE_ANGLE_RAD, det.angular_radius_rad))
-        duplicate = False
-        for (name, bx, by, bz, other_cos), other in zip(seen, kept, strict=True):
-            if name == det.camera_name:
-                continue
-            dot = bx * ax + by * ay + bz * az  # as ``_angle_between`` computes it
-            if dot < min(own_cos, other_cos) - _COSINE_MARGIN:
-                continue
-            if _angle_between(other.unit_frd, det.unit_frd) < max(
-                _DUPLICATE_ANGLE_RAD, other.angular_radius_rad, det.angular_radius_rad
-            ):
-                duplicate = True
-                break
-        if not duplicate:
-            kept.append(det)
-            seen.append((det.camera_name, ax, ay, az, own_cos))
-    return kept
+    n = 0
+    for index, (image, camera) in enumerate(zip(images, rig.cameras, strict=True)):
+        if image is not None:
+            n = _image_rows(image, camera, index, n, known_body_radius_m, min_area_px)
+    k = dk.rig_keep(_Rows.table, n, _Rows.kept)
+    rows = _Rows.table.tolist()
+    return [_detection(rows[i], rig.cameras[int(rows[i][dk.R_CAMERA])].config.name) for i in _Rows.kept[:k].tolist()]
 
 
-def _angle_between(a: tuple[float, float, float], b: tuple[float, float, float]) -> float:
-    dot = a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-    return math.acos(max(-1.0, min(1.0, dot)))
+def sense_rig(
+    rig: CameraRig,
+    own_att_q_frd_to_ned: npt.ArrayLike,
+    spheres_ned: npt.NDArray[np.float64],
+    cylinders: Sequence[VerticalCylinder],
+    rng: np.random.Generator,
+    known_body_radius_m: float,
+    *,
+    whole_frames: bool = False,
+    min_area_px: int = 3,
+) -> int:
+    """A drone's camera frame, every camera of its rig formed and searched from the TRUE attitude and the bodies
+    (``spheres_ned``: NED offset and radius per row, as ``sphere_rows`` gives them; cylinders drawn by OpenCV);
+    returns how many detection rows it left in the process's row table for ``rig_ned``.
+
+    Each camera draws its noise offset, formed or not, so the noise of every later frame is what it would have
+    been. Where the camera's noise cannot reach the threshold, the frame is exposed and searched only in the boxes
+    its spheres were drawn in (sitl/kernels/frame.py, ``MODE_BOX``; nothing at all when none was drawn), with the
+    same detections as the whole frame gives; ``whole_frames`` forms every frame whole into ``camera.frame`` (to
+    save it), as does a camera whose noise could reach the threshold."""
+    dcm = quat_to_dcm(np.asarray(own_att_q_frd_to_ned, dtype=np.float64))
+    n = 0
+    for index, camera in enumerate(rig.cameras):
+        if cylinders:
+            drawn = draw_bodies(camera, dcm, spheres_ned, cylinders)
+            noise_at = noise_offset(camera, rng)
+            if drawn or whole_frames or not camera.noise_cannot_detect:
+                n = _camera_rows(camera, index, fk.MODE_DRAWN, dcm, spheres_ned, noise_at, n, known_body_radius_m,
+                                 min_area_px)  # fmt: skip
+            continue
+        mode = fk.MODE_BOX if camera.noise_cannot_detect and not whole_frames else fk.MODE_FULL
+        noise_at = noise_offset(camera, rng)
+        n = _camera_rows(camera, index, mode, dcm, spheres_ned, noise_at, n, known_body_radius_m, min_area_px)
+    return n
+
+
+def rig_ned(n_rows: int, own_att_q_frd_to_ned: npt.ArrayLike) -> list[tuple[float, float, float]]:
+    """The bodies of the last ``sense_rig``'s rows, each seen by two cameras kept once (as ``detect_rig``), relative
+    to the drone in NED metres, rotated by its ESTIMATED attitude: the figures ``to_ned_all(detect_rig(...))``
+    gives, to the bit, with no record built."""
+    k = dk.rig_keep(_Rows.table, n_rows, _Rows.kept)
+    if k == 0:
+        return []
+    dk.to_ned(_Rows.table, _Rows.kept, k, quat_to_dcm(np.asarray(own_att_q_frd_to_ned, dtype=np.float64)), _Rows.ned)
+    return [(n, e, d) for n, e, d in _Rows.ned[:k].tolist()]
 
 
 def to_ned_all(
