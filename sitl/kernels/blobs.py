@@ -92,12 +92,14 @@ def label(
                     suu += pu * pu
                     suv += pu * pv
                     svv += pv * pv
-                    for k in range(8):
-                        qu, qv = pu + _DU[k], pv + _DV[k]
-                        if 0 <= qu < w and 0 <= qv < h and labels[qv, qu] == UNLABELLED:
-                            labels[qv, qu] = n
-                            stack[top] = qv * w + qu
-                            top += 1
+                    # The 8 neighbours, in any order: a blob's pixels, its box, first pixel and sums do not
+                    # depend on the order it is walked in.
+                    for qv in range(max(pv - 1, 0), min(pv + 2, h)):
+                        for qu in range(max(pu - 1, 0), min(pu + 2, w)):
+                            if labels[qv, qu] == UNLABELLED:
+                                labels[qv, qu] = n
+                                stack[top] = qv * w + qu
+                                top += 1
                 row = blobs[n - 1]
                 row[K_START] = start
                 row[K_U0], row[K_V0], row[K_U1], row[K_V1] = u0, v0, u1, v1

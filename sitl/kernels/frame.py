@@ -103,7 +103,9 @@ def camera_pass(
         for b in range(n_boxes):
             for v in range(boxes[b, B_V0], boxes[b, B_V1]):
                 for u in range(boxes[b, B_U0], boxes[b, B_U1]):
-                    if exposed(transmittance[v, u], noise_tile[oy + v, ox + u], level) >= threshold:
+                    # A pixel no sphere covered shows its noise alone, below the threshold (the mode's premise).
+                    clear = transmittance[v, u]
+                    if clear != 1.0 and exposed(clear, noise_tile[oy + v, ox + u], level) >= threshold:
                         labels[v, u] = UNLABELLED
         if n_boxes <= dirty.shape[0]:
             dirty[:n_boxes] = boxes[:n_boxes]

@@ -155,13 +155,13 @@ def exposed(clear: float, noise: int, level: float) -> int:
     and a grey level is exact in float64, and so is the sum for every clear fraction above 2^-23; below it the
     result rounds to ``level`` whichever way), then to the nearest integer, halves to even. OpenCV itself rounds
     twice on a CPU without them, so its frames depended on the CPU; this one does not."""
-    grey = np.float32(float(clear) * -level + level)
-    value = float(abs(grey))
-    whole = float(math.floor(value))
-    rest = value - whole
-    if rest > 0.5 or (rest == 0.5 and whole % 2.0 == 1.0):
-        whole += 1.0
-    grey_level = min(int(whole), 255) + noise
+    if clear == 1.0:
+        return noise  # nothing covers the pixel: its grey is exactly zero
+    grey = abs(float(np.float32(float(clear) * -level + level)))
+    whole = math.floor(grey + 0.5)  # exact: grey is a float32 below 256
+    if whole - grey == 0.5 and whole % 2 == 1:
+        whole -= 1  # a tie goes to the even neighbour
+    grey_level = min(whole, 255) + noise
     return grey_level if grey_level < 255 else 255
 
 
