@@ -48,6 +48,10 @@ _ORIGIN_ITERATIONS = 4  # each fixed-point step shrinks the error by ~d / R; 4 i
 
 
 def _as_vec3(values: Sequence[float] | npt.ArrayLike, what: str) -> Vec3:
+    if type(values) is tuple and len(values) == 3:  # the common case, every setpoint of every drone: no array
+        x, y, z = float(values[0]), float(values[1]), float(values[2])
+        if math.isfinite(x) and math.isfinite(y) and math.isfinite(z):
+            return (x, y, z)
     arr = np.asarray(values, dtype=np.float64).reshape(-1)
     if arr.shape != (3,) or not np.all(np.isfinite(arr)):
         raise ValueError(f"{what} must be three finite numbers, got {values!r}")
@@ -66,6 +70,18 @@ def _ned_from_ecef_matrix(origin: GeoPoint) -> npt.NDArray[np.float64]:
             (-cl * co, -cl * so, -sl),
         )
     )
+
+
+Rows = tuple[Vec3, Vec3, Vec3]
+
+
+def _rotate(rows: Rows, v: Vec3) -> Vec3:
+    """``mat_mul(rows, v)`` to the bit, signed zeros included, in floats: numpy's sum along a row of three adds
+    them to 0.0 one by one, as here. A setpoint's velocity and acceleration are rotated for every drone at every
+    tick, and two small arrays a call cost more than the rotation."""
+    x, y, z = v
+    (a, b, c), (d, e, f), (g, h, i) = rows
+    return (0.0 + a * x + b * y + c * z, 0.0 + d * x + e * y + f * z, 0.0 + g * x + h * y + i * z)
 
 
 class SwarmFrame:
@@ -97,13 +113,15 @@ class SwarmFrame:
 class DroneFrame:
     """One drone's local NED frame (anchored at its own origin) seen from the swarm frame."""
 
-    __slots__ = ("_local", "_local_from_swarm", "_origin", "_swarm")
+    __slots__ = ("_local", "_local_from_swarm", "_origin", "_swarm", "_swarm_from_local")
 
     def __init__(self, swarm: SwarmFrame, drone_origin: GeoPoint) -> None:
         self._swarm = swarm
         self._origin = drone_origin
         self._local = NedFrame(drone_origin)
-        self._local_from_swarm = mat_mul(_ned_from_ecef_matrix(drone_origin), _ned_from_ecef_matrix(swarm.origin).T)
+        rotation = mat_mul(_ned_from_ecef_matrix(drone_origin), _ned_from_ecef_matrix(swarm.origin).T)
+        self._local_from_swarm = _rows(rotation)
+        self._swarm_from_local = _rows(rotation.T)
 
     @property
     def origin(self) -> GeoPoint:
@@ -125,13 +143,16 @@ class DroneFrame:
 
     def vector_to_local(self, swarm_vec: Sequence[float] | npt.ArrayLike) -> Vec3:
         """A free vector (velocity, acceleration) from swarm NED axes to the drone's NED axes."""
-        v = mat_mul(self._local_from_swarm, _as_vec3(swarm_vec, "swarm NED vector"))
-        return (float(v[0]), float(v[1]), float(v[2]))
+        return _rotate(self._local_from_swarm, _as_vec3(swarm_vec, "swarm NED vector"))
 
     def vector_to_swarm(self, local_vec: Sequence[float] | npt.ArrayLike) -> Vec3:
         """A free vector from the drone's NED axes to swarm NED axes."""
-        v = mat_mul(self._local_from_swarm.T, _as_vec3(local_vec, "local NED vector"))
-        return (float(v[0]), float(v[1]), float(v[2]))
+        return _rotate(self._swarm_from_local, _as_vec3(local_vec, "local NED vector"))
+
+
+def _rows(matrix: npt.NDArray[np.float64]) -> Rows:
+    (a, b, c), (d, e, f), (g, h, i) = matrix.tolist()
+    return ((a, b, c), (d, e, f), (g, h, i))
 
 
 def origin_from_home(home: GeoPoint, home_local_ned_m: Sequence[float] | npt.ArrayLike) -> GeoPoint:

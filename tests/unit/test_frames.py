@@ -10,7 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gcs.flight.frames import DroneFrame, SwarmFrame, origin_from_home
+from gcs.flight.arrays import mat_mul
+from gcs.flight.frames import DroneFrame, SwarmFrame, _rotate, _rows, origin_from_home
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.dynamics.plant import DEFAULT_HOME, GeoPoint
 
@@ -146,11 +147,33 @@ def test_vectors_rotate_between_tangent_planes_without_changing_length(
     np.testing.assert_allclose(drone.vector_to_swarm(local), vec, atol=1e-12)
 
 
+def test_a_vector_is_rotated_to_the_bit_as_the_array_product_does_signed_zeros_included() -> None:
+    # The rotation is written in floats for speed; a lockstep flight's setpoints must keep their bits.
+    rng = np.random.default_rng(7)
+    for k in range(20_000):
+        rows = rng.normal(size=(3, 3)) * 10.0 ** rng.integers(-3, 4)
+        vec = rng.normal(size=3) * 10.0 ** rng.integers(-3, 4)
+        if k % 5 == 0:
+            vec[rng.integers(0, 3)] = -0.0
+        if k % 11 == 0:
+            vec[:] = -0.0
+        want = mat_mul(rows, vec)
+        got = _rotate(_rows(rows), (float(vec[0]), float(vec[1]), float(vec[2])))
+        assert [v.hex() for v in got] == [float(v).hex() for v in want], (rows, vec)
+    drone = drone_at((30.0, -40.0, 0.0))
+    vec = (1.5, -0.25, 0.125)
+    assert drone.vector_to_local(vec) == drone.vector_to_local(np.array(vec)) == drone.vector_to_local(list(vec))
+
+
 def test_non_finite_positions_are_refused() -> None:
     drone = drone_at((1.0, 1.0, 0.0))
     with pytest.raises(ValueError):
         drone.to_local((math.nan, 0.0, 0.0))
     with pytest.raises(ValueError):
         drone.to_swarm((0.0, 0.0))
+    with pytest.raises(ValueError):
+        drone.vector_to_local((0.0, math.inf, 0.0))
+    with pytest.raises(ValueError):
+        drone.vector_to_local((1e308, 1e308, 1e308 * 10))
     with pytest.raises(ValueError):
         SWARM.geo_from_ned((0.0, math.inf, 0.0))
