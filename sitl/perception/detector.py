@@ -389,8 +389,11 @@ def sense_rig(
                 n = _camera_rows(camera, index, fk.MODE_DRAWN, dcm, spheres_ned, noise_at, n, known_body_radius_m,
                                  min_area_px)  # fmt: skip
             continue
-        mode = fk.MODE_BOX if camera.noise_cannot_detect and not whole_frames else fk.MODE_FULL
+        box = camera.noise_cannot_detect and not whole_frames
         noise_at = noise_offset(camera, rng)
+        if box and len(spheres_ned) == 0:
+            continue  # nothing to draw: the box pass would draw nothing and form nothing
+        mode = fk.MODE_BOX if box else fk.MODE_FULL
         n = _camera_rows(camera, index, mode, dcm, spheres_ned, noise_at, n, known_body_radius_m, min_area_px)
     return n
 
