@@ -11,6 +11,9 @@ Flights, each timed per part on the thread's CPU clock exactly as a swarm drone 
   and a silent one), omnidirectional cameras: every drone has others in view. No MAVLink.
 - **dense**: the same with 24 drones on an 8 m circle (the radius ``swarm bench`` gives 24 slots) turning at half
   the rate, and the silent one: every drone has 20-odd others in camera range and 23 relayed.
+- **frames**: an omnidirectional rig's frame alone, from the bodies to their NED positions as a drone gets them, on
+  200 random scenes of 8 bodies at 2-8 m and of 24 at 2-15 m: microseconds of thread CPU per four-camera frame,
+  best of three (``perception`` is the first, ``dense_frame`` the second). Not a default.
 
 The circle flights also report a digest of every drone's true state at every step: trees that should fly alike
 show the same digest in the same run that times them.
@@ -27,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import statistics
 import subprocess
@@ -169,11 +173,50 @@ def circle(sim_seconds: float, *, dense: bool = False) -> dict[str, float | None
     }
 
 
+def frames() -> dict[str, float]:
+    """Microseconds per four-camera frame, from the bodies to NED positions, in this tree's drone path (one pass per
+    camera where it exists, the rendered images and ``detect_rig`` before it)."""
+    import numpy as np
+
+    from sitl.mathutil import quat_from_euler
+    from sitl.perception import CameraConfig, CameraRig, detector, spheres
+    from sitl.perception import camera as camera_module
+
+    rig = CameraRig.omni(CameraConfig(noise_seed=1))
+    scene_rng = np.random.default_rng(5)
+
+    def scene(count: int, near_m: float, far_m: float) -> tuple[object, object]:
+        direction = scene_rng.standard_normal((count, 3))
+        direction /= np.linalg.norm(direction, axis=1)[:, None]
+        direction[:, 2] *= 0.2
+        q = quat_from_euler(*scene_rng.uniform(-0.2, 0.2, 2).tolist(), float(scene_rng.uniform(-3.0, 3.0)))
+        return direction * scene_rng.uniform(near_m, far_m, count)[:, None], q
+
+    out = {}
+    for name, count, near_m, far_m in (("perception", 8, 2.0, 8.0), ("dense_frame", 24, 2.0, 15.0)):
+        scenes = [scene(count, near_m, far_m) for _ in range(200)]
+        rng = np.random.default_rng(1)
+        best = math.inf
+        for _ in range(3):
+            start = time.thread_time_ns()
+            for offsets, q in scenes:
+                if hasattr(detector, "sense_rig"):  # one pass per camera
+                    rows = np.column_stack((offsets, np.full(count, 0.35)))
+                    detector.rig_ned(detector.sense_rig(rig, q, rows, [], rng, 0.35), q)
+                else:
+                    images = camera_module.render_rig_if_drawn(rig, q, spheres(offsets, 0.35), rng)
+                    detector.to_ned_all(detector.detect_rig(images, rig, 0.35), q)
+            best = min(best, (time.thread_time_ns() - start) / len(scenes) / 1e3)
+        out[name] = best
+    return out
+
+
 def one(sim_seconds: float, scenarios: list[str]) -> dict[str, dict[str, float]]:
     runs = {
         "lone": lambda: lone(sim_seconds),
         "circle": lambda: circle(sim_seconds),
         "dense": lambda: circle(sim_seconds, dense=True),
+        "frames": frames,
     }
     return {name: runs[name]() for name in scenarios}
 
@@ -183,7 +226,9 @@ def main() -> None:
     parser.add_argument("--sim-seconds", type=float, default=30.0)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--trees", nargs="+", type=Path, default=None)
-    parser.add_argument("--scenarios", nargs="+", choices=("lone", "circle", "dense"), default=["circle", "dense"])
+    parser.add_argument(
+        "--scenarios", nargs="+", choices=("lone", "circle", "dense", "frames"), default=["circle", "dense"]
+    )
     parser.add_argument("--one", action="store_true", help=argparse.SUPPRESS)  # a subprocess of --trees
     args = parser.parse_args()
     if args.one:
@@ -210,6 +255,12 @@ def main() -> None:
             if len(digests) < len(results):
                 verdict += f" (no digest from {len(results) - len(digests)} tree(s) older than the recorded flights)"
             print(f"\n{scenario}: flight digests {digests}: {verdict}")
+        if scenario == "frames":
+            print(f"\nframes: us of CPU per four-camera frame (8 bodies; 24 bodies), median of {args.repeats}")
+            for tree, runs in results.items():
+                medians = [statistics.median(r["frames"][key] for r in runs) for key in ("perception", "dense_frame")]
+                print(f"| {tree} | {medians[0]:.0f} | {medians[1]:.0f} |")
+            continue
         print(f"\n{scenario}: ms of CPU per drone per simulated second, median of {args.repeats}")
         _print_medians(results, scenario, ".2f")
         # The machine's speed drifts between runs (other work, cache sharing): each part as a multiple of a part
