@@ -1,10 +1,12 @@
 """The supervisor's clock: simulated seconds, paced on the wall clock or moved on in lockstep frames.
 
 Paced, simulated time is the wall clock times the speed factor. In lockstep it is the drones' common time, which
-the supervisor itself moves on through the harness, one frame at a time (``frame``): the drones run
-``LOCKSTEP_LEAD_S`` on and wait at the gate, and the time then holds until the next frame, so everything read and
-sent between two frames meets one simulated time on both sides (gcs/fleet/pump.py says why that makes lockstep
-flights replay exactly).
+the supervisor itself moves on through the harness, one frame at a time, pipelined: once every drone stands at the
+gate (``reach_gate``) the supervisor opens the next one at once (``open_gate``: the drones fly ``LOCKSTEP_LEAD_S``
+on), and then handles what they sent up to the gate they stood at while they fly. Its clock holds that gate's time
+until the next frame, so everything it reads and computes between two frames meets one simulated time, and what it
+sends leaves at the next gate, a frame later (gcs/fleet/pump.py says why that makes lockstep flights replay
+exactly).
 """
 
 from __future__ import annotations
@@ -18,9 +20,17 @@ from typing import Final
 
 from gcs.fleet.harness import SimulationHarness, SpawnPlan
 
-# How far the drones may run ahead of the supervisor's last look. Under load the drones sit at this limit, so it is
-# the lag of setpoints and relayed positions in simulated time: 50 ms let an eight-drone swap touch on a busy machine.
+# A lockstep frame: how far the drones fly on each time every one of them stands at the gate. The supervisor handles
+# what they sent up to one gate while they fly to the next, and its answer is read at that next gate, so this is
+# also the lag, in simulated time, between what a drone reports and the setpoint or relayed position that answers
+# it (FLIGHT_VERSION 2; before, the drones waited while the supervisor worked and the answer came at the same gate).
+# A 50 ms frame let an eight-drone swap touch on a busy machine.
 LOCKSTEP_LEAD_S: Final = 0.02
+# What lockstep flights are a function of, beside their seeds and mission: a change that moves the bits of a lockstep
+# flight (the recorded flights' digests) bumps it, and a sweep or falsify campaign refuses to resume over flights
+# recorded by code that flies differently (gcs/sweep/sweep.py, gcs/falsify/campaign.py). 2: the pipelined frame (the
+# supervisor's answers a frame later) and kills at the gate.
+FLIGHT_VERSION: Final = 2
 LOCKSTEP_STALL_S: Final = 10.0  # wall seconds without progress before the supervisor calls the simulation stalled
 LOCKSTEP_MAX_WAIT_S: Final = 0.005  # wall-clock cap on one wait in lockstep (simulated time has no wall rate)
 EXIT_CHECK_S: Final = 0.5  # wall seconds between looks for ended drones while moving the lockstep clock
@@ -38,9 +48,11 @@ class SwarmClock:
         self.plan = plan
         self.harness = harness
         self.lockstep_running = False
-        # Lockstep: the common time once every drone stands at the gate. Nothing moves it until the next frame opens
-        # the gate, and the supervisor reads its clock a dozen times between frames (a read scans the world table).
+        # Lockstep: the common time of the gate every drone last stood at: the time of the frame the supervisor
+        # handles while the drones fly the next one. It holds until the next frame, and the supervisor reads its clock
+        # a dozen times between frames (a read of the drones' clock scans the world table).
         self._gate_time_s: float | None = None
+        self._open_gate_s: float | None = None  # the gate the drones fly to now (None: none opened yet)
         self._wake_fd: int | None = None
         self._wall_t0 = time.monotonic()
         self._gate_progress = (0.0, time.monotonic())  # (common time, wall time it was first seen)
@@ -65,31 +77,42 @@ class SwarmClock:
             return self.harness.lockstep_time_s()
         return (time.monotonic() - self._wall_t0) * self.plan.speed_factor
 
-    def frame(self, sent_to_drones: Mapping[int, int]) -> None:
-        """One frame of the lockstep clock: let the drones run LOCKSTEP_LEAD_S on and wait until every one of them
-        stands at the gate (``sent_to_drones``: the datagrams the supervisor has sent each so far, which each waits
-        for before it steps). Paced lockstep starts the frame when the wall clock has caught up with it."""
+    def reach_gate(self) -> None:
+        """Lockstep: wait until every drone stands at the gate the last frame opened (none opened yet: at once); the
+        clock then reads that gate's time until the next frame."""
+        target_s = self._open_gate_s
+        if target_s is None:
+            return
+        target = target_s - 1e-9
+        while (now := self.harness.lockstep_time_s()) < target and len(self.harness.ended()) < self._drones:
+            self._check_members(now)
+            if self._gate_selector.select(LOCKSTEP_MAX_WAIT_S) and self._wake_fd is not None:
+                _consume(self._wake_fd)  # that wake-up is read: the next one is news
+        self._gate_time_s = now
+
+    def open_gate(self, sent_to_drones: Mapping[int, int]) -> None:
+        """Lockstep, every drone at the gate (``reach_gate``): let them fly LOCKSTEP_LEAD_S on (``sent_to_drones``:
+        the datagrams the supervisor has sent each so far, which each reads before it steps on). Paced lockstep
+        opens the frame when the wall clock has caught up with it. The clock keeps the time of the gate they stood
+        at: the supervisor now handles that frame while they fly the next."""
         now = self.now()
         if self.plan.speed_factor > 0:
             ahead_s = (now + LOCKSTEP_LEAD_S) / self.plan.speed_factor - (time.monotonic() - self._wall_t0)
             if ahead_s > 0:
                 time.sleep(ahead_s)
         self.harness.note_sent_to_drones(sent_to_drones)
-        self._gate_time_s = None
-        if self.harness.advance_lockstep(LOCKSTEP_LEAD_S) is None:
+        started_s = self.harness.advance_lockstep(LOCKSTEP_LEAD_S)
+        if started_s is None:
             # Not every drone has joined yet (nobody starts before the rest): nothing runs, nothing to wait for, and
             # nothing stalls: the time has not started (the first run on a machine compiles the drones' kernels
             # before any drone exists, some 25 s).
+            self._gate_time_s = None
+            self._open_gate_s = None
             self._gate_progress = (now, time.monotonic())
             self._gate_selector.select(LOCKSTEP_MAX_WAIT_S)
             return
-        target = now + LOCKSTEP_LEAD_S - 1e-9
-        while (now := self.now()) < target and len(self.harness.ended()) < self._drones:
-            self._check_members(now)
-            if self._gate_selector.select(LOCKSTEP_MAX_WAIT_S) and self._wake_fd is not None:
-                _consume(self._wake_fd)  # that wake-up is read: the next one is news
-        if now >= target:
-            self._gate_time_s = now  # every drone stands at the gate: the time holds until the next frame
+        self._gate_time_s = started_s
+        self._open_gate_s = started_s + LOCKSTEP_LEAD_S
 
     def _check_members(self, now: float) -> None:
         """Notice a drone that ended (it leaves the lockstep gate: it must hold nobody back) and a stalled

@@ -5,11 +5,15 @@ something waits.
 router (the forward address, the relay), the attached vehicles (a simulated drone's position, as traffic), liveness
 (a sign of life), the protocol clients (command answers, parameter echoes, mission transfers and progress) and the
 listeners; then the attached vehicles' links are read and their bodies moved, the ground station's HEARTBEAT goes
-out, and the batch leaves when due. In lockstep one pump is one frame of the common clock, whatever the wait: every
-message then meets a fixed simulated time on both sides (what a drone sent up to the gate's step is read at the
-gate's time, and what the supervisor sends between frames reaches every drone while it waits at the gate), so
-nothing depends on when a datagram happened to arrive, and the same mission with the same seeds flies the same on an
-idle machine or a loaded one.
+out, and the batch leaves when due. In lockstep one pump is one frame of the common clock, whatever the wait, and
+frames are pipelined: once every drone stands at gate k the supervisor sends what it has queued, opens gate k + 1,
+and only then reads and handles what the drones sent up to gate k (and ticks: setpoints, verbs, checks) while they
+fly on to k + 1. Everything it sends is held until the next gate, so every message meets a fixed simulated time on
+both sides: what a drone sent up to gate k is handled at gate k's time, and the supervisor's answer reaches every
+drone while it stands at gate k + 1, one frame (LOCKSTEP_LEAD_S) later, read before its next step. Nothing depends
+on when a datagram happened to arrive, and the same mission with the same seeds flies the same on an idle machine or
+a loaded one. The drones no longer wait while the supervisor works: each frame costs the longer of the two, not
+their sum.
 
 Waiting is pumping: ``pump_while`` is the one loop every wait runs (``run_for``, ``wait_until``, a command, parameter
 or mission transfer being served, an attach listening to its link). It pumps, and calls a tick at its period in
@@ -75,15 +79,20 @@ class Pump:
         """Send what is due, then handle every waiting message, waiting up to ``wait_s`` (simulated) for the first.
         In lockstep, one frame of the common clock instead, whatever ``wait_s`` (the module docstring says why)."""
         router, clock, liveness, protocols = self.router, self.clock, self.liveness, self.protocols
-        router.flush(clock.now())
-        if clock.lockstep_running:
+        lockstep = clock.lockstep_running
+        if lockstep:
+            handled_s = clock.now()  # the frame handled last: what it queued leaves at this gate
             try:
-                clock.frame(router.sent_to_drones())
+                clock.reach_gate()
             except ClockStalled as exc:
                 raise SwarmError(str(exc)) from None
+            router.flush(handled_s)
+            sent_by_drones = self.harness.sent_by_drones()  # up to this gate: read before any drone flies on
+            clock.open_gate(router.sent_to_drones())
             now = clock.now()
-            messages = router.receive_frame(self.harness.sent_by_drones(), liveness.losses)
+            messages = router.receive_frame(sent_by_drones, liveness.losses)
         else:
+            router.flush(clock.now())
             router.wait(wait_s, self.speed_factor, clock.now())
             now = clock.now()
             messages = router.receive()
@@ -110,7 +119,8 @@ class Pump:
         if attachments.vehicles:
             attachments.pump(now)
         router.heartbeat(now, liveness.losses)
-        router.flush(now)
+        if not lockstep:  # in lockstep everything leaves at the next gate
+            router.flush(now)
 
     # ---- waiting: the one loop --------------------------------------------------------------------------------------
     def pump_while(self, going: Callable[[], bool], wait_s: Callable[[float], float], *, tick: Tick | None,

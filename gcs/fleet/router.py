@@ -4,7 +4,9 @@ One socket (gcs/mavlink/transport.py) that every drone's ground-station link str
 pump (paced: whatever has arrived; lockstep: everything the drones say they sent up to the gate, in sysid order).
 What goes out either leaves at once (a command whose answer is awaited) or is held for the next batch
 (``BATCH_HOLD_S``): setpoints, relayed positions and copies for another ground station leave together in one
-datagram per drone. Every drone's traffic is copied to a forward address (QGroundControl, MAVProxy on 14550), and
+datagram per drone. In lockstep nothing leaves at once: the drones fly while the supervisor works (the pipelined
+frame, gcs/fleet/pump.py), so everything waits for the pump's flush at the next gate, where every drone reads it
+before its next step. Every drone's traffic is copied to a forward address (QGroundControl, MAVProxy on 14550), and
 what comes back from there goes to the drones by target system. The ground station's own HEARTBEAT goes to every
 drone at 1 Hz.
 """
@@ -43,8 +45,10 @@ class Router:
     """The socket's traffic both ways; see the module docstring."""
 
     def __init__(self, link: GcsSocket, *, relay: NeighbourRelay | None, forward: Address | None,
-                 batch_hold_s: float = BATCH_HOLD_S) -> None:  # fmt: skip
+                 batch_hold_s: float = BATCH_HOLD_S, lockstep: bool = False) -> None:  # fmt: skip
         self.link = link
+        # Lockstep: what would leave at once is queued for the next gate instead (the module docstring says why)
+        self.lockstep = lockstep
         self.relay = relay
         # Every drone's traffic also goes to this address, and what comes back from there is routed to the drones by
         # target system, as a MAVLink router does.
@@ -58,6 +62,11 @@ class Router:
         self._flush_due_s = math.inf  # when the queued traffic must leave (-inf: at the next pump)
         self._next_heartbeat_s = 0.0
         self._said_late_traffic = False
+        # Lockstep delivery: each drone's datagrams taken into a frame so far, by address, and the datagrams read
+        # beyond what a drone had sent up to the gate (it flies the next frame while the supervisor reads), kept in
+        # order for the next frame
+        self._taken: dict[Address, int] = {}
+        self._held: list[tuple[Address, list[Any]]] = []
         self._selector = selectors.DefaultSelector()
         self._selector.register(link.sock, selectors.EVENT_READ)
 
@@ -74,18 +83,30 @@ class Router:
         return self.link.receive()
 
     def receive_frame(self, sent_by_drones: Mapping[int, int], skip: Collection[int]) -> list[tuple[Any, Address]]:
-        """Lockstep: everything the drones sent up to the common time, in sysid order (each sender's own order kept).
-        Loopback UDP may hand a datagram over a little after its ``sendto`` returned, so the supervisor reads until
-        it has as many from each drone as the drone says it sent (``skip``: the lost, whose count no longer
-        matters); one that never comes (a full buffer) is given up after LOCKSTEP_AWAIT_S, and said once."""
+        """Lockstep: everything the drones sent up to the gate they stood at (``sent_by_drones``: each one's count
+        of datagrams then), in sysid order (each sender's own order kept). The drones fly the next frame meanwhile,
+        so a drone's datagrams beyond its count are the next frame's: they are kept for it. Loopback UDP may hand a
+        datagram over a little after its ``sendto`` returned, so the supervisor reads until it has as many from
+        each drone as the drone says it sent (``skip``: the lost, whose count no longer matters); one that never
+        comes (a full buffer) is given up after LOCKSTEP_AWAIT_S, and said once."""
         messages: list[tuple[Any, Address]] = []
+        link, taken = self.link, self._taken
         deadline = time.monotonic() + LOCKSTEP_AWAIT_S
+        pending, self._held = self._held, []
         while True:
-            while batch := self.link.receive():
-                messages.extend(batch)
-            addresses, received = self.link.addresses, self.link.received_from
-            missing = [s for s, n in sent_by_drones.items() if n > received.get(addresses.get(s, ("", 0)), 0)]
-            missing = [s for s in missing if s not in skip and s in addresses]
+            pending += link.receive_datagrams()
+            owners = {address: sysid for sysid, address in link.addresses.items()}
+            for address, frames in pending:
+                expected = sent_by_drones.get(owners.get(address, -1))
+                if expected is not None and taken.get(address, 0) >= expected:
+                    self._held.append((address, frames))  # sent after the gate: the next frame's
+                    continue
+                taken[address] = taken.get(address, 0) + 1
+                messages.extend((msg, address) for msg in frames)
+            pending = []
+            addresses = link.addresses
+            missing = [s for s, n in sent_by_drones.items()
+                       if s not in skip and s in addresses and n > taken.get(addresses[s], 0)]  # fmt: skip
             if not missing:
                 break
             if time.monotonic() > deadline:
@@ -137,7 +158,11 @@ class Router:
         for sysid in sysids if target == 0 else [target]:
             address = self.link.addresses.get(sysid)
             if address is not None:
-                self.link.send_raw(data, address)
+                if self.lockstep:
+                    self.link.queue_raw(data, address)
+                    self._flush_due_s = -math.inf
+                else:
+                    self.link.send_raw(data, address)
 
     def sent_to_drones(self) -> dict[int, int]:
         """The datagrams sent so far to each drone, by sysid (lockstep delivery counts them)."""
@@ -177,16 +202,21 @@ class Router:
             self._flush_due_s = -math.inf
 
     def send_now(self, sysid: int, msg: Any) -> None:
-        """One message to one drone at once, outside any batch (a command whose answer is being timed)."""
-        self.link.send(sysid, msg)
+        """One message to one drone at once, outside any batch (a command whose answer is being timed); in lockstep
+        at the next gate, with the batch."""
+        if self.lockstep:
+            self.send(sysid, msg)
+        else:
+            self.link.send(sysid, msg)
 
     def send_logged(self, sysid: int, msg: Any, *, now: bool, clock_s: float) -> None:
-        """A command or parameter write, at once or with the next batch, also handed to ``sent_listeners``."""
+        """A command or parameter write, at once (in lockstep: at the next gate) or with the next batch, also handed
+        to ``sent_listeners``."""
         data = self.link.pack(msg)
         address = self.link.addresses.get(sysid)
         if address is None:
             return
-        if now:
+        if now and not self.lockstep:
             if self.link.queued:
                 self.link.flush()
             self.link.send_raw(data, address)

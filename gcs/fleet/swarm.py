@@ -82,7 +82,7 @@ class Swarm:
         self.link = GcsSocket(signing_key=key, sysid=plan.gcs_sysid)  # signs what it sends when the plan has a key
         self.signing_key_id = key_id(key) if key is not None else None  # what the report names the key by
         self.router = Router(self.link, relay=NeighbourRelay(scope=relay) if relay is not None else None,
-                             forward=forward, batch_hold_s=batch_hold_s)  # fmt: skip
+                             forward=forward, batch_hold_s=batch_hold_s, lockstep=plan.lockstep)  # fmt: skip
         self.fleet = Fleet()
         self.liveness = Liveness(harness, self.fleet, self.clock, swarm_frame, lockstep=plan.lockstep)
         protocols = Protocols(commands=CommandClient(own_sysid=plan.gcs_sysid), params=ParamClient(),

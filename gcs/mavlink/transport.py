@@ -65,7 +65,12 @@ class GcsSocket:
     def receive(self, max_datagrams: int = MAX_RECEIVE_DATAGRAMS) -> list[tuple[Any, Address]]:
         """The messages waiting on the socket with their senders, from at most ``max_datagrams`` datagrams
         (non-blocking), bad data dropped."""
-        out: list[tuple[Any, Address]] = []
+        return [(msg, address) for address, messages in self.receive_datagrams(max_datagrams) for msg in messages]
+
+    def receive_datagrams(self, max_datagrams: int = MAX_RECEIVE_DATAGRAMS) -> list[tuple[Address, list[Any]]]:
+        """As ``receive``, one entry per datagram (its sender and messages): lockstep delivery takes a drone's
+        datagrams up to the count it had sent at the gate, and keeps the rest for the next frame."""
+        out: list[tuple[Address, list[Any]]] = []
         for _ in range(max_datagrams):
             try:
                 data, address = self.sock.recvfrom(65535)
@@ -78,12 +83,14 @@ class GcsSocket:
             messages = read_datagram(data)  # the drones' telemetry, by precomputed layouts (gcs/mavlink/wire.py)
             if messages is None:
                 messages = self._parse(addr, data)
+            kept = []
             for msg in messages:
                 if msg.get_type() == "BAD_DATA":
                     continue
                 if msg.get_srcComponent() == 1:
                     self.addresses[msg.get_srcSystem()] = addr
-                out.append((msg, addr))
+                kept.append(msg)
+            out.append((addr, kept))
         return out
 
     def _parse(self, addr: Address, data: bytes) -> list[Any]:

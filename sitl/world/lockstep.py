@@ -15,9 +15,11 @@ Waiting costs nothing: a member that may not step sets its WAITING flag and slee
 laggard - and the supervisor when it moves the gate wake exactly the members that wait. Polling instead (sleeping
 0.2 ms and looking again) cost more than the simulation itself with nine drones on two cores
 (docs/benchmark-history.md).
-The supervisor sleeps the same way: the last member to come within GATE_WAKE_AHEAD_STEPS of the gate, or to reach
-it, wakes it. Before, it looked again only when MAVLink traffic arrived or its 5 ms wait ran out, which capped a
-single drone at 4x real time once its telemetry left in fewer datagrams.
+The supervisor sleeps the same way: the last member to reach the gate wakes it. Before, it looked again only when
+MAVLink traffic arrived or its 5 ms wait ran out, which capped a single drone at 4x real time once its telemetry left
+in fewer datagrams. It used to be woken two steps before the gate too, so that it could move the gate while the
+drones still ran; the pipelined frame (gcs/fleet/pump.py) moves the gate the moment every member stands at it and
+does its own work while they fly the next frame, so there is nothing left for an early wake-up to win.
 The flag is set before the last look at the clock, so a wake-up can be missed only through store-load reordering
 between two cores; a sleep never lasts longer than ``MAX_SLEEP_S``, which bounds that rare case.
 
@@ -45,10 +47,6 @@ import numpy as np
 from sitl.world.shared import GATE_OPEN, GATE_STEP, STEP, WAITING, SharedWorld
 
 MAX_SLEEP_S = 0.005
-# The supervisor is woken when the slowest member is this many steps short of the gate (and again at the gate if
-# it has not moved it by then), so that it can move the gate while the drones still run instead of every drone
-# stopping there each time.
-GATE_WAKE_AHEAD_STEPS = 2
 
 
 def wake_address(world_name: str, instance: int) -> bytes:
@@ -127,8 +125,8 @@ class LockstepMember:
 
     def completed(self, steps: int) -> None:
         """Publish a completed step; the last member to finish a quantum wakes whoever waits at its end, and the
-        last to come within GATE_WAKE_AHEAD_STEPS of the gate, or to reach it, wakes the supervisor, which would
-        otherwise only look again when its own wait for traffic ran out."""
+        last to reach the gate wakes the supervisor, which would otherwise only look again when its own wait for
+        traffic ran out."""
         steps_column = self._steps
         rows = self._rows
         if len(rows) == 1:
@@ -136,8 +134,7 @@ class LockstepMember:
         else:
             steps_column[rows] = float(steps)
         end_of_quantum = steps % self.quantum == 0
-        gate = self._header[GATE_STEP]
-        wake_gate = steps >= gate or steps == gate - GATE_WAKE_AHEAD_STEPS
+        wake_gate = steps >= self._header[GATE_STEP]
         if (end_of_quantum or wake_gate) and steps_column.min() >= steps:
             if end_of_quantum:
                 self._waker.wake_waiting()
@@ -195,6 +192,19 @@ class LockstepGate:
 
     def time_s(self) -> float:
         return self.completed_steps() * self.dt_s
+
+    def is_open(self) -> bool:
+        """Whether the supervisor has opened the gate (the common clock runs)."""
+        return bool(self.world.header[GATE_OPEN] == 1.0)
+
+    def gate_step(self) -> int:
+        """The step every member may complete and then waits at (0 before the gate opens)."""
+        return int(self.world.header[GATE_STEP]) if self.is_open() else 0
+
+    def all_at_gate(self) -> bool:
+        """Every member stands at the open gate: none steps again until the supervisor moves it, so what is done to
+        the world now (a stop, a kill) meets every member at the same step in every run."""
+        return self.is_open() and self.completed_steps() >= self.gate_step()
 
     def open_until(self, sim_time_s: float) -> None:
         """Let every member run until ``sim_time_s`` (the gate never moves back)."""

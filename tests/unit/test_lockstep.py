@@ -9,7 +9,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from sitl.world.lockstep import GATE_WAKE_AHEAD_STEPS, LockstepGate, LockstepMember
+from sitl.world.lockstep import LockstepGate, LockstepMember
 from sitl.world.shared import SharedWorld
 
 DT_S = 1.0 / 400.0
@@ -144,7 +144,7 @@ def test_the_last_member_to_reach_the_gate_wakes_the_supervisor_once(
         gate.wake_socket.recv(16)
 
 
-def test_the_supervisor_is_woken_before_the_gate_so_the_drones_need_not_stop_there(
+def test_the_supervisor_is_woken_at_the_gate_alone(
     gate_and_pair: tuple[LockstepGate, LockstepMember, LockstepMember],
 ) -> None:
     gate, a, b = gate_and_pair
@@ -156,5 +156,20 @@ def test_the_supervisor_is_woken_before_the_gate_so_the_drones_need_not_stop_the
         with contextlib.suppress(BlockingIOError):
             gate.wake_socket.recv(16)
             woken_at.append(steps)
-    # once GATE_WAKE_AHEAD_STEPS short of the gate, and once at it (had the supervisor not moved it by then)
-    assert woken_at == [10 - GATE_WAKE_AHEAD_STEPS, 10]
+    # the pipelined frame moves the gate once every member stands at it: an earlier wake-up would find nothing to do
+    assert woken_at == [10]
+    assert gate.all_at_gate() and gate.gate_step() == 10
+
+
+def test_the_gate_knows_when_every_member_stands_at_it(
+    gate_and_pair: tuple[LockstepGate, LockstepMember, LockstepMember],
+) -> None:
+    gate, a, b = gate_and_pair
+    assert not gate.is_open() and not gate.all_at_gate() and gate.gate_step() == 0
+    gate.open_until(2 * DT_S)
+    a.completed(1)
+    b.completed(1)
+    a.completed(2)
+    assert gate.is_open() and not gate.all_at_gate()  # b is a step short
+    b.completed(2)
+    assert gate.all_at_gate()
