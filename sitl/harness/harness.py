@@ -22,6 +22,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import shutil
+import signal
+import subprocess
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -57,6 +59,7 @@ from sitl.world.shared import (
 ON_GROUND_M = 0.3
 # How a hosted drone ended by ``kill`` is reported: it stops as a killed process stops, but no signal was sent.
 HOSTED_KILL_CAUSE = "killed inside its host process"
+KILL_WAIT_S = 5.0  # wall seconds a kill at the lockstep gate waits for the killed process to be gone
 REST_TOLERANCE_M = 0.01  # an ended drone's falling body is down once within this of where it comes to rest
 
 FloatArray = npt.NDArray[np.float64]
@@ -82,6 +85,7 @@ class SitlHarness:
         self._radius_m: float | None = None  # the swarm's drones' collision radius (an external body's default size)
         self._final_time_s = 0.0  # the common lockstep time when the gate closed
         self._final_link_counters: dict[str, dict[str, float]] = {}  # the link model's counts when the world closed
+        self._kills_at_gate: list[DroneProcess] = []  # lockstep: killed at the next gate (``kill``)
 
     # ---- lifecycle -------------------------------------------------------------------------------------------------
     def launch(self, gcs_port: int) -> list[int]:
@@ -193,17 +197,56 @@ class SitlHarness:
         return f"drone {d.instance} (sysid {d.sysid}) exited with code {d.process.returncode}: {detail}"
 
     def kill(self, sysid: int) -> str | None:
-        """Crash drone ``sysid``'s flight software now (SIGKILL to its process, by PID); returns what was done, in
-        one line, or None when the drone had already ended. The end shows in ``ended`` once it is noticed."""
+        """Crash drone ``sysid``'s flight software (SIGKILL to its process, by PID; a hosted drone is stopped by its
+        host as SIGKILL would stop it); returns what was done, in one line, or None when the drone had already ended
+        (or is to be killed already).
+
+        Paced, now; the end shows in ``ended`` once it is noticed. In lockstep, at the next gate, when every drone
+        stands at it (``advance_lockstep``): the drones are flying the frame the supervisor opened while it reads
+        the last one, and a kill between two gates would land at whatever step the drone had reached, so the same
+        flight would lose its drone a few steps apart from run to run. At the gate the drone's last step, its
+        last words and the moment the others see its body fall are the same in every run, and the harness reports
+        the end at once (``ended``), without waiting to notice it."""
         d = self._drone(sysid)
         if d.process.returncode is not None or d.process.poll() is not None or sysid in self.ended():
             return None
+        if d in self._kills_at_gate:
+            return None
+        gate = self._gate
+        if gate is not None and gate.is_open():
+            self._kills_at_gate.append(d)
+            at = f" at the lockstep gate of t={gate.gate_step() * gate.dt_s:.3f} s"
+        else:
+            self._kill_now(d)
+            at = ""
+        if d.hosted:
+            return f"killed inside its host process {d.process.pid}{at}; the host's other drones fly on"
+        return f"process {d.process.pid} killed with SIGKILL{at}"
+
+    def _kill_now(self, d: DroneProcess) -> None:
         if d.hosted:  # a signal would end the host's other drones too: the host ends this one as SIGKILL would
             assert self._world is not None
             self._world.request_stop(d.instance)
-            return f"killed inside its host process {d.process.pid}; the host's other drones fly on"
-        d.process.kill()
-        return f"process {d.process.pid} killed with SIGKILL"
+        else:
+            d.process.kill()
+
+    def _kill_at_gate(self) -> None:
+        """Carry out the kills asked for since the last gate, every drone standing at this one: a hosted drone's
+        host sees the stop before it reads or steps again (sitl/process/runtime.py), a drone's own process is gone
+        before the gate moves on; each end is recorded now, as the supervisor asked for it."""
+        kills, self._kills_at_gate = self._kills_at_gate, []
+        for d in kills:
+            if d.sysid in self._ended:
+                continue
+            self._kill_now(d)
+            if d.hosted:
+                self._note_end(d, HOSTED_KILL_CAUSE)
+                continue
+            try:
+                code = d.process.wait(timeout=KILL_WAIT_S)
+            except subprocess.TimeoutExpired:
+                code = -signal.SIGKILL  # it is going: no step can follow, as the gate is not moved for it
+            self._note_end(d, process_exit_cause(code))
 
     # ---- the shared world ------------------------------------------------------------------------------------------
     def drone_time_s(self) -> float | None:
@@ -280,11 +323,14 @@ class SitlHarness:
     def advance_lockstep(self, lead_s: float) -> float | None:
         """Let the lockstep drones run on to ``lead_s`` past their common time; returns
         the common time, or None while not every drone has joined (nobody starts before the rest). Clears pending
-        wake-ups first, so the next one is news."""
+        wake-ups first, so the next one is news. The kills asked for since the last gate land first, when every
+        drone stands at the gate (``kill``)."""
         gate = self._gate
         if gate is None:
             return None
         gate.drain_wakes()
+        if self._kills_at_gate and gate.all_at_gate():
+            self._kill_at_gate()
         steps = gate.completed_steps()
         now = steps * gate.dt_s
         if steps == 0 and gate.members() < len(self._processes.drones):

@@ -130,12 +130,18 @@ class WallClockSteps:
 
 
 class LockstepSteps:
-    """Advanced together with the other drones through the shared world (sitl/world/lockstep.py)."""
+    """Advanced together with the other drones through the shared world (sitl/world/lockstep.py).
+
+    A member waiting at the gate is woken by its wake-up socket alone, not by MAVLink: the loop reads no socket while
+    the gate holds it (``run_loop``), so that whatever the supervisor sends, and a kill it orders, meet the drone at
+    the gate's step, never between two looks at the gate; a datagram left unread must not end every wait at once."""
 
     def __init__(self, member: LockstepMember) -> None:
         self.member = member
         self._due = 0
         self._completed = 0
+        self._wake = selectors.DefaultSelector()
+        self._wake.register(member.wake_socket, selectors.EVENT_READ)
         member.join()
 
     def steps_due(self, sim_time_s: float, completed_steps: int, max_batch: int) -> int:
@@ -152,21 +158,22 @@ class LockstepSteps:
         self.member.drop(instance)
 
     def sockets(self) -> list[socket.socket]:
-        return [self.member.wake_socket]
+        return []  # the wake-up socket is this clock's own (see the class docstring)
 
     def wait(self, selector: selectors.BaseSelector, sim_time_s: float) -> None:
-        """Sleep until a peer or the supervisor wakes this member (or MAVLink arrives), after a last look."""
+        """Sleep until a peer or the supervisor wakes this member, after a last look."""
         if self._due > 0:
             return
         member = self.member
         member.begin_wait()
         try:
             if member.steps_allowed(self._completed)[0] == 0:
-                selector.select(MAX_SLEEP_S)
+                self._wake.select(MAX_SLEEP_S)
         finally:
             member.end_wait()
 
     def close(self) -> None:
+        self._wake.close()
         self.member.leave()
 
 
@@ -230,22 +237,25 @@ def run_loop(
 
     try:
         while not stop.stopped:
+            # How far the drones may go is asked before the sockets are read and before a stop request is looked
+            # at: in lockstep the supervisor sends, and asks for a stop, before it opens the gate, so whatever it sent
+            # for this time is read now, before the first step it allows, and a drone it stops ends at the gate,
+            # however the processes happened to interleave (reproducible flights). While the gate holds the drones
+            # in lockstep nothing is read at all: a datagram read there could be answered before a stop is seen.
+            time_s = live[0].time_s
+            due = steps_clock.steps_due(time_s, completed, max_batch)
             for drone in live:
                 if drone.stop_requested():
                     end(drone, None)
             live = [d for d in live if not d.ended]
             if not live:
                 return
-            # How far the drones may go is asked before the sockets are read: in lockstep the supervisor sends
-            # before it opens the gate, so whatever it sent for this time is read now, before the first step it
-            # allows, however the two processes happened to interleave (reproducible flights).
-            time_s = live[0].time_s
-            due = steps_clock.steps_due(time_s, completed, max_batch)
-            ready = {key.data for key, _ in selector.select(0)}
-            each(Drone.receive, [d for d in live if d in ready])
-            live = [d for d in live if not d.ended]
-            if not live:
-                return
+            if due > 0 or not step_major:
+                ready = {key.data for key, _ in selector.select(0)}
+                each(Drone.receive, [d for d in live if d in ready])
+                live = [d for d in live if not d.ended]
+                if not live:
+                    return
             if options.duration_s is not None:
                 due = min(due, max(0, math.ceil((options.duration_s - time_s) / dt_s - 1e-9)))
             if due > 0:

@@ -81,8 +81,8 @@ def test_the_harness_runs_kills_reports_and_stops_its_drones(tmp_path: Path, ins
         assert harness.ended() == {}
         # WHEN the second drone's flight software is crashed
         done = harness.kill(second_sysid)
-        assert done is not None and done.startswith("process ") and done.endswith(" killed with SIGKILL"), done
-        # THEN the harness reports it ended, killed, once noticed, and it holds nobody back
+        assert done is not None and done.startswith("process ") and " killed with SIGKILL at the lockstep gate" in done
+        # THEN the harness reports it ended, killed, once every drone stands at the gate, and it holds nobody back
         _run_until(harness, lambda _now: second_sysid in harness.ended(), 20.0)
         assert harness.ended() == {second_sysid: "process killed by SIGKILL"}
         assert f"drone {first + 1} (sysid {second_sysid}) exited with code -9" in harness.end_report(second_sysid)
