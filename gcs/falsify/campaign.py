@@ -46,7 +46,8 @@ from gcs.falsify.space import (
     scenario_mission,
     strategy,
 )
-from gcs.sweep.plan import Run, SweepPlan
+from gcs.fleet.clock import FLIGHT_VERSION
+from gcs.sweep.plan import Run, SweepPlan, other_flights
 from gcs.sweep.runs import Flight, RunResult, completed
 from gcs.sweep.sweep import Flyer
 
@@ -153,18 +154,24 @@ class Campaign:
     # ---- flights -------------------------------------------------------------------------------------------------
     def _load(self) -> None:
         """The flights an earlier run of this campaign completed (runs/NNNN/ with scenario.json and run.json);
-        FalsifyError for a folder that holds a campaign over another mission (its flights would be another's)."""
+        FalsifyError for a folder that holds a campaign over another mission (its flights would be another's), or
+        one whose flights were flown by code that flies differently (``other_flights``: a failure found there might
+        not fail now, and the search would skip what it takes for flown)."""
         sha256 = hashlib.sha256(self.mission_path.read_bytes()).hexdigest()
         path = self.out / CAMPAIGN_FILE
         try:
-            held = json.loads(path.read_text()).get("mission_sha256")
+            record = json.loads(path.read_text())
+            held = record.get("mission_sha256")
         except (OSError, ValueError, AttributeError):
-            held = None
+            record, held = {}, None
         if path.exists() and held != sha256:
             raise FalsifyError(f"{self.out} holds a campaign over another mission ({path}): give another --out, or "
                                "remove it")  # fmt: skip
+        if path.exists() and (why := other_flights(record, self.out)) is not None:
+            raise FalsifyError(why)
         self.out.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps({"mission": str(self.mission_path), "mission_sha256": sha256}, indent=1) + "\n")
+        path.write_text(json.dumps({"mission": str(self.mission_path), "mission_sha256": sha256,
+                                    "flight_version": FLIGHT_VERSION}, indent=1) + "\n")  # fmt: skip
         for folder in sorted((self.out / "runs").glob("[0-9]" * 4)):
             self._next_index = max(self._next_index, int(folder.name) + 1)
             result = completed(folder)

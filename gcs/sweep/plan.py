@@ -19,6 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
+from gcs.fleet.clock import FLIGHT_VERSION
+
 MAX_RUNS: Final = 100_000
 MAX_SEED: Final = 2**31 - 1
 PARAM_NAME = re.compile(r"[A-Z][A-Z0-9_]{0,15}")  # PX4 parameter names: 16 characters at most
@@ -167,6 +169,7 @@ class SweepPlan:
             "seeds": list(self.seeds),
             "axes": [{"name": a.name, "values": list(a.values)} for a in self.axes],
             "fly_args": list(self.fly_args),
+            "flight_version": FLIGHT_VERSION,  # what the runs' flights are a function of (``other_flights``)
         }
 
     def same_runs_as(self, saved: dict[str, Any]) -> bool:
@@ -193,6 +196,20 @@ def describe(plan: SweepPlan) -> str:
     axes = ", ".join(f"{a.name} in {{{', '.join(_number(v) for v in a.values)}}}" for a in plan.axes) or "no setting"
     return (f"{plan.n_runs} runs: {plan.n_settings} setting(s) ({axes}) x {len(plan.seeds)} seed(s) "
             f"of {plan.mission.name} ({plan.n_drones} drones)")  # fmt: skip
+
+
+def other_flights(saved: dict[str, Any], folder: Path) -> str | None:
+    """Why a campaign's folder (a sweep's, a falsification's) must not be resumed by this code, in one line: its
+    record (``saved``: its sweep.json or campaign.json) says its flights were flown by code that flies differently
+    (gcs/fleet/clock.py ``FLIGHT_VERSION``; none recorded: before version 2). Its runs would be mixed with runs that
+    the same seeds no longer fly, and the statistics, a failure's minimal file or a "flown already" would be about
+    flights nobody can fly again. None when it may be resumed."""
+    held = saved.get("flight_version")
+    if held == FLIGHT_VERSION:
+        return None
+    version = f"flight version {held}" if held is not None else "a flight version before 2"
+    return (f"{folder} holds flights flown by code that flies differently ({version}; this code flies version "
+            f"{FLIGHT_VERSION}): give another --out, or remove it")  # fmt: skip
 
 
 def saved_plan(path: Path) -> dict[str, Any] | None:

@@ -4,7 +4,8 @@ progress line and an estimate of the time left.
 
 The output folder holds sweep.json (what the sweep is), runs/<setting>/seed-<n>/ (each run's report, fly.log and,
 once complete, run.json) and the summary. Run again with the same folder, the sweep flies only the runs without a
-run.json; a folder holding another sweep (another mission, seeds or values) is refused rather than mixed.
+run.json; a folder holding another sweep (another mission, seeds or values), or the same sweep flown by code that
+flies differently (sweep.json's ``flight_version``), is refused rather than mixed.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from pathlib import Path
 from typing import Final, Protocol, TextIO
 
 from gcs.sweep.instance_locks import InstanceLocks
-from gcs.sweep.plan import Run, SweepError, SweepPlan, describe, saved_plan
+from gcs.sweep.plan import Run, SweepError, SweepPlan, describe, other_flights, saved_plan
 from gcs.sweep.runs import Flight, RunResult, Stopped, completed, fly
 
 PLAN_FILE: Final = "sweep.json"
@@ -81,11 +82,14 @@ class SweepOutcome:
 
 
 def prepare(plan: SweepPlan, out: Path) -> None:
-    """Make the output folder hold ``plan`` (new, or the same sweep resumed); SweepError for another sweep."""
+    """Make the output folder hold ``plan`` (new, or the same sweep resumed); SweepError for another sweep, or for
+    the same one flown by code that flies differently (``other_flights``)."""
     path = out / PLAN_FILE
     saved = saved_plan(path) if path.exists() else None
     if path.exists() and (saved is None or not plan.same_runs_as(saved)):
         raise SweepError(f"{out} holds another sweep ({path}): give another --out, or remove it")
+    if saved is not None and (why := other_flights(saved, out)) is not None:
+        raise SweepError(why)
     out.mkdir(parents=True, exist_ok=True)
     if saved is None:
         path.write_text(json.dumps(plan.to_json(), indent=1) + "\n")

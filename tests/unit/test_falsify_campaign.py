@@ -20,8 +20,9 @@ from pathlib import Path
 
 import pytest
 
-from gcs.falsify.campaign import Campaign, CampaignResult
+from gcs.falsify.campaign import CAMPAIGN_FILE, Campaign, CampaignResult
 from gcs.falsify.space import FalsifyError, FaultAt, ParamChange, Scenario
+from gcs.fleet.clock import FLIGHT_VERSION
 from gcs.sweep.runs import RUN_FILE, Flight, RunResult
 
 pytestmark = [pytest.mark.unit, pytest.mark.timeout(120)]
@@ -236,3 +237,20 @@ def test_a_folder_holding_a_campaign_over_another_mission_is_refused_before_anyt
     with pytest.raises(FalsifyError, match="holds a campaign over another mission") as caught:
         other.run()
     assert "\n" not in str(caught.value)
+
+
+def test_a_campaign_flown_by_code_that_flies_differently_is_refused_before_anything_flies(
+    tmp_path: Path, seed: int
+) -> None:
+    # GIVEN a campaign's folder whose record says its flights were flown by another version of the flights
+    first, _ = campaign(tmp_path, budget=3, shrink_budget=0, seed=seed)
+    first.run()
+    path = tmp_path / "out" / CAMPAIGN_FILE
+    record = json.loads(path.read_text())
+    assert record["flight_version"] == FLIGHT_VERSION
+    path.write_text(json.dumps({**record, "flight_version": FLIGHT_VERSION - 1}))
+    # WHEN the same campaign is run there again THEN it is refused in one line, and nothing flies
+    again, stand_in = campaign(tmp_path, budget=3, shrink_budget=0, seed=seed)
+    with pytest.raises(FalsifyError, match="holds flights flown by code that flies differently") as caught:
+        again.run()
+    assert "\n" not in str(caught.value) and not stand_in.flown

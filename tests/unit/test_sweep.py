@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from gcs.fleet.clock import FLIGHT_VERSION
 from gcs.sweep.instance_locks import FIRST_SWEEP_INSTANCE, InstanceLocks
 from gcs.sweep.plan import (
     LINK_LOSS,
@@ -88,6 +89,22 @@ def test_a_folder_holding_another_sweep_is_refused_and_the_same_one_resumed(tmp_
     prepare(plan(tmp_path), out)  # the same sweep: resumed
     with pytest.raises(SweepError, match="holds another sweep"):
         prepare(plan(tmp_path, seeds=(1, 2, 3)), out)
+
+
+def test_a_sweep_flown_by_code_that_flies_differently_is_refused_in_one_line(tmp_path: Path) -> None:
+    # GIVEN a sweep's folder whose record says its runs were flown by another version of the flights (or none, as
+    # every sweep recorded before the version was)
+    out = tmp_path / "out"
+    prepare(plan(tmp_path), out)
+    record = json.loads((out / PLAN_FILE).read_text())
+    assert record["flight_version"] == FLIGHT_VERSION
+    for held in (FLIGHT_VERSION - 1, None):
+        old = {k: v for k, v in record.items() if k != "flight_version"}
+        (out / PLAN_FILE).write_text(json.dumps(old if held is None else {**old, "flight_version": held}))
+        # WHEN the same sweep is resumed there THEN it is refused, in one line naming both versions
+        with pytest.raises(SweepError, match="holds flights flown by code that flies differently") as caught:
+            prepare(plan(tmp_path), out)
+        assert "\n" not in str(caught.value) and f"this code flies version {FLIGHT_VERSION}" in str(caught.value)
 
 
 # ---- statistics ------------------------------------------------------------------------------------------------
