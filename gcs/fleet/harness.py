@@ -149,7 +149,8 @@ class SimulationHarness(Protocol):
         ...
 
     def kill(self, sysid: int) -> str | None:
-        """Crash the drone's flight software now; what was done in one line, or None if it had already ended."""
+        """Crash the drone's flight software: now, or in lockstep at the next gate, every drone standing there, so
+        that a flight with a kill replays exactly; what was done in one line, or None if it had already ended."""
         ...
 
     def drone_time_s(self) -> float | None:
@@ -186,7 +187,8 @@ class SimulationHarness(Protocol):
 
     def advance_lockstep(self, lead_s: float) -> float | None:
         """In lockstep, let the drones run to ``lead_s`` past their common time; returns the common time it started
-        from, or None while not every drone has joined (nobody starts before the rest)."""
+        from, or None while not every drone has joined (nobody starts before the rest). Called when every drone
+        stands at the gate: the kills asked for since the last one land first (``kill``)."""
         ...
 
     def process_ids(self) -> dict[int, int]:

@@ -311,7 +311,7 @@ class SitlHarness:
         return self._radius_m
 
     def wake_fileno(self) -> int | None:
-        """A descriptor that becomes readable when the lockstep drones near or reach the gate (the ground station
+        """A descriptor that becomes readable when the lockstep drones reach the gate (the ground station
         waits on it with its MAVLink socket); None when not in lockstep."""
         return self._gate.wake_socket.fileno() if self._gate is not None else None
 

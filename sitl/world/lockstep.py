@@ -171,7 +171,7 @@ class LockstepGate:
         self.world = world
         self.dt_s = dt_s
         self._waker = _Waker(world)
-        # The last member to near or reach the gate sends an empty datagram here: the supervisor waits on this socket
+        # The last member to reach the gate sends an empty datagram here: the supervisor waits on this socket
         # with its MAVLink socket and moves the gate at once.
         self.wake_socket = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         self.wake_socket.bind(gate_address(world.name))
