@@ -36,7 +36,7 @@ from sitl.world.shared import (
 )
 
 # The columns sitl/kernels/world.py reads, in its order.
-_WORLD_COLUMNS = np.array((VALID, LAT, LON, ALT, ENDED), dtype=np.int64)
+_WORLD_COLUMNS = np.array((VALID, LAT, LON, ALT, ENDED, RADIUS), dtype=np.int64)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -79,10 +79,16 @@ def others_ned_m(world: SharedWorld, instance: int) -> tuple[npt.NDArray[np.int6
 def contacts(world: SharedWorld, instance: int) -> list[Contact]:
     """Bodies closer to drone ``instance`` than the sum of both collision radii, static obstacles included."""
     own_radius = float(world.table[instance, RADIUS])
-    found: list[Contact] = []
-    ids, offsets = others_ned_m(world, instance)
-    if len(ids):
-        distance = np.sqrt(np.einsum("ij,ij->i", offsets, offsets))
+    table = world.bodies
+    hit_ids = np.empty(len(table), np.int64)
+    hit_distances = np.empty(len(table))
+    hits_n = wk.touching(table, instance, _WORLD_COLUMNS, EARTH_RADIUS_M, own_radius, hit_ids, hit_distances)
+    if hits_n >= 0:
+        found = [Contact(instance=int(hit_ids[k]), distance_m=float(hit_distances[k])) for k in range(hits_n)]
+    else:  # a body has ended: where it has fallen to is worked out in numpy, the length in the kernel's order
+        ids, offsets = others_ned_m(world, instance)
+        north, east, down = offsets[:, 0], offsets[:, 1], offsets[:, 2]
+        distance = np.sqrt((north * north + down * down) + east * east)
         hits = np.flatnonzero(distance < world.bodies[ids, RADIUS] + own_radius)
         found = [Contact(instance=int(ids[k]), distance_m=float(distance[k])) for k in hits]
     if world.obstacle_table[:, O_VALID].any():

@@ -11,7 +11,7 @@ import pytest
 from sitl.dynamics.plant import GeoPoint, PlantState
 from sitl.mathutil import GRAVITY_MPS2, vec3
 from sitl.world.lockstep import LockstepGate, LockstepMember
-from sitl.world.shared import STEP, SharedWorld, lockstep_epoch_steps
+from sitl.world.shared import RADIUS, STEP, SharedWorld, lockstep_epoch_steps
 from sitl.world.view import WorldParticipant, contacts, others_ned_m
 
 LAT, LON, ALT = 47.397742, 8.545594, 490.0
@@ -34,6 +34,38 @@ def test_an_attached_table_sees_rows_written_by_the_creator_and_contacts_need_bo
         world.write(1, 1.1, (LAT + 0.8 / M_PER_DEG_LAT, LON, ALT), (0.0, 0.0, 0.0), 0.35, False, rest_alt_amsl_m=ALT)
         assert contacts(other, 0) == []
         other.close()
+    finally:
+        world.close()
+
+
+def test_contacts_in_a_crowd_are_every_body_within_both_radii_measured_in_one_fixed_order() -> None:
+    world = SharedWorld.create()
+    try:
+        # GIVEN 60 bodies of different sizes scattered within a metre or two of each other, one of them ended and fallen
+        rng = np.random.default_rng(11)
+        for i in range(60):
+            north, east, up = rng.uniform(-1.0, 1.0, 3)
+            world.write(i, 1.0, (LAT + north / M_PER_DEG_LAT, LON + east / M_PER_DEG_LAT, ALT + 3.0 + up),
+                        (0.0, 0.0, 0.0), float(rng.uniform(0.2, 0.6)), False, rest_alt_amsl_m=ALT)  # fmt: skip
+        for me in (0, 7, 59):
+            # WHEN a drone looks for contacts THEN it finds exactly the bodies closer than both radii, their centre
+            # distances with the squares added as (n^2 + d^2) + e^2
+            ids, offsets = others_ned_m(world, me)
+            radius = world.table[:, RADIUS]
+            expected = []
+            for i, (n, e, d) in zip(ids, offsets.tolist(), strict=True):
+                distance = math.sqrt((n * n + d * d) + e * e)
+                if distance < radius[i] + radius[me]:
+                    expected.append((int(i), distance))
+            found = [(c.instance, c.distance_m) for c in contacts(world, me)]
+            assert found == expected and len(found) > 3
+        # AND with a body that has ended (its fall worked out in numpy) the same rule holds
+        world.mark_ended(30, 1.0)
+        ids, offsets = others_ned_m(world, 0)
+        radius = world.table[:, RADIUS]
+        lengths = [math.sqrt((n * n + d * d) + e * e) for n, e, d in offsets.tolist()]
+        expected = [(int(i), x) for i, x in zip(ids, lengths, strict=True) if x < radius[i] + radius[0]]
+        assert [(c.instance, c.distance_m) for c in contacts(world, 0)] == expected
     finally:
         world.close()
 
