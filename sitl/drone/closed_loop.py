@@ -134,10 +134,10 @@ class ClosedLoop:
         if noise is None:
             return None
         block, row = noise
-        truth, cascade = self.truth, vehicle.cascade
+        cascade = vehicle.cascade
         att_cfg, rate_cfg, rate_state, alloc_rows, t_max, inner_out = cascade.inner_rows()
         est_state, est_cfg, est_gps, est_no_vec, est_out = self.estimator.kernel_rows()
-        bt.step(truth.rates_frd_radps, truth.specific_force_frd_mps2, block, row, self.sensors.imu.row,
+        bt.step(self.plant.imu_inputs(), block, row, self.sensors.imu.row,
                 est_state, est_cfg, est_gps, est_no_vec, est_out, self.time_s, dt_s, cascade.held_row,
                 vehicle.landed, att_cfg, rate_cfg, rate_state, alloc_rows, t_max, inner_out)  # fmt: skip
         self.estimate = estimate = self.estimator.published(self.time_s)

@@ -14,6 +14,7 @@ property node and read with ``get_double_value``, which is several times cheaper
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import tempfile
@@ -23,6 +24,7 @@ from pathlib import Path
 
 import jsbsim
 import numpy as np
+import numpy.typing as npt
 
 from sitl.dynamics.airframe import Airframe
 from sitl.dynamics.geodesy import LocalFrame
@@ -37,13 +39,12 @@ from sitl.dynamics.jsbsim_model import (
     write_model,
 )
 from sitl.dynamics.plant import DEFAULT_HOME, PHYSICS_RATE_HZ, GeoPoint, PlantState
-from sitl.mathutil import GRAVITY_MPS2, Vec3, fast_constructor
+from sitl.mathutil import GRAVITY_MPS2, Quat, Vec3, fast_constructor
 
 _log = logging.getLogger(__name__)
 
 _FT_PER_M = 1.0 / M_PER_FT
 
-_new_state = fast_constructor(PlantState)
 _new_geo = fast_constructor(GeoPoint)
 
 
@@ -173,6 +174,11 @@ class JsbsimPlant:
         self._wind_setters = tuple(node(f"atmosphere/wind-{c}-fps").set_double_value for c in ("north", "east", "down"))
 
         self._initialise(initial_pos_ned_m, initial_yaw_rad, initial_motor_cmds)
+        # The properties a state's record is built from, in the order ``_record`` unpacks them.
+        self._raw_getters = (
+            self._get_lat, self._get_lon, self._get_alt, *self._vel_getters, *self._euler_getters,
+            *self._rate_getters, *self._force_getters,
+        )  # fmt: skip
         self._state = self._read_state()
 
     @staticmethod
@@ -267,17 +273,34 @@ class JsbsimPlant:
                 return True
         return False
 
-    def _read_state(self) -> PlantState:
-        lat = self._get_lat()
-        lon = self._get_lon()
-        alt_m = self._get_alt() * M_PER_FT
+    def imu_inputs(self) -> npt.NDArray[np.float64]:
+        """The body rates and the specific force of the latest step in one row (rates, then specific force), the two
+        vectors an IMU samples: what the kernel of a step between ticks takes (sitl/kernels/between_ticks.py),
+        without building the state's record."""
+        return self._state.imu_inputs()
+
+    def _read_state(self) -> _SteppedState:
+        # Every property the record needs is read now, while JSBSim holds this step: the record itself (numpy
+        # vectors, the quaternion, the geodetic conversion) is built from these floats only if a reader asks.
+        raw = tuple([g() for g in self._raw_getters])
+        speeds = tuple([g() for g in self._speed_getters])
+        state = _new_stepped(_SteppedState)
+        _set_time(state, self._steps * self._dt_s)
+        _set_on_ground(state, self._any_contact())
+        _set_speeds(state, speeds)
+        _set_raw(state, raw)
+        _set_plant(state, self)
+        _set_record(state, None)
+        return state
+
+    def _record(self, raw: tuple[float, ...]) -> _Record:
+        """The vectors of a state from its raw properties: the conversions ``PlantState`` promises (SI, NED, FRD,
+        the project's w >= 0 quaternion), in the order and the arithmetic the plant always used, so the same bits."""
+        lat, lon, alt_ft, vn, ve, vd, phi, theta, psi, p, q, r, fx, fy, fz = raw
+        alt_m = alt_ft * M_PER_FT
         north, east, down = self._frame.ned_from_geodetic_rad(lat, lon, alt_m)
-        gn, ge, gd = self._vel_getters
-        gphi, gtheta, gpsi = self._euler_getters
-        gp, gq, gr = self._rate_getters
-        gfx, gfy, gfz = self._force_getters
-        # ZYX Euler to quaternion inline: this runs every physics step.
-        half_roll, half_pitch, half_yaw = 0.5 * gphi(), 0.5 * gtheta(), 0.5 * gpsi()
+        # ZYX Euler to quaternion inline.
+        half_roll, half_pitch, half_yaw = 0.5 * phi, 0.5 * theta, 0.5 * psi
         cr, sr = math.cos(half_roll), math.sin(half_roll)
         cp, sp = math.cos(half_pitch), math.sin(half_pitch)
         cy, sy = math.cos(half_yaw), math.sin(half_yaw)
@@ -288,14 +311,98 @@ class JsbsimPlant:
         if qw < 0.0:  # JSBSim reports yaw in [0, 2 pi); keep the project's w >= 0 form
             qw, qx, qy, qz = -qw, -qx, -qy, -qz
         sf = self._sf_scale
-        return _new_state(
-            time_s=self._steps * self._dt_s,
-            pos_ned_m=np.array((north, east, down)),
-            vel_ned_mps=np.array((gn() * M_PER_FT, ge() * M_PER_FT, gd() * M_PER_FT)),
-            att_q_frd_to_ned=np.array((qw, qx, qy, qz)),
-            rates_frd_radps=np.array((gp(), gq(), gr())),
-            specific_force_frd_mps2=np.array((gfx() * sf, gfy() * sf, gfz() * sf)),
-            geo=_new_geo(lat_deg=math.degrees(lat), lon_deg=math.degrees(lon), alt_amsl_m=alt_m),
-            on_ground=self._any_contact(),
-            motor_speeds_radps=tuple([g() for g in self._speed_getters]),
+        return (
+            np.array((north, east, down)),
+            np.array((vn * M_PER_FT, ve * M_PER_FT, vd * M_PER_FT)),
+            np.array((qw, qx, qy, qz)),
+            np.array((p, q, r)),
+            np.array((fx * sf, fy * sf, fz * sf)),
+            _new_geo(lat_deg=math.degrees(lat), lon_deg=math.degrees(lon), alt_amsl_m=alt_m),
         )
+
+
+# The record's vectors: position, velocity, attitude, rates, specific force, geodetic position.
+_Record = tuple[Vec3, Vec3, Quat, Vec3, Vec3, GeoPoint]
+
+# The raw properties' places in a stepped state's row (``JsbsimPlant._raw_getters``).
+_RAW_RATES = 9
+_RAW_FORCES = 12
+
+
+class _SteppedState(PlantState):
+    """The plant's state after a step, as a ``PlantState`` whose vectors are built on first read.
+
+    Most steps nobody reads the position, velocity or attitude (the world and the sensors read them a few tens of
+    times a second, the IMU reads rates and specific force through ``imu_inputs``), so building five numpy vectors, a
+    quaternion and a ``GeoPoint`` at every step was a third of the plant's Python. The raw properties are read at the
+    step (so a state read later, even after further steps, is the state of its own step) and the vectors built from
+    them once, on the first read. Scalars (time, ground contact, rotor speeds) are plain fields, set at the step.
+    ``dataclasses.replace``, copies and pickles of it give a plain ``PlantState`` with the same fields."""
+
+    __slots__ = ("_built", "_plant", "_raw")
+    _built: _Record | None  # the vectors, once a reader asked
+    _plant: JsbsimPlant
+    _raw: tuple[float, ...]  # the properties read at the step, in ``_raw_getters`` order
+
+    def __new__(cls, **fields: object) -> PlantState:  # type: ignore[misc]
+        # Only ``dataclasses.replace`` calls the class: it gets the plain record (the plant builds with ``object``).
+        return PlantState(**fields)  # type: ignore[arg-type]
+
+    def __reduce__(self) -> tuple[object, tuple[object, ...]]:
+        return _plain_state, (tuple(getattr(self, f.name) for f in dataclasses.fields(PlantState)),)
+
+    def __eq__(self, other: object) -> bool:
+        return _plain_state(tuple(getattr(self, f.name) for f in dataclasses.fields(PlantState))) == other
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def _vectors(self) -> _Record:
+        built: _Record | None = self._built
+        if built is None:
+            built = self._plant._record(self._raw)
+            _set_record(self, built)
+        return built
+
+    def imu_inputs(self) -> npt.NDArray[np.float64]:
+        raw = self._raw
+        sf = self._plant._sf_scale
+        return np.array((raw[_RAW_RATES], raw[_RAW_RATES + 1], raw[_RAW_RATES + 2],
+                         raw[_RAW_FORCES] * sf, raw[_RAW_FORCES + 1] * sf, raw[_RAW_FORCES + 2] * sf))  # fmt: skip
+
+    @property
+    def pos_ned_m(self) -> Vec3:
+        return self._vectors()[0]
+
+    @property
+    def vel_ned_mps(self) -> Vec3:
+        return self._vectors()[1]
+
+    @property
+    def att_q_frd_to_ned(self) -> Quat:
+        return self._vectors()[2]
+
+    @property
+    def rates_frd_radps(self) -> Vec3:
+        return self._vectors()[3]
+
+    @property
+    def specific_force_frd_mps2(self) -> Vec3:
+        return self._vectors()[4]
+
+    @property
+    def geo(self) -> GeoPoint:
+        return self._vectors()[5]
+
+
+def _plain_state(values: tuple[object, ...]) -> PlantState:
+    """A plain ``PlantState`` from its fields' values in declaration order (copies and pickles of a stepped state)."""
+    return PlantState(**{f.name: v for f, v in zip(dataclasses.fields(PlantState), values, strict=True)})  # type: ignore[arg-type]
+
+
+_new_stepped = object.__new__
+_set_time = PlantState.__dict__["time_s"].__set__
+_set_on_ground = PlantState.__dict__["on_ground"].__set__
+_set_speeds = PlantState.__dict__["motor_speeds_radps"].__set__
+_set_raw = _SteppedState.__dict__["_raw"].__set__
+_set_plant = _SteppedState.__dict__["_plant"].__set__
+_set_record = _SteppedState.__dict__["_built"].__set__

@@ -27,6 +27,7 @@ built once per update.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -149,7 +150,52 @@ class Estimator:
         return self._s, self._cfg, self._gps, self._no_vec, self._out
 
     def published(self, time_s: float) -> Estimate:
-        """The estimate in the output row (of the step just taken at ``time_s``)."""
+        """The estimate in the output row (of the step just taken at ``time_s``), its vectors built on first read
+        (``_RowEstimate``): between the commander's ticks few readers look at them."""
+        est = _new_row_estimate(_RowEstimate)
+        out = self._out.tolist()
+        _set_time(est, time_s)
+        _set_roll(est, out[ek.O_ROLL])
+        _set_pitch(est, out[ek.O_PITCH])
+        _set_yaw(est, out[ek.O_YAW])
+        _set_att_valid(est, out[ek.O_ATT_VALID] != 0.0)
+        _set_pos_valid(est, out[ek.O_POS_VALID] != 0.0)
+        _set_alt_valid(est, out[ek.O_ALT_VALID] != 0.0)
+        _set_row(est, out)
+        _set_vectors(est, None)
+        return est
+
+    def update(self, readings: SensorReadings, time_s: float, dt_s: float) -> Estimate:
+        imu = readings.imu
+        mag = readings.mag
+        update_attitude = self._s[ek.ATT_INITIALISED] != 0.0
+        if not update_attitude and mag is not None:
+            self._init_attitude(imu.accel_frd_mps2, mag.field_frd_gauss)
+            self._s[ek.ATT_SINCE] = time_s
+        gps = readings.gps
+        if gps is not None:
+            g = self._gps
+            g[ek.G_TIME] = gps.time_s
+            g[ek.G_FIX] = gps.fix_type
+            g[ek.G_POS : ek.G_POS + 2] = gps.pos_ned_m[:2]
+            g[ek.G_VEL : ek.G_VEL + 3] = gps.vel_ned_mps
+        baro = readings.baro
+        ek.step(
+            self._s,
+            self._cfg,
+            imu.gyro_frd_radps,
+            imu.accel_frd_mps2,
+            mag is not None,
+            mag.field_frd_gauss if mag is not None else self._no_vec,
+            gps is not None,
+            self._gps,
+            baro is not None,
+            baro.alt_amsl_m if baro is not None else 0.0,
+            time_s,
+            dt_s,
+            update_attitude,
+            self._out,
+        )
         pn, pe, pd, vn, ve, vd, w, x, y, z, p, q, r, roll, pitch, yaw, att_valid, pos_valid, alt_valid = (
             self._out.tolist()
         )
@@ -167,36 +213,73 @@ class Estimator:
             altitude_valid=alt_valid != 0.0,
         )
 
-    def update(self, readings: SensorReadings, time_s: float, dt_s: float) -> Estimate:
-        imu = readings.imu
-        mag = readings.mag
-        update_attitude = self._s[ek.ATT_INITIALISED] != 0.0
-        if not update_attitude and mag is not None:
-            self._init_attitude(imu.accel_frd_mps2, mag.field_frd_gauss)
-            self._s[ek.ATT_SINCE] = time_s
-        gps = readings.gps
-        if gps is not None:
-            g = self._gps
-            g[ek.G_TIME] = gps.time_s
-            g[ek.G_FIX] = gps.fix_type
-            g[ek.G_POS : ek.G_POS + 2] = gps.pos_ned_m[:2]
-            g[ek.G_VEL : ek.G_VEL + 3] = gps.vel_ned_mps
-        baro = readings.baro
-        out = self._out
-        ek.step(
-            self._s,
-            self._cfg,
-            imu.gyro_frd_radps,
-            imu.accel_frd_mps2,
-            mag is not None,
-            mag.field_frd_gauss if mag is not None else self._no_vec,
-            gps is not None,
-            self._gps,
-            baro is not None,
-            baro.alt_amsl_m if baro is not None else 0.0,
-            time_s,
-            dt_s,
-            update_attitude,
-            out,
-        )
-        return self.published(time_s)
+
+# An estimate's vectors: position, velocity, attitude, rates.
+_Vectors = tuple[Vec3, Vec3, Quat, Vec3]
+
+
+class _RowEstimate(Estimate):
+    """An ``Estimate`` published from the filter's output row whose vectors are built on first read.
+
+    Between the commander's ticks the estimate of a step goes to the commander and to ``ClosedLoop.estimate``, and
+    most steps nobody reads its vectors (telemetry, the cameras and the tick read tens of times a second): four numpy
+    vectors a step were most of ``published``. The row's values are copied at the step (so an estimate read later is
+    the one of its own step), the scalars set as plain fields, and the vectors built once, on the first read.
+    ``dataclasses.replace``, copies and pickles of it give a plain ``Estimate`` with the same fields."""
+
+    __slots__ = ("_row", "_vectors")
+    _row: list[float]  # the output row at the step
+    _vectors: _Vectors | None  # built from it, once a reader asked
+
+    def __new__(cls, **fields: object) -> Estimate:  # type: ignore[misc]
+        # Only ``dataclasses.replace`` calls the class: it gets the plain record (``published`` uses ``object``).
+        return Estimate(**fields)  # type: ignore[arg-type]
+
+    def __reduce__(self) -> tuple[object, tuple[object, ...]]:
+        return _plain_estimate, (tuple(getattr(self, f.name) for f in dataclasses.fields(Estimate)),)
+
+    def __eq__(self, other: object) -> bool:
+        return _plain_estimate(tuple(getattr(self, f.name) for f in dataclasses.fields(Estimate))) == other
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def _built(self) -> _Vectors:
+        vectors: _Vectors | None = self._vectors
+        if vectors is None:
+            pn, pe, pd, vn, ve, vd, w, x, y, z, p, q, r = self._row[: ek.O_ROLL]
+            vectors = (np.array((pn, pe, pd)), np.array((vn, ve, vd)), np.array((w, x, y, z)), np.array((p, q, r)))
+            _set_vectors(self, vectors)
+        return vectors
+
+    @property
+    def pos_ned_m(self) -> Vec3:
+        return self._built()[0]
+
+    @property
+    def vel_ned_mps(self) -> Vec3:
+        return self._built()[1]
+
+    @property
+    def att_q_frd_to_ned(self) -> Quat:
+        return self._built()[2]
+
+    @property
+    def rates_frd_radps(self) -> Vec3:
+        return self._built()[3]
+
+
+def _plain_estimate(values: tuple[object, ...]) -> Estimate:
+    """A plain ``Estimate`` from its fields' values in declaration order (copies and pickles of a row estimate)."""
+    return Estimate(**{f.name: v for f, v in zip(dataclasses.fields(Estimate), values, strict=True)})  # type: ignore[arg-type]
+
+
+_new_row_estimate = object.__new__
+_set_time = Estimate.__dict__["time_s"].__set__
+_set_roll = Estimate.__dict__["roll_rad"].__set__
+_set_pitch = Estimate.__dict__["pitch_rad"].__set__
+_set_yaw = Estimate.__dict__["yaw_rad"].__set__
+_set_att_valid = Estimate.__dict__["attitude_valid"].__set__
+_set_pos_valid = Estimate.__dict__["position_valid"].__set__
+_set_alt_valid = Estimate.__dict__["altitude_valid"].__set__
+_set_row = _RowEstimate.__dict__["_row"].__set__
+_set_vectors = _RowEstimate.__dict__["_vectors"].__set__

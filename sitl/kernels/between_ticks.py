@@ -27,6 +27,10 @@ I_GYRO_NOISE = 6
 I_ACCEL_NOISE = 7
 IMU_SIZE = 8
 
+# What the IMU samples, from the plant's step: the true body rates, then the true specific force.
+I_IN_RATES = 0
+I_IN_SPECIFIC_FORCE = 3
+
 # What the commander's last tick left for the inner loops: the attitude setpoint, the yaw-rate feed-forward and the
 # collective thrust (sitl/control/cascade.py, the position loops' output).
 H_ATT_SP = 0
@@ -36,13 +40,12 @@ HELD_SIZE = 6
 
 
 @kernel(
-    "void(float64[::1], float64[::1], float64[:, ::1], int64, float64[::1], float64[::1], float64[::1],"
+    "void(float64[::1], float64[:, ::1], int64, float64[::1], float64[::1], float64[::1],"
     " float64[::1], float64[::1], float64[::1], float64, float64, float64[::1], boolean, float64[::1],"
     " float64[::1], float64[::1], float64[:, ::1], float64, float64[::1])"
 )
 def step(
-    rates_frd_radps: npt.NDArray[np.float64],
-    specific_force_frd_mps2: npt.NDArray[np.float64],
+    imu_inputs: npt.NDArray[np.float64],
     noise: npt.NDArray[np.float64],
     noise_row: int,
     imu: npt.NDArray[np.float64],
@@ -62,17 +65,18 @@ def step(
     t_max: float,
     inner_out: npt.NDArray[np.float64],
 ) -> None:
-    """One step: the IMU sampled from the true rates and specific force with noise rows ``noise_row`` and
+    """One step: the IMU sampled from the true rates and specific force (``imu_inputs``: rates, then specific force,
+    sitl/dynamics/jsbsim_plant.py ``JsbsimPlant.imu_inputs``) with noise rows ``noise_row`` and
     ``noise_row + 1`` of the IMU's noise block, the estimator stepped on it alone, and the inner loops run on the new
     estimate towards ``held``; the estimate goes to ``est_out`` and the motor commands to ``inner_out``."""
     gyro = np.empty(3)
     accel = np.empty(3)
     k = imu[I_GYRO_NOISE]
     for i in range(3):
-        gyro[i] = rates_frd_radps[i] + imu[I_GYRO_BIAS + i] + k * noise[noise_row, i]
+        gyro[i] = imu_inputs[I_IN_RATES + i] + imu[I_GYRO_BIAS + i] + k * noise[noise_row, i]
     k = imu[I_ACCEL_NOISE]
     for i in range(3):
-        accel[i] = specific_force_frd_mps2[i] + imu[I_ACCEL_BIAS + i] + k * noise[noise_row + 1, i]
+        accel[i] = imu_inputs[I_IN_SPECIFIC_FORCE + i] + imu[I_ACCEL_BIAS + i] + k * noise[noise_row + 1, i]
     ek.step(est_state, est_cfg, gyro, accel, False, est_no_vec, False, est_gps, False, 0.0, time_s, dt_s,
             est_state[ek.ATT_INITIALISED] != 0.0, est_out)  # fmt: skip
     q = ek.O_Q

@@ -383,3 +383,23 @@ def test_same_readings_give_identical_estimates() -> None:
     for f in ("pos_ned_m", "vel_ned_mps", "att_q_frd_to_ned", "rates_frd_radps"):
         np.testing.assert_array_equal(getattr(ea, f), getattr(eb, f))
     assert (ea.roll_rad, ea.pitch_rad, ea.yaw_rad) == (eb.roll_rad, eb.pitch_rad, eb.yaw_rad)
+
+
+def test_a_published_estimate_builds_its_vectors_from_the_row_of_its_own_step() -> None:
+    """``published`` (the estimate of a step taken in a kernel) copies the output row at once and builds its vectors
+    on first read: read late, replaced or pickled, it is the estimate ``update`` returned for that step."""
+    import dataclasses
+    import pickle
+
+    est, sensors = make_estimator(), SyntheticSensors()
+    kept = []
+    for step in range(300):
+        eager = est.update(sensors.readings(step), step * DT_S, DT_S)
+        kept.append((eager, est.published(step * DT_S)))
+    for eager, late in kept[::37]:
+        for copy_ in (late, dataclasses.replace(late), pickle.loads(pickle.dumps(late))):
+            for f in dataclasses.fields(Estimate):
+                a, b = getattr(eager, f.name), getattr(copy_, f.name)
+                assert type(a) is type(b)
+                assert a.tobytes() == b.tobytes() if isinstance(a, np.ndarray) else a == b, f.name
+        assert type(dataclasses.replace(late)) is Estimate

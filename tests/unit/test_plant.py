@@ -365,3 +365,30 @@ def test_a_vehicle_that_flips_over_rests_on_its_motors_above_the_ground() -> Non
     assert all(s.pos_ned_m[2] < 0.0 for s in states)
     assert np.linalg.norm(end.vel_ned_mps) < 1e-3
     assert_finite(end)
+
+
+def test_a_state_read_after_later_steps_is_the_state_of_its_own_step() -> None:
+    """A step's vectors are built on first read from the properties read at that step: reading one late, or copying,
+    replacing or pickling it, gives what reading it at once gave, as a plain ``PlantState``."""
+    import copy
+    import pickle
+
+    cmds = [hover_cmd() * 1.2] * len(AIRFRAME.rotors)
+    eager, lazy = JsbsimPlant(AIRFRAME), JsbsimPlant(AIRFRAME)
+    read_at_once = [dataclasses.replace(eager.step(cmds)) for _ in range(50)]
+    kept = [lazy.step(cmds) for _ in range(50)]
+    for now, late in zip(read_at_once, kept, strict=True):
+        assert type(now) is PlantState
+        for f in dataclasses.fields(PlantState):
+            a, b = getattr(now, f.name), getattr(late, f.name)
+            assert type(a) is type(b)
+            if isinstance(a, np.ndarray):
+                assert a.tobytes() == b.tobytes(), f.name
+            else:
+                assert a == b, f.name
+        for plain in (dataclasses.replace(late), copy.copy(late), pickle.loads(pickle.dumps(late))):
+            assert type(plain) is PlantState
+            assert plain.geo == late.geo and plain.pos_ned_m.tobytes() == late.pos_ned_m.tobytes()
+    imu = lazy.imu_inputs()
+    last = kept[-1]
+    assert imu.tobytes() == np.concatenate((last.rates_frd_radps, last.specific_force_frd_mps2)).tobytes()
