@@ -229,6 +229,9 @@ def main() -> None:
     parser.add_argument(
         "--scenarios", nargs="+", choices=("lone", "circle", "dense", "frames"), default=["circle", "dense"]
     )
+    parser.add_argument(
+        "--reference", choices=PARTS, default="physics", help="the part the ratios are to: one both trees share"
+    )
     parser.add_argument("--one", action="store_true", help=argparse.SUPPRESS)  # a subprocess of --trees
     args = parser.parse_args()
     if args.one:
@@ -246,7 +249,7 @@ def main() -> None:
             results[tree].append(row)
             print(f"repeat {rep + 1} {tree}: {json.dumps(row)}", flush=True)
     for scenario in args.scenarios:
-        reference = "physics"
+        reference = args.reference
         if any(r[scenario].get("digest") is not None for runs in results.values() for r in runs):
             digests = {tree: sorted({r[scenario]["digest"] for r in runs}) for tree, runs in results.items()
                        if all(r[scenario].get("digest") is not None for r in runs)}  # fmt: skip

@@ -137,6 +137,8 @@ class Cascade:
         self.rate = RateController(rate_config(params, airframe))
         self.allocator = ControlAllocator(airframe)
         self._inner_out = np.zeros(ck.O_ROTORS + 2 * self.allocator.rotor_count)
+        # The motor commands in the output row, a view made once: read at every step between ticks.
+        self._inner_motors = self._inner_out[ck.O_ROTORS : ck.O_ROTORS + self.allocator.rotor_count]
         # The position loops' last output as the inner loops take it (sitl/kernels/between_ticks.py).
         self.held_row = np.zeros(bt.HELD_SIZE)
         self.heading = heading_config(params)
@@ -186,8 +188,7 @@ class Cascade:
         held output of the position loops: count it towards their next run, as ``update`` does, and return its
         motor commands from the output row."""
         self._outer_elapsed_s += dt_s
-        n = self.allocator.rotor_count
-        return tuple(self._inner_out[ck.O_ROTORS : ck.O_ROTORS + n].tolist())
+        return tuple(self._inner_motors.tolist())
 
     def _refresh_configs(self) -> None:
         store = self.params

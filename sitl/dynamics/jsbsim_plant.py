@@ -290,16 +290,10 @@ class JsbsimPlant:
         _set_speeds(state, speeds)
         _set_raw(state, raw)
         _set_plant(state, self)
-        _set_record(state, None)
         return state
 
-    def _record(self, raw: tuple[float, ...]) -> _Record:
-        """The vectors of a state from its raw properties: the conversions ``PlantState`` promises (SI, NED, FRD,
-        the project's w >= 0 quaternion), in the order and the arithmetic the plant always used, so the same bits."""
-        lat, lon, alt_ft, vn, ve, vd, phi, theta, psi, p, q, r, fx, fy, fz = raw
-        alt_m = alt_ft * M_PER_FT
-        north, east, down = self._frame.ned_from_geodetic_rad(lat, lon, alt_m)
-        # ZYX Euler to quaternion inline.
+    def _quaternion(self, phi: float, theta: float, psi: float) -> Quat:
+        """ZYX Euler angles to the project's w >= 0 quaternion, written out as the plant always computed it."""
         half_roll, half_pitch, half_yaw = 0.5 * phi, 0.5 * theta, 0.5 * psi
         cr, sr = math.cos(half_roll), math.sin(half_roll)
         cp, sp = math.cos(half_pitch), math.sin(half_pitch)
@@ -310,21 +304,14 @@ class JsbsimPlant:
         qz = cr * cp * sy - sr * sp * cy
         if qw < 0.0:  # JSBSim reports yaw in [0, 2 pi); keep the project's w >= 0 form
             qw, qx, qy, qz = -qw, -qx, -qy, -qz
-        sf = self._sf_scale
-        return (
-            np.array((north, east, down)),
-            np.array((vn * M_PER_FT, ve * M_PER_FT, vd * M_PER_FT)),
-            np.array((qw, qx, qy, qz)),
-            np.array((p, q, r)),
-            np.array((fx * sf, fy * sf, fz * sf)),
-            _new_geo(lat_deg=math.degrees(lat), lon_deg=math.degrees(lon), alt_amsl_m=alt_m),
-        )
+        return np.array((qw, qx, qy, qz))
 
 
-# The record's vectors: position, velocity, attitude, rates, specific force, geodetic position.
-_Record = tuple[Vec3, Vec3, Quat, Vec3, Vec3, GeoPoint]
-
-# The raw properties' places in a stepped state's row (``JsbsimPlant._raw_getters``).
+# The raw properties' places in a stepped state's row (``JsbsimPlant._raw_getters``): geodetic position (radians,
+# radians, feet), NED velocity (ft/s), Euler angles, body rates, body forces (lbf).
+_RAW_GEO = 0
+_RAW_VEL = 3
+_RAW_EULER = 6
 _RAW_RATES = 9
 _RAW_FORCES = 12
 
@@ -333,14 +320,15 @@ class _SteppedState(PlantState):
     """The plant's state after a step, as a ``PlantState`` whose vectors are built on first read.
 
     Most steps nobody reads the position, velocity or attitude (the world and the sensors read them a few tens of
-    times a second, the IMU reads rates and specific force through ``imu_inputs``), so building five numpy vectors, a
-    quaternion and a ``GeoPoint`` at every step was a third of the plant's Python. The raw properties are read at the
-    step (so a state read later, even after further steps, is the state of its own step) and the vectors built from
-    them once, on the first read. Scalars (time, ground contact, rotor speeds) are plain fields, set at the step.
+    times a second, the IMU of a step between ticks reads rates and specific force through ``imu_inputs``), so
+    building five numpy vectors, a quaternion and a ``GeoPoint`` at every step was a third of the plant's Python.
+    The raw properties are read at the step (so a state read later, even after further steps, is the state of its
+    own step), and each vector is built from them on its first read, with the conversions ``PlantState`` promises
+    (SI, NED, FRD) in the arithmetic the plant always used, so the same bits; it is kept in ``PlantState``'s own slot,
+    which this class's property shadows. Scalars (time, ground contact, rotor speeds) are set at the step.
     ``dataclasses.replace``, copies and pickles of it give a plain ``PlantState`` with the same fields."""
 
-    __slots__ = ("_built", "_plant", "_raw")
-    _built: _Record | None  # the vectors, once a reader asked
+    __slots__ = ("_plant", "_raw")
     _plant: JsbsimPlant
     _raw: tuple[float, ...]  # the properties read at the step, in ``_raw_getters`` order
 
@@ -356,13 +344,6 @@ class _SteppedState(PlantState):
 
     __hash__ = None  # type: ignore[assignment]
 
-    def _vectors(self) -> _Record:
-        built: _Record | None = self._built
-        if built is None:
-            built = self._plant._record(self._raw)
-            _set_record(self, built)
-        return built
-
     def imu_inputs(self) -> npt.NDArray[np.float64]:
         raw = self._raw
         sf = self._plant._sf_scale
@@ -371,27 +352,66 @@ class _SteppedState(PlantState):
 
     @property
     def pos_ned_m(self) -> Vec3:
-        return self._vectors()[0]
-
-    @property
-    def vel_ned_mps(self) -> Vec3:
-        return self._vectors()[1]
-
-    @property
-    def att_q_frd_to_ned(self) -> Quat:
-        return self._vectors()[2]
-
-    @property
-    def rates_frd_radps(self) -> Vec3:
-        return self._vectors()[3]
-
-    @property
-    def specific_force_frd_mps2(self) -> Vec3:
-        return self._vectors()[4]
+        try:
+            return _get_pos(self)
+        except AttributeError:
+            raw = self._raw
+            lat, lon, alt_m = raw[_RAW_GEO], raw[_RAW_GEO + 1], raw[_RAW_GEO + 2] * M_PER_FT
+            pos = np.array(self._plant._frame.ned_from_geodetic_rad(lat, lon, alt_m))
+            _set_pos(self, pos)
+            return pos
 
     @property
     def geo(self) -> GeoPoint:
-        return self._vectors()[5]
+        try:
+            return _get_geo(self)
+        except AttributeError:
+            raw = self._raw
+            lat, lon, alt_m = raw[_RAW_GEO], raw[_RAW_GEO + 1], raw[_RAW_GEO + 2] * M_PER_FT
+            geo = _new_geo(lat_deg=math.degrees(lat), lon_deg=math.degrees(lon), alt_amsl_m=alt_m)
+            _set_geo(self, geo)
+            return geo
+
+    @property
+    def vel_ned_mps(self) -> Vec3:
+        try:
+            return _get_vel(self)
+        except AttributeError:
+            raw = self._raw
+            vel = np.array((raw[_RAW_VEL] * M_PER_FT, raw[_RAW_VEL + 1] * M_PER_FT, raw[_RAW_VEL + 2] * M_PER_FT))
+            _set_vel(self, vel)
+            return vel
+
+    @property
+    def att_q_frd_to_ned(self) -> Quat:
+        try:
+            return _get_att(self)
+        except AttributeError:
+            raw = self._raw
+            att = self._plant._quaternion(raw[_RAW_EULER], raw[_RAW_EULER + 1], raw[_RAW_EULER + 2])
+            _set_att(self, att)
+            return att
+
+    @property
+    def rates_frd_radps(self) -> Vec3:
+        try:
+            return _get_rates(self)
+        except AttributeError:
+            raw = self._raw
+            rates = np.array((raw[_RAW_RATES], raw[_RAW_RATES + 1], raw[_RAW_RATES + 2]))
+            _set_rates(self, rates)
+            return rates
+
+    @property
+    def specific_force_frd_mps2(self) -> Vec3:
+        try:
+            return _get_sf(self)
+        except AttributeError:
+            raw = self._raw
+            sf = self._plant._sf_scale
+            force = np.array((raw[_RAW_FORCES] * sf, raw[_RAW_FORCES + 1] * sf, raw[_RAW_FORCES + 2] * sf))
+            _set_sf(self, force)
+            return force
 
 
 def _plain_state(values: tuple[object, ...]) -> PlantState:
@@ -405,4 +425,12 @@ _set_on_ground = PlantState.__dict__["on_ground"].__set__
 _set_speeds = PlantState.__dict__["motor_speeds_radps"].__set__
 _set_raw = _SteppedState.__dict__["_raw"].__set__
 _set_plant = _SteppedState.__dict__["_plant"].__set__
-_set_record = _SteppedState.__dict__["_built"].__set__
+# PlantState's own slots, shadowed by the stepped state's properties: where each vector is kept once built.
+_get_pos, _set_pos = PlantState.__dict__["pos_ned_m"].__get__, PlantState.__dict__["pos_ned_m"].__set__
+_get_geo, _set_geo = PlantState.__dict__["geo"].__get__, PlantState.__dict__["geo"].__set__
+_get_vel, _set_vel = PlantState.__dict__["vel_ned_mps"].__get__, PlantState.__dict__["vel_ned_mps"].__set__
+_get_att, _set_att = PlantState.__dict__["att_q_frd_to_ned"].__get__, PlantState.__dict__["att_q_frd_to_ned"].__set__
+_get_rates = PlantState.__dict__["rates_frd_radps"].__get__
+_set_rates = PlantState.__dict__["rates_frd_radps"].__set__
+_get_sf = PlantState.__dict__["specific_force_frd_mps2"].__get__
+_set_sf = PlantState.__dict__["specific_force_frd_mps2"].__set__

@@ -162,7 +162,6 @@ class Estimator:
         _set_pos_valid(est, out[ek.O_POS_VALID] != 0.0)
         _set_alt_valid(est, out[ek.O_ALT_VALID] != 0.0)
         _set_row(est, out)
-        _set_vectors(est, None)
         return est
 
     def update(self, readings: SensorReadings, time_s: float, dt_s: float) -> Estimate:
@@ -214,22 +213,18 @@ class Estimator:
         )
 
 
-# An estimate's vectors: position, velocity, attitude, rates.
-_Vectors = tuple[Vec3, Vec3, Quat, Vec3]
-
-
 class _RowEstimate(Estimate):
     """An ``Estimate`` published from the filter's output row whose vectors are built on first read.
 
     Between the commander's ticks the estimate of a step goes to the commander and to ``ClosedLoop.estimate``, and
     most steps nobody reads its vectors (telemetry, the cameras and the tick read tens of times a second): four numpy
     vectors a step were most of ``published``. The row's values are copied at the step (so an estimate read later is
-    the one of its own step), the scalars set as plain fields, and the vectors built once, on the first read.
-    ``dataclasses.replace``, copies and pickles of it give a plain ``Estimate`` with the same fields."""
+    the one of its own step), the scalars set as plain fields, and each vector built on its first read and kept in
+    ``Estimate``'s own slot, which this class's property shadows. ``dataclasses.replace``, copies and pickles of it
+    give a plain ``Estimate`` with the same fields."""
 
-    __slots__ = ("_row", "_vectors")
+    __slots__ = ("_row",)
     _row: list[float]  # the output row at the step
-    _vectors: _Vectors | None  # built from it, once a reader asked
 
     def __new__(cls, **fields: object) -> Estimate:  # type: ignore[misc]
         # Only ``dataclasses.replace`` calls the class: it gets the plain record (``published`` uses ``object``).
@@ -243,29 +238,38 @@ class _RowEstimate(Estimate):
 
     __hash__ = None  # type: ignore[assignment]
 
-    def _built(self) -> _Vectors:
-        vectors: _Vectors | None = self._vectors
-        if vectors is None:
-            pn, pe, pd, vn, ve, vd, w, x, y, z, p, q, r = self._row[: ek.O_ROLL]
-            vectors = (np.array((pn, pe, pd)), np.array((vn, ve, vd)), np.array((w, x, y, z)), np.array((p, q, r)))
-            _set_vectors(self, vectors)
-        return vectors
+    def _vector(self, name: str, start: int, size: int) -> Vec3:
+        vector = np.array(self._row[start : start + size])
+        _SLOTS[name].__set__(self, vector)
+        return vector
 
     @property
     def pos_ned_m(self) -> Vec3:
-        return self._built()[0]
+        try:
+            return _get_pos(self)
+        except AttributeError:
+            return self._vector("pos_ned_m", ek.O_POS, 3)
 
     @property
     def vel_ned_mps(self) -> Vec3:
-        return self._built()[1]
+        try:
+            return _get_vel(self)
+        except AttributeError:
+            return self._vector("vel_ned_mps", ek.O_VEL, 3)
 
     @property
     def att_q_frd_to_ned(self) -> Quat:
-        return self._built()[2]
+        try:
+            return _get_att(self)
+        except AttributeError:
+            return self._vector("att_q_frd_to_ned", ek.O_Q, 4)
 
     @property
     def rates_frd_radps(self) -> Vec3:
-        return self._built()[3]
+        try:
+            return _get_rates(self)
+        except AttributeError:
+            return self._vector("rates_frd_radps", ek.O_RATES, 3)
 
 
 def _plain_estimate(values: tuple[object, ...]) -> Estimate:
@@ -282,4 +286,9 @@ _set_att_valid = Estimate.__dict__["attitude_valid"].__set__
 _set_pos_valid = Estimate.__dict__["position_valid"].__set__
 _set_alt_valid = Estimate.__dict__["altitude_valid"].__set__
 _set_row = _RowEstimate.__dict__["_row"].__set__
-_set_vectors = _RowEstimate.__dict__["_vectors"].__set__
+# Estimate's own slots, shadowed by the row estimate's properties: where each vector is kept once built.
+_SLOTS = {name: Estimate.__dict__[name] for name in ("pos_ned_m", "vel_ned_mps", "att_q_frd_to_ned", "rates_frd_radps")}
+_get_pos = _SLOTS["pos_ned_m"].__get__
+_get_vel = _SLOTS["vel_ned_mps"].__get__
+_get_att = _SLOTS["att_q_frd_to_ned"].__get__
+_get_rates = _SLOTS["rates_frd_radps"].__get__
