@@ -49,7 +49,7 @@ class EventRecord:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class FaultRecord:
-    """A fault the mission injected: when, into which drone, and the drone's answer."""
+    """A fault the mission injected: when it was ordered, into which drone, and the drone's answer."""
 
     time_s: float
     sysid: int

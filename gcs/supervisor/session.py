@@ -154,8 +154,11 @@ class FlightSession:
             self.say(f"{indent}swarm: {line}")
             self.recording.policy_events.append(EventRecord(time_s=now_s, sysid=sysid, text=line))
 
-    def record_fault(self, sysid: int, what: str, result: str) -> None:
-        self.recording.faults.append(FaultRecord(time_s=self.mission_time(), sysid=sysid, fault=what, result=result))
+    def record_fault(self, sysid: int, what: str, result: str, ordered_s: float | None = None) -> None:
+        """A fault for the report, at the mission time it was ordered (``ordered_s``; now when not given), whenever
+        the drone's answer came."""
+        time_s = self.mission_time() if ordered_s is None else ordered_s
+        self.recording.faults.append(FaultRecord(time_s=time_s, sysid=sysid, fault=what, result=result))
 
     # ---- the report's steps (``swarm up`` and the API: a verb that changes what the swarm flies starts one) ------
     def begin_step(self, kind: str, name: str | None = None, alt_m: float | None = None,

@@ -296,6 +296,7 @@ def fault(session: FlightSession, asked: rq.InjectFault | rq.Kill) -> Started:
     """Inject a fault into one drone: PX4's MAV_CMD_INJECT_FAILURE, or (``crash``, a kill) the harness ends its flight
     software. Noted and recorded for the report, refused or not; ``FaultRefused`` when the drone refuses it."""
     swarm, sysid, request = session.swarm, asked.sysid, asked.fault
+    ordered_s = session.mission_time()  # the report's time: the answer comes frames later
     sysids, losses = swarm.liveness.sysids, swarm.liveness.losses
     if isinstance(sysid, bool) or not isinstance(sysid, int) or sysid not in sysids:
         known = f"{sysids[0]}..{sysids[-1]}" if sysids else "none"
@@ -308,7 +309,7 @@ def fault(session: FlightSession, asked: rq.InjectFault | rq.Kill) -> Started:
         ack = swarm.inject_fault(sysid, request)
         result, accepted = result_text(ack.result), ack.ok
     session.note(f"fault {request.describe()} on drone {sysid}: {result}")
-    session.record_fault(sysid, request.describe(), result)
+    session.record_fault(sysid, request.describe(), result, ordered_s)
     if not accepted:
         raise FaultRefused(f"drone {sysid} refused fault {request.describe()}: {result}")
     return Started(result=result, value=result)
