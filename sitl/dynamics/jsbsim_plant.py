@@ -290,6 +290,13 @@ class JsbsimPlant:
         _set_speeds(state, speeds)
         _set_raw(state, raw)
         _set_plant(state, self)
+        # None marks a vector not built yet (a test of an unset slot would raise, and raising costs a microsecond).
+        _set_pos(state, None)
+        _set_geo(state, None)
+        _set_vel(state, None)
+        _set_att(state, None)
+        _set_rates(state, None)
+        _set_sf(state, None)
         return state
 
     def _quaternion(self, phi: float, theta: float, psi: float) -> Quat:
@@ -352,66 +359,66 @@ class _SteppedState(PlantState):
 
     @property
     def pos_ned_m(self) -> Vec3:
-        try:
-            return _get_pos(self)
-        except AttributeError:
-            raw = self._raw
-            lat, lon, alt_m = raw[_RAW_GEO], raw[_RAW_GEO + 1], raw[_RAW_GEO + 2] * M_PER_FT
-            pos = np.array(self._plant._frame.ned_from_geodetic_rad(lat, lon, alt_m))
-            _set_pos(self, pos)
-            return pos
+        built = _get_pos(self)
+        if built is not None:
+            return built
+        raw = self._raw
+        lat, lon, alt_m = raw[_RAW_GEO], raw[_RAW_GEO + 1], raw[_RAW_GEO + 2] * M_PER_FT
+        pos = np.array(self._plant._frame.ned_from_geodetic_rad(lat, lon, alt_m))
+        _set_pos(self, pos)
+        return pos
 
     @property
     def geo(self) -> GeoPoint:
-        try:
-            return _get_geo(self)
-        except AttributeError:
-            raw = self._raw
-            lat, lon, alt_m = raw[_RAW_GEO], raw[_RAW_GEO + 1], raw[_RAW_GEO + 2] * M_PER_FT
-            geo = _new_geo(lat_deg=math.degrees(lat), lon_deg=math.degrees(lon), alt_amsl_m=alt_m)
-            _set_geo(self, geo)
-            return geo
+        built = _get_geo(self)
+        if built is not None:
+            return built
+        raw = self._raw
+        lat, lon, alt_m = raw[_RAW_GEO], raw[_RAW_GEO + 1], raw[_RAW_GEO + 2] * M_PER_FT
+        geo = _new_geo(lat_deg=math.degrees(lat), lon_deg=math.degrees(lon), alt_amsl_m=alt_m)
+        _set_geo(self, geo)
+        return geo
 
     @property
     def vel_ned_mps(self) -> Vec3:
-        try:
-            return _get_vel(self)
-        except AttributeError:
-            raw = self._raw
-            vel = np.array((raw[_RAW_VEL] * M_PER_FT, raw[_RAW_VEL + 1] * M_PER_FT, raw[_RAW_VEL + 2] * M_PER_FT))
-            _set_vel(self, vel)
-            return vel
+        built = _get_vel(self)
+        if built is not None:
+            return built
+        raw = self._raw
+        vel = np.array((raw[_RAW_VEL] * M_PER_FT, raw[_RAW_VEL + 1] * M_PER_FT, raw[_RAW_VEL + 2] * M_PER_FT))
+        _set_vel(self, vel)
+        return vel
 
     @property
     def att_q_frd_to_ned(self) -> Quat:
-        try:
-            return _get_att(self)
-        except AttributeError:
-            raw = self._raw
-            att = self._plant._quaternion(raw[_RAW_EULER], raw[_RAW_EULER + 1], raw[_RAW_EULER + 2])
-            _set_att(self, att)
-            return att
+        built = _get_att(self)
+        if built is not None:
+            return built
+        raw = self._raw
+        att = self._plant._quaternion(raw[_RAW_EULER], raw[_RAW_EULER + 1], raw[_RAW_EULER + 2])
+        _set_att(self, att)
+        return att
 
     @property
     def rates_frd_radps(self) -> Vec3:
-        try:
-            return _get_rates(self)
-        except AttributeError:
-            raw = self._raw
-            rates = np.array((raw[_RAW_RATES], raw[_RAW_RATES + 1], raw[_RAW_RATES + 2]))
-            _set_rates(self, rates)
-            return rates
+        built = _get_rates(self)
+        if built is not None:
+            return built
+        raw = self._raw
+        rates = np.array((raw[_RAW_RATES], raw[_RAW_RATES + 1], raw[_RAW_RATES + 2]))
+        _set_rates(self, rates)
+        return rates
 
     @property
     def specific_force_frd_mps2(self) -> Vec3:
-        try:
-            return _get_sf(self)
-        except AttributeError:
-            raw = self._raw
-            sf = self._plant._sf_scale
-            force = np.array((raw[_RAW_FORCES] * sf, raw[_RAW_FORCES + 1] * sf, raw[_RAW_FORCES + 2] * sf))
-            _set_sf(self, force)
-            return force
+        built = _get_sf(self)
+        if built is not None:
+            return built
+        raw = self._raw
+        sf = self._plant._sf_scale
+        force = np.array((raw[_RAW_FORCES] * sf, raw[_RAW_FORCES + 1] * sf, raw[_RAW_FORCES + 2] * sf))
+        _set_sf(self, force)
+        return force
 
 
 def _plain_state(values: tuple[object, ...]) -> PlantState:

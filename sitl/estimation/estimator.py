@@ -162,6 +162,11 @@ class Estimator:
         _set_pos_valid(est, out[ek.O_POS_VALID] != 0.0)
         _set_alt_valid(est, out[ek.O_ALT_VALID] != 0.0)
         _set_row(est, out)
+        # None marks a vector not built yet (a test of an unset slot would raise, and raising costs a microsecond).
+        _set_pos(est, None)
+        _set_vel(est, None)
+        _set_att(est, None)
+        _set_rates(est, None)
         return est
 
     def update(self, readings: SensorReadings, time_s: float, dt_s: float) -> Estimate:
@@ -245,31 +250,31 @@ class _RowEstimate(Estimate):
 
     @property
     def pos_ned_m(self) -> Vec3:
-        try:
-            return _get_pos(self)
-        except AttributeError:
-            return self._vector("pos_ned_m", ek.O_POS, 3)
+        built = _get_pos(self)
+        if built is not None:
+            return built
+        return self._vector("pos_ned_m", ek.O_POS, 3)
 
     @property
     def vel_ned_mps(self) -> Vec3:
-        try:
-            return _get_vel(self)
-        except AttributeError:
-            return self._vector("vel_ned_mps", ek.O_VEL, 3)
+        built = _get_vel(self)
+        if built is not None:
+            return built
+        return self._vector("vel_ned_mps", ek.O_VEL, 3)
 
     @property
     def att_q_frd_to_ned(self) -> Quat:
-        try:
-            return _get_att(self)
-        except AttributeError:
-            return self._vector("att_q_frd_to_ned", ek.O_Q, 4)
+        built = _get_att(self)
+        if built is not None:
+            return built
+        return self._vector("att_q_frd_to_ned", ek.O_Q, 4)
 
     @property
     def rates_frd_radps(self) -> Vec3:
-        try:
-            return _get_rates(self)
-        except AttributeError:
-            return self._vector("rates_frd_radps", ek.O_RATES, 3)
+        built = _get_rates(self)
+        if built is not None:
+            return built
+        return self._vector("rates_frd_radps", ek.O_RATES, 3)
 
 
 def _plain_estimate(values: tuple[object, ...]) -> Estimate:
@@ -292,3 +297,7 @@ _get_pos = _SLOTS["pos_ned_m"].__get__
 _get_vel = _SLOTS["vel_ned_mps"].__get__
 _get_att = _SLOTS["att_q_frd_to_ned"].__get__
 _get_rates = _SLOTS["rates_frd_radps"].__get__
+_set_pos = _SLOTS["pos_ned_m"].__set__
+_set_vel = _SLOTS["vel_ned_mps"].__set__
+_set_att = _SLOTS["att_q_frd_to_ned"].__set__
+_set_rates = _SLOTS["rates_frd_radps"].__set__
