@@ -65,37 +65,33 @@ def centre_distance_m(north: float, east: float, down: float) -> float:
     return math.sqrt((north * north + down * down) + east * east)
 
 
-@kernel("int64(float64[:, ::1], int64, int64[::1], float64, float64, int64[::1], float64[::1])")
+@kernel(
+    "int64(float64[:, ::1], int64, int64[::1], float64, float64, int64[::1], float64[:, ::1], int64[::1], float64[::1])"
+)
 def touching(
     bodies: npt.NDArray[np.float64],
     instance: int,
     columns: npt.NDArray[np.int64],
     earth_radius_m: float,
     own_radius_m: float,
+    ids: npt.NDArray[np.int64],
+    offsets: npt.NDArray[np.float64],
     hit_ids: npt.NDArray[np.int64],
     hit_distances_m: npt.NDArray[np.float64],
 ) -> int:
     """The other valid bodies closer to drone ``instance`` than both radii together (``hit_ids``, their centre
-    distances in ``hit_distances_m``), in table order; returns how many, or -1 when one of them has ended (the shell
-    works out where it has fallen to)."""
-    valid, ended, radius = columns[C_VALID], columns[C_ENDED], columns[C_RADIUS]
-    lat_c, lon_c, alt_c = columns[C_LAT], columns[C_LON], columns[C_ALT]
-    me_lat = bodies[instance, lat_c]
-    me_lon = bodies[instance, lon_c]
-    me_alt = bodies[instance, alt_c]
-    cos_lat = math.cos(me_lat * _RAD_PER_DEG)
-    n = 0
-    for i in range(bodies.shape[0]):
-        if i == instance or bodies[i, valid] != 1.0:
-            continue
-        if bodies[i, ended] != 0.0:
-            return -1
-        north = (bodies[i, lat_c] - me_lat) * _RAD_PER_DEG * earth_radius_m
-        east = (bodies[i, lon_c] - me_lon) * _RAD_PER_DEG * earth_radius_m * cos_lat
-        down = me_alt - bodies[i, alt_c]
-        distance = centre_distance_m(north, east, down)
-        if distance < bodies[i, radius] + own_radius_m:
-            hit_ids[n] = i
-            hit_distances_m[n] = distance
-            n += 1
-    return n
+    distances in ``hit_distances_m``), in table order, from the offsets ``others_offsets`` gives (``ids`` and
+    ``offsets``: its scratch); returns how many, or -1 when one of them has ended (the shell works out where it has
+    fallen to)."""
+    n = others_offsets(bodies, instance, columns, earth_radius_m, ids, offsets)
+    if n < 0:
+        return -1
+    radius = columns[C_RADIUS]
+    hits = 0
+    for k in range(n):
+        distance = centre_distance_m(offsets[k, 0], offsets[k, 1], offsets[k, 2])
+        if distance < bodies[ids[k], radius] + own_radius_m:
+            hit_ids[hits] = ids[k]
+            hit_distances_m[hits] = distance
+            hits += 1
+    return hits

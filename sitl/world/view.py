@@ -80,9 +80,10 @@ def contacts(world: SharedWorld, instance: int) -> list[Contact]:
     """Bodies closer to drone ``instance`` than the sum of both collision radii, static obstacles included."""
     own_radius = float(world.table[instance, RADIUS])
     table = world.bodies
-    hit_ids = np.empty(len(table), np.int64)
-    hit_distances = np.empty(len(table))
-    hits_n = wk.touching(table, instance, _WORLD_COLUMNS, EARTH_RADIUS_M, own_radius, hit_ids, hit_distances)
+    ids, offsets = np.empty(len(table), np.int64), np.empty((len(table), 3))
+    hit_ids, hit_distances = np.empty(len(table), np.int64), np.empty(len(table))
+    hits_n = wk.touching(table, instance, _WORLD_COLUMNS, EARTH_RADIUS_M, own_radius, ids, offsets, hit_ids,
+                         hit_distances)  # fmt: skip
     if hits_n >= 0:
         found = [Contact(instance=int(hit_ids[k]), distance_m=float(hit_distances[k])) for k in range(hits_n)]
     else:  # a body has ended: where it has fallen to is worked out in numpy, the length in the kernel's order
