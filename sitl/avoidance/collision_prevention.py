@@ -16,7 +16,6 @@ predicted closest approach and when), the end the closest approach the drone per
 
 from __future__ import annotations
 
-import heapq
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -27,19 +26,18 @@ import numpy.typing as npt
 from sitl.avoidance.algorithm import (
     AvoidanceConfig,
     AvoidanceResult,
-    CameraFields,
     Conflict,
     Obstacle,
-    RelayFields,
     avoid_prepared,
     config_row,
     conflict_prepared,
-    fuse_rows,
+    new_obstacle,
     prepare_rows,
 )
 from sitl.control.cascade import TrajectorySetpoint
 from sitl.control.position import PositionController
-from sitl.mathutil import Vec3
+from sitl.kernels import avoidance as ak
+from sitl.mathutil import Vec3, fast_constructor
 from sitl.params import ParamStore
 
 Vec3f = tuple[float, float, float]
@@ -62,6 +60,27 @@ class RelayedNeighbour:
     received_s: float  # when the position was true: the sender's time in lockstep, else its arrival
     cooperative: bool = True  # a swarm neighbour, which avoids in turn; False: traffic (ADSB_VEHICLE), which does not
     stale_s: float = 0.0  # how old the sender's knowledge of it was when reported (traffic's tslc)
+
+
+_new_relayed = fast_constructor(RelayedNeighbour)
+NO_CAMERA = np.zeros((0, ak.CAMERA_SIZE))  # an empty frame's rows
+_NO_NEIGHBOURS = np.zeros((0, ak.NEIGHBOUR_SIZE))
+
+
+def neighbour_rows(neighbours: Sequence[RelayedNeighbour]) -> npt.NDArray[np.float64]:
+    """Relayed neighbours as collision prevention holds them (sitl/kernels/avoidance.py, ``N_*``)."""
+    return np.array(
+        [(*n.pos_ned_m, *n.vel_ned_mps, n.received_s, n.stale_s, 1.0 if n.cooperative else 0.0, n.sysid)
+         for n in neighbours], dtype=np.float64,
+    ).reshape(-1, ak.NEIGHBOUR_SIZE)  # fmt: skip
+
+
+def _relayed_records(rows: npt.NDArray[np.float64]) -> tuple[RelayedNeighbour, ...]:
+    return tuple(
+        _new_relayed(sysid=int(sysid), pos_ned_m=(px, py, pz), vel_ned_mps=(vx, vy, vz), received_s=received,
+                     cooperative=cooperative != 0.0, stale_s=stale)
+        for px, py, pz, vx, vy, vz, received, stale, cooperative, sysid in rows.tolist()
+    )  # fmt: skip
 
 
 MIN_PREFERRED_SPEED_MPS = 1.0
@@ -97,9 +116,14 @@ class CollisionPrevention:
         self._config_version = -1
         self._config = AvoidanceConfig()
         self._config_row = config_row(self._config)
-        self._camera: tuple[Obstacle, ...] = ()
+        # The inputs as rows (sitl/kernels/avoidance.py): camera detections (``CAMERA_SIZE``: relative position,
+        # radius, age at capture) and relayed neighbours (``NEIGHBOUR_SIZE``); their records are built only for a
+        # reader that asks (an onboard behaviour), once per update.
+        self._camera_rows = NO_CAMERA
+        self._camera_records: tuple[Obstacle, ...] | None = ()
         self._camera_time_s = -math.inf
-        self._relay: tuple[RelayedNeighbour, ...] = ()
+        self._relay_rows = _NO_NEIGHBOURS
+        self._relay_records: tuple[RelayedNeighbour, ...] | None = ()
         self._next_run_s = -math.inf
         self._vel_xy: tuple[float, float] | None = None  # the held correction, None when not correcting
         self._episode_closest_m = math.inf
@@ -110,19 +134,41 @@ class CollisionPrevention:
     # ---- inputs ----------------------------------------------------------------------------------------------------
     def set_camera(self, detections: Sequence[Obstacle], capture_time_s: float) -> None:
         """Camera detections (``rel_pos_ned_m`` as measured at ``capture_time_s``)."""
-        self._camera = tuple(detections)
+        rows = np.array([(*d.rel_pos_ned_m, d.radius_m, d.age_s) for d in detections], dtype=np.float64)
+        self.set_camera_rows(rows.reshape(-1, ak.CAMERA_SIZE), capture_time_s)
+        self._camera_records = tuple(detections)
+
+    def set_camera_rows(self, rows: npt.NDArray[np.float64], capture_time_s: float) -> None:
+        """Camera detections as rows (``CAMERA_SIZE``: relative position as measured at ``capture_time_s``, radius,
+        age then), as the detector's rig pass leaves them (sitl/perception/detector.py ``rig_ned_rows``): no record
+        is built for a frame nobody but the avoidance reads."""
+        self._camera_rows = rows
+        self._camera_records = None
         self._camera_time_s = capture_time_s
 
     def set_relay(self, neighbours: Sequence[RelayedNeighbour]) -> None:
-        self._relay = tuple(neighbours)
+        self.set_relay_rows(neighbour_rows(neighbours))
+        self._relay_records = tuple(neighbours)
+
+    def set_relay_rows(self, rows: npt.NDArray[np.float64]) -> None:
+        """Relayed neighbours as rows (``NEIGHBOUR_SIZE``, in this drone's local frame)."""
+        self._relay_rows = rows
+        self._relay_records = None
 
     def relayed(self) -> tuple[RelayedNeighbour, ...]:
         """The neighbours as last converted to this drone's frame (an onboard behaviour reads them too)."""
-        return self._relay
+        if self._relay_records is None:
+            self._relay_records = _relayed_records(self._relay_rows)
+        return self._relay_records
 
     def camera(self) -> tuple[Obstacle, ...]:
         """The last frame's detections (an onboard behaviour reads them too)."""
-        return self._camera
+        if self._camera_records is None:
+            self._camera_records = tuple(
+                new_obstacle(rel_pos_ned_m=(x, y, z), radius_m=radius, source="camera", age_s=age)
+                for x, y, z, radius, age in self._camera_rows.tolist()
+            )
+        return self._camera_records
 
     def config(self) -> AvoidanceConfig:
         """The algorithm's configuration from the parameter table (rebuilt only when a parameter changed)."""
@@ -141,37 +187,27 @@ class CollisionPrevention:
             self._config_row = config_row(self._config)
         return self._config
 
-    def stale_margin_m(self, stale_s: float) -> float:
-        """How much wider the keep-out around a vehicle last known ``stale_s`` seconds ago is: it may have moved
-        since (AVOID_STALE_RATE a second, at most AVOID_STALE_MAX). Its body, seen by the camera, does not grow."""
-        p = self._params
-        return min(p["AVOID_STALE_RATE"] * stale_s, p["AVOID_STALE_MAX"])
-
     def _obstacles(self, pos_ned_m: Vec3f, own_vel: Vec3f, now_s: float) -> npt.NDArray[np.float64]:
-        # Fusion's inputs as fields (``fuse_fields``), not as records: built for every neighbour at the avoidance
-        # rate, records cost more than fusing them in a crowd.
-        camera: list[CameraFields] = []
-        if now_s - self._camera_time_s <= INPUT_TIMEOUT_S:
-            age = now_s - self._camera_time_s
-            camera = [(d.rel_pos_ned_m, d.radius_m, d.age_s + age) for d in self._camera]
+        """Fusion's obstacle rows from the input rows, with no record built: at the avoidance rate, for every
+        neighbour, records cost more than fusing them in a crowd."""
+        camera = NO_CAMERA
+        if now_s - self._camera_time_s <= INPUT_TIMEOUT_S and len(self._camera_rows):
+            camera = self._camera_rows.copy()
+            camera[:, 4] += now_s - self._camera_time_s  # aged to now
         config = self.config()
-        neighbours: Sequence[RelayedNeighbour] = self._relay
-        x, y, z = pos_ned_m
-        if config.max_obstacles > 0 and len(neighbours) > RELAY_CANDIDATES_PER_OBSTACLE * config.max_obstacles:
-            # ``avoid`` keeps the nearest few; fusing neighbours it will drop anyway is most of the cost in a crowd.
-            neighbours = heapq.nsmallest(
-                RELAY_CANDIDATES_PER_OBSTACLE * config.max_obstacles,
-                neighbours,
-                key=lambda n: (n.pos_ned_m[0] - x) ** 2 + (n.pos_ned_m[1] - y) ** 2 + (n.pos_ned_m[2] - z) ** 2,
-            )
-        radius = self._own_radius_m  # the swarm flies one airframe; a relay report carries no size
-        relay: list[RelayFields] = [
-            ((n.pos_ned_m[0] - x, n.pos_ned_m[1] - y, n.pos_ned_m[2] - z), n.vel_ned_mps,
-             radius if n.stale_s <= 0.0 else radius + self.stale_margin_m(n.stale_s + max(0.0, now_s - n.received_s)),
-             max(0.0, now_s - n.received_s), n.cooperative, n.sysid)
-            for n in neighbours
-        ]  # fmt: skip
-        return fuse_rows(camera, relay, own_vel, self._config_row)
+        # ``avoid`` keeps the nearest few; fusing neighbours it will drop anyway is most of the cost in a crowd.
+        keep = RELAY_CANDIDATES_PER_OBSTACLE * config.max_obstacles if config.max_obstacles > 0 else 0
+        # The keep-out around a vehicle last known some seconds ago is wider: it may have moved since
+        # (AVOID_STALE_RATE a second, at most AVOID_STALE_MAX); its body, seen by the camera, does not grow.
+        p = self._params
+        neighbours = self._relay_rows
+        relay = np.empty((len(neighbours), ak.RELAY_SIZE))
+        # The swarm flies one airframe; a relay report carries no size.
+        n_relay = ak.relay_inputs(neighbours, pos_ned_m[0], pos_ned_m[1], pos_ned_m[2], now_s, self._own_radius_m,
+                                  p["AVOID_STALE_RATE"], p["AVOID_STALE_MAX"], keep, relay)  # fmt: skip
+        out = np.empty((len(camera) + n_relay, ak.OBSTACLE_SIZE))
+        own = np.array(own_vel, dtype=np.float64)
+        return out[: ak.fuse(camera, relay[:n_relay], own, self._config_row, out)]
 
     # ---- the correction --------------------------------------------------------------------------------------------
     def apply(
@@ -179,7 +215,7 @@ class CollisionPrevention:
     ) -> TrajectorySetpoint:
         """The setpoint to fly: unchanged unless a neighbour is in the way."""
         config = self.config()
-        if not config.enabled or (not self._camera and not self._relay):
+        if not config.enabled or (not len(self._camera_rows) and not len(self._relay_rows)):
             self._vel_xy = None
             self._end_episode(now_s)
             return setpoint

@@ -27,11 +27,10 @@ import numpy as np
 import numpy.typing as npt
 from pymavlink.dialects.v20 import common as mavlink
 
-from sitl.avoidance.algorithm import new_obstacle as _new_obstacle
-from sitl.avoidance.collision_prevention import RelayedNeighbour
+from sitl.avoidance.collision_prevention import NO_CAMERA
 from sitl.drone.closed_loop import ClosedLoop
 from sitl.dynamics.geodesy import LocalFrame
-from sitl.mathutil import fast_constructor
+from sitl.kernels import avoidance as ak
 from sitl.params import ParamStore
 from sitl.perception.camera import (
     Body,
@@ -41,14 +40,14 @@ from sitl.perception.camera import (
     render_rig,
     spheres,
 )
-from sitl.perception.detector import rig_ned, sense_rig
+from sitl.perception.detector import rig_ned_rows, sense_rig
 from sitl.protocol.images import EncodedImage
 from sitl.protocol.neighbours import Neighbour, NeighbourTable
 from sitl.world.shared import RADIUS, SharedWorld
 from sitl.world.view import others_ned_m
 
 RELAY_PERIOD_S = 0.05
-_new_relayed = fast_constructor(RelayedNeighbour)
+Row = tuple[float, float, float, float, float, float, float, float, float, float]
 # Rounding allowance when leaving out drones beyond camera range (metres; distances differ between frames by ~1e-14).
 _RANGE_MARGIN_M = 1e-6
 
@@ -86,7 +85,8 @@ class Awareness:
         self._rig: CameraRig | None = None
         self._next_frame_s = 0.0
         self._next_relay_s = 0.0
-        self._relayed: dict[int, tuple[Neighbour, RelayedNeighbour]] = {}  # by sysid: the report and its conversion
+        # By sysid: the report and its conversion, a neighbour row (sitl/kernels/avoidance.py ``N_*``)
+        self._relayed: dict[int, tuple[Neighbour, Row]] = {}
         self.frames = 0
         self._snapshots = 0  # images sent on request so far (each seeds its own noise)
         # Time spent on actual work (a relay update or a frame), read by benchmarks; the steps with nothing due are
@@ -128,29 +128,29 @@ class Awareness:
             if self._params["CAM_ENABLE"] == 1 and wanted:
                 self._capture(now_s)
             else:
-                self._prevention.set_camera((), now_s)
+                self._prevention.set_camera_rows(NO_CAMERA, now_s)
         self.cpu_ns += self._clock_ns() - t0
 
     def _update_relay(self, now_s: float) -> None:
         assert self._neighbours is not None
         frame = self._frame
-        out = []
-        converted: dict[int, tuple[Neighbour, RelayedNeighbour]] = {}
+        out: list[Row] = []
+        converted: dict[int, tuple[Neighbour, Row]] = {}
         for n in self._neighbours.entries(now_s):
             known = self._relayed.get(n.sysid)
             if known is not None and known[0] is n:
                 # The same report as at the last update (neighbours report at 10 Hz, this runs at 20): its
                 # conversion, a function of the report alone, is the one made then.
-                relayed = known[1]
+                row = known[1]
             else:
-                pos = frame.ned_from_geodetic_rad(math.radians(n.lat_deg), math.radians(n.lon_deg), n.alt_amsl_m)
+                x, y, z = frame.ned_from_geodetic_rad(math.radians(n.lat_deg), math.radians(n.lon_deg), n.alt_amsl_m)
+                vx, vy, vz = n.vel_ned_mps
                 stamp = n.sender_time_s if self._shared_clock else n.received_s
-                relayed = _new_relayed(sysid=n.sysid, pos_ned_m=pos, vel_ned_mps=n.vel_ned_mps, received_s=stamp,
-                                       cooperative=n.cooperative, stale_s=n.stale_s)  # fmt: skip
-            converted[n.sysid] = (n, relayed)
-            out.append(relayed)
+                row = (x, y, z, vx, vy, vz, stamp, n.stale_s, 1.0 if n.cooperative else 0.0, float(n.sysid))
+            converted[n.sysid] = (n, row)
+            out.append(row)
         self._relayed = converted
-        self._prevention.set_relay(out)
+        self._prevention.set_relay_rows(np.array(out, dtype=np.float64).reshape(-1, ak.NEIGHBOUR_SIZE))
 
     def _bodies(self) -> list[Body]:
         """Every body the cameras could see now, as records (the images a reader asks for)."""
@@ -225,11 +225,4 @@ class Awareness:
             for camera in rig.cameras:
                 name = f"drone{self._instance}-{camera.config.name}-{now_s:09.3f}.png"
                 cv2.imwrite(str(self._frames_dir / name), camera.frame)
-        radius = self._radius_m
-        self._prevention.set_camera(
-            [
-                _new_obstacle(rel_pos_ned_m=pos, radius_m=radius, source="camera")
-                for pos in rig_ned(n, est.att_q_frd_to_ned)
-            ],
-            now_s,
-        )
+        self._prevention.set_camera_rows(rig_ned_rows(n, est.att_q_frd_to_ned, self._radius_m), now_s)

@@ -55,6 +55,18 @@ RELAY_SIZE = 10
 R_COOPERATIVE = 8
 R_SYSID = 9
 
+# A relayed neighbour as collision prevention holds it, in this drone's local frame (sitl/drone/awareness.py converts
+# each report once): position, velocity, when the position was true, how old the sender's own knowledge of it was
+# (traffic's tslc), 1 for a swarm neighbour (0 for traffic), and its sysid. ``relay_inputs`` turns these into
+# fusion's relay entries at the avoidance rate.
+N_POS = 0
+N_VEL = 3
+N_RECEIVED = 6
+N_STALE = 7
+N_COOPERATIVE = 8
+N_SYSID = 9
+NEIGHBOUR_SIZE = 10
+
 # Configuration row (sitl.avoidance.algorithm.AvoidanceConfig).
 K_ENABLED = 0
 K_OWN_RADIUS = 1
@@ -124,6 +136,50 @@ def _fuse_pair(
     out[O_SOURCE] = SOURCE_FUSED if rel[O_SOURCE] == SOURCE_RELAY else SOURCE_FUSED_TRAFFIC
     out[O_AGE] = cam_age_s
     out[O_SYSID] = rel[O_SYSID]
+
+
+@kernel("int64(float64[:, ::1], float64, float64, float64, float64, float64, float64, float64, int64, float64[:, ::1])")
+def relay_inputs(
+    neighbours: npt.NDArray[np.float64],
+    x: float,
+    y: float,
+    z: float,
+    now_s: float,
+    radius_m: float,
+    stale_rate_mps: float,
+    stale_max_m: float,
+    keep: int,
+    out: npt.NDArray[np.float64],
+) -> int:
+    """Fusion's relay entries (``RELAY_SIZE`` rows, written to ``out``) from neighbour rows (``NEIGHBOUR_SIZE``), for
+    a drone at (x, y, z) at ``now_s``; returns how many. With more than ``keep`` neighbours (``keep`` > 0) only the
+    ``keep`` nearest by reported position are kept, nearest first and in their given order on a tie, as
+    ``heapq.nsmallest`` keeps them; otherwise all, in their given order. A report's age is how long ago its position
+    was true (never negative); a body known only from a stale report (``N_STALE`` > 0) is given a radius grown by
+    ``stale_rate_mps`` for every second its knowledge is old, at most ``stale_max_m`` more."""
+    n = neighbours.shape[0]
+    order = np.arange(n)
+    if 0 < keep < n:
+        key = np.empty(n)
+        for i in range(n):
+            key[i] = (
+                py_square(neighbours[i, N_POS] - x)
+                + py_square(neighbours[i, N_POS + 1] - y)
+                + py_square(neighbours[i, N_POS + 2] - z)
+            )
+        order = np.argsort(key, kind="mergesort")[:keep]
+    for j in range(order.shape[0]):
+        nb = neighbours[order[j]]
+        row = out[j]
+        age = pmax(0.0, now_s - nb[N_RECEIVED])
+        stale = nb[N_STALE]
+        row[0], row[1], row[2] = nb[N_POS] - x, nb[N_POS + 1] - y, nb[N_POS + 2] - z
+        row[3], row[4], row[5] = nb[N_VEL], nb[N_VEL + 1], nb[N_VEL + 2]
+        row[6] = radius_m if stale <= 0.0 else radius_m + pmin(stale_rate_mps * (stale + age), stale_max_m)
+        row[7] = age
+        row[R_COOPERATIVE] = nb[N_COOPERATIVE]
+        row[R_SYSID] = nb[N_SYSID]
+    return order.shape[0]
 
 
 @kernel("int64(float64[:, ::1], float64[:, ::1], float64[::1], float64[::1], float64[:, ::1])")

@@ -43,6 +43,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from sitl.kernels import avoidance as ak
 from sitl.kernels import blobs as bk
 from sitl.kernels import detector as dk
 from sitl.kernels import frame as fk
@@ -402,11 +403,21 @@ def rig_ned(n_rows: int, own_att_q_frd_to_ned: npt.ArrayLike) -> list[tuple[floa
     """The bodies of the last ``sense_rig``'s rows, each seen by two cameras kept once (as ``detect_rig``), relative
     to the drone in NED metres, rotated by its ESTIMATED attitude: the figures ``to_ned_all(detect_rig(...))``
     gives, to the bit, with no record built."""
+    return [(n, e, d) for n, e, d, _, _ in rig_ned_rows(n_rows, own_att_q_frd_to_ned, 0.0).tolist()]
+
+
+def rig_ned_rows(n_rows: int, own_att_q_frd_to_ned: npt.ArrayLike, radius_m: float) -> npt.NDArray[np.float64]:
+    """``rig_ned`` as collision prevention's camera rows (sitl/kernels/avoidance.py ``CAMERA_SIZE``: the position,
+    ``radius_m``, age 0 at capture), an array of their own (the rig's buffers serve the next frame)."""
     k = dk.rig_keep(_Rows.table, n_rows, _Rows.kept)
-    if k == 0:
-        return []
-    dk.to_ned(_Rows.table, _Rows.kept, k, quat_to_dcm(np.asarray(own_att_q_frd_to_ned, dtype=np.float64)), _Rows.ned)
-    return [(n, e, d) for n, e, d in _Rows.ned[:k].tolist()]
+    rows = np.zeros((k, ak.CAMERA_SIZE))
+    if k:
+        dk.to_ned(
+            _Rows.table, _Rows.kept, k, quat_to_dcm(np.asarray(own_att_q_frd_to_ned, dtype=np.float64)), _Rows.ned
+        )
+        rows[:, :3] = _Rows.ned[:k]
+        rows[:, 3] = radius_m
+    return rows
 
 
 def to_ned_all(

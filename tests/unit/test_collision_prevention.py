@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from sitl.avoidance.algorithm import Obstacle, avoid, fuse, obstacles_from_rows
-from sitl.avoidance.collision_prevention import CollisionPrevention, RelayedNeighbour
+from sitl.avoidance.collision_prevention import NO_CAMERA, CollisionPrevention, RelayedNeighbour, neighbour_rows
 from sitl.control.cascade import TrajectorySetpoint
 from sitl.control.configs import position_config
 from sitl.control.position import PositionController
@@ -85,6 +85,42 @@ def test_the_obstacles_fused_from_fields_are_those_fused_from_records() -> None:
     # THEN both give the same obstacles, every figure equal
     assert got == fuse(camera, relay, vel, config)
     assert any(o.source == "fused" for o in got)
+
+
+def test_inputs_given_as_rows_fuse_as_the_same_records_and_are_read_back_as_records() -> None:
+    # GIVEN the same detections and neighbours (some traffic, some known from stale reports, two equally far) given
+    # to one drone as records and to another as the rows the camera and the relay hand it
+    rng = np.random.default_rng(11)
+    detections = [Obstacle(rel_pos_ned_m=tuple(rng.uniform(-6.0, 6.0, 3).tolist()), radius_m=0.35) for _ in range(5)]
+    neighbours = [
+        RelayedNeighbour(sysid=k + 2, pos_ned_m=tuple(rng.uniform(-9.0, 9.0, 3).tolist()),
+                         vel_ned_mps=tuple(rng.uniform(-1.0, 1.0, 3).tolist()),
+                         received_s=float(rng.uniform(9.0, 10.5)), cooperative=k % 3 != 0, stale_s=float(k % 4))
+        for k in range(24)
+    ]  # fmt: skip
+    x, y, z = neighbours[0].pos_ned_m
+    neighbours.append(RelayedNeighbour(sysid=90, pos_ned_m=(x, -y, z), vel_ned_mps=(0.0, 0.0, 0.0), received_s=9.5))
+    by_records, _ = prevention()
+    by_records.set_camera(detections, 9.8)
+    by_records.set_relay(neighbours)
+    by_rows, _ = prevention()
+    camera_rows = np.array([(*d.rel_pos_ned_m, 0.35, 0.0) for d in detections])
+    by_rows.set_camera_rows(camera_rows, 9.8)
+    by_rows.set_relay_rows(neighbour_rows(neighbours))
+    pos, vel = (0.0, 0.0, -3.0), (1.0, 0.5, 0.0)
+    # THEN both fuse the same obstacles to the bit (the nearest 20 of 25 neighbours, traffic and stale margins too)
+    for now_s in (10.0, 10.4, 11.0):
+        assert cp_bits(by_rows._obstacles(pos, vel, now_s)) == cp_bits(by_records._obstacles(pos, vel, now_s))
+    # AND a reader of the rows (an onboard behaviour) is given the records they came from
+    assert by_rows.relayed() == tuple(neighbours)
+    assert by_rows.camera() == tuple(detections)
+    # AND an empty frame clears the camera
+    by_rows.set_camera_rows(NO_CAMERA, 10.0)
+    assert by_rows.camera() == ()
+
+
+def cp_bits(rows: np.ndarray) -> bytes:
+    return rows.tobytes()
 
 
 def test_the_keep_out_around_traffic_known_from_old_reports_grows_with_their_age_up_to_its_bound() -> None:
