@@ -5,11 +5,13 @@ A supervisor reads every drone's telemetry (HEARTBEAT, SYS_STATUS, GLOBAL_POSITI
 ATTITUDE, ...) at its stream rates, and in lockstep it reads them once a frame: through pymavlink's state machine that
 was about a fifth of its CPU at nine drones. Here a datagram is split into frames by their headers, each frame's
 CRC (with the message's CRC extra) is checked with the same C routine pymavlink uses, and its payload is unpacked by
-the class's own ``struct`` layout into an object of the class, with the header, buffer and CRC pymavlink's parser
-would give it (a signed frame keeps its signature in the buffer; like the ground station's parsers, nothing checks
-it here). A datagram with anything else in it (MAVLink 1, an unknown message, a text or array field, a bad CRC, a
-truncated frame, garbage) returns None, and the caller gives the whole datagram to pymavlink's parser, so unusual
-input is treated exactly as it always was.
+the class's own ``struct`` layout into an object of the class, with the fields, header, buffer and CRC pymavlink's
+parser would give it: its arrays as lists, its texts as bytes without their trailing NULs, as pymavlink's ``decode``
+builds them (a signed frame keeps its signature in the buffer; like the ground station's parsers, nothing checks it
+here). Every message of the dialect is read this way: ATTITUDE_QUATERNION, streamed at 10 Hz, has an array, and a
+datagram holding one went to pymavlink's parser whole. A datagram with anything else in it (MAVLink 1, an unknown
+message, a bad CRC, a truncated frame, garbage) returns None, and the caller gives the whole datagram to pymavlink's
+parser, so unusual input is treated exactly as it always was.
 
 This is written apart from the drone's own reader (sitl/protocol/framing.py) on purpose: the two sides decode each
 other's bytes, and a decoding bug shared by both would cancel out in every test (docs/architecture.md).
@@ -44,29 +46,50 @@ _crc: Callable[[bytes, int], int] = getattr(mavlink, "mcrf4xx", None) or _crc_py
 
 @dataclass(frozen=True, slots=True)
 class _Reader:
-    """How to read one message class: its constructor, CRC extra, payload layout and the order of its arguments."""
+    """How to read one message class: its constructor, CRC extra, payload layout and where each of its arguments
+    lies among the unpacked values."""
 
     cls: type[Any]
     crc_extra: bytes
     payload: struct.Struct
-    arg_order: tuple[int, ...]  # constructor argument k is unpacked value arg_order[k]
+    # Constructor argument k is unpacked value spans[k][0], or the list of spans[k][1] values from there (an array)
+    spans: tuple[tuple[int, int], ...]
+    arrays: bool  # any argument is an array or a text: the slow branch of ``_arguments``
 
 
-def _reader(cls: type[Any]) -> _Reader | None:
-    """A reader for a class of numbers only (no text, no arrays); None for any other."""
-    if "char" in cls.fieldtypes or any(cls.array_lengths):
-        return None
-    return _Reader(cls=cls, crc_extra=bytes((cls.crc_extra,)), payload=cls.unpacker, arg_order=tuple(cls.orders))
+def _reader(cls: type[Any]) -> _Reader:
+    """A reader for ``cls``: its arguments found among the unpacked values as pymavlink's ``decode`` finds them (an
+    array field's values follow one another; a text is one ``bytes`` value)."""
+    lengths = list(cls.lengths)
+    spans = tuple((sum(lengths[:order]), lengths[order]) for order in cls.orders)
+    arrays = sum(lengths) != len(lengths) or "char" in cls.fieldtypes
+    if not arrays:
+        spans = tuple((order, 1) for order in cls.orders)
+    return _Reader(cls=cls, crc_extra=bytes((cls.crc_extra,)), payload=cls.unpacker, spans=spans, arrays=arrays)
 
 
-_READERS: Final[dict[int, _Reader]] = {
-    msg_id: reader for msg_id, cls in mavlink.mavlink_map.items() if (reader := _reader(cls)) is not None
-}
+def _arguments(reader: _Reader, values: tuple[Any, ...]) -> list[Any]:
+    """The constructor's arguments from a payload's unpacked values, as pymavlink's ``decode`` forms them."""
+    if not reader.arrays:
+        return [values[tip] for tip, _ in reader.spans]
+    out: list[Any] = []
+    for tip, length in reader.spans:
+        value = values[tip]
+        if isinstance(value, bytes):
+            out.append(value.rstrip(b"\x00"))
+        elif length == 1:
+            out.append(value)
+        else:
+            out.append(list(values[tip : tip + length]))
+    return out
+
+
+_READERS: Final[dict[int, _Reader]] = {msg_id: _reader(cls) for msg_id, cls in mavlink.mavlink_map.items()}
 
 
 def read_datagram(data: bytes) -> list[Any] | None:
-    """Every message of a datagram made only of well-formed MAVLink 2 frames of numeric messages, in order; None
-    when any byte of it is anything else."""
+    """Every message of a datagram made only of well-formed MAVLink 2 frames of the dialect's messages, in order;
+    None when any byte of it is anything else."""
     messages: list[Any] = []
     end = len(data)
     start = 0
@@ -89,7 +112,7 @@ def read_datagram(data: bytes) -> list[Any] | None:
             return None
         # MAVLink 2 drops a payload's trailing zero bytes: put them back before unpacking the class's layout.
         values = reader.payload.unpack(data[start + _HEADER_LEN : payload_end] + bytes(reader.payload.size - length))
-        msg = reader.cls(*[values[k] for k in reader.arg_order])
+        msg = reader.cls(*_arguments(reader, values))
         buffer = bytearray(data[start:frame_end])
         # What pymavlink's decode sets on a message (its payload slice starts at byte 6, for MAVLink 2 too).
         msg._signed = False
