@@ -75,9 +75,11 @@ class Pump:
         flight this swarm flies, given once by whoever assembles it (gcs/supervisor/session.py, the bench)."""
         self._stream_tick = tick
 
-    def once(self, wait_s: float = 0.0) -> None:
-        """Send what is due, then handle every waiting message, waiting up to ``wait_s`` (simulated) for the first.
-        In lockstep, one frame of the common clock instead, whatever ``wait_s`` (the module docstring says why)."""
+    def once(self, wait_s: float = 0.0, *, gather: bool = True) -> None:
+        """Send what is due, then handle every waiting message, waiting up to ``wait_s`` (simulated) for the first;
+        paced and with ``gather``, reading at most every GATHER_S of wall time (gcs/fleet/router.py): work that
+        waits for an answer pumps without. In lockstep, one frame of the common clock instead, whatever ``wait_s``
+        (the module docstring says why)."""
         router, clock, liveness, protocols = self.router, self.clock, self.liveness, self.protocols
         lockstep = clock.lockstep_running
         if lockstep:
@@ -93,7 +95,7 @@ class Pump:
             messages = router.receive_frame(sent_by_drones, liveness.losses)
         else:
             router.flush(clock.now())
-            router.wait(wait_s, self.speed_factor, clock.now())
+            router.wait(wait_s, self.speed_factor, clock.now(), gather=gather)
             now = clock.now()
             messages = router.receive()
         attachments = self.attachments
@@ -124,10 +126,11 @@ class Pump:
 
     # ---- waiting: the one loop --------------------------------------------------------------------------------------
     def pump_while(self, going: Callable[[], bool], wait_s: Callable[[float], float], *, tick: Tick | None,
-                   tick_s: float = TICK_S, until: Callable[[], bool] | None = None) -> bool:  # fmt: skip
+                   tick_s: float = TICK_S, until: Callable[[], bool] | None = None,
+                   gather: bool = True) -> bool:  # fmt: skip
         """Pump while ``going()``: each round calls ``tick(now)`` when its period ``tick_s`` is due, ends (True) if
-        ``until()`` holds after it, and pumps waiting up to ``wait_s(next tick's time)``. False when ``going``
-        ended it."""
+        ``until()`` holds after it, and pumps waiting up to ``wait_s(next tick's time)`` (``gather``: as ``once``).
+        False when ``going`` ended it."""
         clock = self.clock
         next_tick = clock.now()
         while going():
@@ -137,7 +140,7 @@ class Pump:
                 next_tick = next_tick_s(next_tick, now, tick_s)
             if until is not None and until():
                 return True
-            self.once(wait_s(next_tick))
+            self.once(wait_s(next_tick), gather=gather)
         return False
 
     def run_for(self, seconds: float, tick: Tick | None = None, tick_s: float = TICK_S) -> None:
@@ -186,7 +189,7 @@ class Pump:
 
         try:
             self.pump_while(unfinished, lambda _due: min(SERVE_PUMP_S, max(0.0, client.next_due_s() - clock.now())),
-                            tick=self._stream_tick)  # fmt: skip
+                            tick=self._stream_tick, gather=False)  # fmt: skip
         finally:
             for sysid in targets:
                 client.cancel(sysid, key)

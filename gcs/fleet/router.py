@@ -39,6 +39,11 @@ Address = tuple[str, int]
 BATCH_HOLD_S: Final = 0.05
 GCS_HEARTBEAT_PERIOD_S: Final = 1.0  # QGroundControl's HEARTBEAT rate; PX4's datalink-loss failsafe watches it
 LOCKSTEP_AWAIT_S: Final = 1.0  # wall seconds the supervisor waits for a datagram a drone says it has sent
+# Paced, a pump that gathers reads at most this often (wall seconds): what arrives meanwhile is read in one go. A host
+# sends its drones' telemetry as a burst of datagrams, and a supervisor woken by each one read a datagram or two per
+# wake-up; a wake-up costs more than the datagrams it reads (docs/benchmarks.md). Work that waits for an answer
+# (a command being timed, a protocol client's transfer) pumps without gathering.
+GATHER_S: Final = 0.005
 
 
 class Router:
@@ -62,6 +67,7 @@ class Router:
         self._flush_due_s = math.inf  # when the queued traffic must leave (-inf: at the next pump)
         self._next_heartbeat_s = 0.0
         self._said_late_traffic = False
+        self._last_read_wall_s = -math.inf  # when the socket was last read (paced gathering)
         # Lockstep delivery: each drone's datagrams taken into a frame so far, by address, and the datagrams read
         # beyond what a drone had sent up to the gate (it flies the next frame while the supervisor reads), kept in
         # order for the next frame
@@ -71,15 +77,23 @@ class Router:
         self._selector.register(link.sock, selectors.EVENT_READ)
 
     # ---- in --------------------------------------------------------------------------------------------------------
-    def wait(self, wait_s: float, speed_factor: float, now_s: float) -> None:
-        """Paced: wait up to ``wait_s`` simulated seconds for traffic (less when a batch is due sooner)."""
+    def wait(self, wait_s: float, speed_factor: float, now_s: float, *, gather: bool = False) -> None:
+        """Paced: wait up to ``wait_s`` simulated seconds for traffic (less when a batch is due sooner); with
+        ``gather``, not until GATHER_S of wall time has passed since the socket was last read (within the wait)."""
         if wait_s > 0:
             if self.link.queued:
                 wait_s = min(wait_s, max(0.0, self._flush_due_s - now_s))
-            self._selector.select(wait_s / speed_factor)
+            wall_s = wait_s / speed_factor
+            if gather:
+                rest_s = min(wall_s, self._last_read_wall_s + GATHER_S - time.monotonic())
+                if rest_s > 0.0:
+                    time.sleep(rest_s)
+                    wall_s -= rest_s
+            self._selector.select(wall_s)
 
     def receive(self) -> list[tuple[Any, Address]]:
         """Paced: what has arrived."""
+        self._last_read_wall_s = time.monotonic()
         return self.link.receive()
 
     def receive_frame(self, sent_by_drones: Mapping[int, int], skip: Collection[int]) -> list[tuple[Any, Address]]:
