@@ -67,7 +67,10 @@ def _geodetic(x: float, y: float, z: float) -> Vec3:
     for _ in range(_LATITUDE_STEPS):
         sin_lat = math.sin(lat)
         n = WGS84_A_M / math.sqrt(1.0 - _E2 * sin_lat * sin_lat)
-        lat = math.atan2(z + _E2 * n * sin_lat, p)
+        step = math.atan2(z + _E2 * n * sin_lat, p)
+        if step == lat:  # a fixed point: every further step gives these bits again
+            break
+        lat = step
     sin_lat, cos_lat = math.sin(lat), math.cos(lat)
     n = WGS84_A_M / math.sqrt(1.0 - _E2 * sin_lat * sin_lat)
     # the better conditioned of the two height formulas for this latitude
@@ -115,7 +118,10 @@ class NedFrame:
         lat = lon = 0.0
         for _ in range(_FOOTPRINT_STEPS):
             lat, lon, height = _geodetic(bx + below * dx, by + below * dy, bz + below * dz)
-            below += height - self._origin.alt_amsl_m
+            error = height - self._origin.alt_amsl_m
+            if error == 0.0:  # on the surface: every further step gives these bits again
+                break
+            below += error
         lon_deg = (math.degrees(lon) + 180.0) % 360.0 - 180.0
         return GeoPoint(lat_deg=math.degrees(lat), lon_deg=lon_deg, alt_amsl_m=self._origin.alt_amsl_m - down)
 

@@ -86,3 +86,43 @@ WRAPS = [(0.0, 0.0), (math.pi, -math.pi), (-math.pi, -math.pi), (4.5 * math.pi, 
 @pytest.mark.parametrize(("angle", "wrapped"), WRAPS)
 def test_angles_wrap_to_minus_pi_up_to_pi(angle: float, wrapped: float) -> None:
     assert wrap_pi(angle) == pytest.approx(wrapped, abs=1e-12)
+
+
+def _full_iterations(frame: NedFrame, ned_m: tuple[float, float, float]) -> GeoPoint:
+    """``NedFrame.geo_from_ned`` with every step of both iterations taken, none stopped at its fixed point."""
+    from gcs.flight import geodesy as g
+
+    def geodetic(x: float, y: float, z: float) -> tuple[float, float, float]:
+        lon, p = math.atan2(y, x), math.hypot(x, y)
+        beta = math.atan2(z * g.WGS84_A_M, p * g._B_M)
+        lat = math.atan2(z + g._EP2 * g._B_M * math.sin(beta) ** 3, p - g._E2 * g.WGS84_A_M * math.cos(beta) ** 3)
+        for _ in range(g._LATITUDE_STEPS):
+            sin_lat = math.sin(lat)
+            lat = math.atan2(z + g._E2 * (g.WGS84_A_M / math.sqrt(1.0 - g._E2 * sin_lat * sin_lat)) * sin_lat, p)
+        sin_lat, cos_lat = math.sin(lat), math.cos(lat)
+        n = g.WGS84_A_M / math.sqrt(1.0 - g._E2 * sin_lat * sin_lat)
+        return lat, lon, (p / cos_lat - n if abs(cos_lat) > 0.5 else z / sin_lat - n * (1.0 - g._E2))
+
+    origin = frame.origin
+    (nx, ny, nz), (ex, ey, ez), (dx, dy, dz) = frame._axes
+    rx, ry, rz = frame._ref
+    north, east, down = ned_m
+    bx, by, bz = rx + north * nx + east * ex, ry + north * ny + east * ey, rz + north * nz + east * ez
+    below = lat = lon = 0.0
+    for _ in range(g._FOOTPRINT_STEPS):
+        lat, lon, height = geodetic(bx + below * dx, by + below * dy, bz + below * dz)
+        below += height - origin.alt_amsl_m
+    return GeoPoint(lat_deg=math.degrees(lat), lon_deg=(math.degrees(lon) + 180.0) % 360.0 - 180.0,
+                    alt_amsl_m=origin.alt_amsl_m - down)  # fmt: skip
+
+
+@pytest.mark.parametrize("origin", ORIGINS)
+def test_stopping_the_iterations_at_their_fixed_point_gives_the_bits_of_every_step(origin: GeoPoint) -> None:
+    # GIVEN positions around an origin, near and far (the supervisor converts every setpoint of every drone)
+    rng = random.Random(int(origin.lat_deg * 1000))
+    frame = NedFrame(origin)
+    for _ in range(2000):
+        ned = (rng.uniform(-1.0, 1.0) * 10.0 ** rng.uniform(-2, 5), rng.uniform(-1.0, 1.0) * 10.0 ** rng.uniform(-2, 5),
+               rng.uniform(-500.0, 50.0))  # fmt: skip
+        # THEN the conversion stopped early is the conversion with every step taken, to the bit
+        assert frame.geo_from_ned(ned) == _full_iterations(frame, ned)
