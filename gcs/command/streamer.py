@@ -88,6 +88,9 @@ def type_mask(sp: Setpoint) -> int:
     mask = TYPE_MASK_POS_VEL_ACC
     if math.isfinite(sp.yaw_rad):
         mask &= ~mavlink.POSITION_TARGET_TYPEMASK_YAW_IGNORE
+    (pn, pe, pd), (vn, ve, vd), (an, ae, ad) = sp.pos_ned_m, sp.vel_ned_mps, sp.acc_ned_mps2
+    if math.isfinite(pn + pe + pd + vn + ve + vd + an + ae + ad):
+        return mask  # every component given (a sum is finite only if every term is): the formations' case
     for bits, values in ((_POS_BITS, sp.pos_ned_m), (_VEL_BITS, sp.vel_ned_mps), (_ACC_BITS, sp.acc_ned_mps2)):
         for bit, value in zip(bits, values, strict=True):
             if not math.isfinite(value):

@@ -237,6 +237,15 @@ def test_flock_setpoints_hold_altitude_by_position_and_steer_by_velocity() -> No
     # a finite yaw is commanded (yaw rate never is)
     facing = Setpoint(pos_ned_m=(1.0, 2.0, 3.0), vel_ned_mps=(0.0, 0.0, 0.0), acc_ned_mps2=(0.0, 0.0, 0.0), yaw_rad=0.5)
     assert type_mask(facing) == TYPE_MASK_POS_VEL_ACC & ~mavlink.POSITION_TARGET_TYPEMASK_YAW_IGNORE
+    # finite components whose sum overflows are every one given; an infinite one is ignored, as a NaN is
+    huge = Setpoint(
+        pos_ned_m=(1e308, 1e308, 3.0), vel_ned_mps=(1e308, 0.0, 0.0), acc_ned_mps2=(0.0, 0.0, 0.0), yaw_rad=math.nan
+    )
+    assert type_mask(huge) == TYPE_MASK_POS_VEL_ACC
+    endless = Setpoint(
+        pos_ned_m=(1.0, 2.0, 3.0), vel_ned_mps=(0.0, 0.0, 0.0), acc_ned_mps2=(0.0, 0.0, math.inf), yaw_rad=math.nan
+    )
+    assert type_mask(endless) == TYPE_MASK_POS_VEL_ACC | mavlink.POSITION_TARGET_TYPEMASK_AZ_IGNORE
     assert flock.targets() == {}
 
 
