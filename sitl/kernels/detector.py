@@ -1,11 +1,13 @@
 """The detector's per-blob arithmetic (sitl/kernels/frame.py runs it on every blob of a frame;
-sitl/perception/detector.py is the shell: the records, and the split of a merged blob).
+sitl/perception/detector.py is the shell: the records).
 
 Inverting a blob's area into a sphere's direction and size (Newton on the silhouette), the pixel ray at an angle off
-axis, the cone fit to a blob's outline, a whole or truncated blob solved into a detection row, and a rig's rows
-sorted, rid of the bodies two cameras saw and turned into NED: the same operations in the same order as the Python
-they replaced, with CPython's ``math.hypot``, Python's ``max`` and numpy's pairwise sums (sitl/kernels/pymath.py),
-so detections keep their bits. The method is sitl/perception/detector.py's docstring.
+axis, the cone fit to a blob's outline, a whole, truncated or merged blob solved into detection rows, and a rig's
+rows sorted, rid of the bodies two cameras saw and turned into NED: the same operations in the same order as the
+Python they replaced, with CPython's ``math.hypot``, Python's ``max`` and ``round`` and numpy's pairwise sums
+(sitl/kernels/pymath.py), so detections keep their bits. The split of a merged blob takes its pixel work from
+sitl/kernels/blobs.py (the exact distance transform, the outer border, OpenCV's filled ellipse). The method is
+sitl/perception/detector.py's docstring.
 """
 
 from __future__ import annotations
@@ -16,9 +18,25 @@ import numpy as np
 import numpy.typing as npt
 
 from sitl.kernels import kernel
-from sitl.kernels.blobs import K_LABEL, K_START, K_U0, K_U1, K_V0, K_V1, box_moments, outer_border
+from sitl.kernels.blobs import (
+    BLOB_SIZE,
+    K_LABEL,
+    K_START,
+    K_U0,
+    K_U1,
+    K_V0,
+    K_V1,
+    UNLABELLED,
+    box_moments,
+    fill_ellipse,
+    label,
+    opencv_order,
+    outer_border,
+    round_half_even,
+    squared_distances,
+)
 from sitl.kernels.pymath import hypot2, np_sum, pmax, pmin, py_square
-from sitl.kernels.render import P_CX, P_CY, P_FOCAL, sphere_silhouette
+from sitl.kernels.render import B_U0, B_U1, B_V0, B_V1, BOX_SIZE, P_CX, P_CY, P_FOCAL, sphere_silhouette
 
 # A camera's row is the renderer's (sitl/kernels/render.py): focal length and principal point in pixels.
 C_FOCAL = P_FOCAL
@@ -29,6 +47,13 @@ C_CY = P_CY
 MERGE_CHECK_MIN_AREA_PX = 30
 # Measured elongation beyond this multiple of one sphere's elongation means several bodies.
 MERGE_ELONGATION_RATIO = 1.25
+# The nearest body of a merged blob covers at least this share of it (half, less pixelation and fit error).
+NEAREST_MIN_SHARE = 0.45
+# The remainder of a merged blob is a body when at least this fraction of the near body's area.
+REMAINDER_MIN_FRACTION = 0.05
+# The nearest body's silhouette is erased this much larger all round (pixels), drawn with this many fraction bits.
+ERASE_MARGIN_PX = 1.0
+ERASE_SHIFT = 4
 # A blob cut by the top or bottom border and at least this many times taller than wide is an upright structure.
 UPRIGHT_ASPECT = 2.0
 # Detections from two cameras of a rig closer than this (or than the larger angular radius) are one body.
@@ -38,8 +63,7 @@ COSINE_MARGIN = 1e-9
 
 # A detection row (float64), as the records' fields (sitl/perception/detector.py, ``Detection``): the camera's index
 # in its rig, the centroid, the pixel area, azimuth and elevation in the camera frame, the unit direction in body
-# FRD, range, angular radius, the flags; SPLIT marks a blob found merged that the shell splits (its row is the blob
-# read as one body), BLOB its index among the frame's blobs (sitl/kernels/blobs.py).
+# FRD, range, angular radius, the flags.
 R_CAMERA = 0
 R_U = 1
 R_V = 2
@@ -53,9 +77,7 @@ R_RANGE = 9
 R_ALPHA = 10
 R_TRUNCATED = 11
 R_MERGED = 12
-R_SPLIT = 13
-R_BLOB = 14
-ROW_SIZE = 15
+ROW_SIZE = 13
 # What a pass returns when ``rows`` has no room for another row (the shell grows it and runs the pass again).
 ROWS_FULL = -2
 
@@ -160,7 +182,16 @@ def fit_cone(
     select: bool,
 ) -> tuple[bool, float, float, float, float]:
     """Refine a sphere's centre direction and angular radius from boundary pixels of its image: (fitted, direction,
-    angular radius), or (False, the inputs) when the fit is refused. See ``sitl.perception.detector`` for the method.
+    angular radius), or (False, the inputs) when the fit is refused.
+
+    The image of a sphere is bounded by the rays u with axis . u = cos(alpha): points of a plane, so a linear
+    least-squares fit n . u = 1 gives axis = n / |n| and cos(alpha) = 1 / |n| wherever the sphere sits in the image
+    (no ellipse model needed), from any arc of its outline. Boundary pixel centres lie about half a pixel inside the
+    true edge, so each is moved half a pixel out from the current silhouette centre. With ``select`` only pixels
+    within a pixel and a half of the current cone take part from the start (this drops the outline of other bodies
+    in a merged blob); otherwise all do at first, then the outliers are dropped. Fewer than 8 points leave the
+    estimate unchanged. Short arcs are not refused: even a sixth of the outline beat the fallback estimate for
+    bodies mostly outside the frame (docs/perception.md).
     """
     f = camera[C_FOCAL]
     cx = camera[C_CX]
@@ -266,8 +297,6 @@ def make_row(
     row[R_ALPHA] = alpha
     row[R_TRUNCATED] = 1.0 if truncated else 0.0
     row[R_MERGED] = 1.0 if merged else 0.0
-    row[R_SPLIT] = 0.0
-    row[R_BLOB] = -1.0
 
 
 @kernel("float64(float64, float64, float64, float64)")
@@ -338,6 +367,160 @@ def solve_truncated(
     make_row(row, rot_body_cam, camera_index, u, v, vx, vy, vz, alpha, area_px, radius_m, True, False)
 
 
+@kernel("uint8[:, ::1](int32[:, ::1], int64[::1])")
+def blob_mask(labels: npt.NDArray[np.int32], blob: npt.NDArray[np.int64]) -> npt.NDArray[np.uint8]:
+    """The blob's pixels (1) in its bounding box, other blobs' and the background 0, with a border of one background
+    pixel all round: pixel (u, v) of the image is (u - u0 + 1, v - v0 + 1) here."""
+    x0, y0 = blob[K_U0], blob[K_V0]
+    bw, bh = blob[K_U1] - x0, blob[K_V1] - y0
+    padded = np.zeros((bh + 2, bw + 2), np.uint8)
+    own = blob[K_LABEL]
+    for v in range(bh):
+        for u in range(bw):
+            if labels[y0 + v, x0 + u] == own:
+                padded[v + 1, u + 1] = 1
+    return padded
+
+
+@kernel("UniTuple(int64, 3)(uint8[:, ::1])")
+def inscribed_peak(padded: npt.NDArray[np.uint8]) -> tuple[int, int, int]:
+    """Column, row and squared distance to the background of the mask pixel farthest from it (the first in row order
+    of those equally far): the centre of the largest inscribed circle. Squared distances are exact integers, so the
+    choice between equally far pixels is the same on every run (OpenCV's float32 distances were not: a last bit
+    apart from call to call, by where its buffers lay, which moved the split and made two runs of a flight differ)."""
+    squared = np.empty(padded.shape, np.int64)
+    squared_distances(padded, squared)
+    h, w = padded.shape
+    best, pu, pv = -1, 0, 0
+    for v in range(h):
+        for u in range(w):
+            if squared[v, u] > best:
+                best, pu, pv = squared[v, u], u, v
+    return pu, pv, best
+
+
+@kernel("UniTuple(int64, 5)(uint8[:, ::1])")
+def largest_remainder(padded: npt.NDArray[np.uint8]) -> tuple[int, int, int, int, int]:
+    """What is left of a mask with a background border, as the split read it from OpenCV: each 8-connected part's
+    bounding box (``findContours`` then ``boundingRect``), the mask pixels in that box counted with their column and
+    row sums about its corner (``moments`` of the box: a neighbour reaching in counts too), and the part whose box
+    counts most, the first in ``findContours``' order on a tie. Returns (count, box u, box v, column sum, row sum),
+    count 0 when nothing is left.
+
+    ``RETR_EXTERNAL`` hid a part inside another's hole, but such a part can never be the answer: the box of the part
+    around it holds its box and more, so counts more; every part is looked at here."""
+    h, w = padded.shape
+    labels = np.zeros((h, w), np.int32)
+    left = 0
+    for v in range(h):
+        for u in range(w):
+            if padded[v, u] != 0:
+                labels[v, u] = UNLABELLED
+                left += 1
+    if left == 0:
+        return 0, 0, 0, 0, 0
+    box = np.empty((1, BOX_SIZE), np.int64)
+    box[0, B_U0], box[0, B_U1], box[0, B_V0], box[0, B_V1] = 0, w, 0, h
+    parts = np.empty((left, BLOB_SIZE), np.int64)
+    n = label(labels, box, 1, np.empty(left, np.int32), parts)
+    best = (0, 0, 0, 0, 0)
+    for i in opencv_order(parts, n):
+        bx, by = parts[i, K_U0], parts[i, K_V0]
+        count = su = sv = 0
+        for v in range(by, parts[i, K_V1]):
+            for u in range(bx, parts[i, K_U1]):
+                if padded[v, u] != 0:
+                    count += 1
+                    su += u - bx
+                    sv += v - by
+        if count > best[0]:
+            best = (count, bx, by, su, sv)
+    return best
+
+
+@kernel(
+    "int64(float64[::1], float64[:, ::1], int32[:, ::1], int64[::1], int32[:, ::1], float64, int64, int64,"
+    " float64[:, ::1], int64)"
+)
+def split_merged(
+    camera: npt.NDArray[np.float64],
+    rot_body_cam: npt.NDArray[np.float64],
+    labels: npt.NDArray[np.int32],
+    blob: npt.NDArray[np.int64],
+    points: npt.NDArray[np.int32],
+    radius_m: float,
+    min_area_px: int,
+    camera_index: int,
+    rows: npt.NDArray[np.float64],
+    n_rows: int,
+) -> int:
+    """A merged blob, whose row read as one body is the last of the first ``n_rows``, split: the nearest body from
+    the largest inscribed circle, refined on its arc of the blob's outline, in that row's place; then what is left
+    of the blob once that body's silhouette is erased, appended when large enough. Returns the new count, or
+    ``ROWS_FULL`` when the second row has no room.
+
+    Bodies share one size, so the nearest looks the largest and its whole silhouette covers at least half the blob;
+    a split that finds less has measured the wrong arc (small blobs), and the blob stays one body (its area-based
+    range is short of the nearest body's, the safe side)."""
+    f = camera[C_FOCAL]
+    x0, y0 = blob[K_U0], blob[K_V0]
+    whole_area = rows[n_rows - 1, R_AREA]
+    padded = blob_mask(labels, blob)
+    pu, pv, peak_squared = inscribed_peak(padded)
+    peak = math.sqrt(float(peak_squared))
+    u, v = float(x0 + pu) - 1.0, float(y0 + pv) - 1.0
+    # The distance at the centre of a pixel disc of radius R is about R + 0.5 (to the centre of the first pixel
+    # outside it).
+    theta, alpha, _a, _b = solve_sphere(normalised(camera, u, v), pmax(peak - 0.5, 0.5) / f, False)
+    vx, vy, vz = ray(camera, u, v, theta)
+    n = outer_border(labels, blob[K_LABEL], blob[K_START], points)
+    boundary = np.empty((n, 2))
+    for i in range(n):
+        boundary[i, 0] = points[i, 0]
+        boundary[i, 1] = points[i, 1]
+    fitted, ax, ay, az, fitted_alpha = fit_cone(camera, boundary, vx, vy, vz, alpha, True)
+    if fitted:
+        vx, vy, vz, alpha = ax, ay, az, fitted_alpha
+        theta = math.acos(pmin(1.0, vx))
+    c_n, a_n, b_n = sphere_silhouette(theta, math.sin(alpha))
+    rho = hypot2(vy, vz)
+    if rho > 0.0:
+        py, pz = vy / rho, vz / rho
+    else:
+        py, pz = 1.0, 0.0
+    uc, vc = camera[C_CX] + f * c_n * py, camera[C_CY] + f * c_n * pz
+    near_area = round_half_even(math.pi * a_n * b_n * f * f)
+    if near_area < NEAREST_MIN_SHARE * whole_area:
+        return n_rows
+    make_row(
+        rows[n_rows - 1], rot_body_cam, camera_index, uc, vc, vx, vy, vz, alpha, float(near_area), radius_m, False, True
+    )
+    # Erase the near body's silhouette, a little larger all round, and look at what is left.
+    scale = float(1 << ERASE_SHIFT)
+    fill_ellipse(
+        padded,
+        round_half_even((uc - x0 + 1.0) * scale),
+        round_half_even((vc - y0 + 1.0) * scale),
+        round_half_even((a_n * f + ERASE_MARGIN_PX) * scale),
+        round_half_even((b_n * f + ERASE_MARGIN_PX) * scale),
+        math.degrees(math.atan2(pz, py)),
+        ERASE_SHIFT,
+        0,
+    )
+    count, bx, by, su, sv = largest_remainder(padded)
+    area = float(count)
+    if count == 0 or area < pmax(float(min_area_px), REMAINDER_MIN_FRACTION * near_area):
+        return n_rows
+    ru = float(x0 + bx) - 1.0 + float(su) / area
+    rv = float(y0 + by) - 1.0 + float(sv) / area
+    theta, alpha, _a, _b = solve_sphere(normalised(camera, ru, rv), area / (f * f), True)
+    vx, vy, vz = ray(camera, ru, rv, theta)
+    if n_rows >= rows.shape[0]:
+        return ROWS_FULL
+    make_row(rows[n_rows], rot_body_cam, camera_index, ru, rv, vx, vy, vz, alpha, area, radius_m, False, True)
+    return n_rows + 1
+
+
 @kernel(
     "int64(float64[::1], float64[:, ::1], int32[:, ::1], int64[:, ::1], int64, int32[:, ::1], float64, int64, int64,"
     " float64[:, ::1], int64)"
@@ -355,9 +538,9 @@ def solve_blobs(
     rows: npt.NDArray[np.float64],
     n_rows: int,
 ) -> int:
-    """Every blob of a frame, in OpenCV's order, solved into a detection row appended to ``rows`` after ``n_rows``;
-    returns the new count. A blob under ``min_area_px`` is a speck; a merged one gets its whole-blob row marked
-    ``R_SPLIT`` for the shell."""
+    """Every blob of a frame, in OpenCV's order, solved into detection rows appended to ``rows`` after ``n_rows``
+    (one a blob, two for a merged blob that splits); returns the new count, or ``ROWS_FULL``. A blob under
+    ``min_area_px`` is a speck."""
     h, w = labels.shape
     f = camera[C_FOCAL]
     keys = np.empty(n_blobs, np.int64)
@@ -384,8 +567,10 @@ def solve_blobs(
         vx, vy, vz = ray(camera, u, v, theta)
         make_row(row, rot_body_cam, camera_index, u, v, vx, vy, vz, alpha, area, radius_m, False, merged)
         if merged:
-            row[R_SPLIT] = 1.0
-            row[R_BLOB] = i
+            n_rows = split_merged(camera, rot_body_cam, labels, blob, points, radius_m, min_area_px, camera_index,
+                                  rows, n_rows)  # fmt: skip
+            if n_rows == ROWS_FULL:
+                return ROWS_FULL
     return n_rows
 
 

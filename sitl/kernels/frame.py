@@ -1,6 +1,6 @@
 """One camera's frame in one call: cull and draw the bodies, expose, threshold, find the blobs and solve them into
-detection rows (sitl/perception/detector.py is the shell: it calls this once per camera and builds records only
-for a reader that wants them).
+detection rows, a merged blob split into its bodies' (sitl/perception/detector.py is the shell: it calls this once
+per camera and builds records only for a reader that wants them).
 
 Where the frame is formed (``MODE_*``):
 

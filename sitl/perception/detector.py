@@ -12,7 +12,8 @@ radius of a drone; it does not know where anything is. Per blob:
    range errors a few per cent down to 2 px blobs.
 
 Blobs that are not the image of one whole sphere use the fact that a sphere's outline is a circle of rays around
-its centre direction (a cone), so an arc of it fixes both direction and angular radius (``_fit_cone``):
+its centre direction (a cone), so an arc of it fixes both direction and angular radius (``fit_cone`` in
+sitl/kernels/detector.py):
 
 - truncated (touching the image border): the cone is fitted to the outline inside the frame. With the body's centre
   in the frame this is as good as a whole blob; with most of the body outside, a sliver with under 8 outline pixels
@@ -28,23 +29,25 @@ its centre direction (a cone), so an arc of it fixes both direction and angular 
   enough to notice: the blob then reads as the near body slightly enlarged (range errs short, the safe side). Three
   or more bodies in one blob yield at most two.
 
+Every step runs compiled, in one call per camera (sitl/kernels/frame.py), the split of a merged blob too
+(``split_merged`` in sitl/kernels/detector.py): it was done here in Python with OpenCV (its precise distance
+transform, contours, filled ellipse and box moments), whose pixel work sitl/kernels/blobs.py reproduces exactly, so
+the detections kept their bits (tests/unit/test_frame_pass.py keeps that split as the oracle). This module is the
+shell: the row table a process's frames are searched into, and records for a reader that wants them.
+
 Obstacles that are not drone-sized (a pole, a building) yield ranges computed as if they were a drone: far too
 short for larger ones (the safe side), and usually flagged truncated when they fill the frame.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
-import cv2
 import numpy as np
 import numpy.typing as npt
 
 from sitl.kernels import avoidance as ak
-from sitl.kernels import blobs as bk
 from sitl.kernels import detector as dk
 from sitl.kernels import frame as fk
 from sitl.mathutil import fast_constructor, quat_to_dcm
@@ -56,13 +59,8 @@ from sitl.perception.camera import (
     draw_bodies,
     frame_pass,
     noise_offset,
-    sphere_silhouette,
 )
 
-# The nearest body of a merged blob covers at least this share of it (half, less pixelation and fit error).
-_NEAREST_MIN_SHARE = 0.45
-# The remainder of a merged blob is a body when at least this fraction of the near body's area.
-_REMAINDER_MIN_FRACTION = 0.05
 # A frame's detections are found in OpenCV's order of blobs, then sorted; rows a rig pass starts with (it grows).
 _ROWS_START = 64
 
@@ -98,141 +96,6 @@ def _solve_sphere(c_n: float, target: float, *, by_area: bool) -> tuple[float, f
 _new_detection = fast_constructor(Detection)
 
 
-def _ray(camera: Camera, u: float, v: float, theta: float) -> tuple[float, float, float]:
-    """Unit vector (camera frame) theta off the optical axis, in the image direction of pixel (u, v)."""
-    return dk.ray(camera.kernel_row, u, v, theta)
-
-
-def _make(
-    camera: Camera,
-    centroid_px: tuple[float, float],
-    vec_cam: tuple[float, float, float],
-    alpha: float,
-    area_px: int,
-    known_body_radius_m: float,
-    *,
-    truncated: bool,
-    merged: bool,
-) -> Detection:
-    azimuth, elevation = dk.bearing(vec_cam[0], vec_cam[1], vec_cam[2])
-    return _new_detection(
-        camera_name=camera.config.name,
-        centroid_px=centroid_px,
-        area_px=area_px,
-        azimuth_rad=azimuth,
-        elevation_rad=elevation,
-        unit_frd=camera.camera_to_body(vec_cam),
-        range_m=known_body_radius_m / math.sin(alpha) if alpha > 0.0 else math.inf,
-        angular_radius_rad=alpha,
-        truncated=truncated,
-        merged=merged,
-    )
-
-
-def _normalised(camera: Camera, u: float, v: float) -> float:
-    return dk.normalised(camera.kernel_row, u, v)
-
-
-def _fit_cone(
-    camera: Camera, boundary_px: npt.NDArray[np.float64], vec: tuple[float, float, float], alpha: float, *, select: bool
-) -> tuple[tuple[float, float, float], float] | None:
-    """Refine a sphere's centre direction and angular radius from boundary pixels of its image.
-
-    The image of a sphere is bounded by the rays u with axis . u = cos(alpha): points of a plane, so a linear
-    least-squares fit n . u = 1 gives axis = n / |n| and cos(alpha) = 1 / |n| wherever the sphere sits in the image
-    (no ellipse model needed), from any arc of its outline. Boundary pixel centres lie about half a pixel inside the
-    true edge, so each is moved half a pixel out from the current silhouette centre. With ``select`` only pixels
-    within a pixel and a half of the current cone take part from the start (this drops the outline of other bodies
-    in a merged blob); otherwise all do at first, then the outliers are dropped. Fewer than 8 points leave the
-    estimate unchanged (None). Short arcs are not refused: even a sixth of the outline beat the fallback estimate
-    for bodies mostly outside the frame (docs/perception.md).
-    """
-    fitted, ax, ay, az, fitted_alpha = dk.fit_cone(
-        camera.kernel_row, np.ascontiguousarray(boundary_px, dtype=np.float64), vec[0], vec[1], vec[2], alpha, select
-    )
-    return ((ax, ay, az), fitted_alpha) if fitted else None
-
-
-def _inscribed_peak(padded: npt.NDArray[Any]) -> tuple[int, int, float]:
-    """Column, row and distance to the background of the blob pixel farthest from it (the first in row order of
-    those equally far): the centre of the largest inscribed circle.
-
-    OpenCV's precise distance transform is the exact Euclidean one, but its float32 square roots are not reproducible:
-    the same mask gives a distance a last bit apart from one call to the next (its vector and scalar code paths round
-    differently, and which pixels take which depends on where its buffers lie in memory), and a bit decides between
-    equally far pixels, so the same frame could yield detections that differ in the twelfth digit, or by a pixel's
-    choice of peak, and two runs of the same swarm flight drifted apart. The squared distances are integers (pixel
-    offsets), recovered exactly from the float32 distances (relative error 6e-8, squared distances under 2^20), and
-    the peak is taken on them."""
-    dist = cv2.distanceTransform(padded, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    squared = np.rint(dist.astype(np.float64) ** 2)
-    flat = int(np.argmax(squared))
-    pv, pu = divmod(flat, squared.shape[1])
-    return pu, pv, math.sqrt(float(squared.flat[flat]))
-
-
-def _split_merged(
-    camera: Camera, mask: GrayImage, x0: int, y0: int, known_body_radius_m: float, min_area_px: int, whole: Detection
-) -> list[Detection]:
-    """The nearest body from the largest inscribed circle of the blob, refined on its arc of the blob boundary,
-    then what is left of the blob once that body's silhouette is erased.
-
-    Bodies share one size, so the nearest looks the largest and its whole silhouette covers at least half the blob;
-    a split that finds less has measured the wrong arc (small blobs), and the blob is reported as one body instead
-    (``whole``: its area-based range is short of the nearest body's, the safe side).
-    """
-    padded = cv2.copyMakeBorder(mask, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
-    pu, pv, peak = _inscribed_peak(padded)
-    u, v = x0 + pu - 1.0, y0 + pv - 1.0
-    f = camera.focal_px
-    # The distance transform at the centre of a pixel disc of radius R is about R + 0.5 (distance to the centre of
-    # the first pixel outside it).
-    theta, alpha, _, _ = _solve_sphere(_normalised(camera, u, v), max(peak - 0.5, 0.5) / f, by_area=False)
-    vec = _ray(camera, u, v, theta)
-    contours, _ = cv2.findContours(padded, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    boundary = np.concatenate([c[:, 0, :] for c in contours]).astype(np.float64)
-    boundary += (x0 - 1.0, y0 - 1.0)
-    fitted = _fit_cone(camera, boundary, vec, alpha, select=True)
-    if fitted is not None:
-        vec, alpha = fitted
-        theta = math.acos(min(1.0, vec[0]))
-    c_n, a_n, b_n = sphere_silhouette(theta, math.sin(alpha))
-    rho = math.hypot(vec[1], vec[2])
-    py, pz = (vec[1] / rho, vec[2] / rho) if rho > 0.0 else (1.0, 0.0)
-    uc, vc = camera.cx_px + f * c_n * py, camera.cy_px + f * c_n * pz
-    near_area = round(math.pi * a_n * b_n * f * f)
-    if near_area < _NEAREST_MIN_SHARE * whole.area_px:
-        return [whole]
-    found = [_make(camera, (uc, vc), vec, alpha, near_area, known_body_radius_m, truncated=False, merged=True)]
-    # Erase the near body's silhouette, a pixel larger all round, and look at what is left.
-    centre = (round((uc - x0 + 1.0) * 16), round((vc - y0 + 1.0) * 16))
-    axes = (round((a_n * f + 1.0) * 16), round((b_n * f + 1.0) * 16))
-    cv2.ellipse(padded, centre, axes, math.degrees(math.atan2(pz, py)), 0.0, 360.0, 0, -1, cv2.LINE_8, 4)
-    contours, _ = cv2.findContours(padded, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-    best: tuple[float, float, float] | None = None
-    for contour in contours:
-        bx, by, bw, bh = cv2.boundingRect(contour)
-        m = cv2.moments(padded[by : by + bh, bx : bx + bw], True)
-        if m["m00"] > 0 and (best is None or m["m00"] > best[0]):
-            best = (m["m00"], x0 + bx - 1.0 + m["m10"] / m["m00"], y0 + by - 1.0 + m["m01"] / m["m00"])
-    if best is not None and best[0] >= max(min_area_px, _REMAINDER_MIN_FRACTION * near_area):
-        area, ru, rv = best
-        theta, alpha, _, _ = _solve_sphere(_normalised(camera, ru, rv), area / (f * f), by_area=True)
-        found.append(
-            _make(
-                camera,
-                (ru, rv),
-                _ray(camera, ru, rv, theta),
-                alpha,
-                round(area),
-                known_body_radius_m,
-                truncated=False,
-                merged=True,
-            )
-        )
-    return found
-
-
 def _detection(row: list[float], camera_name: str) -> Detection:
     """The record of a detection row (sitl/kernels/detector.py, ``R_*``), built only for a reader that wants one."""
     return _new_detection(
@@ -247,20 +110,6 @@ def _detection(row: list[float], camera_name: str) -> Detection:
         truncated=row[dk.R_TRUNCATED] != 0.0,
         merged=row[dk.R_MERGED] != 0.0,
     )
-
-
-def _row(detection: Detection, camera_index: int) -> list[float]:
-    """A detection's row, as the kernels take it."""
-    row = [0.0] * dk.ROW_SIZE
-    row[dk.R_CAMERA] = camera_index
-    row[dk.R_U], row[dk.R_V] = detection.centroid_px
-    row[dk.R_AREA] = detection.area_px
-    row[dk.R_AZIMUTH], row[dk.R_ELEVATION] = detection.azimuth_rad, detection.elevation_rad
-    row[dk.R_FRD_X], row[dk.R_FRD_Y], row[dk.R_FRD_Z] = detection.unit_frd
-    row[dk.R_RANGE], row[dk.R_ALPHA] = detection.range_m, detection.angular_radius_rad
-    row[dk.R_TRUNCATED], row[dk.R_MERGED] = float(detection.truncated), float(detection.merged)
-    row[dk.R_BLOB] = -1.0
-    return row
 
 
 class _Rows:
@@ -296,9 +145,8 @@ def _camera_rows(
     min_area_px: int,
     image: GrayImage | None = None,
 ) -> int:
-    """One camera's frame formed and searched (sitl/kernels/frame.py), its rows appended to ``_Rows.table`` after
-    ``n_rows``; returns the new count (``n_rows`` when ``MODE_BOX`` drew nothing). A blob found merged is split
-    here (the one part of the detector still in Python and OpenCV, for the few blobs that need it)."""
+    """One camera's frame formed and searched (sitl/kernels/frame.py), merged blobs split, its rows appended to
+    ``_Rows.table`` after ``n_rows``; returns the new count (``n_rows`` when ``MODE_BOX`` drew nothing)."""
     while True:
         got = frame_pass(camera, mode, dcm, spheres_ned, noise_at, detect=True, radius_m=radius_m,
                          min_area_px=min_area_px, camera_index=camera_index, rows=_Rows.table, n_rows=n_rows,
@@ -306,25 +154,7 @@ def _camera_rows(
         if got != dk.ROWS_FULL:
             break
         _Rows.grow(n_rows)  # the pass undoes its own writes first, so it is run again from the top
-    if got < 0:
-        return n_rows
-    if not _Rows.table[n_rows:got, dk.R_SPLIT].any():
-        return got
-    found: list[list[float]] = []
-    for row in _Rows.table[n_rows:got].tolist():
-        if row[dk.R_SPLIT] == 0.0:
-            found.append(row)
-            continue
-        blob = camera.scratch.blobs[int(row[dk.R_BLOB])]
-        x0, y0, x1, y1 = int(blob[bk.K_U0]), int(blob[bk.K_V0]), int(blob[bk.K_U1]), int(blob[bk.K_V1])
-        mask = np.where(camera.scratch.labels[y0:y1, x0:x1] == blob[bk.K_LABEL], 255, 0).astype(np.uint8)
-        whole = _detection(row, camera.config.name)
-        parts = _split_merged(camera, mask, x0, y0, radius_m, min_area_px, whole)
-        found.extend(_row(part, camera_index) for part in parts)
-    while _Rows.table.shape[0] < n_rows + len(found):
-        _Rows.grow(n_rows)
-    _Rows.table[n_rows : n_rows + len(found)] = found
-    return n_rows + len(found)
+    return n_rows if got < 0 else got
 
 
 def detect(image: GrayImage, camera: Camera, known_body_radius_m: float, *, min_area_px: int = 3) -> list[Detection]:
