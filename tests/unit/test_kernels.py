@@ -207,3 +207,29 @@ def test_the_compiled_cascade_gives_its_python_forms_bits_saturated_or_not() -> 
             *velocity, equal_nan=True
         )
     assert saturated > 300  # the priority path was exercised, not only the common one
+
+
+def test_a_cache_compiled_from_other_kernel_sources_is_dropped_whole_and_a_current_one_is_kept(tmp_path: Path) -> None:
+    # GIVEN a cache directory holding compiled kernels and no record of the sources they came from
+    from sitl.kernels import FINGERPRINT_FILE, drop_stale_cache, sources_fingerprint
+
+    cache = tmp_path / "__pycache__"
+    cache.mkdir()
+    compiled = [cache / "frame.camera_pass-41.py311.nbi", cache / "frame.camera_pass-41.py311.1.nbc"]
+    for path in compiled:
+        path.write_bytes(b"machine code")
+    current = sources_fingerprint()
+    # WHEN it is checked against the current sources THEN every compiled kernel is dropped and the sources recorded
+    assert drop_stale_cache(cache, current)
+    assert not any(path.exists() for path in compiled)
+    assert (cache / FINGERPRINT_FILE).read_text() == current
+    # AND kernels compiled since are kept while the sources stay the same
+    for path in compiled:
+        path.write_bytes(b"machine code")
+    assert not drop_stale_cache(cache, current)
+    assert all(path.exists() for path in compiled)
+    # AND dropped again once any kernel module's source differs (a callee's change reaches its callers)
+    assert drop_stale_cache(cache, "another source")
+    assert not any(path.exists() for path in compiled)
+    # AND the fingerprint is one of every kernel module's source
+    assert current == sources_fingerprint() and len(current) == 64
