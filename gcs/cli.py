@@ -74,6 +74,7 @@ from gcs.sweep.plan import SweepError
 from gcs.view.report import PLOT_POLICIES
 from gcs.view.server import DEFAULT_PORT as DEFAULT_VIEW_PORT
 from gcs.view.server import ViewError, ViewServer, serve_view
+from swarmcommon.cpus import usable_cpus
 from swarmcommon.datagrams import parse_host_port
 from swarmcommon.process_end import ending
 
@@ -1068,9 +1069,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == "plan":
             return run_plan(args)
         if args.command == "falsify":
-            return run_falsify(args, len(os.sched_getaffinity(0)))
+            return run_falsify(args, usable_cpus())
         if args.command == "sweep":
-            return run_sweep_command(args, SITL, len(os.sched_getaffinity(0)))
+            return run_sweep_command(args, SITL, usable_cpus())
         return run_client(args)
     except (UsageError, MissionFileError, SweepError, FalsifyError) as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)

@@ -12,7 +12,6 @@ Processes are only ever signalled by the PIDs this group started.
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import time
@@ -26,6 +25,7 @@ from sitl.harness.factory import DroneFactory, FactoryError, ForkedProcess
 from sitl.harness.zygote import die_with_parent
 from sitl.world.linkmodel import LinkProfile, link_arguments
 from sitl.world.mesh import MeshSettings
+from swarmcommon.cpus import usable_cpus
 
 TERMINATE_WAIT_S = 5.0
 # Drones run at a lower scheduling priority than the supervisor. When the drones want more CPU than there is, the
@@ -105,14 +105,6 @@ def host_groups(n_drones: int, per_process: int | Literal["auto"], usable_cpus: 
         groups.append(list(range(start, start + size)))
         start += size
     return groups
-
-
-def usable_cpus() -> int:
-    """CPUs this process may run on (its affinity mask, which containers and taskset narrow), at least 1."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except (AttributeError, OSError):
-        return max(1, os.cpu_count() or 1)
 
 
 @dataclass(slots=True)

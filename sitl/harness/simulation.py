@@ -13,9 +13,10 @@ from typing import Literal
 
 from sitl.dynamics.airframe import AirframeError, load_airframe
 from sitl.dynamics.plant import PHYSICS_RATE_HZ
-from sitl.harness.processes import host_groups, usable_cpus
+from sitl.harness.processes import host_groups
 from sitl.process.ports import INSTANCES
 from sitl.world.shared import MAX_OBSTACLES
+from swarmcommon.cpus import usable_cpus
 
 __all__ = [
     "MAX_INSTANCES",

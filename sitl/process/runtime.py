@@ -10,7 +10,6 @@ from __future__ import annotations
 import functools
 import logging
 import math
-import os
 import selectors
 import signal
 import socket
@@ -24,6 +23,7 @@ from sitl.process.drone import Drone, DroneLogRouter
 from sitl.process.pacing import Pacer
 from sitl.world.lockstep import MAX_SLEEP_S, LockstepMember
 from sitl.world.shared import END_STOPPED
+from swarmcommon.cpus import usable_cpus
 
 log = logging.getLogger(__name__)
 
@@ -178,7 +178,7 @@ class LockstepSteps:
         if self._spin is None:
             alone = member.alone()
             if alone is not None:
-                self._spin = alone and _usable_cpus() >= 2
+                self._spin = alone and usable_cpus() >= 2
         if self._spin:
             give_up = time.perf_counter() + LOCKSTEP_SPIN_S
             while time.perf_counter() < give_up:
@@ -194,14 +194,6 @@ class LockstepSteps:
     def close(self) -> None:
         self._wake.close()
         self.member.leave()
-
-
-def _usable_cpus() -> int:
-    """The CPUs this process may run on."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not Linux
-        return os.cpu_count() or 1
 
 
 def run_loop(
