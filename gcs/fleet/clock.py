@@ -19,7 +19,6 @@ from collections.abc import Mapping
 from typing import Final
 
 from gcs.fleet.harness import SimulationHarness, SpawnPlan
-from swarmcommon.cpus import usable_cpus
 
 # A lockstep frame: how far the drones fly on each time every one of them stands at the gate. The supervisor handles
 # what they sent up to one gate while they fly to the next, and its answer is read at that next gate, so this is
@@ -36,12 +35,6 @@ LOCKSTEP_STALL_S: Final = 10.0  # wall seconds without progress before the super
 LOCKSTEP_MAX_WAIT_S: Final = 0.005  # wall-clock cap on one wait in lockstep (simulated time has no wall rate)
 EXIT_CHECK_S: Final = 0.5  # wall seconds between looks for ended drones while moving the lockstep clock
 TICK_S: Final = 0.05  # the period of a waiting loop's ``tick`` (the setpoint stream's 20 Hz)
-# Lockstep, every drone in one process and a core to spare for it: wall seconds the supervisor looks again for the
-# drones at the gate before it sleeps. Its wake-up is on every frame's critical path (the drones wait for the next
-# gate meanwhile), and on a machine whose idle cores halt at once a wake-up costs more than a frame of one drone
-# (docs/benchmarks.md, "What the machine charges for sleeping"). With more processes than spare cores it sleeps at
-# once: looking again would take the time of the drones it waits for.
-GATE_SPIN_S: Final = 0.001
 
 
 class ClockStalled(RuntimeError):
@@ -65,13 +58,11 @@ class SwarmClock:
         self._gate_progress = (0.0, time.monotonic())  # (common time, wall time it was first seen)
         self._next_exit_check = 0.0
         self._drones = 0
-        self._spin = False  # look again before sleeping at the gate (``start``)
         self._gate_selector = selectors.DefaultSelector()  # lockstep: woken by the drones reaching the gate
 
     def start(self, drones: int) -> None:
         """The drones are launched: paced time starts now, the lockstep gate runs (in lockstep)."""
         self._drones = drones
-        self._spin = self.plan.lockstep and len(set(self.harness.process_ids().values())) == 1 and usable_cpus() >= 2
         self._wall_t0 = time.monotonic()
         self._wake_fd = self.harness.wake_fileno()
         if self._wake_fd is not None:
@@ -93,10 +84,6 @@ class SwarmClock:
         if target_s is None:
             return
         target = target_s - 1e-9
-        if self._spin:
-            give_up = time.perf_counter() + GATE_SPIN_S
-            while self.harness.lockstep_time_s() < target and time.perf_counter() < give_up:
-                pass
         while (now := self.harness.lockstep_time_s()) < target and len(self.harness.ended()) < self._drones:
             self._check_members(now)
             if self._gate_selector.select(LOCKSTEP_MAX_WAIT_S) and self._wake_fd is not None:

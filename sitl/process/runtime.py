@@ -23,7 +23,6 @@ from sitl.process.drone import Drone, DroneLogRouter
 from sitl.process.pacing import Pacer
 from sitl.world.lockstep import MAX_SLEEP_S, LockstepMember
 from sitl.world.shared import END_STOPPED
-from swarmcommon.cpus import usable_cpus
 
 log = logging.getLogger(__name__)
 
@@ -76,13 +75,6 @@ PACED_WAKE_STEPS = 8  # 32 ms of simulated time at 250 Hz
 # what is sent when does not depend on how the barrier happened to cut the batches (reproducible flights).
 LOCKSTEP_POLL_STEPS = 4  # 16 ms of simulated time at 250 Hz
 BOOT_FAST_FORWARD_MAX_S = 10.0  # simulated seconds a boot may be fast-forwarded at most
-# Lockstep: wall seconds a member that hosts the whole swarm looks again, without sleeping, for the supervisor to
-# open the next frame. The supervisor handles a frame (some 0.4 ms for one drone) while the drones fly the next, so
-# such a member waits for it at every gate; asleep, it paid a wake-up each time, which costs more than the wait on
-# a machine whose idle cores halt at once (docs/benchmarks.md, "What the machine charges for sleeping"). Only with
-# a core to spare: with two hosts and the supervisor on two cores, a member looking again takes the time of the one
-# it waits for (measured: docs/benchmark-history.md).
-LOCKSTEP_SPIN_S = 0.001
 
 
 class WallClockSteps:
@@ -150,7 +142,6 @@ class LockstepSteps:
         self._completed = 0
         self._wake = selectors.DefaultSelector()
         self._wake.register(member.wake_socket, selectors.EVENT_READ)
-        self._spin: bool | None = None  # look again before sleeping (decided once the gate has opened)
         member.join()
 
     def steps_due(self, sim_time_s: float, completed_steps: int, max_batch: int) -> int:
@@ -170,20 +161,10 @@ class LockstepSteps:
         return []  # the wake-up socket is this clock's own (see the class docstring)
 
     def wait(self, selector: selectors.BaseSelector, sim_time_s: float) -> None:
-        """Sleep until a peer or the supervisor wakes this member, after a last look; a member alone in the lockstep
-        with a core to spare first looks again for up to LOCKSTEP_SPIN_S."""
+        """Sleep until a peer or the supervisor wakes this member, after a last look."""
         if self._due > 0:
             return
         member = self.member
-        if self._spin is None:
-            alone = member.alone()
-            if alone is not None:
-                self._spin = alone and usable_cpus() >= 2
-        if self._spin:
-            give_up = time.perf_counter() + LOCKSTEP_SPIN_S
-            while time.perf_counter() < give_up:
-                if member.steps_allowed(self._completed)[0] > 0:
-                    return
         member.begin_wait()
         try:
             if member.steps_allowed(self._completed)[0] == 0:
