@@ -1,5 +1,5 @@
-"""How many CPUs a process may use: read alike by the ground station (how many simulation processes to start, whether
-the lockstep gate may be watched without sleeping) and the drones (whether a lockstep host may)."""
+"""How many CPUs a process may use, read alike wherever it is asked: the harness (how many processes host the drones)
+and the command line (how many flights a sweep or a falsify campaign runs side by side)."""
 
 from __future__ import annotations
 

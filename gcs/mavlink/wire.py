@@ -61,9 +61,10 @@ def _reader(cls: type[Any]) -> _Reader:
     """A reader for ``cls``: its arguments found among the unpacked values as pymavlink's ``decode`` finds them (an
     array field's values follow one another; a text is one ``bytes`` value)."""
     lengths = list(cls.lengths)
-    spans = tuple((sum(lengths[:order]), lengths[order]) for order in cls.orders)
     arrays = sum(lengths) != len(lengths) or "char" in cls.fieldtypes
-    if not arrays:
+    if arrays:
+        spans = tuple((sum(lengths[:order]), lengths[order]) for order in cls.orders)
+    else:  # every field one value: argument k is value orders[k]
         spans = tuple((order, 1) for order in cls.orders)
     return _Reader(cls=cls, crc_extra=bytes((cls.crc_extra,)), payload=cls.unpacker, spans=spans, arrays=arrays)
 
