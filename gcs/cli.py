@@ -56,6 +56,7 @@ from gcs.invariants.monitor import EXIT_VIOLATED, Violation
 from gcs.mavlink.signing import SigningKeyError, load_key
 from gcs.mavlink.transport import GCS_SYSID
 from gcs.missions.mission_file import (
+    FLIGHT_ALT_M,
     TAKEOFF_ALT_M,
     MissionFileError,
     MissionSpec,
@@ -81,6 +82,7 @@ from swarmcommon.process_end import ending
 EXIT_USAGE = 2
 DEFAULT_MISSION = Path(__file__).resolve().parent.parent / "missions" / "grid_to_circle.toml"
 EXIT_FAILED = 1
+ALT_HELP = f"altitude in metres (default {FLIGHT_ALT_M:g})"  # swarm formation, flock and follow
 
 
 class UsageError(Exception):
@@ -513,7 +515,7 @@ def build_parser() -> argparse.ArgumentParser:
                          help=f"altitude above home in metres (default {TAKEOFF_ALT_M:g})")  # fmt: skip
     formation = sub.add_parser("formation", help="fly a formation (OFFBOARD): grid, circle, line or v")
     formation.add_argument("shape", choices=("grid", "circle", "line", "v"))
-    formation.add_argument("--alt", type=_positive, default=3.0, help="altitude in metres (default 3)")
+    formation.add_argument("--alt", type=_positive, default=FLIGHT_ALT_M, help=ALT_HELP)
     formation.add_argument("--spacing", type=_positive, default=2.0, help="spacing in metres (grid, line, v)")
     formation.add_argument("--rows", type=int, default=None, help="grid rows (default: a square-ish grid)")
     formation.add_argument("--cols", type=int, default=None, help="grid columns")
@@ -525,7 +527,7 @@ def build_parser() -> argparse.ArgumentParser:
     flock = sub.add_parser(
         "flock", help="Reynolds flocking (OFFBOARD) towards migration points; until the next command"
     )
-    flock.add_argument("--alt", type=_positive, default=3.0, help="altitude in metres (default 3)")
+    flock.add_argument("--alt", type=_positive, default=FLIGHT_ALT_M, help=ALT_HELP)
     flock.add_argument(
         "--goals",
         type=_pairs,
@@ -555,7 +557,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="--attached: how fast the followers' offsets may turn with the leader's course "
                         "(default 17 deg/s)")  # fmt: skip
     follow.add_argument("--leader", type=int, default=None, help="sysid of the leader (default: the lowest)")
-    follow.add_argument("--alt", type=_positive, default=3.0, help="altitude in metres (default 3)")
+    follow.add_argument("--alt", type=_positive, default=FLIGHT_ALT_M, help=ALT_HELP)
     follow.add_argument("--speed", type=_positive, default=None, help="leader's cruise speed in m/s (default 1.5)")
     follow.add_argument("--spacing", type=_positive, default=None, help="V spacing in metres (default 2.5)")
     follow.add_argument("--angle", type=_v_angle, default=None, help="V opening angle in degrees (default 90)")

@@ -69,7 +69,11 @@ class MissionFileError(ValueError):
 TAKEOFF_TIMEOUT_S: Final = 30.0  # every drone holds its takeoff altitude
 LAND_TIMEOUT_S: Final = 60.0  # every drone landed and disarmed
 RTL_TIMEOUT_S: Final = 120.0  # every drone back, landed and disarmed
+PLAN_TIMEOUT_S: Final = 120.0  # every drone of a plan step has finished its copy of the plan (and landed, if it lands)
 TAKEOFF_ALT_M: Final = 3.0  # what a takeoff climbs to when it is not told (a mission's takeoff step must say)
+# What a formation, a flock or a follow flies at when the command line does not say (a mission's steps must): where
+# a takeoff that was not told either left the drones, so they neither climb nor descend to start it
+FLIGHT_ALT_M: Final = TAKEOFF_ALT_M
 SWAP_ACCEL_MPS2: Final = 1.0  # a swap's acceleration and braking
 SWAP_TIMEOUT_S: Final = 30.0  # every drone within tolerance of its goal within this time of the swap's start
 SWAP_TOLERANCE_M: Final = 0.5
@@ -222,7 +226,7 @@ class PlanStep:
     drones: str = "all"  # "all" or drone numbers 1..drones like "1,3-5"
     offsets: str | tuple[tuple[float, float], ...] = "spawn"  # spawn | none | one (north, east) per drone
     start: bool = True
-    timeout_s: float = 120.0
+    timeout_s: float = PLAN_TIMEOUT_S
 
 
 Step = (
@@ -689,7 +693,7 @@ def _plan(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int | 
     if start and not plan.items:
         raise reader.fail(where, "file", f"{path}: the plan has no mission items to start (start = false uploads "
                                          "its fence alone)")  # fmt: skip
-    timeout = reader.number(step, "timeout_s", where, "pos") if "timeout_s" in step else 120.0
+    timeout = reader.number(step, "timeout_s", where, "pos") if "timeout_s" in step else PLAN_TIMEOUT_S
     return PlanStep(file=path, plan=plan, drones=chosen, offsets=offsets, start=start, timeout_s=timeout)
 
 
