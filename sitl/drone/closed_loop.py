@@ -93,12 +93,13 @@ class ClosedLoop:
         every step; the autopilot's commander and the position and velocity loops on its ticks,
         sitl/autopilot/commander.py).
 
-        A step between ticks with the IMU alone due is one compiled call (``_between_ticks``); the others go through
-        the parts' shells. The two halves are timed (``control_ns``, ``physics_ns``) with ``part_clock_ns`` so
-        benchmarks can say where a drone's time goes without a profiler's distortion."""
+        A step without a GPS sample samples the sensors and steps the estimator in one compiled call, which between
+        ticks runs the inner loops too (``_compiled_step``); the others go through the parts' shells. The two halves
+        are timed (``control_ns``, ``physics_ns``) with ``part_clock_ns`` so benchmarks can say where a drone's time
+        goes without a profiler's distortion."""
         clock = self.part_clock_ns
         t0 = clock()
-        motors = self._between_ticks()
+        motors = self._compiled_step()
         if motors is None:
             readings = self.sensors.sample(self.truth)
             if readings.gps is not None:
@@ -123,25 +124,31 @@ class ClosedLoop:
         self.physics_ns += t2 - t1
         return self.truth
 
-    def _between_ticks(self) -> tuple[float, ...] | None:
-        """The step as one kernel (sitl/kernels/between_ticks.py) when the autopilot only runs its inner loops
-        (``Commander.holds_inner_loops``) and the IMU alone is due: the same sample, estimate and motor commands as
-        the shells would give. None, having changed nothing, when it cannot be."""
-        vehicle, dt_s = self.vehicle, self.dt_s
-        if not (vehicle.holds_inner_loops(dt_s) and self.sensors.imu_only(self.truth.time_s)):
+    def _compiled_step(self) -> tuple[float, ...] | None:
+        """The sensors' sample and the estimator's step as one kernel (sitl/kernels/between_ticks.py ``sense``), then
+        the commander's step on that estimate; when the autopilot only runs its inner loops
+        (``Commander.holds_inner_loops``) they run in the same call (``step``). The same samples, estimate and motor
+        commands as the shells would give. None, having changed nothing, when the sensors cannot be sampled there
+        (``SensorSuite.take_kernel_sample``)."""
+        estimator, dt_s, time_s = self.estimator, self.dt_s, self.time_s
+        sample = self.sensors.take_kernel_sample(self.truth, estimator.attitude_initialised)
+        if sample is None:
             return None
-        noise = self.sensors.imu.take_noise()
-        if noise is None:
-            return None
-        block, row = noise
+        vehicle = self.vehicle
+        est_state, est_cfg, est_gps, est_no_vec, est_out = estimator.kernel_rows()
+        imu_inputs, row = self.plant.imu_inputs(), self.sensors.row
+        if not vehicle.holds_inner_loops(dt_s):
+            bt.sense(imu_inputs, row, *sample, est_state, est_cfg, est_gps, est_no_vec, est_out,
+                     time_s, dt_s)  # fmt: skip
+            self.estimate = estimate = estimator.published_whole(time_s)  # a tick, most likely: it reads every vector
+            return vehicle.step(estimate, time_s, dt_s)
         cascade = vehicle.cascade
         att_cfg, rate_cfg, rate_state, alloc_rows, t_max, inner_out = cascade.inner_rows()
-        est_state, est_cfg, est_gps, est_no_vec, est_out = self.estimator.kernel_rows()
-        bt.step(self.plant.imu_inputs(), block, row, self.sensors.imu.row,
-                est_state, est_cfg, est_gps, est_no_vec, est_out, self.time_s, dt_s, cascade.held_row,
-                vehicle.landed, att_cfg, rate_cfg, rate_state, alloc_rows, t_max, inner_out)  # fmt: skip
-        self.estimate = estimate = self.estimator.published(self.time_s)
-        return vehicle.inner_loops_stepped(estimate, self.time_s, dt_s)
+        bt.step(imu_inputs, row, *sample, est_state, est_cfg, est_gps, est_no_vec, est_out,
+                time_s, dt_s, cascade.held_row, vehicle.landed, att_cfg, rate_cfg, rate_state, alloc_rows, t_max,
+                inner_out)  # fmt: skip
+        self.estimate = estimate = estimator.published(time_s)
+        return vehicle.inner_loops_stepped(estimate, time_s, dt_s)
 
     def _touchdown(self, before: PlantState) -> None:
         """The first step in contact with the ground: too fast a touchdown is a crash (the speed is the one just

@@ -56,6 +56,10 @@ class NoiseSource:
         self._next = i + 1
         return x, y, z
 
+    def holds(self, count: int) -> bool:
+        """Does the block still hold ``count`` rows (so that ``take_rows(count)`` will not return None)?"""
+        return self._next + count <= _BLOCK
+
     def take_rows(self, count: int) -> tuple[npt.NDArray[np.float64], int] | None:
         """The block and the index of the next ``count`` rows, handed out at once to a kernel that reads them itself
         (sitl/kernels/between_ticks.py): the stream is consumed as ``count`` calls of ``floats3`` would consume it.

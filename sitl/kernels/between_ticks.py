@@ -1,12 +1,15 @@
-"""A drone's physics step between two commander ticks, in one call: the IMU sample, the estimator's step and the
-inner loops towards the attitude the commander's last tick asked for (sitl/autopilot/commander.py, ``Commander.step``).
+"""A drone's physics step in one or two compiled calls: the sensors and the estimator on every step without a GPS
+sample (``sense``), and, between two commander ticks, the inner loops towards the attitude the commander's last tick
+asked for as well (``step``; sitl/autopilot/commander.py, ``Commander.step``).
 
-Between ticks nothing in a drone's step is event-driven: no mode, failsafe or land detector runs, and on most steps
-no GPS, barometer or magnetometer sample is due. What is left is numeric, and was three Python shells each building
-a record (the IMU sample, the estimate, the cascade's output) around its kernel; here the same kernels
-(sitl/kernels/estimator.py ``step``, sitl/kernels/cascade.py ``inner``) run back to back on the same rows, with the
-IMU's arithmetic written as sitl/sensors/models.py ``Imu.sample`` writes it, so a step taken here has the bits the
-shells would give (the recorded flights are the check). sitl/drone/closed_loop.py decides when a step may be taken here.
+On most steps no GPS sample is due (10 Hz against 250 Hz physics) and what a step samples is numeric: the IMU, and at
+their rates the barometer and the magnetometer. That was two Python shells each building records (the readings, the
+estimate) around the estimator's kernel; here the samples are taken with the arithmetic sitl/sensors/models.py writes
+(``Imu.sample``, ``Barometer.sample``, ``Magnetometer.sample``) from the same rows of each sensor's noise block, and
+the estimator's kernel (sitl/kernels/estimator.py ``step``) and, between ticks, the cascade's inner loops
+(sitl/kernels/cascade.py ``inner``) run back to back on the same rows, so a step taken here has the bits the shells
+would give (the recorded flights are the check). sitl/drone/closed_loop.py decides when a step may be taken here; the
+commander's tick itself stays Python and reads the estimate this leaves.
 """
 
 from __future__ import annotations
@@ -20,12 +23,16 @@ from sitl.kernels import cascade as ck
 from sitl.kernels import estimator as ek
 from sitl.kernels import kernel
 
-# The IMU's constants: gyro and accelerometer biases, then the two noise scales (sitl/sensors/models.py Imu).
+# The sensors' constants (sitl/sensors/models.py SensorSuite.row): the IMU's gyro and accelerometer biases and noise
+# scales, the barometer's noise scale, the magnetometer's noise scale and the Earth field it measures (NED, gauss).
 I_GYRO_BIAS = 0
 I_ACCEL_BIAS = 3
 I_GYRO_NOISE = 6
 I_ACCEL_NOISE = 7
-IMU_SIZE = 8
+I_BARO_NOISE = 8
+I_MAG_NOISE = 9
+I_MAG_FIELD = 10
+SENSORS_SIZE = 13
 
 # What the IMU samples, from the plant's step: the true body rates, then the true specific force.
 I_IN_RATES = 0
@@ -39,16 +46,95 @@ H_COLLECTIVE = 5
 HELD_SIZE = 6
 
 
+_SENSE_ARGS = (
+    "float64[::1], float64[::1], float64[:, ::1], int64, boolean, float64[:, ::1], int64, float64, boolean,"
+    " float64[:, ::1], int64, float64, float64, float64, float64, float64[::1], float64[::1], float64[::1],"
+    " float64[::1], float64[::1], float64, float64"
+)
+
+
+@kernel(f"void({_SENSE_ARGS})")
+def sense(
+    imu_inputs: npt.NDArray[np.float64],
+    sensors: npt.NDArray[np.float64],
+    noise: npt.NDArray[np.float64],
+    noise_row: int,
+    baro_due: bool,
+    baro_noise: npt.NDArray[np.float64],
+    baro_row: int,
+    alt_amsl_m: float,
+    mag_due: bool,
+    mag_noise: npt.NDArray[np.float64],
+    mag_row: int,
+    qw: float,
+    qx: float,
+    qy: float,
+    qz: float,
+    est_state: npt.NDArray[np.float64],
+    est_cfg: npt.NDArray[np.float64],
+    est_gps: npt.NDArray[np.float64],
+    est_no_vec: npt.NDArray[np.float64],
+    est_out: npt.NDArray[np.float64],
+    time_s: float,
+    dt_s: float,
+) -> None:
+    """The sensors sampled and the estimator stepped on them, the estimate written to ``est_out``.
+
+    The IMU from the true rates and specific force (``imu_inputs``: rates, then specific force,
+    sitl/dynamics/jsbsim_plant.py ``JsbsimPlant.imu_inputs``) with noise rows ``noise_row`` and ``noise_row + 1`` of
+    its block; when ``baro_due``, the barometer from the true altitude ``alt_amsl_m`` with row ``baro_row`` of its
+    block; when ``mag_due``, the magnetometer from the true attitude ``qw``..``qz`` with row ``mag_row`` of its block.
+    The estimator's attitude must be initialised when the magnetometer is due (the shells initialise it)."""
+    gyro = np.empty(3)
+    accel = np.empty(3)
+    k = sensors[I_GYRO_NOISE]
+    for i in range(3):
+        gyro[i] = imu_inputs[I_IN_RATES + i] + sensors[I_GYRO_BIAS + i] + k * noise[noise_row, i]
+    k = sensors[I_ACCEL_NOISE]
+    for i in range(3):
+        accel[i] = imu_inputs[I_IN_SPECIFIC_FORCE + i] + sensors[I_ACCEL_BIAS + i] + k * noise[noise_row + 1, i]
+    baro_alt_m = 0.0
+    if baro_due:
+        baro_alt_m = alt_amsl_m + sensors[I_BARO_NOISE] * baro_noise[baro_row, 0]
+    mag = est_no_vec
+    if mag_due:
+        w, x, y, z = qw, qx, qy, qz
+        fn = sensors[I_MAG_FIELD]
+        fe = sensors[I_MAG_FIELD + 1]
+        fd = sensors[I_MAG_FIELD + 2]
+        # R(q)^T field_ned, with R(q) the body->NED rotation matrix, written as Magnetometer.sample writes it.
+        bx = (1 - 2 * (y * y + z * z)) * fn + 2 * (x * y + w * z) * fe + 2 * (x * z - w * y) * fd
+        by = 2 * (x * y - w * z) * fn + (1 - 2 * (x * x + z * z)) * fe + 2 * (y * z + w * x) * fd
+        bz = 2 * (x * z + w * y) * fn + 2 * (y * z - w * x) * fe + (1 - 2 * (x * x + y * y)) * fd
+        k = sensors[I_MAG_NOISE]
+        mag = np.empty(3)
+        mag[0] = bx + k * mag_noise[mag_row, 0]
+        mag[1] = by + k * mag_noise[mag_row, 1]
+        mag[2] = bz + k * mag_noise[mag_row, 2]
+    ek.step(est_state, est_cfg, gyro, accel, mag_due, mag, False, est_gps, baro_due, baro_alt_m, time_s, dt_s,
+            est_state[ek.ATT_INITIALISED] != 0.0, est_out)  # fmt: skip
+
+
 @kernel(
-    "void(float64[::1], float64[:, ::1], int64, float64[::1], float64[::1], float64[::1],"
-    " float64[::1], float64[::1], float64[::1], float64, float64, float64[::1], boolean, float64[::1],"
-    " float64[::1], float64[::1], float64[:, ::1], float64, float64[::1])"
+    f"void({_SENSE_ARGS}, float64[::1], boolean, float64[::1], float64[::1], float64[::1], float64[:, ::1], float64,"
+    " float64[::1])"
 )
 def step(
     imu_inputs: npt.NDArray[np.float64],
+    sensors: npt.NDArray[np.float64],
     noise: npt.NDArray[np.float64],
     noise_row: int,
-    imu: npt.NDArray[np.float64],
+    baro_due: bool,
+    baro_noise: npt.NDArray[np.float64],
+    baro_row: int,
+    alt_amsl_m: float,
+    mag_due: bool,
+    mag_noise: npt.NDArray[np.float64],
+    mag_row: int,
+    qw: float,
+    qx: float,
+    qy: float,
+    qz: float,
     est_state: npt.NDArray[np.float64],
     est_cfg: npt.NDArray[np.float64],
     est_gps: npt.NDArray[np.float64],
@@ -65,20 +151,10 @@ def step(
     t_max: float,
     inner_out: npt.NDArray[np.float64],
 ) -> None:
-    """One step: the IMU sampled from the true rates and specific force (``imu_inputs``: rates, then specific force,
-    sitl/dynamics/jsbsim_plant.py ``JsbsimPlant.imu_inputs``) with noise rows ``noise_row`` and
-    ``noise_row + 1`` of the IMU's noise block, the estimator stepped on it alone, and the inner loops run on the new
-    estimate towards ``held``; the estimate goes to ``est_out`` and the motor commands to ``inner_out``."""
-    gyro = np.empty(3)
-    accel = np.empty(3)
-    k = imu[I_GYRO_NOISE]
-    for i in range(3):
-        gyro[i] = imu_inputs[I_IN_RATES + i] + imu[I_GYRO_BIAS + i] + k * noise[noise_row, i]
-    k = imu[I_ACCEL_NOISE]
-    for i in range(3):
-        accel[i] = imu_inputs[I_IN_SPECIFIC_FORCE + i] + imu[I_ACCEL_BIAS + i] + k * noise[noise_row + 1, i]
-    ek.step(est_state, est_cfg, gyro, accel, False, est_no_vec, False, est_gps, False, 0.0, time_s, dt_s,
-            est_state[ek.ATT_INITIALISED] != 0.0, est_out)  # fmt: skip
+    """A step between ticks: ``sense``, then the inner loops run on the new estimate towards ``held``; the motor
+    commands go to ``inner_out``."""
+    sense(imu_inputs, sensors, noise, noise_row, baro_due, baro_noise, baro_row, alt_amsl_m, mag_due, mag_noise,
+          mag_row, qw, qx, qy, qz, est_state, est_cfg, est_gps, est_no_vec, est_out, time_s, dt_s)  # fmt: skip
     q = ek.O_Q
     r = ek.O_RATES
     a = H_ATT_SP

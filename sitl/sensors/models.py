@@ -93,23 +93,15 @@ class Imu:
         accel_bias = rng.uniform(-config.accel_bias_max_mps2, config.accel_bias_max_mps2, 3).tolist()
         self._gyro_bias: tuple[float, float, float] = (gyro_bias[0], gyro_bias[1], gyro_bias[2])
         self._accel_bias: tuple[float, float, float] = (accel_bias[0], accel_bias[1], accel_bias[2])
-        self._noise = NoiseSource(rng)
-        # The same constants as the kernel of a step between commander ticks takes them (sitl/kernels/between_ticks.py).
-        row = np.empty(bt.IMU_SIZE)
-        row[bt.I_GYRO_BIAS : bt.I_GYRO_BIAS + 3] = self._gyro_bias
-        row[bt.I_ACCEL_BIAS : bt.I_ACCEL_BIAS + 3] = self._accel_bias
-        row[bt.I_GYRO_NOISE] = config.gyro_noise_radps
-        row[bt.I_ACCEL_NOISE] = config.accel_noise_mps2
-        self.row = row
+        self.noise = NoiseSource(rng)  # a sample takes two rows: gyro, then accelerometer
 
-    def take_noise(self) -> tuple[npt.NDArray[np.float64], int] | None:
-        """The noise of one sample (two rows: gyro, then accelerometer) for a kernel that samples the IMU itself, or
-        None when they straddle a refill of the noise block (then ``sample`` draws them)."""
-        return self._noise.take_rows(2)
+    def biases(self) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """The gyro's and the accelerometer's bias, drawn at boot."""
+        return self._gyro_bias, self._accel_bias
 
     def sample(self, truth: PlantState) -> ImuSample:
         # Scalar arithmetic on Python floats: at every physics step numpy's per-call overhead on 3-vectors dominates.
-        noise = self._noise
+        noise = self.noise
         wx, wy, wz = truth.rates_frd_radps.tolist()
         bx, by, bz = self._gyro_bias
         nx, ny, nz = noise.floats3()
@@ -206,20 +198,20 @@ class Gps:
 class Barometer:
     def __init__(self, config: SensorConfig, rng: np.random.Generator) -> None:
         self._cfg = config
-        self._noise = NoiseSource(rng)
+        self.noise = NoiseSource(rng)  # a sample takes one row
         self.clock = _Periodic(config.baro_rate_hz)
 
     def sample(self, truth: PlantState) -> BaroSample | None:
         if not self.clock.due(truth.time_s):
             return None
-        alt = truth.geo.alt_amsl_m + self._cfg.baro_noise_m * self._noise.scalar()
+        alt = truth.geo.alt_amsl_m + self._cfg.baro_noise_m * self.noise.scalar()
         return _new_baro_sample(alt_amsl_m=alt, pressure_hpa=_isa_pressure_hpa(alt), temperature_c=15.0 - 0.0065 * alt)
 
 
 class Magnetometer:
     def __init__(self, config: SensorConfig, rng: np.random.Generator) -> None:
         self._cfg = config
-        self._noise = NoiseSource(rng)
+        self.noise = NoiseSource(rng)  # a sample takes one row
         self._field_ned = tuple(float(c) for c in config.mag_field_ned_gauss)
         self.clock = _Periodic(config.baro_rate_hz)
 
@@ -228,7 +220,7 @@ class Magnetometer:
             return None
         w, x, y, z = truth.att_q_frd_to_ned.tolist()
         fn, fe, fd = self._field_ned
-        nx, ny, nz = self._noise.floats3()
+        nx, ny, nz = self.noise.floats3()
         k = self._cfg.mag_noise_gauss
         # R(q)^T field_ned, with R(q) the body->NED rotation matrix.
         bx = (1 - 2 * (y * y + z * z)) * fn + 2 * (x * y + w * z) * fe + 2 * (x * z - w * y) * fd
@@ -247,6 +239,16 @@ class SensorReadings:
 
 _new_readings = fast_constructor(SensorReadings)
 
+# What a compiled step takes to sample the sensors itself (sitl/kernels/between_ticks.py ``sense``, after the plant's
+# IMU inputs): the IMU's noise block and row, then for the barometer whether it is due, its noise block and row and
+# the true altitude AMSL, then for the magnetometer whether it is due, its noise block and row and the true attitude
+# quaternion (w, x, y, z).
+KernelSample = tuple[
+    npt.NDArray[np.float64], int, bool, npt.NDArray[np.float64], int, float, bool, npt.NDArray[np.float64], int,
+    float, float, float, float,
+]  # fmt: skip
+_NOTHING = np.zeros((1, 3))  # the noise block of a sensor not due
+
 
 class SensorSuite:
     """All sensors of one drone, each with an independent stream spawned from one seed."""
@@ -258,11 +260,49 @@ class SensorSuite:
         self.gps = Gps(config, streams[1])
         self.baro = Barometer(config, streams[2])
         self.mag = Magnetometer(config, streams[3])
+        # The constants as the compiled step takes them (sitl/kernels/between_ticks.py).
+        gyro_bias, accel_bias = self.imu.biases()
+        row = np.empty(bt.SENSORS_SIZE)
+        row[bt.I_GYRO_BIAS : bt.I_GYRO_BIAS + 3] = gyro_bias
+        row[bt.I_ACCEL_BIAS : bt.I_ACCEL_BIAS + 3] = accel_bias
+        row[bt.I_GYRO_NOISE] = config.gyro_noise_radps
+        row[bt.I_ACCEL_NOISE] = config.accel_noise_mps2
+        row[bt.I_BARO_NOISE] = config.baro_noise_m
+        row[bt.I_MAG_NOISE] = config.mag_noise_gauss
+        row[bt.I_MAG_FIELD : bt.I_MAG_FIELD + 3] = [float(c) for c in config.mag_field_ned_gauss]
+        self.row = row
 
-    def imu_only(self, time_s: float) -> bool:
-        """Does a sample at ``time_s`` hold the IMU alone (no GPS, barometer or magnetometer sample due)?"""
+    def take_kernel_sample(self, truth: PlantState, attitude_initialised: bool) -> KernelSample | None:
+        """Hand a compiled step what it needs to take this step's sample itself, and consume it here as ``sample``
+        would (each due sensor's clock advanced, its noise rows taken); None, having changed nothing, when the
+        shells must sample: a GPS fix is due (its records, drift and faults stay Python), the magnetometer is due
+        before the estimator has its first attitude (initialised from the readings in Python), or a noise block
+        has fewer rows left than the sample takes (``sample`` refills it)."""
+        time_s = truth.time_s
         due_s = time_s + 1e-9
-        return due_s < self.gps.clock.next_s and due_s < self.baro.clock.next_s and due_s < self.mag.clock.next_s
+        if due_s >= self.gps.clock.next_s:
+            return None
+        baro, mag = self.baro, self.mag
+        baro_due = due_s >= baro.clock.next_s
+        mag_due = due_s >= mag.clock.next_s
+        if mag_due and not attitude_initialised:
+            return None
+        imu_noise = self.imu.noise
+        if not (imu_noise.holds(2) and (not baro_due or baro.noise.holds(1)) and (not mag_due or mag.noise.holds(1))):
+            return None
+        imu_block, imu_row = imu_noise.take_rows(2)  # type: ignore[misc]  # holds(2) said it would
+        baro_block, baro_row, alt_amsl_m = _NOTHING, 0, 0.0
+        if baro_due:
+            baro.clock.due(time_s)
+            baro_block, baro_row = baro.noise.take_rows(1)  # type: ignore[misc]
+            alt_amsl_m = truth.geo.alt_amsl_m
+        mag_block, mag_row, qw, qx, qy, qz = _NOTHING, 0, 0.0, 0.0, 0.0, 0.0
+        if mag_due:
+            mag.clock.due(time_s)
+            mag_block, mag_row = mag.noise.take_rows(1)  # type: ignore[misc]
+            qw, qx, qy, qz = truth.att_q_frd_to_ned.tolist()
+        return (imu_block, imu_row, baro_due, baro_block, baro_row, alt_amsl_m, mag_due, mag_block, mag_row,
+                qw, qx, qy, qz)  # fmt: skip
 
     def sample(self, truth: PlantState) -> SensorReadings:
         # The slower sensors are asked only when due (the same test their clocks make): most physics steps carry

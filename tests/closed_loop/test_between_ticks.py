@@ -1,6 +1,6 @@
-"""A physics step between two commander ticks, taken as one compiled call (sitl/kernels/between_ticks.py), flies to
-the bit what the parts' shells fly (the IMU sample, the estimator, the cascade's inner loops), and is taken on most
-of a flying drone's steps."""
+"""A physics step's sensing taken as one compiled call (sitl/kernels/between_ticks.py: the IMU, barometer and
+magnetometer samples and the estimator; between two commander ticks the cascade's inner loops too) flies to the bit
+what the parts' shells fly, and is taken on every step but the GPS fixes'."""
 
 from __future__ import annotations
 
@@ -20,9 +20,9 @@ def _flown(shells_only: bool) -> tuple[ClosedLoop, list[np.ndarray], int]:
     sim = make_sim(seed=5)
     taken = 0
     if shells_only:
-        sim._between_ticks = lambda: None  # type: ignore[method-assign]
+        sim._compiled_step = lambda: None  # type: ignore[method-assign]
     else:
-        between = sim._between_ticks
+        between = sim._compiled_step
 
         def counted() -> tuple[float, ...] | None:
             nonlocal taken
@@ -30,7 +30,7 @@ def _flown(shells_only: bool) -> tuple[ClosedLoop, list[np.ndarray], int]:
             taken += motors is not None
             return motors
 
-        sim._between_ticks = counted  # type: ignore[method-assign]
+        sim._compiled_step = counted  # type: ignore[method-assign]
     trace: list[np.ndarray] = []
 
     def record(s: ClosedLoop) -> None:
@@ -59,8 +59,8 @@ def test_steps_between_ticks_fly_to_the_bit_what_the_shells_fly() -> None:
     # GIVEN the same flight flown with steps between ticks as one call, and through the shells alone
     fast, fast_trace, taken = _flown(shells_only=False)
     slow, slow_trace, _ = _flown(shells_only=True)
-    # THEN most steps in the air took the call ...
-    assert taken > 0.4 * len(fast_trace), taken
+    # THEN all but the steps with a GPS fix (10 Hz of 250 Hz) and a noise block's refill took the call ...
+    assert taken > 0.9 * len(fast_trace), taken
     # ... and every step's truth and estimate have the same bits
     assert len(fast_trace) == len(slow_trace)
     for k, (a, b) in enumerate(zip(fast_trace, slow_trace, strict=True)):

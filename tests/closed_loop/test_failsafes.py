@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -194,14 +195,20 @@ def test_com_low_bat_act_3_returns_at_critical_and_lands_at_emergency() -> None:
 def _lose_position(sim: ClosedLoop) -> list[bool]:
     """From now on the estimator reports no horizontal position (as with the GPS receiver off), until the returned
     switch is set back to True."""
-    inner = sim.estimator.update
     valid = [False]
+    estimator = sim.estimator
 
-    def maybe_without_position(*args: object, **kwargs: object) -> Estimate:
-        est = inner(*args, **kwargs)  # type: ignore[arg-type]
-        return est if valid[0] else dataclasses.replace(est, position_valid=False)
+    def without_position(publish: Callable[..., Estimate]) -> Callable[..., Estimate]:
+        def maybe_without_position(*args: object, **kwargs: object) -> Estimate:
+            est = publish(*args, **kwargs)
+            return est if valid[0] else dataclasses.replace(est, position_valid=False)
 
-    sim.estimator.update = maybe_without_position  # type: ignore[method-assign]
+        return maybe_without_position
+
+    # every way a step publishes its estimate: the shells' update, and the compiled step's two
+    estimator.update = without_position(estimator.update)  # type: ignore[method-assign]
+    estimator.published = without_position(estimator.published)  # type: ignore[method-assign]
+    estimator.published_whole = without_position(estimator.published_whole)  # type: ignore[method-assign]
     return valid
 
 
