@@ -951,8 +951,6 @@ UNTIL_NEXT_COMMAND_S = 86400.0  # swarm follow --attached: flown until the next 
 
 def _behaviour_fields(args: argparse.Namespace) -> dict[str, Any]:
     """A flock's or a follow's fields, as a mission file names them, for the options the user gave."""
-    if args.command == "follow" and args.leader is not None and not 1 <= args.leader <= 255:
-        raise UsageError(f"--leader must be a sysid in 1..255, got {args.leader}")
     attached = args.command == "follow" and args.attached
     if not attached and args.command == "follow" and args.max_turn_rate is not None:
         raise UsageError("argument --max-turn-rate: only with --attached")

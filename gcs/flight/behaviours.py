@@ -52,6 +52,7 @@ from gcs.flight.formation import (
     VSpec,
     check_finite,
     check_positive,
+    not_a_sysid,
 )
 from gcs.flight.frames import Vec3
 from gcs.flight.geodesy import wrap_pi
@@ -601,10 +602,18 @@ class FollowSpec:
         check_finite(self, angle_rad=self.angle_rad, **values)
         check_positive(self, **values)
         _check_v_angle(self)
+        _check_leader(self)
 
     def offsets(self, follower_count: int) -> FloatArray:
         """(forward, right) offsets (m, 2), m >= follower_count; FormationError if too few are given."""
         return follower_offsets(self.offsets_fr_m, follower_count, self.spacing_m, self.angle_rad)
+
+
+def _check_leader(spec: FollowSpec | FollowAttachedSpec) -> None:
+    """A leader named by its sysid (None: chosen when flown)."""
+    problem = None if spec.leader_sysid is None else not_a_sysid(spec.leader_sysid)
+    if problem is not None:
+        raise SpecFieldError(spec, "leader_sysid", problem)
 
 
 def _check_v_angle(spec: FollowSpec | FollowAttachedSpec) -> None:
@@ -881,6 +890,7 @@ class FollowAttachedSpec:
         check_finite(self, angle_rad=self.angle_rad, **values)
         check_positive(self, **values)
         _check_v_angle(self)
+        _check_leader(self)
 
     def offsets(self, follower_count: int) -> FloatArray:
         """(forward, right) offsets (m, 2), m >= follower_count; FormationError if too few are given."""

@@ -123,6 +123,14 @@ def slots_at(formation: Formation, t_s: float, drone_count: int) -> FloatArray:
     return formation.slots_ned_m(np.array([float(t_s)]), drone_count)[0]
 
 
+def not_a_sysid(value: object) -> str | None:
+    """Why a value is not a MAVLink system id (a whole number in 1..255: 0 addresses every system), or None: the one
+    check of a sysid a request or a spec is given, whichever front-end gave it."""
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 255:
+        return f"must be a sysid in 1..255, got {value!r}"
+    return None
+
+
 def check_finite(owner: object, **values: float) -> None:
     """Refuse a spec field that is not a finite number (one line naming spec and field)."""
     for name, value in values.items():

@@ -99,7 +99,7 @@ def _fault(c: Command, _swarm: Swarm | None) -> rq.Request:
     """A fault by name (``crash``: a kill), with a motor fault's rotor or a link fault's time (FaultError)."""
     fault = fault_request(c.get("kind"), c.get("motor"), c.get("for_s"))
     if fault.kind == CRASH:
-        return rq.Kill(sysid=c.get("sysid"))  # type: ignore[arg-type]  # the verb says which sysid it is not
+        return rq.Kill(sysid=c.get("sysid"))  # type: ignore[arg-type]  # the request checks the sysid
     return rq.InjectFault(sysid=c.get("sysid"), fault=fault)  # type: ignore[arg-type]
 
 

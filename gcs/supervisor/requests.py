@@ -29,7 +29,7 @@ from gcs.fleet.attach import AttachSpec
 from gcs.fleet.faults import CRASH, FaultRequest
 from gcs.fleet.swarm import ARM_TIMEOUT_S
 from gcs.flight.behaviours import Behaviour, FlockSpec, FollowAttachedSpec, FollowSpec
-from gcs.flight.formation import FieldError, Formation
+from gcs.flight.formation import FieldError, Formation, not_a_sysid
 from gcs.missions.mission_file import (
     LAND_TIMEOUT_S,
     RTL_TIMEOUT_S,
@@ -56,8 +56,9 @@ def _positive_time(name: str, value: float) -> None:
 
 
 def _sysid(name: str, value: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 255:
-        raise FieldError(name, f"must be a sysid in 1..255, got {value!r}")
+    problem = not_a_sysid(value)
+    if problem is not None:
+        raise FieldError(name, problem)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -243,6 +244,9 @@ class InjectFault:
     sysid: int
     fault: FaultRequest
 
+    def __post_init__(self) -> None:
+        _sysid("sysid", self.sysid)
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Kill:
@@ -250,6 +254,9 @@ class Kill:
 
     verb: ClassVar[str] = "kill"
     sysid: int
+
+    def __post_init__(self) -> None:
+        _sysid("sysid", self.sysid)
 
     @property
     def fault(self) -> FaultRequest:
@@ -285,6 +292,9 @@ class PlanDownload:
 
     verb: ClassVar[str] = "plan_download"
     sysid: int
+
+    def __post_init__(self) -> None:
+        _sysid("sysid", self.sysid)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -324,6 +334,9 @@ class Detach:
 
     verb: ClassVar[str] = "detach"
     sysid: int
+
+    def __post_init__(self) -> None:
+        _sysid("sysid", self.sysid)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -464,7 +464,9 @@ def test_leader_follower_refuses_an_unknown_leader_and_too_few_offsets() -> None
         (["follow", "--alt", "3"], "one of the arguments --waypoints --attached is required"),
         (["follow", "--waypoints", "10,0", "--offsets=0.1,0"], "argument --offsets: (0.1, 0.0) puts a follower on"),
         (["follow", "--waypoints", "10,0", "--angle", "270"], "argument --angle: must be in (0, 180] degrees"),
-        (["follow", "--waypoints", "10,0", "--leader", "0"], "--leader must be a sysid in 1..255"),
+        (["follow", "--waypoints", "10,0", "--leader", "256"], "argument --leader: must be a sysid in 1..255, got 256"),
+        (["follow", "--attached", "--leader", "300"], "argument --leader: must be a sysid in 1..255, got 300"),
+        (["follow", "--waypoints", "10,0", "--leader", "0"], "argument --leader: must be a whole number >= 1, got 0"),
     ],
 )
 def test_bad_flock_and_follow_options_give_one_line_before_anything_is_sent(

@@ -69,6 +69,20 @@ def test_one_set_of_defaults_the_mission_file_s() -> None:
         (lambda: rq.Land(timeout_s=0.0), "timeout_s", "positive"),
         (lambda: rq.SetParam(name="MPC_XY_VEL_MAX", value=math.inf), "value", "finite"),
         (lambda: rq.SetParam(name="MPC_XY_VEL_MAX", value=1.0, sysids=(0,)), "sysids", "1..255"),
+        (lambda: rq.Kill(sysid=0), "sysid", "1..255"),
+        (lambda: rq.InjectFault(sysid=256, fault=FaultRequest(kind="gps")), "sysid", "1..255"),
+        (lambda: rq.Detach(sysid=None), "sysid", "1..255"),
+        (lambda: rq.PlanDownload(sysid="2"), "sysid", "1..255"),
+        (
+            lambda: rq.Follow(spec=FollowSpec(waypoints_ne_m=((5.0, 0.0),), alt_m=3.0, leader_sysid=300)),
+            "leader_sysid",
+            "1..255",
+        ),
+        (
+            lambda: rq.FollowAttached(spec=FollowAttachedSpec(alt_m=3.0, duration_s=5.0, leader_sysid=0)),
+            "leader_sysid",
+            "1..255",
+        ),
     ],
 )
 def test_a_request_refuses_a_field_in_one_line_naming_it(make: Any, field: str, fragment: str) -> None:
