@@ -49,7 +49,6 @@ from gcs.fleet.links import LINK_OPTIONS, NEIGHBOUR_MODES, LinkPlan, NeighbourPl
 from gcs.fleet.losses import LOSS_POLICIES, LossPolicy
 from gcs.fleet.relay import RELAY_SCOPE_HELP, scope_argument
 from gcs.fleet.swarm import Swarm, SwarmError
-from gcs.flight.formation import FieldError
 from gcs.flight.geodesy import DEFAULT_ORIGIN, GeoPoint
 from gcs.flight.onboard import absolute_spec
 from gcs.invariants.monitor import EXIT_VIOLATED, Violation
@@ -63,7 +62,7 @@ from gcs.missions.mission_file import (
     flown_onboard,
     load_mission,
 )
-from gcs.supervisor.commands import DECODERS, decode
+from gcs.supervisor.commands import DECODERS, check
 from gcs.supervisor.control import ControlClient, ControlError, ControlServer
 from gcs.supervisor.mission_runner import MissionRunner
 from gcs.supervisor.plan_cli import add_plan_parser, run_plan
@@ -988,15 +987,12 @@ def _command_name(args: argparse.Namespace) -> str:
 def _checked(command: dict[str, Any]) -> dict[str, Any]:
     """A command decoded as the supervisor will decode it, so that a mistake is one line before anything is sent; a
     field's mistake names the option that gave it."""
+    flags = {field: option if option in _POSITIONALS else "--" + option.replace("_", "-")
+             for option, field in _OPTIONS.get(command["cmd"], {}).items()}  # fmt: skip
     try:
-        decode(command, None)
-    except FieldError as exc:
-        flags = {field: option if option in _POSITIONALS else "--" + option.replace("_", "-")
-                 for option, field in _OPTIONS.get(command["cmd"], {}).items()}  # fmt: skip
-        raise UsageError(f"argument {flags.get(exc.field, exc.field)}: {exc.problem}") from None
+        return check(command, flags)
     except ValueError as exc:  # AttachError, FaultError: already in the user's terms
         raise UsageError(str(exc)) from None
-    return command
 
 
 def _toml_fields(pairs: Sequence[str]) -> dict[str, Any]:

@@ -55,7 +55,7 @@ from gcs.flight.formation import CircleSpec, FieldError, Formation, FormationErr
 from gcs.flight.onboard import FLOCKING, LEADER_FOLLOWER, absolute_spec
 from gcs.flight.onboard import MAX_POINTS as ONBOARD_MAX_POINTS
 from gcs.invariants.spec import Invariant, InvariantError, build_invariant, unique_names
-from gcs.missions.plan_flight import OFFSET_MODES, PlanUsageError, parse_drones
+from gcs.missions.plan_flight import OFFSET_MODES, PlanUsageError, nothing_to_start, parse_drones
 from gcs.missions.qgc_plan import PlanFileError, QgcPlan, load_plan
 from swarmcommon.links import LINK_CLASSES, LINK_KEYS, MESH_KEYS, mesh_value_problem, value_problem
 
@@ -690,9 +690,9 @@ def _plan(reader: _Reader, step: dict[str, Any], where: tuple[str | None, int | 
     start = step.get("start", True)
     if not isinstance(start, bool):
         raise reader.fail(where, "start", f"must be true or false, got {start!r}")
-    if start and not plan.items:
-        raise reader.fail(where, "file", f"{path}: the plan has no mission items to start (start = false uploads "
-                                         "its fence alone)")  # fmt: skip
+    problem = nothing_to_start(plan, path) if start else None
+    if problem is not None:
+        raise reader.fail(where, "file", f"{problem} (start = false uploads its fence alone)")
     timeout = reader.number(step, "timeout_s", where, "pos") if "timeout_s" in step else PLAN_TIMEOUT_S
     return PlanStep(file=path, plan=plan, drones=chosen, offsets=offsets, start=start, timeout_s=timeout)
 

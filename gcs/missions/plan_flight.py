@@ -19,6 +19,7 @@ from __future__ import annotations
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Final
 
 from pymavlink.dialects.v20 import common as mavlink
@@ -87,6 +88,13 @@ def parse_offsets(text: str) -> str | list[Offset]:
     if not out:
         raise PlanUsageError("offsets: give spawn, none, or N,E per drone")
     return out
+
+
+def nothing_to_start(plan: QgcPlan, path: Path) -> str | None:
+    """Why a plan cannot be started, or None: AUTO.MISSION needs a mission item, and a plan of a fence alone is
+    uploaded only. A mission's plan step and ``swarm plan upload --start`` refuse it before anything is sent, each
+    saying how to upload the fence alone."""
+    return None if plan.items else f"{path}: the plan has no mission items to start"
 
 
 def spawn_offsets(swarm: Swarm) -> dict[int, Offset]:

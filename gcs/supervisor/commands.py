@@ -14,18 +14,26 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, Final, TypeVar
 
 from gcs.fleet.attach import DEFAULT_KEEP_IN_M, DEFAULT_MAX_DISTANCE_M, parse_attach
 from gcs.fleet.faults import CRASH, fault_request
 from gcs.fleet.swarm import Swarm, SwarmError
 from gcs.flight.formation import FieldError
 from gcs.missions.mission_file import build_flock, build_follow, build_follow_attached, build_formation
-from gcs.missions.plan_flight import copy_offsets, parse_drones, parse_offsets, spawn_offsets
+from gcs.missions.plan_flight import (
+    PlanUsageError,
+    copy_offsets,
+    nothing_to_start,
+    parse_drones,
+    parse_offsets,
+    spawn_offsets,
+)
 from gcs.missions.qgc_plan import load_plan
 from gcs.supervisor import requests as rq
 
 Command = Mapping[str, Any]
+C = TypeVar("C", bound=Command)
 Decoder = Callable[[Command, "Swarm | None"], rq.Request]
 
 
@@ -63,9 +71,14 @@ def _flag(command: Command, key: str) -> bool:
     return value
 
 
+class NeedsTheSwarm(ValueError):
+    """A command checked as far as it can be without the running swarm: what is left (which drones, their offsets)
+    only the station can decode."""
+
+
 def _swarm(swarm: Swarm | None) -> Swarm:
     if swarm is None:
-        raise ValueError("this command needs the running swarm")
+        raise NeedsTheSwarm("this command needs the running swarm")
     return swarm
 
 
@@ -123,11 +136,18 @@ def _chosen(c: Command, swarm: Swarm) -> list[int]:
 
 def _plan_upload(c: Command, swarm: Swarm | None) -> rq.Request:
     """``swarm plan upload``: each chosen drone its copy of a QGroundControl plan, moved by an offset
-    (gcs/missions/plan_flight.py)."""
+    (gcs/missions/plan_flight.py). The file and the offsets are checked before the swarm is needed; ``start``: the
+    upload is to be started (``swarm plan upload --start`` sends ``plan_start`` next), so a plan without mission
+    items is refused."""
+    path = Path(str(c.get("path")))
+    plan = load_plan(path)
+    problem = nothing_to_start(plan, path) if _flag(c, "start") else None
+    if problem is not None:
+        raise PlanUsageError(f"{problem} (upload its fence alone without --start)")
+    wanted = parse_offsets(str(c.get("offsets", "spawn")))
     flying = _swarm(swarm)
-    chosen = _chosen(c, flying)
-    offsets = copy_offsets(spawn_offsets(flying), chosen, parse_offsets(str(c.get("offsets", "spawn"))))
-    return rq.PlanUpload(plan=load_plan(Path(str(c.get("path")))), offsets=offsets)
+    offsets = copy_offsets(spawn_offsets(flying), _chosen(c, flying), wanted)
+    return rq.PlanUpload(plan=plan, offsets=offsets)
 
 
 def _plan_start(c: Command, swarm: Swarm | None) -> rq.Request:
@@ -173,3 +193,16 @@ def decode(command: Command, swarm: Swarm | None) -> rq.Request:
     if decoder is None:
         raise ValueError(f"unknown command {command.get('cmd')!r}")
     return decoder(command, swarm)
+
+
+def check(command: C, names: Mapping[str, str]) -> C:
+    """``command`` decoded as the station will decode it, as far as that can be done without the running swarm, so
+    that a front-end says a mistake in one line before anything is sent (ValueError); ``names``: how the front-end
+    names a field (its flag), for a field's mistake (``argument --alt: ...``)."""
+    try:
+        decode(command, None)
+    except NeedsTheSwarm:
+        pass  # the rest is the station's to decode
+    except FieldError as exc:
+        raise ValueError(f"argument {names.get(exc.field, exc.field)}: {exc.problem}") from None
+    return command

@@ -12,8 +12,7 @@ import sys
 from pathlib import Path
 from typing import Any, Final
 
-from gcs.missions.plan_flight import PlanUsageError, parse_offsets
-from gcs.missions.qgc_plan import PlanFileError, load_plan
+from gcs.supervisor.commands import check
 from gcs.supervisor.control import ControlClient
 
 EXIT_USAGE: Final = 2
@@ -46,27 +45,31 @@ def _add_drones_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--drones", default="all", metavar="all|1,3-5", help="sysids of the drones (default all)")
 
 
+def plan_commands(args: argparse.Namespace) -> list[dict[str, Any]]:
+    """The control channel's commands for one ``swarm plan`` command, each checked as the supervisor will decode it
+    (gcs/supervisor/commands.py ``check``; ValueError: one line), so that a mistake in the file or the options is
+    said before anything is sent."""
+    if args.plan_command == "upload":
+        upload: dict[str, Any] = {"cmd": "plan_upload", "path": str(args.file), "drones": args.drones,
+                                  "offsets": args.offsets, "start": args.start}  # fmt: skip
+        check(upload, {})  # the file as the user named it, in their words
+        commands = [{**upload, "path": str(args.file.resolve())}]  # the supervisor's cwd may differ
+        if not args.start:
+            return commands
+        return [*commands, check({"cmd": "plan_start", "drones": args.drones}, {})]
+    if args.plan_command == "start":
+        return [check({"cmd": "plan_start", "drones": args.drones}, {})]
+    return [check({"cmd": "plan_download", "sysid": args.sysid}, {})]
+
+
 def run_plan(args: argparse.Namespace, client: ControlClient | None = None) -> int:
     """One ``swarm plan`` command; the exit code (2: a mistake in the file or the options, 1: the swarm failed)."""
     client = client or ControlClient()
     try:
-        if args.plan_command == "upload":
-            if not load_plan(args.file).items and args.start:
-                raise PlanUsageError(f"{args.file}: the plan has no mission items to start (upload its fence alone "
-                                     "without --start)")  # fmt: skip
-            parse_offsets(args.offsets)
-            request: dict[str, Any] = {"cmd": "plan_upload", "path": str(args.file.resolve()),
-                                       "drones": args.drones, "offsets": args.offsets}  # fmt: skip
-        elif args.plan_command == "start":
-            request = {"cmd": "plan_start", "drones": args.drones}
-        else:
-            request = {"cmd": "plan_download", "sysid": args.sysid}
-    except (PlanFileError, PlanUsageError) as exc:
+        steps = plan_commands(args)
+    except ValueError as exc:
         print(f"swarm: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    steps = [request]
-    if args.plan_command == "upload" and args.start:
-        steps.append({"cmd": "plan_start", "drones": args.drones})
     for step in steps:
         response = client.request(step)
         if not response.get("ok"):

@@ -11,6 +11,7 @@ import argparse
 import ast
 import asyncio
 import inspect
+import json
 import math
 import typing
 from pathlib import Path
@@ -30,6 +31,7 @@ from gcs.missions.mission_file import build_formation, load_mission
 from gcs.supervisor import requests as rq
 from gcs.supervisor.commands import DECODERS, decode
 from gcs.supervisor.mission_runner import step_requests
+from gcs.supervisor.plan_cli import plan_commands
 from gcs.supervisor.verbs import VERBS
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -154,6 +156,31 @@ def test_a_cli_mistake_names_the_argument_that_gave_it(argv: list[str], line: st
 def test_every_cli_command_that_flies_is_a_request() -> None:
     offered = _subcommands() - NOT_VERBS
     assert offered == {argv[0] for argv, _ in CLI_CASES}, "a CLI command without a case here, or a case too many"
+
+
+def test_swarm_plan_builds_its_commands_through_the_decoder(tmp_path: Path) -> None:
+    """``swarm plan`` sends what the station decodes, checked by the same decoder first: the file, the offsets, a
+    plan to start without mission items, a sysid (what needs the swarm, which drones, is left to the station)."""
+    box = ROOT / "missions" / "box.plan"
+    upload = plan_commands(build_parser().parse_args(["plan", "upload", str(box), "--start", "--offsets", "none"]))
+    assert upload == [{"cmd": "plan_upload", "path": str(box.resolve()), "drones": "all", "offsets": "none",
+                       "start": True}, {"cmd": "plan_start", "drones": "all"}]  # fmt: skip
+    download = plan_commands(build_parser().parse_args(["plan", "download", "2", "back.plan"]))
+    assert [decode(c, None) for c in download] == [rq.PlanDownload(sysid=2)]
+    fence = tmp_path / "fence.plan"
+    data = json.loads(box.read_text())
+    data["mission"]["items"] = []
+    fence.write_text(json.dumps(data))
+    for argv, line in [
+        (["upload", str(fence), "--start"],
+         f"{fence}: the plan has no mission items to start (upload its fence alone without --start)"),
+        (["upload", str(box), "--offsets", "north"], "offsets: 'north' is not N,E (metres north, east)"),
+        (["download", "0", "back.plan"], "argument sysid: must be a sysid in 1..255, got 0"),
+    ]:  # fmt: skip
+        with pytest.raises(ValueError) as info:
+            plan_commands(build_parser().parse_args(["plan", *argv]))
+        assert str(info.value) == line
+    assert plan_commands(build_parser().parse_args(["plan", "upload", str(fence)]))[0]["start"] is False
 
 
 # ---- the control channel's JSON ------------------------------------------------------------------------------------
