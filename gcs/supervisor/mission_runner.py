@@ -323,7 +323,8 @@ class MissionRunner:
                 if self.swarm.plan.lockstep else f"speed {self.speed:g}x"  # fmt: skip
             self.say(f"mission {self.mission.name}: spawning {self.mission.swarm.drones} drones ({pace})")
             self.swarm.up()
-            self.session.require(self.mission.invariants, stop=self.stop_on_violation)
+            # the mission's [[invariants]], built and checked when the file was read, from the first tick on
+            start(self.session, rq.Require(invariants=self.mission.invariants, stop=self.stop_on_violation))
             self.session.recording.obstacles = [obstacle_shape(o) for o in self.mission.obstacles]
             if self.view is not None:
                 self.session.serve(self.view, self.session.recording.obstacles)

@@ -30,6 +30,7 @@ from gcs.fleet.faults import CRASH, FaultRequest
 from gcs.fleet.swarm import ARM_TIMEOUT_S
 from gcs.flight.behaviours import Behaviour, FlockSpec, FollowAttachedSpec, FollowSpec
 from gcs.flight.formation import FieldError, Formation, not_a_sysid
+from gcs.invariants.spec import Invariant
 from gcs.missions.mission_file import (
     LAND_TIMEOUT_S,
     RTL_TIMEOUT_S,
@@ -341,11 +342,12 @@ class Detach:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Require:
-    """Check invariants (each as a mission's ``[[invariants]]`` table) at every tick from now on; ``base``: where a
-    predicate's file is read from; ``stop``: the first violation ends the flight."""
+    """Check invariants (each as a mission's ``[[invariants]]`` table, or built from one already: a mission file's,
+    checked with its line when the file was read) at every tick from now on; ``base``: where a predicate's file is
+    read from; ``stop``: the first violation ends the flight."""
 
     verb: ClassVar[str] = "require"
-    invariants: tuple[Mapping[str, Any], ...]
+    invariants: tuple[Mapping[str, Any] | Invariant, ...]
     base: Path = field(default_factory=Path.cwd)
     stop: bool = False
 

@@ -36,7 +36,7 @@ from gcs.fleet.attach import AttachError, AttachSpec
 from gcs.fleet.faults import CRASH, result_text
 from gcs.fleet.swarm import SwarmError
 from gcs.flight.behaviours import FollowAttached, LeaderFollower, LeaderReport
-from gcs.invariants.spec import build_invariant, unique_names
+from gcs.invariants.spec import Invariant, build_invariant, unique_names
 from gcs.missions.mission_file import build_formation
 from gcs.missions.plan_flight import download_plan, start_missions, unfinished, upload_plan
 from gcs.supervisor import requests as rq
@@ -397,11 +397,12 @@ def detach(session: FlightSession, request: rq.Detach) -> Started:
 
 
 def require(session: FlightSession, request: rq.Require) -> Started:
-    """Check invariants (each as plain fields, as a mission's ``[[invariants]]`` table: gcs/invariants/spec.py) at
-    every tick from now on; ``base``: where a predicate's file is read from; ``stop``: the first violation ends the
-    flight. A bad one is a ValueError of one line, and none of them is taken."""
+    """Check invariants (each as plain fields, as a mission's ``[[invariants]]`` table: gcs/invariants/spec.py, or
+    built already) at every tick from now on; ``base``: where a predicate's file is read from; ``stop``: the first
+    violation ends the flight. A bad one is a ValueError of one line, and none of them is taken."""
     count = len(session.swarm.liveness.sysids)
-    invariants = [build_invariant(f, base=request.base, drone_count=count) for f in request.invariants]
+    invariants = [f if isinstance(f, Invariant) else build_invariant(f, base=request.base, drone_count=count)
+                  for f in request.invariants]  # fmt: skip
     unique_names(invariants)
     session.require(invariants, stop=request.stop)
     return Started(result=f"checking {'; '.join(i.describe() for i in invariants)}", value=[i.name for i in invariants])
