@@ -17,9 +17,11 @@ A member is commanded as any ground station commands a vehicle, and only so:
 It is handed what it works with, and never the swarm it belongs to: the plan (paced at speed 1, the ground station's
 sysid, the origin), the clock, the fleet view (a vehicle's messages go where a drone's go), the command client (the
 answers to what the swarm asks a member), the router (the listeners, and its position reaching the drones as
-traffic) and the harness (its body). An attach waits while the swarm flies on: the swarm hands ``attach`` the wait
-(gcs/fleet/pump.py ``Pump.keep_flying``); and a member released for a setpoint outside its keep-in is put in Hold
-through ``start_hold``, which the swarm wires to its commands (gcs/fleet/commanding.py).
+traffic), the harness (its body), the swarm-frame picture (gcs/fleet/picture.py: where a member is, and the one swarm
+frame a geodetic point is converted in) and the store of its vehicles, which the picture reads to place them. An
+attach waits while the swarm flies on: the swarm hands ``attach`` the wait (gcs/fleet/pump.py ``Pump.keep_flying``);
+and a member released for a setpoint outside its keep-in is put in Hold through ``start_hold``, which the swarm wires
+to its commands (gcs/fleet/commanding.py).
 """
 
 from __future__ import annotations
@@ -47,10 +49,11 @@ from gcs.fleet.attach import (
 from gcs.fleet.clock import SwarmClock
 from gcs.fleet.errors import SwarmError
 from gcs.fleet.harness import SimulationHarness, SpawnPlan
+from gcs.fleet.picture import SwarmPicture
 from gcs.fleet.router import GCS_HEARTBEAT_PERIOD_S, Router
 from gcs.fleet.telemetry import LINK_LOST_S, DroneView, Fleet
-from gcs.flight.frames import Vec3
-from gcs.flight.geodesy import GeoPoint, NedFrame
+from gcs.flight.frames import SwarmFrame, Vec3
+from gcs.flight.geodesy import GeoPoint
 from gcs.mavlink.commands import AUTOPILOT_COMPID, CommandClient
 from gcs.mavlink.modes import OFFBOARD, purpose_mode_name
 
@@ -81,8 +84,9 @@ LAST_KNOWN_PERIOD_S = 1.0
 
 class Attachments:
     def __init__(self, plan: SpawnPlan, clock: SwarmClock, harness: SimulationHarness, fleet: Fleet, router: Router,
-                 acks: CommandClient) -> None:  # fmt: skip
-        """``acks``: the swarm's command client, fed the answers a member's link brings."""
+                 acks: CommandClient, picture: SwarmPicture, vehicles: dict[int, AttachedVehicle]) -> None:  # fmt: skip
+        """``acks``: the swarm's command client, fed the answers a member's link brings; ``vehicles``: where the
+        vehicles attached are kept (empty), which ``picture`` places by their own reports."""
         self.plan = plan
         self.clock = clock
         self.harness = harness  # the members' bodies in the simulated world
@@ -92,9 +96,9 @@ class Attachments:
         # Ask a member for its Hold mode without waiting for the answer: the swarm's commands, wired by the swarm
         # (gcs/fleet/commanding.py ``Commands.set_mode_start``), which are made after this part and use it
         self.start_hold: Callable[[int], None] = _no_commands
-        self.vehicles: dict[int, AttachedVehicle] = {}
+        self.picture = picture
+        self.vehicles = vehicles
         self._links: list[ExternalLink] = []
-        self._frame = NedFrame(plan.origin)
         self._shared_s: dict[int, float] = {}  # each simulated drone's last report sent as traffic
         self._notices: list[str] = []  # lines for the next ``detect_changes``
         self._released: list[int] = []  # members released since the last ``take_released``
@@ -151,7 +155,7 @@ class Attachments:
         ``max_distance_m``), or None."""
         if position is None:
             return f"sysid {sysid} sent no GLOBAL_POSITION_INT (where is it?)"
-        distance = math.dist((0.0, 0.0, 0.0), self._frame.ned_from_geo(reported_geo(position)))
+        distance = math.dist((0.0, 0.0, 0.0), self.picture.ned_from_geo(reported_geo(position)))
         if distance > max_distance_m:
             return f"sysid {sysid} is {distance:.0f} m from the swarm's origin (at most {max_distance_m:g} m)"
         return None
@@ -305,12 +309,12 @@ class Attachments:
         if not all(map(math.isfinite, pos_ned_m)):
             self.release(sysid, f"its setpoint {_ned_text(pos_ned_m)} is not a finite point", hold=True)
             return
-        (lat_e7, lon_e7, alt_amsl_m), goes_to = on_the_wire(self._frame, pos_ned_m)
-        if not (horizontal and vertical):  # a velocity: where it takes the member
-            here = self._reported_ned(sysid)
+        (lat_e7, lon_e7, alt_amsl_m), goes_to = on_the_wire(self.picture.frame, pos_ned_m)
+        if not (horizontal and vertical):  # a velocity: where it takes the member, from where it says it is
+            here = self.picture.placed(sysid)
             if here is None:
                 return
-            ahead = tuple(h + v * KEEP_IN_LOOKAHEAD_S for h, v in zip(here, vel_ned_mps, strict=True))
+            ahead = tuple(h + v * KEEP_IN_LOOKAHEAD_S for h, v in zip(here.pos_ned_m, vel_ned_mps, strict=True))
             goes_to = (goes_to[0] if horizontal else ahead[0], goes_to[1] if horizontal else ahead[1],
                        goes_to[2] if vertical else ahead[2])  # fmt: skip
         outside = keep_in_problem(goes_to, vehicle.spec.keep_in_m)
@@ -324,10 +328,6 @@ class Attachments:
         )  # fmt: skip
         vehicle.setpoint_s = now_s
         vehicle.link.send(msg)
-
-    def _reported_ned(self, sysid: int) -> Vec3 | None:
-        vehicle = self.vehicles[sysid]
-        return None if vehicle.position is None else self._frame.ned_from_geo(vehicle.position)
 
     def send(self, sysid: int, msg: Any) -> bytes:
         """A command or parameter write for an attached vehicle, on its link; the frame as sent (for the tlog)."""
@@ -389,7 +389,9 @@ class Attachments:
         source = position.get_srcSystem()
         if now - self._shared_s.get(source, -math.inf) < 1.0 / SHARE_RATE_HZ:
             return
-        drone = self._frame.ned_from_geo(reported_geo(position))
+        # the report shared, where it puts the drone: not the picture's place of the drone (from its
+        # LOCAL_POSITION_NED, through its local frame), which differs in the last bits
+        drone = self.picture.ned_from_geo(reported_geo(position))
         report = None
         for link in self._links:
             near = any(self._within(drone, v, now) for v in self.vehicles.values() if v.link is link)
@@ -402,7 +404,7 @@ class Attachments:
     def _within(self, drone_ned_m: Vec3, vehicle: AttachedVehicle, now: float) -> bool:
         """Whether the vehicle's body is within SHARE_RADIUS_M of a point (swarm frame)."""
         geo = vehicle.body_at(now)
-        return geo is not None and math.dist(drone_ned_m, self._frame.ned_from_geo(geo)) <= SHARE_RADIUS_M
+        return geo is not None and math.dist(drone_ned_m, self.picture.ned_from_geo(geo)) <= SHARE_RADIUS_M
 
     def close(self) -> None:
         """Close every link (the vehicles are left as they are)."""
@@ -415,7 +417,7 @@ def _no_commands(sysid: int) -> None:
     raise SwarmError(f"member {sysid}: no commands to put it in Hold with (Attachments.start_hold is not wired)")
 
 
-def on_the_wire(frame: NedFrame, pos_ned_m: Vec3) -> tuple[tuple[int, int, float], Vec3]:
+def on_the_wire(frame: SwarmFrame, pos_ned_m: Vec3) -> tuple[tuple[int, int, float], Vec3]:
     """A swarm-frame point as SET_POSITION_TARGET_GLOBAL_INT carries it (lat and lon in 1e-7 degrees, altitude AMSL)
     and the point a member reads back from that. The keep-in judges the second: a 1e-7 degree step is up to 11 mm,
     so a slot just inside the keep-in may reach the member just outside it."""

@@ -23,9 +23,10 @@ from gcs.fleet.clock import SwarmClock
 from gcs.fleet.errors import SwarmError
 from gcs.fleet.liveness import Liveness
 from gcs.fleet.losses import landing_clear_of
+from gcs.fleet.picture import SwarmPicture
 from gcs.fleet.pump import Pump
 from gcs.fleet.telemetry import Fleet
-from gcs.flight.geodesy import GeoPoint, NedFrame
+from gcs.flight.geodesy import GeoPoint
 from gcs.mavlink.commands import FORCE_DISARM_MAGIC, Ack, CommandClient
 from gcs.mavlink.modes import ARDUPILOT, HOLD, OFFBOARD, purpose_params
 
@@ -42,15 +43,16 @@ NO_ANSWER_ROUNDS: Final = 3
 
 class Commands:
     def __init__(self, client: CommandClient, pump: Pump, clock: SwarmClock, fleet: Fleet, liveness: Liveness,
-                 attachments: Attachments, swarm_frame: NedFrame) -> None:  # fmt: skip
-        """``swarm_frame``: NED around the swarm's origin (where wrecks lie, and the height members take off to)."""
+                 attachments: Attachments, picture: SwarmPicture) -> None:  # fmt: skip
+        """``picture``: the swarm-frame picture, whose frame (NED around the swarm's origin) says where wrecks lie and
+        the height members take off to."""
         self.client = client
         self.pump = pump
         self.clock = clock
         self.fleet = fleet
         self.liveness = liveness
         self.attachments = attachments
-        self.swarm_frame = swarm_frame
+        self.picture = picture
 
     # ---- commands --------------------------------------------------------------------------------------------------
     def command_all(self, command: int, *params: float, sysids: Iterable[int] | None = None) -> list[Ack]:
@@ -166,7 +168,7 @@ class Commands:
     def _member_takeoff_alt(self, sysid: int, alt_m: float) -> float:
         """NAV_TAKEOFF's altitude for an attached member to climb ``alt_m`` above the swarm's origin (heights are
         compared above the origin, not above each vehicle's home): AMSL for PX4, above its home for ArduPilot."""
-        target_amsl = self.swarm_frame.origin.alt_amsl_m + alt_m
+        target_amsl = self.picture.frame.origin.alt_amsl_m + alt_m
         view = self.fleet.drones[sysid]
         if view.autopilot != ARDUPILOT:
             return target_amsl
@@ -196,11 +198,13 @@ class Commands:
             x, y = INT32_MAX, INT32_MAX  # no point: land where it is
             view = self.fleet.drones.get(sysid)
             if wrecks and view is not None and math.isfinite(view.lat_deg):
+                # where its GLOBAL_POSITION_INT puts it, as NAV_LAND's point is geodetic: not the picture's place of
+                # it (from its LOCAL_POSITION_NED, through its local frame), which differs in the last bits
                 here = GeoPoint(lat_deg=view.lat_deg, lon_deg=view.lon_deg, alt_amsl_m=0.0)
-                north, east, _ = self.swarm_frame.ned_from_geo(here)
+                north, east, _ = self.picture.ned_from_geo(here)
                 spot = landing_clear_of((north, east), wrecks)
                 if spot is not None:
-                    point = self.swarm_frame.geo_from_ned((spot[0], spot[1], 0.0))
+                    point = self.picture.frame.geo_from_ned((spot[0], spot[1], 0.0))
                     x, y = round(point.lat_deg * 1e7), round(point.lon_deg * 1e7)
             params[sysid] = (0.0, 0.0, 0.0, math.nan, float(x), float(y), math.nan)
         return self.command_each(mavlink.MAV_CMD_NAV_LAND, params, frame=mavlink.MAV_FRAME_GLOBAL)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from typing import Final
 
 from pymavlink.dialects.v20 import common as mavlink
@@ -21,7 +21,8 @@ from gcs.fleet.errors import SwarmError
 from gcs.fleet.harness import SimulationHarness
 from gcs.fleet.losses import MAV_STATE_FLIGHT_TERMINATION, DroneLoss
 from gcs.fleet.telemetry import LINK_LOST_S, Fleet
-from gcs.flight.geodesy import GeoPoint, NedFrame
+from gcs.flight.frames import Vec3
+from gcs.flight.geodesy import GeoPoint
 
 CRASH_TEXT_AGE_S: Final = 5.0  # a warning this recent says why a drone crashed; an older one is about something else
 
@@ -29,12 +30,14 @@ CRASH_TEXT_AGE_S: Final = 5.0  # a warning this recent says why a drone crashed;
 class Liveness:
     """The swarm's drones, their losses and returns, from the harness's word and the fleet view."""
 
-    def __init__(self, harness: SimulationHarness, fleet: Fleet, clock: SwarmClock, swarm_frame: NedFrame, *,
-                 lockstep: bool) -> None:  # fmt: skip
+    def __init__(self, harness: SimulationHarness, fleet: Fleet, clock: SwarmClock,
+                 ned_from_geo: Callable[[GeoPoint], Vec3], *, lockstep: bool) -> None:  # fmt: skip
+        """``ned_from_geo``: a geodetic point in the swarm frame, the picture's (gcs/fleet/picture.py): where a lost
+        drone came down."""
         self.harness = harness
         self.fleet = fleet
         self.clock = clock
-        self.swarm_frame = swarm_frame
+        self.ned_from_geo = ned_from_geo
         self.lockstep = lockstep
         self.losses: dict[int, DroneLoss] = {}  # sysid -> the loss, recorded once
         self.regained: list[DroneLoss] = []  # losses that ended: silent drones heard again (``detect_regains``)
@@ -136,7 +139,7 @@ class Liveness:
                 geo = self.harness.grounded_body_geo(sysid, now_s)
                 if geo is not None:
                     point = GeoPoint(lat_deg=geo[0], lon_deg=geo[1], alt_amsl_m=geo[2])
-                    north, east, _ = self.swarm_frame.ned_from_geo(point)
+                    north, east, _ = self.ned_from_geo(point)
                     self.losses[sysid] = dataclasses.replace(loss, down_ne_m=(north, east))
 
 

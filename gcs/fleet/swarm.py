@@ -36,7 +36,7 @@ import time
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.fleet.attach import HEARTBEAT_TIMEOUT_S, AttachSpec
+from gcs.fleet.attach import HEARTBEAT_TIMEOUT_S, AttachedVehicle, AttachSpec
 from gcs.fleet.attachments import Attachments
 from gcs.fleet.clock import SwarmClock
 from gcs.fleet.commanding import ARM_TIMEOUT_S, HOLD_MODE, Commands, check
@@ -51,7 +51,6 @@ from gcs.fleet.router import BATCH_HOLD_S, Router
 from gcs.fleet.telemetry import Fleet
 from gcs.fleet.transfers import Missions, Params
 from gcs.flight.frames import SwarmFrame
-from gcs.flight.geodesy import NedFrame
 from gcs.mavlink.commands import Ack, CommandClient
 from gcs.mavlink.mission_transfer import MissionClient, MissionProgress
 from gcs.mavlink.modes import HOLD
@@ -76,7 +75,6 @@ class Swarm:
     ) -> None:
         self.plan = plan
         self.harness = harness  # the simulation, made for this plan by the composition root (gcs/composition.py)
-        swarm_frame = NedFrame(plan.origin)
         self.clock = SwarmClock(plan, harness)
         key = load_key(plan.signing_key_file) if plan.signing_key_file is not None else None
         self.link = GcsSocket(signing_key=key, sysid=plan.gcs_sysid)  # signs what it sends when the plan has a key
@@ -84,17 +82,21 @@ class Swarm:
         self.router = Router(self.link, relay=NeighbourRelay(scope=relay) if relay is not None else None,
                              forward=forward, batch_hold_s=batch_hold_s, lockstep=plan.lockstep)  # fmt: skip
         self.fleet = Fleet()
-        self.liveness = Liveness(harness, self.fleet, self.clock, swarm_frame, lockstep=plan.lockstep)
+        # the swarm-frame picture, kept current before any other listener reads the message that moved a vehicle,
+        # and the one swarm frame the parts convert a geodetic point in; it places the attached vehicles (kept in
+        # ``vehicles`` by the attachments) where they say they are
+        vehicles: dict[int, AttachedVehicle] = {}
+        self.picture = SwarmPicture(SwarmFrame(plan.origin), self.fleet, vehicles)
+        self.router.listeners.append(self.picture.observe)
+        self.liveness = Liveness(harness, self.fleet, self.clock, self.picture.ned_from_geo, lockstep=plan.lockstep)
         protocols = Protocols(commands=CommandClient(own_sysid=plan.gcs_sysid), params=ParamClient(),
                               missions=MissionClient(own_sysid=plan.gcs_sysid), progress=MissionProgress())  # fmt: skip
-        self.attachments = Attachments(plan, self.clock, harness, self.fleet, self.router, protocols.commands)
-        # the swarm-frame picture, kept current before any other listener reads the message that moved a vehicle
-        self.picture = SwarmPicture(SwarmFrame(plan.origin), self.fleet, self.attachments.vehicles)
-        self.router.listeners.append(self.picture.observe)
+        self.attachments = Attachments(plan, self.clock, harness, self.fleet, self.router, protocols.commands,
+                                       self.picture, vehicles)  # fmt: skip
         self.pump = Pump(self.clock, harness, self.router, self.fleet, self.liveness, self.attachments, protocols,
                          speed_factor=plan.speed_factor)  # fmt: skip
         self.commands = Commands(protocols.commands, self.pump, self.clock, self.fleet, self.liveness,
-                                 self.attachments, swarm_frame)  # fmt: skip
+                                 self.attachments, self.picture)  # fmt: skip
         self.attachments.start_hold = functools.partial(self.commands.set_mode_start, purpose=HOLD)
         self.params = Params(protocols.params, self.pump, self.clock)
         self.missions = Missions(protocols.missions, protocols.progress, self.pump, self.clock)

@@ -24,6 +24,7 @@ from gcs.fleet.attach import (
 )
 from gcs.fleet.attachments import keep_in_problem, on_the_wire
 from gcs.flight.behaviours import FollowAttached, FollowAttachedSpec, LeaderReport, SwarmState
+from gcs.flight.frames import SwarmFrame
 from gcs.flight.geodesy import GeoPoint, NedFrame
 from gcs.mavlink.modes import HOLD, OFFBOARD, mode_name, purpose_mode_name, purpose_params
 from gcs.mavlink.urls import DEFAULT_BAUD, UrlError, parse_vehicle_url
@@ -319,7 +320,7 @@ def test_a_members_keep_in_is_a_cylinder_around_the_origin_above_its_floor() -> 
 
 
 def test_the_keep_in_judges_a_setpoint_as_the_member_reads_it_in_1e7_degree_steps() -> None:
-    frame = NedFrame(GeoPoint(lat_deg=47.397742, lon_deg=8.545594, alt_amsl_m=488.0))
+    frame = SwarmFrame(GeoPoint(lat_deg=47.397742, lon_deg=8.545594, alt_amsl_m=488.0))
     slots = [(7.9995 * math.cos(k * 0.01), 7.9995 * math.sin(k * 0.01), -3.0) for k in range(629)]
     read = [on_the_wire(frame, slot) for slot in slots]
     # every slot is inside an 8 m keep-in, but some reach the member outside it: those are the ones refused
