@@ -27,7 +27,7 @@ from sitl.autopilot.modes import ModeUnit
 from sitl.autopilot.tracking import TargetTracker
 from sitl.autopilot.vehicle_api import LandedState
 from sitl.avoidance.collision_prevention import CollisionPrevention
-from sitl.control.cascade import AttitudeSetpoint, Cascade, CascadeOutput, TrajectorySetpoint
+from sitl.control.cascade import AttitudeSetpoint, Cascade, TrajectorySetpoint
 from sitl.control.params import outer_loop_period_s
 from sitl.estimation.estimator import Estimate
 from sitl.params import ParamStore
@@ -98,7 +98,7 @@ class FlightTick:
             cascade = self._cascade
             if held.trajectory is not None:
                 if not cascade.outer_due(dt_s):  # as ``holds_inner_loops`` says
-                    return cascade.update(est, held.trajectory, dt_s, landed=state.landed).motor_cmds
+                    return cascade.fly(est, held.trajectory, dt_s, landed=state.landed)
             elif self._since_tick_s < self._tick_period_s - 1e-9:
                 if held.motors is not None:
                     return held.motors
@@ -164,11 +164,11 @@ class FlightTick:
             status.landed_state = LandedState.ON_GROUND
             self._held = _Held(motors=self._idle) if status.armed else None
             return self._idle
-        out = self._control(unit, est, now_s, dt_s, tick_dt_s)
-        status.thrust_n = out.collective_sp_n
+        motors, collective_n = self._control(unit, est, now_s, dt_s, tick_dt_s)
+        status.thrust_n = collective_n
         was_landed = state.landed
         landed = detector.update(
-            now_s, float(est.vel_ned_mps[2]), out.collective_sp_n / self._hover_thrust_n, state.altitude_above_home_m()
+            now_s, float(est.vel_ned_mps[2]), collective_n / self._hover_thrust_n, state.altitude_above_home_m()
         )
         if was_landed and not landed:
             state.event(6, "Takeoff detected")
@@ -180,9 +180,13 @@ class FlightTick:
             self._held = None
             return self._idle
         status.landed_state = unit.landed_state(landed)
-        return out.motor_cmds
+        return motors
 
-    def _control(self, unit: ModeUnit, est: Estimate, now_s: float, dt_s: float, tick_dt_s: float) -> CascadeOutput:
+    def _control(
+        self, unit: ModeUnit, est: Estimate, now_s: float, dt_s: float, tick_dt_s: float
+    ) -> tuple[tuple[float, ...], float]:
+        """The unit's setpoint flown through collision prevention and the cascade: the motor commands and the
+        collective thrust asked for (newtons)."""
         decided = unit.setpoint(self._mode_inputs(est, now_s), tick_dt_s)
         landed = self._state.landed
         # Held only while armed: a failsafe that disarmed in this tick (lockdown, termination) leaves the next step a
@@ -196,12 +200,14 @@ class FlightTick:
             self._tracker.trajectory.reset(est.pos_ned_m)
             if isinstance(decided, AttitudeSetpoint):
                 self._held = _Held(attitude=decided) if armed else None
-                return self._cascade.update_attitude(est, decided, dt_s, landed=landed)
+                out = self._cascade.update_attitude(est, decided, dt_s, landed=landed)
+                return out.motor_cmds, out.collective_sp_n
             setpoint = decided
         if not landed:
             setpoint = self._collision_prevention.apply(setpoint, est.pos_ned_m, est.vel_ned_mps, now_s)
         self._held = _Held(trajectory=setpoint) if armed else None
-        return self._cascade.update(est, setpoint, dt_s, landed=landed)
+        cascade = self._cascade
+        return cascade.fly(est, setpoint, dt_s, landed=landed), cascade.collective_sp_n
 
     def _check_auto_disarm(self, now_s: float) -> None:
         state = self._state

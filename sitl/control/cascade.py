@@ -30,15 +30,14 @@ import numpy.typing as npt
 
 from sitl.control import Vec3f
 from sitl.control.allocation import AllocationResult, ControlAllocator, result_from
-from sitl.control.attitude import AttitudeController, Quat4f, thrust_to_attitude
+from sitl.control.attitude import AttitudeController, Quat4f
 from sitl.control.configs import attitude_config, heading_config, position_config, rate_config, velocity_config
-from sitl.control.heading import follow_travel
+from sitl.control.heading import HeadingConfig
 from sitl.control.params import outer_loop_period_s
 from sitl.control.position import PositionController
 from sitl.control.rate import RateController
 from sitl.control.velocity import VelocityController
 from sitl.dynamics.airframe import Airframe
-from sitl.kernels import between_ticks as bt
 from sitl.kernels import cascade as ck
 from sitl.mathutil import fast_constructor
 from sitl.params import ParamStore
@@ -110,9 +109,17 @@ class CascadeOutput:
 
 _new_output = fast_constructor(CascadeOutput)
 
-# What the outer loops hand the inner ones between their runs: velocity, acceleration and thrust setpoints,
-# attitude setpoint, collective thrust and the heading-rate feed-forward.
-_OuterOutput = tuple[Vec3f, Vec3f, Vec3f, Quat4f, float, float]
+
+def _row(v: VecLike) -> npt.NDArray[np.float64]:
+    """A vector as the kernels take it: an estimate's own array as it is, anything else (a tuple) copied."""
+    return v if type(v) is np.ndarray else np.array(v, dtype=np.float64)
+
+
+def _heading_row(config: HeadingConfig) -> npt.NDArray[np.float64]:
+    row = np.empty(ck.HEADING_SIZE)
+    row[ck.HD_FOLLOW] = 1.0 if config.follow_travel else 0.0
+    row[ck.HD_RATE_MAX] = config.follow_rate_max_radps
+    return row
 
 
 def _floats(v: VecLike) -> Sequence[float]:
@@ -139,9 +146,14 @@ class Cascade:
         self._inner_out = np.zeros(ck.O_ROTORS + 2 * self.allocator.rotor_count)
         # The motor commands in the output row, a view made once: read at every step between ticks.
         self._inner_motors = self._inner_out[ck.O_ROTORS : ck.O_ROTORS + self.allocator.rotor_count]
-        # The position loops' last output as the inner loops take it (sitl/kernels/between_ticks.py).
-        self.held_row = np.zeros(bt.HELD_SIZE)
+        # The outer loops' last output and held heading, as the inner loops take it (also between ticks,
+        # sitl/kernels/between_ticks.py).
+        self.held_row = np.zeros(ck.OUTER_SIZE)
+        # The setpoint the outer loops fly, as a row (rewritten when another setpoint object arrives).
+        self._sp_row = np.zeros(ck.SETPOINT_SIZE)
+        self._sp_of_row: TrajectorySetpoint | None = None
         self.heading = heading_config(params)
+        self._heading_row = _heading_row(self.heading)
         self._params_version = params.version
         self._outer_period_s = outer_loop_period_s(params)
         self.reset()
@@ -157,19 +169,19 @@ class Cascade:
         self.attitude.reset()
         self.rate.reset()
         self.allocator.reset()
-        self._yaw_sp_prev = _NAN
+        self.held_row[ck.U_YAW_PREV] = _NAN
         self._forget_outer()
 
     def _forget_outer(self) -> None:
         """The next ``update`` runs the position and velocity loops afresh, as on the first step."""
-        self._outer: _OuterOutput | None = None  # what they last produced (None: run at the next call)
+        self._outer_held = False  # does ``held_row`` hold their output (False: run at the next call)
         self._outer_setpoint: TrajectorySetpoint | None = None  # the setpoint they produced it for
         self._outer_elapsed_s = 0.0  # time since their last run
 
     def outer_due(self, dt_s: float) -> bool:
         """Would ``update`` run the position and velocity loops at a step of ``dt_s`` for the setpoint it last had
         (their MPC_LOOP_HZ period has passed, or they have nothing to hold)?"""
-        return self._outer is None or self._outer_elapsed_s + dt_s >= self._outer_period_s - 1e-9
+        return not self._outer_held or self._outer_elapsed_s + dt_s >= self._outer_period_s - 1e-9
 
     def inner_rows(
         self,
@@ -200,78 +212,72 @@ class Cascade:
         self.attitude.config = attitude_config(store)
         self.rate.config = rate_config(store, self.airframe)
         self.heading = heading_config(store)
+        self._heading_row = _heading_row(self.heading)
         self._outer_period_s = outer_loop_period_s(store)
-        self._outer = None  # a new gain takes effect at the next step in the outer loops too
+        self._outer_held = False  # a new gain takes effect at the next step in the outer loops too
 
-    def _heading_setpoint(
-        self, att_q: Sequence[float], setpoint: TrajectorySetpoint, vel_sp: Vec3f, elapsed_s: float
-    ) -> float:
-        yaw_sp = setpoint.yaw_rad
-        if yaw_sp != yaw_sp:
-            if setpoint.yawspeed_radps == setpoint.yawspeed_radps or self._yaw_sp_prev != self._yaw_sp_prev:
-                # Rate-only heading control (or nothing to hold yet): the current heading, no yaw error.
-                w, x, y, z = att_q
-                yaw_sp = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-            else:  # yaw left free: held, or turned towards the direction of travel (MPC_YAW_FOLLOW)
-                yaw_sp = follow_travel(self._yaw_sp_prev, vel_sp[0], vel_sp[1], elapsed_s, self.heading)
-        self._yaw_sp_prev = yaw_sp
-        return yaw_sp
+    def fly(
+        self, state: EstimatedState, setpoint: TrajectorySetpoint, dt_s: float, *, landed: bool = False
+    ) -> tuple[float, ...]:
+        """One control step towards a trajectory setpoint, in one kernel (sitl/kernels/cascade.py ``trajectory``): its
+        motor commands; ``collective_sp_n`` and the rows hold the rest (``update`` builds the record of it).
+        ``landed`` freezes the integrators."""
+        if self.params.version != self._params_version:
+            self._refresh_configs()
+        # The outer loops run at MPC_LOOP_HZ, or at once for a new setpoint (identity first: a streamed setpoint is
+        # the same object until it changes).
+        elapsed_s = self._outer_elapsed_s + dt_s
+        last_setpoint = self._outer_setpoint
+        due = (
+            not self._outer_held
+            or elapsed_s >= self._outer_period_s - 1e-9
+            or (setpoint is not last_setpoint and setpoint != last_setpoint)
+        )
+        if setpoint is not self._sp_of_row:
+            self._sp_row[:] = (*setpoint.pos_ned_m, *setpoint.vel_ned_mps, *setpoint.acc_ned_mps2, setpoint.yaw_rad,
+                               setpoint.yawspeed_radps)  # fmt: skip
+            self._sp_of_row = setpoint
+        allocator = self.allocator
+        ck.trajectory(_row(state.pos_ned_m), _row(state.vel_ned_mps), _row(state.att_q_frd_to_ned),
+                      _row(state.rates_frd_radps), self._sp_row, due, elapsed_s, dt_s, landed, self.position.row,
+                      self.velocity.row, self.velocity.state, self._heading_row, self.held_row, self.attitude.row,
+                      self.rate.row, self.rate.state, allocator.rows, allocator.thrust_max_n,
+                      self._inner_out)  # fmt: skip
+        if due:
+            self._outer_held = True
+            self._outer_setpoint = setpoint
+            self._outer_elapsed_s = 0.0
+        else:
+            self._outer_elapsed_s = elapsed_s
+        return tuple(self._inner_motors.tolist())
+
+    @property
+    def collective_sp_n(self) -> float:
+        """The collective thrust the outer loops last asked for (newtons)."""
+        return float(self.held_row[ck.U_COLLECTIVE])
 
     def update(
         self, state: EstimatedState, setpoint: TrajectorySetpoint, dt_s: float, *, landed: bool = False
     ) -> CascadeOutput:
-        """One control step towards a trajectory setpoint. ``landed`` freezes the integrators."""
-        if self.params.version != self._params_version:
-            self._refresh_configs()
-        # Python floats do arithmetic several times faster than numpy scalars (inline: this runs every step).
-        att_m = state.att_q_frd_to_ned
-        qw, qx, qy, qz = att_m.tolist() if isinstance(att_m, np.ndarray) else att_m
-        att_q = (qw, qx, qy, qz)
-
-        # The outer loops: position and velocity to a thrust vector and an attitude setpoint, at MPC_LOOP_HZ or
-        # at once for a new setpoint (identity first: a streamed setpoint is the same object until it changes).
-        elapsed_s = self._outer_elapsed_s + dt_s
-        outer = self._outer
-        last_setpoint = self._outer_setpoint
-        if (
-            outer is None
-            or elapsed_s >= self._outer_period_s - 1e-9
-            or (setpoint is not last_setpoint and setpoint != last_setpoint)
-        ):
-            pos_m = state.pos_ned_m
-            px, py, pz = pos_m.tolist() if isinstance(pos_m, np.ndarray) else pos_m
-            vel_m = state.vel_ned_mps
-            vx, vy, vz = vel_m.tolist() if isinstance(vel_m, np.ndarray) else vel_m
-            vel_sp = self.position.update((px, py, pz), setpoint.pos_ned_m, setpoint.vel_ned_mps)
-            acc_sp, thrust = self.velocity.thrust_setpoint(
-                (vx, vy, vz), vel_sp, setpoint.acc_ned_mps2, elapsed_s, landed
-            )
-            att_sp_q = thrust_to_attitude(thrust, self._heading_setpoint(att_q, setpoint, vel_sp, elapsed_s))
-            tx, ty, tz = thrust
-            collective = math.sqrt(tx * tx + ty * ty + tz * tz)
-            yawspeed_ff = setpoint.yawspeed_radps
-            self._outer = (vel_sp, acc_sp, thrust, att_sp_q, collective, yawspeed_ff)
-            held = self.held_row
-            held[bt.H_ATT_SP : bt.H_ATT_SP + 4] = att_sp_q
-            held[bt.H_YAWSPEED_FF] = yawspeed_ff
-            held[bt.H_COLLECTIVE] = collective
-            self._outer_setpoint = setpoint
-            self._outer_elapsed_s = 0.0
-        else:
-            vel_sp, acc_sp, thrust, att_sp_q, collective, yawspeed_ff = outer
-            self._outer_elapsed_s = elapsed_s
-
-        # The inner loops at every call.
-        rates_sp, torque, alloc = self._inner(state, att_q, att_sp_q, yawspeed_ff, None, collective, dt_s, landed)
+        """One control step towards a trajectory setpoint (``fly``), with the record of what every stage produced.
+        ``landed`` freezes the integrators."""
+        motors = self.fly(state, setpoint, dt_s, landed=landed)
+        held = self.held_row.tolist()
+        values = self._inner_out.tolist()
+        n = self.allocator.rotor_count
+        rotors = ck.O_ROTORS
+        alloc = result_from(values[rotors : rotors + n], values[rotors + n : rotors + 2 * n],
+                            values[ck.O_FLAGS : ck.O_FLAGS + ck.FLAGS_SIZE])  # fmt: skip
+        r, t, v, a, u, q = ck.O_RATES_SP, ck.O_TORQUE, ck.U_VEL_SP, ck.U_ACC_SP, ck.U_THRUST, ck.U_ATT_SP
         return _new_output(
-            motor_cmds=alloc.motor_cmds,
-            vel_sp_ned_mps=vel_sp,
-            acc_sp_ned_mps2=acc_sp,
-            thrust_sp_ned_n=thrust,
-            att_sp_q=att_sp_q,
-            rates_sp_frd_radps=rates_sp,
-            torque_sp_frd_nm=torque,
-            collective_sp_n=collective,
+            motor_cmds=motors,
+            vel_sp_ned_mps=(held[v], held[v + 1], held[v + 2]),
+            acc_sp_ned_mps2=(held[a], held[a + 1], held[a + 2]),
+            thrust_sp_ned_n=(held[u], held[u + 1], held[u + 2]),
+            att_sp_q=(held[q], held[q + 1], held[q + 2], held[q + 3]),
+            rates_sp_frd_radps=(values[r], values[r + 1], values[r + 2]),
+            torque_sp_frd_nm=(values[t], values[t + 1], values[t + 2]),
+            collective_sp_n=held[ck.U_COLLECTIVE],
             allocation=alloc,
         )
 
@@ -281,7 +287,7 @@ class Cascade:
         """One control step towards an attitude (or body-rate) setpoint with a given collective thrust."""
         self._refresh_configs()
         att_q = _floats(state.att_q_frd_to_ned)
-        self._yaw_sp_prev = _NAN
+        self.held_row[ck.U_YAW_PREV] = _NAN
         self._forget_outer()  # back on a trajectory setpoint, the outer loops start from the current state
         collective = setpoint.thrust_n
         if setpoint.att_q is None:

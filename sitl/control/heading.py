@@ -15,14 +15,14 @@ minimum speed.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
-from sitl.mathutil import wrap_pi
+from sitl.kernels import cascade as ck
 
 # Well above a hovering drone's velocity demand (a few cm/s), below any cruise or formation speed worth looking
-# ahead at (a circle of radius 4 m turning at 0.3 rad/s moves its slots at 1.2 m/s).
-FOLLOW_MIN_SPEED_MPS = 0.5
+# ahead at (a circle of radius 4 m turning at 0.3 rad/s moves its slots at 1.2 m/s). Defined with the kernel that
+# reads it.
+FOLLOW_MIN_SPEED_MPS = ck.FOLLOW_MIN_SPEED_MPS
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -34,10 +34,7 @@ class HeadingConfig:
 def follow_travel(yaw_sp_rad: float, vel_sp_n_mps: float, vel_sp_e_mps: float, elapsed_s: float,
                   config: HeadingConfig) -> float:  # fmt: skip
     """The next heading setpoint from the last one: turned towards the horizontal velocity setpoint at the rate
-    limit, or unchanged while that velocity is slow (or not set)."""
-    speed_sq = vel_sp_n_mps * vel_sp_n_mps + vel_sp_e_mps * vel_sp_e_mps
-    if not config.follow_travel or not speed_sq > FOLLOW_MIN_SPEED_MPS * FOLLOW_MIN_SPEED_MPS:  # NaN: not set
-        return yaw_sp_rad
-    error = wrap_pi(math.atan2(vel_sp_e_mps, vel_sp_n_mps) - yaw_sp_rad)
-    step = config.follow_rate_max_radps * elapsed_s
-    return wrap_pi(yaw_sp_rad + max(-step, min(step, error)))
+    limit, or unchanged while that velocity is slow (or not set). The arithmetic is the kernel ``follow_travel``
+    (sitl/kernels/cascade.py), which the cascade's outer loops call themselves."""
+    return ck.follow_travel(yaw_sp_rad, vel_sp_n_mps, vel_sp_e_mps, elapsed_s, config.follow_travel,
+                            config.follow_rate_max_radps)  # fmt: skip

@@ -38,13 +38,6 @@ SENSORS_SIZE = 13
 I_IN_RATES = 0
 I_IN_SPECIFIC_FORCE = 3
 
-# What the commander's last tick left for the inner loops: the attitude setpoint, the yaw-rate feed-forward and the
-# collective thrust (sitl/control/cascade.py, the position loops' output).
-H_ATT_SP = 0
-H_YAWSPEED_FF = 4
-H_COLLECTIVE = 5
-HELD_SIZE = 6
-
 
 _SENSE_ARGS = (
     "float64[::1], float64[::1], float64[:, ::1], int64, boolean, float64[:, ::1], int64, float64, boolean,"
@@ -151,14 +144,14 @@ def step(
     t_max: float,
     inner_out: npt.NDArray[np.float64],
 ) -> None:
-    """A step between ticks: ``sense``, then the inner loops run on the new estimate towards ``held``; the motor
-    commands go to ``inner_out``."""
+    """A step between ticks: ``sense``, then the inner loops run on the new estimate towards what the outer loops
+    hold (``held``, sitl/kernels/cascade.py ``U_*``); the motor commands go to ``inner_out``."""
     sense(imu_inputs, sensors, noise, noise_row, baro_due, baro_noise, baro_row, alt_amsl_m, mag_due, mag_noise,
           mag_row, qw, qx, qy, qz, est_state, est_cfg, est_gps, est_no_vec, est_out, time_s, dt_s)  # fmt: skip
     q = ek.O_Q
     r = ek.O_RATES
-    a = H_ATT_SP
+    a = ck.U_ATT_SP
     ck.inner(est_out[q], est_out[q + 1], est_out[q + 2], est_out[q + 3],
-             held[a], held[a + 1], held[a + 2], held[a + 3], held[H_YAWSPEED_FF], False, math.nan, math.nan, math.nan,
-             est_out[r], est_out[r + 1], est_out[r + 2], held[H_COLLECTIVE], dt_s, landed,
+             held[a], held[a + 1], held[a + 2], held[a + 3], held[ck.U_YAWSPEED_FF], False, math.nan, math.nan,
+             math.nan, est_out[r], est_out[r + 1], est_out[r + 2], held[ck.U_COLLECTIVE], dt_s, landed,
              attitude_cfg, rate_cfg, rate_state, alloc_rows, t_max, inner_out)  # fmt: skip

@@ -479,6 +479,31 @@ VS_DERIV = 3
 VS_PREV = 6
 VS_HAVE_PREV = 9
 VELOCITY_STATE_SIZE = 10
+# Heading configuration row (sitl.control.heading.HeadingConfig): follow the direction of travel (1.0) or hold the
+# heading, and the turn rate limit while following.
+HD_FOLLOW = 0
+HD_RATE_MAX = 1
+HEADING_SIZE = 2
+# A trajectory setpoint as the kernels take it (sitl.control.cascade.TrajectorySetpoint; NaN = not set).
+SP_POS = 0
+SP_VEL = 3
+SP_ACC = 6
+SP_YAW = 9
+SP_YAWSPEED = 10
+SETPOINT_SIZE = 11
+# The outer loops' last output, held between their runs: the attitude setpoint, the heading-rate feed-forward and
+# the collective thrust the inner loops fly towards (also between ticks, sitl/kernels/between_ticks.py), the velocity,
+# acceleration and thrust setpoints, and the heading setpoint last flown (NaN: none yet).
+U_ATT_SP = 0
+U_YAWSPEED_FF = 4
+U_COLLECTIVE = 5
+U_VEL_SP = 6
+U_ACC_SP = 9
+U_THRUST = 12
+U_YAW_PREV = 15
+OUTER_SIZE = 16
+# A heading setpoint follows the direction of travel only above this speed (sitl/control/heading.py says why).
+FOLLOW_MIN_SPEED_MPS = 0.5
 
 
 @kernel("UniTuple(float64, 2)(float64, float64, float64, float64, float64)")
@@ -748,3 +773,105 @@ def thrust_to_attitude(tx: float, ty: float, tz: float, yaw_rad: float) -> tuple
     by_z = bz_x * bx_y - bz_y * bx_x
     # The rotation matrix has columns body x, body y, body z.
     return dcm_to_quat(bx_x, by_x, bz_x, bx_y, by_y, bz_y, bx_z, by_z, bz_z)
+
+
+@kernel("float64(float64)")
+def wrap_pi(angle_rad: float) -> float:
+    """An angle wrapped to [-pi, pi), as sitl.mathutil.wrap_pi (Python's float ``%``)."""
+    return (angle_rad + math.pi) % (2 * math.pi) - math.pi
+
+
+@kernel("float64(float64, float64, float64, float64, boolean, float64)")
+def follow_travel(
+    yaw_sp_rad: float, vel_sp_n_mps: float, vel_sp_e_mps: float, elapsed_s: float, follow: bool, rate_max_radps: float
+) -> float:
+    """The next heading setpoint from the last one: turned towards the horizontal velocity setpoint at the rate limit
+    (``follow``, MPC_YAW_FOLLOW), or unchanged while that velocity is slow or not set (sitl/control/heading.py)."""
+    speed_sq = vel_sp_n_mps * vel_sp_n_mps + vel_sp_e_mps * vel_sp_e_mps
+    if not follow or not speed_sq > FOLLOW_MIN_SPEED_MPS * FOLLOW_MIN_SPEED_MPS:  # NaN: not set
+        return yaw_sp_rad
+    error = wrap_pi(math.atan2(vel_sp_e_mps, vel_sp_n_mps) - yaw_sp_rad)
+    step = rate_max_radps * elapsed_s
+    return wrap_pi(yaw_sp_rad + pmax(-step, pmin(step, error)))
+
+
+@kernel(
+    "void(float64[::1], float64[::1], float64[::1], float64[::1], float64, boolean, float64[::1], float64[::1],"
+    " float64[::1], float64[::1], float64[::1])"
+)
+def outer(
+    pos: npt.NDArray[np.float64],
+    vel: npt.NDArray[np.float64],
+    att_q: npt.NDArray[np.float64],
+    sp: npt.NDArray[np.float64],
+    elapsed_s: float,
+    landed: bool,
+    position_cfg: npt.NDArray[np.float64],
+    velocity_cfg: npt.NDArray[np.float64],
+    velocity_state: npt.NDArray[np.float64],
+    heading_cfg: npt.NDArray[np.float64],
+    held: npt.NDArray[np.float64],
+) -> None:
+    """The outer loops once, towards the setpoint row ``sp`` from the estimated position, velocity and attitude:
+    the position P loop's velocity setpoint, the velocity PID's acceleration and thrust (integrating over
+    ``elapsed_s``, frozen when ``landed``), the heading setpoint (the setpoint's yaw; or, left free, the current
+    heading when a yaw rate is set or none was flown yet, else the last one held or turned towards the direction of
+    travel) and the attitude of that thrust at that heading, all into ``held``."""
+    vsx, vsy, vsz = position_velocity_sp(position_cfg, pos[0], pos[1], pos[2], sp[SP_POS], sp[SP_POS + 1],
+                                         sp[SP_POS + 2], sp[SP_VEL], sp[SP_VEL + 1], sp[SP_VEL + 2])  # fmt: skip
+    ax, ay, az, tx, ty, tz = velocity_thrust(velocity_state, velocity_cfg, vel[0], vel[1], vel[2], vsx, vsy, vsz,
+                                             sp[SP_ACC], sp[SP_ACC + 1], sp[SP_ACC + 2], elapsed_s, landed)  # fmt: skip
+    yaw_sp = sp[SP_YAW]
+    if yaw_sp != yaw_sp:
+        last = held[U_YAW_PREV]
+        if sp[SP_YAWSPEED] == sp[SP_YAWSPEED] or last != last:
+            # Rate-only heading control (or nothing to hold yet): the current heading, no yaw error.
+            w, x, y, z = att_q[0], att_q[1], att_q[2], att_q[3]
+            yaw_sp = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+        else:
+            yaw_sp = follow_travel(last, vsx, vsy, elapsed_s, heading_cfg[HD_FOLLOW] != 0.0, heading_cfg[HD_RATE_MAX])
+    held[U_YAW_PREV] = yaw_sp
+    qw, qx, qy, qz = thrust_to_attitude(tx, ty, tz, yaw_sp)
+    held[U_ATT_SP], held[U_ATT_SP + 1], held[U_ATT_SP + 2], held[U_ATT_SP + 3] = qw, qx, qy, qz
+    held[U_YAWSPEED_FF] = sp[SP_YAWSPEED]
+    held[U_COLLECTIVE] = math.sqrt(tx * tx + ty * ty + tz * tz)
+    held[U_VEL_SP], held[U_VEL_SP + 1], held[U_VEL_SP + 2] = vsx, vsy, vsz
+    held[U_ACC_SP], held[U_ACC_SP + 1], held[U_ACC_SP + 2] = ax, ay, az
+    held[U_THRUST], held[U_THRUST + 1], held[U_THRUST + 2] = tx, ty, tz
+
+
+@kernel(
+    "void(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], boolean, float64, float64, boolean,"
+    " float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1],"
+    " float64[::1], float64[:, ::1], float64, float64[::1])"
+)
+def trajectory(
+    pos: npt.NDArray[np.float64],
+    vel: npt.NDArray[np.float64],
+    att_q: npt.NDArray[np.float64],
+    rates: npt.NDArray[np.float64],
+    sp: npt.NDArray[np.float64],
+    outer_due: bool,
+    elapsed_s: float,
+    dt_s: float,
+    landed: bool,
+    position_cfg: npt.NDArray[np.float64],
+    velocity_cfg: npt.NDArray[np.float64],
+    velocity_state: npt.NDArray[np.float64],
+    heading_cfg: npt.NDArray[np.float64],
+    held: npt.NDArray[np.float64],
+    attitude_cfg: npt.NDArray[np.float64],
+    rate_cfg: npt.NDArray[np.float64],
+    rate_state: npt.NDArray[np.float64],
+    alloc_rows: npt.NDArray[np.float64],
+    t_max: float,
+    out: npt.NDArray[np.float64],
+) -> None:
+    """One control step towards a trajectory setpoint: the outer loops when ``outer_due`` (``outer``), then the inner
+    loops towards what they hold, on the estimated attitude and body rates."""
+    if outer_due:
+        outer(pos, vel, att_q, sp, elapsed_s, landed, position_cfg, velocity_cfg, velocity_state, heading_cfg, held)
+    a = U_ATT_SP
+    inner(att_q[0], att_q[1], att_q[2], att_q[3], held[a], held[a + 1], held[a + 2], held[a + 3], held[U_YAWSPEED_FF],
+          False, math.nan, math.nan, math.nan, rates[0], rates[1], rates[2], held[U_COLLECTIVE], dt_s, landed,
+          attitude_cfg, rate_cfg, rate_state, alloc_rows, t_max, out)  # fmt: skip
