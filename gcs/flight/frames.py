@@ -34,7 +34,7 @@ feedback). Velocity and acceleration feed-forward are rotated between the two ta
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -43,6 +43,9 @@ from gcs.flight.arrays import mat_mul
 from gcs.flight.geodesy import GeoPoint, NedFrame
 
 Vec3 = tuple[float, float, float]
+# Where the ground station has each drone fly at a mission time, swarm frame (the setpoint streamer's ``targets``):
+# what the recorder, the live view and the invariants read of it, without holding the streamer that commands
+Targets = Callable[[float], dict[int, Vec3]]
 
 _ORIGIN_ITERATIONS = 4  # each fixed-point step shrinks the error by ~d / R; 4 is far below a micrometre
 

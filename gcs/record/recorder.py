@@ -16,8 +16,9 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from gcs.command.streamer import FormationStreamer
 from gcs.fleet.losses import MAV_STATE_CRITICAL
+from gcs.fleet.swarm import Swarm
+from gcs.flight.frames import Targets
 from gcs.mavlink.statustext import StatusTextAssembler, parse_contact
 from gcs.record.metrics import LiveMetrics
 from gcs.record.recording import DroneSample, EventRecord, FlightRecording, ItemReached
@@ -48,12 +49,13 @@ class CollisionPairs:
 
 
 class FlightRecorder:
-    def __init__(self, streamer: FormationStreamer, recording: FlightRecording, clock: Callable[[], float],
+    def __init__(self, swarm: Swarm, targets: Targets, recording: FlightRecording, clock: Callable[[], float],
                  tlog_path: Path, say: Say | None) -> None:  # fmt: skip
-        """``clock`` is the flight's time (simulated seconds); ``say`` prints drones' warnings and failsafes (None:
-        the caller prints them itself)."""
-        self.streamer = streamer
-        self.swarm = streamer.swarm
+        """What it reads: the swarm's traffic, fleet view, picture and attached vehicles, and ``targets``, each
+        drone's slot (the setpoint streamer's, never the streamer); ``clock`` is the flight's time (simulated
+        seconds); ``say`` prints drones' warnings and failsafes (None: the caller prints them itself)."""
+        self.targets = targets
+        self.swarm = swarm
         self._texts = StatusTextAssembler()  # long texts arrive in chunks: each is recorded once, whole
         self.recording = recording
         self.clock = clock
@@ -81,7 +83,7 @@ class FlightRecorder:
             return
         pos, vel = placed.pos_ned_m, placed.vel_ned_mps
         view = self.swarm.fleet.drones.get(sysid)
-        target = self.streamer.targets(now).get(sysid)  # a member's slot, while it has one
+        target = self.targets(now).get(sysid)  # a member's slot, while it has one
         self.recording.attached_samples.append(DroneSample(
             time_s=now, sysid=sysid, pos_ned_m=pos, vel_ned_mps=vel, armed=view.armed if view else True,
             mode=view.mode if view else "EXTERNAL", target_ned_m=target,
@@ -105,7 +107,7 @@ class FlightRecorder:
             if placed is None or view is None:
                 return
             pos, vel = placed.pos_ned_m, placed.vel_ned_mps
-            target = self.streamer.targets(now).get(sysid)
+            target = self.targets(now).get(sysid)
             sample = DroneSample(time_s=now, sysid=sysid, pos_ned_m=pos, vel_ned_mps=vel, armed=view.armed,
                                  mode=view.mode, target_ned_m=target)  # fmt: skip
             self.recording.samples.append(sample)

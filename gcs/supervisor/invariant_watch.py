@@ -1,17 +1,17 @@
 """The invariants of a flight, checked at every tick of the session (gcs/invariants, docs/invariants.md).
 
 The IO shell around the pure monitor: at each tick it builds the instant (``TickState``) from what the supervisor
-knows (the streamer's positions and slots, the fleet view, the swarm's losses and waiting commands, the flight
-recording's contacts, failsafes and faults), hands it to the monitor, and for each first violation says one line
-and records it for the report.
+knows (the picture's positions, the streamer's slots, the fleet view, the swarm's losses and waiting commands, the
+flight recording's contacts, failsafes and faults), hands it to the monitor, and for each first violation says one
+line and records it for the report.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
-from gcs.command.streamer import FormationStreamer
 from gcs.fleet.swarm import Swarm
+from gcs.flight.frames import Targets
 from gcs.invariants.monitor import Monitor, Violation
 from gcs.invariants.spec import Invariant
 from gcs.invariants.state import FAULT, LOSS, START, STEP, TickState
@@ -20,13 +20,14 @@ from gcs.record.recording import FlightRecording
 
 
 class InvariantWatch:
-    def __init__(self, swarm: Swarm, streamer: FormationStreamer, recording: FlightRecording,
+    def __init__(self, swarm: Swarm, targets: Targets, recording: FlightRecording,
                  say: Callable[[str], None], *, stop: bool) -> None:  # fmt: skip
-        """The flight's parts it reads (never the session that holds it): the swarm, the streamer (positions and
-        slots), the recording (contacts, failsafes, faults; where violations go) and ``say`` (the supervisor's
-        output). ``stop``: the first violation ends the flight (``--stop-on-violation``)."""
+        """The flight's parts it reads (never the session that holds it): the swarm (the picture's positions),
+        ``targets`` (each drone's slot: the setpoint streamer's, never the streamer), the recording (contacts,
+        failsafes, faults; where violations go) and ``say`` (the supervisor's output). ``stop``: the first violation
+        ends the flight (``--stop-on-violation``)."""
         self.swarm = swarm
-        self.streamer = streamer
+        self.targets = targets
         self.recording = recording
         self.say = say
         self.monitor = Monitor((), swarm.liveness.sysids)
@@ -57,7 +58,7 @@ class InvariantWatch:
         return violations
 
     def _state(self, now_s: float) -> TickState:
-        swarm, streamer, recording = self.swarm, self.streamer, self.recording
+        swarm, recording = self.swarm, self.recording
         positions = swarm.picture.positions(swarm.flown_sysids)
         drones = swarm.fleet.drones
         airborne = frozenset(s for s in positions if s in drones and drones[s].armed and drones[s].in_air())
@@ -67,7 +68,7 @@ class InvariantWatch:
             body = vehicle.body_at(clock)
             if body is not None and sysid not in positions:
                 attached[sysid] = swarm.picture.ned_from_geo(body)
-        slots = {s: p for s, p in streamer.targets(now_s).items() if s in positions}
+        slots = {s: p for s, p in self.targets(now_s).items() if s in positions}
         new_events = recording.events[self._events_seen :]
         contacts = tuple((e.sysid, e.text) for e in new_events if e.sysid is not None
                          and e.text.startswith(COLLISION_PREFIX))  # fmt: skip

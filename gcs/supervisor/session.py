@@ -98,14 +98,15 @@ class FlightSession:
     # ---- parts -----------------------------------------------------------------------------------------------------
     def record(self, tlog: Path, say: Say | None) -> FlightRecorder:
         """Record the flight from now on: samples, events and both directions of the traffic into ``tlog``."""
-        self.recorder = FlightRecorder(self.streamer, self.recording, self.mission_time, tlog, say=say)
+        self.recorder = FlightRecorder(self.swarm, self.streamer.targets, self.recording, self.mission_time, tlog,
+                                       say=say)  # fmt: skip
         return self.recorder
 
     def serve(self, server: ViewServer, obstacles: Iterable[ObstacleShape] = ()) -> None:
         """Feed the live view served by ``server`` from now on (gcs/view): the streamer's slots, the drones'
         telemetry, the obstacles, and the recording's running metrics when there is a recorder."""
         live = self.recorder.live if self.recorder is not None else None
-        self.view = ViewFeed(server, self.streamer, obstacles, live=live)
+        self.view = ViewFeed(server, self.swarm, self.streamer.targets, obstacles, live=live)
 
     def tick(self, now_s: float) -> None:
         """The setpoints of whatever the ground station flies, the live view's frame, and the invariants' check;
@@ -124,7 +125,7 @@ class FlightSession:
         if not invariants:
             return
         if self.watch is None:
-            self.watch = InvariantWatch(self.swarm, self.streamer, self.recording, self.say, stop=stop)
+            self.watch = InvariantWatch(self.swarm, self.streamer.targets, self.recording, self.say, stop=stop)
         self.watch.add(invariants, stop=stop)
 
     def step_began(self) -> None:

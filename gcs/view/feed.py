@@ -13,9 +13,9 @@ from typing import Any, Final
 
 import numpy as np
 
-from gcs.command.streamer import FormationStreamer
+from gcs.fleet.swarm import Swarm
 from gcs.flight.behaviours import pairwise_offsets
-from gcs.flight.frames import Vec3
+from gcs.flight.frames import Targets, Vec3
 from gcs.mavlink.images import ImageAssembler, image_request
 from gcs.record.metrics import AIRBORNE_HEIGHT_M, LiveMetrics
 from gcs.record.recording import ObstacleShape
@@ -47,12 +47,15 @@ class FramePacer:
 class ViewFeed:
     """One swarm into one view server."""
 
-    def __init__(self, server: ViewServer, streamer: FormationStreamer, obstacles: Iterable[ObstacleShape] = (),
+    def __init__(self, server: ViewServer, swarm: Swarm, targets: Targets, obstacles: Iterable[ObstacleShape] = (),
                  clock: Callable[[], float] = time.monotonic, live: LiveMetrics | None = None) -> None:  # fmt: skip
-        """``live``: the flight recorder's running metrics, whose minimum separation (over every sample, as the
-        report's) the header shows; without it, the minimum over the frames built."""
+        """What it reads: the swarm's picture, fleet view, losses and attached vehicles, and ``targets``, each
+        drone's slot (the setpoint streamer's, never the streamer); ``live``: the flight recorder's running metrics,
+        whose minimum separation (over every sample, as the report's) the header shows; without it, the minimum over
+        the frames built."""
         self.server = server
-        self.streamer = streamer
+        self.swarm = swarm
+        self.targets = targets
         self.live = live
         self.min_separation_m: float | None = None
         self.obstacles = tuple(obstacles)
@@ -63,7 +66,7 @@ class ViewFeed:
         self._rtf: float | None = None
         self._images = ImageAssembler()
         self._next_request_s: dict[int, float] = {}  # sysid -> wall time its camera may be asked again
-        streamer.swarm.router.listeners.append(self._on_message)
+        swarm.router.listeners.append(self._on_message)
 
     def _on_message(self, msg: Any, now_s: float) -> None:
         if msg.get_type() in CAMERA_MESSAGES and (image := self._images.feed(msg, now_s)) is not None:
@@ -72,9 +75,9 @@ class ViewFeed:
     def _ask_cameras(self, wall_s: float) -> None:
         """Ask each drone whose camera a page is showing for its next image, CAMERA_RATE_HZ at most."""
         for sysid in self.server.cameras_wanted(wall_s):
-            if wall_s >= self._next_request_s.get(sysid, -math.inf) and sysid in self.streamer.swarm.fleet.drones:
+            if wall_s >= self._next_request_s.get(sysid, -math.inf) and sysid in self.swarm.fleet.drones:
                 self._next_request_s[sysid] = wall_s + 1.0 / CAMERA_RATE_HZ
-                self.streamer.swarm.router.send(sysid, image_request())
+                self.swarm.router.send(sysid, image_request())
 
     def tick(self, time_s: float) -> None:
         """The mission time now; a frame goes out if the last is a frame period old (wall clock) and a page is
@@ -90,7 +93,7 @@ class ViewFeed:
         self._ask_cameras(wall)
 
     def build(self, time_s: float) -> dict[str, object]:
-        swarm = self.streamer.swarm
+        swarm = self.swarm
         attached, losses = swarm.attachments.vehicles, swarm.liveness.losses
         positions: dict[int, Vec3] = {}
         homes: dict[int, Vec3] = {}
@@ -110,7 +113,7 @@ class ViewFeed:
         elif separation is not None and (self.min_separation_m is None or separation < self.min_separation_m):
             self.min_separation_m = separation
         return frame(time_s=time_s, drones=swarm.fleet.drones, positions_ned_m=positions, homes_ned_m=homes,
-                     slots_ned_m=self.streamer.targets(time_s),
+                     slots_ned_m=self.targets(time_s),
                      lost=[*losses, *(s for s, v in attached.items() if v.lost)], now_s=swarm.clock.now(),
                      separation_m=separation, min_separation_m=self.min_separation_m, realtime_factor=self._rtf,
                      obstacles=self.obstacles, external=attached)  # fmt: skip
