@@ -2,8 +2,11 @@
 
 Each front-end's decoder is driven to its request for every verb it offers: the CLI's arguments (argparse, then the
 JSON it sends), the control channel's JSON (old keys included), a mission file's steps (every file in missions/), and
-the Python API (both faces). A verb missing from a front-end that should offer it, a default that differs from the
-request's, or a front-end that reaches past the verbs to what a verb does fails here."""
+the Python API (both faces). Each front-end declares what its entries offer (``CLI_VERBS``, ``CHANNEL_VERBS``,
+``STEP_VERBS`` and ``MISSION_ALSO``, ``API_VERBS``) and the verbs it leaves out, each with its reason: together they
+are every verb in ``VERBS``. A new request type no front-end offers or leaves out, an entry without its verbs or its
+case, a default that differs from the request's, or a front-end that reaches past the verbs to what a verb does fails
+here."""
 
 from __future__ import annotations
 
@@ -14,6 +17,7 @@ import inspect
 import json
 import math
 import typing
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +40,20 @@ from gcs.supervisor.verbs import VERBS
 
 ROOT = Path(__file__).resolve().parents[2]
 REQUESTS = typing.get_args(rq.Request)
+ALL_VERBS = frozenset(r.verb for r in VERBS)
+
+
+def _offers_every_verb(offered: Mapping[Any, Iterable[str]], left_out: Mapping[str, str]) -> None:
+    """What a front-end's entries offer (entry -> its verbs), with the verbs it leaves out on purpose (verb -> why),
+    are every verb, each once: a new request type fails here until each front-end offers it or says why not, and an
+    entry that offers no verb fails too."""
+    verbs = set().union(*offered.values())
+    assert all(offered.values()), f"an entry that offers no verb: {[k for k, v in offered.items() if not v]}"
+    assert not verbs & set(left_out), f"offered and said to be left out: {sorted(verbs & set(left_out))}"
+    assert verbs <= ALL_VERBS, f"not a verb: {sorted(verbs - ALL_VERBS)}"
+    assert verbs | set(left_out) == ALL_VERBS, (
+        f"neither offered nor left out: {sorted(ALL_VERBS - verbs - set(left_out))}"
+    )
 
 
 def test_every_request_type_has_its_verb_and_its_own_name() -> None:
@@ -58,6 +76,10 @@ def test_one_set_of_defaults_the_mission_file_s() -> None:
     assert rq.ReturnToLaunch().timeout_s == mission_file.RTL_TIMEOUT_S
     swap, step = rq.Swap(speed_mps=1.0), mission_file.SwapStep(speed_mps=1.0)
     assert (swap.accel_mps2, swap.tolerance_m, swap.timeout_s) == (step.accel_mps2, step.tolerance_m, step.timeout_s)
+    # a mission's steps wait as long as the requests they make (a takeoff step must say its altitude)
+    assert mission_file.TakeoffStep(alt_m=rq.Takeoff().alt_m).timeout_s == rq.Takeoff().timeout_s
+    assert mission_file.LandStep().timeout_s == rq.Land().timeout_s
+    assert mission_file.RtlStep().timeout_s == rq.ReturnToLaunch().timeout_s
 
 
 @pytest.mark.parametrize(
@@ -120,13 +142,39 @@ CLI_CASES: list[tuple[list[str], rq.Request]] = [
     (["behaviour", "stop"], rq.Behaviours(run=False)),
     (["fault", "3", "gps"], rq.InjectFault(sysid=3, fault=FaultRequest(kind="gps"))),
     (["fault", "3", "link", "--for", "2"], rq.InjectFault(sysid=3, fault=FaultRequest(kind="link", for_s=2.0))),
+    (["fault", "3", "crash"], rq.Kill(sysid=3)),
     (["kill", "3"], rq.Kill(sysid=3)),
     (["attach", "intruder=udpin://127.0.0.1:14560"],
      rq.Attach(spec=parse_attach("intruder=udpin://127.0.0.1:14560"))),
     (["detach", "200"], rq.Detach(sysid=200)),
     (["require", "separation", "min_m=1.0"], rq.Require(invariants=({"kind": "separation", "min_m": 1.0},))),
 ]  # fmt: skip
-NOT_VERBS = {"up", "fly", "bench", "sweep", "falsify", "plan", "status", "down"}  # runs and the session's own
+# Each subcommand and the verbs it offers; the subcommands that are not verbs; the verbs the CLI leaves out, and why.
+CLI_VERBS: dict[str, set[str]] = {
+    "takeoff": {"takeoff"},
+    "formation": {"formation"},
+    "goto": {"goto"},
+    "flock": {"flock"},
+    "follow": {"follow", "follow_attached"},  # --attached: the drones follow an attached leader that flies itself
+    "pause": {"pause"},
+    "land": {"land"},
+    "rtl": {"rtl"},
+    "behaviour": {"behaviour"},
+    "fault": {"fault", "kill"},  # fault N crash: a kill, as every earlier swarm fault sent it
+    "kill": {"kill"},
+    "attach": {"attach"},
+    "detach": {"detach"},
+    "require": {"require"},
+    "plan": {"plan_upload", "plan_start", "plan_download"},  # gcs/supervisor/plan_cli.py
+}
+NOT_VERBS = {"up", "fly", "bench", "sweep", "falsify", "status", "down"}  # runs and the session's own
+CLI_LEAVES_OUT = {
+    "arm": "swarm takeoff arms the drones on the ground first",
+    "swap": "the avoidance stress test, flown from a mission file (swarm fly missions/antipodal_swap.toml)",
+    "hold": "a wait, for a front-end that waits: the command line answers at once and flies on until told",
+    "param": "drone parameters are set before the flight (swarm up --param NAME=VALUE)",
+    "control": "a user's controller is Python code: the API's control()",
+}
 
 
 def _subcommands() -> set[str]:
@@ -153,9 +201,26 @@ def test_a_cli_mistake_names_the_argument_that_gave_it(argv: list[str], line: st
     assert str(info.value) == line
 
 
-def test_every_cli_command_that_flies_is_a_request() -> None:
-    offered = _subcommands() - NOT_VERBS
-    assert offered == {argv[0] for argv, _ in CLI_CASES}, "a CLI command without a case here, or a case too many"
+PLAN_CASES: list[tuple[list[str], list[str]]] = [
+    (["plan", "upload", str(ROOT / "missions" / "box.plan")], ["plan_upload"]),
+    (["plan", "upload", str(ROOT / "missions" / "box.plan"), "--start"], ["plan_upload", "plan_start"]),
+    (["plan", "start", "--drones", "1,2"], ["plan_start"]),
+    (["plan", "download", "2", "back.plan"], ["plan_download"]),
+]  # decoded against the running swarm but a download (tests/integration/test_qgc_plan_fly.py sends them)
+
+
+def test_every_cli_command_that_flies_offers_its_verbs_and_the_cli_every_verb_but_those_it_leaves_out() -> None:
+    assert _subcommands() - NOT_VERBS == set(CLI_VERBS), "a CLI command not in CLI_VERBS, or one there too many"
+    _offers_every_verb(CLI_VERBS, CLI_LEAVES_OUT)
+    decoded: dict[str, set[str]] = {}
+    for argv, expected in CLI_CASES:
+        assert expected.verb in CLI_VERBS[argv[0]], argv
+        decoded.setdefault(argv[0], set()).add(expected.verb)
+    for argv, verbs in PLAN_CASES:
+        commands = plan_commands(build_parser().parse_args(argv))
+        assert [c["cmd"] for c in commands] == verbs, argv
+        decoded.setdefault(argv[0], set()).update(verbs)
+    assert decoded == CLI_VERBS, "a verb a CLI command offers without a case above"
 
 
 def test_swarm_plan_builds_its_commands_through_the_decoder(tmp_path: Path) -> None:
@@ -222,12 +287,44 @@ def test_the_control_channel_decodes_each_command_to_its_request(command: dict[s
     assert decode(command, None) == expected
 
 
-def test_the_control_channel_offers_every_verb_a_running_swarm_takes() -> None:
-    # arm, swap, hold and control wait or need code: a mission's and the API's; plan_upload and plan_start are
-    # decoded against the running swarm (tests/integration/test_qgc_plan_fly.py sends them)
-    offered = {c["cmd"] for c, _ in JSON_CASES} | {"plan_upload", "plan_start"}
-    assert set(DECODERS) == offered
-    assert {r.verb for r in REQUESTS} - set(DECODERS) == {"arm", "swap", "hold", "control"}
+# Each command of the control channel and the verbs it makes; the verbs it leaves out, and why.
+CHANNEL_VERBS: dict[str, set[str]] = {
+    "takeoff": {"takeoff"},
+    "formation": {"formation"},
+    "goto": {"goto"},
+    "flock": {"flock"},
+    "follow": {"follow"},
+    "follow_attached": {"follow_attached"},
+    "pause": {"pause"},
+    "land": {"land"},
+    "rtl": {"rtl"},
+    "behaviour": {"behaviour"},
+    "fault": {"fault", "kill"},  # kind crash: a kill, as every earlier swarm kill sent it
+    "kill": {"kill"},
+    "plan_upload": {"plan_upload"},
+    "plan_start": {"plan_start"},
+    "plan_download": {"plan_download"},
+    "param": {"param"},
+    "attach": {"attach"},
+    "detach": {"detach"},
+    "require": {"require"},
+}
+CHANNEL_LEAVES_OUT = {
+    "arm": "a takeoff arms the drones on the ground first",
+    "swap": "the avoidance stress test, flown from a mission file",
+    "hold": "a wait, for a front-end that waits: the channel answers at once",
+    "control": "a user's controller is Python code, which JSON cannot carry: the API's control()",
+}
+
+
+def test_the_control_channel_offers_every_verb_but_those_it_leaves_out() -> None:
+    assert set(DECODERS) == set(CHANNEL_VERBS), "a command not in CHANNEL_VERBS, or one there too many"
+    _offers_every_verb(CHANNEL_VERBS, CHANNEL_LEAVES_OUT)
+    decoded: dict[str, set[str]] = {"plan_upload": {"plan_upload"}, "plan_start": {"plan_start"}}  # need the swarm
+    for command, expected in JSON_CASES:
+        assert expected.verb in CHANNEL_VERBS[command["cmd"]], command
+        decoded.setdefault(command["cmd"], set()).add(expected.verb)
+    assert decoded == CHANNEL_VERBS, "a verb a command offers without a case above"
     with pytest.raises(ValueError, match="needs the running swarm"):
         decode({"cmd": "plan_start", "drones": "all"}, None)
 
@@ -259,6 +356,49 @@ def test_every_shipped_mission_decodes_into_requests(path: Path) -> None:
         assert planned and all(type(p.request) in VERBS for p in planned)
 
 
+# Each kind of step and the verbs it makes, what else a mission asks and how, and the verbs a mission leaves out.
+STEP_VERBS: dict[type, set[str]] = {
+    mission_file.TakeoffStep: {"takeoff"},
+    mission_file.FormationStep: {"formation", "hold"},
+    mission_file.FlockStep: {"flock", "hold", "behaviour"},  # onboard: the drones' behaviours stopped after it
+    mission_file.FollowStep: {"follow", "hold", "behaviour"},
+    mission_file.FollowAttachedStep: {"follow_attached", "hold"},
+    mission_file.SwapStep: {"swap"},
+    mission_file.HoldStep: {"hold"},
+    mission_file.BehaviourStep: {"behaviour", "hold"},
+    mission_file.PauseStep: {"pause", "hold"},
+    mission_file.LandStep: {"land"},
+    mission_file.RtlStep: {"rtl"},
+    mission_file.PlanStep: {"plan_upload", "plan_start"},  # decoded when reached (where each drone spawned)
+    mission_file.FaultStep: {"fault"},  # decoded when due (fault = "crash" too: the fault verb's crash)
+}
+MISSION_ALSO: dict[str, set[str]] = {
+    "before the first step": {"arm"},
+    "[swarm] params, [swarm.drone.N] params": {"param"},
+    "[[invariants]]": {"require"},
+    "--attach": {"attach"},  # verbs.attach_all, before the drones start
+}
+MISSION_LEAVES_OUT = {
+    "goto": "a formation step says where the formation is (its centre)",
+    "kill": "a fault step of kind crash is the kill (the fault verb's crash)",
+    "plan_download": "a mission flies plans; swarm plan download reads one back",
+    "detach": "an attached vehicle stays for the mission",
+    "control": "a user's controller is Python code: the API's control()",
+}
+
+
+def test_a_mission_offers_every_verb_but_those_it_leaves_out() -> None:
+    assert set(STEP_VERBS) == set(typing.get_args(mission_file.Step)), "a kind of step not in STEP_VERBS"
+    _offers_every_verb({**STEP_VERBS, **MISSION_ALSO}, MISSION_LEAVES_OUT)
+    # and the runner makes exactly those requests (gcs/supervisor/mission_runner.py, step_requests and its own)
+    tree = ast.parse((ROOT / "gcs/supervisor/mission_runner.py").read_text())
+    made = {getattr(rq, call.func.attr).verb for call in ast.walk(tree) if isinstance(call, ast.Call)
+            and isinstance(call.func, ast.Attribute) and isinstance(call.func.value, ast.Name)
+            and call.func.value.id == "rq"}  # fmt: skip
+    attaches = any(isinstance(n, ast.Name) and n.id == "attach_all" for n in ast.walk(tree))
+    assert made | ({"attach"} if attaches else set()) == set().union(*STEP_VERBS.values(), *MISSION_ALSO.values())
+
+
 def test_each_kind_of_step_decodes_to_its_verbs() -> None:
     """Every kind of step a mission file has, with the verbs it makes; a new kind without its decoding fails."""
     formation = GridSpec(rows=1, cols=2, spacing_m=2.0, alt_m=3.0)
@@ -288,6 +428,7 @@ def test_each_kind_of_step_decodes_to_its_verbs() -> None:
     for kind, (step, verbs) in cases.items():
         planned = step_requests(step, [7, 8, 9])
         assert [(p.request.verb, p.wait) for p in planned] == verbs, kind
+        assert {verb for verb, _ in verbs} <= STEP_VERBS[kind], kind
     timed = step_requests(mission_file.FollowStep(name="f", spec=follow, leader_drone=2, duration_s=4.0), [7, 8, 9])
     assert [(p.request.verb, p.wait) for p in timed] == [("follow", False), ("hold", True)]
     assert typing.cast(rq.Follow, timed[0].request).spec.leader_sysid == 8  # drone 2 of the swarm
@@ -363,14 +504,48 @@ def test_the_api_decodes_each_call_to_its_request(
     assert engine.asked == [(expected, wait)]
 
 
-def test_every_api_call_that_flies_is_a_request() -> None:
-    flying = {name for name in ("takeoff", "formation", "flock", "follow", "control", "start_behaviours",
-                                "stop_behaviours", "require", "sleep", "pause", "land", "return_to_launch", "set_param",
-                                "inject_fault", "kill")}  # fmt: skip
+# Each public method of both faces and the verb it asks; the methods that are not verbs; the verbs left out, and why.
+API_VERBS: dict[str, set[str]] = {
+    "takeoff": {"takeoff"},
+    "formation": {"formation"},
+    "flock": {"flock"},
+    "follow": {"follow"},
+    "control": {"control"},
+    "start_behaviours": {"behaviour"},
+    "stop_behaviours": {"behaviour"},
+    "require": {"require"},
+    "sleep": {"hold"},
+    "pause": {"pause"},
+    "land": {"land"},
+    "return_to_launch": {"rtl"},
+    "set_param": {"param"},
+    "inject_fault": {"fault"},
+    "kill": {"kill"},
+}
+API_NOT_VERBS = {"start", "close", "events", "wait_until", "drones"}  # the session's own, and reading the drones
+API_LEAVES_OUT = {
+    "arm": "takeoff() arms the drones on the ground first",
+    "goto": "formation() flies a formation anew wherever its spec centres it",
+    "swap": "the avoidance stress test, flown from a mission file",
+    "follow_attached": "an attached leader is followed by a controller of the user's own (control()) or a mission",
+    "attach": "LaunchOptions.attach, before the drones start",
+    "detach": "an attached vehicle stays for the session",
+    "plan_upload": "QGroundControl plans are flown from a mission or swarm plan; a script flies its own path",
+    "plan_start": "as plan_upload",
+    "plan_download": "as plan_upload",
+}
+
+
+def test_every_api_call_that_flies_offers_its_verb_and_the_api_every_verb_but_those_it_leaves_out() -> None:
     for face in (Session, BlockingSession):
         public = {n for n, f in inspect.getmembers(face, inspect.isfunction) if not n.startswith("_")}
-        assert flying <= public and flying == {c[0] for c in API_CASES}
-        assert public - flying <= {"start", "close", "events", "wait_until", "drones"}, public - flying
+        assert public - API_NOT_VERBS == set(API_VERBS), (face, public - API_NOT_VERBS ^ set(API_VERBS))
+    _offers_every_verb(API_VERBS, API_LEAVES_OUT)
+    decoded: dict[str, set[str]] = {}
+    for method, _args, _kwargs, expected, _wait in API_CASES:
+        assert expected.verb in API_VERBS[method], method
+        decoded.setdefault(method, set()).add(expected.verb)
+    assert decoded == API_VERBS, "a verb an API call offers without a case above"
 
 
 # ---- nothing written beside the verbs ------------------------------------------------------------------------------
