@@ -19,6 +19,7 @@ from collections.abc import Mapping
 from typing import Final
 
 from gcs.fleet.harness import SimulationHarness, SpawnPlan
+from swarmcommon.cpus import RunQueue, look_again
 
 # A lockstep frame: how far the drones fly on each time every one of them stands at the gate. The supervisor handles
 # what they sent up to one gate while they fly to the next, and its answer is read at that next gate, so this is
@@ -59,10 +60,16 @@ class SwarmClock:
         self._next_exit_check = 0.0
         self._drones = 0
         self._gate_selector = selectors.DefaultSelector()  # lockstep: woken by the drones reaching the gate
+        self._run_queue = RunQueue()  # lockstep: whether a CPU is idle, so that looking again costs nobody
+        self._looks_again = False  # lockstep, every drone in one process: look again before sleeping at the gate
 
     def start(self, drones: int) -> None:
         """The drones are launched: paced time starts now, the lockstep gate runs (in lockstep)."""
         self._drones = drones
+        # One process holds every drone: it and the supervisor wait for each other at every gate, so the supervisor
+        # looks again before it sleeps. With several, the drones' processes wait for each other at every step and a
+        # supervisor looking again would take the CPU of the one finishing last.
+        self._looks_again = self.plan.lockstep and len(set(self.harness.process_ids().values())) == 1
         self._wall_t0 = time.monotonic()
         self._wake_fd = self.harness.wake_fileno()
         if self._wake_fd is not None:
@@ -84,6 +91,8 @@ class SwarmClock:
         if target_s is None:
             return
         target = target_s - 1e-9
+        if self._looks_again:  # while a CPU is idle (``start`` says when): its wake-up is on every frame's path
+            look_again(lambda: self.harness.lockstep_time_s() >= target, self._run_queue)
         while (now := self.harness.lockstep_time_s()) < target and len(self.harness.ended()) < self._drones:
             self._check_members(now)
             if self._gate_selector.select(LOCKSTEP_MAX_WAIT_S) and self._wake_fd is not None:
@@ -132,6 +141,7 @@ class SwarmClock:
             self._gate_selector.unregister(self._wake_fd)
             self._wake_fd = None
         self._gate_selector.close()
+        self._run_queue.close()
 
 
 def _consume(fd: int) -> None:

@@ -141,6 +141,13 @@ class LockstepMember:
             if wake_gate:
                 self._waker.wake_gate()
 
+    def alone(self) -> bool | None:
+        """Whether this member holds every row in the lockstep (one process hosts the whole swarm); None before the
+        gate has opened, when others may not have joined yet (the gate opens only once every drone has)."""
+        if self._header[GATE_OPEN] != 1.0:
+            return None
+        return int(np.count_nonzero(np.isfinite(self._steps))) <= len(self._rows)
+
     def drop(self, instance: int) -> None:
         """Row ``instance`` no longer advances (its hosted drone ended): it holds nobody back from now on."""
         self._rows = self._rows[self._rows != instance]

@@ -81,6 +81,25 @@ def test_a_member_that_leaves_or_is_removed_holds_nobody_back() -> None:
         world.close()
 
 
+def test_a_member_knows_whether_it_holds_the_whole_lockstep_once_the_gate_has_opened() -> None:
+    # (a member alone looks again before it sleeps, while a CPU is idle: sitl/process/runtime.py LockstepSteps.wait)
+    world = SharedWorld.create()
+    try:
+        gate = LockstepGate(world, DT_S)
+        host = LockstepMember(world, [0, 1])  # one process hosting two drones
+        host.join()
+        assert host.alone() is None  # before the gate opens another member may still join
+        gate.open_until(0.01)
+        assert host.alone() is True
+        other = LockstepMember(world, 2)
+        other.join()
+        assert host.alone() is False
+        other.leave()
+        assert host.alone() is True
+    finally:
+        world.close()
+
+
 def test_the_member_that_completes_the_common_step_wakes_the_one_waiting_for_it() -> None:
     world = SharedWorld.create()
     try:
