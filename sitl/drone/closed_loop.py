@@ -32,13 +32,6 @@ from sitl.sensors.models import GpsSample, SensorConfig, SensorSuite
 # a hobby quadrotor's gear does not survive without damage. A quad that loses a rotor in a 3 m hover lands at ~6 m/s.
 GROUND_IMPACT_SPEED_MPS = 3.0
 
-# The parts of one physics step in this many are timed (``ClosedLoop.control_ns``, ``physics_ns``), and count for all of
-# them. A swarm drone times itself on its thread's CPU clock, a system call of 0.5 us here, and three reads a step were
-# a sixth of a host's time at 50 drones (py-spy, swarm bench). A period prime to the step patterns (ticks every 3
-# steps, barometer and magnetometer every 5, the GPS every 25) samples every phase of them alike, so the split stays
-# unbiased: every step of a 75-step cycle is timed once in 600 steps (2.4 s).
-PART_TIMING_PERIOD_STEPS = 8
-
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SimConfig:
@@ -82,7 +75,6 @@ class ClosedLoop:
         self._k_q = config.airframe.torque_coeff_nm_per_radps2
         self.control_ns = 0  # sensors, estimator, autopilot and cascade
         self.physics_ns = 0  # JSBSim, wind, battery
-        self._untimed_steps = 0  # steps before the next timed one (PART_TIMING_PERIOD_STEPS)
         # The clock the parts are timed with: monotonic by default (a read costs ~40 ns); a drone in a swarm uses its
         # thread's CPU clock instead (~0.4 us a read), because with more drones than cores a monotonic clock also
         # counts the time a drone waits for a CPU, charged to whichever part it was preempted in (sitl/process/app.py).
@@ -103,14 +95,10 @@ class ClosedLoop:
 
         A step without a GPS sample samples the sensors and steps the estimator in one compiled call, which between
         ticks runs the inner loops too (``_compiled_step``); the others go through the parts' shells. The two halves
-        are timed (``control_ns``, ``physics_ns``) with ``part_clock_ns`` on one step in PART_TIMING_PERIOD_STEPS, so
-        benchmarks can say where a drone's time goes without a profiler's distortion."""
-        timed = self._untimed_steps == 0
-        if timed:
-            self._untimed_steps = PART_TIMING_PERIOD_STEPS - 1
-            t0 = self.part_clock_ns()
-        else:
-            self._untimed_steps -= 1
+        are timed (``control_ns``, ``physics_ns``) with ``part_clock_ns`` so benchmarks can say where a drone's time
+        goes without a profiler's distortion."""
+        clock = self.part_clock_ns
+        t0 = clock()
         motors = self._compiled_step()
         if motors is None:
             readings = self.sensors.sample(self.truth)
@@ -118,8 +106,7 @@ class ClosedLoop:
                 self.last_gps = readings.gps
             self.estimate = self.estimator.update(readings, self.time_s, self.dt_s)
             motors = self.vehicle.step(self.estimate, self.time_s, self.dt_s)
-        if timed:
-            t1 = self.part_clock_ns()
+        t1 = clock()
         if not self.wind.calm:
             self.plant.set_wind(self.wind.update(self.dt_s))
         before = self.truth
@@ -132,10 +119,9 @@ class ClosedLoop:
             power_w += w * w * w
         power_w *= self._k_q
         self.battery.update(power_w, self.dt_s)
-        if timed:
-            t2 = self.part_clock_ns()
-            self.control_ns += (t1 - t0) * PART_TIMING_PERIOD_STEPS
-            self.physics_ns += (t2 - t1) * PART_TIMING_PERIOD_STEPS
+        t2 = clock()
+        self.control_ns += t1 - t0
+        self.physics_ns += t2 - t1
         return self.truth
 
     def _compiled_step(self) -> tuple[float, ...] | None:
