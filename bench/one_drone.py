@@ -112,7 +112,7 @@ def closed_loop_breakdown(sim_seconds: float, mpc_loop_hz: float | None = None) 
         return wrapper
 
     # Instance attributes shadow the methods for this one simulation only.
-    cascade.update = timed(cascade.update)  # type: ignore[method-assign,assignment]
+    cascade.fly = timed(cascade.fly)  # type: ignore[method-assign,assignment]
     cascade.update_attitude = timed(cascade.update_attitude)  # type: ignore[method-assign,assignment]
     k_q = sim.config.airframe.torque_coeff_nm_per_radps2
     dt_s = sim.dt_s

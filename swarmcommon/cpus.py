@@ -14,6 +14,7 @@ from typing import Final
 # halt at once a wake-up costs 0.5 ms (docs/benchmarks.md, "What the machine charges for sleeping"): more than a frame
 # of one drone's work. Looking again is free only while a CPU would otherwise be idle (``RunQueue``).
 LOOK_AGAIN_S: Final = 0.001
+LOADAVG: Final = "/proc/loadavg"
 
 
 def usable_cpus() -> int:
@@ -29,10 +30,10 @@ class RunQueue:
     counts the caller) than this process may use CPUs. The file is kept open and read again at offset 0 (1.5 us).
     Without it (not Linux) every CPU counts as taken, so nobody looks again."""
 
-    def __init__(self) -> None:
+    def __init__(self, path: str = LOADAVG) -> None:
         self._cpus = usable_cpus()
         try:
-            self._fd: int | None = os.open("/proc/loadavg", os.O_RDONLY)
+            self._fd: int | None = os.open(path, os.O_RDONLY)
         except OSError:
             self._fd = None
 

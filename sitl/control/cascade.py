@@ -116,6 +116,7 @@ def _row(v: VecLike) -> npt.NDArray[np.float64]:
 
 
 def _heading_row(config: HeadingConfig) -> npt.NDArray[np.float64]:
+    """The heading rule as the outer loops' kernel takes it (sitl/kernels/cascade.py ``HD_*``)."""
     row = np.empty(ck.HEADING_SIZE)
     row[ck.HD_FOLLOW] = 1.0 if config.follow_travel else 0.0
     row[ck.HD_RATE_MAX] = config.follow_rate_max_radps
@@ -152,8 +153,7 @@ class Cascade:
         # The setpoint the outer loops fly, as a row (rewritten when another setpoint object arrives).
         self._sp_row = np.zeros(ck.SETPOINT_SIZE)
         self._sp_of_row: TrajectorySetpoint | None = None
-        self.heading = heading_config(params)
-        self._heading_row = _heading_row(self.heading)
+        self._heading_row = _heading_row(heading_config(params))
         self._params_version = params.version
         self._outer_period_s = outer_loop_period_s(params)
         self.reset()
@@ -211,8 +211,7 @@ class Cascade:
         self.velocity.config = velocity_config(store, self.airframe)
         self.attitude.config = attitude_config(store)
         self.rate.config = rate_config(store, self.airframe)
-        self.heading = heading_config(store)
-        self._heading_row = _heading_row(self.heading)
+        self._heading_row = _heading_row(heading_config(store))
         self._outer_period_s = outer_loop_period_s(store)
         self._outer_held = False  # a new gain takes effect at the next step in the outer loops too
 

@@ -4,6 +4,7 @@ never does so while another task waits for a CPU, and gives up after its budget.
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 from swarmcommon.cpus import RunQueue, look_again, usable_cpus
 
@@ -12,7 +13,7 @@ class _Queue(RunQueue):
     """A run queue whose answer the test sets, and counts how often it was asked."""
 
     def __init__(self, crowded: bool) -> None:
-        super().__init__()
+        super().__init__(path="/nonexistent/loadavg")  # nothing opened: the answer is the test's
         self.is_crowded = crowded
         self.asked = 0
 
@@ -21,15 +22,26 @@ class _Queue(RunQueue):
         return self.is_crowded
 
 
-def test_the_run_queue_reads_the_machine() -> None:
-    queue = RunQueue()
+def _queue_reading(tmp_path: Path, name: str, line: str) -> RunQueue:
+    loadavg = tmp_path / name
+    loadavg.write_text(line)
+    return RunQueue(path=str(loadavg))
+
+
+def test_the_run_queue_counts_the_runnable_tasks_against_this_process_cpus(tmp_path: Path) -> None:
+    cpus = usable_cpus()
+    fits = _queue_reading(tmp_path, "fits", f"0.42 1.42 1.78 {cpus}/110 19598\n")
+    over = _queue_reading(tmp_path, "over", f"0.42 1.42 1.78 {cpus + 1}/110 19598\n")
+    garbled = _queue_reading(tmp_path, "garbled", "not a load average\n")
     try:
-        # the caller itself is runnable; on a machine with this many CPUs the answer is a boolean either way
-        assert isinstance(queue.crowded(), bool)
-        assert usable_cpus() >= 1
+        assert not fits.crowded()  # as many runnable (the caller among them) as CPUs: none waits
+        assert over.crowded()  # one more: a task waits for a CPU
+        assert garbled.crowded()  # unreadable: every CPU counts as taken
     finally:
-        queue.close()
-    assert queue.crowded()  # closed: every CPU counts as taken
+        for queue in (fits, over, garbled):
+            queue.close()
+    assert fits.crowded()  # closed, too
+    assert RunQueue(path="/nonexistent/loadavg").crowded()  # none to read (not Linux)
 
 
 def test_looking_again_ends_when_the_condition_holds() -> None:
