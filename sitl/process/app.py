@@ -6,7 +6,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 
-from sitl.process.drone import Drone, DroneLogRouter, build_drone, cpu_clock
+from sitl.process.drone import Drone, DroneLogRouter, HostShare, build_drone, cpu_clock
 from sitl.process.runtime import LockstepSteps, RunOptions, StepClock, StopFlag, run_loop
 from sitl.process.specs import DroneSpec, ProcessSpec
 from sitl.world.lockstep import LockstepMember
@@ -29,8 +29,9 @@ def run(specs: Sequence[DroneSpec], common: ProcessSpec) -> int:
     world: SharedWorld | None = None
     clock: StepClock | None = None
     try:
+        share = HostShare() if len(specs) > 1 else None
         for spec in specs:
-            drones.append(build_drone(spec, common, clock_ns=clock_ns))
+            drones.append(build_drone(spec, common, clock_ns=clock_ns, share=share))
         if common.lockstep and common.world_name is not None:
             world = SharedWorld.attach(common.world_name)
             clock = LockstepSteps(LockstepMember(world, [d.instance for d in drones], common.lockstep_quantum))

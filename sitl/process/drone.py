@@ -15,7 +15,7 @@ import sys
 import time
 import traceback
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
 
@@ -28,7 +28,8 @@ from sitl.onboard.runner import OnboardRunner
 from sitl.process.mavlink_io import MavlinkEndpoint
 from sitl.process.specs import DroneSpec, ProcessSpec
 from sitl.protocol import Identity
-from sitl.protocol.neighbours import NeighbourTable
+from sitl.protocol.framing import FrameMemo
+from sitl.protocol.neighbours import NeighbourTable, SharedReports
 from sitl.protocol.signing import SIGN_ALWAYS, SIGN_CFG_PARAM, key_id
 from sitl.world.linkmodel import drone_channels
 from sitl.world.mesh import MeshMedium, MeshRadio
@@ -100,10 +101,22 @@ class DroneParts:
     onboard: OnboardRunner | None
 
 
-def build_drone(spec: DroneSpec, common: ProcessSpec, *, clock_ns: Callable[[], int]) -> Drone:
+@dataclass(frozen=True, slots=True)
+class HostShare:
+    """What the drones of one process decode once for all of them: the relayed position frames their links receive
+    alike, and the neighbour records made of them. Only a process of several drones has one: alone, a drone would
+    keep what nobody else reads."""
+
+    frames: FrameMemo = field(default_factory=FrameMemo)
+    reports: SharedReports = field(default_factory=SharedReports)
+
+
+def build_drone(
+    spec: DroneSpec, common: ProcessSpec, *, clock_ns: Callable[[], int], share: HostShare | None = None
+) -> Drone:
     """One drone from its spec, every part built and wired here, in the order each needs the others: the closed
     loop, its place in the shared world, the neighbour table, the mesh radio, the onboard behaviour, the cameras,
-    and the MAVLink links that serve them all."""
+    and the MAVLink links that serve them all; ``share``: its host's, when it has companions."""
     output = DroneOutput(spec.instance, spec.log_path)
 
     def say(text: str) -> None:
@@ -148,7 +161,7 @@ def build_drone(spec: DroneSpec, common: ProcessSpec, *, clock_ns: Callable[[], 
         sim.params.set(SIGN_CFG_PARAM, SIGN_ALWAYS)
     linked = bool(spec.links)
     # One neighbour table, fed by whichever link the relayed positions arrive on and by the mesh radio.
-    neighbours = NeighbourTable(identity.sysid) if linked else None
+    neighbours = NeighbourTable(identity.sysid, share.reports if share is not None else None) if linked else None
     # The drone-to-drone mesh: a radio on the shared world's medium (sitl/world/mesh.py), heard after every step.
     mesh = (
         MeshRadio(MeshMedium(world, spec.instance), common.mesh, common.links.neighbour, seed=spec.seed,
@@ -181,6 +194,7 @@ def build_drone(spec: DroneSpec, common: ProcessSpec, *, clock_ns: Callable[[], 
             camera=awareness.image,  # MAVLink image requests: what the cameras see now
             on_named_value=onboard.receive if onboard is not None else None, mesh=mesh,
             channels=drone_channels(common.links, seed=spec.seed) if impaired else None,
+            memo=share.frames if share is not None else None,
         )
         if linked
         else None

@@ -76,11 +76,13 @@ def reset_parser(parser: mavlink.MAVLink) -> None:
 class UdpLink:
     def __init__(
         self, config: LinkConfig, identity: Identity, services: LinkServices, *, signing: SigningState | None = None,
-        link_id: int = 0,
+        link_id: int = 0, memo: framing.FrameMemo | None = None,
     ) -> None:  # fmt: skip
         """``signing``: the drone's signing state (its key signs what this link sends); ``link_id``: this link's
-        id in the signatures (PX4 uses its MAVLink instance number)."""
+        id in the signatures (PX4 uses its MAVLink instance number); ``memo``: the frames the host's drones receive
+        alike, parsed once (sitl/protocol/framing.py ``FrameMemo``)."""
         self.config = config
+        self._memo = memo
         self.services = services
         self.signing = signing
         self.link_id = link_id
@@ -145,7 +147,7 @@ class UdpLink:
                 self.from_remote += 1
             # The common datagram (relayed positions, setpoints, heartbeats) is parsed by precomputed layouts;
             # anything else goes to pymavlink's parser, as every datagram used to.
-            messages = framing.parse_datagram(data)
+            messages = framing.parse_datagram(data, self._memo)
             if messages is not None:
                 self.received += len(messages)
                 out.extend(messages)
@@ -248,12 +250,13 @@ class MavlinkEndpoint:
         self, identity: Identity, vehicle: VehicleApi, params: ParamStore, links: list[LinkConfig], *,
         signing_key: bytes | None = None, neighbours: NeighbourTable | None = None, camera: ImageSource | None = None,
         on_named_value: Callable[[GroundMessage], None] | None = None, mesh: MeshRadio | None = None,
-        channels: dict[tuple[LinkClass, Direction], LinkChannel] | None = None,
+        channels: dict[tuple[LinkClass, Direction], LinkChannel] | None = None, memo: framing.FrameMemo | None = None,
     ) -> None:  # fmt: skip
         """``signing_key``: sign everything sent with it from boot (SETUP_SIGNING may install one later);
         ``neighbours``: the drone's neighbour table (its own, when not given); ``camera``: what the drone's cameras
         see, for image requests; ``on_named_value``: where a NAMED_VALUE_FLOAT sent to the drone goes (an onboard
-        behaviour); ``mesh``: the drone's mesh radio (``attach_mesh``); ``channels``: the link model's (``impair``)."""
+        behaviour); ``mesh``: the drone's mesh radio (``attach_mesh``); ``channels``: the link model's (``impair``);
+        ``memo``: the frames the host's drones receive alike (``UdpLink``)."""
         self.links: list[UdpLink] = []
         self._vehicle = vehicle
         # One key and one set of incoming streams for all links, as PX4 keeps them; MAV_SIGN_CFG says whether
@@ -289,7 +292,7 @@ class MavlinkEndpoint:
                 feed = NeighbourFeed(self.neighbours, RELAY if link_class_of(config) == "gcs" else LINK)
                 services = LinkServices(identity, vehicle, params, neighbours=feed, share=self._share,
                                         images=self._camera_image)  # fmt: skip
-                self.links.append(UdpLink(config, identity, services, signing=self.signing, link_id=link_id))
+                self.links.append(UdpLink(config, identity, services, signing=self.signing, link_id=link_id, memo=memo))
         except LinkError:
             self.close()
             raise

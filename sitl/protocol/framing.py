@@ -20,6 +20,10 @@ sitl/protocol/signing.py to check, not checked here), and builds the objects pym
 (fields, header, buffer, payload, CRC). Anything else (MAVLink 1, other incompatibility flags, an unknown id, text or
 array fields, a bad CRC, a truncated frame, garbage) returns None and the caller hands the whole datagram to
 pymavlink, so every unusual input is treated exactly as before.
+
+Drones hosted by one process receive the same relayed position frames: the supervisor's relay forwards each report
+byte for byte to every drone it matters to. A ``FrameMemo`` shared by the host's links parses such a frame once and
+hands every drone the same message object (messages are read, never changed, by the services that take them).
 """
 
 from __future__ import annotations
@@ -146,9 +150,39 @@ def layout_of(msg: MAVLinkMessage) -> Layout | None:
     return _BY_CLASS.get(type(msg))
 
 
-def parse_datagram(data: bytes) -> list[MAVLinkMessage] | None:
+# Frames a host's drones receive alike: the relay's position reports.
+SHARED_IDS: Final = frozenset({mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT})
+# Frames a memo keeps before it starts again: a host reads each report within a pass or two, so a few hundred cover
+# a crowd's 10 Hz reports while bounding what is kept (the message objects, about a kilobyte each).
+FRAME_MEMO_SIZE: Final = 512
+
+
+class FrameMemo:
+    """The messages parsed from frames a host's drones receive alike (``SHARED_IDS``), by the frame's bytes (header,
+    payload, CRC and signature: equal bytes, equal message). Emptied whole when full."""
+
+    __slots__ = ("_messages", "hits")
+
+    def __init__(self) -> None:
+        self._messages: dict[bytes, MAVLinkMessage] = {}
+        self.hits = 0
+
+    def get(self, frame: bytes) -> MAVLinkMessage | None:
+        msg = self._messages.get(frame)
+        if msg is not None:
+            self.hits += 1
+        return msg
+
+    def put(self, frame: bytes, msg: MAVLinkMessage) -> None:
+        if len(self._messages) >= FRAME_MEMO_SIZE:
+            self._messages.clear()
+        self._messages[frame] = msg
+
+
+def parse_datagram(data: bytes, memo: FrameMemo | None = None) -> list[MAVLinkMessage] | None:
     """The messages of a datagram made only of well-formed MAVLink 2 frames this module lays out; None when any
-    part of it is anything else (then the datagram is for pymavlink's parser)."""
+    part of it is anything else (then the datagram is for pymavlink's parser). With a ``memo``, a frame of
+    ``SHARED_IDS`` another drone of the host received already gives that drone's message object."""
     out: list[MAVLinkMessage] = []
     end = len(data)
     i = 0
@@ -165,6 +199,14 @@ def parse_datagram(data: bytes) -> list[MAVLinkMessage] | None:
         frame_end = crc_end + SIGNATURE_LEN if signed else crc_end
         if layout is None or frame_end > end:
             return None
+        key = None
+        if memo is not None and layout.msg_id in SHARED_IDS:
+            key = data[i:frame_end]
+            known = memo.get(key)
+            if known is not None:
+                out.append(known)
+                i = frame_end
+                continue
         crc = _CRC.unpack_from(data, crc_end - 2)[0]
         if crc_x25(data[i + 1 : crc_end - 2] + bytes((layout.crc_extra,)), 0xFFFF) != crc:
             return None
@@ -175,12 +217,15 @@ def parse_datagram(data: bytes) -> list[MAVLinkMessage] | None:
         wire = layout.payload.unpack(payload + bytes(size - mlen))
         msg = layout.cls(*[wire[k] for k in layout.wire_to_args])
         # What pymavlink's decode sets (its payload slice starts at 6 even for MAVLink 2: kept as it is).
-        msgbuf = bytearray(data[i:frame_end])
+        msgbuf = bytearray(data[i:frame_end] if key is None else key)
         msg._signed = False  # pymavlink's parser without a key says the same of a signed frame: it checked nothing
         msg._msgbuf = msgbuf
         msg._payload = msgbuf[6 : crc_end - i - 2]
         msg._crc = crc
         msg._header = mavlink.MAVLink_header(layout.msg_id, incompat, compat, mlen, seq, sysid, compid)
+        if key is not None:
+            assert memo is not None
+            memo.put(key, msg)
         out.append(msg)
         i = frame_end
     return out

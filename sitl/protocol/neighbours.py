@@ -25,6 +25,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from sitl.mathutil import fast_constructor
 from sitl.protocol.core import Effect, MAVLinkMessage, PeerInputError, check_now, read_int, source_of
+from sitl.protocol.framing import FRAME_MEMO_SIZE
 
 NEIGHBOUR_TIMEOUT_S: Final = 3.0
 
@@ -145,6 +146,60 @@ def _traffic_fields(msg: MAVLinkMessage) -> tuple[int, int, int, int, float, flo
     return icao, lat, lon, alt, vn, ve, vd, tslc
 
 
+def neighbour_of(msg: MAVLinkMessage, now_s: float, source: NeighbourSource) -> Neighbour | None:
+    """The record a GLOBAL_POSITION_INT or an ADSB_VEHICLE makes, arriving at ``now_s`` from ``source``; None for
+    one that says nothing usable (a field missing or out of range, traffic without a position). Whether the table
+    takes it (its own report, an older one) is the table's to say."""
+    if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_ADSB_VEHICLE:
+        try:
+            fields = _traffic_fields(msg)
+        except PeerInputError:
+            return None
+        if fields is None:
+            return None
+        icao, lat, lon, alt, vn, ve, vd, tslc = fields
+        return _new_neighbour(sysid=icao, lat_deg=lat * 1e-7, lon_deg=lon * 1e-7, alt_amsl_m=alt * 1e-3,
+                              vel_ned_mps=(vn, ve, vd), sender_time_s=now_s - tslc, received_s=now_s, source=source,
+                              cooperative=False, stale_s=float(tslc))  # fmt: skip
+    try:
+        sender = source_of(msg).sysid
+        # Not plain ints in range: the field-by-field checks say which, or accept what they accept.
+        lat, lon, alt, vx, vy, vz, boot_ms = _plain_fields(msg) or _checked_fields(msg)
+    except PeerInputError:
+        return None
+    return _new_neighbour(sysid=sender, lat_deg=lat * 1e-7, lon_deg=lon * 1e-7, alt_amsl_m=alt * 1e-3,
+                          vel_ned_mps=(vx * 0.01, vy * 0.01, vz * 0.01), sender_time_s=boot_ms * 1e-3,
+                          received_s=now_s, source=source, cooperative=True, stale_s=0.0)  # fmt: skip
+
+
+class SharedReports:
+    """The neighbour records the drones of one process make alike, made once (``neighbour_of``).
+
+    The relay forwards each report byte for byte to every drone it matters to, the host's links parse equal frames
+    into one message object (sitl/protocol/framing.py ``FrameMemo``), and the host's drones read their sockets at one
+    simulated time: so each of them would make the same record of it. Each table still decides for itself whether
+    to take it. Emptied whole when full, as the frame memo."""
+
+    __slots__ = ("_records", "hits")
+
+    def __init__(self) -> None:
+        # by the message's identity (the entry keeps the message, so the identity stays its own), time and source
+        self._records: dict[tuple[int, float, NeighbourSource], tuple[MAVLinkMessage, Neighbour | None]] = {}
+        self.hits = 0
+
+    def record(self, msg: MAVLinkMessage, now_s: float, source: NeighbourSource) -> Neighbour | None:
+        key = (id(msg), now_s, source)
+        known = self._records.get(key)
+        if known is not None and known[0] is msg:
+            self.hits += 1
+            return known[1]
+        report = neighbour_of(msg, now_s, source)
+        if len(self._records) >= FRAME_MEMO_SIZE:
+            self._records.clear()
+        self._records[key] = (msg, report)
+        return report
+
+
 class NeighbourTable:
     """One table per drone: GLOBAL_POSITION_INT from other systems updates it, each link through its own
     ``NeighbourFeed`` (the source it counts as), the mesh radio through ``receive`` with ``source=MESH``.
@@ -157,8 +212,10 @@ class NeighbourTable:
         {mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, mavlink.MAVLINK_MSG_ID_ADSB_VEHICLE}
     )
 
-    def __init__(self, own_sysid: int) -> None:
+    def __init__(self, own_sysid: int, shared: SharedReports | None = None) -> None:
+        """``shared``: the records of the process's other drones, when it hosts several (``SharedReports``)."""
         self.own_sysid = own_sysid
+        self._shared = shared
         self._entries: dict[int, Neighbour] = {}
         # No entry arrived before this time (a lower bound: an entry refreshed later only makes it older than need
         # be): while it is within the timeout of now, nothing can have expired and ``poll`` need not look. Polled at
@@ -179,53 +236,27 @@ class NeighbourTable:
     def receive(self, msg: MAVLinkMessage, now_s: float, source: NeighbourSource) -> None:
         """A neighbour's report, from ``source``; taken when it is newer than the entry it would replace."""
         now_s = check_now(now_s)
-        if msg.get_msgId() == mavlink.MAVLINK_MSG_ID_ADSB_VEHICLE:
-            self._traffic(msg, now_s, source)
-            return
-        try:
-            sender = source_of(msg).sysid
-            if sender == self.own_sysid:
-                return
-            # Not plain ints in range: the field-by-field checks say which, or accept what they accept.
-            lat, lon, alt, vx, vy, vz, boot_ms = _plain_fields(msg) or _checked_fields(msg)
-        except PeerInputError:
-            return
-        self._take(sender, boot_ms * 1e-3, now_s, source, lat * 1e-7, lon * 1e-7, alt * 1e-3,
-                   (vx * 0.01, vy * 0.01, vz * 0.01), cooperative=True)  # fmt: skip
+        shared = self._shared
+        report = shared.record(msg, now_s, source) if shared is not None else neighbour_of(msg, now_s, source)
+        if report is not None and report.sysid != self.own_sysid:
+            self._take(report)
 
-    def _traffic(self, msg: MAVLinkMessage, now_s: float, source: NeighbourSource) -> None:
-        """An ADSB_VEHICLE: traffic, taken when newer than its entry (its time is its arrival less its ``tslc``)."""
-        try:
-            fields = _traffic_fields(msg)
-        except PeerInputError:
-            return
-        if fields is None:
-            return
-        icao, lat, lon, alt, vn, ve, vd, tslc = fields
-        if icao != self.own_sysid:
-            self._take(icao, now_s - tslc, now_s, source, lat * 1e-7, lon * 1e-7, alt * 1e-3, (vn, ve, vd),
-                       cooperative=False, stale_s=float(tslc))  # fmt: skip
-
-    def _take(self, sysid: int, sender_time_s: float, now_s: float, source: NeighbourSource, lat_deg: float,
-              lon_deg: float, alt_amsl_m: float, vel_ned_mps: tuple[float, float, float], *,
-              cooperative: bool, stale_s: float = 0.0) -> None:  # fmt: skip
+    def _take(self, report: Neighbour) -> None:
         """A report into the table, unless its entry holds one sent as late or later (a copy, or overtaken). Traffic
         comes only from the ground station, one report per vehicle at a time and never a copy: each replaces its
         entry (a vehicle it no longer hears is reported again where it was last known, its ``tslc`` whole seconds
         growing, so its time may step back by a fraction of a second)."""
-        known = self._entries.get(sysid)
-        if (known is not None and cooperative and sender_time_s <= known.sender_time_s
+        now_s = report.received_s
+        known = self._entries.get(report.sysid)
+        if (known is not None and report.cooperative and report.sender_time_s <= known.sender_time_s
                 and known.age_s(now_s) <= NEIGHBOUR_TIMEOUT_S):  # fmt: skip
             self.stale += 1
             return
-        self._entries[sysid] = _new_neighbour(sysid=sysid, lat_deg=lat_deg, lon_deg=lon_deg, alt_amsl_m=alt_amsl_m,
-                                              vel_ned_mps=vel_ned_mps, sender_time_s=sender_time_s,
-                                              received_s=now_s, source=source, cooperative=cooperative,
-                                              stale_s=stale_s)  # fmt: skip
+        self._entries[report.sysid] = report
         if now_s < self._oldest_received_s:
             self._oldest_received_s = now_s
         self.updates += 1
-        self._updates[source] += 1
+        self._updates[report.source] += 1
 
     def poll(self, now_s: float) -> list[Effect]:
         now_s = check_now(now_s)

@@ -11,7 +11,8 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.fleet.relay import RELAY_REACH_HORIZON_S, RELAY_REACH_M, NeighbourRelay, RelayScope, relay_matrix
 from gcs.fleet.telemetry import Fleet
-from sitl.protocol.neighbours import NEIGHBOUR_TIMEOUT_S, NeighbourTable
+from sitl.protocol.framing import FRAME_MEMO_SIZE, FrameMemo, parse_datagram
+from sitl.protocol.neighbours import NEIGHBOUR_TIMEOUT_S, RELAY, NeighbourTable, SharedReports
 
 
 def wire(msg: Any, sysid: int) -> Any:
@@ -180,3 +181,42 @@ def test_a_poll_forgets_each_silent_neighbour_as_soon_as_it_is_too_old_and_not_b
     assert sorted(table._entries) == [5]
     table.poll(3.51)
     assert table._entries == {}
+
+
+def test_a_hosts_drones_parse_a_relayed_frame_once_and_each_table_still_judges_it_alone() -> None:
+    """The relay forwards a report byte for byte to every drone of a host: their links parse it into one message, the
+    record is made once, and each table takes it or not as if it were alone (its own report, an older one)."""
+    memo, shared = FrameMemo(), SharedReports()
+    encoder = mavlink.MAVLink(None, srcSystem=2, srcComponent=1)
+    newer = position(473977520, 492000, boot_ms=1100).pack(encoder)
+    older = position(473977420, 491000, boot_ms=1000).pack(encoder)
+    hosted = [NeighbourTable(own_sysid=s, shared=shared) for s in (1, 2, 3)]
+    alone = [NeighbourTable(own_sysid=s) for s in (1, 2, 3)]
+    hosted[2].receive(parse_datagram(newer, memo)[0], 0.5, RELAY)  # the third has the newer report already
+    alone[2].receive(parse_datagram(newer)[0], 0.5, RELAY)
+    parsed = [parse_datagram(older, memo) for _ in hosted]
+    assert all(p is not None and p[0] is parsed[0][0] for p in parsed) and memo.hits == 2
+    for table, messages in zip(hosted, parsed, strict=True):
+        table.receive(messages[0], 1.0, RELAY)
+    for table in alone:
+        table.receive(parse_datagram(older)[0], 1.0, RELAY)
+    assert shared.hits == 2
+    assert [t.entries(1.0) for t in hosted] == [t.entries(1.0) for t in alone]
+    assert [n.sender_time_s for n in hosted[0].entries(1.0)] == [1.0]  # sysid 2's own table skipped its report
+    assert hosted[1].entries(1.0) == [] and hosted[2].entries(1.0)[0].sender_time_s == 1.1
+    assert [t.stale for t in hosted] == [t.stale for t in alone] == [0, 0, 1]
+    # A frame that differs in any byte (here the sequence number) is parsed again.
+    encoder.seq = 200
+    assert parse_datagram(position(473977420, 491000).pack(encoder), memo)[0] is not parsed[0][0]
+
+
+def test_the_memos_start_again_when_full() -> None:
+    memo, shared = FrameMemo(), SharedReports()
+    encoder = mavlink.MAVLink(None, srcSystem=2, srcComponent=1)
+    frames = [position(473977420, 491000, boot_ms=k).pack(encoder) for k in range(FRAME_MEMO_SIZE + 1)]
+    first = parse_datagram(frames[0], memo)[0]
+    shared.record(first, 0.0, RELAY)
+    for frame in frames[1:]:
+        shared.record(parse_datagram(frame, memo)[0], 0.0, RELAY)
+    assert parse_datagram(frames[0], memo)[0] is not first and memo.hits == 0
+    assert shared.record(first, 0.0, RELAY) is not None and shared.hits == 0
