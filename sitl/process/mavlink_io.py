@@ -47,6 +47,7 @@ MAX_LEARNED_PEERS = 8  # a few clients per link; the oldest is forgotten first
 # drone parses would otherwise keep the loop reading for ever, and the drone would stop flying; bounded, the loop
 # steps its physics between reads and the socket buffer drops the excess, as a flooded radio link would.
 MAX_RECEIVE_DATAGRAMS = 64
+_POSITION_REPORT = mavlink.MAVLink_global_position_int_message
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -410,6 +411,11 @@ class MavlinkEndpoint:
     def _handle(self, link: UdpLink, msg: MAVLinkMessage, now_s: float) -> None:
         if self.silenced:
             return  # arrived after the radio died
+        if type(msg) is _POSITION_REPORT and self.signing.key is None:
+            # Most of what a swarm drone receives: without a key the gate admits it, its one service answers
+            # nothing, and it can neither be a behaviour's message nor silence the links.
+            link.services.take_position(msg, now_s)
+            return
         if not self._admitted(link, msg):
             return
         link.send(link.services.handle(msg, now_s))

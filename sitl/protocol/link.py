@@ -194,6 +194,15 @@ class LinkServices:
             out.extend(self.telemetry.state_change_effects(now_s))
         return out
 
+    def take_position(self, msg: MAVLinkMessage, now_s: float) -> None:
+        """A GLOBAL_POSITION_INT, as ``handle`` takes one (to the service that takes positions, our own echo left
+        out; it is answered with nothing), without the routing: a swarm drone receives its neighbours' relayed
+        reports by the hundred a second, and the routing cost more than the table's work."""
+        service = self._routes.get(mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT)
+        own = self._own
+        if service is not None and (msg.get_srcSystem() != own.sysid or msg.get_srcComponent() != own.compid):
+            service.handle(msg, now_s)
+
     def poll(self, now_s: float) -> list[Effect]:
         """Timeouts, retries, parameter streaming and telemetry due at ``now_s``."""
         now_s = check_now(now_s)

@@ -11,8 +11,11 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from gcs.fleet.relay import RELAY_REACH_HORIZON_S, RELAY_REACH_M, NeighbourRelay, RelayScope, relay_matrix
 from gcs.fleet.telemetry import Fleet
+from sitl.drone.param_table import build_param_store
+from sitl.protocol import Identity, LinkServices
 from sitl.protocol.framing import FRAME_MEMO_SIZE, FrameMemo, parse_datagram
-from sitl.protocol.neighbours import NEIGHBOUR_TIMEOUT_S, RELAY, NeighbourTable, SharedReports
+from sitl.protocol.neighbours import NEIGHBOUR_TIMEOUT_S, RELAY, NeighbourFeed, NeighbourTable, SharedReports
+from sitl.protocol.testing import FakeVehicle
 
 
 def wire(msg: Any, sysid: int) -> Any:
@@ -220,3 +223,31 @@ def test_the_memos_start_again_when_full() -> None:
         shared.record(parse_datagram(frame, memo)[0], 0.0, RELAY)
     assert parse_datagram(frames[0], memo)[0] is not first and memo.hits == 0
     assert shared.record(first, 0.0, RELAY) is not None and shared.hits == 0
+
+
+def test_a_position_taken_without_the_routing_leaves_the_table_as_the_routing_does() -> None:
+    """``LinkServices.take_position`` (the drone's path for a GLOBAL_POSITION_INT when no signing key is set) against
+    ``handle``: the same reports taken, our own echo (same sysid and component) left out, a same-sysid report from
+    another component taken by neither table as a neighbour (it is our own sysid), and nothing answered."""
+    reports = [
+        wire(position(473977420, 491000), 2),
+        wire(position(473977520, 492000, 1100), 3),
+        wire(position(473977620, 493000, 1200), 1),  # our sysid from another component: not a neighbour
+        wire(position(473977720, 494000, 900), 2),  # sent before sysid 2's first: stale
+    ]
+    echo = mavlink.MAVLink(None, srcSystem=1, srcComponent=191)
+    reports.append(mavlink.MAVLink(None).parse_char(position(473977820, 495000, 1400).pack(echo)))
+    tables = []
+    for way in ("handle", "take_position"):
+        table = NeighbourTable(own_sysid=1)
+        services = LinkServices(Identity(sysid=1, compid=191), FakeVehicle(), build_param_store(()),
+                                neighbours=NeighbourFeed(table, RELAY))  # fmt: skip
+        for k, msg in enumerate(reports):
+            if way == "handle":
+                assert services.handle(msg, 1.0 + 0.01 * k) == []
+            else:
+                services.take_position(msg, 1.0 + 0.01 * k)
+        tables.append(table)
+    assert tables[0].entries(1.1) == tables[1].entries(1.1)
+    assert [n.sysid for n in tables[1].entries(1.1)] == [2, 3]
+    assert (tables[0].updates, tables[0].stale) == (tables[1].updates, tables[1].stale) == (2, 1)
