@@ -7,6 +7,10 @@ Flights, each timed per part on the thread's CPU clock exactly as a swarm drone 
   telemetry polls, with both MAVLink links streaming to a UDP sink nobody reads and a shared world in which it is
   alone: it takes off to 3 m, flies 10 m north and hovers; the ground-station link receives what a supervisor of a
   9-drone swarm sends it). Not a default: its loop is written out here, not ``run_loop`` itself.
+- **hosted**: 25 drones built and run as one ``sitl`` process hosts them (``build_drone``, batches between socket
+  reads and polls), hovering on an 8 m circle in one shared world, beside a stand-in supervisor that sends each drone
+  a setpoint every 50 ms and every other drone's 10 Hz position report, forwarded byte for byte as the relay does:
+  what the host's relay path, MAVLink and perception cost per drone. Not a default.
 - **circle**: tests/closed_loop/circle_swarm.py, nine drones on one shared world (eight on a rotating 4 m circle
   and a silent one), omnidirectional cameras: every drone has others in view. No MAVLink.
 - **dense**: the same with 24 drones on an 8 m circle (the radius ``swarm bench`` gives 24 slots) turning at half
@@ -18,7 +22,8 @@ Flights, each timed per part on the thread's CPU clock exactly as a swarm drone 
 The circle flights also report a digest of every drone's true state at every step: trees that should fly alike
 show the same digest in the same run that times them.
 
-    python bench/drone_parts.py [--sim-seconds 20] [--repeats 3] [--scenarios circle dense] [--trees DIR ...]
+    python bench/drone_parts.py [--sim-seconds 20] [--repeats 3] [--scenarios lone hosted circle dense frames]
+        [--trees DIR ...]
 
 With ``--trees``, each repeat runs every tree in a subprocess of its own (``PYTHONPATH=DIR``), interleaved, so the
 machine's load falls on all alike; medians are printed per tree, and each part as a multiple of physics (code the
@@ -144,6 +149,117 @@ def lone(sim_seconds: float) -> dict[str, float]:
     }
 
 
+HOSTED_DRONES = 25
+HOSTED_RADIUS_M = 8.0  # the radius swarm bench gives 25 slots: every drone within 15 m of every other
+
+
+def hosted(sim_seconds: float) -> dict[str, float]:
+    """A host of HOSTED_DRONES drones as ``sitl`` builds and runs them in one process (``build_drone``, the host's
+    shared decoding where the tree has it, batches of PACED_WAKE_STEPS steps between socket reads and telemetry
+    polls), on a circle, hovering at 3 m in one shared world, beside a stand-in supervisor on a UDP socket: every
+    50 ms of simulated time it sends each drone one datagram, a setpoint and the latest position report of every
+    other drone, each forwarded byte for byte as the relay forwards it (every drone is within the relay's reach of
+    every other). The drones' own telemetry streams to that socket, which reads and drops it."""
+    import socket
+
+    from pymavlink.dialects.v20 import common as mavlink
+
+    from sitl.dynamics.airframe import load_airframe
+    from sitl.dynamics.geodesy import LocalFrame
+    from sitl.dynamics.plant import GeoPoint
+    from sitl.dynamics.wind import WindConfig
+    from sitl.process import drone as drone_module
+    from sitl.process.mavlink_io import LinkConfig
+    from sitl.process.runtime import PACED_WAKE_STEPS
+    from sitl.process.specs import DroneSpec, ProcessSpec
+    from sitl.world.shared import SharedWorld
+
+    supervisor = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    supervisor.bind(("127.0.0.1", 0))
+    supervisor.setblocking(False)
+    world = SharedWorld.create()
+    common = ProcessSpec(airframe=load_airframe(), speed_factor=0.0, wind=WindConfig(), world_name=world.name)
+    origin = GeoPoint(lat_deg=47.397742, lon_deg=8.545594, alt_amsl_m=488.0)
+    frame = LocalFrame(origin)
+    homes = [
+        frame.geo_from_ned((HOSTED_RADIUS_M * math.cos(a), HOSTED_RADIUS_M * math.sin(a), 0.0))
+        for a in (2.0 * math.pi * k / HOSTED_DRONES for k in range(HOSTED_DRONES))
+    ]
+    specs = [
+        DroneSpec(instance=k, seed=k, home=home,
+                  links=(LinkConfig(name="gcs", bind=("127.0.0.1", 0), remote=supervisor.getsockname()),))
+        for k, home in enumerate(homes)
+    ]  # fmt: skip
+    share = drone_module.HostShare() if hasattr(drone_module, "HostShare") else None
+    build = drone_module.build_drone
+    drones = [
+        build(spec, common, clock_ns=time.thread_time_ns, **({"share": share} if share is not None else {}))
+        for spec in specs
+    ]
+    gcs = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+    senders = [mavlink.MAVLink(None, srcSystem=k + 1, srcComponent=1) for k in range(HOSTED_DRONES)]
+    ports = [d.endpoint.links[0].port for d in drones]
+    next_tick_s, tick = 0.0, 0
+
+    def traffic(now_s: float) -> None:
+        nonlocal next_tick_s, tick
+        while True:  # the drones' telemetry: read and dropped
+            try:
+                supervisor.recvfrom(65535)
+            except BlockingIOError:
+                break
+        if now_s < next_tick_s:
+            return
+        next_tick_s = now_s + 0.05
+        reports = []
+        if tick % 2 == 0:  # every drone reports at 10 Hz, each report relayed once
+            reports = [
+                n.global_position_int_encode(int(now_s * 1e3), round(h.lat_deg * 1e7), round(h.lon_deg * 1e7),
+                                             round((h.alt_amsl_m + 3.0) * 1e3), 3000, 0, 0, 0, 9000).pack(n)
+                for n, h in zip(senders, homes, strict=True)
+            ]  # fmt: skip
+        for k, port in enumerate(ports):
+            setpoint = gcs.set_position_target_local_ned_encode(
+                int(now_s * 1e3), k + 1, 1, mavlink.MAV_FRAME_LOCAL_NED, 0x0DF8, 0.0, 0.0, -3.0, 0, 0, 0, 0, 0, 0, 0, 0
+            )
+            frames = [setpoint.pack(gcs), *(r for j, r in enumerate(reports) if j != k)]
+            if tick % 20 == 0:
+                beat = gcs.heartbeat_encode(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+                frames.append(beat.pack(gcs))
+            supervisor.sendto(b"".join(frames), ("127.0.0.1", port))
+        tick += 1
+
+    armed = [False] * HOSTED_DRONES
+    t0 = time.thread_time_ns()
+    try:
+        while drones[0].time_s < sim_seconds - 1e-9:
+            traffic(drones[0].time_s)
+            for drone in drones:
+                drone.receive()
+            for k, drone in enumerate(drones):
+                for _ in range(PACED_WAKE_STEPS):
+                    drone.step()
+                if not armed[k]:
+                    v = drone.sim.vehicle
+                    armed[k] = v.preflight_problem() is None and v.arm().ok and v.takeoff(3.0).ok
+            for drone in drones:
+                drone.after_batch()
+    finally:
+        total_ns = time.thread_time_ns() - t0
+        for drone in drones:
+            drone.close()
+        world.close()
+        supervisor.close()
+    ms = 1e-6 / (drones[0].time_s * HOSTED_DRONES)
+    return {
+        "physics": sum(d.sim.physics_ns for d in drones) * ms,
+        "control": sum(d.sim.control_ns for d in drones) * ms,
+        "perception": sum(d.awareness.cpu_ns for d in drones) * ms,
+        "mavlink": sum(d.link_ns for d in drones) * ms,
+        "total": total_ns * ms,
+    }
+
+
 def circle(sim_seconds: float, *, dense: bool = False) -> dict[str, float | None]:
     """The circle flight (or the dense one) timed per part, and ``digest``: a hash of every drone's true state at
     every step, so two trees that should fly alike can be seen to (the same digest) in the same run that times them.
@@ -214,6 +330,7 @@ def frames() -> dict[str, float]:
 def one(sim_seconds: float, scenarios: list[str]) -> dict[str, dict[str, float]]:
     runs = {
         "lone": lambda: lone(sim_seconds),
+        "hosted": lambda: hosted(sim_seconds),
         "circle": lambda: circle(sim_seconds),
         "dense": lambda: circle(sim_seconds, dense=True),
         "frames": frames,
@@ -227,7 +344,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--trees", nargs="+", type=Path, default=None)
     parser.add_argument(
-        "--scenarios", nargs="+", choices=("lone", "circle", "dense", "frames"), default=["circle", "dense"]
+        "--scenarios", nargs="+", choices=("lone", "hosted", "circle", "dense", "frames"), default=["circle", "dense"]
     )
     parser.add_argument(
         "--reference", choices=PARTS, default="physics", help="the part the ratios are to: one both trees share"
