@@ -16,16 +16,28 @@ _SOC_POINTS = (0.0, 0.05, 0.10, 0.20, 0.30, 0.40, 0.50, 0.60, 0.70, 0.80, 0.90, 
 _OCV_POINTS = (3.27, 3.61, 3.69, 3.73, 3.77, 3.79, 3.82, 3.87, 3.92, 3.97, 4.06, 4.20)
 
 
-def _cell_ocv_v(remaining: float) -> float:
-    """Linear interpolation of the cell curve (plain floats: this runs every physics step)."""
-    if remaining <= _SOC_POINTS[0]:
+def _segment(remaining: float) -> int:
+    """The curve's segment ``remaining`` lies on: the first point j with ``remaining <= _SOC_POINTS[j]`` (0 at or
+    below the first point, len(_SOC_POINTS) above the last)."""
+    for j in range(len(_SOC_POINTS)):
+        if remaining <= _SOC_POINTS[j]:
+            return j
+    return len(_SOC_POINTS)
+
+
+def _ocv_on(j: int, remaining: float) -> float:
+    """The cell's voltage at ``remaining`` on segment ``j`` (``_segment``): linear between the points."""
+    if j == 0:
         return _OCV_POINTS[0]
-    for j in range(1, len(_SOC_POINTS)):
-        x1 = _SOC_POINTS[j]
-        if remaining <= x1:
-            x0, y0, y1 = _SOC_POINTS[j - 1], _OCV_POINTS[j - 1], _OCV_POINTS[j]
-            return y0 + (y1 - y0) * (remaining - x0) / (x1 - x0)
-    return _OCV_POINTS[-1]
+    if j == len(_SOC_POINTS):
+        return _OCV_POINTS[-1]
+    x0, x1, y0, y1 = _SOC_POINTS[j - 1], _SOC_POINTS[j], _OCV_POINTS[j - 1], _OCV_POINTS[j]
+    return y0 + (y1 - y0) * (remaining - x0) / (x1 - x0)
+
+
+def _cell_ocv_v(remaining: float) -> float:
+    """Linear interpolation of the cell curve (plain floats)."""
+    return _ocv_on(_segment(remaining), remaining)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -62,6 +74,9 @@ class Battery:
         self.config = config
         self._consumed_mah = (1.0 - initial_remaining) * config.capacity_mah
         self._current_a = 0.0
+        # The curve's segment of the last update: the charge moves along one for minutes, so each physics step
+        # checks that it still lies on it instead of searching the curve from its first point.
+        self._segment = _segment(self.true_remaining)
         # An injected battery failure (sitl/faults/failures.py) is a fault of the monitor, not of the cells: the pack
         # goes on powering the motors from its true charge while the monitor reports this charge (None: the true one).
         self.reported_remaining: float | None = None
@@ -91,7 +106,11 @@ class Battery:
 
     def update(self, mechanical_power_w: float, dt_s: float) -> None:
         cfg = self.config
-        ocv = _cell_ocv_v(self.true_remaining) * cfg.cells
+        remaining = self.true_remaining
+        j = self._segment
+        if not ((j == 0 or _SOC_POINTS[j - 1] < remaining) and (j == len(_SOC_POINTS) or remaining <= _SOC_POINTS[j])):
+            self._segment = j = _segment(remaining)
+        ocv = _ocv_on(j, remaining) * cfg.cells
         power_w = mechanical_power_w / cfg.efficiency + cfg.avionics_w
         self._current_a = _current_for_power(power_w, max(ocv, 1.0), cfg.internal_resistance_ohm)
         self._consumed_mah += self._current_a * dt_s / 3.6

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from sitl.dynamics.airframe import load_airframe
-from sitl.dynamics.battery import Battery, BatteryConfig
+from sitl.dynamics.battery import _SOC_POINTS, Battery, BatteryConfig, _cell_ocv_v, _current_for_power, _segment
 from sitl.dynamics.wind import WindConfig, WindModel
 from sitl.mathutil import GRAVITY_MPS2
 
@@ -170,3 +170,22 @@ def test_the_same_seed_gives_the_same_gusts_and_another_seed_different_ones() ->
     c = _samples(config, seed=8, duration_s=300.0)
     np.testing.assert_array_equal(a, b)
     assert not np.allclose(a, c)
+
+
+def test_each_step_draws_the_current_the_whole_curve_gives_across_every_segment() -> None:
+    """A step looks only at the curve's segment of the last one (``Battery.update``): across a whole drain, at
+    every step, the current is the one the curve searched from its first point gives, to the bit."""
+    battery = Battery(CONFIG)
+    segments = set()
+    for step in itertools.count():
+        remaining = battery.true_remaining
+        if remaining <= 0.0:
+            break
+        power_w = 2500.0 if step % 7 else 40.0  # loads that change from step to step
+        ocv = _cell_ocv_v(remaining) * CONFIG.cells
+        expected_a = _current_for_power(power_w / CONFIG.efficiency + CONFIG.avionics_w, max(ocv, 1.0),
+                                        CONFIG.internal_resistance_ohm)  # fmt: skip
+        battery.update(power_w, 0.05)
+        assert battery.state().current_a == expected_a
+        segments.add(_segment(remaining))
+    assert segments == set(range(1, len(_SOC_POINTS)))  # every segment of the curve was flown through
