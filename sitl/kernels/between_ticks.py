@@ -14,8 +14,6 @@ commander's tick itself stays Python and reads the estimate this leaves.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import numpy.typing as npt
 
@@ -150,8 +148,6 @@ def step(
           mag_row, qw, qx, qy, qz, est_state, est_cfg, est_gps, est_no_vec, est_out, time_s, dt_s)  # fmt: skip
     q = ek.O_Q
     r = ek.O_RATES
-    a = ck.U_ATT_SP
-    ck.inner(est_out[q], est_out[q + 1], est_out[q + 2], est_out[q + 3],
-             held[a], held[a + 1], held[a + 2], held[a + 3], held[ck.U_YAWSPEED_FF], False, math.nan, math.nan,
-             math.nan, est_out[r], est_out[r + 1], est_out[r + 2], held[ck.U_COLLECTIVE], dt_s, landed,
-             attitude_cfg, rate_cfg, rate_state, alloc_rows, t_max, inner_out)  # fmt: skip
+    ck.inner_held(est_out[q], est_out[q + 1], est_out[q + 2], est_out[q + 3], est_out[r], est_out[r + 1],
+                  est_out[r + 2], held, dt_s, landed, attitude_cfg, rate_cfg, rate_state, alloc_rows, t_max,
+                  inner_out)  # fmt: skip

@@ -841,6 +841,37 @@ def outer(
 
 
 @kernel(
+    "void(float64, float64, float64, float64, float64, float64, float64, float64[::1], float64, boolean, float64[::1],"
+    " float64[::1], float64[::1], float64[:, ::1], float64, float64[::1])"
+)
+def inner_held(
+    qw: float,
+    qx: float,
+    qy: float,
+    qz: float,
+    wx: float,
+    wy: float,
+    wz: float,
+    held: npt.NDArray[np.float64],
+    dt_s: float,
+    landed: bool,
+    attitude_cfg: npt.NDArray[np.float64],
+    rate_cfg: npt.NDArray[np.float64],
+    rate_state: npt.NDArray[np.float64],
+    alloc_rows: npt.NDArray[np.float64],
+    t_max: float,
+    out: npt.NDArray[np.float64],
+) -> None:
+    """The inner loops (``inner``) from the estimated attitude ``qw``..``qz`` and body rates ``wx``..``wz`` towards
+    what the outer loops hold (``held``: the attitude, the yaw-rate feed-forward, the collective): a tick's control
+    step after ``outer``, and a step between ticks (sitl/kernels/between_ticks.py ``step``)."""
+    a = U_ATT_SP
+    inner(qw, qx, qy, qz, held[a], held[a + 1], held[a + 2], held[a + 3], held[U_YAWSPEED_FF], False, math.nan,
+          math.nan, math.nan, wx, wy, wz, held[U_COLLECTIVE], dt_s, landed, attitude_cfg, rate_cfg, rate_state,
+          alloc_rows, t_max, out)  # fmt: skip
+
+
+@kernel(
     "void(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], boolean, float64, float64, boolean,"
     " float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1],"
     " float64[::1], float64[:, ::1], float64, float64[::1])"
@@ -871,7 +902,5 @@ def trajectory(
     loops towards what they hold, on the estimated attitude and body rates."""
     if outer_due:
         outer(pos, vel, att_q, sp, elapsed_s, landed, position_cfg, velocity_cfg, velocity_state, heading_cfg, held)
-    a = U_ATT_SP
-    inner(att_q[0], att_q[1], att_q[2], att_q[3], held[a], held[a + 1], held[a + 2], held[a + 3], held[U_YAWSPEED_FF],
-          False, math.nan, math.nan, math.nan, rates[0], rates[1], rates[2], held[U_COLLECTIVE], dt_s, landed,
-          attitude_cfg, rate_cfg, rate_state, alloc_rows, t_max, out)  # fmt: skip
+    inner_held(att_q[0], att_q[1], att_q[2], att_q[3], rates[0], rates[1], rates[2], held, dt_s, landed, attitude_cfg,
+               rate_cfg, rate_state, alloc_rows, t_max, out)  # fmt: skip
