@@ -91,6 +91,9 @@ class Commander:
         self.step = tick.step
         self.holds_inner_loops = tick.holds_inner_loops
         self.inner_loops_stepped = tick.inner_loops_stepped
+        self.steady_tick_ready = tick.steady_tick_ready
+        self.steady_tick_plan = tick.steady_tick_plan
+        self.steady_tick_taken = tick.steady_tick_taken
 
     # ---- what the rest of the drone reads --------------------------------------------------------------------------
     def event(self, severity: int, text: str) -> None:

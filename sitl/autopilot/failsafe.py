@@ -1,15 +1,17 @@
-"""The failsafe policy: one row per failsafe (condition, action from its PX4 parameter, delay, clearing), run by the
-framework's mechanics (sitl/autopilot/failsafe_framework.py), as PX4's failsafe.cpp is run by framework.cpp.
+"""The failsafe policy: one row per failsafe (action from its PX4 parameter, delay, clearing, texts) and the rows'
+conditions (``failsafe_conditions``), run by the framework's mechanics (sitl/autopilot/failsafe_framework.py), as PX4's
+failsafe.cpp is run by framework.cpp.
 
-Adding a failsafe means one row in ``FAILSAFE_TABLE`` (and its parameters in sitl/autopilot/params.py).
+The conditions are one kernel (sitl/kernels/failsafe.py), a bit per row, so that a tick on which nothing changed costs
+one call. Adding a failsafe means one row in ``FAILSAFE_TABLE``, its condition's bit in the kernel, and its parameters
+in sitl/autopilot/params.py.
 """
 
 from __future__ import annotations
 
-import math
-
 from sitl.autopilot.failsafe_framework import Clear, FailsafeAction, FailsafeInputs, FailsafeRow
 from sitl.autopilot.px4_modes import FailsafeKind, Px4Mode
+from sitl.kernels import failsafe as fk
 from sitl.params import ParamStore
 
 
@@ -50,14 +52,6 @@ _BAT_CRITICAL_ACTIONS = {0: FailsafeAction.WARN, 1: FailsafeAction.RTL, 2: Fails
 _BAT_EMERGENCY_ACTIONS = {0: FailsafeAction.WARN, 1: FailsafeAction.RTL, 2: FailsafeAction.LAND, 3: FailsafeAction.LAND}
 
 
-def _datalink_lost(i: FailsafeInputs, p: ParamStore) -> bool:
-    # Armed only once a ground station has been heard (PX4 does not fail safe for a link it never had), and, as
-    # PX4, never while landing: landing is already what a lost vehicle should do.
-    if math.isnan(i.gcs_heartbeat_s) or i.landed or i.mode is Px4Mode.AUTO_LAND:
-        return False
-    return i.now_s - i.gcs_heartbeat_s > p["COM_DL_LOSS_T"]
-
-
 def _pct(i: FailsafeInputs) -> str:
     return f"{i.battery_remaining:.0%} remaining"
 
@@ -65,7 +59,6 @@ def _pct(i: FailsafeInputs) -> str:
 FAILSAFE_TABLE: tuple[FailsafeRow, ...] = (
     FailsafeRow(
         kind=FailsafeKind.OFFBOARD_LOSS,
-        condition=lambda i, p: i.mode is Px4Mode.OFFBOARD and not i.offboard_alive,
         action=lambda p: _OBL_ACTIONS.get(_int(p, "COM_OBL_RC_ACT"), FailsafeAction.LAND),
         cause=lambda i: "offboard setpoints lost",
         clear=Clear.WHEN_CONDITION_CLEARS,
@@ -73,7 +66,6 @@ FAILSAFE_TABLE: tuple[FailsafeRow, ...] = (
     ),
     FailsafeRow(
         kind=FailsafeKind.DATALINK_LOSS,
-        condition=_datalink_lost,
         action=lambda p: _DLL_ACTIONS.get(_int(p, "NAV_DLL_ACT"), FailsafeAction.NONE),
         cause=lambda i: "no connection to the ground control station",
         clear=Clear.WHEN_CONDITION_CLEARS,
@@ -82,7 +74,6 @@ FAILSAFE_TABLE: tuple[FailsafeRow, ...] = (
     ),
     FailsafeRow(
         kind=FailsafeKind.BATTERY_LOW,
-        condition=lambda i, p: i.battery_remaining < p["BAT_LOW_THR"],
         action=lambda p: FailsafeAction.WARN,  # PX4 only warns at the low level, whatever COM_LOW_BAT_ACT says
         cause=lambda i: f"Low battery: {_pct(i)}",
         clear=Clear.ON_ARMING,
@@ -90,7 +81,6 @@ FAILSAFE_TABLE: tuple[FailsafeRow, ...] = (
     ),
     FailsafeRow(
         kind=FailsafeKind.BATTERY_CRITICAL,
-        condition=lambda i, p: i.battery_remaining < p["BAT_CRIT_THR"] and not i.landed,
         action=lambda p: _BAT_CRITICAL_ACTIONS.get(_int(p, "COM_LOW_BAT_ACT"), FailsafeAction.WARN),
         cause=lambda i: "battery critical",
         clear=Clear.ON_ARMING,
@@ -98,7 +88,6 @@ FAILSAFE_TABLE: tuple[FailsafeRow, ...] = (
     ),
     FailsafeRow(
         kind=FailsafeKind.BATTERY_EMERGENCY,
-        condition=lambda i, p: i.battery_remaining < p["BAT_EMERGEN_THR"] and not i.landed,
         action=lambda p: _BAT_EMERGENCY_ACTIONS.get(_int(p, "COM_LOW_BAT_ACT"), FailsafeAction.WARN),
         cause=lambda i: "battery emergency",
         clear=Clear.ON_ARMING,
@@ -108,7 +97,6 @@ FAILSAFE_TABLE: tuple[FailsafeRow, ...] = (
         kind=FailsafeKind.POSITION_LOSS,
         # PX4's mode fallback: a mode that needs a position cannot run without one, so the vehicle comes down
         # (Land needs a position too: without one it descends level at a controlled sink rate).
-        condition=lambda i, p: not i.position_valid and i.needs_position and not i.landed,
         action=lambda p: FailsafeAction.DESCEND,
         cause=lambda i: "no global position",
         clear=Clear.WHEN_CONDITION_CLEARS,
@@ -118,10 +106,38 @@ FAILSAFE_TABLE: tuple[FailsafeRow, ...] = (
     ),
     FailsafeRow(
         kind=FailsafeKind.GEOFENCE,
-        condition=lambda i, p: i.fence_breach is not None and not i.landed,
         action=lambda p: _GF_ACTIONS.get(_int(p, "GF_ACTION"), FailsafeAction.WARN),
         cause=lambda i: f"geofence violation ({i.fence_breach})",
         clear=Clear.WHEN_CONDITION_CLEARS,
         hold_first=False,  # PX4 acts on a breach at once
     ),
 )
+
+
+# Each row's bit in the conditions' word (sitl/kernels/failsafe.py), by kind: the table's order must be the kernel's.
+_BITS = {
+    FailsafeKind.OFFBOARD_LOSS: fk.OFFBOARD_LOSS,
+    FailsafeKind.DATALINK_LOSS: fk.DATALINK_LOSS,
+    FailsafeKind.BATTERY_LOW: fk.BATTERY_LOW,
+    FailsafeKind.BATTERY_CRITICAL: fk.BATTERY_CRITICAL,
+    FailsafeKind.BATTERY_EMERGENCY: fk.BATTERY_EMERGENCY,
+    FailsafeKind.POSITION_LOSS: fk.POSITION_LOSS,
+    FailsafeKind.GEOFENCE: fk.GEOFENCE,
+}
+if [_BITS[row.kind] for row in FAILSAFE_TABLE] != list(range(fk.ROWS)):
+    raise ImportError("FAILSAFE_TABLE's rows are not in the order of their bits in sitl/kernels/failsafe.py")
+
+
+def failsafe_limits(p: ParamStore) -> tuple[float, float, float, float]:
+    """The parameters the conditions compare with, in the kernel's order: COM_DL_LOSS_T, BAT_LOW_THR, BAT_CRIT_THR,
+    BAT_EMERGEN_THR."""
+    return p["COM_DL_LOSS_T"], p["BAT_LOW_THR"], p["BAT_CRIT_THR"], p["BAT_EMERGEN_THR"]
+
+
+def failsafe_conditions(i: FailsafeInputs, p: ParamStore) -> int:
+    """Which rows of ``FAILSAFE_TABLE`` hold for ``i``: bit ``k`` for row ``k`` (the framework's ``Conditions``)."""
+    return fk.conditions(
+        i.now_s, i.landed, i.mode is Px4Mode.OFFBOARD, i.mode is Px4Mode.AUTO_LAND, i.needs_position,
+        i.offboard_alive, i.gcs_heartbeat_s, i.battery_remaining, i.position_valid, i.fence_breach is not None,
+        *failsafe_limits(p),
+    )  # fmt: skip

@@ -1,8 +1,10 @@
 """The failsafe framework's mechanics: precedence, the hold before an action, and clearing, over any table of rows.
 
 Shaped like PX4's commander failsafe framework (failsafe/framework.cpp), apart from the policy it runs
-(sitl/autopilot/failsafe.py, PX4's failsafe.cpp): every step each row's condition is checked against a snapshot of
-the vehicle (``FailsafeInputs``); a row fires on the step its condition becomes true, and its action is taken when it
+(sitl/autopilot/failsafe.py, PX4's failsafe.cpp): every step the table's conditions are checked against a snapshot of
+the vehicle (``FailsafeInputs``), all at once, as a word with a bit per row (``Conditions``); only a row whose bit
+differs from what it last did is looked at further (the event mask: on nearly every tick none is). A row fires on the
+step its condition becomes true, and its action is taken when it
 is more severe than the action already in force (PX4 ranks actions by severity: warn < hold < return < land <
 descend < disarm < terminate). A row that holds first holds for COM_FAIL_ACT_T and takes its action when that delay
 has passed, so an operator can take over; any mode the operator commands clears the failsafe (PX4's "on mode change
@@ -21,6 +23,7 @@ from enum import Enum, IntEnum
 from typing import NamedTuple
 
 from sitl.autopilot.px4_modes import FailsafeKind, Px4Mode
+from sitl.kernels import failsafe as fk
 from sitl.params import ParamStore
 
 # MAV_SEVERITY of the texts: a failsafe action is critical, a warning a warning, a recovery information.
@@ -83,15 +86,15 @@ class FailsafeInputs(NamedTuple):
     fence_breach: str | None  # why the fence is breached, None inside it (or with no fence)
 
 
-Condition = Callable[[FailsafeInputs, ParamStore], bool]
+# Every row's condition at once: bit ``k`` set when row ``k`` of the table holds (sitl/kernels/failsafe.py).
+Conditions = Callable[[FailsafeInputs, ParamStore], int]
 ActionOf = Callable[[ParamStore], FailsafeAction]
 Describe = Callable[[FailsafeInputs], str]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class FailsafeRow:
-    kind: FailsafeKind
-    condition: Condition
+    kind: FailsafeKind  # its condition is its table's bit for it (``Conditions``)
     action: ActionOf  # from the row's PX4 parameter
     cause: Describe  # the STATUSTEXT: "Failsafe: <cause>, <action verb>" (a warning is the cause alone)
     clear: Clear
@@ -123,16 +126,28 @@ class _Pending:
 class FailsafeState:
     """The failsafe framework's memory: which rows fired, the action in force, a delayed action pending."""
 
-    def __init__(self, table: tuple[FailsafeRow, ...]) -> None:
+    def __init__(self, table: tuple[FailsafeRow, ...], conditions: Conditions) -> None:
         self.table = table
+        self.conditions = conditions
         self.active = FailsafeKind.NONE
         self.active_action = FailsafeAction.NONE
-        # Per row (by index): has it fired and not yet re-armed? A list, not a set of kinds: this runs every control
-        # step and hashing an Enum member is a Python-level call.
-        self._fired = [False] * len(table)
+        # Bit k: row k has fired and not yet re-armed.
+        self._fired = 0
+        # Bit k: row k re-arms only on arming, so its condition clearing changes nothing.
+        self._on_arming = sum(1 << k for k, row in enumerate(table) if row.clear is Clear.ON_ARMING)
         self._pending: _Pending | None = None
         # What was in force when a mode-fallback row took over, restored when its cause clears.
         self._before_fallback: tuple[FailsafeKind, FailsafeAction, _Pending | None] | None = None
+
+    @property
+    def fired_word(self) -> int:
+        """Bit k: row k has fired and not yet re-armed."""
+        return self._fired
+
+    @property
+    def on_arming_word(self) -> int:
+        """Bit k: row k re-arms only on arming."""
+        return self._on_arming
 
     @property
     def in_failsafe(self) -> bool:
@@ -140,7 +155,7 @@ class FailsafeState:
         return self.active_action > FailsafeAction.WARN
 
     def on_arming(self) -> None:
-        self._fired = [False] * len(self.table)
+        self._fired = 0
         self.cleared()
 
     def cleared(self) -> None:
@@ -152,30 +167,34 @@ class FailsafeState:
         self._before_fallback = None
 
     def evaluate(self, inputs: FailsafeInputs, params: ParamStore) -> list[FailsafeOrder]:
+        """The orders of the rows whose condition changed since they last acted, in the table's order."""
+        holds = self.conditions(inputs, params)
+        events = fk.events(holds, self._fired, self._on_arming)
+        if not events:
+            return []
         orders: list[FailsafeOrder] = []
-        fired = self._fired
         for index, row in enumerate(self.table):
-            if not row.condition(inputs, params):
-                if fired[index] and row.clear is Clear.WHEN_CONDITION_CLEARS:
-                    fired[index] = False
-                    resume = row.resume_when_clear and self.active is row.kind
-                    if resume and self._before_fallback is not None:
-                        self.active, self.active_action, self._pending = self._before_fallback
-                        self._before_fallback = None
-                    if row.recovered is not None:
-                        orders.append(
-                            FailsafeOrder(
-                                kind=row.kind,
-                                action=FailsafeAction.NONE,
-                                severity=SEVERITY_INFO,
-                                text=row.recovered,
-                                resume=resume,
-                            )
+            bit = 1 << index
+            if not events & bit:
+                continue
+            if not holds & bit:  # cleared: re-armed
+                self._fired &= ~bit
+                resume = row.resume_when_clear and self.active is row.kind
+                if resume and self._before_fallback is not None:
+                    self.active, self.active_action, self._pending = self._before_fallback
+                    self._before_fallback = None
+                if row.recovered is not None:
+                    orders.append(
+                        FailsafeOrder(
+                            kind=row.kind,
+                            action=FailsafeAction.NONE,
+                            severity=SEVERITY_INFO,
+                            text=row.recovered,
+                            resume=resume,
                         )
+                    )
                 continue
-            if fired[index]:
-                continue
-            fired[index] = True
+            self._fired |= bit
             action = row.action(params)
             if action is FailsafeAction.NONE:
                 continue

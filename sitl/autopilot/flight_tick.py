@@ -19,6 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from sitl.autopilot.commander_state import CommanderState
+from sitl.autopilot.failsafe import failsafe_limits
 from sitl.autopilot.failsafe_framework import FailsafeInputs
 from sitl.autopilot.guidance import floats3
 from sitl.autopilot.mode_authority import ModeAuthority
@@ -84,6 +85,9 @@ class FlightTick:
         self._tick_period_s = outer_loop_period_s(params)
         self._mode_params_version = -1
         self._mode_params: ModeParams | None = None
+        self._failsafe_limits = failsafe_limits(params)  # as of the last tick (a change forces a tick)
+        # The step ``steady_tick_plan`` planned: the setpoint, whether the outer loops run, their elapsed time.
+        self._steady: tuple[TrajectorySetpoint, bool, float] | None = None
 
     # ---- the step --------------------------------------------------------------------------------------------------
     def step(self, est: Estimate, now_s: float, dt_s: float) -> tuple[float, ...]:
@@ -130,6 +134,73 @@ class FlightTick:
         self._since_tick_s += dt_s
         return self._cascade.inner_step_taken(dt_s)
 
+    # ---- the steady tick -------------------------------------------------------------------------------------------
+    def steady_tick_ready(self, now_s: float, dt_s: float) -> bool:
+        """Will the next step, at ``now_s``, of ``dt_s``, be a steady tick: a tick (a command, or the outer loops'
+        period) of a drone armed in the air in OFFBOARD flying a trajectory setpoint, with the parameters of the last
+        tick, no fence to watch, and collision prevention not due to run (its held correction, if any, is applied)?
+        Then the caller may take it
+        in one kernel (sitl/kernels/between_ticks.py ``steady_tick``, with ``steady_tick_plan``'s inputs), which
+        hands it back (``TICK_EVENT``) when a failsafe row acts; ``steady_tick_taken`` notes it. A steady tick is
+        the tick ``step`` would run with what it would decide: the offboard unit neither advances nor reads its
+        inputs, no failsafe row acts, and collision prevention only applies what it holds."""
+        held = self._held
+        state = self._state
+        if held is None or held.trajectory is None or self._params.version != self._tick_version:
+            return False
+        if not state.tick_due and not self._cascade.outer_due(dt_s):
+            return False  # a step between ticks
+        offboard = self._authority.units.offboard
+        return (
+            self._authority.unit is offboard
+            and type(offboard.setpoint_in) is TrajectorySetpoint
+            and state.status.armed
+            and not state.landed
+            and not self._fence_watched()
+            and self._collision_prevention.holds(now_s)
+        )
+
+    def steady_tick_plan(
+        self, now_s: float, dt_s: float
+    ) -> tuple[bool, bool, float, float, float, float, float, float, int, int, bool, float]:
+        """The steady tick's inputs besides the rows (``steady_tick_ready`` said yes): what the failsafe table's
+        conditions read that the estimate does not give (whether the operator's mode needs a position, whether the
+        offboard stream is alive, the last ground-station heartbeat, the battery, the limits), the rows that fired and
+        those that re-arm only on arming, then whether the outer loops run and over what time (``Cascade.outer_plan``,
+        the setpoint's row written)."""
+        authority = self._authority
+        streamed = authority.units.offboard.setpoint_in
+        assert isinstance(streamed, TrajectorySetpoint)
+        setpoint = self._collision_prevention.held(streamed)
+        due, elapsed_s = self._cascade.outer_plan(setpoint, dt_s)
+        self._steady = (setpoint, due, elapsed_s)
+        failsafes = authority.failsafes
+        dl, low, crit, emerg = self._failsafe_limits
+        return (authority.needs_position(), authority.offboard_alive(now_s), self._state.gcs_heartbeat_s,
+                self._battery_remaining(), dl, low, crit, emerg, failsafes.fired_word, failsafes.on_arming_word, due,
+                elapsed_s)  # fmt: skip
+
+    def steady_tick_taken(self, est: Estimate, now_s: float, dt_s: float) -> tuple[float, ...]:
+        """The steady tick ``steady_tick_plan`` planned was flown to the estimate ``est`` (``TICK_STEADY``): note it as
+        ``step`` notes a tick, and return its motor commands."""
+        assert self._steady is not None
+        setpoint, due, elapsed_s = self._steady
+        self._steady = None
+        state = self._state
+        state.est = est
+        state.now_s = now_s
+        self._since_tick_s = 0.0  # the tick's time since the last tick is the offboard unit's to ignore
+        # The unit's own setpoint: the auto-mode reference follows the vehicle (as ``_control``).
+        self._tracker.trajectory.reset(est.pos_ned_m)
+        held = self._held
+        if held is None or held.trajectory is not setpoint:
+            self._held = _Held(trajectory=setpoint)
+        cascade = self._cascade
+        motors = cascade.trajectory_flown(setpoint, due, elapsed_s)
+        motors = self._after_control(self._authority.unit, est, now_s, motors, cascade.collective_sp_n)
+        state.tick_due = False
+        return motors
+
     # ---- the tick --------------------------------------------------------------------------------------------------
     def _tick(self, est: Estimate, now_s: float, dt_s: float) -> tuple[float, ...]:
         """The commander's tick, with the mode units advanced by the time since the last tick."""
@@ -140,6 +211,7 @@ class FlightTick:
         if version != self._tick_version:
             self._tick_version = version
             self._tick_period_s = outer_loop_period_s(self._params)
+            self._failsafe_limits = failsafe_limits(self._params)
         if not status.armed:
             if not state.landed and detector.update(
                 now_s, float(est.vel_ned_mps[2]), 0.0, state.altitude_above_home_m()
@@ -165,6 +237,13 @@ class FlightTick:
             self._held = _Held(motors=self._idle) if status.armed else None
             return self._idle
         motors, collective_n = self._control(unit, est, now_s, dt_s, tick_dt_s)
+        return self._after_control(unit, est, now_s, motors, collective_n)
+
+    def _after_control(
+        self, unit: ModeUnit, est: Estimate, now_s: float, motors: tuple[float, ...], collective_n: float
+    ) -> tuple[float, ...]:
+        """The end of a tick that flew: the thrust shown, the land detector, a touchdown's handling."""
+        state, status, detector = self._state, self._state.status, self._state.land_detector
         status.thrust_n = collective_n
         was_landed = state.landed
         landed = detector.update(
@@ -175,7 +254,7 @@ class FlightTick:
         elif landed and not was_landed:
             state.event(6, "Landing detected")
             state.landed_since_s = now_s
-            authority.carry_out(unit.on_touchdown(self._mode_inputs(est, now_s)))
+            self._authority.carry_out(unit.on_touchdown(self._mode_inputs(est, now_s)))
             self._cascade.reset()
             self._held = None
             return self._idle
@@ -254,12 +333,14 @@ class FlightTick:
             fence_breach=self._fence_breach(est),
         )
 
+    def _fence_watched(self) -> bool:
+        """Is there a fence to stay within: zones, or a distance limit from home?"""
+        params = self._params
+        return bool(self._state.fence.zones) or params["GF_MAX_HOR_DIST"] > 0.0 or params["GF_MAX_VER_DIST"] > 0.0
+
     def _fence_breach(self, est: Estimate) -> str | None:
-        if not est.position_valid:
+        if not est.position_valid or not self._fence_watched():
             return None
-        hor = self._params["GF_MAX_HOR_DIST"]
-        ver = self._params["GF_MAX_VER_DIST"]
-        fence = self._state.fence
-        if not fence.zones and hor <= 0.0 and ver <= 0.0:
-            return None
-        return fence.breach(floats3(est.pos_ned_m), floats3(self._state.home_ned_m), hor, ver)
+        params = self._params
+        return self._state.fence.breach(floats3(est.pos_ned_m), floats3(self._state.home_ned_m),
+                                        params["GF_MAX_HOR_DIST"], params["GF_MAX_VER_DIST"])  # fmt: skip

@@ -14,7 +14,7 @@ pure (sitl/autopilot/failsafe.py, failsafe_framework.py); this applies them.
 from __future__ import annotations
 
 from sitl.autopilot.commander_state import CommanderState
-from sitl.autopilot.failsafe import FAILSAFE_TABLE
+from sitl.autopilot.failsafe import FAILSAFE_TABLE, failsafe_conditions
 from sitl.autopilot.failsafe_framework import FailsafeAction, FailsafeInputs, FailsafeOrder, FailsafeState
 from sitl.autopilot.mode_io import NO_CHANGE, ModeDecision
 from sitl.autopilot.modes import ModeUnit, Units
@@ -42,7 +42,7 @@ class ModeAuthority:
         # intended mode", the one the position-loss row asks "can it run without a position?".
         self._intended: ModeUnit | None = None
         self._fallback_from: ModeUnit | None = None  # the unit Descend replaced, flown again if the position returns
-        self.failsafes = FailsafeState(FAILSAFE_TABLE)
+        self.failsafes = FailsafeState(FAILSAFE_TABLE, failsafe_conditions)
 
     # ---- transitions -----------------------------------------------------------------------------------------------
     def enter(self, mode: Px4Mode) -> None:

@@ -224,6 +224,11 @@ class CollisionPrevention:
             pos = (float(pos_ned_m[0]), float(pos_ned_m[1]), float(pos_ned_m[2]))
             vel = (float(vel_ned_mps[0]), float(vel_ned_mps[1]), float(vel_ned_mps[2]))
             self._run(setpoint, pos, vel, now_s)
+        return self.held(setpoint)
+
+    def held(self, setpoint: TrajectorySetpoint) -> TrajectorySetpoint:
+        """``setpoint`` with the correction the last run decided: its horizontal velocity instead of the horizontal
+        position and acceleration; ``setpoint`` itself when none is held."""
         if self._vel_xy is None:
             return setpoint
         z_pos, z_vel, z_acc = setpoint.pos_ned_m[2], setpoint.vel_ned_mps[2], setpoint.acc_ned_mps2[2]
@@ -234,6 +239,15 @@ class CollisionPrevention:
             yaw_rad=setpoint.yaw_rad,
             yawspeed_radps=setpoint.yawspeed_radps,
         )
+
+    def holds(self, now_s: float) -> bool:
+        """Would ``apply`` at ``now_s`` change nothing and give ``held``'s setpoint: no run due, or nothing to avoid
+        with no correction and no episode to end? A steady tick (sitl/autopilot/flight_tick.py) then flies
+        ``held(setpoint)`` without the estimate ``apply`` is given."""
+        config = self.config()
+        if not config.enabled or (not len(self._camera_rows) and not len(self._relay_rows)):
+            return self._vel_xy is None and self._last_active_s is None
+        return now_s < self._next_run_s
 
     def _run(self, setpoint: TrajectorySetpoint, pos: Vec3f, own_vel: Vec3f, now_s: float) -> None:
         demand = self._position.update(pos, setpoint.pos_ned_m, setpoint.vel_ned_mps)

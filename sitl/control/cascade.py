@@ -221,6 +221,20 @@ class Cascade:
         """One control step towards a trajectory setpoint, in one kernel (sitl/kernels/cascade.py ``trajectory``): its
         motor commands; ``collective_sp_n`` and the rows hold the rest (``update`` builds the record of it).
         ``landed`` freezes the integrators."""
+        due, elapsed_s = self.outer_plan(setpoint, dt_s)
+        allocator = self.allocator
+        ck.trajectory(_row(state.pos_ned_m), _row(state.vel_ned_mps), _row(state.att_q_frd_to_ned),
+                      _row(state.rates_frd_radps), self._sp_row, due, elapsed_s, dt_s, landed, self.position.row,
+                      self.velocity.row, self.velocity.state, self._heading_row, self.held_row, self.attitude.row,
+                      self.rate.row, self.rate.state, allocator.rows, allocator.thrust_max_n,
+                      self._inner_out)  # fmt: skip
+        return self.trajectory_flown(setpoint, due, elapsed_s)
+
+    def outer_plan(self, setpoint: TrajectorySetpoint, dt_s: float) -> tuple[bool, float]:
+        """Before a control step towards ``setpoint`` (``fly``, or a steady tick's kernel on ``outer_rows``): whether
+        the outer loops run in it and the time they integrate over; the setpoint's row is written (and a changed
+        parameter taken, as any step takes it). Nothing else changes, so a step planned and not taken leaves the
+        cascade as the next step would find it."""
         if self.params.version != self._params_version:
             self._refresh_configs()
         # The outer loops run at MPC_LOOP_HZ, or at once for a new setpoint (identity first: a streamed setpoint is
@@ -236,12 +250,22 @@ class Cascade:
             self._sp_row[:] = (*setpoint.pos_ned_m, *setpoint.vel_ned_mps, *setpoint.acc_ned_mps2, setpoint.yaw_rad,
                                setpoint.yawspeed_radps)  # fmt: skip
             self._sp_of_row = setpoint
-        allocator = self.allocator
-        ck.trajectory(_row(state.pos_ned_m), _row(state.vel_ned_mps), _row(state.att_q_frd_to_ned),
-                      _row(state.rates_frd_radps), self._sp_row, due, elapsed_s, dt_s, landed, self.position.row,
-                      self.velocity.row, self.velocity.state, self._heading_row, self.held_row, self.attitude.row,
-                      self.rate.row, self.rate.state, allocator.rows, allocator.thrust_max_n,
-                      self._inner_out)  # fmt: skip
+        return due, elapsed_s
+
+    def outer_rows(
+        self,
+    ) -> tuple[
+        npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64],
+        npt.NDArray[np.float64], npt.NDArray[np.float64],
+    ]:  # fmt: skip
+        """What the outer loops' kernel takes besides the estimate: the setpoint's row (written by ``outer_plan``), the
+        position and velocity configurations, the velocity loop's state, the heading rule and the held output."""
+        return (self._sp_row, self.position.row, self.velocity.row, self.velocity.state, self._heading_row,
+                self.held_row)  # fmt: skip
+
+    def trajectory_flown(self, setpoint: TrajectorySetpoint, due: bool, elapsed_s: float) -> tuple[float, ...]:
+        """The control step ``outer_plan`` planned was taken: note when the outer loops ran, and return its motor
+        commands from the output row."""
         if due:
             self._outer_held = True
             self._outer_setpoint = setpoint

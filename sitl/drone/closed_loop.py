@@ -73,6 +73,9 @@ class ClosedLoop:
         self.time_s = 0.0
         self.truth_at_boot_ned_m = self.truth.pos_ned_m.copy()
         self._k_q = config.airframe.torque_coeff_nm_per_radps2
+        # Steady ticks taken in one kernel (``_compiled_step``); off, every tick runs the Python commander, to the same
+        # bits (tests/closed_loop/test_between_ticks.py flies both).
+        self.steady_ticks = True
         self.control_ns = 0  # sensors, estimator, autopilot and cascade
         self.physics_ns = 0  # JSBSim, wind, battery
         # The clock the parts are timed with: monotonic by default (a read costs ~40 ns); a drone in a swarm uses its
@@ -138,8 +141,21 @@ class ClosedLoop:
         est_state, est_cfg, est_gps, est_no_vec, est_out = estimator.kernel_rows()
         imu_inputs, row = self.plant.imu_inputs(), self.sensors.row
         if not vehicle.holds_inner_loops(dt_s):
-            bt.sense(imu_inputs, row, *sample, est_state, est_cfg, est_gps, est_no_vec, est_out,
-                     time_s, dt_s)  # fmt: skip
+            if self.steady_ticks and vehicle.steady_tick_ready(time_s, dt_s):
+                cascade = vehicle.cascade
+                (needs_pos, alive, gcs_s, battery, dl_s, low, crit, emerg, fired, on_arming, due,
+                 elapsed_s) = vehicle.steady_tick_plan(time_s, dt_s)  # fmt: skip
+                sp, pos_cfg, vel_cfg, vel_state, heading, held = cascade.outer_rows()
+                att_cfg, rate_cfg, rate_state, alloc_rows, t_max, inner_out = cascade.inner_rows()
+                if bt.steady_tick(imu_inputs, row, *sample, est_state, est_cfg, est_gps, est_no_vec, est_out, time_s,
+                                  dt_s, needs_pos, alive, gcs_s, battery, dl_s, low, crit, emerg, fired, on_arming, sp,
+                                  due, elapsed_s, pos_cfg, vel_cfg, vel_state, heading, held, att_cfg, rate_cfg,
+                                  rate_state, alloc_rows, t_max, inner_out) == bt.TICK_STEADY:  # fmt: skip
+                    self.estimate = estimate = estimator.published(time_s)
+                    return vehicle.steady_tick_taken(estimate, time_s, dt_s)
+            else:
+                bt.sense(imu_inputs, row, *sample, est_state, est_cfg, est_gps, est_no_vec, est_out,
+                         time_s, dt_s)  # fmt: skip
             self.estimate = estimate = estimator.published_whole(time_s)  # a tick, most likely: it reads every vector
             return vehicle.step(estimate, time_s, dt_s)
         cascade = vehicle.cascade

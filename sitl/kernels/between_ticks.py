@@ -2,6 +2,12 @@
 sample (``sense``), and, between two commander ticks, the inner loops towards the attitude the commander's last tick
 asked for as well (``step``; sitl/autopilot/commander.py, ``Commander.step``).
 
+A third entry point takes a steady tick (``steady_tick``): a tick of a drone flying a streamed trajectory setpoint in
+OFFBOARD on which no failsafe row acts and nothing else asks for the Python commander (sitl/autopilot/flight_tick.py
+``FlightTick.steady_tick_ready`` says when). It senses, looks at the failsafe table's conditions on the new estimate,
+and, when no row acts, flies the setpoint through the outer and inner loops; when one does, it returns
+``TICK_EVENT`` having only sensed, and the Python tick runs on that estimate as after ``sense``.
+
 On most steps no GPS sample is due (10 Hz against 250 Hz physics) and what a step samples is numeric: the IMU, and at
 their rates the barometer and the magnetometer. That was two Python shells each building records (the readings, the
 estimate) around the estimator's kernel; here the samples are taken with the arithmetic sitl/sensors/models.py writes
@@ -19,6 +25,7 @@ import numpy.typing as npt
 
 from sitl.kernels import cascade as ck
 from sitl.kernels import estimator as ek
+from sitl.kernels import failsafe as fk
 from sitl.kernels import kernel
 
 # The sensors' constants (sitl/sensors/models.py SensorSuite.row): the IMU's gyro and accelerometer biases and noise
@@ -151,3 +158,80 @@ def step(
     ck.inner_held(est_out[q], est_out[q + 1], est_out[q + 2], est_out[q + 3], est_out[r], est_out[r + 1],
                   est_out[r + 2], held, dt_s, landed, attitude_cfg, rate_cfg, rate_state, alloc_rows, t_max,
                   inner_out)  # fmt: skip
+
+
+# What ``steady_tick`` returns: the tick was flown, or a failsafe row acts and the Python tick must run.
+TICK_STEADY = 0
+TICK_EVENT = 1
+
+
+@kernel(
+    f"int64({_SENSE_ARGS}, boolean, boolean, float64, float64, float64, float64, float64, float64, int64, int64,"
+    " float64[::1], boolean, float64, float64[::1], float64[::1], float64[::1], float64[::1], float64[::1],"
+    " float64[::1], float64[::1], float64[::1], float64[:, ::1], float64, float64[::1])"
+)
+def steady_tick(
+    imu_inputs: npt.NDArray[np.float64],
+    sensors: npt.NDArray[np.float64],
+    noise: npt.NDArray[np.float64],
+    noise_row: int,
+    baro_due: bool,
+    baro_noise: npt.NDArray[np.float64],
+    baro_row: int,
+    alt_amsl_m: float,
+    mag_due: bool,
+    mag_noise: npt.NDArray[np.float64],
+    mag_row: int,
+    qw: float,
+    qx: float,
+    qy: float,
+    qz: float,
+    est_state: npt.NDArray[np.float64],
+    est_cfg: npt.NDArray[np.float64],
+    est_gps: npt.NDArray[np.float64],
+    est_no_vec: npt.NDArray[np.float64],
+    est_out: npt.NDArray[np.float64],
+    time_s: float,
+    dt_s: float,
+    needs_position: bool,
+    offboard_alive: bool,
+    gcs_heartbeat_s: float,
+    battery_remaining: float,
+    datalink_loss_s: float,
+    battery_low: float,
+    battery_critical: float,
+    battery_emergency: float,
+    fired: int,
+    on_arming: int,
+    sp: npt.NDArray[np.float64],
+    outer_due: bool,
+    elapsed_s: float,
+    position_cfg: npt.NDArray[np.float64],
+    velocity_cfg: npt.NDArray[np.float64],
+    velocity_state: npt.NDArray[np.float64],
+    heading_cfg: npt.NDArray[np.float64],
+    held: npt.NDArray[np.float64],
+    attitude_cfg: npt.NDArray[np.float64],
+    rate_cfg: npt.NDArray[np.float64],
+    rate_state: npt.NDArray[np.float64],
+    alloc_rows: npt.NDArray[np.float64],
+    t_max: float,
+    inner_out: npt.NDArray[np.float64],
+) -> int:
+    """A steady tick of a drone in OFFBOARD, in the air, with no fence: ``sense``; then, unless a failsafe row acts on
+    the new estimate (sitl/kernels/failsafe.py: the conditions as the Python tick gives them, ``fired`` and
+    ``on_arming`` from the framework), the control step towards the setpoint row ``sp`` (sitl/kernels/cascade.py
+    ``trajectory``, the motor commands to ``inner_out``) and ``TICK_STEADY``; else ``TICK_EVENT``, having only
+    sensed."""
+    sense(imu_inputs, sensors, noise, noise_row, baro_due, baro_noise, baro_row, alt_amsl_m, mag_due, mag_noise,
+          mag_row, qw, qx, qy, qz, est_state, est_cfg, est_gps, est_no_vec, est_out, time_s, dt_s)  # fmt: skip
+    holds = fk.conditions(time_s, False, True, False, needs_position, offboard_alive, gcs_heartbeat_s,
+                          battery_remaining, est_out[ek.O_POS_VALID] != 0.0, False, datalink_loss_s, battery_low,
+                          battery_critical, battery_emergency)  # fmt: skip
+    if fk.events(holds, fired, on_arming) != 0:
+        return TICK_EVENT
+    ck.trajectory(est_out[ek.O_POS : ek.O_POS + 3], est_out[ek.O_VEL : ek.O_VEL + 3], est_out[ek.O_Q : ek.O_Q + 4],
+                  est_out[ek.O_RATES : ek.O_RATES + 3], sp, outer_due, elapsed_s, dt_s, False, position_cfg,
+                  velocity_cfg, velocity_state, heading_cfg, held, attitude_cfg, rate_cfg, rate_state, alloc_rows,
+                  t_max, inner_out)  # fmt: skip
+    return TICK_STEADY

@@ -67,3 +67,88 @@ def test_steps_between_ticks_fly_to_the_bit_what_the_shells_fly() -> None:
         assert np.array_equal(a, b), f"step {k}: {a - b}"
     assert fast.battery.remaining == slow.battery.remaining
     assert np.array_equal(fast.vehicle.cascade.rate.state, slow.vehicle.cascade.rate.state)
+
+
+def _offboard_flight(steady: bool) -> tuple[list[np.ndarray], list[str], int]:
+    """Take off, then in OFFBOARD: fly 3 m north with the setpoint streamed at 20 Hz and a ground station heard at
+    1 Hz, lose the stream (the offboard-loss failsafe: Hold), stream again and re-enter OFFBOARD, reposition and
+    re-enter OFFBOARD, lose the ground
+    station (the datalink-loss failsafe), hear it again, then descend into the ground (the land detector's touchdown
+    on a tick). Every step's truth, estimate and held control output, the commander's texts, and the ticks taken
+    steady; with
+    ``steady`` off every tick runs the Python commander."""
+    sim = make_sim(seed=5)
+    sim.steady_ticks = steady
+    v = sim.vehicle
+    counts = {"steady": 0}
+    taken = v.steady_tick_taken
+
+    def counted(*args: object) -> tuple[float, ...]:
+        counts["steady"] += 1
+        return taken(*args)  # type: ignore[arg-type]
+
+    v.steady_tick_taken = counted  # type: ignore[method-assign]
+    trace: list[np.ndarray] = []
+    texts: list[str] = []
+    setpoint = TrajectorySetpoint(pos_ned_m=(3.0, 0.0, -3.0), vel_ned_mps=(0.0, 0.0, 0.0))
+    streaming, hearing = True, True
+
+    def record(s: ClosedLoop) -> None:
+        est = s.estimate
+        assert est is not None
+        trace.append(np.concatenate((s.truth.pos_ned_m, s.truth.att_q_frd_to_ned, est.pos_ned_m, est.att_q_frd_to_ned,
+                                     s.vehicle.cascade.held_row)))  # fmt: skip
+        texts.extend(e.text for e in s.vehicle.events)
+        s.vehicle.events.clear()
+        step = round(s.time_s / s.dt_s)
+        if streaming and step % 12 == 0:  # about 20 Hz, as the streamer sends them
+            s.vehicle.set_offboard_setpoint(setpoint, s.time_s)
+        if hearing and step % 250 == 0:
+            s.vehicle.note_gcs_heartbeat(s.time_s)
+
+    assert sim.run_until(lambda s: s.vehicle.preflight_problem() is None, 10.0)
+    assert v.arm().ok and v.takeoff(3.0).ok
+    sim.run_for(6.0, record)
+    v.params.set("COM_DL_LOSS_T", 5.0)
+    v.params.set("NAV_DLL_ACT", 1)  # Hold
+    v.note_gcs_heartbeat(sim.time_s)
+    v.set_offboard_setpoint(setpoint, sim.time_s)
+    assert v.start_offboard(sim.time_s).ok
+    sim.run_for(4.0, record)
+    streaming = False
+    sim.run_for(2.0, record)  # past COM_OF_LOSS_T: Hold
+    streaming = True
+    sim.run_for(0.2, record)
+    assert v.start_offboard(sim.time_s).ok
+    sim.run_for(2.0, record)
+    assert v.goto(np.array((0.0, 2.0, -4.0))).ok  # a reposition starts from the reference OFFBOARD kept
+    sim.run_for(2.0, record)
+    assert v.start_offboard(sim.time_s).ok
+    sim.run_for(1.0, record)
+    hearing = False
+    sim.run_for(6.0, record)  # past COM_DL_LOSS_T
+    hearing = True
+    sim.run_for(1.5, record)
+    assert v.start_offboard(sim.time_s).ok
+    setpoint = TrajectorySetpoint(pos_ned_m=(3.0, 0.0, 0.5), vel_ned_mps=(0.0, 0.0, 0.3))
+    sim.run_for(10.0, record)
+    return trace, texts, counts["steady"]
+
+
+def test_steady_ticks_fly_to_the_bit_what_the_python_tick_flies() -> None:
+    # GIVEN one OFFBOARD flight through two failsafes and a touchdown, flown with steady ticks in one kernel and
+    # with the Python commander on every tick
+    fast_trace, fast_texts, steady = _offboard_flight(steady=True)
+    slow_trace, slow_texts, none = _offboard_flight(steady=False)
+    # THEN steady ticks were taken (and none when switched off) ...
+    assert steady > 500, steady
+    assert none == 0
+    # ... the failsafes and the touchdown happened, in the same words ...
+    assert any("offboard setpoints lost" in t for t in fast_texts), fast_texts
+    assert any("no connection to the ground control station" in t for t in fast_texts), fast_texts
+    assert "Landing detected" in fast_texts, fast_texts
+    assert fast_texts == slow_texts
+    # ... and every step's truth, estimate and held control output have the same bits
+    assert len(fast_trace) == len(slow_trace)
+    for k, (a, b) in enumerate(zip(fast_trace, slow_trace, strict=True)):
+        assert np.array_equal(a, b, equal_nan=True), f"step {k}: {a - b}"

@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from sitl.autopilot.failsafe import FAILSAFE_TABLE
+from sitl.autopilot.failsafe import FAILSAFE_TABLE, failsafe_conditions
 from sitl.autopilot.failsafe_framework import FailsafeAction, FailsafeInputs, FailsafeState
 from sitl.autopilot.px4_modes import FailsafeKind, Px4Mode
 from sitl.drone.param_table import build_param_store
@@ -37,7 +37,7 @@ def _params(**values: float) -> ParamStore:
 
 
 def _state() -> FailsafeState:
-    return FailsafeState(FAILSAFE_TABLE)
+    return FailsafeState(FAILSAFE_TABLE, failsafe_conditions)
 
 
 def _actions(
