@@ -360,6 +360,12 @@ def conflict_prepared(
     if index < 0:
         return None
     row = usable[index]
-    return Conflict(sysid=int(row[ak.O_SYSID]), source=_SOURCES[float(row[ak.O_SOURCE])],
-                    predicted_m=float(found[0]), in_s=float(found[1]),
-                    separation_m=float(row[ak.U_SEPARATION]))  # fmt: skip
+    return conflict_of(float(row[ak.O_SYSID]), float(row[ak.O_SOURCE]), float(found[0]), float(found[1]),
+                       float(row[ak.U_SEPARATION]))  # fmt: skip
+
+
+def conflict_of(sysid: float, source: float, predicted_m: float, in_s: float, separation_m: float) -> Conflict:
+    """The record of a conflict the kernels found: the body's relayed sysid, source code and separation (its usable
+    row) and ``conflict``'s predicted distance and time."""
+    return Conflict(sysid=int(sysid), source=_SOURCES[source], predicted_m=predicted_m, in_s=in_s,
+                    separation_m=separation_m)  # fmt: skip

@@ -23,17 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from sitl.avoidance.algorithm import (
-    AvoidanceConfig,
-    AvoidanceResult,
-    Conflict,
-    Obstacle,
-    avoid_prepared,
-    config_row,
-    conflict_prepared,
-    new_obstacle,
-    prepare_rows,
-)
+from sitl.avoidance.algorithm import AvoidanceConfig, Conflict, Obstacle, config_row, conflict_of, new_obstacle
 from sitl.control.cascade import TrajectorySetpoint
 from sitl.control.position import PositionController
 from sitl.kernels import avoidance as ak
@@ -83,29 +73,6 @@ def _relayed_records(rows: npt.NDArray[np.float64]) -> tuple[RelayedNeighbour, .
     )  # fmt: skip
 
 
-MIN_PREFERRED_SPEED_MPS = 1.0
-
-
-def _preferred(desired: Vec3f, setpoint: TrajectorySetpoint) -> Vec3f:
-    """The velocity avoidance should aim for: what the position loop wants, but no faster horizontally than the
-    setpoint itself moves (and at least ``MIN_PREFERRED_SPEED_MPS``).
-
-    A drone held back by its neighbours falls behind a moving setpoint, and the position loop then asks for ever
-    more speed to catch up (6 m/s behind a 2 m/s setpoint in an eight-drone swap); fed to the velocity obstacles that
-    demand pushes every drone into the crowd harder than the crowd can clear. Capped, each drone asks for the pace
-    the mission set, and catches up freely once nothing is in the way (the cap applies only while correcting)."""
-    vx, vy = desired[0], desired[1]
-    if not (math.isfinite(vx) and math.isfinite(vy)):
-        return desired
-    ff = setpoint.vel_ned_mps
-    ff_speed = math.hypot(ff[0], ff[1]) if math.isfinite(ff[0]) and math.isfinite(ff[1]) else 0.0
-    cap = max(ff_speed, MIN_PREFERRED_SPEED_MPS)
-    speed = math.hypot(vx, vy)
-    if speed <= cap:
-        return desired
-    return (vx * cap / speed, vy * cap / speed, desired[2])
-
-
 class CollisionPrevention:
     def __init__(self, params: ParamStore, position: PositionController, own_radius_m: float,
                  event: Callable[[int, str], None]) -> None:  # fmt: skip
@@ -125,6 +92,7 @@ class CollisionPrevention:
         self._relay_rows = _NO_NEIGHBOURS
         self._relay_records: tuple[RelayedNeighbour, ...] | None = ()
         self._next_run_s = -math.inf
+        self._run_out = np.empty(ak.RUN_SIZE)  # what a run found (sitl/kernels/avoidance.py ``RUN_*``)
         self._vel_xy: tuple[float, float] | None = None  # the held correction, None when not correcting
         self._episode_closest_m = math.inf
         self._last_active_s: float | None = None
@@ -187,27 +155,32 @@ class CollisionPrevention:
             self._config_row = config_row(self._config)
         return self._config
 
-    def _obstacles(self, pos_ned_m: Vec3f, own_vel: Vec3f, now_s: float) -> npt.NDArray[np.float64]:
-        """Fusion's obstacle rows from the input rows, with no record built: at the avoidance rate, for every
-        neighbour, records cost more than fusing them in a crowd."""
-        camera = NO_CAMERA
-        if now_s - self._camera_time_s <= INPUT_TIMEOUT_S and len(self._camera_rows):
-            camera = self._camera_rows.copy()
-            camera[:, 4] += now_s - self._camera_time_s  # aged to now
+    def _inputs(self, now_s: float) -> tuple[npt.NDArray[np.float64], float, int, float, float]:
+        """What the obstacles are made from at ``now_s`` besides the relayed rows: the camera's rows and how much older
+        they are now (no rows once a frame is INPUT_TIMEOUT_S old), how many relayed neighbours to fuse, and the
+        growth of a stale report's keep-out (AVOID_STALE_RATE, AVOID_STALE_MAX)."""
         config = self.config()
+        camera, camera_age_s = NO_CAMERA, 0.0
+        if now_s - self._camera_time_s <= INPUT_TIMEOUT_S and len(self._camera_rows):
+            camera, camera_age_s = self._camera_rows, now_s - self._camera_time_s  # aged to now
         # ``avoid`` keeps the nearest few; fusing neighbours it will drop anyway is most of the cost in a crowd.
         keep = RELAY_CANDIDATES_PER_OBSTACLE * config.max_obstacles if config.max_obstacles > 0 else 0
-        # The keep-out around a vehicle last known some seconds ago is wider: it may have moved since
-        # (AVOID_STALE_RATE a second, at most AVOID_STALE_MAX); its body, seen by the camera, does not grow.
+        # The keep-out around a vehicle last known some seconds ago is wider: it may have moved since; its body, seen
+        # by the camera, does not grow.
         p = self._params
+        return camera, camera_age_s, keep, p["AVOID_STALE_RATE"], p["AVOID_STALE_MAX"]
+
+    def obstacles(self, pos_ned_m: Vec3f, own_vel_ned_mps: Vec3f, now_s: float) -> npt.NDArray[np.float64]:
+        """The obstacles a run at ``now_s`` avoids, as fusion's rows (sitl/kernels/avoidance.py ``obstacles``; the swarm
+        flies one airframe, and a relay report carries no size, so a neighbour is as large as this drone)."""
+        camera, camera_age_s, keep, stale_rate, stale_max = self._inputs(now_s)
         neighbours = self._relay_rows
-        relay = np.empty((len(neighbours), ak.RELAY_SIZE))
-        # The swarm flies one airframe; a relay report carries no size.
-        n_relay = ak.relay_inputs(neighbours, pos_ned_m[0], pos_ned_m[1], pos_ned_m[2], now_s, self._own_radius_m,
-                                  p["AVOID_STALE_RATE"], p["AVOID_STALE_MAX"], keep, relay)  # fmt: skip
-        out = np.empty((len(camera) + n_relay, ak.OBSTACLE_SIZE))
-        own = np.array(own_vel, dtype=np.float64)
-        return out[: ak.fuse(camera, relay[:n_relay], own, self._config_row, out)]
+        out = np.empty((len(camera) + len(neighbours), ak.OBSTACLE_SIZE))
+        x, y, z = pos_ned_m
+        vx, vy, vz = own_vel_ned_mps
+        n = ak.obstacles(x, y, z, vx, vy, vz, camera, camera_age_s, neighbours, now_s, self._own_radius_m, stale_rate,
+                         stale_max, keep, self._config_row, out)  # fmt: skip
+        return out[:n]
 
     # ---- the correction --------------------------------------------------------------------------------------------
     def apply(
@@ -250,42 +223,43 @@ class CollisionPrevention:
         return now_s < self._next_run_s
 
     def _run(self, setpoint: TrajectorySetpoint, pos: Vec3f, own_vel: Vec3f, now_s: float) -> None:
-        demand = self._position.update(pos, setpoint.pos_ned_m, setpoint.vel_ned_mps)
-        self.config()
-        config = self._config_row
-        obstacles = prepare_rows(self._obstacles(pos, own_vel, now_s), config)  # asked about twice below
-        # Whether to correct is decided on what the drone would really fly (the position loop's demand, which may be
-        # a sprint to catch up with its setpoint), not on the capped pace: a pace that is clear says nothing about a
-        # sprint, and two drones sprinting to catch up after a detour met at 6 m/s closing speed that way.
-        result = avoid_prepared(own_vel, demand, obstacles, config)
-        # A correction starts only for a conflict: a body closer than the separation, or predicted to come closer
-        # within the horizon at the drone's current or desired velocity (the body keeping its own). ORCA anchors its
-        # half-planes at the measured velocity, so a demand that differs from it by half the margin towards a
-        # neighbour (a hovering drone's tracking error and estimate noise, 0.05-0.2 m/s, against 0.1 m/s for two
-        # drones 2 m apart) was trimmed, and announced, with nothing predicted to come near. Once correcting, ORCA
-        # alone decides when to stop, as before: releasing a crowd on the prediction alone lets neighbours that each
-        # see a clear way turn back into one another at once.
-        conflict = None
-        if result.active and self._vel_xy is None:
-            conflict = conflict_prepared(own_vel, demand, obstacles, config)
-            if conflict is None:
-                result = AvoidanceResult(vel_ned_mps=demand, active=False, closest_m=result.closest_m, constraining=0)
-        if not result.active:
+        """One run, in one kernel (sitl/kernels/avoidance.py ``run``: the obstacles from the inputs, ORCA, the conflict
+        that starts a correction, the pace a correction aims for); the correction held, and an episode's start and end
+        said, here.
+
+        Whether to correct is decided on what the drone would really fly (the position loop's demand, which may be a
+        sprint to catch up with its setpoint), not on the capped pace: a pace that is clear says nothing about a
+        sprint, and two drones sprinting to catch up after a detour met at 6 m/s closing speed that way. A correction
+        starts only for a conflict: a body closer than the separation, or predicted to come closer within the horizon
+        at the drone's current or desired velocity (the body keeping its own). ORCA anchors its half-planes at the
+        measured velocity, so a demand that differs from it by half the margin towards a neighbour (a hovering
+        drone's tracking error and estimate noise, 0.05-0.2 m/s, against 0.1 m/s for two drones 2 m apart) was
+        trimmed, and announced, with nothing predicted to come near. Once correcting, ORCA alone decides when to
+        stop: releasing a crowd on the prediction alone lets neighbours that each see a clear way turn back into one
+        another at once. A correction flies around the mission's pace, not the sprint: a drone held back by its
+        neighbours falls behind a moving setpoint and its position loop asks for ever more speed (6 m/s behind a
+        2 m/s setpoint in an eight-drone swap), which pushes every drone into the crowd harder than it can clear."""
+        camera, camera_age_s, keep, stale_rate, stale_max = self._inputs(now_s)
+        (sp_x, sp_y, sp_z), (ff_x, ff_y, ff_z) = setpoint.pos_ned_m, setpoint.vel_ned_mps
+        out = self._run_out
+        ak.run(pos[0], pos[1], pos[2], own_vel[0], own_vel[1], own_vel[2], sp_x, sp_y, sp_z, ff_x, ff_y, ff_z,
+               self._position.row, camera, camera_age_s, self._relay_rows, now_s, self._own_radius_m, stale_rate,
+               stale_max, keep, self._config_row, self._vel_xy is not None, out)  # fmt: skip
+        ran = out.tolist()
+        if ran[ak.RUN_ACTIVE] == 0.0:
             self._vel_xy = None
             self._end_episode(now_s)
             return
-        vel = result.vel_ned_mps
-        preferred = _preferred(demand, setpoint)
-        if preferred != demand:  # correct around the mission's pace (which may need no change), not the sprint
-            vel = avoid_prepared(own_vel, preferred, obstacles, config).vel_ned_mps
-        self._vel_xy = (vel[0], vel[1])
-        if self._last_active_s is None and conflict is not None:  # (an episode starts only with a correction's start)
+        self._vel_xy = (ran[ak.RUN_VEL], ran[ak.RUN_VEL + 1])
+        closest_m = ran[ak.RUN_CLOSEST]
+        if self._last_active_s is None and ran[ak.RUN_CONFLICT] != 0.0:  # an episode starts only with a correction
             self.episodes += 1
             self._episode_closest_m = math.inf
-            self._event(6, episode_text(conflict))
+            self._event(6, episode_text(conflict_of(ran[ak.RUN_SYSID], ran[ak.RUN_SOURCE], ran[ak.RUN_PREDICTED],
+                                                    ran[ak.RUN_IN_S], ran[ak.RUN_SEPARATION])))  # fmt: skip
         self._last_active_s = now_s
-        self._episode_closest_m = min(self._episode_closest_m, result.closest_m)
-        self.closest_m = min(self.closest_m, result.closest_m)
+        self._episode_closest_m = min(self._episode_closest_m, closest_m)
+        self.closest_m = min(self.closest_m, closest_m)
 
     def _end_episode(self, now_s: float) -> None:
         if self._last_active_s is not None and now_s - self._last_active_s >= EPISODE_END_S:

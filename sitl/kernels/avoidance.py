@@ -16,6 +16,7 @@ import math
 import numpy as np
 import numpy.typing as npt
 
+from sitl.kernels import cascade as ck
 from sitl.kernels import kernel
 from sitl.kernels.pymath import hypot2, pmax, pmin, py_square
 
@@ -702,3 +703,135 @@ def avoid(
     vx, vy = _limit(dvx, dvy, vx, vy, cap, vmax)
     active = py_square(vx - dvx) + py_square(vy - dvy) > 1e-12
     return vx, vy, active, constraining
+
+
+# What ``run`` writes: whether a correction applies, the horizontal velocity to fly, the closest centre distance of all
+# obstacles, and, when it found the conflict that starts a correction, that body (``conflict``'s figures).
+RUN_ACTIVE = 0
+RUN_VEL = 1
+RUN_CLOSEST = 3
+RUN_CONFLICT = 4  # 1.0: ``RUN_SYSID``..``RUN_SEPARATION`` describe it
+RUN_SYSID = 5
+RUN_SOURCE = 6
+RUN_PREDICTED = 7
+RUN_IN_S = 8
+RUN_SEPARATION = 9
+RUN_SIZE = 10
+
+# The slowest pace a correction aims for (``run``: the position loop's demand capped at the setpoint's own speed).
+MIN_PREFERRED_SPEED_MPS = 1.0
+
+
+@kernel(
+    "int64(float64, float64, float64, float64, float64, float64, float64[:, ::1], float64, float64[:, ::1], float64,"
+    " float64, float64, float64, int64, float64[::1], float64[:, ::1])"
+)
+def obstacles(
+    x: float,
+    y: float,
+    z: float,
+    own_vx: float,
+    own_vy: float,
+    own_vz: float,
+    camera: npt.NDArray[np.float64],
+    camera_age_s: float,
+    neighbours: npt.NDArray[np.float64],
+    now_s: float,
+    radius_m: float,
+    stale_rate_mps: float,
+    stale_max_m: float,
+    keep: int,
+    cfg: npt.NDArray[np.float64],
+    out: npt.NDArray[np.float64],
+) -> int:
+    """The obstacles of a drone at (x, y, z) flying (own_vx, own_vy, own_vz) at ``now_s``, written to ``out`` (room for
+    every camera row and neighbour): the camera rows, each aged by ``camera_age_s`` more, fused with the relayed
+    neighbours (``relay_inputs``, then ``fuse``); returns how many."""
+    aged = camera.copy()
+    for i in range(aged.shape[0]):
+        aged[i, 4] += camera_age_s
+    relay = np.empty((neighbours.shape[0], RELAY_SIZE))
+    n_relay = relay_inputs(neighbours, x, y, z, now_s, radius_m, stale_rate_mps, stale_max_m, keep, relay)
+    own = np.empty(3)
+    own[0], own[1], own[2] = own_vx, own_vy, own_vz
+    return fuse(aged, relay[:n_relay], own, cfg, out)
+
+
+@kernel(
+    "void(float64, float64, float64, float64, float64, float64, float64, float64, float64, float64, float64, float64,"
+    " float64[::1], float64[:, ::1], float64, float64[:, ::1], float64, float64, float64, float64, int64,"
+    " float64[::1], boolean, float64[::1])"
+)
+def run(
+    x: float,
+    y: float,
+    z: float,
+    own_vx: float,
+    own_vy: float,
+    own_vz: float,
+    sp_x: float,
+    sp_y: float,
+    sp_z: float,
+    ff_x: float,
+    ff_y: float,
+    ff_z: float,
+    position_cfg: npt.NDArray[np.float64],
+    camera: npt.NDArray[np.float64],
+    camera_age_s: float,
+    neighbours: npt.NDArray[np.float64],
+    now_s: float,
+    radius_m: float,
+    stale_rate_mps: float,
+    stale_max_m: float,
+    keep: int,
+    cfg: npt.NDArray[np.float64],
+    correcting: bool,
+    out: npt.NDArray[np.float64],
+) -> None:
+    """One run of collision prevention (sitl/avoidance/collision_prevention.py ``CollisionPrevention``) for a drone at
+    (x, y, z) flying (own_vx, own_vy, own_vz) towards a setpoint's position ``sp_*`` and velocity ``ff_*``, written to
+    ``out`` (``RUN_*``). The velocity the position loop would ask for; the obstacles (``obstacles``, ``prepare``); ORCA
+    on that demand
+    (``avoid``). A correction starts only for a conflict (``conflict``, looked for when not ``correcting``); once it
+    applies, ORCA is asked again for the demand capped at the setpoint's own horizontal speed (at least
+    ``MIN_PREFERRED_SPEED_MPS``): a drone fallen behind a moving setpoint asks for the mission's pace, not a sprint
+    into the crowd."""
+    dvx, dvy, dvz = ck.position_velocity_sp(position_cfg, x, y, z, sp_x, sp_y, sp_z, ff_x, ff_y, ff_z)
+    found_obstacles = np.empty((camera.shape[0] + neighbours.shape[0], OBSTACLE_SIZE))
+    n = obstacles(x, y, z, own_vx, own_vy, own_vz, camera, camera_age_s, neighbours, now_s, radius_m, stale_rate_mps,
+                  stale_max_m, keep, cfg, found_obstacles)  # fmt: skip
+    usable = np.empty((n, USABLE_SIZE))
+    count = np.zeros(1, np.int64)
+    closest = prepare(found_obstacles[:n], cfg, usable, count)
+    out[RUN_CLOSEST] = closest
+    out[RUN_ACTIVE] = 0.0
+    out[RUN_CONFLICT] = 0.0
+    enabled = cfg[K_ENABLED] != 0.0
+    if not (enabled and math.isfinite(dvx) and math.isfinite(dvy)):
+        return
+    k = count[0]
+    vx, vy, active, _ = avoid(usable, k, own_vx, own_vy, own_vz, dvx, dvy, dvz, cfg)
+    if active and not correcting:
+        found = np.zeros(2)
+        index = conflict(usable, k, own_vx, own_vy, own_vz, dvx, dvy, cfg, found)
+        if index < 0:
+            return
+        row = usable[index]
+        out[RUN_CONFLICT] = 1.0
+        out[RUN_SYSID] = row[O_SYSID]
+        out[RUN_SOURCE] = row[O_SOURCE]
+        out[RUN_PREDICTED] = found[0]
+        out[RUN_IN_S] = found[1]
+        out[RUN_SEPARATION] = row[U_SEPARATION]
+    if not active:
+        return
+    # The pace to aim for: the demand, no faster horizontally than the setpoint moves (finite: checked above).
+    ff_speed = hypot2(ff_x, ff_y) if math.isfinite(ff_x) and math.isfinite(ff_y) else 0.0
+    cap = pmax(ff_speed, MIN_PREFERRED_SPEED_MPS)
+    speed = hypot2(dvx, dvy)
+    if speed > cap:
+        px, py = dvx * cap / speed, dvy * cap / speed
+        if px != dvx or py != dvy:
+            vx, vy, _, _ = avoid(usable, k, own_vx, own_vy, own_vz, px, py, dvz, cfg)
+    out[RUN_ACTIVE] = 1.0
+    out[RUN_VEL], out[RUN_VEL + 1] = vx, vy

@@ -72,7 +72,7 @@ def test_the_obstacles_fused_from_fields_are_those_fused_from_records() -> None:
     cp.set_relay(neighbours)
     pos, vel, now_s = (0.3, -0.2, -3.0), (1.0, 0.5, 0.0), 10.0
     # WHEN collision prevention builds its obstacles, and the records are built as fusion's docstring describes
-    got = obstacles_from_rows(cp._obstacles(pos, vel, now_s))
+    got = obstacles_from_rows(cp.obstacles(pos, vel, now_s))
     config = cp.config()
     nearest = sorted(neighbours, key=lambda n: math.dist(n.pos_ned_m, pos))[: 2 * config.max_obstacles]
     relay = [
@@ -110,7 +110,7 @@ def test_inputs_given_as_rows_fuse_as_the_same_records_and_are_read_back_as_reco
     pos, vel = (0.0, 0.0, -3.0), (1.0, 0.5, 0.0)
     # THEN both fuse the same obstacles to the bit (the nearest 20 of 25 neighbours, traffic and stale margins too)
     for now_s in (10.0, 10.4, 11.0):
-        assert cp_bits(by_rows._obstacles(pos, vel, now_s)) == cp_bits(by_records._obstacles(pos, vel, now_s))
+        assert cp_bits(by_rows.obstacles(pos, vel, now_s)) == cp_bits(by_records.obstacles(pos, vel, now_s))
     # AND a reader of the rows (an onboard behaviour) is given the records they came from
     assert by_rows.relayed() == tuple(neighbours)
     assert by_rows.camera() == tuple(detections)
@@ -131,7 +131,7 @@ def test_the_keep_out_around_traffic_known_from_old_reports_grows_with_their_age
     for stale_s in (0.0, 4.0, 60.0):
         cp.set_relay([RelayedNeighbour(sysid=250, pos_ned_m=(5.0, 0.0, -3.0), vel_ned_mps=(0.0, 0.0, 0.0),
                                        received_s=10.0, cooperative=False, stale_s=stale_s)])  # fmt: skip
-        (row,) = obstacles_from_rows(cp._obstacles((0.0, 0.0, -3.0), (0.0, 0.0, 0.0), 10.0))
+        (row,) = obstacles_from_rows(cp.obstacles((0.0, 0.0, -3.0), (0.0, 0.0, 0.0), 10.0))
         radii.append(row.radius_m)
     # THEN its radius is the drone's own, then grows at AVOID_STALE_RATE (0.25 m/s), up to AVOID_STALE_MAX (3 m)
     assert radii == pytest.approx([0.35, 0.35 + 1.0, 0.35 + 3.0])
