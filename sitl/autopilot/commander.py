@@ -94,6 +94,7 @@ class Commander:
         self.steady_tick_ready = tick.steady_tick_ready
         self.steady_tick_plan = tick.steady_tick_plan
         self.steady_tick_taken = tick.steady_tick_taken
+        self.steady_tick_run = tick.steady_tick_run
 
     # ---- what the rest of the drone reads --------------------------------------------------------------------------
     def event(self, severity: int, text: str) -> None:

@@ -138,12 +138,12 @@ class FlightTick:
     def steady_tick_ready(self, now_s: float, dt_s: float) -> bool:
         """Will the next step, at ``now_s``, of ``dt_s``, be a steady tick: a tick (a command, or the outer loops'
         period) of a drone armed in the air in OFFBOARD flying a trajectory setpoint, with the parameters of the last
-        tick, no fence to watch, and collision prevention not due to run (its held correction, if any, is applied)?
-        Then the caller may take it
+        tick, and no fence to watch? Then the caller may take it
         in one kernel (sitl/kernels/between_ticks.py ``steady_tick``, with ``steady_tick_plan``'s inputs), which
         hands it back (``TICK_EVENT``) when a failsafe row acts; ``steady_tick_taken`` notes it. A steady tick is
         the tick ``step`` would run with what it would decide: the offboard unit neither advances nor reads its
-        inputs, no failsafe row acts, and collision prevention only applies what it holds."""
+        inputs and no failsafe row acts. When collision prevention is due to run, it runs on the kernel's estimate
+        (``TICK_QUIET``, ``steady_tick_run``); otherwise it only applies what it holds, in the kernel."""
         held = self._held
         state = self._state
         if held is None or held.trajectory is None or self._params.version != self._tick_version:
@@ -157,28 +157,31 @@ class FlightTick:
             and state.status.armed
             and not state.landed
             and not self._fence_watched()
-            and self._collision_prevention.holds(now_s)
         )
 
     def steady_tick_plan(
         self, now_s: float, dt_s: float
-    ) -> tuple[bool, bool, float, float, float, float, float, float, int, int, bool, float]:
+    ) -> tuple[bool, bool, float, float, float, float, float, float, int, int, bool, bool, float]:
         """The steady tick's inputs besides the rows (``steady_tick_ready`` said yes): what the failsafe table's
         conditions read that the estimate does not give (whether the operator's mode needs a position, whether the
         offboard stream is alive, the last ground-station heartbeat, the battery, the limits), the rows that fired and
-        those that re-arm only on arming, then whether the outer loops run and over what time (``Cascade.outer_plan``,
-        the setpoint's row written)."""
+        those that re-arm only on arming; then whether the kernel flies the tick (collision prevention is not due to
+        run) and, if it does, whether the outer loops run and over what time (``Cascade.outer_plan``, the setpoint's
+        row written)."""
         authority = self._authority
-        streamed = authority.units.offboard.setpoint_in
-        assert isinstance(streamed, TrajectorySetpoint)
-        setpoint = self._collision_prevention.held(streamed)
-        due, elapsed_s = self._cascade.outer_plan(setpoint, dt_s)
-        self._steady = (setpoint, due, elapsed_s)
+        prevention = self._collision_prevention
+        fly, due, elapsed_s = prevention.holds(now_s), False, 0.0
+        if fly:
+            streamed = authority.units.offboard.setpoint_in
+            assert isinstance(streamed, TrajectorySetpoint)
+            setpoint = prevention.held(streamed)
+            due, elapsed_s = self._cascade.outer_plan(setpoint, dt_s)
+            self._steady = (setpoint, due, elapsed_s)
         failsafes = authority.failsafes
         dl, low, crit, emerg = self._failsafe_limits
         return (authority.needs_position(), authority.offboard_alive(now_s), self._state.gcs_heartbeat_s,
-                self._battery_remaining(), dl, low, crit, emerg, failsafes.fired_word, failsafes.on_arming_word, due,
-                elapsed_s)  # fmt: skip
+                self._battery_remaining(), dl, low, crit, emerg, failsafes.fired_word, failsafes.on_arming_word, fly,
+                due, elapsed_s)  # fmt: skip
 
     def steady_tick_taken(self, est: Estimate, now_s: float, dt_s: float) -> tuple[float, ...]:
         """The steady tick ``steady_tick_plan`` planned was flown to the estimate ``est`` (``TICK_STEADY``): note it as
@@ -186,19 +189,37 @@ class FlightTick:
         assert self._steady is not None
         setpoint, due, elapsed_s = self._steady
         self._steady = None
+        self._steady_tick_begins(est, now_s)
+        held = self._held
+        if held is None or held.trajectory is not setpoint:
+            self._held = _Held(trajectory=setpoint)
+        cascade = self._cascade
+        motors = cascade.trajectory_flown(setpoint, due, elapsed_s)
+        return self._steady_tick_ends(est, now_s, motors, cascade.collective_sp_n)
+
+    def steady_tick_run(self, est: Estimate, now_s: float, dt_s: float) -> tuple[float, ...]:
+        """A steady tick the kernel left to the caller (``TICK_QUIET``: collision prevention is due to run), on the
+        estimate ``est`` it sensed: the streamed setpoint through collision prevention and the cascade, as ``step``'s
+        tick flies it, and the tick noted."""
+        setpoint = self._authority.units.offboard.setpoint_in
+        assert isinstance(setpoint, TrajectorySetpoint)
+        self._steady_tick_begins(est, now_s)
+        motors, collective_n = self._fly_trajectory(setpoint, est, now_s, dt_s)
+        return self._steady_tick_ends(est, now_s, motors, collective_n)
+
+    def _steady_tick_begins(self, est: Estimate, now_s: float) -> None:
         state = self._state
         state.est = est
         state.now_s = now_s
         self._since_tick_s = 0.0  # the tick's time since the last tick is the offboard unit's to ignore
         # The unit's own setpoint: the auto-mode reference follows the vehicle (as ``_control``).
         self._tracker.trajectory.reset(est.pos_ned_m)
-        held = self._held
-        if held is None or held.trajectory is not setpoint:
-            self._held = _Held(trajectory=setpoint)
-        cascade = self._cascade
-        motors = cascade.trajectory_flown(setpoint, due, elapsed_s)
-        motors = self._after_control(self._authority.unit, est, now_s, motors, cascade.collective_sp_n)
-        state.tick_due = False
+
+    def _steady_tick_ends(
+        self, est: Estimate, now_s: float, motors: tuple[float, ...], collective_n: float
+    ) -> tuple[float, ...]:
+        motors = self._after_control(self._authority.unit, est, now_s, motors, collective_n)
+        self._state.tick_due = False
         return motors
 
     # ---- the tick --------------------------------------------------------------------------------------------------
@@ -282,9 +303,17 @@ class FlightTick:
                 out = self._cascade.update_attitude(est, decided, dt_s, landed=landed)
                 return out.motor_cmds, out.collective_sp_n
             setpoint = decided
+        return self._fly_trajectory(setpoint, est, now_s, dt_s)
+
+    def _fly_trajectory(
+        self, setpoint: TrajectorySetpoint, est: Estimate, now_s: float, dt_s: float
+    ) -> tuple[tuple[float, ...], float]:
+        """A trajectory setpoint flown through collision prevention (in the air) and the cascade, and held while
+        armed: the motor commands and the collective thrust asked for (newtons)."""
+        landed = self._state.landed
         if not landed:
             setpoint = self._collision_prevention.apply(setpoint, est.pos_ned_m, est.vel_ned_mps, now_s)
-        self._held = _Held(trajectory=setpoint) if armed else None
+        self._held = _Held(trajectory=setpoint) if self._state.status.armed else None
         cascade = self._cascade
         return cascade.fly(est, setpoint, dt_s, landed=landed), cascade.collective_sp_n
 

@@ -5,7 +5,8 @@ asked for as well (``step``; sitl/autopilot/commander.py, ``Commander.step``).
 A third entry point takes a steady tick (``steady_tick``): a tick of a drone flying a streamed trajectory setpoint in
 OFFBOARD on which no failsafe row acts and nothing else asks for the Python commander (sitl/autopilot/flight_tick.py
 ``FlightTick.steady_tick_ready`` says when). It senses, looks at the failsafe table's conditions on the new estimate,
-and, when no row acts, flies the setpoint through the outer and inner loops; when one does, it returns
+and, when no row acts, flies the setpoint through the outer and inner loops (or, when collision prevention is due to
+run on this estimate, returns ``TICK_QUIET`` and leaves the control step to the caller); when one does, it returns
 ``TICK_EVENT`` having only sensed, and the Python tick runs on that estimate as after ``sense``.
 
 On most steps no GPS sample is due (10 Hz against 250 Hz physics) and what a step samples is numeric: the IMU, and at
@@ -160,14 +161,16 @@ def step(
                   inner_out)  # fmt: skip
 
 
-# What ``steady_tick`` returns: the tick was flown, or a failsafe row acts and the Python tick must run.
+# What ``steady_tick`` returns: the tick was flown; a failsafe row acts and the Python tick must run; or no row acts
+# and the control step is the caller's (collision prevention runs on this estimate first).
 TICK_STEADY = 0
 TICK_EVENT = 1
+TICK_QUIET = 2
 
 
 @kernel(
     f"int64({_SENSE_ARGS}, boolean, boolean, float64, float64, float64, float64, float64, float64, int64, int64,"
-    " float64[::1], boolean, float64, float64[::1], float64[::1], float64[::1], float64[::1], float64[::1],"
+    " boolean, float64[::1], boolean, float64, float64[::1], float64[::1], float64[::1], float64[::1], float64[::1],"
     " float64[::1], float64[::1], float64[::1], float64[:, ::1], float64, float64[::1])"
 )
 def steady_tick(
@@ -203,6 +206,7 @@ def steady_tick(
     battery_emergency: float,
     fired: int,
     on_arming: int,
+    fly: bool,
     sp: npt.NDArray[np.float64],
     outer_due: bool,
     elapsed_s: float,
@@ -221,8 +225,8 @@ def steady_tick(
     """A steady tick of a drone in OFFBOARD, in the air, with no fence: ``sense``; then, unless a failsafe row acts on
     the new estimate (sitl/kernels/failsafe.py: the conditions as the Python tick gives them, ``fired`` and
     ``on_arming`` from the framework), the control step towards the setpoint row ``sp`` (sitl/kernels/cascade.py
-    ``trajectory``, the motor commands to ``inner_out``) and ``TICK_STEADY``; else ``TICK_EVENT``, having only
-    sensed."""
+    ``trajectory``, the motor commands to ``inner_out``) and ``TICK_STEADY``, or, unless ``fly``, ``TICK_QUIET``
+    having only sensed; else ``TICK_EVENT``, having only sensed."""
     sense(imu_inputs, sensors, noise, noise_row, baro_due, baro_noise, baro_row, alt_amsl_m, mag_due, mag_noise,
           mag_row, qw, qx, qy, qz, est_state, est_cfg, est_gps, est_no_vec, est_out, time_s, dt_s)  # fmt: skip
     holds = fk.conditions(time_s, False, True, False, needs_position, offboard_alive, gcs_heartbeat_s,
@@ -230,6 +234,8 @@ def steady_tick(
                           battery_critical, battery_emergency)  # fmt: skip
     if fk.events(holds, fired, on_arming) != 0:
         return TICK_EVENT
+    if not fly:
+        return TICK_QUIET
     ck.trajectory(est_out[ek.O_POS : ek.O_POS + 3], est_out[ek.O_VEL : ek.O_VEL + 3], est_out[ek.O_Q : ek.O_Q + 4],
                   est_out[ek.O_RATES : ek.O_RATES + 3], sp, outer_due, elapsed_s, dt_s, False, position_cfg,
                   velocity_cfg, velocity_state, heading_cfg, held, attitude_cfg, rate_cfg, rate_state, alloc_rows,

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from sitl.avoidance.collision_prevention import RelayedNeighbour
 from sitl.control.cascade import TrajectorySetpoint
 from sitl.drone.closed_loop import ClosedLoop
 from tests.closed_loop.flight import make_sim
@@ -69,25 +70,31 @@ def test_steps_between_ticks_fly_to_the_bit_what_the_shells_fly() -> None:
     assert np.array_equal(fast.vehicle.cascade.rate.state, slow.vehicle.cascade.rate.state)
 
 
-def _offboard_flight(steady: bool) -> tuple[list[np.ndarray], list[str], int]:
+def _offboard_flight(steady: bool) -> tuple[list[np.ndarray], list[str], int, int]:
     """Take off, then in OFFBOARD: fly 3 m north with the setpoint streamed at 20 Hz and a ground station heard at
     1 Hz, lose the stream (the offboard-loss failsafe: Hold), stream again and re-enter OFFBOARD, reposition and
     re-enter OFFBOARD, lose the ground
     station (the datalink-loss failsafe), hear it again, then descend into the ground (the land detector's touchdown
-    on a tick). Every step's truth, estimate and held control output, the commander's texts, and the ticks taken
-    steady; with
+    on a tick), with a neighbour hovering beside the way (collision prevention's runs and corrections). Every step's
+    truth, estimate and held control output, the commander's texts, the steady ticks flown in the kernel and those
+    whose control step ran after collision prevention's run; with
     ``steady`` off every tick runs the Python commander."""
     sim = make_sim(seed=5)
     sim.steady_ticks = steady
     v = sim.vehicle
-    counts = {"steady": 0}
-    taken = v.steady_tick_taken
+    counts = {"taken": 0, "run": 0}
+    taken, run = v.steady_tick_taken, v.steady_tick_run
 
-    def counted(*args: object) -> tuple[float, ...]:
-        counts["steady"] += 1
+    def counted_taken(*args: object) -> tuple[float, ...]:
+        counts["taken"] += 1
         return taken(*args)  # type: ignore[arg-type]
 
-    v.steady_tick_taken = counted  # type: ignore[method-assign]
+    def counted_run(*args: object) -> tuple[float, ...]:
+        counts["run"] += 1
+        return run(*args)  # type: ignore[arg-type]
+
+    v.steady_tick_taken = counted_taken  # type: ignore[method-assign]
+    v.steady_tick_run = counted_run  # type: ignore[method-assign]
     trace: list[np.ndarray] = []
     texts: list[str] = []
     setpoint = TrajectorySetpoint(pos_ned_m=(3.0, 0.0, -3.0), vel_ned_mps=(0.0, 0.0, 0.0))
@@ -105,6 +112,9 @@ def _offboard_flight(steady: bool) -> tuple[list[np.ndarray], list[str], int]:
             s.vehicle.set_offboard_setpoint(setpoint, s.time_s)
         if hearing and step % 250 == 0:
             s.vehicle.note_gcs_heartbeat(s.time_s)
+        if step % 5 == 0:  # a hovering neighbour beside the way north, relayed at 50 Hz
+            s.vehicle.collision_prevention.set_relay([RelayedNeighbour(
+                sysid=7, pos_ned_m=(1.5, 0.6, -3.0), vel_ned_mps=(0.0, 0.0, 0.0), received_s=s.time_s)])  # fmt: skip
 
     assert sim.run_until(lambda s: s.vehicle.preflight_problem() is None, 10.0)
     assert v.arm().ok and v.takeoff(3.0).ok
@@ -132,21 +142,23 @@ def _offboard_flight(steady: bool) -> tuple[list[np.ndarray], list[str], int]:
     assert v.start_offboard(sim.time_s).ok
     setpoint = TrajectorySetpoint(pos_ned_m=(3.0, 0.0, 0.5), vel_ned_mps=(0.0, 0.0, 0.3))
     sim.run_for(10.0, record)
-    return trace, texts, counts["steady"]
+    return trace, texts, counts["taken"], counts["run"]
 
 
 def test_steady_ticks_fly_to_the_bit_what_the_python_tick_flies() -> None:
     # GIVEN one OFFBOARD flight through two failsafes and a touchdown, flown with steady ticks in one kernel and
     # with the Python commander on every tick
-    fast_trace, fast_texts, steady = _offboard_flight(steady=True)
-    slow_trace, slow_texts, none = _offboard_flight(steady=False)
-    # THEN steady ticks were taken (and none when switched off) ...
-    assert steady > 500, steady
-    assert none == 0
+    fast_trace, fast_texts, taken, run = _offboard_flight(steady=True)
+    slow_trace, slow_texts, none_taken, none_run = _offboard_flight(steady=False)
+    # THEN steady ticks were taken, both ways (and none when switched off) ...
+    assert taken > 500, taken
+    assert run > 200, run
+    assert none_taken == none_run == 0
     # ... the failsafes and the touchdown happened, in the same words ...
     assert any("offboard setpoints lost" in t for t in fast_texts), fast_texts
     assert any("no connection to the ground control station" in t for t in fast_texts), fast_texts
     assert "Landing detected" in fast_texts, fast_texts
+    assert any(t.startswith("Avoidance: drone 7") for t in fast_texts), fast_texts
     assert fast_texts == slow_texts
     # ... and every step's truth, estimate and held control output have the same bits
     assert len(fast_trace) == len(slow_trace)
