@@ -11,6 +11,8 @@ Flights, each timed per part on the thread's CPU clock exactly as a swarm drone 
   reads and polls), hovering on an 8 m circle in one shared world, beside a stand-in supervisor that sends each drone
   a setpoint every 50 ms and every other drone's 10 Hz position report, forwarded byte for byte as the relay does:
   what the host's relay path, MAVLink and perception cost per drone. Not a default.
+- **hosted-offboard**: the same host, each drone switched to OFFBOARD on that setpoint once its takeoff is done, as
+  a formation flies: the steady ticks' share of the control stage. Not a default.
 - **circle**: tests/closed_loop/circle_swarm.py, nine drones on one shared world (eight on a rotating 4 m circle
   and a silent one), omnidirectional cameras: every drone has others in view. No MAVLink.
 - **dense**: the same with 24 drones on an 8 m circle (the radius ``swarm bench`` gives 24 slots) turning at half
@@ -22,7 +24,8 @@ Flights, each timed per part on the thread's CPU clock exactly as a swarm drone 
 The circle flights also report a digest of every drone's true state at every step: trees that should fly alike
 show the same digest in the same run that times them.
 
-    python bench/drone_parts.py [--sim-seconds 20] [--repeats 3] [--scenarios lone hosted circle dense frames]
+    python bench/drone_parts.py [--sim-seconds 20] [--repeats 3]
+        [--scenarios lone hosted hosted-offboard circle dense frames]
         [--trees DIR ...]
 
 With ``--trees``, each repeat runs every tree in a subprocess of its own (``PYTHONPATH=DIR``), interleaved, so the
@@ -153,17 +156,19 @@ HOSTED_DRONES = 25
 HOSTED_RADIUS_M = 8.0  # the radius swarm bench gives 25 slots: every drone within 15 m of every other
 
 
-def hosted(sim_seconds: float) -> dict[str, float]:
+def hosted(sim_seconds: float, *, offboard: bool = False) -> dict[str, float]:
     """A host of HOSTED_DRONES drones as ``sitl`` builds and runs them in one process (``build_drone``, the host's
     shared decoding where the tree has it, batches of PACED_WAKE_STEPS steps between socket reads and telemetry
     polls), on a circle, hovering at 3 m in one shared world, beside a stand-in supervisor on a UDP socket: every
     50 ms of simulated time it sends each drone one datagram, a setpoint and the latest position report of every
     other drone, each forwarded byte for byte as the relay forwards it (every drone is within the relay's reach of
-    every other). The drones' own telemetry streams to that socket, which reads and drops it."""
+    every other). The drones' own telemetry streams to that socket, which reads and drops it. With ``offboard``, each
+    drone enters OFFBOARD on that setpoint (3 m above its home) once its takeoff is done, as a formation flies."""
     import socket
 
     from pymavlink.dialects.v20 import common as mavlink
 
+    from sitl.autopilot.px4_modes import Px4Mode
     from sitl.dynamics.airframe import load_airframe
     from sitl.dynamics.geodesy import LocalFrame
     from sitl.dynamics.plant import GeoPoint
@@ -230,6 +235,7 @@ def hosted(sim_seconds: float) -> dict[str, float]:
         tick += 1
 
     armed = [False] * HOSTED_DRONES
+    flying_offboard = [not offboard] * HOSTED_DRONES
     t0 = time.thread_time_ns()
     try:
         while drones[0].time_s < sim_seconds - 1e-9:
@@ -239,9 +245,11 @@ def hosted(sim_seconds: float) -> dict[str, float]:
             for k, drone in enumerate(drones):
                 for _ in range(PACED_WAKE_STEPS):
                     drone.step()
+                v = drone.sim.vehicle
                 if not armed[k]:
-                    v = drone.sim.vehicle
                     armed[k] = v.preflight_problem() is None and v.arm().ok and v.takeoff(3.0).ok
+                elif not flying_offboard[k] and v.status.mode is Px4Mode.AUTO_LOITER:
+                    flying_offboard[k] = v.start_offboard(drone.time_s).ok
             for drone in drones:
                 drone.after_batch()
     finally:
@@ -331,6 +339,7 @@ def one(sim_seconds: float, scenarios: list[str]) -> dict[str, dict[str, float]]
     runs = {
         "lone": lambda: lone(sim_seconds),
         "hosted": lambda: hosted(sim_seconds),
+        "hosted-offboard": lambda: hosted(sim_seconds, offboard=True),
         "circle": lambda: circle(sim_seconds),
         "dense": lambda: circle(sim_seconds, dense=True),
         "frames": frames,
@@ -344,7 +353,10 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--trees", nargs="+", type=Path, default=None)
     parser.add_argument(
-        "--scenarios", nargs="+", choices=("lone", "hosted", "circle", "dense", "frames"), default=["circle", "dense"]
+        "--scenarios",
+        nargs="+",
+        choices=("lone", "hosted", "hosted-offboard", "circle", "dense", "frames"),
+        default=["circle", "dense"],
     )
     parser.add_argument(
         "--reference", choices=PARTS, default="physics", help="the part the ratios are to: one both trees share"

@@ -138,12 +138,12 @@ class FlightTick:
     def steady_tick_ready(self, now_s: float, dt_s: float) -> bool:
         """Will the next step, at ``now_s``, of ``dt_s``, be a steady tick: a tick (a command, or the outer loops'
         period) of a drone armed in the air in OFFBOARD flying a trajectory setpoint, with the parameters of the last
-        tick, and no fence to watch? Then the caller may take it
-        in one kernel (sitl/kernels/between_ticks.py ``steady_tick``, with ``steady_tick_plan``'s inputs), which
-        hands it back (``TICK_EVENT``) when a failsafe row acts; ``steady_tick_taken`` notes it. A steady tick is
-        the tick ``step`` would run with what it would decide: the offboard unit neither advances nor reads its
-        inputs and no failsafe row acts. When collision prevention is due to run, it runs on the kernel's estimate
-        (``TICK_QUIET``, ``steady_tick_run``); otherwise it only applies what it holds, in the kernel."""
+        tick, and no fence to watch? Then the caller may take it in one kernel (sitl/kernels/between_ticks.py
+        ``steady_tick``, with ``steady_tick_plan``'s inputs), which hands it back (``TICK_EVENT``) when a failsafe
+        row acts; ``steady_tick_taken`` notes it. A steady tick is the tick ``step`` would run with what it would
+        decide: the offboard unit neither advances nor reads its inputs and no failsafe row acts. When collision
+        prevention is due to run, it runs on the kernel's estimate (``TICK_QUIET``, ``steady_tick_run``); otherwise
+        it only applies what it holds, in the kernel."""
         held = self._held
         state = self._state
         if held is None or held.trajectory is None or self._params.version != self._tick_version:
@@ -170,6 +170,7 @@ class FlightTick:
         row written)."""
         authority = self._authority
         prevention = self._collision_prevention
+        self._steady = None
         fly, due, elapsed_s = prevention.holds(now_s), False, 0.0
         if fly:
             streamed = authority.units.offboard.setpoint_in
