@@ -10,6 +10,11 @@ for the tick's clock to be acted on.
 In a tick the flying unit is given its inputs and returns its decisions (sitl/autopilot/mode_io.py), which the mode
 authority carries out; the failsafe table is given this tick's inputs; the unit's setpoint, or the shared reference
 it tracks, is flown through collision prevention and the cascade.
+
+A steady tick needs none of that Python: in OFFBOARD with a streamed trajectory setpoint the unit neither advances nor
+reads its inputs, so when no failsafe row acts the tick is the setpoint flown. Such a tick is taken in a kernel with
+the step's sensing (``steady_tick_ready``, sitl/kernels/between_ticks.py ``steady_tick``), which hands it back to
+``step`` the moment a failsafe row would act; this module only notes it.
 """
 
 from __future__ import annotations
