@@ -189,7 +189,7 @@ class FlightTick:
                 self._battery_remaining(), dl, low, crit, emerg, failsafes.fired_word, failsafes.on_arming_word, fly,
                 due, elapsed_s)  # fmt: skip
 
-    def steady_tick_taken(self, est: Estimate, now_s: float, dt_s: float) -> tuple[float, ...]:
+    def steady_tick_taken(self, est: Estimate, now_s: float) -> tuple[float, ...]:
         """The steady tick ``steady_tick_plan`` planned was flown to the estimate ``est`` (``TICK_STEADY``): note it as
         ``step`` notes a tick, and return its motor commands."""
         assert self._steady is not None

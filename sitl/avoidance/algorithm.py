@@ -285,8 +285,8 @@ def avoid(
 @dataclass(frozen=True, slots=True)
 class Prepared:
     """What ``avoid`` works out of its obstacles whatever the velocities: the closest centre distance, and each
-    usable obstacle's row with its figures (``prepare_rows``). Collision prevention asks ``avoid`` twice about the
-    same obstacles (the position loop's demand, then the mission's pace), and prepares them once."""
+    usable obstacle's row with its figures (``prepare_rows``), for ``avoid_prepared``. (Collision prevention's run does
+    the same in its kernel, sitl/kernels/avoidance.py ``run``: it prepares once and asks ``avoid`` twice.)"""
 
     closest_m: float
     usable: npt.NDArray[np.float64]  # (n, USABLE_SIZE) of sitl/kernels/avoidance.py
@@ -341,27 +341,6 @@ class Conflict:
         if self.source in ("traffic", "fused traffic"):
             return f"traffic {self.sysid}"
         return "a body seen by the camera"
-
-
-def conflict_prepared(
-    own_vel_ned_mps: Vec3, desired_vel_ned_mps: Vec3, prepared: Prepared, config: npt.NDArray[np.float64]
-) -> Conflict | None:
-    """The prepared obstacle most in conflict (``sitl.kernels.avoidance.conflict``): closer than its separation now,
-    or predicted to come closer within the horizon at the current or the desired velocity, the obstacle keeping its
-    own; None when no obstacle is, or with a desired velocity that is not finite (nothing to predict along). Inputs
-    beyond physical sense are treated as ``avoid`` treats them."""
-    ovx, ovy, ovz = own_vel_ned_mps
-    dvx, dvy, _ = desired_vel_ned_mps
-    if not (math.isfinite(dvx) and math.isfinite(dvy)):
-        return None
-    found = np.zeros(2)
-    usable = prepared.usable
-    index = ak.conflict(usable, len(usable), float(ovx), float(ovy), float(ovz), float(dvx), float(dvy), config, found)
-    if index < 0:
-        return None
-    row = usable[index]
-    return conflict_of(float(row[ak.O_SYSID]), float(row[ak.O_SOURCE]), float(found[0]), float(found[1]),
-                       float(row[ak.U_SEPARATION]))  # fmt: skip
 
 
 def conflict_of(sysid: float, source: float, predicted_m: float, in_s: float, separation_m: float) -> Conflict:

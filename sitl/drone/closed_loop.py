@@ -153,7 +153,7 @@ class ClosedLoop:
                                        att_cfg, rate_cfg, rate_state, alloc_rows, t_max, inner_out)  # fmt: skip
                 if taken == bt.TICK_STEADY:
                     self.estimate = estimate = estimator.published(time_s)
-                    return vehicle.steady_tick_taken(estimate, time_s, dt_s)
+                    return vehicle.steady_tick_taken(estimate, time_s)
                 if taken == bt.TICK_QUIET:
                     self.estimate = estimate = estimator.published_whole(time_s)
                     return vehicle.steady_tick_run(estimate, time_s, dt_s)
