@@ -121,7 +121,7 @@ def _result(proc: subprocess.Popen[str]) -> dict[str, object]:
     return dict(json.loads(out.strip().splitlines()[-1]))
 
 
-@pytest.mark.suite  # three cold compiles into a cache of its own: not for the quick tier
+@pytest.mark.acceptance  # three cold compiles into a cache of its own, about 50 s on two cores: the suite has no room
 def test_processes_compiling_at_once_into_an_empty_cache_fly_alike_and_the_next_only_loads(tmp_path: Path) -> None:
     env = {"NUMBA_CACHE_DIR": str(tmp_path / "cache"), "SWARM_KERNELS": "", "NUMBA_DISABLE_JIT": "0"}
     first, second = _start(env), _start(env)  # a sweep's two jobs on a cold cache

@@ -60,10 +60,11 @@ ACCEPTANCE_TESTS = {  # and these tests of files whose other tests stay in the s
     "tests/integration/test_links_fly.py::test_the_same_lockstep_mission_flies_the_same_on_an_idle_and_a_loaded_machine",
     "tests/integration/test_sweep.py::test_the_same_sweep_on_a_local_ray_head_gives_the_same_runs_and_summary",
     "tests/integration/test_sweep.py::test_a_falsification_on_a_local_ray_head_finds_and_shrinks_what_it_does_here",
-}
-# The tests that compile the kernels cold, into a cache of their own: in the suite, not the quick tier
-COLD_COMPILES = {
     "tests/unit/test_kernels.py::test_processes_compiling_at_once_into_an_empty_cache_fly_alike_and_the_next_only_loads",
+}
+# The test that compiles the kernels cold, into a cache of its own, in the suite (not the quick tier): the reference
+# flight with kernels compiled for any CPU. Three processes compiling at once are an acceptance test.
+COLD_COMPILES = {
     "tests/closed_loop/test_reference_flight.py::"
     "test_the_reference_flight_is_the_same_with_other_blas_kernels_and_kernels_compiled_for_any_cpu",
 }
