@@ -31,6 +31,7 @@ from sitl.avoidance.collision_prevention import NO_CAMERA
 from sitl.drone.closed_loop import ClosedLoop
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.kernels import avoidance as ak
+from sitl.kernels import neighbours as nk
 from sitl.params import ParamStore
 from sitl.perception.camera import (
     Body,
@@ -42,12 +43,11 @@ from sitl.perception.camera import (
 )
 from sitl.perception.detector import rig_ned_rows, sense_rig
 from sitl.protocol.images import EncodedImage
-from sitl.protocol.neighbours import Neighbour, NeighbourTable
+from sitl.protocol.neighbours import NEIGHBOUR_TIMEOUT_S, NeighbourTable
 from sitl.world.shared import RADIUS, SharedWorld
 from sitl.world.view import others_ned_m
 
 RELAY_PERIOD_S = 0.05
-Row = tuple[float, float, float, float, float, float, float, float, float, float]
 # Rounding allowance when leaving out drones beyond camera range (metres; distances differ between frames by ~1e-14).
 _RANGE_MARGIN_M = 1e-6
 
@@ -67,7 +67,6 @@ class Awareness:
     ) -> None:
         self._sim = sim
         self._instance = instance
-        self._frame = frame
         self._world = world
         self._neighbours = neighbours
         self._frames_dir = frames_dir
@@ -85,8 +84,8 @@ class Awareness:
         self._rig: CameraRig | None = None
         self._next_frame_s = 0.0
         self._next_relay_s = 0.0
-        # By sysid: the report and its conversion, a neighbour row (sitl/kernels/avoidance.py ``N_*``)
-        self._relayed: dict[int, tuple[Neighbour, Row]] = {}
+        # What the conversion of the relayed reports into this drone's frame computes with (``_update_relay``)
+        self._conversion = np.array(frame.conversion, dtype=np.float64)
         self.frames = 0
         self._snapshots = 0  # images sent on request so far (each seeds its own noise)
         # Time spent on actual work (a relay update or a frame), read by benchmarks; the steps with nothing due are
@@ -132,25 +131,14 @@ class Awareness:
         self.cpu_ns += self._clock_ns() - t0
 
     def _update_relay(self, now_s: float) -> None:
-        assert self._neighbours is not None
-        frame = self._frame
-        out: list[Row] = []
-        converted: dict[int, tuple[Neighbour, Row]] = {}
-        for n in self._neighbours.entries(now_s):
-            known = self._relayed.get(n.sysid)
-            if known is not None and known[0] is n:
-                # The same report as at the last update (neighbours report at 10 Hz, this runs at 20): its
-                # conversion, a function of the report alone, is the one made then.
-                row = known[1]
-            else:
-                x, y, z = frame.ned_from_geodetic_rad(math.radians(n.lat_deg), math.radians(n.lon_deg), n.alt_amsl_m)
-                vx, vy, vz = n.vel_ned_mps
-                stamp = n.sender_time_s if self._shared_clock else n.received_s
-                row = (x, y, z, vx, vy, vz, stamp, n.stale_s, 1.0 if n.cooperative else 0.0, float(n.sysid))
-            converted[n.sysid] = (n, row)
-            out.append(row)
-        self._relayed = converted
-        self._prevention.set_relay_rows(np.array(out, dtype=np.float64).reshape(-1, ak.NEIGHBOUR_SIZE))
+        """The neighbour table into collision prevention's rows, in this drone's frame, in one call
+        (sitl/kernels/neighbours.py ``relay_rows``)."""
+        table = self._neighbours
+        assert table is not None
+        entries = table.entry_rows()
+        out = np.empty((len(entries), ak.NEIGHBOUR_SIZE))
+        n = nk.relay_rows(entries, now_s, NEIGHBOUR_TIMEOUT_S, self._conversion, self._shared_clock, table.ages, out)
+        self._prevention.set_relay_rows(out[:n])
 
     def _bodies(self) -> list[Body]:
         """Every body the cameras could see now, as records (the images a reader asks for)."""

@@ -29,7 +29,7 @@ from sitl.mathutil import Vec3
 WGS84_A_M = 6378137.0
 WGS84_F = 1.0 / 298.257223563
 WGS84_E2 = WGS84_F * (2.0 - WGS84_F)
-_ONE_MINUS_E2 = 1.0 - WGS84_E2
+ONE_MINUS_E2 = 1.0 - WGS84_E2
 
 _INVERSE_TOLERANCE_M = 1e-7
 _INVERSE_MAX_ITERATIONS = 8
@@ -57,6 +57,14 @@ class LocalFrame:
     def home(self) -> GeoPoint:
         return self._home
 
+    @property
+    def conversion(self) -> tuple[float, ...]:
+        """What ``ned_from_geodetic_rad`` computes with, in the order sitl/kernels/neighbours.py ``F_*`` reads it:
+        home's ECEF position, the sine and cosine of its latitude and longitude, its altitude, then the ellipsoid's
+        semi-major axis, eccentricity squared and one less that."""
+        return (self._x0, self._y0, self._z0, self._sin_lat0, self._cos_lat0, self._sin_lon0, self._cos_lon0,
+                self._alt0, WGS84_A_M, WGS84_E2, ONE_MINUS_E2)  # fmt: skip
+
     def ned_from_geodetic_rad(self, lat_rad: float, lon_rad: float, alt_m: float) -> tuple[float, float, float]:
         """NED metres of a geodetic position given in radians (the plant's per-step path)."""
         sin_lat = math.sin(lat_rad)
@@ -66,7 +74,7 @@ class LocalFrame:
         r = (n + alt0) * math.cos(lat_rad)
         x = r * math.cos(lon_rad)
         y = r * math.sin(lon_rad)
-        z = (n * _ONE_MINUS_E2 + alt0) * sin_lat
+        z = (n * ONE_MINUS_E2 + alt0) * sin_lat
         dx = x - self._x0
         dy = y - self._y0
         dz = z - self._z0

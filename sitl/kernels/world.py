@@ -16,7 +16,7 @@ import numpy.typing as npt
 
 from sitl.kernels import kernel
 
-_RAD_PER_DEG = math.pi / 180.0  # numpy's deg2rad and CPython's math.radians multiply by this
+RAD_PER_DEG = math.pi / 180.0  # numpy's deg2rad and CPython's math.radians multiply by this
 # ``columns``: the table's column of each figure (the layout is sitl/world/shared.py's).
 C_VALID = 0
 C_LAT = 1
@@ -42,7 +42,7 @@ def others_offsets(
     me_lat = bodies[instance, lat_c]
     me_lon = bodies[instance, lon_c]
     me_alt = bodies[instance, alt_c]
-    cos_lat = math.cos(me_lat * _RAD_PER_DEG)
+    cos_lat = math.cos(me_lat * RAD_PER_DEG)
     n = 0
     for i in range(bodies.shape[0]):
         if i == instance or bodies[i, valid] != 1.0:
@@ -50,8 +50,8 @@ def others_offsets(
         if bodies[i, ended] != 0.0:
             return -1
         ids[n] = i
-        offsets[n, 0] = (bodies[i, lat_c] - me_lat) * _RAD_PER_DEG * earth_radius_m
-        offsets[n, 1] = (bodies[i, lon_c] - me_lon) * _RAD_PER_DEG * earth_radius_m * cos_lat
+        offsets[n, 0] = (bodies[i, lat_c] - me_lat) * RAD_PER_DEG * earth_radius_m
+        offsets[n, 1] = (bodies[i, lon_c] - me_lon) * RAD_PER_DEG * earth_radius_m * cos_lat
         offsets[n, 2] = me_alt - bodies[i, alt_c]
         n += 1
     return n

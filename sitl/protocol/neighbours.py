@@ -18,11 +18,14 @@ has expired.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Final, Literal
 
+import numpy as np
+import numpy.typing as npt
 from pymavlink.dialects.v20 import common as mavlink
 
+from sitl.kernels import neighbours as nk
 from sitl.mathutil import fast_constructor
 from sitl.protocol.core import Effect, MAVLinkMessage, PeerInputError, check_now, read_int, source_of
 from sitl.protocol.framing import FRAME_MEMO_SIZE
@@ -34,6 +37,7 @@ RELAY: Final[NeighbourSource] = "relay"  # on the ground-station link: the super
 LINK: Final[NeighbourSource] = "link"  # on another MAVLink link (the API link): a client, another vehicle
 MESH: Final[NeighbourSource] = "mesh"  # heard from the neighbour's own radio (sitl/world/mesh.py)
 SOURCES: Final[tuple[NeighbourSource, ...]] = (RELAY, LINK, MESH)
+_SOURCE_INDEX: Final = {source: k for k, source in enumerate(SOURCES)}  # a row's ``E_SOURCE``
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -50,12 +54,27 @@ class Neighbour:
     # how old the sender's own knowledge was when it sent the report (traffic's ``tslc``: a vehicle the ground station
     # no longer hears, reported where it was last known); collision prevention widens its keep-out with it
     stale_s: float = 0.0
+    # The same figures as one row (sitl/kernels/neighbours.py ``E_*``), made with the record: what the drone's
+    # conversion into its frame reads, for every entry at once (``NeighbourTable.entry_rows``).
+    row: tuple[float, ...] = field(default=(), compare=False, repr=False)
 
     def age_s(self, now_s: float) -> float:
         return now_s - self.received_s
 
 
-_new_neighbour = fast_constructor(Neighbour)
+_fast_neighbour = fast_constructor(Neighbour)
+
+
+def _new_neighbour(*, sysid: int, lat_deg: float, lon_deg: float, alt_amsl_m: float,
+                   vel_ned_mps: tuple[float, float, float], sender_time_s: float, received_s: float,
+                   source: NeighbourSource, cooperative: bool, stale_s: float) -> Neighbour:  # fmt: skip
+    """A record and its row."""
+    vn, ve, vd = vel_ned_mps
+    row = (lat_deg, lon_deg, alt_amsl_m, vn, ve, vd, sender_time_s, received_s, stale_s, 1.0 if cooperative else 0.0,
+           float(sysid), float(_SOURCE_INDEX[source]))  # fmt: skip
+    return _fast_neighbour(sysid=sysid, lat_deg=lat_deg, lon_deg=lon_deg, alt_amsl_m=alt_amsl_m,
+                           vel_ned_mps=vel_ned_mps, sender_time_s=sender_time_s, received_s=received_s, source=source,
+                           cooperative=cooperative, stale_s=stale_s, row=row)  # fmt: skip
 
 
 def _plain_fields(msg: MAVLinkMessage) -> tuple[int, int, int, int, int, int, int] | None:
@@ -224,9 +243,9 @@ class NeighbourTable:
         self.updates = 0
         self.stale = 0  # reports not newer than the entry they would replace (a second copy, or overtaken)
         self._updates = dict.fromkeys(SOURCES, 0)
-        self._age_sum_s = dict.fromkeys(SOURCES, 0.0)
-        self._sent_age_sum_s = dict.fromkeys(SOURCES, 0.0)
-        self._age_samples = dict.fromkeys(SOURCES, 0)
+        # The ages of the entries handed out, by source (``SOURCES`` order; sitl/kernels/neighbours.py ``A_*``):
+        # counted where the table is read, by ``entries`` or by the kernel that reads ``entry_rows``
+        self.ages = np.zeros((len(SOURCES), nk.AGES_SIZE))
 
     def handle(self, msg: MAVLinkMessage, now_s: float) -> list[Effect]:
         """A report that came over the ground-station link (the relay)."""
@@ -272,22 +291,31 @@ class NeighbourTable:
         """Current neighbours (none older than the timeout), by system id. Their ages are counted per source: the
         table is read where it is used (collision prevention's 20 Hz look), so the mean is the age at use."""
         out = [n for _, n in sorted(self._entries.items()) if n.age_s(now_s) <= NEIGHBOUR_TIMEOUT_S]
-        for n in out:
-            self._age_sum_s[n.source] += now_s - n.received_s
-            self._sent_age_sum_s[n.source] += now_s - n.sender_time_s
-            self._age_samples[n.source] += 1
+        ages = self.ages
+        for n in out:  # as sitl/kernels/neighbours.py ``relay_rows`` counts them
+            k = _SOURCE_INDEX[n.source]
+            ages[k, nk.A_AGE] += now_s - n.received_s
+            ages[k, nk.A_SENT_AGE] += now_s - n.sender_time_s
+            ages[k, nk.A_SAMPLES] += 1.0
         return out
+
+    def entry_rows(self) -> npt.NDArray[np.float64]:
+        """Every entry's row (sitl/kernels/neighbours.py ``E_*``), in sysid order, old ones too: for a reader that
+        filters them by age and counts their ages into ``ages`` itself, as ``entries`` does (``relay_rows``)."""
+        rows = [n.row for _, n in sorted(self._entries.items())]
+        return np.array(rows, dtype=np.float64).reshape(-1, nk.ENTRY_SIZE)
 
     def counts(self) -> dict[NeighbourSource, SourceCounts]:
         """What each source brought, for the drone's log and the flight report."""
+        ages = self.ages.tolist()
         return {
             s: SourceCounts(
                 updates=self._updates[s],
-                age_sum_s=self._age_sum_s[s],
-                sent_age_sum_s=self._sent_age_sum_s[s],
-                age_samples=self._age_samples[s],
+                age_sum_s=ages[k][nk.A_AGE],
+                sent_age_sum_s=ages[k][nk.A_SENT_AGE],
+                age_samples=int(ages[k][nk.A_SAMPLES]),
             )
-            for s in SOURCES
+            for k, s in enumerate(SOURCES)
         }
 
 

@@ -12,9 +12,21 @@ from pymavlink.dialects.v20 import common as mavlink
 from gcs.fleet.relay import RELAY_REACH_HORIZON_S, RELAY_REACH_M, NeighbourRelay, RelayScope, relay_matrix
 from gcs.fleet.telemetry import Fleet
 from sitl.drone.param_table import build_param_store
+from sitl.dynamics.geodesy import LocalFrame
+from sitl.dynamics.plant import GeoPoint
+from sitl.kernels import neighbours as nk
+from sitl.kernels.avoidance import NEIGHBOUR_SIZE
 from sitl.protocol import Identity, LinkServices
 from sitl.protocol.framing import FRAME_MEMO_SIZE, FrameMemo, parse_datagram
-from sitl.protocol.neighbours import NEIGHBOUR_TIMEOUT_S, RELAY, NeighbourFeed, NeighbourTable, SharedReports
+from sitl.protocol.neighbours import (
+    LINK,
+    MESH,
+    NEIGHBOUR_TIMEOUT_S,
+    RELAY,
+    NeighbourFeed,
+    NeighbourTable,
+    SharedReports,
+)
 from sitl.protocol.testing import FakeVehicle
 
 
@@ -251,3 +263,41 @@ def test_a_position_taken_without_the_routing_leaves_the_table_as_the_routing_do
     assert tables[0].entries(1.1) == tables[1].entries(1.1)
     assert [n.sysid for n in tables[1].entries(1.1)] == [2, 3]
     assert (tables[0].updates, tables[0].stale) == (tables[1].updates, tables[1].stale) == (2, 1)
+
+
+def test_the_tables_rows_convert_in_one_call_to_the_bits_of_the_python_conversion_and_count_the_same_ages() -> None:
+    """sitl/kernels/neighbours.py ``relay_rows`` against the record path it replaced (``entries`` and
+    ``LocalFrame.ned_from_geodetic_rad``): every figure to the bit, expired entries left out, the ages counted per
+    source in the same order, in both clocks."""
+    rng = np.random.default_rng(7)
+    frame = LocalFrame(GeoPoint(lat_deg=47.397742, lon_deg=8.545594, alt_amsl_m=488.0))
+    conversion = np.array(frame.conversion)
+    tables = [NeighbourTable(own_sysid=1), NeighbourTable(own_sysid=1)]
+    for sysid in rng.permutation(np.arange(2, 40)).tolist():
+        lat, lon = 473977420 + int(rng.integers(-20000, 20000)), 85455940 + int(rng.integers(-30000, 30000))
+        alt, received = 488000 + int(rng.integers(-2000, 60000)), float(rng.uniform(0.0, 5.0))
+        vel = [int(v) for v in rng.integers(-800, 800, 3)]
+        msg = wire(mavlink.MAVLink_global_position_int_message(int(received * 900), lat, lon, alt, 0, *vel, 0), sysid)
+        for table in tables:
+            table.receive(msg, received, (RELAY, LINK, MESH)[sysid % 3])
+    traffic = mavlink.MAVLink_adsb_vehicle_message(  # flags 0x1FF: where it is and how it moves
+        4000, 473979000, 85457000, 0, 530000, 9000, 250, -40, b"INTRUDER", 0, 7, 0x1FF, 0
+    )  # fmt: skip
+    for table in tables:
+        table.receive(wire(traffic, 200), 4.5, RELAY)
+    kernel_table, record_table = tables
+    for now_s, shared_clock in ((5.0, True), (6.5, False), (7.4, True)):
+        entries = kernel_table.entry_rows()
+        out = np.empty((len(entries), NEIGHBOUR_SIZE))
+        n = nk.relay_rows(entries, now_s, NEIGHBOUR_TIMEOUT_S, conversion, shared_clock, kernel_table.ages, out)
+        expected = [
+            (*frame.ned_from_geodetic_rad(math.radians(e.lat_deg), math.radians(e.lon_deg), e.alt_amsl_m),
+             *e.vel_ned_mps, e.sender_time_s if shared_clock else e.received_s, e.stale_s,
+             1.0 if e.cooperative else 0.0, float(e.sysid))
+            for e in record_table.entries(now_s)
+        ]  # fmt: skip
+        assert 0 < n < len(entries)  # some have expired
+        assert out[:n].tolist() == [list(row) for row in expected]
+        assert kernel_table.ages.tolist() == record_table.ages.tolist()
+    assert kernel_table.counts() == record_table.counts()
+    assert kernel_table.counts()[MESH].age_samples > 0
