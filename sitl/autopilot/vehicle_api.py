@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import Enum, IntEnum
 from typing import TYPE_CHECKING, Protocol, TypeAlias
 
@@ -434,8 +434,8 @@ class VehicleSnapshot:
     battery: BatteryStatus
     home: HomePosition | None  # None until home is set (PX4 sets it on arming, or at the first valid position)
     local_origin: GeoPoint | None  # geodetic point of NED (0, 0, 0); needed for global offboard setpoints
-    mission: MissionProgress = field(default_factory=MissionProgress)
-    sensors: SensorHealth = field(default_factory=SensorHealth)
+    mission: MissionProgress = MissionProgress()  # frozen: one instance serves every snapshot
+    sensors: SensorHealth = SensorHealth()
     flight_terminated: bool = False
     throttle: float = NAN  # 0..1 collective, for VFR_HUD
     collective_max_n: float = NAN  # the collective thrust the motors can give: MAVLink's normalised thrust times this

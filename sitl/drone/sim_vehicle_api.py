@@ -22,8 +22,9 @@ from sitl.drone.closed_loop import ClosedLoop
 from sitl.dynamics.geodesy import LocalFrame
 from sitl.dynamics.plant import GeoPoint
 from sitl.faults.failures import BATTERY_LEVELS, FaultError, GpsFault, apply_request, decode_request
-from sitl.mathutil import Vec3, vec3
+from sitl.mathutil import Vec3, fast_constructor, vec3
 from sitl.protocol.fence import to_geofence
+from sitl.sensors.models import GpsSample
 
 ALT_QUANTUM_M = 0.001  # HOME_POSITION's altitude is whole millimetres: a ground station's "home + 2.5 m" may be less
 
@@ -35,6 +36,10 @@ _MISSION_STATE = {
     MissionRun.COMPLETE: api.MissionState.COMPLETE,
 }
 _ALL_HEALTHY = api.SensorHealth()
+# Telemetry asks for a snapshot a dozen times a second: its records built without the frozen classes' ``__init__``.
+_new_snapshot = fast_constructor(api.VehicleSnapshot)
+_new_battery = fast_constructor(api.BatteryStatus)
+_new_progress = fast_constructor(api.MissionProgress)
 # Most severe first; BAT_EMERGEN_THR may be absent from an older parameter table (that grade is then skipped).
 _CHARGE_STATES = (
     ("BAT_EMERGEN_THR", int(mavlink.MAV_BATTERY_CHARGE_STATE_EMERGENCY)),
@@ -64,6 +69,10 @@ class SimVehicleApi:
         self._fence_items: tuple[api.MissionItem, ...] = ()
         self._snapshot: api.VehicleSnapshot | None = None
         self._snapshot_time_s = -1.0
+        # Parts of a snapshot that change far less often than telemetry asks: home (its local position and yaw, and
+        # the geodetic position worked out from them) and the receiver's status of its latest fix.
+        self._home: tuple[tuple[float, float, float, float], api.HomePosition] | None = None
+        self._gps: tuple[object, api.GpsStatus] | None = None
 
     # ---- conversions --------------------------------------------------------------------------------------------
     def home_alt_amsl_m(self) -> float:
@@ -272,17 +281,10 @@ class SimVehicleApi:
         pos_valid = est is not None and est.position_valid and est.altitude_valid
         att_valid = est is not None and est.attitude_valid
         global_position = self.frame.geo_from_ned(est.pos_ned_m) if pos_valid and est is not None else None
-        home = None
-        if pos_valid or status.armed:
-            home_ned = v.home_ned_m
-            home = api.HomePosition(
-                position=self.frame.geo_from_ned(home_ned),
-                pos_ned_m=(float(home_ned[0]), float(home_ned[1]), float(home_ned[2])),
-                yaw_rad=v.home_yaw_rad,
-            )
+        home = self._home_position() if pos_valid or status.armed else None
         battery = sim.battery.state()
         mission = v.mission
-        self._snapshot = api.VehicleSnapshot(
+        self._snapshot = _new_snapshot(
             time_boot_us=round(sim.time_s * 1e6),
             armed=status.armed,
             mode=status.mode,
@@ -297,7 +299,7 @@ class SimVehicleApi:
             else (math.nan,) * 4,
             rates_frd_radps=_nan_if_invalid(est.rates_frd_radps, att_valid) if est is not None else api.NAN3,
             gps=self._gps_status(),
-            battery=api.BatteryStatus(
+            battery=_new_battery(
                 voltage_v=battery.voltage_v,
                 current_a=battery.current_a,
                 remaining=battery.remaining,
@@ -307,7 +309,7 @@ class SimVehicleApi:
             ),
             home=home,
             local_origin=self.origin,
-            mission=api.MissionProgress(
+            mission=_new_progress(
                 current_seq=mission.current_seq,
                 total=len(mission.items),
                 state=_MISSION_STATE[mission.state],
@@ -321,6 +323,18 @@ class SimVehicleApi:
         )
         self._snapshot_time_s = sim.time_s
         return self._snapshot
+
+    def _home_position(self) -> api.HomePosition:
+        """Home as telemetry reports it, worked out again only when it moved (the geodetic conversion iterates)."""
+        v = self.vehicle
+        home_ned = v.home_ned_m
+        key = (float(home_ned[0]), float(home_ned[1]), float(home_ned[2]), v.home_yaw_rad)
+        known = self._home
+        if known is not None and known[0] == key:
+            return known[1]
+        home = api.HomePosition(position=self.frame.geo_from_ned(home_ned), pos_ned_m=key[:3], yaw_rad=key[3])
+        self._home = (key, home)
+        return home
 
     def _orbit_status(self) -> api.OrbitStatus | None:
         plan = self.vehicle.orbit_plan
@@ -352,7 +366,16 @@ class SimVehicleApi:
         return api.SensorHealth(healthy=healthy)
 
     def _gps_status(self) -> api.GpsStatus:
+        """The receiver's status of its latest fix, made once per fix."""
         gps = self.sim.last_gps
+        known = self._gps
+        if known is not None and known[0] is gps:
+            return known[1]
+        status = self._gps_status_of(gps)
+        self._gps = (gps, status)
+        return status
+
+    def _gps_status_of(self, gps: GpsSample | None) -> api.GpsStatus:
         if gps is None:
             return api.GpsStatus(
                 fix_type=api.GpsFixType.NO_GPS, satellites_visible=0, eph_m=math.nan, epv_m=math.nan, position=None

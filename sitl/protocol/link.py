@@ -169,6 +169,8 @@ class LinkServices:
             self.telemetry,
             *((neighbours,) if neighbours is not None else ()),
         )
+        # The services a poll asks: TIMESYNC and PING are answered as they arrive and have nothing to time out.
+        self._polled = tuple(s for s in self._services if s is not self.timesync and s is not self.ping)
         self._own = Peer(identity.sysid, identity.compid)
         self._routes: dict[int, Service] = {}
         for service in self._services:
@@ -207,7 +209,7 @@ class LinkServices:
         """Timeouts, retries, parameter streaming and telemetry due at ``now_s``."""
         now_s = check_now(now_s)
         out: list[Effect] = []
-        for service in self._services:
+        for service in self._polled:
             out.extend(service.poll(now_s))
         return out
 

@@ -65,7 +65,7 @@ class PollShare:
         self._vehicle = vehicle
         self._open = False
         self._snap: VehicleSnapshot | None = None
-        self._built: dict[tuple[int, Identity], MAVLinkMessage | None] = {}
+        self._built: dict[tuple[int, int], MAVLinkMessage | None] = {}  # emptied at every poll
 
     def open(self) -> None:
         self._open = True
@@ -86,7 +86,7 @@ class PollShare:
         """``BUILDERS[msg_id](snap, identity)``, once per poll while open (``snap`` is then this poll's)."""
         if not self._open:
             return BUILDERS[msg_id](snap, identity)
-        key = (msg_id, identity)
+        key = (msg_id, id(identity))  # the record's identity: hashing its fields cost more than the look-up saves
         if key not in self._built:
             self._built[key] = BUILDERS[msg_id](snap, identity)
         return self._built[key]
