@@ -178,17 +178,19 @@ def addressed_to(
 # ---- values for outgoing fields (struct.pack raises on out-of-range values, so clamp before building) ------
 def f32(value: float) -> float:
     """A float32-packable value: NaN and infinities pass, finite values beyond float32 saturate."""
+    if -FLOAT32_MAX <= value <= FLOAT32_MAX:  # the common case first, in one comparison (NaN fails it)
+        return value
     if math.isnan(value) or math.isinf(value):
         return value
-    return max(-FLOAT32_MAX, min(FLOAT32_MAX, value))
+    return FLOAT32_MAX if value > 0.0 else -FLOAT32_MAX
 
 
 def to_int(value: float, lo: int, hi: int, unknown: int) -> int:
     """Round half away from zero and clamp to [lo, hi]; ``unknown`` for NaN/inf."""
     if not math.isfinite(value):
         return unknown
-    rounded = math.floor(abs(value) + 0.5) * (1 if value >= 0 else -1)
-    return int(max(lo, min(hi, rounded)))
+    rounded = math.floor(value + 0.5) if value >= 0 else -math.floor(0.5 - value)
+    return lo if rounded < lo else hi if rounded > hi else rounded
 
 
 def param_to_int(value: float) -> int | None:
