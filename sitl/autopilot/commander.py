@@ -95,6 +95,8 @@ class Commander:
         self.steady_tick_plan = tick.steady_tick_plan
         self.steady_tick_taken = tick.steady_tick_taken
         self.steady_tick_run = tick.steady_tick_run
+        self.steady_tick_avoiding_plan = tick.steady_tick_avoiding_plan
+        self.steady_tick_avoided = tick.steady_tick_avoided
 
     # ---- what the rest of the drone reads --------------------------------------------------------------------------
     def event(self, severity: int, text: str) -> None:

@@ -32,7 +32,7 @@ from sitl.autopilot.mode_io import ModeInputs, ModeParams, Track, new_mode_input
 from sitl.autopilot.modes import ModeUnit
 from sitl.autopilot.tracking import TargetTracker
 from sitl.autopilot.vehicle_api import LandedState
-from sitl.avoidance.collision_prevention import CollisionPrevention
+from sitl.avoidance.collision_prevention import CollisionPrevention, Rows, compared
 from sitl.control.cascade import AttitudeSetpoint, Cascade, TrajectorySetpoint
 from sitl.control.params import outer_loop_period_s
 from sitl.estimation.estimator import Estimate
@@ -47,6 +47,14 @@ def commander_tick_s(params: ParamStore, dt_s: float) -> float:
     period rounded up to whole steps. A time the commander watches (a timeout, a failsafe's delay) is acted on at most
     this late; a command brings a tick at once."""
     return max(1, math.ceil((outer_loop_period_s(params) - 1e-9) / dt_s)) * dt_s
+
+
+# What ``steady_tick_avoiding_plan`` hands the kernel: whether the outer loops run for the streamed setpoint and over
+# what time, whether their period is up, whether a corrected setpoint equals the last but for its horizontal velocity,
+# the last one's horizontal velocity, then collision prevention's inputs (``CollisionPrevention.run_inputs``).
+AvoidingPlan = tuple[
+    bool, float, bool, bool, float, float, Rows, float, Rows, float, float, float, int, Rows, bool, Rows
+]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -93,6 +101,7 @@ class FlightTick:
         self._failsafe_limits = failsafe_limits(params)  # as of the last tick (a change forces a tick)
         # The step ``steady_tick_plan`` planned: the setpoint, whether the outer loops run, their elapsed time.
         self._steady: tuple[TrajectorySetpoint, bool, float] | None = None
+        self._avoiding: tuple[TrajectorySetpoint, float] | None = None  # ``steady_tick_avoiding_plan``'s, until flown
 
     # ---- the step --------------------------------------------------------------------------------------------------
     def step(self, est: Estimate, now_s: float, dt_s: float) -> tuple[float, ...]:
@@ -201,6 +210,34 @@ class FlightTick:
             self._held = _Held(trajectory=setpoint)
         cascade = self._cascade
         motors = cascade.trajectory_flown(setpoint, due, elapsed_s)
+        return self._steady_tick_ends(est, now_s, motors, cascade.collective_sp_n)
+
+    def steady_tick_avoiding_plan(self, now_s: float, dt_s: float) -> AvoidingPlan | None:
+        """A steady tick ``steady_tick_plan`` did not fly, when collision prevention's run is due and made in the tick's
+        kernel (sitl/kernels/between_ticks.py ``steady_tick_avoiding``, whose docstring says what it is given): the
+        setpoint row is written with the streamed setpoint. None when the tick is ``steady_tick_run``'s to fly."""
+        prevention = self._collision_prevention
+        if not prevention.due(now_s):
+            return None
+        streamed = self._authority.units.offboard.setpoint_in
+        assert isinstance(streamed, TrajectorySetpoint)
+        cascade = self._cascade
+        streamed_due, elapsed_s = cascade.outer_plan(streamed, dt_s)
+        self._avoiding = (streamed, elapsed_s)
+        return (streamed_due, elapsed_s, cascade.outer_due(dt_s), *compared(streamed, cascade.outer_setpoint),
+                *prevention.run_inputs(now_s))  # fmt: skip
+
+    def steady_tick_avoided(self, est: Estimate, now_s: float, outer_ran: bool) -> tuple[float, ...]:
+        """The tick ``steady_tick_avoiding_plan`` planned was flown to ``est`` (``outer_ran``: ``TICK_AVOIDED_OUTER``):
+        noted as ``steady_tick_run`` notes what it flies; its motor commands."""
+        assert self._avoiding is not None
+        (streamed, elapsed_s), self._avoiding = self._avoiding, None
+        self._steady_tick_begins(est, now_s)
+        self._collision_prevention.ran(now_s)
+        self._held = _Held(trajectory=(setpoint := self._collision_prevention.held(streamed)))
+        cascade = self._cascade
+        cascade.setpoint_row_written(setpoint)
+        motors = cascade.trajectory_flown(setpoint, outer_ran, elapsed_s)
         return self._steady_tick_ends(est, now_s, motors, cascade.collective_sp_n)
 
     def steady_tick_run(self, est: Estimate, now_s: float, dt_s: float) -> tuple[float, ...]:

@@ -54,6 +54,9 @@ class RelayedNeighbour:
 
 _new_relayed = fast_constructor(RelayedNeighbour)
 NO_CAMERA = np.zeros((0, ak.CAMERA_SIZE))  # an empty frame's rows
+Rows = npt.NDArray[np.float64]
+# What a run takes besides the drone's state and setpoint (``CollisionPrevention.run_inputs``)
+RunInputs = tuple[Rows, float, Rows, float, float, float, int, Rows, bool, Rows]
 _NO_NEIGHBOURS = np.zeros((0, ak.NEIGHBOUR_SIZE))
 
 
@@ -200,18 +203,11 @@ class CollisionPrevention:
         return self.held(setpoint)
 
     def held(self, setpoint: TrajectorySetpoint) -> TrajectorySetpoint:
-        """``setpoint`` with the correction the last run decided: its horizontal velocity instead of the horizontal
-        position and acceleration; ``setpoint`` itself when none is held."""
+        """``setpoint`` with the correction the last run decided (``corrected``); ``setpoint`` itself when none is
+        held."""
         if self._vel_xy is None:
             return setpoint
-        z_pos, z_vel, z_acc = setpoint.pos_ned_m[2], setpoint.vel_ned_mps[2], setpoint.acc_ned_mps2[2]
-        return TrajectorySetpoint(
-            pos_ned_m=(math.nan, math.nan, z_pos),
-            vel_ned_mps=(self._vel_xy[0], self._vel_xy[1], z_vel),
-            acc_ned_mps2=(math.nan, math.nan, z_acc),
-            yaw_rad=setpoint.yaw_rad,
-            yawspeed_radps=setpoint.yawspeed_radps,
-        )
+        return corrected(setpoint, self._vel_xy[0], self._vel_xy[1])
 
     def holds(self, now_s: float) -> bool:
         """Would ``apply`` at ``now_s`` change nothing and give ``held``'s setpoint: no run due, or nothing to avoid
@@ -221,6 +217,27 @@ class CollisionPrevention:
         if not config.enabled or (not len(self._camera_rows) and not len(self._relay_rows)):
             return self._vel_xy is None and self._last_active_s is None
         return now_s < self._next_run_s
+
+    def due(self, now_s: float) -> bool:
+        """Would ``apply`` at ``now_s`` run (avoidance on, something to avoid, a run due)? A steady tick then makes the
+        run in its own kernel (sitl/kernels/between_ticks.py ``steady_tick_avoiding``, with ``run_inputs``) and hands
+        it back with ``ran``."""
+        return (self.config().enabled and (len(self._camera_rows) > 0 or len(self._relay_rows) > 0)
+                and now_s >= self._next_run_s)  # fmt: skip
+
+    def run_inputs(self, now_s: float) -> RunInputs:
+        """What a run at ``now_s`` takes besides the drone's state and setpoint, in the order sitl/kernels/avoidance.py
+        ``run`` takes it: the camera's rows and their age, the relayed rows, this drone's radius, the stale keep-out's
+        growth, how many neighbours to fuse, the configuration, whether a correction is held, the row it writes."""
+        camera, camera_age_s, keep, stale_rate, stale_max = self._inputs(now_s)
+        return (camera, camera_age_s, self._relay_rows, self._own_radius_m, stale_rate, stale_max, keep,
+                self._config_row, self._vel_xy is not None, self._run_out)  # fmt: skip
+
+    def ran(self, now_s: float) -> None:
+        """The run ``due`` announced was made elsewhere, into the row ``run_inputs`` gave: taken as ``apply`` takes its
+        own (the correction held, an episode's start or end said)."""
+        self._next_run_s = now_s + 1.0 / AVOID_RATE_HZ
+        self._take_run(now_s)
 
     def _run(self, setpoint: TrajectorySetpoint, pos: Vec3f, own_vel: Vec3f, now_s: float) -> None:
         """One run, in one kernel (sitl/kernels/avoidance.py ``run``: the obstacles from the inputs, ORCA, the conflict
@@ -241,11 +258,14 @@ class CollisionPrevention:
         2 m/s setpoint in an eight-drone swap), which pushes every drone into the crowd harder than it can clear."""
         camera, camera_age_s, keep, stale_rate, stale_max = self._inputs(now_s)
         (sp_x, sp_y, sp_z), (ff_x, ff_y, ff_z) = setpoint.pos_ned_m, setpoint.vel_ned_mps
-        out = self._run_out
         ak.run(pos[0], pos[1], pos[2], own_vel[0], own_vel[1], own_vel[2], sp_x, sp_y, sp_z, ff_x, ff_y, ff_z,
                self._position.row, camera, camera_age_s, self._relay_rows, now_s, self._own_radius_m, stale_rate,
-               stale_max, keep, self._config_row, self._vel_xy is not None, out)  # fmt: skip
-        ran = out.tolist()
+               stale_max, keep, self._config_row, self._vel_xy is not None, self._run_out)  # fmt: skip
+        self._take_run(now_s)
+
+    def _take_run(self, now_s: float) -> None:
+        """What a run found (``_run_out``): the correction held, or none; an episode's start and end said."""
+        ran = self._run_out.tolist()
         if ran[ak.RUN_ACTIVE] == 0.0:
             self._vel_xy = None
             self._end_episode(now_s)
@@ -265,6 +285,31 @@ class CollisionPrevention:
         if self._last_active_s is not None and now_s - self._last_active_s >= EPISODE_END_S:
             self._last_active_s = None
             self._event(6, f"Avoidance ended: closest approach {self._episode_closest_m:.2f} m")
+
+
+def corrected(setpoint: TrajectorySetpoint, vel_x_mps: float, vel_y_mps: float) -> TrajectorySetpoint:
+    """``setpoint`` flying the horizontal velocity (``vel_x_mps``, ``vel_y_mps``) instead of its horizontal position and
+    acceleration; altitude keeps its own setpoint (sitl/kernels/between_ticks.py ``steady_tick_avoiding`` writes the
+    same row)."""
+    z_pos, z_vel, z_acc = setpoint.pos_ned_m[2], setpoint.vel_ned_mps[2], setpoint.acc_ned_mps2[2]
+    return TrajectorySetpoint(
+        pos_ned_m=(math.nan, math.nan, z_pos),
+        vel_ned_mps=(vel_x_mps, vel_y_mps, z_vel),
+        acc_ned_mps2=(math.nan, math.nan, z_acc),
+        yaw_rad=setpoint.yaw_rad,
+        yawspeed_radps=setpoint.yawspeed_radps,
+    )
+
+
+def compared(setpoint: TrajectorySetpoint, last: TrajectorySetpoint | None) -> tuple[bool, float, float]:
+    """Whether ``setpoint`` corrected to any horizontal velocity would equal ``last`` (the setpoint the outer loops
+    last ran for) but for that velocity, by Python's own comparison, and ``last``'s horizontal velocity: what a kernel
+    needs to say whether the corrected setpoint is a new one (sitl/kernels/between_ticks.py ``steady_tick_avoiding``).
+    """
+    if last is None:
+        return False, math.nan, math.nan
+    last_vx, last_vy = last.vel_ned_mps[0], last.vel_ned_mps[1]
+    return corrected(setpoint, last_vx, last_vy) == last, last_vx, last_vy
 
 
 def episode_text(conflict: Conflict) -> str:

@@ -263,6 +263,16 @@ class Cascade:
         return (self._sp_row, self.position.row, self.velocity.row, self.velocity.state, self._heading_row,
                 self.held_row)  # fmt: skip
 
+    @property
+    def outer_setpoint(self) -> TrajectorySetpoint | None:
+        """The setpoint the outer loops last ran for (None before they first ran)."""
+        return self._outer_setpoint
+
+    def setpoint_row_written(self, setpoint: TrajectorySetpoint) -> None:
+        """A kernel wrote ``setpoint`` into the setpoint row itself (sitl/kernels/between_ticks.py
+        ``steady_tick_avoiding``, a setpoint corrected by collision prevention): the row is that setpoint's now."""
+        self._sp_of_row = setpoint
+
     def trajectory_flown(self, setpoint: TrajectorySetpoint, due: bool, elapsed_s: float) -> tuple[float, ...]:
         """The control step ``outer_plan`` planned was taken: note when the outer loops ran, and return its motor
         commands from the output row."""

@@ -143,17 +143,27 @@ class ClosedLoop:
         if not vehicle.holds_inner_loops(dt_s):
             if self.steady_ticks and vehicle.steady_tick_ready(time_s, dt_s):
                 cascade = vehicle.cascade
-                (needs_pos, alive, gcs_s, battery, dl_s, low, crit, emerg, fired, on_arming, fly, due,
-                 elapsed_s) = vehicle.steady_tick_plan(time_s, dt_s)  # fmt: skip
+                plan = vehicle.steady_tick_plan(time_s, dt_s)
+                conditions, (fly, due, elapsed_s) = plan[:-3], plan[-3:]
+                avoiding = None if fly else vehicle.steady_tick_avoiding_plan(time_s, dt_s)
                 sp, pos_cfg, vel_cfg, vel_state, heading, held = cascade.outer_rows()
                 att_cfg, rate_cfg, rate_state, alloc_rows, t_max, inner_out = cascade.inner_rows()
-                taken = bt.steady_tick(imu_inputs, row, *sample, est_state, est_cfg, est_gps, est_no_vec, est_out,
-                                       time_s, dt_s, needs_pos, alive, gcs_s, battery, dl_s, low, crit, emerg, fired,
-                                       on_arming, fly, sp, due, elapsed_s, pos_cfg, vel_cfg, vel_state, heading, held,
-                                       att_cfg, rate_cfg, rate_state, alloc_rows, t_max, inner_out)  # fmt: skip
+                if avoiding is None:
+                    taken = bt.steady_tick(imu_inputs, row, *sample, est_state, est_cfg, est_gps, est_no_vec, est_out,
+                                           time_s, dt_s, *conditions, fly, sp, due, elapsed_s, pos_cfg, vel_cfg,
+                                           vel_state, heading, held, att_cfg, rate_cfg, rate_state, alloc_rows, t_max,
+                                           inner_out)  # fmt: skip
+                else:  # (mypy cannot line up a third unpacked tuple with the parameters: it is AvoidingPlan's order)
+                    taken = bt.steady_tick_avoiding(imu_inputs, row, *sample, est_state, est_cfg, est_gps, est_no_vec,
+                                                    est_out, time_s, dt_s, *conditions, sp, *avoiding, pos_cfg,  # type: ignore[arg-type]
+                                                    vel_cfg, vel_state, heading, held, att_cfg, rate_cfg, rate_state,
+                                                    alloc_rows, t_max, inner_out)  # fmt: skip
                 if taken == bt.TICK_STEADY:
                     self.estimate = estimate = estimator.published(time_s)
                     return vehicle.steady_tick_taken(estimate, time_s)
+                if taken >= bt.TICK_AVOIDED:
+                    self.estimate = estimate = estimator.published(time_s)
+                    return vehicle.steady_tick_avoided(estimate, time_s, taken == bt.TICK_AVOIDED_OUTER)
                 if taken == bt.TICK_QUIET:
                     self.estimate = estimate = estimator.published_whole(time_s)
                     return vehicle.steady_tick_run(estimate, time_s, dt_s)

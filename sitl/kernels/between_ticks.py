@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from sitl.kernels import avoidance as ak
 from sitl.kernels import cascade as ck
 from sitl.kernels import estimator as ek
 from sitl.kernels import failsafe as fk
@@ -161,18 +162,67 @@ def step(
                   inner_out)  # fmt: skip
 
 
-# What ``steady_tick`` returns: the tick was flown; a failsafe row acts and the Python tick must run; or no row acts
-# and the control step is the caller's (collision prevention runs on this estimate first).
+# What ``steady_tick`` and ``steady_tick_avoiding`` return: the tick was flown; a failsafe row acts and the Python
+# tick must run; no row acts and the control step is the caller's (collision prevention runs on this estimate first);
+# collision prevention ran and the tick was flown, the outer loops holding or run.
 TICK_STEADY = 0
 TICK_EVENT = 1
 TICK_QUIET = 2
-
-
-@kernel(
-    f"int64({_SENSE_ARGS}, boolean, boolean, float64, float64, float64, float64, float64, float64, int64, int64,"
-    " boolean, float64[::1], boolean, float64, float64[::1], float64[::1], float64[::1], float64[::1], float64[::1],"
-    " float64[::1], float64[::1], float64[::1], float64[:, ::1], float64, float64[::1])"
+TICK_AVOIDED = 3
+TICK_AVOIDED_OUTER = 4
+_CONDITIONS_ARGS = "boolean, boolean, float64, float64, float64, float64, float64, float64, int64, int64"
+_TRAJECTORY_ARGS = (
+    "float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], float64[::1],"
+    " float64[:, ::1], float64, float64[::1]"
 )
+
+
+@kernel(f"boolean({_SENSE_ARGS}, {_CONDITIONS_ARGS})")
+def sensed_acts(
+    imu_inputs: npt.NDArray[np.float64],
+    sensors: npt.NDArray[np.float64],
+    noise: npt.NDArray[np.float64],
+    noise_row: int,
+    baro_due: bool,
+    baro_noise: npt.NDArray[np.float64],
+    baro_row: int,
+    alt_amsl_m: float,
+    mag_due: bool,
+    mag_noise: npt.NDArray[np.float64],
+    mag_row: int,
+    qw: float,
+    qx: float,
+    qy: float,
+    qz: float,
+    est_state: npt.NDArray[np.float64],
+    est_cfg: npt.NDArray[np.float64],
+    est_gps: npt.NDArray[np.float64],
+    est_no_vec: npt.NDArray[np.float64],
+    est_out: npt.NDArray[np.float64],
+    time_s: float,
+    dt_s: float,
+    needs_position: bool,
+    offboard_alive: bool,
+    gcs_heartbeat_s: float,
+    battery_remaining: float,
+    datalink_loss_s: float,
+    battery_low: float,
+    battery_critical: float,
+    battery_emergency: float,
+    fired: int,
+    on_arming: int,
+) -> bool:
+    """A steady tick's start: ``sense``, then whether a failsafe row acts on the new estimate (sitl/kernels/failsafe.py:
+    the conditions as the Python tick gives them, ``fired`` and ``on_arming`` from the framework)."""
+    sense(imu_inputs, sensors, noise, noise_row, baro_due, baro_noise, baro_row, alt_amsl_m, mag_due, mag_noise,
+          mag_row, qw, qx, qy, qz, est_state, est_cfg, est_gps, est_no_vec, est_out, time_s, dt_s)  # fmt: skip
+    holds = fk.conditions(time_s, False, True, False, needs_position, offboard_alive, gcs_heartbeat_s,
+                          battery_remaining, est_out[ek.O_POS_VALID] != 0.0, False, datalink_loss_s, battery_low,
+                          battery_critical, battery_emergency)  # fmt: skip
+    return fk.events(holds, fired, on_arming) != 0
+
+
+@kernel(f"int64({_SENSE_ARGS}, {_CONDITIONS_ARGS}, boolean, float64[::1], boolean, float64, {_TRAJECTORY_ARGS})")
 def steady_tick(
     imu_inputs: npt.NDArray[np.float64],
     sensors: npt.NDArray[np.float64],
@@ -222,17 +272,14 @@ def steady_tick(
     t_max: float,
     inner_out: npt.NDArray[np.float64],
 ) -> int:
-    """A steady tick of a drone in OFFBOARD, in the air, with no fence: ``sense``; then, unless a failsafe row acts on
-    the new estimate (sitl/kernels/failsafe.py: the conditions as the Python tick gives them, ``fired`` and
-    ``on_arming`` from the framework), the control step towards the setpoint row ``sp`` (sitl/kernels/cascade.py
-    ``trajectory``, the motor commands to ``inner_out``) and ``TICK_STEADY``, or, unless ``fly``, ``TICK_QUIET``
-    having only sensed; else ``TICK_EVENT``, having only sensed."""
-    sense(imu_inputs, sensors, noise, noise_row, baro_due, baro_noise, baro_row, alt_amsl_m, mag_due, mag_noise,
-          mag_row, qw, qx, qy, qz, est_state, est_cfg, est_gps, est_no_vec, est_out, time_s, dt_s)  # fmt: skip
-    holds = fk.conditions(time_s, False, True, False, needs_position, offboard_alive, gcs_heartbeat_s,
-                          battery_remaining, est_out[ek.O_POS_VALID] != 0.0, False, datalink_loss_s, battery_low,
-                          battery_critical, battery_emergency)  # fmt: skip
-    if fk.events(holds, fired, on_arming) != 0:
+    """A steady tick of a drone in OFFBOARD, in the air, with no fence: ``sensed_acts``; then, unless a failsafe row
+    acts (``TICK_EVENT``, having only sensed), the control step towards the setpoint row ``sp`` (sitl/kernels/
+    cascade.py ``trajectory``, the motor commands to ``inner_out``) and ``TICK_STEADY``, or, unless ``fly``,
+    ``TICK_QUIET`` having only sensed."""
+    if sensed_acts(imu_inputs, sensors, noise, noise_row, baro_due, baro_noise, baro_row, alt_amsl_m, mag_due,
+                   mag_noise, mag_row, qw, qx, qy, qz, est_state, est_cfg, est_gps, est_no_vec, est_out, time_s, dt_s,
+                   needs_position, offboard_alive, gcs_heartbeat_s, battery_remaining, datalink_loss_s, battery_low,
+                   battery_critical, battery_emergency, fired, on_arming):  # fmt: skip
         return TICK_EVENT
     if not fly:
         return TICK_QUIET
@@ -241,3 +288,108 @@ def steady_tick(
                   velocity_cfg, velocity_state, heading_cfg, held, attitude_cfg, rate_cfg, rate_state, alloc_rows,
                   t_max, inner_out)  # fmt: skip
     return TICK_STEADY
+
+
+@kernel(
+    f"int64({_SENSE_ARGS}, {_CONDITIONS_ARGS}, float64[::1], boolean, float64, boolean, boolean, float64, float64,"
+    " float64[:, ::1], float64, float64[:, ::1], float64, float64, float64, int64, float64[::1], boolean,"
+    f" float64[::1], {_TRAJECTORY_ARGS})"
+)
+def steady_tick_avoiding(
+    imu_inputs: npt.NDArray[np.float64],
+    sensors: npt.NDArray[np.float64],
+    noise: npt.NDArray[np.float64],
+    noise_row: int,
+    baro_due: bool,
+    baro_noise: npt.NDArray[np.float64],
+    baro_row: int,
+    alt_amsl_m: float,
+    mag_due: bool,
+    mag_noise: npt.NDArray[np.float64],
+    mag_row: int,
+    qw: float,
+    qx: float,
+    qy: float,
+    qz: float,
+    est_state: npt.NDArray[np.float64],
+    est_cfg: npt.NDArray[np.float64],
+    est_gps: npt.NDArray[np.float64],
+    est_no_vec: npt.NDArray[np.float64],
+    est_out: npt.NDArray[np.float64],
+    time_s: float,
+    dt_s: float,
+    needs_position: bool,
+    offboard_alive: bool,
+    gcs_heartbeat_s: float,
+    battery_remaining: float,
+    datalink_loss_s: float,
+    battery_low: float,
+    battery_critical: float,
+    battery_emergency: float,
+    fired: int,
+    on_arming: int,
+    sp: npt.NDArray[np.float64],
+    streamed_due: bool,
+    elapsed_s: float,
+    period_due: bool,
+    static_equal: bool,
+    last_vx: float,
+    last_vy: float,
+    camera: npt.NDArray[np.float64],
+    camera_age_s: float,
+    neighbours: npt.NDArray[np.float64],
+    radius_m: float,
+    stale_rate_mps: float,
+    stale_max_m: float,
+    keep: int,
+    avoid_cfg: npt.NDArray[np.float64],
+    correcting: bool,
+    run_out: npt.NDArray[np.float64],
+    position_cfg: npt.NDArray[np.float64],
+    velocity_cfg: npt.NDArray[np.float64],
+    velocity_state: npt.NDArray[np.float64],
+    heading_cfg: npt.NDArray[np.float64],
+    held: npt.NDArray[np.float64],
+    attitude_cfg: npt.NDArray[np.float64],
+    rate_cfg: npt.NDArray[np.float64],
+    rate_state: npt.NDArray[np.float64],
+    alloc_rows: npt.NDArray[np.float64],
+    t_max: float,
+    inner_out: npt.NDArray[np.float64],
+) -> int:
+    """A steady tick on which collision prevention is due to run: ``sensed_acts`` (``TICK_EVENT`` when a row acts);
+    then collision prevention's run on the new estimate towards the streamed setpoint in ``sp`` (sitl/kernels/
+    avoidance.py ``run``, found to ``run_out``), the setpoint row corrected as ``CollisionPrevention.held`` corrects
+    it when the run holds a correction, and the control step towards it, as the Python tick flies it.
+
+    Whether the outer loops run follows ``Cascade.outer_plan``: their period (``period_due``), or a setpoint other than
+    the one they last ran for. The streamed setpoint's answer is ``streamed_due``; a corrected one equals the last
+    only if everything but its horizontal velocity does (``static_equal``, worked out by the caller with Python's
+    own comparison) and that velocity equals ``last_vx``, ``last_vy``. Returns ``TICK_AVOIDED_OUTER`` when they ran,
+    else ``TICK_AVOIDED``."""
+    if sensed_acts(imu_inputs, sensors, noise, noise_row, baro_due, baro_noise, baro_row, alt_amsl_m, mag_due,
+                   mag_noise, mag_row, qw, qx, qy, qz, est_state, est_cfg, est_gps, est_no_vec, est_out, time_s, dt_s,
+                   needs_position, offboard_alive, gcs_heartbeat_s, battery_remaining, datalink_loss_s, battery_low,
+                   battery_critical, battery_emergency, fired, on_arming):  # fmt: skip
+        return TICK_EVENT
+    p, v = ek.O_POS, ek.O_VEL
+    ak.run(est_out[p], est_out[p + 1], est_out[p + 2], est_out[v], est_out[v + 1], est_out[v + 2], sp[ck.SP_POS],
+           sp[ck.SP_POS + 1], sp[ck.SP_POS + 2], sp[ck.SP_VEL], sp[ck.SP_VEL + 1], sp[ck.SP_VEL + 2], position_cfg,
+           camera, camera_age_s, neighbours, time_s, radius_m, stale_rate_mps, stale_max_m, keep, avoid_cfg,
+           correcting, run_out)  # fmt: skip
+    due = streamed_due
+    if run_out[ak.RUN_ACTIVE] != 0.0:
+        vx = run_out[ak.RUN_VEL]
+        vy = run_out[ak.RUN_VEL + 1]
+        sp[ck.SP_POS] = np.nan
+        sp[ck.SP_POS + 1] = np.nan
+        sp[ck.SP_VEL] = vx
+        sp[ck.SP_VEL + 1] = vy
+        sp[ck.SP_ACC] = np.nan
+        sp[ck.SP_ACC + 1] = np.nan
+        due = period_due or not (static_equal and vx == last_vx and vy == last_vy)
+    ck.trajectory(est_out[p : p + 3], est_out[v : v + 3], est_out[ek.O_Q : ek.O_Q + 4],
+                  est_out[ek.O_RATES : ek.O_RATES + 3], sp, due, elapsed_s, dt_s, False, position_cfg, velocity_cfg,
+                  velocity_state, heading_cfg, held, attitude_cfg, rate_cfg, rate_state, alloc_rows, t_max,
+                  inner_out)  # fmt: skip
+    return TICK_AVOIDED_OUTER if due else TICK_AVOIDED

@@ -4,6 +4,8 @@ what the parts' shells fly, and is taken on every step but the GPS fixes'."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import pytest
 
@@ -70,35 +72,34 @@ def test_steps_between_ticks_fly_to_the_bit_what_the_shells_fly() -> None:
     assert np.array_equal(fast.vehicle.cascade.rate.state, slow.vehicle.cascade.rate.state)
 
 
-def _offboard_flight(steady: bool) -> tuple[list[np.ndarray], list[str], int, int]:
+def _offboard_flight(steady: bool) -> tuple[list[np.ndarray], list[str], dict[str, int]]:
     """Take off, then in OFFBOARD: fly 3 m north with the setpoint streamed at 20 Hz and a ground station heard at
     1 Hz, lose the stream (the offboard-loss failsafe: Hold), stream again and re-enter OFFBOARD, reposition and
     re-enter OFFBOARD, lose the ground
     station (the datalink-loss failsafe), hear it again, then descend into the ground (the land detector's touchdown
     on a tick), with a neighbour hovering beside the way (collision prevention's runs and corrections). Every step's
-    truth, estimate and held control output, the commander's texts, the steady ticks flown in the kernel and those
-    whose control step ran after collision prevention's run; with
-    ``steady`` off every tick runs the Python commander."""
+    truth, estimate and held control output, the commander's texts, and how many steady ticks were flown in the kernel
+    (``taken``), with collision prevention's run in the kernel too (``avoided``) or after it in Python (``run``);
+    with ``steady`` off every tick runs the Python commander."""
     sim = make_sim(seed=5)
     sim.steady_ticks = steady
     v = sim.vehicle
-    counts = {"taken": 0, "run": 0}
-    taken, run = v.steady_tick_taken, v.steady_tick_run
+    counts = {"taken": 0, "avoided": 0, "run": 0}
 
-    def counted_taken(*args: object) -> tuple[float, ...]:
-        counts["taken"] += 1
-        return taken(*args)  # type: ignore[arg-type]
+    def counted(name: str, method: Callable[..., tuple[float, ...]]) -> Callable[..., tuple[float, ...]]:
+        def call(*args: object) -> tuple[float, ...]:
+            counts[name] += 1
+            return method(*args)
 
-    def counted_run(*args: object) -> tuple[float, ...]:
-        counts["run"] += 1
-        return run(*args)  # type: ignore[arg-type]
+        return call
 
-    v.steady_tick_taken = counted_taken  # type: ignore[method-assign]
-    v.steady_tick_run = counted_run  # type: ignore[method-assign]
+    v.steady_tick_taken = counted("taken", v.steady_tick_taken)  # type: ignore[method-assign]
+    v.steady_tick_avoided = counted("avoided", v.steady_tick_avoided)  # type: ignore[method-assign]
+    v.steady_tick_run = counted("run", v.steady_tick_run)  # type: ignore[method-assign]
     trace: list[np.ndarray] = []
     texts: list[str] = []
     setpoint = TrajectorySetpoint(pos_ned_m=(3.0, 0.0, -3.0), vel_ned_mps=(0.0, 0.0, 0.0))
-    streaming, hearing = True, True
+    streaming, hearing, relaying = True, True, True
 
     def record(s: ClosedLoop) -> None:
         est = s.estimate
@@ -112,9 +113,10 @@ def _offboard_flight(steady: bool) -> tuple[list[np.ndarray], list[str], int, in
             s.vehicle.set_offboard_setpoint(setpoint, s.time_s)
         if hearing and step % 250 == 0:
             s.vehicle.note_gcs_heartbeat(s.time_s)
-        if step % 5 == 0:  # a hovering neighbour beside the way north, relayed at 50 Hz
+        if step % 5 == 0:  # a hovering neighbour beside the way north, relayed at 50 Hz (while it is heard)
             s.vehicle.collision_prevention.set_relay([RelayedNeighbour(
-                sysid=7, pos_ned_m=(1.5, 0.6, -3.0), vel_ned_mps=(0.0, 0.0, 0.0), received_s=s.time_s)])  # fmt: skip
+                sysid=7, pos_ned_m=(1.5, 0.6, -3.0), vel_ned_mps=(0.0, 0.0, 0.0), received_s=s.time_s)]
+                if relaying else [])  # fmt: skip
 
     assert sim.run_until(lambda s: s.vehicle.preflight_problem() is None, 10.0)
     assert v.arm().ok and v.takeoff(3.0).ok
@@ -124,7 +126,11 @@ def _offboard_flight(steady: bool) -> tuple[list[np.ndarray], list[str], int, in
     v.note_gcs_heartbeat(sim.time_s)
     v.set_offboard_setpoint(setpoint, sim.time_s)
     assert v.start_offboard(sim.time_s).ok
-    sim.run_for(4.0, record)
+    sim.run_for(1.5, record)
+    relaying = False  # in the middle of a correction: nothing left to avoid, the episode ends a second later
+    sim.run_for(0.5, record)
+    relaying = True
+    sim.run_for(2.0, record)
     streaming = False
     sim.run_for(2.0, record)  # past COM_OF_LOSS_T: Hold
     streaming = True
@@ -142,18 +148,20 @@ def _offboard_flight(steady: bool) -> tuple[list[np.ndarray], list[str], int, in
     assert v.start_offboard(sim.time_s).ok
     setpoint = TrajectorySetpoint(pos_ned_m=(3.0, 0.0, 0.5), vel_ned_mps=(0.0, 0.0, 0.3))
     sim.run_for(10.0, record)
-    return trace, texts, counts["taken"], counts["run"]
+    return trace, texts, counts
 
 
 def test_steady_ticks_fly_to_the_bit_what_the_python_tick_flies() -> None:
     # GIVEN one OFFBOARD flight through two failsafes and a touchdown, flown with steady ticks in one kernel and
     # with the Python commander on every tick
-    fast_trace, fast_texts, taken, run = _offboard_flight(steady=True)
-    slow_trace, slow_texts, none_taken, none_run = _offboard_flight(steady=False)
-    # THEN steady ticks were taken, both ways (and none when switched off) ...
-    assert taken > 500, taken
-    assert run > 200, run
-    assert none_taken == none_run == 0
+    fast_trace, fast_texts, counts = _offboard_flight(steady=True)
+    slow_trace, slow_texts, none = _offboard_flight(steady=False)
+    # THEN steady ticks were taken, the avoiding ones with collision prevention's run in the kernel, and the few it
+    # cannot make there (an episode ending with nothing left to avoid) after it, in Python; none when switched off ...
+    assert counts["taken"] > 500, counts
+    assert counts["avoided"] > 200, counts
+    assert counts["run"] > 0, counts
+    assert none == {"taken": 0, "avoided": 0, "run": 0}
     # ... the failsafes and the touchdown happened, in the same words ...
     assert any("offboard setpoints lost" in t for t in fast_texts), fast_texts
     assert any("no connection to the ground control station" in t for t in fast_texts), fast_texts
