@@ -6,8 +6,8 @@ times, source), made once per report and per host when it is decoded; this kerne
 ages per source as the table's ``entries`` counts them, and writes collision prevention's rows (sitl/kernels/
 avoidance.py ``N_*``). The conversion is sitl/dynamics/geodesy.py ``LocalFrame.ned_from_geodetic_rad`` written out with
 the same operations in the same order, its degrees turned to radians by one product with pi/180 as ``math.radians``
-does, so the rows keep the bits the Python conversion gave. In a crowd, where a drone knows forty neighbours, the
-conversion one report at a time was a twentieth of the drone.
+does, so the rows keep the bits the Python conversion gave. With 24 neighbours the conversion one report at a time was
+about 80 us a look, 4 % of a hosted drone and a quarter of its perception (bench/drone_parts.py ``hosted-offboard``).
 """
 
 from __future__ import annotations
